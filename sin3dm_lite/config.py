@@ -1,0 +1,203 @@
+"""All settings in one place, and the three named presets.
+
+* ``tiny``  – for CI and notebook tests: every stage in seconds on 2 CPU cores.
+  The shapes it makes are rough; it exists to exercise the code paths.
+* ``small`` – for a laptop CPU: the whole fit in about 10 minutes on 2 cores,
+  a 64-voxel grid and a 32-texel latent. Its U-Net has no downsampling level so
+  that its receptive field shrinks with the latent (REFERENCE.md, last section:
+  with the paper's network on a 32-wide latent every sample is a copy).
+* ``paper`` – the paper's numbers (256 grid, 25k + 25k steps) for one GPU.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass, replace
+from typing import Any
+
+from .errors import Sin3DMInputError
+
+
+@dataclass
+class GridConfig:
+    """Mesh → truncated SDF + colour grid (REFERENCE.md "Input grid")."""
+
+    resolution: int = 128  # voxels along the longest side (each axis rounded up to a multiple of 8)
+    threshold_voxels: float = 3.0  # truncation band, in voxels
+    n_surface_points: int = 500_000  # surface samples for the near-surface training points
+    near_surface_sigma: float = 0.005  # Gaussian offset of near-surface points (normalised units)
+
+
+@dataclass
+class AutoencoderConfig:
+    """Triplane autoencoder (REFERENCE.md "Triplane autoencoder")."""
+
+    geo_channels: int = 4  # latent channels 0..3 describe geometry
+    tex_channels: int = 8  # latent channels 4..11 describe texture
+    decoder_channels: int = 64  # width of the per-plane 2D ResNet block
+    decoder_kernel: int = 5
+    mlp_hidden: int = 256
+    use_encoder: bool = True  # False = auto-decoder: the planes themselves are optimised
+    steps: int = 25_000
+    points_per_step: int = 65_536
+    grid_fraction: float = 0.1  # share of grid points in a batch; the rest are near the surface
+    lr_geo: float = 1e-3
+    lr_tex: float = 5e-3
+    lr_final_factor: float = 0.1  # exponential decay to this factor of the start lr over the run
+    near_weight: float = 1.5  # SDF L1 weight where the error points towards / across the surface
+    far_weight: float = 0.5  # ... and where it points away from it
+
+    @property
+    def latent_channels(self) -> int:
+        return self.geo_channels + self.tex_channels
+
+
+@dataclass
+class DiffusionConfig:
+    """Triplane diffusion model (REFERENCE.md "Diffusion on triplanes")."""
+
+    base_channels: int = 64
+    n_resblocks: int = 4  # 2 / 4 / 6 as in the paper's receptive-field ablation
+    downsample: bool = True  # the paper's one-level U-Net halves the resolution once
+    rollout: bool = True  # cross-plane features in TriplaneConv
+    time_embed_dim: int = 64
+    timesteps: int = 1000
+    beta_start: float = 1e-4
+    beta_end: float = 0.02
+    prediction: str = "x0"  # "x0" (the paper) or "eps" (the ablation)
+    steps: int = 25_000
+    batch_size: int = 32
+    lr: float = 5e-4
+    ema_decay: float = 0.9999  # use ~0.999 or 0 (raw weights) for short runs
+
+
+@dataclass
+class SamplingConfig:
+    """Defaults for drawing samples and turning them into meshes."""
+
+    method: str = "ddim"  # "ddim" or "ddpm"
+    steps: int = 50  # DDIM steps (DDPM always uses all timesteps)
+    mesh_resolution: int = 256  # decode grid along the longest side
+    faces: int = 30_000  # face budget after simplification
+    texture_size: int = 2048
+
+
+@dataclass
+class Config:
+    """A whole run: data, both networks, sampling, seed."""
+
+    name: str = "custom"
+    seed: int = 0
+    grid: GridConfig = field(default_factory=GridConfig)
+    autoencoder: AutoencoderConfig = field(default_factory=AutoencoderConfig)
+    diffusion: DiffusionConfig = field(default_factory=DiffusionConfig)
+    sampling: SamplingConfig = field(default_factory=SamplingConfig)
+    checkpoint_every: int = 500  # training steps between checkpoints in a run folder
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Config":
+        return _from_dict(cls, d)
+
+    def updated(self, **changes: Any) -> "Config":
+        """Copy with dotted-path changes, e.g. ``cfg.updated(**{"diffusion.steps": 100})``."""
+        d = self.to_dict()
+        for key, value in changes.items():
+            node = d
+            *parents, leaf = key.split(".")
+            for p in parents:
+                node = node[p]
+            if leaf not in node:
+                raise Sin3DMInputError(f"unknown config setting '{key}'")
+            node[leaf] = value
+        return Config.from_dict(d)
+
+
+def _from_dict(cls, d: dict):
+    kwargs = {}
+    for f in fields(cls):
+        if f.name not in d:
+            continue
+        value = d[f.name]
+        sub = f.default_factory() if f.default_factory is not MISSING else None  # type: ignore[misc]
+        if is_dataclass(sub):
+            value = _from_dict(type(sub), value)
+        kwargs[f.name] = value
+    return cls(**kwargs)
+
+
+def _tiny() -> Config:
+    return Config(
+        name="tiny",
+        grid=GridConfig(resolution=32, n_surface_points=50_000),
+        autoencoder=AutoencoderConfig(decoder_channels=32, mlp_hidden=64, steps=150, points_per_step=4096),
+        diffusion=DiffusionConfig(
+            base_channels=16, n_resblocks=2, downsample=False, steps=150, batch_size=4, lr=2e-3, ema_decay=0.0
+        ),
+        sampling=SamplingConfig(steps=10, mesh_resolution=48, faces=3000, texture_size=256),
+        checkpoint_every=50,
+    )
+
+
+def _small() -> Config:
+    return Config(
+        name="small",
+        grid=GridConfig(resolution=64, n_surface_points=300_000),
+        autoencoder=AutoencoderConfig(steps=1000, points_per_step=8192, mlp_hidden=128),
+        diffusion=DiffusionConfig(
+            base_channels=32, n_resblocks=2, downsample=False, steps=2000, batch_size=8, lr=1e-3, ema_decay=0.999
+        ),
+        sampling=SamplingConfig(steps=50, mesh_resolution=128, faces=20_000, texture_size=1024),
+        checkpoint_every=250,
+    )
+
+
+def _paper() -> Config:
+    return Config(
+        name="paper",
+        grid=GridConfig(resolution=256, n_surface_points=2_000_000),
+        autoencoder=AutoencoderConfig(),
+        diffusion=DiffusionConfig(),
+        sampling=SamplingConfig(steps=100, mesh_resolution=256, faces=50_000, texture_size=2048),
+        checkpoint_every=2500,
+    )
+
+
+PRESETS = {"tiny": _tiny, "small": _small, "paper": _paper}
+
+
+def get_preset(name: str) -> Config:
+    """Return a fresh copy of a named preset (``tiny``, ``small`` or ``paper``)."""
+    if name not in PRESETS:
+        raise Sin3DMInputError(f"unknown preset '{name}'; choose one of: {', '.join(PRESETS)}")
+    return PRESETS[name]()
+
+
+def fast_mode() -> bool:
+    """True when the ``SIN3DM_FAST`` environment variable asks for tiny settings (CI, tests)."""
+    import os
+
+    return os.environ.get("SIN3DM_FAST", "0") not in ("", "0", "false", "False")
+
+
+def notebook_preset() -> Config:
+    """The preset a notebook uses: ``tiny`` under ``SIN3DM_FAST=1``, else ``small``."""
+    return get_preset("tiny" if fast_mode() else "small")
+
+
+__all__ = [
+    "AutoencoderConfig",
+    "Config",
+    "DiffusionConfig",
+    "GridConfig",
+    "SamplingConfig",
+    "PRESETS",
+    "get_preset",
+    "fast_mode",
+    "notebook_preset",
+    "replace",
+]
