@@ -1,0 +1,368 @@
+"""The triplane autoencoder: compress one shape's TSDF + colour grid into three 2D feature maps.
+
+Sin3DM does not run diffusion on the 3D grid (too big) but on a *triplane*
+latent. The encoder is deliberately tiny — one strided 3D convolution followed
+by averaging the volume along each axis — so the latent keeps the grid's
+spatial layout (a patch of the shape is a patch of the planes). The decoder
+turns three plane features at a point into an SDF value and a colour; its
+small per-plane ResNet blocks give each point some neighbourhood context.
+
+Shapes (grid ``X × Y × Z``, latent ``X' = X/2`` etc.)::
+
+    grid [1, 4, X, Y, Z]  (sdf / threshold, rgb·2−1)
+      ├ Conv3d(1→4,  k4 s2 p1) on the sdf       → [1, 4, X', Y', Z']   geometry
+      └ Conv3d(4→8,  k4 s2 p1) on sdf + rgb      → [1, 8, X', Y', Z']   texture
+      concat → volume [1, 12, X', Y', Z']
+      mean over z → xy [1, 12, X', Y'];  over y → xz;  over x → yz
+      each plane: InstanceNorm → ×0.5 → tanh          (latent values in (-1, 1))
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from .config import AutoencoderConfig
+from .device import get_device
+from .grid import ShapeGrid
+from .triplane import Triplane
+
+
+# --------------------------------------------------------------------------- encoder
+class TriplaneEncoder(nn.Module):
+    """Conv3D (k4, s2) + axis mean-pooling + InstanceNorm + ×0.5 + tanh (REFERENCE.md "Triplane autoencoder")."""
+
+    def __init__(self, cfg: AutoencoderConfig, color_channels: int = 3):
+        super().__init__()
+        self.geo = nn.Conv3d(1, cfg.geo_channels, kernel_size=4, stride=2, padding=1)
+        self.tex = nn.Conv3d(1 + color_channels, cfg.tex_channels, kernel_size=4, stride=2, padding=1)
+
+    def volume(self, grid: torch.Tensor) -> torch.Tensor:
+        """``[B, 1+K, X, Y, Z]`` → the pre-pooling feature volume ``[B, 12, X/2, Y/2, Z/2]``."""
+        return torch.cat([self.geo(grid[:, :1]), self.tex(grid)], dim=1)
+
+    @staticmethod
+    def squash(plane: torch.Tensor) -> torch.Tensor:
+        """InstanceNorm (no affine) → ×0.5 → tanh: keeps latent values well inside (-1, 1)."""
+        return torch.tanh(0.5 * F.instance_norm(plane))
+
+    def forward(self, grid: torch.Tensor) -> Triplane:
+        vol = self.volume(grid)  # [B, 12, X', Y', Z']
+        return Triplane(self.squash(vol.mean(4)), self.squash(vol.mean(3)), self.squash(vol.mean(2)))
+
+
+# --------------------------------------------------------------------------- decoder
+class PlaneResBlock(nn.Module):
+    """2D ResNet block applied to one plane: Conv5×5+IN+SiLU → Conv5×5 (zero-init), plus a 1×1 shortcut."""
+
+    def __init__(self, c_in: int, c_out: int, k: int = 5):
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, c_out, k, padding=k // 2)
+        self.conv2 = nn.Conv2d(c_out, c_out, k, padding=k // 2)
+        self.skip = nn.Conv2d(c_in, c_out, 1)
+        nn.init.zeros_(self.conv2.weight)
+        nn.init.zeros_(self.conv2.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.skip(x) + self.conv2(F.silu(F.instance_norm(self.conv1(x))))
+
+
+class SkipMLP(nn.Module):
+    """DeepSDF-style MLP: 3 × (Linear+ReLU), concatenate the input, 2 × (Linear+ReLU), Linear → out."""
+
+    def __init__(self, c_in: int, hidden: int, c_out: int):
+        super().__init__()
+        self.a = nn.Sequential(
+            nn.Linear(c_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
+        )
+        self.b = nn.Sequential(nn.Linear(hidden + c_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU())
+        self.out = nn.Linear(hidden, c_out)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.out(self.b(torch.cat([self.a(x), x], dim=-1)))
+
+
+@dataclass
+class PreparedPlanes:
+    """Decoder features of one batch of triplanes: 64-channel geometry and texture planes."""
+
+    geo: Triplane
+    tex: Triplane
+
+
+class TriplaneDecoder(nn.Module):
+    """Triplane → (SDF, colour) at any 3D point.
+
+    Geometry channels (0..3) and texture channels (4..11) are decoded
+    separately: each group gets one :class:`PlaneResBlock` per plane (no mixing
+    between planes), a bilinear lookup at the point's three projections, the
+    sum of the three features, and a :class:`SkipMLP` head. The SDF head
+    predicts ``sdf / threshold`` so its targets are O(1); the colour head ends
+    in a sigmoid.
+
+    Use it in two steps so the plane convolutions run once per triplane, not
+    once per chunk of points::
+
+        prepared = decoder.prepare(triplane)
+        sdf, rgb = decoder.query(prepared, points_in_box_coords)   # [B, N], [B, N, 3]
+    """
+
+    def __init__(self, cfg: AutoencoderConfig, threshold: float, color_channels: int = 3):
+        super().__init__()
+        self.geo_channels = cfg.geo_channels
+        c, k = cfg.decoder_channels, cfg.decoder_kernel
+        self.geo_blocks = nn.ModuleList(PlaneResBlock(cfg.geo_channels, c, k) for _ in range(3))
+        self.tex_blocks = nn.ModuleList(PlaneResBlock(cfg.tex_channels, c, k) for _ in range(3))
+        self.geo_mlp = SkipMLP(c, cfg.mlp_hidden, 1)
+        self.tex_mlp = SkipMLP(c, cfg.mlp_hidden, color_channels)
+        self.register_buffer("threshold", torch.tensor(float(threshold)))
+
+    def prepare(self, tp: Triplane) -> PreparedPlanes:
+        g = self.geo_channels
+        geo = [blk(p[:, :g]) for blk, p in zip(self.geo_blocks, tp.planes)]
+        tex = [blk(p[:, g:]) for blk, p in zip(self.tex_blocks, tp.planes)]
+        return PreparedPlanes(Triplane(*geo), Triplane(*tex))
+
+    def query_sdf(self, prep: PreparedPlanes, points: torch.Tensor) -> torch.Tensor:
+        """SDF in normalised units (negative inside), ``[B, N]``."""
+        f = prep.geo.sample(points).sum(dim=2)  # [B, N, 64]
+        return self.geo_mlp(f)[..., 0] * self.threshold
+
+    def query_color(self, prep: PreparedPlanes, points: torch.Tensor) -> torch.Tensor:
+        """Colour in [0, 1], ``[B, N, K]``."""
+        f = prep.tex.sample(points).sum(dim=2)
+        return torch.sigmoid(self.tex_mlp(f))
+
+    def query(self, prep: PreparedPlanes, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.query_sdf(prep, points), self.query_color(prep, points)
+
+    def param_groups(self) -> tuple[list[nn.Parameter], list[nn.Parameter]]:
+        geo = [*self.geo_blocks.parameters(), *self.geo_mlp.parameters()]
+        tex = [*self.tex_blocks.parameters(), *self.tex_mlp.parameters()]
+        return geo, tex
+
+
+# --------------------------------------------------------------------------- the model
+def grid_tensor(grid: ShapeGrid, device: torch.device | str = "cpu") -> torch.Tensor:
+    """``ShapeGrid`` → the encoder's input ``[1, 1+K, X, Y, Z]``: sdf/threshold and colour·2−1."""
+    sdf = torch.from_numpy(grid.sdf / grid.threshold).float()[None]
+    col = torch.from_numpy(grid.color).float().permute(3, 0, 1, 2) * 2 - 1
+    return torch.cat([sdf, col])[None].to(device)
+
+
+class TriplaneAutoencoder(nn.Module):
+    """Encoder (or, with ``use_encoder=False``, directly optimised planes) + decoder for one shape."""
+
+    def __init__(self, cfg: AutoencoderConfig, grid_shape: tuple[int, int, int], threshold: float, color_channels: int = 3):
+        super().__init__()
+        self.cfg = cfg
+        self.grid_shape = tuple(int(s) for s in grid_shape)
+        latent_res = tuple(s // 2 for s in self.grid_shape)
+        if cfg.use_encoder:
+            self.encoder = TriplaneEncoder(cfg, color_channels)
+        else:  # auto-decoder: the raw planes are parameters, squashed like the encoder's output
+            x, y, z = latent_res
+            c = cfg.latent_channels
+            self.raw = nn.ParameterDict(
+                {n: nn.Parameter(0.1 * torch.randn(1, c, a, b)) for n, (a, b) in zip(("xy", "xz", "yz"), ((x, y), (x, z), (y, z)))}
+            )
+        self.decoder = TriplaneDecoder(cfg, threshold, color_channels)
+
+    def encode(self, grid_t: torch.Tensor | None = None) -> Triplane:
+        """The latent triplane ``h0`` (batch 1, values in (-1, 1))."""
+        if self.cfg.use_encoder:
+            return self.encoder(grid_t)
+        sq = TriplaneEncoder.squash
+        return Triplane(sq(self.raw["xy"]), sq(self.raw["xz"]), sq(self.raw["yz"]))
+
+    def param_groups(self) -> tuple[list[nn.Parameter], list[nn.Parameter]]:
+        """Geometry and texture parameters (they get different learning rates)."""
+        geo, tex = self.decoder.param_groups()
+        if self.cfg.use_encoder:
+            geo += list(self.encoder.geo.parameters())
+            tex += list(self.encoder.tex.parameters())
+        else:
+            # plane channels are split inside the same tensor; both groups see the planes at the geometry lr
+            geo += list(self.raw.parameters())
+        return geo, tex
+
+
+# --------------------------------------------------------------------------- loss
+def sdf_loss(pred: torch.Tensor, gt: torch.Tensor, threshold: float, near_w: float = 1.5, far_w: float = 0.5) -> torch.Tensor:
+    """Weighted L1 on the truncated SDF.
+
+    An error that moves the prediction towards or across the surface
+    (``|pred| < |gt|`` or a sign flip) costs ``near_w``; one that pushes it
+    further away costs ``far_w``: surface-crossing errors create false
+    geometry, so they matter more. Beyond the truncation band any value of the
+    right sign is correct.
+    """
+    beyond = (gt.abs() >= threshold * 0.999) & (pred * gt > 0) & (pred.abs() > gt.abs())
+    pred = torch.where(beyond, gt, pred)
+    towards = (pred * gt <= 0) | (pred.abs() < gt.abs())
+    w = torch.where(towards, near_w, far_w)
+    return (w * (pred - gt).abs()).mean() / threshold
+
+
+class PointSampler:
+    """Draws training batches: ``grid_fraction`` random voxels, the rest near-surface points."""
+
+    def __init__(self, grid: ShapeGrid, device: torch.device):
+        self.device = device
+        self.threshold = grid.threshold
+        self.vox = torch.from_numpy(grid.to_box(grid.voxel_centers().reshape(-1, 3))).to(device)
+        self.vox_sdf = torch.from_numpy(grid.sdf.reshape(-1)).float().to(device)
+        self.vox_col = torch.from_numpy(grid.color.reshape(-1, grid.color.shape[-1])).float().to(device)
+        if len(grid.points):
+            self.pts = torch.from_numpy(grid.to_box(grid.points)).to(device)
+            self.pts_sdf = torch.from_numpy(grid.point_sdf).float().to(device)
+            self.pts_col = torch.from_numpy(grid.point_color).float().to(device)
+        else:  # no surface samples: fall back to voxels inside the band
+            band = self.vox_sdf.abs() < self.threshold
+            self.pts, self.pts_sdf, self.pts_col = self.vox[band], self.vox_sdf[band], self.vox_col[band]
+
+    def __call__(self, n: int, fraction: float, gen: torch.Generator):
+        n_vox = int(round(n * fraction))
+        iv = torch.randint(len(self.vox), (n_vox,), generator=gen).to(self.device)
+        ip = torch.randint(len(self.pts), (n - n_vox,), generator=gen).to(self.device)
+        p = torch.cat([self.vox[iv], self.pts[ip]])
+        s = torch.cat([self.vox_sdf[iv], self.pts_sdf[ip]])
+        c = torch.cat([self.vox_col[iv], self.pts_col[ip]])
+        return p, s, c
+
+
+# --------------------------------------------------------------------------- training
+class AutoencoderTrainer:
+    """Fits a :class:`TriplaneAutoencoder` to one :class:`ShapeGrid`, resumable step by step.
+
+    AdamW with a geometry and a texture learning rate, both decayed
+    exponentially to ``lr_final_factor`` of their start over ``cfg.steps``.
+    ``state_dict()`` holds everything (weights, optimiser, scheduler, random
+    generator, history) as plain tensors, so a run resumed from a checkpoint
+    ends exactly where an uninterrupted one would.
+    """
+
+    def __init__(self, grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: int = 0):
+        self.cfg = cfg
+        self.grid = grid
+        self.device = get_device(device)
+        torch.manual_seed(seed)  # weight initialisation
+        self.model = TriplaneAutoencoder(cfg, grid.shape, grid.threshold, grid.color.shape[-1]).to(self.device)
+        self.grid_t = grid_tensor(grid, self.device)
+        self.sampler = PointSampler(grid, self.device)
+        geo, tex = self.model.param_groups()
+        self.opt = torch.optim.AdamW([{"params": geo, "lr": cfg.lr_geo}, {"params": tex, "lr": cfg.lr_tex}])
+        gamma = cfg.lr_final_factor ** (1.0 / max(1, cfg.steps))
+        self.sched = torch.optim.lr_scheduler.ExponentialLR(self.opt, gamma)
+        self.gen = torch.Generator().manual_seed(seed)
+        self.step_count = 0
+        self.history: dict[str, list[float]] = {"loss": [], "sdf": [], "color": []}
+
+    def train_step(self) -> float:
+        cfg = self.cfg
+        self.model.train()
+        p, s_gt, c_gt = self.sampler(cfg.points_per_step, cfg.grid_fraction, self.gen)
+        h = self.model.encode(self.grid_t)
+        prep = self.model.decoder.prepare(h)
+        s = self.model.decoder.query_sdf(prep, p[None])[0]
+        l_sdf = sdf_loss(s, s_gt, self.grid.threshold, cfg.near_weight, cfg.far_weight)
+        band = s_gt.abs() < self.grid.threshold  # colour is only defined near the surface
+        c = self.model.decoder.query_color(prep, p[band][None])[0]
+        l_col = (c - c_gt[band]).abs().mean() if band.any() else torch.zeros((), device=self.device)
+        loss = l_sdf + l_col
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt.step()
+        self.sched.step()
+        self.step_count += 1
+        for k, v in (("loss", loss), ("sdf", l_sdf), ("color", l_col)):
+            self.history[k].append(float(v.detach()))
+        return float(loss)
+
+    def run(self, until_step: int | None = None, progress: bool = True, callback=None) -> dict[str, list[float]]:
+        """Train from the current step to ``until_step`` (default: ``cfg.steps``)."""
+        from tqdm.auto import tqdm
+
+        end = self.cfg.steps if until_step is None else min(until_step, self.cfg.steps)
+        bar = tqdm(total=end, initial=self.step_count, desc="autoencoder", disable=not progress, leave=False)
+        while self.step_count < end:
+            loss = self.train_step()
+            bar.update(1)
+            if self.step_count % 25 == 0:
+                bar.set_postfix(loss=f"{loss:.4f}")
+            if callback is not None:
+                callback(self)
+        bar.close()
+        return self.history
+
+    @torch.no_grad()
+    def latent(self) -> Triplane:
+        """The fitted latent ``h0`` (batch 1) that the diffusion model learns from."""
+        self.model.eval()
+        return self.model.encode(self.grid_t).detach()
+
+    def state_dict(self) -> dict:
+        return {
+            "model": self.model.state_dict(),
+            "opt": self.opt.state_dict(),
+            "sched": self.sched.state_dict(),
+            "gen": self.gen.get_state(),
+            "step": self.step_count,
+            "history": {k: torch.tensor(v, dtype=torch.float64) for k, v in self.history.items()},
+        }
+
+    def load_state_dict(self, sd: dict) -> None:
+        self.model.load_state_dict(sd["model"])
+        self.opt.load_state_dict(sd["opt"])
+        self.sched.load_state_dict(sd["sched"])
+        self.gen.set_state(sd["gen"])
+        self.step_count = int(sd["step"])
+        self.history = {k: v.tolist() for k, v in sd["history"].items()}
+
+
+def fit_autoencoder(grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: int = 0, progress: bool = True):
+    """Fit the autoencoder to one shape. Returns ``(model, h0, history)``."""
+    tr = AutoencoderTrainer(grid, cfg, device, seed)
+    tr.run(progress=progress)
+    return tr.model, tr.latent(), tr.history
+
+
+# --------------------------------------------------------------------------- evaluation
+@torch.no_grad()
+def decode_at_voxels(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid, chunk: int = 1 << 16):
+    """Decode SDF and colour at every voxel centre of ``grid`` (same box): ``(sdf (X,Y,Z), color (X,Y,Z,K))``."""
+    device = next(decoder.parameters()).device
+    prep = decoder.prepare(h[:1].to(device))
+    pts = torch.from_numpy(grid.to_box(grid.voxel_centers().reshape(-1, 3))).to(device)
+    sdf, col = [], []
+    for a in range(0, len(pts), chunk):
+        s, c = decoder.query(prep, pts[a : a + chunk][None])
+        sdf.append(s[0].cpu())
+        col.append(c[0].cpu())
+    k = grid.color.shape[-1]
+    return torch.cat(sdf).numpy().reshape(grid.shape), torch.cat(col).numpy().reshape(*grid.shape, k)
+
+
+def reconstruction_metrics(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid) -> dict[str, float]:
+    """How well the latent + decoder reproduce the input grid.
+
+    * ``sign_accuracy``: share of voxels where the decoded SDF has the input's sign;
+    * ``occupancy_iou``: IoU of the inside voxels (SDF < 0);
+    * ``color_l1`` / ``color_psnr``: colour error on voxels within the truncation band.
+    """
+    sdf, col = decode_at_voxels(decoder, h, grid)
+    gt_in, pr_in = grid.sdf < 0, sdf < 0
+    union = np.logical_or(gt_in, pr_in).sum()
+    band = np.abs(grid.sdf) < grid.threshold
+    err = col[band] - grid.color[band]
+    mse = float((err**2).mean()) if band.any() else float("nan")
+    return {
+        "sign_accuracy": float((gt_in == pr_in).mean()),
+        "occupancy_iou": float(np.logical_and(gt_in, pr_in).sum() / union) if union else 1.0,
+        "color_l1": float(np.abs(err).mean()) if band.any() else float("nan"),
+        "color_psnr": float(10 * math.log10(1.0 / max(mse, 1e-12))),
+    }
