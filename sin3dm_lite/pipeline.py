@@ -1,0 +1,390 @@
+"""``Sin3DM``: the whole method behind one object.
+
+    model = Sin3DM.fit("canyon", preset="small", out="runs/canyon")   # mesh → grid → triplane → diffusion
+    samples = model.sample(4, seed=0)                                  # new triplanes from noise
+    meshes = model.to_mesh(samples)                                    # decoded, textured meshes
+
+A fit writes a *run folder*; every stage saves its result there, and training
+checkpoints are written atomically every ``config.checkpoint_every`` steps, so
+``fit(..., resume=True)`` continues an interrupted run and ends exactly where
+an uninterrupted one would::
+
+    RUN/config.json        the full configuration
+    RUN/grid.npz           the input's TSDF + colour grid (stage 1)
+    RUN/autoencoder.pt     autoencoder trainer state (stage 2, checkpoint)
+    RUN/diffusion.pt       diffusion trainer state (stage 3, checkpoint)
+    RUN/model.pt           what sampling needs: decoder, latent, denoiser (written last)
+    RUN/losses.json        loss histories of both stages
+    RUN/report.json        reconstruction metrics, timings, step counts
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .autoencoder import AutoencoderTrainer, TriplaneDecoder, reconstruction_metrics
+from .config import Config, get_preset
+from .device import get_device
+from .errors import Sin3DMInputError
+from .grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
+from .mesh_io import Normalization, TexturedMesh
+from .triplane import Triplane
+
+MODEL_FILE = "model.pt"
+
+
+def atomic_torch_save(obj, path: Path) -> None:
+    """Write ``obj`` with ``torch.save`` so that ``path`` is either the old or the new file, never half of one."""
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: Path) -> dict:
+    """``torch.load`` with ``weights_only=True``: checkpoints hold tensors and plain containers only."""
+    return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def resolve_mesh(source) -> TexturedMesh:
+    """A ``TexturedMesh`` from a mesh object, a file path, or the name of a built-in example."""
+    from . import examples
+    from .mesh_io import load_mesh
+
+    if isinstance(source, TexturedMesh):
+        return source
+    s = str(source)
+    if s in examples.list_examples():
+        return examples.build_example(s)
+    if not Path(s).exists() and Path(s).suffix == "":
+        raise Sin3DMInputError(
+            f"'{s}' is neither a mesh file nor a built-in example; examples: {', '.join(examples.list_examples())}"
+        )
+    return load_mesh(s)
+
+
+@dataclass
+class Samples:
+    """Generated triplanes and the box each one lives in.
+
+    ``aabb`` is the box in normalised coordinates; a retargeted sample has a
+    box scaled by the same factors as its latent so that voxels keep their size.
+    ``intermediates`` holds the denoising steps when they were asked for.
+    """
+
+    triplane: Triplane
+    aabb: np.ndarray
+    intermediates: list | None = None
+
+    def __len__(self) -> int:
+        return self.triplane.batch
+
+
+class Sin3DM:
+    """A fitted Sin3DM model: decoder + latent of the input shape + denoiser."""
+
+    def __init__(
+        self,
+        config: Config,
+        decoder: TriplaneDecoder,
+        latent: Triplane,
+        denoiser: torch.nn.Module,
+        aabb: np.ndarray,
+        normalization: Normalization,
+        report: dict | None = None,
+        grid: ShapeGrid | None = None,
+        run_dir: Path | None = None,
+        device=None,
+    ):
+        from .diffusion import NoiseSchedule
+
+        self.config = config
+        self.device = get_device(device)
+        self.decoder = decoder.to(self.device).eval()
+        self.latent = latent.to(self.device)
+        self.denoiser = denoiser.to(self.device).eval()
+        self.aabb = np.asarray(aabb, np.float32)
+        self.normalization = normalization
+        self.report = report or {}
+        self.grid = grid
+        self.run_dir = run_dir
+        d = config.diffusion
+        self.schedule = NoiseSchedule(d.timesteps, d.beta_start, d.beta_end)
+
+    # ------------------------------------------------------------------ fit
+    @classmethod
+    def fit(
+        cls,
+        source,
+        preset: str | Config = "small",
+        out: str | Path | None = None,
+        resume: bool = False,
+        seed: int | None = None,
+        device=None,
+        progress: bool = True,
+    ) -> "Sin3DM":
+        """Fit the whole model to one textured mesh (a path, a ``TexturedMesh`` or an example name).
+
+        With ``out`` a run folder is written (see the module docstring); with
+        ``resume=True`` an existing run folder is continued from its last
+        checkpoint.
+        """
+        from .diffusion import DiffusionTrainer
+        from .unet import TriplaneUNet
+
+        say = print if progress else (lambda *a, **k: None)
+        dev = get_device(device)
+        run = Path(out) if out is not None else None
+        have_grid = run is not None and resume and (run / "grid.npz").exists()
+        mesh = None if have_grid else resolve_mesh(source)  # bad input fails before any folder is written
+        cfg = _prepare_run(run, preset, resume, seed)
+        timings: dict[str, float] = {}
+
+        # stage 1: mesh → grid
+        t0 = time.perf_counter()
+        if have_grid:
+            grid = load_grid(run / "grid.npz")
+            say(f"[fit] grid loaded from {run / 'grid.npz'}")
+        else:
+            g = cfg.grid
+            grid = mesh_to_grid(mesh, g.resolution, g.threshold_voxels, g.n_surface_points, g.near_surface_sigma, cfg.seed, progress)
+            if run is not None:
+                save_grid(grid, run / "grid.npz")
+        timings["grid_s"] = time.perf_counter() - t0
+
+        # stage 2: autoencoder
+        t0 = time.perf_counter()
+        ae = AutoencoderTrainer(grid, cfg.autoencoder, dev, cfg.seed)
+        _train(ae, run / "autoencoder.pt" if run else None, cfg.checkpoint_every, progress, "autoencoder", say)
+        h0 = ae.latent()
+        metrics = reconstruction_metrics(ae.model.decoder, h0, grid)
+        timings["autoencoder_s"] = time.perf_counter() - t0
+        say("[fit] reconstruction: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
+
+        # stage 3: diffusion on the latent
+        t0 = time.perf_counter()
+        dm = DiffusionTrainer(h0, cfg.diffusion, dev, cfg.seed)
+        _train(dm, run / "diffusion.pt" if run else None, cfg.checkpoint_every, progress, "diffusion", say)
+        timings["diffusion_s"] = time.perf_counter() - t0
+
+        report = {
+            "preset": cfg.name,
+            "input": grid.name,
+            "grid_shape": list(grid.shape),
+            "latent_shape": list(h0.resolution),
+            "autoencoder_steps": ae.step_count,
+            "diffusion_steps": dm.step_count,
+            "reconstruction": metrics,
+            "final_loss": {"autoencoder": ae.history["loss"][-1], "diffusion": dm.history[-1]},
+            "timings_s": timings,
+            "device": str(dev),
+        }
+        model = cls(cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, report, grid, run, dev)
+        if run is not None:
+            model.save(run)
+            atomic_write_text(run / "losses.json", json.dumps({"autoencoder": ae.history, "diffusion": dm.history}))
+            atomic_write_text(run / "report.json", json.dumps(report, indent=2))
+            say(f"[fit] run folder: {run}")
+        return model
+
+    # --------------------------------------------------------------- sample
+    @torch.no_grad()
+    def sample(
+        self,
+        n: int = 1,
+        resize: tuple[float, float, float] | float = (1.0, 1.0, 1.0),
+        steps: int | None = None,
+        method: str | None = None,
+        seed: int = 0,
+        return_intermediates=None,
+        known: Triplane | None = None,
+        mask: Triplane | None = None,
+        progress: bool = True,
+    ) -> Samples:
+        """Draw ``n`` new triplanes from noise.
+
+        ``resize`` scales the latent per axis (retargeting: the denoiser is fully
+        convolutional, so noise of another size gives a shape of another size);
+        ``known``/``mask`` fix part of the latent (outpainting, patch duplication).
+        """
+        from .diffusion import sample as diffusion_sample
+
+        if n < 1:
+            raise Sin3DMInputError(f"number of samples must be at least 1, got {n}")
+        factors = np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,))
+        if not np.all(np.isfinite(factors)) or np.any(factors <= 0) or np.any(factors > 8):
+            raise Sin3DMInputError(f"resize factors must be positive numbers up to 8, got {tuple(factors)}")
+        base = np.array(self.latent.resolution)
+        res = np.maximum(4, np.round(base * factors)).astype(int)
+        s = self.config.sampling
+        out = diffusion_sample(
+            self.denoiser,
+            self.schedule,
+            tuple(int(r) for r in res),
+            n=n,
+            latent_channels=self.latent.channels,
+            method=method or s.method,
+            steps=steps or s.steps,
+            seed=seed,
+            known=known,
+            mask=mask,
+            return_intermediates=return_intermediates,
+            progress=progress,
+            device=self.device,
+            prediction=self.config.diffusion.prediction,
+        )
+        tp, inter = out if return_intermediates is not None else (out, None)
+        scale = res / base
+        aabb = np.concatenate([self.aabb[:3] * scale, self.aabb[3:] * scale]).astype(np.float32)
+        return Samples(tp, aabb, inter)
+
+    def input_sample(self) -> Samples:
+        """The input's own latent as a one-item :class:`Samples` (decode it to see the reconstruction)."""
+        return Samples(self.latent.clone(), self.aabb.copy())
+
+    # -------------------------------------------------------------- to mesh
+    def to_mesh(
+        self,
+        samples: Samples,
+        index: int | None = None,
+        resolution: int | None = None,
+        faces: int | None = None,
+        texture_size: int | None = None,
+        vertex_colors: bool = False,
+        original_coords: bool = True,
+    ) -> list[TexturedMesh] | TexturedMesh:
+        """Decode samples into textured meshes (all of them, or the one at ``index``)."""
+        from .extract import extract_mesh
+
+        s = self.config.sampling
+        items = range(len(samples)) if index is None else [index]
+        meshes = []
+        for i in items:
+            m = extract_mesh(
+                self.decoder,
+                samples.triplane[i],
+                samples.aabb,
+                normalization=self.normalization,
+                resolution=resolution or s.mesh_resolution,
+                faces=faces or s.faces,
+                texture_size=texture_size or s.texture_size,
+                vertex_colors=vertex_colors,
+                original_coords=original_coords,
+            )
+            m.name = f"sample_{i:03d}"
+            meshes.append(m)
+        return meshes if index is None else meshes[0]
+
+    # ------------------------------------------------------------ save/load
+    def save(self, run_dir: str | Path) -> Path:
+        """Write ``model.pt`` (everything sampling needs) and ``config.json`` into ``run_dir``."""
+        run = Path(run_dir)
+        run.mkdir(parents=True, exist_ok=True)
+        bundle = {
+            "format": "sin3dm-lite/1",
+            "config": self.config.to_json(),
+            "decoder": {k: v.cpu() for k, v in self.decoder.state_dict().items()},
+            "latent": self.latent.state_dict(),
+            "denoiser": {k: v.cpu() for k, v in self.denoiser.state_dict().items()},
+            "aabb": torch.from_numpy(self.aabb.copy()),
+            "center": torch.from_numpy(np.asarray(self.normalization.center, np.float64)),
+            "scale": float(self.normalization.scale),
+            "color_channels": int(self.decoder.tex_mlp.out.out_features),
+            "report": json.dumps(self.report),
+        }
+        atomic_torch_save(bundle, run / MODEL_FILE)
+        atomic_write_text(run / "config.json", self.config.to_json())
+        return run / MODEL_FILE
+
+    @classmethod
+    def load(cls, run_dir: str | Path, device=None) -> "Sin3DM":
+        """Load a fitted model from a run folder (or a ``model.pt`` file)."""
+        from .unet import TriplaneUNet
+
+        path = Path(run_dir)
+        path = path / MODEL_FILE if path.is_dir() else path
+        if not path.is_file():
+            raise Sin3DMInputError(
+                f"no fitted model at '{run_dir}' (expected {MODEL_FILE}); fit one with `sin3dm-lite fit MESH --out DIR`"
+            )
+        try:
+            b = load_checkpoint(path)
+            cfg = Config.from_dict(json.loads(b["config"]))
+        except Exception as e:  # noqa: BLE001 - any unreadable file gets one clear message
+            raise Sin3DMInputError(f"'{path}' is not a readable sin3dm-lite model ({type(e).__name__}: {e})") from None
+        latent = Triplane.from_state_dict(b["latent"])
+        decoder = TriplaneDecoder(cfg.autoencoder, float(b["decoder"]["threshold"]), int(b["color_channels"]))
+        decoder.load_state_dict(b["decoder"])
+        denoiser = TriplaneUNet(latent.channels, cfg.diffusion)
+        denoiser.load_state_dict(b["denoiser"])
+        grid = load_grid(path.parent / "grid.npz") if (path.parent / "grid.npz").exists() else None
+        norm = Normalization(center=b["center"].numpy(), scale=float(b["scale"]))
+        return cls(cfg, decoder, latent, denoiser, b["aabb"].numpy(), norm, json.loads(b["report"]), grid, path.parent, device)
+
+
+# --------------------------------------------------------------------------- helpers
+def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Config:
+    """Resolve the config and check the run folder (new, or resumable)."""
+    cfg = preset if isinstance(preset, Config) else get_preset(preset)
+    if seed is not None:
+        cfg = cfg.updated(seed=seed)
+    if run is None:
+        if resume:
+            raise Sin3DMInputError("resume needs a run folder; pass out=RUN_DIR (CLI: --out RUN_DIR)")
+        return cfg
+    cfg_file = run / "config.json"
+    if resume:
+        if not cfg_file.exists():
+            raise Sin3DMInputError(f"cannot resume: '{run}' has no config.json; start a new fit without --resume")
+        return Config.from_dict(json.loads(cfg_file.read_text()))
+    if run.exists() and any(run.iterdir()):
+        raise Sin3DMInputError(f"run folder '{run}' is not empty; continue it with --resume or choose another --out")
+    run.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(cfg_file, cfg.to_json())
+    return cfg
+
+
+def _train(trainer, ckpt: Path | None, every: int, progress: bool, label: str, say) -> None:
+    """Run a trainer to its end, checkpointing every ``every`` steps.
+
+    Ctrl-C (SIGINT) is honoured only *between* steps, after a checkpoint of the
+    last finished step has been written, so a resumed run loses no work and
+    never starts from a half-applied optimiser step.
+    """
+    if ckpt is not None and ckpt.exists():
+        trainer.load_state_dict(load_checkpoint(ckpt))
+        say(f"[fit] {label}: resumed at step {trainer.step_count}")
+    stop = {"asked": False}
+
+    def checkpoint(tr) -> None:
+        if ckpt is not None and (tr.step_count % every == 0 or stop["asked"]):
+            atomic_torch_save(tr.state_dict(), ckpt)
+        if stop["asked"]:
+            say(f"\n[fit] {label}: interrupted at step {tr.step_count}; checkpoint saved, continue with --resume")
+            raise KeyboardInterrupt
+
+    def on_sigint(signum, frame) -> None:
+        stop["asked"] = True
+
+    main = threading.current_thread() is threading.main_thread()
+    old = signal.signal(signal.SIGINT, on_sigint) if main else None
+    try:
+        trainer.run(progress=progress, callback=checkpoint)
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, old)
+    if ckpt is not None:
+        atomic_torch_save(trainer.state_dict(), ckpt)

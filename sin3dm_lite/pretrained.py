@@ -1,0 +1,25 @@
+"""The pretrained ``small`` model of the default example, shipped inside the package.
+
+It was produced by our own ``sin3dm-lite fit`` (the exact command is in
+``data/README.md`` next to the file), so the demo and the quickstart notebook
+can generate shapes immediately on a CPU.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .errors import Sin3DMInputError
+
+DATA = Path(__file__).parent / "data"
+
+
+def pretrained_path(name: str = "default") -> Path:
+    """Path of a shipped run folder (holding ``model.pt``)."""
+    from . import examples
+
+    folder = DATA / (examples.DEFAULT_EXAMPLE + "_small" if name == "default" else name)
+    if not (folder / "model.pt").is_file():
+        raise Sin3DMInputError(
+            f"the shipped model '{folder.name}' is missing from this install; run `sin3dm-lite demo --train` to fit one"
+        )
+    return folder
