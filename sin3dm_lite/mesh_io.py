@@ -1,4 +1,4 @@
-"""Load a textured mesh from disk and normalise it into the paper's box.
+"""Load a textured mesh from disk, normalise it into the paper's box, write it back.
 
 Sin3DM learns from *one* textured shape. Whatever the file format, we turn it
 into a :class:`TexturedMesh`: triangle geometry plus everything needed to ask
@@ -11,9 +11,23 @@ The paper normalises every input the same way (REFERENCE.md, "Input grid"):
 centre the bounding box, scale so that the longest side times 1.03 spans
 [-1, 1]. :class:`Normalization` keeps that transform so generated shapes can
 be mapped back into the input's own coordinates.
+
+Public API::
+
+    load_mesh(path, *, max_texture_size=4096) -> TexturedMesh   # .obj .glb .gltf .ply .stl .off
+    load_any(source) -> TexturedMesh          # a path, or a TexturedMesh (returned as is)
+    save_obj(mesh, path) -> Path              # .obj + .mtl + PNG textures
+    save_glb(mesh, path) -> Path              # binary glTF with PBR materials
+    image_to_array(image, max_size=None)      # PIL image / array -> (h, w, 3) float32 in [0, 1]
+    sample_texture(image, uv)                 # bilinear, wrap-around texture lookup
+
+Bad input raises one :class:`~sin3dm_lite.errors.Sin3DMInputError` whose
+message names the problem and the fix; a missing or unreadable texture is a
+``UserWarning`` and the material falls back to its plain colour.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -161,8 +175,25 @@ class TexturedMesh:
         return replace(self, vertices=(self.vertices - center) * scale, normalization=new)
 
     def to_trimesh(self, max_texture: int = 1024):
-        """A ``trimesh.Trimesh`` for viewing (vertex colours baked from the colour source)."""
+        """A ``trimesh.Trimesh`` for viewing.
+
+        A mesh with exactly one material that has a texture (and per-corner
+        UVs) keeps it: the result has ``TextureVisuals`` with the texture (times
+        the material factor, longest side at most ``max_texture``) and vertices
+        split wherever a vertex has several UVs. Anything else gets vertex
+        colours evaluated at every face corner (every face has its own three
+        vertices, so colour edges stay sharp).
+        """
         import trimesh
+
+        if len(self.materials) == 1 and self.materials[0].image is not None and self.face_uvs is not None:
+            mat = self.materials[0]
+            vert_of, uv, faces = _split_corners(self.faces, self.face_uvs)
+            image = _array_to_pil(_baked_image(mat), max_size=max_texture)
+            visual = trimesh.visual.TextureVisuals(
+                uv=uv, material=trimesh.visual.material.SimpleMaterial(image=image, name=mat.name)
+            )
+            return trimesh.Trimesh(self.vertices[vert_of], faces, visual=visual, process=False)
 
         tri = self.vertices[self.faces]
         # colour each vertex by the colour at its corner in one face that uses it
@@ -171,7 +202,7 @@ class TexturedMesh:
         col = self.colors_at(fi, bc)
         v = tri.reshape(-1, 3)
         f = np.arange(len(v)).reshape(-1, 3)
-        m = trimesh.Trimesh(v, f, vertex_colors=(col * 255).astype(np.uint8), process=False)
+        m = trimesh.Trimesh(v, f, vertex_colors=np.round(col * 255).astype(np.uint8), process=False)
         return m
 
 
@@ -190,8 +221,1172 @@ def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     fx = (x - x0)[:, None]
     fy = (y - y0)[:, None]
     x0w, x1w = x0 % w, (x0 + 1) % w
-    y0c, y1c = np.clip(y0, 0, h - 1), np.clip(y0 + 1, 0, h - 1)
+    y0w, y1w = y0 % h, (y0 + 1) % h
     img = image.astype(np.float32, copy=False)
-    top = img[y0c, x0w] * (1 - fx) + img[y0c, x1w] * fx
-    bot = img[y1c, x0w] * (1 - fx) + img[y1c, x1w] * fx
+    top = img[y0w, x0w] * (1 - fx) + img[y0w, x1w] * fx
+    bot = img[y1w, x0w] * (1 - fx) + img[y1w, x1w] * fx
     return (top * (1 - fy) + bot * fy).astype(np.float32)
+
+
+# =============================================================================
+# Loading
+# =============================================================================
+#
+# Colour rules (the same for every format):
+#   * a face whose material has a texture takes ``texture(uv) * base_color``;
+#   * otherwise, if the mesh has vertex colours: ``interpolated colour * base_color``;
+#   * otherwise the material's ``base_color``;
+#   * a file with no colour information at all gets one material with
+#     :data:`DEFAULT_COLOR`.
+# Where a format says a texture or vertex colours *replace* the material colour
+# (OBJ/MTL: ``map_Kd`` replaces ``Kd``; vertex colours replace ``Kd``) the
+# loader stores a white factor, so the rules above give what a viewer shows.
+# glTF multiplies ``baseColorFactor`` into the texture, and so do we.
+
+#: File extensions :func:`load_mesh` reads.
+SUPPORTED_EXTENSIONS = (".obj", ".glb", ".gltf", ".ply", ".stl", ".off")
+
+#: Textures larger than this (longest side, pixels) are shrunk on load: one
+#: float32 RGB 4096² image is already 200 MB, and a 256³ grid never needs more.
+MAX_TEXTURE_SIZE = 4096
+
+_WHITE = np.ones(4, np.float32)
+
+
+def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE) -> TexturedMesh:
+    """Read a textured mesh file into a :class:`TexturedMesh` (the file's own coordinates).
+
+    Formats (by extension, case-insensitive):
+
+    * ``.obj`` (+ ``.mtl`` + images): ``map_Kd`` textures, ``Kd`` colours,
+      several materials (each face keeps its material and its own per-corner
+      UVs), vertex colours ``v x y z r g b``, PBR extensions ``Pm``/``Pr``/
+      ``map_Pm``/``map_Pr``/``map_Bump``/``norm``. Parsed here, not by trimesh,
+      so face order, vertex order and UV indices are exactly the file's.
+    * ``.glb`` / ``.gltf``: every mesh node of the default scene with its node
+      transform applied, every primitive with its material (base colour
+      texture and factor; metallic-roughness texture and factors and normal
+      map go to the material's PBR fields), ``COLOR_0`` vertex colours.
+    * ``.ply``: vertex colours or face colours; ``.stl`` / ``.off``: geometry only.
+
+    Vertices with identical position (and colour) are welded, unreferenced
+    vertices dropped, polygons fan-triangulated. A texture that is missing or
+    unreadable produces a ``UserWarning`` naming the file, and the material
+    falls back to its plain colour. Textures become float32 RGB in [0, 1]
+    (alpha dropped, grey expanded; sRGB values kept as stored), shrunk to
+    ``max_texture_size`` pixels on the longest side (``None``: never).
+
+    Raises:
+        Sin3DMInputError: missing file, unsupported extension, unreadable file,
+            no faces, NaN/inf coordinates, zero-size bounding box or zero area.
+    """
+    path = _check_input_path(path)
+    ext = path.suffix.lower()
+    if ext == ".obj":
+        parts, materials = _load_obj(path, max_texture_size)
+    else:
+        parts, materials = _load_with_trimesh(path, max_texture_size)
+    return _assemble(parts, materials, name=path.stem, source=path.name)
+
+
+def load_any(source, **kwargs) -> TexturedMesh:
+    """A :class:`TexturedMesh` from a file path or an existing ``TexturedMesh`` (returned as is)."""
+    if isinstance(source, TexturedMesh):
+        return source
+    if isinstance(source, str) or hasattr(source, "__fspath__"):
+        return load_mesh(source, **kwargs)
+    raise Sin3DMInputError(
+        f"cannot make a mesh from {type(source).__name__}; pass a file path "
+        f"({', '.join(SUPPORTED_EXTENSIONS)}) or a TexturedMesh"
+    )
+
+
+# ----------------------------------------------------------------- validation
+def _check_input_path(path) -> "Path":
+    from pathlib import Path
+
+    try:
+        path = Path(path).expanduser()
+    except TypeError:
+        raise Sin3DMInputError(f"expected a file path, got {type(path).__name__}") from None
+    if not path.exists():
+        raise Sin3DMInputError(
+            f"mesh file not found: '{path}' (working directory: {Path.cwd()}); check the path and its spelling"
+        )
+    if path.is_dir():
+        raise Sin3DMInputError(f"'{path}' is a directory; give the path of a mesh file inside it")
+    if path.suffix.lower() not in SUPPORTED_EXTENSIONS:
+        raise Sin3DMInputError(
+            f"'{path.name}' has an unsupported extension '{path.suffix or '(none)'}'; supported mesh "
+            f"formats are {', '.join(SUPPORTED_EXTENSIONS)}; convert the file (for example File > Export "
+            "in Blender) or rename it if the extension is wrong"
+        )
+    return path
+
+
+def _unreadable(path, what: str, exc: BaseException | str) -> Sin3DMInputError:
+    detail = exc if isinstance(exc, str) else f"{type(exc).__name__}: {exc}"
+    return Sin3DMInputError(
+        f"could not read '{path.name}' as {what} ({detail}); the file may be corrupt, truncated or "
+        "not what its extension says; re-export it from the program that made it"
+    )
+
+
+# ------------------------------------------------------------------ assembly
+@dataclass
+class _Part:
+    """A piece of a mesh as read from a file, before concatenation."""
+
+    vertices: np.ndarray  # (V, 3) float64
+    faces: np.ndarray  # (F, 3) int64, into this part's vertices
+    face_material: np.ndarray  # (F,) int64, into the shared material list
+    face_uvs: np.ndarray | None = None  # (F, 3, 2)
+    vertex_colors: np.ndarray | None = None  # (V, 3) float32
+
+
+def _assemble(parts: list[_Part], materials: list[Material], name: str, source: str) -> TexturedMesh:
+    """Concatenate parts, validate, drop unreferenced vertices, weld duplicates."""
+    parts = [p for p in parts if len(p.faces)]
+    if not parts:
+        raise Sin3DMInputError(
+            f"'{source}' contains no triangle faces (an empty file, or a point cloud / lines only); "
+            "Sin3DM needs a surface mesh: export the faces, or reconstruct a surface from the points first"
+        )
+    offsets = np.cumsum([0] + [len(p.vertices) for p in parts])
+    vertices = np.concatenate([p.vertices for p in parts]).astype(np.float64)
+    faces = np.concatenate([p.faces + o for p, o in zip(parts, offsets)]).astype(np.int64)
+    face_material = np.concatenate([p.face_material for p in parts]).astype(np.int64)
+    face_uvs = None
+    if any(p.face_uvs is not None for p in parts):
+        face_uvs = np.concatenate(
+            [p.face_uvs if p.face_uvs is not None else np.full((len(p.faces), 3, 2), np.nan) for p in parts]
+        ).astype(np.float32)
+    colors = None
+    if any(p.vertex_colors is not None for p in parts):
+        colors = np.concatenate(
+            [p.vertex_colors if p.vertex_colors is not None else np.ones((len(p.vertices), 3)) for p in parts]
+        ).astype(np.float32)
+
+    # keep only referenced vertices: stray points must not enlarge the bounding box
+    used = np.zeros(len(vertices), bool)
+    used[faces] = True
+    if not used.all():
+        remap = np.cumsum(used) - 1
+        vertices, faces = vertices[used], remap[faces]
+        colors = colors[used] if colors is not None else None
+
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        raise Sin3DMInputError(
+            f"'{source}' has {int(bad.sum())} vertices with NaN or infinite coordinates (the first is "
+            f"vertex {int(np.argmax(bad))}); repair or delete them in a mesh editor and export again"
+        )
+    vertices, faces, colors = _weld(vertices, faces, colors)
+
+    extent = vertices.max(0) - vertices.min(0)
+    if extent.max() <= 0:
+        raise Sin3DMInputError(
+            f"'{source}' has a zero-size bounding box (all its vertices are at the same point); "
+            "Sin3DM needs faces that span some volume"
+        )
+    tri = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if not area.sum() > 0:
+        raise Sin3DMInputError(
+            f"'{source}' has zero surface area (every triangle is degenerate: collinear or repeated "
+            "vertices); Sin3DM needs a surface mesh"
+        )
+
+    # drop materials no face uses (they may hold large images)
+    used_m = np.unique(face_material)
+    if len(used_m) < len(materials):
+        remap_m = np.full(len(materials), -1, np.int64)
+        remap_m[used_m] = np.arange(len(used_m))
+        materials = [materials[i] for i in used_m]
+        face_material = remap_m[face_material]
+    if face_uvs is not None and not np.isfinite(face_uvs).any():
+        face_uvs = None
+    return TexturedMesh(
+        vertices=vertices,
+        faces=faces,
+        face_material=face_material,
+        materials=list(materials),
+        face_uvs=face_uvs,
+        vertex_colors=colors,
+        name=name,
+    )
+
+
+def _weld(vertices, faces, colors):
+    """Merge vertices with exactly equal position (and colour); keeps first-occurrence order."""
+    key = vertices if colors is None else np.hstack([vertices, colors.astype(np.float64)])
+    keep, inverse = _unique_rows(key)
+    if len(keep) == len(vertices):
+        return vertices, faces, colors
+    return vertices[keep], inverse[faces], (colors[keep] if colors is not None else None)
+
+
+def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the distinct rows of ``a`` in first-occurrence order, and each row's distinct index."""
+    a = np.ascontiguousarray(a + 0.0 if a.dtype.kind == "f" else a)  # -0.0 and 0.0 are the same row
+    if a.ndim == 2 and a.dtype.itemsize * a.shape[1] == 8:  # e.g. float32 UV pairs: sort one uint64
+        _, first, inverse = np.unique(a.view(np.uint64).reshape(-1), return_index=True, return_inverse=True)
+    else:  # lexicographic sort, then group equal neighbours (faster than np.unique(axis=0))
+        order = np.lexsort(a.T[::-1])
+        srt = a[order]
+        new = np.r_[True, np.any(srt[1:] != srt[:-1], axis=1)] if len(a) else np.zeros(0, bool)
+        first = order[new]  # lexsort is stable: the first occurrence of each group
+        inverse = np.empty(len(a), np.int64)
+        inverse[order] = np.cumsum(new) - 1
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return first[order], rank[inverse.reshape(-1)]
+
+
+# -------------------------------------------------------------------- images
+def image_to_array(image, max_size: int | None = None) -> np.ndarray:
+    """A PIL image or array as ``(h, w, 3)`` float32 RGB in [0, 1].
+
+    Alpha is dropped, grey is repeated into RGB, 16-bit and float images are
+    scaled; images larger than ``max_size`` (longest side) are shrunk with a
+    box filter.
+    """
+    from PIL import Image
+
+    if isinstance(image, Image.Image):
+        image.load()
+        if image.mode in ("I;16", "I;16B", "I;16L", "I;16N", "I", "F"):
+            arr = np.asarray(image).astype(np.float32)
+            if image.mode.startswith("I;16"):
+                arr = arr / 65535.0
+            elif image.mode == "I":  # 32-bit int: 16-bit data in practice, 8-bit if it fits
+                arr = arr / (255.0 if arr.max(initial=0) <= 255 else 65535.0)
+            image = Image.fromarray(np.ascontiguousarray(arr, np.float32))  # mode "F", resized below if needed
+        elif image.mode != "RGB":
+            image = image.convert("RGBA" if image.mode in ("P", "PA", "LA", "RGBa", "La") else "RGB")
+        if max_size and max(image.size) > max_size:
+            s = max_size / max(image.size)
+            image = image.resize((max(1, round(image.width * s)), max(1, round(image.height * s))), Image.BOX)
+        arr = np.asarray(image)
+    else:
+        arr = np.asarray(image)
+    if arr.dtype == np.uint8:
+        arr = arr.astype(np.float32) / 255.0
+    elif arr.dtype == np.uint16:
+        arr = arr.astype(np.float32) / 65535.0
+    elif arr.dtype == bool:
+        arr = arr.astype(np.float32)
+    arr = np.asarray(arr, np.float32)
+    if arr.ndim == 2:
+        arr = arr[:, :, None]
+    if arr.ndim != 3 or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise ValueError(f"not an image: array of shape {arr.shape}")
+    c = arr.shape[2]
+    if c in (1, 2):  # grey (+ alpha)
+        arr = np.repeat(arr[:, :, :1], 3, axis=2)
+    elif c >= 3:
+        arr = arr[:, :, :3]
+    return np.ascontiguousarray(np.clip(np.nan_to_num(arr), 0.0, 1.0), dtype=np.float32)
+
+
+def _array_to_pil(arr: np.ndarray, max_size: int | None = None):
+    from PIL import Image
+
+    img = Image.fromarray(np.round(np.clip(arr, 0, 1) * 255).astype(np.uint8))
+    if max_size and max(img.size) > max_size:
+        s = max_size / max(img.size)
+        img = img.resize((max(1, round(img.width * s)), max(1, round(img.height * s))), Image.BOX)
+    return img
+
+
+def _baked_image(mat: Material) -> np.ndarray:
+    """The material's texture with its RGB factor multiplied in."""
+    return np.clip(mat.image * np.asarray(mat.base_color, np.float32)[:3], 0.0, 1.0)
+
+
+def _warn(message: str) -> None:
+    """``warnings.warn`` attributed to the first caller outside this module (the user's line)."""
+    import sys
+    import warnings
+
+    level, frame = 2, sys._getframe(1)  # stacklevel 2 = the caller of _warn
+    while frame is not None and frame.f_code.co_filename == __file__:
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, UserWarning, stacklevel=level)
+
+
+# ----------------------------------------------------------------------- OBJ
+_TEX_OPTION_ARGS = {  # MTL texture options and how many arguments each takes (at most)
+    "-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1,
+    "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1, "-type": 1,
+}
+
+
+def _parse_tex_line(rest: str):
+    """``[options] filename`` of an MTL map line → (filename, {option: [args]})."""
+    tokens = rest.split()
+    opts: dict[str, list[str]] = {}
+    i = 0
+    while i < len(tokens) and tokens[i].lower() in _TEX_OPTION_ARGS and len(tokens) > i + 1:
+        opt, n = tokens[i].lower(), _TEX_OPTION_ARGS[tokens[i].lower()]
+        args = []
+        i += 1
+        while len(args) < n and i < len(tokens) - 1:
+            if n > 1 and args and not _is_number(tokens[i]):
+                break
+            args.append(tokens[i])
+            i += 1
+        opts[opt] = args
+    return " ".join(tokens[i:]), opts
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _resolve_asset(name: str, base):
+    """Find a file an OBJ/MTL names: as written, then by its base name (also ignoring case) in ``base``."""
+    from pathlib import Path
+
+    name = name.strip().strip('"').replace("\\", "/")
+    cands = [base / name, Path(name)] if not Path(name).is_absolute() else [Path(name)]
+    cands.append(base / Path(name).name)
+    for c in cands:
+        if c.is_file():
+            return c
+    low = Path(name).name.lower()
+    try:
+        for c in base.iterdir():
+            if c.name.lower() == low and c.is_file():
+                return c
+    except OSError:
+        pass
+    return None
+
+
+class _TextureCache:
+    """Loads each texture file once (several materials often share one atlas)."""
+
+    def __init__(self, max_size):
+        self.max_size = max_size
+        self.cache: dict = {}
+
+    def load(self, ref: str, base, what: str, owner: str):
+        from PIL import Image
+
+        path = _resolve_asset(ref, base)
+        if path is None:
+            _warn(
+                f"texture file '{ref}' ({what} of {owner}) was not found (looked in '{base}'); "
+                "using the material colour instead: put the image next to the .mtl file or fix the path"
+            )
+            return None
+        key = path.resolve()
+        if key not in self.cache:
+            try:
+                with Image.open(path) as img:
+                    self.cache[key] = image_to_array(img, self.max_size)
+            except Exception as exc:  # corrupt / unsupported image: warn and fall back
+                _warn(
+                    f"texture file '{path.name}' ({what} of {owner}) could not be read "
+                    f"({type(exc).__name__}: {exc}); using the material colour instead: re-save the image as PNG or JPEG"
+                )
+                self.cache[key] = None
+        return self.cache[key]
+
+
+def _parse_mtl(path, textures: _TextureCache) -> dict[str, tuple[Material, tuple | None]]:
+    """``newmtl`` blocks of an MTL file → ``{name: (material, uv transform or None)}``.
+
+    A loaded ``map_Kd`` replaces ``Kd`` and a loaded ``map_Pr``/``map_Pm``
+    replaces ``Pr``/``Pm`` (as Blender and three.js read them). The uv
+    transform is ``(scale, offset)`` from the ``map_Kd -s/-o`` options.
+    """
+    base = path.parent
+    raw: dict[str, dict] = {}
+    cur = None
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        parts = line.strip().split(None, 1)
+        if not parts or parts[0].startswith("#"):
+            continue
+        key, rest = parts[0], (parts[1].strip() if len(parts) > 1 else "")
+        if key == "newmtl":
+            cur = raw.setdefault(rest, {})
+            continue
+        if cur is None:
+            continue
+        k = key.lower()
+        try:
+            if k == "kd":
+                vals = [float(x) for x in rest.split()[:3]]
+                cur["Kd"] = vals * 3 if len(vals) == 1 else vals
+            elif k == "d":
+                cur["d"] = float(rest.split()[-1])
+            elif k == "tr" and "d" not in cur:
+                cur["d"] = 1.0 - float(rest.split()[-1])
+            elif k in ("pm", "pr"):
+                cur[k] = float(rest.split()[0])
+            elif k in ("map_kd", "map_pm", "map_pr", "map_bump", "bump", "norm"):
+                cur[k] = _parse_tex_line(rest)
+        except (ValueError, IndexError):
+            continue  # a malformed optional line: ignore it like other viewers do
+    out = {}
+    for mname, d in raw.items():
+        owner = f"material '{mname}' in '{path.name}'"
+        kd = np.array((d.get("Kd", list(DEFAULT_COLOR)) + [1.0, 1.0, 1.0])[:3], np.float32)
+        mat = Material(name=mname, base_color=np.array([*np.clip(kd, 0, 1), d.get("d", 1.0)], np.float32))
+        mat.metallic = float(d.get("pm", 0.0))
+        mat.roughness = float(d.get("pr", 1.0))
+        uv_transform = None
+        if "map_kd" in d:
+            fname, opts = d["map_kd"]
+            mat.image = textures.load(fname, base, "map_Kd", owner)
+            if mat.image is not None:
+                mat.base_color[:3] = 1.0  # the texture replaces Kd (Blender, three.js and co. agree)
+                s = [float(x) for x in opts.get("-s", [])] + [1.0, 1.0]
+                o = [float(x) for x in opts.get("-o", [])] + [0.0, 0.0]
+                if s[:2] != [1.0, 1.0] or o[:2] != [0.0, 0.0]:
+                    uv_transform = (np.array(s[:2], np.float32), np.array(o[:2], np.float32))
+        mr = {}
+        for key, chan in (("map_pr", 1), ("map_pm", 2)):  # glTF layout: roughness in G, metallic in B
+            if key in d:
+                img = textures.load(d[key][0], base, key.replace("map_p", "map_P"), owner)
+                if img is not None:
+                    mr[chan] = img[:, :, 0]
+        if mr:
+            shape = next(iter(mr.values())).shape
+            mr_img = np.ones((*shape, 3), np.float32)
+            for chan, img in mr.items():
+                if img.shape != shape:
+                    img = image_to_array(_array_to_pil(img).resize(shape[::-1]))[:, :, 0]
+                mr_img[:, :, chan] = img
+            mat.metallic_roughness_image = mr_img
+            mat.roughness = 1.0 if 1 in mr else mat.roughness
+            mat.metallic = 1.0 if 2 in mr else mat.metallic
+        for key in ("norm", "map_bump", "bump"):
+            if key in d:
+                img = textures.load(d[key][0], base, key, owner)
+                # a grey bump map is a height map, not a normal map: not used
+                if img is not None and np.ptp(img, axis=2).max() > 1e-3:
+                    mat.normal_image = img
+                break
+        out[mname] = (mat, uv_transform)
+    return out
+
+
+def _load_obj(path, max_size):
+    """A Wavefront OBJ (+ MTL) → one part and its materials."""
+    data = path.read_bytes()
+    if b"\x00" in data[:65536]:
+        raise _unreadable(path, "a Wavefront OBJ", "it contains binary data, an OBJ file is text")
+    text = data.decode("utf-8", errors="replace").replace("\r\n", "\n").replace("\r", "\n")
+    text = "\n" + text.replace("\\\n", " ")  # joins "\" continuation lines
+
+    # one regular-expression scan per keyword (much faster than a Python loop over lines)
+    def scan(keyword):
+        found = list(re.finditer(rf"^[ \t]*{keyword}[ \t]+([^\n]*)", text, re.MULTILINE))
+        return [m.group(1) for m in found], np.fromiter((m.start() for m in found), np.int64, len(found))
+
+    v_rows, v_pos = scan("v")
+    vt_rows, vt_pos = scan("vt")
+    f_rows, f_pos = scan("f")
+    use_names, use_pos = scan("usemtl")
+    mtllibs = [m.strip() for m in scan("mtllib")[0]]
+    # the material in force at each face: the last usemtl before it (slot 0: none yet)
+    mat_names: list[str | None] = [None]
+    slot_of: dict = {}
+    use_slot = [0]
+    for name in use_names:
+        name = name.strip()
+        if name not in slot_of:
+            slot_of[name] = len(mat_names)
+            mat_names.append(name)
+        use_slot.append(slot_of[name])
+    info = np.stack([
+        f_pos,
+        np.asarray(use_slot)[np.searchsorted(use_pos, f_pos)],
+        np.searchsorted(v_pos, f_pos),  # vertices defined before the face (for negative indices)
+        np.searchsorted(vt_pos, f_pos),
+    ], axis=1)
+    fv, ft, fm = _obj_faces(path, f_rows, info, line_of=lambda pos: text.count("\n", 0, pos))
+    # keep only material slots that faces use (in first-use order)
+    used_slots = np.unique(fm)
+    mat_names = [mat_names[i] for i in used_slots]
+    fm = np.searchsorted(used_slots, fm)
+
+    vertices, colors = _obj_vertices(path, v_rows)
+    uvs = np.zeros((0, 2))
+    if vt_rows:
+        uvs = _obj_numbers(path, vt_rows, "vt", 1)
+        uvs = np.nan_to_num(uvs[:, :2]) if uvs.shape[1] >= 2 else np.column_stack([uvs[:, 0], np.zeros(len(uvs))])
+    if len(fv) and fv.max() >= len(vertices):
+        raise _unreadable(path, "a Wavefront OBJ", f"a face refers to vertex {fv.max() + 1} but the file "
+                          f"defines only {len(vertices)} vertices")
+    if len(ft) and ft.max() >= len(uvs):
+        raise _unreadable(path, "a Wavefront OBJ", f"a face refers to texture coordinate {ft.max() + 1} but the "
+                          f"file defines only {len(uvs)} ('vt' lines)")
+
+    # materials: the MTL libraries, then one Material per used name
+    textures = _TextureCache(max_size)
+    library: dict[str, tuple[Material, tuple | None]] = {}
+    loaded_any = False
+    for entry in mtllibs:
+        files = [_resolve_asset(entry, path.parent)]
+        if files[0] is None and " " in entry:  # "mtllib a.mtl b.mtl"
+            files = [_resolve_asset(e, path.parent) for e in entry.split()]
+        for name, mtl in zip([entry] if len(files) == 1 else entry.split(), files):
+            if mtl is None:
+                _warn(
+                    f"material library '{name}' named in '{path.name}' was not found (looked in '{path.parent}'); "
+                    "using plain colours: put the .mtl file next to the .obj"
+                )
+                continue
+            try:
+                library.update(_parse_mtl(mtl, textures))
+                loaded_any = True
+            except OSError as exc:
+                _warn(f"material library '{mtl.name}' could not be read ({exc}); using plain colours")
+
+    materials, uv_transforms = [], []
+    for mname in mat_names:
+        mat, uv_t = library.get(mname, (None, None))
+        if mat is None:
+            if mname is not None and loaded_any:
+                _warn(f"material '{mname}' used in '{path.name}' is not defined in its .mtl file; using a plain colour")
+            mat = Material(name=mname or "default")
+        if colors is not None and mat.image is None:  # vertex colours replace Kd
+            mat = replace(mat, base_color=np.array([1, 1, 1, mat.base_color[3]], np.float32))
+        materials.append(mat)
+        uv_transforms.append(uv_t)
+    # order materials as the MTL defines them (the file's intent), undefined ones last
+    lib_order = {n: i for i, n in enumerate(library)}
+    order = sorted(range(len(materials)), key=lambda i: (lib_order.get(mat_names[i], len(lib_order)), i))
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    materials = [materials[i] for i in order]
+    uv_transforms = [uv_transforms[i] for i in order]
+
+    faces = fv
+    face_material = rank[fm] if len(fm) else np.zeros(0, np.int64)
+    face_uvs = None
+    ft_arr = ft
+    if len(uvs) and (ft_arr >= 0).any():
+        face_uvs = np.where((ft_arr >= 0)[..., None], uvs[np.maximum(ft_arr, 0)], np.nan).astype(np.float32)
+        for mi, t in enumerate(uv_transforms):
+            if t is not None:
+                sel = face_material == mi
+                face_uvs[sel] = face_uvs[sel] * t[0] + t[1]
+    return [_Part(vertices, faces, face_material, face_uvs, colors)], materials
+
+
+def _obj_faces(path, rows: list[str], info: np.ndarray, line_of):
+    """Face lines → triangles ``(F, 3)`` vertex and uv indices (0-based; uv -1: none) and material slots.
+
+    Indices are 1-based; negative ones count back from the last vertex defined
+    so far. Polygons are fan-triangulated. All-triangle files with one index
+    layout (the usual case) are parsed in one vectorised step.
+    """
+    empty = np.zeros((0, 3), np.int64)
+    if not rows:
+        return empty, empty, np.zeros(0, np.int64)
+    joined = " ".join(rows)
+    tokens = joined.split()
+    if len(tokens) == 3 * len(rows):  # every line has exactly three corners
+        if len({t.count("/") for t in tokens}) == 1:  # one index layout: v, v/vt, v//vn or v/vt/vn
+            try:
+                nums = np.array(joined.replace("//", "/0/").replace("/", " ").split(), dtype=np.int64)
+            except ValueError:
+                nums = None
+            if nums is not None and len(nums) % (3 * len(rows)) == 0:
+                nums = nums.reshape(len(rows), 3, -1)
+                vi = np.where(nums[..., 0] < 0, nums[..., 0] + info[:, 2:3], nums[..., 0] - 1)
+                ti = np.full_like(vi, -1)
+                if nums.shape[2] >= 2:
+                    t = nums[..., 1]
+                    ti = np.where(t < 0, t + info[:, 3:4], np.where(t == 0, -1, t - 1))
+                    ti[(t < 0) & (ti < 0)] = -2  # points before the first vt
+                bad = (vi < 0).any(axis=1) | (ti < -1).any(axis=1)
+                if not bad.any():
+                    return vi, ti, info[:, 1].copy()
+    # general path, line by line (polygons, mixed layouts, or an error to locate)
+    fv: list[int] = []
+    ft: list[int] = []
+    fm: list[int] = []
+    for row, (pos, slot, nv, nt) in zip(rows, info.tolist()):
+        toks = row.split()
+        if len(toks) < 3:
+            continue
+        try:
+            idx = []
+            for tok in toks:
+                sub = tok.split("/")
+                vi = _obj_index(sub[0], nv)
+                ti = _obj_index(sub[1], nt) if len(sub) > 1 and sub[1] else -1
+                idx.append((vi, ti))
+        except (ValueError, IndexError):
+            raise _unreadable(
+                path, "a Wavefront OBJ", f"line {line_of(pos)}: bad face 'f {row.strip()[:80]}' (an index is not a "
+                "number, is 0, or points before the first vertex)"
+            ) from None
+        for k in range(1, len(idx) - 1):  # fan triangulation
+            for vi, ti in (idx[0], idx[k], idx[k + 1]):
+                fv.append(vi)
+                ft.append(ti)
+            fm.append(slot)
+    return (np.array(fv, np.int64).reshape(-1, 3), np.array(ft, np.int64).reshape(-1, 3),
+            np.array(fm, np.int64))
+
+
+def _obj_index(token: str, count: int) -> int:
+    i = int(token)
+    i = i - 1 if i > 0 else count + i if i < 0 else -1
+    if i < 0:
+        raise IndexError(token)
+    return i
+
+
+def _obj_numbers(path, rows, what, min_cols):
+    """Lines of numbers → ``(n, width)`` float64, NaN where a line is shorter than the longest."""
+    try:
+        rows = [r.split() for r in rows]
+        widths = {len(r) for r in rows}
+        if len(widths) == 1 and min(widths) >= min_cols:
+            return np.array(rows, dtype=np.float64)
+        width = max(widths)
+        out = np.full((len(rows), width), np.nan)
+        for i, r in enumerate(rows):
+            if len(r) < min_cols:
+                raise ValueError(f"{what} line #{i + 1} has {len(r)} numbers, needs {min_cols}")
+            out[i, : len(r)] = [float(x) for x in r]
+        return out
+    except ValueError as exc:
+        raise _unreadable(path, "a Wavefront OBJ", f"bad '{what}' line: {exc}") from None
+
+
+def _obj_vertices(path, rows):
+    """``v x y z [w]`` or ``v x y z r g b`` rows → positions and (optional) colours."""
+    if not rows:
+        return np.zeros((0, 3)), None
+    arr = _obj_numbers(path, rows, "v", 3)
+    xyz = arr[:, :3]
+    colors = None
+    if arr.shape[1] >= 6:
+        rgb = arr[:, 3:6]
+        has = np.isfinite(rgb).all(axis=1)
+        if has.any():
+            if np.nanmax(rgb) > 1.0:  # some writers use 0..255
+                rgb = rgb / 255.0
+            colors = np.where(has[:, None], np.clip(np.nan_to_num(rgb), 0, 1), 1.0).astype(np.float32)
+    return xyz, colors
+
+
+# ------------------------------------------------------- glTF / PLY / STL / OFF
+def _load_with_trimesh(path, max_size):
+    """Every triangle geometry of the file's scene, node transforms applied."""
+    import trimesh
+
+    fmt = {".glb": "a binary glTF (GLB)", ".gltf": "a glTF", ".ply": "a PLY mesh", ".stl": "an STL mesh",
+           ".off": "an OFF mesh"}[path.suffix.lower()]
+    if path.stat().st_size == 0:
+        raise _unreadable(path, fmt, "the file is empty")
+    if path.suffix.lower() == ".glb":
+        with open(path, "rb") as fh:
+            if fh.read(4) != b"glTF":
+                raise _unreadable(path, fmt, "it does not start with the GLB magic bytes 'glTF'")
+    elif path.suffix.lower() == ".gltf":
+        import json
+
+        try:
+            json.loads(path.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise _unreadable(path, fmt, f"not valid JSON: {exc}") from None
+    image_problems = _gltf_image_problems(path) if path.suffix.lower() in (".glb", ".gltf") else {}
+    try:
+        scene = trimesh.load(str(path), force="scene", process=False)
+    except Exception as exc:
+        raise _unreadable(path, fmt, exc) from None
+    for problem in image_problems.values():
+        _warn(problem)
+
+    parts: list[_Part] = []
+    materials: list[Material] = []
+    mat_index: dict = {}  # id(trimesh material) -> index in materials
+
+    def add_material(m: Material, key) -> int:
+        if key not in mat_index:
+            mat_index[key] = len(materials)
+            materials.append(m)
+        return mat_index[key]
+
+    for node in scene.graph.nodes_geometry:
+        transform, geom_name = scene.graph[node]
+        geom = scene.geometry.get(geom_name)
+        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            continue  # point clouds, lines
+        vertices = trimesh.transform_points(np.asarray(geom.vertices, np.float64), transform)
+        faces = np.asarray(geom.faces, np.int64)
+        if np.linalg.det(np.asarray(transform)[:3, :3]) < 0:
+            faces = faces[:, ::-1]  # a mirroring transform flips the winding: restore outward normals
+        visual = geom.visual
+        n = len(faces)
+        if isinstance(visual, trimesh.visual.TextureVisuals) and visual.material is not None:
+            tm = visual.material
+            uv = getattr(visual, "uv", None)
+            has_uv = uv is not None and len(uv) == len(vertices)
+            mat = _material_from_trimesh(tm, max_size, path, geom_name)
+            key = id(tm)
+            if not has_uv and any(x is not None for x in (mat.image, mat.metallic_roughness_image, mat.normal_image)):
+                if mat.image is not None:
+                    _warn(f"'{geom_name}' in '{path.name}' has a texture but no UV coordinates; using its base colour")
+                mat = replace(mat, image=None, metallic_roughness_image=None, normal_image=None)
+                key = (id(tm), "no-uv")
+            mi = add_material(mat, key)
+            face_uvs = np.asarray(uv, np.float64)[faces].astype(np.float32) if has_uv else None
+            colors = _color_array(visual.vertex_attributes.get("color"), len(vertices))
+            parts.append(_Part(vertices, faces, np.full(n, mi), face_uvs, colors))
+        elif isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
+            mi = add_material(Material(name="vertex_colors", base_color=_WHITE.copy()), "vertex_colors")
+            colors = _color_array(visual.vertex_colors, len(vertices))
+            parts.append(_Part(vertices, faces, np.full(n, mi), None, colors))
+        elif isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "face":
+            fc = _color_array(visual.face_colors, n)
+            uniq, inv = np.unique(np.round(fc * 255).astype(np.int64), axis=0, return_inverse=True)
+            inv = inv.reshape(-1)
+            if len(uniq) <= 64:  # a few colours: one material each
+                idx = [add_material(Material(name=f"face_color_{k}", base_color=np.array([*c / 255.0, 1.0], np.float32)),
+                                    ("face", tuple(c))) for k, c in enumerate(uniq)]
+                parts.append(_Part(vertices, faces, np.asarray(idx)[inv], None, None))
+            else:  # many colours: give every face its own three vertices
+                mi = add_material(Material(name="vertex_colors", base_color=_WHITE.copy()), "vertex_colors")
+                parts.append(_Part(vertices[faces].reshape(-1, 3), np.arange(3 * n).reshape(-1, 3),
+                                   np.full(n, mi), None, np.repeat(fc, 3, axis=0)))
+        else:
+            mi = add_material(Material(name="default"), "default")
+            parts.append(_Part(vertices, faces, np.full(n, mi)))
+    return parts, materials
+
+
+def _color_array(colors, n) -> np.ndarray | None:
+    """uint8/uint16/float colours (RGB or RGBA) → (n, 3) float32 in [0, 1], or None."""
+    if colors is None:
+        return None
+    c = np.asarray(colors)
+    if c.ndim != 2 or len(c) != n or c.shape[1] < 3:
+        return None
+    if c.dtype == np.uint8:
+        c = c / 255.0
+    elif c.dtype == np.uint16:
+        c = c / 65535.0
+    elif np.issubdtype(c.dtype, np.integer):
+        c = c / 255.0
+    return np.clip(np.asarray(c[:, :3], np.float32), 0.0, 1.0)
+
+
+def _rgba(color) -> np.ndarray:
+    """trimesh colour (uint8 0..255 or float 0..1; RGB or RGBA) → float32 RGBA in [0, 1]."""
+    c = np.asarray(color).reshape(-1)
+    c = c / 255.0 if np.issubdtype(c.dtype, np.integer) else c.astype(np.float64)
+    c = np.r_[c[:4], [1.0] * (4 - min(len(c), 4))]
+    return np.clip(c, 0, 1).astype(np.float32)
+
+
+def _material_from_trimesh(tm, max_size, path, geom_name) -> Material:
+    """trimesh PBRMaterial / SimpleMaterial → :class:`Material`."""
+    from trimesh.visual.material import PBRMaterial
+
+    name = getattr(tm, "name", None) or geom_name
+
+    def img(pil, what):
+        if pil is None:
+            return None
+        try:
+            return image_to_array(pil, max_size)
+        except Exception as exc:
+            _warn(f"the {what} texture of material '{name}' in '{path.name}' could not be decoded "
+                  f"({type(exc).__name__}: {exc}); continuing without it")
+            return None
+
+    if isinstance(tm, PBRMaterial):
+        factor = tm.baseColorFactor
+        factor = _WHITE.copy() if factor is None else _rgba(factor)
+        return Material(
+            name=name,
+            base_color=factor,
+            image=img(tm.baseColorTexture, "base colour"),
+            # glTF's defaults when a factor is absent are 1.0 (metallic and rough)
+            metallic=float(tm.metallicFactor) if tm.metallicFactor is not None else 1.0,
+            roughness=float(tm.roughnessFactor) if tm.roughnessFactor is not None else 1.0,
+            metallic_roughness_image=img(getattr(tm, "metallicRoughnessTexture", None), "metallic-roughness"),
+            normal_image=img(getattr(tm, "normalTexture", None), "normal"),
+        )
+    pil = getattr(tm, "image", None)
+    if _is_trimesh_placeholder(pil):
+        # trimesh invents a 2x2 grey image for UVs without a texture (e.g. a PLY with
+        # texture coordinates but no TextureFile): that is "no colour", not a texture
+        return Material(name="default")
+    image = img(pil, "diffuse")
+    diffuse = getattr(tm, "diffuse", None)
+    if image is not None or diffuse is None:
+        base = _WHITE.copy()
+    else:
+        base = _rgba(diffuse)
+    return Material(name=name, base_color=base, image=image)
+
+
+def _is_trimesh_placeholder(pil) -> bool:
+    """Is this trimesh's ``color_image()`` default: 2x2 RGBA, every pixel (100, 100, 100, 255)?"""
+    try:
+        return (pil is not None and pil.size == (2, 2) and pil.mode == "RGBA"
+                and bool(np.all(np.asarray(pil) == (100, 100, 100, 255))))
+    except Exception:
+        return False
+
+
+def _gltf_image_problems(path) -> dict:
+    """Textures a glTF's materials use that are missing or undecodable (trimesh silently drops them).
+
+    Returns ``{image index: warning message}``; best effort (any surprise → no warnings).
+    """
+    import io
+    import json
+    import struct
+    from urllib.parse import unquote
+
+    from PIL import Image
+
+    try:
+        data = path.read_bytes()
+        binary = b""
+        if path.suffix.lower() == ".glb":
+            if data[:4] != b"glTF":
+                return {}
+            n, _ = struct.unpack_from("<II", data, 12)
+            header = json.loads(data[20 : 20 + n])
+            off = 20 + n
+            if off + 8 <= len(data):
+                bn, _ = struct.unpack_from("<II", data, off)
+                binary = data[off + 8 : off + 8 + bn]
+        else:
+            header = json.loads(data.decode("utf-8"))
+        images, textures = header.get("images", []), header.get("textures", [])
+        users: dict[int, list[str]] = {}
+        for mat in header.get("materials", []):
+            pbr = mat.get("pbrMetallicRoughness", {})
+            for slot, info in (("baseColorTexture", pbr.get("baseColorTexture")),
+                               ("metallicRoughnessTexture", pbr.get("metallicRoughnessTexture")),
+                               ("normalTexture", mat.get("normalTexture"))):
+                if not info or info.get("index") is None or info["index"] >= len(textures):
+                    continue
+                tex = textures[info["index"]]
+                src = tex.get("source")
+                for ext in (tex.get("extensions") or {}).values():
+                    src = ext.get("source", src) if isinstance(ext, dict) else src
+                if src is not None:
+                    users.setdefault(src, []).append(f"{slot} of material '{mat.get('name', '?')}'")
+        problems = {}
+        for src, used_by in users.items():
+            if src >= len(images):
+                continue
+            im = images[src]
+            label = f"'{unquote(im['uri'])}'" if "uri" in im and not im["uri"].startswith("data:") else f"#{src} (embedded)"
+            try:
+                if "uri" in im:
+                    uri = im["uri"]
+                    if uri.startswith("data:"):
+                        import base64
+
+                        blob = base64.b64decode(uri.split(",", 1)[1])
+                    else:
+                        f = path.parent / unquote(uri)
+                        if not f.is_file():
+                            raise FileNotFoundError("file not found")
+                        blob = f.read_bytes()
+                else:
+                    view = header["bufferViews"][im["bufferView"]]
+                    buf = header["buffers"][view["buffer"]]
+                    raw = binary if "uri" not in buf else (path.parent / unquote(buf["uri"])).read_bytes()
+                    start = view.get("byteOffset", 0)
+                    blob = raw[start : start + view["byteLength"]]
+                with Image.open(io.BytesIO(blob)) as pil:
+                    pil.verify()
+            except Exception as exc:
+                reason = "not a readable image" if "cannot identify image" in str(exc) else f"{type(exc).__name__}: {exc}"
+                problems[src] = (
+                    f"texture image {label} in '{path.name}' ({', '.join(used_by)}) is missing or unreadable "
+                    f"({reason}); using the material colour instead"
+                )
+        return problems
+    except Exception:
+        return {}
+
+
+# =============================================================================
+# Writing
+# =============================================================================
+def _split_corners(faces: np.ndarray, face_uvs: np.ndarray):
+    """Give every distinct (vertex, uv) pair its own vertex, as GLB and trimesh need.
+
+    Returns ``(vertex_of (N,), uv (N, 2), new_faces (F, 3))``.
+    """
+    corner_v = faces.reshape(-1).astype(np.int64)
+    corner_uv = np.ascontiguousarray(np.nan_to_num(face_uvs.reshape(-1, 2)).astype(np.float32) + 0.0)
+    key = np.column_stack([corner_v, corner_uv.view(np.int64).reshape(-1)])  # (vertex, uv bits)
+    first, inverse = _unique_rows(key)
+    return corner_v[first], corner_uv[first].astype(np.float64), inverse.reshape(-1, 3)
+
+
+def _prepare_output(path, suffix):
+    from pathlib import Path
+
+    path = Path(path).expanduser()
+    if path.suffix.lower() != suffix:
+        raise Sin3DMInputError(f"'{path.name}' should end in '{suffix}' (got '{path.suffix or '(none)'}'); "
+                               f"pick a file name like '{path.stem}{suffix}'")
+    if path.is_dir():
+        raise Sin3DMInputError(f"'{path}' is a directory; give a file name")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _safe_name(name: str, used: set) -> str:
+    import re
+
+    base = re.sub(r"[^A-Za-z0-9_.\-]+", "_", str(name or "material")).strip("_") or "material"
+    out, k = base, 1
+    while out in used:
+        out, k = f"{base}_{k}", k + 1
+    used.add(out)
+    return out
+
+
+def save_obj(mesh: TexturedMesh, path) -> "Path":
+    """Write ``path`` (.obj) with ``<stem>.mtl`` and the textures as PNGs beside it.
+
+    * positions as ``v`` (plus ``r g b`` when the mesh has vertex colours),
+      per-corner UVs as ``vt`` with their own indices (``f v/vt``), so no
+      vertex is split; faces keep their order (``usemtl`` at each change);
+    * one MTL material per material: ``Kd`` is its colour; a texture is
+      written as ``<stem>.png`` (one textured material) or ``<stem>_<k>.png``
+      with the colour factor multiplied in and ``Kd 1 1 1`` (viewers disagree
+      on whether ``Kd`` tints ``map_Kd``; this way they all agree);
+      ``Pm``/``Pr`` scalars, ``map_Pr``/``map_Pm`` (grey PNGs) and
+      ``map_Bump`` (normal map, as Blender writes it) for PBR materials.
+    Files are written into a temporary folder next to ``path`` and moved into
+    place at the end, so an error leaves no half-written output.
+    ``load_mesh`` on the result gives the same geometry and colours.
+    """
+    import os
+    import shutil
+    import tempfile
+
+    path = _prepare_output(path, ".obj")
+    stem = path.stem
+    textured = [k for k, m in enumerate(mesh.materials) if m.image is not None]
+    tmp = tempfile.mkdtemp(prefix=f".{stem}.tmp", dir=path.parent)
+    try:
+        from pathlib import Path
+
+        tmpdir = Path(tmp)
+        written = _write_obj_files(mesh, tmpdir, stem, len(textured) == 1)
+        # move images and the .mtl first, the .obj last: it only appears when everything it names exists
+        for name in sorted(written, key=lambda n: n.endswith(".obj")):
+            os.replace(tmpdir / name, path.parent / name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return path
+
+
+def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool) -> list[str]:
+    has_uv_mesh = mesh.face_uvs is not None
+    written = []
+    used_names: set = set()
+    names = [_safe_name(m.name, used_names) for m in mesh.materials]
+
+    # ---- textures and .mtl
+    lines = ["# written by sin3dm-lite", ""]
+    for k, mat in enumerate(mesh.materials):
+        prefix = stem if (single_texture and mat.image is not None) else f"{stem}_{k}"
+        c = np.asarray(mat.base_color, np.float64)
+        alpha = float(c[3]) if len(c) > 3 else 1.0
+        lines.append(f"newmtl {names[k]}")
+        maps = []
+        if mat.image is not None and has_uv_mesh:
+            _array_to_pil(_baked_image(mat)).save(folder / f"{prefix}.png")
+            written.append(f"{prefix}.png")
+            maps.append(f"map_Kd {prefix}.png")
+            kd = (1.0, 1.0, 1.0)
+        else:
+            kd = tuple(np.clip(c[:3], 0, 1))
+        roughness, metallic = float(mat.roughness), float(mat.metallic)
+        if mat.metallic_roughness_image is not None and has_uv_mesh:
+            for chan, tag, factor in ((1, "Pr", roughness), (2, "Pm", metallic)):
+                grey = np.clip(mat.metallic_roughness_image[:, :, chan] * factor, 0, 1)
+                fname = f"{prefix}_{'roughness' if chan == 1 else 'metallic'}.png"
+                _array_to_pil(np.repeat(grey[:, :, None], 3, axis=2)).convert("L").save(folder / fname)
+                written.append(fname)
+                maps.append(f"map_{tag} {fname}")
+        if mat.normal_image is not None and has_uv_mesh:
+            fname = f"{prefix}_normal.png"
+            _array_to_pil(mat.normal_image).save(folder / fname)
+            written.append(fname)
+            maps.append(f"map_Bump -bm 1.000000 {fname}")
+        lines += [
+            "Ka 0.000000 0.000000 0.000000",
+            "Kd {:.6f} {:.6f} {:.6f}".format(*kd),
+            "Ks 0.000000 0.000000 0.000000",
+            "Ns 10.000000",
+            f"d {alpha:.6f}",
+            "illum 1",
+            f"Pr {roughness:.6f}",
+            f"Pm {metallic:.6f}",
+            *maps,
+            "",
+        ]
+    (folder / f"{stem}.mtl").write_text("\n".join(lines), encoding="utf-8")
+    written.append(f"{stem}.mtl")
+
+    # ---- .obj
+    faces = np.asarray(mesh.faces, np.int64)
+    fm = np.asarray(mesh.face_material, np.int64)
+    if has_uv_mesh:
+        fuv = np.asarray(mesh.face_uvs, np.float32)
+        face_has_uv = np.isfinite(fuv).all(axis=(1, 2))
+        corner_uv = fuv[face_has_uv].reshape(-1, 2)
+        first, inv = _unique_rows(corner_uv)
+        uv_rows = corner_uv[first]
+        uv_index = np.zeros((len(faces), 3), np.int64)
+        uv_index[face_has_uv] = inv.reshape(-1, 3)
+    else:
+        face_has_uv = np.zeros(len(faces), bool)
+        uv_rows, uv_index = np.zeros((0, 2)), None
+    colors = _baked_vertex_colors(mesh)
+    with open(folder / f"{stem}.obj", "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(f"# written by sin3dm-lite: {len(mesh.vertices)} vertices, {len(faces)} faces\n")
+        fh.write(f"mtllib {stem}.mtl\no {_safe_name(mesh.name, set())}\n")
+        if colors is None:
+            _write_rows(fh, "v %.9g %.9g %.9g\n", mesh.vertices)
+        else:
+            _write_rows(fh, "v %.9g %.9g %.9g %.6f %.6f %.6f\n", np.hstack([mesh.vertices, colors]))
+        if len(uv_rows) and face_has_uv.any():
+            _write_rows(fh, "vt %.9g %.9g\n", uv_rows)
+        # runs of faces with the same material and the same has-uv flag, in the original order
+        change = np.flatnonzero((np.diff(fm) != 0) | (np.diff(face_has_uv.astype(np.int8)) != 0)) + 1
+        starts, ends = np.r_[0, change], np.r_[change, len(faces)]
+        last = None
+        for a, b in zip(starts, ends):
+            if fm[a] != last:
+                fh.write(f"usemtl {names[fm[a]]}\n")
+                last = fm[a]
+            if face_has_uv[a]:
+                block = np.stack([faces[a:b] + 1, uv_index[a:b] + 1], axis=2).reshape(b - a, 6)
+                _write_rows(fh, "f %d/%d %d/%d %d/%d\n", block)
+            else:
+                _write_rows(fh, "f %d %d %d\n", faces[a:b] + 1)
+    written.append(f"{stem}.obj")
+    return written
+
+
+def _write_rows(fh, row_format: str, array: np.ndarray, chunk: int = 65536) -> None:
+    """Write every row of ``array`` with ``row_format`` (much faster than ``np.savetxt``)."""
+    values = array.tolist()
+    for start in range(0, len(values), chunk):
+        part = values[start : start + chunk]
+        fh.write((row_format * len(part)) % tuple(x for row in part for x in row))
+
+
+def _baked_vertex_colors(mesh: TexturedMesh) -> np.ndarray | None:
+    """Vertex colours times the factor of the (untextured) material that uses each vertex.
+
+    OBJ vertex colours replace ``Kd`` when read back, so the factor goes into
+    the colours (exact unless one vertex is shared by materials with different
+    factors; the first such material wins).
+    """
+    if mesh.vertex_colors is None:
+        return None
+    factor = np.ones((len(mesh.vertices), 3), np.float32)
+    for k in reversed(range(len(mesh.materials))):  # reversed: lower material index wins
+        mat = mesh.materials[k]
+        if mat.image is None or mesh.face_uvs is None:
+            idx = np.unique(mesh.faces[mesh.face_material == k])
+            factor[idx] = np.asarray(mat.base_color, np.float32)[:3]
+    return np.clip(mesh.vertex_colors * factor, 0, 1)
+
+
+def save_glb(mesh: TexturedMesh, path) -> "Path":
+    """Write a binary glTF: one primitive per material, PBR metallic-roughness.
+
+    A textured material becomes ``baseColorTexture`` (+ ``baseColorFactor``,
+    ``metallicRoughnessTexture``, ``normalTexture``, metallic and roughness
+    factors) with vertices split where a vertex has several UVs; an untextured
+    material with vertex colours becomes ``COLOR_0`` (factor multiplied in);
+    otherwise a plain ``baseColorFactor``. Written to a temporary file and
+    renamed, so an error leaves no half-written file. Readable by
+    :func:`load_mesh`, trimesh, Blender and web viewers.
+    """
+    import os
+    import tempfile
+
+    import trimesh
+    from trimesh.visual.material import PBRMaterial
+
+    path = _prepare_output(path, ".glb")
+    scene = trimesh.Scene()
+    used_names: set = set()
+    for k, mat in enumerate(mesh.materials):
+        sel = np.flatnonzero(mesh.face_material == k)
+        if len(sel) == 0:
+            continue
+        faces = mesh.faces[sel]
+        gname = _safe_name(f"{mesh.name}_{mat.name}", used_names)
+        has_maps = any(x is not None for x in (mat.image, mat.metallic_roughness_image, mat.normal_image))
+
+        def pil(a):
+            return None if a is None else _array_to_pil(a)
+
+        factor = np.round(np.clip(np.asarray(mat.base_color, np.float64), 0, 1) * 255).astype(np.uint8)
+        if len(factor) == 3:
+            factor = np.r_[factor, 255].astype(np.uint8)
+        if has_maps and mesh.face_uvs is not None:
+            vert_of, uv, new_faces = _split_corners(faces, mesh.face_uvs[sel])
+            pbr = PBRMaterial(
+                name=mat.name,
+                baseColorTexture=pil(mat.image),
+                baseColorFactor=factor,  # uint8 on purpose: trimesh reads a list of ints as 0..255
+                metallicFactor=float(mat.metallic),
+                roughnessFactor=float(mat.roughness),
+                metallicRoughnessTexture=pil(mat.metallic_roughness_image),
+                normalTexture=pil(mat.normal_image),
+            )
+            geom = trimesh.Trimesh(mesh.vertices[vert_of], new_faces,
+                                   visual=trimesh.visual.TextureVisuals(uv=uv, material=pbr), process=False)
+        else:
+            used, new_faces = np.unique(faces, return_inverse=True)
+            new_faces = new_faces.reshape(-1, 3)
+            if mesh.vertex_colors is not None:
+                col = np.clip(mesh.vertex_colors[used] * np.asarray(mat.base_color, np.float32)[:3], 0, 1)
+                rgba = np.column_stack([np.round(col * 255), np.full(len(col), factor[3])]).astype(np.uint8)
+                geom = trimesh.Trimesh(mesh.vertices[used], new_faces, vertex_colors=rgba, process=False)
+            else:
+                pbr = PBRMaterial(name=mat.name, baseColorFactor=factor, metallicFactor=float(mat.metallic),
+                                  roughnessFactor=float(mat.roughness))
+                geom = trimesh.Trimesh(mesh.vertices[used], new_faces,
+                                       visual=trimesh.visual.TextureVisuals(material=pbr), process=False)
+        scene.add_geometry(geom, geom_name=gname, node_name=gname)
+    if not scene.geometry:
+        raise Sin3DMInputError(f"mesh '{mesh.name}' has no faces to write")
+    data = scene.export(file_type="glb")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    return path

@@ -1,0 +1,740 @@
+"""Tests of sin3dm_lite.mesh_io: loaders, writers, bad input, normalisation.
+
+Every input is written on the fly into ``tmp_path`` (no binary fixtures).
+The texture used throughout has four coloured quadrants so that a lookup can
+be checked by eye: in UV space (v up) the top-left quadrant (u < .5, v > .5)
+is red, top-right green, bottom-left blue, bottom-right yellow.
+"""
+from __future__ import annotations
+
+import json
+import struct
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+from trimesh.visual.material import PBRMaterial
+
+from sin3dm_lite import mesh_io
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.mesh_io import (
+    DEFAULT_COLOR,
+    Material,
+    TexturedMesh,
+    load_any,
+    load_mesh,
+    sample_texture,
+    save_glb,
+    save_obj,
+)
+
+RED, GREEN, BLUE, YELLOW = (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)
+CYAN, MAGENTA = (0, 1, 1), (1, 0, 1)
+
+
+# ------------------------------------------------------------------ helpers
+def quadrant_image(tl=RED, tr=GREEN, bl=BLUE, br=YELLOW, size=16) -> np.ndarray:
+    """uint8 (size, size, 3): row 0 is the top of the image (v = 1)."""
+    h = size // 2
+    img = np.zeros((size, size, 3), np.uint8)
+    img[:h, :h], img[:h, h:], img[h:, :h], img[h:, h:] = (np.array(c) * 255 for c in (tl, tr, bl, br))
+    return img
+
+
+def save_png(path: Path, arr: np.ndarray) -> Path:
+    Image.fromarray(arr).save(path)
+    return path
+
+
+# a unit square (two triangles, UVs covering the texture) plus a pyramid apex
+# whose faces use an untextured material
+SQUARE_OBJ = """\
+# test
+mtllib {mtl}
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 0.5 0.5 1
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+usemtl textured
+f 1/1 2/2 3/3
+f 1/1 3/3 4/4
+usemtl plain
+f 1 2 5
+f 2 3 5
+f 3 4 5
+f 4 1 5
+"""
+
+SQUARE_MTL = """\
+newmtl textured
+Kd 0.8 0.8 0.8
+map_Kd {tex}
+
+newmtl plain
+Kd 0.2 0.4 0.6
+"""
+
+# barycentric points on the square: (face, bc, expected quadrant colour)
+# face 0 corners have uv (0,0) (1,0) (1,1); face 1: (0,0) (1,1) (0,1)
+LOOKUPS = [
+    (0, (0.8, 0.1, 0.1), BLUE),  # uv (0.2, 0.1)
+    (0, (0.1, 0.8, 0.1), YELLOW),  # uv (0.9, 0.1)
+    (1, (0.1, 0.1, 0.8), RED),  # uv (0.1, 0.9)
+    (1, (0.1, 0.8, 0.1), GREEN),  # uv (0.8, 0.9)
+]
+
+
+def write_square(folder: Path, tex: str = "tex.png", mtl: str = "square.mtl", image=True) -> Path:
+    if image:
+        save_png(folder / tex, quadrant_image())
+    (folder / mtl).write_text(SQUARE_MTL.format(tex=tex))
+    path = folder / "square.obj"
+    path.write_text(SQUARE_OBJ.format(mtl=mtl))
+    return path
+
+
+def lookup(mesh: TexturedMesh, face: int, bc) -> np.ndarray:
+    return mesh.colors_at(np.array([face]), np.array([bc], float))[0]
+
+
+def textured_square_trimesh(material) -> trimesh.Trimesh:
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    return trimesh.Trimesh(v, f, visual=trimesh.visual.TextureVisuals(uv=uv, material=material), process=False)
+
+
+def uint8(*rgba) -> np.ndarray:
+    """trimesh reads a list of ints as 0..255 and floats as 0..1: be explicit."""
+    return np.round(np.array(rgba, float) * 255).astype(np.uint8)
+
+
+def random_bary(n: int, rng) -> np.ndarray:
+    bc = rng.random((n, 3)) + 0.05
+    return bc / bc.sum(1, keepdims=True)
+
+
+# ======================================================================= OBJ
+def test_obj_mtl_png_texture_lookup(tmp_path):
+    mesh = load_mesh(write_square(tmp_path))
+    assert mesh.name == "square"
+    assert mesh.vertices.shape == (5, 3) and mesh.faces.shape == (6, 3)
+    np.testing.assert_array_equal(mesh.faces[:2], [[0, 1, 2], [0, 2, 3]])
+    assert [m.name for m in mesh.materials] == ["textured", "plain"]
+    np.testing.assert_array_equal(mesh.face_material, [0, 0, 1, 1, 1, 1])
+    tex = mesh.materials[0]
+    assert tex.image.dtype == np.float32 and tex.image.shape == (16, 16, 3)
+    np.testing.assert_allclose(tex.base_color[:3], 1.0)  # map_Kd replaces Kd
+    assert mesh.has_texture
+    for face, bc, expected in LOOKUPS:
+        np.testing.assert_allclose(lookup(mesh, face, bc), expected, atol=1e-6)
+    # the untextured material gives its Kd
+    np.testing.assert_allclose(lookup(mesh, 3, (0.3, 0.3, 0.4)), (0.2, 0.4, 0.6), atol=1e-6)
+    # UVs of the side faces are absent (NaN)
+    assert np.isnan(mesh.face_uvs[2:]).all()
+    assert mesh.normalization.scale == 1.0 and np.all(mesh.normalization.center == 0)
+
+
+def test_obj_round_trip_through_save_obj(tmp_path):
+    mesh = load_mesh(write_square(tmp_path))
+    out = save_obj(mesh, tmp_path / "out" / "copy.obj")
+    assert out == tmp_path / "out" / "copy.obj"
+    names = sorted(p.name for p in out.parent.iterdir())
+    assert names == ["copy.mtl", "copy.obj", "copy.png"]  # one textured material: <stem>.png
+    text = out.read_text()
+    assert "mtllib copy.mtl" in text and "f 1/1 2/2 3/3" in text and "f 1 2 5" in text
+    assert text.count("\nvt ") == 4  # per-corner UVs deduplicated, no vertex splitting
+    mtl = (out.parent / "copy.mtl").read_text()
+    assert "map_Kd copy.png" in mtl and "Kd 0.200000 0.400000 0.600000" in mtl
+
+    again = load_mesh(out)
+    np.testing.assert_allclose(again.vertices, mesh.vertices)
+    np.testing.assert_array_equal(again.faces, mesh.faces)
+    np.testing.assert_array_equal(again.face_material, mesh.face_material)
+    np.testing.assert_allclose(again.face_uvs, mesh.face_uvs, equal_nan=True)
+    rng = np.random.default_rng(0)
+    fi = rng.integers(0, len(mesh.faces), 200)
+    bc = random_bary(200, rng)
+    np.testing.assert_allclose(again.colors_at(fi, bc), mesh.colors_at(fi, bc), atol=1 / 255)
+
+
+def test_obj_factor_is_baked_into_written_texture(tmp_path):
+    img = quadrant_image().astype(np.float32) / 255
+    mesh = TexturedMesh(
+        vertices=np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0]], float),
+        faces=np.array([[0, 1, 2]]),
+        face_material=np.array([0]),
+        materials=[Material(name="half", base_color=np.array([0.5, 1, 1, 1], np.float32), image=img)],
+        face_uvs=np.array([[[0, 0], [1, 0], [1, 1]]], np.float32),
+    )
+    again = load_mesh(save_obj(mesh, tmp_path / "h.obj"))
+    bc = np.array([[0.1, 0.8, 0.1], [0.8, 0.1, 0.1]])
+    np.testing.assert_allclose(again.colors_at([0, 0], bc), mesh.colors_at([0, 0], bc), atol=1 / 255)
+    np.testing.assert_allclose(again.colors_at([0], bc[:1])[0], (0.5, 1, 0), atol=1 / 255)
+
+
+def test_multi_material_obj_uses_every_texture(tmp_path):
+    save_png(tmp_path / "a.png", quadrant_image())
+    save_png(tmp_path / "b.png", quadrant_image(CYAN, MAGENTA, MAGENTA, CYAN))
+    (tmp_path / "two.mtl").write_text("newmtl A\nmap_Kd a.png\nnewmtl B\nKd 1 1 1\nmap_Kd b.png\n")
+    (tmp_path / "two.obj").write_text(
+        "mtllib two.mtl\n"
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvt 0.25 0.25\n"
+        "usemtl A\nf 1/1 2/2 3/3\n"
+        # the second face shares vertices 2 and 3 but has its own UVs there
+        "usemtl B\nf 2/5 5/2 6/3\n"
+        "usemtl A\nf 1/1 3/3 4/4\n"
+    )
+    mesh = load_mesh(tmp_path / "two.obj")
+    assert [m.name for m in mesh.materials] == ["A", "B"]
+    assert all(m.image is not None for m in mesh.materials)
+    np.testing.assert_array_equal(mesh.face_material, [0, 1, 0])
+    assert len(mesh.vertices) == 6  # no splitting at the seam
+    np.testing.assert_allclose(mesh.face_uvs[1], [[0.25, 0.25], [1, 0], [1, 1]])
+    np.testing.assert_allclose(lookup(mesh, 0, (0.1, 0.8, 0.1)), YELLOW, atol=1e-6)
+    np.testing.assert_allclose(lookup(mesh, 1, (0.1, 0.8, 0.1)), CYAN, atol=1e-6)  # b.png bottom-right
+    np.testing.assert_allclose(lookup(mesh, 1, (0.9, 0.05, 0.05)), MAGENTA, atol=1e-6)  # b.png bottom-left
+
+    out = save_obj(mesh, tmp_path / "w" / "two_out.obj")
+    assert sorted(p.name for p in out.parent.iterdir()) == [
+        "two_out.mtl", "two_out.obj", "two_out_0.png", "two_out_1.png"]
+    again = load_mesh(out)
+    np.testing.assert_array_equal(again.face_material, [0, 1, 0])
+    bc = np.full((3, 3), 1 / 3)
+    np.testing.assert_allclose(again.colors_at([0, 1, 2], bc), mesh.colors_at([0, 1, 2], bc), atol=1 / 255)
+
+
+def test_obj_without_mtl_gets_default_color(tmp_path):
+    p = tmp_path / "plain.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    mesh = load_mesh(p)
+    assert len(mesh.materials) == 1 and mesh.face_uvs is None and mesh.vertex_colors is None
+    assert not mesh.has_texture
+    np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), DEFAULT_COLOR)
+
+
+def test_obj_with_vertex_colors(tmp_path):
+    p = tmp_path / "vc.obj"
+    p.write_text("v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nv 0 0 1 1 1 1\nf 1 2 3\nf 1 2 4\n")
+    mesh = load_mesh(p)
+    np.testing.assert_allclose(mesh.vertex_colors, [[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]])
+    np.testing.assert_allclose(lookup(mesh, 0, (1, 0, 0)), RED)
+    np.testing.assert_allclose(lookup(mesh, 0, (0.5, 0.5, 0)), (0.5, 0.5, 0))
+    again = load_mesh(save_obj(mesh, tmp_path / "o" / "vc2.obj"))
+    np.testing.assert_allclose(again.vertex_colors, mesh.vertex_colors, atol=1e-6)
+    np.testing.assert_allclose(again.vertices, mesh.vertices)
+
+
+def test_obj_vertex_colors_0_255_and_partial(tmp_path):
+    p = tmp_path / "vc255.obj"
+    p.write_text("v 0 0 0 255 0 0\nv 1 0 0 0 255 0\nv 0 1 0\nf 1 2 3\n")
+    mesh = load_mesh(p)
+    np.testing.assert_allclose(mesh.vertex_colors, [[1, 0, 0], [0, 1, 0], [1, 1, 1]])
+
+
+def test_obj_dialects(tmp_path):
+    """Quads and n-gons, negative indices, v//vn, texture options, Windows paths, CRLF, Tr."""
+    sub = tmp_path / "textures"
+    sub.mkdir()
+    save_png(sub / "Tex File.png", quadrant_image())
+    (tmp_path / "d.mtl").write_text(
+        "newmtl m\r\nKd 0.1 0.1 0.1\r\nmap_Kd -s 1 1 1 -o 0 0 0 textures\\Tex File.png\r\n"
+        "newmtl n\r\nKd 0.5 0.5 0.5\r\nTr 0.25\r\n"
+    )
+    (tmp_path / "d.obj").write_text(
+        "mtllib d.mtl\r\n"
+        "v 0 0 0\r\nv 1 0 0\r\nv 1 1 0\r\nv 0 1 0\r\nv 0 0 1\r\n"
+        "vt 0 0\r\nvt 1 0\r\nvt 1 1\r\nvt 0 1\r\nvn 0 0 1\r\n"
+        "g group\r\ns off\r\nusemtl m\r\nf -5/-4/1 -4/-3/1 -3/-2/1 -2/-1/1\r\n"
+        "usemtl n\r\nf 1//1 2//1 5//1\r\nl 1 2\r\n"
+    )
+    mesh = load_mesh(tmp_path / "d.obj")
+    assert len(mesh.faces) == 3  # the quad was fan-triangulated; the line ignored
+    np.testing.assert_array_equal(mesh.faces[:2], [[0, 1, 2], [0, 2, 3]])
+    assert mesh.materials[0].image is not None
+    np.testing.assert_allclose(lookup(mesh, 1, (0.1, 0.1, 0.8)), RED, atol=1e-6)
+    assert mesh.materials[1].base_color[3] == pytest.approx(0.75)
+
+
+def test_obj_uv_scale_option(tmp_path):
+    save_png(tmp_path / "t.png", quadrant_image())
+    (tmp_path / "s.mtl").write_text("newmtl m\nmap_Kd -s 0.5 0.5 t.png\n")
+    (tmp_path / "s.obj").write_text("mtllib s.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 1\nvt 0 0\nvt 1 0\nvt 0 1\n"
+                                    "usemtl m\nf 1/1 2/2 3/3\n")
+    mesh = load_mesh(tmp_path / "s.obj")
+    np.testing.assert_allclose(mesh.face_uvs[0], [[0, 0], [0.5, 0], [0, 0.5]])
+
+
+# ====================================================================== glTF
+def test_glb_base_color_texture_and_factor(tmp_path):
+    mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
+                      baseColorFactor=uint8(0.5, 1, 1, 1), metallicFactor=0.0, roughnessFactor=0.5)
+    textured_square_trimesh(mat).export(tmp_path / "sq.glb")
+    mesh = load_mesh(tmp_path / "sq.glb")
+    assert mesh.name == "sq" and len(mesh.materials) == 1
+    m = mesh.materials[0]
+    assert m.name == "quad" and m.image.shape == (16, 16, 3)
+    np.testing.assert_allclose(m.base_color, (128 / 255, 1, 1, 1), atol=1e-6)  # factor quantised by trimesh
+    assert m.metallic == 0.0 and m.roughness == 0.5
+    assert len(mesh.vertices) == 4  # welded
+    for face, bc, expected in LOOKUPS:
+        np.testing.assert_allclose(lookup(mesh, face, bc), np.array(expected) * (128 / 255, 1, 1), atol=1e-6)
+
+    # save_glb → load_mesh and trimesh both see the texture and the UVs
+    out = save_glb(mesh, tmp_path / "o" / "sq2.glb")
+    again = load_mesh(out)
+    np.testing.assert_allclose(again.vertices, mesh.vertices)
+    rng = np.random.default_rng(1)
+    fi, bc = rng.integers(0, 2, 100), random_bary(100, rng)
+    np.testing.assert_allclose(again.colors_at(fi, bc), mesh.colors_at(fi, bc), atol=1 / 255)
+    tm = trimesh.load(out, force="scene")
+    (geom,) = tm.geometry.values()
+    assert isinstance(geom.visual, trimesh.visual.TextureVisuals) and geom.visual.uv.shape == (4, 2)
+    assert geom.visual.material.baseColorTexture.size == (16, 16)
+
+
+def test_glb_keeps_pbr_maps(tmp_path):
+    mr = np.zeros((8, 8, 3), np.uint8)
+    mr[..., 1], mr[..., 2] = 128, 255  # roughness .5, metallic 1
+    normal = np.zeros((8, 8, 3), np.uint8)
+    normal[:] = (128, 128, 255)
+    mat = PBRMaterial(name="pbr", baseColorTexture=Image.fromarray(quadrant_image()),
+                      metallicFactor=0.3, roughnessFactor=0.6,
+                      metallicRoughnessTexture=Image.fromarray(mr), normalTexture=Image.fromarray(normal))
+    textured_square_trimesh(mat).export(tmp_path / "pbr.glb")
+    m = load_mesh(tmp_path / "pbr.glb").materials[0]
+    assert m.metallic == pytest.approx(0.3) and m.roughness == pytest.approx(0.6)
+    assert m.metallic_roughness_image.shape == (8, 8, 3) and m.metallic_roughness_image.dtype == np.float32
+    np.testing.assert_allclose(m.metallic_roughness_image[0, 0], (0, 128 / 255, 1), atol=1e-6)
+    np.testing.assert_allclose(m.normal_image[0, 0], (128 / 255, 128 / 255, 1), atol=1e-6)
+
+    # and save_glb writes them back
+    mesh = load_mesh(tmp_path / "pbr.glb")
+    m2 = load_mesh(save_glb(mesh, tmp_path / "pbr2.glb")).materials[0]
+    np.testing.assert_allclose(m2.metallic_roughness_image, m.metallic_roughness_image, atol=1e-6)
+    np.testing.assert_allclose(m2.normal_image, m.normal_image, atol=1e-6)
+    assert m2.metallic == pytest.approx(0.3) and m2.roughness == pytest.approx(0.6)
+
+
+def test_gltf_defaults_for_absent_pbr_factors(tmp_path):
+    # glTF: an absent metallicFactor / roughnessFactor means 1.0
+    mat = PBRMaterial(name="f", baseColorFactor=uint8(0.2, 0.4, 0.6, 1.0))
+    textured_square_trimesh(mat).export(tmp_path / "f.glb")
+    m = load_mesh(tmp_path / "f.glb").materials[0]
+    assert m.metallic == 1.0 and m.roughness == 1.0 and m.image is None
+    np.testing.assert_allclose(m.base_color[:3], (0.2, 0.4, 0.6), atol=1 / 255)
+
+
+def _two_object_scene():
+    red = PBRMaterial(name="red", baseColorFactor=uint8(1, 0, 0, 1), metallicFactor=0.0)
+    quad = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()), metallicFactor=0.0)
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    box.visual = trimesh.visual.TextureVisuals(material=red)
+    scene = trimesh.Scene()
+    scene.add_geometry(box, node_name="box", geom_name="box")
+    scene.add_geometry(textured_square_trimesh(quad), node_name="square", geom_name="square",
+                       transform=trimesh.transformations.translation_matrix((10, 0, 0)))
+    return scene
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_multi_object_scene_applies_node_transforms(tmp_path, ext):
+    scene = _two_object_scene()
+    if ext == ".glb":
+        scene.export(tmp_path / "scene.glb")
+    else:
+        for name, blob in scene.export(file_type="gltf").items():
+            (tmp_path / ("scene.gltf" if name.endswith(".gltf") else name)).write_bytes(blob)
+    mesh = load_mesh(tmp_path / f"scene{ext}")
+    names = sorted(m.name for m in mesh.materials)
+    assert names == ["quad", "red"]
+    assert len(mesh.faces) == 12 + 2
+    np.testing.assert_allclose(mesh.bounds, [[-0.5, -0.5, -0.5], [11, 1, 0.5]])
+    quad_faces = np.flatnonzero([mesh.materials[i].name == "quad" for i in mesh.face_material])
+    red_faces = np.flatnonzero([mesh.materials[i].name == "red" for i in mesh.face_material])
+    assert len(quad_faces) == 2 and len(red_faces) == 12
+    assert mesh.vertices[np.unique(mesh.faces[quad_faces])][:, 0].min() == pytest.approx(10)
+    np.testing.assert_allclose(lookup(mesh, red_faces[0], (1 / 3, 1 / 3, 1 / 3)), RED)
+    colors = mesh.colors_at(quad_faces.repeat(2), np.array([(0.8, 0.1, 0.1), (0.1, 0.8, 0.1)] * 2))
+    assert {tuple(np.round(c).astype(int)) for c in colors} <= {BLUE, YELLOW, RED, GREEN}
+
+
+def _glb_with_json(glb: bytes, edit) -> bytes:
+    n, _ = struct.unpack_from("<II", glb, 12)
+    header = json.loads(glb[20 : 20 + n])
+    edit(header)
+    js = json.dumps(header).encode()
+    js += b" " * (-len(js) % 4)
+    rest = glb[20 + n :]
+    return struct.pack("<4sII", b"glTF", 2, 20 + len(js) + len(rest)) + struct.pack("<II", len(js), 0x4E4F534A) + js + rest
+
+
+def test_multi_primitive_mesh(tmp_path):
+    a = trimesh.creation.box(extents=(1, 1, 1))
+    a.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(name="r", baseColorFactor=uint8(1, 0, 0, 1)))
+    b = trimesh.creation.box(extents=(1, 1, 1))
+    b.apply_translation((0, 0, 2))
+    b.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(name="g", baseColorFactor=uint8(0, 1, 0, 1)))
+    scene = trimesh.Scene()
+    scene.add_geometry(a, geom_name="a")
+    scene.add_geometry(b, geom_name="b")
+
+    def merge(h):  # one glTF mesh with two primitives on one translated node
+        h["meshes"] = [{"primitives": h["meshes"][0]["primitives"] + h["meshes"][1]["primitives"]}]
+        h["nodes"] = [{"name": "both", "mesh": 0, "translation": [0, 5, 0]}]
+        h["scenes"] = [{"nodes": [0]}]
+        h["scene"] = 0
+
+    (tmp_path / "prims.glb").write_bytes(_glb_with_json(scene.export(file_type="glb"), merge))
+    mesh = load_mesh(tmp_path / "prims.glb")
+    assert sorted(m.name for m in mesh.materials) == ["g", "r"]
+    assert len(mesh.faces) == 24
+    np.testing.assert_allclose(mesh.bounds, [[-0.5, 4.5, -0.5], [0.5, 5.5, 2.5]])
+
+
+def test_gltf_missing_external_texture_warns(tmp_path):
+    mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
+                      baseColorFactor=uint8(0.2, 0.4, 0.6, 1))
+    files = trimesh.Scene(textured_square_trimesh(mat)).export(file_type="gltf")
+    header = json.loads(files["model.gltf"])
+    header["images"] = [{"uri": "gone.png"}]  # point the image at a file that does not exist
+    (tmp_path / "m.gltf").write_text(json.dumps(header))
+    for name, blob in files.items():
+        if name.endswith(".bin"):
+            (tmp_path / name).write_bytes(blob)
+    with pytest.warns(UserWarning, match="gone.png"):
+        mesh = load_mesh(tmp_path / "m.gltf")
+    assert mesh.materials[0].image is None
+    np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), (0.2, 0.4, 0.6), atol=1 / 255)
+
+
+def test_glb_corrupt_embedded_texture_warns(tmp_path):
+    mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
+                      baseColorFactor=uint8(0.2, 0.4, 0.6, 1))
+    glb = bytearray(textured_square_trimesh(mat).export(file_type="glb"))
+    n, _ = struct.unpack_from("<II", glb, 12)
+    header = json.loads(glb[20 : 20 + n])
+    view = header["bufferViews"][header["images"][0]["bufferView"]]
+    start = 20 + n + 8 + view.get("byteOffset", 0)
+    glb[start : start + view["byteLength"]] = b"\x01" * view["byteLength"]  # overwrite the PNG bytes
+    (tmp_path / "bad_tex.glb").write_bytes(bytes(glb))
+    with pytest.warns(UserWarning, match="bad_tex.glb.*baseColorTexture.*unreadable"):
+        mesh = load_mesh(tmp_path / "bad_tex.glb")
+    assert mesh.materials[0].image is None
+    np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), (0.2, 0.4, 0.6), atol=1 / 255)
+
+
+def test_glb_vertex_colors_and_save_glb_multi_material(tmp_path):
+    box = trimesh.creation.box(extents=(2, 1, 1))
+    cols = np.zeros((8, 4), np.uint8)
+    cols[:, 0] = np.arange(8) * 30
+    cols[:, 3] = 255
+    box.visual.vertex_colors = cols
+    box.export(tmp_path / "vc.glb")
+    mesh = load_mesh(tmp_path / "vc.glb")
+    np.testing.assert_allclose(mesh.vertex_colors[:, 0], np.arange(8) * 30 / 255, atol=1e-6)
+
+    # a two-material mesh: textured square + vertex-coloured box
+    sq = load_mesh(write_square(tmp_path))
+    out = save_glb(sq, tmp_path / "o" / "sq.glb")
+    again = load_mesh(out)
+    assert sorted(m.name for m in again.materials) == ["plain", "textured"]
+    rng = np.random.default_rng(2)
+    fi, bc = rng.integers(0, len(sq.faces), 100), random_bary(100, rng)
+    # faces may be reordered (one primitive per material): compare by face position
+    order = [np.flatnonzero(np.all(np.isclose(again.vertices[again.faces].mean(1), c), axis=1))[0]
+             for c in sq.vertices[sq.faces].mean(1)]
+    np.testing.assert_allclose(again.colors_at(np.asarray(order)[fi], bc), sq.colors_at(fi, bc), atol=1 / 255)
+    assert len(trimesh.load(out, force="scene").geometry) == 2
+
+
+# ======================================================================= PLY
+def test_ply_with_and_without_vertex_colors(tmp_path):
+    box = trimesh.creation.box(extents=(1, 2, 3))
+    box.export(tmp_path / "plain.ply")
+    mesh = load_mesh(tmp_path / "plain.ply")
+    assert mesh.vertex_colors is None and len(mesh.faces) == 12
+    np.testing.assert_allclose(mesh.bounds, [[-0.5, -1, -1.5], [0.5, 1, 1.5]])
+    np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), DEFAULT_COLOR)
+
+    cols = np.full((8, 4), 255, np.uint8)
+    cols[:, :3] = np.arange(24).reshape(8, 3) * 10
+    box.visual.vertex_colors = cols
+    box.export(tmp_path / "col.ply", encoding="ascii")
+    mesh = load_mesh(tmp_path / "col.ply")
+    np.testing.assert_allclose(mesh.vertex_colors, cols[:, :3] / 255, atol=1e-6)
+    f0 = mesh.faces[0]
+    np.testing.assert_allclose(lookup(mesh, 0, (1, 0, 0)), cols[f0[0], :3] / 255, atol=1e-6)
+
+
+def test_ply_face_colors(tmp_path):
+    box = trimesh.creation.box()
+    fc = np.tile([[255, 0, 0, 255], [0, 0, 255, 255]], (6, 1)).astype(np.uint8)
+    box.visual.face_colors = fc
+    box.export(tmp_path / "fc.ply")
+    mesh = load_mesh(tmp_path / "fc.ply")
+    cols = mesh.colors_at(np.arange(12), np.full((12, 3), 1 / 3))
+    np.testing.assert_allclose(cols, fc[:, :3] / 255)
+
+
+def test_ply_with_uvs_but_no_texture_file(tmp_path):
+    # trimesh invents a 2x2 grey placeholder texture here; we must not treat it as the surface colour
+    square = textured_square_trimesh(trimesh.visual.material.SimpleMaterial())
+    (tmp_path / "uv.ply").write_bytes(trimesh.exchange.ply.export_ply(square, encoding="ascii"))
+    mesh = load_mesh(tmp_path / "uv.ply")
+    assert not mesh.has_texture
+    np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), DEFAULT_COLOR)
+
+
+def test_stl(tmp_path):
+    trimesh.creation.icosphere(subdivisions=1).export(tmp_path / "ball.STL")
+    mesh = load_mesh(tmp_path / "ball.STL")
+    assert len(mesh.faces) == 80 and len(mesh.vertices) == 42  # STL soup welded back
+
+
+# ================================================================= bad input
+def test_missing_file(tmp_path):
+    with pytest.raises(Sin3DMInputError, match="not found.*nothere.obj"):
+        load_mesh(tmp_path / "nothere.obj")
+
+
+def test_unsupported_extension(tmp_path):
+    (tmp_path / "thing.fbx").write_bytes(b"x")
+    with pytest.raises(Sin3DMInputError, match="extension") as e:
+        load_mesh(tmp_path / "thing.fbx")
+    assert ".obj" in str(e.value) and ".glb" in str(e.value)
+
+
+def test_directory(tmp_path):
+    d = tmp_path / "dir.obj"
+    d.mkdir()
+    with pytest.raises(Sin3DMInputError, match="directory"):
+        load_mesh(d)
+
+
+@pytest.mark.parametrize("text", ["", "# nothing\n", "v 0 0 0\nv 1 0 0\nv 0 1 0\n"])
+def test_obj_without_faces(tmp_path, text):
+    (tmp_path / "e.obj").write_text(text)
+    with pytest.raises(Sin3DMInputError, match="no triangle faces"):
+        load_mesh(tmp_path / "e.obj")
+
+
+def test_point_cloud_ply(tmp_path):
+    trimesh.PointCloud(np.random.default_rng(0).random((20, 3))).export(tmp_path / "pc.ply")
+    with pytest.raises(Sin3DMInputError, match="pc.ply.*no triangle faces.*point cloud"):
+        load_mesh(tmp_path / "pc.ply")
+
+
+@pytest.mark.parametrize("bad", ["nan", "inf", "-inf"])
+def test_nan_vertices(tmp_path, bad):
+    (tmp_path / "n.obj").write_text(f"v 0 0 0\nv 1 0 0\nv 0 {bad} 0\nf 1 2 3\n")
+    with pytest.raises(Sin3DMInputError, match="NaN or infinite"):
+        load_mesh(tmp_path / "n.obj")
+
+
+def test_nan_in_unused_vertex_is_ignored(tmp_path):
+    (tmp_path / "n.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv nan 0 0\nv 99 99 99\nf 1 2 3\n")
+    mesh = load_mesh(tmp_path / "n.obj")
+    assert len(mesh.vertices) == 3 and mesh.bounds.max() == 1
+
+
+def test_zero_size_bounding_box(tmp_path):
+    (tmp_path / "z.obj").write_text("v 1 1 1\nv 1 1 1\nv 1 1 1\nf 1 2 3\n")
+    with pytest.raises(Sin3DMInputError, match="zero-size bounding box"):
+        load_mesh(tmp_path / "z.obj")
+
+
+def test_zero_area(tmp_path):
+    (tmp_path / "z.obj").write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n")
+    with pytest.raises(Sin3DMInputError, match="zero surface area"):
+        load_mesh(tmp_path / "z.obj")
+
+
+@pytest.mark.parametrize(
+    "name, content, key",
+    [
+        ("junk.glb", b"this is not a glb file at all", "junk.glb"),
+        ("trunc.glb", b"glTF\x02\x00\x00\x00\xff\xff", "trunc.glb"),
+        ("junk.gltf", b"{not json", "JSON"),
+        ("junk.ply", b"\x8f\x01garbage" * 40, "junk.ply"),
+        ("bad.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n", "bad.ply"),
+        ("junk.obj", bytes(range(256)) * 4, "binary"),
+        ("idx.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "vertex 9"),
+        ("word.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "line 4"),
+        ("vbad.obj", b"v 0 0 zero\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "'v'"),
+        ("empty.glb", b"", "empty"),
+    ],
+)
+def test_corrupt_files_give_one_clear_error(tmp_path, name, content, key):
+    (tmp_path / name).write_bytes(content)
+    with pytest.raises(Sin3DMInputError) as e:
+        load_mesh(tmp_path / name)
+    assert key in str(e.value)
+    # no library traceback is chained onto ours
+    assert e.value.__cause__ is None and (e.value.__context__ is None or e.value.__suppress_context__)
+
+
+def test_gltf_missing_buffer_is_clear(tmp_path):
+    files = _two_object_scene().export(file_type="gltf")
+    (tmp_path / "nobin.gltf").write_bytes(files["model.gltf"])
+    with pytest.raises(Sin3DMInputError, match="nobin.gltf"):
+        load_mesh(tmp_path / "nobin.gltf")
+
+
+def test_missing_texture_warns_and_uses_material_color(tmp_path):
+    p = write_square(tmp_path, tex="missing.png", image=False)
+    with pytest.warns(UserWarning, match="missing.png"):
+        mesh = load_mesh(p)
+    assert mesh.materials[0].image is None
+    np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), (0.8, 0.8, 0.8), atol=1e-6)
+
+
+def test_corrupt_texture_warns_and_uses_material_color(tmp_path):
+    p = write_square(tmp_path, image=False)
+    (tmp_path / "tex.png").write_bytes(b"\x89PNG garbage garbage garbage")
+    with pytest.warns(UserWarning, match="tex.png.*could not be read"):
+        mesh = load_mesh(p)
+    assert mesh.materials[0].image is None
+    np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), (0.8, 0.8, 0.8), atol=1e-6)
+
+
+def test_missing_mtl_warns(tmp_path):
+    p = write_square(tmp_path)
+    (tmp_path / "square.mtl").unlink()
+    with pytest.warns(UserWarning, match="square.mtl"):
+        mesh = load_mesh(p)
+    assert not mesh.has_texture
+
+
+def test_texture_image_modes(tmp_path):
+    grey = Image.fromarray(np.full((4, 4), 128, np.uint8), "L")
+    np.testing.assert_allclose(mesh_io.image_to_array(grey), 128 / 255)
+    rgba = Image.fromarray(np.full((4, 4, 4), (255, 0, 0, 10), np.uint8), "RGBA")
+    arr = mesh_io.image_to_array(rgba)
+    assert arr.shape == (4, 4, 3) and arr.dtype == np.float32
+    np.testing.assert_allclose(arr[0, 0], RED)
+    pal = Image.fromarray(quadrant_image()).convert("P")
+    np.testing.assert_allclose(mesh_io.image_to_array(pal)[0, 0], RED)
+    i16 = Image.fromarray(np.full((4, 4), 65535, np.uint16))
+    np.testing.assert_allclose(mesh_io.image_to_array(i16), 1.0)
+    big = Image.fromarray(quadrant_image(size=64))
+    small = mesh_io.image_to_array(big, max_size=16)
+    assert small.shape == (16, 16, 3)
+    np.testing.assert_allclose(small[0, 0], RED)
+
+
+# ================================================================== writers
+def test_save_obj_failure_leaves_nothing(tmp_path, monkeypatch):
+    mesh = load_mesh(write_square(tmp_path))
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(mesh_io, "_baked_vertex_colors", boom)  # fails after the PNG and MTL are written
+    with pytest.raises(OSError, match="disk full"):
+        save_obj(mesh, out_dir / "x.obj")
+    assert list(out_dir.iterdir()) == []
+
+
+def test_save_glb_failure_leaves_nothing(tmp_path, monkeypatch):
+    mesh = load_mesh(write_square(tmp_path))
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    monkeypatch.setattr(trimesh.Scene, "export", lambda *a, **k: (_ for _ in ()).throw(OSError("nope")))
+    with pytest.raises(OSError):
+        save_glb(mesh, out_dir / "x.glb")
+    assert list(out_dir.iterdir()) == []
+
+
+def test_writers_check_suffix(tmp_path):
+    mesh = load_mesh(write_square(tmp_path))
+    with pytest.raises(Sin3DMInputError, match=r"\.obj"):
+        save_obj(mesh, tmp_path / "x.glb")
+    with pytest.raises(Sin3DMInputError, match=r"\.glb"):
+        save_glb(mesh, tmp_path / "x.obj")
+
+
+def test_save_obj_pbr_maps_round_trip(tmp_path):
+    rng = np.random.default_rng(3)
+    mr = rng.random((8, 8, 3)).astype(np.float32)
+    mesh = TexturedMesh(
+        vertices=np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 0, 1]], float),
+        faces=np.array([[0, 1, 2], [0, 1, 3]]),
+        face_material=np.array([0, 0]),
+        materials=[Material(name="pbr", base_color=np.ones(4, np.float32), image=np.ones((8, 8, 3), np.float32),
+                            metallic=1.0, roughness=1.0, metallic_roughness_image=mr,
+                            normal_image=np.tile(np.array([0.5, 0.5, 1.0], np.float32), (8, 8, 1)))],
+        face_uvs=rng.random((2, 3, 2)).astype(np.float32),
+    )
+    out = save_obj(mesh, tmp_path / "p.obj")
+    mtl = (tmp_path / "p.mtl").read_text()
+    assert "map_Pr p_roughness.png" in mtl and "map_Pm p_metallic.png" in mtl and "map_Bump" in mtl
+    m = load_mesh(out).materials[0]
+    np.testing.assert_allclose(m.metallic_roughness_image[..., 1:], mr[..., 1:], atol=1 / 255)
+    np.testing.assert_allclose(m.normal_image, mesh.materials[0].normal_image, atol=1 / 255)
+    assert m.metallic == 1.0 and m.roughness == 1.0
+
+
+def test_to_trimesh_texture_and_colors(tmp_path):
+    save_png(tmp_path / "t.png", quadrant_image())
+    (tmp_path / "t.mtl").write_text("newmtl m\nmap_Kd t.png\n")
+    (tmp_path / "t.obj").write_text("mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+                                    "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
+    tm = load_mesh(tmp_path / "t.obj").to_trimesh()
+    assert isinstance(tm.visual, trimesh.visual.TextureVisuals)
+    assert tm.visual.uv.shape == (4, 2) and tm.visual.material.image.size == (16, 16)
+    sq = load_mesh(write_square(tmp_path)).to_trimesh()  # two materials: vertex colours
+    assert sq.visual.kind == "vertex" and len(sq.vertices) == 18
+
+
+# ========================================================= misc & transforms
+def test_sample_texture_wraps_u_and_v():
+    img = quadrant_image().astype(np.float32) / 255
+    uv = np.array([[0.2, 0.1], [0.2, 1.1], [1.2, -0.9], [-0.8, 2.1]])
+    out = sample_texture(img, uv)
+    np.testing.assert_allclose(out, np.tile(BLUE, (4, 1)), atol=1e-6)
+    np.testing.assert_allclose(sample_texture(img, np.array([[0.9, 0.9], [0.9, -0.1]])), [GREEN, GREEN], atol=1e-6)
+
+
+def test_normalized_box_and_inverse():
+    box = trimesh.creation.box(extents=(4.0, 2.0, 1.0))
+    box.apply_translation((10, -3, 7))
+    mesh = TexturedMesh(vertices=np.asarray(box.vertices, float), faces=np.asarray(box.faces),
+                        face_material=np.zeros(12, np.int64), materials=[Material()])
+    n = mesh.normalized()
+    lo, hi = n.bounds
+    np.testing.assert_allclose((hi - lo).max() * mesh_io.BOX_MARGIN, 2.0)
+    np.testing.assert_allclose((lo + hi) / 2, 0, atol=1e-12)
+    np.testing.assert_allclose(hi - lo, np.array([4, 2, 1]) * 2 / (4 * 1.03))
+    np.testing.assert_allclose(n.normalization.to_original(n.vertices), mesh.vertices, atol=1e-12)
+    np.testing.assert_allclose(n.normalization.to_normalized(mesh.vertices), n.vertices, atol=1e-12)
+    # normalising twice composes (and stays inverted by to_original)
+    nn = n.normalized()
+    np.testing.assert_allclose(nn.normalization.to_original(nn.vertices), mesh.vertices, atol=1e-9)
+
+
+def test_load_any(tmp_path):
+    mesh = load_mesh(write_square(tmp_path))
+    assert load_any(mesh) is mesh
+    assert len(load_any(str(tmp_path / "square.obj")).faces) == 6
+    with pytest.raises(Sin3DMInputError, match="TexturedMesh"):
+        load_any(42)
+
+
+def test_loaded_files_produce_no_stray_warnings(tmp_path):
+    p = write_square(tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_mesh(p)
+        load_mesh(save_glb(load_mesh(p), tmp_path / "a.glb"))
