@@ -1,0 +1,99 @@
+"""Extracted meshes written to OBJ+MTL+PNG and GLB, read back with trimesh."""
+import numpy as np
+import pytest
+import torch
+import trimesh
+from torch import nn
+
+from sin3dm_lite import extract as ex
+from sin3dm_lite import mesh_io
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.export import export_mesh
+from sin3dm_lite.mesh_io import Normalization
+from sin3dm_lite.triplane import Triplane
+
+AABB = np.array([-0.75, -1.0, -0.625, 0.75, 1.0, 0.625])
+
+
+class SphereDecoder(nn.Module):
+    """Sphere of radius 0.5 centred in AABB; colour = (p_box + 1) / 2 (see test_extract.py)."""
+
+    def __init__(self):
+        super().__init__()
+        self.register_buffer("half_extent", torch.tensor((AABB[3:] - AABB[:3]) / 2, dtype=torch.float32))
+        self.weight = nn.Parameter(torch.zeros(1))
+
+    def prepare(self, tp):
+        return tp.xy.mean(dim=(1, 2, 3)) + self.weight
+
+    def query(self, offset, points):
+        return (points * self.half_extent).norm(dim=-1) - 0.5 + offset[:, None], (points + 1) / 2
+
+
+@pytest.fixture(scope="module")
+def sphere_mesh():
+    tp = Triplane(torch.zeros(1, 4, 12, 16), torch.zeros(1, 4, 12, 10), torch.zeros(1, 4, 16, 10))
+    norm = Normalization(center=np.array([10.0, 0.0, -5.0]), scale=0.25)  # the input file's frame
+    return ex.extract_mesh(SphereDecoder(), tp, AABB, normalization=norm, resolution=32, faces=2000,
+                           texture_size=256)
+
+
+def _check_reloaded(loaded: trimesh.Trimesh):
+    lo, hi = loaded.bounds
+    # radius 0.5 / scale 0.25 = 2 around the centre (10, 0, -5), within a quarter voxel (0.0625 / 0.25)
+    assert np.all(lo > [8 - 0.02, -2 - 0.02, -7 - 0.02]) and np.all(hi < [12 + 0.02, 2 + 0.02, -3 + 0.02])
+    assert np.all(hi - lo > 3.9)
+    uv = loaded.visual.uv
+    assert uv is not None and len(uv) == len(loaded.vertices) and uv.min() >= 0 and uv.max() <= 1
+    material = loaded.visual.material
+    image = getattr(material, "image", None) or getattr(material, "baseColorTexture", None)
+    assert image is not None
+    pixels = np.asarray(image.convert("RGB"), np.float32) / 255
+    assert pixels.shape[:2] == (256, 256) and pixels.std(axis=(0, 1)).min() > 0.05  # not constant
+
+
+def test_export_obj_and_glb_reload_with_texture(sphere_mesh, tmp_path):
+    out = tmp_path / "sample_0"
+    paths = export_mesh(sphere_mesh, out)
+    assert set(paths) == {"obj", "glb"}
+    assert sorted(p.name for p in out.iterdir()) == ["mesh.glb", "mesh.mtl", "mesh.obj", "mesh.png"]
+    for fmt in ("obj", "glb"):
+        _check_reloaded(trimesh.load(paths[fmt], force="mesh"))
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary folder left
+
+
+def test_export_into_existing_folder_keeps_other_files(sphere_mesh, tmp_path):
+    (tmp_path / "notes.txt").write_text("keep me")
+    paths = export_mesh(sphere_mesh, tmp_path, name="shape", formats="glb")
+    assert set(paths) == {"glb"} and paths["glb"].exists()
+    assert (tmp_path / "notes.txt").read_text() == "keep me"
+
+
+def test_failed_export_leaves_no_output_folder(sphere_mesh, tmp_path, monkeypatch):
+    def broken(mesh, path):
+        path.write_bytes(b"half a file")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(mesh_io, "save_glb", broken)
+    with pytest.raises(OSError, match="disk full"):
+        export_mesh(sphere_mesh, tmp_path / "out")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_pbr_maps_reach_the_glb(sphere_mesh, tmp_path):
+    from dataclasses import replace
+
+    mat = replace(sphere_mesh.materials[0], metallic=1.0, roughness=1.0,
+                  metallic_roughness_image=np.full((32, 32, 3), [0.0, 0.8, 0.3], np.float32),
+                  normal_image=np.full((32, 32, 3), [0.5, 0.5, 1.0], np.float32))
+    paths = export_mesh(replace(sphere_mesh, materials=[mat]), tmp_path / "pbr", formats=("glb",))
+    loaded = trimesh.load(paths["glb"], force="mesh").visual.material
+    assert loaded.metallicRoughnessTexture is not None and loaded.normalTexture is not None
+
+
+def test_bad_format_and_name_are_clear_errors(sphere_mesh, tmp_path):
+    with pytest.raises(Sin3DMInputError, match="format"):
+        export_mesh(sphere_mesh, tmp_path / "x", formats=("ply",))
+    with pytest.raises(Sin3DMInputError, match="plain file name"):
+        export_mesh(sphere_mesh, tmp_path / "x", name="a/b")
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,214 @@
+"""Triplane → textured mesh, checked with an analytic decoder whose exact answer is known."""
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from sin3dm_lite import extract as ex
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.mesh_io import Normalization
+from sin3dm_lite.triplane import Triplane
+
+# a non-cubic box, symmetric like ShapeGrid's (±n_axis / n_max): 24 × 32 × 20 voxels at resolution 32
+AABB = np.array([-0.75, -1.0, -0.625, 0.75, 1.0, 0.625])
+
+
+class SphereDecoder(nn.Module):
+    """Sphere of radius 0.5 (normalised units) centred in the box it was made for; colour = (p_box + 1) / 2.
+
+    The SDF is a function of *box* coordinates (like a real decoder), so the
+    same decoder with a larger box gives a stretched shape.
+    """
+
+    def __init__(self, aabb=AABB, radius=0.5):
+        super().__init__()
+        aabb = np.asarray(aabb, np.float32)
+        self.register_buffer("half_extent", torch.tensor((aabb[3:] - aabb[:3]) / 2))
+        self.register_buffer("middle", torch.tensor((aabb[3:] + aabb[:3]) / 2))
+        self.weight = nn.Parameter(torch.zeros(1))  # gives the module a device
+        self.radius = radius
+        self.prepare_calls = 0
+        self.query_calls = 0
+
+    def prepare(self, tp: Triplane):
+        self.prepare_calls += 1
+        return {"offset": tp.xy.mean(dim=(1, 2, 3)) + self.weight}  # zero for a zero triplane
+
+    def query(self, prepared, points):
+        self.query_calls += 1
+        p = points * self.half_extent + self.middle
+        sdf = p.norm(dim=-1) - self.radius + prepared["offset"][:, None]
+        return sdf, (points + 1) / 2
+
+
+def zero_triplane(batch=1, res=(12, 16, 10)):
+    x, y, z = res
+    return Triplane(torch.zeros(batch, 4, x, y), torch.zeros(batch, 4, x, z), torch.zeros(batch, 4, y, z))
+
+
+def sphere_sdf(shape, aabb=AABB, center=(0.0, 0.0, 0.0), radius=0.5):
+    axes = [aabb[a] + (np.arange(n) + 0.5) / n * (aabb[a + 3] - aabb[a]) for a, n in enumerate(shape)]
+    x, y, z = np.meshgrid(*axes, indexing="ij")
+    c = np.asarray(center)
+    return (np.sqrt((x - c[0]) ** 2 + (y - c[1]) ** 2 + (z - c[2]) ** 2) - radius).astype(np.float32)
+
+
+def test_grid_shape_follows_longest_side():
+    assert ex.grid_shape(AABB, 32) == (24, 32, 20)
+    assert ex.grid_shape([-1, -1, -0.01, 1, 1, 0.01], 16) == (16, 16, 2)  # at least 2 voxels per axis
+
+
+def test_decode_grid_chunked_equals_one_shot_and_prepares_once():
+    dec = SphereDecoder()
+    tp = zero_triplane()
+    sdf, col = ex.decode_grid(dec, tp, AABB, 32, chunk=1000, with_color=True)
+    assert dec.prepare_calls == 1 and dec.query_calls == int(np.ceil(24 * 32 * 20 / 1000))
+    sdf1, col1 = ex.decode_grid(dec, tp, AABB, 32, chunk=10**9, with_color=True)
+    assert sdf.shape == (24, 32, 20) and col.shape == (24, 32, 20, 3)
+    np.testing.assert_array_equal(sdf, sdf1)
+    np.testing.assert_array_equal(col, col1)
+    # the grid is cell-centred: voxel k sits at lo + (k + 0.5) / n * size
+    np.testing.assert_allclose(sdf, sphere_sdf(sdf.shape), atol=1e-5)
+    assert np.array_equal(ex.decode_grid(dec, tp, AABB, 32), sdf)  # sdf only
+
+
+def test_prepared_triplane_is_reused_and_batch_must_be_one():
+    dec = SphereDecoder()
+    prepared = ex.prepare(dec, zero_triplane())
+    ex.decode_grid(dec, prepared, AABB, 16)
+    ex.decode_grid(dec, prepared, AABB, 16)
+    assert dec.prepare_calls == 1
+    with pytest.raises(Sin3DMInputError, match="batch 2"):
+        ex.extract_mesh(dec, zero_triplane(batch=2), AABB, resolution=16)
+
+
+def test_marching_cubes_sphere_on_voxel_centres_and_outward():
+    shape = ex.grid_shape(AABB, 32)
+    voxel = (AABB[3] - AABB[0]) / shape[0]
+    center = np.array([0.05, -0.1, 0.02])  # off the grid's symmetry
+    v, f = ex.marching_cubes(sphere_sdf(shape, center=center), AABB)
+    r = np.linalg.norm(v - center, axis=1)
+    assert np.abs(r - 0.5).max() < voxel / 4
+    assert np.all(v.min(0) >= center - 0.5 - voxel / 4) and np.all(v.max(0) <= center + 0.5 + voxel / 4)
+    tri = v[f]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(normals, axis=1)
+    surface_centroid = (tri.mean(1) * area[:, None]).sum(0) / area.sum()
+    assert np.abs(surface_centroid - center).max() < 1e-3 * voxel  # no half-voxel shift
+    v0, _ = ex.marching_cubes(sphere_sdf(shape), AABB)
+    assert np.abs(v0.mean(0)).max() < 1e-6  # centred sphere: vertex mean at the centre
+    assert np.all(np.einsum("fd,fd->f", normals, tri.mean(1) - center) > 0)
+
+
+def test_marching_cubes_without_surface_is_a_clear_error():
+    with pytest.raises(ex.NoSurfaceError, match="empty"):
+        ex.marching_cubes(np.ones((8, 8, 8)), AABB)
+    with pytest.raises(ex.NoSurfaceError, match="fills the whole box"):
+        ex.marching_cubes(-np.ones((8, 8, 8)), AABB)
+
+
+def test_shape_touching_the_box_is_closed_on_the_box_face():
+    import trimesh
+
+    shape = (16, 16, 16)
+    box = np.array([-1.0, -1, -1, 1, 1, 1])
+    sdf = sphere_sdf(shape, aabb=box, radius=1.2)  # pokes through every face of the box
+    v, f = ex.marching_cubes(sdf, box)
+    assert trimesh.Trimesh(v, f, process=True).is_watertight
+    assert np.allclose(v.min(0), -1, atol=1e-6) and np.allclose(v.max(0), 1, atol=1e-6)
+    v2, f2 = ex.marching_cubes(sdf, box, close_boundary=False)
+    assert not trimesh.Trimesh(v2, f2, process=True).is_watertight
+
+
+def test_keep_components_all_largest_and_specks():
+    shape = (32, 32, 32)
+    box = np.array([-1.0, -1, -1, 1, 1, 1])
+    sdf = np.minimum(sphere_sdf(shape, box, (-0.4, 0, 0), 0.45), sphere_sdf(shape, box, (0.6, 0, 0), 0.2))
+    v, f = ex.marching_cubes(sdf, box)
+    sizes = np.bincount(ex.component_labels(len(v), f))
+    assert len(sizes) == 2
+    va, fa = ex.keep_components(v, f)
+    assert len(fa) == len(f)
+    vl, fl = ex.keep_components(v, f, mode="largest")
+    assert len(fl) == sizes.max() and vl[:, 0].max() < 0.1
+    vs, fs = ex.keep_components(v, f, min_faces=sizes.min() + 1)
+    assert len(fs) == sizes.max() and fs.max() == len(vs) - 1
+
+
+def test_simplify_reaches_budget_and_skips_small_meshes():
+    v, f = ex.marching_cubes(sphere_sdf((40, 40, 40), np.array([-1.0, -1, -1, 1, 1, 1])), [-1, -1, -1, 1, 1, 1])
+    vs, fs = ex.simplify(v, f, 2000)
+    assert 1800 <= len(fs) <= 2000
+    assert np.abs(np.linalg.norm(vs, axis=1) - 0.5).max() < 0.02
+    v2, f2 = ex.simplify(vs, fs, 10_000)
+    assert v2 is vs and f2 is fs
+
+
+def test_rasterize_triangles_counts_pixel_centres():
+    tri = np.array([[[-0.5, -0.5], [9.5, -0.5], [-0.5, 9.5]]])  # covers centres with x + y <= 9
+    f, x, y, bary = ex.rasterize_triangles(tri, 20, 20)
+    assert len(f) == 55 and np.all(x + y <= 9)
+    np.testing.assert_allclose(np.einsum("nk,kd->nd", bary, tri[0]), np.stack([x, y], 1), atol=1e-9)
+    f, x, y, _ = ex.rasterize_triangles(tri, 5, 5)  # clipped to the image
+    assert len(f) == 25 and x.max() == 4 and y.max() == 4
+
+
+def test_pad_gutter_fills_near_islands_and_rest_with_mean():
+    img = np.zeros((32, 32, 3), np.float32)
+    covered = np.zeros((32, 32), bool)
+    covered[4:10, 4:10] = True
+    img[4:10, 4:10] = [1.0, 0.5, 0.25]
+    out = ex.pad_gutter(img, covered, pixels=3)
+    np.testing.assert_allclose(out[1:13, 1:13], np.broadcast_to([1.0, 0.5, 0.25], (12, 12, 3)))
+    np.testing.assert_allclose(out[31, 31], [1.0, 0.5, 0.25])  # far texels: mean colour, never black
+    assert out.min() > 0
+
+
+def test_extract_mesh_textured_steps_and_colours():
+    dec = SphereDecoder()
+    mesh, steps = ex.extract_mesh(dec, zero_triplane(), AABB, resolution=32, faces=1500, texture_size=256,
+                                  original_coords=False, return_steps=True)
+    assert dec.prepare_calls == 1
+    assert {"sdf", "raw", "simplified", "uv", "texture", "covered", "seconds"} <= set(steps)
+    assert steps["sdf"].shape == (24, 32, 20) and len(mesh.faces) <= 1500
+    uvs, faces_uv = steps["uv"]
+    assert np.array_equal(steps["vmapping"][faces_uv], mesh.faces)  # xatlas keeps the face order
+    assert uvs.min() >= 0 and uvs.max() <= 1
+    assert mesh.has_texture and mesh.materials[0].image.shape == (256, 256, 3)
+    assert steps["covered"].mean() > 0.3
+    tex = mesh.materials[0].image
+    assert tex.std(axis=(0, 1)).min() > 0.05  # not constant
+    # gutter: no black texel right next to an island
+    from scipy import ndimage
+
+    ring = ndimage.binary_dilation(steps["covered"], iterations=3) & ~steps["covered"]
+    assert tex[ring].sum(-1).min() > 0.1
+    # the baked texture, looked up through the mesh's UVs, gives the decoder's colour
+    bary = np.full((len(mesh.faces), 3), 1 / 3)
+    centroids = mesh.vertices[mesh.faces].mean(1)
+    expected = (ex.to_box(centroids, AABB) + 1) / 2
+    err = np.abs(mesh.colors_at(np.arange(len(mesh.faces)), bary) - expected)
+    assert err.mean() < 0.01 and np.quantile(err, 0.99) < 0.05
+
+
+def test_extract_mesh_original_coordinates_and_vertex_colours():
+    dec = SphereDecoder()
+    norm = Normalization(center=np.array([1.0, 2.0, 3.0]), scale=0.5)
+    mesh = ex.extract_mesh(dec, zero_triplane(), AABB, normalization=norm, resolution=24, vertex_colors=True)
+    assert mesh.face_uvs is None and mesh.vertex_colors.shape == (len(mesh.vertices), 3)
+    r = np.linalg.norm(mesh.vertices - norm.center, axis=1)
+    assert np.abs(r - 1.0).max() < 0.02  # radius 0.5 / scale 0.5
+    assert np.allclose(mesh.normalization.center, 0) and mesh.normalization.scale == 1.0
+    expected = (ex.to_box(norm.to_normalized(mesh.vertices), AABB) + 1) / 2
+    np.testing.assert_allclose(mesh.vertex_colors, expected, atol=1e-5)
+
+
+def test_retargeted_box_gives_a_correspondingly_scaled_shape():
+    dec = SphereDecoder()
+    wide = AABB * np.array([2, 1, 1, 2, 1, 1])  # the triplane was sampled twice as long along x
+    mesh = ex.extract_mesh(dec, zero_triplane(res=(24, 16, 10)), wide, resolution=32, faces=3000,
+                           texture_size=128, original_coords=False)
+    lo, hi = mesh.bounds
+    voxel = (wide[3] - wide[0]) / 32
+    np.testing.assert_allclose(hi, [1.0, 0.5, 0.5], atol=voxel / 2)
+    np.testing.assert_allclose(lo, [-1.0, -0.5, -0.5], atol=voxel / 2)

@@ -1,0 +1,146 @@
+"""Geometry metrics on shapes whose answers are known by construction."""
+import time
+
+import numpy as np
+import pytest
+import trimesh
+
+from sin3dm_lite import extract as ex
+from sin3dm_lite import metrics as M
+from sin3dm_lite.errors import Sin3DMInputError
+
+BOX = np.array([-1.0, -1, -1, 1, 1, 1])
+
+
+def centres(n, box=BOX):
+    axes = [box[a] + (np.arange(n) + 0.5) / n * (box[a + 3] - box[a]) for a in range(3)]
+    return np.meshgrid(*axes, indexing="ij")
+
+
+def lattice(n=60, first=15, count=3, period=10, radius=4.5):
+    """``count³`` balls on a lattice with the given period, inside an empty margin."""
+    i = np.arange(n)
+    near = np.abs((i - first + period / 2) % period - period / 2)  # distance to the nearest lattice plane
+    within = (i >= first - period / 2) & (i < first + (count - 0.5) * period)
+    d2 = near[:, None, None] ** 2 + near[None, :, None] ** 2 + near[None, None, :] ** 2
+    return (d2 < radius**2) & within[:, None, None] & within[None, :, None] & within[None, None, :]
+
+
+def test_iou_of_a_hand_made_pair():
+    a = np.zeros((10, 10, 10), bool)
+    b = np.zeros_like(a)
+    a[2:6, 2:6, 2:6] = True  # 64 voxels
+    b[4:8, 2:6, 2:6] = True  # shifted by 2: 32 shared, union 96
+    assert M.iou(a, b) == pytest.approx(1 / 3)
+    assert M.iou(a, a) == 1.0 and M.iou(np.zeros_like(a), np.zeros_like(a)) == 1.0
+    assert M.pairwise_iou([a, b])[0, 1] == pytest.approx(1 / 3)
+
+
+def test_g_div_identical_disjoint_and_mismatched_grids():
+    a = np.zeros((12, 12, 12), bool)
+    a[:6] = True
+    assert M.g_div([a, a, a]) == 0.0
+    assert M.g_div([a, ~a]) == 1.0
+    b = np.roll(a, 3, axis=0)  # IoU(a, b) = 3 / 9
+    assert M.g_div([a, b]) == pytest.approx(1 - 1 / 3)
+    with pytest.raises(Sin3DMInputError, match="retargeted"):
+        M.g_div([a, np.zeros((12, 12, 13), bool)])
+    with pytest.raises(Sin3DMInputError):
+        M.g_div([np.zeros((12, 12, 13), bool), np.zeros((13, 12, 12), bool)])  # same size, other shape
+    with pytest.raises(Sin3DMInputError):
+        M.g_div([a])
+
+
+def test_lp_identical_shapes_score_one():
+    x, y, z = centres(48)
+    shape = (np.sin(6 * x) + np.cos(5 * y) + np.sin(4 * z)) > 0.2
+    scores = M.lp_scores(shape, [shape, shape])
+    assert scores["lp_iou"] == 1.0 and scores["lp_fscore"] == 1.0
+    assert M.lp_iou(shape, [shape]) == 1.0 and M.lp_fscore(shape, shape) == 1.0
+
+
+def test_shifted_periodic_pattern_is_locally_perfect_but_diverse():
+    ref = lattice()
+    shifted = np.roll(ref, 10, axis=0)  # one period (two patch strides) to the right, still inside the margin
+    assert M.g_div([ref, shifted]) == pytest.approx(0.5)  # 2 of 3 ball layers overlap: IoU 2 / 4
+    scores = M.lp_scores(ref, [shifted])
+    assert scores["lp_iou"] == 1.0 and scores["lp_fscore"] == 1.0
+
+
+def test_unrelated_shape_scores_low():
+    ref = lattice()
+    x, y, z = centres(60)
+    blob = x**2 + y**2 + z**2 < 0.5
+    assert M.lp_iou(ref, [blob]) < 0.2
+
+
+def test_patch_fscore_is_dice_of_occupied_voxels():
+    """Generated patch ⊂ reference patch: precision 1, recall 10/20 → IoU 0.5, F = 2/3."""
+    g = np.zeros((1, 1331), bool)
+    r = np.zeros((1, 1331), bool)
+    g[0, :10] = True
+    r[0, :20] = True
+    best_iou, best_f = M._best_matches(g, r)
+    assert best_iou[0] == pytest.approx(0.5) and best_f[0] == pytest.approx(2 / 3)
+
+
+def test_extract_patches_keeps_surface_patches_only():
+    empty = np.zeros((30, 30, 30), bool)
+    assert len(M.extract_patches(empty)) == 0
+    block = empty.copy()
+    block[3:27, 3:27, 15:27] = True
+    # patch centres at 0, 5, ..., 25 per axis; only the cores around z = 15 (voxels 14..16) straddle a face
+    patches = M.extract_patches(block)
+    assert patches.shape == (5 * 5, 11**3)
+    # outside the grid counts as empty: a full grid has surface patches along its border only
+    assert 0 < len(M.extract_patches(~empty)) < 6**3
+
+
+def test_lp_metrics_take_seconds_at_64():
+    x, y, z = centres(64)
+    ref = (np.sin(9 * x) + np.cos(7 * y) + np.sin(5 * z)) > 0.3
+    gens = [np.roll(ref, k, axis=k % 3) for k in range(1, 5)]
+    t = time.perf_counter()
+    M.lp_scores(ref, gens)
+    assert time.perf_counter() - t < 5
+
+
+def test_voxelize_marching_cubes_mesh_matches_its_sdf():
+    x, y, z = centres(32)
+    sdf = np.sqrt((x - 0.1) ** 2 + y**2 + z**2) - 0.6
+    v, f = ex.marching_cubes(sdf, BOX)
+    occ = M.voxelize((v, f), BOX, 32)
+    assert occ.shape == (32, 32, 32)
+    np.testing.assert_array_equal(occ, sdf < 0)
+    np.testing.assert_array_equal(M.voxelize((v, f[:, ::-1]), BOX, 32), sdf < 0)  # inward-facing too
+
+
+def test_voxelize_fills_nested_and_separate_shells_and_is_fast():
+    big = trimesh.creation.icosphere(subdivisions=5, radius=0.8)  # 20k faces
+    assert len(big.faces) == 20480
+    t = time.perf_counter()
+    occ = M.voxelize(big, BOX, 128)
+    assert time.perf_counter() - t < 5
+    x, y, z = centres(128)
+    assert M.iou(occ, x**2 + y**2 + z**2 < 0.8**2) > 0.99
+    # two disjoint spheres in a non-cubic box
+    box = np.array([-1.0, -0.5, -0.5, 1.0, 0.5, 0.5])
+    a = trimesh.creation.icosphere(3, radius=0.3)
+    b = a.copy()
+    a.apply_translation([-0.5, 0, 0])
+    b.apply_translation([0.5, 0, 0])
+    two = trimesh.util.concatenate([a, b])
+    occ2 = M.voxelize(two, box, 64)
+    assert occ2.shape == (64, 32, 32)
+    xs, ys, zs = np.meshgrid(*[box[i] + (np.arange(n) + 0.5) / n * (box[i + 3] - box[i])
+                               for i, n in enumerate(occ2.shape)], indexing="ij")
+    truth = np.minimum((xs + 0.5) ** 2, (xs - 0.5) ** 2) + ys**2 + zs**2 < 0.3**2
+    assert M.iou(occ2, truth) > 0.97
+
+
+def test_reconstruction_iou_of_a_mesh_with_itself():
+    m = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
+    assert M.reconstruction_iou(m, m, BOX, 32) == 1.0
+    shifted = m.copy()
+    shifted.apply_translation([0.25, 0, 0])  # exactly 4 voxels of 16 along x: IoU 12 / 20
+    assert M.reconstruction_iou(m, shifted, BOX, 32) == pytest.approx(0.6)
