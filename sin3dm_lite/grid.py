@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import point_cloud_utils as pcu
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from .errors import Sin3DMInputError
 from .mesh_io import Normalization, TexturedMesh
@@ -130,19 +131,30 @@ class _Distance:
             out.append(np.einsum("lk,fkd->fld", bc, tri[k == kk]).reshape(-1, 3))
         return np.concatenate(out)
 
-    def tsdf(self, p: np.ndarray, threshold: float, chunk: int = 1 << 19):
-        """Truncated SDF (negative inside), closest face (-1 outside the band) and barycentrics."""
+    def tsdf(self, p: np.ndarray, threshold: float, cover: "cKDTree", gap: float, chunk: int = 1 << 18):
+        """Truncated SDF (negative inside), closest face (-1 outside the band) and barycentrics.
+
+        ``cover`` is a KD-tree of surface points at most ``gap`` apart: a point
+        farther than ``threshold + gap`` from all of them is outside the band,
+        so only the others need an exact closest-point query.
+        """
+        p = np.ascontiguousarray(p, dtype=np.float64)
         n = len(p)
-        sdf = np.empty(n, np.float32)
+        inside = self.inside(p)
+        sdf = np.where(inside, -threshold, threshold).astype(np.float32)
         fid = np.full(n, -1, np.int64)
         bcs = np.zeros((n, 3), np.float64)
-        for a in range(0, n, chunk):
-            q = np.ascontiguousarray(p[a : a + chunk], dtype=np.float64)
-            s, fi, bc = pcu.signed_distance_to_mesh(q, self.v, self.f)
-            band = np.abs(s) < threshold
-            sdf[a : a + chunk] = np.clip(s, -threshold, threshold)
-            fid[a : a + chunk] = np.where(band, fi, -1)
-            bcs[a : a + chunk] = np.where(band[:, None], bc, 0.0)
+        d_cover, _ = cover.query(p, distance_upper_bound=threshold + gap, workers=-1)
+        cand = np.flatnonzero(np.isfinite(d_cover))
+        for a in range(0, len(cand), chunk):
+            c = cand[a : a + chunk]
+            # exact distance and closest point (pcu.signed_distance_to_mesh is not used:
+            # its distances are approximate, and far off on open meshes)
+            d, fi, bc = pcu.closest_points_on_mesh(p[c], self.v, self.f)
+            band = d < threshold
+            sdf[c] = np.where(inside[c], -1, 1) * np.minimum(d, threshold)
+            fid[c] = np.where(band, fi, -1)
+            bcs[c] = np.where(band[:, None], bc, 0.0)
         return sdf, fid, bcs
 
 
@@ -192,6 +204,7 @@ def mesh_to_grid(
     b, gap = 4, 0.5 * vs
     cdims = dims // b
     cover = dist.cover(gap)
+    cover_tree = cKDTree(cover)
     cidx = np.clip(np.floor((cover - aabb[:3]) / (b * vs)).astype(np.int64), 0, cdims - 1)
     near_block = np.zeros(tuple(cdims), bool)
     near_block[cidx[:, 0], cidx[:, 1], cidx[:, 2]] = True
@@ -210,11 +223,11 @@ def mesh_to_grid(
     offs = np.stack(np.meshgrid(*(np.arange(b),) * 3, indexing="ij"), -1).reshape(-1, 3)
     idx = (bi[:, None, :] * b + offs[None]).reshape(-1, 3)  # fine voxel indices
     pts = np.stack([axes[a][idx[:, a]] for a in range(3)], -1)
-    s, fi, bc = dist.tsdf(pts, threshold)
+    s, fi, bc = dist.tsdf(pts, threshold, cover_tree, gap)
     sdf[idx[:, 0], idx[:, 1], idx[:, 2]] = s
     band = fi >= 0
     color[idx[band, 0], idx[band, 1], idx[band, 2]] = m.colors_at(fi[band], bc[band])
-    say(f"[grid] exact distances for {len(pts):,} of {dims.prod():,} voxels ({time.perf_counter() - t0:.1f} s)")
+    say(f"[grid] distances near the surface: {len(pts):,} of {dims.prod():,} voxels ({time.perf_counter() - t0:.1f} s)")
 
     # training points near the surface
     rng = np.random.default_rng(seed)
@@ -222,7 +235,7 @@ def mesh_to_grid(
         sp, _, _ = m.surface_points(n_surface_points, rng)
         sp = sp + rng.normal(scale=near_surface_sigma, size=sp.shape)
         sp = np.clip(sp, aabb[:3], aabb[3:])
-        ps, pf, pb = dist.tsdf(sp, threshold)
+        ps, pf, pb = dist.tsdf(sp, threshold, cover_tree, gap)
         pc = np.zeros((len(sp), 3), np.float32)
         ok = pf >= 0
         pc[ok] = m.colors_at(pf[ok], pb[ok])

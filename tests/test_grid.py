@@ -1,0 +1,135 @@
+"""mesh → TSDF + colour grid: signs and distances against independent computations."""
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.grid import grid_dims, load_grid, mesh_to_grid, save_grid
+from sin3dm_lite.mesh_io import Material, TexturedMesh
+
+
+def textured(m: trimesh.Trimesh, name="m", **kw) -> TexturedMesh:
+    return TexturedMesh(
+        np.asarray(m.vertices, float), np.asarray(m.faces, np.int64), np.zeros(len(m.faces), np.int64), [Material()], name=name, **kw
+    )
+
+
+def box_sdf(p, half):
+    q = np.abs(p) - half
+    return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(1), 0)
+
+
+def test_grid_dims_follow_the_paper():
+    # REFERENCE.md: extents 4.56 x 6.32 x 4.54 at 256 → 184 x 256 x 184
+    assert grid_dims(np.array([4.56, 6.32, 4.54]), 256) == (184, 256, 184)
+    assert all(d % 8 == 0 for d in grid_dims(np.array([1.0, 0.33, 0.1]), 64))
+
+
+@pytest.mark.parametrize("res", [32, 64])
+def test_sphere_sdf_matches_analytic(res):
+    g = mesh_to_grid(textured(trimesh.creation.icosphere(subdivisions=5)), res, n_surface_points=2000, progress=False)
+    assert g.shape == (res, res, res)
+    np.testing.assert_allclose(g.aabb, [-1, -1, -1, 1, 1, 1])
+    assert g.threshold == pytest.approx(3 * 2 / res)
+    r = np.linalg.norm(g.voxel_centers(), axis=-1) - 1 / 1.03  # normalised radius: longest side × 1.03 = 2
+    exact = np.clip(r, -g.threshold, g.threshold)
+    assert np.abs(exact - g.sdf).max() < 0.02 * g.threshold * res / 8  # tessellation error only
+    assert np.all(((g.sdf < 0) == (r < 0)) | (np.abs(r) < 1e-3))
+
+
+def test_box_sdf_non_cubic_grid_and_symmetric_box():
+    g = mesh_to_grid(textured(trimesh.creation.box(extents=(1.0, 0.5, 0.3))), 64, n_surface_points=2000, progress=False)
+    assert g.shape == (64, 32, 24)  # 0.5/1*64 = 32; 0.3/1*64 = 19.2 → 19 → 24
+    np.testing.assert_allclose(g.aabb, [-1, -0.5, -0.375, 1, 0.5, 0.375])
+    half = np.array([1.0, 0.5, 0.3]) / 2 * g.normalization.scale
+    exact = np.clip(box_sdf(g.voxel_centers().reshape(-1, 3), half), -g.threshold, g.threshold)
+    np.testing.assert_allclose(g.sdf.reshape(-1), exact, atol=2e-4)  # float32 inside point-cloud-utils
+
+
+def test_open_mesh_signs_and_distances_match_trimesh():
+    # a sphere with its top cap cut off: no "make watertight" step, the winding number gives the sign
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    keep = sphere.triangles_center[:, 2] < 0.6
+    cup = trimesh.Trimesh(sphere.vertices, sphere.faces[keep], process=False)
+    assert not cup.is_watertight
+    g = mesh_to_grid(textured(cup), 32, n_surface_points=2000, progress=False)
+    c = g.voxel_centers()
+    s = g.sdf.reshape(-1)
+    # deep inside near the bottom: inside; outside the sphere (box corner): outside
+    inside_pt = np.argmin(np.linalg.norm(c.reshape(-1, 3) - np.array([0, 0, -0.5]), axis=-1))
+    assert s[inside_pt] < 0
+    assert g.sdf[0, 0, 0] > 0 and g.sdf[-1, -1, -1] > 0
+    # distances inside the band equal those to a dense point sampling of the surface (independent of pcu)
+    band = np.abs(g.sdf) < g.threshold * 0.99
+    n = g.normalization
+    cup_n = trimesh.Trimesh(n.to_normalized(cup.vertices), cup.faces, process=False)
+    dense = cup_n.sample(400_000, seed=0)
+    d, _ = cKDTree(dense).query(c[band])
+    assert np.abs(np.abs(g.sdf[band]) - d).max() < 0.01  # sample spacing ≈ 0.005; a voxel is 0.0625
+
+
+def test_two_part_mesh_has_both_parts_inside():
+    a = trimesh.creation.icosphere(subdivisions=3, radius=0.4)
+    b = a.copy()
+    a.apply_translation([-0.6, 0, 0])
+    b.apply_translation([0.6, 0, 0])
+    g = mesh_to_grid(textured(trimesh.util.concatenate([a, b])), 32, n_surface_points=2000, progress=False)
+    s = g.sdf
+    mid = s.shape[1] // 2, s.shape[2] // 2
+    line = s[:, mid[0], mid[1]]
+    # inside, outside (the gap), inside along the x axis
+    inside = line < 0
+    runs = np.flatnonzero(np.diff(inside.astype(int)))
+    assert len(runs) == 4
+
+
+def test_colour_from_known_texture():
+    # a thin slab whose top face shows a texture with four coloured quadrants
+    slab = trimesh.creation.box(extents=(2.0, 2.0, 0.2))
+    v, f = np.asarray(slab.vertices), np.asarray(slab.faces)
+    tex = np.zeros((64, 64, 3), np.float32)
+    tex[:32, :32] = [1, 0, 0]  # v > 0.5, u < 0.5 (row 0 is v = 1)
+    tex[:32, 32:] = [0, 1, 0]
+    tex[32:, :32] = [0, 0, 1]
+    tex[32:, 32:] = [1, 1, 0]
+    uv = (v[:, :2] + 1) / 2  # planar projection: u = x, v = y
+    mesh = TexturedMesh(v, f, np.zeros(len(f), np.int64), [Material(base_color=np.ones(4, np.float32), image=tex)], face_uvs=uv[f].astype(np.float32))
+    g = mesh_to_grid(mesh, 32, n_surface_points=2000, progress=False)
+    c = g.voxel_centers()
+    top = np.argmin(np.abs(c[0, 0, :, 2] - 0.1 * g.normalization.scale))  # voxel layer at the top face
+    layer = g.color[:, :, top]
+    n = layer.shape[0]
+    q = n // 4
+    np.testing.assert_allclose(layer[q, 3 * q], [1, 0, 0], atol=1e-4)  # x < 0, y > 0
+    np.testing.assert_allclose(layer[3 * q, 3 * q], [0, 1, 0], atol=1e-4)
+    np.testing.assert_allclose(layer[q, q], [0, 0, 1], atol=1e-4)
+    np.testing.assert_allclose(layer[3 * q, q], [1, 1, 0], atol=1e-4)
+    # colour is zero outside the band
+    assert np.all(g.color[np.abs(g.sdf) >= g.threshold] == 0)
+
+
+def test_training_points_are_near_the_surface_with_exact_values():
+    g = mesh_to_grid(textured(trimesh.creation.icosphere(subdivisions=4)), 32, n_surface_points=5000, near_surface_sigma=0.01, progress=False)
+    assert g.points.shape == (5000, 3) and g.point_sdf.shape == (5000,) and g.point_color.shape == (5000, 3)
+    r = np.linalg.norm(g.points, axis=1) - 1 / 1.03
+    assert np.abs(r).mean() < 0.02
+    np.testing.assert_allclose(g.point_sdf, np.clip(r, -g.threshold, g.threshold), atol=3e-3)
+
+
+def test_save_load_round_trip(tmp_path):
+    g = mesh_to_grid(textured(trimesh.creation.box()), 16, n_surface_points=100, progress=False)
+    path = save_grid(g, tmp_path / "g.npz")
+    h = load_grid(path)
+    np.testing.assert_array_equal(g.sdf, h.sdf)
+    np.testing.assert_array_equal(g.color, h.color)
+    np.testing.assert_array_equal(g.aabb, h.aabb)
+    assert h.threshold == pytest.approx(g.threshold)
+    np.testing.assert_allclose(h.normalization.center, g.normalization.center)
+    assert list(tmp_path.iterdir()) == [path]  # no temp file left behind
+
+
+@pytest.mark.parametrize("res", [8, 15, 4096, 64.5])
+def test_bad_resolution_is_a_clear_error(res):
+    with pytest.raises(Sin3DMInputError, match="resolution"):
+        mesh_to_grid(textured(trimesh.creation.box()), res, progress=False)
