@@ -281,7 +281,7 @@ class AutoencoderTrainer:
         self.step_count += 1
         for k, v in (("loss", loss), ("sdf", l_sdf), ("color", l_col)):
             self.history[k].append(float(v.detach()))
-        return float(loss)
+        return float(loss.detach())
 
     def run(self, until_step: int | None = None, progress: bool = True, callback=None) -> dict[str, list[float]]:
         """Train from the current step to ``until_step`` (default: ``cfg.steps``)."""

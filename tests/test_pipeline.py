@@ -1,0 +1,126 @@
+"""Sin3DM end to end on a very small setting: run folder, report, save/load, resume, sampling, meshes."""
+import json
+import os
+import signal
+
+import numpy as np
+import pytest
+import torch
+
+from sin3dm_lite import autoencoder
+from sin3dm_lite.config import get_preset
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.pipeline import Sin3DM
+
+
+def micro_config():
+    cfg = get_preset("tiny")
+    return cfg.updated(
+        **{
+            "grid.resolution": 24,
+            "grid.n_surface_points": 5000,
+            "autoencoder.steps": 30,
+            "autoencoder.points_per_step": 1024,
+            "diffusion.steps": 30,
+            "checkpoint_every": 10,
+            "sampling.mesh_resolution": 32,
+            "sampling.faces": 2000,
+            "sampling.texture_size": 128,
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    run = tmp_path_factory.mktemp("run") / "wall"
+    model = Sin3DM.fit("wall", preset=micro_config(), out=run, progress=False)
+    return model, run
+
+
+def test_run_folder_and_report(fitted):
+    model, run = fitted
+    for name in ["config.json", "grid.npz", "autoencoder.pt", "diffusion.pt", "model.pt", "losses.json", "report.json"]:
+        assert (run / name).is_file(), name
+    assert not list(run.glob("*.tmp"))
+    report = json.loads((run / "report.json").read_text())
+    assert report["autoencoder_steps"] == 30 and report["diffusion_steps"] == 30
+    rec = report["reconstruction"]
+    assert 0 <= rec["occupancy_iou"] <= 1 and 0 <= rec["sign_accuracy"] <= 1 and rec["color_psnr"] > 0
+    losses = json.loads((run / "losses.json").read_text())
+    assert len(losses["autoencoder"]["loss"]) == 30 and len(losses["diffusion"]) == 30
+    torch.load(run / "model.pt", weights_only=True)  # loads without unpickling code
+
+
+def test_load_round_trip_gives_the_same_samples(fitted):
+    model, run = fitted
+    again = Sin3DM.load(run)
+    a = model.sample(2, seed=5, progress=False)
+    b = again.sample(2, seed=5, progress=False)
+    for p, q in zip(a.triplane.planes, b.triplane.planes):
+        torch.testing.assert_close(p, q)
+    np.testing.assert_array_equal(a.aabb, b.aabb)
+
+
+def test_retargeted_samples_have_a_scaled_latent_and_box(fitted):
+    model, _ = fitted
+    s = model.sample(1, resize=(2.0, 1.0, 0.5), progress=False)
+    x, y, z = model.latent.resolution
+    assert s.triplane.resolution == (2 * x, y, round(z * 0.5))
+    np.testing.assert_allclose(s.aabb[[0, 3]], model.aabb[[0, 3]] * 2, rtol=1e-6)
+    np.testing.assert_allclose(s.aabb[[1, 4]], model.aabb[[1, 4]], rtol=1e-6)
+
+
+def test_to_mesh_in_the_input_box(fitted):
+    model, _ = fitted
+    s = model.input_sample()
+    mesh = model.to_mesh(s, 0, original_coords=False)
+    assert len(mesh.faces) > 0
+    lo, hi = model.aabb[:3], model.aabb[3:]
+    assert np.all(mesh.vertices >= lo - 1e-4) and np.all(mesh.vertices <= hi + 1e-4)
+    assert mesh.materials[0].image is not None and mesh.materials[0].image.std() > 0
+
+
+def test_interrupted_fit_resumes_to_the_same_result(fitted, tmp_path, monkeypatch):
+    model, run_full = fitted
+    run = tmp_path / "interrupted"
+    real_step = autoencoder.AutoencoderTrainer.train_step
+
+    def step_then_ctrl_c(self):
+        loss = real_step(self)
+        if self.step_count == 17:  # Ctrl-C in the middle of the autoencoder stage
+            os.kill(os.getpid(), signal.SIGINT)
+        return loss
+
+    monkeypatch.setattr(autoencoder.AutoencoderTrainer, "train_step", step_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        Sin3DM.fit("wall", preset=micro_config(), out=run, progress=False)
+    saved = torch.load(run / "autoencoder.pt", weights_only=True)
+    assert saved["step"] == 17  # the last finished step was saved: no lost work
+    monkeypatch.setattr(autoencoder.AutoencoderTrainer, "train_step", real_step)
+    resumed = Sin3DM.fit("wall", out=run, resume=True, progress=False)
+    a = torch.load(run_full / "model.pt", weights_only=True)
+    b = torch.load(run / "model.pt", weights_only=True)
+    for part in ("decoder", "denoiser", "latent"):
+        for k in a[part]:
+            assert torch.equal(a[part][k], b[part][k]), (part, k)
+    assert resumed.report["autoencoder_steps"] == 30
+
+
+def test_run_folder_errors(fitted, tmp_path):
+    _, run = fitted
+    with pytest.raises(Sin3DMInputError, match="--resume"):
+        Sin3DM.fit("wall", preset=micro_config(), out=run, progress=False)
+    with pytest.raises(Sin3DMInputError, match="config.json"):
+        Sin3DM.fit("wall", out=tmp_path / "nothing", resume=True, progress=False)
+    with pytest.raises(Sin3DMInputError, match="no fitted model"):
+        Sin3DM.load(tmp_path / "missing")
+    with pytest.raises(Sin3DMInputError, match="neither a mesh file nor a built-in example"):
+        Sin3DM.fit("no_such_example", preset=micro_config(), out=tmp_path / "x", progress=False)
+    assert not (tmp_path / "x").exists()  # bad input leaves no folder behind
+
+
+@pytest.mark.parametrize("resize", [(0, 1, 1), (-1, 1, 1), (np.nan, 1, 1), (100, 1, 1)])
+def test_bad_resize_is_a_clear_error(fitted, resize):
+    model, _ = fitted
+    with pytest.raises(Sin3DMInputError, match="resize"):
+        model.sample(1, resize=resize, progress=False)
