@@ -1,0 +1,70 @@
+"""The sin3dm-lite command: outputs and one-line errors with exit code 2."""
+import numpy as np
+import pytest
+import trimesh
+
+from sin3dm_lite.cli import main
+from sin3dm_lite.examples import list_examples
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_examples_list_and_write(capsys, tmp_path):
+    code, out, _ = run(capsys, "examples")
+    assert code == 0 and all(name in out for name in list_examples())
+    code, out, _ = run(capsys, "examples", "--write", "wall", "--out", str(tmp_path))
+    assert code == 0
+    assert (tmp_path / "wall.obj").is_file() and (tmp_path / "wall.mtl").is_file()
+    m = trimesh.load(tmp_path / "wall.obj", force="mesh")
+    assert len(m.faces) > 1000
+
+
+def test_grid_command_writes_the_npz(capsys, tmp_path):
+    mesh = tmp_path / "box.obj"
+    trimesh.creation.box(extents=(1, 0.5, 0.5)).export(mesh)
+    out = tmp_path / "grid.npz"
+    code, text, _ = run(capsys, "grid", str(mesh), "--resolution", "32", "--out", str(out))
+    assert code == 0 and "(32, 16, 16)" in text
+    with np.load(out) as z:
+        assert z["sdf"].shape == (32, 16, 16) and z["sdf"].dtype == np.float32
+        assert z["color"].shape == (32, 16, 16, 3) and 0 <= z["color"].min() and z["color"].max() <= 1
+        assert z["aabb"].shape == (6,)
+        assert "center" in z and "scale" in z
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["grid", "missing.obj", "--out", "g.npz"], "not found"),
+        (["grid", "mesh.xyz", "--out", "g.npz"], "extension"),
+        (["grid", "box.obj", "--resolution", "8", "--out", "g.npz"], "resolution"),
+        (["grid", "box.obj", "--resolution", "100000", "--out", "g.npz"], "resolution"),
+        (["grid", "box.obj", "--out", "g.txt"], ".npz"),
+        (["sample", "no_run_here", "--out", "s"], "run folder"),
+        (["fit", "no_such_thing", "--preset", "tiny", "--out", "r"], "example"),
+        (["fit", "box.obj", "--out", "r", "--resume"], "resume"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line_and_no_output(capsys, tmp_path, monkeypatch, argv, words):
+    monkeypatch.chdir(tmp_path)
+    trimesh.creation.box().export(tmp_path / "box.obj")
+    (tmp_path / "mesh.xyz").write_text("1 2 3\n")
+    before = set(p.name for p in tmp_path.iterdir())
+    code, _, err = run(capsys, *argv)
+    assert code == 2
+    assert words in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert set(p.name for p in tmp_path.iterdir()) == before  # no half-written output
+
+
+@pytest.mark.parametrize("resize", [["0", "1", "1"], ["-2", "1", "1"], ["a", "1", "1"]])
+def test_bad_resize_is_rejected_by_the_parser(capsys, resize):
+    with pytest.raises(SystemExit) as e:
+        main(["sample", "run", "--out", "s", "--resize", *resize])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "--resize" in err and ("positive" in err or "number" in err or "(0, 8]" in err)
