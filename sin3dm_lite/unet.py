@@ -1,0 +1,379 @@
+"""The denoiser: a small fully convolutional U-Net that works on the three planes at once.
+
+Sin3DM learns from *one* shape, so the denoiser must not see the whole latent
+at once: with a receptive field as large as the map it memorises the input and
+every sample is a copy. The paper's network is a one-level U-Net of four
+``TriplaneResBlock``\\ s (64 → pool → 128, 128 → upsample → 64) whose receptive
+field covers "roughly 40 % of a 128-wide map". Its convolutions are
+``TriplaneConv``\\ s: each plane also sees the other two planes averaged along the
+axis they share, so the three planes stay consistent with one another.
+
+Shapes: a ``Triplane`` holds ``xy [B,C,X,Y]``, ``xz [B,C,X,Z]``, ``yz [B,C,Y,Z]``;
+every layer here keeps that structure, so odd and non-square sizes just work.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from .config import DiffusionConfig
+from .triplane import PLANES, Triplane
+
+
+# ------------------------------------------------------------------ building blocks
+def cross_plane_inputs(tp: Triplane, detach_means: bool = False) -> Triplane:
+    """The "rollout": append to each plane the other two planes, mean-pooled along the shared axis.
+
+    ``xy [X,Y]`` gets ``mean_z(xz)`` (a feature per x, repeated along y) and
+    ``mean_z(yz)`` (a feature per y, repeated along x); likewise for ``xz`` and
+    ``yz``. Channels go from C to 3C; sizes do not change. ``detach_means``
+    blocks gradients through the means (to measure the purely local receptive field).
+    """
+    (x, y, z), cat = tp.resolution, torch.cat
+    xy, xz, yz = (tp.detach() if detach_means else tp).planes  # sources of the means
+    grow = lambda p, a, b: p.expand(-1, -1, a, b)  # noqa: E731  broadcast a [B,C,n,1] or [B,C,1,n] feature
+    xy_in = cat([tp.xy, grow(xz.mean(3, keepdim=True), x, y), grow(yz.mean(3)[:, :, None], x, y)], 1)
+    xz_in = cat([tp.xz, grow(xy.mean(3, keepdim=True), x, z), grow(yz.mean(2, keepdim=True), x, z)], 1)
+    yz_in = cat([tp.yz, grow(xy.mean(2)[..., None], y, z), grow(xz.mean(2, keepdim=True), y, z)], 1)
+    return Triplane(xy_in, xz_in, yz_in)  # each [B, 3C, ., .]
+
+
+class TriplaneConv(nn.Module):
+    """Three ``Conv2d`` (one per plane, stride 1, 'same' padding); with ``rollout`` each sees the others too."""
+
+    local_only = False  # set on a copy by `receptive_field`: no gradient through the cross-plane means
+
+    def __init__(self, in_ch: int, out_ch: int, kernel_size: int, rollout: bool = True):
+        super().__init__()
+        if kernel_size % 2 != 1:
+            raise ValueError("TriplaneConv needs an odd kernel size to keep the plane size")
+        self.rollout, self.kernel_size = rollout, kernel_size
+        conv_in = 3 * in_ch if rollout else in_ch
+        self.convs = nn.ModuleList(nn.Conv2d(conv_in, out_ch, kernel_size, padding=kernel_size // 2) for _ in PLANES)
+
+    def forward(self, tp: Triplane) -> Triplane:
+        if self.rollout:
+            tp = cross_plane_inputs(tp, self.local_only)  # [B, 3*in, ., .]
+        return Triplane(*(conv(p) for conv, p in zip(self.convs, tp.planes)))  # [B, out, ., .]
+
+
+def num_groups(ch: int, max_groups: int = 32) -> int:
+    """The largest group count ≤ ``max_groups`` that divides ``ch`` (32 for 64 channels, 12 for 12)."""
+    return max(g for g in range(1, min(max_groups, ch) + 1) if ch % g == 0)
+
+
+class TriplaneGroupNorm(nn.Module):
+    """GroupNorm applied to each plane on its own (statistics per plane, one affine per plane)."""
+
+    local_only = False  # set on a copy by `receptive_field`: no gradient through the statistics
+
+    def __init__(self, ch: int):
+        super().__init__()
+        self.norms = nn.ModuleList(nn.GroupNorm(num_groups(ch), ch) for _ in PLANES)
+
+    def forward(self, tp: Triplane) -> Triplane:
+        if self.local_only:
+            return Triplane(*(_norm_fixed_stats(norm, p) for norm, p in zip(self.norms, tp.planes)))
+        return Triplane(*(norm(p) for norm, p in zip(self.norms, tp.planes)))
+
+
+def _norm_fixed_stats(norm: nn.GroupNorm, p: torch.Tensor) -> torch.Tensor:
+    """``norm(p)`` with mean and variance treated as constants (same values, only local gradients)."""
+    q = p.reshape(p.shape[0], norm.num_groups, -1)  # [B, G, C/G * A * B]
+    mean, var = q.mean(-1, keepdim=True).detach(), q.var(-1, unbiased=False, keepdim=True).detach()
+    q = ((q - mean) / torch.sqrt(var + norm.eps)).reshape(p.shape)
+    return q * norm.weight[:, None, None] + norm.bias[:, None, None]
+
+
+def _zero_(module: nn.Module) -> nn.Module:
+    for p in module.parameters():
+        nn.init.zeros_(p)
+    return module
+
+
+class TriplaneResBlock(nn.Module):
+    """The DDPM residual block on triplanes: GN → SiLU → conv3 → GN·(1+scale)+shift → SiLU → conv3, + shortcut.
+
+    The time step enters as a per-channel scale and shift after the second
+    norm (``x·(1+s)+b``). The last conv starts at zero, so a fresh block is the
+    identity (or its 1x1 shortcut) and the network starts as a shallow one.
+    """
+
+    def __init__(self, in_ch: int, out_ch: int, time_dim: int, rollout: bool = True):
+        super().__init__()
+        self.norm1, self.conv1 = TriplaneGroupNorm(in_ch), TriplaneConv(in_ch, out_ch, 3, rollout)
+        self.emb = nn.Sequential(nn.SiLU(), nn.Linear(time_dim, 2 * out_ch))
+        self.norm2, self.conv2 = TriplaneGroupNorm(out_ch), _zero_(TriplaneConv(out_ch, out_ch, 3, rollout))
+        self.shortcut = TriplaneConv(in_ch, out_ch, 1, rollout=False) if in_ch != out_ch else nn.Identity()
+
+    def forward(self, x: Triplane, emb: torch.Tensor) -> Triplane:
+        h = self.conv1(self.norm1(x).map(F.silu))  # [B, out, ., .]
+        scale, shift = self.emb(emb)[:, :, None, None].chunk(2, dim=1)  # [B, out, 1, 1] each
+        h = self.norm2(h).map(lambda p: F.silu(p * (1 + scale) + shift))
+        return self.shortcut(x) + self.conv2(h)
+
+
+def timestep_embedding(t: torch.Tensor, dim: int, max_period: float = 10_000.0) -> torch.Tensor:
+    """Sinusoidal embedding of integer time steps ``t [B]`` → ``[B, dim]`` (cosines then sines)."""
+    half = dim // 2
+    freqs = torch.exp(-math.log(max_period) * torch.arange(half, device=t.device, dtype=torch.float32) / half)
+    args = t.float()[:, None] * freqs[None]  # [B, half]
+    emb = torch.cat([torch.cos(args), torch.sin(args)], dim=1)
+    return F.pad(emb, (0, dim % 2))
+
+
+def block_layout(n_resblocks: int, downsample: bool) -> tuple[int, int, int]:
+    """How many ResBlocks run (before the pool, at half resolution, after the upsample).
+
+    With downsampling, ``n // 4`` blocks sit on each full-resolution side and the
+    rest in the half-resolution bottleneck, where each block widens the
+    receptive field twice as much: 2 → (0, 2, 0), 4 → (1, 2, 1) (the paper's
+    table), 6 → (1, 4, 1), 8 → (2, 4, 2). Without downsampling all blocks form
+    one full-resolution stack: n → (n, 0, 0).
+    """
+    if n_resblocks < 1:
+        raise ValueError("the U-Net needs at least one ResBlock")
+    if not downsample:
+        return n_resblocks, 0, 0
+    side = n_resblocks // 4
+    return side, n_resblocks - 2 * side, side
+
+
+# ------------------------------------------------------------------------- the U-Net
+def _downsample(p: torch.Tensor) -> torch.Tensor:
+    """2×2 average pooling; on an odd size the last window is partial (averages what is there)."""
+    return F.avg_pool2d(p, 2, ceil_mode=True)
+
+
+def _upsample_and_concat(p: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+    """Bilinear upsampling to the skip's exact size (odd sizes too), then ``[upsampled, skip]`` on channels."""
+    up = F.interpolate(p, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+    return torch.cat([up, skip], 1)
+
+
+class TriplaneUNet(nn.Module):
+    """Sin3DM's denoiser: a one-level, attention-free U-Net of TriplaneResBlocks.
+
+    ``cfg.downsample=True`` (the paper, n=4)::
+
+        TriplaneConv1x1(C→64) → ResBlock(64) ─────────────────────────┐ skip
+          → avg-pool /2 → ResBlock(128) → ResBlock(128) → bilinear ×2 ─┴ concat (192)
+          → ResBlock(192→64) → GN+SiLU+TriplaneConv1x1(64→C)
+
+    Other block counts follow :func:`block_layout`. The skip is *concatenated*
+    (as in the DDPM U-Net): the up block then sees the fine features next to the
+    upsampled coarse ones, and the parameter count matches the paper's ≈ 7 M.
+    When no block follows the upsample, the output head reads the concatenation.
+    ``cfg.downsample=False`` gives a plain stack of n full-resolution blocks at
+    ``base_channels`` (no pool, no skip): its receptive field is ``1 + 4n`` texels
+    whatever the latent size. The output conv starts at zero, so a fresh
+    network predicts exactly 0.
+    """
+
+    def __init__(self, latent_channels: int, cfg: DiffusionConfig):
+        super().__init__()
+        self.cfg, self.latent_channels = cfg, latent_channels
+        c, r, tdim = cfg.base_channels, cfg.rollout, 4 * cfg.time_embed_dim
+        n_down, n_mid, n_up = block_layout(cfg.n_resblocks, cfg.downsample)
+        self.time_mlp = nn.Sequential(nn.Linear(cfg.time_embed_dim, tdim), nn.SiLU(), nn.Linear(tdim, tdim))
+        self.in_conv = TriplaneConv(latent_channels, c, 1, r)
+        self.down = nn.ModuleList(TriplaneResBlock(c, c, tdim, r) for _ in range(n_down))
+        self.mid = nn.ModuleList(TriplaneResBlock(c if i == 0 else 2 * c, 2 * c, tdim, r) for i in range(n_mid))
+        up_in = [3 * c if n_mid else c] + [c] * max(n_up - 1, 0)  # concat(upsampled 2c, skip c) → c
+        self.up = nn.ModuleList(TriplaneResBlock(ch, c, tdim, r) for ch in up_in[:n_up])
+        head_ch = c if (n_up or not n_mid) else 3 * c
+        self.out_norm = TriplaneGroupNorm(head_ch)
+        self.out_conv = _zero_(TriplaneConv(head_ch, latent_channels, 1, r))
+
+    def forward(self, x: Triplane, t: torch.Tensor) -> Triplane:
+        emb = self.time_mlp(timestep_embedding(t, self.cfg.time_embed_dim).to(x.xy.dtype))  # [B, 4*temb]
+        h = self.in_conv(x)  # [B, c, X, Y] ...
+        for blk in self.down:
+            h = blk(h, emb)
+        if self.mid:
+            skip = h
+            h = h.map(_downsample)  # [B, c, ⌈X/2⌉, ⌈Y/2⌉] ...
+            for blk in self.mid:
+                h = blk(h, emb)  # [B, 2c, ⌈X/2⌉, ⌈Y/2⌉] ...
+            h = h.zip_map(skip, _upsample_and_concat)  # [B, 3c, X, Y] ...
+        for blk in self.up:
+            h = blk(h, emb)  # [B, c, X, Y] ...
+        return self.out_conv(self.out_norm(h).map(F.silu))  # [B, C, X, Y] ...
+
+
+# ------------------------------------------------------------------ receptive field
+def _layer_walk(model: TriplaneUNet) -> list[tuple[str, int]]:
+    """The layers on the deepest path, as ``("conv", k)``, ``("down", 2)``, ``("up", 2)``."""
+    convs = lambda blocks: [("conv", b.conv1.kernel_size) for b in blocks for _ in range(2)]  # noqa: E731
+    ops = [("conv", model.in_conv.kernel_size)] + convs(model.down)
+    if model.mid:
+        ops += [("down", 2)] + convs(model.mid) + [("up", 2)]
+    return ops + convs(model.up) + [("conv", model.out_conv.kernel_size)]
+
+
+def analytic_receptive_field(model: TriplaneUNet) -> int:
+    """Receptive-field width in input texels, from kernel sizes and strides alone.
+
+    Walk the layers keeping the width ``r`` (texels one output texel sees) and
+    the jump ``j`` (input texels between neighbouring texels of the current
+    layer): a k×k conv adds ``(k-1)·j``; a 2×2 average pool adds ``j`` and
+    doubles ``j``; a bilinear ×2 upsample mixes two neighbouring coarse texels,
+    so it adds the coarse ``j`` and then halves it. Only the local convolution
+    paths count; the cross-plane means and GroupNorm statistics (global) do not.
+    Paper network (n=4): 1 → +4 → pool +1 (j=2) → +16 → up +2 → +4 = 28.
+    """
+    r, j = 1, 1
+    for op, k in _layer_walk(model):
+        if op == "conv":
+            r += (k - 1) * j
+        elif op == "down":
+            r, j = r + (k - 1) * j, j * k
+        else:  # "up"
+            r, j = r + j, j // k
+    return r
+
+
+@dataclass
+class ReceptiveField:
+    """Computed and measured receptive field of the denoiser on one plane.
+
+    * ``analytic``: width in texels from the layer walk (:func:`analytic_receptive_field`).
+    * ``measured_map``: ``(A, B)`` |∂ centre output texel / ∂ input plane|, summed
+      over channels, max 1 (random weights, float64): what the network really does.
+    * ``local_map``: the same with GroupNorm statistics and cross-plane means held
+      constant, i.e. through the convolutions only.
+    * ``measured_width``: side of the box holding the texels of ``local_map`` above
+      ``threshold`` of its max (the local part; ≤ ``analytic``: the faint edge drops out).
+    * ``support_width``: the same for any non-zero ``local_map`` value (= ``analytic``
+      when the plane is wider than it).
+    * ``global_fraction``: share of ``measured_map`` texels with a non-zero gradient
+      (≈ 1.0: GroupNorm and the cross-plane means reach every texel).
+    * ``coupling`` / ``coupling_max``: median / largest ``measured_map`` value outside
+      the analytic box, relative to the peak: how strong that global part is.
+    * ``fraction``: ``analytic / plane_width`` (the paper's "≈ 40 % of a 128 map"; above 1
+      when the field is wider than the plane, and then the measured widths stop at the plane).
+    """
+
+    analytic: int
+    measured_map: np.ndarray
+    local_map: np.ndarray
+    measured_width: int
+    support_width: int
+    global_fraction: float
+    coupling: float
+    coupling_max: float
+    fraction: float
+    plane: str
+    plane_width: int
+    threshold: float
+
+
+def _centre_gradient(net: TriplaneUNet, x: Triplane, t: torch.Tensor, k: int) -> np.ndarray:
+    """|∂ (centre texel of output plane k, summed over channels) / ∂ input plane k|, summed over channels, max 1."""
+    x = x.map(lambda p: p.detach().requires_grad_())
+    out = net(x, t).planes[k]  # [1, C, A, B]
+    a, b = out.shape[-2:]
+    out[0, :, a // 2, b // 2].sum().backward()
+    g = x.planes[k].grad[0].abs().sum(0).numpy()  # (A, B)
+    return g / g.max()
+
+
+def _box_width(m: np.ndarray) -> int:
+    rows, cols = np.nonzero(m)
+    return int(max(rows.max() - rows.min(), cols.max() - cols.min()) + 1)
+
+
+def receptive_field(
+    model_or_cfg: TriplaneUNet | DiffusionConfig,
+    resolution: int | tuple[int, int, int] = (32, 32, 32),
+    latent_channels: int = 12,
+    plane: str = "xy",
+    t: int | None = None,
+    threshold: float = 1e-3,
+    seed: int = 0,
+) -> ReceptiveField:
+    """Receptive field of the denoiser at ``resolution``: the computed width and measured gradient maps.
+
+    The measurement backpropagates from the centre texel of ``plane`` to the
+    input plane on a float64 copy of the network (``model_or_cfg`` may be a
+    trained model or a config, built with random weights). Zero-initialised
+    layers (all of them in a fresh network) get random weights first,
+    otherwise the gradient would be exactly 0.
+
+    Computed and measured differ in two ways. (1) The computed width is where
+    the gradient *can* be non-zero; the gradient itself falls off towards the
+    border (many paths reach the centre, few the edge), so the field one sees
+    in the map is a little smaller (``measured_width``: 25 of 28 texels for the
+    paper network at 128). The paper quotes ≈ 40 % of a 128 map for its
+    network; the gradient through its convolutions covers 28 × 28 texels
+    (≈ 22 %, REFERENCE.md), exactly the computed value here.
+    (2) GroupNorm statistics and the cross-plane means couple every texel to
+    every other one: formally the field is global. The coupling is weak and
+    shrinks as the map grows: GroupNorm's scales like 1 / texels per norm group
+    (paper network without rollout at 128: ≤ 1.2e-3 of the peak); the rollout's
+    is strongest in the bands of rows and columns through the local field (the
+    centre of xy sees whole rows through xz and whole columns through yz):
+    with random weights at 128, median 1.4e-3 and at most ≈ 3 % of the peak;
+    on a 32 map ten times more. So the local width is measured with both
+    switched off (``local_map``) and the global part is reported on its own
+    (``global_fraction``, ``coupling``).
+    """
+    if isinstance(model_or_cfg, DiffusionConfig):
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            model = TriplaneUNet(latent_channels, model_or_cfg)
+    else:
+        model = model_or_cfg
+    res = (resolution,) * 3 if isinstance(resolution, int) else tuple(resolution)
+    net = copy.deepcopy(model).to("cpu", torch.float64).eval()
+    gen = torch.Generator().manual_seed(seed)
+    for m in net.modules():  # random weights where the layer starts at zero
+        if isinstance(m, nn.Conv2d) and not m.weight.any():
+            bound = 1 / math.sqrt(m.weight[0].numel())
+            m.weight.data.uniform_(-bound, bound, generator=gen)
+    x = Triplane.randn(1, net.latent_channels, res, generator=gen).to(torch.float64)
+    t_, k = torch.tensor([net.cfg.timesteps // 2 if t is None else t]), PLANES.index(plane)
+    full = _centre_gradient(net, x, t_, k)
+    for m in net.modules():
+        if isinstance(m, (TriplaneConv, TriplaneGroupNorm)):
+            m.local_only = True
+    local = _centre_gradient(net, x, t_, k)
+    analytic, (a, b) = analytic_receptive_field(net), full.shape
+    h = analytic // 2
+    outside = np.ones_like(full, dtype=bool)
+    outside[max(a // 2 - h, 0) : a // 2 + h + 1, max(b // 2 - h, 0) : b // 2 + h + 1] = False
+    return ReceptiveField(
+        analytic=analytic,
+        measured_map=full,
+        local_map=local,
+        measured_width=_box_width(local > threshold),
+        support_width=_box_width(local > 0),
+        global_fraction=float((full > 0).mean()),
+        coupling=float(np.median(full[outside])) if outside.any() else 0.0,
+        coupling_max=float(full[outside].max()) if outside.any() else 0.0,
+        fraction=analytic / max(a, b),
+        plane=plane,
+        plane_width=max(a, b),
+        threshold=threshold,
+    )
+
+
+__all__ = [
+    "ReceptiveField",
+    "TriplaneConv",
+    "TriplaneGroupNorm",
+    "TriplaneResBlock",
+    "TriplaneUNet",
+    "analytic_receptive_field",
+    "block_layout",
+    "cross_plane_inputs",
+    "num_groups",
+    "receptive_field",
+    "timestep_embedding",
+]

@@ -1,0 +1,196 @@
+"""Noise schedule, training (loss, exact resume, checkpoints), DDPM / DDIM sampling, masked sampling."""
+import io
+
+import numpy as np
+import pytest
+import torch
+
+from sin3dm_lite.config import DiffusionConfig
+from sin3dm_lite.diffusion import (
+    DiffusionTrainer,
+    NoiseSchedule,
+    ddim_timesteps,
+    fit_diffusion,
+    sample,
+    soft_mask,
+)
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.triplane import Triplane
+
+RES = (8, 8, 8)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """Tiny convolutions run faster on one thread, and far faster when the two cores are shared."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def tiny_cfg(**kw) -> DiffusionConfig:
+    base = dict(base_channels=16, n_resblocks=2, downsample=False, steps=60, batch_size=4, lr=2e-3, ema_decay=0.0)
+    return DiffusionConfig(**{**base, **kw})
+
+
+@pytest.fixture(scope="module")
+def h0() -> Triplane:
+    g = torch.Generator().manual_seed(1)
+    return Triplane.randn(1, 4, RES, generator=g).map(torch.tanh)
+
+
+@pytest.fixture(scope="module")
+def trained(h0):
+    """A tiny model on a 200-step schedule (so that DDPM sampling is quick)."""
+    trainer = DiffusionTrainer(h0, tiny_cfg(timesteps=200, steps=30), device="cpu")
+    trainer.run(progress=False)
+    return trainer
+
+
+# ------------------------------------------------------------------ schedule
+def test_schedule_values():
+    s = NoiseSchedule()
+    assert s.betas[0].item() == pytest.approx(1e-4) and s.betas[-1].item() == pytest.approx(0.02)
+    ac = s.alphas_cumprod
+    assert len(ac) == 1000 and (ac[1:] < ac[:-1]).all() and 0 < ac[-1] < 1e-4 and ac[0] < 1
+    assert (s.posterior_variance >= 0).all() and s.posterior_variance[0] == 0
+    assert s.alpha_bar(-1).item() == 1.0 and s.alpha_bar(torch.tensor([0, 999])).shape == (2,)
+
+
+def test_q_sample_and_its_inverses(h0):
+    s = NoiseSchedule()
+    noise = Triplane.randn_like(h0, torch.Generator().manual_seed(0))
+    x_start = s.q_sample(h0, torch.tensor([0]), noise)
+    assert all(torch.allclose(a, b, atol=0.05) for a, b in zip(x_start.planes, h0.planes))  # t=0: ≈ x0
+    x_end = s.q_sample(h0, 999, noise)
+    assert all(torch.allclose(a, b, atol=0.02) for a, b in zip(x_end.planes, noise.planes))  # t=T-1: ≈ noise
+    t = torch.tensor([500])
+    x_t = s.q_sample(h0, t, noise)
+    assert torch.allclose(s.predict_x0(x_t, t, noise).yz, h0.yz, atol=1e-5)
+    assert torch.allclose(s.predict_eps(x_t, t, h0).xz, noise.xz, atol=1e-5)
+
+
+# ------------------------------------------------------------------ training
+def test_loss_decreases_on_a_tiny_fit(h0):
+    model, history = fit_diffusion(h0, tiny_cfg(), device="cpu", progress=False)
+    assert len(history) == 60
+    assert np.mean(history[-10:]) < 0.6 * np.mean(history[:10])
+    assert not model.training
+
+
+def test_eps_prediction_trains(h0):
+    trainer = DiffusionTrainer(h0, tiny_cfg(prediction="eps", steps=5), device="cpu")
+    trainer.run(progress=False)
+    assert len(trainer.history) == 5 and np.isfinite(trainer.history).all()
+    with pytest.raises(Sin3DMInputError):
+        DiffusionTrainer(h0, tiny_cfg(prediction="v"), device="cpu")
+    with pytest.raises(Sin3DMInputError):
+        DiffusionTrainer(h0.repeat(2), tiny_cfg(), device="cpu")
+
+
+def test_resume_is_bit_identical_and_checkpoints_load_weights_only(h0):
+    cfg = tiny_cfg(steps=12, ema_decay=0.9)
+    straight = DiffusionTrainer(h0, cfg, device="cpu", seed=3)
+    straight.run(progress=False)
+
+    first = DiffusionTrainer(h0, cfg, device="cpu", seed=3)
+    seen = []
+    first.run(until_step=5, progress=False, callback=lambda tr: seen.append(tr.step_count))
+    assert seen == [1, 2, 3, 4, 5]
+    buf = io.BytesIO()
+    torch.save(first.state_dict(), buf)
+    buf.seek(0)
+    sd = torch.load(buf, weights_only=True)
+    first.run(progress=False)  # the saved snapshot must not change when training goes on
+
+    resumed = DiffusionTrainer(h0, cfg, device="cpu", seed=99)  # different seed: everything comes from sd
+    resumed.load_state_dict(sd)
+    assert resumed.step_count == 5
+    resumed.run(progress=False)
+    rebuilt = DiffusionTrainer.from_state_dict(sd)
+    rebuilt.run(progress=False)
+    for other in (first, resumed, rebuilt):
+        assert other.history == straight.history
+        for a, b in zip(straight.model.parameters(), other.model.parameters()):
+            assert torch.equal(a, b)
+        for a, b in zip(straight.ema.parameters(), other.ema.parameters()):
+            assert torch.equal(a, b)
+
+
+def test_model_for_sampling_is_ema_or_raw(h0):
+    with_ema = DiffusionTrainer(h0, tiny_cfg(ema_decay=0.5, steps=2), device="cpu")
+    with_ema.run(progress=False)
+    assert with_ema.model_for_sampling is with_ema.ema
+    a, b = with_ema.ema.in_conv.convs[0].weight, with_ema.model.in_conv.convs[0].weight
+    assert not torch.equal(a, b)
+    raw = DiffusionTrainer(h0, tiny_cfg(steps=2), device="cpu")
+    assert raw.ema is None and raw.model_for_sampling is raw.model and not raw.model.training
+    assert raw.scheduler.get_last_lr()[0] == pytest.approx(2e-3)
+    raw.run(progress=False)
+    assert raw.scheduler.get_last_lr()[0] == pytest.approx(0.0)  # annealed linearly to 0 over cfg.steps
+
+
+# ------------------------------------------------------------------ sampling
+def test_ddim_timesteps():
+    assert ddim_timesteps(1000, 1) == [999]
+    ts = ddim_timesteps(1000, 50)
+    assert len(ts) == 50 and ts[0] == 999 and ts[-1] == 0 and all(a > b for a, b in zip(ts, ts[1:]))
+    assert ddim_timesteps(10, 10) == list(range(9, -1, -1))
+    with pytest.raises(Sin3DMInputError):
+        ddim_timesteps(10, 11)
+
+
+@pytest.mark.parametrize("method", ["ddim", "ddpm"])
+def test_sampling_shapes_range_and_determinism(trained, method):
+    model, sched = trained.model_for_sampling, trained.schedule
+    a = sample(model, sched, RES, n=2, method=method, steps=8, seed=5, progress=False)
+    b = sample(model, sched, RES, n=2, method=method, steps=8, seed=5, progress=False)
+    c = sample(model, sched, RES, n=2, method=method, steps=8, seed=6, progress=False)
+    assert a.batch == 2 and a.channels == 4 and a.resolution == RES
+    assert all(p.abs().max() <= 1.0 for p in a.planes)  # the last step returns the clipped x0
+    assert all(torch.equal(p, q) for p, q in zip(a.planes, b.planes))
+    assert not torch.equal(a.xy, c.xy)
+    assert not torch.equal(a.xy[0], a.xy[1])
+
+
+def test_intermediates(trained):
+    model = trained.model_for_sampling
+    x, inter = sample(model, trained.schedule, RES, n=1, steps=10, return_intermediates=4, progress=False)
+    assert [d["step"] for d in inter] == [0, 3, 6, 9] and inter[0]["t"] == 199 and inter[-1]["t"] == 0
+    assert set(inter[0]) == {"step", "t", "x_t", "x0"}
+    assert isinstance(inter[1]["x_t"], Triplane) and inter[1]["x0"].device.type == "cpu"
+    assert torch.equal(inter[-1]["x0"].xy, x.xy)  # DDIM's last step lands on its x0
+    _, inter = sample(model, trained.schedule, RES, steps=10, return_intermediates=[0, -1], progress=False)
+    assert [d["step"] for d in inter] == [0, 9]
+
+
+def test_sampling_at_another_resolution_and_eps_prediction(trained):
+    x = sample(trained.model_for_sampling, trained.schedule, (13, 7, 10), n=1, steps=5, progress=False)
+    assert x.resolution == (13, 7, 10)
+    x = sample(trained.model_for_sampling, trained.schedule, (6, 9, 5), steps=5, progress=False, prediction="eps")
+    assert x.resolution == (6, 9, 5) and all(torch.isfinite(p).all() for p in x.planes)
+
+
+@pytest.mark.parametrize("method", ["ddim", "ddpm"])
+def test_mask_of_ones_returns_known_exactly(trained, h0, method):
+    ones = h0.map(lambda p: torch.ones_like(p[:, :1]))
+    model, sched = trained.model_for_sampling, trained.schedule
+    x = sample(model, sched, RES, n=2, method=method, steps=6, known=h0, mask=ones, progress=False)
+    assert all(torch.equal(p, q.expand_as(p)) for p, q in zip(x.planes, h0.planes))
+
+
+def test_soft_mask_and_partial_masked_sampling(trained, h0):
+    m = soft_mask(RES, box=((-1, -1, -1), (0, 1, 1)), border=0.5)  # keep the x < 0 half, blend 2 texels
+    assert [tuple(p.shape) for p in m.planes] == [(1, 1, 8, 8)] * 3
+    col = m.xy[0, 0, :, 3]  # along x: texel centres -0.875 ... 0.875
+    assert torch.allclose(col, torch.tensor([1, 1, 1, 1, 0.75, 0.25, 0, 0.0]))
+    assert torch.equal(m.yz, torch.ones_like(m.yz))  # the box spans all of y and z
+    inv = soft_mask(h0, box=((-1, -1, -1), (0, 1, 1)), border=0.0, invert=True)
+    assert torch.equal(inv.xy[0, 0, :, 0], torch.tensor([0, 0, 0, 0, 1, 1, 1, 1.0]))
+    x = sample(trained.model_for_sampling, trained.schedule, RES, n=2, steps=6, known=h0, mask=m, progress=False)
+    keep = m.xy == 1
+    assert torch.equal(x.xy[keep.expand_as(x.xy)], h0.xy.expand_as(x.xy)[keep.expand_as(x.xy)])
+    assert not torch.equal(x.xy[:, :, 6:], h0.xy.expand_as(x.xy)[:, :, 6:])
+    with pytest.raises(Sin3DMInputError):
+        sample(trained.model_for_sampling, trained.schedule, RES, known=h0, progress=False)

@@ -1,0 +1,158 @@
+"""The triplane denoiser: shapes on odd / non-square planes, zero init, cross-plane coupling, receptive field."""
+import time
+
+import pytest
+import torch
+
+from sin3dm_lite.config import DiffusionConfig
+from sin3dm_lite.triplane import Triplane
+from sin3dm_lite.unet import (
+    TriplaneConv,
+    TriplaneResBlock,
+    TriplaneUNet,
+    analytic_receptive_field,
+    block_layout,
+    num_groups,
+    receptive_field,
+)
+
+RESOLUTIONS = [(13, 7, 10), (16, 12, 8)]
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """Tiny convolutions run faster on one thread, and far faster when the two cores are shared."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def shapes(tp: Triplane):
+    return [tuple(p.shape) for p in tp.planes]
+
+
+def expected(b, c, res):
+    x, y, z = res
+    return [(b, c, x, y), (b, c, x, z), (b, c, y, z)]
+
+
+@pytest.mark.parametrize("res", RESOLUTIONS)
+@pytest.mark.parametrize("rollout", [True, False])
+@pytest.mark.parametrize("k", [1, 3])
+def test_triplane_conv_shapes(res, rollout, k):
+    conv = TriplaneConv(5, 7, k, rollout=rollout)
+    assert conv.convs[0].in_channels == (15 if rollout else 5)
+    assert shapes(conv(Triplane.randn(2, 5, res))) == expected(2, 7, res)
+
+
+def _perturbed_outputs(rollout: bool, plane: int):
+    torch.manual_seed(0)
+    conv = TriplaneConv(3, 4, 1, rollout=rollout)
+    x = Triplane.randn(1, 3, (6, 5, 4))
+    planes = list(x.clone().planes)
+    planes[plane][0, :, 2, 1] += 1.0  # one texel of one plane
+    return conv(x), conv(Triplane(*planes))
+
+
+def test_rollout_couples_planes_along_the_shared_axis():
+    # yz texel (y=2, z=1) → mean over z of yz → xy sees it in column y=2 for every x, nowhere else
+    a, b = _perturbed_outputs(rollout=True, plane=2)
+    changed = (a.xy - b.xy).abs().sum(1)[0] > 0  # [X, Y]
+    assert changed[:, 2].all() and not changed[:, [0, 1, 3, 4]].any()
+    # xz texel (x=2, z=1) → mean over z of xz → xy row x=2
+    a, b = _perturbed_outputs(rollout=True, plane=1)
+    changed = (a.xy - b.xy).abs().sum(1)[0] > 0
+    assert changed[2, :].all() and not changed[[0, 1, 3, 4, 5], :].any()
+    # without rollout the planes are independent
+    a, b = _perturbed_outputs(rollout=False, plane=2)
+    assert torch.equal(a.xy, b.xy) and torch.equal(a.xz, b.xz) and not torch.equal(a.yz, b.yz)
+
+
+def test_num_groups_divides_channels():
+    assert [num_groups(c) for c in (64, 128, 192, 12, 16, 4, 48, 1)] == [32, 32, 32, 12, 16, 4, 24, 1]
+
+
+@pytest.mark.parametrize("res", RESOLUTIONS)
+def test_resblock_shapes_and_identity_at_init(res):
+    emb = torch.randn(2, 32)
+    x = Triplane.randn(2, 8, res)
+    same = TriplaneResBlock(8, 8, 32)
+    assert torch.equal(same(x, emb).xy, x.xy)  # zero-initialised last conv: identity
+    wider = TriplaneResBlock(8, 12, 32)
+    assert shapes(wider(x, emb)) == expected(2, 12, res)
+
+
+def test_block_layout():
+    assert [block_layout(n, True) for n in (2, 4, 6, 8)] == [(0, 2, 0), (1, 2, 1), (1, 4, 1), (2, 4, 2)]
+    assert block_layout(2, False) == (2, 0, 0) and block_layout(6, False) == (6, 0, 0)
+    with pytest.raises(ValueError):
+        block_layout(0, True)
+
+
+@pytest.mark.parametrize("res", RESOLUTIONS)
+@pytest.mark.parametrize("downsample", [True, False])
+@pytest.mark.parametrize("n", [2, 4, 6])
+def test_unet_shapes_and_zero_output_at_init(res, downsample, n):
+    net = TriplaneUNet(4, DiffusionConfig(base_channels=8, n_resblocks=n, downsample=downsample, time_embed_dim=16))
+    out = net(Triplane.randn(2, 4, res), torch.tensor([0, 999]))
+    assert shapes(out) == expected(2, 4, res)
+    assert all(torch.equal(p, torch.zeros_like(p)) for p in out.planes)  # "zero-init identity" for x0-prediction
+
+
+def test_unet_trains_through_every_block():
+    net = TriplaneUNet(4, DiffusionConfig(base_channels=8, n_resblocks=4, time_embed_dim=16))
+    opt = torch.optim.SGD(net.parameters(), lr=0.1)
+    x = Triplane.randn(2, 4, (9, 6, 7))
+    for _ in range(2):  # step 1 moves the output conv off zero, step 2 reaches the blocks behind it
+        opt.zero_grad()
+        sum((p - 1).square().mean() for p in net(x, torch.tensor([5, 50])).planes).backward()
+        opt.step()
+    assert net.down[0].conv2.convs[0].weight.abs().sum() > 0 and net.mid[0].conv2.convs[0].weight.abs().sum() > 0
+
+
+def test_paper_unet_has_about_7m_parameters():
+    n = sum(p.numel() for p in TriplaneUNet(12, DiffusionConfig()).parameters())
+    assert 6.5e6 < n < 7.5e6
+
+
+def test_analytic_receptive_field_by_hand():
+    rf = lambda **kw: analytic_receptive_field(TriplaneUNet(4, DiffusionConfig(base_channels=8, **kw)))  # noqa: E731
+    # 1x1 in (1) + 2 blocks × two 3x3 convs (+2 each → 9) + 1x1 out
+    assert rf(n_resblocks=2, downsample=False) == 9
+    assert rf(n_resblocks=6, downsample=False) == 25
+    # the paper's n=4: 1x1 in → 1; ResBlock(64): +2 +2 → 5; avg-pool 2: +1 → 6, one texel now spans 2;
+    # two ResBlocks(128) = four 3x3 convs at spacing 2: +4·2·2 → 22; bilinear ×2 blends two coarse
+    # texels (2 apart): +2 → 24, spacing 1; ResBlock(64): +4 → 28; 1x1 out → 28 (REFERENCE: 28×28 measured)
+    assert rf(n_resblocks=4, downsample=True) == 28
+    # n=2 → layout (0, 2, 0): 1 → pool +1 → 2 → four convs at spacing 2: +16 → 18 → up +2 → 20
+    assert rf(n_resblocks=2, downsample=True) == 20
+
+
+@pytest.mark.parametrize("n,downsample,size", [(2, False, 24), (2, True, 32)])
+def test_measured_receptive_field_matches_analytic_without_rollout(n, downsample, size):
+    cfg = DiffusionConfig(base_channels=16, n_resblocks=n, downsample=downsample, rollout=False)
+    rf = receptive_field(cfg, size, latent_channels=4)
+    assert rf.support_width == rf.analytic
+    assert rf.measured_width == rf.analytic
+    assert rf.measured_map.shape == (size, size) and rf.measured_map.max() == 1.0
+
+
+def test_receptive_field_reports_global_coupling_and_is_fast():
+    cfg = DiffusionConfig(base_channels=32, n_resblocks=2, downsample=False)
+    start = time.perf_counter()
+    rf = receptive_field(cfg, 32, latent_channels=12)
+    assert time.perf_counter() - start < 4.0  # ~1 s on two cores; margin for a busy machine
+    assert rf.analytic == 9 and rf.support_width == 9 and rf.fraction == 9 / 32
+    assert rf.global_fraction == 1.0  # GroupNorm and the rollout reach every texel ...
+    assert 0 < rf.coupling < 0.1 and rf.coupling_max < 0.5  # ... but weakly
+    assert rf.local_map[rf.local_map > 0].size == 81  # the convolution-only gradient is exactly 9×9
+
+
+def test_receptive_field_of_a_model_on_a_non_square_plane_leaves_the_model_alone():
+    net = TriplaneUNet(4, DiffusionConfig(base_channels=8, n_resblocks=2, downsample=True))
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    rf = receptive_field(net, (20, 12, 16), plane="yz")
+    assert rf.measured_map.shape == (12, 16) and rf.plane_width == 16 and rf.analytic == 20
+    assert all(torch.equal(before[k], v) for k, v in net.state_dict().items())
+    assert next(net.parameters()).dtype == torch.float32
