@@ -1,0 +1,147 @@
+"""Seconds per training step, ours vs straightforward implementations of the paper's layers.
+
+    python benchmarks/bench_training.py [--presets tiny small paper] [--steps 5] [--threads 2]
+
+Autoencoder step (one batch of points, forward + backward + AdamW):
+  * ours        – the decoder's per-plane ResNet blocks run once per step, then all points are looked up;
+  * per-chunk   – the original code's pattern: the points are decoded in chunks of 8,192 and the
+                  plane convolutions are recomputed for every chunk.
+Diffusion step (a batch of noisy copies of the latent, forward + backward + AdamW):
+  * ours        – three Conv2d per TriplaneConv, one per plane, each at its own size;
+  * canvas      – the three planes packed side by side into one zero-padded image and one Conv2d
+                  (the "treat the triplane as an image" shortcut);
+  * channels-last – ours with torch.channels_last memory format.
+The paper preset runs at its real size (256 grid / 128 latent, 65,536 points): slow on a CPU.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from sin3dm_lite.autoencoder import AutoencoderTrainer, sdf_loss
+from sin3dm_lite.config import get_preset
+from sin3dm_lite.diffusion import DiffusionTrainer
+from sin3dm_lite.grid import ShapeGrid
+from sin3dm_lite.mesh_io import Normalization
+from sin3dm_lite.triplane import Triplane
+from sin3dm_lite.unet import TriplaneConv, cross_plane_inputs
+
+
+def synthetic_grid(dims, n_points: int) -> ShapeGrid:
+    """A sphere-ish TSDF grid of the given size (timings do not depend on the content)."""
+    dims = np.array(dims)
+    half = dims / dims.max()
+    aabb = np.concatenate([-half, half]).astype(np.float32)
+    thr = 3 * 2 / dims.max()
+    g = ShapeGrid(np.zeros(tuple(dims), np.float32), np.zeros((*dims, 3), np.float32), aabb, thr, Normalization.identity())
+    c = g.voxel_centers()
+    g.sdf = np.clip(np.linalg.norm(c, axis=-1) - 0.5 * half.min(), -thr, thr).astype(np.float32)
+    g.color = np.where((np.abs(g.sdf) < thr)[..., None], (c + 1) / 2, 0).astype(np.float32)
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(n_points, 3))
+    p = p / np.linalg.norm(p, axis=1, keepdims=True) * 0.5 * half.min()
+    g.points = p.astype(np.float32)
+    g.point_sdf = np.zeros(n_points, np.float32)
+    g.point_color = ((p + 1) / 2).astype(np.float32)
+    return g
+
+
+def per_chunk_step(tr: AutoencoderTrainer, chunk: int = 8192) -> float:
+    """The autoencoder step with the plane convolutions recomputed for every chunk of points."""
+    cfg = tr.cfg
+    p, s_gt, c_gt = tr.sampler(cfg.points_per_step, cfg.grid_fraction, tr.gen)
+    tr.opt.zero_grad(set_to_none=True)
+    total = 0.0
+    for a in range(0, len(p), chunk):
+        h = tr.model.encode(tr.grid_t)
+        prep = tr.model.decoder.prepare(h)  # recomputed per chunk
+        q, sg, cg = p[a : a + chunk], s_gt[a : a + chunk], c_gt[a : a + chunk]
+        s = tr.model.decoder.query_sdf(prep, q[None])[0]
+        band = sg.abs() < tr.grid.threshold
+        c = tr.model.decoder.query_color(prep, q[band][None])[0]
+        loss = (sdf_loss(s, sg, tr.grid.threshold) + (c - cg[band]).abs().mean()) * len(q) / len(p)
+        loss.backward()
+        total += float(loss.detach())
+    tr.opt.step()
+    tr.sched.step()
+    return total
+
+
+class CanvasConv(torch.nn.Module):
+    """One Conv2d over the three planes packed into a single zero-padded canvas [B, C, max(X,Y), Y+2Z]."""
+
+    def __init__(self, ref: TriplaneConv):
+        super().__init__()
+        c = ref.convs[0]
+        self.rollout = ref.rollout
+        self.conv = torch.nn.Conv2d(c.in_channels, c.out_channels, c.kernel_size, padding=c.padding)
+
+    def forward(self, tp: Triplane) -> Triplane:
+        if self.rollout:
+            tp = cross_plane_inputs(tp)
+        (x, y, z), h = tp.resolution, max(tp.resolution[0], tp.resolution[1])
+        pad = lambda p: F.pad(p, (0, 0, 0, h - p.shape[2]))  # noqa: E731
+        out = self.conv(torch.cat([pad(tp.xy), pad(tp.xz), pad(tp.yz)], dim=3))
+        return Triplane(out[:, :, :x, :y], out[:, :, :x, y : y + z], out[:, :, :y, y + z :])
+
+
+def swap_convs(module: torch.nn.Module) -> None:
+    for name, child in module.named_children():
+        if isinstance(child, TriplaneConv):
+            setattr(module, name, CanvasConv(child))
+        else:
+            swap_convs(child)
+
+
+def timed(fn, steps: int, warmup: int = 2) -> float:
+    for _ in range(warmup):
+        fn()
+    t = time.perf_counter()
+    for _ in range(steps):
+        fn()
+    return (time.perf_counter() - t) / steps
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--presets", nargs="+", default=["tiny", "small", "paper"])
+    ap.add_argument("--steps", type=int, default=5)
+    ap.add_argument("--threads", type=int, default=None)
+    a = ap.parse_args()
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device cpu")
+    for name in a.presets:
+        cfg = get_preset(name)
+        r = cfg.grid.resolution
+        dims = (r, r // 2, r * 3 // 8)  # a 2 : 1 : 0.75 box, like the canyon example
+        grid = synthetic_grid(dims, 100_000)
+        steps = 2 if name == "paper" else a.steps
+        ae = AutoencoderTrainer(grid, cfg.autoencoder)
+        t_ours = timed(ae.train_step, steps)
+        t_chunk = timed(lambda: per_chunk_step(ae), steps)
+        print(f"[{name}] autoencoder, grid {dims}, {cfg.autoencoder.points_per_step:,} points: "
+              f"ours {t_ours:.3f} s/step | per-chunk plane convs {t_chunk:.3f} s/step")
+        h0 = ae.latent()
+        dcfg = replace(cfg.diffusion, ema_decay=0.0)  # the same optimiser work for all three
+        dm = DiffusionTrainer(h0, dcfg)
+        t_ours = timed(dm.step, steps)
+        canvas = DiffusionTrainer(h0, dcfg)
+        swap_convs(canvas.model)
+        canvas.optimizer = torch.optim.AdamW(canvas.model.parameters(), lr=dcfg.lr)
+        canvas.scheduler = torch.optim.lr_scheduler.LambdaLR(canvas.optimizer, lambda s: 1.0)
+        t_canvas = timed(canvas.step, steps)
+        cl = DiffusionTrainer(h0, dcfg)
+        cl.model.to(memory_format=torch.channels_last)
+        t_cl = timed(cl.step, steps)
+        print(f"[{name}] diffusion, latent {h0.resolution}, batch {cfg.diffusion.batch_size}: "
+              f"ours {t_ours:.3f} s/step | canvas {t_canvas:.3f} s/step | channels-last {t_cl:.3f} s/step")
+
+
+if __name__ == "__main__":
+    main()
