@@ -1,0 +1,468 @@
+"""Interactive 3D viewers with k3d: textured meshes, galleries, SDF volumes, points, standalone HTML.
+
+Every function returns a ``k3d.Plot`` (show it by making it a cell's value, or
+``plot.display()``) and can add to an existing plot instead (``plot=``).
+:func:`save_html` writes a plot as a single self-contained page that opens in
+any browser without a server or a network connection.
+
+Frames. k3d's up axis is z; OBJ files (and our normalised meshes) are usually
+y-up. Every function here takes ``up="y"`` (default) or ``up="z"`` describing
+*the data*, and turns y-up data so that its y becomes k3d's z:
+``(x, y, z) → (x, -z, y)``, a rotation (no mirror), so a shape's front (+z)
+faces k3d's -y, where :func:`fit_camera` puts the camera. ``offset`` arguments
+are in k3d's frame (after that rotation).
+
+k3d in practice: float32 vertices, uint32 indices, packed ``0xRRGGBB`` uint32
+colours; a textured mesh gets ``color=0xffffff`` (the texture is multiplied by
+it), ``texture=<PNG bytes>``, ``texture_file_format="png"`` and one uv per
+vertex.
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import os
+import re
+import tempfile
+import zlib
+from pathlib import Path
+from typing import Sequence
+
+import k3d
+import numpy as np
+
+from .mesh_io import TexturedMesh
+
+UP_AXES = ("y", "z")
+
+
+# --------------------------------------------------------------------------- small helpers
+def to_view(points: np.ndarray, up: str = "y") -> np.ndarray:
+    """Data coordinates → k3d's z-up frame (``up="y"``: ``(x, y, z) → (x, -z, y)``), as float32."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if up == "y":
+        p = np.stack([p[:, 0], -p[:, 2], p[:, 1]], axis=1)
+    elif up != "z":
+        raise ValueError(f"up must be one of {UP_AXES}, got {up!r}")
+    return p.astype(np.float32)
+
+
+def pack_colors(rgb: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` colours (float in [0, 1] or uint8) → ``(N,)`` uint32 ``0xRRGGBB``."""
+    c = np.asarray(rgb)
+    if c.dtype != np.uint8:
+        c = np.clip(np.round(np.asarray(c, np.float64) * 255.0), 0, 255).astype(np.uint8)
+    c = c[..., :3].astype(np.uint32)
+    return (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
+
+
+def png_bytes(image: np.ndarray, max_size: int | None = None) -> bytes:
+    """Encode an ``(h, w, 3|4)`` image (float in [0, 1] or uint8) as PNG, shrunk to ``max_size`` if larger."""
+    from PIL import Image
+
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        img = np.clip(np.round(img.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
+    pil = Image.fromarray(img[..., :3] if img.ndim == 3 else img)
+    if max_size and max(pil.size) > max_size:
+        scale = max_size / max(pil.size)
+        pil = pil.resize((max(1, round(pil.size[0] * scale)), max(1, round(pil.size[1] * scale))), Image.BILINEAR)
+    buf = io.BytesIO()
+    pil.save(buf, format="png")
+    return buf.getvalue()
+
+
+def new_plot(**kwargs) -> k3d.Plot:
+    """A k3d plot with our defaults (no grid box, white background); keyword arguments go to ``k3d.plot``."""
+    opts = dict(grid_visible=False, background_color=0xFFFFFF, camera_auto_fit=True, height=480)
+    opts.update(kwargs)
+    return k3d.plot(**opts)
+
+
+def _unique_rows(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique rows of a 2D array and, for every input row, the index of its unique row."""
+    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
+    return uniq, inverse.reshape(-1)
+
+
+# --------------------------------------------------------------------------- mesh → arrays
+def _texture_arrays(mesh: TexturedMesh):
+    """Per-vertex (position, uv) arrays for a mesh drawn with one texture, or None when it can't be.
+
+    A :class:`TexturedMesh` stores one uv per face *corner* (``face_uvs (F, 3, 2)``):
+    a vertex on a UV seam has several. We split vertices by their distinct
+    (vertex, uv) pairs, which is what a renderer needs (one uv per vertex).
+    """
+    if mesh.face_uvs is None or len(mesh.faces) == 0:
+        return None
+    used = np.unique(mesh.face_material)
+    if len(used) != 1:
+        return None
+    mat = mesh.materials[int(used[0])]
+    if mat.image is None or not np.isfinite(mesh.face_uvs).all():
+        return None
+    corner_vertex = np.asarray(mesh.faces, np.int64).reshape(-1)
+    corner_uv = np.asarray(mesh.face_uvs, np.float64).reshape(-1, 2)
+    uniq, inverse = _unique_rows(np.column_stack([corner_vertex, corner_uv]))
+    vertices = np.asarray(mesh.vertices)[uniq[:, 0].astype(np.int64)]
+    uvs = uniq[:, 1:]
+    image = np.clip(np.asarray(mat.image, np.float32)[..., :3] * np.asarray(mat.base_color, np.float32)[:3], 0, 1)
+    return vertices, inverse.reshape(-1, 3), uvs, image
+
+
+def _color_arrays(mesh: TexturedMesh):
+    """Per-vertex packed colours from ``colors_at`` at every face corner (vertices split where colours differ)."""
+    n_faces = len(mesh.faces)
+    fi = np.repeat(np.arange(n_faces), 3)
+    bc = np.tile(np.eye(3), (n_faces, 1))
+    packed = pack_colors(mesh.colors_at(fi, bc))
+    corner_vertex = np.asarray(mesh.faces, np.int64).reshape(-1)
+    uniq, inverse = _unique_rows(np.column_stack([corner_vertex, packed.astype(np.int64)]))
+    vertices = np.asarray(mesh.vertices)[uniq[:, 0]]
+    return vertices, inverse.reshape(-1, 3), uniq[:, 1].astype(np.uint32)
+
+
+def _trimesh_arrays(mesh, texture: bool):
+    """(vertices, faces, uvs or None, image or None, packed colours or None) of a ``trimesh.Trimesh``."""
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    visual = mesh.visual
+    if texture and getattr(visual, "kind", None) == "texture" and getattr(visual, "uv", None) is not None:
+        mat = visual.material
+        img = getattr(mat, "baseColorTexture", None) or getattr(mat, "image", None)
+        if img is not None and len(visual.uv) == len(vertices):
+            rgb = np.asarray(img.convert("RGB"), np.float32) / 255.0
+            factor = getattr(mat, "baseColorFactor", None)  # glTF materials: RGBA, uint8 or float
+            if factor is not None:
+                factor = np.asarray(factor)
+                scale = 255.0 if np.issubdtype(factor.dtype, np.integer) else 1.0
+                rgb = np.clip(rgb * (factor[:3].astype(np.float32) / scale), 0.0, 1.0)
+            return vertices, faces, np.asarray(visual.uv, np.float64), rgb, None
+    colors = None
+    kind = getattr(visual, "kind", None)
+    if kind == "texture":
+        visual = visual.to_color()  # trimesh samples the texture at the vertices
+    if kind is not None:
+        colors = pack_colors(np.asarray(visual.vertex_colors)[:, :3])
+    return vertices, faces, None, None, colors
+
+
+def mesh_arrays(mesh, texture: bool = True) -> dict:
+    """What :func:`mesh_plot` hands to k3d, in *data* coordinates: ``vertices``, ``indices`` and either
+    ``uvs`` + ``image`` (OBJ convention, v up) or ``colors`` (packed uint32, or None for a plain colour)."""
+    if isinstance(mesh, TexturedMesh):
+        tex = _texture_arrays(mesh) if texture else None
+        if tex is not None:
+            v, f, uv, img = tex
+            return dict(vertices=v, indices=f, uvs=uv, image=img, colors=None)
+        v, f, col = _color_arrays(mesh)
+        return dict(vertices=v, indices=f, uvs=None, image=None, colors=col)
+    v, f, uv, img, col = _trimesh_arrays(mesh, texture)
+    return dict(vertices=v, indices=f, uvs=uv, image=img, colors=col)
+
+
+# --------------------------------------------------------------------------- plots
+def mesh_plot(
+    mesh,
+    plot: k3d.Plot | None = None,
+    texture: bool = True,
+    name: str | None = None,
+    offset: Sequence[float] = (0.0, 0.0, 0.0),
+    up: str = "y",
+    color: int | None = None,
+    flat_shading: bool = False,
+    max_texture: int | None = 2048,
+    **mesh_kwargs,
+) -> k3d.Plot:
+    """A :class:`TexturedMesh` or ``trimesh.Trimesh`` in k3d (added to ``plot`` when given).
+
+    A mesh whose faces all use one textured material is drawn with its texture
+    (PNG, at most ``max_texture`` pixels a side); anything else (several
+    materials, vertex colours, a plain colour, or ``texture=False``) gets
+    per-vertex colours sampled at the face corners. ``color=0xRRGGBB`` draws a
+    single plain colour instead. Extra keyword arguments go to ``k3d.mesh``.
+    """
+    plot = plot if plot is not None else new_plot()
+    arrays = mesh_arrays(mesh, texture=texture and color is None)
+    vertices = to_view(arrays["vertices"], up) + np.asarray(offset, np.float32)
+    opts = dict(flat_shading=flat_shading, side="double", name=name or getattr(mesh, "name", None) or "mesh")
+    if color is not None:
+        opts.update(color=int(color))
+    elif arrays["uvs"] is not None:
+        uv = np.asarray(arrays["uvs"], np.float64)
+        # k3d uploads the PNG with flipY = false, so its v = 0 is the image's TOP row (glTF's
+        # convention, which k3d's own glTF reader passes through unchanged), while OBJ / our
+        # TexturedMesh put v = 0 at the BOTTOM row. Hence v -> 1 - v. Checked by rendering a
+        # quad with a red-top / blue-bottom texture in headless Chromium: with the flip the
+        # red half is on top; without it the picture is upside down.
+        k3d_uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1).astype(np.float32)
+        opts.update(
+            color=0xFFFFFF,
+            texture=png_bytes(arrays["image"], max_texture),
+            texture_file_format="png",
+            uvs=k3d_uv,
+            # UVs outside [0, 1] wrap around (as in sample_texture); an atlas inside [0, 1] is
+            # clamped so that filtering at its border does not bleed in the opposite edge
+            texture_wrap="repeat" if (uv.min() < 0.0 or uv.max() > 1.0) else "clamp",
+        )
+    elif arrays["colors"] is not None:
+        opts.update(colors=np.asarray(arrays["colors"], np.uint32), color=0xFFFFFF)
+    else:
+        opts.update(color=0xB3B3B3)
+    opts.update(mesh_kwargs)
+    plot += k3d.mesh(vertices.astype(np.float32), np.asarray(arrays["indices"], np.uint32), **opts)
+    return plot
+
+
+def _view_bounds(mesh, up: str) -> np.ndarray:
+    """``(2, 3)`` min / max corner of a mesh in k3d's frame."""
+    v = to_view(np.asarray(mesh.vertices), up)
+    return np.stack([v.min(0), v.max(0)])
+
+
+def gallery(
+    meshes: Sequence,
+    labels: Sequence[str] | None = None,
+    spacing: float = 0.25,
+    columns: int | None = None,
+    up: str = "y",
+    texture: bool = True,
+    plot: k3d.Plot | None = None,
+) -> k3d.Plot:
+    """Several meshes side by side along x (``spacing`` apart), in rows of ``columns``, each with a label.
+
+    Each mesh keeps its own scale; rows go downwards (k3d's -z). Labels are
+    ``k3d.text`` objects, which the standalone HTML page shows too.
+    """
+    plot = plot if plot is not None else new_plot()
+    n = len(meshes)
+    if labels is not None and len(labels) != n:
+        raise ValueError(f"got {len(labels)} labels for {n} meshes")
+    columns = columns or n
+    bounds = [_view_bounds(m, up) for m in meshes]
+    z_top = 0.0
+    for row_start in range(0, n, columns):
+        row = range(row_start, min(row_start + columns, n))
+        row_height = max(bounds[k][1, 2] - bounds[k][0, 2] for k in row)
+        x = 0.0
+        for k in row:
+            lo, hi = bounds[k]
+            # left edge at x, centred in y, top of the row at z_top
+            offset = np.array([x - lo[0], -(lo[1] + hi[1]) / 2, z_top - hi[2]], np.float32)
+            name = labels[k] if labels is not None else getattr(meshes[k], "name", f"mesh {k}")
+            mesh_plot(meshes[k], plot=plot, texture=texture, name=str(name), offset=offset, up=up)
+            if labels is not None:
+                top = np.array([(lo[0] + hi[0]) / 2, 0.0, hi[2]]) + offset + [0.0, 0.0, 0.04 * row_height]
+                plot += k3d.text(html.escape(str(labels[k])), position=top.tolist(), reference_point="cb",
+                                 color=0x222222, size=0.9, label_box=False, is_html=True, name=f"label {k}")
+            x += (hi[0] - lo[0]) + spacing
+        z_top -= row_height + spacing + (0.15 * row_height if labels is not None else 0.0)
+    return plot
+
+
+def volume_plot(
+    sdf,
+    aabb: Sequence[float] | None = None,
+    up: str = "y",
+    volume: bool = True,
+    isosurface: bool = True,
+    level: float = 0.0,
+    color: int = 0x6A9FD8,
+    plot: k3d.Plot | None = None,
+) -> k3d.Plot:
+    """An SDF grid ``[X, Y, Z]`` (or a ``ShapeGrid``) as a k3d volume and/or its zero isosurface.
+
+    ``aabb`` is ``(xmin, ymin, zmin, xmax, ymax, zmax)`` of the cell-centred grid
+    (a ``ShapeGrid``'s own box by default; otherwise the box ``±n_axis / n_max``).
+    The volume is drawn inside-opaque (negative values), outside clear; the
+    isosurface at ``level`` is extracted by k3d in the browser (``k3d.marching_cubes``).
+    """
+    if hasattr(sdf, "sdf") and hasattr(sdf, "aabb"):
+        aabb = sdf.aabb if aabb is None else aabb
+        sdf = sdf.sdf
+    field = np.asarray(sdf.detach().cpu().numpy() if hasattr(sdf, "detach") else sdf, np.float32)
+    if field.ndim != 3:
+        raise ValueError(f"sdf must be a 3D grid [X, Y, Z], got shape {field.shape}")
+    n = np.array(field.shape, np.float64)
+    aabb = np.concatenate([-n / n.max(), n / n.max()]) if aabb is None else np.asarray(aabb, np.float64)
+    lo, hi = aabb[:3], aabb[3:]
+    half = (hi - lo) / n / 2  # half a voxel: marching cubes puts samples on the box's corners
+    if up == "y":  # (x, y, z) -> (x, -z, y): new axes are x, reversed z, y
+        field = np.ascontiguousarray(field.transpose(0, 2, 1)[:, ::-1, :])
+        lo, hi, half = (np.array([lo[0], -hi[2], lo[1]]), np.array([hi[0], -lo[2], hi[1]]),
+                        half[[0, 2, 1]])
+    elif up != "z":
+        raise ValueError(f"up must be one of {UP_AXES}, got {up!r}")
+    zyx = np.ascontiguousarray(field.transpose(2, 1, 0))  # k3d indexes volumes [z, y, x]
+    box = [lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]]
+    plot = plot if plot is not None else new_plot()
+    if volume:
+        t = float(np.abs(zyx).max()) or 1.0
+        plot += k3d.volume(
+            zyx, bounds=box, color_range=[-t, t], color_map=k3d.colormaps.matplotlib_color_maps.RdBu,
+            opacity_function=[0.0, 0.5, 0.45, 0.35, 0.5, 0.0, 1.0, 0.0], alpha_coef=8.0, name="sdf volume",
+        )
+    if isosurface:
+        inner = [lo[0] + half[0], hi[0] - half[0], lo[1] + half[1], hi[1] - half[1], lo[2] + half[2], hi[2] - half[2]]
+        plot += k3d.marching_cubes(zyx, level=float(level), bounds=inner, color=int(color), flat_shading=False,
+                                   name=f"isosurface {level:g}")
+    return plot
+
+
+def points_plot(
+    points: np.ndarray,
+    colors: np.ndarray | None = None,
+    point_size: float = 0.01,
+    up: str = "y",
+    plot: k3d.Plot | None = None,
+    name: str = "points",
+) -> k3d.Plot:
+    """A point cloud; ``colors`` is ``(N, 3)`` RGB (float in [0, 1] or uint8) or ``(N,)`` packed uint32."""
+    pts = to_view(points, up)
+    opts = dict(point_size=point_size, shader="3d", name=name)
+    if colors is not None:
+        c = np.asarray(colors)
+        packed = c.astype(np.uint32) if c.ndim == 1 else pack_colors(c)
+        if len(packed) != len(pts):
+            raise ValueError(f"{len(packed)} colours for {len(pts)} points")
+        opts["colors"] = packed
+    else:
+        opts["color"] = 0x3070B0
+    plot = plot if plot is not None else new_plot()
+    plot += k3d.points(pts, **opts)
+    return plot
+
+
+# --------------------------------------------------------------------------- HTML
+def fit_camera(plot: k3d.Plot, yaw: float = -65.0, pitch: float = 65.0, factor: float = 1.1) -> list[float]:
+    """Point the camera at everything in the plot: from the front (-y) and a little above, by default.
+
+    ``pitch`` is the angle from k3d's up axis (z) and ``yaw`` the direction
+    around it (-90 is straight from -y). Returns the camera vector it set.
+    """
+    plot.camera = plot.get_auto_camera(factor=factor, yaw=yaw, pitch=pitch)
+    return list(plot.camera)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def save_html(plot: k3d.Plot, path, fit: bool = True, **camera) -> Path:
+    """Write ``plot`` as one self-contained HTML page (k3d's JavaScript embedded; no server, no network).
+
+    With ``fit`` the camera is first pointed at the whole scene (:func:`fit_camera`,
+    keyword arguments go there) and the page keeps that view; otherwise the
+    plot's current camera is used. The file is written atomically (a reader never
+    sees half a page). Returns the path.
+    """
+    path = Path(path)
+    auto_fit = plot.camera_auto_fit
+    if fit:
+        fit_camera(plot, **camera)
+        plot.camera_auto_fit = False  # keep our view instead of k3d's default one on load
+    try:
+        page = plot.get_snapshot()
+    finally:
+        plot.camera_auto_fit = auto_fit
+    _write_atomic(path, page)
+    return path
+
+
+def read_snapshot(html_or_path) -> dict:
+    """Decode the scene stored in a page written by :func:`save_html` (for tests and checks).
+
+    Returns k3d's binary snapshot as a dict: ``objects`` (one dict per drawable,
+    arrays as ``{"dtype", "shape", "data"}``), ``plot`` (its parameters), ``version``.
+    """
+    import msgpack
+
+    text = str(html_or_path)
+    if "<html" not in text[:2000].lower():
+        text = Path(html_or_path).read_text(encoding="utf-8")
+    m = re.search(r"var data = '([A-Za-z0-9+/=]*)'", text)
+    if m is None:
+        raise ValueError("no k3d snapshot data in this page")
+    return msgpack.unpackb(zlib.decompress(base64.b64decode(m.group(1))), raw=False)
+
+
+def snapshot_array(obj: dict, key: str) -> np.ndarray:
+    """An array attribute of one object from :func:`read_snapshot` (e.g. ``"vertices"``) as numpy."""
+    a = obj[key]
+    data = a["data"]
+    if obj.get("compression_level", 0) and isinstance(data, bytes):
+        try:
+            data = zlib.decompress(data)
+        except zlib.error:
+            pass
+    return np.frombuffer(data, dtype=a["dtype"]).reshape(a["shape"])
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "sample"
+
+
+def index_page(entries: Sequence[dict], path, title: str = "sin3dm-lite samples") -> Path:
+    """A plain ``index.html`` listing samples: a viewer link and download links for each.
+
+    Each entry is a dict with ``title`` and any of ``html_path`` (an existing
+    viewer page), ``snapshot`` (a ``k3d.Plot`` or page text, written next to the
+    index as ``<title>.html``), ``obj_path``, ``glb_path``, ``thumbnail`` (an
+    image path). Links are relative to the index, so the folder can be moved
+    or zipped as a whole.
+    """
+    path = Path(path)
+    root = path.parent
+    root.mkdir(parents=True, exist_ok=True)
+
+    def rel(p) -> str:
+        return html.escape(Path(os.path.relpath(Path(p).resolve(), root.resolve())).as_posix(), quote=True)
+
+    rows = []
+    for k, e in enumerate(entries):
+        name = str(e.get("title", f"sample {k}"))
+        viewer = e.get("html_path")
+        snap = e.get("snapshot")
+        if viewer is None and snap is not None:
+            viewer = root / f"{_slug(name)}.html"
+            if isinstance(snap, str):
+                _write_atomic(viewer, snap)
+            else:
+                save_html(snap, viewer)
+        links = []
+        if viewer is not None:
+            links.append(f'<a href="{rel(viewer)}">3D viewer</a>')
+        for key, label in (("obj_path", "OBJ"), ("glb_path", "GLB")):
+            if e.get(key):
+                links.append(f'<a href="{rel(e[key])}" download>{label}</a>')
+        thumb = (f'<a href="{rel(viewer)}"><img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160"></a>'
+                 if e.get("thumbnail") and viewer is not None
+                 else f'<img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160">' if e.get("thumbnail")
+                 else "")
+        rows.append(f"<tr><td>{thumb}</td><td>{html.escape(name)}</td><td>{' · '.join(links)}</td></tr>")
+    page = "\n".join([
+        "<!doctype html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>{html.escape(title)}</title>",
+        "<style>body{font-family:sans-serif;margin:2em}td{padding:.4em 1em;vertical-align:middle}"
+        "table{border-collapse:collapse}tr:nth-child(even){background:#f4f4f4}</style>",
+        "</head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+        "<table>",
+        "<tr><th></th><th>sample</th><th>open / download</th></tr>",
+        *rows,
+        "</table>",
+        "</body></html>",
+        "",
+    ])
+    _write_atomic(path, page)
+    return path

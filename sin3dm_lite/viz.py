@@ -1,0 +1,627 @@
+"""Matplotlib figures for every stage: grid slices, triplanes, losses, denoising, receptive fields.
+
+Every function takes plain data (numpy arrays, :class:`~sin3dm_lite.grid.ShapeGrid`,
+:class:`~sin3dm_lite.triplane.Triplane`) and *returns* a ``matplotlib.figure.Figure``;
+nothing here calls ``plt.show``. The figures are removed from pyplot's list of
+open figures as soon as they are made, so in Jupyter each one appears exactly
+once, as the value of the cell (``fig = plot_slice(...)``; ``fig``), and a
+script saves it with ``fig.savefig(path)``. The widgets in
+:mod:`sin3dm_lite.widgets` call these same functions.
+
+Orientation used by every 2D picture of the volume (slices, triplane planes,
+receptive fields): the *first* remaining axis runs to the right and the
+second one runs up (``imshow(..., origin="lower")`` of the transposed array).
+A slice across z therefore shows x → and y ↑, the same view as the xy plane of
+a triplane.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.collections import LineCollection
+from matplotlib.colors import LogNorm
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
+
+from .grid import ShapeGrid
+from .triplane import PLANE_AXES, PLANES, Triplane, plane_to_image
+
+AXES = ("x", "y", "z")
+SDF_CMAP = "RdBu"  # red inside (negative), blue outside
+NEUTRAL = np.array([0.82, 0.82, 0.82], np.float32)  # background where the colour grid is undefined
+
+
+# --------------------------------------------------------------------------- helpers
+def _figure(width: float, height: float) -> Figure:
+    """A new figure that pyplot does not keep open (so Jupyter shows it once, as the cell's value)."""
+    fig = plt.figure(figsize=(width, height), layout="constrained")
+    plt.close(fig)
+    return fig
+
+
+def _axis_index(axis: int | str) -> int:
+    if isinstance(axis, str):
+        if axis not in AXES:
+            raise ValueError(f"axis must be one of {AXES} or 0/1/2, got {axis!r}")
+        return AXES.index(axis)
+    if axis not in (0, 1, 2):
+        raise ValueError(f"axis must be one of {AXES} or 0/1/2, got {axis!r}")
+    return int(axis)
+
+
+def _numpy(x) -> np.ndarray:
+    if hasattr(x, "detach"):
+        x = x.detach().cpu().numpy()
+    return np.asarray(x)
+
+
+def grid_slice(volume: np.ndarray, axis: int | str, index: int | None = None) -> tuple[np.ndarray, int]:
+    """``volume[..., index, ...]`` across ``axis`` (middle slice when ``index`` is None) and the index used.
+
+    Works on ``(H, W, D)`` and ``(H, W, D, K)`` arrays; the result keeps the two other
+    axes in order (e.g. ``(H, W)`` for ``axis="z"``).
+    """
+    a = _axis_index(axis)
+    n = volume.shape[a]
+    index = n // 2 if index is None else int(index)
+    if not 0 <= index < n:
+        raise IndexError(f"slice index {index} is outside 0..{n - 1} along {AXES[a]}")
+    return np.take(volume, index, axis=a), index
+
+
+def _extent(grid: ShapeGrid, axis: int) -> tuple[float, float, float, float]:
+    """World extent of a slice drawn with the first remaining axis → and the second ↑."""
+    u, v = [k for k in range(3) if k != axis]
+    return (float(grid.aabb[u]), float(grid.aabb[u + 3]), float(grid.aabb[v]), float(grid.aabb[v + 3]))
+
+
+def _show(ax, image: np.ndarray, **kwargs):
+    """Draw a 2D (or 2D×3 RGB) array with axis 0 to the right and axis 1 up."""
+    img = np.swapaxes(image, 0, 1)
+    return ax.imshow(img, origin="lower", interpolation="nearest", **kwargs)
+
+
+def _slice_title(grid: ShapeGrid, axis: int, index: int, kind: str) -> str:
+    coord = float(grid.axis_coords(axis)[index])
+    return f"{kind} · {AXES[axis]} = {index} ({AXES[axis]} = {coord:+.3f})"
+
+
+def color_slice_image(grid: ShapeGrid, axis: int | str, index: int | None = None) -> np.ndarray:
+    """RGB slice of the colour grid, :data:`NEUTRAL` grey where ``|sdf| >= threshold`` (colour undefined there)."""
+    sdf, index = grid_slice(grid.sdf, axis, index)
+    col, _ = grid_slice(grid.color, axis, index)
+    rgb = np.clip(col[..., :3], 0.0, 1.0).astype(np.float32)
+    band = np.abs(sdf) < grid.threshold
+    return np.where(band[..., None], rgb, NEUTRAL)
+
+
+def _draw_slice(ax, grid: ShapeGrid, axis: int, index: int, kind: str, threshold_lines: bool = True):
+    ext = _extent(grid, axis)
+    sdf, index = grid_slice(grid.sdf, axis, index)
+    if kind == "sdf":
+        im = _show(ax, sdf, cmap=SDF_CMAP, vmin=-grid.threshold, vmax=grid.threshold, extent=ext)
+    elif kind == "color":
+        im = _show(ax, color_slice_image(grid, axis, index), extent=ext)
+    else:
+        raise ValueError(f"kind must be 'sdf' or 'color', got {kind!r}")
+    _contours(ax, grid, axis, sdf, threshold_lines)
+    u, v = [AXES[k] for k in range(3) if k != axis]
+    ax.set_xlabel(u)
+    ax.set_ylabel(v)
+    ax.set_title(_slice_title(grid, axis, index, kind), fontsize=9)
+    return im
+
+
+def _contours(ax, grid: ShapeGrid, axis: int, sdf: np.ndarray, threshold_lines: bool) -> None:
+    """Zero level (solid) and, optionally, the edges of the truncation band (dashed)."""
+    u, v = [k for k in range(3) if k != axis]
+    if sdf.min() < 0 < sdf.max():
+        ax.contour(grid.axis_coords(u), grid.axis_coords(v), sdf.T, levels=[0.0], colors="k", linewidths=1.0)
+    if threshold_lines:
+        t = 0.98 * grid.threshold  # the band's edge (the sdf is flat at ±threshold beyond it)
+        levels = [lv for lv in (-t, t) if sdf.min() < lv < sdf.max()]
+        if levels:
+            ax.contour(grid.axis_coords(u), grid.axis_coords(v), sdf.T, levels=levels,
+                       colors="0.3", linewidths=0.6, linestyles="--")
+
+
+# --------------------------------------------------------------------------- grids
+def plot_grid_slices(
+    grid: ShapeGrid,
+    index: int | Sequence[int] | None = None,
+    axes: Sequence[str] = ("x", "y", "z"),
+    show_color: bool = True,
+    threshold_lines: bool = True,
+) -> Figure:
+    """TSDF slices across each axis (top row) and the colour slice under each (bottom row).
+
+    The SDF uses a diverging colour map centred on 0 with limits ``±threshold``
+    (red inside, blue outside); the black line is the surface (zero level) and
+    the dashed lines, with ``threshold_lines``, the edges of the truncation band.
+    The colour grid is only defined inside the band; outside it is drawn in
+    neutral grey. ``index`` is one index for every axis, one per axis, or None
+    for the middle slices.
+
+    Axes of the figure: one per panel (``len(axes)`` or ``2 * len(axes)``) plus
+    one shared colour bar.
+    """
+    ax_ids = [_axis_index(a) for a in axes]
+    if index is None or np.isscalar(index):
+        indices = [index] * len(ax_ids)
+    else:
+        indices = list(index)
+        if len(indices) != len(ax_ids):
+            raise ValueError(f"give one index per axis ({len(ax_ids)}), got {len(indices)}")
+    rows = 2 if show_color else 1
+    fig = _figure(3.3 * len(ax_ids) + 0.8, 3.0 * rows)
+    panels = fig.subplots(rows, len(ax_ids), squeeze=False)
+    im = None
+    for col, (a, i) in enumerate(zip(ax_ids, indices)):
+        im = _draw_slice(panels[0, col], grid, a, i, "sdf", threshold_lines)
+        if show_color:
+            _draw_slice(panels[1, col], grid, a, i, "color", threshold_lines)
+    fig.colorbar(im, ax=panels[0, :].tolist(), label="truncated SDF", shrink=0.9)
+    fig.suptitle(f"{grid.name}: grid {grid.shape}, threshold {grid.threshold:.4f} "
+                 f"({grid.threshold / grid.voxel_size:.1f} voxels)", fontsize=10)
+    return fig
+
+
+def plot_slice(grid: ShapeGrid, axis: int | str = "z", index: int | None = None, kind: str = "sdf",
+               threshold_lines: bool = True) -> Figure:
+    """One panel: the SDF (``kind="sdf"``) or colour (``kind="color"``) slice across ``axis`` at ``index``.
+
+    This is what :func:`sin3dm_lite.widgets.slice_explorer` redraws when its slider moves.
+    """
+    a = _axis_index(axis)
+    fig = _figure(4.2, 3.6)
+    ax = fig.subplots()
+    im = _draw_slice(ax, grid, a, index, kind, threshold_lines)
+    if kind == "sdf":
+        fig.colorbar(im, ax=ax, shrink=0.85)
+    return fig
+
+
+def plot_truncation(
+    grid: ShapeGrid | np.ndarray,
+    thresholds: Sequence[float] | None = None,
+    axis: int | str = "z",
+    index: int | None = None,
+) -> Figure:
+    """What the truncation threshold does: an SDF clipped at several thresholds (in voxels).
+
+    Given a :class:`ShapeGrid`, its SDF is re-clipped at each threshold
+    (default: 1, 2 and the grid's own). That SDF is *already* truncated at
+    ``grid.threshold``, so only thresholds up to that one can be shown honestly
+    (a larger one would need the untruncated distance, which the grid no longer
+    has): larger values raise ``ValueError``. Given a plain ``(X, Y, Z)`` array
+    instead (an untruncated SDF on the ``±n_axis / n_max`` box), any threshold works.
+
+    Top: the SDF along one line through the middle of the slice (along the
+    slice's first remaining axis) for each threshold; the flat parts are where
+    the distance was clipped. Below: the slice at each threshold, on one
+    colour scale (± the largest threshold).
+    """
+    if not isinstance(grid, ShapeGrid):
+        field = np.asarray(_numpy(grid), np.float32)
+        half = np.array(field.shape, np.float64) / max(field.shape)
+        grid = ShapeGrid(field, np.zeros((1, 1, 1, 3), np.float32), np.concatenate([-half, half]),
+                         float(np.abs(field).max()), None, name="sdf")  # type: ignore[arg-type]
+    a = _axis_index(axis)
+    own = grid.threshold / grid.voxel_size
+    if thresholds is None:
+        thresholds = [t for t in (1.0, 2.0) if t < own] + [own]
+    thresholds = [float(t) for t in thresholds]
+    too_big = [t for t in thresholds if t > own + 1e-6]
+    if too_big:
+        raise ValueError(
+            f"thresholds {too_big} exceed the grid's own truncation ({own:.2f} voxels): the grid stores "
+            f"the SDF clipped at ±{grid.threshold:.4f}, so larger thresholds cannot be reconstructed"
+        )
+    sdf, index = grid_slice(grid.sdf, a, index)
+    u, v = [k for k in range(3) if k != a]
+    line = sdf.shape[1] // 2  # the row through the middle of the slice, along axis u
+    coords = grid.axis_coords(u)
+
+    fig = _figure(max(3.0 * len(thresholds), 6.0), 6.0)
+    gs = fig.add_gridspec(2, len(thresholds), height_ratios=[1.0, 1.3])
+    prof = fig.add_subplot(gs[0, :])
+    vmax = max(thresholds) * grid.voxel_size
+    im = None
+    for k, t in enumerate(thresholds):
+        tw = t * grid.voxel_size
+        clipped = np.clip(sdf, -tw, tw)
+        prof.plot(coords, clipped[:, line], drawstyle="steps-mid", label=f"{t:g} voxels")
+        ax = fig.add_subplot(gs[1, k])
+        im = _show(ax, clipped, cmap=SDF_CMAP, vmin=-vmax, vmax=vmax, extent=_extent(grid, a))
+        if clipped.min() < 0 < clipped.max():
+            ax.contour(coords, grid.axis_coords(v), clipped.T, levels=[0.0], colors="k", linewidths=0.8)
+        ax.axhline(float(grid.axis_coords(v)[line]), color="0.2", lw=0.6, ls=":")
+        ax.set_title(f"threshold {t:g} vox ({tw:.4f})", fontsize=9)
+        ax.set_xlabel(AXES[u])
+        ax.set_ylabel(AXES[v])
+    prof.axhline(0.0, color="k", lw=0.6)
+    prof.set_xlabel(AXES[u])
+    prof.set_ylabel("SDF")
+    prof.set_title(f"SDF along {AXES[u]} at {AXES[v]} = {grid.axis_coords(v)[line]:+.3f} "
+                   f"(slice {AXES[a]} = {index})", fontsize=9)
+    prof.legend(fontsize=8, loc="upper right")
+    fig.colorbar(im, ax=fig.axes[1:], shrink=0.8)
+    return fig
+
+
+def _box_outline(ax, grid: ShapeGrid, u: int, v: int) -> None:
+    lo_u, hi_u, lo_v, hi_v = grid.aabb[u], grid.aabb[u + 3], grid.aabb[v], grid.aabb[v + 3]
+    ax.add_patch(Rectangle((lo_u, lo_v), hi_u - lo_u, hi_v - lo_v, fill=False, ec="k", lw=1.0))
+
+
+def plot_points(grid: ShapeGrid, n: int = 4000, seed: int = 0) -> Figure:
+    """The near-surface training points projected on the xy, xz and yz planes, coloured by their SDF.
+
+    A random subset of ``n`` points (fixed ``seed``) is drawn so the picture
+    stays readable; the rectangle is the grid's bounding box.
+    """
+    pts = np.asarray(grid.points, np.float32).reshape(-1, 3)
+    sdf = np.asarray(grid.point_sdf, np.float32).reshape(-1)
+    if len(pts) > n:
+        sel = np.random.default_rng(seed).choice(len(pts), size=n, replace=False)
+        pts, sdf = pts[sel], sdf[sel]
+    fig = _figure(11.0, 3.8)
+    panels = fig.subplots(1, 3)
+    sc = None
+    for ax, name in zip(panels, PLANES):
+        u, v = PLANE_AXES[name]
+        sc = ax.scatter(pts[:, u], pts[:, v], c=sdf, s=2, cmap=SDF_CMAP, vmin=-grid.threshold, vmax=grid.threshold)
+        _box_outline(ax, grid, u, v)
+        pad = 0.05 * float(grid.aabb[3:].max())
+        ax.set_xlim(grid.aabb[u] - pad, grid.aabb[u + 3] + pad)
+        ax.set_ylim(grid.aabb[v] - pad, grid.aabb[v + 3] + pad)
+        ax.set_aspect("equal")
+        ax.set_xlabel(AXES[u])
+        ax.set_ylabel(AXES[v])
+        ax.set_title(f"{name} projection", fontsize=9)
+    fig.colorbar(sc, ax=panels.tolist(), label="point SDF", shrink=0.85)
+    fig.suptitle(f"{len(pts)} of {len(grid.points)} near-surface training points", fontsize=10)
+    return fig
+
+
+# --------------------------------------------------------------------------- triplanes
+def _pca_basis(plane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean ``(C,)`` and the first three principal directions ``(C, 3)`` of a ``[C, A, B]`` plane."""
+    c = plane.shape[0]
+    flat = plane.reshape(c, -1).T.astype(np.float64)
+    mean = flat.mean(0)
+    if c < 3:
+        return mean, np.eye(c, 3)
+    _, _, vt = np.linalg.svd(flat - mean, full_matrices=False)
+    basis = vt[:3].T
+    # fix each direction's sign (largest |entry| positive) so colours do not flip between calls
+    signs = np.sign(basis[np.abs(basis).argmax(0), np.arange(3)])
+    return mean, basis * np.where(signs == 0, 1.0, signs)
+
+
+def _project(plane: np.ndarray, mean: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """Project a ``[C, A, B]`` plane on a PCA basis → ``(A, B, 3)`` image in [0, 1]."""
+    c, a, b = plane.shape
+    proj = (plane.reshape(c, -1).T - mean) @ basis
+    lo, hi = proj.min(0, keepdims=True), proj.max(0, keepdims=True)
+    return ((proj - lo) / (hi - lo + 1e-8)).reshape(a, b, 3)
+
+
+def triplane_images(tp: Triplane, channels: str | int = "pca", batch: int = 0) -> list[np.ndarray]:
+    """The three planes of sample ``batch`` as ``(A, B, 3)`` images (see :func:`plane_to_image`)."""
+    return [plane_to_image(p[batch], channels) for p in tp.planes]
+
+
+def plot_triplane(
+    tp: Triplane,
+    channels: str | int | Sequence[int] = "pca",
+    titles: bool = True,
+    batch: int = 0,
+) -> Figure:
+    """The xy, xz and yz feature planes side by side, at their true relative sizes.
+
+    ``channels="pca"`` colours each plane by its first three principal
+    components (each plane has its own basis, so compare structure, not hue);
+    an ``int`` shows one channel in grey; a list of ints draws one row per
+    channel. The plane ``xy [X, Y]`` is drawn with x → and y ↑ (the same view
+    as a z slice of the grid), ``xz`` with x → and z ↑, ``yz`` with y → and z ↑.
+    """
+    rows = list(channels) if isinstance(channels, (list, tuple)) else [channels]
+    x, y, z = tp.resolution
+    widths, heights = [x, x, y], [y, z, z]
+    scale = 9.0 / sum(widths)
+    fig = _figure(9.5, max(1.6, (max(heights) * scale + 0.5)) * len(rows))
+    panels = fig.subplots(len(rows), 3, squeeze=False, gridspec_kw={"width_ratios": widths})
+    for r, ch in enumerate(rows):
+        for c, (name, img) in enumerate(zip(PLANES, triplane_images(tp, ch, batch))):
+            ax = panels[r, c]
+            _show(ax, img)
+            u, v = PLANE_AXES[name]
+            ax.set_xlabel(AXES[u], fontsize=8)
+            ax.set_ylabel(AXES[v], fontsize=8)
+            ax.tick_params(labelsize=7)
+            if titles:
+                label = "PCA" if ch == "pca" else f"channel {ch}"
+                ax.set_title(f"{name} {tuple(img.shape[:2])} · {label}", fontsize=9)
+    return fig
+
+
+def plot_denoising(
+    intermediates: Sequence[dict],
+    plane: str = "xy",
+    channels: str | int = "pca",
+    batch: int = 0,
+    reference: Triplane | None = None,
+) -> Figure:
+    """The reverse process: ``x_t`` (top row) and the predicted ``x0`` (bottom row) at each recorded step.
+
+    ``intermediates`` is the sampler's list of ``{"step", "t", "x_t", "x0"}``
+    dicts (triplanes with a batch dimension; sample ``batch`` is shown). With
+    ``channels="pca"`` every panel is projected on *one* PCA basis, fitted on
+    ``reference``'s plane (default: the last entry's ``x0``, the final result),
+    so a colour means the same feature direction in every column.
+    """
+    if plane not in PLANES:
+        raise ValueError(f"plane must be one of {PLANES}, got {plane!r}")
+    if len(intermediates) == 0:
+        raise ValueError("intermediates is empty: ask the sampler to record its steps")
+    k = PLANES.index(plane)
+
+    def get(tp: Triplane) -> np.ndarray:
+        return _numpy(tp.planes[k][batch])
+
+    if channels == "pca":
+        mean, basis = _pca_basis(get(reference if reference is not None else intermediates[-1]["x0"]))
+        to_image = lambda p: _project(p, mean, basis)  # noqa: E731
+    else:
+        to_image = lambda p: plane_to_image(p, channels)  # noqa: E731
+    n = len(intermediates)
+    fig = _figure(max(2.0 * n, 3.0), 4.4)
+    panels = fig.subplots(2, n, squeeze=False)
+    for c, entry in enumerate(intermediates):
+        for r, key in enumerate(("x_t", "x0")):
+            ax = panels[r, c]
+            _show(ax, to_image(get(entry[key])))
+            ax.set_xticks([])
+            ax.set_yticks([])
+        panels[0, c].set_title(f"t = {int(entry['t'])}", fontsize=9)
+    panels[0, 0].set_ylabel(f"x_t ({plane})")
+    panels[1, 0].set_ylabel("predicted x0")
+    return fig
+
+
+# --------------------------------------------------------------------------- training curves
+def moving_average(values: Sequence[float], window: int) -> np.ndarray:
+    """Mean of each run of ``window`` consecutive values (length ``len(values) - window + 1``)."""
+    v = np.asarray(values, np.float64)
+    window = max(1, min(int(window), len(v)))
+    c = np.cumsum(np.insert(v, 0, 0.0))
+    return (c[window:] - c[:-window]) / window
+
+
+def plot_losses(history, log: bool = True, title: str | None = None, window: int | None = None) -> Figure:
+    """Training curves: each series raw (thin, faint) and its moving average (thick).
+
+    ``history`` is a list of floats or a dict ``name -> list of floats``;
+    ``window`` defaults to 1/50 of the run (at least 1). The y axis is
+    logarithmic when ``log`` and every value is positive.
+    """
+    series = history if isinstance(history, dict) else {"loss": history}
+    fig = _figure(6.0, 3.6)
+    ax = fig.subplots()
+    all_positive = True
+    for k, (name, values) in enumerate(series.items()):
+        v = np.asarray([float(x) for x in values], np.float64)
+        if len(v) == 0:
+            continue
+        all_positive &= bool(np.all(v > 0))
+        color = f"C{k}"
+        steps = np.arange(len(v))
+        ax.plot(steps, v, color=color, lw=0.6, alpha=0.35)
+        w = window or max(1, len(v) // 50)
+        ma = moving_average(v, w)
+        ax.plot(steps[w - 1:] if w <= len(v) else steps[-1:], ma, color=color, lw=2.0, label=f"{name} (avg {w})")
+    if log and all_positive:
+        ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_ylabel("loss")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title)
+    return fig
+
+
+def plot_schedule(alphas_cumprod, betas) -> Figure:
+    """The noise schedule: ``β_t`` (left) and ``ᾱ_t``, ``√ᾱ_t`` (signal), ``√(1-ᾱ_t)`` (noise) (right)."""
+    ac = _numpy(alphas_cumprod).astype(np.float64)
+    b = _numpy(betas).astype(np.float64)
+    t = np.arange(len(ac))
+    fig = _figure(9.0, 3.4)
+    left, right = fig.subplots(1, 2)
+    left.plot(np.arange(len(b)), b, color="C3")
+    left.set_title("β_t", fontsize=10)
+    left.set_xlabel("t")
+    right.plot(t, ac, label="ᾱ_t", color="C0")
+    right.plot(t, np.sqrt(ac), label="√ᾱ_t (signal)", color="C2")
+    right.plot(t, np.sqrt(1 - ac), label="√(1-ᾱ_t) (noise)", color="C1")
+    right.set_xlabel("t")
+    right.set_title("x_t = √ᾱ_t x0 + √(1-ᾱ_t) ε", fontsize=10)
+    right.legend(fontsize=8)
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+    return fig
+
+
+# --------------------------------------------------------------------------- receptive field
+def _rf_draw(ax, rf_map: np.ndarray, analytic_width: float | None, vmin: float, center=None):
+    rf = np.asarray(rf_map, np.float64)
+    a, b = rf.shape
+    ca, cb = (a // 2, b // 2) if center is None else center
+    cmap = plt.get_cmap("magma")
+    cmap = cmap.with_extremes(bad=cmap(0.0))  # exact zeros (no influence at all) in the darkest colour
+    im = _show(ax, np.where(rf > 0, rf, np.nan), cmap=cmap, norm=LogNorm(vmin=vmin, vmax=1.0),
+               extent=(-0.5, a - 0.5, -0.5, b - 0.5))
+    ax.plot([ca], [cb], marker="+", color="cyan", ms=10, mew=1.5)
+    if analytic_width:
+        w = float(analytic_width)
+        ax.add_patch(Rectangle((ca - w / 2, cb - w / 2), w, w, fill=False, ec="cyan", lw=1.2, ls="--"))
+    return im
+
+
+def measured_width(rf_map: np.ndarray, level: float = 1e-2, center=None) -> int:
+    """Side of the smallest centred square holding every texel with ``rf >= level`` (the measured field)."""
+    rf = np.asarray(rf_map)
+    a, b = rf.shape
+    ca, cb = (a // 2, b // 2) if center is None else center
+    ia, ib = np.nonzero(rf >= level)
+    if len(ia) == 0:
+        return 0
+    return int(2 * max(np.abs(ia - ca).max(), np.abs(ib - cb).max()) + 1)
+
+
+def plot_receptive_field(
+    rf_map: np.ndarray,
+    analytic_width: float | None = None,
+    title: str | None = None,
+    ax=None,
+    vmin: float = 1e-5,
+    center: tuple[int, int] | None = None,
+) -> Figure:
+    """The measured receptive field of one output texel on a log colour scale.
+
+    ``rf_map`` is ``|∂ output[centre] / ∂ input|`` over one plane ``[A, B]``,
+    normalised to a maximum of 1. The log scale (down to ``vmin``) makes the
+    weak, plane-wide coupling (around 1e-3, from the cross-plane features)
+    visible next to the strong local field. The cross marks the centre texel
+    (``(A//2, B//2)`` unless given) and the dashed square has the analytic
+    width (in texels). Draws into ``ax`` when given.
+    """
+    if ax is None:
+        fig = _figure(4.4, 3.8)
+        ax = fig.subplots()
+    fig = ax.figure
+    im = _rf_draw(ax, rf_map, analytic_width, vmin, center)
+    fig.colorbar(im, ax=ax, shrink=0.85, label="|gradient| (max 1)")
+    info = f"measured (≥1e-2) {measured_width(rf_map, center=center)} texels"
+    if analytic_width:
+        info = f"analytic {analytic_width:g} · " + info
+    ax.set_title(f"{title}\n{info}" if title else info, fontsize=9)
+    return fig
+
+
+def plot_receptive_fields(items: Sequence[tuple[str, np.ndarray, float | None]], vmin: float = 1e-5) -> Figure:
+    """Several receptive fields side by side on one log scale: ``[(label, rf_map, analytic_width), ...]``."""
+    fig = _figure(3.6 * len(items) + 0.8, 3.8)
+    panels = fig.subplots(1, len(items), squeeze=False)[0]
+    im = None
+    for ax, (label, rf, width) in zip(panels, items):
+        im = _rf_draw(ax, rf, width, vmin)
+        extra = f"analytic {width:g} · " if width else ""
+        ax.set_title(f"{label}\n{extra}measured {measured_width(rf)}", fontsize=9)
+    fig.colorbar(im, ax=panels.tolist(), shrink=0.85, label="|gradient| (max 1)")
+    return fig
+
+
+# --------------------------------------------------------------------------- samples and textures
+def plot_samples_slices(
+    sdf_grids: Sequence[np.ndarray],
+    axis: int | str = "z",
+    index: int | None = None,
+    titles: Sequence[str] | None = None,
+    columns: int | None = None,
+) -> Figure:
+    """Middle slices (or slice ``index``) of several decoded SDF grids, with the zero contour.
+
+    A quick way to compare samples without 3D. All panels share one symmetric
+    colour scale (the largest ``|sdf|`` over the slices, at most 1).
+    """
+    a = _axis_index(axis)
+    slices = []
+    for g in sdf_grids:
+        g = _numpy(g)
+        s, _ = grid_slice(g, a, index if index is not None else g.shape[a] // 2)
+        slices.append(s)
+    n = len(slices)
+    columns = columns or min(n, 4)
+    rows = -(-n // columns)
+    fig = _figure(2.8 * columns, 2.8 * rows)
+    panels = fig.subplots(rows, columns, squeeze=False)
+    vmax = min(1.0, max(float(np.abs(s).max()) for s in slices)) or 1.0
+    u, v = [AXES[k] for k in range(3) if k != a]
+    for k, ax in enumerate(panels.flat):
+        if k >= n:
+            ax.set_axis_off()
+            continue
+        s = slices[k]
+        _show(ax, s, cmap=SDF_CMAP, vmin=-vmax, vmax=vmax)
+        if s.min() < 0 < s.max():
+            ax.contour(np.arange(s.shape[0]), np.arange(s.shape[1]), s.T, levels=[0.0], colors="k", linewidths=0.8)
+        ax.set_title(titles[k] if titles else f"sample {k}", fontsize=9)
+        ax.set_xlabel(u, fontsize=8)
+        ax.set_ylabel(v, fontsize=8)
+        ax.tick_params(labelsize=7)
+    return fig
+
+
+def _as_float_image(image: np.ndarray) -> np.ndarray:
+    img = _numpy(image)
+    if img.dtype == np.uint8:
+        img = img.astype(np.float32) / 255.0
+    return np.clip(img[..., :3] if img.ndim == 3 else img, 0.0, 1.0)
+
+
+def plot_texture(image: np.ndarray, covered: np.ndarray | None = None) -> Figure:
+    """A UV texture (``(h, w, 3)``, float in [0, 1] or uint8) and, optionally, its ``covered`` mask.
+
+    The axes read (u, v) directly: row 0 of the image is ``v = 1`` (OBJ convention).
+    """
+    img = _as_float_image(image)
+    fig = _figure(8.0 if covered is not None else 4.4, 4.2)
+    panels = fig.subplots(1, 2 if covered is not None else 1, squeeze=False)[0]
+    panels[0].imshow(img, extent=(0, 1, 0, 1), origin="upper", interpolation="nearest")
+    panels[0].set_title(f"texture {img.shape[1]}×{img.shape[0]}", fontsize=9)
+    if covered is not None:
+        cov = np.asarray(covered).astype(bool)
+        panels[1].imshow(cov, extent=(0, 1, 0, 1), origin="upper", cmap="gray", vmin=0, vmax=1,
+                         interpolation="nearest")
+        panels[1].set_title(f"covered texels: {cov.mean():.1%}", fontsize=9)
+    for ax in panels:
+        ax.set_xlabel("u")
+        ax.set_ylabel("v")
+    return fig
+
+
+def plot_uv_layout(uvs: np.ndarray, faces: np.ndarray | None = None, image: np.ndarray | None = None,
+                   linewidth: float = 0.3, color: str = "k") -> Figure:
+    """UV triangles as a wireframe (one ``LineCollection``), over the texture when given.
+
+    ``uvs`` is either per vertex ``(V, 2)`` with ``faces (F, 3)``, or per face corner
+    ``(F, 3, 2)`` (``TexturedMesh.face_uvs``; ``faces`` is then ignored). Rows with
+    NaN (faces without a texture) are skipped.
+    """
+    uv = _numpy(uvs).astype(np.float32)
+    if uv.ndim == 2:
+        if faces is None:
+            raise ValueError("per-vertex uvs (V, 2) need faces (F, 3)")
+        tri = uv[np.asarray(faces)]
+    else:
+        tri = uv
+    tri = tri[np.isfinite(tri).all(axis=(1, 2))]
+    closed = np.concatenate([tri, tri[:, :1]], axis=1)  # (F, 4, 2): each triangle as a closed polyline
+    fig = _figure(5.0, 5.0)
+    ax = fig.subplots()
+    if image is not None:
+        ax.imshow(_as_float_image(image), extent=(0, 1, 0, 1), origin="upper", interpolation="nearest")
+    ax.add_collection(LineCollection(closed, linewidths=linewidth, colors=color))
+    lo = np.minimum(closed.reshape(-1, 2).min(0) if len(closed) else 0.0, 0.0)
+    hi = np.maximum(closed.reshape(-1, 2).max(0) if len(closed) else 1.0, 1.0)
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect("equal")
+    ax.set_xlabel("u")
+    ax.set_ylabel("v")
+    ax.set_title(f"UV layout: {len(tri)} triangles", fontsize=9)
+    return fig

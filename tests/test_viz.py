@@ -1,0 +1,320 @@
+"""The matplotlib figures of ``sin3dm_lite.viz``: right panels, right data drawn."""
+import os
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.colors import LogNorm  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
+
+from sin3dm_lite import viz  # noqa: E402
+from sin3dm_lite.grid import ShapeGrid  # noqa: E402
+from sin3dm_lite.mesh_io import Normalization  # noqa: E402
+from sin3dm_lite.triplane import Triplane, plane_to_image  # noqa: E402
+
+
+def sphere_grid(shape=(16, 12, 20), radius=0.45, threshold_voxels=3.0, n_points=500) -> ShapeGrid:
+    """A sphere's TSDF on a non-cubic grid, coloured by position (red grows with x)."""
+    n_max = max(shape)
+    half = np.array(shape) / n_max
+    aabb = np.concatenate([-half, half]).astype(np.float32)
+    voxel = 2.0 / n_max
+    thr = threshold_voxels * voxel
+    g = ShapeGrid(np.zeros(shape, np.float32), np.zeros((*shape, 3), np.float32), aabb, thr, Normalization.identity())
+    c = g.voxel_centers()
+    sdf = np.linalg.norm(c, axis=-1) - radius
+    g.sdf = np.clip(sdf, -thr, thr).astype(np.float32)
+    col = np.clip((c + 1) / 2, 0, 1).astype(np.float32)
+    g.color = np.where((np.abs(sdf) < thr)[..., None], col, 0.0).astype(np.float32)
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(n_points, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    r = radius + rng.normal(scale=voxel, size=(n_points, 1))
+    g.points = (d * r).astype(np.float32)
+    g.point_sdf = np.clip(r[:, 0] - radius, -thr, thr).astype(np.float32)
+    g.point_color = np.clip((g.points + 1) / 2, 0, 1)
+    g.name = "sphere"
+    return g
+
+
+@pytest.fixture(scope="module")
+def grid():
+    return sphere_grid()
+
+
+@pytest.fixture(scope="module")
+def tp():
+    torch.manual_seed(0)
+    return Triplane.randn(2, 5, (8, 6, 10))
+
+
+def image_axes(fig):
+    return [ax for ax in fig.axes if ax.images]
+
+
+def test_library_does_not_leave_figures_open(grid):
+    before = plt.get_fignums()
+    fig = viz.plot_slice(grid, "z", 3)
+    assert isinstance(fig, Figure)
+    assert plt.get_fignums() == before  # shown once in Jupyter, no leak in loops
+
+
+def test_grid_slice_middle_and_bounds(grid):
+    s, i = viz.grid_slice(grid.sdf, "y")
+    assert i == grid.shape[1] // 2 and s.shape == (16, 20)
+    np.testing.assert_array_equal(s, grid.sdf[:, i, :])
+    with pytest.raises(IndexError):
+        viz.grid_slice(grid.sdf, "z", 20)
+    with pytest.raises(ValueError):
+        viz.grid_slice(grid.sdf, "w")
+
+
+def test_plot_grid_slices_panels_and_data(grid):
+    fig = viz.plot_grid_slices(grid)
+    panels = image_axes(fig)
+    assert len(panels) == 6  # 3 sdf + 3 colour
+    assert len(fig.axes) == 7  # + one shared colour bar
+    # top row: sdf slices, drawn transposed (first remaining axis →, second ↑)
+    for k, axis in enumerate("xyz"):
+        ax = panels[k]
+        expected, idx = viz.grid_slice(grid.sdf, axis)
+        np.testing.assert_array_equal(np.asarray(ax.images[0].get_array()), expected.T)
+        assert ax.images[0].origin == "lower"
+        lo, hi = ax.images[0].get_clim()
+        assert lo == pytest.approx(-grid.threshold) and hi == pytest.approx(grid.threshold)
+        coord = grid.axis_coords(k)[idx]
+        assert f"{axis} = {idx}" in ax.get_title() and f"{coord:+.3f}" in ax.get_title()
+        assert ax.collections, "zero contour drawn"
+    # bottom row: colour inside the band, neutral grey outside
+    rgb = np.asarray(panels[3 + 2].images[0].get_array()).swapaxes(0, 1)  # z slice, back to (x, y, 3)
+    sdf, _ = viz.grid_slice(grid.sdf, "z")
+    col, _ = viz.grid_slice(grid.color, "z")
+    band = np.abs(sdf) < grid.threshold
+    np.testing.assert_allclose(rgb[band], col[band])
+    np.testing.assert_allclose(rgb[~band], np.broadcast_to(viz.NEUTRAL, rgb[~band].shape))
+
+
+def test_plot_grid_slices_options(grid):
+    fig = viz.plot_grid_slices(grid, index=[2, 4], axes=("x", "z"), show_color=False, threshold_lines=False)
+    panels = image_axes(fig)
+    assert len(panels) == 2
+    np.testing.assert_array_equal(np.asarray(panels[1].images[0].get_array()), grid.sdf[:, :, 4].T)
+    with pytest.raises(ValueError):
+        viz.plot_grid_slices(grid, index=[1, 2], axes=("x", "y", "z"))
+
+
+def test_plot_slice_kinds(grid):
+    fig = viz.plot_slice(grid, "x", 5, kind="sdf")
+    assert len(image_axes(fig)) == 1
+    np.testing.assert_array_equal(np.asarray(fig.axes[0].images[0].get_array()), grid.sdf[5].T)
+    fig = viz.plot_slice(grid, 1, 6, kind="color")
+    assert len(fig.axes) == 1
+    img = np.asarray(fig.axes[0].images[0].get_array())
+    assert img.shape == (20, 16, 3)
+    np.testing.assert_allclose(img.swapaxes(0, 1), viz.color_slice_image(grid, "y", 6))
+    # extent is in world coordinates: x then z
+    assert fig.axes[0].images[0].get_extent() == pytest.approx([grid.aabb[0], grid.aabb[3], grid.aabb[2], grid.aabb[5]])
+    with pytest.raises(ValueError):
+        viz.plot_slice(grid, "z", 3, kind="normals")
+
+
+def test_plot_truncation(grid):
+    own = grid.threshold / grid.voxel_size
+    fig = viz.plot_truncation(grid, thresholds=[1, 2, own], axis="z", index=10)
+    panels = image_axes(fig)
+    assert len(panels) == 3
+    profile = fig.axes[0]
+    assert len(profile.get_lines()) >= 3
+    # the 1-voxel profile is the stored slice re-clipped at one voxel
+    sdf = grid.sdf[:, :, 10]
+    line = sdf.shape[1] // 2
+    np.testing.assert_allclose(profile.get_lines()[0].get_ydata(), np.clip(sdf[:, line], -grid.voxel_size, grid.voxel_size))
+    np.testing.assert_allclose(np.asarray(panels[0].images[0].get_array()),
+                               np.clip(sdf, -grid.voxel_size, grid.voxel_size).T, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(panels[2].images[0].get_array()), sdf.T)
+    assert len(image_axes(viz.plot_truncation(grid))) == 3  # default 1, 2, own
+    with pytest.raises(ValueError, match="exceed"):
+        viz.plot_truncation(grid, thresholds=[own + 1])
+
+
+def test_plot_truncation_of_untruncated_array():
+    x = np.linspace(-1, 1, 10)
+    field = np.sqrt(x[:, None, None] ** 2 + x[None, :, None] ** 2 + x[None, None, :] ** 2) - 0.5
+    fig = viz.plot_truncation(field, thresholds=[1, 4], axis="x", index=5)
+    panels = image_axes(fig)
+    voxel = 2.0 / 10
+    np.testing.assert_allclose(np.asarray(panels[1].images[0].get_array()),
+                               np.clip(field[5], -4 * voxel, 4 * voxel).T, rtol=1e-6)
+    assert panels[1].images[0].get_clim() == pytest.approx((-4 * voxel, 4 * voxel))
+
+
+def test_plot_points(grid):
+    fig = viz.plot_points(grid, n=200, seed=1)
+    scatter_axes = [ax for ax in fig.axes if ax.collections and "projection" in ax.get_title()]
+    assert len(scatter_axes) == 3
+    offsets = scatter_axes[1].collections[0].get_offsets()  # xz projection
+    assert offsets.shape == (200, 2)
+    # every drawn point is one of the grid's points, projected on (x, z)
+    proj = grid.points[:, [0, 2]]
+    assert all(np.any(np.all(np.isclose(proj, o), axis=1)) for o in np.asarray(offsets[:20]))
+    rects = [p for p in scatter_axes[0].patches if isinstance(p, Rectangle)]
+    assert len(rects) == 1 and rects[0].get_width() == pytest.approx(grid.aabb[3] - grid.aabb[0])
+
+
+def test_plot_triplane_pca_and_channels(tp):
+    fig = viz.plot_triplane(tp)
+    panels = image_axes(fig)
+    assert len(panels) == 3
+    for ax, plane in zip(panels, tp.planes):
+        np.testing.assert_allclose(np.asarray(ax.images[0].get_array()),
+                                   plane_to_image(plane[0], "pca").swapaxes(0, 1), atol=1e-6)
+    # true relative sizes: xy is X wide, yz is Y wide
+    w = [ax.get_position().width for ax in panels]
+    assert w[0] / w[2] == pytest.approx(8 / 6, rel=0.05)
+    fig = viz.plot_triplane(tp, channels=[0, 3], batch=1)
+    panels = image_axes(fig)
+    assert len(panels) == 6
+    np.testing.assert_allclose(np.asarray(panels[5].images[0].get_array()),
+                               plane_to_image(tp.yz[1], 3).swapaxes(0, 1), atol=1e-6)
+    assert "channel 3" in panels[5].get_title()
+
+
+def test_plot_losses_raw_and_average():
+    hist = {"geo": list(np.linspace(1.0, 0.1, 200)), "tex": list(np.linspace(2.0, 0.5, 200))}
+    fig = viz.plot_losses(hist, title="autoencoder")
+    ax = fig.axes[0]
+    lines = ax.get_lines()
+    assert len(lines) == 4 and ax.get_yscale() == "log"
+    np.testing.assert_allclose(lines[0].get_ydata(), hist["geo"])
+    np.testing.assert_allclose(lines[1].get_ydata(), viz.moving_average(hist["geo"], 4))
+    assert lines[1].get_linewidth() > lines[0].get_linewidth()
+    fig = viz.plot_losses([0.5, -0.1, 0.2], log=True)  # non-positive values: stays linear
+    assert fig.axes[0].get_yscale() == "linear"
+    np.testing.assert_allclose(viz.moving_average([1, 2, 3, 4], 2), [1.5, 2.5, 3.5])
+
+
+def test_plot_schedule_accepts_tensors():
+    betas = torch.linspace(1e-4, 0.02, 1000)
+    ac = torch.cumprod(1 - betas, 0)
+    fig = viz.plot_schedule(ac, betas)
+    assert len(fig.axes) == 2
+    np.testing.assert_allclose(fig.axes[0].get_lines()[0].get_ydata(), betas.numpy(), rtol=1e-6)
+    ys = [line.get_ydata() for line in fig.axes[1].get_lines()]
+    np.testing.assert_allclose(ys[0], ac.numpy(), rtol=1e-6)
+    np.testing.assert_allclose(ys[2], np.sqrt(1 - ac.numpy()), rtol=1e-5)
+
+
+def test_plot_denoising(tp):
+    steps = [{"step": i, "t": t, "x_t": tp * (1 + i), "x0": tp + i} for i, t in enumerate([999, 500, 0])]
+    fig = viz.plot_denoising(steps, plane="xz", channels=2)
+    panels = image_axes(fig)
+    assert len(panels) == 6
+    assert [ax.get_title() for ax in panels[:3]] == ["t = 999", "t = 500", "t = 0"]
+    np.testing.assert_allclose(np.asarray(panels[4].images[0].get_array()),  # x0 row, second column
+                               plane_to_image(steps[1]["x0"].xz[0], 2).swapaxes(0, 1), atol=1e-6)
+    # PCA: one shared basis, so the same plane gives the same picture in every column
+    same = [{"step": i, "t": i, "x_t": tp, "x0": tp} for i in range(2)]
+    panels = image_axes(viz.plot_denoising(same))
+    a, b = (np.asarray(panels[k].images[0].get_array()) for k in (0, 1))
+    np.testing.assert_allclose(a, b)
+    assert a.shape == (6, 8, 3) and a.min() >= 0 and a.max() <= 1
+    with pytest.raises(ValueError):
+        viz.plot_denoising(steps, plane="zz")
+
+
+def rf_square(n=33, width=9):
+    c = n // 2
+    rf = np.full((n, n), 1e-3)
+    rf[c - width // 2:c + width // 2 + 1, c - width // 2:c + width // 2 + 1] = 0.1
+    rf[c, c] = 1.0
+    rf[0, 0] = 0.0
+    return rf
+
+
+def test_plot_receptive_field():
+    rf = rf_square()
+    fig = viz.plot_receptive_field(rf, analytic_width=9, title="4 ResBlocks")
+    ax = fig.axes[0]
+    im = ax.images[0]
+    assert isinstance(im.norm, LogNorm)
+    assert im.norm.vmin <= 1e-3  # the weak global coupling is on the scale
+    drawn = np.ma.filled(im.get_array().astype(float), 0.0)
+    np.testing.assert_allclose(drawn, np.where(rf > 0, rf, 0.0).T)
+    rect = [p for p in ax.patches if isinstance(p, Rectangle)][0]
+    assert rect.get_width() == 9 and rect.get_xy() == pytest.approx((16 - 4.5, 16 - 4.5))
+    marker = ax.get_lines()[0]
+    assert list(marker.get_xdata()) == [16] and list(marker.get_ydata()) == [16]
+    assert viz.measured_width(rf) == 9
+    assert "4 ResBlocks" in ax.get_title() and "analytic 9" in ax.get_title()
+    # into an existing axes
+    fig2 = plt.figure()
+    ax2 = fig2.add_subplot(1, 2, 1)
+    assert viz.plot_receptive_field(rf, ax=ax2) is fig2
+    plt.close(fig2)
+
+
+def test_plot_receptive_fields_side_by_side():
+    items = [(f"{n} blocks", rf_square(width=w), w) for n, w in [(2, 5), (4, 9), (6, 13)]]
+    fig = viz.plot_receptive_fields(items)
+    panels = image_axes(fig)
+    assert len(panels) == 3
+    assert [viz.measured_width(rf) for _, rf, _ in items] == [5, 9, 13]
+    assert all(p.images[0].norm.vmin == panels[0].images[0].norm.vmin for p in panels)
+
+
+def test_plot_samples_slices(grid):
+    grids = [grid.sdf, -grid.sdf, torch.from_numpy(grid.sdf * 0.5)]
+    fig = viz.plot_samples_slices(grids, axis="y", titles=["a", "b", "c"], columns=2)
+    panels = image_axes(fig)
+    assert len(panels) == 3 and len(fig.axes) == 4  # the fourth cell is switched off
+    np.testing.assert_allclose(np.asarray(panels[1].images[0].get_array()), -grid.sdf[:, 6, :].T)
+    assert [p.get_title() for p in panels] == ["a", "b", "c"]
+    assert panels[0].collections  # zero contour
+
+
+def test_plot_texture_and_covered():
+    img = np.zeros((8, 4, 3), np.uint8)
+    img[:4] = [255, 0, 0]
+    fig = viz.plot_texture(img)
+    assert len(fig.axes) == 1
+    np.testing.assert_allclose(np.asarray(fig.axes[0].images[0].get_array()), img / 255.0)
+    assert fig.axes[0].images[0].get_extent() == [0, 1, 0, 1]
+    fig = viz.plot_texture(img / 255.0, covered=img[..., 0] > 0)
+    assert len(image_axes(fig)) == 2 and "50.0%" in fig.axes[1].get_title()
+
+
+def test_plot_uv_layout_per_vertex_and_per_corner():
+    rng = np.random.default_rng(0)
+    uvs = rng.random((30, 2)).astype(np.float32)
+    faces = rng.integers(0, 30, size=(20_000, 3))
+    fig = viz.plot_uv_layout(uvs, faces, image=np.ones((4, 4, 3)))
+    ax = fig.axes[0]
+    coll = [c for c in ax.collections if isinstance(c, LineCollection)][0]
+    segs = coll.get_segments()
+    assert len(segs) == 20_000 and len(ax.images) == 1
+    np.testing.assert_allclose(segs[7][:3], uvs[faces[7]])
+    np.testing.assert_allclose(segs[7][3], uvs[faces[7][0]])  # closed triangle
+    corner = uvs[faces[:5]].copy()
+    corner[2] = np.nan  # a face without texture
+    fig = viz.plot_uv_layout(corner)
+    coll = [c for c in fig.axes[0].collections if isinstance(c, LineCollection)][0]
+    assert len(coll.get_segments()) == 4
+    with pytest.raises(ValueError):
+        viz.plot_uv_layout(uvs)
+
+
+def test_every_figure_renders(grid, tp, tmp_path):
+    """Drawing (not just building) each figure: catches errors that only appear at render time."""
+    figs = [viz.plot_grid_slices(grid), viz.plot_truncation(grid), viz.plot_points(grid), viz.plot_triplane(tp),
+            viz.plot_receptive_field(rf_square(), 9)]
+    for k, fig in enumerate(figs):
+        fig.savefig(tmp_path / f"{k}.png", dpi=40)
+        assert (tmp_path / f"{k}.png").stat().st_size > 1000

@@ -1,0 +1,129 @@
+"""The ipywidgets panels of ``sin3dm_lite.widgets``: the right controls, and their callbacks draw."""
+import os
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+
+import ipywidgets as widgets  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+
+from sin3dm_lite import widgets as sw  # noqa: E402
+from sin3dm_lite.triplane import Triplane, plane_to_image  # noqa: E402
+
+from sin3dm_lite.grid import ShapeGrid  # noqa: E402
+from sin3dm_lite.mesh_io import Normalization  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def grid():
+    """A sphere's TSDF on a 16 × 12 × 20 grid, truncated at 3 voxels, coloured by position."""
+    shape = np.array([16, 12, 20])
+    half = shape / shape.max()
+    thr = 3 * 2.0 / shape.max()
+    g = ShapeGrid(np.zeros(shape, np.float32), np.zeros((*shape, 3), np.float32),
+                  np.concatenate([-half, half]).astype(np.float32), thr, Normalization.identity())
+    c = g.voxel_centers()
+    g.sdf = np.clip(np.linalg.norm(c, axis=-1) - 0.45, -thr, thr).astype(np.float32)
+    g.color = np.clip((c + 1) / 2, 0, 1).astype(np.float32)
+    return g
+
+
+def rf_square(n, width):
+    rf = np.full((n, n), 1e-3)
+    c, h = n // 2, width // 2
+    rf[c - h:c + h + 1, c - h:c + h + 1] = 0.1
+    rf[c, c] = 1.0
+    return rf
+
+
+def image_of(fig, k=0):
+    return np.asarray([ax for ax in fig.axes if ax.images][k].images[0].get_array())
+
+
+def test_slice_explorer_controls_and_callback(grid):
+    panel = sw.slice_explorer(grid)
+    assert isinstance(panel, widgets.VBox) and isinstance(panel.output, widgets.Output)
+    c = panel.controls
+    assert set(c) == {"axis", "index", "kind"}
+    assert isinstance(c["axis"], widgets.Dropdown) and list(c["axis"].options) == ["x", "y", "z"]
+    assert (c["index"].min, c["index"].max, c["index"].value) == (0, 19, 10)
+    assert isinstance(panel.last_figure, Figure) and panel.last_error is None  # drawn once when built
+    # moving the slider redraws through the observer with the new value
+    c["index"].value = 4
+    np.testing.assert_array_equal(image_of(panel.last_figure), grid.sdf[:, :, 4].T)
+    # changing the axis refits the slider to that axis (y has 12 slices) before one redraw
+    c["axis"].value = "y"
+    assert (c["index"].max, c["index"].value) == (11, 6)
+    np.testing.assert_array_equal(image_of(panel.last_figure), grid.sdf[:, 6, :].T)
+    c["kind"].value = "color"
+    assert image_of(panel.last_figure).shape == (20, 16, 3)
+    assert panel.last_error is None
+
+
+def test_errors_are_shown_not_swallowed(grid):
+    panel = sw.Explorer({"n": widgets.IntSlider(value=1)}, lambda n: 1 / 0)
+    assert panel.last_figure is None and "ZeroDivisionError" in panel.last_error
+    with pytest.raises(ZeroDivisionError):
+        panel.figure()
+
+
+def test_truncation_explorer(grid):
+    panel = sw.truncation_explorer(grid)
+    thr = panel.controls["threshold"]
+    assert thr.max == pytest.approx(3.0) and thr.value == 1.0
+    assert len([ax for ax in panel.last_figure.axes if ax.images]) == 2  # chosen + the grid's own
+    thr.value = 3.0
+    assert len([ax for ax in panel.last_figure.axes if ax.images]) == 1 and panel.last_error is None
+
+
+def test_triplane_channel_explorer():
+    torch.manual_seed(0)
+    tp = Triplane.randn(2, 4, (6, 5, 7))
+    panel = sw.triplane_channel_explorer(tp)
+    c = panel.controls
+    assert set(c) == {"mode", "channel", "batch"} and c["channel"].max == 3 and c["batch"].max == 1
+    with panel.hold():  # two changes, one redraw (checked through the result)
+        c["mode"].value = "channel"
+        c["batch"].value = 1
+    c["channel"].value = 2
+    np.testing.assert_allclose(image_of(panel.last_figure, 1), plane_to_image(tp.xz[1], 2).swapaxes(0, 1), atol=1e-6)
+    assert "channel 2" in [ax for ax in panel.last_figure.axes if ax.images][1].get_title()
+
+
+def test_denoising_explorer():
+    torch.manual_seed(0)
+    tp = Triplane.randn(1, 4, (6, 5, 7))
+    steps = [{"step": i, "t": t, "x_t": tp * (i + 1), "x0": tp + i} for i, t in enumerate([900, 400, 0])]
+    panel = sw.denoising_explorer(steps)
+    step = panel.controls["step"]
+    assert [label for label, _ in step.options] == ["t=900", "t=400", "t=0"]
+    assert len([ax for ax in panel.last_figure.axes if ax.images]) == 2  # one column: x_t and x0
+    step.value = 2
+    panel.controls["plane"].value = "yz"
+    axes = [ax for ax in panel.last_figure.axes if ax.images]
+    assert axes[0].get_title() == "t = 0" and image_of(panel.last_figure).shape == (7, 5, 3)
+    with pytest.raises(ValueError):
+        sw.denoising_explorer([])
+
+
+def test_receptive_field_explorer_caches():
+    calls = []
+
+    def fn(n):
+        calls.append(n)
+        return rf_square(33, 2 * n + 1), 2 * n + 1
+
+    panel = sw.receptive_field_explorer(fn)
+    dd = panel.controls["n_resblocks"]
+    assert list(dd.options) == [2, 4, 6] and dd.value == 4
+    dd.value = 6
+    dd.value = 4
+    assert calls == [4, 6]
+    assert "4 ResBlocks" in panel.last_figure.axes[0].get_title()
+    fig = panel.refresh()
+    assert isinstance(fig, Figure) and calls == [4, 6]
