@@ -41,6 +41,11 @@ DEFAULT_COLOR = np.array([0.7, 0.7, 0.7], dtype=np.float32)
 BOX_MARGIN = 1.03
 
 
+def _default_rgba() -> np.ndarray:
+    """:data:`DEFAULT_COLOR` as an RGBA factor: the colour of a surface that has none."""
+    return np.array([*DEFAULT_COLOR, 1.0], np.float32)
+
+
 @dataclass
 class Material:
     """One surface material.
@@ -54,7 +59,7 @@ class Material:
     """
 
     name: str = "default"
-    base_color: np.ndarray = field(default_factory=lambda: np.array([*DEFAULT_COLOR, 1.0], np.float32))
+    base_color: np.ndarray = field(default_factory=lambda: np.ones(4, np.float32))
     image: np.ndarray | None = None
     metallic: float = 0.0
     roughness: float = 1.0
@@ -758,7 +763,7 @@ def _load_obj(path, max_size):
         if mat is None:
             if mname is not None and loaded_any:
                 _warn(f"material '{mname}' used in '{path.name}' is not defined in its .mtl file; using a plain colour")
-            mat = Material(name=mname or "default")
+            mat = Material(name=mname or "default", base_color=_default_rgba())
         if colors is not None and mat.image is None:  # vertex colours replace Kd
             mat = replace(mat, base_color=np.array([1, 1, 1, mat.base_color[3]], np.float32))
         materials.append(mat)
@@ -966,7 +971,7 @@ def _load_with_trimesh(path, max_size):
                 parts.append(_Part(vertices[faces].reshape(-1, 3), np.arange(3 * n).reshape(-1, 3),
                                    np.full(n, mi), None, np.repeat(fc, 3, axis=0)))
         else:
-            mi = add_material(Material(name="default"), "default")
+            mi = add_material(Material(name="default", base_color=_default_rgba()), "default")
             parts.append(_Part(vertices, faces, np.full(n, mi)))
     return parts, materials
 
@@ -1028,7 +1033,7 @@ def _material_from_trimesh(tm, max_size, path, geom_name) -> Material:
     if _is_trimesh_placeholder(pil):
         # trimesh invents a 2x2 grey image for UVs without a texture (e.g. a PLY with
         # texture coordinates but no TextureFile): that is "no colour", not a texture
-        return Material(name="default")
+        return Material(name="default", base_color=_default_rgba())
     image = img(pil, "diffuse")
     diffuse = getattr(tm, "diffuse", None)
     if image is not None or diffuse is None:
