@@ -49,7 +49,7 @@ def evaluate(model: Sin3DM, n: int, seed: int = 0, resolution: int = 128, export
         "g_div": metrics.g_div(vox),
         "iou_to_input": float(np.mean([metrics.iou(v, ref) for v in vox])),
         "lp_iou": lp["lp_iou"],
-        "lp_f": lp["lp_f"],
+        "lp_f": lp["lp_fscore"],
     }
 
 
