@@ -8,7 +8,6 @@ grid into a triplane.
 """
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +18,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from .errors import Sin3DMInputError
+from .files import atomic_path
 from .mesh_io import Normalization, TexturedMesh
 
 
@@ -252,8 +252,7 @@ def save_grid(grid: ShapeGrid, path: str | Path) -> Path:
     if path.suffix != ".npz":
         raise Sin3DMInputError(f"grid files are .npz; got '{path.name}' — use a name like grid.npz")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    try:
+    with atomic_path(path) as tmp:
         np.savez_compressed(
             tmp,
             sdf=grid.sdf.astype(np.float32),
@@ -267,9 +266,6 @@ def save_grid(grid: ShapeGrid, path: str | Path) -> Path:
             point_color=grid.point_color,
             name=np.array(grid.name),
         )
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
 
 

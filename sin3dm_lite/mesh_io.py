@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .errors import Sin3DMInputError
+from .files import atomic_write
 
 #: Colour used for a mesh that has no texture, vertex colour or material colour.
 DEFAULT_COLOR = np.array([0.7, 0.7, 0.7], dtype=np.float32)
@@ -1333,9 +1334,6 @@ def save_glb(mesh: TexturedMesh, path) -> "Path":
     renamed, so an error leaves no half-written file. Readable by
     :func:`load_mesh`, trimesh, Blender and web viewers.
     """
-    import os
-    import tempfile
-
     import trimesh
     from trimesh.visual.material import PBRMaterial
 
@@ -1385,13 +1383,5 @@ def save_glb(mesh: TexturedMesh, path) -> "Path":
     if not scene.geometry:
         raise Sin3DMInputError(f"mesh '{mesh.name}' has no faces to write")
     data = scene.export(file_type="glb")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    atomic_write(path, data)
     return path

@@ -20,7 +20,6 @@ an uninterrupted one would::
 from __future__ import annotations
 
 import json
-import os
 import signal
 import threading
 import time
@@ -34,6 +33,7 @@ from .autoencoder import AutoencoderTrainer, TriplaneDecoder, reconstruction_met
 from .config import Config, get_preset
 from .device import get_device
 from .errors import Sin3DMInputError
+from .files import atomic_path, atomic_write
 from .grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
 from .mesh_io import Normalization, TexturedMesh
 from .triplane import Triplane
@@ -43,15 +43,8 @@ MODEL_FILE = "model.pt"
 
 def atomic_torch_save(obj, path: Path) -> None:
     """Write ``obj`` with ``torch.save`` so that ``path`` is either the old or the new file, never half of one."""
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
 
 
 def load_checkpoint(path: Path) -> dict:
@@ -143,7 +136,6 @@ class Sin3DM:
         checkpoint.
         """
         from .diffusion import DiffusionTrainer
-        from .unet import TriplaneUNet
 
         say = print if progress else (lambda *a, **k: None)
         dev = get_device(device)
@@ -195,8 +187,8 @@ class Sin3DM:
         model = cls(cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, report, grid, run, dev)
         if run is not None:
             model.save(run)
-            atomic_write_text(run / "losses.json", json.dumps({"autoencoder": ae.history, "diffusion": dm.history}))
-            atomic_write_text(run / "report.json", json.dumps(report, indent=2))
+            atomic_write(run / "losses.json", json.dumps({"autoencoder": ae.history, "diffusion": dm.history}))
+            atomic_write(run / "report.json", json.dumps(report, indent=2))
             say(f"[fit] run folder: {run}")
         return model
 
@@ -306,7 +298,7 @@ class Sin3DM:
             "report": json.dumps(self.report),
         }
         atomic_torch_save(bundle, run / MODEL_FILE)
-        atomic_write_text(run / "config.json", self.config.to_json())
+        atomic_write(run / "config.json", self.config.to_json())
         return run / MODEL_FILE
 
     @classmethod
@@ -353,7 +345,7 @@ def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Co
     if run.exists() and any(run.iterdir()):
         raise Sin3DMInputError(f"run folder '{run}' is not empty; continue it with --resume or choose another --out")
     run.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(cfg_file, cfg.to_json())
+    atomic_write(cfg_file, cfg.to_json())
     return cfg
 
 

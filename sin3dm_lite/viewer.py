@@ -24,7 +24,6 @@ import html
 import io
 import os
 import re
-import tempfile
 import zlib
 from pathlib import Path
 from typing import Sequence
@@ -32,6 +31,7 @@ from typing import Sequence
 import k3d
 import numpy as np
 
+from .files import atomic_write
 from .mesh_io import TexturedMesh
 
 UP_AXES = ("y", "z")
@@ -344,19 +344,6 @@ def fit_camera(plot: k3d.Plot, yaw: float = -65.0, pitch: float = 65.0, factor: 
     return list(plot.camera)
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def save_html(plot: k3d.Plot, path, fit: bool = True, **camera) -> Path:
     """Write ``plot`` as one self-contained HTML page (k3d's JavaScript embedded; no server, no network).
 
@@ -374,7 +361,7 @@ def save_html(plot: k3d.Plot, path, fit: bool = True, **camera) -> Path:
         page = plot.get_snapshot()
     finally:
         plot.camera_auto_fit = auto_fit
-    _write_atomic(path, page)
+    atomic_write(path, page)
     return path
 
 
@@ -435,7 +422,7 @@ def index_page(entries: Sequence[dict], path, title: str = "sin3dm-lite samples"
         if viewer is None and snap is not None:
             viewer = root / f"{_slug(name)}.html"
             if isinstance(snap, str):
-                _write_atomic(viewer, snap)
+                atomic_write(viewer, snap)
             else:
                 save_html(snap, viewer)
         links = []
@@ -464,5 +451,5 @@ def index_page(entries: Sequence[dict], path, title: str = "sin3dm-lite samples"
         "</body></html>",
         "",
     ])
-    _write_atomic(path, page)
+    atomic_write(path, page)
     return path
