@@ -129,12 +129,12 @@ class TriplaneDecoder(nn.Module):
 
     def query_sdf(self, prep: PreparedPlanes, points: torch.Tensor) -> torch.Tensor:
         """SDF in normalised units (negative inside), ``[B, N]``."""
-        f = prep.geo.sample(points).sum(dim=2)  # [B, N, 64]
+        f = prep.geo.sample(points, reduce="sum")  # [B, N, 64]: the three plane features added
         return self.geo_mlp(f)[..., 0] * self.threshold
 
     def query_color(self, prep: PreparedPlanes, points: torch.Tensor) -> torch.Tensor:
         """Colour in [0, 1], ``[B, N, K]``."""
-        f = prep.tex.sample(points).sum(dim=2)
+        f = prep.tex.sample(points, reduce="sum")
         return torch.sigmoid(self.tex_mlp(f))
 
     def query(self, prep: PreparedPlanes, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

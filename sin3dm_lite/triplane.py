@@ -138,17 +138,20 @@ class Triplane:
         return cls(d["xy"], d["xz"], d["yz"])
 
     # ---------------------------------------------------------------- lookup
-    def sample(self, points: torch.Tensor) -> torch.Tensor:
+    def sample(self, points: torch.Tensor, reduce: str | None = None) -> torch.Tensor:
         """Bilinear feature lookup.
 
         Args:
             points: ``[B, N, 3]`` (or ``[N, 3]``, broadcast over the batch) in box coordinates [-1, 1].
+            reduce: ``None`` keeps the three planes apart; ``"sum"`` adds them (what the decoder uses).
         Returns:
-            ``[B, N, 3, C]``: the features of each point on the xy, xz and yz planes.
+            ``[B, N, 3, C]`` (the features on the xy, xz and yz planes), or ``[B, N, C]`` with ``reduce="sum"``.
         """
         if points.dim() == 2:
             points = points.unsqueeze(0).expand(self.batch, -1, -1)
         feats = [sample_plane(p, points, PLANE_AXES[name]) for name, p in zip(PLANES, self.planes)]
+        if reduce == "sum":
+            return feats[0] + feats[1] + feats[2]
         return torch.stack(feats, dim=2)
 
 

@@ -1,4 +1,6 @@
 """Triplane → textured mesh, checked with an analytic decoder whose exact answer is known."""
+import functools
+
 import numpy as np
 import pytest
 import torch
@@ -61,15 +63,153 @@ def test_grid_shape_follows_longest_side():
 def test_decode_grid_chunked_equals_one_shot_and_prepares_once():
     dec = SphereDecoder()
     tp = zero_triplane()
-    sdf, col = ex.decode_grid(dec, tp, AABB, 32, chunk=1000, with_color=True)
+    sdf, col = ex.decode_grid(dec, tp, AABB, 32, chunk=1000, with_color=True, coarse=None)
     assert dec.prepare_calls == 1 and dec.query_calls == int(np.ceil(24 * 32 * 20 / 1000))
-    sdf1, col1 = ex.decode_grid(dec, tp, AABB, 32, chunk=10**9, with_color=True)
+    sdf1, col1 = ex.decode_grid(dec, tp, AABB, 32, chunk=10**9, with_color=True, coarse=None)
     assert sdf.shape == (24, 32, 20) and col.shape == (24, 32, 20, 3)
     np.testing.assert_array_equal(sdf, sdf1)
     np.testing.assert_array_equal(col, col1)
     # the grid is cell-centred: voxel k sits at lo + (k + 0.5) / n * size
     np.testing.assert_allclose(sdf, sphere_sdf(sdf.shape), atol=1e-5)
-    assert np.array_equal(ex.decode_grid(dec, tp, AABB, 32), sdf)  # sdf only
+    assert np.array_equal(ex.decode_grid(dec, tp, AABB, 32, coarse=1), sdf)  # sdf only; coarse=1 is the full decode
+
+
+# ----------------------------------------------------------------------------- coarse-to-fine decode
+def assert_fast_decode_exact(dec, tp, aabb, resolution, band_voxels=2.0, **kwargs):
+    """The coarse-to-fine decode against the full one: exact near the surface, same signs, same mesh."""
+    full = ex.decode_grid(dec, tp, aabb, resolution, coarse=None)
+    stats = {}
+    fast = ex.decode_grid(dec, tp, aabb, resolution, stats=stats, **kwargs)
+    voxel = (aabb[3:] - aabb[:3]).max() / max(full.shape)
+    near = np.abs(full) < band_voxels * voxel
+    assert near.any() and (full > 0).any() and (full < 0).any()
+    np.testing.assert_array_equal(fast[near], full[near])  # bit for bit
+    np.testing.assert_array_equal(np.sign(fast), np.sign(full))
+    v_full, f_full = ex.marching_cubes(full, aabb)
+    v_fast, f_fast = ex.marching_cubes(fast, aabb)
+    np.testing.assert_array_equal(f_fast, f_full)
+    np.testing.assert_array_equal(v_fast, v_full)
+    assert stats["voxels"] == full.size
+    assert stats["decoded"] == sum(n for _, n in stats["levels"]) + stats["closure"]
+    return full, fast, stats
+
+
+class TruncatedSphereDecoder(SphereDecoder):
+    """The sphere's SDF clamped to ±truncation, like the truncated SDF a real decoder was trained on."""
+
+    def __init__(self, truncation, **kwargs):
+        super().__init__(**kwargs)
+        self.truncation = truncation
+
+    def query(self, prepared, points):
+        sdf, color = super().query(prepared, points)
+        return sdf.clamp(-self.truncation, self.truncation), color
+
+
+@pytest.mark.parametrize("coarse", [2, 3, 4, 8])
+def test_coarse_to_fine_sphere_is_exact_near_the_surface(coarse):
+    dec = SphereDecoder()
+    full, fast, stats = assert_fast_decode_exact(dec, zero_triplane(), AABB, 48, coarse=coarse)
+    assert stats["levels"][0][0] == coarse and stats["levels"][-1][0] == 1
+    assert stats["decoded"] < 0.5 * full.size
+    # far from the surface: trilinear interpolation of decoded values, so the right sign and roughly the distance
+    # (off most at the sphere's centre, where |p| has its kink)
+    assert np.abs(fast - full).max() < coarse * 2.0 / 48
+
+
+def test_coarse_to_fine_truncated_sdf_touching_the_box_and_colours():
+    voxel = 2.0 / 48
+    # radius 0.7 pokes through the x and z faces of the box: the cap cubes need the boundary voxels exactly
+    dec = TruncatedSphereDecoder(truncation=6 * voxel, radius=0.7)
+    full, fast, stats = assert_fast_decode_exact(dec, zero_triplane(), AABB, 48)
+    assert stats["decoded"] < 0.6 * full.size
+    sdf, col = ex.decode_grid(dec, zero_triplane(), AABB, 48, with_color=True)
+    np.testing.assert_array_equal(sdf, fast)
+    _, col_full = ex.decode_grid(dec, zero_triplane(), AABB, 48, with_color=True, coarse=None)
+    assert col.shape == col_full.shape == (*full.shape, 3)
+    near = np.abs(full) < 2 * voxel
+    np.testing.assert_array_equal(col[near], col_full[near])
+    np.testing.assert_allclose(col, col_full, atol=1e-5)  # the colour is linear: interpolation is exact
+
+
+@functools.lru_cache(maxsize=None)
+def random_triplane_decoder(seed=0):
+    """A real ``TriplaneDecoder`` with random weights, a smooth random triplane prepared once (conv blocks run)."""
+    from sin3dm_lite.autoencoder import TriplaneDecoder
+    from sin3dm_lite.config import AutoencoderConfig
+
+    torch.manual_seed(seed)
+    dec = TriplaneDecoder(AutoencoderConfig(decoder_channels=16, mlp_hidden=32), threshold=0.1)
+    tp = Triplane.randn(1, 12, (3, 4, 3), generator=torch.Generator().manual_seed(seed))
+    return dec, ex.prepare(dec, tp)
+
+
+def sdf_like_triplane_decoder(truncation=None, seed=0):
+    """The real decoder of :func:`random_triplane_decoder` made SDF-like: a bumpy sphere.
+
+    ``query_sdf`` becomes the box's sphere SDF plus the real decoder's output,
+    scaled so that its largest slope between neighbouring voxels is 0.5 (the
+    sum stays below the decode's assumed ``lipschitz=2``) and its amplitude a
+    few voxels; optionally clamped like a truncated SDF. Every value still goes
+    through the decoder's MLP, whose last bits depend on the batch unless
+    ``query_points`` pads it.
+    """
+    from sin3dm_lite.autoencoder import TriplaneDecoder
+
+    base, prepared = random_triplane_decoder(seed)
+    raw = ex.decode_grid(base, prepared, AABB, 32, coarse=None)
+    raw_slope = max(np.abs(np.diff(raw, axis=a)).max() for a in range(3)) / (2.0 / 32)
+    gain, offset = 0.5 / raw_slope, float(raw.mean())
+    sphere = SphereDecoder(radius=0.55)
+
+    class Bumpy(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.base = base
+
+        def query_sdf(self, prep, points):
+            sdf = sphere.query({"offset": torch.zeros(1)}, points)[0]
+            sdf = sdf + gain * (TriplaneDecoder.query_sdf(self.base, prep, points) - offset)
+            return sdf if truncation is None else sdf.clamp(-truncation, truncation)
+
+        def query(self, prep, points):
+            return self.query_sdf(prep, points), self.base.query_color(prep, points)
+
+    return Bumpy(), prepared
+
+
+@pytest.mark.parametrize("truncation", [None, 0.375])
+def test_coarse_to_fine_real_decoder_gives_the_same_mesh(truncation):
+    dec, prepared = sdf_like_triplane_decoder(truncation)  # 0.375 = 6 voxels, the small preset's band at 128
+    full, fast, stats = assert_fast_decode_exact(dec, prepared, AABB, 32)
+    v, f = ex.marching_cubes(full, AABB)
+    assert len(f) > 1000  # a real surface, not a speck
+    bump = full - sphere_sdf(full.shape, radius=0.55)
+    bump = bump[np.abs(full) < 0.1]
+    assert bump.max() - bump.min() > 2.0 / 32  # the decoder moves the surface by more than a voxel
+    assert stats["decoded"] < 0.6 * full.size
+
+
+def test_query_points_value_does_not_depend_on_its_batch():
+    """Matrix kernels round the leftover rows of a batch differently; the row padding hides that."""
+    dec, prepared = random_triplane_decoder()
+    pts = np.random.default_rng(0).uniform(-1, 1, (3001, 3)).astype(np.float32)
+    all_at_once, _ = ex.query_points(dec, prepared, pts, color=False)
+    for start, size in [(0, 1), (5, 3), (17, 1001), (1000, 2001)]:
+        part, _ = ex.query_points(dec, prepared, pts[start:start + size], color=False)
+        np.testing.assert_array_equal(part, all_at_once[start:start + size])
+    chunked, _ = ex.query_points(dec, prepared, pts, chunk=999, color=False)
+    np.testing.assert_array_equal(chunked, all_at_once)
+
+
+def test_mc_support_marks_cubes_that_cross_the_level_and_the_boundary():
+    sdf = np.ones((6, 6, 6), np.float32)
+    sdf[3, 3, 3] = -1
+    mark = ex.mc_support(sdf)
+    assert mark.sum() == 27 and mark[2:5, 2:5, 2:5].all()
+    sdf[0, 0, 0] = -1  # inside on the corner of the grid: the padding layer outside makes a cube cross
+    assert ex.mc_support(sdf)[:2, :2, :2].all() and ex.mc_support(sdf).sum() == 27 + 8
+    assert not ex.mc_support(np.ones((4, 4, 4))).any()
 
 
 def test_prepared_triplane_is_reused_and_batch_must_be_one():
@@ -171,6 +311,7 @@ def test_extract_mesh_textured_steps_and_colours():
     assert dec.prepare_calls == 1
     assert {"sdf", "raw", "simplified", "uv", "texture", "covered", "seconds"} <= set(steps)
     assert steps["sdf"].shape == (24, 32, 20) and len(mesh.faces) <= 1500
+    assert steps["decode_stats"]["decoded"] < steps["decode_stats"]["voxels"]  # coarse to fine by default
     uvs, faces_uv = steps["uv"]
     assert np.array_equal(steps["vmapping"][faces_uv], mesh.faces)  # xatlas keeps the face order
     assert uvs.min() >= 0 and uvs.max() <= 1
