@@ -146,6 +146,7 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
     samples = model.sample(a.n, resize=resize, steps=a.steps, method="ddpm" if a.ddpm else None, seed=a.seed)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".sin3dm-", dir=out.parent))
+    tmp.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary folder
     try:
         meshes = []
         for i in range(len(samples)):

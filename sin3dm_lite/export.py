@@ -47,6 +47,7 @@ def export_mesh(mesh: TexturedMesh, out_dir, name: str = "mesh", formats=FORMATS
         raise Sin3DMInputError(f"'{out_dir}' is a file; export_mesh needs a folder to write into")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".partial", dir=out_dir.parent))
+    tmp.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary folder
     try:
         if "obj" in formats:
             mesh_io.save_obj(mesh, tmp / f"{name}.obj")
