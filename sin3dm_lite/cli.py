@@ -88,6 +88,8 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--faces", type=_positive_int, default=None, help="face budget per mesh")
     s.add_argument("--texture-size", type=_positive_int, default=None, help="texture image size in pixels")
+    s.add_argument("--mesh-resolution", type=_positive_int, default=None,
+                   help="decode grid along the longest side (default: the preset's)")
     s.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
 
 
@@ -150,7 +152,7 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
     try:
         meshes = []
         for i in range(len(samples)):
-            mesh = model.to_mesh(samples, i, faces=a.faces, texture_size=a.texture_size)
+            mesh = model.to_mesh(samples, i, resolution=a.mesh_resolution, faces=a.faces, texture_size=a.texture_size)
             export_mesh(mesh, tmp / f"{i:03d}", name="mesh")
             meshes.append(mesh)
             print(f"[{label}] {i + 1}/{len(samples)}: {len(mesh.faces):,} faces  ({time.perf_counter() - t0:.0f} s)")

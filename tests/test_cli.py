@@ -68,3 +68,16 @@ def test_bad_resize_is_rejected_by_the_parser(capsys, resize):
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert "--resize" in err and ("positive" in err or "number" in err or "(0, 8]" in err)
+
+
+def test_demo_with_the_shipped_model_writes_meshes_and_a_viewer_page(capsys, tmp_path):
+    out = tmp_path / "demo"
+    code, text, _ = run(capsys, "demo", "--out", str(out), "-n", "2", "--steps", "5",
+                        "--mesh-resolution", "48", "--faces", "1500", "--texture-size", "128")
+    assert code == 0 and "index.html" in text
+    for i in ("000", "001"):
+        m = trimesh.load(out / i / "mesh.obj", force="mesh")
+        assert len(m.faces) > 100 and m.visual.uv is not None
+        assert (out / i / "mesh.glb").is_file()
+    assert (out / "index.html").stat().st_size > 100_000
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp folder left
