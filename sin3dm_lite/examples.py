@@ -29,6 +29,7 @@ from .mesh_io import Material, TexturedMesh
 
 #: name -> one-line description of each built-in example.
 EXAMPLES = {
+    # all examples are y-up, like OBJ and glTF files (Blender turns them z-up on import)
     "canyon": "a river canyon cut into a block: terraced cliffs banded with rock strata, steps varying along its length",
     "wall": "a crenellated brick wall: protruding bricks of varied colour in grey mortar, merlons of varied width",
     "colonnade": "four turned columns with painted rings on a stepped base, carrying a beam with a triglyph frieze",
@@ -48,7 +49,10 @@ def build_example(name: str, seed: int = 0) -> TexturedMesh:
     if name not in _BUILDERS:
         raise Sin3DMInputError(f"unknown example '{name}'; choose one of: {', '.join(list_examples())}")
     rng = np.random.default_rng(seed)
-    return _BUILDERS[name](rng)
+    mesh = _BUILDERS[name](rng)  # built z-up
+    # y-up, like OBJ and glTF files: (x, y, z) → (x, z, −y), a rotation (faces keep their winding)
+    mesh.vertices = np.stack([mesh.vertices[:, 0], mesh.vertices[:, 2], -mesh.vertices[:, 1]], axis=1)
+    return mesh
 
 
 def write_example(name: str, out_dir, seed: int = 0) -> Path:

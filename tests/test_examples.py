@@ -80,7 +80,7 @@ def test_proportions(name):
 
 def test_wall_is_volumetric():
     lo, hi = built("wall").bounds
-    length, thickness = hi[0] - lo[0], hi[1] - lo[1]
+    length, thickness = hi[0] - lo[0], hi[2] - lo[2]  # y is up
     assert thickness >= 0.12 * length
 
 
