@@ -147,7 +147,7 @@ def _small() -> Config:
     return Config(
         name="small",
         grid=GridConfig(resolution=64, n_surface_points=300_000, near_surface_sigma=0.02),
-        autoencoder=AutoencoderConfig(steps=1000, points_per_step=8192, mlp_hidden=128),
+        autoencoder=AutoencoderConfig(steps=1000, points_per_step=8192),  # paper-size decoder: hidden 128 gave IoU 0.935, 256 gives 0.949
         diffusion=DiffusionConfig(
             base_channels=32, n_resblocks=2, downsample=False, steps=2000, batch_size=8, lr=1e-3, ema_decay=0.999
         ),
