@@ -6,6 +6,8 @@ import pytest
 import torch
 import trimesh
 
+from sin3dm_lite import autoencoder
+
 from sin3dm_lite.autoencoder import (
     AutoencoderTrainer,
     TriplaneDecoder,
@@ -77,7 +79,7 @@ def test_tiny_fit_reduces_loss_and_reconstructs(grid, use_encoder):
     assert len(h) == 150
     assert np.mean(h[-10:]) < 0.5 * np.mean(h[:10])
     m = reconstruction_metrics(tr.model.decoder, tr.latent(), grid)
-    assert set(m) == {"sign_accuracy", "occupancy_iou", "color_l1", "color_psnr"}
+    assert set(m) == {"sign_accuracy", "occupancy_iou", "occupancy_iou_quarter_voxel", "color_l1", "color_psnr"}
     assert m["occupancy_iou"] > 0.8 and m["sign_accuracy"] > 0.9
     assert m["color_l1"] < 0.25
 
@@ -100,3 +102,15 @@ def test_resume_is_bit_identical(grid):
     for a, b in zip(full.model.state_dict().values(), resumed.model.state_dict().values()):
         assert torch.equal(a, b)
     assert full.history == resumed.history
+
+
+def test_reconstruction_metrics_on_a_known_shift(grid, monkeypatch):
+    # a decoder whose surface sits 0.2 voxel inside the input's: only voxels within 0.2 voxel flip
+    shifted = (grid.sdf + 0.2 * grid.voxel_size, grid.color)
+    monkeypatch.setattr(autoencoder, "decode_at_voxels", lambda *a, **k: shifted)
+    m = autoencoder.reconstruction_metrics(None, None, grid)
+    flipped = ((grid.sdf < 0) & (grid.sdf >= -0.2 * grid.voxel_size)).sum()
+    assert flipped > 0
+    assert m["occupancy_iou"] == pytest.approx(1 - flipped / (grid.sdf < 0).sum())
+    assert m["occupancy_iou_quarter_voxel"] == 1.0
+    assert m["color_l1"] == 0 and m["color_psnr"] == pytest.approx(120)
