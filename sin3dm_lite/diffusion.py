@@ -244,6 +244,17 @@ def _blend(mask: Triplane, keep: Triplane, x: Triplane) -> Triplane:
 
 
 @torch.no_grad()
+def predict_clean(model, schedule: NoiseSchedule, x_t: Triplane, t: torch.Tensor, prediction: str = "x0",
+                  clip: bool = True) -> Triplane:
+    """The network's estimate of the clean latent x0 from ``x_t`` (converted from ε for an ε-model).
+
+    The latent is a tanh output, so ``clip`` keeps the estimate in [-1, 1] as the sampler does.
+    """
+    out = model(x_t, t)
+    x0 = out if prediction == "x0" else schedule.predict_x0(x_t, t, out)
+    return x0.map(lambda p: p.clamp(-1.0, 1.0)) if clip else x0
+
+
 def sample(
     model: TriplaneUNet,
     schedule: NoiseSchedule | None,
@@ -301,10 +312,7 @@ def sample(
         x = _blend(mask, schedule.q_sample(known, ts[0], Triplane.randn_like(x, gen)), x)
     for i, t in enumerate(tqdm(ts, disable=not progress, desc=method)):
         tt = torch.full((n,), t, dtype=torch.long, device=device)
-        out = model(x, tt)
-        x0 = out if prediction == "x0" else schedule.predict_x0(x, tt, out)
-        if clip:
-            x0 = x0.map(lambda p: p.clamp(-1.0, 1.0))
+        x0 = predict_clean(model, schedule, x, tt, prediction, clip)
         if i in record:
             intermediates.append({"step": i, "t": t, "x_t": x.cpu(), "x0": x0.cpu()})
         t_prev = ts[i + 1] if i + 1 < len(ts) else -1
