@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import point_cloud_utils as pcu
 from scipy import ndimage
-from scipy.spatial import cKDTree
 
 from .errors import Sin3DMInputError
 from .files import atomic_path
@@ -131,30 +130,24 @@ class _Distance:
             out.append(np.einsum("lk,fkd->fld", bc, tri[k == kk]).reshape(-1, 3))
         return np.concatenate(out)
 
-    def tsdf(self, p: np.ndarray, threshold: float, cover: "cKDTree", gap: float, chunk: int = 1 << 18):
+    def tsdf(self, p: np.ndarray, threshold: float, chunk: int = 1 << 18):
         """Truncated SDF (negative inside), closest face (-1 outside the band) and barycentrics.
 
-        ``cover`` is a KD-tree of surface points at most ``gap`` apart: a point
-        farther than ``threshold + gap`` from all of them is outside the band,
-        so only the others need an exact closest-point query.
+        Exact distances from point-cloud-utils' closest-point query (its
+        ``signed_distance_to_mesh`` is not used: its distances are approximate,
+        and far off on open meshes); the sign from the fast winding number.
         """
         p = np.ascontiguousarray(p, dtype=np.float64)
-        n = len(p)
         inside = self.inside(p)
-        sdf = np.where(inside, -threshold, threshold).astype(np.float32)
-        fid = np.full(n, -1, np.int64)
-        bcs = np.zeros((n, 3), np.float64)
-        d_cover, _ = cover.query(p, distance_upper_bound=threshold + gap, workers=-1)
-        cand = np.flatnonzero(np.isfinite(d_cover))
-        for a in range(0, len(cand), chunk):
-            c = cand[a : a + chunk]
-            # exact distance and closest point (pcu.signed_distance_to_mesh is not used:
-            # its distances are approximate, and far off on open meshes)
-            d, fi, bc = pcu.closest_points_on_mesh(p[c], self.v, self.f)
+        sdf = np.empty(len(p), np.float32)
+        fid = np.full(len(p), -1, np.int64)
+        bcs = np.zeros((len(p), 3), np.float64)
+        for a in range(0, len(p), chunk):
+            d, fi, bc = pcu.closest_points_on_mesh(p[a : a + chunk], self.v, self.f)
             band = d < threshold
-            sdf[c] = np.where(inside[c], -1, 1) * np.minimum(d, threshold)
-            fid[c] = np.where(band, fi, -1)
-            bcs[c] = np.where(band[:, None], bc, 0.0)
+            sdf[a : a + chunk] = np.where(inside[a : a + chunk], -1, 1) * np.minimum(d, threshold)
+            fid[a : a + chunk] = np.where(band, fi, -1)
+            bcs[a : a + chunk] = np.where(band[:, None], bc, 0.0)
         return sdf, fid, bcs
 
 
@@ -204,7 +197,6 @@ def mesh_to_grid(
     b, gap = 4, 0.5 * vs
     cdims = dims // b
     cover = dist.cover(gap)
-    cover_tree = cKDTree(cover)
     cidx = np.clip(np.floor((cover - aabb[:3]) / (b * vs)).astype(np.int64), 0, cdims - 1)
     near_block = np.zeros(tuple(cdims), bool)
     near_block[cidx[:, 0], cidx[:, 1], cidx[:, 2]] = True
@@ -223,7 +215,7 @@ def mesh_to_grid(
     offs = np.stack(np.meshgrid(*(np.arange(b),) * 3, indexing="ij"), -1).reshape(-1, 3)
     idx = (bi[:, None, :] * b + offs[None]).reshape(-1, 3)  # fine voxel indices
     pts = np.stack([axes[a][idx[:, a]] for a in range(3)], -1)
-    s, fi, bc = dist.tsdf(pts, threshold, cover_tree, gap)
+    s, fi, bc = dist.tsdf(pts, threshold)
     sdf[idx[:, 0], idx[:, 1], idx[:, 2]] = s
     band = fi >= 0
     color[idx[band, 0], idx[band, 1], idx[band, 2]] = m.colors_at(fi[band], bc[band])
@@ -235,7 +227,7 @@ def mesh_to_grid(
         sp, _, _ = m.surface_points(n_surface_points, rng)
         sp = sp + rng.normal(scale=near_surface_sigma, size=sp.shape)
         sp = np.clip(sp, aabb[:3], aabb[3:])
-        ps, pf, pb = dist.tsdf(sp, threshold, cover_tree, gap)
+        ps, pf, pb = dist.tsdf(sp, threshold)
         pc = np.zeros((len(sp), 3), np.float32)
         ok = pf >= 0
         pc[ok] = m.colors_at(pf[ok], pb[ok])
