@@ -20,15 +20,6 @@ from sin3dm_lite.triplane import Triplane
 RES = (8, 8, 8)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny convolutions run faster on one thread, and far faster when the two cores are shared."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def tiny_cfg(**kw) -> DiffusionConfig:
     base = dict(base_channels=16, n_resblocks=2, downsample=False, steps=60, batch_size=4, lr=2e-3, ema_decay=0.0)
     return DiffusionConfig(**{**base, **kw})

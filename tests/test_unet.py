@@ -19,15 +19,6 @@ from sin3dm_lite.unet import (
 RESOLUTIONS = [(13, 7, 10), (16, 12, 8)]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny convolutions run faster on one thread, and far faster when the two cores are shared."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def shapes(tp: Triplane):
     return [tuple(p.shape) for p in tp.planes]
 
