@@ -53,20 +53,17 @@ def load_checkpoint(path: Path) -> dict:
 
 
 def resolve_mesh(source) -> TexturedMesh:
-    """A ``TexturedMesh`` from a mesh object, a file path, or the name of a built-in example."""
+    """A ``TexturedMesh`` from the name of a built-in example, or whatever ``mesh_io.load_any`` takes."""
     from . import examples
-    from .mesh_io import load_mesh
+    from .mesh_io import load_any
 
-    if isinstance(source, TexturedMesh):
-        return source
-    s = str(source)
-    if s in examples.list_examples():
-        return examples.build_example(s)
-    if not Path(s).exists() and Path(s).suffix == "":
+    if isinstance(source, str) and source in examples.list_examples():
+        return examples.build_example(source)
+    if isinstance(source, str) and not Path(source).exists() and Path(source).suffix == "":
         raise Sin3DMInputError(
-            f"'{s}' is neither a mesh file nor a built-in example; examples: {', '.join(examples.list_examples())}"
+            f"'{source}' is neither a mesh file nor a built-in example; examples: {', '.join(examples.list_examples())}"
         )
-    return load_mesh(s)
+    return load_any(source)
 
 
 @dataclass
