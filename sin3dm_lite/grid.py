@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import point_cloud_utils as pcu
-from scipy import ndimage
 
 from .errors import Sin3DMInputError
 from .files import atomic_path
@@ -102,60 +101,115 @@ class _Distance:
 
     Exact point-to-triangle distances are the expensive part, and far from the
     surface the TSDF is just ``±threshold``. The sign comes from
-    point-cloud-utils' fast winding number, which is cheap and robust — also
-    for open or multi-part meshes, where "make it watertight" tricks fail.
+    point-cloud-utils' fast winding number (inside where it exceeds ½), which
+    is robust for open or multi-part meshes, where "make it watertight" tricks
+    fail. (pcu's ``signed_distance_to_mesh`` is not used: its distances are
+    approximate, and far off on open meshes.)
     """
 
-    def __init__(self, mesh: TexturedMesh):
+    def __init__(self, mesh: TexturedMesh, chunk: int = 1 << 18):
         self.v = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
         self.f = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+        self.chunk = chunk
 
-    def inside(self, p: np.ndarray) -> np.ndarray:
-        w = pcu.triangle_soup_fast_winding_number(self.v, self.f, np.ascontiguousarray(p, dtype=np.float64))
-        return w > 0.5
+    def winding(self, p: np.ndarray) -> np.ndarray:
+        """Generalised winding number: 1 inside a closed surface, 0 outside, in between near holes."""
+        if len(p) == 0:
+            return np.zeros(0, np.float64)
+        return pcu.triangle_soup_fast_winding_number(self.v, self.f, np.ascontiguousarray(p, dtype=np.float64))
 
-    def cover(self, gap: float) -> np.ndarray:
-        """Points on the surface such that every surface point lies within ``gap`` of one of them.
-
-        Each triangle gets a barycentric lattice fine enough for its longest edge.
-        """
-        tri = self.v[self.f]  # (F, 3, 3)
-        edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(1)
-        k = np.maximum(1, np.ceil(edge / gap)).astype(np.int64)
-        out = [self.v]
-        for kk in np.unique(k[k > 1]):
-            i, j = np.meshgrid(np.arange(kk + 1), np.arange(kk + 1), indexing="ij")
-            keep = i + j <= kk
-            bc = np.stack([i[keep], j[keep], kk - i[keep] - j[keep]], 1) / kk  # (L, 3)
-            out.append(np.einsum("lk,fkd->fld", bc, tri[k == kk]).reshape(-1, 3))
-        return np.concatenate(out)
-
-    def tsdf(self, p: np.ndarray, threshold: float, chunk: int = 1 << 18):
-        """Truncated SDF (negative inside), closest face (-1 outside the band) and barycentrics.
-
-        Exact distances from point-cloud-utils' closest-point query (its
-        ``signed_distance_to_mesh`` is not used: its distances are approximate,
-        and far off on open meshes); the sign from the fast winding number.
-        """
+    def closest(self, p: np.ndarray):
+        """Unsigned distance, closest face and its barycentrics for every point (chunked)."""
         p = np.ascontiguousarray(p, dtype=np.float64)
-        inside = self.inside(p)
-        sdf = np.empty(len(p), np.float32)
-        fid = np.full(len(p), -1, np.int64)
-        bcs = np.zeros((len(p), 3), np.float64)
-        for a in range(0, len(p), chunk):
-            d, fi, bc = pcu.closest_points_on_mesh(p[a : a + chunk], self.v, self.f)
+        d = np.empty(len(p), np.float64)
+        fi = np.empty(len(p), np.int64)
+        bc = np.empty((len(p), 3), np.float64)
+        for a in range(0, len(p), self.chunk):
+            d[a : a + self.chunk], fi[a : a + self.chunk], bc[a : a + self.chunk] = pcu.closest_points_on_mesh(
+                p[a : a + self.chunk], self.v, self.f
+            )
+        return d, fi, bc
+
+
+def _block_view(a: np.ndarray, s: int) -> np.ndarray:
+    """View an ``(H, W, D, ...)`` array as ``(H/s, s, W/s, s, D/s, s, ...)`` blocks (writes go through)."""
+    h, w, d = a.shape[:3]
+    return a.reshape(h // s, s, w // s, s, d // s, s, *a.shape[3:])
+
+
+def _tsdf_grid(dist: _Distance, mesh: TexturedMesh, dims, aabb: np.ndarray, vs: float, threshold: float, say, sure_margin: float = 0.4):
+    """Truncated SDF and colour on the cell-centred grid, by coarse-to-fine block refinement.
+
+    Blocks of 8³ voxels are visited first. For a block of ``s³`` voxels whose
+    centre lies at exact distance ``d`` from the surface, every voxel centre is
+    within ``h = (s-1)·√3/2`` voxels of the block centre, so if
+    ``d ≥ threshold + h`` no voxel of the block is in the band: all get
+    ``±threshold``. Other blocks split into 8 children, down to single voxels,
+    which get their exact distance, and their colour when inside the band.
+
+    The sign is the fast winding number ``w`` (inside where ``w > ½``). The
+    ball of radius ``d`` around a block centre holds no surface, so ``w`` has
+    no jump in it and, where it is clearly 0 or 1 at the centre
+    (``|w - ½| > sure``), the whole ball (and so the block when ``d > h``)
+    shares the centre's sign: children inherit it instead of paying for their
+    own winding number. Near a hole ``w`` drifts smoothly through ½ (that is
+    how it closes holes); there blocks keep splitting, for the sign only,
+    until every voxel has its own winding number.
+    """
+    dims = np.asarray(dims)
+    lo = aabb[:3].astype(np.float64)
+    sdf = np.empty(tuple(dims), np.float32)
+    color = np.zeros((*dims, 3), np.float32)
+    s = 8
+    blocks = np.argwhere(np.ones(tuple(dims // s), bool))  # block coordinates at level s
+    w = np.zeros(len(blocks))  # winding number (own, or inherited where `known`)
+    known = np.zeros(len(blocks), bool)
+    far = np.zeros(len(blocks), bool)  # already known to be out of the band
+    children = np.stack(np.meshgrid(*(np.arange(2),) * 3, indexing="ij"), -1).reshape(-1, 3)
+    n_dist = n_wind = 0
+    while True:
+        centre = lo + (blocks * s + s / 2) * vs
+        d = np.full(len(blocks), np.inf)
+        d[~far], fi, bc = dist.closest(centre[~far])
+        w[~known] = dist.winding(centre[~known])
+        n_dist, n_wind = n_dist + int((~far).sum()), n_wind + int((~known).sum())
+        sign = np.where(w > 0.5, -1.0, 1.0)
+        if s == 1:
+            i, j, k = blocks.T
+            sdf[i, j, k] = sign * np.minimum(d, threshold)
             band = d < threshold
-            sdf[a : a + chunk] = np.where(inside[a : a + chunk], -1, 1) * np.minimum(d, threshold)
-            fid[a : a + chunk] = np.where(band, fi, -1)
-            bcs[a : a + chunk] = np.where(band[:, None], bc, 0.0)
-        return sdf, fid, bcs
+            color[i[band], j[band], k[band]] = mesh.colors_at(fi[band[~far]], bc[band[~far]])
+            break
+        h = (s - 1) * np.sqrt(3) / 2 * vs
+        sure = np.abs(w - 0.5) > sure_margin
+        far = d >= threshold + h
+        done = far & sure
+        i, j, k = blocks[done].T
+        _block_view(sdf, s)[i, :, j, :, k, :] = (sign[done] * threshold)[:, None, None, None]
+        split = ~done
+        blocks = (blocks[split][:, None, :] * 2 + children[None]).reshape(-1, 3)
+        known = np.repeat((d > h)[split] & sure[split], 8)
+        w, far = np.repeat(w[split], 8), np.repeat(far[split], 8)
+        s //= 2
+    say(f"[grid] exact distances at {n_dist:,} points, winding numbers at {n_wind:,} (grid of {dims.prod():,} voxels)")
+    return sdf, color
+
+
+def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float):
+    """Exact truncated SDF and colour (0 outside the band) at arbitrary points."""
+    d, fi, bc = dist.closest(p)
+    sdf = (np.where(dist.winding(p) > 0.5, -1.0, 1.0) * np.minimum(d, threshold)).astype(np.float32)
+    col = np.zeros((len(p), 3), np.float32)
+    band = d < threshold
+    col[band] = mesh.colors_at(fi[band], bc[band])
+    return sdf, col
 
 
 def mesh_to_grid(
     mesh: TexturedMesh,
     resolution: int = 128,
     threshold_voxels: float = 3.0,
-    n_surface_points: int = 500_000,
+    n_surface_points: int = 300_000,
     near_surface_sigma: float = 0.005,
     seed: int = 0,
     progress: bool = True,
@@ -166,9 +220,9 @@ def mesh_to_grid(
        ``resolution`` voxels along the longest side, the other axes rounded up
        to multiples of 8, a symmetric box ``±n_axis / n_max``.
     2. Signed distance at every cell-centred voxel, truncated at
-       ``threshold_voxels`` voxels. Blocks of 4³ voxels whose centre is far from
-       the surface are filled with ``±threshold`` from one winding-number sign;
-       exact distances are computed only in blocks that touch the band.
+       ``threshold_voxels`` voxels. Exact distances are computed only where
+       the band may be (coarse-to-fine blocks, see :func:`_tsdf_grid`); the
+       sign is the fast winding number's, so open meshes work too.
     3. RGB at every voxel within the band from the closest point on the
        original surface (texture lookup with bilinear filtering).
     4. Training points: surface samples plus Gaussian noise (σ =
@@ -188,38 +242,8 @@ def mesh_to_grid(
 
     dist = _Distance(m)
     out = ShapeGrid(np.zeros(tuple(dims), np.float32), np.empty(0), aabb, threshold, m.normalization, name=mesh.name)
-    axes = [out.axis_coords(a).astype(np.float64) for a in range(3)]
-
-    # coarse pass: blocks of 4×4×4 voxels (dims are multiples of 8, so blocks tile the grid).
-    # A block needs exact distances only if it may hold a voxel within the band; mark the
-    # blocks that contain surface points (spaced at most `gap` apart) and grow the mark by
-    # enough blocks to cover threshold + gap.
-    b, gap = 4, 0.5 * vs
-    cdims = dims // b
-    cover = dist.cover(gap)
-    cidx = np.clip(np.floor((cover - aabb[:3]) / (b * vs)).astype(np.int64), 0, cdims - 1)
-    near_block = np.zeros(tuple(cdims), bool)
-    near_block[cidx[:, 0], cidx[:, 1], cidx[:, 2]] = True
-    grow = int(np.ceil((threshold + gap) / (b * vs)))
-    near_block = ndimage.binary_dilation(near_block, np.ones((3, 3, 3), bool), iterations=grow)
-    centers = [ax.reshape(-1, b).mean(1) for ax in axes]
-    cpts = np.stack(np.meshgrid(*centers, indexing="ij"), -1).reshape(-1, 3)
-    cin = dist.inside(cpts).reshape(tuple(cdims))
-
-    sdf = np.where(cin, -threshold, threshold).astype(np.float32)
-    sdf = np.repeat(np.repeat(np.repeat(sdf, b, 0), b, 1), b, 2)
-    color = np.zeros((*dims, 3), np.float32)
-
-    # fine pass: every voxel in a block that may touch the band
-    bi = np.argwhere(near_block)  # (K, 3) block indices
-    offs = np.stack(np.meshgrid(*(np.arange(b),) * 3, indexing="ij"), -1).reshape(-1, 3)
-    idx = (bi[:, None, :] * b + offs[None]).reshape(-1, 3)  # fine voxel indices
-    pts = np.stack([axes[a][idx[:, a]] for a in range(3)], -1)
-    s, fi, bc = dist.tsdf(pts, threshold)
-    sdf[idx[:, 0], idx[:, 1], idx[:, 2]] = s
-    band = fi >= 0
-    color[idx[band, 0], idx[band, 1], idx[band, 2]] = m.colors_at(fi[band], bc[band])
-    say(f"[grid] distances near the surface: {len(pts):,} of {dims.prod():,} voxels ({time.perf_counter() - t0:.1f} s)")
+    out.sdf, out.color = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say)
+    say(f"[grid] grid done ({time.perf_counter() - t0:.1f} s)")
 
     # training points near the surface
     rng = np.random.default_rng(seed)
@@ -227,13 +251,9 @@ def mesh_to_grid(
         sp, _, _ = m.surface_points(n_surface_points, rng)
         sp = sp + rng.normal(scale=near_surface_sigma, size=sp.shape)
         sp = np.clip(sp, aabb[:3], aabb[3:])
-        ps, pf, pb = dist.tsdf(sp, threshold)
-        pc = np.zeros((len(sp), 3), np.float32)
-        ok = pf >= 0
-        pc[ok] = m.colors_at(pf[ok], pb[ok])
+        ps, pc = _point_tsdf(dist, m, sp, threshold)
         out.points, out.point_sdf, out.point_color = sp.astype(np.float32), ps, pc
-    out.sdf, out.color = sdf, color
-    say(f"[grid] done in {time.perf_counter() - t0:.1f} s: {int((np.abs(sdf) < threshold).sum()):,} voxels in the band")
+    say(f"[grid] done in {time.perf_counter() - t0:.1f} s: {int((np.abs(out.sdf) < threshold).sum()):,} voxels in the band")
     return out
 
 

@@ -69,6 +69,30 @@ def test_open_mesh_signs_and_distances_match_trimesh():
     assert np.abs(np.abs(g.sdf[band]) - d).max() < 0.01  # sample spacing ≈ 0.005; a voxel is 0.0625
 
 
+@pytest.mark.parametrize("res", [40, 64])
+def test_block_refinement_equals_a_brute_force_grid(res):
+    # the coarse-to-fine pass skips most voxels; it must give what a distance and a
+    # winding number at *every* voxel give, also next to a hole, where the winding
+    # number drifts through 1/2 away from any surface
+    import point_cloud_utils as pcu
+
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    bumps = sphere.vertices * (1 + 0.1 * np.sin(6 * sphere.vertices[:, :1]))
+    cup = trimesh.Trimesh(bumps, sphere.faces[sphere.triangles_center[:, 2] < 0.5], process=False)
+    second = trimesh.creation.box(extents=(0.3, 0.3, 0.3))
+    second.apply_translation([0.2, 0.1, 0.9])  # a closed part in the cup's opening
+    mesh = textured(trimesh.util.concatenate([cup, second]))
+    g = mesh_to_grid(mesh, res, n_surface_points=0, progress=False)
+    m = mesh.normalized()
+    v, f = m.vertices.astype(np.float64), m.faces.astype(np.int64)
+    c = g.voxel_centers().reshape(-1, 3).astype(np.float64)
+    d, _, _ = pcu.closest_points_on_mesh(c, v, f)
+    w = pcu.triangle_soup_fast_winding_number(v, f, c)
+    brute = np.where(w > 0.5, -1, 1) * np.minimum(d, g.threshold)
+    np.testing.assert_allclose(g.sdf.reshape(-1), brute, atol=1e-6)
+    assert ((w > 0.2) & (w < 0.8)).sum() > 100  # the test does cover voxels near the hole
+
+
 def test_two_part_mesh_has_both_parts_inside():
     a = trimesh.creation.icosphere(subdivisions=3, radius=0.4)
     b = a.copy()
