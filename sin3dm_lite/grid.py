@@ -107,7 +107,7 @@ class _Distance:
     approximate, and far off on open meshes.)
     """
 
-    def __init__(self, mesh: TexturedMesh, chunk: int = 1 << 18):
+    def __init__(self, mesh: TexturedMesh, chunk: int = 1 << 20):
         self.v = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
         self.f = np.ascontiguousarray(mesh.faces, dtype=np.int64)
         self.chunk = chunk
