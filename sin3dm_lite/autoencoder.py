@@ -19,6 +19,7 @@ Shapes (grid ``X × Y × Z``, latent ``X' = X/2`` etc.)::
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -346,6 +347,19 @@ def decode_at_voxels(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid, chu
         col.append(c[0].cpu())
     k = grid.color.shape[-1]
     return torch.cat(sdf).numpy().reshape(grid.shape), torch.cat(col).numpy().reshape(*grid.shape, k)
+
+
+def reconstructed_grid(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid, name: str = "reconstruction") -> ShapeGrid:
+    """The grid the latent ``h`` describes: decoded SDF and colour at every voxel of ``grid``.
+
+    Same box, threshold and normalisation as ``grid`` (so the two can be shown
+    and compared slice by slice), no training points.
+    """
+    sdf, color = decode_at_voxels(decoder, h, grid)
+    return dataclasses.replace(
+        grid, sdf=sdf, color=color, name=name,
+        points=np.zeros((0, 3), np.float32), point_sdf=np.zeros(0, np.float32), point_color=np.zeros((0, 3), np.float32),
+    )
 
 
 def reconstruction_metrics(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid) -> dict[str, float]:

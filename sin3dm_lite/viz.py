@@ -71,9 +71,17 @@ def grid_slice(volume: np.ndarray, axis: int | str, index: int | None = None) ->
     return np.take(volume, index, axis=a), index
 
 
-def _extent(grid: ShapeGrid, axis: int) -> tuple[float, float, float, float]:
-    """World extent of a slice drawn with the first remaining axis → and the second ↑."""
+def _plane_axes(axis: int, up: int | str | None = None) -> tuple[int, int]:
+    """The two axes a slice across ``axis`` shows, (→, ↑): in order, unless ``up`` is the first one."""
     u, v = [k for k in range(3) if k != axis]
+    if up is not None and _axis_index(up) == u:
+        u, v = v, u
+    return u, v
+
+
+def _extent(grid: ShapeGrid, axis: int, up: int | str | None = None) -> tuple[float, float, float, float]:
+    """World extent of a slice drawn with axis ``u`` → and ``v`` ↑ (see :func:`_plane_axes`)."""
+    u, v = _plane_axes(axis, up)
     return (float(grid.aabb[u]), float(grid.aabb[u + 3]), float(grid.aabb[v]), float(grid.aabb[v + 3]))
 
 
@@ -97,26 +105,30 @@ def color_slice_image(grid: ShapeGrid, axis: int | str, index: int | None = None
     return np.where(band[..., None], rgb, NEUTRAL)
 
 
-def _draw_slice(ax, grid: ShapeGrid, axis: int, index: int, kind: str, threshold_lines: bool = True):
-    ext = _extent(grid, axis)
+def _draw_slice(ax, grid: ShapeGrid, axis: int, index: int, kind: str, threshold_lines: bool = True,
+                up: int | str | None = None):
+    u, v = _plane_axes(axis, up)
+    swap = u > v  # the slice array keeps the remaining axes in order; put `up` vertical
+    ext = _extent(grid, axis, up)
     sdf, index = grid_slice(grid.sdf, axis, index)
+    sdf = sdf.T if swap else sdf
     if kind == "sdf":
         im = _show(ax, sdf, cmap=SDF_CMAP, vmin=-grid.threshold, vmax=grid.threshold, extent=ext)
     elif kind == "color":
-        im = _show(ax, color_slice_image(grid, axis, index), extent=ext)
+        rgb = color_slice_image(grid, axis, index)
+        im = _show(ax, rgb.swapaxes(0, 1) if swap else rgb, extent=ext)
     else:
         raise ValueError(f"kind must be 'sdf' or 'color', got {kind!r}")
-    _contours(ax, grid, axis, sdf, threshold_lines)
-    u, v = [AXES[k] for k in range(3) if k != axis]
-    ax.set_xlabel(u)
-    ax.set_ylabel(v)
+    _contours(ax, grid, (u, v), sdf, threshold_lines)
+    ax.set_xlabel(AXES[u])
+    ax.set_ylabel(AXES[v])
     ax.set_title(_slice_title(grid, axis, index, kind), fontsize=9)
     return im
 
 
-def _contours(ax, grid: ShapeGrid, axis: int, sdf: np.ndarray, threshold_lines: bool) -> None:
-    """Zero level (solid) and, optionally, the edges of the truncation band (dashed)."""
-    u, v = [k for k in range(3) if k != axis]
+def _contours(ax, grid: ShapeGrid, uv: tuple[int, int], sdf: np.ndarray, threshold_lines: bool) -> None:
+    """Zero level (solid) and, optionally, the edges of the truncation band (dashed); ``sdf`` is ``(u, v)``."""
+    u, v = uv
     if sdf.min() < 0 < sdf.max():
         ax.contour(grid.axis_coords(u), grid.axis_coords(v), sdf.T, levels=[0.0], colors="k", linewidths=1.0)
     if threshold_lines:
@@ -134,6 +146,7 @@ def plot_grid_slices(
     axes: Sequence[str] = ("x", "y", "z"),
     show_color: bool = True,
     threshold_lines: bool = True,
+    up: str | None = "y",
 ) -> Figure:
     """TSDF slices across each axis (top row) and the colour slice under each (bottom row).
 
@@ -142,7 +155,9 @@ def plot_grid_slices(
     the dashed lines, with ``threshold_lines``, the edges of the truncation band.
     The colour grid is only defined inside the band; outside it is drawn in
     neutral grey. ``index`` is one index for every axis, one per axis, or None
-    for the middle slices.
+    for the middle slices. Each panel shows the two other axes in order (→, ↑),
+    except that the ``up`` axis (``"y"`` as in OBJ/glTF and the built-in
+    examples; ``None`` to keep the order) is drawn vertically where it appears.
 
     Axes of the figure: one per panel (``len(axes)`` or ``2 * len(axes)``) plus
     one shared colour bar.
@@ -159,9 +174,9 @@ def plot_grid_slices(
     panels = fig.subplots(rows, len(ax_ids), squeeze=False)
     im = None
     for col, (a, i) in enumerate(zip(ax_ids, indices)):
-        im = _draw_slice(panels[0, col], grid, a, i, "sdf", threshold_lines)
+        im = _draw_slice(panels[0, col], grid, a, i, "sdf", threshold_lines, up)
         if show_color:
-            _draw_slice(panels[1, col], grid, a, i, "color", threshold_lines)
+            _draw_slice(panels[1, col], grid, a, i, "color", threshold_lines, up)
     fig.colorbar(im, ax=panels[0, :].tolist(), label="truncated SDF", shrink=0.9)
     fig.suptitle(f"{grid.name}: grid {grid.shape}, threshold {grid.threshold:.4f} "
                  f"({grid.threshold / grid.voxel_size:.1f} voxels)", fontsize=10)
@@ -169,15 +184,17 @@ def plot_grid_slices(
 
 
 def plot_slice(grid: ShapeGrid, axis: int | str = "z", index: int | None = None, kind: str = "sdf",
-               threshold_lines: bool = True) -> Figure:
+               threshold_lines: bool = True, up: str | None = "y") -> Figure:
     """One panel: the SDF (``kind="sdf"``) or colour (``kind="color"``) slice across ``axis`` at ``index``.
+
+    ``up`` is drawn vertically when it is one of the panel's axes (see :func:`plot_grid_slices`).
 
     This is what :func:`sin3dm_lite.widgets.slice_explorer` redraws when its slider moves.
     """
     a = _axis_index(axis)
     fig = _figure(4.2, 3.6)
     ax = fig.subplots()
-    im = _draw_slice(ax, grid, a, index, kind, threshold_lines)
+    im = _draw_slice(ax, grid, a, index, kind, threshold_lines, up)
     if kind == "sdf":
         fig.colorbar(im, ax=ax, shrink=0.85)
     return fig
@@ -471,8 +488,18 @@ def _rf_draw(ax, rf_map: np.ndarray, analytic_width: float | None, vmin: float, 
     return im
 
 
-def measured_width(rf_map: np.ndarray, level: float = 1e-2, center=None) -> int:
-    """Side of the smallest centred square holding every texel with ``rf >= level`` (the measured field)."""
+RF_LEVEL = 1e-2  # where figures cut the field: above the weak global coupling of small maps
+
+
+def measured_width(rf_map: np.ndarray, level: float = RF_LEVEL, center=None) -> int:
+    """Side of the smallest centred square holding every texel with ``rf >= level`` (the measured field).
+
+    The default level, 1e-2 of the peak, stays above the plane-wide coupling
+    (GroupNorm, cross-plane means) that reaches ~1e-2 on a 32-texel map, so it
+    also works on the whole-network map. ``unet.receptive_field`` measures its
+    ``measured_width`` on the convolution-only map at 1e-3 (pass
+    ``level=rf.threshold`` to cut the same way).
+    """
     rf = np.asarray(rf_map)
     a, b = rf.shape
     ca, cb = (a // 2, b // 2) if center is None else center
@@ -489,6 +516,7 @@ def plot_receptive_field(
     ax=None,
     vmin: float = 1e-5,
     center: tuple[int, int] | None = None,
+    level: float = RF_LEVEL,
 ) -> Figure:
     """The measured receptive field of one output texel on a log colour scale.
 
@@ -497,7 +525,8 @@ def plot_receptive_field(
     weak, plane-wide coupling (around 1e-3, from the cross-plane features)
     visible next to the strong local field. The cross marks the centre texel
     (``(A//2, B//2)`` unless given) and the dashed square has the analytic
-    width (in texels). Draws into ``ax`` when given.
+    width (in texels); the title gives the measured width, the side of the
+    centred square holding every texel ``≥ level``. Draws into ``ax`` when given.
     """
     if ax is None:
         fig = _figure(4.4, 3.8)
@@ -505,22 +534,27 @@ def plot_receptive_field(
     fig = ax.figure
     im = _rf_draw(ax, rf_map, analytic_width, vmin, center)
     fig.colorbar(im, ax=ax, shrink=0.85, label="|gradient| (max 1)")
-    info = f"measured (≥1e-2) {measured_width(rf_map, center=center)} texels"
+    info = f"measured (≥{level:g}) {measured_width(rf_map, level, center)} texels"
     if analytic_width:
         info = f"analytic {analytic_width:g} · " + info
     ax.set_title(f"{title}\n{info}" if title else info, fontsize=9)
     return fig
 
 
-def plot_receptive_fields(items: Sequence[tuple[str, np.ndarray, float | None]], vmin: float = 1e-5) -> Figure:
-    """Several receptive fields side by side on one log scale: ``[(label, rf_map, analytic_width), ...]``."""
+def plot_receptive_fields(
+    items: Sequence[tuple[str, np.ndarray, float | None]], vmin: float = 1e-5, level: float = RF_LEVEL
+) -> Figure:
+    """Several receptive fields side by side on one log scale: ``[(label, rf_map, analytic_width), ...]``.
+
+    Each title gives the analytic width and the measured one (texels ``≥ level``).
+    """
     fig = _figure(3.6 * len(items) + 0.8, 3.8)
     panels = fig.subplots(1, len(items), squeeze=False)[0]
     im = None
     for ax, (label, rf, width) in zip(panels, items):
         im = _rf_draw(ax, rf, width, vmin)
         extra = f"analytic {width:g} · " if width else ""
-        ax.set_title(f"{label}\n{extra}measured {measured_width(rf)}", fontsize=9)
+        ax.set_title(f"{label}\n{extra}measured (≥{level:g}) {measured_width(rf, level)}", fontsize=9)
     fig.colorbar(im, ax=panels.tolist(), shrink=0.85, label="|gradient| (max 1)")
     return fig
 

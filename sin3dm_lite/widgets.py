@@ -112,14 +112,14 @@ def _keep_index_in_range(grid: ShapeGrid, index_control: widgets.IntSlider):
     return on_change
 
 
-def slice_explorer(grid: ShapeGrid, axis: str = "z") -> Explorer:
-    """Axis dropdown + slice slider + SDF/colour toggle → :func:`viz.plot_slice`."""
+def slice_explorer(grid: ShapeGrid, axis: str = "z", up: str | None = "y") -> Explorer:
+    """Axis dropdown + slice slider + SDF/colour toggle → :func:`viz.plot_slice` (``up`` drawn vertically)."""
     axis_c = _axis_dropdown(axis)
     index_c = _index_slider(grid.shape[viz.AXES.index(axis)])
     kind_c = widgets.ToggleButtons(options=["sdf", "color"], value="sdf", description="show")
     return Explorer(
         {"axis": axis_c, "index": index_c, "kind": kind_c},
-        lambda axis, index, kind: viz.plot_slice(grid, axis, index, kind),
+        lambda axis, index, kind: viz.plot_slice(grid, axis, index, kind, up=up),
         on_change=_keep_index_in_range(grid, index_c),
         title=f"{grid.name}: slices",
     )

@@ -12,6 +12,7 @@ from sin3dm_lite.autoencoder import (
     AutoencoderTrainer,
     TriplaneDecoder,
     TriplaneEncoder,
+    reconstructed_grid,
     reconstruction_metrics,
     sdf_loss,
 )
@@ -82,6 +83,12 @@ def test_tiny_fit_reduces_loss_and_reconstructs(grid, use_encoder):
     assert set(m) == {"sign_accuracy", "occupancy_iou", "occupancy_iou_quarter_voxel", "color_l1", "color_psnr"}
     assert m["occupancy_iou"] > 0.8 and m["sign_accuracy"] > 0.9
     assert m["color_l1"] < 0.25
+    # the decoded grid: same box as the input, signs as the metrics counted them
+    rec = reconstructed_grid(tr.model.decoder, tr.latent(), grid)
+    assert rec.shape == grid.shape and rec.color.shape == grid.color.shape and rec.name == "reconstruction"
+    np.testing.assert_array_equal(rec.aabb, grid.aabb)
+    assert rec.threshold == grid.threshold and len(rec.points) == 0 and len(grid.points) > 0
+    assert np.mean((rec.sdf < 0) == (grid.sdf < 0)) == pytest.approx(m["sign_accuracy"])
 
 
 def test_resume_is_bit_identical(grid):

@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from sin3dm_lite.config import DiffusionConfig
+from sin3dm_lite.device import count_parameters
 from sin3dm_lite.triplane import Triplane
 from sin3dm_lite.unet import (
     TriplaneConv,
@@ -103,8 +104,11 @@ def test_unet_trains_through_every_block():
 
 
 def test_paper_unet_has_about_7m_parameters():
-    n = sum(p.numel() for p in TriplaneUNet(12, DiffusionConfig()).parameters())
-    assert 6.5e6 < n < 7.5e6
+    net = TriplaneUNet(12, DiffusionConfig())
+    n = count_parameters(net)
+    assert n == sum(p.numel() for p in net.parameters()) and 6.5e6 < n < 7.5e6
+    net.out_conv.requires_grad_(False)
+    assert count_parameters(net, trainable_only=True) == n - count_parameters(net.out_conv)
 
 
 def test_analytic_receptive_field_by_hand():

@@ -82,11 +82,13 @@ def test_plot_grid_slices_panels_and_data(grid):
     panels = image_axes(fig)
     assert len(panels) == 6  # 3 sdf + 3 colour
     assert len(fig.axes) == 7  # + one shared colour bar
-    # top row: sdf slices, drawn transposed (first remaining axis →, second ↑)
+    # top row: sdf slices, drawn transposed (first remaining axis →, second ↑), except that
+    # y (up, by default) stays vertical: the x slice shows z → and y ↑
     for k, axis in enumerate("xyz"):
         ax = panels[k]
         expected, idx = viz.grid_slice(grid.sdf, axis)
-        np.testing.assert_array_equal(np.asarray(ax.images[0].get_array()), expected.T)
+        np.testing.assert_array_equal(np.asarray(ax.images[0].get_array()), expected if axis == "x" else expected.T)
+        assert (ax.get_xlabel(), ax.get_ylabel()) == {"x": ("z", "y"), "y": ("x", "z"), "z": ("x", "y")}[axis]
         assert ax.images[0].origin == "lower"
         lo, hi = ax.images[0].get_clim()
         assert lo == pytest.approx(-grid.threshold) and hi == pytest.approx(grid.threshold)
@@ -112,9 +114,16 @@ def test_plot_grid_slices_options(grid):
 
 
 def test_plot_slice_kinds(grid):
-    fig = viz.plot_slice(grid, "x", 5, kind="sdf")
+    fig = viz.plot_slice(grid, "x", 5, kind="sdf", up=None)
     assert len(image_axes(fig)) == 1
     np.testing.assert_array_equal(np.asarray(fig.axes[0].images[0].get_array()), grid.sdf[5].T)
+    # y up (the default): z → and y ↑, extent and labels follow
+    ax = viz.plot_slice(grid, "x", 5, kind="color").axes[0]
+    np.testing.assert_allclose(np.asarray(ax.images[0].get_array()), viz.color_slice_image(grid, "x", 5))
+    assert ax.images[0].get_extent() == pytest.approx([grid.aabb[2], grid.aabb[5], grid.aabb[1], grid.aabb[4]])
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("z", "y")
+    ax = viz.plot_slice(grid, "x", 5, kind="sdf", up="z").axes[0]  # a z-up mesh: y → and z ↑
+    np.testing.assert_array_equal(np.asarray(ax.images[0].get_array()), grid.sdf[5].T)
     fig = viz.plot_slice(grid, 1, 6, kind="color")
     assert len(fig.axes) == 1
     img = np.asarray(fig.axes[0].images[0].get_array())
@@ -253,7 +262,13 @@ def test_plot_receptive_field():
     marker = ax.get_lines()[0]
     assert list(marker.get_xdata()) == [16] and list(marker.get_ydata()) == [16]
     assert viz.measured_width(rf) == 9
-    assert "4 ResBlocks" in ax.get_title() and "analytic 9" in ax.get_title()
+    assert "4 ResBlocks" in ax.get_title() and "analytic 9" in ax.get_title() and "measured (≥0.01) 9" in ax.get_title()
+    # a faint texel further out counts only when the cut is lower (unet.receptive_field cuts at 1e-3)
+    faint = rf.copy()
+    faint[16, 16 + 7] = 5e-3
+    assert viz.measured_width(faint) == 9 and viz.measured_width(faint, level=2e-3) == 15
+    title = viz.plot_receptive_field(faint, level=2e-3).axes[0].get_title()
+    assert "measured (≥0.002) 15" in title
     # into an existing axes
     fig2 = plt.figure()
     ax2 = fig2.add_subplot(1, 2, 1)
@@ -267,6 +282,7 @@ def test_plot_receptive_fields_side_by_side():
     panels = image_axes(fig)
     assert len(panels) == 3
     assert [viz.measured_width(rf) for _, rf, _ in items] == [5, 9, 13]
+    assert [p.get_title().endswith(f"measured (≥0.01) {w}") for p, w in zip(panels, [5, 9, 13])] == [True] * 3
     assert all(p.images[0].norm.vmin == panels[0].images[0].norm.vmin for p in panels)
 
 
