@@ -41,6 +41,11 @@ def _figure(width: float, height: float) -> Figure:
     return fig
 
 
+def _panel_height(width: float, aspect: float, title: float = 0.45) -> float:
+    """Height (inches) of a panel ``width`` wide showing an image of ``aspect`` = height / width, plus its title."""
+    return float(np.clip(width * aspect, 0.35 * width, 1.6 * width)) + title
+
+
 def _axis_index(axis: int | str) -> int:
     if isinstance(axis, str):
         if axis not in AXES:
@@ -395,7 +400,8 @@ def plot_denoising(
     else:
         to_image = lambda p: plane_to_image(p, channels)  # noqa: E731
     n = len(intermediates)
-    fig = _figure(max(2.0 * n, 3.0), 4.4)
+    a, b = get(intermediates[0]["x_t"]).shape[-2:]  # drawn with a → and b ↑
+    fig = _figure(max(2.0 * n, 3.0), 2 * _panel_height(2.0, b / a) + 0.3)
     panels = fig.subplots(2, n, squeeze=False)
     for c, entry in enumerate(intermediates):
         for r, key in enumerate(("x_t", "x0")):
@@ -566,25 +572,29 @@ def plot_samples_slices(
     index: int | None = None,
     titles: Sequence[str] | None = None,
     columns: int | None = None,
+    up: str | None = "y",
 ) -> Figure:
     """Middle slices (or slice ``index``) of several decoded SDF grids, with the zero contour.
 
     A quick way to compare samples without 3D. All panels share one symmetric
-    colour scale (the largest ``|sdf|`` over the slices, at most 1).
+    colour scale (the largest ``|sdf|`` over the slices, at most 1); the ``up``
+    axis is drawn vertically where it is one of the slice's axes, and the
+    figure's size follows the slices' aspect.
     """
     a = _axis_index(axis)
+    ui, vi = _plane_axes(a, up)
     slices = []
     for g in sdf_grids:
         g = _numpy(g)
         s, _ = grid_slice(g, a, index if index is not None else g.shape[a] // 2)
-        slices.append(s)
+        slices.append(s.T if ui > vi else s)
     n = len(slices)
     columns = columns or min(n, 4)
     rows = -(-n // columns)
-    fig = _figure(2.8 * columns, 2.8 * rows)
+    fig = _figure(2.8 * columns, _panel_height(2.8, slices[0].shape[1] / slices[0].shape[0]) * rows)
     panels = fig.subplots(rows, columns, squeeze=False)
     vmax = min(1.0, max(float(np.abs(s).max()) for s in slices)) or 1.0
-    u, v = [AXES[k] for k in range(3) if k != a]
+    u, v = AXES[ui], AXES[vi]
     for k, ax in enumerate(panels.flat):
         if k >= n:
             ax.set_axis_off()

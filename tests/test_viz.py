@@ -235,6 +235,8 @@ def test_plot_denoising(tp):
     a, b = (np.asarray(panels[k].images[0].get_array()) for k in (0, 1))
     np.testing.assert_allclose(a, b)
     assert a.shape == (6, 8, 3) and a.min() >= 0 and a.max() <= 1
+    w, h = viz.plot_denoising(steps, plane="yz").get_size_inches()  # 6 × 10 planes: taller than wide panels
+    assert h > 2 * (w / 3)
     with pytest.raises(ValueError):
         viz.plot_denoising(steps, plane="zz")
 
@@ -294,6 +296,14 @@ def test_plot_samples_slices(grid):
     np.testing.assert_allclose(np.asarray(panels[1].images[0].get_array()), -grid.sdf[:, 6, :].T)
     assert [p.get_title() for p in panels] == ["a", "b", "c"]
     assert panels[0].collections  # zero contour
+    # across x with y up: z → and y ↑; a wide, flat slice gives a wide, flat figure
+    fig = viz.plot_samples_slices([grid.sdf], axis="x")
+    ax = image_axes(fig)[0]
+    np.testing.assert_allclose(np.asarray(ax.images[0].get_array()), grid.sdf[grid.shape[0] // 2])
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("z", "y")
+    flat = viz.plot_samples_slices([np.zeros((64, 8, 64), np.float32) + 0.1], axis="z", up=None)
+    w, h = flat.get_size_inches()
+    assert h < 0.6 * w
 
 
 def test_plot_texture_and_covered():
