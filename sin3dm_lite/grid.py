@@ -209,7 +209,7 @@ def mesh_to_grid(
     mesh: TexturedMesh,
     resolution: int = 128,
     threshold_voxels: float = 3.0,
-    n_surface_points: int = 300_000,
+    n_surface_points: int = 500_000,
     near_surface_sigma: float = 0.005,
     seed: int = 0,
     progress: bool = True,
