@@ -155,11 +155,15 @@ def _tsdf_grid(dist: _Distance, mesh: TexturedMesh, dims, aabb: np.ndarray, vs: 
     own winding number. Near a hole ``w`` drifts smoothly through ½ (that is
     how it closes holes); there blocks keep splitting, for the sign only,
     until every voxel has its own winding number.
+
+    Returns the SDF, the colour and ``sure``: where a voxel's sign came from a
+    winding number clearly 0 or 1 (used to sign the training points).
     """
     dims = np.asarray(dims)
     lo = aabb[:3].astype(np.float64)
     sdf = np.empty(tuple(dims), np.float32)
     color = np.zeros((*dims, 3), np.float32)
+    sure_grid = np.empty(tuple(dims), bool)
     s = 8
     blocks = np.argwhere(np.ones(tuple(dims // s), bool))  # block coordinates at level s
     w = np.zeros(len(blocks))  # winding number (own, or inherited where `known`)
@@ -174,31 +178,69 @@ def _tsdf_grid(dist: _Distance, mesh: TexturedMesh, dims, aabb: np.ndarray, vs: 
         w[~known] = dist.winding(centre[~known])
         n_dist, n_wind = n_dist + int((~far).sum()), n_wind + int((~known).sum())
         sign = np.where(w > 0.5, -1.0, 1.0)
+        sure = np.abs(w - 0.5) > sure_margin
         if s == 1:
             i, j, k = blocks.T
             sdf[i, j, k] = sign * np.minimum(d, threshold)
+            sure_grid[i, j, k] = sure
             band = d < threshold
             color[i[band], j[band], k[band]] = mesh.colors_at(fi[band[~far]], bc[band[~far]])
             break
         h = (s - 1) * np.sqrt(3) / 2 * vs
-        sure = np.abs(w - 0.5) > sure_margin
         far = d >= threshold + h
         done = far & sure
         i, j, k = blocks[done].T
         _block_view(sdf, s)[i, :, j, :, k, :] = (sign[done] * threshold)[:, None, None, None]
+        _block_view(sure_grid, s)[i, :, j, :, k, :] = True
         split = ~done
         blocks = (blocks[split][:, None, :] * 2 + children[None]).reshape(-1, 3)
         known = np.repeat((d > h)[split] & sure[split], 8)
         w, far = np.repeat(w[split], 8), np.repeat(far[split], 8)
         s //= 2
     say(f"[grid] exact distances at {n_dist:,} points, winding numbers at {n_wind:,} (grid of {dims.prod():,} voxels)")
-    return sdf, color
+    return sdf, color, sure_grid
 
 
-def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float):
-    """Exact truncated SDF and colour (0 outside the band) at arbitrary points."""
+def _signs_from_grid(p, d, grid_sdf, sure, lo, vs):
+    """Inside/outside of points from the voxels around them, where a surface-free ball allows it.
+
+    A point ``p`` at distance ``d`` from the surface and a voxel centre ``v``
+    at distance ``|sdf(v)|`` lie on the same side if either one's ball (no
+    surface inside) holds the other: ``|p - v| < max(d, |sdf(v)|)``; the
+    voxel's sign must be a sure one (see :func:`_tsdf_grid`). Returns
+    ``(resolved, inside)``; the unresolved points need their own winding number.
+    """
+    dims = np.array(grid_sdf.shape)
+    f = (p - lo) / vs - 0.5
+    base = np.floor(f).astype(np.int64)
+    nearest = (f - base > 0.5).astype(np.int64)  # try the nearest of the 8 voxels first
+    resolved = np.zeros(len(p), bool)
+    inside = np.zeros(len(p), bool)
+    todo = np.arange(len(p))
+    for off in np.stack(np.meshgrid(*(np.arange(2),) * 3, indexing="ij"), -1).reshape(-1, 3):
+        idx = np.clip(base[todo] + (nearest[todo] ^ off), 0, dims - 1)
+        i, j, k = idx.T
+        sv = grid_sdf[i, j, k].astype(np.float64)
+        r = np.linalg.norm(p[todo] - (lo + (idx + 0.5) * vs), axis=1)
+        ok = sure[i, j, k] & (sv != 0) & (r < 0.999 * np.maximum(d[todo], np.abs(sv)))
+        inside[todo[ok]] = sv[ok] < 0
+        resolved[todo[ok]] = True
+        todo = todo[~ok]
+    return resolved, inside
+
+
+def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float, grid=None):
+    """Exact truncated SDF and colour (0 outside the band) at arbitrary points.
+
+    With ``grid = (sdf, sure, lo, voxel_size)`` from :func:`_tsdf_grid`, most
+    signs come from the voxels around each point and only the rest pay for a
+    winding number.
+    """
+    p = np.ascontiguousarray(p, dtype=np.float64)
     d, fi, bc = dist.closest(p)
-    sdf = (np.where(dist.winding(p) > 0.5, -1.0, 1.0) * np.minimum(d, threshold)).astype(np.float32)
+    resolved, inside = (np.zeros(len(p), bool), np.zeros(len(p), bool)) if grid is None else _signs_from_grid(p, d, *grid)
+    inside[~resolved] = dist.winding(p[~resolved]) > 0.5
+    sdf = (np.where(inside, -1.0, 1.0) * np.minimum(d, threshold)).astype(np.float32)
     col = np.zeros((len(p), 3), np.float32)
     band = d < threshold
     col[band] = mesh.colors_at(fi[band], bc[band])
@@ -226,7 +268,9 @@ def mesh_to_grid(
     3. RGB at every voxel within the band from the closest point on the
        original surface (texture lookup with bilinear filtering).
     4. Training points: surface samples plus Gaussian noise (σ =
-       ``near_surface_sigma``), with their exact truncated SDF and colour.
+       ``near_surface_sigma``), with their exact truncated SDF and colour
+       (most signs from the voxels around each point, see
+       :func:`_signs_from_grid`; the rest from their own winding number).
     """
     _check_resolution(resolution)
     say = print if progress else (lambda *a, **k: None)
@@ -242,7 +286,7 @@ def mesh_to_grid(
 
     dist = _Distance(m)
     out = ShapeGrid(np.zeros(tuple(dims), np.float32), np.empty(0), aabb, threshold, m.normalization, name=mesh.name)
-    out.sdf, out.color = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say)
+    out.sdf, out.color, sure = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say)
     say(f"[grid] grid done ({time.perf_counter() - t0:.1f} s)")
 
     # training points near the surface
@@ -251,7 +295,7 @@ def mesh_to_grid(
         sp, _, _ = m.surface_points(n_surface_points, rng)
         sp = sp + rng.normal(scale=near_surface_sigma, size=sp.shape)
         sp = np.clip(sp, aabb[:3], aabb[3:])
-        ps, pc = _point_tsdf(dist, m, sp, threshold)
+        ps, pc = _point_tsdf(dist, m, sp, threshold, grid=(out.sdf, sure, aabb[:3].astype(np.float64), vs))
         out.points, out.point_sdf, out.point_color = sp.astype(np.float32), ps, pc
     say(f"[grid] done in {time.perf_counter() - t0:.1f} s: {int((np.abs(out.sdf) < threshold).sum()):,} voxels in the band")
     return out

@@ -82,15 +82,22 @@ def test_block_refinement_equals_a_brute_force_grid(res):
     second = trimesh.creation.box(extents=(0.3, 0.3, 0.3))
     second.apply_translation([0.2, 0.1, 0.9])  # a closed part in the cup's opening
     mesh = textured(trimesh.util.concatenate([cup, second]))
-    g = mesh_to_grid(mesh, res, n_surface_points=0, progress=False)
+    g = mesh_to_grid(mesh, res, n_surface_points=20_000, near_surface_sigma=0.5 / res, progress=False)
     m = mesh.normalized()
     v, f = m.vertices.astype(np.float64), m.faces.astype(np.int64)
-    c = g.voxel_centers().reshape(-1, 3).astype(np.float64)
-    d, _, _ = pcu.closest_points_on_mesh(c, v, f)
-    w = pcu.triangle_soup_fast_winding_number(v, f, c)
-    brute = np.where(w > 0.5, -1, 1) * np.minimum(d, g.threshold)
-    np.testing.assert_allclose(g.sdf.reshape(-1), brute, atol=1e-6)
+
+    def brute(c):
+        d, _, _ = pcu.closest_points_on_mesh(c, v, f)
+        w = pcu.triangle_soup_fast_winding_number(v, f, c)
+        return np.where(w > 0.5, -1, 1) * np.minimum(d, g.threshold), w
+
+    grid_sdf, w = brute(g.voxel_centers().reshape(-1, 3).astype(np.float64))
+    np.testing.assert_allclose(g.sdf.reshape(-1), grid_sdf, atol=1e-6)
     assert ((w > 0.2) & (w < 0.8)).sum() > 100  # the test does cover voxels near the hole
+    # the training points take most signs from the voxels around them: the same signs
+    point_sdf, w = brute(g.points.astype(np.float64))
+    np.testing.assert_allclose(g.point_sdf, point_sdf, atol=1e-6)
+    assert ((w > 0.2) & (w < 0.8)).sum() > 20
 
 
 def test_two_part_mesh_has_both_parts_inside():
