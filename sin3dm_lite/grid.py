@@ -137,7 +137,9 @@ def _block_view(a: np.ndarray, s: int) -> np.ndarray:
     return a.reshape(h // s, s, w // s, s, d // s, s, *a.shape[3:])
 
 
-def _tsdf_grid(dist: _Distance, mesh: TexturedMesh, dims, aabb: np.ndarray, vs: float, threshold: float, say, sure_margin: float = 0.4):
+def _tsdf_grid(
+    dist: _Distance, mesh: TexturedMesh, dims, aabb: np.ndarray, vs: float, threshold: float, say, sure_margin: float = 0.4
+):
     """Truncated SDF and colour on the cell-centred grid, by coarse-to-fine block refinement.
 
     Blocks of 8³ voxels are visited first. For a block of ``s³`` voxels whose

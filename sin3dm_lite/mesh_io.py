@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -308,8 +309,7 @@ def load_any(source, **kwargs) -> TexturedMesh:
 
 
 # ----------------------------------------------------------------- validation
-def _check_input_path(path) -> "Path":
-    from pathlib import Path
+def _check_input_path(path) -> Path:
 
     try:
         path = Path(path).expanduser()
@@ -557,7 +557,6 @@ def _is_number(s: str) -> bool:
 
 def _resolve_asset(name: str, base):
     """Find a file an OBJ/MTL names: as written, then by its base name (also ignoring case) in ``base``."""
-    from pathlib import Path
 
     name = name.strip().strip('"').replace("\\", "/")
     cands = [base / name, Path(name)] if not Path(name).is_absolute() else [Path(name)]
@@ -1147,7 +1146,6 @@ def _split_corners(faces: np.ndarray, face_uvs: np.ndarray):
 
 
 def _prepare_output(path, suffix):
-    from pathlib import Path
 
     path = Path(path).expanduser()
     if path.suffix.lower() != suffix:
@@ -1170,7 +1168,7 @@ def _safe_name(name: str, used: set) -> str:
     return out
 
 
-def save_obj(mesh: TexturedMesh, path) -> "Path":
+def save_obj(mesh: TexturedMesh, path) -> Path:
     """Write ``path`` (.obj) with ``<stem>.mtl`` and the textures as PNGs beside it.
 
     * positions as ``v`` (plus ``r g b`` when the mesh has vertex colours),
@@ -1195,7 +1193,6 @@ def save_obj(mesh: TexturedMesh, path) -> "Path":
     textured = [k for k, m in enumerate(mesh.materials) if m.image is not None]
     tmp = tempfile.mkdtemp(prefix=f".{stem}.tmp", dir=path.parent)
     try:
-        from pathlib import Path
 
         tmpdir = Path(tmp)
         written = _write_obj_files(mesh, tmpdir, stem, len(textured) == 1)
@@ -1323,7 +1320,7 @@ def _baked_vertex_colors(mesh: TexturedMesh) -> np.ndarray | None:
     return np.clip(mesh.vertex_colors * factor, 0, 1)
 
 
-def save_glb(mesh: TexturedMesh, path) -> "Path":
+def save_glb(mesh: TexturedMesh, path) -> Path:
     """Write a binary glTF: one primitive per material, PBR metallic-roughness.
 
     A textured material becomes ``baseColorTexture`` (+ ``baseColorFactor``,
