@@ -214,25 +214,27 @@ class TexturedMesh:
 
 
 def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of ``image`` ``(h, w, c)`` at ``uv`` ``(n, 2)``.
+    """Bilinear lookup of ``image`` ``(h, w[, c])`` at ``uv`` ``(n, 2)``: ``(n[, c])`` float32.
 
     OpenGL/OBJ convention: ``u`` goes right, ``v`` goes *up* (row 0 of the
     image is ``v = 1``); UVs outside [0, 1] wrap around (repeat).
     """
     h, w = image.shape[:2]
+    flat = image.astype(np.float32, copy=False).reshape(h * w, -1)  # gathers from one flat table are cheaper
     uv = np.where(np.isfinite(uv), uv, 0.0)
     x = (uv[:, 0] % 1.0) * w - 0.5
     y = (1.0 - (uv[:, 1] % 1.0)) * h - 0.5
-    x0 = np.floor(x).astype(np.int64)
-    y0 = np.floor(y).astype(np.int64)
-    fx = (x - x0)[:, None]
-    fy = (y - y0)[:, None]
-    x0w, x1w = x0 % w, (x0 + 1) % w
-    y0w, y1w = y0 % h, (y0 + 1) % h
-    img = image.astype(np.float32, copy=False)
-    top = img[y0w, x0w] * (1 - fx) + img[y0w, x1w] * fx
-    bot = img[y1w, x0w] * (1 - fx) + img[y1w, x1w] * fx
-    return (top * (1 - fy) + bot * fy).astype(np.float32)
+    x0, y0 = np.floor(x), np.floor(y)
+    fx = (x - x0).astype(np.float32)[:, None]
+    fy = (y - y0).astype(np.float32)[:, None]
+    x0, y0 = x0.astype(np.int64) % w, y0.astype(np.int64) % h
+    x1, y1 = (x0 + 1) % w, (y0 + 1) % h
+    top = flat[y0 * w + x0]
+    top += (flat[y0 * w + x1] - top) * fx
+    bot = flat[y1 * w + x0]
+    bot += (flat[y1 * w + x1] - bot) * fx
+    top += (bot - top) * fy
+    return top.reshape(len(uv), *image.shape[2:])
 
 
 # =============================================================================

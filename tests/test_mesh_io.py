@@ -707,6 +707,18 @@ def test_sample_texture_wraps_u_and_v():
     np.testing.assert_allclose(sample_texture(img, np.array([[0.9, 0.9], [0.9, -0.1]])), [GREEN, GREEN], atol=1e-6)
 
 
+def test_sample_texture_is_bilinear_between_texel_centres():
+    img = np.array([[0.0, 1.0], [2.0, 3.0]], np.float32)  # 2 × 2, one channel, no channel axis
+    # texel centres sit at u, v = 0.25 / 0.75; row 0 is v = 1
+    uv = np.array([[0.25, 0.75], [0.75, 0.75], [0.25, 0.25], [0.5, 0.75], [0.5, 0.5], [0.375, 0.625]])
+    out = sample_texture(img, uv)
+    assert out.shape == (6,) and out.dtype == np.float32
+    np.testing.assert_allclose(out, [0.0, 1.0, 2.0, 0.5, 1.5, 0.75], atol=1e-6)
+    rgb = sample_texture(np.stack([img, 2 * img, 3 * img], -1), uv)
+    assert rgb.shape == (6, 3)
+    np.testing.assert_allclose(rgb, out[:, None] * [1, 2, 3], atol=1e-6)
+
+
 def test_normalized_box_and_inverse():
     box = trimesh.creation.box(extents=(4.0, 2.0, 1.0))
     box.apply_translation((10, -3, 7))
