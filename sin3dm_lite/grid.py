@@ -112,6 +112,13 @@ class _Distance:
         self.f = np.ascontiguousarray(mesh.faces, dtype=np.int64)
         self.chunk = chunk
 
+    @property
+    def closed(self) -> bool:
+        """True when every edge is shared by exactly two faces (no holes, no open borders)."""
+        e = np.sort(self.f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        _, counts = np.unique(e, axis=0, return_counts=True)
+        return bool(len(e)) and bool(np.all(counts == 2))
+
     def winding(self, p: np.ndarray) -> np.ndarray:
         """Generalised winding number: 1 inside a closed surface, 0 outside, in between near holes."""
         if len(p) == 0:
@@ -203,14 +210,19 @@ def _tsdf_grid(
     return sdf, color, sure_grid
 
 
-def _signs_from_grid(p, d, grid_sdf, sure, lo, vs):
+def _signs_from_grid(p, d, grid_sdf, sure, lo, vs, closed: bool):
     """Inside/outside of points from the voxels around them, where a surface-free ball allows it.
 
     A point ``p`` at distance ``d`` from the surface and a voxel centre ``v``
-    at distance ``|sdf(v)|`` lie on the same side if either one's ball (no
-    surface inside) holds the other: ``|p - v| < max(d, |sdf(v)|)``; the
-    voxel's sign must be a sure one (see :func:`_tsdf_grid`). Returns
-    ``(resolved, inside)``; the unresolved points need their own winding number.
+    at distance ``|sdf(v)|`` (at least that, beyond the band) each sit in a
+    ball with no surface inside. On a ``closed`` mesh the winding number only
+    changes across the surface, so if the two balls overlap,
+    ``|p - v| < d + |sdf(v)|``, the path from ``p`` to ``v`` through them
+    keeps the sign. Near a hole the winding number also drifts through ½ in
+    empty space, so there one ball must hold the other,
+    ``|p - v| < max(d, |sdf(v)|)``, and the voxel's sign must be a sure one
+    (see :func:`_tsdf_grid`). Returns ``(resolved, inside)``; the unresolved
+    points need their own winding number.
     """
     dims = np.array(grid_sdf.shape)
     f = (p - lo) / vs - 0.5
@@ -224,7 +236,8 @@ def _signs_from_grid(p, d, grid_sdf, sure, lo, vs):
         i, j, k = idx.T
         sv = grid_sdf[i, j, k].astype(np.float64)
         r = np.linalg.norm(p[todo] - (lo + (idx + 0.5) * vs), axis=1)
-        ok = sure[i, j, k] & (sv != 0) & (r < 0.999 * np.maximum(d[todo], np.abs(sv)))
+        reach = d[todo] + np.abs(sv) if closed else np.maximum(d[todo], np.abs(sv))
+        ok = sure[i, j, k] & (sv != 0) & (r < 0.999 * reach)
         inside[todo[ok]] = sv[ok] < 0
         resolved[todo[ok]] = True
         todo = todo[~ok]
@@ -234,9 +247,9 @@ def _signs_from_grid(p, d, grid_sdf, sure, lo, vs):
 def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float, grid=None):
     """Exact truncated SDF and colour (0 outside the band) at arbitrary points.
 
-    With ``grid = (sdf, sure, lo, voxel_size)`` from :func:`_tsdf_grid`, most
-    signs come from the voxels around each point and only the rest pay for a
-    winding number.
+    With ``grid = (sdf, sure, lo, voxel_size, closed)`` from :func:`_tsdf_grid`
+    and :meth:`_Distance.closed`, most signs come from the voxels around each
+    point and only the rest pay for a winding number.
     """
     p = np.ascontiguousarray(p, dtype=np.float64)
     d, fi, bc = dist.closest(p)
@@ -297,7 +310,7 @@ def mesh_to_grid(
         sp, _, _ = m.surface_points(n_surface_points, rng)
         sp = sp + rng.normal(scale=near_surface_sigma, size=sp.shape)
         sp = np.clip(sp, aabb[:3], aabb[3:])
-        ps, pc = _point_tsdf(dist, m, sp, threshold, grid=(out.sdf, sure, aabb[:3].astype(np.float64), vs))
+        ps, pc = _point_tsdf(dist, m, sp, threshold, grid=(out.sdf, sure, aabb[:3].astype(np.float64), vs, dist.closed))
         out.points, out.point_sdf, out.point_color = sp.astype(np.float32), ps, pc
     say(f"[grid] done in {time.perf_counter() - t0:.1f} s: {int((np.abs(out.sdf) < threshold).sum()):,} voxels in the band")
     return out
