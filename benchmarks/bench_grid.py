@@ -14,7 +14,7 @@ from sin3dm_lite.mesh_io import Material, TexturedMesh
 
 
 def bumpy_textured_sphere(target_faces: int) -> TexturedMesh:
-    """An icosphere with bumps, cut to ~target_faces, with a striped UV texture (spherical UVs)."""
+    """An icosphere with bumps, cut to ~target_faces (open; all 81,920 = closed), with a striped UV texture."""
     m = trimesh.creation.icosphere(subdivisions=6)  # 81,920 faces
     m = trimesh.Trimesh(m.vertices, m.faces[:target_faces], process=False)  # an open mesh, as assets often are
     v = np.asarray(m.vertices)
@@ -30,11 +30,11 @@ def bumpy_textured_sphere(target_faces: int) -> TexturedMesh:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--resolutions", type=int, nargs="+", default=[128, 256])
-    ap.add_argument("--faces", type=int, default=77_000)
+    ap.add_argument("--faces", type=int, default=77_000, help="faces kept of 81,920 (81920: a closed mesh)")
     ap.add_argument("--points", type=int, default=300_000, help="near-surface training samples (small preset: 300k)")
     a = ap.parse_args()
     mesh = bumpy_textured_sphere(a.faces)
-    print(f"mesh: {len(mesh.faces):,} faces, textured, open")
+    print(f"mesh: {len(mesh.faces):,} faces, textured, {'closed' if len(mesh.faces) == 81_920 else 'open'}")
     mesh_to_grid(mesh, 32, n_surface_points=0, progress=False)  # warm-up (imports, first-call costs)
     for res in a.resolutions:
         for points in (0, a.points):
