@@ -9,6 +9,7 @@ grid into a triplane.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -17,7 +18,7 @@ import point_cloud_utils as pcu
 
 from .errors import Sin3DMInputError
 from .files import atomic_path
-from .mesh_io import Normalization, TexturedMesh
+from .mesh_io import Normalization, TexturedMesh, _unique_rows
 
 
 @dataclass
@@ -109,15 +110,9 @@ class _Distance:
 
     def __init__(self, mesh: TexturedMesh, chunk: int = 1 << 20):
         self.v = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
-        self.f = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+        faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+        self.f, self.closed, self.flipped, self.closed_parts = _orient_outward(self.v, faces)
         self.chunk = chunk
-
-    @property
-    def closed(self) -> bool:
-        """True when every edge is shared by exactly two faces (no holes, no open borders)."""
-        e = np.sort(self.f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-        _, counts = np.unique(e, axis=0, return_counts=True)
-        return bool(len(e)) and bool(np.all(counts == 2))
 
     def winding(self, p: np.ndarray) -> np.ndarray:
         """Generalised winding number: 1 inside a closed surface, 0 outside, in between near holes."""
@@ -136,6 +131,50 @@ class _Distance:
                 p[a : a + self.chunk], self.v, self.f
             )
         return d, fi, bc
+
+
+def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
+    """Turn closed parts that are inside out (faces wound clockwise seen from outside) the right way round.
+
+    The winding number is +1 inside a surface whose faces wind
+    counter-clockwise seen from outside (outward normals) and -1 inside one
+    wound the other way, so an inside-out file would come out with no inside
+    at all. Each connected part (vertices joined by position) that is closed
+    (every edge used as often in one direction as in the other, as in a
+    watertight, consistently wound surface) and encloses a negative volume
+    gets its faces flipped; open parts are left alone (their volume has no
+    reliable sign). On a closed mesh the winding number is a whole number
+    that changes only across the surface.
+
+    Returns ``(faces, closed, flipped, closed_parts)``: the faces, whether the
+    whole mesh is closed, how many parts were flipped and how many are closed.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    _, weld = _unique_rows(vertices)  # vertices split at UV seams are one point here
+    fw = weld[faces]
+    n = int(fw.max()) + 1 if len(fw) else 0
+    edges = fw[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    parts, label = connected_components(graph, directed=False)
+    part = label[fw[:, 0]]  # (F,) the part of every face
+    # a closed, consistently wound surface uses every edge as often a → b as b → a
+    key = np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
+    _, inverse = np.unique(key, return_inverse=True)
+    balance = np.bincount(inverse.reshape(-1), np.where(edges[:, 0] < edges[:, 1], 1.0, -1.0))
+    open_edge = balance[inverse.reshape(-1)] != 0  # (3F,)
+    open_part = np.bincount(part.repeat(3)[open_edge], minlength=parts) > 0
+    tri = vertices[faces]
+    centre = np.stack([np.bincount(part.repeat(3), tri[..., k].reshape(-1), parts) for k in range(3)], 1)
+    centre /= np.maximum(np.bincount(part, minlength=parts), 1)[:, None] * 3
+    rel = tri - centre[part][:, None, :]
+    volume = np.bincount(part, np.einsum("fi,fi->f", rel[:, 0], np.cross(rel[:, 1], rel[:, 2])), parts)
+    has_faces = np.bincount(part, minlength=parts) > 0  # (unused vertices form parts of their own)
+    closed = has_faces & ~open_part
+    flip = closed & (volume < 0)
+    faces = np.where(flip[part][:, None], faces[:, ::-1], faces)
+    return np.ascontiguousarray(faces), bool(len(faces)) and not open_part.any(), int(flip.sum()), int(closed.sum())
 
 
 def _block_view(a: np.ndarray, s: int) -> np.ndarray:
@@ -300,6 +339,11 @@ def mesh_to_grid(
     say(f"[grid] '{mesh.name}': {len(m.faces):,} faces → grid {dims[0]}×{dims[1]}×{dims[2]}, band ±{threshold:.4f}")
 
     dist = _Distance(m)
+    if dist.flipped:
+        what = (f"'{mesh.name}' is inside out" if dist.flipped == dist.closed_parts == 1
+                else f"{dist.flipped} of the {dist.closed_parts} closed parts of '{mesh.name}' are inside out")
+        warnings.warn(f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
+                      "to tell inside from outside", stacklevel=2)
     out = ShapeGrid(np.zeros(tuple(dims), np.float32), np.empty(0), aabb, threshold, m.normalization, name=mesh.name)
     out.sdf, out.color, sure = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say)
     say(f"[grid] grid done ({time.perf_counter() - t0:.1f} s)")

@@ -100,6 +100,44 @@ def test_block_refinement_equals_a_brute_force_grid(res):
     assert ((w > 0.2) & (w < 0.8)).sum() > 20
 
 
+def test_inside_out_parts_are_turned_round_with_a_warning():
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    right = mesh_to_grid(textured(sphere), 32, n_surface_points=0, progress=False)
+    with pytest.warns(UserWarning, match="'m' is inside out"):
+        inverted = mesh_to_grid(textured(trimesh.Trimesh(sphere.vertices, sphere.faces[:, ::-1])), 32, n_surface_points=0, progress=False)
+    assert (right.sdf < 0).sum() > 1000
+    np.testing.assert_array_equal(inverted.sdf, right.sdf)
+    # several parts: only the closed, inside-out box is flipped; the others keep their inside
+    box = trimesh.creation.box(extents=(0.5, 0.5, 0.5))
+    box.apply_translation([1.5, 0, 0])
+    cup = trimesh.Trimesh(sphere.vertices - [2.5, 0, 0], sphere.faces[sphere.triangles_center[:, 2] < 0.6])  # open
+    scene = trimesh.util.concatenate([sphere, trimesh.Trimesh(box.vertices, box.faces[:, ::-1]), cup])
+    with pytest.warns(UserWarning, match="1 of the 2 closed parts"):
+        g = mesh_to_grid(textured(scene), 64, n_surface_points=0, progress=False)
+    centre = g.to_box(g.normalization.to_normalized(np.array([[1.5, 0, 0], [0, 0, 0], [-2.5, 0, -0.5]])))
+    idx = np.floor((centre + 1) / 2 * np.array(g.shape)).astype(int)
+    assert all(g.sdf[i, j, k] < 0 for i, j, k in idx)  # inside the box, the sphere and the cup's bottom
+
+
+def test_closed_means_every_edge_used_both_ways():
+    from sin3dm_lite.grid import _Distance
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    assert _Distance(textured(sphere)).closed
+    assert not _Distance(textured(trimesh.Trimesh(sphere.vertices, sphere.faces[1:]))).closed  # a hole
+    wrong = sphere.faces.copy()
+    wrong[0] = wrong[0, ::-1]
+    assert not _Distance(textured(trimesh.Trimesh(sphere.vertices, wrong, process=False))).closed  # one face flipped
+    a, b = trimesh.creation.box(), trimesh.creation.box()
+    b.apply_translation([1, 0, 0])  # two cubes sharing a face: still closed surfaces, edges used 4 times
+    assert _Distance(textured(trimesh.util.concatenate([a, b]))).closed
+    # a UV seam (vertices duplicated at the same position) does not open the surface
+    v, f = sphere.vertices, sphere.faces.copy()
+    seam = np.vstack([v, v[f[0]]])
+    f[0] = len(v) + np.arange(3)
+    assert _Distance(textured(trimesh.Trimesh(seam, f, process=False))).closed
+
+
 def test_two_part_mesh_has_both_parts_inside():
     a = trimesh.creation.icosphere(subdivisions=3, radius=0.4)
     b = a.copy()
