@@ -165,11 +165,8 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
     balance = np.bincount(inverse.reshape(-1), np.where(edges[:, 0] < edges[:, 1], 1.0, -1.0))
     open_edge = balance[inverse.reshape(-1)] != 0  # (3F,)
     open_part = np.bincount(part.repeat(3)[open_edge], minlength=parts) > 0
-    tri = vertices[faces]
-    centre = np.stack([np.bincount(part.repeat(3), tri[..., k].reshape(-1), parts) for k in range(3)], 1)
-    centre /= np.maximum(np.bincount(part, minlength=parts), 1)[:, None] * 3
-    rel = tri - centre[part][:, None, :]
-    volume = np.bincount(part, np.einsum("fi,fi->f", rel[:, 0], np.cross(rel[:, 1], rel[:, 2])), parts)
+    tri = vertices[faces]  # a closed part's enclosed volume (× 6) does not depend on the origin
+    volume = np.bincount(part, np.einsum("fi,fi->f", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])), parts)
     has_faces = np.bincount(part, minlength=parts) > 0  # (unused vertices form parts of their own)
     closed = has_faces & ~open_part
     flip = closed & (volume < 0)
@@ -198,7 +195,7 @@ def _tsdf_grid(
     The sign is the fast winding number ``w`` (inside where ``w > ½``). The
     ball of radius ``d`` around a block centre holds no surface, so ``w`` has
     no jump in it and, where it is clearly 0 or 1 at the centre
-    (``|w - ½| > sure``), the whole ball (and so the block when ``d > h``)
+    (``|w - ½| > sure_margin``), the whole ball (and so the block when ``d > h``)
     shares the centre's sign: children inherit it instead of paying for their
     own winding number. Near a hole ``w`` drifts smoothly through ½ (that is
     how it closes holes); there blocks keep splitting, for the sign only,
@@ -283,16 +280,16 @@ def _signs_from_grid(p, d, grid_sdf, sure, lo, vs, closed: bool):
     return resolved, inside
 
 
-def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float, grid=None):
+def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float, grid: tuple):
     """Exact truncated SDF and colour (0 outside the band) at arbitrary points.
 
-    With ``grid = (sdf, sure, lo, voxel_size, closed)`` from :func:`_tsdf_grid`
-    and :meth:`_Distance.closed`, most signs come from the voxels around each
-    point and only the rest pay for a winding number.
+    ``grid = (sdf, sure, lo, voxel_size)`` from :func:`_tsdf_grid`: most signs
+    come from the voxels around each point and only the rest pay for a
+    winding number.
     """
     p = np.ascontiguousarray(p, dtype=np.float64)
     d, fi, bc = dist.closest(p)
-    resolved, inside = (np.zeros(len(p), bool), np.zeros(len(p), bool)) if grid is None else _signs_from_grid(p, d, *grid)
+    resolved, inside = _signs_from_grid(p, d, *grid, closed=dist.closed)
     inside[~resolved] = dist.winding(p[~resolved]) > 0.5
     sdf = (np.where(inside, -1.0, 1.0) * np.minimum(d, threshold)).astype(np.float32)
     col = np.zeros((len(p), 3), np.float32)
@@ -344,8 +341,8 @@ def mesh_to_grid(
                 else f"{dist.flipped} of the {dist.closed_parts} closed parts of '{mesh.name}' are inside out")
         warnings.warn(f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
                       "to tell inside from outside", stacklevel=2)
-    out = ShapeGrid(np.zeros(tuple(dims), np.float32), np.empty(0), aabb, threshold, m.normalization, name=mesh.name)
-    out.sdf, out.color, sure = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say)
+    sdf, color, sure = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say)
+    out = ShapeGrid(sdf, color, aabb, threshold, m.normalization, name=mesh.name)
     say(f"[grid] grid done ({time.perf_counter() - t0:.1f} s)")
 
     # training points near the surface
@@ -354,7 +351,7 @@ def mesh_to_grid(
         sp, _, _ = m.surface_points(n_surface_points, rng)
         sp = sp + rng.normal(scale=near_surface_sigma, size=sp.shape)
         sp = np.clip(sp, aabb[:3], aabb[3:])
-        ps, pc = _point_tsdf(dist, m, sp, threshold, grid=(out.sdf, sure, aabb[:3].astype(np.float64), vs, dist.closed))
+        ps, pc = _point_tsdf(dist, m, sp, threshold, grid=(sdf, sure, aabb[:3].astype(np.float64), vs))
         out.points, out.point_sdf, out.point_color = sp.astype(np.float32), ps, pc
     say(f"[grid] done in {time.perf_counter() - t0:.1f} s: {int((np.abs(out.sdf) < threshold).sum()):,} voxels in the band")
     return out
