@@ -18,8 +18,8 @@ Shapes (grid ``X × Y × Z``, latent ``X' = X/2`` etc.)::
 """
 from __future__ import annotations
 
-import math
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,7 +29,9 @@ import torch.nn.functional as F
 
 from .config import AutoencoderConfig
 from .device import get_device
+from .extract import decode_grid
 from .grid import ShapeGrid
+from .metrics import iou
 from .triplane import Triplane
 
 
@@ -334,36 +336,24 @@ def fit_autoencoder(grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: 
 
 
 # --------------------------------------------------------------------------- evaluation
-@torch.no_grad()
-def decode_at_voxels(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid, chunk: int = 1 << 16):
-    """Decode SDF and colour at every voxel centre of ``grid`` (same box): ``(sdf (X,Y,Z), color (X,Y,Z,K))``."""
-    device = next(decoder.parameters()).device
-    prep = decoder.prepare(h[:1].to(device))
-    pts = torch.from_numpy(grid.to_box(grid.voxel_centers().reshape(-1, 3))).to(device)
-    sdf, col = [], []
-    for a in range(0, len(pts), chunk):
-        s, c = decoder.query(prep, pts[a : a + chunk][None])
-        sdf.append(s[0].cpu())
-        col.append(c[0].cpu())
-    k = grid.color.shape[-1]
-    return torch.cat(sdf).numpy().reshape(grid.shape), torch.cat(col).numpy().reshape(*grid.shape, k)
-
-
 def reconstructed_grid(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid, name: str = "reconstruction") -> ShapeGrid:
     """The grid the latent ``h`` describes: decoded SDF and colour at every voxel of ``grid``.
 
     Same box, threshold and normalisation as ``grid`` (so the two can be shown
-    and compared slice by slice), no training points.
+    and compared slice by slice, and scored by :func:`reconstruction_metrics`),
+    no training points. Decodes every voxel (``extract.decode_grid`` without
+    its coarse-to-fine shortcut).
     """
-    sdf, color = decode_at_voxels(decoder, h, grid)
+    sdf, color = decode_grid(decoder, h[:1], grid.aabb, max(grid.shape), with_color=True, coarse=None)
+    assert sdf.shape == grid.shape, (sdf.shape, grid.shape)  # a ShapeGrid box is ±n_axis / n_max
     return dataclasses.replace(
         grid, sdf=sdf, color=color, name=name,
         points=np.zeros((0, 3), np.float32), point_sdf=np.zeros(0, np.float32), point_color=np.zeros((0, 3), np.float32),
     )
 
 
-def reconstruction_metrics(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid) -> dict[str, float]:
-    """How well the latent + decoder reproduce the input grid.
+def reconstruction_metrics(reconstruction: ShapeGrid, grid: ShapeGrid) -> dict[str, float]:
+    """How well a reconstruction (see :func:`reconstructed_grid`) reproduces the input grid.
 
     * ``sign_accuracy``: share of voxels where the decoded SDF has the input's sign;
     * ``occupancy_iou``: IoU of the inside voxels (SDF < 0);
@@ -373,7 +363,7 @@ def reconstruction_metrics(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGri
       centres (a block filling its box) has thousands of them;
     * ``color_l1`` / ``color_psnr``: colour error on voxels within the truncation band.
     """
-    sdf, col = decode_at_voxels(decoder, h, grid)
+    sdf, col = reconstruction.sdf, reconstruction.color
     gt_in, pr_in = grid.sdf < 0, sdf < 0
     clear = np.abs(grid.sdf) >= 0.25 * grid.voxel_size
     band = np.abs(grid.sdf) < grid.threshold
@@ -381,13 +371,8 @@ def reconstruction_metrics(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGri
     mse = float((err**2).mean()) if band.any() else float("nan")
     return {
         "sign_accuracy": float((gt_in == pr_in).mean()),
-        "occupancy_iou": _iou(gt_in, pr_in),
-        "occupancy_iou_quarter_voxel": _iou(gt_in[clear], pr_in[clear]),
+        "occupancy_iou": iou(gt_in, pr_in),
+        "occupancy_iou_quarter_voxel": iou(gt_in[clear], pr_in[clear]),
         "color_l1": float(np.abs(err).mean()) if band.any() else float("nan"),
         "color_psnr": float(10 * math.log10(1.0 / max(mse, 1e-12))),
     }
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    union = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum() / union) if union else 1.0

@@ -73,12 +73,6 @@ def to_box(points: np.ndarray, aabb) -> np.ndarray:
     return 2 * (np.asarray(points, np.float64) - box[:3]) / (box[3:] - box[:3]) - 1
 
 
-def from_box(points: np.ndarray, aabb) -> np.ndarray:
-    """Box coordinates in [-1, 1] → normalised coordinates."""
-    box = as_aabb(aabb)
-    return (np.asarray(points, np.float64) + 1) / 2 * (box[3:] - box[:3]) + box[:3]
-
-
 def _module_device(module) -> torch.device:
     try:
         return next(module.parameters()).device
@@ -758,7 +752,6 @@ __all__ = [
     "component_labels",
     "decode_grid",
     "extract_mesh",
-    "from_box",
     "grid_points_box",
     "grid_shape",
     "keep_components",

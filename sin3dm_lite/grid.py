@@ -72,10 +72,6 @@ class ShapeGrid:
         lo, hi = self.aabb[:3], self.aabb[3:]
         return (2 * (np.asarray(points) - lo) / (hi - lo) - 1).astype(np.float32)
 
-    def from_box(self, points: np.ndarray) -> np.ndarray:
-        lo, hi = self.aabb[:3], self.aabb[3:]
-        return ((np.asarray(points) + 1) / 2 * (hi - lo) + lo).astype(np.float32)
-
 
 # --------------------------------------------------------------------------- building
 def grid_dims(extent: np.ndarray, resolution: int) -> tuple[int, int, int]:

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .autoencoder import AutoencoderTrainer, TriplaneDecoder, reconstruction_metrics
+from .autoencoder import AutoencoderTrainer, TriplaneDecoder, reconstructed_grid, reconstruction_metrics
 from .config import Config, get_preset
 from .device import get_device
 from .errors import Sin3DMInputError
@@ -159,7 +159,7 @@ class Sin3DM:
         ae = AutoencoderTrainer(grid, cfg.autoencoder, dev, cfg.seed)
         _train(ae, run / "autoencoder.pt" if run else None, cfg.checkpoint_every, progress, "autoencoder", say)
         h0 = ae.latent()
-        metrics = reconstruction_metrics(ae.model.decoder, h0, grid)
+        metrics = reconstruction_metrics(reconstructed_grid(ae.model.decoder, h0, grid), grid)
         timings["autoencoder_s"] = time.perf_counter() - t0
         say("[fit] reconstruction: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
 
