@@ -43,7 +43,7 @@ import numpy as np
 import torch
 
 from .errors import Sin3DMInputError
-from .mesh_io import Material, Normalization, TexturedMesh
+from .mesh_io import Material, Normalization, TexturedMesh, component_labels
 from .triplane import Triplane
 
 
@@ -444,18 +444,6 @@ def remove_unused_vertices(verts: np.ndarray, faces: np.ndarray):
     return verts[used], new_index[faces].astype(np.int64)
 
 
-def component_labels(n_verts: int, faces: np.ndarray) -> np.ndarray:
-    """Connected-component label of every face (faces sharing a vertex are connected)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    rows = faces.ravel()
-    cols = faces[:, [1, 2, 0]].ravel()
-    graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n_verts, n_verts))
-    _, labels = connected_components(graph, directed=False)
-    return labels[faces[:, 0]]
-
-
 def keep_components(verts: np.ndarray, faces: np.ndarray, mode: str = "all", min_faces: int = 0):
     """Keep connected pieces of the mesh.
 
@@ -466,6 +454,8 @@ def keep_components(verts: np.ndarray, faces: np.ndarray, mode: str = "all", min
     """
     if mode not in ("all", "largest"):
         raise Sin3DMInputError(f"components must be 'all' or 'largest', got {mode!r}")
+    if mode == "all" and min_faces <= 0:  # keeps everything: no need to label the pieces
+        return remove_unused_vertices(verts, faces)
     labels = component_labels(len(verts), faces)
     sizes = np.bincount(labels)
     keep = np.zeros(len(sizes), bool)
@@ -681,8 +671,9 @@ def extract_mesh(decoder, triplane: Triplane, aabb, normalization: Normalization
         coarse: coarse-to-fine SDF decode (see :func:`decode_grid`; ``None``
             decodes every voxel, same mesh, slower).
         return_steps: also return a dict of intermediates: ``sdf``, ``raw``
-            (verts, faces), ``simplified`` (verts, faces), ``component_sizes``,
-            ``uv`` (uvs, faces), ``vmapping``, ``texture``, ``covered`` (texture path only),
+            (verts, faces), ``simplified`` (verts, faces), ``uv`` (uvs, faces),
+            ``vmapping``, ``baked`` (the texture before :func:`pad_gutter`), ``texture``,
+            ``covered`` (texture path only),
             ``seconds`` (time per step), ``decode_stats`` (points decoded, see
             :func:`decode_grid`) and ``normalization``.
     Returns:
@@ -707,7 +698,7 @@ def extract_mesh(decoder, triplane: Triplane, aabb, normalization: Normalization
     steps["decode_stats"] = decode_stats
     v, f = marching_cubes(sdf, box)
     lap("marching_cubes")
-    steps.update(sdf=sdf, raw=(v, f), component_sizes=np.sort(np.bincount(component_labels(len(v), f)))[::-1])
+    steps.update(sdf=sdf, raw=(v, f))
     v, f = keep_components(v, f, mode=components, min_faces=min_component_faces)
     lap("keep_components")
     v, f = simplify(v, f, faces)
@@ -727,7 +718,7 @@ def extract_mesh(decoder, triplane: Triplane, aabb, normalization: Normalization
         lap("bake_texture")
         texture = pad_gutter(image[..., :3], covered)
         lap("pad_gutter")
-        steps.update(uv=(uvs, faces_uv), vmapping=vmapping, texture=texture, covered=covered)
+        steps.update(uv=(uvs, faces_uv), vmapping=vmapping, baked=image, texture=texture, covered=covered)
         material = Material(name="baked", base_color=np.ones(4, np.float32), image=texture)
         # keep the welded vertices (watertight); the seams live in the per-corner UVs
         mesh = TexturedMesh(v, f, np.zeros(len(f), np.int64), [material], face_uvs=uvs[faces_uv])

@@ -18,7 +18,7 @@ import point_cloud_utils as pcu
 
 from .errors import Sin3DMInputError
 from .files import atomic_path
-from .mesh_io import Normalization, TexturedMesh, _unique_rows
+from .mesh_io import Normalization, TexturedMesh, _unique_rows, component_labels
 
 
 @dataclass
@@ -145,16 +145,12 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
     Returns ``(faces, closed, flipped, closed_parts)``: the faces, whether the
     whole mesh is closed, how many parts were flipped and how many are closed.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     _, weld = _unique_rows(vertices)  # vertices split at UV seams are one point here
     fw = weld[faces]
-    n = int(fw.max()) + 1 if len(fw) else 0
+    n = int(fw.max()) + 1
+    part = component_labels(n, fw)  # (F,) the part of every face
+    parts = int(part.max()) + 1
     edges = fw[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    parts, label = connected_components(graph, directed=False)
-    part = label[fw[:, 0]]  # (F,) the part of every face
     # a closed, consistently wound surface uses every edge as often a → b as b → a
     key = np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
     _, inverse = np.unique(key, return_inverse=True)
@@ -163,11 +159,11 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
     open_part = np.bincount(part.repeat(3)[open_edge], minlength=parts) > 0
     tri = vertices[faces]  # a closed part's enclosed volume (× 6) does not depend on the origin
     volume = np.bincount(part, np.einsum("fi,fi->f", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])), parts)
-    has_faces = np.bincount(part, minlength=parts) > 0  # (unused vertices form parts of their own)
+    has_faces = np.bincount(part, minlength=parts) > 0  # (labels of vertices without faces are skipped)
     closed = has_faces & ~open_part
     flip = closed & (volume < 0)
     faces = np.where(flip[part][:, None], faces[:, ::-1], faces)
-    return np.ascontiguousarray(faces), bool(len(faces)) and not open_part.any(), int(flip.sum()), int(closed.sum())
+    return np.ascontiguousarray(faces), not open_part.any(), int(flip.sum()), int(closed.sum())
 
 
 def _block_view(a: np.ndarray, s: int) -> np.ndarray:

@@ -213,6 +213,18 @@ class TexturedMesh:
         return m
 
 
+def component_labels(n_verts: int, faces: np.ndarray) -> np.ndarray:
+    """Connected-component label of every face (faces sharing a vertex are connected)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rows = faces.ravel()
+    cols = faces[:, [1, 2, 0]].ravel()
+    graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n_verts, n_verts))
+    _, labels = connected_components(graph, directed=False)
+    return labels[faces[:, 0]]
+
+
 def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear lookup of ``image`` ``(h, w[, c])`` at ``uv`` ``(n, 2)``: ``(n[, c])`` float32.
 
