@@ -34,7 +34,7 @@ from .config import Config, get_preset
 from .device import get_device
 from .errors import Sin3DMInputError
 from .files import atomic_path, atomic_write
-from .grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
+from .grid import load_grid, mesh_to_grid, save_grid
 from .mesh_io import Normalization, TexturedMesh
 from .triplane import Triplane
 
@@ -95,8 +95,6 @@ class Sin3DM:
         aabb: np.ndarray,
         normalization: Normalization,
         report: dict | None = None,
-        grid: ShapeGrid | None = None,
-        run_dir: Path | None = None,
         device=None,
     ):
         from .diffusion import NoiseSchedule
@@ -109,10 +107,7 @@ class Sin3DM:
         self.aabb = np.asarray(aabb, np.float32)
         self.normalization = normalization
         self.report = report or {}
-        self.grid = grid
-        self.run_dir = run_dir
-        d = config.diffusion
-        self.schedule = NoiseSchedule(d.timesteps, d.beta_start, d.beta_end)
+        self.schedule = NoiseSchedule.from_config(config.diffusion)
 
     # ------------------------------------------------------------------ fit
     @classmethod
@@ -181,7 +176,7 @@ class Sin3DM:
             "timings_s": timings,
             "device": str(dev),
         }
-        model = cls(cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, report, grid, run, dev)
+        model = cls(cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, report, dev)
         if run is not None:
             model.save(run)
             atomic_write(run / "losses.json", json.dumps({"autoencoder": ae.history, "diffusion": dm.history}))
@@ -319,9 +314,8 @@ class Sin3DM:
         decoder.load_state_dict(b["decoder"])
         denoiser = TriplaneUNet(latent.channels, cfg.diffusion)
         denoiser.load_state_dict(b["denoiser"])
-        grid = load_grid(path.parent / "grid.npz") if (path.parent / "grid.npz").exists() else None
         norm = Normalization(center=b["center"].numpy(), scale=float(b["scale"]))
-        return cls(cfg, decoder, latent, denoiser, b["aabb"].numpy(), norm, json.loads(b["report"]), grid, path.parent, device)
+        return cls(cfg, decoder, latent, denoiser, b["aabb"].numpy(), norm, json.loads(b["report"]), device)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -353,14 +347,21 @@ def _train(trainer, ckpt: Path | None, every: int, progress: bool, label: str, s
     last finished step has been written, so a resumed run loses no work and
     never starts from a half-applied optimiser step.
     """
+    saved = {"step": None}  # the step the checkpoint file holds
     if ckpt is not None and ckpt.exists():
         trainer.load_state_dict(load_checkpoint(ckpt))
+        saved["step"] = trainer.step_count
         say(f"[fit] {label}: resumed at step {trainer.step_count}")
     stop = {"asked": False}
 
-    def checkpoint(tr) -> None:
-        if ckpt is not None and (tr.step_count % every == 0 or stop["asked"]):
+    def save(tr) -> None:
+        if ckpt is not None and saved["step"] != tr.step_count:
             atomic_torch_save(tr.state_dict(), ckpt)
+            saved["step"] = tr.step_count
+
+    def checkpoint(tr) -> None:
+        if tr.step_count % every == 0 or stop["asked"]:
+            save(tr)
         if stop["asked"]:
             say(f"\n[fit] {label}: interrupted at step {tr.step_count}; checkpoint saved, continue with --resume")
             raise KeyboardInterrupt
@@ -375,5 +376,4 @@ def _train(trainer, ckpt: Path | None, every: int, progress: bool, label: str, s
     finally:
         if main:
             signal.signal(signal.SIGINT, old)
-    if ckpt is not None:
-        atomic_torch_save(trainer.state_dict(), ckpt)
+    save(trainer)  # the last step, unless the callback just wrote it

@@ -108,6 +108,24 @@ def test_interrupted_fit_resumes_to_the_same_result(fitted, tmp_path, monkeypatc
     assert resumed.report["autoencoder_steps"] == 30
 
 
+def test_checkpoints_are_written_once_per_step(tmp_path, monkeypatch):
+    from sin3dm_lite import pipeline
+
+    writes = []
+    real = pipeline.atomic_torch_save
+    monkeypatch.setattr(pipeline, "atomic_torch_save", lambda obj, path: (writes.append(path.name), real(obj, path)))
+    cfg = micro_config().updated(checkpoint_every=20)  # 30 steps: at step 20, then the last one
+    Sin3DM.fit("wall", preset=cfg, out=tmp_path / "run", progress=False)
+    assert writes == ["autoencoder.pt"] * 2 + ["diffusion.pt"] * 2 + ["model.pt"]
+    writes.clear()
+    cfg = micro_config()  # every 10 steps: the last checkpoint is the last step, not written again
+    Sin3DM.fit("wall", preset=cfg, out=tmp_path / "run10", progress=False)
+    assert writes == ["autoencoder.pt"] * 3 + ["diffusion.pt"] * 3 + ["model.pt"]
+    writes.clear()
+    Sin3DM.fit("wall", preset=cfg, out=tmp_path / "run10", resume=True, progress=False)  # nothing left to train
+    assert writes == ["model.pt"]
+
+
 def test_run_folder_errors(fitted, tmp_path):
     _, run = fitted
     with pytest.raises(Sin3DMInputError, match="--resume"):
