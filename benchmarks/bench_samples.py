@@ -42,11 +42,12 @@ def evaluate(model: Sin3DM, n: int, seed: int = 0, resolution: int = 128, export
         t_mesh.append(time.perf_counter() - t)
         vox.append(metrics.voxelize(mesh, samples.aabb, resolution))
     lp = metrics.lp_scores(ref, vox)
+    var = metrics.variation_scores(ref, vox)
     return {
         "sample_s": t_sample,
         "mesh_export_s": float(np.mean(t_mesh)),
-        "g_div": metrics.g_div(vox),
-        "iou_to_input": float(np.mean([metrics.iou(v, ref) for v in vox])),
+        "g_div": var["g_div"],
+        "iou_to_input": var["iou_to_input"],
         "lp_iou": lp["lp_iou"],
         "lp_f": lp["lp_fscore"],
     }

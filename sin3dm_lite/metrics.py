@@ -120,6 +120,18 @@ def g_div(grids) -> float:
     return float(np.mean(1.0 - m[i, j]))
 
 
+def variation_scores(reference: np.ndarray, samples) -> dict:
+    """How far samples stray from the input and from each other (occupancy grids in one box).
+
+    Returns ``iou_to_input`` (mean IoU of each sample with ``reference``: near 1
+    means copies of the input), ``per_sample_iou`` (the list) and ``g_div``
+    (:func:`g_div` of the samples; needs at least two).
+    """
+    samples = list(samples)
+    per = [iou(s, reference) for s in samples]
+    return {"iou_to_input": float(np.mean(per)), "per_sample_iou": per, "g_div": g_div(samples)}
+
+
 def reconstruction_iou(mesh_a, mesh_b, aabb, resolution: int = 128) -> float:
     """IoU of two meshes voxelised in the same box (e.g. the input and its autoencoder reconstruction)."""
     return iou(voxelize(mesh_a, aabb, resolution), voxelize(mesh_b, aabb, resolution))
@@ -233,5 +245,6 @@ __all__ = [
     "lp_scores",
     "pairwise_iou",
     "reconstruction_iou",
+    "variation_scores",
     "voxelize",
 ]
