@@ -256,7 +256,7 @@ class AutoencoderTrainer:
         self.device = get_device(device)
         torch.manual_seed(seed)  # weight initialisation
         self.model = TriplaneAutoencoder(cfg, grid.shape, grid.threshold, grid.color.shape[-1]).to(self.device)
-        self.grid_t = grid_tensor(grid, self.device)
+        self.grid_t = grid_tensor(grid, self.device) if cfg.use_encoder else None  # the auto-decoder never reads it
         self.sampler = PointSampler(grid, self.device)
         geo, tex = self.model.param_groups()
         self.opt = torch.optim.AdamW([{"params": geo, "lr": cfg.lr_geo}, {"params": tex, "lr": cfg.lr_tex}])
@@ -283,9 +283,10 @@ class AutoencoderTrainer:
         self.opt.step()
         self.sched.step()
         self.step_count += 1
-        for k, v in (("loss", loss), ("sdf", l_sdf), ("color", l_col)):
-            self.history[k].append(float(v.detach()))
-        return float(loss.detach())
+        values = torch.stack([loss, l_sdf, l_col]).detach().tolist()  # one device sync, not three
+        for k, v in zip(("loss", "sdf", "color"), values):
+            self.history[k].append(v)
+        return values[0]
 
     def run(self, until_step: int | None = None, progress: bool = True, callback=None) -> dict[str, list[float]]:
         """Train from the current step to ``until_step`` (default: ``cfg.steps``)."""
