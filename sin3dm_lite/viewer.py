@@ -32,7 +32,7 @@ import k3d
 import numpy as np
 
 from .files import atomic_write
-from .mesh_io import TexturedMesh
+from .mesh_io import TexturedMesh, _baked_image, _split_corners, _unique_rows
 
 UP_AXES = ("y", "z")
 
@@ -80,12 +80,6 @@ def new_plot(**kwargs) -> k3d.Plot:
     return k3d.plot(**opts)
 
 
-def _unique_rows(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unique rows of a 2D array and, for every input row, the index of its unique row."""
-    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
-    return uniq, inverse.reshape(-1)
-
-
 # --------------------------------------------------------------------------- mesh → arrays
 def _texture_arrays(mesh: TexturedMesh):
     """Per-vertex (position, uv) arrays for a mesh drawn with one texture, or None when it can't be.
@@ -102,13 +96,8 @@ def _texture_arrays(mesh: TexturedMesh):
     mat = mesh.materials[int(used[0])]
     if mat.image is None or not np.isfinite(mesh.face_uvs).all():
         return None
-    corner_vertex = np.asarray(mesh.faces, np.int64).reshape(-1)
-    corner_uv = np.asarray(mesh.face_uvs, np.float64).reshape(-1, 2)
-    uniq, inverse = _unique_rows(np.column_stack([corner_vertex, corner_uv]))
-    vertices = np.asarray(mesh.vertices)[uniq[:, 0].astype(np.int64)]
-    uvs = uniq[:, 1:]
-    image = np.clip(np.asarray(mat.image, np.float32)[..., :3] * np.asarray(mat.base_color, np.float32)[:3], 0, 1)
-    return vertices, inverse.reshape(-1, 3), uvs, image
+    vertex_of, uvs, faces = _split_corners(np.asarray(mesh.faces), np.asarray(mesh.face_uvs))
+    return np.asarray(mesh.vertices)[vertex_of], faces, uvs, _baked_image(mat)[..., :3]
 
 
 def _color_arrays(mesh: TexturedMesh):
@@ -118,9 +107,8 @@ def _color_arrays(mesh: TexturedMesh):
     bc = np.tile(np.eye(3), (n_faces, 1))
     packed = pack_colors(mesh.colors_at(fi, bc))
     corner_vertex = np.asarray(mesh.faces, np.int64).reshape(-1)
-    uniq, inverse = _unique_rows(np.column_stack([corner_vertex, packed.astype(np.int64)]))
-    vertices = np.asarray(mesh.vertices)[uniq[:, 0]]
-    return vertices, inverse.reshape(-1, 3), uniq[:, 1].astype(np.uint32)
+    first, inverse = _unique_rows(np.column_stack([corner_vertex, packed.astype(np.int64)]))
+    return np.asarray(mesh.vertices)[corner_vertex[first]], inverse.reshape(-1, 3), packed[first].astype(np.uint32)
 
 
 def _trimesh_arrays(mesh, texture: bool):
