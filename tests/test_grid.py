@@ -195,6 +195,10 @@ def test_save_load_round_trip(tmp_path):
     np.testing.assert_array_equal(g.aabb, h.aabb)
     assert h.threshold == pytest.approx(g.threshold)
     np.testing.assert_allclose(h.normalization.center, g.normalization.center)
+    assert h.normalization.scale == g.normalization.scale and h.name == g.name == "m"
+    assert len(h.points) == 100
+    for a, b in [(g.points, h.points), (g.point_sdf, h.point_sdf), (g.point_color, h.point_color)]:
+        np.testing.assert_array_equal(a, b)
     assert list(tmp_path.iterdir()) == [path]  # no temp file left behind
 
 
