@@ -87,10 +87,15 @@ def test_triplane_channel_explorer():
     panel = sw.triplane_channel_explorer(tp)
     c = panel.controls
     assert set(c) == {"mode", "channel", "batch"} and c["channel"].max == 3 and c["batch"].max == 1
-    with panel.hold():  # two changes, one redraw (checked through the result)
+    renders = []
+    draw = panel._render
+    panel._render = lambda **v: (renders.append(v), draw(**v))[1]
+    with panel.hold():  # two changes, no redraw ...
         c["mode"].value = "channel"
         c["batch"].value = 1
-    c["channel"].value = 2
+    assert renders == []
+    c["channel"].value = 2  # ... until the next one, which draws all three
+    assert renders == [{"mode": "channel", "channel": 2, "batch": 1}]
     np.testing.assert_allclose(image_of(panel.last_figure, 1), plane_to_image(tp.xz[1], 2).swapaxes(0, 1), atol=1e-6)
     assert "channel 2" in [ax for ax in panel.last_figure.axes if ax.images][1].get_title()
 
