@@ -815,7 +815,7 @@ def _obj_faces(path, rows: list[str], info: np.ndarray, line_of):
         return empty, empty, np.zeros(0, np.int64)
     joined = " ".join(rows)
     tokens = joined.split()
-    if len(tokens) == 3 * len(rows):  # every line has exactly three corners
+    if len(tokens) == 3 * len(rows) and all(len(r.split()) == 3 for r in rows):  # three corners on every line
         if len({t.count("/") for t in tokens}) == 1:  # one index layout: v, v/vt, v//vn or v/vt/vn
             try:
                 nums = np.array(joined.replace("//", "/0/").replace("/", " ").split(), dtype=np.int64)

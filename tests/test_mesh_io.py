@@ -265,6 +265,13 @@ def test_obj_dialects(tmp_path):
     assert mesh.materials[1].base_color[3] == pytest.approx(0.75)
 
 
+def test_obj_face_lines_of_different_lengths(tmp_path):
+    """A 2-index line (dropped) and a quad: 6 indices on 2 lines must not be read as two triangles."""
+    (tmp_path / "mix.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2\nf 1 2 3 4\n")
+    mesh = load_mesh(tmp_path / "mix.obj")
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 2, 3]])  # the quad, fan-triangulated
+
+
 def test_obj_uv_scale_option(tmp_path):
     save_png(tmp_path / "t.png", quadrant_image())
     (tmp_path / "s.mtl").write_text("newmtl m\nmap_Kd -s 0.5 0.5 t.png\n")
@@ -651,10 +658,19 @@ def test_save_glb_failure_leaves_nothing(tmp_path, monkeypatch):
     mesh = load_mesh(write_square(tmp_path))
     out_dir = tmp_path / "out"
     out_dir.mkdir()
-    monkeypatch.setattr(trimesh.Scene, "export", lambda *a, **k: (_ for _ in ()).throw(OSError("nope")))
-    with pytest.raises(OSError):
+    partial = []
+
+    def write_half_then_fail(self, data):  # the disk fills up halfway through the write
+        with open(self, "wb") as f:
+            f.write(data[: len(data) // 2])
+        partial.append(self.stat().st_size)
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Path, "write_bytes", write_half_then_fail)  # what files.atomic_write uses
+    with pytest.raises(OSError, match="disk full"):
         save_glb(mesh, out_dir / "x.glb")
-    assert list(out_dir.iterdir()) == []
+    assert partial and partial[0] > 0  # half a file did reach the disk ...
+    assert list(out_dir.iterdir()) == []  # ... and was removed
 
 
 def test_writers_check_suffix(tmp_path):
