@@ -10,7 +10,9 @@ from sin3dm_lite.diffusion import (
     DiffusionTrainer,
     NoiseSchedule,
     ddim_timesteps,
+    diffusion_loss,
     fit_diffusion,
+    predict_clean,
     sample,
     soft_mask,
 )
@@ -70,6 +72,23 @@ def test_loss_decreases_on_a_tiny_fit(h0):
     assert not model.training
 
 
+@pytest.mark.parametrize("prediction", ["eps", "x0"])
+def test_an_oracle_model_has_zero_loss_and_gives_back_x0(h0, prediction):
+    s = NoiseSchedule()
+    x0 = h0.repeat(3)
+    t = torch.tensor([0, 500, 999])
+    noise = Triplane.randn_like(x0, torch.Generator().manual_seed(0))
+    answer = noise if prediction == "eps" else x0
+
+    def oracle(x, step):  # always predicts the training target exactly
+        return answer
+
+    assert diffusion_loss(oracle, s, x0, t, noise, prediction).item() == 0
+    x_t = s.q_sample(x0, t, noise)
+    clean = predict_clean(oracle, s, x_t, t, prediction, clip=False)
+    assert all(torch.allclose(a, b, atol=1e-4) for a, b in zip(clean.planes, x0.planes))
+
+
 def test_eps_prediction_trains(h0):
     trainer = DiffusionTrainer(h0, tiny_cfg(prediction="eps", steps=5), device="cpu")
     trainer.run(progress=False)
@@ -110,11 +129,12 @@ def test_resume_is_bit_identical_and_checkpoints_load_weights_only(h0):
 
 
 def test_model_for_sampling_is_ema_or_raw(h0):
-    with_ema = DiffusionTrainer(h0, tiny_cfg(ema_decay=0.5, steps=2), device="cpu")
-    with_ema.run(progress=False)
+    with_ema = DiffusionTrainer(h0, tiny_cfg(ema_decay=0.9, steps=2), device="cpu")
+    before = [p.detach().clone() for p in with_ema.model.parameters()]  # the EMA starts as a copy
+    with_ema.step()
     assert with_ema.model_for_sampling is with_ema.ema
-    a, b = with_ema.ema.in_conv.convs[0].weight, with_ema.model.in_conv.convs[0].weight
-    assert not torch.equal(a, b)
+    for ema, w0, w1 in zip(with_ema.ema.parameters(), before, with_ema.model.parameters()):
+        assert torch.allclose(ema, 0.9 * w0 + 0.1 * w1)  # ema = decay·ema + (1 - decay)·new weights
     raw = DiffusionTrainer(h0, tiny_cfg(steps=2), device="cpu")
     assert raw.ema is None and raw.model_for_sampling is raw.model and not raw.model.training
     assert raw.scheduler.get_last_lr()[0] == pytest.approx(2e-3)

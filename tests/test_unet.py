@@ -70,7 +70,7 @@ def test_resblock_shapes_and_identity_at_init(res):
     emb = torch.randn(2, 32)
     x = Triplane.randn(2, 8, res)
     same = TriplaneResBlock(8, 8, 32)
-    assert torch.equal(same(x, emb).xy, x.xy)  # zero-initialised last conv: identity
+    assert all(torch.equal(p, q) for p, q in zip(same(x, emb).planes, x.planes))  # zero-init last conv: identity
     wider = TriplaneResBlock(8, 12, 32)
     assert shapes(wider(x, emb)) == expected(2, 12, res)
 
@@ -100,7 +100,10 @@ def test_unet_trains_through_every_block():
         opt.zero_grad()
         sum((p - 1).square().mean() for p in net(x, torch.tensor([5, 50])).planes).backward()
         opt.step()
-    assert net.down[0].conv2.convs[0].weight.abs().sum() > 0 and net.mid[0].conv2.convs[0].weight.abs().sum() > 0
+    blocks = [*net.down, *net.mid, *net.up]
+    assert len(blocks) == 4
+    # every zero-initialised conv (all three planes of each block's conv2) has moved off zero
+    assert all(conv.weight.abs().sum() > 0 for blk in blocks for conv in blk.conv2.convs)
 
 
 def test_paper_unet_has_about_7m_parameters():
