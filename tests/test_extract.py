@@ -294,14 +294,21 @@ def test_rasterize_triangles_counts_pixel_centres():
 
 
 def test_pad_gutter_fills_near_islands_and_rest_with_mean():
+    red, blue = np.array([1.0, 0, 0]), np.array([0, 0, 1.0])
     img = np.zeros((32, 32, 3), np.float32)
     covered = np.zeros((32, 32), bool)
-    covered[4:10, 4:10] = True
-    img[4:10, 4:10] = [1.0, 0.5, 0.25]
+    covered[4:8, 4:8], img[4:8, 4:8] = True, red  # 16 red texels
+    covered[18:24, 18:24], img[18:24, 18:24] = True, blue  # 36 blue texels
+    mean = (16 * red + 36 * blue) / 52
     out = ex.pad_gutter(img, covered, pixels=3)
-    np.testing.assert_allclose(out[1:13, 1:13], np.broadcast_to([1.0, 0.5, 0.25], (12, 12, 3)))
-    np.testing.assert_allclose(out[31, 31], [1.0, 0.5, 0.25])  # far texels: mean colour, never black
-    assert out.min() > 0
+    np.testing.assert_array_equal(out[covered], img[covered])
+    np.testing.assert_allclose(out[5, 10], red)  # 3 texels right of the red island
+    np.testing.assert_allclose(out[21, 15], blue)  # 3 texels left of the blue one
+    np.testing.assert_allclose(out[5, 11], mean, rtol=1e-6)  # 4 texels away: the mean colour, never black
+    np.testing.assert_allclose(out[10, 10], mean, rtol=1e-6)  # √18 ≈ 4.2 from the red island's corner
+    everywhere = ex.pad_gutter(img, covered, pixels=None)
+    np.testing.assert_allclose(everywhere[12, 12], red)  # √50 from red, √72 from blue
+    np.testing.assert_allclose(everywhere[13, 13], blue)  # √72 from red, √50 from blue
 
 
 def test_extract_mesh_textured_steps_and_colours():
