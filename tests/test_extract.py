@@ -325,6 +325,9 @@ def test_extract_mesh_textured_steps_and_colours():
     assert mesh.has_texture and mesh.materials[0].image.shape == (256, 256, 3)
     assert steps["covered"].mean() > 0.3
     tex = mesh.materials[0].image
+    # the texture is the baked image, its gutter filled: covered texels unchanged
+    np.testing.assert_array_equal(tex[steps["covered"]], steps["baked"][steps["covered"]][:, :3])
+    assert not steps["baked"][~steps["covered"]].any()
     assert tex.std(axis=(0, 1)).min() > 0.05  # not constant
     # gutter: no black texel right next to an island
     from scipy import ndimage

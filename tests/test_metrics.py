@@ -139,3 +139,13 @@ def test_reconstruction_iou_of_a_mesh_with_itself():
     shifted = m.copy()
     shifted.apply_translation([0.25, 0, 0])  # exactly 4 voxels of 16 along x: IoU 12 / 20
     assert M.reconstruction_iou(m, shifted, BOX, 32) == pytest.approx(0.6)
+
+
+def test_variation_scores_of_copies_and_shifted_samples():
+    ref = np.zeros((12, 12, 12), bool)
+    ref[3:9, 3:9, 3:9] = True
+    moved = np.roll(ref, 2, axis=0)  # 4 of 6 layers overlap: IoU 4 / 8
+    v = M.variation_scores(ref, [ref, ref])
+    assert v == {"iou_to_input": 1.0, "per_sample_iou": [1.0, 1.0], "g_div": 0.0}
+    v = M.variation_scores(ref, [ref, moved])
+    assert v["per_sample_iou"] == [1.0, 0.5] and v["iou_to_input"] == 0.75 and v["g_div"] == 0.5

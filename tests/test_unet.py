@@ -1,5 +1,4 @@
 """The triplane denoiser: shapes on odd / non-square planes, zero init, cross-plane coupling, receptive field."""
-import time
 
 import pytest
 import torch
@@ -136,11 +135,9 @@ def test_measured_receptive_field_matches_analytic_without_rollout(n, downsample
     assert rf.measured_map.shape == (size, size) and rf.measured_map.max() == 1.0
 
 
-def test_receptive_field_reports_global_coupling_and_is_fast():
+def test_receptive_field_reports_global_coupling():
     cfg = DiffusionConfig(base_channels=32, n_resblocks=2, downsample=False)
-    start = time.perf_counter()
     rf = receptive_field(cfg, 32, latent_channels=12)
-    assert time.perf_counter() - start < 4.0  # ~1 s on two cores; margin for a busy machine
     assert rf.analytic == 9 and rf.support_width == 9 and rf.fraction == 9 / 32
     assert rf.global_fraction == 1.0  # GroupNorm and the rollout reach every texel ...
     assert 0 < rf.coupling < 0.1 and rf.coupling_max < 0.5  # ... but weakly
