@@ -92,8 +92,12 @@ def diffusion_loss(
 ) -> torch.Tensor:
     """MSE between the network output on ``x_t`` and its target (x0 or ε): mean within a plane, sum over planes."""
     pred = model(schedule.q_sample(x0, t, noise), t)
-    target = x0 if prediction == "x0" else noise
-    return sum(F.mse_loss(p, q) for p, q in zip(pred.planes, target.planes))
+    return triplane_mse(pred, x0 if prediction == "x0" else noise)
+
+
+def triplane_mse(a: Triplane, b: Triplane) -> torch.Tensor:
+    """Mean squared difference within each plane, summed over the three planes (the training loss's form)."""
+    return sum(F.mse_loss(p, q) for p, q in zip(a.planes, b.planes))
 
 
 def _cpu_copy(obj: Any) -> Any:

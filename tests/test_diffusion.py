@@ -205,3 +205,13 @@ def test_soft_mask_and_partial_masked_sampling(trained, h0):
     assert not torch.equal(x.xy[:, :, 6:], h0.xy.expand_as(x.xy)[:, :, 6:])
     with pytest.raises(Sin3DMInputError):
         sample(trained.model_for_sampling, trained.schedule, RES, known=h0, progress=False)
+
+
+def test_triplane_mse_is_the_plane_mean_summed_over_planes():
+    from sin3dm_lite.diffusion import triplane_mse
+
+    a = Triplane.randn(1, 2, (3, 4, 5))
+    b = a.map(lambda p: p + 0.5)
+    b.xy[..., 0, 0] += 1.0  # one texel of xy off by 1.5 instead of 0.5
+    expected = 0.25 + 0.25 + (0.25 * 11 + 2.25) / 12  # xy has 3 × 4 = 12 texels per channel
+    assert float(triplane_mse(a, b)) == pytest.approx(expected)
