@@ -183,13 +183,29 @@ def plane_to_image(plane: torch.Tensor | np.ndarray, channels: str | int = "pca"
         lo, hi = float(img.min()), float(img.max())
         img = (img - lo) / (hi - lo + 1e-8)
         return np.repeat(img[..., None], 3, axis=-1)
-    flat = p.reshape(c, -1).T  # (A*B, C)
-    flat = flat - flat.mean(0, keepdims=True)
-    if c >= 3:
-        _, _, vt = np.linalg.svd(flat, full_matrices=False)
-        proj = flat @ vt[:3].T
-    else:
-        proj = np.concatenate([flat, np.zeros((flat.shape[0], 3 - c))], axis=1)
+    return pca_project(p, *pca_basis(p))
+
+
+def pca_basis(plane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean ``(C,)`` and the first three principal directions ``(C, 3)`` of a ``[C, A, B]`` plane.
+
+    Each direction's sign is fixed (largest entry positive), so colours do not
+    flip between calls; with fewer than 3 channels the basis is the identity.
+    """
+    c = plane.shape[0]
+    flat = plane.reshape(c, -1).T.astype(np.float64)
+    mean = flat.mean(0)
+    if c < 3:
+        return mean, np.eye(c, 3)
+    _, _, vt = np.linalg.svd(flat - mean, full_matrices=False)
+    basis = vt[:3].T
+    signs = np.sign(basis[np.abs(basis).argmax(0), np.arange(3)])
+    return mean, basis * np.where(signs == 0, 1.0, signs)
+
+
+def pca_project(plane: np.ndarray, mean: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """Project a ``[C, A, B]`` plane on a PCA basis → ``(A, B, 3)`` image in [0, 1] (each colour stretched)."""
+    c, a, b = plane.shape
+    proj = (plane.reshape(c, -1).T - mean) @ basis
     lo, hi = proj.min(0, keepdims=True), proj.max(0, keepdims=True)
-    proj = (proj - lo) / (hi - lo + 1e-8)
-    return proj.reshape(a, b, 3)
+    return ((proj - lo) / (hi - lo + 1e-8)).reshape(a, b, 3)

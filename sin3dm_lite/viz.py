@@ -26,7 +26,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
 from .grid import ShapeGrid
-from .triplane import PLANE_AXES, PLANES, Triplane, plane_to_image
+from .triplane import PLANE_AXES, PLANES, Triplane, pca_basis, pca_project, plane_to_image
 
 AXES = ("x", "y", "z")
 SDF_CMAP = "RdBu"  # red inside (negative), blue outside
@@ -309,28 +309,6 @@ def plot_points(grid: ShapeGrid, n: int = 4000, seed: int = 0) -> Figure:
 
 
 # --------------------------------------------------------------------------- triplanes
-def _pca_basis(plane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean ``(C,)`` and the first three principal directions ``(C, 3)`` of a ``[C, A, B]`` plane."""
-    c = plane.shape[0]
-    flat = plane.reshape(c, -1).T.astype(np.float64)
-    mean = flat.mean(0)
-    if c < 3:
-        return mean, np.eye(c, 3)
-    _, _, vt = np.linalg.svd(flat - mean, full_matrices=False)
-    basis = vt[:3].T
-    # fix each direction's sign (largest |entry| positive) so colours do not flip between calls
-    signs = np.sign(basis[np.abs(basis).argmax(0), np.arange(3)])
-    return mean, basis * np.where(signs == 0, 1.0, signs)
-
-
-def _project(plane: np.ndarray, mean: np.ndarray, basis: np.ndarray) -> np.ndarray:
-    """Project a ``[C, A, B]`` plane on a PCA basis → ``(A, B, 3)`` image in [0, 1]."""
-    c, a, b = plane.shape
-    proj = (plane.reshape(c, -1).T - mean) @ basis
-    lo, hi = proj.min(0, keepdims=True), proj.max(0, keepdims=True)
-    return ((proj - lo) / (hi - lo + 1e-8)).reshape(a, b, 3)
-
-
 def triplane_images(tp: Triplane, channels: str | int = "pca", batch: int = 0) -> list[np.ndarray]:
     """The three planes of sample ``batch`` as ``(A, B, 3)`` images (see :func:`plane_to_image`)."""
     return [plane_to_image(p[batch], channels) for p in tp.planes]
@@ -395,8 +373,8 @@ def plot_denoising(
         return _numpy(tp.planes[k][batch])
 
     if channels == "pca":
-        mean, basis = _pca_basis(get(reference if reference is not None else intermediates[-1]["x0"]))
-        to_image = lambda p: _project(p, mean, basis)  # noqa: E731
+        mean, basis = pca_basis(get(reference if reference is not None else intermediates[-1]["x0"]))
+        to_image = lambda p: pca_project(p, mean, basis)  # noqa: E731
     else:
         to_image = lambda p: plane_to_image(p, channels)  # noqa: E731
     n = len(intermediates)

@@ -35,3 +35,22 @@ def test_sample_hits_texel_centres_and_clamps_at_the_border():
     # outside the box: the value of the outermost texel centres (x = 1 - 1/4, y = -1 + 1/6)
     xb, yb = x[-1], y[0]
     torch.testing.assert_close(got[1], torch.stack([10 * xb + yb, 10 * xb + 0.0, 10 * yb + 0.0]))
+
+
+def test_pca_image_shows_the_strongest_pattern_first():
+    import numpy as np
+
+    from sin3dm_lite.triplane import pca_basis, plane_to_image
+
+    rng = np.random.default_rng(0)
+    a, b = np.meshgrid(np.linspace(-1, 1, 10), np.linspace(-1, 1, 7), indexing="ij")
+    strong, weak = np.sin(3 * a), np.cos(2 * b)  # two spatial patterns, mixed into 6 channels
+    plane = (rng.normal(size=(6, 1, 1)) * 5 * strong + rng.normal(size=(6, 1, 1)) * weak).astype(np.float32)
+    img = plane_to_image(plane)
+    assert img.shape == (10, 7, 3) and img.min() >= 0 and img.max() <= 1
+    assert abs(np.corrcoef(img[..., 0].ravel(), strong.ravel())[0, 1]) > 0.999  # red: the strong pattern
+    assert abs(np.corrcoef(img[..., 1].ravel(), weak.ravel())[0, 1]) > 0.99  # green: the next one
+    # the sign of every direction is fixed: the same plane, negated, gives the same basis up to the mean
+    _, basis = pca_basis(plane)
+    _, basis_neg = pca_basis(-plane)
+    np.testing.assert_allclose(basis[:, :2], basis_neg[:, :2], atol=1e-6)
