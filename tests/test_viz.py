@@ -18,7 +18,7 @@ from matplotlib.patches import Rectangle  # noqa: E402
 from sin3dm_lite import viz  # noqa: E402
 from sin3dm_lite.grid import ShapeGrid  # noqa: E402
 from sin3dm_lite.mesh_io import Normalization  # noqa: E402
-from sin3dm_lite.triplane import Triplane, plane_to_image  # noqa: E402
+from sin3dm_lite.triplane import pca_basis, pca_project, Triplane, plane_to_image  # noqa: E402
 
 
 def sphere_grid(shape=(16, 12, 20), radius=0.45, threshold_voxels=3.0, n_points=500) -> ShapeGrid:
@@ -235,6 +235,12 @@ def test_plot_denoising(tp):
     a, b = (np.asarray(panels[k].images[0].get_array()) for k in (0, 1))
     np.testing.assert_allclose(a, b)
     assert a.shape == (6, 8, 3) and a.min() >= 0 and a.max() <= 1
+    # with a reference, every panel is projected on the reference's basis
+    ref = Triplane.randn(2, 5, (8, 6, 10), generator=torch.Generator().manual_seed(7))  # other directions
+    panels = image_axes(viz.plot_denoising(same, reference=ref))
+    mean, basis = pca_basis(ref.xy[0].numpy())
+    np.testing.assert_allclose(np.asarray(panels[0].images[0].get_array()),
+                               pca_project(tp.xy[0].numpy(), mean, basis).swapaxes(0, 1), atol=1e-6)
     w, h = viz.plot_denoising(steps, plane="yz").get_size_inches()  # 6 × 10 planes: taller than wide panels
     assert h > 2 * (w / 3)
     with pytest.raises(ValueError):
