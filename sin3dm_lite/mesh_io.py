@@ -491,23 +491,21 @@ def image_to_array(image, max_size: int | None = None) -> np.ndarray:
         arr = np.asarray(image)
     else:
         arr = np.asarray(image)
-    if arr.dtype == np.uint8:
-        arr = arr.astype(np.float32) / 255.0
-    elif arr.dtype == np.uint16:
-        arr = arr.astype(np.float32) / 65535.0
-    elif arr.dtype == bool:
-        arr = arr.astype(np.float32)
-    arr = np.asarray(arr, np.float32)
     if arr.ndim == 2:
         arr = arr[:, :, None]
     if arr.ndim != 3 or arr.shape[0] == 0 or arr.shape[1] == 0:
         raise ValueError(f"not an image: array of shape {arr.shape}")
-    c = arr.shape[2]
-    if c in (1, 2):  # grey (+ alpha)
-        arr = np.repeat(arr[:, :, :1], 3, axis=2)
-    elif c >= 3:
-        arr = arr[:, :, :3]
-    return np.ascontiguousarray(np.clip(np.nan_to_num(arr), 0.0, 1.0), dtype=np.float32)
+    # pick the RGB channels first, then make one float32 copy (a 4096² texture is 200 MB per copy)
+    arr = np.repeat(arr[:, :, :1], 3, axis=2) if arr.shape[2] in (1, 2) else arr[:, :, :3]  # grey (+ alpha)
+    out = np.ascontiguousarray(arr, dtype=np.float32)
+    if out is arr:
+        out = out.copy()  # never scale the caller's array in place
+    if arr.dtype in (np.uint8, np.uint16):
+        out /= 255.0 if arr.dtype == np.uint8 else 65535.0
+    elif arr.dtype != bool:
+        np.nan_to_num(out, copy=False)
+        np.clip(out, 0.0, 1.0, out=out)
+    return out
 
 
 def _array_to_pil(arr: np.ndarray, max_size: int | None = None):
