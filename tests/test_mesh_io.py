@@ -639,6 +639,17 @@ def test_texture_image_modes(tmp_path):
     np.testing.assert_allclose(small[0, 0], RED)
 
 
+def test_image_arrays_are_scaled_clipped_and_left_alone():
+    floats = np.array([[[-0.5, 0.25, np.nan, 0.7], [2.0, 1.0, 0.0, 0.1]]], np.float32)  # RGBA, out of range, NaN
+    keep = floats.copy()
+    out = mesh_io.image_to_array(floats)
+    np.testing.assert_array_equal(out, [[[0.0, 0.25, 0.0], [1.0, 1.0, 0.0]]])
+    np.testing.assert_array_equal(floats, keep)  # the caller's array is not modified
+    assert out.dtype == np.float32 and out.flags.c_contiguous
+    np.testing.assert_array_equal(mesh_io.image_to_array(np.array([[7, 255]], np.uint8)), [[[np.float32(7) / 255] * 3, [1.0] * 3]])
+    np.testing.assert_array_equal(mesh_io.image_to_array(np.array([[True, False]])), [[[1.0] * 3, [0.0] * 3]])
+
+
 # ================================================================== writers
 def test_save_obj_failure_leaves_nothing(tmp_path, monkeypatch):
     mesh = load_mesh(write_square(tmp_path))
