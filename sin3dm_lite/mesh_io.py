@@ -617,8 +617,11 @@ class _TextureCache:
         return self.cache[key]
 
 
-def _parse_mtl(path, textures: _TextureCache) -> dict[str, tuple[Material, tuple | None]]:
-    """``newmtl`` blocks of an MTL file → ``{name: (material, uv transform or None)}``.
+def _parse_mtl(path, textures: _TextureCache, used=None) -> dict[str, tuple[Material, tuple | None]]:
+    """``newmtl`` blocks of an MTL file → ``{name: (material, uv transform or None)}``, in file order.
+
+    Only the materials named in ``used`` (all when None) are built, so textures
+    that no face shows are neither decoded nor warned about.
 
     A loaded ``map_Kd`` replaces ``Kd`` and a loaded ``map_Pr``/``map_Pm``
     replaces ``Pr``/``Pm`` (as Blender and three.js read them). The uv
@@ -654,6 +657,8 @@ def _parse_mtl(path, textures: _TextureCache) -> dict[str, tuple[Material, tuple
             continue  # a malformed optional line: ignore it like other viewers do
     out = {}
     for mname, d in raw.items():
+        if used is not None and mname not in used:
+            continue
         owner = f"material '{mname}' in '{path.name}'"
         kd = np.array((d.get("Kd", list(DEFAULT_COLOR)) + [1.0, 1.0, 1.0])[:3], np.float32)
         mat = Material(name=mname, base_color=np.array([*np.clip(kd, 0, 1), d.get("d", 1.0)], np.float32))
@@ -764,7 +769,7 @@ def _load_obj(path, max_size):
                 )
                 continue
             try:
-                library.update(_parse_mtl(mtl, textures))
+                library.update(_parse_mtl(mtl, textures, used=set(mat_names)))
                 loaded_any = True
             except OSError as exc:
                 _warn(f"material library '{mtl.name}' could not be read ({exc}); using plain colours")

@@ -614,6 +614,19 @@ def test_corrupt_texture_warns_and_uses_material_color(tmp_path):
     np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), (0.8, 0.8, 0.8), atol=1e-6)
 
 
+def test_unused_materials_are_not_loaded(tmp_path, monkeypatch):
+    p = write_square(tmp_path)
+    mtl = tmp_path / "square.mtl"
+    mtl.write_text(mtl.read_text() + "\nnewmtl unused\nmap_Kd missing.png\n")  # no face uses it
+    opened = []
+    real_open = Image.open
+    monkeypatch.setattr(Image, "open", lambda f, *a, **k: (opened.append(Path(f).name), real_open(f, *a, **k))[1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning about its missing texture either
+        mesh = load_mesh(p)
+    assert [m.name for m in mesh.materials] == ["textured", "plain"] and opened == ["tex.png"]
+
+
 def test_missing_mtl_warns(tmp_path):
     p = write_square(tmp_path)
     (tmp_path / "square.mtl").unlink()
