@@ -1229,6 +1229,7 @@ def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool
 
     # ---- textures and .mtl
     lines = ["# written by sin3dm-lite", ""]
+    baked: dict = {}  # (image, factor) → file: materials sharing an atlas share its PNG
     for k, mat in enumerate(mesh.materials):
         prefix = stem if (single_texture and mat.image is not None) else f"{stem}_{k}"
         c = np.asarray(mat.base_color, np.float64)
@@ -1236,9 +1237,12 @@ def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool
         lines.append(f"newmtl {names[k]}")
         maps = []
         if mat.image is not None and has_uv_mesh:
-            _array_to_pil(_baked_image(mat)).save(folder / f"{prefix}.png")
-            written.append(f"{prefix}.png")
-            maps.append(f"map_Kd {prefix}.png")
+            key = (id(mat.image), tuple(np.asarray(mat.base_color, np.float32)[:3]))
+            if key not in baked:
+                baked[key] = f"{prefix}.png"
+                _array_to_pil(_baked_image(mat)).save(folder / baked[key])
+                written.append(baked[key])
+            maps.append(f"map_Kd {baked[key]}")
             kd = (1.0, 1.0, 1.0)
         else:
             kd = tuple(np.clip(c[:3], 0, 1))

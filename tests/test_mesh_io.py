@@ -211,6 +211,11 @@ def test_multi_material_obj_uses_every_texture(tmp_path):
     np.testing.assert_array_equal(again.face_material, [0, 1, 0])
     bc = np.full((3, 3), 1 / 3)
     np.testing.assert_allclose(again.colors_at([0, 1, 2], bc), mesh.colors_at([0, 1, 2], bc), atol=1 / 255)
+    # two materials showing one atlas: one PNG, named by both
+    mesh.materials[1].image = mesh.materials[0].image
+    out = save_obj(mesh, tmp_path / "shared" / "s.obj")
+    assert sorted(p.name for p in out.parent.iterdir()) == ["s.mtl", "s.obj", "s_0.png"]
+    assert (out.parent / "s.mtl").read_text().count("map_Kd s_0.png") == 2
 
 
 def test_obj_without_mtl_gets_default_color(tmp_path):
