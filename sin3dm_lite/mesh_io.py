@@ -82,9 +82,6 @@ class Normalization:
     def to_original(self, points: np.ndarray) -> np.ndarray:
         return np.asarray(points, dtype=np.float64) / self.scale + self.center
 
-    def as_dict(self) -> dict:
-        return {"center": [float(c) for c in self.center], "scale": float(self.scale)}
-
     @classmethod
     def identity(cls) -> "Normalization":
         return cls(center=np.zeros(3), scale=1.0)

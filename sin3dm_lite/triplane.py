@@ -109,11 +109,6 @@ class Triplane:
     __rmul__ = __mul__
 
     @staticmethod
-    def cat(items: list["Triplane"]) -> "Triplane":
-        """Concatenate along the batch dimension."""
-        return Triplane(*(torch.cat([t.planes[i] for t in items]) for i in range(3)))
-
-    @staticmethod
     def randn_like(tp: "Triplane", generator: torch.Generator | None = None) -> "Triplane":
         return tp.map(lambda p: torch.randn(p.shape, generator=generator, device=p.device, dtype=p.dtype))
 

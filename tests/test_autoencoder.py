@@ -90,6 +90,18 @@ def test_tiny_fit_reduces_loss_and_reconstructs(grid, use_encoder):
     assert np.mean((rec.sdf < 0) == (grid.sdf < 0)) == pytest.approx(m["sign_accuracy"])
 
 
+def test_fit_autoencoder_is_the_trainer_run_to_the_end(grid):
+    from sin3dm_lite.autoencoder import fit_autoencoder
+
+    cfg = small_cfg(steps=6)
+    model, h0, history = fit_autoencoder(grid, cfg, seed=2, progress=False)
+    tr = AutoencoderTrainer(grid, cfg, seed=2)
+    tr.run(progress=False)
+    assert history == tr.history and len(history["loss"]) == 6
+    for a, b in zip(h0.planes, tr.latent().planes):
+        assert torch.equal(a, b)
+
+
 def test_resume_is_bit_identical(grid):
     cfg = small_cfg(steps=20)
     full = AutoencoderTrainer(grid, cfg, seed=3)
