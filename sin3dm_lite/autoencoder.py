@@ -170,9 +170,11 @@ class TriplaneAutoencoder(nn.Module):
             self.encoder = TriplaneEncoder(cfg, color_channels)
         else:  # auto-decoder: the raw planes are parameters, squashed like the encoder's output
             x, y, z = latent_res
-            c = cfg.latent_channels
-            self.raw = nn.ParameterDict(
-                {n: nn.Parameter(0.1 * torch.randn(1, c, a, b)) for n, (a, b) in zip(("xy", "xz", "yz"), ((x, y), (x, z), (y, z)))}
+            sizes = dict(zip(("xy", "xz", "yz"), ((x, y), (x, z), (y, z))))
+            # geometry and texture channels apart, so each trains at its own learning rate
+            self.raw_geo, self.raw_tex = (
+                nn.ParameterDict({n: nn.Parameter(0.1 * torch.randn(1, c, *ab)) for n, ab in sizes.items()})
+                for c in (cfg.geo_channels, cfg.tex_channels)
             )
         self.decoder = TriplaneDecoder(cfg, threshold, color_channels)
 
@@ -181,7 +183,7 @@ class TriplaneAutoencoder(nn.Module):
         if self.cfg.use_encoder:
             return self.encoder(grid_t)
         sq = TriplaneEncoder.squash
-        return Triplane(sq(self.raw["xy"]), sq(self.raw["xz"]), sq(self.raw["yz"]))
+        return Triplane(*(sq(torch.cat([self.raw_geo[n], self.raw_tex[n]], 1)) for n in ("xy", "xz", "yz")))
 
     def param_groups(self) -> tuple[list[nn.Parameter], list[nn.Parameter]]:
         """Geometry and texture parameters (they get different learning rates)."""
@@ -190,8 +192,8 @@ class TriplaneAutoencoder(nn.Module):
             geo += list(self.encoder.geo.parameters())
             tex += list(self.encoder.tex.parameters())
         else:
-            # plane channels are split inside the same tensor; both groups see the planes at the geometry lr
-            geo += list(self.raw.parameters())
+            geo += list(self.raw_geo.parameters())
+            tex += list(self.raw_tex.parameters())
         return geo, tex
 
 

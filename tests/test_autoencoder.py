@@ -102,6 +102,18 @@ def test_fit_autoencoder_is_the_trainer_run_to_the_end(grid):
         assert torch.equal(a, b)
 
 
+def test_auto_decoder_planes_train_at_their_own_learning_rates(grid):
+    tr = AutoencoderTrainer(grid, small_cfg(use_encoder=False, lr_geo=1e-3, lr_tex=5e-3), seed=0)
+    geo_group, tex_group = tr.opt.param_groups
+    raw = tr.model
+    assert geo_group["lr"] == 1e-3 and tex_group["lr"] == 5e-3
+    assert all(any(p is q for q in geo_group["params"]) for p in raw.raw_geo.parameters())
+    assert all(any(p is q for q in tex_group["params"]) for p in raw.raw_tex.parameters())
+    h = raw.encode()
+    assert h.channels == 12
+    torch.testing.assert_close(h.xz[:, 4:], TriplaneEncoder.squash(raw.raw_tex["xz"]))  # texture channels last
+
+
 def test_resume_is_bit_identical(grid):
     cfg = small_cfg(steps=20)
     full = AutoencoderTrainer(grid, cfg, seed=3)
