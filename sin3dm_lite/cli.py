@@ -3,7 +3,7 @@
     sin3dm-lite examples [--write NAME --out DIR]      list / write the built-in example shapes
     sin3dm-lite grid MESH --resolution N --out FILE.npz mesh → TSDF + colour grid
     sin3dm-lite fit MESH_OR_EXAMPLE --preset small --out RUN_DIR [--resume]
-    sin3dm-lite sample RUN_DIR -n 4 --out DIR [--resize SX SY SZ]
+    sin3dm-lite sample RUN_DIR -n 4 --out DIR [--resize SX SY SZ] [--diversity D]
     sin3dm-lite demo [--out DIR] [--train]              the whole method on the default example
 
 Every user error prints one line naming the problem and the fix, and exits
@@ -40,6 +40,16 @@ def _positive_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
     if not (0 < v <= 8):
         raise argparse.ArgumentTypeError(f"resize factors must be in (0, 8], got {v}")
+    return v
+
+
+def _unit_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number from 0 to 1, got '{text}'") from None
+    if not (0 <= v <= 1):
+        raise argparse.ArgumentTypeError(f"diversity must be from 0 (the input) to 1 (pure noise), got {v}")
     return v
 
 
@@ -83,6 +93,9 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
     s.add_argument("-n", type=_positive_int, default=n_default, help="number of samples")
     s.add_argument("--resize", nargs=3, type=_positive_float, metavar=("SX", "SY", "SZ"), default=None,
                    help="retarget: scale factors of the x, y, z size")
+    s.add_argument("--diversity", type=_unit_float, default=None,
+                   help="0 = the input, 1 = from pure noise (the paper; default: the run's setting); "
+                        "lower values keep more of the input's layout")
     s.add_argument("--steps", type=_positive_int, default=None, help="DDIM steps (default: the preset's)")
     s.add_argument("--ddpm", action="store_true", help="use full DDPM sampling (all timesteps) instead of DDIM")
     s.add_argument("--seed", type=int, default=0)
@@ -145,7 +158,8 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
         raise Sin3DMInputError(f"output folder '{out}' exists and holds other files; choose another --out")
     resize = tuple(a.resize) if a.resize else (1.0, 1.0, 1.0)
     t0 = time.perf_counter()
-    samples = model.sample(a.n, resize=resize, steps=a.steps, method="ddpm" if a.ddpm else None, seed=a.seed)
+    samples = model.sample(a.n, resize=resize, steps=a.steps, method="ddpm" if a.ddpm else None, seed=a.seed,
+                           diversity=a.diversity)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".sin3dm-", dir=out.parent))
     tmp.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary folder

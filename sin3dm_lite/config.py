@@ -76,6 +76,7 @@ class SamplingConfig:
 
     method: str = "ddim"  # "ddim" or "ddpm"
     steps: int = 50  # DDIM steps (DDPM always uses all timesteps)
+    diversity: float = 1.0  # 1 = from pure noise (the paper); lower starts from the input's latent, noised (closer copies)
     mesh_resolution: int = 256  # decode grid along the longest side
     faces: int = 30_000  # face budget after simplification
     texture_size: int = 2048

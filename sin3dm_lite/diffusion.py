@@ -234,6 +234,41 @@ def ddim_timesteps(timesteps: int, steps: int) -> list[int]:
     return [int(t) for t in np.round(np.linspace(timesteps - 1, 0, steps))] if steps > 1 else [timesteps - 1]
 
 
+def start_step(schedule: NoiseSchedule, diversity: float) -> int:
+    """The time step a sample starts from for a diversity in [0, 1] (1: pure noise at T-1; 0: the input itself, -1).
+
+    The knob is linear in *noise level*, not in t: ``1 - ᾱ_t0 ≈ diversity`` (the
+    share of the input's variance replaced by noise), so 0.5 means "half noise"
+    and the curve of diversity against the knob is roughly even.
+    """
+    if isinstance(diversity, bool) or not (isinstance(diversity, (int, float)) and 0.0 <= float(diversity) <= 1.0):
+        raise Sin3DMInputError(f"diversity must be a number from 0 (the input) to 1 (pure noise), got {diversity!r}")
+    if diversity >= 1.0:
+        return schedule.timesteps - 1
+    if diversity <= 0.0:
+        return -1
+    noise_level = 1.0 - schedule.alphas_cumprod  # rises from ≈1e-4 to ≈1
+    return int(torch.searchsorted(noise_level, torch.tensor(float(diversity), dtype=torch.float64)).clamp(max=schedule.timesteps - 1))
+
+
+def sampling_timesteps(schedule: NoiseSchedule, method: str, steps: int, t_start: int | None = None) -> list[int]:
+    """The time steps a sampler visits, from ``t_start`` (default T-1) down to 0.
+
+    DDPM visits every step; DDIM ``steps`` evenly spaced ones over the full
+    range, fewer when it starts lower (the same spacing, at least one step).
+    """
+    top = schedule.timesteps - 1 if t_start is None else t_start
+    if method == "ddpm":
+        return list(range(top, -1, -1))
+    if method != "ddim":
+        raise Sin3DMInputError(f"unknown sampling method '{method}'; use 'ddim' or 'ddpm'")
+    ts = ddim_timesteps(schedule.timesteps, steps)
+    if top == schedule.timesteps - 1:
+        return ts
+    k = max(1, int(round(steps * (top + 1) / schedule.timesteps)))
+    return [int(t) for t in np.round(np.linspace(top, 0, k))] if k > 1 else [top]
+
+
 def _steps_to_record(which: int | Sequence[int] | None, n_steps: int) -> set[int]:
     if which is None:
         return set()
@@ -275,8 +310,10 @@ def sample(
     progress: bool = True,
     device: str | torch.device | None = None,
     prediction: str | None = None,
+    start: Triplane | None = None,
+    diversity: float = 1.0,
 ) -> Triplane | tuple[Triplane, list[dict]]:
-    """Draw ``n`` latents of spatial size ``resolution = (X, Y, Z)`` from pure noise.
+    """Draw ``n`` latents of spatial size ``resolution = (X, Y, Z)`` from noise.
 
     ``method="ddpm"`` walks all T steps with the posterior mean and variance;
     ``"ddim"`` (η = 0, deterministic given the start noise) jumps through
@@ -287,6 +324,13 @@ def sample(
     (values in [0, 1], 1 = keep ``known``; batch and channels broadcast), after
     every step ``x_{t-1} ← m·q_sample(known, t-1) + (1-m)·x_{t-1}`` and at the
     end ``x0 ← m·known + (1-m)·x0``. See :func:`soft_mask`.
+
+    The diversity ↔ fidelity knob (SDEdit-style): with ``start`` (a latent of
+    this size, usually the input's) and ``diversity < 1`` the walk begins at
+    step ``t0`` (:func:`start_step`) from ``q_sample(start, t0)``, the start
+    latent with that much noise, instead of from pure noise at T-1. Low
+    values keep the input's layout and regenerate only fine detail, 1 is the
+    paper's unconditional sampling; 0 returns ``start`` itself.
 
     ``return_intermediates``: an int k (k evenly spaced steps, first and last
     included) or step indices; then returns ``(latents, [{"step", "t", "x_t",
@@ -299,12 +343,13 @@ def sample(
     prediction = prediction or getattr(getattr(model, "cfg", None), "prediction", "x0")
     channels = latent_channels or model.latent_channels
     gen = seed if isinstance(seed, torch.Generator) else torch.Generator(device=device).manual_seed(seed)
-    if method == "ddpm":
-        ts = list(range(schedule.timesteps - 1, -1, -1))
-    elif method == "ddim":
-        ts = ddim_timesteps(schedule.timesteps, steps)
-    else:
-        raise Sin3DMInputError(f"unknown sampling method '{method}'; use 'ddim' or 'ddpm'")
+    t0 = start_step(schedule, diversity)
+    if t0 < schedule.timesteps - 1 and start is None:
+        raise Sin3DMInputError("diversity below 1 starts from a noised latent: pass `start` (e.g. the input's latent)")
+    if t0 < 0:  # diversity 0: nothing is regenerated
+        x = start.to(device, torch.float32).repeat(n) if start.batch == 1 else start.to(device, torch.float32)
+        return (x, []) if return_intermediates is not None else x
+    ts = sampling_timesteps(schedule, method, steps, t0)
     record, intermediates = _steps_to_record(return_intermediates, len(ts)), []
     if (known is None) != (mask is None):
         raise Sin3DMInputError("masked sampling needs both `known` and `mask`")
@@ -312,6 +357,12 @@ def sample(
         known, mask = known.to(device, torch.float32), mask.to(device, torch.float32)
 
     x = Triplane.randn(n, channels, tuple(resolution), generator=gen, device=device)  # x_T
+    if t0 < schedule.timesteps - 1:  # x_t0 = the start latent noised to t0
+        if start.resolution != tuple(resolution):
+            raise Sin3DMInputError(f"start latent is {start.resolution}, the samples are {tuple(resolution)}")
+        x0_start = start.to(device, torch.float32)
+        x0_start = x0_start.repeat(n) if x0_start.batch == 1 else x0_start
+        x = schedule.q_sample(x0_start, t0, x)
     if known is not None:
         x = _blend(mask, schedule.q_sample(known, ts[0], Triplane.randn_like(x, gen)), x)
     for i, t in enumerate(tqdm(ts, disable=not progress, desc=method)):
@@ -368,6 +419,8 @@ __all__ = [
     "NoiseSchedule",
     "ddim_timesteps",
     "diffusion_loss",
+    "sampling_timesteps",
+    "start_step",
     "fit_diffusion",
     "sample",
     "soft_mask",

@@ -197,14 +197,22 @@ class Sin3DM:
         known: Triplane | None = None,
         mask: Triplane | None = None,
         progress: bool = True,
+        diversity: float | None = None,
     ) -> Samples:
         """Draw ``n`` new triplanes from noise.
 
         ``resize`` scales the latent per axis (retargeting: the denoiser is fully
         convolutional, so noise of another size gives a shape of another size);
         ``known``/``mask`` fix part of the latent (outpainting, patch duplication).
+
+        ``diversity`` (default: the config's, 1.0) trades variation for
+        fidelity, the limitation the paper names: 1 samples from pure noise;
+        below 1 sampling starts from the input's latent with that share of
+        noise (a resized sample starts from the input's latent stretched to
+        its size), so the layout stays and only what the noise erased is
+        regenerated; 0 gives the input back.
         """
-        from .diffusion import sample as diffusion_sample
+        from .diffusion import sample as diffusion_sample, start_step
 
         if n < 1:
             raise Sin3DMInputError(f"number of samples must be at least 1, got {n}")
@@ -214,6 +222,9 @@ class Sin3DM:
         base = np.array(self.latent.resolution)
         res = np.maximum(4, np.round(base * factors)).astype(int)
         s = self.config.sampling
+        diversity = s.diversity if diversity is None else diversity
+        t0 = start_step(self.schedule, diversity)  # checks the value
+        start = self.latent.resized(tuple(int(r) for r in res)) if t0 < self.schedule.timesteps - 1 else None
         out = diffusion_sample(
             self.denoiser,
             self.schedule,
@@ -229,6 +240,8 @@ class Sin3DM:
             progress=progress,
             device=self.device,
             prediction=self.config.diffusion.prediction,
+            start=start,
+            diversity=diversity,
         )
         tp, inter = out if return_intermediates is not None else (out, None)
         scale = res / base

@@ -97,6 +97,15 @@ class Triplane:
     def repeat(self, n: int) -> "Triplane":
         return self.map(lambda p: p.repeat(n, 1, 1, 1))
 
+    def resized(self, resolution: tuple[int, int, int]) -> "Triplane":
+        """Bilinear resampling of every plane to the spatial size ``(X, Y, Z)`` (texel centres kept in place)."""
+        x, y, z = resolution
+        sizes = {"xy": (x, y), "xz": (x, z), "yz": (y, z)}
+        return Triplane(*(
+            F.interpolate(p, size=sizes[name], mode="bilinear", align_corners=False) if p.shape[-2:] != sizes[name] else p
+            for name, p in zip(PLANES, self.planes)
+        ))
+
     def __add__(self, other):
         return self.zip_map(other, torch.add) if isinstance(other, Triplane) else self.map(lambda p: p + other)
 

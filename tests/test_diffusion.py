@@ -14,7 +14,9 @@ from sin3dm_lite.diffusion import (
     fit_diffusion,
     predict_clean,
     sample,
+    sampling_timesteps,
     soft_mask,
+    start_step,
 )
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.triplane import Triplane
@@ -215,3 +217,47 @@ def test_triplane_mse_is_the_plane_mean_summed_over_planes():
     b.xy[..., 0, 0] += 1.0  # one texel of xy off by 1.5 instead of 0.5
     expected = 0.25 + 0.25 + (0.25 * 11 + 2.25) / 12  # xy has 3 × 4 = 12 texels per channel
     assert float(triplane_mse(a, b)) == pytest.approx(expected)
+
+
+# ------------------------------------------------------------------ diversity knob
+def test_start_step_follows_the_noise_level():
+    s = NoiseSchedule()
+    assert start_step(s, 1.0) == 999 and start_step(s, 0.0) == -1
+    for d in (0.1, 0.5, 0.9):
+        t = start_step(s, d)
+        assert 1 - s.alphas_cumprod[t] >= d > 1 - s.alphas_cumprod[t - 1]  # first step with that much noise
+    for bad in (-0.01, 1.01, float("nan"), True, "1"):
+        with pytest.raises(Sin3DMInputError, match="diversity"):
+            start_step(s, bad)
+
+
+def test_sampling_timesteps_from_a_start_step():
+    s = NoiseSchedule()
+    assert sampling_timesteps(s, "ddim", 50) == ddim_timesteps(1000, 50)
+    low = sampling_timesteps(s, "ddim", 50, 199)
+    assert low[0] == 199 and low[-1] == 0 and len(low) == 10  # the same spacing over a fifth of the range
+    assert sampling_timesteps(s, "ddim", 50, 5) == [5]
+    assert sampling_timesteps(s, "ddpm", 50, 99) == list(range(99, -1, -1))
+
+
+@pytest.mark.parametrize("method", ["ddim", "ddpm"])
+def test_diversity_moves_samples_from_the_start_latent_to_noise(h0, method):
+    """With the exact x0 estimate for N(0, I) data (x0 = √ᾱ·x_t) the sampler keeps x_t0 almost as it is,
+    so a sample is ``√ᾱ·start + √(1-ᾱ)·noise`` at t0: its distance to the start grows with the knob."""
+    s = NoiseSchedule(timesteps=200)
+
+    def gaussian_oracle(x, t):
+        return x.map(lambda p: p * s.alpha_bar(t).sqrt().reshape(-1, 1, 1, 1).float())
+
+    gaussian_oracle.cfg = None
+    start = h0.map(lambda p: p * 0 + 0.8)  # a constant latent, far from pure noise
+    dist = []
+    for d in (0.0, 0.05, 0.3, 0.6, 1.0):
+        out = sample(gaussian_oracle, s, RES, n=8, latent_channels=4, method=method, steps=20, seed=0,
+                     clip=False, device="cpu", prediction="x0", start=start, diversity=d, progress=False)
+        dist.append(float(sum(((p - q) ** 2).mean() for p, q in zip(out.planes, start.planes))))
+    assert dist[0] == 0.0
+    assert all(a < b for a, b in zip(dist, dist[1:])), dist
+    assert dist[-1] > 0.9 * (0.8**2 + 1) * 3  # pure noise: |start|² + 1 per plane
+    with pytest.raises(Sin3DMInputError, match="start"):
+        sample(gaussian_oracle, s, RES, n=1, latent_channels=4, device="cpu", diversity=0.5, progress=False)

@@ -144,3 +144,37 @@ def test_bad_resize_is_a_clear_error(fitted, resize):
     model, _ = fitted
     with pytest.raises(Sin3DMInputError, match="resize"):
         model.sample(1, resize=resize, progress=False)
+
+
+def _mean_distance(samples, latent) -> float:
+    """Mean squared difference of each sample's planes from the input latent's."""
+    return float(sum(((p - q) ** 2).mean() for p, q in zip(samples.triplane.planes, latent.planes)))
+
+
+def test_diversity_knob_runs_from_the_input_to_pure_noise(fitted):
+    model, _ = fitted
+    assert model.config.sampling.diversity == 1.0
+    zero = model.sample(2, seed=3, diversity=0.0, progress=False)
+    for p, q in zip(zero.triplane.planes, model.latent.repeat(2).planes):
+        torch.testing.assert_close(p, q)  # nothing regenerated: the input itself
+    dist = {d: _mean_distance(model.sample(4, seed=3, diversity=d, progress=False), model.latent) for d in (0.05, 1.0)}
+    assert dist[0.05] < dist[1.0], dist  # lowest setting closest to the input latent, highest farthest
+    # 1.0 is the paper's unconditional sampling, exactly what the default gives
+    a, b = model.sample(2, seed=7, progress=False), model.sample(2, seed=7, diversity=1.0, progress=False)
+    for p, q in zip(a.triplane.planes, b.triplane.planes):
+        torch.testing.assert_close(p, q)
+
+
+def test_diversity_with_resize_starts_from_the_stretched_input(fitted):
+    model, _ = fitted
+    s = model.sample(1, resize=(1.5, 1.0, 1.0), diversity=0.0, progress=False)
+    x, y, z = model.latent.resolution
+    assert s.triplane.resolution == (round(1.5 * x), y, z)
+    torch.testing.assert_close(s.triplane.yz, model.latent.yz)  # the yz plane does not change size
+
+
+@pytest.mark.parametrize("diversity", [-0.1, 1.5, float("nan"), "high"])
+def test_bad_diversity_is_a_clear_error(fitted, diversity):
+    model, _ = fitted
+    with pytest.raises(Sin3DMInputError, match="diversity"):
+        model.sample(1, diversity=diversity, progress=False)
