@@ -68,6 +68,7 @@ class DiffusionConfig:
     batch_size: int = 32
     lr: float = 5e-4
     ema_decay: float = 0.9999  # use ~0.999 or 0 (raw weights) for short runs
+    crop: int = 0  # train on random crops of this many latent texels per axis (0: the whole latent, the paper)
 
 
 @dataclass

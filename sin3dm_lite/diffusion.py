@@ -111,6 +111,27 @@ def _cpu_copy(obj: Any) -> Any:
     return obj
 
 
+def random_crops(h0: Triplane, n: int, size: int, generator: torch.Generator) -> Triplane:
+    """``n`` random crops of one latent, ``size`` texels along each axis (or the whole axis when it is shorter).
+
+    A crop is a sub-box of the shape: the xy plane is cut at the box's x and y
+    range, xz at its x and z range, yz at y and z, so the three planes still
+    describe one region. The denoiser is fully convolutional, so a model
+    trained on crops samples a latent of any size; it just never sees where
+    the whole latent's borders are from inside a crop.
+    """
+    res = h0.resolution
+    sizes = [min(size, r) for r in res]
+    starts = [torch.randint(0, r - s + 1, (n,), generator=generator, device=generator.device).tolist()
+              for r, s in zip(res, sizes)]
+    (sx, sy, sz), planes = sizes, []
+    for i in range(n):
+        ox, oy, oz = starts[0][i], starts[1][i], starts[2][i]
+        planes.append((h0.xy[:, :, ox:ox + sx, oy:oy + sy], h0.xz[:, :, ox:ox + sx, oz:oz + sz],
+                       h0.yz[:, :, oy:oy + sy, oz:oz + sz]))
+    return Triplane(*(torch.cat(p, 0) for p in zip(*planes)))
+
+
 class DiffusionTrainer:
     """Trains the denoiser on one latent ``h0``, resumable bit for bit.
 
@@ -151,7 +172,7 @@ class DiffusionTrainer:
         """One optimisation step; returns its loss."""
         b, g = self.cfg.batch_size, self.generator
         self.model.train()
-        x0 = self.h0.repeat(b)  # [B, C, ., .]: copies of the one latent
+        x0 = self.h0.repeat(b) if self.cfg.crop <= 0 else random_crops(self.h0, b, self.cfg.crop, g)  # [B, C, ., .]
         t = torch.randint(0, self.schedule.timesteps, (b,), generator=g, device=self.device)
         noise = Triplane.randn_like(x0, generator=g)
         loss = diffusion_loss(self.model, self.schedule, x0, t, noise, self.cfg.prediction)
@@ -419,6 +440,7 @@ __all__ = [
     "NoiseSchedule",
     "ddim_timesteps",
     "diffusion_loss",
+    "random_crops",
     "sampling_timesteps",
     "start_step",
     "fit_diffusion",

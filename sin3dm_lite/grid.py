@@ -349,6 +349,15 @@ def mesh_to_grid(
     return out
 
 
+def inside(mesh: TexturedMesh, points: np.ndarray) -> np.ndarray:
+    """Which points lie inside ``mesh`` (same coordinates): generalised winding number above ½.
+
+    The same inside test the grid uses, so it works for open and multi-part
+    meshes and turns inside-out closed parts round first.
+    """
+    return _Distance(mesh).winding(np.asarray(points, np.float64).reshape(-1, 3)) > 0.5
+
+
 # --------------------------------------------------------------------------- files
 def save_grid(grid: ShapeGrid, path: str | Path) -> Path:
     """Write a grid to ``.npz`` (``sdf``, ``color``, ``aabb``, ``threshold``, ``center``, ``scale``, points), atomically."""

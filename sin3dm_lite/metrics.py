@@ -4,7 +4,8 @@ Everything works on *occupancy grids*: boolean ``(X, Y, Z)`` arrays on the
 same cell-centred grid that :mod:`sin3dm_lite.extract` decodes on (``resolution``
 voxels along the longest side of a box, the paper uses 128).
 
-* :func:`voxelize` — mesh → occupancy grid.
+* :func:`voxelize` — mesh → occupancy grid; :func:`input_occupancy` — the
+  same for the input mesh (open meshes too), the reference of the LP metrics.
 * :func:`iou`, :func:`g_div` — whole-shape overlap and the diversity score
   G-Div = mean pairwise ``1 − IoU`` among generated shapes. Whole-shape
   comparisons need every grid to have the same shape, so retargeted samples
@@ -72,6 +73,23 @@ def voxelize(mesh, aabb, resolution: int = 128) -> np.ndarray:
     acc = acc.reshape(nx, ny, nz + 1)
     winding = np.cumsum(acc[..., ::-1], axis=-1)[..., ::-1]  # winding[k] = sum of acc[m] for m >= k
     return np.abs(np.rint(winding[..., 1:])) > 0
+
+
+def input_occupancy(mesh, aabb, resolution: int = 128) -> np.ndarray:
+    """The *input* mesh as an occupancy grid: inside (winding number > ½) at every voxel centre.
+
+    This is the reference the paper's LP-IoU / LP-F compare against. Unlike
+    :func:`voxelize` it needs no closed mesh (a user's open scan works). The
+    mesh must be in the same (normalised) coordinates as ``aabb``, e.g.
+    ``mesh.normalized()`` for the box a fit used.
+    """
+    from .grid import inside
+
+    box = as_aabb(aabb)
+    shape = grid_shape(box, resolution)
+    axes = [box[a] + (np.arange(n) + 0.5) / n * (box[a + 3] - box[a]) for a, n in enumerate(shape)]
+    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    return inside(mesh, centres).reshape(shape)
 
 
 # ----------------------------------------------------------------------------- whole-shape overlap
@@ -239,6 +257,7 @@ def lp_fscore(reference: np.ndarray, generated, patch: int = 11, stride: int = 5
 __all__ = [
     "extract_patches",
     "g_div",
+    "input_occupancy",
     "iou",
     "lp_fscore",
     "lp_iou",
