@@ -8,19 +8,29 @@
 
 Every user error prints one line naming the problem and the fix, and exits
 with code 2 (no traceback).
+
+No command deletes or overwrites a file it did not write: an output folder
+that is not empty is refused unless ``--overwrite`` is given, and then only
+the files listed in its manifest (``.sin3dm-manifest.json``, written by this
+tool) are replaced. Outputs are checked (writable, not overlapping the run
+folder or the input) before the long work starts; results are written into a
+temporary folder beside the target (``.sin3dm-tmp-<pid>-*``, removed by the
+next run if the process was killed) and moved into place at the end.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import sys
-import tempfile
 import time
+import warnings
 from pathlib import Path
 
 from .errors import Sin3DMInputError
 
 DEMO_PRESET = "small"
+MAX_SAMPLES = 10_000  # per command, whatever the memory: each sample is decoded and exported in turn
 
 
 def _positive_int(text: str) -> int:
@@ -53,34 +63,43 @@ def _unit_float(text: str) -> float:
     return v
 
 
+class _Parser(argparse.ArgumentParser):
+    """Argument errors as one line (no usage block), exit code 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .config import PRESETS
 
-    p = argparse.ArgumentParser(prog="sin3dm-lite", description="Sin3DM: learn a diffusion model from one textured mesh.")
+    p = _Parser(prog="sin3dm-lite", description="Sin3DM: learn a diffusion model from one textured mesh.")
     sub = p.add_subparsers(dest="command", required=True)
 
     e = sub.add_parser("examples", help="list the built-in example shapes, or write one as OBJ/MTL/PNG")
     e.add_argument("--write", metavar="NAME", help="example to write")
     e.add_argument("--out", default=".", help="folder for --write (default: current folder)")
-    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--seed", type=_seed, default=0)
+    e.add_argument("--overwrite", action="store_true", help="replace files of the example that sin3dm-lite wrote before")
 
     g = sub.add_parser("grid", help="turn a mesh into the truncated SDF + colour grid (.npz)")
     g.add_argument("mesh", help="mesh file (OBJ, GLB/glTF, PLY) or example name")
     g.add_argument("--resolution", type=int, default=128, help="voxels along the longest side (16-512)")
     g.add_argument("--out", required=True, help="output .npz file")
+    g.add_argument("--overwrite", action="store_true", help="replace an existing grid file that sin3dm-lite wrote")
 
     f = sub.add_parser("fit", help="fit the autoencoder and the diffusion model to one mesh")
     f.add_argument("mesh", help="mesh file (OBJ, GLB/glTF, PLY) or example name")
     f.add_argument("--preset", choices=list(PRESETS), default="small")
     f.add_argument("--out", required=True, help="run folder (new, or existing with --resume)")
     f.add_argument("--resume", action="store_true", help="continue an interrupted fit from its checkpoints")
-    f.add_argument("--seed", type=int, default=None)
+    f.add_argument("--seed", type=_seed, default=None)
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
 
     s = sub.add_parser("sample", help="generate textured meshes from a fitted run folder")
     _sample_args(s)
     s.add_argument("run", help="run folder written by `sin3dm-lite fit`")
-    s.add_argument("--out", required=True, help="output folder")
+    s.add_argument("--out", required=True, help="output folder (new or empty; see --overwrite)")
 
     d = sub.add_parser("demo", help="the whole method on the default example: load (or --train), sample, export")
     _sample_args(d, n_default=4)
@@ -98,12 +117,24 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
                         "lower values keep more of the input's layout")
     s.add_argument("--steps", type=_positive_int, default=None, help="DDIM steps (default: the preset's)")
     s.add_argument("--ddpm", action="store_true", help="use full DDPM sampling (all timesteps) instead of DDIM")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=_seed, default=0)
     s.add_argument("--faces", type=_positive_int, default=None, help="face budget per mesh")
     s.add_argument("--texture-size", type=_positive_int, default=None, help="texture image size in pixels")
     s.add_argument("--mesh-resolution", type=_positive_int, default=None,
                    help="decode grid along the longest side (default: the preset's)")
     s.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
+    s.add_argument("--overwrite", action="store_true",
+                   help="write into a non-empty --out, replacing only the files sin3dm-lite wrote there before")
+
+
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if not 0 <= v < 2**32:
+        raise argparse.ArgumentTypeError(f"seeds run from 0 to {2**32 - 1}, got {v}")
+    return v
 
 
 # --------------------------------------------------------------------------- commands
@@ -111,7 +142,31 @@ def cmd_examples(a) -> None:
     from . import examples
 
     if a.write:
-        path = examples.write_example(a.write, a.out, seed=a.seed)
+        from .files import check_writable, foreign_files, install_output, make_temp_dir, remove_stale_temps
+
+        if a.write not in examples.list_examples():
+            raise Sin3DMInputError(f"unknown example '{a.write}'; choose one of: {', '.join(examples.list_examples())}")
+        out = Path(a.out)
+        if out.exists() and not out.is_dir():
+            raise Sin3DMInputError(f"--out '{out}' is a file; give a folder to write the example into")
+        names = [f"{a.write}{ext}" for ext in (".obj", ".mtl", ".png")]
+        there = [n for n in names if (out / n).exists()]
+        if there and not a.overwrite:
+            raise Sin3DMInputError(f"'{out / there[0]}' exists; pass --overwrite to replace it if sin3dm-lite wrote it, "
+                                   "or choose another --out")
+        clash = foreign_files(out, names) if out.is_dir() else []
+        if clash:
+            raise Sin3DMInputError(f"'{out / clash[0]}' was not written by sin3dm-lite; move it away or choose another --out")
+        check_writable(out)
+        out.mkdir(parents=True, exist_ok=True)
+        remove_stale_temps(out)
+        tmp = make_temp_dir(out)
+        try:
+            path = examples.write_example(a.write, tmp, seed=a.seed)
+            _merge_into(tmp, out)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        path = out / path.name
         print(f"wrote {path} (+ .mtl and .png): open it in Blender with File › Import › Wavefront (.obj)")
         return
     for name in examples.list_examples():
@@ -123,47 +178,122 @@ def cmd_grid(a) -> None:
     from .grid import mesh_to_grid, save_grid
     from .pipeline import resolve_mesh
 
+    from .files import check_not_overlapping, check_writable, read_manifest, remove_stale_temps, write_manifest
+
     out = Path(a.out)
     if out.suffix != ".npz":
         raise Sin3DMInputError(f"--out must be a .npz file, got '{out}'")
     from .grid import _check_resolution
 
     _check_resolution(a.resolution)
+    if Path(a.mesh).exists():
+        check_not_overlapping(out, {"input mesh": Path(a.mesh)})
+    if out.is_dir():
+        raise Sin3DMInputError(f"--out '{out}' is a folder; give a file name like {out / 'grid.npz'}")
+    if out.exists() and not a.overwrite:
+        raise Sin3DMInputError(f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) or choose another --out")
+    if out.exists() and out.name not in read_manifest(out.parent):
+        raise Sin3DMInputError(f"'{out}' was not written by sin3dm-lite; move it away or choose another --out")
+    check_writable(out)
     mesh = resolve_mesh(a.mesh)
     grid = mesh_to_grid(mesh, a.resolution)
+    remove_stale_temps(out.parent)
     save_grid(grid, out)
+    write_manifest(out.parent, read_manifest(out.parent) | {out.name})
     print(f"wrote {out}: sdf {grid.shape}, color {grid.color.shape}, box {[round(float(x), 3) for x in grid.aabb]}")
 
 
 def cmd_fit(a) -> None:
     from .pipeline import Sin3DM
 
+    if a.resume and not Path(a.out).is_dir():
+        raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")
     t0 = time.perf_counter()
     model = Sin3DM.fit(a.mesh, preset=a.preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device)
     r = model.report["reconstruction"]
     print(
         f"fit done in {time.perf_counter() - t0:.0f} s: occupancy IoU {r['occupancy_iou']:.3f}, "
         f"sign accuracy {r['sign_accuracy']:.3f}, colour PSNR {r['color_psnr']:.1f} dB\n"
-        f"next: sin3dm-lite sample {a.out} -n 4 --out {Path(a.out) / 'samples'}"
+        f"next: sin3dm-lite sample {a.out} -n 4 --out {Path(a.out).with_name(Path(a.out).name + '-samples')}"
     )
 
 
+def _merge_into(tmp: Path, out: Path) -> None:
+    """Move the files of ``tmp`` into the existing folder ``out`` (checked beforehand) and record them in its manifest."""
+    from .files import read_manifest, write_manifest
+
+    names = sorted(p.name for p in tmp.iterdir())
+    write_manifest(out, read_manifest(out) | set(names))  # first: a kill leaves no file of ours unrecorded
+    for n in names:
+        os.replace(tmp / n, out / n)
+
+
+def _memory_available(device) -> int:
+    """Bytes free for sampling on ``device`` (RAM for the CPU)."""
+    import torch
+
+    if device.type == "cuda":
+        return int(torch.cuda.mem_get_info(device)[0])
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30
+
+
+def max_samples(model, resize) -> int:
+    """How many samples fit in memory at once: the denoiser holds about 16 feature maps of its widest layer per sample."""
+    import numpy as np
+
+    x, y, z = np.maximum(4, np.round(np.array(model.latent.resolution) * np.asarray(resize, float)))
+    texels = x * y + x * z + y * z
+    width = max(int(model.config.diffusion.base_channels), int(model.latent.channels)) * 2
+    per_sample = 16 * texels * width * 4
+    return int(max(1, min(MAX_SAMPLES, 0.5 * _memory_available(model.device) // per_sample)))
+
+
+def check_sample_output(out: Path, a, protected: dict) -> None:
+    """Everything about ``--out`` and ``-n`` that can fail, checked before any work or writing."""
+    from .files import check_not_overlapping, check_output_folder, check_writable
+
+    check_not_overlapping(out, protected)
+    names = ["index.html"] + [f"{i:03d}" for i in range(a.n)]
+    check_output_folder(out, a.overwrite, names)
+    check_writable(out)
+
+
 def write_samples(model, out: Path, a, label: str = "sample") -> Path:
-    """Sample, decode and export into ``out`` (written in a temp folder, moved into place at the end)."""
+    """Sample, decode and export into ``out``.
+
+    Everything is written into a temporary folder beside ``out``
+    (``.sin3dm-tmp-<pid>-*``) and moved into place at the end; into an
+    existing ``out`` (``--overwrite``) only the files its manifest lists are
+    replaced (see :func:`sin3dm_lite.files.install_output`).
+    """
     from .export import export_mesh
+    from .files import install_output, make_temp_dir, remove_stale_temps
     from .viewer import gallery, save_html
 
     out = Path(out)
-    if out.exists() and any(out.iterdir()) and not (out / "index.html").exists():
-        raise Sin3DMInputError(f"output folder '{out}' exists and holds other files; choose another --out")
     resize = tuple(a.resize) if a.resize else (1.0, 1.0, 1.0)
-    t0 = time.perf_counter()
-    samples = model.sample(a.n, resize=resize, steps=a.steps, method="ddpm" if a.ddpm else None, seed=a.seed,
-                           diversity=a.diversity)
+    limit = max_samples(model, resize)
+    if a.n > limit:
+        raise Sin3DMInputError(f"-n {a.n} is more samples than fit in memory at once here (at most {limit} with this "
+                               f"model{' and --resize' if a.resize else ''}); ask for fewer and run again with another --seed")
+    check_sample_output(out, a, {})
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".sin3dm-", dir=out.parent))
-    tmp.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary folder
+    remove_stale_temps(out.parent)  # left by a killed run
+    tmp = make_temp_dir(out.parent)  # before the long work: the location must be writable
     try:
+        t0 = time.perf_counter()
+        samples = model.sample(a.n, resize=resize, steps=a.steps, method="ddpm" if a.ddpm else None, seed=a.seed,
+                               diversity=a.diversity)
         meshes = []
         for i in range(len(samples)):
             mesh = model.to_mesh(samples, i, resolution=a.mesh_resolution, faces=a.faces, texture_size=a.texture_size)
@@ -171,9 +301,7 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
             meshes.append(mesh)
             print(f"[{label}] {i + 1}/{len(samples)}: {len(mesh.faces):,} faces  ({time.perf_counter() - t0:.0f} s)")
         save_html(gallery(meshes, labels=[f"{i:03d}" for i in range(len(meshes))]), tmp / "index.html")
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
+        install_output(tmp, out)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return out
@@ -182,9 +310,13 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
 def cmd_sample(a) -> None:
     from .pipeline import Sin3DM
 
+    from .device import get_device
+
     run = Path(a.run)
     if not run.is_dir():
         raise Sin3DMInputError(f"run folder '{run}' not found; fit one first with `sin3dm-lite fit MESH --out {run}`")
+    get_device(a.device)
+    check_sample_output(Path(a.out), a, {"run folder": run})
     model = Sin3DM.load(run, device=a.device)
     out = write_samples(model, Path(a.out), a)
     print(f"wrote {a.n} samples to {out}/NNN/mesh.obj|.glb; open {out / 'index.html'} in a browser")
@@ -195,7 +327,11 @@ def cmd_demo(a) -> None:
     from .pipeline import Sin3DM
     from .pretrained import pretrained_path
 
+    from .device import get_device
+
     out = Path(a.out)
+    get_device(a.device)
+    check_sample_output(out, a, {} if a.train else {"shipped model folder": pretrained_path()})
     if a.train:
         model = Sin3DM.fit(examples.DEFAULT_EXAMPLE, preset=DEMO_PRESET, out=None, device=a.device)
     else:
@@ -211,14 +347,27 @@ def cmd_demo(a) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
+    show = warnings.showwarning
+
+    def one_line(message, category, filename, lineno, file=None, line=None):  # warnings as one line, no source
+        print(f"sin3dm-lite {a.command}: warning: {message}", file=sys.stderr)
+
+    warnings.showwarning = one_line
     try:
         {"examples": cmd_examples, "grid": cmd_grid, "fit": cmd_fit, "sample": cmd_sample, "demo": cmd_demo}[a.command](a)
     except Sin3DMInputError as e:
         print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # the disk, not the code: a full disk, a folder made read-only meanwhile
+        where = f" '{e.filename}'" if e.filename else ""
+        print(f"sin3dm-lite {a.command}: error: {e.strerror or e}{where}; check that path (permissions, free space) "
+              "or choose another --out", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = show
     return 0
 
 

@@ -1,10 +1,32 @@
-"""Write files atomically: a reader (or a crash) sees the old file or the new one, never half of one."""
+"""Write files safely.
+
+* Atomically: a reader (or a crash) sees the old file or the new one, never half of one.
+* Never over another's files: an output folder records what this tool wrote
+  in a manifest (``.sin3dm-manifest.json``); only those files are ever replaced.
+* Temporary files and folders carry the writer's PID in their name, so that a
+  later run removes the ones a killed process left behind.
+* A run folder is locked (``.sin3dm-lock`` holding the PID) while one process writes it.
+"""
 from __future__ import annotations
 
+import json
 import os
+import re
+import shutil
+import socket
 import tempfile
+import time
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
+
+from .errors import Sin3DMInputError
+
+TEMP_PREFIX = ".sin3dm-tmp-"  # temporary folders: .sin3dm-tmp-<pid>-<random>
+MANIFEST = ".sin3dm-manifest.json"
+LOCK = ".sin3dm-lock"
+_TEMP_DIR = re.compile(r"^\.sin3dm-tmp-(\d+)-")
+_TEMP_FILE = re.compile(r"^\..*\.sin3dm-(\d+)-[^.]*\.tmp")  # from atomic_path
 
 
 @contextmanager
@@ -16,7 +38,7 @@ def atomic_path(path: str | Path):
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.sin3dm-{os.getpid()}-", suffix=f".tmp{path.suffix}", dir=path.parent)
     os.close(fd)
     try:
         yield Path(tmp)
@@ -35,3 +57,267 @@ def atomic_write(path: str | Path, data: bytes | str) -> Path:
         else:
             tmp.write_bytes(data)
     return Path(path)
+
+
+# --------------------------------------------------------------------------- temporaries
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (a zombie counts as dead)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's process
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def make_temp_dir(parent: Path) -> Path:
+    """A new folder ``parent/.sin3dm-tmp-<pid>-<random>`` (mode 755); a later run removes it if this process dies."""
+    tmp = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{os.getpid()}-", dir=parent))
+    tmp.chmod(0o755)  # mkdtemp makes it private; the result becomes an ordinary folder
+    return tmp
+
+
+def remove_stale_temps(folder: Path) -> list[Path]:
+    """Remove temporary folders/files in ``folder`` left by sin3dm-lite processes that no longer run."""
+    removed = []
+    try:
+        entries = list(Path(folder).iterdir())
+    except OSError:
+        return removed
+    for e in entries:
+        m = _TEMP_DIR.match(e.name) or _TEMP_FILE.match(e.name)
+        if m is None or pid_alive(int(m.group(1))):
+            continue
+        try:
+            if e.is_dir() and not e.is_symlink():
+                shutil.rmtree(e)
+            else:
+                e.unlink()
+            removed.append(e)
+        except OSError:
+            pass
+    return removed
+
+
+# --------------------------------------------------------------------------- output checks
+def _resolved(p: Path) -> Path:
+    return Path(os.path.abspath(Path(p).expanduser())).resolve()
+
+
+def check_not_overlapping(out: Path, protected: dict[str, Path], option: str = "--out") -> None:
+    """Refuse ``out`` equal to, inside or containing any of ``protected`` (``{what: path}``)."""
+    o = _resolved(out)
+    for what, p in protected.items():
+        if p is None:
+            continue
+        q = _resolved(p)
+        if o == q or q in o.parents or o in q.parents:
+            how = "is" if o == q else ("is inside" if q in o.parents else "contains")
+            raise Sin3DMInputError(f"{option} '{out}' {how} the {what} '{p}'; choose an {option} outside it")
+
+
+def check_writable(path: Path, option: str = "--out") -> None:
+    """Fail now, not after the long work, if ``path`` (a file or folder to create) cannot be written."""
+    path = Path(path)
+    base = path if path.is_dir() else path.parent
+    while not base.exists():  # the nearest existing ancestor must let us create what is missing
+        if base.parent == base:
+            break
+        base = base.parent
+    if not base.is_dir():
+        raise Sin3DMInputError(f"cannot write {option} '{path}': '{base}' is a file, not a folder; choose another {option}")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".sin3dm-{os.getpid()}-probe.tmp", dir=base)
+        os.close(fd)
+        os.remove(probe)
+    except OSError as e:
+        raise Sin3DMInputError(f"cannot write {option} '{path}' ({e.strerror} in '{base}'); choose a writable {option}") from None
+
+
+# --------------------------------------------------------------------------- manifest
+def read_manifest(folder: Path) -> set[str]:
+    """The files (paths relative to ``folder``) this tool wrote there before; empty when there is no valid manifest."""
+    try:
+        data = json.loads((Path(folder) / MANIFEST).read_text(encoding="utf-8"))
+        files = data["files"] if data.get("tool") == "sin3dm-lite" else []
+    except (OSError, ValueError, KeyError, AttributeError, TypeError):
+        return set()
+    out = set()
+    for f in files:
+        if isinstance(f, str) and f and not os.path.isabs(f) and ".." not in Path(f).parts and f != MANIFEST:
+            out.add(Path(f).as_posix())
+    return out
+
+
+def write_manifest(folder: Path, files) -> None:
+    atomic_write(Path(folder) / MANIFEST, json.dumps({"tool": "sin3dm-lite", "files": sorted(set(files))}, indent=1))
+
+
+def _files_under(folder: Path) -> list[str]:
+    return sorted(p.relative_to(folder).as_posix() for p in Path(folder).rglob("*") if p.is_file() or p.is_symlink())
+
+
+def foreign_files(out: Path, names) -> list[str]:
+    """Of ``names`` (relative paths, files or folders), those that exist in ``out`` and hold files not in its manifest."""
+    out = Path(out)
+    ours = read_manifest(out)
+    found = []
+    for n in names:
+        p = out / n
+        if p.is_dir() and not p.is_symlink():
+            found += [f"{n}/{f}" for f in _files_under(p) if f"{n}/{f}" not in ours]
+        elif (p.exists() or p.is_symlink()) and Path(n).as_posix() not in ours:
+            found.append(Path(n).as_posix())
+    return found
+
+
+def check_output_folder(out: Path, overwrite: bool, names=(), option: str = "--out") -> None:
+    """Refuse an ``out`` that is a file, or a non-empty folder without ``overwrite``.
+
+    With ``overwrite``, refuse if any of ``names`` (what the command will write)
+    is a file this tool did not write there before.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise Sin3DMInputError(f"{option} '{out}' is a file; give a folder to write into")
+    if not out.is_dir():
+        return
+    present = [p for p in out.iterdir() if not (_TEMP_DIR.match(p.name) or _TEMP_FILE.match(p.name))]
+    if not present:
+        return
+    if not overwrite:
+        raise Sin3DMInputError(
+            f"output folder '{out}' is not empty; pass --overwrite to replace what sin3dm-lite wrote there before "
+            f"(other files are kept), or choose another {option}"
+        )
+    clash = foreign_files(out, names)
+    if clash:
+        raise Sin3DMInputError(
+            f"'{out / clash[0]}' was not written by sin3dm-lite and would be replaced; move it away or choose another {option}"
+        )
+
+
+def install_output(tmp: Path, out: Path) -> list[str]:
+    """Move everything in the finished folder ``tmp`` into ``out`` and record it in ``out``'s manifest.
+
+    A new ``out`` appears in one rename. Into an existing ``out``, the files
+    the old manifest lists are removed first (files it does not list are never
+    touched; one in the way of a new file stops everything before any change).
+    The manifest is written first with old and new entries, so a kill halfway
+    leaves no file of ours unrecorded. Returns the new files (relative paths).
+    """
+    tmp, out = Path(tmp), Path(out)
+    new = _files_under(tmp)
+    if not out.exists():
+        write_manifest(tmp, new)
+        os.rename(tmp, out)
+        return new
+    old = read_manifest(out)
+    clash = [f for f in new if (out / f).exists() and f not in old]
+    if clash:
+        raise Sin3DMInputError(f"'{out / clash[0]}' was not written by sin3dm-lite and would be replaced; move it away and run again")
+    write_manifest(out, old | set(new))
+    for f in sorted(old, key=lambda f: -len(Path(f).parts)):
+        p = out / f
+        if p.is_file() or p.is_symlink():
+            p.unlink()
+        for d in list(Path(f).parents)[:-1]:  # folders of ours left empty
+            try:
+                (out / d).rmdir()
+            except OSError:
+                break
+    for f in new:
+        dst = out / f
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp / f, dst)
+    write_manifest(out, new)
+    shutil.rmtree(tmp, ignore_errors=True)
+    return new
+
+
+# --------------------------------------------------------------------------- run-folder lock
+_held: set[Path] = set()
+
+
+def _lock_info() -> dict:
+    return {"pid": os.getpid(), "host": socket.gethostname(), "since": time.strftime("%Y-%m-%d %H:%M:%S")}
+
+
+def create_locked_folder(folder: Path, files: dict[str, str], option: str = "--out") -> None:
+    """Create ``folder`` holding ``files`` (``{name: text}``) and a lock of this process, in one rename.
+
+    A kill leaves either the complete folder (with a stale lock the next
+    writer takes over) or a temporary folder beside it that the next run removes.
+    """
+    folder = Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(folder.parent)
+    tmp = make_temp_dir(folder.parent)
+    try:
+        for name, text in files.items():
+            (tmp / name).write_text(text, encoding="utf-8")
+        (tmp / LOCK).write_text(json.dumps(_lock_info()))
+        os.rename(tmp, folder)  # replaces an empty folder; fails if another process filled it meanwhile
+    except OSError as e:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise Sin3DMInputError(f"cannot create '{folder}' ({e.strerror}); choose another {option}") from None
+    _held.add(_resolved(folder))
+
+
+def acquire_lock(folder: Path) -> None:
+    """Lock ``folder`` for this process (``folder/.sin3dm-lock`` with the PID).
+
+    A lock of a live process refuses; a lock of a dead one is taken over with a warning.
+    """
+    folder = Path(folder)
+    lock = folder / LOCK
+    me = _lock_info()
+    for _ in range(3):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                info = json.loads(lock.read_text())
+                pid, host = int(info["pid"]), str(info.get("host", ""))
+            except (OSError, ValueError, KeyError, TypeError):
+                info, pid, host = {}, -1, me["host"]  # unreadable: a writer killed while writing it
+            if host == me["host"] and not pid_alive(pid) or pid == -1:
+                warnings.warn(f"run folder '{folder}' was locked by process {pid}, which no longer runs; taking it over",
+                              stacklevel=3)
+                try:
+                    lock.unlink()
+                except FileNotFoundError:
+                    pass
+                continue
+            raise Sin3DMInputError(
+                f"run folder '{folder}' is being written by another sin3dm-lite process (PID {pid} on {host or 'this machine'}, "
+                f"since {info.get('since', '?')}); wait for it to finish, or delete '{lock}' if that process is gone"
+            ) from None
+        with os.fdopen(fd, "w") as f:
+            json.dump(me, f)
+        _held.add(_resolved(folder))
+        remove_stale_temps(folder)  # the folder is ours now: leftovers of a killed writer can go
+        return
+    raise Sin3DMInputError(f"could not lock run folder '{folder}'; another process keeps taking '{lock}'")
+
+
+def holds_lock(folder: Path) -> bool:
+    return _resolved(folder) in _held
+
+
+def release_lock(folder: Path) -> None:
+    """Remove ``folder``'s lock if this process holds it."""
+    key = _resolved(folder)
+    if key in _held:
+        _held.discard(key)
+        try:
+            (Path(folder) / LOCK).unlink()
+        except FileNotFoundError:
+            pass

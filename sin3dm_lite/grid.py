@@ -290,6 +290,24 @@ def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: f
     return sdf, col
 
 
+# vertices beyond this would make the normalised coordinates of the rest lose all precision in float32
+MAX_COORDINATE = 1e15
+
+
+def _check_coordinates(mesh: TexturedMesh) -> None:
+    """Refuse coordinates so large that the bounding box (or the normalisation) overflows."""
+    v = np.asarray(mesh.vertices)
+    with np.errstate(over="ignore", invalid="ignore"):
+        big = float(np.abs(v).max(initial=0.0)) if v.size else 0.0
+        lo, hi = v.astype(np.float64).min(0), v.astype(np.float64).max(0)
+        extent = hi - lo
+    if not np.isfinite(big) or not np.all(np.isfinite(extent)) or big > MAX_COORDINATE:
+        raise Sin3DMInputError(
+            f"'{mesh.name}' has a vertex coordinate of {big:.3g}, too large for its bounding box (the limit is "
+            f"{MAX_COORDINATE:.0e}); remove the stray vertex or scale the mesh down in a mesh editor"
+        )
+
+
 def mesh_to_grid(
     mesh: TexturedMesh,
     resolution: int = 128,
@@ -318,6 +336,7 @@ def mesh_to_grid(
     _check_resolution(resolution)
     say = print if progress else (lambda *a, **k: None)
     t0 = time.perf_counter()
+    _check_coordinates(mesh)
     m = mesh.normalized()
     extent = m.bounds[1] - m.bounds[0]
     dims = np.array(grid_dims(extent, resolution))
@@ -334,6 +353,11 @@ def mesh_to_grid(
         warnings.warn(f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
                       "to tell inside from outside", stacklevel=2)
     sdf, color, sure = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say)
+    if not (sdf < 0).any():
+        raise Sin3DMInputError(
+            f"'{mesh.name}' has no inside at {resolution} voxels: it encloses no volume (a single triangle, an open "
+            "sheet, or parts thinner than a voxel); give a closed (watertight) mesh or a solid with some thickness"
+        )
     out = ShapeGrid(sdf, color, aabb, threshold, m.normalization, name=mesh.name)
     say(f"[grid] grid done ({time.perf_counter() - t0:.1f} s)")
 
@@ -387,15 +411,21 @@ def load_grid(path: str | Path) -> ShapeGrid:
     path = Path(path)
     if not path.is_file():
         raise Sin3DMInputError(f"grid file '{path}' not found; create one with `sin3dm-lite grid MESH --out {path.name}`")
-    with np.load(path) as z:
-        return ShapeGrid(
-            sdf=z["sdf"],
-            color=z["color"],
-            aabb=z["aabb"],
-            threshold=float(z["threshold"]),
-            normalization=Normalization(center=z["center"], scale=float(z["scale"])),
-            points=z["points"],
-            point_sdf=z["point_sdf"],
-            point_color=z["point_color"],
-            name=str(z["name"]),
-        )
+    try:
+        with np.load(path) as z:
+            return ShapeGrid(
+                sdf=z["sdf"],
+                color=z["color"],
+                aabb=z["aabb"],
+                threshold=float(z["threshold"]),
+                normalization=Normalization(center=z["center"], scale=float(z["scale"])),
+                points=z["points"],
+                point_sdf=z["point_sdf"],
+                point_color=z["point_color"],
+                name=str(z["name"]),
+            )
+    except Exception as e:  # noqa: BLE001 - truncated, foreign, pickled objects: one clear message
+        why = f"the entry {e} is missing" if isinstance(e, KeyError) else "it is truncated or not a grid file"
+        raise Sin3DMInputError(
+            f"'{path}' was not made by this version of sin3dm-lite ({why}); write it again with `sin3dm-lite grid MESH --out {path.name}`"
+        ) from None

@@ -33,12 +33,16 @@ from .autoencoder import AutoencoderTrainer, TriplaneDecoder, reconstructed_grid
 from .config import Config, get_preset
 from .device import get_device
 from .errors import Sin3DMInputError
-from .files import atomic_path, atomic_write
+from .files import acquire_lock, atomic_path, atomic_write, create_locked_folder, holds_lock, release_lock
 from .grid import load_grid, mesh_to_grid, save_grid
 from .mesh_io import Normalization, TexturedMesh
 from .triplane import Triplane
 
 MODEL_FILE = "model.pt"
+MODEL_FORMAT = "sin3dm-lite/1"
+MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
+MIN_PSNR = 20.0  # ... or this colour PSNR (dB): an RMS colour error above 10 %
+RUN_FILES = ("config.json", "grid.npz", "autoencoder.pt", "diffusion.pt", MODEL_FILE, "losses.json", "report.json")
 
 
 def atomic_torch_save(obj, path: Path) -> None:
@@ -47,9 +51,34 @@ def atomic_torch_save(obj, path: Path) -> None:
         torch.save(obj, tmp)
 
 
-def load_checkpoint(path: Path) -> dict:
-    """``torch.load`` with ``weights_only=True``: checkpoints hold tensors and plain containers only."""
-    return torch.load(path, map_location="cpu", weights_only=True)
+def _not_ours(path: Path, what: str, why: str) -> Sin3DMInputError:
+    return Sin3DMInputError(
+        f"'{path}' was not made by this version of sin3dm-lite ({why}); "
+        + ("fit the model again with `sin3dm-lite fit MESH --out DIR`" if what == "model"
+           else "delete it to restart that stage, or fit again into a new run folder")
+    )
+
+
+def load_checkpoint(path: Path, what: str = "checkpoint") -> dict:
+    """``torch.load`` with ``weights_only=True``: checkpoints hold tensors and plain containers only.
+
+    A file that is truncated, not a checkpoint, holds code (a pickle of
+    arbitrary objects) or is not a dictionary gives a :class:`Sin3DMInputError`
+    naming the file; it is never unpickled with code.
+    """
+    import pickle
+    import zipfile
+
+    try:
+        b = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:  # weights_only refused an object: the file holds more than tensors
+        raise _not_ours(path, what, "it holds Python objects other than tensors, which are not loaded") from None
+    except (RuntimeError, EOFError, ValueError, zipfile.BadZipFile, OSError, UnicodeDecodeError, AttributeError) as e:
+        raise _not_ours(path, what, "it is truncated or not a PyTorch checkpoint" + (
+            f": {e.strerror}" if isinstance(e, OSError) and e.strerror else "")) from None
+    if not isinstance(b, dict):
+        raise _not_ours(path, what, f"it holds a {type(b).__name__}, not a dictionary")
+    return b
 
 
 def resolve_mesh(source) -> TexturedMesh:
@@ -125,8 +154,45 @@ class Sin3DM:
 
         With ``out`` a run folder is written (see the module docstring); with
         ``resume=True`` an existing run folder is continued from its last
-        checkpoint.
+        checkpoint. The run folder is locked (``.sin3dm-lock``) while the fit
+        writes it. Every argument is checked before anything is written; a new
+        run folder appears with its ``config.json`` in one rename, and a fresh
+        fit that fails with an error removes what it wrote (an interrupted one,
+        Ctrl-C, keeps its checkpoints for ``resume=True``). A reconstruction
+        below :data:`MIN_IOU` / :data:`MIN_PSNR` gives a warning.
         """
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32):
+            raise Sin3DMInputError(f"seed must be a whole number from 0 to {2**32 - 1}, got {seed!r}")
+        if not isinstance(preset, Config):
+            get_preset(preset)  # a bad name fails here
+        get_device(device)
+        run = Path(out) if out is not None else None
+        if run is not None:
+            from .files import check_not_overlapping, check_writable
+
+            if isinstance(source, (str, Path)) and Path(source).exists():
+                check_not_overlapping(run, {"input mesh": Path(source)})
+            if run.exists() and not run.is_dir():
+                raise Sin3DMInputError(f"run folder '{run}' is a file; choose a folder for out (CLI: --out)")
+            check_writable(run)
+        existed = run is not None and run.exists()
+        try:
+            model = cls._fit(source, preset, run, resume, seed, device, progress)
+        except KeyboardInterrupt:
+            raise  # the checkpoints stay: continue with resume=True
+        except BaseException:
+            if run is not None and not resume and holds_lock(run):
+                _remove_failed_run(run, existed)
+            raise
+        finally:
+            if run is not None:
+                release_lock(run)
+        _warn_if_poor(model.report.get("reconstruction", {}))
+        return model
+
+    @classmethod
+    def _fit(cls, source, preset, out, resume, seed, device, progress) -> "Sin3DM":
+        """:meth:`fit`'s stages, after its checks."""
         from .diffusion import DiffusionTrainer
 
         say = print if progress else (lambda *a, **k: None)
@@ -317,18 +383,24 @@ class Sin3DM:
             raise Sin3DMInputError(
                 f"no fitted model at '{run_dir}' (expected {MODEL_FILE}); fit one with `sin3dm-lite fit MESH --out DIR`"
             )
+        b = load_checkpoint(path, "model")
+        fmt = b.get("format")
+        if fmt != MODEL_FORMAT:
+            raise _not_ours(path, "model", f"its format is {fmt!r}, not '{MODEL_FORMAT}'" if fmt else "it has no format tag")
         try:
-            b = load_checkpoint(path)
             cfg = Config.from_dict(json.loads(b["config"]))
-        except Exception as e:  # noqa: BLE001 - any unreadable file gets one clear message
-            raise Sin3DMInputError(f"'{path}' is not a readable sin3dm-lite model ({type(e).__name__}: {e})") from None
-        latent = Triplane.from_state_dict(b["latent"])
-        decoder = TriplaneDecoder(cfg.autoencoder, float(b["decoder"]["threshold"]), int(b["color_channels"]))
-        decoder.load_state_dict(b["decoder"])
-        denoiser = TriplaneUNet(latent.channels, cfg.diffusion)
-        denoiser.load_state_dict(b["denoiser"])
-        norm = Normalization(center=b["center"].numpy(), scale=float(b["scale"]))
-        return cls(cfg, decoder, latent, denoiser, b["aabb"].numpy(), norm, json.loads(b["report"]), device)
+            latent = Triplane.from_state_dict(b["latent"])
+            decoder = TriplaneDecoder(cfg.autoencoder, float(b["decoder"]["threshold"]), int(b["color_channels"]))
+            decoder.load_state_dict(b["decoder"])
+            denoiser = TriplaneUNet(latent.channels, cfg.diffusion)
+            denoiser.load_state_dict(b["denoiser"])
+            norm = Normalization(center=b["center"].numpy(), scale=float(b["scale"]))
+            aabb, report = b["aabb"].numpy(), json.loads(b["report"])
+        except KeyError as e:
+            raise _not_ours(path, "model", f"the entry {e} is missing") from None
+        except Exception as e:  # noqa: BLE001 - wrong shapes, types or JSON: one clear message
+            raise _not_ours(path, "model", f"its contents do not match ({type(e).__name__})") from None
+        return cls(cfg, decoder, latent, denoiser, aabb, norm, report, device)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -345,12 +417,50 @@ def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Co
     if resume:
         if not cfg_file.exists():
             raise Sin3DMInputError(f"cannot resume: '{run}' has no config.json; start a new fit without --resume")
-        return Config.from_dict(json.loads(cfg_file.read_text()))
+        try:
+            cfg = Config.from_dict(json.loads(cfg_file.read_text()))
+        except Exception:  # noqa: BLE001 - a damaged or foreign config: one clear message
+            raise _not_ours(cfg_file, "config", "it is not a readable configuration") from None
+        acquire_lock(run)
+        return cfg
     if run.exists() and any(run.iterdir()):
         raise Sin3DMInputError(f"run folder '{run}' is not empty; continue it with --resume or choose another --out")
-    run.mkdir(parents=True, exist_ok=True)
-    atomic_write(cfg_file, cfg.to_json())
+    # the new run folder appears with its config and lock in one rename: a kill leaves a resumable
+    # folder or only a temporary one (removed by the next run), never a folder that blocks the next try
+    create_locked_folder(run, {"config.json": cfg.to_json()}, option="--out")
     return cfg
+
+
+def _remove_failed_run(run: Path, existed: bool) -> None:
+    """Remove what a failed fresh fit wrote into ``run`` (and the folder, if the fit made it and it is empty)."""
+    import re
+
+    for name in RUN_FILES:
+        (run / name).unlink(missing_ok=True)
+    for p in run.iterdir():  # temporaries of atomic writes
+        if re.match(r"^\..*\.sin3dm-\d+-[^.]*\.tmp", p.name):
+            p.unlink(missing_ok=True)
+    release_lock(run)
+    if not existed:
+        try:
+            run.rmdir()
+        except OSError:
+            pass  # someone put a file there meanwhile: leave it
+
+
+def _warn_if_poor(rec: dict) -> None:
+    """Warn when the autoencoder's reconstruction is too poor for useful samples, with the likely cause."""
+    import warnings
+
+    iou, psnr = rec.get("occupancy_iou"), rec.get("color_psnr")
+    if iou is not None and iou < MIN_IOU:
+        warnings.warn(f"low reconstruction quality: occupancy IoU {iou:.3f} < {MIN_IOU} (likely cause: too few "
+                      "autoencoder steps or a grid too coarse for thin parts; use a larger preset or resolution)",
+                      stacklevel=3)
+    if psnr is not None and psnr < MIN_PSNR:
+        warnings.warn(f"low reconstruction quality: colour PSNR {psnr:.1f} dB < {MIN_PSNR:.0f} dB (likely cause: "
+                      "texture detail finer than the latent or too few autoencoder steps; use a larger preset)",
+                      stacklevel=3)
 
 
 def _train(trainer, ckpt: Path | None, every: int, progress: bool, label: str, say) -> None:
@@ -362,7 +472,13 @@ def _train(trainer, ckpt: Path | None, every: int, progress: bool, label: str, s
     """
     saved = {"step": None}  # the step the checkpoint file holds
     if ckpt is not None and ckpt.exists():
-        trainer.load_state_dict(load_checkpoint(ckpt))
+        state = load_checkpoint(ckpt)
+        try:
+            trainer.load_state_dict(state)
+        except KeyError as e:
+            raise _not_ours(ckpt, label, f"the entry {e} is missing") from None
+        except (RuntimeError, ValueError, TypeError, AttributeError, IndexError) as e:
+            raise _not_ours(ckpt, label, f"its contents do not match ({type(e).__name__})") from None
         saved["step"] = trainer.step_count
         say(f"[fit] {label}: resumed at step {trainer.step_count}")
     stop = {"asked": False}
