@@ -178,7 +178,7 @@ def cmd_grid(a) -> None:
     from .grid import mesh_to_grid, save_grid
     from .pipeline import resolve_mesh
 
-    from .files import check_not_overlapping, check_writable, read_manifest, remove_stale_temps, write_manifest
+    from .files import check_not_overlapping, check_writable, is_ours, record_written, remove_stale_temps
 
     out = Path(a.out)
     if out.suffix != ".npz":
@@ -192,14 +192,14 @@ def cmd_grid(a) -> None:
         raise Sin3DMInputError(f"--out '{out}' is a folder; give a file name like {out / 'grid.npz'}")
     if out.exists() and not a.overwrite:
         raise Sin3DMInputError(f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) or choose another --out")
-    if out.exists() and out.name not in read_manifest(out.parent):
+    if out.exists() and not is_ours(out.parent, out.name):
         raise Sin3DMInputError(f"'{out}' was not written by sin3dm-lite; move it away or choose another --out")
     check_writable(out)
     mesh = resolve_mesh(a.mesh)
     grid = mesh_to_grid(mesh, a.resolution)
     remove_stale_temps(out.parent)
     save_grid(grid, out)
-    write_manifest(out.parent, read_manifest(out.parent) | {out.name})
+    record_written(out.parent, [out.name])
     print(f"wrote {out}: sdf {grid.shape}, color {grid.color.shape}, box {[round(float(x), 3) for x in grid.aabb]}")
 
 
@@ -220,10 +220,11 @@ def cmd_fit(a) -> None:
 
 def _merge_into(tmp: Path, out: Path) -> None:
     """Move the files of ``tmp`` into the existing folder ``out`` (checked beforehand) and record them in its manifest."""
-    from .files import read_manifest, write_manifest
+    from .files import _stat, read_manifest, write_manifest
 
     names = sorted(p.name for p in tmp.iterdir())
-    write_manifest(out, read_manifest(out) | set(names))  # first: a kill leaves no file of ours unrecorded
+    new = {n: _stat(tmp / n) for n in names}  # os.replace keeps size and time
+    write_manifest(out, {**read_manifest(out), **new})  # first: a kill leaves no file of ours unrecorded
     for n in names:
         os.replace(tmp / n, out / n)
 
@@ -262,8 +263,14 @@ def check_sample_output(out: Path, a, protected: dict) -> None:
     """Everything about ``--out`` and ``-n`` that can fail, checked before any work or writing."""
     from .files import check_not_overlapping, check_output_folder, check_writable
 
+    if a.n > MAX_SAMPLES:
+        raise Sin3DMInputError(f"-n {a.n} is too many samples (at most {MAX_SAMPLES} per run, fewer if memory is short); "
+                               "ask for fewer and run again with another --seed")
     check_not_overlapping(out, protected)
-    names = ["index.html"] + [f"{i:03d}" for i in range(a.n)]
+    names = ["index.html"]  # and the files a sample's folder gets (mesh.obj, .mtl, .glb, mesh*.png)
+    for d in (out.iterdir() if out.is_dir() else []):
+        if d.name.isdigit() and int(d.name) < a.n:
+            names += [f"{d.name}/{f.name}" for f in d.iterdir() if f.name.startswith("mesh")] if d.is_dir() else [d.name]
     check_output_folder(out, a.overwrite, names)
     check_writable(out)
 

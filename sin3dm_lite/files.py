@@ -142,22 +142,47 @@ def check_writable(path: Path, option: str = "--out") -> None:
 
 
 # --------------------------------------------------------------------------- manifest
-def read_manifest(folder: Path) -> set[str]:
-    """The files (paths relative to ``folder``) this tool wrote there before; empty when there is no valid manifest."""
+def _stat(p: Path) -> list[int]:
+    st = os.stat(p)
+    return [st.st_size, st.st_mtime_ns]
+
+
+def read_manifest(folder: Path) -> dict[str, list[int]]:
+    """What this tool wrote in ``folder`` before: ``{relative path: [size, mtime_ns]}`` (empty without a valid manifest)."""
     try:
         data = json.loads((Path(folder) / MANIFEST).read_text(encoding="utf-8"))
-        files = data["files"] if data.get("tool") == "sin3dm-lite" else []
+        files = data["files"] if data.get("tool") == "sin3dm-lite" else {}
+        files = dict(files)
     except (OSError, ValueError, KeyError, AttributeError, TypeError):
-        return set()
-    out = set()
-    for f in files:
-        if isinstance(f, str) and f and not os.path.isabs(f) and ".." not in Path(f).parts and f != MANIFEST:
-            out.add(Path(f).as_posix())
+        return {}
+    out = {}
+    for f, st in files.items():
+        if (isinstance(f, str) and f and not os.path.isabs(f) and ".." not in Path(f).parts and f != MANIFEST
+                and isinstance(st, list) and len(st) == 2):
+            out[Path(f).as_posix()] = st
     return out
 
 
-def write_manifest(folder: Path, files) -> None:
-    atomic_write(Path(folder) / MANIFEST, json.dumps({"tool": "sin3dm-lite", "files": sorted(set(files))}, indent=1))
+def is_ours(folder: Path, rel: str, manifest: dict | None = None) -> bool:
+    """Whether ``folder/rel`` is a file this tool wrote and nobody changed since (same size and time)."""
+    manifest = read_manifest(folder) if manifest is None else manifest
+    p = Path(folder) / rel
+    try:
+        return rel in manifest and p.is_file() and not p.is_symlink() and _stat(p) == list(manifest[rel])
+    except OSError:
+        return False
+
+
+def write_manifest(folder: Path, files: dict[str, list[int]]) -> None:
+    """Record ``files`` (``{relative path: [size, mtime_ns]}``) as written by this tool in ``folder``."""
+    atomic_write(Path(folder) / MANIFEST, json.dumps({"tool": "sin3dm-lite", "files": dict(sorted(files.items()))}, indent=1))
+
+
+def record_written(folder: Path, names) -> None:
+    """Add the files ``names`` (relative to ``folder``, as they are now) to its manifest."""
+    m = read_manifest(folder)
+    m.update({Path(n).as_posix(): _stat(Path(folder) / n) for n in names})
+    write_manifest(folder, m)
 
 
 def _files_under(folder: Path) -> list[str]:
@@ -165,15 +190,15 @@ def _files_under(folder: Path) -> list[str]:
 
 
 def foreign_files(out: Path, names) -> list[str]:
-    """Of ``names`` (relative paths, files or folders), those that exist in ``out`` and hold files not in its manifest."""
+    """Of ``names`` (relative paths, files or folders), those that exist in ``out`` and are not (all) ours."""
     out = Path(out)
     ours = read_manifest(out)
     found = []
     for n in names:
         p = out / n
         if p.is_dir() and not p.is_symlink():
-            found += [f"{n}/{f}" for f in _files_under(p) if f"{n}/{f}" not in ours]
-        elif (p.exists() or p.is_symlink()) and Path(n).as_posix() not in ours:
+            found += [f"{n}/{f}" for f in _files_under(p) if not is_ours(out, f"{n}/{f}", ours)]
+        elif (p.exists() or p.is_symlink()) and not is_ours(out, Path(n).as_posix(), ours):
             found.append(Path(n).as_posix())
     return found
 
@@ -208,26 +233,25 @@ def install_output(tmp: Path, out: Path) -> list[str]:
     """Move everything in the finished folder ``tmp`` into ``out`` and record it in ``out``'s manifest.
 
     A new ``out`` appears in one rename. Into an existing ``out``, the files
-    the old manifest lists are removed first (files it does not list are never
-    touched; one in the way of a new file stops everything before any change).
-    The manifest is written first with old and new entries, so a kill halfway
-    leaves no file of ours unrecorded. Returns the new files (relative paths).
+    the old manifest lists (unchanged since) are removed first; other files are
+    never touched, and one in the way of a new file stops everything before
+    any change. The manifest is written first with old and new entries, so a
+    kill halfway leaves no file of ours unrecorded. Returns the new files.
     """
     tmp, out = Path(tmp), Path(out)
-    new = _files_under(tmp)
+    new = {f: _stat(tmp / f) for f in _files_under(tmp)}
     if not out.exists():
         write_manifest(tmp, new)
         os.rename(tmp, out)
-        return new
+        return sorted(new)
     old = read_manifest(out)
-    clash = [f for f in new if (out / f).exists() and f not in old]
+    mine = {f: st for f, st in old.items() if is_ours(out, f, old)}
+    clash = [f for f in new if (out / f).exists() and f not in mine]
     if clash:
         raise Sin3DMInputError(f"'{out / clash[0]}' was not written by sin3dm-lite and would be replaced; move it away and run again")
-    write_manifest(out, old | set(new))
-    for f in sorted(old, key=lambda f: -len(Path(f).parts)):
-        p = out / f
-        if p.is_file() or p.is_symlink():
-            p.unlink()
+    write_manifest(out, {**mine, **new})
+    for f in sorted(mine, key=lambda f: -len(Path(f).parts)):
+        (out / f).unlink(missing_ok=True)
         for d in list(Path(f).parents)[:-1]:  # folders of ours left empty
             try:
                 (out / d).rmdir()
@@ -239,7 +263,7 @@ def install_output(tmp: Path, out: Path) -> list[str]:
         os.replace(tmp / f, dst)
     write_manifest(out, new)
     shutil.rmtree(tmp, ignore_errors=True)
-    return new
+    return sorted(new)
 
 
 # --------------------------------------------------------------------------- run-folder lock

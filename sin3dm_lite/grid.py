@@ -18,7 +18,7 @@ import point_cloud_utils as pcu
 
 from .errors import Sin3DMInputError
 from .files import atomic_path
-from .mesh_io import Normalization, TexturedMesh, _unique_rows, component_labels
+from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, _unique_rows, component_labels
 
 
 @dataclass
@@ -288,10 +288,6 @@ def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: f
     band = d < threshold
     col[band] = mesh.colors_at(fi[band], bc[band])
     return sdf, col
-
-
-# vertices beyond this would make the normalised coordinates of the rest lose all precision in float32
-MAX_COORDINATE = 1e15
 
 
 def _check_coordinates(mesh: TexturedMesh) -> None:

@@ -307,6 +307,11 @@ def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE) -> Textu
     return _assemble(parts, materials, name=path.stem, source=path.name)
 
 
+# the largest vertex coordinate accepted: beyond it the bounding box or the triangle areas overflow, or
+# the rest of the mesh shrinks below float32 precision once normalised
+MAX_COORDINATE = 1e15
+
+
 def load_any(source, **kwargs) -> TexturedMesh:
     """A :class:`TexturedMesh` from a file path or an existing ``TexturedMesh`` (returned as is)."""
     if isinstance(source, TexturedMesh):
@@ -405,6 +410,12 @@ def _assemble(parts: list[_Part], materials: list[Material], name: str, source: 
         raise Sin3DMInputError(
             f"'{source}' has a zero-size bounding box (all its vertices are at the same point); "
             "Sin3DM needs faces that span some volume"
+        )
+    big = float(np.abs(vertices).max())
+    if big > MAX_COORDINATE:  # the box, the areas and the normalisation would overflow or lose all precision
+        raise Sin3DMInputError(
+            f"'{source}' has a vertex coordinate of {big:.3g}, too large for its bounding box (the limit is "
+            f"{MAX_COORDINATE:.0e}); remove the stray vertex or scale the mesh down in a mesh editor"
         )
     tri = vertices[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)

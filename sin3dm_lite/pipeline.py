@@ -175,6 +175,12 @@ class Sin3DM:
             if run.exists() and not run.is_dir():
                 raise Sin3DMInputError(f"run folder '{run}' is a file; choose a folder for out (CLI: --out)")
             check_writable(run)
+            if resume:  # a damaged checkpoint fails now, before any stage writes
+                for name in ("autoencoder.pt", "diffusion.pt"):
+                    if (run / name).exists():
+                        load_checkpoint(run / name, name.split(".")[0])
+                if (run / "grid.npz").exists():
+                    load_grid(run / "grid.npz")
         existed = run is not None and run.exists()
         try:
             model = cls._fit(source, preset, run, resume, seed, device, progress)

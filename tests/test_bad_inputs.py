@@ -1,0 +1,304 @@
+"""Bad input and faults: every command × every class of bad input exits 2 with one line and writes nothing.
+
+Also: ``--overwrite`` keeps foreign files, the run-folder lock, and SIGKILLed
+``sample``/``fit`` runs after which the next run succeeds with nothing stale left.
+"""
+import json
+import os
+import pickle
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from sin3dm_lite.cli import main
+from sin3dm_lite.files import LOCK, MANIFEST, TEMP_PREFIX, read_manifest
+from sin3dm_lite.pretrained import pretrained_path
+
+SHIPPED = pretrained_path()
+SMALL = ["--steps", "3", "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64"]
+
+
+class RunsCode:
+    """A pickle that would run ``touch PWNED`` when unpickled without weights_only."""
+
+    def __reduce__(self):
+        return (os.system, ("touch PWNED",))
+
+
+def _obj(path: Path, vertices, faces) -> None:
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in vertices] + [f"f {a} {b} {c}" for a, b, c in faces]
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.fixture(scope="module")
+def template(tmp_path_factory):
+    """Inputs of every kind, built once; each test works on its own copy."""
+    root = tmp_path_factory.mktemp("inputs")
+    trimesh.creation.box().export(root / "box.obj")
+    _obj(root / "tri.obj", [(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(1, 2, 3)])
+    _obj(root / "sheet.obj", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(1, 2, 3), (1, 3, 4)])
+    tet = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)]
+    _obj(root / "huge.obj", tet[:3] + [(0, 0, 1e300)], [(1, 3, 2), (1, 2, 4), (2, 3, 4), (1, 4, 3)])
+    _obj(root / "overflow.obj", tet + [(-1e308, 0, 0), (1e308, 0, 0)], [(1, 3, 2), (1, 2, 4), (2, 3, 4), (1, 4, 3), (5, 6, 3)])
+    shutil.copytree(SHIPPED, root / "run")
+    model = (root / "run" / "model.pt").read_bytes()
+    bundle = torch.load(root / "run" / "model.pt", weights_only=True)
+    bad = {
+        "truncated": model[: len(model) // 2],
+        "random": np.random.default_rng(0).bytes(4096),
+    }
+    for name, data in bad.items():
+        (root / name).mkdir()
+        (root / name / "model.pt").write_bytes(data)
+    for name, obj in {
+        "code": {"format": "sin3dm-lite/1", "x": RunsCode()},
+        "missing": {k: v for k, v in bundle.items() if k != "denoiser"},
+        "version": {**bundle, "format": "sin3dm-lite/0"},
+        "notdict": [torch.zeros(3)],
+    }.items():
+        (root / name).mkdir()
+        torch.save(obj, root / name / "model.pt")
+    # a fit run folder whose autoencoder checkpoint is random bytes (for --resume)
+    (root / "badresume").mkdir()
+    shutil.copy(root / "run" / "config.json", root / "badresume" / "config.json")
+    (root / "badresume" / "autoencoder.pt").write_bytes(bad["random"])
+    (root / "full").mkdir()
+    (root / "full" / "theirs.txt").write_text("not ours")
+    (root / "blocker").write_text("a file where a folder is expected")
+    (root / "neighbour.txt").write_text("beside --out")
+    (root / "grid.npz").write_bytes(b"someone else's grid")
+    return root
+
+
+@pytest.fixture
+def work(template, tmp_path, monkeypatch):
+    ws = tmp_path / "ws"
+    shutil.copytree(template, ws)
+    monkeypatch.chdir(ws)
+    return ws
+
+
+def snapshot(root: Path) -> dict:
+    """Every path under ``root``, with the size and modification time of files."""
+    return {p.relative_to(root).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else "folder"
+            for p in root.rglob("*")}
+
+
+NOT_WRITABLE = "/proc/sin3dm-out"  # refused even for root
+
+CASES = {
+    # sample
+    "sample-device": (["sample", "run", "--out", "s", "--device", "gpu"], "device"),
+    "sample-cuda-index": (["sample", "run", "--out", "s", "--device", "cuda:99"], "cuda"),
+    "sample-huge-n": (["sample", "run", "--out", "s", "-n", "1000000000"], "at most"),
+    "sample-n-beyond-memory": (["sample", "run", "--out", "s", "-n", "9000", "--resize", "8", "8", "8"], "fit in memory"),
+    "sample-negative-seed": (["sample", "run", "--out", "s", "--seed", "-1"], "seed"),
+    "sample-truncated": (["sample", "truncated", "--out", "s"], "not made by this version"),
+    "sample-random-bytes": (["sample", "random", "--out", "s"], "not made by this version"),
+    "sample-pickled-code": (["sample", "code", "--out", "s"], "not made by this version"),
+    "sample-missing-keys": (["sample", "missing", "--out", "s"], "'denoiser' is missing"),
+    "sample-other-version": (["sample", "version", "--out", "s"], "sin3dm-lite/0"),
+    "sample-not-a-dict": (["sample", "notdict", "--out", "s"], "not made by this version"),
+    "sample-out-is-run": (["sample", "run", "--out", "run"], "run folder"),
+    "sample-out-inside-run": (["sample", "run", "--out", "run/samples"], "inside the run folder"),
+    "sample-out-contains-run": (["sample", "run", "--out", "."], "contains the run folder"),
+    "sample-out-not-empty": (["sample", "run", "--out", "full"], "--overwrite"),
+    "sample-out-is-file": (["sample", "run", "--out", "neighbour.txt"], "is a file"),
+    "sample-out-under-file": (["sample", "run", "--out", "blocker/s"], "is a file"),
+    "sample-out-not-writable": (["sample", "run", "--out", NOT_WRITABLE], "cannot write"),
+    # demo (the shipped model)
+    "demo-device": (["demo", "--out", "s", "--device", "tpu"], "device"),
+    "demo-huge-n": (["demo", "--out", "s", "-n", "99999999"], "at most"),
+    "demo-out-not-empty": (["demo", "--out", "full"], "--overwrite"),
+    "demo-out-inside-shipped": (["demo", "--out", str(SHIPPED / "s")], "shipped model"),
+    "demo-out-not-writable": (["demo", "--out", NOT_WRITABLE], "cannot write"),
+    # fit
+    "fit-device": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--device", "gpu"], "device"),
+    "fit-negative-seed": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--seed", "-3"], "seed"),
+    "fit-single-triangle": (["fit", "tri.obj", "--preset", "tiny", "--out", "r"], "no inside"),
+    "fit-open-sheet": (["fit", "sheet.obj", "--preset", "tiny", "--out", "r"], "no inside"),
+    "fit-huge-vertex": (["fit", "huge.obj", "--preset", "tiny", "--out", "r"], "too large"),
+    "fit-overflowing-box": (["fit", "overflow.obj", "--preset", "tiny", "--out", "r"], "too large"),
+    "fit-out-contains-mesh": (["fit", "box.obj", "--preset", "tiny", "--out", "."], "input mesh"),
+    "fit-out-not-empty": (["fit", "box.obj", "--preset", "tiny", "--out", "full"], "--resume"),
+    "fit-out-under-file": (["fit", "box.obj", "--preset", "tiny", "--out", "blocker/r"], "is a file"),
+    "fit-out-not-writable": (["fit", "box.obj", "--preset", "tiny", "--out", NOT_WRITABLE], "cannot write"),
+    "fit-resume-missing": (["fit", "box.obj", "--out", "nothing", "--resume"], "resume"),
+    "fit-resume-bad-checkpoint": (["fit", "box.obj", "--out", "badresume", "--resume"], "not made by this version"),
+    # grid
+    "grid-single-triangle": (["grid", "tri.obj", "--resolution", "32", "--out", "g.npz"], "no inside"),
+    "grid-open-sheet": (["grid", "sheet.obj", "--resolution", "32", "--out", "g.npz"], "no inside"),
+    "grid-huge-vertex": (["grid", "huge.obj", "--resolution", "32", "--out", "g.npz"], "too large"),
+    "grid-overflowing-box": (["grid", "overflow.obj", "--resolution", "32", "--out", "g.npz"], "too large"),
+    "grid-out-exists": (["grid", "box.obj", "--resolution", "32", "--out", "grid.npz"], "--overwrite"),
+    "grid-out-foreign-overwrite": (["grid", "box.obj", "--resolution", "32", "--out", "grid.npz", "--overwrite"],
+                                   "not written by sin3dm-lite"),
+    "grid-out-under-file": (["grid", "box.obj", "--out", "blocker/g.npz"], "is a file"),
+    "grid-out-not-writable": (["grid", "box.obj", "--out", NOT_WRITABLE + ".npz"], "cannot write"),
+    # examples
+    "examples-unknown": (["examples", "--write", "teapot", "--out", "e"], "unknown example"),
+    "examples-negative-seed": (["examples", "--write", "wall", "--out", "e", "--seed", "-1"], "seed"),
+    "examples-out-under-file": (["examples", "--write", "wall", "--out", "blocker/e"], "is a file"),
+    "examples-out-not-writable": (["examples", "--write", "wall", "--out", NOT_WRITABLE], "cannot write"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(work, capsys, case):
+    argv, words = CASES[case]
+    before = snapshot(work)
+    with pytest.raises(SystemExit) if "seed" in case else _nothing() as e:
+        code = main(argv)
+    if "seed" in case:  # found by the parser
+        code = e.value.code
+    err = capsys.readouterr().err
+    lines = [line for line in err.strip().splitlines() if ": warning: " not in line]
+    assert code == 2, err
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert words is None or words in lines[0], lines[0]
+    assert "weights_only=False" not in err
+    assert snapshot(work) == before  # nothing written, nothing beside --out touched
+    assert not (work / "PWNED").exists()  # the pickled code never ran
+    assert not [p for p in Path(work).rglob(".sin3dm-*")]
+
+
+class _nothing:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def test_sample_keeps_foreign_files_and_replaces_only_its_own(work, capsys):
+    out = work / "full"  # holds theirs.txt
+    assert main(["sample", "run", "--out", str(out), "-n", "2", *SMALL]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["theirs.txt"]
+    (out / "notes").mkdir()
+    (out / "notes" / "mine.md").write_text("keep me")
+    assert main(["sample", "run", "--out", str(out), "-n", "2", "--overwrite", *SMALL]) == 0
+    ours = set(read_manifest(out))
+    assert {"000/mesh.obj", "001/mesh.glb", "index.html"} <= ours and "theirs.txt" not in ours
+    assert (out / "theirs.txt").read_text() == "not ours" and (out / "notes" / "mine.md").read_text() == "keep me"
+    # fewer samples: our old 001 goes, the foreign files stay
+    (out / "000" / "their_edit.blend").write_text("a foreign file inside one of our folders")
+    assert main(["sample", "run", "--out", str(out), "-n", "1", "--overwrite", *SMALL]) == 0
+    assert not (out / "001").exists() and (out / "000" / "mesh.obj").is_file()
+    assert (out / "000" / "their_edit.blend").is_file() and (out / "theirs.txt").is_file()
+    assert set(read_manifest(out)) == {f"000/{p.name}" for p in (out / "000").iterdir() if p.name != "their_edit.blend"} | {"index.html"}
+    # a foreign file exactly where a new output goes is never replaced
+    (out / "index.html").unlink()
+    (out / "index.html").write_text("their page")
+    before = snapshot(out)
+    assert main(["sample", "run", "--out", str(out), "-n", "1", "--overwrite", *SMALL]) == 2
+    assert "index.html" in capsys.readouterr().err and snapshot(out) == before
+    assert not [p for p in work.rglob(f"{TEMP_PREFIX}*")]
+
+
+def test_grid_and_examples_overwrite_only_their_own(work, capsys):
+    assert main(["grid", "box.obj", "--resolution", "16", "--out", "g/grid.npz"]) == 0
+    assert main(["grid", "box.obj", "--resolution", "16", "--out", "g/grid.npz"]) == 2  # exists
+    assert main(["grid", "box.obj", "--resolution", "24", "--out", "g/grid.npz", "--overwrite"]) == 0
+    with np.load(work / "g" / "grid.npz") as z:
+        assert z["sdf"].shape[0] == 24
+    assert main(["examples", "--write", "wall", "--out", "e"]) == 0
+    assert main(["examples", "--write", "wall", "--out", "e"]) == 2
+    (work / "e" / "wall.png").unlink()
+    (work / "e" / "wall.png").write_bytes(b"their picture")
+    assert main(["examples", "--write", "wall", "--out", "e", "--overwrite"]) == 2
+    assert (work / "e" / "wall.png").read_bytes() == b"their picture"
+    assert "wall.png" in capsys.readouterr().err
+
+
+def test_failing_fresh_fit_leaves_no_run_folder(work, capsys):
+    assert main(["fit", "sheet.obj", "--preset", "tiny", "--out", "runs/r"]) == 2
+    assert not (work / "runs" / "r").exists()
+    assert not [p for p in (work / "runs").iterdir()]  # no temporary folder either
+    assert main(["fit", "box.obj", "--preset", "tiny", "--out", "runs/r", "--seed", "1"]) == 0  # the next try works
+    assert (work / "runs" / "r" / "model.pt").is_file() and not (work / "runs" / "r" / LOCK).exists()
+
+
+def _cli(*argv, **kw):
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    return subprocess.Popen([sys.executable, "-m", "sin3dm_lite.cli", *argv], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kw)
+
+
+def test_run_folder_lock_refuses_a_live_writer_and_takes_over_a_dead_ones_lock(work):
+    assert main(["fit", "box.obj", "--preset", "tiny", "--out", "r"]) == 0
+    (work / "r" / "model.pt").unlink()  # as if interrupted before the end
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (work / "r" / LOCK).write_text(json.dumps({"pid": other.pid, "host": os.uname().nodename, "since": "now"}))
+        p = _cli("fit", "box.obj", "--out", "r", "--resume", cwd=work)
+        _, err = p.communicate(timeout=120)
+        assert p.returncode == 2 and f"PID {other.pid}" in err and len(err.strip().splitlines()) == 1, err
+        assert not (work / "r" / "model.pt").exists()
+    finally:
+        other.kill()
+        other.wait()
+    p = _cli("fit", "box.obj", "--out", "r", "--resume", cwd=work)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err
+    assert "no longer runs; taking it over" in err
+    assert (work / "r" / "model.pt").is_file() and not (work / "r" / LOCK).exists()
+
+
+def _kill_when(p: subprocess.Popen, ready, delay: float, timeout: float = 120) -> None:
+    t0 = time.monotonic()
+    while not ready() and p.poll() is None and time.monotonic() - t0 < timeout:
+        time.sleep(0.02)
+    time.sleep(delay)
+    p.send_signal(signal.SIGKILL)
+    p.communicate()
+
+
+def _stale(folder: Path) -> list[Path]:
+    return [p for p in folder.rglob("*") if p.name.startswith((TEMP_PREFIX, LOCK)) or ".tmp" in p.name]
+
+
+@pytest.mark.parametrize("delay", [0.0, random.Random(1).uniform(0.0, 1.0)])
+def test_killed_sample_leaves_nothing_stale_and_the_next_run_succeeds(work, delay):
+    p = _cli("sample", "run", "--out", "out/s", "-n", "3", *SMALL, cwd=work)
+    _kill_when(p, lambda: (work / "out").is_dir() and any((work / "out").iterdir()), delay)
+    (work / "out").mkdir(exist_ok=True)
+    (work / "out" / "beside.txt").write_text("keep")
+    p = _cli("sample", "run", "--out", "out/s", "-n", "3", "--overwrite", *SMALL, cwd=work)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 0, (delay, err)
+    assert _stale(work / "out") == [], delay
+    s = work / "out" / "s"
+    assert set(read_manifest(s)) == {p.relative_to(s).as_posix() for p in s.rglob("*") if p.is_file() and p.name != MANIFEST}
+    assert sorted(p.name for p in s.iterdir() if p.is_dir()) == ["000", "001", "002"]
+    assert (work / "out" / "beside.txt").read_text() == "keep"
+
+
+@pytest.mark.parametrize("stage, delay", [("start", 0.0), ("training", random.Random(2).uniform(0.0, 1.5))])
+def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay):
+    run = work / "runs" / "r"
+    p = _cli("fit", "wall", "--preset", "tiny", "--out", "runs/r", cwd=work)
+    ready = {"start": lambda: (work / "runs").is_dir() and any((work / "runs").iterdir()),
+             "training": lambda: (run / "autoencoder.pt").exists()}[stage]
+    _kill_when(p, ready, delay)
+    assert [q.name for q in (work / "runs").iterdir()] in ([], ["r"]) or any(
+        q.name.startswith(TEMP_PREFIX) for q in (work / "runs").iterdir())
+    resume = ["--resume"] if run.is_dir() else []
+    locked = (run / LOCK).exists()
+    p = _cli("fit", "wall", "--preset", "tiny", "--out", "runs/r", *resume, cwd=work)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 0, (stage, delay, err)
+    assert ("no longer runs; taking it over" in err) == locked, err  # the killed run's lock is taken over
+    assert [q.name for q in (work / "runs").iterdir()] == ["r"]  # the killed run's temporary folder is gone
+    assert _stale(run) == []
+    assert (run / "model.pt").is_file() and json.loads((run / "report.json").read_text())["autoencoder_steps"] > 0
+    torch.load(run / "model.pt", weights_only=True)
