@@ -302,3 +302,17 @@ def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay):
     assert _stale(run) == []
     assert (run / "model.pt").is_file() and json.loads((run / "report.json").read_text())["autoencoder_steps"] > 0
     torch.load(run / "model.pt", weights_only=True)
+
+
+def test_poor_reconstruction_is_a_warning_with_the_likely_cause():
+    from sin3dm_lite.pipeline import MIN_IOU, MIN_PSNR, _warn_if_poor
+
+    with pytest.warns(UserWarning) as record:
+        _warn_if_poor({"occupancy_iou": MIN_IOU - 0.2, "color_psnr": MIN_PSNR - 5})
+    text = [str(w.message) for w in record]
+    assert len(text) == 2 and "IoU" in text[0] and "PSNR" in text[1] and all("likely cause" in t for t in text)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_if_poor({"occupancy_iou": 0.96, "color_psnr": MIN_PSNR + 3})  # a good fit: silent
