@@ -5,7 +5,8 @@
 
 The grid and the autoencoder (the latent) are reused from RUN, so one lever of
 the denoiser (receptive field, rollout, crops, steps, EMA, ...) is measured at
-a time, against the input mesh SOURCE (example name or file), with the metrics
+a time; an ``autoencoder.*`` setting retrains the autoencoder on RUN's grid
+first (and prints its reconstruction figures),  against the input mesh SOURCE (example name or file), with the metrics
 of bench_samples.py at the fit's grid resolution. Prints one row.
 """
 from __future__ import annotations
@@ -17,8 +18,10 @@ from pathlib import Path
 
 import torch
 
-from bench_samples import references, sample_grids, scores
+from bench_samples import references, sample_grids, save_projections, scores
+from sin3dm_lite.autoencoder import AutoencoderTrainer, reconstructed_grid, reconstruction_metrics
 from sin3dm_lite.diffusion import DiffusionTrainer
+from sin3dm_lite.grid import load_grid
 from sin3dm_lite.pipeline import Sin3DM
 
 
@@ -30,6 +33,8 @@ def main() -> None:
     ap.add_argument("-n", type=int, default=8)
     ap.add_argument("--diversity", type=float, nargs="+", default=[1.0])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--png", default=None, help="folder for a picture of the samples (top and front view)")
+    ap.add_argument("--autoencoder-only", action="store_true", help="stop after the autoencoder's figures")
     a = ap.parse_args()
     model = Sin3DM.load(a.run)
     changes = {}
@@ -40,6 +45,21 @@ def main() -> None:
         except (ValueError, SyntaxError):
             changes[k] = v
     cfg = model.config.updated(**changes)
+    if any(k.startswith("autoencoder.") for k in changes):  # a new latent: retrain the autoencoder on RUN's grid
+        grid = load_grid(Path(a.run) / "grid.npz")
+        t = time.perf_counter()
+        ae = AutoencoderTrainer(grid, cfg.autoencoder, seed=a.seed)
+        ae.run(progress=False)
+        ae_s = time.perf_counter() - t
+        h0 = ae.latent()
+        rec = reconstruction_metrics(reconstructed_grid(ae.model.decoder, h0, grid), grid)
+        model.decoder, model.latent = ae.model.decoder.eval(), h0
+        ref = references(model, a.source, Path(a.run), [cfg.grid.resolution])[cfg.grid.resolution]
+        print(f"{Path(a.run).name} {' '.join(a.settings)}: autoencoder {ae_s:.0f} s ({ae_s / cfg.autoencoder.steps:.3f}"
+              f" s/step) | recon IoU {rec['occupancy_iou']:.3f} | colour PSNR {rec['color_psnr']:.1f} | reconstruction vs"
+              f" input: LP-IoU {ref['ae_lp_iou']:.3f} LP-F {ref['ae_lp_f']:.3f}", flush=True)
+        if a.autoencoder_only:
+            return
     t = time.perf_counter()
     trainer = DiffusionTrainer(model.latent, cfg.diffusion, seed=a.seed)
     trainer.run(progress=False)
@@ -48,7 +68,12 @@ def main() -> None:
     res = [cfg.grid.resolution]
     refs = references(model, a.source, Path(a.run), res)
     for d in a.diversity:
-        sc = scores(refs, sample_grids(model, a.n, res, diversity=d)["occ"])[res[0]]
+        occ = sample_grids(model, a.n, res, diversity=d)["occ"]
+        sc = scores(refs, occ)[res[0]]
+        if a.png:
+            tag = "_".join(a.settings).replace("=", "-").replace(".", "") or "as-fitted"
+            save_projections(refs[res[0]]["input"], occ[res[0]], Path(a.png) / f"{Path(a.run).name}_{tag}_div{d}.png",
+                             f"{' '.join(a.settings)} div {d}: G-Div {sc['g_div']:.3f} LP-IoU {sc['lp_iou']:.3f} LP-F {sc['lp_f']:.3f}")
         print(f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}: diffusion {train_s:.0f} s "
               f"({train_s / max(cfg.diffusion.steps, 1):.3f} s/step, {torch.get_num_threads()} threads) | "
               f"G-Div {sc['g_div']:.3f} | IoU→input {sc['iou_to_input']:.3f} | LP-IoU {sc['lp_iou']:.3f} | "

@@ -15,7 +15,9 @@ over n DDIM samples, each labelled by what it is compared with:
 * ceiling     the same LP metrics for the training grid itself (its marching-cubes
               mesh) against the input: what a perfect model of the grid could score.
               Where the input's detail is finer than the grid, the goal is 90 % of it;
-* vs recon    LP metrics against the autoencoder's reconstruction instead of the input
+* reconstruction vs input: the same LP metrics for the autoencoder's reconstruction of the
+              input (the ceiling the diffusion stage can reach with this autoencoder);
+* vs recon    LP metrics of the samples against the autoencoder's reconstruction instead of the input
               (softer: the model's own view of the shape; not the paper's metric).
 
 Resolutions: the fit's grid resolution and 128 (the paper's evaluation grid).
@@ -60,29 +62,25 @@ def sample_grids(model: Sin3DM, n: int, resolutions, seed: int = 0, diversity: f
         mesh = model.to_mesh(samples, i)
         export_mesh(mesh, (export_dir or Path("/tmp/bench_samples_export")) / f"{i:03d}")
         mesh_s.append(time.perf_counter() - t)
-    occ = {r: [] for r in resolutions}
-    for i in range(n):  # geometry for the metrics (the same mesh, without the texture)
-        mesh = model.to_mesh(samples, i, original_coords=False, vertex_colors=True)
-        for r in resolutions:
-            occ[r].append(metrics.voxelize(mesh, samples.aabb, r))
+    occ = {r: model.occupancy(samples, r) for r in resolutions}  # the same meshes, without the texture
     return {"occ": occ, "sample_s": sample_s, "mesh_s": sample_s + float(np.mean(mesh_s)) if mesh_s else None}
 
 
 def references(model: Sin3DM, source: str, run: Path, resolutions) -> dict:
     """Per resolution: the input's occupancy, the reconstruction's, and the training grid's (the ceiling)."""
     mesh = resolve_mesh(source)
-    mesh.vertices = model.normalization.to_normalized(mesh.vertices)
     grid = load_grid(run / "grid.npz")
     data_mesh = marching_cubes(grid.sdf, grid.aabb)
-    rec_mesh = model.to_mesh(model.input_sample(), 0, original_coords=False, vertex_colors=True)
     out = {}
     for r in resolutions:
-        inp = metrics.input_occupancy(mesh, model.aabb, r)
+        inp = model.input_occupancy(mesh, r)
         data = metrics.voxelize(data_mesh, model.aabb, r)
-        ceiling = metrics.lp_scores(inp, [data])
-        out[r] = {"input": inp, "recon": metrics.voxelize(rec_mesh, model.aabb, r),
+        rec = model.occupancy(model.input_sample(), r)[0]
+        ceiling, ae = metrics.lp_scores(inp, [data]), metrics.lp_scores(inp, [rec])
+        out[r] = {"input": inp, "recon": rec,
                   "ceiling_lp_iou": ceiling["lp_iou"], "ceiling_lp_f": ceiling["lp_fscore"],
-                  "ceiling_iou": metrics.iou(data, inp)}
+                  "ceiling_iou": metrics.iou(data, inp),
+                  "ae_lp_iou": ae["lp_iou"], "ae_lp_f": ae["lp_fscore"], "ae_iou": metrics.iou(rec, inp)}
     return out
 
 
@@ -99,8 +97,32 @@ def scores(refs: dict, occ: dict) -> dict:
             "goal_lp_iou": min(GOALS["lp_iou"], 0.9 * ref["ceiling_lp_iou"]),
             "goal_lp_f": min(GOALS["lp_f"], 0.9 * ref["ceiling_lp_f"]),
             "recon_lp_iou": lp_rec["lp_iou"], "recon_lp_f": lp_rec["lp_fscore"],
+            "ae_lp_iou": ref["ae_lp_iou"], "ae_lp_f": ref["ae_lp_f"], "ae_iou": ref["ae_iou"],
         }
     return out
+
+
+def save_projections(reference: np.ndarray, occ: list, path: Path, title: str = "") -> Path:
+    """A PNG of the input and the samples seen from above (height along y) and from the front (depth along z)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    grids = [reference, *occ]
+    fig, axes = plt.subplots(2, len(grids), figsize=(1.6 * len(grids), 3.6), squeeze=False)
+    for j, g in enumerate(grids):
+        axes[0, j].imshow(g.sum(1).T, origin="lower", cmap="terrain")  # x right, z up: the top view
+        axes[1, j].imshow(g.sum(2).T, origin="lower", cmap="bone")  # x right, y up: the front view
+        axes[0, j].set_title("input" if j == 0 else f"{j - 1}", fontsize=8)
+        for ax in axes[:, j]:
+            ax.set_axis_off()
+    fig.suptitle(title, fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def _mark(ok: bool) -> str:
@@ -112,7 +134,8 @@ def print_scores(label: str, s: dict) -> None:
         print(f"  {label} @{r:<3d} G-Div {v['g_div']:.3f} {_mark(v['g_div'] >= GOALS['g_div'])} | IoU→input "
               f"{v['iou_to_input']:.3f} | vs input: LP-IoU {v['lp_iou']:.3f} {_mark(v['lp_iou'] >= v['goal_lp_iou'])}"
               f" LP-F {v['lp_f']:.3f} {_mark(v['lp_f'] >= v['goal_lp_f'])} | ceiling LP-IoU {v['ceiling_lp_iou']:.3f}"
-              f" LP-F {v['ceiling_lp_f']:.3f} (goals {v['goal_lp_iou']:.2f} / {v['goal_lp_f']:.2f}) | vs recon"
+              f" LP-F {v['ceiling_lp_f']:.3f} (goals {v['goal_lp_iou']:.2f} / {v['goal_lp_f']:.2f}) | reconstruction"
+              f" vs input: IoU {v['ae_iou']:.3f} LP-IoU {v['ae_lp_iou']:.3f} LP-F {v['ae_lp_f']:.3f} | samples vs recon"
               f" (softer): LP-IoU {v['recon_lp_iou']:.3f} LP-F {v['recon_lp_f']:.3f}", flush=True)
 
 

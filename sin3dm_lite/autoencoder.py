@@ -28,7 +28,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from .config import AutoencoderConfig
-from .device import get_device
+from .device import autocast, get_device
 from .extract import decode_grid
 from .grid import ShapeGrid
 from .metrics import iou
@@ -272,12 +272,13 @@ class AutoencoderTrainer:
         cfg = self.cfg
         self.model.train()
         p, s_gt, c_gt = self.sampler(cfg.points_per_step, cfg.grid_fraction, self.gen)
-        h = self.model.encode(self.grid_t)
-        prep = self.model.decoder.prepare(h)
-        s = self.model.decoder.query_sdf(prep, p[None])[0]
-        l_sdf = sdf_loss(s, s_gt, self.grid.threshold, cfg.near_weight, cfg.far_weight)
         band = s_gt.abs() < self.grid.threshold  # colour is only defined near the surface
-        c = self.model.decoder.query_color(prep, p[band][None])[0]
+        with autocast(self.device, cfg.precision):  # the network in bf16 where that is fast; losses in fp32
+            h = self.model.encode(self.grid_t)
+            prep = self.model.decoder.prepare(h)
+            s = self.model.decoder.query_sdf(prep, p[None])[0].float()
+            c = self.model.decoder.query_color(prep, p[band][None])[0].float()
+        l_sdf = sdf_loss(s, s_gt, self.grid.threshold, cfg.near_weight, cfg.far_weight)
         l_col = (c - c_gt[band]).abs().mean() if band.any() else torch.zeros((), device=self.device)
         loss = l_sdf + l_col
         self.opt.zero_grad(set_to_none=True)

@@ -45,6 +45,7 @@ class AutoencoderConfig:
     lr_final_factor: float = 0.1  # exponential decay to this factor of the start lr over the run
     near_weight: float = 1.5  # SDF L1 weight where the error points towards / across the surface
     far_weight: float = 0.5  # ... and where it points away from it
+    precision: str = "auto"  # "bf16" (mixed precision), "fp32", or "auto": bf16 where the hardware runs it natively
 
     @property
     def latent_channels(self) -> int:

@@ -1,7 +1,13 @@
-"""Pick the compute device in one place (CPU by default, CUDA when present), and count parameters."""
+"""Pick the compute device in one place (CPU by default, CUDA when present), its precision, and count parameters."""
 from __future__ import annotations
 
+import contextlib
+from functools import lru_cache
+from pathlib import Path
+
 import torch
+
+PRECISIONS = ("auto", "fp32", "bf16")
 
 
 def get_device(device: str | torch.device | None = None) -> torch.device:
@@ -31,3 +37,38 @@ def get_device(device: str | torch.device | None = None) -> torch.device:
 def count_parameters(module: torch.nn.Module, trainable_only: bool = False) -> int:
     """Number of scalar parameters in ``module`` (only those with ``requires_grad`` if ``trainable_only``)."""
     return sum(p.numel() for p in module.parameters() if p.requires_grad or not trainable_only)
+
+
+@lru_cache(maxsize=None)
+def _cpu_has_bf16() -> bool:
+    try:  # Linux; elsewhere we do not know, so stay in fp32
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return "avx512_bf16" in flags or "amx_bf16" in flags
+
+
+def bf16_is_fast(device: str | torch.device) -> bool:
+    """Whether bfloat16 matrix products run natively here (a CUDA GPU with bf16, a CPU with AVX512-BF16 or AMX)."""
+    dev = torch.device(device)
+    if dev.type == "cuda":
+        return torch.cuda.is_bf16_supported()
+    return dev.type == "cpu" and _cpu_has_bf16()
+
+
+def autocast(device: str | torch.device, precision: str = "auto"):
+    """A context for a training step's forward pass in the chosen precision.
+
+    ``"bf16"`` runs matrix products and convolutions in bfloat16 (torch.autocast;
+    weights, optimiser and loss stay float32), ``"fp32"`` changes nothing and
+    ``"auto"`` picks bf16 where the hardware has it (:func:`bf16_is_fast`):
+    the autoencoder's MLPs, most of a fit's time, then run 2-3x faster.
+    """
+    if precision not in PRECISIONS:
+        from .errors import Sin3DMInputError
+
+        raise Sin3DMInputError(f"unknown precision '{precision}'; use one of {', '.join(PRECISIONS)}")
+    dev = torch.device(device)
+    if precision == "fp32" or (precision == "auto" and not bf16_is_fast(dev)):
+        return contextlib.nullcontext()
+    return torch.autocast(dev.type, dtype=torch.bfloat16)

@@ -369,13 +369,16 @@ def mesh_to_grid(
     return out
 
 
-def inside(mesh: TexturedMesh, points: np.ndarray) -> np.ndarray:
-    """Which points lie inside ``mesh`` (same coordinates): generalised winding number above ½.
+def inside(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Which points lie inside the mesh ``(vertices, faces)``: generalised winding number above ½.
 
     The same inside test the grid uses, so it works for open and multi-part
     meshes and turns inside-out closed parts round first.
     """
-    return _Distance(mesh).winding(np.asarray(points, np.float64).reshape(-1, 3)) > 0.5
+    from types import SimpleNamespace
+
+    dist = _Distance(SimpleNamespace(vertices=vertices, faces=faces))
+    return dist.winding(np.asarray(points, np.float64).reshape(-1, 3)) > 0.5
 
 
 # --------------------------------------------------------------------------- files

@@ -80,7 +80,7 @@ def input_occupancy(mesh, aabb, resolution: int = 128) -> np.ndarray:
 
     This is the reference the paper's LP-IoU / LP-F compare against. Unlike
     :func:`voxelize` it needs no closed mesh (a user's open scan works). The
-    mesh must be in the same (normalised) coordinates as ``aabb``, e.g.
+    mesh (a ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)``) must be in the same (normalised) coordinates as ``aabb``, e.g.
     ``mesh.normalized()`` for the box a fit used.
     """
     from .grid import inside
@@ -89,7 +89,7 @@ def input_occupancy(mesh, aabb, resolution: int = 128) -> np.ndarray:
     shape = grid_shape(box, resolution)
     axes = [box[a] + (np.arange(n) + 0.5) / n * (box[a + 3] - box[a]) for a, n in enumerate(shape)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    return inside(mesh, centres).reshape(shape)
+    return inside(*_verts_faces(mesh), centres).reshape(shape)
 
 
 # ----------------------------------------------------------------------------- whole-shape overlap

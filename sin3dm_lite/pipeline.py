@@ -23,7 +23,7 @@ import json
 import signal
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -356,6 +356,27 @@ class Sin3DM:
             m.name = f"sample_{i:03d}"
             meshes.append(m)
         return meshes if index is None else meshes[0]
+
+    def occupancy(self, samples: Samples, resolution: int = 128, mesh_resolution: int | None = None) -> list[np.ndarray]:
+        """Each sample's mesh as an occupancy grid over its box, ``resolution`` voxels along the longest side.
+
+        What the paper's geometry metrics take (:mod:`sin3dm_lite.metrics`): the
+        sample is decoded to a mesh as for export (no texture) and voxelised.
+        """
+        from .metrics import voxelize
+
+        grids = []
+        for i in range(len(samples)):
+            mesh = self.to_mesh(samples, i, resolution=mesh_resolution, original_coords=False, vertex_colors=True)
+            grids.append(voxelize(mesh, samples.aabb, resolution))
+        return grids
+
+    def input_occupancy(self, mesh: TexturedMesh, resolution: int = 128) -> np.ndarray:
+        """The input mesh (in its file's coordinates) as an occupancy grid over this model's box: the metrics' reference."""
+        from .metrics import input_occupancy
+
+        m = replace(mesh, vertices=self.normalization.to_normalized(np.asarray(mesh.vertices)))
+        return input_occupancy(m, self.aabb, resolution)
 
     # ------------------------------------------------------------ save/load
     def save(self, run_dir: str | Path) -> Path:

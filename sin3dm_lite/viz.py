@@ -589,6 +589,29 @@ def plot_samples_slices(
     return fig
 
 
+def plot_diversity_curve(values: Sequence[float], rows: Sequence[dict], goals: dict | None = None) -> Figure:
+    """The diversity ↔ fidelity trade-off: scores of samples drawn at each value of the knob.
+
+    ``rows[i]`` holds the scores at ``values[i]``: ``g_div`` (among the samples),
+    and any of ``iou_to_input``, ``lp_iou``, ``lp_fscore`` (against the input).
+    ``goals`` (same keys) draws dashed lines at target values.
+    """
+    labels = {"g_div": "G-Div (diversity)", "iou_to_input": "IoU to the input", "lp_iou": "LP-IoU (fidelity)",
+              "lp_fscore": "LP-F (fidelity)"}
+    fig = _figure(5.5, 3.4)
+    ax = fig.add_subplot(1, 1, 1)
+    for key, label in labels.items():
+        if all(key in r for r in rows):
+            line, = ax.plot(values, [r[key] for r in rows], "o-", label=label)
+            if goals and key in goals:
+                ax.axhline(goals[key], ls="--", lw=0.8, color=line.get_color())
+    ax.set_xlabel("diversity (0 = the input, 1 = from pure noise)")
+    ax.set_ylim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
+
+
 def _as_float_image(image: np.ndarray) -> np.ndarray:
     img = _numpy(image)
     if img.dtype == np.uint8:

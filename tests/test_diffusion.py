@@ -223,9 +223,8 @@ def test_triplane_mse_is_the_plane_mean_summed_over_planes():
 def test_start_step_follows_the_noise_level():
     s = NoiseSchedule()
     assert start_step(s, 1.0) == 999 and start_step(s, 0.0) == -1
-    for d in (0.1, 0.5, 0.9):
-        t = start_step(s, d)
-        assert 1 - s.alphas_cumprod[t] >= d > 1 - s.alphas_cumprod[t - 1]  # first step with that much noise
+    assert [start_step(s, d) for d in (0.1, 0.5, 0.9)] == [100, 500, 899]  # the share of the reverse process
+    assert start_step(s, 1e-6) == 0  # any setting above 0 runs at least the last step
     for bad in (-0.01, 1.01, float("nan"), True, "1"):
         with pytest.raises(Sin3DMInputError, match="diversity"):
             start_step(s, bad)
@@ -261,3 +260,31 @@ def test_diversity_moves_samples_from_the_start_latent_to_noise(h0, method):
     assert dist[-1] > 0.9 * (0.8**2 + 1) * 3  # pure noise: |start|² + 1 per plane
     with pytest.raises(Sin3DMInputError, match="start"):
         sample(gaussian_oracle, s, RES, n=1, latent_channels=4, device="cpu", diversity=0.5, progress=False)
+
+
+def test_random_crops_cut_one_box_out_of_all_three_planes():
+    from sin3dm_lite.diffusion import random_crops
+
+    x, y, z = 10, 6, 8
+    # planes whose values encode their coordinates: xy = 100·x + y, xz = 100·x + z, yz = 100·y + z
+    ix, iy, iz = (torch.arange(n, dtype=torch.float32) for n in (x, y, z))
+    h = Triplane((100 * ix[:, None] + iy[None])[None, None], (100 * ix[:, None] + iz[None])[None, None],
+                 (100 * iy[:, None] + iz[None])[None, None])
+    crops = random_crops(h, 16, 4, torch.Generator().manual_seed(0))
+    assert crops.resolution == (4, 4, 4) and crops.batch == 16
+    for b in range(16):
+        x0, y0 = divmod(int(crops.xy[b, 0, 0, 0]), 100)
+        z0 = int(crops.xz[b, 0, 0, 0]) % 100
+        assert int(crops.xz[b, 0, 0, 0]) // 100 == x0 and int(crops.yz[b, 0, 0, 0]) == 100 * y0 + z0  # one box
+        assert 0 <= x0 <= x - 4 and 0 <= y0 <= y - 4 and 0 <= z0 <= z - 4
+    starts = {int(crops.xy[b, 0, 0, 0]) for b in range(16)}
+    assert len(starts) > 4  # different places, not one crop repeated
+    whole = random_crops(h, 2, 64, torch.Generator().manual_seed(0))  # larger than the latent: all of it
+    torch.testing.assert_close(whole.xy, h.xy.repeat(2, 1, 1, 1))
+
+
+def test_training_on_crops_runs_and_samples_the_whole_latent(h0):
+    trainer = DiffusionTrainer(h0, tiny_cfg(steps=5, crop=4), device="cpu")
+    trainer.run(progress=False)
+    out = sample(trainer.model_for_sampling, trainer.schedule, RES, n=1, steps=3, progress=False, device="cpu")
+    assert out.resolution == RES and all(torch.isfinite(p).all() for p in out.planes)

@@ -149,3 +149,18 @@ def test_variation_scores_of_copies_and_shifted_samples():
     assert v == {"iou_to_input": 1.0, "per_sample_iou": [1.0, 1.0], "g_div": 0.0}
     v = M.variation_scores(ref, [ref, moved])
     assert v["per_sample_iou"] == [1.0, 0.5] and v["iou_to_input"] == 0.75 and v["g_div"] == 0.5
+
+
+def test_input_occupancy_of_an_open_and_a_closed_mesh():
+    """The reference of the LP metrics: voxel centres inside the input, open meshes included."""
+    box = trimesh.creation.box(extents=(1.0, 0.5, 0.5))  # x in [-0.5, 0.5]
+    aabb = np.array([-1, -0.5, -0.5, 1, 0.5, 0.5])
+    occ = M.input_occupancy(box, aabb, 16)  # 16 × 8 × 8 voxels of 0.125
+    assert occ.shape == (16, 8, 8)
+    assert occ[4:12, 2:6, 2:6].all() and occ.sum() == 8 * 4 * 4  # centres inside |x| < 0.5, |y|, |z| < 0.25
+    # the same box without its top face is still a box: the winding number is ≈ 1 inside
+    top = box.face_normals[:, 1] > 0.5
+    open_box = (box.vertices, box.faces[~top])
+    np.testing.assert_array_equal(M.input_occupancy(open_box, aabb, 16), occ)
+    # agrees with voxelize on a closed mesh
+    np.testing.assert_array_equal(M.voxelize((box.vertices, box.faces), aabb, 16), occ)

@@ -350,3 +350,16 @@ def test_every_figure_renders(grid, tp, tmp_path):
     for k, fig in enumerate(figs):
         fig.savefig(tmp_path / f"{k}.png", dpi=40)
         assert (tmp_path / f"{k}.png").stat().st_size > 1000
+
+
+def test_plot_diversity_curve_draws_each_score_and_its_goal():
+    from sin3dm_lite.viz import plot_diversity_curve
+
+    rows = [{"g_div": 0.01 * i, "lp_fscore": 0.9 - 0.1 * i, "iou_to_input": 1 - 0.05 * i} for i in range(3)]
+    fig = plot_diversity_curve([0.2, 0.6, 1.0], rows, goals={"g_div": 0.2})
+    ax = fig.axes[0]
+    labels = [line.get_label() for line in ax.get_lines() if not line.get_label().startswith("_")]
+    assert labels == ["G-Div (diversity)", "IoU to the input", "LP-F (fidelity)"]  # lp_iou absent: not drawn
+    curve = next(line for line in ax.get_lines() if line.get_label() == "LP-F (fidelity)")
+    assert list(curve.get_ydata()) == [r["lp_fscore"] for r in rows]
+    assert any(list(line.get_ydata()) == [0.2, 0.2] for line in ax.get_lines())  # the goal line
