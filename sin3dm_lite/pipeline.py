@@ -216,7 +216,8 @@ class Sin3DM:
             say(f"[fit] grid loaded from {run / 'grid.npz'}")
         else:
             g = cfg.grid
-            grid = mesh_to_grid(mesh, g.resolution, g.threshold_voxels, g.n_surface_points, g.near_surface_sigma, cfg.seed, progress)
+            grid = mesh_to_grid(mesh, g.resolution, g.threshold_voxels, g.n_surface_points, g.near_surface_sigma, cfg.seed,
+                                progress, margin_voxels=g.margin_voxels)
             if run is not None:
                 save_grid(grid, run / "grid.npz")
         timings["grid_s"] = time.perf_counter() - t0

@@ -26,6 +26,23 @@ def test_grid_dims_follow_the_paper():
     assert all(d % 8 == 0 for d in grid_dims(np.array([1.0, 0.33, 0.1]), 64))
 
 
+def test_margin_keeps_every_box_face_clear_of_the_shape():
+    box = trimesh.creation.box(extents=(1.0, 0.5, 0.3))
+    plain = mesh_to_grid(textured(box), 64, n_surface_points=0, progress=False)
+    g = mesh_to_grid(textured(box), 64, n_surface_points=0, progress=False, margin_voxels=3.25)
+    vs = g.voxel_size
+    half = np.array([1.0, 0.5, 0.3]) / 2 * g.normalization.scale  # the box's half size in the grid's frame
+    assert np.all(g.aabb[3:] - half >= 3.25 * vs - 1e-6)  # at least the margin on every side
+    assert g.aabb[3] - half[0] == pytest.approx(3.25 * vs)  # exactly it along the longest axis (shrunk to fit)
+    assert g.normalization.scale < plain.normalization.scale and g.shape[1:] > plain.shape[1:]
+    faces = [g.sdf[0], g.sdf[-1], g.sdf[:, 0], g.sdf[:, -1], g.sdf[:, :, 0], g.sdf[:, :, -1]]
+    assert min(f.min() for f in faces) >= 2.7 * vs  # outermost voxels: 3.25 - 0.5 voxels outside, at least
+    # the normalisation still maps the grid back onto the input: the box's corner lands on the original corner
+    corner = g.normalization.to_original(half[None])[0]
+    np.testing.assert_allclose(corner, [0.5, 0.25, 0.15], atol=1e-9)
+    assert grid_dims(np.array([2.0, 0.5, 0.3]), 64, 3.25) == (64, 24, 24)  # 16 + 6.5 → 24; 9.6 + 6.5 → 24
+
+
 @pytest.mark.parametrize("res", [32, 64])
 def test_sphere_sdf_matches_analytic(res):
     g = mesh_to_grid(textured(trimesh.creation.icosphere(subdivisions=5)), res, n_surface_points=2000, progress=False)

@@ -1,0 +1,92 @@
+"""Write two meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
+
+    python benchmarks/make_test_meshes.py OUT_DIR
+
+* ``rocks.stl``  — untextured (STL has no colour): a slab with a random field of boxes and
+  squashed spheres on it, some merged (a closed mesh of several parts).
+* ``tiles.obj``  — two materials, each with its own texture image: a tiled slab whose even
+  tiles are red brick-like stripes and odd tiles blue checks, raised by different heights.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from PIL import Image
+
+
+def rocks(seed: int = 1) -> trimesh.Trimesh:
+    rng = np.random.default_rng(seed)
+    parts = [trimesh.creation.box(extents=(4.0, 0.3, 2.0))]
+    for _ in range(28):
+        x, z = rng.uniform(-1.8, 1.8), rng.uniform(-0.8, 0.8)
+        if rng.random() < 0.5:
+            e = rng.uniform(0.15, 0.45, 3)
+            b = trimesh.creation.box(extents=e)
+            b.apply_transform(trimesh.transformations.rotation_matrix(rng.uniform(0, np.pi), (0, 1, 0)))
+            b.apply_translation((x, 0.15 + e[1] / 2, z))
+        else:
+            r = rng.uniform(0.12, 0.3)
+            b = trimesh.creation.icosphere(subdivisions=2, radius=r)
+            b.apply_scale((1.0, rng.uniform(0.5, 1.2), 1.0))
+            b.apply_translation((x, 0.15, z))
+        parts.append(b)
+    return trimesh.util.concatenate(parts)
+
+
+def _texture(kind: str, size: int = 256) -> Image.Image:
+    u, v = np.meshgrid(np.arange(size), np.arange(size))
+    if kind == "brick":
+        rows = (v // 32) % 2
+        mortar = (v % 32 < 3) | (((u + rows * 32) % 64) < 3)
+        img = np.where(mortar[..., None], [200, 195, 185], [150, 60, 40]).astype(np.uint8)
+    else:
+        check = ((u // 32) + (v // 32)) % 2 == 0
+        img = np.where(check[..., None], [40, 70, 160], [200, 210, 230]).astype(np.uint8)
+    return Image.fromarray(img)
+
+
+def tiles(out: Path, n: int = 6) -> Path:
+    """An OBJ with two materials (brick / check), each with its own PNG and UVs per tile."""
+    lines_v, lines_vt, faces = [], [], {"brick": [], "check": []}
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    rng = np.random.default_rng(3)
+    for i in range(n):
+        for j in range(n // 2):
+            h = 0.2 + 0.25 * rng.random()
+            tile = box.copy()
+            tile.apply_scale((0.9, h, 0.9))
+            tile.apply_translation((i - n / 2 + 0.5, h / 2, j - n / 4 + 0.5))
+            base = len(lines_v)
+            lines_v += [f"v {x:.5f} {y:.5f} {z:.5f}" for x, y, z in tile.vertices]
+            vt0 = len(lines_vt)
+            # planar UVs from x/z (top) and x/y (sides): good enough to show each texture
+            for x, y, z in tile.vertices:
+                lines_vt.append(f"vt {(x + z) * 0.5 % 1:.5f} {(y + z) * 0.5 % 1:.5f}")
+            mat = "brick" if (i + j) % 2 == 0 else "check"
+            for f in tile.faces:
+                a, b, c = (base + k + 1 for k in f)
+                ta, tb, tc = (vt0 + k + 1 for k in f)
+                faces[mat].append(f"f {a}/{ta} {b}/{tb} {c}/{tc}")
+    out.mkdir(parents=True, exist_ok=True)
+    for mat in faces:
+        _texture(mat).save(out / f"{mat}.png")
+    (out / "tiles.mtl").write_text("".join(f"newmtl {m}\nKd 1 1 1\nmap_Kd {m}.png\n\n" for m in faces))
+    body = ["mtllib tiles.mtl", *lines_v, *lines_vt]
+    for mat, fl in faces.items():
+        body += [f"usemtl {mat}", *fl]
+    (out / "tiles.obj").write_text("\n".join(body) + "\n")
+    return out / "tiles.obj"
+
+
+def main() -> None:
+    out = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/meshes")
+    out.mkdir(parents=True, exist_ok=True)
+    rocks().export(out / "rocks.stl")
+    print(f"wrote {out / 'rocks.stl'} and {tiles(out)}")
+
+
+if __name__ == "__main__":
+    main()
