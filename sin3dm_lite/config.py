@@ -157,9 +157,13 @@ def _small() -> Config:
         grid=GridConfig(resolution=64, n_surface_points=300_000, margin_voxels=3.25),
         autoencoder=AutoencoderConfig(steps=1000, points_per_step=8192),  # paper-size decoder: hidden 128 gave IoU 0.935, 256 gives 0.949
         diffusion=DiffusionConfig(
-            base_channels=32, n_resblocks=2, downsample=False, steps=2000, batch_size=8, lr=1e-3, ema_decay=0.0
+            base_channels=32, n_resblocks=2, downsample=False, steps=2000, batch_size=8, lr=1e-3, ema_decay=0.0,
+            # no cross-plane rollout: on a 32-texel latent the plane means tell every texel the global layout, and
+            # samples copy it (canyon G-Div 0.12 with it, 0.27 without; measured with benchmarks/bench_levers.py)
+            rollout=False,
         ),
-        sampling=SamplingConfig(steps=50, mesh_resolution=128, faces=20_000, texture_size=1024),
+        # diversity 0.7 (start at t = 700 from the input's latent, noised): canyon G-Div 0.21 with LP-F 0.71
+        sampling=SamplingConfig(steps=50, mesh_resolution=128, faces=20_000, texture_size=1024, diversity=0.7),
         checkpoint_every=250,
     )
 
