@@ -81,3 +81,28 @@ def test_demo_with_the_shipped_model_writes_meshes_and_a_viewer_page(capsys, tmp
         assert (out / i / "mesh.glb").is_file()
     assert (out / "index.html").stat().st_size > 100_000
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp folder left
+
+
+def test_sample_diversity_zero_gives_the_input_back(capsys, tmp_path):
+    """`--diversity 0` regenerates nothing: the mesh is the shipped model's reconstruction of its input."""
+    from sin3dm_lite.pipeline import Sin3DM
+    from sin3dm_lite.pretrained import pretrained_path
+
+    out = tmp_path / "closest"
+    code, _, _ = run(capsys, "sample", str(pretrained_path()), "--out", str(out), "-n", "1", "--diversity", "0",
+                     "--mesh-resolution", "40", "--faces", "1500", "--texture-size", "64")
+    assert code == 0
+    got = trimesh.load(out / "000" / "mesh.obj", force="mesh")
+    model = Sin3DM.load(pretrained_path())
+    ref = model.to_mesh(model.input_sample(), 0, resolution=40, faces=1500, vertex_colors=True)
+    unique = lambda v: np.unique(np.round(np.asarray(v), 4), axis=0)  # noqa: E731  the OBJ splits vertices at UV seams
+    np.testing.assert_allclose(unique(got.vertices), unique(ref.vertices), atol=2e-4)
+
+
+@pytest.mark.parametrize("value", ["-0.1", "1.5", "much"])
+def test_bad_diversity_is_rejected_by_the_parser(capsys, value):
+    with pytest.raises(SystemExit) as e:
+        main(["sample", "run", "--out", "s", "--diversity", value])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "--diversity" in err and len(err.strip().splitlines()) == 1
