@@ -30,7 +30,6 @@ from pathlib import Path
 from .errors import Sin3DMInputError
 
 DEMO_PRESET = "small"
-MAX_SAMPLES = 10_000  # per command, whatever the memory: each sample is decoded and exported in turn
 
 
 def _positive_int(text: str) -> int:
@@ -142,7 +141,7 @@ def cmd_examples(a) -> None:
     from . import examples
 
     if a.write:
-        from .files import check_writable, foreign_files, install_output, make_temp_dir, remove_stale_temps
+        from .files import check_writable, foreign_files, make_temp_dir, remove_stale_temps
 
         if a.write not in examples.list_examples():
             raise Sin3DMInputError(f"unknown example '{a.write}'; choose one of: {', '.join(examples.list_examples())}")
@@ -229,39 +228,10 @@ def _merge_into(tmp: Path, out: Path) -> None:
         os.replace(tmp / n, out / n)
 
 
-def _memory_available(device) -> int:
-    """Bytes free for sampling on ``device`` (RAM for the CPU)."""
-    import torch
-
-    if device.type == "cuda":
-        return int(torch.cuda.mem_get_info(device)[0])
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return 8 << 30
-
-
-def max_samples(model, resize) -> int:
-    """How many samples fit in memory at once: the denoiser holds about 16 feature maps of its widest layer per sample."""
-    import numpy as np
-
-    x, y, z = np.maximum(4, np.round(np.array(model.latent.resolution) * np.asarray(resize, float)))
-    texels = x * y + x * z + y * z
-    width = max(int(model.config.diffusion.base_channels), int(model.latent.channels)) * 2
-    per_sample = 16 * texels * width * 4
-    return int(max(1, min(MAX_SAMPLES, 0.5 * _memory_available(model.device) // per_sample)))
-
-
 def check_sample_output(out: Path, a, protected: dict) -> None:
     """Everything about ``--out`` and ``-n`` that can fail, checked before any work or writing."""
     from .files import check_not_overlapping, check_output_folder, check_writable
+    from .pipeline import MAX_SAMPLES
 
     if a.n > MAX_SAMPLES:
         raise Sin3DMInputError(f"-n {a.n} is too many samples (at most {MAX_SAMPLES} per run, fewer if memory is short); "
@@ -289,7 +259,7 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
 
     out = Path(out)
     resize = tuple(a.resize) if a.resize else (1.0, 1.0, 1.0)
-    limit = max_samples(model, resize)
+    limit = model.max_samples(resize)
     if a.n > limit:
         raise Sin3DMInputError(f"-n {a.n} is more samples than fit in memory at once here (at most {limit} with this "
                                f"model{' and --resize' if a.resize else ''}); ask for fewer and run again with another --seed")

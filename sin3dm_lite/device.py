@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 from functools import lru_cache
 from pathlib import Path
 
@@ -72,3 +73,21 @@ def autocast(device: str | torch.device, precision: str = "auto"):
     if precision == "fp32" or (precision == "auto" and not bf16_is_fast(dev)):
         return contextlib.nullcontext()
     return torch.autocast(dev.type, dtype=torch.bfloat16)
+
+
+def memory_available(device: str | torch.device) -> int:
+    """Bytes free on ``device``: GPU memory for CUDA, available RAM otherwise (8 GiB when it cannot be read)."""
+    dev = torch.device(device)
+    if dev.type == "cuda":
+        return int(torch.cuda.mem_get_info(dev)[0])
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30

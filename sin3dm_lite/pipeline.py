@@ -39,6 +39,7 @@ from .mesh_io import Normalization, TexturedMesh
 from .triplane import Triplane
 
 MODEL_FILE = "model.pt"
+MAX_SAMPLES = 10_000  # per call, whatever the memory
 MODEL_FORMAT = "sin3dm-lite/1"
 MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
 MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 % (the colonnade example gets 20)
@@ -289,6 +290,9 @@ class Sin3DM:
 
         if n < 1:
             raise Sin3DMInputError(f"number of samples must be at least 1, got {n}")
+        if n > self.max_samples(resize):
+            raise Sin3DMInputError(f"{n} samples do not fit in memory at once here (at most {self.max_samples(resize)} with "
+                                   "this model and size); draw them in several calls with other seeds")
         factors = np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,))
         if not np.all(np.isfinite(factors)) or np.any(factors <= 0) or np.any(factors > 8):
             raise Sin3DMInputError(f"resize factors must be positive numbers up to 8, got {tuple(factors)}")
@@ -320,6 +324,17 @@ class Sin3DM:
         scale = res / base
         aabb = np.concatenate([self.aabb[:3] * scale, self.aabb[3:] * scale]).astype(np.float32)
         return Samples(tp, aabb, inter)
+
+    def max_samples(self, resize=(1.0, 1.0, 1.0)) -> int:
+        """How many samples one :meth:`sample` call can hold: the denoiser keeps about 16 feature maps of its
+        widest layer per sample, and half the free memory of the device may go to them (at most 10,000)."""
+        from .device import memory_available
+
+        factors = np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,))
+        x, y, z = np.maximum(4, np.round(np.array(self.latent.resolution) * factors))
+        width = max(int(self.config.diffusion.base_channels), int(self.latent.channels)) * 2
+        per_sample = 16 * (x * y + x * z + y * z) * width * 4
+        return int(max(1, min(MAX_SAMPLES, 0.5 * memory_available(self.device) // per_sample)))
 
     def input_sample(self) -> Samples:
         """The input's own latent as a one-item :class:`Samples` (decode it to see the reconstruction)."""

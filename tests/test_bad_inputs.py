@@ -5,7 +5,6 @@ Also: ``--overwrite`` keeps foreign files, the run-folder lock, and SIGKILLed
 """
 import json
 import os
-import pickle
 import random
 import shutil
 import signal

@@ -178,3 +178,13 @@ def test_bad_diversity_is_a_clear_error(fitted, diversity):
     model, _ = fitted
     with pytest.raises(Sin3DMInputError, match="diversity"):
         model.sample(1, diversity=diversity, progress=False)
+
+
+def test_sample_refuses_more_samples_than_fit_in_memory(fitted, monkeypatch):
+    model, _ = fitted
+    monkeypatch.setattr("sin3dm_lite.device.memory_available", lambda device: 64 << 20)  # 64 MiB free
+    limit = model.max_samples()
+    assert 1 <= limit < 10_000
+    assert model.max_samples((2.0, 2.0, 2.0)) < limit  # bigger latents, fewer at once
+    with pytest.raises(Sin3DMInputError, match=f"at most {limit}"):
+        model.sample(limit + 1, progress=False)
