@@ -62,7 +62,7 @@ def sample_grids(model: Sin3DM, n: int, resolutions, seed: int = 0, diversity: f
         mesh = model.to_mesh(samples, i)
         export_mesh(mesh, (export_dir or Path("/tmp/bench_samples_export")) / f"{i:03d}")
         mesh_s.append(time.perf_counter() - t)
-    occ = {r: model.occupancy(samples, r) for r in resolutions}  # the same meshes, without the texture
+    occ = model.occupancy(samples, list(resolutions))  # the same meshes, without the texture
     return {"occ": occ, "sample_s": sample_s, "mesh_s": sample_s + float(np.mean(mesh_s)) if mesh_s else None}
 
 
@@ -71,11 +71,12 @@ def references(model: Sin3DM, source: str, run: Path, resolutions) -> dict:
     mesh = resolve_mesh(source)
     grid = load_grid(run / "grid.npz")
     data_mesh = marching_cubes(grid.sdf, grid.aabb)
+    recs = model.occupancy(model.input_sample(), list(resolutions))
     out = {}
     for r in resolutions:
         inp = model.input_occupancy(mesh, r)
         data = metrics.voxelize(data_mesh, model.aabb, r)
-        rec = model.occupancy(model.input_sample(), r)[0]
+        rec = recs[r][0]
         ceiling, ae = metrics.lp_scores(inp, [data]), metrics.lp_scores(inp, [rec])
         out[r] = {"input": inp, "recon": rec,
                   "ceiling_lp_iou": ceiling["lp_iou"], "ceiling_lp_f": ceiling["lp_fscore"],

@@ -373,19 +373,23 @@ class Sin3DM:
             meshes.append(m)
         return meshes if index is None else meshes[0]
 
-    def occupancy(self, samples: Samples, resolution: int = 128, mesh_resolution: int | None = None) -> list[np.ndarray]:
+    def occupancy(self, samples: Samples, resolution=128, mesh_resolution: int | None = None):
         """Each sample's mesh as an occupancy grid over its box, ``resolution`` voxels along the longest side.
 
         What the paper's geometry metrics take (:mod:`sin3dm_lite.metrics`): the
         sample is decoded to a mesh as for export (no texture) and voxelised.
+        With a list of resolutions, returns ``{resolution: [grids]}`` and decodes each sample once.
         """
         from .metrics import voxelize
 
-        grids = []
+        several = not isinstance(resolution, (int, np.integer))
+        res = list(resolution) if several else [resolution]
+        grids: dict[int, list[np.ndarray]] = {r: [] for r in res}
         for i in range(len(samples)):
             mesh = self.to_mesh(samples, i, resolution=mesh_resolution, original_coords=False, vertex_colors=True)
-            grids.append(voxelize(mesh, samples.aabb, resolution))
-        return grids
+            for r in res:
+                grids[r].append(voxelize(mesh, samples.aabb, r))
+        return grids if several else grids[res[0]]
 
     def input_occupancy(self, mesh: TexturedMesh, resolution: int = 128) -> np.ndarray:
         """The input mesh (in its file's coordinates) as an occupancy grid over this model's box: the metrics' reference."""

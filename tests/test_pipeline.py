@@ -188,3 +188,13 @@ def test_sample_refuses_more_samples_than_fit_in_memory(fitted, monkeypatch):
     assert model.max_samples((2.0, 2.0, 2.0)) < limit  # bigger latents, fewer at once
     with pytest.raises(Sin3DMInputError, match=f"at most {limit}"):
         model.sample(limit + 1, progress=False)
+
+
+def test_occupancy_of_samples_at_one_or_several_resolutions(fitted):
+    model, _ = fitted
+    s = model.input_sample()
+    one = model.occupancy(s, 24)
+    both = model.occupancy(s, [16, 24])
+    assert len(one) == 1 and one[0].dtype == bool and one[0].any()
+    np.testing.assert_array_equal(both[24][0], one[0])
+    assert both[16][0].shape[0] == 16 and both[24][0].shape[0] == 24  # x is the longest axis of the wall
