@@ -20,7 +20,6 @@ next run if the process was killed) and moved into place at the end.
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import sys
 import time
@@ -141,7 +140,7 @@ def cmd_examples(a) -> None:
     from . import examples
 
     if a.write:
-        from .files import check_writable, foreign_files, make_temp_dir, remove_stale_temps
+        from .files import check_writable, foreign_files, make_temp_dir, merge_output, remove_stale_temps
 
         if a.write not in examples.list_examples():
             raise Sin3DMInputError(f"unknown example '{a.write}'; choose one of: {', '.join(examples.list_examples())}")
@@ -162,7 +161,7 @@ def cmd_examples(a) -> None:
         tmp = make_temp_dir(out)
         try:
             path = examples.write_example(a.write, tmp, seed=a.seed)
-            _merge_into(tmp, out)
+            merge_output(tmp, out)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         path = out / path.name
@@ -215,17 +214,6 @@ def cmd_fit(a) -> None:
         f"sign accuracy {r['sign_accuracy']:.3f}, colour PSNR {r['color_psnr']:.1f} dB\n"
         f"next: sin3dm-lite sample {a.out} -n 4 --out {Path(a.out).with_name(Path(a.out).name + '-samples')}"
     )
-
-
-def _merge_into(tmp: Path, out: Path) -> None:
-    """Move the files of ``tmp`` into the existing folder ``out`` (checked beforehand) and record them in its manifest."""
-    from .files import _stat, read_manifest, write_manifest
-
-    names = sorted(p.name for p in tmp.iterdir())
-    new = {n: _stat(tmp / n) for n in names}  # os.replace keeps size and time
-    write_manifest(out, {**read_manifest(out), **new})  # first: a kill leaves no file of ours unrecorded
-    for n in names:
-        os.replace(tmp / n, out / n)
 
 
 def check_sample_output(out: Path, a, protected: dict) -> None:

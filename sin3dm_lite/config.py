@@ -2,10 +2,11 @@
 
 * ``tiny``  – for CI and notebook tests: every stage in seconds on 2 CPU cores.
   The shapes it makes are rough; it exists to exercise the code paths.
-* ``small`` – for a laptop CPU: the whole fit in about 10 minutes on 2 cores,
-  a 64-voxel grid and a 32-texel latent. Its U-Net has no downsampling level so
-  that its receptive field shrinks with the latent (REFERENCE.md, last section:
-  with the paper's network on a 32-wide latent every sample is a copy).
+* ``small`` – for a laptop CPU: the whole fit in about 2.5 minutes on 2 cores,
+  a 64-voxel grid and a 32-texel latent. Its U-Net has no downsampling level and
+  no cross-plane rollout so that what it sees shrinks with the latent
+  (REFERENCE.md, last section: with the paper's network on a 32-wide latent
+  every sample is a copy); it samples at diversity 0.7 (README, "Presets").
 * ``paper`` – the paper's numbers (256 grid, 25k + 25k steps) for one GPU.
 """
 from __future__ import annotations

@@ -229,6 +229,20 @@ def check_output_folder(out: Path, overwrite: bool, names=(), option: str = "--o
         )
 
 
+def merge_output(tmp: Path, out: Path) -> None:
+    """Move the files of ``tmp`` into the existing folder ``out`` beside what is there, recording them in its manifest.
+
+    Unlike :func:`install_output` nothing else of ours in ``out`` is removed
+    (``examples --write`` adds one example to a folder); the caller has checked
+    that no foreign file is in the way.
+    """
+    names = sorted(p.name for p in Path(tmp).iterdir())
+    new = {n: _stat(Path(tmp) / n) for n in names}  # os.replace keeps size and time
+    write_manifest(out, {**read_manifest(out), **new})  # first: a kill leaves no file of ours unrecorded
+    for n in names:
+        os.replace(Path(tmp) / n, Path(out) / n)
+
+
 def install_output(tmp: Path, out: Path) -> list[str]:
     """Move everything in the finished folder ``tmp`` into ``out`` and record it in ``out``'s manifest.
 

@@ -290,8 +290,9 @@ class Sin3DM:
 
         if n < 1:
             raise Sin3DMInputError(f"number of samples must be at least 1, got {n}")
-        if n > self.max_samples(resize):
-            raise Sin3DMInputError(f"{n} samples do not fit in memory at once here (at most {self.max_samples(resize)} with "
+        limit = self.max_samples(resize)
+        if n > limit:
+            raise Sin3DMInputError(f"{n} samples do not fit in memory at once here (at most {limit} with "
                                    "this model and size); draw them in several calls with other seeds")
         factors = np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,))
         if not np.all(np.isfinite(factors)) or np.any(factors <= 0) or np.any(factors > 8):
