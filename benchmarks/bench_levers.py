@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from bench_samples import references, sample_grids, save_projections, scores
-from sin3dm_lite.autoencoder import AutoencoderTrainer, reconstructed_grid, reconstruction_metrics
+from sin3dm_lite import AutoencoderTrainer, reconstructed_grid, reconstruction_metrics
 from sin3dm_lite.diffusion import DiffusionTrainer
 from sin3dm_lite.grid import load_grid
 from sin3dm_lite.pipeline import Sin3DM

@@ -1,9 +1,107 @@
 """sin3dm-lite: a readable reimplementation of Sin3DM (ICLR 2024) for learning and for use.
 
-From one textured mesh: a truncated SDF + colour grid (``grid``), a triplane
-latent (``autoencoder``), a small-receptive-field diffusion model on the
-triplane (``unet``, ``diffusion``), and new textured meshes (``extract``,
-``export``). ``pipeline.Sin3DM`` ties the stages together.
+From one textured mesh: a truncated SDF + colour grid, a triplane latent, a
+small-receptive-field diffusion model on the triplane, and new textured
+meshes. The stages, in the order data flows (a module imports only from
+stages before it)::
+
+    Data      mesh_io (read meshes) · box (box/grid geometry) · grid (mesh → TSDF grid)
+    Model     triplane · autoencoder (grid → latent, decoder) · decode (decoder queries, SDF grids)
+              unet · diffusion (training, sampling)
+    Generate  extract (SDF → textured mesh) · export (OBJ / GLB writers)
+    Eval      metrics          Show  viz (figures) · widgets (panels) · viewer (k3d / HTML)
+    Facade    pipeline (Sin3DM: fit, sample, save, load) · cli · examples · pretrained
+
+Everything a notebook or script needs is importable from here::
+
+    from sin3dm_lite import Sin3DM, get_preset, build_example, mesh_to_grid, extract_mesh
+
+The names load on first use, so ``import sin3dm_lite`` stays quick (the CLI
+answers bad arguments before torch is imported). The Show modules are used as
+namespaces: ``from sin3dm_lite import viz, widgets, viewer``.
 """
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
+
+#: public name → module that defines it
+_API = {
+    # facade and settings
+    "Sin3DM": "pipeline",
+    "Samples": "pipeline",
+    "resolve_mesh": "pipeline",
+    "Config": "config",
+    "get_preset": "config",
+    "notebook_preset": "config",
+    "fast_mode": "config",
+    "pretrained_path": "pretrained",
+    "Sin3DMInputError": "errors",
+    "get_device": "device",
+    "count_parameters": "device",
+    # data
+    "DEFAULT_EXAMPLE": "examples",
+    "build_example": "examples",
+    "list_examples": "examples",
+    "write_example": "examples",
+    "TexturedMesh": "mesh_io",
+    "Material": "mesh_io",
+    "Normalization": "mesh_io",
+    "load_mesh": "mesh_io",
+    "load_any": "mesh_io",
+    "grid_shape": "box",
+    "margin_scale": "box",
+    "ShapeGrid": "grid",
+    "mesh_to_grid": "grid",
+    "load_grid": "grid",
+    "save_grid": "grid",
+    # model
+    "Triplane": "triplane",
+    "TriplaneEncoder": "autoencoder",
+    "TriplaneDecoder": "autoencoder",
+    "AutoencoderTrainer": "autoencoder",
+    "grid_tensor": "autoencoder",
+    "decode_grid": "decode",
+    "prepare": "decode",
+    "query_points": "decode",
+    "reconstructed_grid": "decode",
+    "TriplaneUNet": "unet",
+    "block_layout": "unet",
+    "receptive_field": "unet",
+    "analytic_receptive_field": "unet",
+    "NoiseSchedule": "diffusion",
+    "DiffusionTrainer": "diffusion",
+    "sample": "diffusion",
+    "predict_clean": "diffusion",
+    "triplane_mse": "diffusion",
+    # generate
+    "extract_mesh": "extract",
+    "marching_cubes": "extract",
+    "export_mesh": "export",
+    # eval
+    "reconstruction_metrics": "metrics",
+    "voxelize": "metrics",
+    "input_occupancy": "metrics",
+    "iou": "metrics",
+    "g_div": "metrics",
+    "lp_scores": "metrics",
+}
+
+_MODULES = {"viz", "widgets", "viewer", "metrics", "examples", "box", "extract", "export", "mesh_io"}
+
+__all__ = sorted(_API) + sorted(_MODULES)
+
+
+def __getattr__(name: str):
+    if name in _API:
+        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
+        globals()[name] = value  # next time without this function
+        return value
+    if name in _MODULES:
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'sin3dm_lite' has no attribute '{name}'")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -18,20 +18,15 @@ Shapes (grid ``X × Y × Z``, latent ``X' = X/2`` etc.)::
 """
 from __future__ import annotations
 
-import dataclasses
-import math
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
 from .config import AutoencoderConfig
 from .device import autocast, get_device
-from .extract import decode_grid
 from .grid import ShapeGrid
-from .metrics import iou
 from .triplane import Triplane
 
 
@@ -340,43 +335,3 @@ def fit_autoencoder(grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: 
 
 
 # --------------------------------------------------------------------------- evaluation
-def reconstructed_grid(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid, name: str = "reconstruction") -> ShapeGrid:
-    """The grid the latent ``h`` describes: decoded SDF and colour at every voxel of ``grid``.
-
-    Same box, threshold and normalisation as ``grid`` (so the two can be shown
-    and compared slice by slice, and scored by :func:`reconstruction_metrics`),
-    no training points. Decodes every voxel (``extract.decode_grid`` without
-    its coarse-to-fine shortcut).
-    """
-    sdf, color = decode_grid(decoder, h[:1], grid.aabb, max(grid.shape), with_color=True, coarse=None)
-    assert sdf.shape == grid.shape, (sdf.shape, grid.shape)  # a ShapeGrid box is ±n_axis / n_max
-    return dataclasses.replace(
-        grid, sdf=sdf, color=color, name=name,
-        points=np.zeros((0, 3), np.float32), point_sdf=np.zeros(0, np.float32), point_color=np.zeros((0, 3), np.float32),
-    )
-
-
-def reconstruction_metrics(reconstruction: ShapeGrid, grid: ShapeGrid) -> dict[str, float]:
-    """How well a reconstruction (see :func:`reconstructed_grid`) reproduces the input grid.
-
-    * ``sign_accuracy``: share of voxels where the decoded SDF has the input's sign;
-    * ``occupancy_iou``: IoU of the inside voxels (SDF < 0);
-    * ``occupancy_iou_quarter_voxel``: the same IoU leaving out voxels whose centre lies
-      within a quarter voxel of the input surface. Their sign flips with any sub-voxel
-      shift of the surface, and a mesh whose flat faces run along a layer of voxel
-      centres (a block filling its box) has thousands of them;
-    * ``color_l1`` / ``color_psnr``: colour error on voxels within the truncation band.
-    """
-    sdf, col = reconstruction.sdf, reconstruction.color
-    gt_in, pr_in = grid.sdf < 0, sdf < 0
-    clear = np.abs(grid.sdf) >= 0.25 * grid.voxel_size
-    band = np.abs(grid.sdf) < grid.threshold
-    err = col[band] - grid.color[band]
-    mse = float((err**2).mean()) if band.any() else float("nan")
-    return {
-        "sign_accuracy": float((gt_in == pr_in).mean()),
-        "occupancy_iou": iou(gt_in, pr_in),
-        "occupancy_iou_quarter_voxel": iou(gt_in[clear], pr_in[clear]),
-        "color_l1": float(np.abs(err).mean()) if band.any() else float("nan"),
-        "color_psnr": float(10 * math.log10(1.0 / max(mse, 1e-12))),
-    }

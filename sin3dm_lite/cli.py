@@ -181,9 +181,9 @@ def cmd_grid(a) -> None:
     out = Path(a.out)
     if out.suffix != ".npz":
         raise Sin3DMInputError(f"--out must be a .npz file, got '{out}'")
-    from .grid import _check_resolution
+    from .grid import check_resolution
 
-    _check_resolution(a.resolution)
+    check_resolution(a.resolution)
     if Path(a.mesh).exists():
         check_not_overlapping(out, {"input mesh": Path(a.mesh)})
     if out.is_dir():

@@ -3,7 +3,7 @@
 The decoder turns a triplane into an implicit shape: for any 3D point it gives
 a signed distance (negative inside) and a colour. To get a mesh we
 
-1. decode the SDF on a cell-centred grid (:func:`decode_grid`), coarse to fine:
+1. decode the SDF on a cell-centred grid (``decode.decode_grid``), coarse to fine:
    exactly near the surface, interpolated where only the sign matters,
 2. run marching cubes on it (:func:`marching_cubes`),
 3. optionally drop small pieces (:func:`keep_components`),
@@ -34,14 +34,13 @@ into (``Normalization``); *box* coordinates map the ``aabb``
 """
 from __future__ import annotations
 
-import itertools
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import torch
 
+from .box import as_aabb, to_box
+from .decode import PreparedTriplane, decode_grid, prepare, query_points
 from .errors import Sin3DMInputError
 from .mesh_io import Material, Normalization, TexturedMesh, component_labels
 from .triplane import Triplane
@@ -49,346 +48,6 @@ from .triplane import Triplane
 
 class NoSurfaceError(Sin3DMInputError):
     """The decoded SDF never crosses the iso-level, so there is no surface to mesh."""
-
-
-# ----------------------------------------------------------------------------- helpers
-def as_aabb(aabb) -> np.ndarray:
-    """``(6,)`` float64 box from an array-like or from anything with an ``.aabb`` (a ``ShapeGrid``)."""
-    box = np.asarray(getattr(aabb, "aabb", aabb), dtype=np.float64).reshape(-1)
-    if box.shape != (6,) or not np.all(box[3:] > box[:3]):
-        raise Sin3DMInputError(f"aabb must be (xmin, ymin, zmin, xmax, ymax, zmax) with max > min, got {box}")
-    return box
-
-
-def grid_shape(aabb, resolution: int) -> tuple[int, int, int]:
-    """Voxels per axis: ``resolution`` along the longest side, the others in proportion (at least 2)."""
-    box = as_aabb(aabb)
-    extent = box[3:] - box[:3]
-    return tuple(max(2, int(round(resolution * e / extent.max()))) for e in extent)  # type: ignore[return-value]
-
-
-def to_box(points: np.ndarray, aabb) -> np.ndarray:
-    """Normalised coordinates → box coordinates in [-1, 1]."""
-    box = as_aabb(aabb)
-    return 2 * (np.asarray(points, np.float64) - box[:3]) / (box[3:] - box[:3]) - 1
-
-
-def _module_device(module) -> torch.device:
-    try:
-        return next(module.parameters()).device
-    except (StopIteration, AttributeError):
-        return torch.device("cpu")
-
-
-@dataclass
-class PreparedTriplane:
-    """What ``decoder.prepare`` returned for one triplane, and the device to query on.
-
-    Passing this instead of a :class:`Triplane` to the functions below skips
-    the per-plane conv blocks: they run once, here.
-    """
-
-    features: Any
-    device: torch.device
-
-
-def prepare(decoder, triplane: Triplane | PreparedTriplane) -> PreparedTriplane:
-    """Run the decoder's per-plane conv blocks once for a batch-1 triplane."""
-    if isinstance(triplane, PreparedTriplane):
-        return triplane
-    if not isinstance(triplane, Triplane):
-        raise TypeError(f"expected a Triplane or PreparedTriplane, got {type(triplane).__name__}")
-    if triplane.batch != 1:
-        raise Sin3DMInputError(
-            f"mesh extraction decodes one shape at a time, but the triplane has batch {triplane.batch}; "
-            "pass triplane[i] for the i-th sample"
-        )
-    device = _module_device(decoder)
-    with torch.no_grad():
-        features = decoder.prepare(triplane.to(device))
-    return PreparedTriplane(features, device)
-
-
-#: query batches are padded to a multiple of this many points (see :func:`query_points`)
-ROW_TILE = 64
-
-
-def query_points(decoder, prepared: PreparedTriplane, points_box: np.ndarray, chunk: int = 2**16,
-                 sdf: bool = True, color: bool = True) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """Decode ``(N, 3)`` box-coordinate points in chunks → ``sdf (N,)`` and ``color (N, K)``.
-
-    Pass ``sdf=False`` or ``color=False`` to get ``None`` for that output; a
-    decoder that has ``query_sdf`` / ``query_color`` then skips the head that
-    is not needed (the protocol only requires ``query``).
-
-    Every batch is padded to a multiple of :data:`ROW_TILE` points (copies of
-    its last point, dropped again). CPU matrix kernels compute the rows of a
-    batch in small tiles and the leftover rows by another code path, which
-    rounds differently in the last bit; with the padding a point's value no
-    longer depends on how many points it was decoded with, so the
-    coarse-to-fine :func:`decode_grid` gives bit-for-bit the values of the
-    full decode.
-    """
-    points_box = np.asarray(points_box, np.float32).reshape(-1, 3)
-    only_sdf = getattr(decoder, "query_sdf", None) if not color else None
-    only_color = getattr(decoder, "query_color", None) if not sdf else None
-    parts: tuple[list, list] = ([], [])
-    with torch.no_grad():
-        for s in range(0, len(points_box), chunk):
-            part = points_box[s:s + chunk]
-            m = len(part)
-            if m % ROW_TILE:  # repeat the last point: every real row goes through the full-tile kernel path
-                part = np.concatenate([part, np.repeat(part[-1:], ROW_TILE - m % ROW_TILE, axis=0)])
-            p = torch.from_numpy(part).to(prepared.device)[None]
-            if only_sdf is not None:
-                d, c = only_sdf(prepared.features, p), None
-            elif only_color is not None:
-                d, c = None, only_color(prepared.features, p)
-            else:
-                d, c = decoder.query(prepared.features, p)
-            if sdf:
-                parts[0].append(d[0, :m].float().cpu().numpy())
-            if color:
-                parts[1].append(c[0, :m].float().cpu().numpy())
-    if len(points_box) == 0:
-        return (np.zeros(0, np.float32) if sdf else None), (np.zeros((0, 3), np.float32) if color else None)
-    return (np.concatenate(parts[0]) if sdf else None), (np.concatenate(parts[1]) if color else None)
-
-
-# ----------------------------------------------------------------------------- 1. SDF grid
-def grid_points_box(shape: tuple[int, int, int]) -> list[np.ndarray]:
-    """Cell-centred box coordinates per axis: voxel ``k`` of ``n`` sits at ``-1 + (2k + 1) / n``."""
-    return [(-1 + (2 * np.arange(n) + 1) / n).astype(np.float32) for n in shape]
-
-
-def decode_grid(decoder, triplane: Triplane | PreparedTriplane, aabb, resolution: int, chunk: int = 2**16,
-                with_color: bool = False, coarse: int | None = 4, exact_band: float = 2.0, lipschitz: float = 2.0,
-                stats: dict | None = None):
-    """Decode the SDF (and colour) on a cell-centred grid over ``aabb``.
-
-    The grid has ``resolution`` voxels along the box's longest side (see
-    :func:`grid_shape`); voxel ``k`` of an axis with ``n`` voxels has its
-    centre at ``lo + (k + 0.5) / n * (hi - lo)``. Points are decoded in chunks
-    of ``chunk`` so memory stays bounded, while the decoder's conv blocks run
-    only once (:func:`prepare`).
-
-    **Coarse to fine** (default ``coarse=4``): most of the grid is far from the
-    surface, where marching cubes only needs the sign. The decoder is queried
-    on every ``coarse``-th voxel first, then on lattices twice as fine (4 → 2 →
-    1), and a voxel of a finer lattice is decoded only if the values around it
-    cannot prove that it is far from the surface. It lies in a cell of the
-    previous lattice; if the cell's eight corners have one sign, the SDF is
-    assumed ``lipschitz``-Lipschitz (1 for an exact SDF; a learned decoder only
-    roughly, hence the default 2), which bounds it from below by
-    ``max over corners (|sdf(corner)| - lipschitz * distance)``. Where that
-    bound is at least ``exact_band`` voxels the voxel gets the trilinear
-    interpolation of the corners (right sign, magnitude not exact) instead of
-    a decoder query; otherwise, and in every cell whose corners change sign,
-    it is decoded. The bounds carry from level to level (a bounded voxel is a
-    corner of the next level's cells with its bound). A truncated SDF limits
-    what can be proven: no value exceeds the truncation distance, and with
-    the defaults a voxel is skipped only near corners whose ``|sdf|`` is
-    4–5.5 voxels or more, so most of the truncation band (3 voxels of the
-    training grid, 6 at twice its resolution) is decoded.
-
-    Last, a closure: every voxel that is a corner of a marching-cubes cube
-    not strictly on one side of 0 (the grid padded by an outside layer, as
-    :func:`marching_cubes` does) is decoded if it was not, until there is none
-    left. This is a flood fill: should an interpolated voxel have the wrong
-    sign (the decoder steeper than ``lipschitz``), it borders a decoded voxel
-    of its true sign, gets decoded, and so on through the whole wrong region.
-
-    So every voxel within ``exact_band`` voxels of the zero level (as far as
-    the Lipschitz assumption holds) has exactly the value of the full decode,
-    bit for bit (:func:`query_points` pads its batches so a point's value does
-    not depend on its batch), and marching cubes at level 0 gives the same
-    mesh: every value it reads is decoded, every sign right. The one thing it
-    can miss is an inside (or outside) region with no decoded voxel at all: a
-    speck or hole smaller than the coarse spacing, between coarse samples, in
-    a decoder steeper than ``lipschitz`` there; raise ``lipschitz`` or lower
-    ``coarse`` for such a decoder. ``exact_band=0`` decodes about a third
-    fewer points and still gives the same mesh (the closure adds what marching
-    cubes reads), but voxels a voxel or two from the surface may then be
-    interpolated. Colours (``with_color``) are decoded at the same voxels and
-    interpolated at the others. ``coarse=None`` or ``1`` decodes every voxel.
-
-    Args:
-        coarse: step of the first lattice in voxels (4: 1/64 of the voxels).
-        exact_band: half-width, in voxels (of the longest axis), of the band around the
-            zero level that is always decoded.
-        lipschitz: assumed bound on the SDF's slope (normalised units per normalised unit).
-        stats: a dict to fill with ``voxels`` (grid size), ``decoded`` (points
-            queried, lattice points outside the grid included) and per-step
-            counts ``levels`` (``[(step, decoded), ...]``) and ``closure``.
-
-    Returns:
-        ``sdf (X, Y, Z)`` float32, or ``(sdf, color (X, Y, Z, K))`` when ``with_color``.
-    """
-    prepared = prepare(decoder, triplane)
-    box = as_aabb(aabb)
-    shape = grid_shape(box, resolution)
-    if coarse is None or int(coarse) <= 1:
-        sdf, color = _decode_full(decoder, prepared, shape, chunk, with_color)
-        total = int(np.prod(shape))
-        if stats is not None:
-            stats.update(voxels=total, decoded=total, levels=[(1, total)], closure=0)
-    else:
-        if exact_band < 0 or lipschitz <= 0:
-            raise Sin3DMInputError(f"need exact_band >= 0 and lipschitz > 0, got {exact_band} and {lipschitz}")
-        sdf, color = _decode_coarse_to_fine(decoder, prepared, box, shape, chunk, with_color, int(coarse),
-                                            float(exact_band), float(lipschitz), stats)
-    if with_color:
-        return sdf, color
-    return sdf
-
-
-def _decode_full(decoder, prepared: PreparedTriplane, shape, chunk: int, with_color: bool):
-    """Every voxel of the grid, chunk by chunk → ``sdf``, ``color`` (``None`` without ``with_color``)."""
-    axes = grid_points_box(shape)
-    total = int(np.prod(shape))
-    sdf = np.empty(total, np.float32)
-    color = None
-    for s in range(0, total, chunk):  # build each chunk's points on the fly: no full point grid in memory
-        idx = np.unravel_index(np.arange(s, min(s + chunk, total)), shape)
-        pts = np.stack([axes[a][idx[a]] for a in range(3)], axis=-1)
-        d, c = query_points(decoder, prepared, pts, chunk=chunk, color=with_color)
-        sdf[s:s + len(d)] = d
-        if with_color:
-            if color is None:
-                color = np.empty((total, c.shape[-1]), np.float32)
-            color[s:s + len(d)] = c
-    return sdf.reshape(shape), (color.reshape(*shape, -1) if with_color else None)
-
-
-def _lattice_steps(coarse: int) -> list[int]:
-    """Lattice steps from ``coarse`` down to 1, each dividing the one before: 4 → [4, 2, 1], 6 → [6, 3, 1]."""
-    steps = [coarse]
-    while steps[-1] > 1:
-        h = steps[-1]
-        steps.append(h // next(q for q in range(2, h + 1) if h % q == 0))  # divide by the smallest prime factor
-    return steps
-
-
-def mc_support(sdf: np.ndarray, level: float = 0.0) -> np.ndarray:
-    """Voxels whose value marching cubes can look at: corners of cubes not strictly on one side of ``level``.
-
-    The grid is padded by one layer that is outside (above ``level``), as
-    :func:`marching_cubes` does with ``close_boundary``, so an inside voxel on
-    the boundary counts. A cube with a value exactly at ``level`` counts too.
-    """
-    pos = np.pad(sdf > level, 1, constant_values=True)
-    neg = np.pad(sdf < level, 1, constant_values=False)
-    n = sdf.shape
-    corners = [tuple(slice(d, d + n[a] + 1) for a, d in enumerate(o)) for o in itertools.product((0, 1), repeat=3)]
-    all_pos, all_neg = pos[corners[0]].copy(), neg[corners[0]].copy()
-    for sl in corners[1:]:
-        all_pos &= pos[sl]
-        all_neg &= neg[sl]
-    mixed = ~(all_pos | all_neg)  # one per cube of the padded grid
-    mark = np.zeros(pos.shape, bool)
-    for sl in corners:
-        mark[sl] |= mixed
-    return mark[1:-1, 1:-1, 1:-1]
-
-
-def _decode_coarse_to_fine(decoder, prepared: PreparedTriplane, box: np.ndarray, shape, chunk: int,
-                           with_color: bool, coarse: int, exact_band: float, lipschitz: float, stats: dict | None):
-    """See :func:`decode_grid`. Works on a grid padded to a whole number of coarse cells."""
-    steps = _lattice_steps(coarse)
-    first = steps[0]
-    padded = tuple(-(-(k - 1) // first) * first + 1 for k in shape)
-    # the same float64 → float32 formula as grid_points_box, continued past the grid for the padding
-    axes = [(-1 + (2 * np.arange(m) + 1) / k).astype(np.float32) for m, k in zip(padded, shape)]
-    spacing = (box[3:] - box[:3]) / np.array(shape, np.float64)  # normalised units per voxel
-    band = np.float32(exact_band * spacing.max())
-    val = np.zeros(padded, np.float32)
-    bound = np.zeros(padded, np.float32)  # lower bound on |sdf|; |sdf| where decoded
-    done = np.zeros(padded, bool)
-    col: list[np.ndarray] = []
-    counts: list[tuple[int, int]] = []
-
-    def decode(idx) -> int:
-        if len(idx[0]) == 0:
-            return 0
-        pts = np.stack([axes[a][idx[a]] for a in range(3)], axis=-1)
-        d, c = query_points(decoder, prepared, pts, chunk=chunk, color=with_color)
-        val[idx] = d
-        bound[idx] = np.abs(d)
-        done[idx] = True
-        if with_color:
-            if not col:
-                col.append(np.zeros((*padded, c.shape[-1]), np.float32))
-            col[0][idx] = c
-        return len(d)
-
-    lattice = np.meshgrid(*(np.arange(0, m, first) for m in padded), indexing="ij")
-    counts.append((first, decode(tuple(g.ravel() for g in lattice))))
-
-    for big, h in zip(steps[:-1], steps[1:]):
-        r = big // h
-        cells = [(m - 1) // big for m in padded]
-        known = (slice(None, None, big),) * 3
-        c_val, c_bound = val[known], bound[known]
-        c_pos, c_neg = c_val > 0, c_val < 0
-        c_col = col[0][known] if with_color else None
-        fine = (slice(None, None, h),) * 3
-        f_val, f_bound = val[fine], bound[fine]
-        f_col = col[0][fine] if with_color else None
-        limit = [k - 1 + h for k in shape]  # lattice points from here on are corners of no cell that holds a voxel
-        todo: list[list[np.ndarray]] = [[], [], []]
-        for off in itertools.product(range(r), repeat=3):
-            if off == (0, 0, 0):
-                continue
-            # per axis: the corners (slice of the known lattice, weight, distance) of the cells holding these points
-            choices = []
-            for a, o in enumerate(off):
-                if o == 0:
-                    choices.append([(slice(None), 1.0, 0.0)])
-                else:
-                    t = o / r
-                    choices.append([(slice(0, cells[a]), 1 - t, o * h * spacing[a]),
-                                    (slice(1, cells[a] + 1), t, (r - o) * h * spacing[a])])
-            same_pos = same_neg = lower = interp = icol = None
-            for combo in itertools.product(*choices):
-                sl = tuple(c[0] for c in combo)
-                w = np.float32(np.prod([c[1] for c in combo]))
-                dist = float(np.sqrt(sum(c[2] ** 2 for c in combo)))
-                lb = c_bound[sl] - np.float32(lipschitz * dist)
-                if lower is None:
-                    same_pos, same_neg, lower, interp = c_pos[sl].copy(), c_neg[sl].copy(), lb, w * c_val[sl]
-                    icol = w * c_col[sl] if with_color else None
-                else:
-                    same_pos &= c_pos[sl]
-                    same_neg &= c_neg[sl]
-                    lower = np.maximum(lower, lb)  # NaN stays NaN and gets decoded
-                    interp += w * c_val[sl]
-                    if with_color:
-                        icol += w * c_col[sl]
-            far = (same_pos | same_neg) & (lower >= band)
-            target = tuple(slice(o, None, r) for o in off)
-            f_val[target][far] = interp[far]
-            f_bound[target][far] = lower[far]
-            if with_color:
-                f_col[target][far] = icol[far]
-            miss = np.nonzero(~far)
-            idx = [h * (o + r * m) for o, m in zip(off, miss)]
-            keep = (idx[0] < limit[0]) & (idx[1] < limit[1]) & (idx[2] < limit[2])
-            for a in range(3):
-                todo[a].append(idx[a][keep])
-        counts.append((h, decode(tuple(np.concatenate(t) for t in todo))))
-
-    crop = tuple(slice(0, k) for k in shape)
-    sdf, decoded = val[crop], done[crop]  # views: decode() writes through
-    closure = 0
-    while True:
-        missing = mc_support(sdf) & ~decoded
-        if not missing.any():
-            break
-        closure += decode(np.nonzero(missing))
-    if stats is not None:
-        stats.update(voxels=int(np.prod(shape)), decoded=sum(c for _, c in counts) + closure, levels=counts,
-                     closure=closure)
-    return np.ascontiguousarray(sdf), (np.ascontiguousarray(col[0][crop]) if with_color else None)
 
 
 # ----------------------------------------------------------------------------- 2. marching cubes
@@ -736,26 +395,16 @@ def extract_mesh(decoder, triplane: Triplane, aabb, normalization: Normalization
 
 __all__ = [
     "NoSurfaceError",
-    "PreparedTriplane",
-    "ROW_TILE",
-    "as_aabb",
     "bake_texture",
     "component_labels",
-    "decode_grid",
     "extract_mesh",
-    "grid_points_box",
-    "grid_shape",
     "keep_components",
     "marching_cubes",
-    "mc_support",
     "pad_gutter",
     "position_map",
-    "prepare",
-    "query_points",
     "rasterize_triangles",
     "remove_unused_vertices",
     "simplify",
-    "to_box",
     "uv_atlas",
     "uv_to_pixel",
 ]

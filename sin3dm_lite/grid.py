@@ -17,6 +17,7 @@ import numpy as np
 import point_cloud_utils as pcu
 
 from .errors import Sin3DMInputError
+from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
 from .files import atomic_path
 from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, _unique_rows, component_labels
 
@@ -59,9 +60,7 @@ class ShapeGrid:
 
     def axis_coords(self, axis: int) -> np.ndarray:
         """Cell-centred voxel coordinates along one axis: ``min + (k + 0.5) / n * size``."""
-        n = self.sdf.shape[axis]
-        lo, hi = self.aabb[axis], self.aabb[axis + 3]
-        return (lo + (np.arange(n) + 0.5) / n * (hi - lo)).astype(np.float32)
+        return axis_centres(self.aabb, self.shape, axis).astype(np.float32)
 
     def voxel_centers(self) -> np.ndarray:
         """``(H, W, D, 3)`` coordinates of every voxel centre."""
@@ -69,39 +68,11 @@ class ShapeGrid:
 
     def to_box(self, points: np.ndarray) -> np.ndarray:
         """Normalised coordinates → box coordinates in [-1, 1] (what triplane lookups take)."""
-        lo, hi = self.aabb[:3], self.aabb[3:]
-        return (2 * (np.asarray(points) - lo) / (hi - lo) - 1).astype(np.float32)
+        return to_box(points, self.aabb, dtype=np.float32)
 
 
 # --------------------------------------------------------------------------- building
-def margin_scale(extent: np.ndarray, n_long: int, margin_voxels: float) -> float:
-    """Factor (≤ 1) that shrinks a normalised shape so its longest side leaves ``margin_voxels`` to both box faces.
-
-    ``extent`` is in normalised units (the longest axis spans [-1, 1] over ``n_long`` voxels).
-    """
-    vs = 2.0 / n_long
-    half = float(np.max(extent)) / 2
-    return min(1.0, (1.0 - margin_voxels * vs) / half)
-
-
-def grid_dims(extent: np.ndarray, resolution: int, margin_voxels: float = 0.0) -> tuple[int, int, int]:
-    """Voxel counts per axis as in the original code: ``int(res · extent / max_extent)`` rounded up to a multiple of 8.
-
-    ``margin_voxels`` adds that many voxels on both sides of the shorter axes
-    before rounding (the longest axis keeps ``resolution``: see :func:`margin_scale`).
-    ``extent`` is then taken in normalised units (the longest axis's box spans 2).
-    """
-    extent = np.asarray(extent, dtype=np.float64)
-    n_long = int(np.ceil(resolution / 8) * 8)
-    dims = []
-    for e in extent:
-        n = int(resolution * e / extent.max()) if margin_voxels <= 0 else int(np.ceil(n_long * e / 2 + 2 * margin_voxels))
-        dims.append(max(8, int(np.ceil(n / 8) * 8)))
-    dims[int(np.argmax(extent))] = int(np.ceil(resolution / 8) * 8)
-    return tuple(dims)  # type: ignore[return-value]
-
-
-def _check_resolution(resolution: int) -> None:
+def check_resolution(resolution: int) -> None:
     if not isinstance(resolution, (int, np.integer)) or resolution < 16 or resolution > 512:
         raise Sin3DMInputError(
             f"grid resolution {resolution!r} is out of range; use a whole number from 16 to 512 "
@@ -353,22 +324,21 @@ def mesh_to_grid(
        (most signs from the voxels around each point, see
        :func:`_signs_from_grid`; the rest from their own winding number).
     """
-    _check_resolution(resolution)
+    check_resolution(resolution)
     say = print if progress else (lambda *a, **k: None)
     t0 = time.perf_counter()
     _check_coordinates(mesh)
     m = mesh.normalized()
     extent = m.bounds[1] - m.bounds[0]
-    dims = np.array(grid_dims(extent, resolution))
+    dims = np.array(grid_shape(extent, resolution, multiple=8))
     if margin_voxels > 0:
         shrink = margin_scale(extent, int(dims.max()), margin_voxels)
         if shrink < 1:
             m = replace(m, vertices=m.vertices * shrink,
                         normalization=Normalization(m.normalization.center, m.normalization.scale * shrink))
             extent = extent * shrink
-        dims = np.array(grid_dims(extent, resolution, margin_voxels))
-    half = dims / dims.max()
-    aabb = np.concatenate([-half, half]).astype(np.float32)
+        dims = np.array(grid_shape(extent, resolution, multiple=8, margin_voxels=margin_voxels))
+    aabb = centred_box(dims)
     vs = 2.0 / dims.max()
     threshold = float(threshold_voxels * vs)
     say(f"[grid] '{mesh.name}': {len(m.faces):,} faces → grid {dims[0]}×{dims[1]}×{dims[2]}, band ±{threshold:.4f}")

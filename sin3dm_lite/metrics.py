@@ -20,10 +20,13 @@ here.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .errors import Sin3DMInputError
-from .extract import as_aabb, grid_shape, rasterize_triangles
+from .box import as_aabb, axis_centres, grid_shape, to_index
+from .extract import rasterize_triangles
 
 #: Tiny shift (in voxels) of the mesh against the ray grid: marching-cubes vertices of the same grid lie
 #: exactly on the rays, and a ray through an edge would be counted twice.
@@ -36,6 +39,33 @@ def _verts_faces(mesh) -> tuple[np.ndarray, np.ndarray]:
     else:  # TexturedMesh, trimesh.Trimesh
         verts, faces = mesh.vertices, mesh.faces
     return np.asarray(verts, np.float64), np.asarray(faces, np.int64)
+
+
+# ----------------------------------------------------------------------------- the autoencoder's reconstruction
+def reconstruction_metrics(reconstruction, grid) -> dict[str, float]:
+    """How well a reconstruction (``decode.reconstructed_grid``, both ``ShapeGrid``) reproduces the input grid.
+
+    * ``sign_accuracy``: share of voxels where the decoded SDF has the input's sign;
+    * ``occupancy_iou``: IoU of the inside voxels (SDF < 0);
+    * ``occupancy_iou_quarter_voxel``: the same IoU leaving out voxels whose centre lies
+      within a quarter voxel of the input surface. Their sign flips with any sub-voxel
+      shift of the surface, and a mesh whose flat faces run along a layer of voxel
+      centres (a block filling its box) has thousands of them;
+    * ``color_l1`` / ``color_psnr``: colour error on voxels within the truncation band.
+    """
+    sdf, col = reconstruction.sdf, reconstruction.color
+    gt_in, pr_in = grid.sdf < 0, sdf < 0
+    clear = np.abs(grid.sdf) >= 0.25 * grid.voxel_size
+    band = np.abs(grid.sdf) < grid.threshold
+    err = col[band] - grid.color[band]
+    mse = float((err**2).mean()) if band.any() else float("nan")
+    return {
+        "sign_accuracy": float((gt_in == pr_in).mean()),
+        "occupancy_iou": iou(gt_in, pr_in),
+        "occupancy_iou_quarter_voxel": iou(gt_in[clear], pr_in[clear]),
+        "color_l1": float(np.abs(err).mean()) if band.any() else float("nan"),
+        "color_psnr": float(10 * math.log10(1.0 / max(mse, 1e-12))),
+    }
 
 
 # ----------------------------------------------------------------------------- voxelisation
@@ -61,7 +91,7 @@ def voxelize(mesh, aabb, resolution: int = 128) -> np.ndarray:
     shape = grid_shape(box, resolution)
     nx, ny, nz = shape
     # continuous voxel index: voxel centre k sits at k
-    idx = (verts - box[:3]) / (box[3:] - box[:3]) * np.array(shape) - 0.5
+    idx = to_index(verts, box, shape)
     idx[:, :2] += _RAY_JITTER
     tri = idx[faces]
     f, x, y, bary = rasterize_triangles(tri[:, :, :2], nx, ny, eps=0.0)
@@ -87,7 +117,7 @@ def input_occupancy(mesh, aabb, resolution: int = 128) -> np.ndarray:
 
     box = as_aabb(aabb)
     shape = grid_shape(box, resolution)
-    axes = [box[a] + (np.arange(n) + 0.5) / n * (box[a + 3] - box[a]) for a, n in enumerate(shape)]
+    axes = [axis_centres(box, shape, a) for a in range(3)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     return inside(*_verts_faces(mesh), centres).reshape(shape)
 
@@ -263,6 +293,7 @@ __all__ = [
     "lp_iou",
     "lp_scores",
     "pairwise_iou",
+    "reconstruction_metrics",
     "reconstruction_iou",
     "variation_scores",
     "voxelize",

@@ -29,13 +29,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .autoencoder import AutoencoderTrainer, TriplaneDecoder, reconstructed_grid, reconstruction_metrics
+from .autoencoder import AutoencoderTrainer, TriplaneDecoder
 from .config import Config, get_preset
+from .decode import reconstructed_grid
 from .device import get_device
 from .errors import Sin3DMInputError
 from .files import acquire_lock, atomic_path, atomic_write, create_locked_folder, holds_lock, release_lock
 from .grid import load_grid, mesh_to_grid, save_grid
 from .mesh_io import Normalization, TexturedMesh
+from .metrics import reconstruction_metrics
 from .triplane import Triplane
 
 MODEL_FILE = "model.pt"

@@ -11,13 +11,13 @@ from sin3dm_lite.autoencoder import (
     AutoencoderTrainer,
     TriplaneDecoder,
     TriplaneEncoder,
-    reconstructed_grid,
-    reconstruction_metrics,
     sdf_loss,
 )
 from sin3dm_lite.config import AutoencoderConfig
+from sin3dm_lite.decode import reconstructed_grid
 from sin3dm_lite.grid import mesh_to_grid
 from sin3dm_lite.mesh_io import Material, TexturedMesh
+from sin3dm_lite.metrics import reconstruction_metrics
 from sin3dm_lite.triplane import Triplane
 
 

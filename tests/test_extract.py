@@ -6,6 +6,8 @@ import pytest
 import torch
 from torch import nn
 
+from sin3dm_lite import box
+from sin3dm_lite import decode as dc
 from sin3dm_lite import extract as ex
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.mesh_io import Normalization
@@ -56,30 +58,30 @@ def sphere_sdf(shape, aabb=AABB, center=(0.0, 0.0, 0.0), radius=0.5):
 
 
 def test_grid_shape_follows_longest_side():
-    assert ex.grid_shape(AABB, 32) == (24, 32, 20)
-    assert ex.grid_shape([-1, -1, -0.01, 1, 1, 0.01], 16) == (16, 16, 2)  # at least 2 voxels per axis
+    assert box.grid_shape(AABB, 32) == (24, 32, 20)
+    assert box.grid_shape([-1, -1, -0.01, 1, 1, 0.01], 16) == (16, 16, 2)  # at least 2 voxels per axis
 
 
 def test_decode_grid_chunked_equals_one_shot_and_prepares_once():
     dec = SphereDecoder()
     tp = zero_triplane()
-    sdf, col = ex.decode_grid(dec, tp, AABB, 32, chunk=1000, with_color=True, coarse=None)
+    sdf, col = dc.decode_grid(dec, tp, AABB, 32, chunk=1000, with_color=True, coarse=None)
     assert dec.prepare_calls == 1 and dec.query_calls == int(np.ceil(24 * 32 * 20 / 1000))
-    sdf1, col1 = ex.decode_grid(dec, tp, AABB, 32, chunk=10**9, with_color=True, coarse=None)
+    sdf1, col1 = dc.decode_grid(dec, tp, AABB, 32, chunk=10**9, with_color=True, coarse=None)
     assert sdf.shape == (24, 32, 20) and col.shape == (24, 32, 20, 3)
     np.testing.assert_array_equal(sdf, sdf1)
     np.testing.assert_array_equal(col, col1)
     # the grid is cell-centred: voxel k sits at lo + (k + 0.5) / n * size
     np.testing.assert_allclose(sdf, sphere_sdf(sdf.shape), atol=1e-5)
-    assert np.array_equal(ex.decode_grid(dec, tp, AABB, 32, coarse=1), sdf)  # sdf only; coarse=1 is the full decode
+    assert np.array_equal(dc.decode_grid(dec, tp, AABB, 32, coarse=1), sdf)  # sdf only; coarse=1 is the full decode
 
 
 # ----------------------------------------------------------------------------- coarse-to-fine decode
 def assert_fast_decode_exact(dec, tp, aabb, resolution, band_voxels=2.0, **kwargs):
     """The coarse-to-fine decode against the full one: exact near the surface, same signs, same mesh."""
-    full = ex.decode_grid(dec, tp, aabb, resolution, coarse=None)
+    full = dc.decode_grid(dec, tp, aabb, resolution, coarse=None)
     stats = {}
-    fast = ex.decode_grid(dec, tp, aabb, resolution, stats=stats, **kwargs)
+    fast = dc.decode_grid(dec, tp, aabb, resolution, stats=stats, **kwargs)
     voxel = (aabb[3:] - aabb[:3]).max() / max(full.shape)
     near = np.abs(full) < band_voxels * voxel
     assert near.any() and (full > 0).any() and (full < 0).any()
@@ -123,9 +125,9 @@ def test_coarse_to_fine_truncated_sdf_touching_the_box_and_colours():
     dec = TruncatedSphereDecoder(truncation=6 * voxel, radius=0.7)
     full, fast, stats = assert_fast_decode_exact(dec, zero_triplane(), AABB, 48)
     assert stats["decoded"] < 0.6 * full.size
-    sdf, col = ex.decode_grid(dec, zero_triplane(), AABB, 48, with_color=True)
+    sdf, col = dc.decode_grid(dec, zero_triplane(), AABB, 48, with_color=True)
     np.testing.assert_array_equal(sdf, fast)
-    _, col_full = ex.decode_grid(dec, zero_triplane(), AABB, 48, with_color=True, coarse=None)
+    _, col_full = dc.decode_grid(dec, zero_triplane(), AABB, 48, with_color=True, coarse=None)
     assert col.shape == col_full.shape == (*full.shape, 3)
     near = np.abs(full) < 2 * voxel
     np.testing.assert_array_equal(col[near], col_full[near])
@@ -141,7 +143,7 @@ def random_triplane_decoder(seed=0):
     torch.manual_seed(seed)
     dec = TriplaneDecoder(AutoencoderConfig(decoder_channels=16, mlp_hidden=32), threshold=0.1)
     tp = Triplane.randn(1, 12, (3, 4, 3), generator=torch.Generator().manual_seed(seed))
-    return dec, ex.prepare(dec, tp)
+    return dec, dc.prepare(dec, tp)
 
 
 def sdf_like_triplane_decoder(truncation=None, seed=0):
@@ -157,7 +159,7 @@ def sdf_like_triplane_decoder(truncation=None, seed=0):
     from sin3dm_lite.autoencoder import TriplaneDecoder
 
     base, prepared = random_triplane_decoder(seed)
-    raw = ex.decode_grid(base, prepared, AABB, 32, coarse=None)
+    raw = dc.decode_grid(base, prepared, AABB, 32, coarse=None)
     raw_slope = max(np.abs(np.diff(raw, axis=a)).max() for a in range(3)) / (2.0 / 32)
     gain, offset = 0.5 / raw_slope, float(raw.mean())
     sphere = SphereDecoder(radius=0.55)
@@ -194,36 +196,36 @@ def test_query_points_value_does_not_depend_on_its_batch():
     """Matrix kernels round the leftover rows of a batch differently; the row padding hides that."""
     dec, prepared = random_triplane_decoder()
     pts = np.random.default_rng(0).uniform(-1, 1, (3001, 3)).astype(np.float32)
-    all_at_once, _ = ex.query_points(dec, prepared, pts, color=False)
+    all_at_once, _ = dc.query_points(dec, prepared, pts, color=False)
     for start, size in [(0, 1), (5, 3), (17, 1001), (1000, 2001)]:
-        part, _ = ex.query_points(dec, prepared, pts[start:start + size], color=False)
+        part, _ = dc.query_points(dec, prepared, pts[start:start + size], color=False)
         np.testing.assert_array_equal(part, all_at_once[start:start + size])
-    chunked, _ = ex.query_points(dec, prepared, pts, chunk=999, color=False)
+    chunked, _ = dc.query_points(dec, prepared, pts, chunk=999, color=False)
     np.testing.assert_array_equal(chunked, all_at_once)
 
 
 def test_mc_support_marks_cubes_that_cross_the_level_and_the_boundary():
     sdf = np.ones((6, 6, 6), np.float32)
     sdf[3, 3, 3] = -1
-    mark = ex.mc_support(sdf)
+    mark = dc.mc_support(sdf)
     assert mark.sum() == 27 and mark[2:5, 2:5, 2:5].all()
     sdf[0, 0, 0] = -1  # inside on the corner of the grid: the padding layer outside makes a cube cross
-    assert ex.mc_support(sdf)[:2, :2, :2].all() and ex.mc_support(sdf).sum() == 27 + 8
-    assert not ex.mc_support(np.ones((4, 4, 4))).any()
+    assert dc.mc_support(sdf)[:2, :2, :2].all() and dc.mc_support(sdf).sum() == 27 + 8
+    assert not dc.mc_support(np.ones((4, 4, 4))).any()
 
 
 def test_prepared_triplane_is_reused_and_batch_must_be_one():
     dec = SphereDecoder()
-    prepared = ex.prepare(dec, zero_triplane())
-    ex.decode_grid(dec, prepared, AABB, 16)
-    ex.decode_grid(dec, prepared, AABB, 16)
+    prepared = dc.prepare(dec, zero_triplane())
+    dc.decode_grid(dec, prepared, AABB, 16)
+    dc.decode_grid(dec, prepared, AABB, 16)
     assert dec.prepare_calls == 1
     with pytest.raises(Sin3DMInputError, match="batch 2"):
         ex.extract_mesh(dec, zero_triplane(batch=2), AABB, resolution=16)
 
 
 def test_marching_cubes_sphere_on_voxel_centres_and_outward():
-    shape = ex.grid_shape(AABB, 32)
+    shape = box.grid_shape(AABB, 32)
     voxel = (AABB[3] - AABB[0]) / shape[0]
     center = np.array([0.05, -0.1, 0.02])  # off the grid's symmetry
     v, f = ex.marching_cubes(sphere_sdf(shape, center=center), AABB)
@@ -337,7 +339,7 @@ def test_extract_mesh_textured_steps_and_colours():
     # the baked texture, looked up through the mesh's UVs, gives the decoder's colour
     bary = np.full((len(mesh.faces), 3), 1 / 3)
     centroids = mesh.vertices[mesh.faces].mean(1)
-    expected = (ex.to_box(centroids, AABB) + 1) / 2
+    expected = (box.to_box(centroids, AABB) + 1) / 2
     err = np.abs(mesh.colors_at(np.arange(len(mesh.faces)), bary) - expected)
     assert err.mean() < 0.01 and np.quantile(err, 0.99) < 0.05
 
@@ -350,7 +352,7 @@ def test_extract_mesh_original_coordinates_and_vertex_colours():
     r = np.linalg.norm(mesh.vertices - norm.center, axis=1)
     assert np.abs(r - 1.0).max() < 0.02  # radius 0.5 / scale 0.5
     assert np.allclose(mesh.normalization.center, 0) and mesh.normalization.scale == 1.0
-    expected = (ex.to_box(norm.to_normalized(mesh.vertices), AABB) + 1) / 2
+    expected = (box.to_box(norm.to_normalized(mesh.vertices), AABB) + 1) / 2
     np.testing.assert_allclose(mesh.vertex_colors, expected, atol=1e-5)
 
 

@@ -4,9 +4,15 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
+from sin3dm_lite.box import grid_shape
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.grid import grid_dims, load_grid, mesh_to_grid, save_grid
+from sin3dm_lite.grid import load_grid, mesh_to_grid, save_grid
 from sin3dm_lite.mesh_io import Material, TexturedMesh
+
+
+def grid_dims(extent, resolution, margin_voxels=0.0):
+    """The training grid's rule: box.grid_shape with counts rounded up to multiples of 8."""
+    return grid_shape(extent, resolution, multiple=8, margin_voxels=margin_voxels)
 
 
 def textured(m: trimesh.Trimesh, name="m", **kw) -> TexturedMesh:
