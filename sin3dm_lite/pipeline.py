@@ -25,6 +25,7 @@ import threading
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -110,6 +111,7 @@ class Samples:
     triplane: Triplane
     aabb: np.ndarray
     intermediates: list | None = None
+    plan: Any = None  # the control.Plan that was sampled (size, box, known latent and mask)
 
     def __len__(self) -> int:
         return self.triplane.batch
@@ -274,41 +276,72 @@ class Sin3DM:
         mask: Triplane | None = None,
         progress: bool = True,
         diversity: float | None = None,
+        outpaint: tuple[float, float, float] | float | None = None,
+        anchor: str = "center",
+        regenerate=None,
+        duplicate=None,
+        plan=None,
     ) -> Samples:
-        """Draw ``n`` new triplanes from noise.
+        """Draw ``n`` new triplanes from noise, optionally controlled (the paper's Sec. 4.4, see :mod:`.control`).
 
-        ``resize`` scales the latent per axis (retargeting: the denoiser is fully
-        convolutional, so noise of another size gives a shape of another size);
-        ``known``/``mask`` fix part of the latent (outpainting, patch duplication).
+        * ``resize`` scales the latent per axis (retargeting: the denoiser is
+          fully convolutional, so noise of another size gives a shape of another size);
+        * ``outpaint=(sx, sy, sz)`` (each ≥ 1) grows the box and keeps the input
+          in it (``anchor``: ``"center"`` or the face it sticks to, e.g. ``"x-"``);
+        * ``regenerate=((x0, y0, z0), (x1, y1, z1))`` resamples that box and keeps the rest;
+        * ``duplicate=(((x0, y0, z0), (x1, y1, z1)), (tx, ty, tz))`` copies the
+          box so its low corner lands at ``(tx, ty, tz)`` and generates around both copies.
+
+        Boxes are fractions [0, 1] of the model's box along x, y, z. One of
+        these at a time; ``plan`` takes a :class:`control.Plan` made by hand.
+        ``known``/``mask`` fix part of the latent directly (same size as the samples).
 
         ``diversity`` (default: the config's, 1.0) trades variation for
         fidelity, the limitation the paper names: 1 samples from pure noise;
         below 1 sampling starts from the input's latent with that share of
         noise (a resized sample starts from the input's latent stretched to
-        its size), so the layout stays and only what the noise erased is
-        regenerated; 0 gives the input back.
+        its size, an outpainted or edited one from the known latent), so the
+        layout stays and only what the noise erased is regenerated; 0 gives
+        the input (or the known latent) back. The result's ``plan`` says what was sampled.
         """
+        from . import control
         from .diffusion import sample as diffusion_sample, start_step
 
         if n < 1:
             raise Sin3DMInputError(f"number of samples must be at least 1, got {n}")
-        limit = self.max_samples(resize)
+        resized = np.any(np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,)) != 1.0)
+        asked = [k for k, v in (("resize", resized or None), ("outpaint", outpaint), ("regenerate", regenerate),
+                                ("duplicate", duplicate), ("plan", plan)) if v is not None]
+        if len(asked) > 1:
+            raise Sin3DMInputError(f"one control at a time: got {' and '.join(asked)}")
+        if plan is None:
+            if outpaint is not None:
+                plan = control.outpaint(self.latent, self.aabb, outpaint, anchor)
+            elif regenerate is not None:
+                plan = control.regenerate(self.latent, self.aabb, regenerate)
+            elif duplicate is not None:
+                try:
+                    box, to = duplicate
+                except (TypeError, ValueError):
+                    raise Sin3DMInputError("duplicate takes (box, to): ((x0, y0, z0), (x1, y1, z1)) and (tx, ty, tz)") from None
+                plan = control.duplicate(self.latent, self.aabb, box, to)
+            else:
+                plan = control.retarget(self.latent, self.aabb, resize)
+        if plan.known is not None and known is not None:
+            raise Sin3DMInputError(f"{plan.kind} chooses what to keep itself; do not pass known/mask with it")
+        known, mask = (plan.known, plan.mask) if plan.known is not None else (known, mask)
+        factors = np.array(plan.resolution) / np.array(self.latent.resolution)
+        limit = self.max_samples(factors)
         if n > limit:
             raise Sin3DMInputError(f"{n} samples do not fit in memory at once here (at most {limit} with "
                                    "this model and size); draw them in several calls with other seeds")
-        factors = np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,))
-        if not np.all(np.isfinite(factors)) or np.any(factors <= 0) or np.any(factors > 8):
-            raise Sin3DMInputError(f"resize factors must be positive numbers up to 8, got {tuple(factors)}")
-        base = np.array(self.latent.resolution)
-        res = np.maximum(4, np.round(base * factors)).astype(int)
         s = self.config.sampling
         diversity = s.diversity if diversity is None else diversity
         t0 = start_step(self.schedule, diversity)  # checks the value
-        start = self.latent.resized(tuple(int(r) for r in res)) if t0 < self.schedule.timesteps - 1 else None
         out = diffusion_sample(
             self.denoiser,
             self.schedule,
-            tuple(int(r) for r in res),
+            plan.resolution,
             n=n,
             latent_channels=self.latent.channels,
             method=method or s.method,
@@ -320,13 +353,11 @@ class Sin3DM:
             progress=progress,
             device=self.device,
             prediction=self.config.diffusion.prediction,
-            start=start,
+            start=plan.start if t0 < self.schedule.timesteps - 1 else None,
             diversity=diversity,
         )
         tp, inter = out if return_intermediates is not None else (out, None)
-        scale = res / base
-        aabb = np.concatenate([self.aabb[:3] * scale, self.aabb[3:] * scale]).astype(np.float32)
-        return Samples(tp, aabb, inter)
+        return Samples(tp, plan.aabb, inter, plan)
 
     def max_samples(self, resize=(1.0, 1.0, 1.0)) -> int:
         """How many samples one :meth:`sample` call can hold: the denoiser keeps about 16 feature maps of its
