@@ -104,7 +104,7 @@ def test_fit_autoencoder_is_the_trainer_run_to_the_end(grid):
 
 def test_auto_decoder_planes_train_at_their_own_learning_rates(grid):
     tr = AutoencoderTrainer(grid, small_cfg(use_encoder=False, lr_geo=1e-3, lr_tex=5e-3), seed=0)
-    geo_group, tex_group = tr.opt.param_groups
+    geo_group, tex_group = tr.optimizer.param_groups
     raw = tr.model
     assert geo_group["lr"] == 1e-3 and tex_group["lr"] == 5e-3
     assert all(any(p is q for q in geo_group["params"]) for p in raw.raw_geo.parameters())
