@@ -8,11 +8,7 @@ from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.grid import grid_dims, load_grid, mesh_to_grid, save_grid
 from sin3dm_lite.mesh_io import Material, TexturedMesh
 
-
-def textured(m: trimesh.Trimesh, name="m", **kw) -> TexturedMesh:
-    return TexturedMesh(
-        np.asarray(m.vertices, float), np.asarray(m.faces, np.int64), np.zeros(len(m.faces), np.int64), [Material()], name=name, **kw
-    )
+from .conftest import textured
 
 
 def box_sdf(p, half):
