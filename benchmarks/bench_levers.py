@@ -78,7 +78,7 @@ def main() -> None:
               f"({train_s / max(cfg.diffusion.steps, 1):.3f} s/step, {torch.get_num_threads()} threads) | "
               f"G-Div {sc['g_div']:.3f} | IoU→input {sc['iou_to_input']:.3f} | LP-IoU {sc['lp_iou']:.3f} | "
               f"LP-F {sc['lp_f']:.3f} | ceiling {sc['ceiling_lp_iou']:.3f}/{sc['ceiling_lp_f']:.3f} | final loss "
-              f"{trainer.history[-1]:.4f}", flush=True)
+              f"{trainer.history['loss'][-1]:.4f}", flush=True)
 
 
 if __name__ == "__main__":

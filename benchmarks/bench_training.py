@@ -56,8 +56,8 @@ def synthetic_grid(dims, n_points: int) -> ShapeGrid:
 def per_chunk_step(tr: AutoencoderTrainer, chunk: int = 8192) -> float:
     """The autoencoder step with the plane convolutions recomputed for every chunk of points."""
     cfg = tr.cfg
-    p, s_gt, c_gt = tr.sampler(cfg.points_per_step, cfg.grid_fraction, tr.gen)
-    tr.opt.zero_grad(set_to_none=True)
+    p, s_gt, c_gt = tr.sampler(cfg.points_per_step, cfg.grid_fraction, tr.generator)
+    tr.optimizer.zero_grad(set_to_none=True)
     total = 0.0
     for a in range(0, len(p), chunk):
         h = tr.model.encode(tr.grid_t)
@@ -69,8 +69,8 @@ def per_chunk_step(tr: AutoencoderTrainer, chunk: int = 8192) -> float:
         loss = (sdf_loss(s, sg, tr.grid.threshold) + (c - cg[band]).abs().mean()) * len(q) / len(p)
         loss.backward()
         total += float(loss.detach())
-    tr.opt.step()
-    tr.sched.step()
+    tr.optimizer.step()
+    tr.scheduler.step()
     return total
 
 
@@ -125,10 +125,10 @@ def main() -> None:
         grid = synthetic_grid(dims, 100_000)
         steps = 2 if name == "paper" else a.steps
         ae = AutoencoderTrainer(grid, replace(cfg.autoencoder, precision="fp32"))
-        t_ours = timed(ae.train_step, steps)
+        t_ours = timed(ae.step, steps)
         t_chunk = timed(lambda: per_chunk_step(ae), steps)
         ae16 = AutoencoderTrainer(grid, replace(cfg.autoencoder, precision="bf16"))
-        t_bf16 = timed(ae16.train_step, steps)
+        t_bf16 = timed(ae16.step, steps)
         print(f"[{name}] autoencoder, grid {dims}, {cfg.autoencoder.points_per_step:,} points: "
               f"ours {t_ours:.3f} s/step | per-chunk plane convs {t_chunk:.3f} s/step | ours in bf16 autocast "
               f"{t_bf16:.3f} s/step (the preset's 'auto' picks bf16: {bf16_is_fast('cpu')})")

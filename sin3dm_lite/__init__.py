@@ -6,9 +6,9 @@ meshes. The stages, in the order data flows (a module imports only from
 stages before it)::
 
     Data      mesh_io (read meshes) · box (box/grid geometry) · grid (mesh → TSDF grid)
-    Model     triplane · autoencoder (grid → latent, decoder) · decode (decoder queries, SDF grids)
-              unet · diffusion (training, sampling)
-    Generate  extract (SDF → textured mesh) · export (OBJ / GLB writers)
+    Model     triplane · training (what both trainers share) · autoencoder (grid → latent, decoder)
+              decode (decoder queries, SDF grids) · unet · diffusion (training, sampling)
+    Generate  extract (SDF → textured mesh) · export (OBJ / GLB writers) · control (what to sample: outpaint, ...)
     Eval      metrics          Show  viz (figures) · widgets (panels) · viewer (k3d / HTML)
     Facade    pipeline (Sin3DM: fit, sample, save, load) · cli · examples · pretrained
 

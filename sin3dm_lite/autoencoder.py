@@ -25,8 +25,9 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from .config import AutoencoderConfig
-from .device import autocast, get_device
+from .device import autocast
 from .grid import ShapeGrid
+from .training import Trainer
 from .triplane import Triplane
 
 
@@ -237,36 +238,34 @@ class PointSampler:
 
 
 # --------------------------------------------------------------------------- training
-class AutoencoderTrainer:
+class AutoencoderTrainer(Trainer):
     """Fits a :class:`TriplaneAutoencoder` to one :class:`ShapeGrid`, resumable step by step.
 
     AdamW with a geometry and a texture learning rate, both decayed
     exponentially to ``lr_final_factor`` of their start over ``cfg.steps``.
-    ``state_dict()`` holds everything (weights, optimiser, scheduler, random
-    generator, history) as plain tensors, so a run resumed from a checkpoint
-    ends exactly where an uninterrupted one would.
+    The shared interface (``step``, ``run``, ``history`` with ``"loss"``,
+    ``"sdf"`` and ``"color"``, ``state_dict``) is :class:`~sin3dm_lite.training.Trainer`'s.
+    The point batches are drawn on the CPU (the same batches on every device).
     """
 
+    kind = "autoencoder"
+    loss_names = ("loss", "sdf", "color")
+
     def __init__(self, grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: int = 0):
-        self.cfg = cfg
+        super().__init__(cfg, device, seed, generator_device="cpu")
         self.grid = grid
-        self.device = get_device(device)
-        torch.manual_seed(seed)  # weight initialisation
-        self.model = TriplaneAutoencoder(cfg, grid.shape, grid.threshold, grid.color.shape[-1]).to(self.device)
+        self.model = self.init_model(lambda: TriplaneAutoencoder(cfg, grid.shape, grid.threshold, grid.color.shape[-1]))
         self.grid_t = grid_tensor(grid, self.device) if cfg.use_encoder else None  # the auto-decoder never reads it
         self.sampler = PointSampler(grid, self.device)
         geo, tex = self.model.param_groups()
-        self.opt = torch.optim.AdamW([{"params": geo, "lr": cfg.lr_geo}, {"params": tex, "lr": cfg.lr_tex}])
+        self.optimizer = torch.optim.AdamW([{"params": geo, "lr": cfg.lr_geo}, {"params": tex, "lr": cfg.lr_tex}])
         gamma = cfg.lr_final_factor ** (1.0 / max(1, cfg.steps))
-        self.sched = torch.optim.lr_scheduler.ExponentialLR(self.opt, gamma)
-        self.gen = torch.Generator().manual_seed(seed)
-        self.step_count = 0
-        self.history: dict[str, list[float]] = {"loss": [], "sdf": [], "color": []}
+        self.scheduler = torch.optim.lr_scheduler.ExponentialLR(self.optimizer, gamma)
 
-    def train_step(self) -> float:
+    def losses(self) -> dict[str, torch.Tensor]:
+        """SDF loss on a batch of points plus the L1 colour loss on those within the truncation band."""
         cfg = self.cfg
-        self.model.train()
-        p, s_gt, c_gt = self.sampler(cfg.points_per_step, cfg.grid_fraction, self.gen)
+        p, s_gt, c_gt = self.sampler(cfg.points_per_step, cfg.grid_fraction, self.generator)
         band = s_gt.abs() < self.grid.threshold  # colour is only defined near the surface
         with autocast(self.device, cfg.precision):  # the network in bf16 where that is fast; losses in fp32
             h = self.model.encode(self.grid_t)
@@ -275,56 +274,13 @@ class AutoencoderTrainer:
             c = self.model.decoder.query_color(prep, p[band][None])[0].float()
         l_sdf = sdf_loss(s, s_gt, self.grid.threshold, cfg.near_weight, cfg.far_weight)
         l_col = (c - c_gt[band]).abs().mean() if band.any() else torch.zeros((), device=self.device)
-        loss = l_sdf + l_col
-        self.opt.zero_grad(set_to_none=True)
-        loss.backward()
-        self.opt.step()
-        self.sched.step()
-        self.step_count += 1
-        values = torch.stack([loss, l_sdf, l_col]).detach().tolist()  # one device sync, not three
-        for k, v in zip(("loss", "sdf", "color"), values):
-            self.history[k].append(v)
-        return values[0]
-
-    def run(self, until_step: int | None = None, progress: bool = True, callback=None) -> dict[str, list[float]]:
-        """Train from the current step to ``until_step`` (default: ``cfg.steps``)."""
-        from tqdm.auto import tqdm
-
-        end = self.cfg.steps if until_step is None else min(until_step, self.cfg.steps)
-        bar = tqdm(total=end, initial=self.step_count, desc="autoencoder", disable=not progress, leave=False)
-        while self.step_count < end:
-            loss = self.train_step()
-            bar.update(1)
-            if self.step_count % 25 == 0:
-                bar.set_postfix(loss=f"{loss:.4f}")
-            if callback is not None:
-                callback(self)
-        bar.close()
-        return self.history
+        return {"loss": l_sdf + l_col, "sdf": l_sdf, "color": l_col}
 
     @torch.no_grad()
     def latent(self) -> Triplane:
         """The fitted latent ``h0`` (batch 1) that the diffusion model learns from."""
         self.model.eval()
         return self.model.encode(self.grid_t).detach()
-
-    def state_dict(self) -> dict:
-        return {
-            "model": self.model.state_dict(),
-            "opt": self.opt.state_dict(),
-            "sched": self.sched.state_dict(),
-            "gen": self.gen.get_state(),
-            "step": self.step_count,
-            "history": {k: torch.tensor(v, dtype=torch.float64) for k, v in self.history.items()},
-        }
-
-    def load_state_dict(self, sd: dict) -> None:
-        self.model.load_state_dict(sd["model"])
-        self.opt.load_state_dict(sd["opt"])
-        self.sched.load_state_dict(sd["sched"])
-        self.gen.set_state(sd["gen"])
-        self.step_count = int(sd["step"])
-        self.history = {k: v.tolist() for k, v in sd["history"].items()}
 
 
 def fit_autoencoder(grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: int = 0, progress: bool = True):

@@ -14,8 +14,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import asdict
-from typing import Any, Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -23,8 +22,8 @@ import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from .config import DiffusionConfig
-from .device import get_device
 from .errors import Sin3DMInputError
+from .training import Trainer, checkpoint_problem
 from .triplane import PLANE_AXES, Triplane
 from .unet import TriplaneUNet
 
@@ -100,17 +99,6 @@ def triplane_mse(a: Triplane, b: Triplane) -> torch.Tensor:
     return sum(F.mse_loss(p, q) for p, q in zip(a.planes, b.planes))
 
 
-def _cpu_copy(obj: Any) -> Any:
-    """Copy of a nest of dicts / lists / tuples with every tensor detached and on the CPU."""
-    if isinstance(obj, torch.Tensor):
-        return obj.detach().to("cpu", copy=True)
-    if isinstance(obj, dict):
-        return {k: _cpu_copy(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return type(obj)(_cpu_copy(v) for v in obj)
-    return obj
-
-
 def random_crops(h0: Triplane, n: int, size: int, generator: torch.Generator) -> Triplane:
     """``n`` random crops of one latent, ``size`` texels along each axis (or the whole axis when it is shorter).
 
@@ -132,107 +120,67 @@ def random_crops(h0: Triplane, n: int, size: int, generator: torch.Generator) ->
     return Triplane(*(torch.cat(p, 0) for p in zip(*planes)))
 
 
-class DiffusionTrainer:
+class DiffusionTrainer(Trainer):
     """Trains the denoiser on one latent ``h0``, resumable bit for bit.
 
-    Every step draws a batch of ``cfg.batch_size`` copies of ``h0``, each with
-    its own time step and noise, from a dedicated ``torch.Generator`` (the
-    global RNG is never touched). AdamW, learning rate annealed linearly to 0
-    over ``cfg.steps``, and an EMA copy of the weights (``cfg.ema_decay = 0``:
-    none). ``state_dict()`` holds everything (weights, EMA, optimizer,
-    scheduler, generator state, step, history, config, ``h0``) as plain tensors
-    and containers, loadable with ``torch.load(..., weights_only=True)``.
+    Every step draws a batch of ``cfg.batch_size`` copies of ``h0`` (or random
+    crops of it), each with its own time step and noise, from the trainer's
+    ``generator`` on the training device. AdamW, learning rate annealed
+    linearly to 0 over ``cfg.steps``, and an EMA copy of the weights
+    (``cfg.ema_decay = 0``: none). The shared interface (``step``, ``run``,
+    ``history``, ``state_dict``) is :class:`~sin3dm_lite.training.Trainer`'s;
+    the checkpoint adds ``ema`` and ``h0``, so :meth:`from_state_dict` rebuilds
+    the trainer from it alone.
     """
+
+    kind = "diffusion"
 
     def __init__(self, h0: Triplane, cfg: DiffusionConfig, device: str | torch.device | None = None, seed: int = 0):
         if h0.batch != 1:
             raise Sin3DMInputError(f"the diffusion model trains on one latent; got a batch of {h0.batch} (use h0[0])")
         if cfg.prediction not in ("x0", "eps"):
             raise Sin3DMInputError(f"unknown prediction '{cfg.prediction}'; use 'x0' (the paper) or 'eps'")
-        self.cfg, self.seed, self.device = cfg, seed, get_device(device)
+        super().__init__(cfg, device, seed)
         self.h0 = h0.detach().to(self.device, torch.float32).clone()
         self.schedule = NoiseSchedule.from_config(cfg)
-        with torch.random.fork_rng(devices=[]):  # same initial weights on every device, global RNG untouched
-            torch.manual_seed(seed)
-            self.model = TriplaneUNet(h0.channels, cfg)
-        self.model.to(self.device)
+        self.model = self.init_model(lambda: TriplaneUNet(h0.channels, cfg))
         self.ema = copy.deepcopy(self.model).requires_grad_(False).eval() if cfg.ema_decay > 0 else None
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr)
         steps = max(cfg.steps, 1)
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: max(0.0, 1.0 - s / steps))
-        self.generator = torch.Generator(device=self.device).manual_seed(seed)
-        self.step_count, self.history = 0, []
 
     @property
     def model_for_sampling(self) -> TriplaneUNet:
         """The EMA weights when EMA is on, else the raw ones; in eval mode."""
         return (self.ema if self.ema is not None else self.model).eval()
 
-    def step(self) -> float:
-        """One optimisation step; returns its loss."""
+    def losses(self) -> dict[str, torch.Tensor]:
+        """The denoising loss on a batch of noised copies (or crops) of ``h0``."""
         b, g = self.cfg.batch_size, self.generator
-        self.model.train()
         x0 = self.h0.repeat(b) if self.cfg.crop <= 0 else random_crops(self.h0, b, self.cfg.crop, g)  # [B, C, ., .]
         t = torch.randint(0, self.schedule.timesteps, (b,), generator=g, device=self.device)
         noise = Triplane.randn_like(x0, generator=g)
-        loss = diffusion_loss(self.model, self.schedule, x0, t, noise, self.cfg.prediction)
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        self.optimizer.step()
-        self.scheduler.step()
+        return {"loss": diffusion_loss(self.model, self.schedule, x0, t, noise, self.cfg.prediction)}
+
+    def after_step(self) -> None:
         if self.ema is not None:
             with torch.no_grad():
                 for pe, p in zip(self.ema.parameters(), self.model.parameters()):
                     pe.lerp_(p, 1.0 - self.cfg.ema_decay)
-        self.step_count += 1
-        self.history.append(loss.item())
-        return self.history[-1]
 
-    def run(
-        self,
-        until_step: int | None = None,
-        progress: bool = True,
-        callback: Callable[["DiffusionTrainer"], Any] | None = None,
-    ) -> list[float]:
-        """Train from ``step_count`` to ``until_step`` (default ``cfg.steps``); ``callback(self)`` after every step."""
-        until = self.cfg.steps if until_step is None else until_step
-        with tqdm(total=until, initial=self.step_count, disable=not progress, desc="diffusion") as bar:
-            while self.step_count < until:
-                loss = self.step()
-                bar.update(1)
-                if self.step_count % 10 == 0 or self.step_count == until:
-                    bar.set_postfix(loss=f"{loss:.4f}")
-                if callback is not None:
-                    callback(self)
-        return self.history
+    def extra_state(self) -> dict:
+        return {"ema": self.ema.state_dict() if self.ema is not None else None, "h0": self.h0.state_dict()}
 
-    def state_dict(self) -> dict:
-        """A CPU snapshot of everything needed to resume exactly (plain tensors and containers only)."""
-        return _cpu_copy({
-            "model": self.model.state_dict(),
-            "ema": self.ema.state_dict() if self.ema is not None else None,
-            "optimizer": self.optimizer.state_dict(),
-            "scheduler": self.scheduler.state_dict(),
-            "generator": self.generator.get_state(),
-            "step_count": self.step_count,
-            "history": list(self.history),
-            "config": asdict(self.cfg),
-            "seed": self.seed,
-            "h0": self.h0.state_dict(),
-        })
-
-    def load_state_dict(self, sd: dict) -> None:
-        self.model.load_state_dict(sd["model"])
+    def load_extra_state(self, sd: dict) -> None:
         if self.ema is not None:
             self.ema.load_state_dict(sd["ema"])
-        self.optimizer.load_state_dict(copy.deepcopy(sd["optimizer"]))  # it would alias (and then update) sd's tensors
-        self.scheduler.load_state_dict(sd["scheduler"])
-        self.generator.set_state(sd["generator"])
-        self.step_count, self.history = int(sd["step_count"]), list(sd["history"])
 
     @classmethod
     def from_state_dict(cls, sd: dict, device: str | torch.device | None = None) -> "DiffusionTrainer":
         """Rebuild a trainer (latent, config, seed) from a ``state_dict()`` and load it."""
+        why = checkpoint_problem(sd, cls.kind)
+        if why is not None:
+            raise Sin3DMInputError(f"not a diffusion checkpoint of this version of sin3dm-lite: {why}")
         trainer = cls(Triplane.from_state_dict(sd["h0"]), DiffusionConfig(**sd["config"]), device, sd["seed"])
         trainer.load_state_dict(sd)
         return trainer
@@ -240,7 +188,7 @@ class DiffusionTrainer:
 
 def fit_diffusion(
     h0: Triplane, cfg: DiffusionConfig, device: str | torch.device | None = None, seed: int = 0, progress: bool = True
-) -> tuple[TriplaneUNet, list[float]]:
+) -> tuple[TriplaneUNet, dict[str, list[float]]]:
     """Train a denoiser on ``h0`` for ``cfg.steps`` steps; returns (model for sampling, loss history)."""
     trainer = DiffusionTrainer(h0, cfg, device=device, seed=seed)
     trainer.run(progress=progress)

@@ -14,7 +14,8 @@ an uninterrupted one would::
     RUN/autoencoder.pt     autoencoder trainer state (stage 2, checkpoint)
     RUN/diffusion.pt       diffusion trainer state (stage 3, checkpoint)
     RUN/model.pt           what sampling needs: decoder, latent, denoiser (written last)
-    RUN/losses.json        loss histories of both stages
+    RUN/losses.json        loss histories of both stages: {"autoencoder": {"loss", "sdf", "color"},
+                           "diffusion": {"loss"}}, each a list with one value per step
     RUN/report.json        reconstruction metrics, timings, step counts
 """
 from __future__ import annotations
@@ -39,6 +40,7 @@ from .files import acquire_lock, atomic_path, atomic_write, create_locked_folder
 from .grid import load_grid, mesh_to_grid, save_grid
 from .mesh_io import Normalization, TexturedMesh
 from .metrics import reconstruction_metrics
+from .training import checkpoint_problem
 from .triplane import Triplane
 
 MODEL_FILE = "model.pt"
@@ -82,6 +84,18 @@ def load_checkpoint(path: Path, what: str = "checkpoint") -> dict:
             f": {e.strerror}" if isinstance(e, OSError) and e.strerror else "")) from None
     if not isinstance(b, dict):
         raise _not_ours(path, what, f"it holds a {type(b).__name__}, not a dictionary")
+    return b
+
+
+def load_trainer_checkpoint(path: Path, kind: str) -> dict:
+    """:func:`load_checkpoint` of a trainer checkpoint (``autoencoder.pt`` / ``diffusion.pt``) of this layout.
+
+    One of an older version, or of the other trainer, gives the one-line "not made by this version" error.
+    """
+    b = load_checkpoint(path, kind)
+    why = checkpoint_problem(b, kind)
+    if why is not None:
+        raise _not_ours(path, kind, why)
     return b
 
 
@@ -181,9 +195,9 @@ class Sin3DM:
                 raise Sin3DMInputError(f"run folder '{run}' is a file; choose a folder for out (CLI: --out)")
             check_writable(run)
             if resume:  # a damaged checkpoint fails now, before any stage writes
-                for name in ("autoencoder.pt", "diffusion.pt"):
-                    if (run / name).exists():
-                        load_checkpoint(run / name, name.split(".")[0])
+                for kind in ("autoencoder", "diffusion"):
+                    if (run / f"{kind}.pt").exists():
+                        load_trainer_checkpoint(run / f"{kind}.pt", kind)
                 if (run / "grid.npz").exists():
                     load_grid(run / "grid.npz")
         existed = run is not None and run.exists()
@@ -230,7 +244,7 @@ class Sin3DM:
         # stage 2: autoencoder
         t0 = time.perf_counter()
         ae = AutoencoderTrainer(grid, cfg.autoencoder, dev, cfg.seed)
-        _train(ae, run / "autoencoder.pt" if run else None, cfg.checkpoint_every, progress, "autoencoder", say)
+        _train(ae, run / "autoencoder.pt" if run else None, cfg.checkpoint_every, progress, say)
         h0 = ae.latent()
         metrics = reconstruction_metrics(reconstructed_grid(ae.model.decoder, h0, grid), grid)
         timings["autoencoder_s"] = time.perf_counter() - t0
@@ -239,7 +253,7 @@ class Sin3DM:
         # stage 3: diffusion on the latent
         t0 = time.perf_counter()
         dm = DiffusionTrainer(h0, cfg.diffusion, dev, cfg.seed)
-        _train(dm, run / "diffusion.pt" if run else None, cfg.checkpoint_every, progress, "diffusion", say)
+        _train(dm, run / "diffusion.pt" if run else None, cfg.checkpoint_every, progress, say)
         timings["diffusion_s"] = time.perf_counter() - t0
 
         report = {
@@ -250,7 +264,7 @@ class Sin3DM:
             "autoencoder_steps": ae.step_count,
             "diffusion_steps": dm.step_count,
             "reconstruction": metrics,
-            "final_loss": {"autoencoder": ae.history["loss"][-1], "diffusion": dm.history[-1]},
+            "final_loss": {"autoencoder": ae.history["loss"][-1], "diffusion": dm.history["loss"][-1]},
             "timings_s": timings,
             "device": str(dev),
         }
@@ -544,16 +558,17 @@ def _warn_if_poor(rec: dict) -> None:
                       stacklevel=3)
 
 
-def _train(trainer, ckpt: Path | None, every: int, progress: bool, label: str, say) -> None:
-    """Run a trainer to its end, checkpointing every ``every`` steps.
+def _train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:
+    """Run a trainer (:class:`~sin3dm_lite.training.Trainer`) to its end, checkpointing every ``every`` steps.
 
     Ctrl-C (SIGINT) is honoured only *between* steps, after a checkpoint of the
     last finished step has been written, so a resumed run loses no work and
     never starts from a half-applied optimiser step.
     """
+    label = trainer.kind
     saved = {"step": None}  # the step the checkpoint file holds
     if ckpt is not None and ckpt.exists():
-        state = load_checkpoint(ckpt)
+        state = load_trainer_checkpoint(ckpt, label)
         try:
             trainer.load_state_dict(state)
         except KeyError as e:

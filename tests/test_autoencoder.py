@@ -5,7 +5,6 @@ import io
 import numpy as np
 import pytest
 import torch
-import trimesh
 
 from sin3dm_lite.autoencoder import (
     AutoencoderTrainer,
@@ -15,25 +14,10 @@ from sin3dm_lite.autoencoder import (
 )
 from sin3dm_lite.config import AutoencoderConfig
 from sin3dm_lite.decode import reconstructed_grid
-from sin3dm_lite.grid import mesh_to_grid
-from sin3dm_lite.mesh_io import Material, TexturedMesh
 from sin3dm_lite.metrics import reconstruction_metrics
 from sin3dm_lite.triplane import Triplane
 
-
-@pytest.fixture(scope="module")
-def grid():
-    m = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
-    v = np.asarray(m.vertices, float)
-    vc = ((v - v.min(0)) / np.ptp(v, 0)).astype(np.float32)  # colour varies with position
-    mesh = TexturedMesh(v, np.asarray(m.faces), np.zeros(12, np.int64), [Material(base_color=np.ones(4, np.float32))], vertex_colors=vc)
-    return mesh_to_grid(mesh, 32, n_surface_points=20_000, near_surface_sigma=0.03, progress=False)
-
-
-def small_cfg(**kw) -> AutoencoderConfig:
-    base = dict(decoder_channels=16, mlp_hidden=32, steps=120, points_per_step=2048)
-    base.update(kw)
-    return AutoencoderConfig(**base)
+from .conftest import tiny_ae_cfg
 
 
 def test_encoder_planes_have_half_resolution_and_tanh_range():
@@ -72,39 +56,39 @@ def test_sdf_loss_weights_towards_and_away_from_the_surface():
 
 
 @pytest.mark.parametrize("use_encoder", [True, False])
-def test_tiny_fit_reduces_loss_and_reconstructs(grid, use_encoder):
-    tr = AutoencoderTrainer(grid, small_cfg(use_encoder=use_encoder, steps=150), seed=0)
+def test_tiny_fit_reduces_loss_and_reconstructs(box_grid, use_encoder):
+    tr = AutoencoderTrainer(box_grid, tiny_ae_cfg(use_encoder=use_encoder, steps=150), seed=0)
     tr.run(progress=False)
     h = tr.history["loss"]
     assert len(h) == 150
     assert np.mean(h[-10:]) < 0.5 * np.mean(h[:10])
-    rec = reconstructed_grid(tr.model.decoder, tr.latent(), grid)
-    m = reconstruction_metrics(rec, grid)
+    rec = reconstructed_grid(tr.model.decoder, tr.latent(), box_grid)
+    m = reconstruction_metrics(rec, box_grid)
     assert set(m) == {"sign_accuracy", "occupancy_iou", "occupancy_iou_quarter_voxel", "color_l1", "color_psnr"}
     assert m["occupancy_iou"] > 0.8 and m["sign_accuracy"] > 0.9
     assert m["color_l1"] < 0.25
-    # the decoded grid: same box as the input, signs as the metrics counted them
-    assert rec.shape == grid.shape and rec.color.shape == grid.color.shape and rec.name == "reconstruction"
-    np.testing.assert_array_equal(rec.aabb, grid.aabb)
-    assert rec.threshold == grid.threshold and len(rec.points) == 0 and len(grid.points) > 0
-    assert np.mean((rec.sdf < 0) == (grid.sdf < 0)) == pytest.approx(m["sign_accuracy"])
+    # the decoded box_grid: same box as the input, signs as the metrics counted them
+    assert rec.shape == box_grid.shape and rec.color.shape == box_grid.color.shape and rec.name == "reconstruction"
+    np.testing.assert_array_equal(rec.aabb, box_grid.aabb)
+    assert rec.threshold == box_grid.threshold and len(rec.points) == 0 and len(box_grid.points) > 0
+    assert np.mean((rec.sdf < 0) == (box_grid.sdf < 0)) == pytest.approx(m["sign_accuracy"])
 
 
-def test_fit_autoencoder_is_the_trainer_run_to_the_end(grid):
+def test_fit_autoencoder_is_the_trainer_run_to_the_end(box_grid):
     from sin3dm_lite.autoencoder import fit_autoencoder
 
-    cfg = small_cfg(steps=6)
-    model, h0, history = fit_autoencoder(grid, cfg, seed=2, progress=False)
-    tr = AutoencoderTrainer(grid, cfg, seed=2)
+    cfg = tiny_ae_cfg(steps=6)
+    model, h0, history = fit_autoencoder(box_grid, cfg, seed=2, progress=False)
+    tr = AutoencoderTrainer(box_grid, cfg, seed=2)
     tr.run(progress=False)
     assert history == tr.history and len(history["loss"]) == 6
     for a, b in zip(h0.planes, tr.latent().planes):
         assert torch.equal(a, b)
 
 
-def test_auto_decoder_planes_train_at_their_own_learning_rates(grid):
-    tr = AutoencoderTrainer(grid, small_cfg(use_encoder=False, lr_geo=1e-3, lr_tex=5e-3), seed=0)
-    geo_group, tex_group = tr.opt.param_groups
+def test_auto_decoder_planes_train_at_their_own_learning_rates(box_grid):
+    tr = AutoencoderTrainer(box_grid, tiny_ae_cfg(use_encoder=False, lr_geo=1e-3, lr_tex=5e-3), seed=0)
+    geo_group, tex_group = tr.optimizer.param_groups
     raw = tr.model
     assert geo_group["lr"] == 1e-3 and tex_group["lr"] == 5e-3
     assert all(any(p is q for q in geo_group["params"]) for p in raw.raw_geo.parameters())
@@ -114,17 +98,17 @@ def test_auto_decoder_planes_train_at_their_own_learning_rates(grid):
     torch.testing.assert_close(h.xz[:, 4:], TriplaneEncoder.squash(raw.raw_tex["xz"]))  # texture channels last
 
 
-def test_resume_is_bit_identical(grid):
-    cfg = small_cfg(steps=20)
-    full = AutoencoderTrainer(grid, cfg, seed=3)
+def test_resume_is_bit_identical(box_grid):
+    cfg = tiny_ae_cfg(steps=20)
+    full = AutoencoderTrainer(box_grid, cfg, seed=3)
     full.run(progress=False)
 
-    part = AutoencoderTrainer(grid, cfg, seed=3)
+    part = AutoencoderTrainer(box_grid, cfg, seed=3)
     part.run(until_step=8, progress=False)
     buf = io.BytesIO()
     torch.save(part.state_dict(), buf)
     buf.seek(0)
-    resumed = AutoencoderTrainer(grid, cfg, seed=3)
+    resumed = AutoencoderTrainer(box_grid, cfg, seed=3)
     resumed.load_state_dict(torch.load(buf, weights_only=True))
     assert resumed.step_count == 8
     resumed.run(progress=False)
@@ -134,12 +118,12 @@ def test_resume_is_bit_identical(grid):
     assert full.history == resumed.history
 
 
-def test_reconstruction_metrics_on_a_known_shift(grid):
+def test_reconstruction_metrics_on_a_known_shift(box_grid):
     # a reconstruction whose surface sits 0.2 voxel inside the input's: only voxels within 0.2 voxel flip
-    shifted = dataclasses.replace(grid, sdf=grid.sdf + 0.2 * grid.voxel_size)
-    m = reconstruction_metrics(shifted, grid)
-    flipped = ((grid.sdf < 0) & (grid.sdf >= -0.2 * grid.voxel_size)).sum()
+    shifted = dataclasses.replace(box_grid, sdf=box_grid.sdf + 0.2 * box_grid.voxel_size)
+    m = reconstruction_metrics(shifted, box_grid)
+    flipped = ((box_grid.sdf < 0) & (box_grid.sdf >= -0.2 * box_grid.voxel_size)).sum()
     assert flipped > 0
-    assert m["occupancy_iou"] == pytest.approx(1 - flipped / (grid.sdf < 0).sum())
+    assert m["occupancy_iou"] == pytest.approx(1 - flipped / (box_grid.sdf < 0).sum())
     assert m["occupancy_iou_quarter_voxel"] == 1.0
     assert m["color_l1"] == 0 and m["color_psnr"] == pytest.approx(120)

@@ -70,6 +70,17 @@ def template(tmp_path_factory):
     (root / "badresume").mkdir()
     shutil.copy(root / "run" / "config.json", root / "badresume" / "config.json")
     (root / "badresume" / "autoencoder.pt").write_bytes(bad["random"])
+    # run folders with trainer checkpoints in the layouts of older versions (before the shared trainer format)
+    old_layouts = {
+        "autoencoder": {"model": {}, "opt": {}, "sched": {}, "gen": torch.zeros(8, dtype=torch.uint8), "step": 3,
+                        "history": {"loss": torch.zeros(3, dtype=torch.float64)}},
+        "diffusion": {"model": {}, "ema": None, "optimizer": {}, "scheduler": {}, "generator": torch.zeros(8, dtype=torch.uint8),
+                      "step_count": 3, "history": [0.1, 0.1, 0.1], "config": {}, "seed": 0, "h0": {}},
+    }
+    for kind, old in old_layouts.items():
+        (root / f"old{kind}").mkdir()
+        shutil.copy(root / "run" / "config.json", root / f"old{kind}" / "config.json")
+        torch.save(old, root / f"old{kind}" / f"{kind}.pt")
     (root / "full").mkdir()
     (root / "full" / "theirs.txt").write_text("not ours")
     (root / "blocker").write_text("a file where a folder is expected")
@@ -133,6 +144,8 @@ CASES = {
     "fit-out-not-writable": (["fit", "box.obj", "--preset", "tiny", "--out", NOT_WRITABLE], "cannot write"),
     "fit-resume-missing": (["fit", "box.obj", "--out", "nothing", "--resume"], "resume"),
     "fit-resume-bad-checkpoint": (["fit", "box.obj", "--out", "badresume", "--resume"], "not made by this version"),
+    "fit-resume-old-autoencoder-checkpoint": (["fit", "box.obj", "--out", "oldautoencoder", "--resume"], "older version"),
+    "fit-resume-old-diffusion-checkpoint": (["fit", "box.obj", "--out", "olddiffusion", "--resume"], "older version"),
     # grid
     "grid-single-triangle": (["grid", "tri.obj", "--resolution", "32", "--out", "g.npz"], "no inside"),
     "grid-open-sheet": (["grid", "sheet.obj", "--resolution", "32", "--out", "g.npz"], "no inside"),

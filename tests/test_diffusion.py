@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 import torch
 
-from sin3dm_lite.config import DiffusionConfig
 from sin3dm_lite.diffusion import (
     DiffusionTrainer,
     NoiseSchedule,
@@ -21,24 +20,12 @@ from sin3dm_lite.diffusion import (
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.triplane import Triplane
 
-RES = (8, 8, 8)
-
-
-def tiny_cfg(**kw) -> DiffusionConfig:
-    base = dict(base_channels=16, n_resblocks=2, downsample=False, steps=60, batch_size=4, lr=2e-3, ema_decay=0.0)
-    return DiffusionConfig(**{**base, **kw})
-
-
-@pytest.fixture(scope="module")
-def h0() -> Triplane:
-    g = torch.Generator().manual_seed(1)
-    return Triplane.randn(1, 4, RES, generator=g).map(torch.tanh)
-
+from .conftest import LATENT_RES, tiny_diffusion_cfg
 
 @pytest.fixture(scope="module")
 def trained(h0):
     """A tiny model on a 200-step schedule (so that DDPM sampling is quick)."""
-    trainer = DiffusionTrainer(h0, tiny_cfg(timesteps=200, steps=30), device="cpu")
+    trainer = DiffusionTrainer(h0, tiny_diffusion_cfg(timesteps=200, steps=30), device="cpu")
     trainer.run(progress=False)
     return trainer
 
@@ -68,9 +55,9 @@ def test_q_sample_and_its_inverses(h0):
 
 # ------------------------------------------------------------------ training
 def test_loss_decreases_on_a_tiny_fit(h0):
-    model, history = fit_diffusion(h0, tiny_cfg(), device="cpu", progress=False)
-    assert len(history) == 60
-    assert np.mean(history[-10:]) < 0.6 * np.mean(history[:10])
+    model, history = fit_diffusion(h0, tiny_diffusion_cfg(), device="cpu", progress=False)
+    assert list(history) == ["loss"] and len(history["loss"]) == 60
+    assert np.mean(history["loss"][-10:]) < 0.6 * np.mean(history["loss"][:10])
     assert not model.training
 
 
@@ -92,17 +79,17 @@ def test_an_oracle_model_has_zero_loss_and_gives_back_x0(h0, prediction):
 
 
 def test_eps_prediction_trains(h0):
-    trainer = DiffusionTrainer(h0, tiny_cfg(prediction="eps", steps=5), device="cpu")
+    trainer = DiffusionTrainer(h0, tiny_diffusion_cfg(prediction="eps", steps=5), device="cpu")
     trainer.run(progress=False)
-    assert len(trainer.history) == 5 and np.isfinite(trainer.history).all()
+    assert len(trainer.history["loss"]) == 5 and np.isfinite(trainer.history["loss"]).all()
     with pytest.raises(Sin3DMInputError):
-        DiffusionTrainer(h0, tiny_cfg(prediction="v"), device="cpu")
+        DiffusionTrainer(h0, tiny_diffusion_cfg(prediction="v"), device="cpu")
     with pytest.raises(Sin3DMInputError):
-        DiffusionTrainer(h0.repeat(2), tiny_cfg(), device="cpu")
+        DiffusionTrainer(h0.repeat(2), tiny_diffusion_cfg(), device="cpu")
 
 
 def test_resume_is_bit_identical_and_checkpoints_load_weights_only(h0):
-    cfg = tiny_cfg(steps=12, ema_decay=0.9)
+    cfg = tiny_diffusion_cfg(steps=12, ema_decay=0.9)
     straight = DiffusionTrainer(h0, cfg, device="cpu", seed=3)
     straight.run(progress=False)
 
@@ -131,13 +118,13 @@ def test_resume_is_bit_identical_and_checkpoints_load_weights_only(h0):
 
 
 def test_model_for_sampling_is_ema_or_raw(h0):
-    with_ema = DiffusionTrainer(h0, tiny_cfg(ema_decay=0.9, steps=2), device="cpu")
+    with_ema = DiffusionTrainer(h0, tiny_diffusion_cfg(ema_decay=0.9, steps=2), device="cpu")
     before = [p.detach().clone() for p in with_ema.model.parameters()]  # the EMA starts as a copy
     with_ema.step()
     assert with_ema.model_for_sampling is with_ema.ema
     for ema, w0, w1 in zip(with_ema.ema.parameters(), before, with_ema.model.parameters()):
         assert torch.allclose(ema, 0.9 * w0 + 0.1 * w1)  # ema = decay·ema + (1 - decay)·new weights
-    raw = DiffusionTrainer(h0, tiny_cfg(steps=2), device="cpu")
+    raw = DiffusionTrainer(h0, tiny_diffusion_cfg(steps=2), device="cpu")
     assert raw.ema is None and raw.model_for_sampling is raw.model and not raw.model.training
     assert raw.scheduler.get_last_lr()[0] == pytest.approx(2e-3)
     raw.run(progress=False)
@@ -157,10 +144,10 @@ def test_ddim_timesteps():
 @pytest.mark.parametrize("method", ["ddim", "ddpm"])
 def test_sampling_shapes_range_and_determinism(trained, method):
     model, sched = trained.model_for_sampling, trained.schedule
-    a = sample(model, sched, RES, n=2, method=method, steps=8, seed=5, progress=False)
-    b = sample(model, sched, RES, n=2, method=method, steps=8, seed=5, progress=False)
-    c = sample(model, sched, RES, n=2, method=method, steps=8, seed=6, progress=False)
-    assert a.batch == 2 and a.channels == 4 and a.resolution == RES
+    a = sample(model, sched, LATENT_RES, n=2, method=method, steps=8, seed=5, progress=False)
+    b = sample(model, sched, LATENT_RES, n=2, method=method, steps=8, seed=5, progress=False)
+    c = sample(model, sched, LATENT_RES, n=2, method=method, steps=8, seed=6, progress=False)
+    assert a.batch == 2 and a.channels == 4 and a.resolution == LATENT_RES
     assert all(p.abs().max() <= 1.0 for p in a.planes)  # the last step returns the clipped x0
     assert all(torch.equal(p, q) for p, q in zip(a.planes, b.planes))
     assert not torch.equal(a.xy, c.xy)
@@ -169,12 +156,12 @@ def test_sampling_shapes_range_and_determinism(trained, method):
 
 def test_intermediates(trained):
     model = trained.model_for_sampling
-    x, inter = sample(model, trained.schedule, RES, n=1, steps=10, return_intermediates=4, progress=False)
+    x, inter = sample(model, trained.schedule, LATENT_RES, n=1, steps=10, return_intermediates=4, progress=False)
     assert [d["step"] for d in inter] == [0, 3, 6, 9] and inter[0]["t"] == 199 and inter[-1]["t"] == 0
     assert set(inter[0]) == {"step", "t", "x_t", "x0"}
     assert isinstance(inter[1]["x_t"], Triplane) and inter[1]["x0"].device.type == "cpu"
     assert torch.equal(inter[-1]["x0"].xy, x.xy)  # DDIM's last step lands on its x0
-    _, inter = sample(model, trained.schedule, RES, steps=10, return_intermediates=[0, -1], progress=False)
+    _, inter = sample(model, trained.schedule, LATENT_RES, steps=10, return_intermediates=[0, -1], progress=False)
     assert [d["step"] for d in inter] == [0, 9]
 
 
@@ -189,24 +176,24 @@ def test_sampling_at_another_resolution_and_eps_prediction(trained):
 def test_mask_of_ones_returns_known_exactly(trained, h0, method):
     ones = h0.map(lambda p: torch.ones_like(p[:, :1]))
     model, sched = trained.model_for_sampling, trained.schedule
-    x = sample(model, sched, RES, n=2, method=method, steps=6, known=h0, mask=ones, progress=False)
+    x = sample(model, sched, LATENT_RES, n=2, method=method, steps=6, known=h0, mask=ones, progress=False)
     assert all(torch.equal(p, q.expand_as(p)) for p, q in zip(x.planes, h0.planes))
 
 
 def test_soft_mask_and_partial_masked_sampling(trained, h0):
-    m = soft_mask(RES, box=((-1, -1, -1), (0, 1, 1)), border=0.5)  # keep the x < 0 half, blend 2 texels
+    m = soft_mask(LATENT_RES, box=((-1, -1, -1), (0, 1, 1)), border=0.5)  # keep the x < 0 half, blend 2 texels
     assert [tuple(p.shape) for p in m.planes] == [(1, 1, 8, 8)] * 3
     col = m.xy[0, 0, :, 3]  # along x: texel centres -0.875 ... 0.875
     assert torch.allclose(col, torch.tensor([1, 1, 1, 1, 0.75, 0.25, 0, 0.0]))
     assert torch.equal(m.yz, torch.ones_like(m.yz))  # the box spans all of y and z
     inv = soft_mask(h0, box=((-1, -1, -1), (0, 1, 1)), border=0.0, invert=True)
     assert torch.equal(inv.xy[0, 0, :, 0], torch.tensor([0, 0, 0, 0, 1, 1, 1, 1.0]))
-    x = sample(trained.model_for_sampling, trained.schedule, RES, n=2, steps=6, known=h0, mask=m, progress=False)
+    x = sample(trained.model_for_sampling, trained.schedule, LATENT_RES, n=2, steps=6, known=h0, mask=m, progress=False)
     keep = m.xy == 1
     assert torch.equal(x.xy[keep.expand_as(x.xy)], h0.xy.expand_as(x.xy)[keep.expand_as(x.xy)])
     assert not torch.equal(x.xy[:, :, 6:], h0.xy.expand_as(x.xy)[:, :, 6:])
     with pytest.raises(Sin3DMInputError):
-        sample(trained.model_for_sampling, trained.schedule, RES, known=h0, progress=False)
+        sample(trained.model_for_sampling, trained.schedule, LATENT_RES, known=h0, progress=False)
 
 
 def test_triplane_mse_is_the_plane_mean_summed_over_planes():
@@ -252,14 +239,14 @@ def test_diversity_moves_samples_from_the_start_latent_to_noise(h0, method):
     start = h0.map(lambda p: p * 0 + 0.8)  # a constant latent, far from pure noise
     dist = []
     for d in (0.0, 0.05, 0.3, 0.6, 1.0):
-        out = sample(gaussian_oracle, s, RES, n=8, latent_channels=4, method=method, steps=20, seed=0,
+        out = sample(gaussian_oracle, s, LATENT_RES, n=8, latent_channels=4, method=method, steps=20, seed=0,
                      clip=False, device="cpu", prediction="x0", start=start, diversity=d, progress=False)
         dist.append(float(sum(((p - q) ** 2).mean() for p, q in zip(out.planes, start.planes))))
     assert dist[0] == 0.0
     assert all(a < b for a, b in zip(dist, dist[1:])), dist
     assert dist[-1] > 0.9 * (0.8**2 + 1) * 3  # pure noise: |start|² + 1 per plane
     with pytest.raises(Sin3DMInputError, match="start"):
-        sample(gaussian_oracle, s, RES, n=1, latent_channels=4, device="cpu", diversity=0.5, progress=False)
+        sample(gaussian_oracle, s, LATENT_RES, n=1, latent_channels=4, device="cpu", diversity=0.5, progress=False)
 
 
 def test_random_crops_cut_one_box_out_of_all_three_planes():
@@ -284,7 +271,7 @@ def test_random_crops_cut_one_box_out_of_all_three_planes():
 
 
 def test_training_on_crops_runs_and_samples_the_whole_latent(h0):
-    trainer = DiffusionTrainer(h0, tiny_cfg(steps=5, crop=4), device="cpu")
+    trainer = DiffusionTrainer(h0, tiny_diffusion_cfg(steps=5, crop=4), device="cpu")
     trainer.run(progress=False)
-    out = sample(trainer.model_for_sampling, trainer.schedule, RES, n=1, steps=3, progress=False, device="cpu")
-    assert out.resolution == RES and all(torch.isfinite(p).all() for p in out.planes)
+    out = sample(trainer.model_for_sampling, trainer.schedule, LATENT_RES, n=1, steps=3, progress=False, device="cpu")
+    assert out.resolution == LATENT_RES and all(torch.isfinite(p).all() for p in out.planes)

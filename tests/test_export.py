@@ -1,38 +1,19 @@
 """Extracted meshes written to OBJ+MTL+PNG and GLB, read back with trimesh."""
 import numpy as np
 import pytest
-import torch
 import trimesh
-from torch import nn
 
 from sin3dm_lite import extract as ex
 from sin3dm_lite import mesh_io
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.export import export_mesh
 from sin3dm_lite.mesh_io import Normalization
-from sin3dm_lite.triplane import Triplane
 
-AABB = np.array([-0.75, -1.0, -0.625, 0.75, 1.0, 0.625])
-
-
-class SphereDecoder(nn.Module):
-    """Sphere of radius 0.5 centred in AABB; colour = (p_box + 1) / 2 (see test_extract.py)."""
-
-    def __init__(self):
-        super().__init__()
-        self.register_buffer("half_extent", torch.tensor((AABB[3:] - AABB[:3]) / 2, dtype=torch.float32))
-        self.weight = nn.Parameter(torch.zeros(1))
-
-    def prepare(self, tp):
-        return tp.xy.mean(dim=(1, 2, 3)) + self.weight
-
-    def query(self, offset, points):
-        return (points * self.half_extent).norm(dim=-1) - 0.5 + offset[:, None], (points + 1) / 2
-
+from .conftest import AABB, SphereDecoder, zero_triplane
 
 @pytest.fixture(scope="module")
 def sphere_mesh():
-    tp = Triplane(torch.zeros(1, 4, 12, 16), torch.zeros(1, 4, 12, 10), torch.zeros(1, 4, 16, 10))
+    tp = zero_triplane()
     norm = Normalization(center=np.array([10.0, 0.0, -5.0]), scale=0.25)  # the input file's frame
     return ex.extract_mesh(SphereDecoder(), tp, AABB, normalization=norm, resolution=32, faces=2000,
                            texture_size=256)

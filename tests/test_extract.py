@@ -13,42 +13,7 @@ from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.mesh_io import Normalization
 from sin3dm_lite.triplane import Triplane
 
-# a non-cubic box, symmetric like ShapeGrid's (±n_axis / n_max): 24 × 32 × 20 voxels at resolution 32
-AABB = np.array([-0.75, -1.0, -0.625, 0.75, 1.0, 0.625])
-
-
-class SphereDecoder(nn.Module):
-    """Sphere of radius 0.5 (normalised units) centred in the box it was made for; colour = (p_box + 1) / 2.
-
-    The SDF is a function of *box* coordinates (like a real decoder), so the
-    same decoder with a larger box gives a stretched shape.
-    """
-
-    def __init__(self, aabb=AABB, radius=0.5):
-        super().__init__()
-        aabb = np.asarray(aabb, np.float32)
-        self.register_buffer("half_extent", torch.tensor((aabb[3:] - aabb[:3]) / 2))
-        self.register_buffer("middle", torch.tensor((aabb[3:] + aabb[:3]) / 2))
-        self.weight = nn.Parameter(torch.zeros(1))  # gives the module a device
-        self.radius = radius
-        self.prepare_calls = 0
-        self.query_calls = 0
-
-    def prepare(self, tp: Triplane):
-        self.prepare_calls += 1
-        return {"offset": tp.xy.mean(dim=(1, 2, 3)) + self.weight}  # zero for a zero triplane
-
-    def query(self, prepared, points):
-        self.query_calls += 1
-        p = points * self.half_extent + self.middle
-        sdf = p.norm(dim=-1) - self.radius + prepared["offset"][:, None]
-        return sdf, (points + 1) / 2
-
-
-def zero_triplane(batch=1, res=(12, 16, 10)):
-    x, y, z = res
-    return Triplane(torch.zeros(batch, 4, x, y), torch.zeros(batch, 4, x, z), torch.zeros(batch, 4, y, z))
-
+from .conftest import AABB, SphereDecoder, zero_triplane
 
 def sphere_sdf(shape, aabb=AABB, center=(0.0, 0.0, 0.0), radius=0.5):
     axes = [aabb[a] + (np.arange(n) + 0.5) / n * (aabb[a + 3] - aabb[a]) for a, n in enumerate(shape)]

@@ -9,16 +9,12 @@ from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.grid import load_grid, mesh_to_grid, save_grid
 from sin3dm_lite.mesh_io import Material, TexturedMesh
 
+from .conftest import textured
+
 
 def grid_dims(extent, resolution, margin_voxels=0.0):
     """The training grid's rule: box.grid_shape with counts rounded up to multiples of 8."""
     return grid_shape(extent, resolution, multiple=8, margin_voxels=margin_voxels)
-
-
-def textured(m: trimesh.Trimesh, name="m", **kw) -> TexturedMesh:
-    return TexturedMesh(
-        np.asarray(m.vertices, float), np.asarray(m.faces, np.int64), np.zeros(len(m.faces), np.int64), [Material()], name=name, **kw
-    )
 
 
 def box_sdf(p, half):

@@ -47,7 +47,7 @@ def test_run_folder_and_report(fitted):
     rec = report["reconstruction"]
     assert 0 <= rec["occupancy_iou"] <= 1 and 0 <= rec["sign_accuracy"] <= 1 and rec["color_psnr"] > 0
     losses = json.loads((run / "losses.json").read_text())
-    assert len(losses["autoencoder"]["loss"]) == 30 and len(losses["diffusion"]) == 30
+    assert len(losses["autoencoder"]["loss"]) == 30 and len(losses["diffusion"]["loss"]) == 30
     torch.load(run / "model.pt", weights_only=True)  # loads without unpickling code
 
 
@@ -85,7 +85,7 @@ def test_to_mesh_in_the_input_box(fitted):
 def test_interrupted_fit_resumes_to_the_same_result(fitted, tmp_path, monkeypatch):
     model, run_full = fitted
     run = tmp_path / "interrupted"
-    real_step = autoencoder.AutoencoderTrainer.train_step
+    real_step = autoencoder.AutoencoderTrainer.step
 
     def step_then_ctrl_c(self):
         loss = real_step(self)
@@ -93,12 +93,12 @@ def test_interrupted_fit_resumes_to_the_same_result(fitted, tmp_path, monkeypatc
             os.kill(os.getpid(), signal.SIGINT)
         return loss
 
-    monkeypatch.setattr(autoencoder.AutoencoderTrainer, "train_step", step_then_ctrl_c)
+    monkeypatch.setattr(autoencoder.AutoencoderTrainer, "step", step_then_ctrl_c)
     with pytest.raises(KeyboardInterrupt):
         Sin3DM.fit("wall", preset=micro_config(), out=run, progress=False)
     saved = torch.load(run / "autoencoder.pt", weights_only=True)
     assert saved["step"] == 17  # the last finished step was saved: no lost work
-    monkeypatch.setattr(autoencoder.AutoencoderTrainer, "train_step", real_step)
+    monkeypatch.setattr(autoencoder.AutoencoderTrainer, "step", real_step)
     resumed = Sin3DM.fit("wall", out=run, resume=True, progress=False)
     a = torch.load(run_full / "model.pt", weights_only=True)
     b = torch.load(run / "model.pt", weights_only=True)

@@ -1,53 +1,17 @@
 """The matplotlib figures of ``sin3dm_lite.viz``: right panels, right data drawn."""
-import os
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+import torch
+from matplotlib.collections import LineCollection
+from matplotlib.colors import LogNorm
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
-os.environ.setdefault("MPLBACKEND", "Agg")
-import matplotlib  # noqa: E402
+from sin3dm_lite import viz
+from sin3dm_lite.triplane import pca_basis, pca_project, Triplane, plane_to_image
 
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-import torch  # noqa: E402
-from matplotlib.collections import LineCollection  # noqa: E402
-from matplotlib.colors import LogNorm  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.patches import Rectangle  # noqa: E402
-
-from sin3dm_lite import viz  # noqa: E402
-from sin3dm_lite.grid import ShapeGrid  # noqa: E402
-from sin3dm_lite.mesh_io import Normalization  # noqa: E402
-from sin3dm_lite.triplane import pca_basis, pca_project, Triplane, plane_to_image  # noqa: E402
-
-
-def sphere_grid(shape=(16, 12, 20), radius=0.45, threshold_voxels=3.0, n_points=500) -> ShapeGrid:
-    """A sphere's TSDF on a non-cubic grid, coloured by position (red grows with x)."""
-    n_max = max(shape)
-    half = np.array(shape) / n_max
-    aabb = np.concatenate([-half, half]).astype(np.float32)
-    voxel = 2.0 / n_max
-    thr = threshold_voxels * voxel
-    g = ShapeGrid(np.zeros(shape, np.float32), np.zeros((*shape, 3), np.float32), aabb, thr, Normalization.identity())
-    c = g.voxel_centers()
-    sdf = np.linalg.norm(c, axis=-1) - radius
-    g.sdf = np.clip(sdf, -thr, thr).astype(np.float32)
-    col = np.clip((c + 1) / 2, 0, 1).astype(np.float32)
-    g.color = np.where((np.abs(sdf) < thr)[..., None], col, 0.0).astype(np.float32)
-    rng = np.random.default_rng(0)
-    d = rng.normal(size=(n_points, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    r = radius + rng.normal(scale=voxel, size=(n_points, 1))
-    g.points = (d * r).astype(np.float32)
-    g.point_sdf = np.clip(r[:, 0] - radius, -thr, thr).astype(np.float32)
-    g.point_color = np.clip((g.points + 1) / 2, 0, 1)
-    g.name = "sphere"
-    return g
-
-
-@pytest.fixture(scope="module")
-def grid():
-    return sphere_grid()
+from .conftest import rf_square
 
 
 @pytest.fixture(scope="module")
@@ -60,25 +24,25 @@ def image_axes(fig):
     return [ax for ax in fig.axes if ax.images]
 
 
-def test_library_does_not_leave_figures_open(grid):
+def test_library_does_not_leave_figures_open(sphere_grid):
     before = plt.get_fignums()
-    fig = viz.plot_slice(grid, "z", 3)
+    fig = viz.plot_slice(sphere_grid, "z", 3)
     assert isinstance(fig, Figure)
     assert plt.get_fignums() == before  # shown once in Jupyter, no leak in loops
 
 
-def test_grid_slice_middle_and_bounds(grid):
-    s, i = viz.grid_slice(grid.sdf, "y")
-    assert i == grid.shape[1] // 2 and s.shape == (16, 20)
-    np.testing.assert_array_equal(s, grid.sdf[:, i, :])
+def test_grid_slice_middle_and_bounds(sphere_grid):
+    s, i = viz.grid_slice(sphere_grid.sdf, "y")
+    assert i == sphere_grid.shape[1] // 2 and s.shape == (16, 20)
+    np.testing.assert_array_equal(s, sphere_grid.sdf[:, i, :])
     with pytest.raises(IndexError):
-        viz.grid_slice(grid.sdf, "z", 20)
+        viz.grid_slice(sphere_grid.sdf, "z", 20)
     with pytest.raises(ValueError):
-        viz.grid_slice(grid.sdf, "w")
+        viz.grid_slice(sphere_grid.sdf, "w")
 
 
-def test_plot_grid_slices_panels_and_data(grid):
-    fig = viz.plot_grid_slices(grid)
+def test_plot_grid_slices_panels_and_data(sphere_grid):
+    fig = viz.plot_grid_slices(sphere_grid)
     panels = image_axes(fig)
     assert len(panels) == 6  # 3 sdf + 3 colour
     assert len(fig.axes) == 7  # + one shared colour bar
@@ -86,72 +50,72 @@ def test_plot_grid_slices_panels_and_data(grid):
     # y (up, by default) stays vertical: the x slice shows z → and y ↑
     for k, axis in enumerate("xyz"):
         ax = panels[k]
-        expected, idx = viz.grid_slice(grid.sdf, axis)
+        expected, idx = viz.grid_slice(sphere_grid.sdf, axis)
         np.testing.assert_array_equal(np.asarray(ax.images[0].get_array()), expected if axis == "x" else expected.T)
         assert (ax.get_xlabel(), ax.get_ylabel()) == {"x": ("z", "y"), "y": ("x", "z"), "z": ("x", "y")}[axis]
         assert ax.images[0].origin == "lower"
         lo, hi = ax.images[0].get_clim()
-        assert lo == pytest.approx(-grid.threshold) and hi == pytest.approx(grid.threshold)
-        coord = grid.axis_coords(k)[idx]
+        assert lo == pytest.approx(-sphere_grid.threshold) and hi == pytest.approx(sphere_grid.threshold)
+        coord = sphere_grid.axis_coords(k)[idx]
         assert f"{axis} = {idx}" in ax.get_title() and f"{coord:+.3f}" in ax.get_title()
         assert ax.collections, "zero contour drawn"
     # bottom row: colour inside the band, neutral grey outside
     rgb = np.asarray(panels[3 + 2].images[0].get_array()).swapaxes(0, 1)  # z slice, back to (x, y, 3)
-    sdf, _ = viz.grid_slice(grid.sdf, "z")
-    col, _ = viz.grid_slice(grid.color, "z")
-    band = np.abs(sdf) < grid.threshold
+    sdf, _ = viz.grid_slice(sphere_grid.sdf, "z")
+    col, _ = viz.grid_slice(sphere_grid.color, "z")
+    band = np.abs(sdf) < sphere_grid.threshold
     np.testing.assert_allclose(rgb[band], col[band])
     np.testing.assert_allclose(rgb[~band], np.broadcast_to(viz.NEUTRAL, rgb[~band].shape))
 
 
-def test_plot_grid_slices_options(grid):
-    fig = viz.plot_grid_slices(grid, index=[2, 4], axes=("x", "z"), show_color=False, threshold_lines=False)
+def test_plot_grid_slices_options(sphere_grid):
+    fig = viz.plot_grid_slices(sphere_grid, index=[2, 4], axes=("x", "z"), show_color=False, threshold_lines=False)
     panels = image_axes(fig)
     assert len(panels) == 2
-    np.testing.assert_array_equal(np.asarray(panels[1].images[0].get_array()), grid.sdf[:, :, 4].T)
+    np.testing.assert_array_equal(np.asarray(panels[1].images[0].get_array()), sphere_grid.sdf[:, :, 4].T)
     with pytest.raises(ValueError):
-        viz.plot_grid_slices(grid, index=[1, 2], axes=("x", "y", "z"))
+        viz.plot_grid_slices(sphere_grid, index=[1, 2], axes=("x", "y", "z"))
 
 
-def test_plot_slice_kinds(grid):
-    fig = viz.plot_slice(grid, "x", 5, kind="sdf", up=None)
+def test_plot_slice_kinds(sphere_grid):
+    fig = viz.plot_slice(sphere_grid, "x", 5, kind="sdf", up=None)
     assert len(image_axes(fig)) == 1
-    np.testing.assert_array_equal(np.asarray(fig.axes[0].images[0].get_array()), grid.sdf[5].T)
+    np.testing.assert_array_equal(np.asarray(fig.axes[0].images[0].get_array()), sphere_grid.sdf[5].T)
     # y up (the default): z → and y ↑, extent and labels follow
-    ax = viz.plot_slice(grid, "x", 5, kind="color").axes[0]
-    np.testing.assert_allclose(np.asarray(ax.images[0].get_array()), viz.color_slice_image(grid, "x", 5))
-    assert ax.images[0].get_extent() == pytest.approx([grid.aabb[2], grid.aabb[5], grid.aabb[1], grid.aabb[4]])
+    ax = viz.plot_slice(sphere_grid, "x", 5, kind="color").axes[0]
+    np.testing.assert_allclose(np.asarray(ax.images[0].get_array()), viz.color_slice_image(sphere_grid, "x", 5))
+    assert ax.images[0].get_extent() == pytest.approx([sphere_grid.aabb[2], sphere_grid.aabb[5], sphere_grid.aabb[1], sphere_grid.aabb[4]])
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("z", "y")
-    ax = viz.plot_slice(grid, "x", 5, kind="sdf", up="z").axes[0]  # a z-up mesh: y → and z ↑
-    np.testing.assert_array_equal(np.asarray(ax.images[0].get_array()), grid.sdf[5].T)
-    fig = viz.plot_slice(grid, 1, 6, kind="color")
+    ax = viz.plot_slice(sphere_grid, "x", 5, kind="sdf", up="z").axes[0]  # a z-up mesh: y → and z ↑
+    np.testing.assert_array_equal(np.asarray(ax.images[0].get_array()), sphere_grid.sdf[5].T)
+    fig = viz.plot_slice(sphere_grid, 1, 6, kind="color")
     assert len(fig.axes) == 1
     img = np.asarray(fig.axes[0].images[0].get_array())
     assert img.shape == (20, 16, 3)
-    np.testing.assert_allclose(img.swapaxes(0, 1), viz.color_slice_image(grid, "y", 6))
+    np.testing.assert_allclose(img.swapaxes(0, 1), viz.color_slice_image(sphere_grid, "y", 6))
     # extent is in world coordinates: x then z
-    assert fig.axes[0].images[0].get_extent() == pytest.approx([grid.aabb[0], grid.aabb[3], grid.aabb[2], grid.aabb[5]])
+    assert fig.axes[0].images[0].get_extent() == pytest.approx([sphere_grid.aabb[0], sphere_grid.aabb[3], sphere_grid.aabb[2], sphere_grid.aabb[5]])
     with pytest.raises(ValueError):
-        viz.plot_slice(grid, "z", 3, kind="normals")
+        viz.plot_slice(sphere_grid, "z", 3, kind="normals")
 
 
-def test_plot_truncation(grid):
-    own = grid.threshold / grid.voxel_size
-    fig = viz.plot_truncation(grid, thresholds=[1, 2, own], axis="z", index=10)
+def test_plot_truncation(sphere_grid):
+    own = sphere_grid.threshold / sphere_grid.voxel_size
+    fig = viz.plot_truncation(sphere_grid, thresholds=[1, 2, own], axis="z", index=10)
     panels = image_axes(fig)
     assert len(panels) == 3
     profile = fig.axes[0]
     assert len(profile.get_lines()) >= 3
     # the 1-voxel profile is the stored slice re-clipped at one voxel
-    sdf = grid.sdf[:, :, 10]
+    sdf = sphere_grid.sdf[:, :, 10]
     line = sdf.shape[1] // 2
-    np.testing.assert_allclose(profile.get_lines()[0].get_ydata(), np.clip(sdf[:, line], -grid.voxel_size, grid.voxel_size))
+    np.testing.assert_allclose(profile.get_lines()[0].get_ydata(), np.clip(sdf[:, line], -sphere_grid.voxel_size, sphere_grid.voxel_size))
     np.testing.assert_allclose(np.asarray(panels[0].images[0].get_array()),
-                               np.clip(sdf, -grid.voxel_size, grid.voxel_size).T, rtol=1e-6)
+                               np.clip(sdf, -sphere_grid.voxel_size, sphere_grid.voxel_size).T, rtol=1e-6)
     np.testing.assert_allclose(np.asarray(panels[2].images[0].get_array()), sdf.T)
-    assert len(image_axes(viz.plot_truncation(grid))) == 3  # default 1, 2, own
+    assert len(image_axes(viz.plot_truncation(sphere_grid))) == 3  # default 1, 2, own
     with pytest.raises(ValueError, match="exceed"):
-        viz.plot_truncation(grid, thresholds=[own + 1])
+        viz.plot_truncation(sphere_grid, thresholds=[own + 1])
 
 
 def test_plot_truncation_of_untruncated_array():
@@ -165,17 +129,17 @@ def test_plot_truncation_of_untruncated_array():
     assert panels[1].images[0].get_clim() == pytest.approx((-4 * voxel, 4 * voxel))
 
 
-def test_plot_points(grid):
-    fig = viz.plot_points(grid, n=200, seed=1)
+def test_plot_points(sphere_grid):
+    fig = viz.plot_points(sphere_grid, n=200, seed=1)
     scatter_axes = [ax for ax in fig.axes if ax.collections and "projection" in ax.get_title()]
     assert len(scatter_axes) == 3
     offsets = scatter_axes[1].collections[0].get_offsets()  # xz projection
     assert offsets.shape == (200, 2)
     # every drawn point is one of the grid's points, projected on (x, z)
-    proj = grid.points[:, [0, 2]]
+    proj = sphere_grid.points[:, [0, 2]]
     assert all(np.any(np.all(np.isclose(proj, o), axis=1)) for o in np.asarray(offsets[:20]))
     rects = [p for p in scatter_axes[0].patches if isinstance(p, Rectangle)]
-    assert len(rects) == 1 and rects[0].get_width() == pytest.approx(grid.aabb[3] - grid.aabb[0])
+    assert len(rects) == 1 and rects[0].get_width() == pytest.approx(sphere_grid.aabb[3] - sphere_grid.aabb[0])
 
 
 def test_plot_triplane_pca_and_channels(tp):
@@ -247,15 +211,6 @@ def test_plot_denoising(tp):
         viz.plot_denoising(steps, plane="zz")
 
 
-def rf_square(n=33, width=9):
-    c = n // 2
-    rf = np.full((n, n), 1e-3)
-    rf[c - width // 2:c + width // 2 + 1, c - width // 2:c + width // 2 + 1] = 0.1
-    rf[c, c] = 1.0
-    rf[0, 0] = 0.0
-    return rf
-
-
 def test_plot_receptive_field():
     rf = rf_square()
     fig = viz.plot_receptive_field(rf, analytic_width=9, title="4 ResBlocks")
@@ -294,18 +249,18 @@ def test_plot_receptive_fields_side_by_side():
     assert all(p.images[0].norm.vmin == panels[0].images[0].norm.vmin for p in panels)
 
 
-def test_plot_samples_slices(grid):
-    grids = [grid.sdf, -grid.sdf, torch.from_numpy(grid.sdf * 0.5)]
+def test_plot_samples_slices(sphere_grid):
+    grids = [sphere_grid.sdf, -sphere_grid.sdf, torch.from_numpy(sphere_grid.sdf * 0.5)]
     fig = viz.plot_samples_slices(grids, axis="y", titles=["a", "b", "c"], columns=2)
     panels = image_axes(fig)
     assert len(panels) == 3 and len(fig.axes) == 4  # the fourth cell is switched off
-    np.testing.assert_allclose(np.asarray(panels[1].images[0].get_array()), -grid.sdf[:, 6, :].T)
+    np.testing.assert_allclose(np.asarray(panels[1].images[0].get_array()), -sphere_grid.sdf[:, 6, :].T)
     assert [p.get_title() for p in panels] == ["a", "b", "c"]
     assert panels[0].collections  # zero contour
     # across x with y up: z → and y ↑; a wide, flat slice gives a wide, flat figure
-    fig = viz.plot_samples_slices([grid.sdf], axis="x")
+    fig = viz.plot_samples_slices([sphere_grid.sdf], axis="x")
     ax = image_axes(fig)[0]
-    np.testing.assert_allclose(np.asarray(ax.images[0].get_array()), grid.sdf[grid.shape[0] // 2])
+    np.testing.assert_allclose(np.asarray(ax.images[0].get_array()), sphere_grid.sdf[sphere_grid.shape[0] // 2])
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("z", "y")
     flat = viz.plot_samples_slices([np.zeros((64, 8, 64), np.float32) + 0.1], axis="z", up=None)
     w, h = flat.get_size_inches()
@@ -343,9 +298,9 @@ def test_plot_uv_layout_per_vertex_and_per_corner():
         viz.plot_uv_layout(uvs)
 
 
-def test_every_figure_renders(grid, tp, tmp_path):
+def test_every_figure_renders(sphere_grid, tp, tmp_path):
     """Drawing (not just building) each figure: catches errors that only appear at render time."""
-    figs = [viz.plot_grid_slices(grid), viz.plot_truncation(grid), viz.plot_points(grid), viz.plot_triplane(tp),
+    figs = [viz.plot_grid_slices(sphere_grid), viz.plot_truncation(sphere_grid), viz.plot_points(sphere_grid), viz.plot_triplane(tp),
             viz.plot_receptive_field(rf_square(), 9)]
     for k, fig in enumerate(figs):
         fig.savefig(tmp_path / f"{k}.png", dpi=40)

@@ -1,52 +1,22 @@
 """The ipywidgets panels of ``sin3dm_lite.widgets``: the right controls, and their callbacks draw."""
-import os
+import ipywidgets as widgets
+import numpy as np
+import pytest
+import torch
+from matplotlib.figure import Figure
 
-os.environ.setdefault("MPLBACKEND", "Agg")
-import matplotlib  # noqa: E402
+from sin3dm_lite import widgets as sw
+from sin3dm_lite.triplane import Triplane, plane_to_image
 
-matplotlib.use("Agg")
-
-import ipywidgets as widgets  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-import torch  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-
-from sin3dm_lite import widgets as sw  # noqa: E402
-from sin3dm_lite.triplane import Triplane, plane_to_image  # noqa: E402
-
-from sin3dm_lite.grid import ShapeGrid  # noqa: E402
-from sin3dm_lite.mesh_io import Normalization  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def grid():
-    """A sphere's TSDF on a 16 × 12 × 20 grid, truncated at 3 voxels, coloured by position."""
-    shape = np.array([16, 12, 20])
-    half = shape / shape.max()
-    thr = 3 * 2.0 / shape.max()
-    g = ShapeGrid(np.zeros(shape, np.float32), np.zeros((*shape, 3), np.float32),
-                  np.concatenate([-half, half]).astype(np.float32), thr, Normalization.identity())
-    c = g.voxel_centers()
-    g.sdf = np.clip(np.linalg.norm(c, axis=-1) - 0.45, -thr, thr).astype(np.float32)
-    g.color = np.clip((c + 1) / 2, 0, 1).astype(np.float32)
-    return g
-
-
-def rf_square(n, width):
-    rf = np.full((n, n), 1e-3)
-    c, h = n // 2, width // 2
-    rf[c - h:c + h + 1, c - h:c + h + 1] = 0.1
-    rf[c, c] = 1.0
-    return rf
+from .conftest import rf_square
 
 
 def image_of(fig, k=0):
     return np.asarray([ax for ax in fig.axes if ax.images][k].images[0].get_array())
 
 
-def test_slice_explorer_controls_and_callback(grid):
-    panel = sw.slice_explorer(grid)
+def test_slice_explorer_controls_and_callback(sphere_grid):
+    panel = sw.slice_explorer(sphere_grid)
     assert isinstance(panel, widgets.VBox) and isinstance(panel.output, widgets.Output)
     c = panel.controls
     assert set(c) == {"axis", "index", "kind"}
@@ -55,25 +25,25 @@ def test_slice_explorer_controls_and_callback(grid):
     assert isinstance(panel.last_figure, Figure) and panel.last_error is None  # drawn once when built
     # moving the slider redraws through the observer with the new value
     c["index"].value = 4
-    np.testing.assert_array_equal(image_of(panel.last_figure), grid.sdf[:, :, 4].T)
+    np.testing.assert_array_equal(image_of(panel.last_figure), sphere_grid.sdf[:, :, 4].T)
     # changing the axis refits the slider to that axis (y has 12 slices) before one redraw
     c["axis"].value = "y"
     assert (c["index"].max, c["index"].value) == (11, 6)
-    np.testing.assert_array_equal(image_of(panel.last_figure), grid.sdf[:, 6, :].T)
+    np.testing.assert_array_equal(image_of(panel.last_figure), sphere_grid.sdf[:, 6, :].T)
     c["kind"].value = "color"
     assert image_of(panel.last_figure).shape == (20, 16, 3)
     assert panel.last_error is None
 
 
-def test_errors_are_shown_not_swallowed(grid):
+def test_errors_are_shown_not_swallowed(sphere_grid):
     panel = sw.Explorer({"n": widgets.IntSlider(value=1)}, lambda n: 1 / 0)
     assert panel.last_figure is None and "ZeroDivisionError" in panel.last_error
     with pytest.raises(ZeroDivisionError):
         panel.figure()
 
 
-def test_truncation_explorer(grid):
-    panel = sw.truncation_explorer(grid)
+def test_truncation_explorer(sphere_grid):
+    panel = sw.truncation_explorer(sphere_grid)
     thr = panel.controls["threshold"]
     assert thr.max == pytest.approx(3.0) and thr.value == 1.0
     assert len([ax for ax in panel.last_figure.axes if ax.images]) == 2  # chosen + the grid's own
@@ -121,7 +91,7 @@ def test_receptive_field_explorer_caches():
 
     def fn(n):
         calls.append(n)
-        return rf_square(33, 2 * n + 1), 2 * n + 1
+        return rf_square(33, 2 * n + 1, zero_corner=False), 2 * n + 1
 
     panel = sw.receptive_field_explorer(fn)
     dd = panel.controls["n_resblocks"]
