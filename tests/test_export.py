@@ -5,8 +5,8 @@ import torch
 import trimesh
 from torch import nn
 
+from sin3dm_lite import export
 from sin3dm_lite import extract as ex
-from sin3dm_lite import mesh_io
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.export import export_mesh
 from sin3dm_lite.mesh_io import Normalization
@@ -74,7 +74,7 @@ def test_failed_export_leaves_no_output_folder(sphere_mesh, tmp_path, monkeypatc
         path.write_bytes(b"half a file")
         raise OSError("disk full")
 
-    monkeypatch.setattr(mesh_io, "save_glb", broken)
+    monkeypatch.setattr(export, "save_glb", broken)
     with pytest.raises(OSError, match="disk full"):
         export_mesh(sphere_mesh, tmp_path / "out")
     assert list(tmp_path.iterdir()) == []

@@ -1,4 +1,4 @@
-"""Tests of sin3dm_lite.mesh_io: loaders, writers, bad input, normalisation.
+"""Tests of sin3dm_lite.mesh_io (loaders, bad input, normalisation) and round trips through export's writers.
 
 Every input is written on the fly into ``tmp_path`` (no binary fixtures).
 The texture used throughout has four coloured quadrants so that a lookup can
@@ -18,8 +18,9 @@ import trimesh
 from PIL import Image
 from trimesh.visual.material import PBRMaterial
 
-from sin3dm_lite import mesh_io
+from sin3dm_lite import export, mesh_io
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.export import save_glb, save_obj
 from sin3dm_lite.mesh_io import (
     DEFAULT_COLOR,
     Material,
@@ -27,8 +28,6 @@ from sin3dm_lite.mesh_io import (
     load_any,
     load_mesh,
     sample_texture,
-    save_glb,
-    save_obj,
 )
 
 RED, GREEN, BLUE, YELLOW = (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)
@@ -677,7 +676,7 @@ def test_save_obj_failure_leaves_nothing(tmp_path, monkeypatch):
     def boom(*a, **k):
         raise OSError("disk full")
 
-    monkeypatch.setattr(mesh_io, "_baked_vertex_colors", boom)  # fails after the PNG and MTL are written
+    monkeypatch.setattr(export, "_baked_vertex_colors", boom)  # fails after the PNG and MTL are written
     with pytest.raises(OSError, match="disk full"):
         save_obj(mesh, out_dir / "x.obj")
     assert list(out_dir.iterdir()) == []
