@@ -285,6 +285,35 @@ def test_obj_uv_scale_option(tmp_path):
     np.testing.assert_allclose(mesh.face_uvs[0], [[0, 0], [0.5, 0], [0, 0.5]])
 
 
+def test_obj_reader_keeps_what_trimesh_loses(tmp_path):
+    """Why ``load_mesh`` parses OBJ/MTL itself instead of using ``trimesh.load`` (checked with trimesh 4.x/5.x).
+
+    trimesh (1) returns the faces grouped by material, so interleaved ``usemtl`` runs lose the
+    file's face order (with ``group_material=False, maintain_order=True`` a run even gets another
+    run's face), (2) silently drops a ``map_Kd`` that has options (``-s 0.5 0.5 b.png``): the
+    texture is lost, not just its scale, and (3) says nothing about a missing texture. It also
+    decodes the textures of unused materials, crashes on partial vertex colours and names no line
+    in its errors (see the other OBJ tests). This test fails if ``load_mesh`` hands OBJ to trimesh.
+    """
+    save_png(tmp_path / "a.png", quadrant_image())
+    save_png(tmp_path / "b.png", quadrant_image(CYAN, MAGENTA, MAGENTA, CYAN))
+    (tmp_path / "m.mtl").write_text("newmtl A\nmap_Kd a.png\nnewmtl B\nmap_Kd -s 0.5 0.5 b.png\n"
+                                    "newmtl C\nKd 0 1 0\nmap_Kd gone.png\n")
+    (tmp_path / "m.obj").write_text(
+        "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "usemtl A\nf 1/1 2/2 3/3\nusemtl B\nf 2/1 5/2 6/3\nusemtl A\nf 1/1 3/3 4/4\nusemtl C\nf 3 6 4\n")
+    with pytest.warns(UserWarning, match="gone.png"):  # (3)
+        mesh = load_mesh(tmp_path / "m.obj")
+    assert [m.name for m in mesh.materials] == ["A", "B", "C"]
+    np.testing.assert_array_equal(mesh.face_material, [0, 1, 0, 2])  # (1) the file's face order
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [1, 4, 5], [0, 2, 3], [2, 5, 3]])
+    assert mesh.materials[1].image is not None  # (2) the texture with options is kept ...
+    np.testing.assert_allclose(mesh.face_uvs[1], [[0, 0], [0.5, 0], [0.5, 0.5]])  # ... and so is its scale
+    np.testing.assert_allclose(lookup(mesh, 1, (0.8, 0.1, 0.1)), MAGENTA, atol=1e-6)  # b.png at uv (0.1, 0.05)
+    np.testing.assert_allclose(lookup(mesh, 3, (1 / 3, 1 / 3, 1 / 3)), (0, 1, 0))  # C falls back to its Kd
+
+
 # ====================================================================== glTF
 def test_glb_base_color_texture_and_factor(tmp_path):
     mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
