@@ -284,7 +284,10 @@ def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE) -> Textu
       several materials (each face keeps its material and its own per-corner
       UVs), vertex colours ``v x y z r g b``, PBR extensions ``Pm``/``Pr``/
       ``map_Pm``/``map_Pr``/``map_Bump``/``norm``. Parsed here, not by trimesh,
-      so face order, vertex order and UV indices are exactly the file's.
+      so face order, vertex order and UV indices are exactly the file's
+      (trimesh groups faces by material and drops a ``map_Kd`` with options:
+      ``tests/test_mesh_io.py::test_obj_reader_keeps_what_trimesh_loses``).
+      Every other format is read by trimesh.
     * ``.glb`` / ``.gltf``: every mesh node of the default scene with its node
       transform applied, every primitive with its material (base colour
       texture and factor; metallic-roughness texture and factors and normal
