@@ -128,10 +128,9 @@ def save_obj(mesh: TexturedMesh, path) -> Path:
     return path
 
 
-def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool) -> list[str]:
-    """Write ``<stem>.obj``, ``<stem>.mtl`` and the PNGs into ``folder``; returns the file names."""
+def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool) -> None:
+    """Write ``<stem>.obj``, ``<stem>.mtl`` and the PNGs into ``folder``."""
     has_uv_mesh = mesh.face_uvs is not None
-    written = []
     used_names: set = set()
     names = [_safe_name(m.name, used_names) for m in mesh.materials]
 
@@ -149,7 +148,6 @@ def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool
             if key not in baked:
                 baked[key] = f"{prefix}.png"
                 array_to_pil(baked_image(mat)).save(folder / baked[key])
-                written.append(baked[key])
             maps.append(f"map_Kd {baked[key]}")
             kd = (1.0, 1.0, 1.0)
         else:
@@ -160,12 +158,10 @@ def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool
                 grey = np.clip(mat.metallic_roughness_image[:, :, chan] * factor, 0, 1)
                 fname = f"{prefix}_{'roughness' if chan == 1 else 'metallic'}.png"
                 array_to_pil(np.repeat(grey[:, :, None], 3, axis=2)).convert("L").save(folder / fname)
-                written.append(fname)
                 maps.append(f"map_{tag} {fname}")
         if mat.normal_image is not None and has_uv_mesh:
             fname = f"{prefix}_normal.png"
             array_to_pil(mat.normal_image).save(folder / fname)
-            written.append(fname)
             maps.append(f"map_Bump -bm 1.000000 {fname}")
         lines += [
             "Ka 0.000000 0.000000 0.000000",
@@ -180,7 +176,6 @@ def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool
             "",
         ]
     (folder / f"{stem}.mtl").write_text("\n".join(lines), encoding="utf-8")
-    written.append(f"{stem}.mtl")
 
     # ---- .obj
     faces = np.asarray(mesh.faces, np.int64)
@@ -219,8 +214,6 @@ def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool
                 _write_rows(fh, "f %d/%d %d/%d %d/%d\n", block)
             else:
                 _write_rows(fh, "f %d %d %d\n", faces[a:b] + 1)
-    written.append(f"{stem}.obj")
-    return written
 
 
 def _write_rows(fh, row_format: str, array: np.ndarray, chunk: int = 65536) -> None:
