@@ -1,25 +1,38 @@
-"""Write generated meshes to disk: OBJ + MTL + PNG and binary glTF (GLB).
+"""Write meshes to disk: OBJ + MTL + PNG and binary glTF (GLB).
 
-The writers themselves live in :mod:`sin3dm_lite.mesh_io` (``save_obj``,
-``save_glb``); this module puts one shape's files into a folder *atomically*:
-everything is written into a temporary folder next to the target first and
-moved into place only when every file is complete, so a failure (disk full,
-bad texture) never leaves a half-written output folder behind.
+The readers and the shared types (:class:`~sin3dm_lite.mesh_io.TexturedMesh`,
+``Material``, ``Normalization``) live in :mod:`sin3dm_lite.mesh_io`; this
+module owns everything that writes them.
+
+Public API::
+
+    save_obj(mesh, path) -> Path              # .obj + .mtl + PNG textures
+    save_glb(mesh, path) -> Path              # binary glTF with PBR materials
+    export_mesh(mesh, out_dir, name, formats) -> {format: path}   # both, into one folder
+    split_corners(faces, face_uvs)            # one vertex per distinct (vertex, uv) pair
+    baked_image(material)                     # texture times the material's colour factor
+
+Every writer is atomic: a single file goes through
+:func:`~sin3dm_lite.files.atomic_write`, several files through
+:func:`~sin3dm_lite.files.atomic_folder` (a temporary folder beside or inside
+the target, moved into place when everything is complete), so a failure
+(disk full, bad texture) or a kill never leaves a half-written output behind.
 
 PBR maps of a material (``metallic_roughness_image``, ``normal_image``) go
 into the GLB's metallic-roughness material; the OBJ writes them as
-``map_Pr`` / ``map_Pm`` / ``map_Bump`` PNGs (see ``mesh_io.save_obj``).
+``map_Pr`` / ``map_Pm`` / ``map_Bump`` PNGs. ``mesh_io.load_mesh`` reads
+everything written here back.
 """
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
+import re
 from pathlib import Path
 
-from . import mesh_io
+import numpy as np
+
 from .errors import Sin3DMInputError
-from .mesh_io import TexturedMesh
+from .files import atomic_folder, atomic_write
+from .mesh_io import Material, TexturedMesh, array_to_pil, unique_rows
 
 FORMATS = ("obj", "glb")
 
@@ -27,10 +40,10 @@ FORMATS = ("obj", "glb")
 def export_mesh(mesh: TexturedMesh, out_dir, name: str = "mesh", formats=FORMATS) -> dict[str, Path]:
     """Write ``out_dir/<name>.obj`` (with its ``.mtl`` and texture ``.png``) and/or ``out_dir/<name>.glb``.
 
-    Files are written into a temporary folder beside ``out_dir`` and moved
-    into place only after all of them are complete. A new ``out_dir``
-    appears in one rename; into an existing one each file is moved with an
-    atomic replace (other files there are left alone).
+    Files are written into a temporary folder (:func:`files.atomic_folder`)
+    and moved into place only after all of them are complete. A new
+    ``out_dir`` appears in one rename; into an existing one each file is moved
+    with an atomic replace (other files there are left alone).
 
     Returns:
         ``{format: path}`` of the main file of each format (the OBJ's MTL and
@@ -45,25 +58,285 @@ def export_mesh(mesh: TexturedMesh, out_dir, name: str = "mesh", formats=FORMATS
     out_dir = Path(out_dir).expanduser()
     if out_dir.exists() and not out_dir.is_dir():
         raise Sin3DMInputError(f"'{out_dir}' is a file; export_mesh needs a folder to write into")
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".partial", dir=out_dir.parent))
-    tmp.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary folder
-    try:
+    with atomic_folder(out_dir) as tmp:
         if "obj" in formats:
-            mesh_io.save_obj(mesh, tmp / f"{name}.obj")
+            save_obj(mesh, tmp / f"{name}.obj")
         if "glb" in formats:
-            mesh_io.save_glb(mesh, tmp / f"{name}.glb")
-        if not out_dir.exists():
-            os.replace(tmp, out_dir)  # the whole folder appears at once
-        else:
-            # the .obj last: it only appears once the files it names are there
-            for item in sorted(tmp.iterdir(), key=lambda p: (p.suffix == ".obj", p.name)):
-                os.replace(item, out_dir / item.name)
-            tmp.rmdir()
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+            save_glb(mesh, tmp / f"{name}.glb")
     return {fmt: out_dir / f"{name}.{fmt}" for fmt in formats}
 
 
-__all__ = ["FORMATS", "export_mesh"]
+def baked_image(mat: Material) -> np.ndarray:
+    """The material's texture with its RGB factor multiplied in (what a viewer shows)."""
+    return np.clip(mat.image * np.asarray(mat.base_color, np.float32)[:3], 0.0, 1.0)
+
+
+def split_corners(faces: np.ndarray, face_uvs: np.ndarray):
+    """Give every distinct (vertex, uv) pair its own vertex, as GLB and trimesh need.
+
+    Returns ``(vertex_of (N,), uv (N, 2), new_faces (F, 3))``.
+    """
+    corner_v = faces.reshape(-1).astype(np.int64)
+    corner_uv = np.ascontiguousarray(np.nan_to_num(face_uvs.reshape(-1, 2)).astype(np.float32) + 0.0)
+    key = np.column_stack([corner_v, corner_uv.view(np.int64).reshape(-1)])  # (vertex, uv bits)
+    first, inverse = unique_rows(key)
+    return corner_v[first], corner_uv[first].astype(np.float64), inverse.reshape(-1, 3)
+
+
+def _prepare_output(path, suffix):
+    """``path`` as a Path after checking its suffix; its folder is created."""
+    path = Path(path).expanduser()
+    if path.suffix.lower() != suffix:
+        raise Sin3DMInputError(f"'{path.name}' should end in '{suffix}' (got '{path.suffix or '(none)'}'); "
+                               f"pick a file name like '{path.stem}{suffix}'")
+    if path.is_dir():
+        raise Sin3DMInputError(f"'{path}' is a directory; give a file name")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _safe_name(name: str, used: set) -> str:
+    """``name`` reduced to ``[A-Za-z0-9_.-]``, made unique among ``used`` (and added to it)."""
+    base = re.sub(r"[^A-Za-z0-9_.\-]+", "_", str(name or "material")).strip("_") or "material"
+    out, k = base, 1
+    while out in used:
+        out, k = f"{base}_{k}", k + 1
+    used.add(out)
+    return out
+
+
+def save_obj(mesh: TexturedMesh, path) -> Path:
+    """Write ``path`` (.obj) with ``<stem>.mtl`` and the textures as PNGs beside it.
+
+    * positions as ``v`` (plus ``r g b`` when the mesh has vertex colours),
+      per-corner UVs as ``vt`` with their own indices (``f v/vt``), so no
+      vertex is split; faces keep their order (``usemtl`` at each change);
+    * one MTL material per material: ``Kd`` is its colour; a texture is
+      written as ``<stem>.png`` (one textured material) or ``<stem>_<k>.png``
+      with the colour factor multiplied in and ``Kd 1 1 1`` (viewers disagree
+      on whether ``Kd`` tints ``map_Kd``; this way they all agree);
+      ``Pm``/``Pr`` scalars, ``map_Pr``/``map_Pm`` (grey PNGs) and
+      ``map_Bump`` (normal map, as Blender writes it) for PBR materials.
+    Files are written into a temporary folder (:func:`files.atomic_folder`)
+    and moved into place at the end, so an error leaves no half-written output.
+    ``load_mesh`` on the result gives the same geometry and colours.
+    """
+    path = _prepare_output(path, ".obj")
+    textured = [k for k, m in enumerate(mesh.materials) if m.image is not None]
+    with atomic_folder(path.parent) as tmp:  # images and the .mtl are moved first, the .obj last
+        _write_obj_files(mesh, tmp, path.stem, len(textured) == 1)
+    return path
+
+
+def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool) -> None:
+    """Write ``<stem>.obj``, ``<stem>.mtl`` and the PNGs into ``folder``."""
+    has_uv_mesh = mesh.face_uvs is not None
+    used_names: set = set()
+    names = [_safe_name(m.name, used_names) for m in mesh.materials]
+
+    # ---- textures and .mtl
+    lines = ["# written by sin3dm-lite", ""]
+    baked: dict = {}  # (image, factor) → file: materials sharing an atlas share its PNG
+    for k, mat in enumerate(mesh.materials):
+        prefix = stem if (single_texture and mat.image is not None) else f"{stem}_{k}"
+        c = np.asarray(mat.base_color, np.float64)
+        alpha = float(c[3]) if len(c) > 3 else 1.0
+        lines.append(f"newmtl {names[k]}")
+        maps = []
+        if mat.image is not None and has_uv_mesh:
+            key = (id(mat.image), tuple(np.asarray(mat.base_color, np.float32)[:3]))
+            if key not in baked:
+                baked[key] = f"{prefix}.png"
+                array_to_pil(baked_image(mat)).save(folder / baked[key])
+            maps.append(f"map_Kd {baked[key]}")
+            kd = (1.0, 1.0, 1.0)
+        else:
+            kd = tuple(np.clip(c[:3], 0, 1))
+        roughness, metallic = float(mat.roughness), float(mat.metallic)
+        if mat.metallic_roughness_image is not None and has_uv_mesh:
+            for chan, tag, factor in ((1, "Pr", roughness), (2, "Pm", metallic)):
+                grey = np.clip(mat.metallic_roughness_image[:, :, chan] * factor, 0, 1)
+                fname = f"{prefix}_{'roughness' if chan == 1 else 'metallic'}.png"
+                array_to_pil(np.repeat(grey[:, :, None], 3, axis=2)).convert("L").save(folder / fname)
+                maps.append(f"map_{tag} {fname}")
+        if mat.normal_image is not None and has_uv_mesh:
+            fname = f"{prefix}_normal.png"
+            array_to_pil(mat.normal_image).save(folder / fname)
+            maps.append(f"map_Bump -bm 1.000000 {fname}")
+        lines += [
+            "Ka 0.000000 0.000000 0.000000",
+            "Kd {:.6f} {:.6f} {:.6f}".format(*kd),
+            "Ks 0.000000 0.000000 0.000000",
+            "Ns 10.000000",
+            f"d {alpha:.6f}",
+            "illum 1",
+            f"Pr {roughness:.6f}",
+            f"Pm {metallic:.6f}",
+            *maps,
+            "",
+        ]
+    (folder / f"{stem}.mtl").write_text("\n".join(lines), encoding="utf-8")
+
+    # ---- .obj
+    faces = np.asarray(mesh.faces, np.int64)
+    fm = np.asarray(mesh.face_material, np.int64)
+    if has_uv_mesh:
+        fuv = np.asarray(mesh.face_uvs, np.float32)
+        face_has_uv = np.isfinite(fuv).all(axis=(1, 2))
+        corner_uv = fuv[face_has_uv].reshape(-1, 2)
+        first, inv = unique_rows(corner_uv)
+        uv_rows = corner_uv[first]
+        uv_index = np.zeros((len(faces), 3), np.int64)
+        uv_index[face_has_uv] = inv.reshape(-1, 3)
+    else:
+        face_has_uv = np.zeros(len(faces), bool)
+        uv_rows, uv_index = np.zeros((0, 2)), None
+    colors = _baked_vertex_colors(mesh)
+    with open(folder / f"{stem}.obj", "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(f"# written by sin3dm-lite: {len(mesh.vertices)} vertices, {len(faces)} faces\n")
+        fh.write(f"mtllib {stem}.mtl\no {_safe_name(mesh.name, set())}\n")
+        if colors is None:
+            _write_rows(fh, "v %.9g %.9g %.9g\n", mesh.vertices)
+        else:
+            _write_rows(fh, "v %.9g %.9g %.9g %.6f %.6f %.6f\n", np.hstack([mesh.vertices, colors]))
+        if len(uv_rows) and face_has_uv.any():
+            _write_rows(fh, "vt %.9g %.9g\n", uv_rows)
+        # runs of faces with the same material and the same has-uv flag, in the original order
+        change = np.flatnonzero((np.diff(fm) != 0) | (np.diff(face_has_uv.astype(np.int8)) != 0)) + 1
+        starts, ends = np.r_[0, change], np.r_[change, len(faces)]
+        last = None
+        for a, b in zip(starts, ends):
+            if fm[a] != last:
+                fh.write(f"usemtl {names[fm[a]]}\n")
+                last = fm[a]
+            if face_has_uv[a]:
+                block = np.stack([faces[a:b] + 1, uv_index[a:b] + 1], axis=2).reshape(b - a, 6)
+                _write_rows(fh, "f %d/%d %d/%d %d/%d\n", block)
+            else:
+                _write_rows(fh, "f %d %d %d\n", faces[a:b] + 1)
+
+
+def _write_rows(fh, row_format: str, array: np.ndarray, chunk: int = 65536) -> None:
+    """Write every row of ``array`` with ``row_format`` (much faster than ``np.savetxt``)."""
+    values = array.tolist()
+    for start in range(0, len(values), chunk):
+        part = values[start : start + chunk]
+        fh.write((row_format * len(part)) % tuple(x for row in part for x in row))
+
+
+def _baked_vertex_colors(mesh: TexturedMesh) -> np.ndarray | None:
+    """Vertex colours times the factor of the (untextured) material that uses each vertex.
+
+    OBJ vertex colours replace ``Kd`` when read back, so the factor goes into
+    the colours (exact unless one vertex is shared by materials with different
+    factors; the first such material wins).
+    """
+    if mesh.vertex_colors is None:
+        return None
+    factor = np.ones((len(mesh.vertices), 3), np.float32)
+    for k in reversed(range(len(mesh.materials))):  # reversed: lower material index wins
+        mat = mesh.materials[k]
+        if mat.image is None or mesh.face_uvs is None:
+            idx = np.unique(mesh.faces[mesh.face_material == k])
+            factor[idx] = np.asarray(mat.base_color, np.float32)[:3]
+    return np.clip(mesh.vertex_colors * factor, 0, 1)
+
+
+def save_glb(mesh: TexturedMesh, path) -> Path:
+    """Write a binary glTF: one primitive per material, PBR metallic-roughness.
+
+    A textured material becomes ``baseColorTexture`` (+ ``baseColorFactor``,
+    ``metallicRoughnessTexture``, ``normalTexture``, metallic and roughness
+    factors) with vertices split where a vertex has several UVs; an untextured
+    material with vertex colours becomes ``COLOR_0`` (factor multiplied in);
+    otherwise a plain ``baseColorFactor``. Written to a temporary file and
+    renamed, so an error leaves no half-written file. Readable by
+    :func:`load_mesh`, trimesh, Blender and web viewers.
+    """
+    import trimesh
+    from trimesh.visual.material import PBRMaterial
+
+    path = _prepare_output(path, ".glb")
+    scene = trimesh.Scene()
+    used_names: set = set()
+    for k, mat in enumerate(mesh.materials):
+        sel = np.flatnonzero(mesh.face_material == k)
+        if len(sel) == 0:
+            continue
+        faces = mesh.faces[sel]
+        gname = _safe_name(f"{mesh.name}_{mat.name}", used_names)
+        has_maps = any(x is not None for x in (mat.image, mat.metallic_roughness_image, mat.normal_image))
+
+        def pil(a):
+            return None if a is None else array_to_pil(a)
+
+        factor = np.round(np.clip(np.asarray(mat.base_color, np.float64), 0, 1) * 255).astype(np.uint8)
+        if len(factor) == 3:
+            factor = np.r_[factor, 255].astype(np.uint8)
+        if has_maps and mesh.face_uvs is not None:
+            vert_of, uv, new_faces = split_corners(faces, mesh.face_uvs[sel])
+            pbr = PBRMaterial(
+                name=mat.name,
+                baseColorTexture=pil(mat.image),
+                baseColorFactor=factor,  # uint8 on purpose: trimesh reads a list of ints as 0..255
+                metallicFactor=float(mat.metallic),
+                roughnessFactor=float(mat.roughness),
+                metallicRoughnessTexture=pil(mat.metallic_roughness_image),
+                normalTexture=pil(mat.normal_image),
+            )
+            geom = trimesh.Trimesh(mesh.vertices[vert_of], new_faces,
+                                   visual=trimesh.visual.TextureVisuals(uv=uv, material=pbr), process=False)
+        else:
+            used, new_faces = np.unique(faces, return_inverse=True)
+            new_faces = new_faces.reshape(-1, 3)
+            if mesh.vertex_colors is not None:
+                col = np.clip(mesh.vertex_colors[used] * np.asarray(mat.base_color, np.float32)[:3], 0, 1)
+                rgba = np.column_stack([np.round(col * 255), np.full(len(col), factor[3])]).astype(np.uint8)
+                geom = trimesh.Trimesh(mesh.vertices[used], new_faces, vertex_colors=rgba, process=False)
+            else:
+                pbr = PBRMaterial(name=mat.name, baseColorFactor=factor, metallicFactor=float(mat.metallic),
+                                  roughnessFactor=float(mat.roughness))
+                geom = trimesh.Trimesh(mesh.vertices[used], new_faces,
+                                       visual=trimesh.visual.TextureVisuals(material=pbr), process=False)
+        scene.add_geometry(geom, geom_name=gname, node_name=gname)
+    if not scene.geometry:
+        raise Sin3DMInputError(f"mesh '{mesh.name}' has no faces to write")
+    data = scene.export(file_type="glb")
+    atomic_write(path, data)
+    return path
+
+
+def to_trimesh(mesh: TexturedMesh, max_texture: int = 1024):
+    """A ``trimesh.Trimesh`` for viewing.
+
+    A mesh with exactly one material that has a texture (and per-corner
+    UVs) keeps it: the result has ``TextureVisuals`` with the texture (times
+    the material factor, longest side at most ``max_texture``) and vertices
+    split wherever a vertex has several UVs. Anything else gets vertex
+    colours evaluated at every face corner (every face has its own three
+    vertices, so colour edges stay sharp).
+    """
+    import trimesh
+
+    if len(mesh.materials) == 1 and mesh.materials[0].image is not None and mesh.face_uvs is not None:
+        mat = mesh.materials[0]
+        vert_of, uv, faces = split_corners(mesh.faces, mesh.face_uvs)
+        image = array_to_pil(baked_image(mat), max_size=max_texture)
+        visual = trimesh.visual.TextureVisuals(
+            uv=uv, material=trimesh.visual.material.SimpleMaterial(image=image, name=mat.name)
+        )
+        return trimesh.Trimesh(mesh.vertices[vert_of], faces, visual=visual, process=False)
+
+    tri = mesh.vertices[mesh.faces]
+    # colour each vertex by the colour at its corner in one face that uses it
+    fi = np.repeat(np.arange(len(mesh.faces)), 3)
+    bc = np.tile(np.eye(3), (len(mesh.faces), 1))
+    col = mesh.colors_at(fi, bc)
+    v = tri.reshape(-1, 3)
+    f = np.arange(len(v)).reshape(-1, 3)
+    m = trimesh.Trimesh(v, f, vertex_colors=np.round(col * 255).astype(np.uint8), process=False)
+    return m
+
+
+__all__ = [
+    "to_trimesh","FORMATS", "baked_image", "export_mesh", "save_glb", "save_obj", "split_corners"]

@@ -4,7 +4,8 @@
 * Never over another's files: an output folder records what this tool wrote
   in a manifest (``.sin3dm-manifest.json``); only those files are ever replaced.
 * Temporary files and folders carry the writer's PID in their name, so that a
-  later run removes the ones a killed process left behind.
+  later run removes the ones a killed process left behind
+  (:func:`atomic_path` for one file, :func:`atomic_folder` for several).
 * A run folder is locked (``.sin3dm-lock`` holding the PID) while one process writes it.
 """
 from __future__ import annotations
@@ -82,6 +83,34 @@ def make_temp_dir(parent: Path) -> Path:
     tmp = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{os.getpid()}-", dir=parent))
     tmp.chmod(0o755)  # mkdtemp makes it private; the result becomes an ordinary folder
     return tmp
+
+
+@contextmanager
+def atomic_folder(folder: str | Path):
+    """Yield a temporary folder to write files into; move them into ``folder`` when the block succeeds.
+
+    The temporary folder is ``.sin3dm-tmp-<pid>-<random>``: inside ``folder``
+    if it exists, else beside it (leftovers of killed writers there are removed
+    first, see :func:`remove_stale_temps`). A new ``folder`` appears in one
+    rename; into an existing one each file is moved with an atomic replace,
+    ``.obj`` files last (an OBJ only appears once the files it names are
+    there), and other files in it are left alone. On an exception ``folder`` is
+    unchanged and the temporary folder is removed.
+    """
+    folder = Path(folder)
+    base = folder if folder.is_dir() else folder.parent
+    base.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(base)
+    tmp = make_temp_dir(base)
+    try:
+        yield tmp
+        if not folder.exists():
+            os.rename(tmp, folder)  # the whole folder appears at once
+        else:
+            for item in sorted(tmp.iterdir(), key=lambda p: (p.suffix == ".obj", p.name)):
+                os.replace(item, folder / item.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def remove_stale_temps(folder: Path) -> list[Path]:

@@ -19,7 +19,7 @@ import point_cloud_utils as pcu
 from .errors import Sin3DMInputError
 from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
 from .files import atomic_path
-from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, _unique_rows, component_labels
+from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, component_labels, unique_rows
 
 
 @dataclass
@@ -132,7 +132,7 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
     Returns ``(faces, closed, flipped, closed_parts)``: the faces, whether the
     whole mesh is closed, how many parts were flipped and how many are closed.
     """
-    _, weld = _unique_rows(vertices)  # vertices split at UV seams are one point here
+    _, weld = unique_rows(vertices)  # vertices split at UV seams are one point here
     fw = weld[faces]
     n = int(fw.max()) + 1
     part = component_labels(n, fw)  # (F,) the part of every face

@@ -1,4 +1,4 @@
-"""Load a textured mesh from disk, normalise it into the paper's box, write it back.
+"""Load a textured mesh from disk and normalise it into the paper's box.
 
 Sin3DM learns from *one* textured shape. Whatever the file format, we turn it
 into a :class:`TexturedMesh`: triangle geometry plus everything needed to ask
@@ -16,10 +16,13 @@ Public API::
 
     load_mesh(path, *, max_texture_size=4096) -> TexturedMesh   # .obj .glb .gltf .ply .stl .off
     load_any(source) -> TexturedMesh          # a path, or a TexturedMesh (returned as is)
-    save_obj(mesh, path) -> Path              # .obj + .mtl + PNG textures
-    save_glb(mesh, path) -> Path              # binary glTF with PBR materials
     image_to_array(image, max_size=None)      # PIL image / array -> (h, w, 3) float32 in [0, 1]
+    array_to_pil(array, max_size=None)        # the other way: (h, w, 3) in [0, 1] -> 8-bit PIL image
     sample_texture(image, uv)                 # bilinear, wrap-around texture lookup
+    unique_rows(array)                        # distinct rows in first-occurrence order (welding)
+
+The writers (``save_obj``, ``save_glb``, ``export_mesh``) live in
+:mod:`sin3dm_lite.export`.
 
 Bad input raises one :class:`~sin3dm_lite.errors.Sin3DMInputError` whose
 message names the problem and the fix; a missing or unreadable texture is a
@@ -34,7 +37,6 @@ from pathlib import Path
 import numpy as np
 
 from .errors import Sin3DMInputError
-from .files import atomic_write
 
 #: Colour used for a mesh that has no texture, vertex colour or material colour.
 DEFAULT_COLOR = np.array([0.7, 0.7, 0.7], dtype=np.float32)
@@ -178,37 +180,6 @@ class TexturedMesh:
         new = Normalization(center=self.normalization.to_original(center), scale=self.normalization.scale * scale)
         return replace(self, vertices=(self.vertices - center) * scale, normalization=new)
 
-    def to_trimesh(self, max_texture: int = 1024):
-        """A ``trimesh.Trimesh`` for viewing.
-
-        A mesh with exactly one material that has a texture (and per-corner
-        UVs) keeps it: the result has ``TextureVisuals`` with the texture (times
-        the material factor, longest side at most ``max_texture``) and vertices
-        split wherever a vertex has several UVs. Anything else gets vertex
-        colours evaluated at every face corner (every face has its own three
-        vertices, so colour edges stay sharp).
-        """
-        import trimesh
-
-        if len(self.materials) == 1 and self.materials[0].image is not None and self.face_uvs is not None:
-            mat = self.materials[0]
-            vert_of, uv, faces = _split_corners(self.faces, self.face_uvs)
-            image = _array_to_pil(_baked_image(mat), max_size=max_texture)
-            visual = trimesh.visual.TextureVisuals(
-                uv=uv, material=trimesh.visual.material.SimpleMaterial(image=image, name=mat.name)
-            )
-            return trimesh.Trimesh(self.vertices[vert_of], faces, visual=visual, process=False)
-
-        tri = self.vertices[self.faces]
-        # colour each vertex by the colour at its corner in one face that uses it
-        fi = np.repeat(np.arange(len(self.faces)), 3)
-        bc = np.tile(np.eye(3), (len(self.faces), 1))
-        col = self.colors_at(fi, bc)
-        v = tri.reshape(-1, 3)
-        f = np.arange(len(v)).reshape(-1, 3)
-        m = trimesh.Trimesh(v, f, vertex_colors=np.round(col * 255).astype(np.uint8), process=False)
-        return m
-
 
 def component_labels(n_verts: int, faces: np.ndarray) -> np.ndarray:
     """Connected-component label of every face (faces sharing a vertex are connected)."""
@@ -280,7 +251,10 @@ def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE) -> Textu
       several materials (each face keeps its material and its own per-corner
       UVs), vertex colours ``v x y z r g b``, PBR extensions ``Pm``/``Pr``/
       ``map_Pm``/``map_Pr``/``map_Bump``/``norm``. Parsed here, not by trimesh,
-      so face order, vertex order and UV indices are exactly the file's.
+      so face order, vertex order and UV indices are exactly the file's
+      (trimesh groups faces by material and drops a ``map_Kd`` with options:
+      ``tests/test_mesh_io.py::test_obj_reader_keeps_what_trimesh_loses``).
+      Every other format is read by trimesh.
     * ``.glb`` / ``.gltf``: every mesh node of the default scene with its node
       transform applied, every primitive with its material (base colour
       texture and factor; metallic-roughness texture and factors and normal
@@ -448,13 +422,13 @@ def _assemble(parts: list[_Part], materials: list[Material], name: str, source: 
 def _weld(vertices, faces, colors):
     """Merge vertices with exactly equal position (and colour); keeps first-occurrence order."""
     key = vertices if colors is None else np.hstack([vertices, colors.astype(np.float64)])
-    keep, inverse = _unique_rows(key)
+    keep, inverse = unique_rows(key)
     if len(keep) == len(vertices):
         return vertices, faces, colors
     return vertices[keep], inverse[faces], (colors[keep] if colors is not None else None)
 
 
-def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the distinct rows of ``a`` in first-occurrence order, and each row's distinct index."""
     a = np.ascontiguousarray(a + 0.0 if a.dtype.kind == "f" else a)  # -0.0 and 0.0 are the same row
     if a.ndim == 2 and a.dtype.itemsize * a.shape[1] == 8:  # e.g. float32 UV pairs: sort one uint64
@@ -516,7 +490,8 @@ def image_to_array(image, max_size: int | None = None) -> np.ndarray:
     return out
 
 
-def _array_to_pil(arr: np.ndarray, max_size: int | None = None):
+def array_to_pil(arr: np.ndarray, max_size: int | None = None):
+    """``(h, w, 3)`` floats in [0, 1] → 8-bit PIL image, shrunk to ``max_size`` (longest side) if given."""
     from PIL import Image
 
     img = Image.fromarray(np.round(np.clip(arr, 0, 1) * 255).astype(np.uint8))
@@ -524,11 +499,6 @@ def _array_to_pil(arr: np.ndarray, max_size: int | None = None):
         s = max_size / max(img.size)
         img = img.resize((max(1, round(img.width * s)), max(1, round(img.height * s))), Image.BOX)
     return img
-
-
-def _baked_image(mat: Material) -> np.ndarray:
-    """The material's texture with its RGB factor multiplied in."""
-    return np.clip(mat.image * np.asarray(mat.base_color, np.float32)[:3], 0.0, 1.0)
 
 
 def _warn(message: str) -> None:
@@ -693,7 +663,7 @@ def _parse_mtl(path, textures: _TextureCache, used=None) -> dict[str, tuple[Mate
             mr_img = np.ones((*shape, 3), np.float32)
             for chan, img in mr.items():
                 if img.shape != shape:
-                    img = image_to_array(_array_to_pil(img).resize(shape[::-1]))[:, :, 0]
+                    img = image_to_array(array_to_pil(img).resize(shape[::-1]))[:, :, 0]
                 mr_img[:, :, chan] = img
             mat.metallic_roughness_image = mr_img
             mat.roughness = 1.0 if 1 in mr else mat.roughness
@@ -1153,261 +1123,3 @@ def _gltf_image_problems(path) -> dict:
         return problems
     except Exception:
         return {}
-
-
-# =============================================================================
-# Writing
-# =============================================================================
-def _split_corners(faces: np.ndarray, face_uvs: np.ndarray):
-    """Give every distinct (vertex, uv) pair its own vertex, as GLB and trimesh need.
-
-    Returns ``(vertex_of (N,), uv (N, 2), new_faces (F, 3))``.
-    """
-    corner_v = faces.reshape(-1).astype(np.int64)
-    corner_uv = np.ascontiguousarray(np.nan_to_num(face_uvs.reshape(-1, 2)).astype(np.float32) + 0.0)
-    key = np.column_stack([corner_v, corner_uv.view(np.int64).reshape(-1)])  # (vertex, uv bits)
-    first, inverse = _unique_rows(key)
-    return corner_v[first], corner_uv[first].astype(np.float64), inverse.reshape(-1, 3)
-
-
-def _prepare_output(path, suffix):
-
-    path = Path(path).expanduser()
-    if path.suffix.lower() != suffix:
-        raise Sin3DMInputError(f"'{path.name}' should end in '{suffix}' (got '{path.suffix or '(none)'}'); "
-                               f"pick a file name like '{path.stem}{suffix}'")
-    if path.is_dir():
-        raise Sin3DMInputError(f"'{path}' is a directory; give a file name")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return path
-
-
-def _safe_name(name: str, used: set) -> str:
-    import re
-
-    base = re.sub(r"[^A-Za-z0-9_.\-]+", "_", str(name or "material")).strip("_") or "material"
-    out, k = base, 1
-    while out in used:
-        out, k = f"{base}_{k}", k + 1
-    used.add(out)
-    return out
-
-
-def save_obj(mesh: TexturedMesh, path) -> Path:
-    """Write ``path`` (.obj) with ``<stem>.mtl`` and the textures as PNGs beside it.
-
-    * positions as ``v`` (plus ``r g b`` when the mesh has vertex colours),
-      per-corner UVs as ``vt`` with their own indices (``f v/vt``), so no
-      vertex is split; faces keep their order (``usemtl`` at each change);
-    * one MTL material per material: ``Kd`` is its colour; a texture is
-      written as ``<stem>.png`` (one textured material) or ``<stem>_<k>.png``
-      with the colour factor multiplied in and ``Kd 1 1 1`` (viewers disagree
-      on whether ``Kd`` tints ``map_Kd``; this way they all agree);
-      ``Pm``/``Pr`` scalars, ``map_Pr``/``map_Pm`` (grey PNGs) and
-      ``map_Bump`` (normal map, as Blender writes it) for PBR materials.
-    Files are written into a temporary folder next to ``path`` and moved into
-    place at the end, so an error leaves no half-written output.
-    ``load_mesh`` on the result gives the same geometry and colours.
-    """
-    import os
-    import shutil
-    import tempfile
-
-    path = _prepare_output(path, ".obj")
-    stem = path.stem
-    textured = [k for k, m in enumerate(mesh.materials) if m.image is not None]
-    tmp = tempfile.mkdtemp(prefix=f".{stem}.tmp", dir=path.parent)
-    try:
-
-        tmpdir = Path(tmp)
-        written = _write_obj_files(mesh, tmpdir, stem, len(textured) == 1)
-        # move images and the .mtl first, the .obj last: it only appears when everything it names exists
-        for name in sorted(written, key=lambda n: n.endswith(".obj")):
-            os.replace(tmpdir / name, path.parent / name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return path
-
-
-def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool) -> list[str]:
-    has_uv_mesh = mesh.face_uvs is not None
-    written = []
-    used_names: set = set()
-    names = [_safe_name(m.name, used_names) for m in mesh.materials]
-
-    # ---- textures and .mtl
-    lines = ["# written by sin3dm-lite", ""]
-    baked: dict = {}  # (image, factor) → file: materials sharing an atlas share its PNG
-    for k, mat in enumerate(mesh.materials):
-        prefix = stem if (single_texture and mat.image is not None) else f"{stem}_{k}"
-        c = np.asarray(mat.base_color, np.float64)
-        alpha = float(c[3]) if len(c) > 3 else 1.0
-        lines.append(f"newmtl {names[k]}")
-        maps = []
-        if mat.image is not None and has_uv_mesh:
-            key = (id(mat.image), tuple(np.asarray(mat.base_color, np.float32)[:3]))
-            if key not in baked:
-                baked[key] = f"{prefix}.png"
-                _array_to_pil(_baked_image(mat)).save(folder / baked[key])
-                written.append(baked[key])
-            maps.append(f"map_Kd {baked[key]}")
-            kd = (1.0, 1.0, 1.0)
-        else:
-            kd = tuple(np.clip(c[:3], 0, 1))
-        roughness, metallic = float(mat.roughness), float(mat.metallic)
-        if mat.metallic_roughness_image is not None and has_uv_mesh:
-            for chan, tag, factor in ((1, "Pr", roughness), (2, "Pm", metallic)):
-                grey = np.clip(mat.metallic_roughness_image[:, :, chan] * factor, 0, 1)
-                fname = f"{prefix}_{'roughness' if chan == 1 else 'metallic'}.png"
-                _array_to_pil(np.repeat(grey[:, :, None], 3, axis=2)).convert("L").save(folder / fname)
-                written.append(fname)
-                maps.append(f"map_{tag} {fname}")
-        if mat.normal_image is not None and has_uv_mesh:
-            fname = f"{prefix}_normal.png"
-            _array_to_pil(mat.normal_image).save(folder / fname)
-            written.append(fname)
-            maps.append(f"map_Bump -bm 1.000000 {fname}")
-        lines += [
-            "Ka 0.000000 0.000000 0.000000",
-            "Kd {:.6f} {:.6f} {:.6f}".format(*kd),
-            "Ks 0.000000 0.000000 0.000000",
-            "Ns 10.000000",
-            f"d {alpha:.6f}",
-            "illum 1",
-            f"Pr {roughness:.6f}",
-            f"Pm {metallic:.6f}",
-            *maps,
-            "",
-        ]
-    (folder / f"{stem}.mtl").write_text("\n".join(lines), encoding="utf-8")
-    written.append(f"{stem}.mtl")
-
-    # ---- .obj
-    faces = np.asarray(mesh.faces, np.int64)
-    fm = np.asarray(mesh.face_material, np.int64)
-    if has_uv_mesh:
-        fuv = np.asarray(mesh.face_uvs, np.float32)
-        face_has_uv = np.isfinite(fuv).all(axis=(1, 2))
-        corner_uv = fuv[face_has_uv].reshape(-1, 2)
-        first, inv = _unique_rows(corner_uv)
-        uv_rows = corner_uv[first]
-        uv_index = np.zeros((len(faces), 3), np.int64)
-        uv_index[face_has_uv] = inv.reshape(-1, 3)
-    else:
-        face_has_uv = np.zeros(len(faces), bool)
-        uv_rows, uv_index = np.zeros((0, 2)), None
-    colors = _baked_vertex_colors(mesh)
-    with open(folder / f"{stem}.obj", "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(f"# written by sin3dm-lite: {len(mesh.vertices)} vertices, {len(faces)} faces\n")
-        fh.write(f"mtllib {stem}.mtl\no {_safe_name(mesh.name, set())}\n")
-        if colors is None:
-            _write_rows(fh, "v %.9g %.9g %.9g\n", mesh.vertices)
-        else:
-            _write_rows(fh, "v %.9g %.9g %.9g %.6f %.6f %.6f\n", np.hstack([mesh.vertices, colors]))
-        if len(uv_rows) and face_has_uv.any():
-            _write_rows(fh, "vt %.9g %.9g\n", uv_rows)
-        # runs of faces with the same material and the same has-uv flag, in the original order
-        change = np.flatnonzero((np.diff(fm) != 0) | (np.diff(face_has_uv.astype(np.int8)) != 0)) + 1
-        starts, ends = np.r_[0, change], np.r_[change, len(faces)]
-        last = None
-        for a, b in zip(starts, ends):
-            if fm[a] != last:
-                fh.write(f"usemtl {names[fm[a]]}\n")
-                last = fm[a]
-            if face_has_uv[a]:
-                block = np.stack([faces[a:b] + 1, uv_index[a:b] + 1], axis=2).reshape(b - a, 6)
-                _write_rows(fh, "f %d/%d %d/%d %d/%d\n", block)
-            else:
-                _write_rows(fh, "f %d %d %d\n", faces[a:b] + 1)
-    written.append(f"{stem}.obj")
-    return written
-
-
-def _write_rows(fh, row_format: str, array: np.ndarray, chunk: int = 65536) -> None:
-    """Write every row of ``array`` with ``row_format`` (much faster than ``np.savetxt``)."""
-    values = array.tolist()
-    for start in range(0, len(values), chunk):
-        part = values[start : start + chunk]
-        fh.write((row_format * len(part)) % tuple(x for row in part for x in row))
-
-
-def _baked_vertex_colors(mesh: TexturedMesh) -> np.ndarray | None:
-    """Vertex colours times the factor of the (untextured) material that uses each vertex.
-
-    OBJ vertex colours replace ``Kd`` when read back, so the factor goes into
-    the colours (exact unless one vertex is shared by materials with different
-    factors; the first such material wins).
-    """
-    if mesh.vertex_colors is None:
-        return None
-    factor = np.ones((len(mesh.vertices), 3), np.float32)
-    for k in reversed(range(len(mesh.materials))):  # reversed: lower material index wins
-        mat = mesh.materials[k]
-        if mat.image is None or mesh.face_uvs is None:
-            idx = np.unique(mesh.faces[mesh.face_material == k])
-            factor[idx] = np.asarray(mat.base_color, np.float32)[:3]
-    return np.clip(mesh.vertex_colors * factor, 0, 1)
-
-
-def save_glb(mesh: TexturedMesh, path) -> Path:
-    """Write a binary glTF: one primitive per material, PBR metallic-roughness.
-
-    A textured material becomes ``baseColorTexture`` (+ ``baseColorFactor``,
-    ``metallicRoughnessTexture``, ``normalTexture``, metallic and roughness
-    factors) with vertices split where a vertex has several UVs; an untextured
-    material with vertex colours becomes ``COLOR_0`` (factor multiplied in);
-    otherwise a plain ``baseColorFactor``. Written to a temporary file and
-    renamed, so an error leaves no half-written file. Readable by
-    :func:`load_mesh`, trimesh, Blender and web viewers.
-    """
-    import trimesh
-    from trimesh.visual.material import PBRMaterial
-
-    path = _prepare_output(path, ".glb")
-    scene = trimesh.Scene()
-    used_names: set = set()
-    for k, mat in enumerate(mesh.materials):
-        sel = np.flatnonzero(mesh.face_material == k)
-        if len(sel) == 0:
-            continue
-        faces = mesh.faces[sel]
-        gname = _safe_name(f"{mesh.name}_{mat.name}", used_names)
-        has_maps = any(x is not None for x in (mat.image, mat.metallic_roughness_image, mat.normal_image))
-
-        def pil(a):
-            return None if a is None else _array_to_pil(a)
-
-        factor = np.round(np.clip(np.asarray(mat.base_color, np.float64), 0, 1) * 255).astype(np.uint8)
-        if len(factor) == 3:
-            factor = np.r_[factor, 255].astype(np.uint8)
-        if has_maps and mesh.face_uvs is not None:
-            vert_of, uv, new_faces = _split_corners(faces, mesh.face_uvs[sel])
-            pbr = PBRMaterial(
-                name=mat.name,
-                baseColorTexture=pil(mat.image),
-                baseColorFactor=factor,  # uint8 on purpose: trimesh reads a list of ints as 0..255
-                metallicFactor=float(mat.metallic),
-                roughnessFactor=float(mat.roughness),
-                metallicRoughnessTexture=pil(mat.metallic_roughness_image),
-                normalTexture=pil(mat.normal_image),
-            )
-            geom = trimesh.Trimesh(mesh.vertices[vert_of], new_faces,
-                                   visual=trimesh.visual.TextureVisuals(uv=uv, material=pbr), process=False)
-        else:
-            used, new_faces = np.unique(faces, return_inverse=True)
-            new_faces = new_faces.reshape(-1, 3)
-            if mesh.vertex_colors is not None:
-                col = np.clip(mesh.vertex_colors[used] * np.asarray(mat.base_color, np.float32)[:3], 0, 1)
-                rgba = np.column_stack([np.round(col * 255), np.full(len(col), factor[3])]).astype(np.uint8)
-                geom = trimesh.Trimesh(mesh.vertices[used], new_faces, vertex_colors=rgba, process=False)
-            else:
-                pbr = PBRMaterial(name=mat.name, baseColorFactor=factor, metallicFactor=float(mat.metallic),
-                                  roughnessFactor=float(mat.roughness))
-                geom = trimesh.Trimesh(mesh.vertices[used], new_faces,
-                                       visual=trimesh.visual.TextureVisuals(material=pbr), process=False)
-        scene.add_geometry(geom, geom_name=gname, node_name=gname)
-    if not scene.geometry:
-        raise Sin3DMInputError(f"mesh '{mesh.name}' has no faces to write")
-    data = scene.export(file_type="glb")
-    atomic_write(path, data)
-    return path

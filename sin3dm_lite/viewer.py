@@ -31,8 +31,9 @@ from typing import Sequence
 import k3d
 import numpy as np
 
+from .export import baked_image, split_corners
 from .files import atomic_write
-from .mesh_io import TexturedMesh, _baked_image, _split_corners, _unique_rows
+from .mesh_io import TexturedMesh, unique_rows
 
 UP_AXES = ("y", "z")
 
@@ -96,8 +97,8 @@ def _texture_arrays(mesh: TexturedMesh):
     mat = mesh.materials[int(used[0])]
     if mat.image is None or not np.isfinite(mesh.face_uvs).all():
         return None
-    vertex_of, uvs, faces = _split_corners(np.asarray(mesh.faces), np.asarray(mesh.face_uvs))
-    return np.asarray(mesh.vertices)[vertex_of], faces, uvs, _baked_image(mat)[..., :3]
+    vertex_of, uvs, faces = split_corners(np.asarray(mesh.faces), np.asarray(mesh.face_uvs))
+    return np.asarray(mesh.vertices)[vertex_of], faces, uvs, baked_image(mat)[..., :3]
 
 
 def _color_arrays(mesh: TexturedMesh):
@@ -107,7 +108,7 @@ def _color_arrays(mesh: TexturedMesh):
     bc = np.tile(np.eye(3), (n_faces, 1))
     packed = pack_colors(mesh.colors_at(fi, bc))
     corner_vertex = np.asarray(mesh.faces, np.int64).reshape(-1)
-    first, inverse = _unique_rows(np.column_stack([corner_vertex, packed.astype(np.int64)]))
+    first, inverse = unique_rows(np.column_stack([corner_vertex, packed.astype(np.int64)]))
     return np.asarray(mesh.vertices)[corner_vertex[first]], inverse.reshape(-1, 3), packed[first].astype(np.uint32)
 
 

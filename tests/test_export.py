@@ -1,10 +1,12 @@
-"""Extracted meshes written to OBJ+MTL+PNG and GLB, read back with trimesh."""
+"""Extracted meshes written to OBJ+MTL+PNG and GLB, read back with trimesh; files.atomic_folder."""
+import os
+
 import numpy as np
 import pytest
 import trimesh
 
+from sin3dm_lite import export
 from sin3dm_lite import extract as ex
-from sin3dm_lite import mesh_io
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.export import export_mesh
 from sin3dm_lite.mesh_io import Normalization
@@ -55,7 +57,7 @@ def test_failed_export_leaves_no_output_folder(sphere_mesh, tmp_path, monkeypatc
         path.write_bytes(b"half a file")
         raise OSError("disk full")
 
-    monkeypatch.setattr(mesh_io, "save_glb", broken)
+    monkeypatch.setattr(export, "save_glb", broken)
     with pytest.raises(OSError, match="disk full"):
         export_mesh(sphere_mesh, tmp_path / "out")
     assert list(tmp_path.iterdir()) == []
@@ -78,3 +80,28 @@ def test_bad_format_and_name_are_clear_errors(sphere_mesh, tmp_path):
     with pytest.raises(Sin3DMInputError, match="plain file name"):
         export_mesh(sphere_mesh, tmp_path / "x", name="a/b")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_atomic_folder_cleans_up_after_errors_and_killed_writers(tmp_path):
+    import subprocess
+    import sys
+
+    from sin3dm_lite.files import TEMP_PREFIX, atomic_folder
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    out = tmp_path / "out"
+    out.mkdir()
+    stale = out / f"{TEMP_PREFIX}{int(dead.stdout)}-abc"  # what a killed writer leaves behind
+    stale.mkdir()
+    (stale / "half.obj").write_text("v 0 0")
+    with pytest.raises(OSError, match="disk full"):
+        with atomic_folder(out) as tmp:
+            assert tmp.parent == out and tmp.name.startswith(f"{TEMP_PREFIX}{os.getpid()}-")
+            (tmp / "a.mtl").write_text("newmtl a")
+            raise OSError("disk full")
+    assert list(out.iterdir()) == []  # the stale folder went first, the failed one after
+    new = tmp_path / "new"
+    with atomic_folder(new) as tmp:
+        assert tmp.parent == tmp_path  # beside a folder that does not exist yet: it appears in one rename
+        (tmp / "a.obj").write_text("# a")
+    assert [p.name for p in new.iterdir()] == ["a.obj"] and sorted(p.name for p in tmp_path.iterdir()) == ["new", "out"]

@@ -1,4 +1,4 @@
-"""Tests of sin3dm_lite.mesh_io: loaders, writers, bad input, normalisation.
+"""Tests of sin3dm_lite.mesh_io (loaders, bad input, normalisation) and round trips through export's writers.
 
 Every input is written on the fly into ``tmp_path`` (no binary fixtures).
 The texture used throughout has four coloured quadrants so that a lookup can
@@ -18,8 +18,9 @@ import trimesh
 from PIL import Image
 from trimesh.visual.material import PBRMaterial
 
-from sin3dm_lite import mesh_io
+from sin3dm_lite import export, mesh_io
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.export import save_glb, save_obj, to_trimesh
 from sin3dm_lite.mesh_io import (
     DEFAULT_COLOR,
     Material,
@@ -27,8 +28,6 @@ from sin3dm_lite.mesh_io import (
     load_any,
     load_mesh,
     sample_texture,
-    save_glb,
-    save_obj,
 )
 
 RED, GREEN, BLUE, YELLOW = (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)
@@ -284,6 +283,35 @@ def test_obj_uv_scale_option(tmp_path):
                                     "usemtl m\nf 1/1 2/2 3/3\n")
     mesh = load_mesh(tmp_path / "s.obj")
     np.testing.assert_allclose(mesh.face_uvs[0], [[0, 0], [0.5, 0], [0, 0.5]])
+
+
+def test_obj_reader_keeps_what_trimesh_loses(tmp_path):
+    """Why ``load_mesh`` parses OBJ/MTL itself instead of using ``trimesh.load`` (checked with trimesh 4.x/5.x).
+
+    trimesh (1) returns the faces grouped by material, so interleaved ``usemtl`` runs lose the
+    file's face order (with ``group_material=False, maintain_order=True`` a run even gets another
+    run's face), (2) silently drops a ``map_Kd`` that has options (``-s 0.5 0.5 b.png``): the
+    texture is lost, not just its scale, and (3) says nothing about a missing texture. It also
+    decodes the textures of unused materials, crashes on partial vertex colours and names no line
+    in its errors (see the other OBJ tests). This test fails if ``load_mesh`` hands OBJ to trimesh.
+    """
+    save_png(tmp_path / "a.png", quadrant_image())
+    save_png(tmp_path / "b.png", quadrant_image(CYAN, MAGENTA, MAGENTA, CYAN))
+    (tmp_path / "m.mtl").write_text("newmtl A\nmap_Kd a.png\nnewmtl B\nmap_Kd -s 0.5 0.5 b.png\n"
+                                    "newmtl C\nKd 0 1 0\nmap_Kd gone.png\n")
+    (tmp_path / "m.obj").write_text(
+        "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "usemtl A\nf 1/1 2/2 3/3\nusemtl B\nf 2/1 5/2 6/3\nusemtl A\nf 1/1 3/3 4/4\nusemtl C\nf 3 6 4\n")
+    with pytest.warns(UserWarning, match="gone.png"):  # (3)
+        mesh = load_mesh(tmp_path / "m.obj")
+    assert [m.name for m in mesh.materials] == ["A", "B", "C"]
+    np.testing.assert_array_equal(mesh.face_material, [0, 1, 0, 2])  # (1) the file's face order
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [1, 4, 5], [0, 2, 3], [2, 5, 3]])
+    assert mesh.materials[1].image is not None  # (2) the texture with options is kept ...
+    np.testing.assert_allclose(mesh.face_uvs[1], [[0, 0], [0.5, 0], [0.5, 0.5]])  # ... and so is its scale
+    np.testing.assert_allclose(lookup(mesh, 1, (0.8, 0.1, 0.1)), MAGENTA, atol=1e-6)  # b.png at uv (0.1, 0.05)
+    np.testing.assert_allclose(lookup(mesh, 3, (1 / 3, 1 / 3, 1 / 3)), (0, 1, 0))  # C falls back to its Kd
 
 
 # ====================================================================== glTF
@@ -677,7 +705,7 @@ def test_save_obj_failure_leaves_nothing(tmp_path, monkeypatch):
     def boom(*a, **k):
         raise OSError("disk full")
 
-    monkeypatch.setattr(mesh_io, "_baked_vertex_colors", boom)  # fails after the PNG and MTL are written
+    monkeypatch.setattr(export, "_baked_vertex_colors", boom)  # fails after the PNG and MTL are written
     with pytest.raises(OSError, match="disk full"):
         save_obj(mesh, out_dir / "x.obj")
     assert list(out_dir.iterdir()) == []
@@ -736,10 +764,10 @@ def test_to_trimesh_texture_and_colors(tmp_path):
     (tmp_path / "t.mtl").write_text("newmtl m\nmap_Kd t.png\n")
     (tmp_path / "t.obj").write_text("mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
                                     "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
-    tm = load_mesh(tmp_path / "t.obj").to_trimesh()
+    tm = to_trimesh(load_mesh(tmp_path / "t.obj"))
     assert isinstance(tm.visual, trimesh.visual.TextureVisuals)
     assert tm.visual.uv.shape == (4, 2) and tm.visual.material.image.size == (16, 16)
-    sq = load_mesh(write_square(tmp_path)).to_trimesh()  # two materials: vertex colours
+    sq = to_trimesh(load_mesh(write_square(tmp_path)))  # two materials: vertex colours
     assert sq.visual.kind == "vertex" and len(sq.vertices) == 18
 
 
