@@ -96,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("sample", help="generate textured meshes from a fitted run folder")
     _sample_args(s)
-    s.add_argument("run", help="run folder written by `sin3dm-lite fit`")
+    s.add_argument("run", help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon)")
     s.add_argument("--out", required=True, help="output folder (new or empty; see --overwrite)")
 
     d = sub.add_parser("demo", help="the whole method on the default example: load (or --train), sample, export")
@@ -108,8 +108,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
     s.add_argument("-n", type=_positive_int, default=n_default, help="number of samples")
-    s.add_argument("--resize", nargs=3, type=_positive_float, metavar=("SX", "SY", "SZ"), default=None,
-                   help="retarget: scale factors of the x, y, z size")
+    ctl = s.add_argument_group("controlled generation (one at a time; boxes are fractions 0-1 of the model's box "
+                               "along x, y, z)").add_mutually_exclusive_group()
+    ctl.add_argument("--resize", nargs=3, type=_positive_float, metavar=("SX", "SY", "SZ"), default=None,
+                     help="retarget: scale factors of the x, y, z size")
+    ctl.add_argument("--outpaint", nargs=3, type=_positive_float, metavar=("SX", "SY", "SZ"), default=None,
+                     help="grow the box by these factors (each >= 1), keep the input, generate the rest")
+    ctl.add_argument("--regenerate", nargs=6, type=_float, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"), default=None,
+                     help="resample this box, keep everything else (the box must reach the faces along one axis)")
+    ctl.add_argument("--duplicate", nargs=9, type=_float, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1", "TX", "TY", "TZ"),
+                     default=None, help="copy this box so its low corner lands at TX TY TZ; generate around both copies")
+    s.add_argument("--anchor", default="center", choices=["center", "x-", "x+", "y-", "y+", "z-", "z+"],
+                   help="with --outpaint: where the input stays (the centre, or the face it sticks to)")
     s.add_argument("--diversity", type=_unit_float, default=None,
                    help="0 = the input, 1 = from pure noise (the paper; default: the run's setting); "
                         "lower values keep more of the input's layout")
@@ -123,6 +133,16 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
     s.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     s.add_argument("--overwrite", action="store_true",
                    help="write into a non-empty --out, replacing only the files sin3dm-lite wrote there before")
+
+
+def _float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
+    return v
 
 
 def _seed(text: str) -> int:
@@ -233,6 +253,17 @@ def check_sample_output(out: Path, a, protected: dict) -> None:
     check_writable(out)
 
 
+def control_args(a) -> dict:
+    """The ``Sin3DM.plan`` arguments of the controlled-generation flags."""
+    if a.outpaint:
+        return {"outpaint": tuple(a.outpaint), "anchor": a.anchor}
+    if a.regenerate:
+        return {"regenerate": (tuple(a.regenerate[:3]), tuple(a.regenerate[3:]))}
+    if a.duplicate:
+        return {"duplicate": ((tuple(a.duplicate[:3]), tuple(a.duplicate[3:6])), tuple(a.duplicate[6:]))}
+    return {"resize": tuple(a.resize) if a.resize else (1.0, 1.0, 1.0)}
+
+
 def write_samples(model, out: Path, a, label: str = "sample") -> Path:
     """Sample, decode and export into ``out``.
 
@@ -246,18 +277,18 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
     from .viewer import gallery, save_html
 
     out = Path(out)
-    resize = tuple(a.resize) if a.resize else (1.0, 1.0, 1.0)
-    limit = model.max_samples(resize)
+    plan = model.plan(**control_args(a))  # a bad box fails here, before anything is written
+    limit = model.max_samples(tuple(r / b for r, b in zip(plan.resolution, model.latent.resolution)))
     if a.n > limit:
         raise Sin3DMInputError(f"-n {a.n} is more samples than fit in memory at once here (at most {limit} with this "
-                               f"model{' and --resize' if a.resize else ''}); ask for fewer and run again with another --seed")
+                               f"model and size); ask for fewer and run again with another --seed")
     check_sample_output(out, a, {})
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temps(out.parent)  # left by a killed run
     tmp = make_temp_dir(out.parent)  # before the long work: the location must be writable
     try:
         t0 = time.perf_counter()
-        samples = model.sample(a.n, resize=resize, steps=a.steps, method="ddpm" if a.ddpm else None, seed=a.seed,
+        samples = model.sample(a.n, plan=plan, steps=a.steps, method="ddpm" if a.ddpm else None, seed=a.seed,
                                diversity=a.diversity)
         meshes = []
         for i in range(len(samples)):
@@ -277,9 +308,14 @@ def cmd_sample(a) -> None:
 
     from .device import get_device
 
+    from .pretrained import shipped_model, shipped_names
+
     run = Path(a.run)
     if not run.is_dir():
-        raise Sin3DMInputError(f"run folder '{run}' not found; fit one first with `sin3dm-lite fit MESH --out {run}`")
+        run = shipped_model(a.run)
+        if run is None:
+            raise Sin3DMInputError(f"run folder '{a.run}' not found; fit one first with `sin3dm-lite fit MESH --out "
+                                   f"{a.run}`, or name a shipped model ({', '.join(shipped_names())})")
     get_device(a.device)
     check_sample_output(Path(a.out), a, {"run folder": run})
     model = Sin3DM.load(run, device=a.device)

@@ -79,13 +79,17 @@ class Plan:
 
 
 # ----------------------------------------------------------------------------- checks
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{float(x):g}" for x in np.ravel(v)) + ")"
+
+
 def _factors(factors, what: str, at_least: float = 0.0) -> np.ndarray:
     f = np.broadcast_to(np.asarray(factors, dtype=np.float64), (3,)).copy()
     if not np.all(np.isfinite(f)) or np.any(f <= 0) or np.any(f > 8):
-        raise Sin3DMInputError(f"{what} factors must be positive numbers up to 8, got {tuple(f)}")
+        raise Sin3DMInputError(f"{what} factors must be positive numbers up to 8, got {_fmt(f)}")
     if np.any(f < at_least):
         raise Sin3DMInputError(f"{what} factors must be at least {at_least:g} (outpainting grows the box; use "
-                               f"--resize to shrink), got {tuple(f)}")
+                               f"--resize to shrink), got {_fmt(f)}")
     return f
 
 
@@ -101,20 +105,23 @@ def _box(box, res, what: str) -> list[tuple[int, int]]:
     except (TypeError, ValueError):
         raise Sin3DMInputError(f"{what} must be two corners (x0, y0, z0), (x1, y1, z1), got {box!r}") from None
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(lo < 0) or np.any(hi > 1):
-        raise Sin3DMInputError(f"{what} corners must be fractions of the model's box in [0, 1], got "
-                               f"{tuple(lo)} to {tuple(hi)}")
+        raise Sin3DMInputError(f"the corners of {what} must be fractions of the model's box in [0, 1], got "
+                               f"{_fmt(lo)} to {_fmt(hi)}")
     ranges = [texel_range(a, b, n) for a, b, n in zip(lo, hi, res)]
-    empty = [ax for ax, (a, b) in zip("xyz", ranges) if b - a < 1]
+    empty = [(ax, n) for ax, (a, b), n in zip("xyz", ranges, res) if b - a < 1]
     if empty:
-        raise Sin3DMInputError(f"{what} {tuple(lo)} to {tuple(hi)} is empty along {', '.join(empty)} at this "
-                               f"latent's {res[0]}×{res[1]}×{res[2]} texels; make it larger (max > min by at least "
-                               f"1/{min(res)})")
+        raise Sin3DMInputError(f"{what} {_fmt(lo)} to {_fmt(hi)} is empty along {', '.join(ax for ax, _ in empty)} at "
+                               f"this latent's {res[0]}×{res[1]}×{res[2]} texels; make it larger (at least "
+                               f"{', '.join(f'1/{n} along {ax}' for ax, n in empty)})")
     return ranges
 
 
 # ----------------------------------------------------------------------------- masks
 def _profile(n: int, a: int, b: int, border: float, ramp_lo: bool = True, ramp_hi: bool = True) -> np.ndarray:
-    """1 on texels ``[a, b)``, ramping linearly to 0 over ``border`` texels inside each end that has a ramp, 0 outside."""
+    """1 on texels ``[a, b)``, ramping linearly to 0 over ``border`` texels inside each end that has a ramp, 0 outside.
+
+    A part narrower than two borders gets a narrower ramp, so its middle texel(s) are still kept whole.
+    """
     k = np.arange(n) + 0.5
     v = np.zeros(n)
     inside = (k > a) & (k < b)
@@ -123,6 +130,8 @@ def _profile(n: int, a: int, b: int, border: float, ramp_lo: bool = True, ramp_h
         d = np.minimum(d, k - a)
     if border > 0 and ramp_hi:
         d = np.minimum(d, b - k)
+    if inside.any():
+        border = min(border, float(d[inside].max()))  # a narrow part keeps at least its middle texel(s) whole
     v[inside] = np.clip(d[inside] / border, 0, 1) if border > 0 else 1.0
     return v
 
@@ -249,11 +258,11 @@ def duplicate(latent: Triplane, aabb, box, to, border: float = BORDER) -> Plan:
     except (TypeError, ValueError):
         raise Sin3DMInputError(f"the place to copy to must be a corner (x, y, z), got {to!r}") from None
     if not np.all(np.isfinite(to)) or np.any(to < 0):
-        raise Sin3DMInputError(f"the place to copy to must be fractions of the model's box in [0, 1], got {tuple(to)}")
+        raise Sin3DMInputError(f"the place to copy to must be fractions of the model's box in [0, 1], got {_fmt(to)}")
     dst = [(int(round(t * n)), int(round(t * n)) + (b - a)) for t, n, (a, b) in zip(to, res, src)]
     over = [ax for ax, (a, b), n in zip("xyz", dst, res) if b > n]
     if over:
-        raise Sin3DMInputError(f"the copy of the box does not fit when its low corner is at {tuple(to)}: it leaves "
+        raise Sin3DMInputError(f"the copy of the box does not fit when its low corner is at {_fmt(to)}: it leaves "
                                f"the model's box along {', '.join(over)}; move it or make the box smaller")
     if all(d[0] < s[1] and s[0] < d[1] for d, s in zip(dst, src)):
         raise Sin3DMInputError("the copy overlaps the box it copies; move it further away")

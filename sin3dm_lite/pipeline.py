@@ -310,7 +310,8 @@ class Sin3DM:
         these at a time; ``plan`` takes a :class:`control.Plan` made by hand.
         ``known``/``mask`` fix part of the latent directly (same size as the samples).
 
-        ``diversity`` (default: the config's, 1.0) trades variation for
+        ``diversity`` (default: the config's for plain and resized samples, 1 for
+        outpainting, editing and duplication) trades variation for
         fidelity, the limitation the paper names: 1 samples from pure noise;
         below 1 sampling starts from the input's latent with that share of
         noise (a resized sample starts from the input's latent stretched to
@@ -318,29 +319,11 @@ class Sin3DM:
         layout stays and only what the noise erased is regenerated; 0 gives
         the input (or the known latent) back. The result's ``plan`` says what was sampled.
         """
-        from . import control
         from .diffusion import sample as diffusion_sample, start_step
 
         if n < 1:
             raise Sin3DMInputError(f"number of samples must be at least 1, got {n}")
-        resized = np.any(np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,)) != 1.0)
-        asked = [k for k, v in (("resize", resized or None), ("outpaint", outpaint), ("regenerate", regenerate),
-                                ("duplicate", duplicate), ("plan", plan)) if v is not None]
-        if len(asked) > 1:
-            raise Sin3DMInputError(f"one control at a time: got {' and '.join(asked)}")
-        if plan is None:
-            if outpaint is not None:
-                plan = control.outpaint(self.latent, self.aabb, outpaint, anchor)
-            elif regenerate is not None:
-                plan = control.regenerate(self.latent, self.aabb, regenerate)
-            elif duplicate is not None:
-                try:
-                    box, to = duplicate
-                except (TypeError, ValueError):
-                    raise Sin3DMInputError("duplicate takes (box, to): ((x0, y0, z0), (x1, y1, z1)) and (tx, ty, tz)") from None
-                plan = control.duplicate(self.latent, self.aabb, box, to)
-            else:
-                plan = control.retarget(self.latent, self.aabb, resize)
+        plan = self.plan(resize, outpaint, anchor, regenerate, duplicate, plan)
         if plan.known is not None and known is not None:
             raise Sin3DMInputError(f"{plan.kind} chooses what to keep itself; do not pass known/mask with it")
         known, mask = (plan.known, plan.mask) if plan.known is not None else (known, mask)
@@ -350,7 +333,8 @@ class Sin3DM:
             raise Sin3DMInputError(f"{n} samples do not fit in memory at once here (at most {limit} with "
                                    "this model and size); draw them in several calls with other seeds")
         s = self.config.sampling
-        diversity = s.diversity if diversity is None else diversity
+        if diversity is None:  # the run's setting; controlled generation regenerates from pure noise as in the paper
+            diversity = s.diversity if plan.known is None else 1.0
         t0 = start_step(self.schedule, diversity)  # checks the value
         out = diffusion_sample(
             self.denoiser,
@@ -372,6 +356,30 @@ class Sin3DM:
         )
         tp, inter = out if return_intermediates is not None else (out, None)
         return Samples(tp, plan.aabb, inter, plan)
+
+    def plan(self, resize=(1.0, 1.0, 1.0), outpaint=None, anchor: str = "center", regenerate=None, duplicate=None,
+             plan=None):
+        """The :class:`control.Plan` that :meth:`sample` carries out for these arguments (checked: one clear error)."""
+        from . import control
+
+        resized = np.any(np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,)) != 1.0)
+        asked = [k for k, v in (("resize", resized or None), ("outpaint", outpaint), ("regenerate", regenerate),
+                                ("duplicate", duplicate), ("plan", plan)) if v is not None]
+        if len(asked) > 1:
+            raise Sin3DMInputError(f"one control at a time: got {' and '.join(asked)}")
+        if plan is not None:
+            return plan
+        if outpaint is not None:
+            return control.outpaint(self.latent, self.aabb, outpaint, anchor)
+        if regenerate is not None:
+            return control.regenerate(self.latent, self.aabb, regenerate)
+        if duplicate is not None:
+            try:
+                box, to = duplicate
+            except (TypeError, ValueError):
+                raise Sin3DMInputError("duplicate takes (box, to): ((x0, y0, z0), (x1, y1, z1)) and (tx, ty, tz)") from None
+            return control.duplicate(self.latent, self.aabb, box, to)
+        return control.retarget(self.latent, self.aabb, resize)
 
     def max_samples(self, resize=(1.0, 1.0, 1.0)) -> int:
         """How many samples one :meth:`sample` call can hold: the denoiser keeps about 16 feature maps of its

@@ -23,3 +23,16 @@ def pretrained_path(name: str = "default") -> Path:
             f"the shipped model '{folder.name}' is missing from this install; run `sin3dm-lite demo --train` to fit one"
         )
     return folder
+
+
+def shipped_names() -> list[str]:
+    """Names of the shipped run folders (``canyon_small``, ...)."""
+    return sorted(p.name for p in DATA.iterdir() if (p / "model.pt").is_file())
+
+
+def shipped_model(name: str) -> Path | None:
+    """The shipped run folder called ``name``, or that of the example ``name`` (``canyon`` → ``canyon_small``); None if none."""
+    for candidate in (name, f"{name}_small"):
+        if "/" not in candidate and (DATA / candidate / "model.pt").is_file():
+            return DATA / candidate
+    return None
