@@ -189,7 +189,7 @@ def _anchor_offset(anchor: str, base, res) -> np.ndarray:
     return off
 
 
-def outpaint(latent: Triplane, aabb, factors, anchor: str = "center", border: float = BORDER) -> Plan:
+def outpaint(latent: Triplane, aabb, factors, anchor: str = "center", border: float = BORDER, trim: int = 0) -> Plan:
     """A box ``factors`` (each ≥ 1) times the input's, the input kept where it was, the rest generated.
 
     ``anchor`` says where the input sits in the larger box: ``"center"``, or
@@ -198,6 +198,11 @@ def outpaint(latent: Triplane, aabb, factors, anchor: str = "center", border: fl
     result's box extends the input's box. The paper sets ``y0`` to the input's
     latent padded by zeros; here the padding repeats the input's edge texels,
     which only matters for ``start`` (the knob below 1), never where the mask keeps.
+
+    ``trim`` texels of the input are not kept on each side that grows: the
+    model's box holds a few voxels of empty margin around the shape (and the
+    shape's cut face); kept, they would separate the input from what grows
+    out of it by a crack. ``Sin3DM.plan`` trims the margin of the run's preset.
     """
     f = _factors(factors, "outpaint", at_least=1.0)
     base = np.array(latent.resolution)
@@ -210,8 +215,15 @@ def outpaint(latent: Triplane, aabb, factors, anchor: str = "center", border: fl
         # F.pad takes the last dimension first: (b_lo, b_hi, a_lo, a_hi); "replicate" repeats the edge texels
         planes.append(torch.nn.functional.pad(p, (*pads[b], *pads[a]), mode="replicate"))
     known = Triplane(*planes)
-    profiles = [_profile(r, o, o + n, border, ramp_lo=o > 0, ramp_hi=o + n < r) for r, o, n in zip(res, off, base)]
-    request = {"factors": tuple(float(x) for x in f), "anchor": anchor}
+    profiles = []
+    for r, o, n in zip(res, off, base):
+        lo = o + trim if o > 0 else o  # a side that grows gives up its margin
+        hi = o + n - trim if o + n < r else o + n
+        if hi - lo < 1:
+            raise Sin3DMInputError(f"nothing of the input is left to keep after trimming {trim} texels of margin; "
+                                   "the latent is too small to outpaint")
+        profiles.append(_profile(r, lo, hi, border, ramp_lo=o > 0, ramp_hi=o + n < r))
+    request = {"factors": tuple(float(x) for x in f), "anchor": anchor, "trim": trim}
     return Plan("outpaint", res, _box_aabb(aabb, base, -off, res), known, known, _mask(profiles), request)
 
 

@@ -370,7 +370,9 @@ class Sin3DM:
         if plan is not None:
             return plan
         if outpaint is not None:
-            return control.outpaint(self.latent, self.aabb, outpaint, anchor)
+            # the margin of empty voxels around the shape (half as many texels), and the shape's cut face
+            trim = int(np.ceil(self.config.grid.margin_voxels / 2)) + 1
+            return control.outpaint(self.latent, self.aabb, outpaint, anchor, trim=trim)
         if regenerate is not None:
             return control.regenerate(self.latent, self.aabb, regenerate)
         if duplicate is not None:

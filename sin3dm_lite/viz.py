@@ -612,6 +612,79 @@ def plot_diversity_curve(values: Sequence[float], rows: Sequence[dict], goals: d
     return fig
 
 
+def plot_plan(plan, samples=None, batch: int = 0, title: str | None = None) -> Figure:
+    """A controlled-generation request (``control.Plan``) on the three planes, and what the sampler made of it.
+
+    Top row: the latent the request starts from (the known latent, or for a
+    retarget the input's latent stretched), in PCA colours, with the part the
+    sampler generates tinted red (by ``1 - mask``; the ramp is the blend
+    border). Bottom row (with ``samples``): the sample ``batch``, with the
+    same tint's outline. Colours use the top row's PCA basis, so kept texels
+    look the same in both rows.
+    """
+    top = plan.known if plan.known is not None else plan.start
+    rows = [("request", top)] + ([("sample", samples.triplane)] if samples is not None else [])
+    x, y, z = plan.resolution
+    widths, heights = [x, x, y], [y, z, z]
+    scale = 9.0 / sum(widths)
+    fig = _figure(9.5, (max(heights) * scale + 0.6) * len(rows) + 0.3)
+    panels = fig.subplots(len(rows), 3, squeeze=False, gridspec_kw={"width_ratios": widths})
+    bases = []
+    for c, name in enumerate(PLANES):
+        p0 = _numpy(getattr(top, name)[0])
+        bases.append(pca_basis(p0))
+    for r, (label, tp) in enumerate(rows):
+        for c, name in enumerate(PLANES):
+            ax = panels[r, c]
+            plane = _numpy(getattr(tp, name)[batch if label == "sample" else 0])
+            _show(ax, pca_project(plane, *bases[c]))
+            if plan.mask is not None:
+                free = 1 - _numpy(getattr(plan.mask, name)[0, 0])
+                if label == "request":
+                    tint = np.zeros((*free.shape, 4))
+                    tint[..., 0], tint[..., 3] = 1.0, 0.6 * free
+                    _show(ax, tint)
+                elif 0 < free.max():
+                    ax.contour(np.arange(free.shape[0]), np.arange(free.shape[1]), free.T, levels=[0.5],
+                               colors="r", linewidths=1.0)
+            u, v = PLANE_AXES[name]
+            ax.set_title(f"{label}: {name}", fontsize=9)
+            ax.set_xlabel(AXES[u], fontsize=8)
+            ax.set_ylabel(AXES[v], fontsize=8)
+            ax.tick_params(labelsize=7)
+    fig.suptitle(title or f"{plan.kind}: red = generated, clear = kept from the input", fontsize=10)
+    return fig
+
+
+def plot_projections(grids: Sequence[np.ndarray], titles: Sequence[str] | None = None, up: str = "y") -> Figure:
+    """Occupancy grids seen from the front and from above: how many voxels are filled along each ray.
+
+    A static picture of decoded shapes (e.g. from ``Sin3DM.occupancy``) that
+    needs no 3D viewer. With ``up="y"`` the front view looks along z (x →,
+    y ↑) and the top view along y (x →, z ↑). Grids of different sizes keep
+    their relative sizes.
+    """
+    grids = [_numpy(g) for g in grids]
+    ui = _axis_index(up)
+    depth = 3 - 0 - ui if ui != 0 else 2  # the front view looks along the axis that is neither x nor up
+    n = len(grids)
+    widths = [g.shape[0] for g in grids]
+    fig = _figure(min(2.6 * n, 12), 4.2)
+    panels = fig.subplots(2, n, squeeze=False, gridspec_kw={"width_ratios": widths})
+    for j, g in enumerate(grids):
+        front = g.sum(axis=depth)  # (x, up)
+        top = g.sum(axis=ui)  # (x, the other)
+        _show(panels[0, j], front, cmap="bone")
+        _show(panels[1, j], top, cmap="terrain")
+        panels[0, j].set_title(titles[j] if titles else f"{j}", fontsize=9)
+        for ax in panels[:, j]:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    panels[0, 0].set_ylabel(f"front ({AXES[ui]} up)", fontsize=8)
+    panels[1, 0].set_ylabel(f"top ({AXES[depth]} up)", fontsize=8)
+    return fig
+
+
 def _as_float_image(image: np.ndarray) -> np.ndarray:
     img = _numpy(image)
     if img.dtype == np.uint8:
