@@ -255,13 +255,17 @@ def regenerate(latent: Triplane, aabb, box, border: float = BORDER) -> Plan:
     return Plan("regenerate", res, np.asarray(aabb, np.float32).copy(), latent, latent, Triplane(*planes), request)
 
 
-def duplicate(latent: Triplane, aabb, box, to, border: float = BORDER) -> Plan:
+def duplicate(latent: Triplane, aabb, box, to, border: float = BORDER, trim: int = 0) -> Plan:
     """Patch duplication: copy the part of the input in ``box`` so that its low corner lands at ``to``.
 
     Both fractions of the model's box. The copy and its source are kept (the
     paper: "the mask m corresponds to the regions of the copied patches"),
     everything else is generated around them. Each plane copies the box's
     shadow, so inside the destination box the latent is the source's exactly.
+
+    Where the box reaches a face of the model's box that the copy does not,
+    ``trim`` texels there are left out of the copy (the margin of empty
+    voxels and the shape's cut face: copied inside the shape they would open a crack).
     """
     res = latent.resolution
     src = _box(box, res, "the box to copy")
@@ -276,6 +280,13 @@ def duplicate(latent: Triplane, aabb, box, to, border: float = BORDER) -> Plan:
     if over:
         raise Sin3DMInputError(f"the copy of the box does not fit when its low corner is at {_fmt(to)}: it leaves "
                                f"the model's box along {', '.join(over)}; move it or make the box smaller")
+    for ax, n in enumerate(res):  # leave the margin behind where the copy moves away from a face
+        (a, b), (c, d) = src[ax], dst[ax]
+        if a == 0 and c > 0 and b - a > trim:
+            src[ax], dst[ax] = (a + trim, b), (c + trim, d)
+        (a, b), (c, d) = src[ax], dst[ax]
+        if b == n and d < n and b - a > trim:
+            src[ax], dst[ax] = (a, b - trim), (c, d - trim)
     if all(d[0] < s[1] and s[0] < d[1] for d, s in zip(dst, src)):
         raise Sin3DMInputError("the copy overlaps the box it copies; move it further away")
     planes = []
@@ -286,7 +297,7 @@ def duplicate(latent: Triplane, aabb, box, to, border: float = BORDER) -> Plan:
     known = Triplane(*planes)
     keep_src = _mask([_profile(n, a, b, border, a > 0, b < n) for n, (a, b) in zip(res, src)])
     keep_dst = _mask([_profile(n, a, b, border, a > 0, b < n) for n, (a, b) in zip(res, dst)])
-    request = {"box": [list(map(float, c)) for c in box], "to": tuple(float(t) for t in to)}
+    request = {"box": [list(map(float, c)) for c in box], "to": tuple(float(t) for t in to), "trim": trim}
     return Plan("duplicate", res, np.asarray(aabb, np.float32).copy(), known, known, _union(keep_src, keep_dst), request)
 
 

@@ -369,9 +369,10 @@ class Sin3DM:
             raise Sin3DMInputError(f"one control at a time: got {' and '.join(asked)}")
         if plan is not None:
             return plan
+        # the margin of empty voxels around the shape (half as many texels) and the shape's cut face: not kept where
+        # the shape grows out of (outpaint) or is copied away from (duplicate) a face of the model's box
+        trim = int(np.ceil(self.config.grid.margin_voxels / 2)) + 1
         if outpaint is not None:
-            # the margin of empty voxels around the shape (half as many texels), and the shape's cut face
-            trim = int(np.ceil(self.config.grid.margin_voxels / 2)) + 1
             return control.outpaint(self.latent, self.aabb, outpaint, anchor, trim=trim)
         if regenerate is not None:
             return control.regenerate(self.latent, self.aabb, regenerate)
@@ -380,7 +381,7 @@ class Sin3DM:
                 box, to = duplicate
             except (TypeError, ValueError):
                 raise Sin3DMInputError("duplicate takes (box, to): ((x0, y0, z0), (x1, y1, z1)) and (tx, ty, tz)") from None
-            return control.duplicate(self.latent, self.aabb, box, to)
+            return control.duplicate(self.latent, self.aabb, box, to, trim=trim)
         return control.retarget(self.latent, self.aabb, resize)
 
     def max_samples(self, resize=(1.0, 1.0, 1.0)) -> int:

@@ -188,3 +188,71 @@ def receptive_field_explorer(fn: Callable[[int], tuple], choices: Sequence[int] 
         return viz.plot_receptive_field(rf_map, analytic, title=f"{n_resblocks} ResBlocks")
 
     return Explorer({"n_resblocks": blocks_c}, render, title="receptive field")
+
+
+def control_panel(model, n_samples: int = 2, resolution: int | None = None, **sample_kwargs) -> Explorer:
+    """Pick a box for local editing or patch duplication; the mask over the planes redraws live, a button samples.
+
+    Controls: the operation, the box as ranges of x, y, z (fractions of the
+    model's box) and, for ``duplicate``, where the copy's low corner goes.
+    The figure is :func:`viz.plot_plan` of ``model.plan(...)`` (a request
+    the sampler would refuse shows its one-line reason instead). The
+    **sample** button (or ``panel.run()`` from code) draws ``n_samples`` with
+    the seed shown and puts the planes and :func:`viz.plot_projections` of the
+    decoded shapes (at ``resolution``, default the grid's) below, beside the
+    input's reconstruction; ``panel.last_samples`` keeps them.
+    """
+    from .errors import Sin3DMInputError
+
+    def rng(lo, hi, name):
+        return widgets.FloatRangeSlider(value=(lo, hi), min=0, max=1, step=0.05, description=name,
+                                        continuous_update=False, readout_format=".2f")
+
+    def at(v, name):
+        return widgets.FloatSlider(value=v, min=0, max=1, step=0.05, description=name, continuous_update=False,
+                                   readout_format=".2f")
+
+    controls = {"op": widgets.Dropdown(options=["regenerate", "duplicate"], value="regenerate", description="edit",
+                                       layout={"width": "190px"}),
+                "x": rng(0.35, 0.65, "x"), "y": rng(0.0, 1.0, "y"), "z": rng(0.0, 1.0, "z"),
+                "tx": at(0.7, "copy to x"), "ty": at(0.0, "copy to y"), "tz": at(0.0, "copy to z")}
+
+    def plan_of(op, x, y, z, tx, ty, tz):
+        box = ((x[0], y[0], z[0]), (x[1], y[1], z[1]))
+        return model.plan(regenerate=box) if op == "regenerate" else model.plan(duplicate=(box, (tx, ty, tz)))
+
+    def message(text: str) -> Figure:
+        fig = Figure(figsize=(9, 0.8))
+        fig.text(0.01, 0.5, text, fontsize=9, va="center", wrap=True)
+        return fig
+
+    def render(**values):
+        try:
+            return viz.plot_plan(plan_of(**values))
+        except Sin3DMInputError as e:
+            return message(f"not possible: {e}")
+
+    panel = Explorer(controls, render, title="controlled generation: pick a box")
+    seed = widgets.IntText(value=0, description="seed", layout={"width": "160px"})
+    button = widgets.Button(description="sample", button_style="primary")
+    result = widgets.Output()
+    panel.last_samples = None
+    res = resolution or int(model.config.grid.resolution)
+
+    def run(_=None):
+        plan = plan_of(**panel.values())
+        samples = model.sample(n_samples, plan=plan, seed=int(seed.value), progress=False, **sample_kwargs)
+        panel.last_samples = samples
+        grids = [model.occupancy(model.input_sample(), res)[0], *model.occupancy(samples, res)]
+        figs = [viz.plot_plan(plan, samples), viz.plot_projections(grids, ["input"] + [f"seed {seed.value}, {i}"
+                                                                                   for i in range(n_samples)])]
+        with result:
+            clear_output(wait=True)
+            for f in figs:
+                display(f)
+        return figs
+
+    button.on_click(run)
+    panel.run = run
+    panel.children = (*panel.children, widgets.HBox([seed, button]), result)
+    return panel

@@ -72,14 +72,18 @@ def test_regenerated_part_differs_between_seeds_and_the_rest_does_not(model):
     assert all(torch.equal(pa[:, :, k], pb[:, :, k]) for pa, pb, k in zip(a.triplane.planes, b.triplane.planes, kept))
 
 
-def test_duplicate_copies_the_box(model):
-    plan = model.plan(duplicate=DUPLICATE)
+@pytest.mark.parametrize("trim", [0, 2])
+def test_duplicate_copies_the_box(model, trim):
+    plan = control.duplicate(model.latent, model.aabb, *DUPLICATE, trim=trim)
     n = model.latent.resolution[0]
     a0, a1 = control.texel_range(0.0, 0.3, n)
     d0 = control.texel_range(0.6, 0.9, n)[0]
+    a0, d0 = a0 + trim, d0 + trim  # the box touches the x- face, the copy does not: its margin stays behind
     xy = plan.known.xy[0]
     assert torch.equal(xy[:, d0:d0 + a1 - a0], model.latent.xy[0][:, a0:a1])
+    assert torch.equal(xy[:, :d0], model.latent.xy[0][:, :d0])  # nothing else changes
     assert plan.kept()[d0:d0 + a1 - a0].any() and plan.kept()[a0:a1].any()
+    assert not plan.kept()[:trim].any()
 
 
 @pytest.mark.parametrize("anchor", control.ANCHORS)
