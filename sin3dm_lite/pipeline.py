@@ -432,6 +432,17 @@ class Sin3DM:
             meshes.append(m)
         return meshes if index is None else meshes[0]
 
+    def same_voxels(self, samples: Samples, resolution: int) -> int:
+        """Voxels along the longest side of ``samples``' box that give the voxel size the input's box has at ``resolution``.
+
+        A retargeted or outpainted sample is larger than the input; voxelised
+        with this, it can be compared with the input voxel for voxel (and its
+        pictures keep their relative sizes).
+        """
+        ext = np.asarray(samples.aabb[3:] - samples.aabb[:3], np.float64)
+        own = np.asarray(self.aabb[3:] - self.aabb[:3], np.float64)
+        return int(round(resolution * ext.max() / own.max()))
+
     def occupancy(self, samples: Samples, resolution=128, mesh_resolution: int | None = None):
         """Each sample's mesh as an occupancy grid over its box, ``resolution`` voxels along the longest side.
 
