@@ -823,3 +823,16 @@ def test_loaded_files_produce_no_stray_warnings(tmp_path):
         warnings.simplefilter("error")
         load_mesh(p)
         load_mesh(save_glb(load_mesh(p), tmp_path / "a.glb"))
+
+
+def test_gltf_with_embedded_buffers_loads_without_warnings(tmp_path):
+    """Images in a buffer view of a data-URI buffer (``embed_buffers``) are found, not reported missing."""
+    mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
+                      baseColorFactor=uint8(1, 1, 1, 1))
+    files = trimesh.Scene(textured_square_trimesh(mat)).export(file_type="gltf", embed_buffers=True)
+    (tmp_path / "emb.gltf").write_bytes(files["model.gltf"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = load_mesh(tmp_path / "emb.gltf")
+    for face, bc, color in LOOKUPS:
+        np.testing.assert_allclose(lookup(mesh, face, bc), color, atol=1e-6)
