@@ -472,10 +472,7 @@ def image_to_array(image, max_size: int | None = None) -> np.ndarray:
             image = Image.fromarray(np.ascontiguousarray(arr, np.float32))  # mode "F", resized below if needed
         elif image.mode != "RGB":
             image = image.convert("RGBA" if image.mode in ("P", "PA", "LA", "RGBa", "La") else "RGB")
-        if max_size and max(image.size) > max_size:
-            s = max_size / max(image.size)
-            image = image.resize((max(1, round(image.width * s)), max(1, round(image.height * s))), Image.BOX)
-        arr = np.asarray(image)
+        arr = np.asarray(_shrink(image, max_size))
     else:
         arr = np.asarray(image)
     if arr.ndim == 2:
@@ -499,11 +496,17 @@ def array_to_pil(arr: np.ndarray, max_size: int | None = None):
     """``(h, w, 3)`` floats in [0, 1] → 8-bit PIL image, shrunk to ``max_size`` (longest side) if given."""
     from PIL import Image
 
-    img = Image.fromarray(np.round(np.clip(arr, 0, 1) * 255).astype(np.uint8))
-    if max_size and max(img.size) > max_size:
-        s = max_size / max(img.size)
-        img = img.resize((max(1, round(img.width * s)), max(1, round(img.height * s))), Image.BOX)
-    return img
+    return _shrink(Image.fromarray(np.round(np.clip(arr, 0, 1) * 255).astype(np.uint8)), max_size)
+
+
+def _shrink(img, max_size: int | None):
+    """A PIL image shrunk (box filter) so that its longest side is at most ``max_size``."""
+    from PIL import Image
+
+    if not max_size or max(img.size) <= max_size:
+        return img
+    s = max_size / max(img.size)
+    return img.resize((max(1, round(img.width * s)), max(1, round(img.height * s))), Image.BOX)
 
 
 def _warn(message: str) -> None:
@@ -965,28 +968,23 @@ def _load_with_trimesh(path, max_size):
     return parts, materials
 
 
+def _unit(c) -> np.ndarray:
+    """trimesh colours (uint16 0..65535, other integers 0..255, floats 0..1) → float32 in [0, 1]."""
+    c = np.asarray(c)
+    c = c / (65535.0 if c.dtype == np.uint16 else 255.0) if c.dtype.kind in "iu" else c
+    return np.clip(np.asarray(c, np.float32), 0.0, 1.0)
+
+
 def _color_array(colors, n) -> np.ndarray | None:
-    """uint8/uint16/float colours (RGB or RGBA) → (n, 3) float32 in [0, 1], or None."""
-    if colors is None:
-        return None
-    c = np.asarray(colors)
-    if c.ndim != 2 or len(c) != n or c.shape[1] < 3:
-        return None
-    if c.dtype == np.uint8:
-        c = c / 255.0
-    elif c.dtype == np.uint16:
-        c = c / 65535.0
-    elif np.issubdtype(c.dtype, np.integer):
-        c = c / 255.0
-    return np.clip(np.asarray(c[:, :3], np.float32), 0.0, 1.0)
+    """RGB or RGBA colours of ``n`` vertices or faces → (n, 3) float32 in [0, 1], or None."""
+    c = None if colors is None else np.asarray(colors)
+    return _unit(c[:, :3]) if c is not None and c.ndim == 2 and len(c) == n and c.shape[1] >= 3 else None
 
 
 def _rgba(color) -> np.ndarray:
-    """trimesh colour (uint8 0..255 or float 0..1; RGB or RGBA) → float32 RGBA in [0, 1]."""
-    c = np.asarray(color).reshape(-1)
-    c = c / 255.0 if np.issubdtype(c.dtype, np.integer) else c.astype(np.float64)
-    c = np.r_[c[:4], [1.0] * (4 - min(len(c), 4))]
-    return np.clip(c, 0, 1).astype(np.float32)
+    """A trimesh material colour (RGB or RGBA) → float32 RGBA in [0, 1]."""
+    c = _unit(np.asarray(color).reshape(-1)[:4])
+    return np.r_[c, np.ones(4 - len(c), np.float32)]
 
 
 def _material_from_trimesh(tm, max_size, path, geom_name) -> Material:
