@@ -265,25 +265,15 @@ def save_glb(mesh: TexturedMesh, path) -> Path:
             continue
         faces = mesh.faces[sel]
         gname = _safe_name(f"{mesh.name}_{mat.name}", used_names)
-        has_maps = any(x is not None for x in (mat.image, mat.metallic_roughness_image, mat.normal_image))
-
-        def pil(a):
-            return None if a is None else array_to_pil(a)
-
-        factor = np.round(np.clip(np.asarray(mat.base_color, np.float64), 0, 1) * 255).astype(np.uint8)
-        if len(factor) == 3:
-            factor = np.r_[factor, 255].astype(np.uint8)
-        if has_maps and mesh.face_uvs is not None:
+        maps = {"baseColorTexture": mat.image, "metallicRoughnessTexture": mat.metallic_roughness_image,
+                "normalTexture": mat.normal_image}
+        maps = {k: array_to_pil(m) for k, m in maps.items() if m is not None and mesh.face_uvs is not None}
+        # uint8 on purpose: trimesh reads a list of ints as 0..255
+        factor = trimesh.visual.color.to_rgba(np.clip(np.asarray(mat.base_color, np.float64), 0, 1))
+        pbr = PBRMaterial(name=mat.name, baseColorFactor=factor, metallicFactor=float(mat.metallic),
+                          roughnessFactor=float(mat.roughness), **maps)
+        if maps:
             vert_of, uv, new_faces = split_corners(faces, mesh.face_uvs[sel])
-            pbr = PBRMaterial(
-                name=mat.name,
-                baseColorTexture=pil(mat.image),
-                baseColorFactor=factor,  # uint8 on purpose: trimesh reads a list of ints as 0..255
-                metallicFactor=float(mat.metallic),
-                roughnessFactor=float(mat.roughness),
-                metallicRoughnessTexture=pil(mat.metallic_roughness_image),
-                normalTexture=pil(mat.normal_image),
-            )
             geom = trimesh.Trimesh(mesh.vertices[vert_of], new_faces,
                                    visual=trimesh.visual.TextureVisuals(uv=uv, material=pbr), process=False)
         else:
@@ -294,8 +284,6 @@ def save_glb(mesh: TexturedMesh, path) -> Path:
                 rgba = np.column_stack([np.round(col * 255), np.full(len(col), factor[3])]).astype(np.uint8)
                 geom = trimesh.Trimesh(mesh.vertices[used], new_faces, vertex_colors=rgba, process=False)
             else:
-                pbr = PBRMaterial(name=mat.name, baseColorFactor=factor, metallicFactor=float(mat.metallic),
-                                  roughnessFactor=float(mat.roughness))
                 geom = trimesh.Trimesh(mesh.vertices[used], new_faces,
                                        visual=trimesh.visual.TextureVisuals(material=pbr), process=False)
         scene.add_geometry(geom, geom_name=gname, node_name=gname)

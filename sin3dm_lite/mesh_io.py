@@ -30,9 +30,14 @@ message names the problem and the fix; a missing or unreadable texture is a
 """
 from __future__ import annotations
 
+import base64
+import io
+import json
 import re
+import struct
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from urllib.parse import unquote
 
 import numpy as np
 
@@ -467,10 +472,7 @@ def image_to_array(image, max_size: int | None = None) -> np.ndarray:
             image = Image.fromarray(np.ascontiguousarray(arr, np.float32))  # mode "F", resized below if needed
         elif image.mode != "RGB":
             image = image.convert("RGBA" if image.mode in ("P", "PA", "LA", "RGBa", "La") else "RGB")
-        if max_size and max(image.size) > max_size:
-            s = max_size / max(image.size)
-            image = image.resize((max(1, round(image.width * s)), max(1, round(image.height * s))), Image.BOX)
-        arr = np.asarray(image)
+        arr = np.asarray(_shrink(image, max_size))
     else:
         arr = np.asarray(image)
     if arr.ndim == 2:
@@ -494,11 +496,17 @@ def array_to_pil(arr: np.ndarray, max_size: int | None = None):
     """``(h, w, 3)`` floats in [0, 1] → 8-bit PIL image, shrunk to ``max_size`` (longest side) if given."""
     from PIL import Image
 
-    img = Image.fromarray(np.round(np.clip(arr, 0, 1) * 255).astype(np.uint8))
-    if max_size and max(img.size) > max_size:
-        s = max_size / max(img.size)
-        img = img.resize((max(1, round(img.width * s)), max(1, round(img.height * s))), Image.BOX)
-    return img
+    return _shrink(Image.fromarray(np.round(np.clip(arr, 0, 1) * 255).astype(np.uint8)), max_size)
+
+
+def _shrink(img, max_size: int | None):
+    """A PIL image shrunk (box filter) so that its longest side is at most ``max_size``."""
+    from PIL import Image
+
+    if not max_size or max(img.size) <= max_size:
+        return img
+    s = max_size / max(img.size)
+    return img.resize((max(1, round(img.width * s)), max(1, round(img.height * s))), Image.BOX)
 
 
 def _warn(message: str) -> None:
@@ -894,18 +902,7 @@ def _load_with_trimesh(path, max_size):
            ".off": "an OFF mesh"}[path.suffix.lower()]
     if path.stat().st_size == 0:
         raise _unreadable(path, fmt, "the file is empty")
-    if path.suffix.lower() == ".glb":
-        with open(path, "rb") as fh:
-            if fh.read(4) != b"glTF":
-                raise _unreadable(path, fmt, "it does not start with the GLB magic bytes 'glTF'")
-    elif path.suffix.lower() == ".gltf":
-        import json
-
-        try:
-            json.loads(path.read_text(encoding="utf-8"))
-        except (ValueError, UnicodeDecodeError) as exc:
-            raise _unreadable(path, fmt, f"not valid JSON: {exc}") from None
-    image_problems = _gltf_image_problems(path) if path.suffix.lower() in (".glb", ".gltf") else {}
+    image_problems = _gltf_image_problems(path, fmt) if path.suffix.lower() in (".glb", ".gltf") else {}
     try:
         scene = trimesh.load(str(path), force="scene", process=False)
     except Exception as exc:
@@ -971,28 +968,23 @@ def _load_with_trimesh(path, max_size):
     return parts, materials
 
 
+def _unit(c) -> np.ndarray:
+    """trimesh colours (uint16 0..65535, other integers 0..255, floats 0..1) → float32 in [0, 1]."""
+    c = np.asarray(c)
+    c = c / (65535.0 if c.dtype == np.uint16 else 255.0) if c.dtype.kind in "iu" else c
+    return np.clip(np.asarray(c, np.float32), 0.0, 1.0)
+
+
 def _color_array(colors, n) -> np.ndarray | None:
-    """uint8/uint16/float colours (RGB or RGBA) → (n, 3) float32 in [0, 1], or None."""
-    if colors is None:
-        return None
-    c = np.asarray(colors)
-    if c.ndim != 2 or len(c) != n or c.shape[1] < 3:
-        return None
-    if c.dtype == np.uint8:
-        c = c / 255.0
-    elif c.dtype == np.uint16:
-        c = c / 65535.0
-    elif np.issubdtype(c.dtype, np.integer):
-        c = c / 255.0
-    return np.clip(np.asarray(c[:, :3], np.float32), 0.0, 1.0)
+    """RGB or RGBA colours of ``n`` vertices or faces → (n, 3) float32 in [0, 1], or None."""
+    c = None if colors is None else np.asarray(colors)
+    return _unit(c[:, :3]) if c is not None and c.ndim == 2 and len(c) == n and c.shape[1] >= 3 else None
 
 
 def _rgba(color) -> np.ndarray:
-    """trimesh colour (uint8 0..255 or float 0..1; RGB or RGBA) → float32 RGBA in [0, 1]."""
-    c = np.asarray(color).reshape(-1)
-    c = c / 255.0 if np.issubdtype(c.dtype, np.integer) else c.astype(np.float64)
-    c = np.r_[c[:4], [1.0] * (4 - min(len(c), 4))]
-    return np.clip(c, 0, 1).astype(np.float32)
+    """A trimesh material colour (RGB or RGBA) → float32 RGBA in [0, 1]."""
+    c = _unit(np.asarray(color).reshape(-1)[:4])
+    return np.r_[c, np.ones(4 - len(c), np.float32)]
 
 
 def _material_from_trimesh(tm, max_size, path, geom_name) -> Material:
@@ -1047,79 +1039,62 @@ def _is_trimesh_placeholder(pil) -> bool:
         return False
 
 
-def _gltf_image_problems(path) -> dict:
-    """Textures a glTF's materials use that are missing or undecodable (trimesh silently drops them).
+def _gltf_image_problems(path, fmt: str) -> dict:
+    """Read a glTF's JSON once: a clear error if it is not glTF at all, else the textures its
+    materials use that are missing or undecodable (trimesh silently drops them).
 
-    Returns ``{image index: warning message}``; best effort (any surprise → no warnings).
+    Returns ``{image index: warning message}``; best effort (any other surprise → no warnings).
     """
-    import io
-    import json
-    import struct
-    from urllib.parse import unquote
-
     from PIL import Image
 
-    try:
-        data = path.read_bytes()
-        binary = b""
-        if path.suffix.lower() == ".glb":
-            if data[:4] != b"glTF":
-                return {}
-            n, _ = struct.unpack_from("<II", data, 12)
-            header = json.loads(data[20 : 20 + n])
-            off = 20 + n
-            if off + 8 <= len(data):
-                bn, _ = struct.unpack_from("<II", data, off)
-                binary = data[off + 8 : off + 8 + bn]
-        else:
+    data, binary = path.read_bytes(), b""
+    if path.suffix.lower() == ".gltf":
+        try:
             header = json.loads(data.decode("utf-8"))
-        images, textures = header.get("images", []), header.get("textures", [])
-        users: dict[int, list[str]] = {}
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise _unreadable(path, fmt, f"not valid JSON: {exc}") from None
+    elif data[:4] != b"glTF":
+        raise _unreadable(path, fmt, "it does not start with the GLB magic bytes 'glTF'")
+
+    def blob(item):  # the bytes of an image or buffer: data URI, file beside the glTF, or buffer view
+        if "uri" not in item:
+            view = header["bufferViews"][item["bufferView"]]
+            buf = header["buffers"][view["buffer"]]
+            return (binary if "uri" not in buf else blob(buf))[view.get("byteOffset", 0):][: view["byteLength"]]
+        if item["uri"].startswith("data:"):
+            return base64.b64decode(item["uri"].split(",", 1)[1])
+        if not (path.parent / unquote(item["uri"])).is_file():
+            raise FileNotFoundError("file not found")
+        return (path.parent / unquote(item["uri"])).read_bytes()
+
+    try:
+        if path.suffix.lower() == ".glb":  # 12-byte header, then the JSON chunk and the binary chunk
+            off = 20 + struct.unpack_from("<I", data, 12)[0]
+            header = json.loads(data[20:off])
+            binary = data[off + 8 : off + 8 + struct.unpack_from("<I", data, off)[0]] if off + 8 <= len(data) else b""
+        images, textures, users = header.get("images", []), header.get("textures", []), {}
         for mat in header.get("materials", []):
             pbr = mat.get("pbrMetallicRoughness", {})
             for slot, info in (("baseColorTexture", pbr.get("baseColorTexture")),
                                ("metallicRoughnessTexture", pbr.get("metallicRoughnessTexture")),
                                ("normalTexture", mat.get("normalTexture"))):
-                if not info or info.get("index") is None or info["index"] >= len(textures):
-                    continue
-                tex = textures[info["index"]]
-                src = tex.get("source")
-                for ext in (tex.get("extensions") or {}).values():
-                    src = ext.get("source", src) if isinstance(ext, dict) else src
-                if src is not None:
-                    users.setdefault(src, []).append(f"{slot} of material '{mat.get('name', '?')}'")
+                if info and info.get("index") is not None and info["index"] < len(textures):
+                    tex = textures[info["index"]]
+                    exts = [e for e in (tex.get("extensions") or {}).values() if isinstance(e, dict) and "source" in e]
+                    src = exts[-1]["source"] if exts else tex.get("source")
+                    if src is not None and src < len(images):
+                        users.setdefault(src, []).append(f"{slot} of material '{mat.get('name', '?')}'")
         problems = {}
         for src, used_by in users.items():
-            if src >= len(images):
-                continue
             im = images[src]
             label = f"'{unquote(im['uri'])}'" if "uri" in im and not im["uri"].startswith("data:") else f"#{src} (embedded)"
             try:
-                if "uri" in im:
-                    uri = im["uri"]
-                    if uri.startswith("data:"):
-                        import base64
-
-                        blob = base64.b64decode(uri.split(",", 1)[1])
-                    else:
-                        f = path.parent / unquote(uri)
-                        if not f.is_file():
-                            raise FileNotFoundError("file not found")
-                        blob = f.read_bytes()
-                else:
-                    view = header["bufferViews"][im["bufferView"]]
-                    buf = header["buffers"][view["buffer"]]
-                    raw = binary if "uri" not in buf else (path.parent / unquote(buf["uri"])).read_bytes()
-                    start = view.get("byteOffset", 0)
-                    blob = raw[start : start + view["byteLength"]]
-                with Image.open(io.BytesIO(blob)) as pil:
+                with Image.open(io.BytesIO(blob(im))) as pil:
                     pil.verify()
             except Exception as exc:
                 reason = "not a readable image" if "cannot identify image" in str(exc) else f"{type(exc).__name__}: {exc}"
-                problems[src] = (
-                    f"texture image {label} in '{path.name}' ({', '.join(used_by)}) is missing or unreadable "
-                    f"({reason}); using the material colour instead"
-                )
+                problems[src] = (f"texture image {label} in '{path.name}' ({', '.join(used_by)}) is missing or "
+                                 f"unreadable ({reason}); using the material colour instead")
         return problems
     except Exception:
         return {}

@@ -314,6 +314,41 @@ def test_obj_reader_keeps_what_trimesh_loses(tmp_path):
     np.testing.assert_allclose(lookup(mesh, 3, (1 / 3, 1 / 3, 1 / 3)), (0, 1, 0))  # C falls back to its Kd
 
 
+
+def test_obj_writer_keeps_what_trimesh_loses(tmp_path):
+    """Why ``save_obj`` writes OBJ/MTL itself instead of using trimesh's OBJ exporter (checked with trimesh 5.x).
+
+    Exporting the same content with trimesh (the per-material scene that ``save_glb`` writes, as
+    ``trimesh.load(...).export('x.obj')``) (1) groups the faces by material, so interleaved runs
+    lose the mesh's face order, and (2) writes no ``Pr``/``Pm`` factors and no ``map_Pr``/
+    ``map_Pm``/``map_Bump``: the PBR maps are lost. ``save_obj`` keeps both (this test fails with
+    trimesh's exporter).
+    """
+    rng = np.random.default_rng(5)
+    mr, normal = rng.random((8, 8, 3)).astype(np.float32), rng.random((8, 8, 3)).astype(np.float32)
+    mesh = TexturedMesh(
+        vertices=np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0]], float),
+        faces=np.array([[0, 1, 2], [1, 4, 2], [0, 2, 3]]),
+        face_material=np.array([0, 1, 0]),
+        materials=[Material(name="A", image=quadrant_image().astype(np.float32) / 255, metallic=1.0, roughness=1.0,
+                            metallic_roughness_image=mr, normal_image=normal),
+                   Material(name="B", base_color=np.array([0.2, 0.4, 0.6, 1], np.float32))],
+        face_uvs=rng.random((3, 3, 2)).astype(np.float32),
+    )
+    (tmp_path / "t").mkdir()
+    trimesh.load(save_glb(mesh, tmp_path / "g" / "m.glb"), force="scene").export(tmp_path / "t" / "m.obj")
+    theirs = "".join(f.read_text() for f in sorted((tmp_path / "t").glob("*.[om][bt][jl]")))
+    assert theirs.count("usemtl") == 2 and "map_Pr" not in theirs and "map_Bump" not in theirs  # trimesh's loss
+    again = load_mesh(save_obj(mesh, tmp_path / "o" / "m.obj"))
+    np.testing.assert_array_equal(again.face_material, [0, 1, 0])  # (1) the mesh's face order
+    np.testing.assert_array_equal(again.faces, mesh.faces)
+    a = again.materials[0]  # (2) the PBR maps and factors
+    np.testing.assert_allclose(a.metallic_roughness_image[..., 1:], mr[..., 1:], atol=1 / 255)
+    np.testing.assert_allclose(a.normal_image, normal, atol=1 / 255)
+    assert a.metallic == 1.0 and a.roughness == 1.0
+    np.testing.assert_allclose(again.materials[1].base_color, [0.2, 0.4, 0.6, 1], atol=1e-6)
+
+
 # ====================================================================== glTF
 def test_glb_base_color_texture_and_factor(tmp_path):
     mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
@@ -823,3 +858,16 @@ def test_loaded_files_produce_no_stray_warnings(tmp_path):
         warnings.simplefilter("error")
         load_mesh(p)
         load_mesh(save_glb(load_mesh(p), tmp_path / "a.glb"))
+
+
+def test_gltf_with_embedded_buffers_loads_without_warnings(tmp_path):
+    """Images in a buffer view of a data-URI buffer (``embed_buffers``) are found, not reported missing."""
+    mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
+                      baseColorFactor=uint8(1, 1, 1, 1))
+    files = trimesh.Scene(textured_square_trimesh(mat)).export(file_type="gltf", embed_buffers=True)
+    (tmp_path / "emb.gltf").write_bytes(files["model.gltf"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = load_mesh(tmp_path / "emb.gltf")
+    for face, bc, color in LOOKUPS:
+        np.testing.assert_allclose(lookup(mesh, face, bc), color, atol=1e-6)
