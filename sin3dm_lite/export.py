@@ -294,37 +294,5 @@ def save_glb(mesh: TexturedMesh, path) -> Path:
     return path
 
 
-def to_trimesh(mesh: TexturedMesh, max_texture: int = 1024):
-    """A ``trimesh.Trimesh`` for viewing.
-
-    A mesh with exactly one material that has a texture (and per-corner
-    UVs) keeps it: the result has ``TextureVisuals`` with the texture (times
-    the material factor, longest side at most ``max_texture``) and vertices
-    split wherever a vertex has several UVs. Anything else gets vertex
-    colours evaluated at every face corner (every face has its own three
-    vertices, so colour edges stay sharp).
-    """
-    import trimesh
-
-    if len(mesh.materials) == 1 and mesh.materials[0].image is not None and mesh.face_uvs is not None:
-        mat = mesh.materials[0]
-        vert_of, uv, faces = split_corners(mesh.faces, mesh.face_uvs)
-        image = array_to_pil(baked_image(mat), max_size=max_texture)
-        visual = trimesh.visual.TextureVisuals(
-            uv=uv, material=trimesh.visual.material.SimpleMaterial(image=image, name=mat.name)
-        )
-        return trimesh.Trimesh(mesh.vertices[vert_of], faces, visual=visual, process=False)
-
-    tri = mesh.vertices[mesh.faces]
-    # colour each vertex by the colour at its corner in one face that uses it
-    fi = np.repeat(np.arange(len(mesh.faces)), 3)
-    bc = np.tile(np.eye(3), (len(mesh.faces), 1))
-    col = mesh.colors_at(fi, bc)
-    v = tri.reshape(-1, 3)
-    f = np.arange(len(v)).reshape(-1, 3)
-    m = trimesh.Trimesh(v, f, vertex_colors=np.round(col * 255).astype(np.uint8), process=False)
-    return m
-
-
 __all__ = [
-    "to_trimesh","FORMATS", "baked_image", "export_mesh", "save_glb", "save_obj", "split_corners"]
+    "FORMATS", "baked_image", "export_mesh", "save_glb", "save_obj", "split_corners"]

@@ -20,7 +20,8 @@ from trimesh.visual.material import PBRMaterial
 
 from sin3dm_lite import export, mesh_io
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.export import save_glb, save_obj, to_trimesh
+from sin3dm_lite.export import save_glb, save_obj
+from sin3dm_lite.viewer import to_trimesh
 from sin3dm_lite.mesh_io import (
     DEFAULT_COLOR,
     Material,
