@@ -5,6 +5,7 @@
     sin3dm-lite fit MESH_OR_EXAMPLE --preset small --out RUN_DIR [--resume]
     sin3dm-lite sample RUN_DIR -n 4 --out DIR [--resize SX SY SZ] [--diversity D]
     sin3dm-lite demo [--out DIR] [--train]              the whole method on the default example
+    sin3dm-lite render MESH --views 8 --size 512 --out DIR   PNG views (no display or GPU needed)
 
 Every user error prints one line naming the problem and the fix, and exits
 with code 2 (no traceback).
@@ -103,6 +104,15 @@ def build_parser() -> argparse.ArgumentParser:
     _sample_args(d, n_default=4)
     d.add_argument("--out", default="sin3dm-demo", help="output folder (default: ./sin3dm-demo)")
     d.add_argument("--train", action="store_true", help=f"fit from scratch with the '{DEMO_PRESET}' preset")
+
+    r = sub.add_parser("render", help="PNG pictures of a mesh: the paper's views around it, a hero view, a contact sheet")
+    r.add_argument("mesh", help="mesh file (OBJ, GLB/glTF, PLY) or example name")
+    r.add_argument("--views", type=_positive_int, default=8, help="views around the shape, azimuth every 360/N degrees")
+    r.add_argument("--size", type=_positive_int, default=512, help="image width and height in pixels (16-4096)")
+    r.add_argument("--elevation", type=_float, default=45.0, help="camera elevation in degrees (-89 to 89)")
+    r.add_argument("--out", required=True, help="output folder (new or empty; see --overwrite)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="write into a non-empty --out, replacing only the files sin3dm-lite wrote there before")
     return p
 
 
@@ -345,6 +355,45 @@ def cmd_demo(a) -> None:
     )
 
 
+MAX_VIEWS = 360
+
+
+def cmd_render(a) -> None:
+    from .files import check_not_overlapping, check_output_folder, check_writable, install_output, make_temp_dir, \
+        remove_stale_temps
+    from .pipeline import resolve_mesh
+    from .render import contact_sheet, render_views, render_hero, view_names
+    from .viewer import png_bytes
+
+    out = Path(a.out)
+    if a.views > MAX_VIEWS:
+        raise Sin3DMInputError(f"--views {a.views} is too many; ask for at most {MAX_VIEWS}")
+    if not 16 <= a.size <= 4096:
+        raise Sin3DMInputError(f"--size must be from 16 to 4096 pixels, got {a.size}")
+    if not -89 <= a.elevation <= 89:
+        raise Sin3DMInputError(f"--elevation must be from -89 to 89 degrees, got {a.elevation}")
+    names = view_names(a.views) + ["contact_sheet.png"]
+    if Path(a.mesh).exists():
+        check_not_overlapping(out, {"input mesh": Path(a.mesh)})
+    check_output_folder(out, a.overwrite, names)
+    check_writable(out)
+    mesh = resolve_mesh(a.mesh)
+    t0 = time.perf_counter()
+    views = render_views(mesh, n_views=a.views, size=a.size, elevation=a.elevation)
+    hero = render_hero(mesh, size=a.size)
+    sheet = contact_sheet(views + [hero], [f"azimuth {360 * k / a.views:g}" for k in range(a.views)] + ["hero"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(out.parent)
+    tmp = make_temp_dir(out.parent)
+    try:
+        for name, img in zip(names, views + [hero, sheet]):
+            (tmp / name).write_bytes(png_bytes(img))
+        install_output(tmp, out)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    print(f"wrote {a.views} views + hero.png + contact_sheet.png to {out} ({time.perf_counter() - t0:.1f} s)")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
@@ -355,7 +404,8 @@ def main(argv: list[str] | None = None) -> int:
 
     warnings.showwarning = one_line
     try:
-        {"examples": cmd_examples, "grid": cmd_grid, "fit": cmd_fit, "sample": cmd_sample, "demo": cmd_demo}[a.command](a)
+        {"examples": cmd_examples, "grid": cmd_grid, "fit": cmd_fit, "sample": cmd_sample, "demo": cmd_demo,
+         "render": cmd_render}[a.command](a)
     except Sin3DMInputError as e:
         print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
         return 2

@@ -161,6 +161,17 @@ CASES = {
     "examples-negative-seed": (["examples", "--write", "wall", "--out", "e", "--seed", "-1"], "seed"),
     "examples-out-under-file": (["examples", "--write", "wall", "--out", "blocker/e"], "is a file"),
     "examples-out-not-writable": (["examples", "--write", "wall", "--out", NOT_WRITABLE], "cannot write"),
+    # render
+    "render-missing-mesh": (["render", "nosuch.obj", "--out", "v"], "nosuch.obj"),
+    "render-unknown-name": (["render", "teapot", "--out", "v"], "neither a mesh file nor a built-in example"),
+    "render-size-too-small": (["render", "box.obj", "--size", "8", "--out", "v"], "--size"),
+    "render-too-many-views": (["render", "box.obj", "--views", "1000", "--out", "v"], "--views"),
+    "render-elevation": (["render", "box.obj", "--elevation", "90", "--out", "v"], "--elevation"),
+    "render-out-not-empty": (["render", "box.obj", "--out", "full"], "--overwrite"),
+    "render-out-foreign-overwrite": (["render", "box.obj", "--out", ".", "--overwrite"], "input mesh"),
+    "render-out-is-file": (["render", "box.obj", "--out", "neighbour.txt"], "is a file"),
+    "render-out-under-file": (["render", "box.obj", "--out", "blocker/v"], "is a file"),
+    "render-out-not-writable": (["render", "box.obj", "--out", NOT_WRITABLE], "cannot write"),
 }
 
 

@@ -1,0 +1,154 @@
+"""Headless rendering: the paper's 8 views show the texture's colours where they should be."""
+import numpy as np
+import pytest
+from PIL import Image
+
+from sin3dm_lite.cli import main
+from sin3dm_lite.export import export_mesh
+from sin3dm_lite.mesh_io import Material, TexturedMesh
+from sin3dm_lite.render import contact_sheet, render_hero, render_views, save_views, view_angles, view_names
+
+#: the colour of each cube face in the texture, by outward normal
+FACE_COLORS = {
+    "+x": (1.0, 0.0, 0.0), "-x": (0.0, 1.0, 0.0),  # red, green
+    "+y": (0.0, 0.0, 1.0), "-y": (1.0, 1.0, 0.0),  # blue (top), yellow (bottom)
+    "+z": (1.0, 0.0, 1.0), "-z": (0.0, 1.0, 1.0),  # magenta (front), cyan (back)
+}
+NORMALS = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
+
+
+def _quad(normal):
+    """Corners of the unit cube's face with this outward normal, counter-clockwise seen from outside."""
+    n = np.array(normal, float)
+    a = np.roll(n, 1) if n.sum() > 0 else -np.roll(n, 1)  # two tangents with a × b = n
+    b = np.cross(n, a)
+    return np.array([n + s * a + t * b for s, t in [(-1, -1), (1, -1), (1, 1), (-1, 1)]]) * 0.5
+
+
+def textured_cube() -> TexturedMesh:
+    """A cube whose texture is six solid tiles (3 × 2), one per face; each face's UVs stay inside its tile."""
+    tile = 16
+    image = np.zeros((2 * tile, 3 * tile, 3), np.float32)
+    verts, faces, uvs = [], [], []
+    for k, (name, color) in enumerate(FACE_COLORS.items()):
+        r, c = divmod(k, 3)
+        image[r * tile:(r + 1) * tile, c * tile:(c + 1) * tile] = color
+        q = _quad(NORMALS[name])
+        base = len(verts)
+        verts += list(q)
+        # tile centre in UV (v up: image row 0 is v = 1), corners pulled well inside the tile
+        u0, v0 = (c + 0.5) / 3, 1 - (r + 0.5) / 2
+        cu = [(u0 + du * 0.25 / 3, v0 + dv * 0.25 / 2) for du, dv in [(-1, -1), (1, -1), (1, 1), (-1, 1)]]
+        for tri in ([0, 1, 2], [0, 2, 3]):
+            faces.append([base + i for i in tri])
+            uvs.append([cu[i] for i in tri])
+    return TexturedMesh(vertices=np.array(verts), faces=np.array(faces), face_material=np.zeros(12, np.int64),
+                        materials=[Material(name="tiles", image=image)], face_uvs=np.array(uvs, np.float32),
+                        name="cube")
+
+
+def seen(image: np.ndarray) -> dict:
+    """Fraction of the picture showing each face colour (chromaticity: shading scales all channels alike)."""
+    px = image.reshape(-1, 3).astype(float)
+    fg = px.min(1) < 250  # not the white background
+    px = px[fg] / np.maximum(px[fg].max(1, keepdims=True), 1)
+    out = {}
+    for name, color in FACE_COLORS.items():
+        out[name] = float((np.abs(px - np.array(color)).max(1) < 0.25).sum()) / len(image.reshape(-1, 3))
+    return out
+
+
+@pytest.fixture(scope="module")
+def cube():
+    return textured_cube()
+
+
+@pytest.fixture(scope="module")
+def views(cube):
+    return render_views(cube, size=128)
+
+
+def test_eight_views_are_non_blank_pictures(views):
+    assert len(views) == 8 and [a for a, _ in view_angles()] == [0, 45, 90, 135, 180, 225, 270, 315]
+    for img in views:
+        assert img.shape == (128, 128, 3) and img.dtype == np.uint8
+        fg = (img.min(2) < 250).mean()
+        assert 0.05 < fg < 0.9, fg  # the cube is there and the camera frames it
+        assert tuple(img[0, 0]) == (255, 255, 255)  # white background
+
+
+def test_each_view_shows_the_texture_colours_of_the_faces_it_faces(views):
+    # y is up: with the camera 45° above, the top (blue) is always in view and the bottom (yellow) never
+    # azimuth 0 looks from +z (magenta), 90 from +x (red), 180 from -z (cyan), 270 from -x (green)
+    expect = {0: ["+z"], 90: ["+x"], 180: ["-z"], 270: ["-x"], 45: ["+z", "+x"], 135: ["+x", "-z"],
+              225: ["-z", "-x"], 315: ["-x", "+z"]}
+    for (az, _), img in zip(view_angles(), views):
+        s = seen(img)
+        visible = ["+y"] + expect[int(az)]
+        for name in visible:
+            assert s[name] > 0.02, (az, name, s)
+        for name in set(FACE_COLORS) - set(visible):
+            assert s[name] < 0.002, (az, name, s)
+    # lit by the camera's light: the faces are not black (Lambert with ambient)
+    assert views[0][views[0].min(2) < 250].mean() > 60
+
+
+def test_vertex_colours_and_plain_materials_render():
+    cube = textured_cube()
+    plain = TexturedMesh(vertices=cube.vertices, faces=cube.faces, face_material=cube.face_material,
+                         materials=[Material()], vertex_colors=np.tile(np.float32([0.1, 0.8, 0.2]), (24, 1)))
+    img = render_hero(plain, size=96)
+    fg = img[img.min(2) < 250].astype(int)
+    assert len(fg) > 500 and (fg[:, 1] > fg[:, 0] + 30).mean() > 0.95  # green-dominant
+    grey = TexturedMesh(vertices=cube.vertices, faces=cube.faces, face_material=cube.face_material,
+                        materials=[Material(base_color=np.float32([0.9, 0.1, 0.1, 1.0]))])
+    fg = render_views(grey, n_views=1, size=64)[0]
+    fg = fg[fg.min(2) < 250].astype(int)
+    assert (fg[:, 0] > fg[:, 1] + 30).mean() > 0.95  # the material's red
+
+
+def test_a_larger_box_frames_alike_and_shows_the_mesh_smaller(cube):
+    own = render_views(cube, n_views=1, size=96)[0]
+    wide = render_views(cube, n_views=1, size=96, box=[[-2, -2, -2], [2, 2, 2]])[0]
+    assert (wide.min(2) < 250).sum() < 0.3 * (own.min(2) < 250).sum()
+
+
+def test_save_views_and_contact_sheet(cube, tmp_path):
+    paths = save_views(cube, tmp_path / "v", n_views=4, size=48)
+    assert [p.name for p in paths] == view_names(4) == ["view_000.png", "view_001.png", "view_002.png",
+                                                         "view_003.png", "hero.png"]
+    imgs = [np.asarray(Image.open(p)) for p in paths]
+    assert all(i.shape == (48, 48, 3) for i in imgs)
+    sheet = contact_sheet(imgs, ["a", "b", "c", "d", "hero"], columns=3)
+    assert sheet.dtype == np.uint8 and sheet.shape[1] > 3 * 48 and sheet.shape[0] > 2 * 48
+    with pytest.raises(ValueError, match="one label per image"):
+        contact_sheet(imgs, ["a"])
+
+
+def test_render_command_writes_eight_pngs(cube, tmp_path, capsys):
+    export_mesh(cube, tmp_path / "in", name="cube")
+    src = next((tmp_path / "in").glob("*.obj"))
+    out = tmp_path / "views"
+    assert main(["render", str(src), "--views", "8", "--size", "64", "--out", str(out)]) == 0
+    pngs = sorted(p.name for p in out.glob("view_*.png"))
+    assert pngs == [f"view_{k:03d}.png" for k in range(8)]
+    for name in pngs + ["hero.png", "contact_sheet.png"]:
+        with Image.open(out / name) as im:
+            im.load()
+    first = np.asarray(Image.open(out / "view_000.png").convert("RGB"))
+    assert seen(first)["+z"] > 0.02  # the texture made it through OBJ/MTL/PNG
+    assert "wrote 8 views" in capsys.readouterr().out
+    # again, into the same folder: refused without --overwrite, replaced with it
+    assert main(["render", str(src), "--size", "32", "--out", str(out)]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert main(["render", str(src), "--size", "32", "--views", "2", "--out", str(out), "--overwrite"]) == 0
+    assert sorted(p.name for p in out.glob("*.png")) == ["contact_sheet.png", "hero.png", "view_000.png", "view_001.png"]
+
+
+def test_render_command_bad_views_exit_2_one_line(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["render", "wall", "--views", "0", "--out", str(tmp_path / "v")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--views" in err[0]
+    assert not (tmp_path / "v").exists()
