@@ -27,6 +27,8 @@ import time
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 from .errors import Sin3DMInputError
 
 DEMO_PRESET = "small"
@@ -143,6 +145,8 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
     s.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     s.add_argument("--overwrite", action="store_true",
                    help="write into a non-empty --out, replacing only the files sin3dm-lite wrote there before")
+    s.add_argument("--no-pictures", action="store_true",
+                   help="skip NNN/preview.png and contact_sheet.png (rendered off-screen; they need Mesa's EGL on Linux)")
 
 
 def _float(text: str) -> float:
@@ -255,10 +259,11 @@ def check_sample_output(out: Path, a, protected: dict) -> None:
         raise Sin3DMInputError(f"-n {a.n} is too many samples (at most {MAX_SAMPLES} per run, fewer if memory is short); "
                                "ask for fewer and run again with another --seed")
     check_not_overlapping(out, protected)
-    names = ["index.html"]  # and the files a sample's folder gets (mesh.obj, .mtl, .glb, mesh*.png)
+    names = ["index.html", "contact_sheet.png"]  # and a sample folder's files (mesh.obj/.mtl/.glb, mesh*.png, preview.png)
     for d in (out.iterdir() if out.is_dir() else []):
         if d.name.isdigit() and int(d.name) < a.n:
-            names += [f"{d.name}/{f.name}" for f in d.iterdir() if f.name.startswith("mesh")] if d.is_dir() else [d.name]
+            names += ([f"{d.name}/{f.name}" for f in d.iterdir() if f.name.startswith("mesh") or f.name == "preview.png"]
+                      if d.is_dir() else [d.name])
     check_output_folder(out, a.overwrite, names)
     check_writable(out)
 
@@ -272,6 +277,33 @@ def control_args(a) -> dict:
     if a.duplicate:
         return {"duplicate": ((tuple(a.duplicate[:3]), tuple(a.duplicate[3:6])), tuple(a.duplicate[6:]))}
     return {"resize": tuple(a.resize) if a.resize else (1.0, 1.0, 1.0)}
+
+
+def write_pictures(model, meshes, folder: Path, a, label: str) -> None:
+    """``NNN/preview.png`` per sample and ``contact_sheet.png`` of the input beside them, one scale for all.
+
+    Without an off-screen OpenGL context (a Linux machine without Mesa's EGL)
+    this says so in one line and the meshes are written without pictures.
+    """
+    from .files import atomic_write
+    from .render import contact_sheet, render_hero
+    from .viewer import png_bytes
+
+    try:
+        reference = model.to_mesh(model.input_sample(), 0, resolution=a.mesh_resolution, faces=a.faces,
+                                  texture_size=a.texture_size)
+        everything = [reference, *meshes]
+        box = np.array([np.min([m.vertices.min(0) for m in everything], axis=0),
+                        np.max([m.vertices.max(0) for m in everything], axis=0)])
+        images = [render_hero(m, size=384, box=box) for m in everything]
+    except Sin3DMInputError as e:
+        print(f"[{label}] no pictures: {e}")
+        return
+    for i, img in enumerate(images[1:]):
+        atomic_write(folder / f"{i:03d}" / "preview.png", png_bytes(img))
+    sheet = contact_sheet(images, ["input (reconstruction)"] + [f"{i:03d}" for i in range(len(meshes))])
+    atomic_write(folder / "contact_sheet.png", png_bytes(sheet))
+    print(f"[{label}] pictures: NNN/preview.png and contact_sheet.png (the input beside the samples)")
 
 
 def write_samples(model, out: Path, a, label: str = "sample") -> Path:
@@ -306,6 +338,8 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
             export_mesh(mesh, tmp / f"{i:03d}", name="mesh")
             meshes.append(mesh)
             print(f"[{label}] {i + 1}/{len(samples)}: {len(mesh.faces):,} faces  ({time.perf_counter() - t0:.0f} s)")
+        if not a.no_pictures:
+            write_pictures(model, meshes, tmp, a, label)
         save_html(gallery(meshes, labels=[f"{i:03d}" for i in range(len(meshes))]), tmp / "index.html")
         install_output(tmp, out)
     finally:

@@ -160,3 +160,21 @@ def test_render_command_bad_views_exit_2_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--views" in err[0]
     assert not (tmp_path / "v").exists()
+
+
+def test_sample_writes_previews_and_a_contact_sheet(tmp_path):
+    from sin3dm_lite.pipeline import Sin3DM
+
+    from .test_pipeline import micro_config
+
+    run = tmp_path / "run"
+    Sin3DM.fit("wall", preset=micro_config(), out=run, progress=False)
+    out = tmp_path / "out"
+    assert main(["sample", str(run), "-n", "2", "--out", str(out)]) == 0
+    sheet = np.asarray(Image.open(out / "contact_sheet.png").convert("RGB"))
+    previews = [np.asarray(Image.open(out / f"{i:03d}" / "preview.png").convert("RGB")) for i in range(2)]
+    assert all(p.shape == (384, 384, 3) and (p < 200).any(axis=-1).mean() > 0.02 for p in previews)  # not blank
+    assert sheet.shape[1] >= 3 * 384  # the input and both samples side by side
+    quiet = tmp_path / "quiet"
+    assert main(["sample", str(run), "-n", "1", "--no-pictures", "--out", str(quiet)]) == 0
+    assert not (quiet / "contact_sheet.png").exists() and not (quiet / "000" / "preview.png").exists()
