@@ -156,6 +156,7 @@ class Sin3DM:
         self.normalization = normalization
         self.report = report or {}
         self.schedule = NoiseSchedule.from_config(config.diffusion)
+        self._reconstruction_occupancy: dict[int, np.ndarray] = {}  # see plot_beside_input
 
     # ------------------------------------------------------------------ fit
     @classmethod
@@ -442,6 +443,21 @@ class Sin3DM:
         ext = np.asarray(samples.aabb[3:] - samples.aabb[:3], np.float64)
         own = np.asarray(self.aabb[3:] - self.aabb[:3], np.float64)
         return int(round(resolution * ext.max() / own.max()))
+
+    def plot_beside_input(self, samples: Samples, resolution: int = 64, labels=None):
+        """Front and top views (:func:`viz.plot_projections`) of the samples beside the input's reconstruction.
+
+        All at the voxel size the input's box has at ``resolution`` (larger
+        samples look larger). The reconstruction's grid is computed once per
+        resolution and kept.
+        """
+        from .viz import plot_projections
+
+        if resolution not in self._reconstruction_occupancy:
+            self._reconstruction_occupancy[resolution] = self.occupancy(self.input_sample(), resolution)[0]
+        grids = self.occupancy(samples, self.same_voxels(samples, resolution))
+        labels = list(labels) if labels is not None else [f"{i:03d}" for i in range(len(grids))]
+        return plot_projections([self._reconstruction_occupancy[resolution], *grids], ["input", *labels])
 
     def occupancy(self, samples: Samples, resolution=128, mesh_resolution: int | None = None):
         """Each sample's mesh as an occupancy grid over its box, ``resolution`` voxels along the longest side.

@@ -666,7 +666,9 @@ def plot_projections(grids: Sequence[np.ndarray], titles: Sequence[str] | None =
     """
     grids = [_numpy(g) for g in grids]
     ui = _axis_index(up)
-    depth = 3 - 0 - ui if ui != 0 else 2  # the front view looks along the axis that is neither x nor up
+    if ui == 0:
+        raise ValueError("up must be y or z: the views put x to the right")
+    depth = 3 - ui  # the front view looks along the axis that is neither x nor up
     n = len(grids)
     widths = [g.shape[0] for g in grids]
     fig = _figure(min(2.6 * n, 12), 4.2)

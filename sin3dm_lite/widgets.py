@@ -199,8 +199,8 @@ def control_panel(model, n_samples: int = 2, resolution: int | None = None, **sa
     the sampler would refuse shows its one-line reason instead). The
     **sample** button (or ``panel.run()`` from code) draws ``n_samples`` with
     the seed shown and puts the planes and :func:`viz.plot_projections` of the
-    decoded shapes (at ``resolution``, default the grid's) below, beside the
-    input's reconstruction; ``panel.last_samples`` keeps them.
+    decoded shapes (``model.plot_beside_input`` at ``resolution``, default the
+    grid's) below; ``panel.last_samples`` keeps them.
     """
     from .errors import Sin3DMInputError
 
@@ -243,9 +243,8 @@ def control_panel(model, n_samples: int = 2, resolution: int | None = None, **sa
         plan = plan_of(**panel.values())
         samples = model.sample(n_samples, plan=plan, seed=int(seed.value), progress=False, **sample_kwargs)
         panel.last_samples = samples
-        grids = [model.occupancy(model.input_sample(), res)[0], *model.occupancy(samples, res)]
-        figs = [viz.plot_plan(plan, samples), viz.plot_projections(grids, ["input"] + [f"seed {seed.value}, {i}"
-                                                                                   for i in range(n_samples)])]
+        figs = [viz.plot_plan(plan, samples),
+                model.plot_beside_input(samples, res, [f"seed {seed.value}, {i}" for i in range(n_samples)])]
         with result:
             clear_output(wait=True)
             for f in figs:

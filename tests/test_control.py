@@ -141,3 +141,17 @@ def test_a_shipped_model_is_found_by_name():
     assert shipped_model("canyon") == shipped_model("canyon_small") is not None
     assert (shipped_model("canyon") / "model.pt").is_file()
     assert shipped_model("no_such_model") is None and shipped_model("../canyon_small") is None
+
+
+def test_control_panel_redraws_the_mask_explains_refusals_and_samples(model):
+    from sin3dm_lite import widgets
+
+    panel = widgets.control_panel(model, n_samples=1, resolution=16, steps=5)
+    assert panel.last_error is None and len(panel.last_figure.axes) == 3  # the request on three planes
+    panel.controls["z"].value = (0.2, 0.8)
+    panel.controls["y"].value = (0.2, 0.8)  # reaches no pair of faces: refused, with the reason shown
+    assert "not possible" in panel.last_figure.texts[0].get_text()
+    panel.controls["z"].value = (0.0, 1.0)
+    figs = panel.run()
+    assert len(panel.last_samples) == 1 and panel.last_samples.plan.kind == "regenerate"
+    assert len(figs[0].axes) == 6 and len(figs[1].axes) == 4  # request + sample; input + sample, two views each
