@@ -25,6 +25,30 @@ from sin3dm_lite.grid import load_grid
 from sin3dm_lite.pipeline import Sin3DM
 
 
+def retrain(model: Sin3DM, run: Path, cfg, seed: int = 0, autoencoder: bool = False) -> dict:
+    """Retrain ``model``'s denoiser with ``cfg`` in place (first its autoencoder on RUN's grid if ``autoencoder``).
+
+    Returns the stage times (s), the final diffusion loss and, after an autoencoder, its reconstruction figures.
+    """
+    fig = {}
+    if autoencoder:  # a new latent: retrain the autoencoder on RUN's grid
+        grid = load_grid(run / "grid.npz")
+        t = time.perf_counter()
+        ae = AutoencoderTrainer(grid, cfg.autoencoder, seed=seed)
+        ae.run(progress=False)
+        fig["autoencoder_s"] = time.perf_counter() - t
+        h0 = ae.latent()
+        rec = reconstruction_metrics(reconstructed_grid(ae.model.decoder, h0, grid), grid)
+        fig.update(recon_iou=rec["occupancy_iou"], color_psnr=rec["color_psnr"])
+        model.decoder, model.latent = ae.model.decoder.eval(), h0
+    t = time.perf_counter()
+    trainer = DiffusionTrainer(model.latent, cfg.diffusion, seed=seed)
+    trainer.run(progress=False)
+    fig.update(diffusion_s=time.perf_counter() - t, final_loss=trainer.history["loss"][-1])
+    model.config, model.denoiser = cfg, trainer.model_for_sampling
+    return fig
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("run")
@@ -45,26 +69,16 @@ def main() -> None:
         except (ValueError, SyntaxError):
             changes[k] = v
     cfg = model.config.updated(**changes)
-    if any(k.startswith("autoencoder.") for k in changes):  # a new latent: retrain the autoencoder on RUN's grid
-        grid = load_grid(Path(a.run) / "grid.npz")
-        t = time.perf_counter()
-        ae = AutoencoderTrainer(grid, cfg.autoencoder, seed=a.seed)
-        ae.run(progress=False)
-        ae_s = time.perf_counter() - t
-        h0 = ae.latent()
-        rec = reconstruction_metrics(reconstructed_grid(ae.model.decoder, h0, grid), grid)
-        model.decoder, model.latent = ae.model.decoder.eval(), h0
+    fig = retrain(model, Path(a.run), cfg, seed=a.seed, autoencoder=any(k.startswith("autoencoder.") for k in changes))
+    if "autoencoder_s" in fig:
         ref = references(model, a.source, Path(a.run), [cfg.grid.resolution])[cfg.grid.resolution]
-        print(f"{Path(a.run).name} {' '.join(a.settings)}: autoencoder {ae_s:.0f} s ({ae_s / cfg.autoencoder.steps:.3f}"
-              f" s/step) | recon IoU {rec['occupancy_iou']:.3f} | colour PSNR {rec['color_psnr']:.1f} | reconstruction vs"
-              f" input: LP-IoU {ref['ae_lp_iou']:.3f} LP-F {ref['ae_lp_f']:.3f}", flush=True)
+        print(f"{Path(a.run).name} {' '.join(a.settings)}: autoencoder {fig['autoencoder_s']:.0f} s "
+              f"({fig['autoencoder_s'] / cfg.autoencoder.steps:.3f} s/step) | recon IoU {fig['recon_iou']:.3f} | colour PSNR "
+              f"{fig['color_psnr']:.1f} | reconstruction vs input: LP-IoU {ref['ae_lp_iou']:.3f} LP-F {ref['ae_lp_f']:.3f}",
+              flush=True)
         if a.autoencoder_only:
             return
-    t = time.perf_counter()
-    trainer = DiffusionTrainer(model.latent, cfg.diffusion, seed=a.seed)
-    trainer.run(progress=False)
-    train_s = time.perf_counter() - t
-    model.config, model.denoiser = cfg, trainer.model_for_sampling
+    train_s = fig["diffusion_s"]
     res = [cfg.grid.resolution]
     refs = references(model, a.source, Path(a.run), res)
     for d in a.diversity:
@@ -78,7 +92,7 @@ def main() -> None:
               f"({train_s / max(cfg.diffusion.steps, 1):.3f} s/step, {torch.get_num_threads()} threads) | "
               f"G-Div {sc['g_div']:.3f} | IoU→input {sc['iou_to_input']:.3f} | LP-IoU {sc['lp_iou']:.3f} | "
               f"LP-F {sc['lp_f']:.3f} | ceiling {sc['ceiling_lp_iou']:.3f}/{sc['ceiling_lp_f']:.3f} | final loss "
-              f"{trainer.history['loss'][-1]:.4f}", flush=True)
+              f"{fig['final_loss']:.4f}", flush=True)
 
 
 if __name__ == "__main__":

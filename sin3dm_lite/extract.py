@@ -47,7 +47,12 @@ from .triplane import Triplane
 
 
 class NoSurfaceError(Sin3DMInputError):
-    """The decoded SDF never crosses the iso-level, so there is no surface to mesh."""
+    """The decoded SDF never crosses the iso-level, so there is no surface to mesh.
+
+    ``fill`` says what the box holds instead: 0.0 (all outside), 1.0 (all inside) or None (NaN / inf).
+    """
+
+    fill: float | None = None
 
 
 # ----------------------------------------------------------------------------- 2. marching cubes
@@ -71,10 +76,12 @@ def marching_cubes(sdf: np.ndarray, aabb, level: float = 0.0, close_boundary: bo
         raise NoSurfaceError("the decoded SDF contains NaN or inf; the decoder or triplane is broken")
     if sdf.min() >= level or sdf.max() <= level:
         where = "outside (empty shape)" if sdf.min() >= level else "inside (the shape fills the whole box)"
-        raise NoSurfaceError(
+        err = NoSurfaceError(
             f"no surface: every SDF value is {where} (min {sdf.min():.4g}, max {sdf.max():.4g}, level {level}); "
             "check the triplane (e.g. a sample that diverged) or the iso-level"
         )
+        err.fill = 0.0 if sdf.min() >= level else 1.0
+        raise err
     from skimage import measure
 
     box = as_aabb(aabb)

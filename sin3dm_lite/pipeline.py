@@ -465,14 +465,25 @@ class Sin3DM:
         What the paper's geometry metrics take (:mod:`sin3dm_lite.metrics`): the
         sample is decoded to a mesh as for export (no texture) and voxelised.
         With a list of resolutions, returns ``{resolution: [grids]}`` and decodes each sample once.
+        A sample with no surface (a diverged one: all empty, or the box all inside) counts as an
+        empty or a full grid, so it lowers the scores instead of stopping the evaluation.
         """
+        from .box import grid_shape
+        from .extract import NoSurfaceError
         from .metrics import voxelize
 
         several = not isinstance(resolution, (int, np.integer))
         res = list(resolution) if several else [resolution]
         grids: dict[int, list[np.ndarray]] = {r: [] for r in res}
         for i in range(len(samples)):
-            mesh = self.to_mesh(samples, i, resolution=mesh_resolution, original_coords=False, vertex_colors=True)
+            try:
+                mesh = self.to_mesh(samples, i, resolution=mesh_resolution, original_coords=False, vertex_colors=True)
+            except NoSurfaceError as e:
+                if e.fill is None:
+                    raise
+                for r in res:
+                    grids[r].append(np.full(grid_shape(samples.aabb, r), bool(e.fill)))
+                continue
             for r in res:
                 grids[r].append(voxelize(mesh, samples.aabb, r))
         return grids if several else grids[res[0]]

@@ -198,3 +198,19 @@ def test_occupancy_of_samples_at_one_or_several_resolutions(fitted):
     assert len(one) == 1 and one[0].dtype == bool and one[0].any()
     np.testing.assert_array_equal(both[24][0], one[0])
     assert both[16][0].shape[0] == 16 and both[24][0].shape[0] == 24  # x is the longest axis of the wall
+
+
+@pytest.mark.parametrize("sdf_value, expected", [(1.0, False), (-1.0, True)])
+def test_occupancy_of_a_sample_without_surface_is_empty_or_full(fitted, monkeypatch, sdf_value, expected):
+    """A diverged sample (no surface) scores as an empty or full box instead of stopping an evaluation."""
+    from sin3dm_lite.extract import marching_cubes
+
+    model, _ = fitted
+    s = model.input_sample()
+
+    def no_surface(*args, **kwargs):  # what extract_mesh raises for such a sample
+        marching_cubes(np.full((4, 4, 4), sdf_value, np.float32), s.aabb)
+
+    monkeypatch.setattr(model, "to_mesh", no_surface)
+    (grid,) = model.occupancy(s, 16)
+    assert grid.shape[0] == 16 and grid.dtype == bool and (grid == expected).all()
