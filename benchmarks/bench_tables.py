@@ -120,7 +120,12 @@ def main() -> None:
         fit_or_load(source, a.preset, run)
         for variant in a.variants:
             key = f"{name} | {variant}"
-            if key in rows:
+            meshes = runs / "meshes" / name / variant.replace(" ", "_")
+            if key in rows:  # measured; add the texture metrics if they were not available then
+                if not rows[key].get("texture") and hasattr(Sin3DM, "evaluate"):
+                    paths = sorted(meshes.glob("*/mesh.glb"))[: a.textured]
+                    rows[key]["texture"] = texture_scores(Sin3DM.load(run), paths, a.weights) if paths else {}
+                    table.write_text(json.dumps(rows, indent=2))
                 continue
             model = Sin3DM.load(run)
             changes = VARIANTS[variant]
@@ -129,7 +134,7 @@ def main() -> None:
                 fig = retrain(model, run, model.config.updated(**changes),
                               autoencoder=any(k.startswith("autoencoder.") for k in changes))
             row = {"input": name, "variant": variant, "train": fig,
-                   **measure(model, source, run, runs / "meshes" / name / variant.replace(" ", "_"), a)}
+                   **measure(model, source, run, meshes, a)}
             rows[key] = row
             table.write_text(json.dumps(rows, indent=2))
             d = row["default"]
