@@ -2,7 +2,7 @@
 
 * ``tiny``  – for CI and notebook tests: every stage in seconds on 2 CPU cores.
   The shapes it makes are rough; it exists to exercise the code paths.
-* ``small`` – for a laptop CPU: the whole fit in about 2.5 minutes on 2 cores,
+* ``small`` – for a laptop CPU: the whole fit in about 4-4.5 minutes on 2 cores,
   a 64-voxel grid and a 32-texel latent. Its U-Net has no downsampling level and
   no cross-plane rollout so that what it sees shrinks with the latent
   (REFERENCE.md, last section: with the paper's network on a 32-wide latent
