@@ -517,6 +517,12 @@ class Sin3DM:
 
         Returns ``{"samples", "resolution", "views", "size", "metrics": {name: value or None},
         "skipped": {name: reason}, "timings_s": {...}}``.
+
+        Time (2-core CPU, ``OMP_NUM_THREADS=1``, other jobs running; defaults): the
+        shipped ``canyon_small`` with 4 samples of 20k faces took 1.1 s for the
+        geometry, 7.4-8.1 s to render 5 meshes × 8 views and 2.5 s for the
+        weight-free texture metrics (+2.9 s for SIFID and LPIPS): about 2.5 s
+        per sample plus the input's renders.
         """
         from .metrics import SSFID_UNAVAILABLE, FeatureNets, geometry_scores, load_feature_weights, texture_scores, \
             voxelize
