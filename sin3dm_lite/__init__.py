@@ -86,6 +86,13 @@ _API = {
     "iou": "metrics",
     "g_div": "metrics",
     "lp_scores": "metrics",
+    "geometry_scores": "metrics",
+    "patch_swd": "metrics",
+    "render_div": "metrics",
+    "texture_scores": "metrics",
+    "load_feature_weights": "metrics",
+    "sifid": "metrics",
+    "lpips": "metrics",
 }
 
 _MODULES = {"viz", "widgets", "viewer", "metrics", "examples", "box", "extract", "export", "mesh_io"}

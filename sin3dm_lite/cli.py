@@ -6,6 +6,7 @@
     sin3dm-lite sample RUN_DIR -n 4 --out DIR [--resize SX SY SZ] [--diversity D]
     sin3dm-lite demo [--out DIR] [--train]              the whole method on the default example
     sin3dm-lite render MESH --views 8 --size 512 --out DIR   PNG views (no display or GPU needed)
+    sin3dm-lite evaluate RUN SAMPLES_DIR [--out report.json] [--weights DIR]   the paper's metrics
 
 Every user error prints one line naming the problem and the fix, and exits
 with code 2 (no traceback).
@@ -115,6 +116,19 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="output folder (new or empty; see --overwrite)")
     r.add_argument("--overwrite", action="store_true",
                    help="write into a non-empty --out, replacing only the files sin3dm-lite wrote there before")
+
+    v = sub.add_parser("evaluate", help="the paper's geometry and texture metrics of sample meshes against the input")
+    v.add_argument("run", help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon)")
+    v.add_argument("samples", help="folder written by `sin3dm-lite sample` (NNN/mesh.obj or .glb)")
+    v.add_argument("--input", default=None, help="the mesh the run was fitted to (default: the run's built-in example)")
+    v.add_argument("--out", default=None, help="write the results as JSON to this .json file")
+    v.add_argument("--overwrite", action="store_true", help="replace an --out file that sin3dm-lite wrote before")
+    v.add_argument("--weights", default=None, metavar="DIR",
+                   help="folder with InceptionV3 / AlexNet / LPIPS weights for SIFID and LPIPS (never downloaded)")
+    v.add_argument("--views", type=_positive_int, default=8, help="views per mesh, azimuth every 360/N degrees")
+    v.add_argument("--size", type=_positive_int, default=256, help="render size in pixels (16-4096; the paper: 512)")
+    v.add_argument("--resolution", type=_positive_int, default=64,
+                   help="voxels along the longest side for the geometry metrics (16-512; the paper: 128)")
     return p
 
 
@@ -347,19 +361,25 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
     return out
 
 
+def find_run(name: str) -> Path:
+    """A run folder, or the shipped model called ``name``; one-line error if neither."""
+    from .pretrained import shipped_model, shipped_names
+
+    run = Path(name)
+    if not run.is_dir():
+        run = shipped_model(name)
+        if run is None:
+            raise Sin3DMInputError(f"run folder '{name}' not found; fit one first with `sin3dm-lite fit MESH --out "
+                                   f"{name}`, or name a shipped model ({', '.join(shipped_names())})")
+    return run
+
+
 def cmd_sample(a) -> None:
     from .pipeline import Sin3DM
 
     from .device import get_device
 
-    from .pretrained import shipped_model, shipped_names
-
-    run = Path(a.run)
-    if not run.is_dir():
-        run = shipped_model(a.run)
-        if run is None:
-            raise Sin3DMInputError(f"run folder '{a.run}' not found; fit one first with `sin3dm-lite fit MESH --out "
-                                   f"{a.run}`, or name a shipped model ({', '.join(shipped_names())})")
+    run = find_run(a.run)
     get_device(a.device)
     check_sample_output(Path(a.out), a, {"run folder": run})
     model = Sin3DM.load(run, device=a.device)
@@ -428,6 +448,94 @@ def cmd_render(a) -> None:
     print(f"wrote {a.views} views + hero.png + contact_sheet.png to {out} ({time.perf_counter() - t0:.1f} s)")
 
 
+MESH_NAMES = ("mesh.obj", "mesh.glb")  # what `sample` writes into each NNN/ folder, in order of preference
+
+
+def sample_mesh_files(folder: Path) -> list[Path]:
+    """The mesh of each ``NNN/`` sample folder in ``folder`` (``mesh.obj``, else ``mesh.glb``), in order."""
+    if not folder.is_dir():
+        what = "is a file" if folder.exists() else "not found"
+        raise Sin3DMInputError(f"samples folder '{folder}' {what}; give the --out folder of `sin3dm-lite sample`")
+    files = []
+    for d in sorted((d for d in folder.iterdir() if d.is_dir() and d.name.isdigit()), key=lambda d: int(d.name)):
+        found = next((d / n for n in MESH_NAMES if (d / n).is_file()), None)
+        if found is not None:
+            files.append(found)
+    if not files:
+        raise Sin3DMInputError(f"no sample meshes in '{folder}' (expected NNN/mesh.obj or NNN/mesh.glb, as "
+                               "`sin3dm-lite sample` writes); sample first, then evaluate that folder")
+    return files
+
+
+def print_evaluation(result: dict) -> None:
+    """The metrics as a table: our name, the value, the paper's name, which way is better."""
+    rows = [("g_div", "G-Div", "higher = more diverse shapes"),
+            ("lp_iou", "LP-IoU", "higher = local geometry like the input's"),
+            ("lp_fscore", "LP-F", "higher = local geometry like the input's"),
+            ("iou_to_input", "-", "near 1 = copies of the input"),
+            ("ssfid", "G-Qual (SSFID)", "lower = better"),
+            ("patch_swd", "T-Qual stand-in", "lower = texture patches like the input's (weight-free, not SIFID)"),
+            ("render_div", "T-Div stand-in", "higher = more varied renders (weight-free, not LPIPS)"),
+            ("sifid", "T-Qual (SIFID)", "lower = better"),
+            ("lpips", "T-Div (LPIPS)", "higher = more diverse textures")]
+    m = result["metrics"]
+    print(f"{result['samples']} samples, {result['resolution']} voxels, {result['views']} views of {result['size']}²")
+    print(f"{'metric':14s} {'value':>8s}  {'paper':16s} meaning")
+    for key, paper, meaning in rows:
+        value = "-" if m.get(key) is None else f"{m[key]:.4f}"
+        print(f"{key:14s} {value:>8s}  {paper:16s} {meaning}")
+    for key, why in result["skipped"].items():
+        print(f"  {key}: {why}")
+
+
+def cmd_evaluate(a) -> None:
+    import json
+
+    from .files import atomic_write, check_not_overlapping, check_writable, is_ours, record_written
+    from .mesh_io import load_any
+    from .metrics import load_feature_weights
+    from .pipeline import Sin3DM, resolve_mesh
+
+    if a.views > MAX_VIEWS:
+        raise Sin3DMInputError(f"--views {a.views} is too many; ask for at most {MAX_VIEWS}")
+    if not 16 <= a.size <= 4096:
+        raise Sin3DMInputError(f"--size must be from 16 to 4096 pixels, got {a.size}")
+    if not 16 <= a.resolution <= 512:
+        raise Sin3DMInputError(f"--resolution must be from 16 to 512 voxels, got {a.resolution}")
+    run = find_run(a.run)
+    files = sample_mesh_files(Path(a.samples))
+    out = Path(a.out) if a.out else None
+    if out is not None:
+        if out.suffix != ".json":
+            raise Sin3DMInputError(f"--out must be a .json file, got '{out}'")
+        check_not_overlapping(out, {"run folder": run})
+        if out.is_dir():
+            raise Sin3DMInputError(f"--out '{out}' is a folder; give a file name like {out / 'evaluation.json'}")
+        if out.exists() and not a.overwrite:
+            raise Sin3DMInputError(f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) "
+                                   "or choose another --out")
+        if out.exists() and not is_ours(out.parent, out.name):
+            raise Sin3DMInputError(f"'{out}' was not written by sin3dm-lite; move it away or choose another --out")
+        check_writable(out)
+    nets = load_feature_weights(a.weights) if a.weights else None  # a missing file fails before the long work
+    model = Sin3DM.load(run)
+    reference = model.input_mesh() if a.input is None else resolve_mesh(a.input)
+    meshes = []
+    for f in files:
+        try:
+            meshes.append(load_any(f))
+        except Sin3DMInputError as e:
+            raise Sin3DMInputError(f"cannot read sample mesh '{f}': {e}") from None
+    t0 = time.perf_counter()
+    result = model.evaluate(meshes, reference, resolution=a.resolution, views=a.views, size=a.size, weights=nets)
+    result.update(run=str(run), samples_folder=str(a.samples), files=[str(f) for f in files])
+    print_evaluation(result)
+    if out is not None:
+        atomic_write(out, json.dumps(result, indent=2))
+        record_written(out.parent, [out.name])
+        print(f"wrote {out} ({time.perf_counter() - t0:.1f} s)")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
@@ -439,7 +547,7 @@ def main(argv: list[str] | None = None) -> int:
     warnings.showwarning = one_line
     try:
         {"examples": cmd_examples, "grid": cmd_grid, "fit": cmd_fit, "sample": cmd_sample, "demo": cmd_demo,
-         "render": cmd_render}[a.command](a)
+         "render": cmd_render, "evaluate": cmd_evaluate}[a.command](a)
     except Sin3DMInputError as e:
         print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
         return 2

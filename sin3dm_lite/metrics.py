@@ -15,14 +15,32 @@ voxels along the longest side of a box, the paper uses 128).
   piece of the reference? These only compare 11³ patches, so they work for
   shapes of any grid size as long as the voxel size is the same.
 
-The learned metrics (SSFID, SIFID, LPIPS) need pre-trained weights and are not
-here.
+Texture metrics compare *renders* (:func:`sin3dm_lite.render.render_views`:
+the paper's 8 views, azimuth every 45°, elevation 45°, all framed by the
+input's box) view by view:
+
+* weight-free, always available: :func:`patch_swd` (our stand-in for the
+  paper's T-Qual = SIFID) and :func:`render_div` (our stand-in for T-Div =
+  LPIPS); :func:`t_qual` and :func:`t_div` average any image distance the
+  paper's way;
+* with pre-trained weights given *by path* (never downloaded):
+  :func:`sifid` (InceptionV3's first block) and :func:`lpips` (AlexNet +
+  LPIPS's linear layers), loaded by :func:`load_feature_weights`.
+
+G-Qual = SSFID needs SSG's 3D voxel encoder pre-trained on ShapeNet, whose
+weights are not published in a loadable form: it is not here (see
+:data:`SSFID_UNAVAILABLE`).
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
 
 from .errors import Sin3DMInputError
 from .box import as_aabb, axis_centres, grid_shape, to_index
@@ -284,8 +302,374 @@ def lp_fscore(reference: np.ndarray, generated, patch: int = 11, stride: int = 5
     return lp_scores(reference, generated, patch, stride, center, max_patches, threshold, seed)["lp_fscore"]
 
 
+# ----------------------------------------------------------------------------- geometry, all at once
+def geometry_scores(reference: np.ndarray, samples) -> dict:
+    """The paper's weight-free geometry metrics of generated shapes against the input (occupancy grids, one box).
+
+    * ``g_div`` — G-Div: mean pairwise ``1 − IoU`` among the samples (higher = more diverse; None for one sample);
+    * ``lp_iou``, ``lp_fscore`` — LP-IoU / LP-F: share of the samples' local 11³ patches that have a near-exact
+      match (> 0.95) somewhere in the input (higher = locally more plausible), see :func:`lp_scores`;
+    * ``iou_to_input`` — mean IoU of each sample with the input (near 1 = copies of the input).
+    """
+    samples = list(samples)
+    lp = lp_scores(reference, samples)
+    return {
+        "g_div": g_div(samples) if len(samples) > 1 else None,
+        "lp_iou": lp["lp_iou"],
+        "lp_fscore": lp["lp_fscore"],
+        "iou_to_input": float(np.mean([iou(s, reference) for s in samples])),
+    }
+
+
+# ----------------------------------------------------------------------------- texture: weight-free
+#: renders have a white background (render.BACKGROUND); pixels of exactly this colour are not the shape
+BACKGROUND = 255
+
+
+def _image(img) -> torch.Tensor:
+    """An ``(H, W, 3)`` uint8 picture (or floats in [0, 1]) → float tensor ``(1, 3, H, W)`` in [0, 1]."""
+    a = np.asarray(img)
+    if a.ndim != 3 or a.shape[2] < 3:
+        raise Sin3DMInputError(f"expected an (H, W, 3) picture, got an array of shape {a.shape}")
+    a = a[..., :3].astype(np.float32) / (255.0 if a.dtype == np.uint8 else 1.0)
+    return torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1)[None]
+
+
+def foreground(img) -> np.ndarray:
+    """Pixels of a render that show the shape: ``(H, W)`` bool, every pixel not of the white background."""
+    a = np.asarray(img)
+    white = BACKGROUND if a.dtype == np.uint8 else 1.0
+    return np.any(a[..., :3] != white, axis=-1)
+
+
+def _patch_set(x: torch.Tensor, mask: torch.Tensor, patch: int, max_patches: int, seed: int) -> torch.Tensor:
+    """Patches of ``x`` ``(1, 3, H, W)`` centred on ``mask`` pixels (all pixels if none) → ``(n, 3·patch²)``.
+
+    Outside the picture counts as background (white).
+    """
+    centres = mask.reshape(-1).nonzero()[:, 0]
+    if len(centres) == 0:
+        centres = torch.arange(mask.numel())
+    if len(centres) > max_patches:  # the same subset for the same count: identical pictures stay identical
+        centres = centres[torch.randperm(len(centres), generator=torch.Generator().manual_seed(seed))[:max_patches]]
+    w = x.shape[-1]
+    r = torch.arange(patch)
+    ys = (centres // w)[:, None, None] + r[None, :, None]  # rows of the padded picture, (n, p, 1)
+    xs = (centres % w)[:, None, None] + r[None, None, :]
+    padded = F.pad(x[0], (patch // 2,) * 4, value=1.0)
+    return padded[:, ys, xs].permute(1, 0, 2, 3).reshape(len(centres), -1)  # (n, 3·p·p)
+
+
+def _quantiles(sorted_values: torch.Tensor, m: int) -> torch.Tensor:
+    """``m`` evenly spaced quantiles of each column of a sorted ``(n, P)`` tensor (linear interpolation)."""
+    n = len(sorted_values)
+    if n == m:
+        return sorted_values
+    pos = torch.linspace(0, n - 1, m, dtype=torch.float64)
+    lo = pos.floor().long()
+    hi = torch.clamp(lo + 1, max=n - 1)
+    w = (pos - lo).to(sorted_values.dtype)[:, None]
+    return sorted_values[lo] * (1 - w) + sorted_values[hi] * w
+
+
+@torch.no_grad()
+def patch_swd(a, b, patch: int = 7, levels: int = 3, projections: int = 128, max_patches: int = 4096,
+              seed: int = 0) -> float:
+    """Sliced Wasserstein distance between the multi-scale patch distributions of two renders (0 = same patches).
+
+    Our weight-free stand-in for the paper's **T-Qual = SIFID** — *not* SIFID
+    (no Inception features; numbers are not comparable with the paper's).
+    Like SIFID it compares the *distribution* of local appearance, not pixel
+    positions: a sample whose texture is made of the input's pieces, moved
+    around, scores low; wrong colours, blur or noise score high.
+
+    On each of ``levels`` levels of an image pyramid (2×2 average pooling) take
+    the ``patch × patch`` RGB patches centred on shape pixels (not the white
+    background; at most ``max_patches``, a fixed random subset), project both
+    sets on ``projections`` random unit directions (fixed ``seed``), and average
+    the 1D Wasserstein-1 distances (mean absolute difference of the sorted
+    projections); the result is the mean over levels, in colour units (0–1).
+    """
+    xa, xb = _image(a), _image(b)
+    ma = torch.from_numpy(foreground(a))[None, None].float()
+    mb = torch.from_numpy(foreground(b))[None, None].float()
+    dirs = torch.randn(3 * patch * patch, projections, generator=torch.Generator().manual_seed(seed))
+    dirs /= dirs.norm(dim=0, keepdim=True)
+    total = 0.0
+    for level in range(levels):
+        if level:
+            xa, xb, ma, mb = (F.avg_pool2d(t, 2) for t in (xa, xb, ma, mb))
+        # (n, P) projections, sorted per direction (numpy's sort: torch's along dim 0 is ten times slower here)
+        pa = torch.from_numpy(np.sort((_patch_set(xa, ma > 0.5, patch, max_patches, seed + level) @ dirs).numpy(), 0))
+        pb = torch.from_numpy(np.sort((_patch_set(xb, mb > 0.5, patch, max_patches, seed + level) @ dirs).numpy(), 0))
+        m = max(len(pa), len(pb))
+        total += float((_quantiles(pa, m) - _quantiles(pb, m)).abs().mean())
+    return total / levels
+
+
+def colour_distance(a, b) -> float:
+    """Mean absolute colour difference (0–1) of two renders of one view, over the pixels where either shows the shape.
+
+    The pixel-aligned distance behind :func:`render_div`; 0 for identical
+    pictures, 1 between black and white.
+    """
+    fa, fb = foreground(a), foreground(b)
+    union = fa | fb
+    if not union.any():
+        return 0.0
+    d = np.abs(_image(a)[0].numpy() - _image(b)[0].numpy()).mean(axis=0)
+    return float(d[union].mean())
+
+
+def _check_views(reference_views, sample_views) -> None:
+    counts = {len(v) for v in sample_views} | ({len(reference_views)} if reference_views is not None else set())
+    if len(counts) > 1:
+        raise Sin3DMInputError(f"every shape needs the same number of views, got {sorted(counts)}")
+
+
+def t_qual(reference_views, sample_views, distance=patch_swd) -> float:
+    """The paper's T-Qual average for any image ``distance``: mean over views ``i`` and samples ``j`` of
+    ``distance(reference_views[i], sample_views[j][i])`` (lower = closer to the input).
+
+    With :func:`sifid` this is T-Qual itself; with :func:`patch_swd` (the default) our weight-free stand-in.
+    """
+    sample_views = list(sample_views)
+    _check_views(reference_views, sample_views)
+    return float(np.mean([distance(r, s[i]) for s in sample_views for i, r in enumerate(reference_views)]))
+
+
+def t_div(sample_views, distance=colour_distance) -> float:
+    """The paper's T-Div average for any image ``distance``: mean over views and over all pairs of samples
+    of the distance between their pictures of that view (higher = more diverse; needs two samples).
+
+    With :func:`lpips` this is T-Div itself; with :func:`colour_distance` (the default) :func:`render_div`.
+    """
+    sample_views = list(sample_views)
+    if len(sample_views) < 2:
+        raise Sin3DMInputError(f"texture diversity needs at least two samples, got {len(sample_views)}")
+    _check_views(None, sample_views)
+    n = len(sample_views)
+    return float(np.mean([distance(sample_views[j][i], sample_views[k][i])
+                          for i in range(len(sample_views[0])) for j in range(n) for k in range(j + 1, n)]))
+
+
+def render_div(sample_views) -> float:
+    """Texture diversity: mean pairwise :func:`colour_distance` among the samples' renders, view by view.
+
+    Our weight-free stand-in for the paper's **T-Div = LPIPS** (mean pairwise
+    LPIPS), *not* LPIPS: 0 when all samples look the same from every view,
+    higher as their colours and silhouettes differ (0–1, in colour units).
+    """
+    return t_div(sample_views, colour_distance)
+
+
+# ----------------------------------------------------------------------------- texture: pre-trained features
+#: where the weight files come from (documentation only: nothing is downloaded)
+INCEPTION_FILES = {
+    "pt_inception-2015-12-05-6726825d.pth":
+        "https://github.com/mseitzer/pytorch-fid/releases/download/fid_weights/pt_inception-2015-12-05-6726825d.pth",
+    "inception_v3_google-0cc3c7bd.pth": "https://download.pytorch.org/models/inception_v3_google-0cc3c7bd.pth",
+}
+ALEXNET_FILE = ("alexnet-owt-7be5be79.pth", "https://download.pytorch.org/models/alexnet-owt-7be5be79.pth")
+LPIPS_FILE = ("alex.pth", "https://github.com/richzhang/PerceptualSimilarity/raw/master/lpips/weights/v0.1/alex.pth")
+SSFID_UNAVAILABLE = ("not implemented: G-Qual (SSFID) needs SSG's 3D CNN pre-trained on ShapeNet voxels "
+                     "(Wu & Zheng 2022), a network and weights this package does not have")
+
+
+class BasicConv2d(nn.Module):
+    """Inception's conv (no bias) + BatchNorm (eps 0.001) + ReLU; names as in torchvision / pytorch-fid."""
+
+    def __init__(self, cin: int, cout: int, stride: int = 1, padding: int = 0):
+        super().__init__()
+        self.conv = nn.Conv2d(cin, cout, 3, stride=stride, padding=padding, bias=False)
+        self.bn = nn.BatchNorm2d(cout, eps=0.001)
+
+    def forward(self, x):
+        return F.relu(self.bn(self.conv(x)))
+
+
+class InceptionStem(nn.Module):
+    """InceptionV3 up to its first max-pool: the 64-channel features SinGAN's SIFID compares."""
+
+    def __init__(self):
+        super().__init__()
+        self.Conv2d_1a_3x3 = BasicConv2d(3, 32, stride=2)
+        self.Conv2d_2a_3x3 = BasicConv2d(32, 32)
+        self.Conv2d_2b_3x3 = BasicConv2d(32, 64, padding=1)
+
+    def forward(self, x):  # (B, 3, H, W) in [0, 1] → (B, 64, ~H/4, ~W/4)
+        x = 2 * x - 1  # pytorch-fid's input scaling (torchvision's transform_input amounts to the same)
+        x = self.Conv2d_2b_3x3(self.Conv2d_2a_3x3(self.Conv2d_1a_3x3(x)))
+        return F.max_pool2d(x, 3, stride=2)
+
+
+class _Lin(nn.Module):
+    """LPIPS's NetLinLayer: dropout + 1×1 conv to one channel (keys ``linK.model.1.weight``)."""
+
+    def __init__(self, cin: int):
+        super().__init__()
+        self.model = nn.Sequential(nn.Dropout(), nn.Conv2d(cin, 1, 1, bias=False))
+
+
+class LPIPSAlex(nn.Module):
+    """LPIPS v0.1 with AlexNet: torchvision's ``features`` layers (same indices) + the five linear layers."""
+
+    TAPS = (1, 4, 7, 9, 11)  # the ReLU outputs LPIPS compares
+    CHANNELS = (64, 192, 384, 256, 256)
+
+    def __init__(self):
+        super().__init__()
+        self.features = nn.Sequential(
+            nn.Conv2d(3, 64, 11, stride=4, padding=2), nn.ReLU(), nn.MaxPool2d(3, 2),
+            nn.Conv2d(64, 192, 5, padding=2), nn.ReLU(), nn.MaxPool2d(3, 2),
+            nn.Conv2d(192, 384, 3, padding=1), nn.ReLU(),
+            nn.Conv2d(384, 256, 3, padding=1), nn.ReLU(),
+            nn.Conv2d(256, 256, 3, padding=1), nn.ReLU(),
+        )
+        for k, c in enumerate(self.CHANNELS):
+            self.add_module(f"lin{k}", _Lin(c))
+        self.register_buffer("shift", torch.tensor([-0.030, -0.088, -0.188])[None, :, None, None], persistent=False)
+        self.register_buffer("scale", torch.tensor([0.458, 0.448, 0.450])[None, :, None, None], persistent=False)
+
+    def taps(self, x):
+        """Unit-normalised (over channels) features of the five ReLUs of ``x`` in [0, 1]."""
+        x = ((2 * x - 1) - self.shift) / self.scale
+        out = []
+        for i, layer in enumerate(self.features):
+            x = layer(x)
+            if i in self.TAPS:
+                out.append(x / (x.pow(2).sum(1, keepdim=True).sqrt() + 1e-10))
+        return out
+
+    def forward(self, a, b):  # (B, 3, H, W) each, in [0, 1] → (B,)
+        return sum(getattr(self, f"lin{k}").model((fa - fb) ** 2).mean(dim=(2, 3))[:, 0]
+                   for k, (fa, fb) in enumerate(zip(self.taps(a), self.taps(b))))
+
+
+@dataclass
+class FeatureNets:
+    """The pre-trained networks of the paper's texture metrics (see :func:`load_feature_weights`)."""
+
+    inception: InceptionStem
+    lpips: LPIPSAlex
+
+
+def _read_weights(path: Path, url: str) -> dict:
+    try:
+        sd = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # noqa: BLE001 - truncated, not a checkpoint, holds code: one clear message
+        raise Sin3DMInputError(f"cannot read weights '{path}' ({type(e).__name__}); get the original file from {url}") from None
+    if not isinstance(sd, dict):
+        raise Sin3DMInputError(f"weights '{path}' hold a {type(sd).__name__}, not a state dict; get the original from {url}")
+    return sd
+
+
+def _load_into(module: nn.Module, sd: dict, path: Path, url: str, prefix: str = "") -> None:
+    """Copy the entries ``module`` needs from ``sd`` (other keys ignored); one-line error if any is missing or misshapen."""
+    want = {k: v for k, v in module.state_dict().items() if not k.endswith("num_batches_tracked")}
+    picked = {}
+    for k, v in want.items():
+        got = sd.get(prefix + k)
+        if not isinstance(got, torch.Tensor) or tuple(got.shape) != tuple(v.shape):
+            what = "is missing" if got is None else f"has shape {tuple(getattr(got, 'shape', ()))}, not {tuple(v.shape)}"
+            raise Sin3DMInputError(f"weights '{path}' do not match: '{prefix + k}' {what}; get the original file from {url}")
+        picked[k] = got.float()
+    module.load_state_dict(picked, strict=False)
+
+
+def load_feature_weights(weights_dir) -> FeatureNets:
+    """Load the networks behind SIFID and LPIPS from files in ``weights_dir`` (nothing is downloaded).
+
+    The folder must hold, under their standard names: InceptionV3
+    (``pt_inception-2015-12-05-6726825d.pth`` of pytorch-fid, or torchvision's
+    ``inception_v3_google-0cc3c7bd.pth``), torchvision's AlexNet
+    (``alexnet-owt-7be5be79.pth``) and LPIPS's linear layers (``alex.pth``,
+    ``lpips/weights/v0.1`` of the lpips project). Only the entries used are
+    read (``torch.load(..., weights_only=True)``). A missing file or one whose
+    keys do not match gives a one-line :class:`Sin3DMInputError` naming it and where to get it.
+    """
+    folder = Path(weights_dir)
+    if not folder.is_dir():
+        raise Sin3DMInputError(f"weights folder '{folder}' not found; give a folder holding "
+                               f"{next(iter(INCEPTION_FILES))}, {ALEXNET_FILE[0]} and {LPIPS_FILE[0]}")
+    inception = next(((folder / n, u) for n, u in INCEPTION_FILES.items() if (folder / n).is_file()), None)
+    if inception is None:
+        name, url = next(iter(INCEPTION_FILES.items()))
+        raise Sin3DMInputError(f"'{folder / name}' not found (InceptionV3 for SIFID); download it from {url} "
+                               f"(or torchvision's {list(INCEPTION_FILES)[1]}) into '{folder}'")
+    for name, url in (ALEXNET_FILE, LPIPS_FILE):
+        if not (folder / name).is_file():
+            raise Sin3DMInputError(f"'{folder / name}' not found (for LPIPS); download it from {url} into '{folder}'")
+    nets = FeatureNets(InceptionStem(), LPIPSAlex())
+    _load_into(nets.inception, _read_weights(*inception), *inception)
+    _load_into(nets.lpips.features, _read_weights(folder / ALEXNET_FILE[0], ALEXNET_FILE[1]), folder / ALEXNET_FILE[0],
+               ALEXNET_FILE[1], prefix="features.")
+    lin = nn.ModuleDict({f"lin{k}": getattr(nets.lpips, f"lin{k}") for k in range(5)})
+    _load_into(lin, _read_weights(folder / LPIPS_FILE[0], LPIPS_FILE[1]), folder / LPIPS_FILE[0], LPIPS_FILE[1])
+    nets.inception.eval()
+    nets.lpips.eval()
+    return nets
+
+
+def frechet_distance(f1: np.ndarray, f2: np.ndarray) -> float:
+    """Fréchet distance of two Gaussians fitted to feature sets ``(n, d)``:
+    ``|μ1 − μ2|² + tr(C1 + C2 − 2 (C1^½ C2 C1^½)^½)`` (symmetric form, eigenvalues clipped at 0)."""
+    f1, f2 = np.asarray(f1, np.float64), np.asarray(f2, np.float64)
+    mu1, mu2 = f1.mean(0), f2.mean(0)
+    c1, c2 = np.cov(f1, rowvar=False), np.cov(f2, rowvar=False)
+    w, v = np.linalg.eigh(c1)
+    s1 = (v * np.sqrt(np.clip(w, 0, None))) @ v.T
+    cross = np.sqrt(np.clip(np.linalg.eigvalsh(s1 @ c2 @ s1), 0, None)).sum()
+    return float(max(((mu1 - mu2) ** 2).sum() + np.trace(c1) + np.trace(c2) - 2 * cross, 0.0))
+
+
+@torch.no_grad()
+def sifid(a, b, nets: FeatureNets) -> float:
+    """SIFID (SinGAN's single-image FID; the paper's **T-Qual** per view): Fréchet distance between the
+    64-channel features of InceptionV3's first block at every position of one picture and of the other
+    (lower = the same local appearance). Pictures at their own size (no resize to 299)."""
+    fa, fb = (nets.inception(_image(x))[0].flatten(1).T.numpy() for x in (a, b))
+    return frechet_distance(fa, fb)
+
+
+@torch.no_grad()
+def lpips(a, b, nets: FeatureNets) -> float:
+    """LPIPS v0.1 (AlexNet), the paper's **T-Div** per pair: learned, weighted distance of unit-normalised
+    deep features, averaged over the picture (0 = identical; higher = perceptually more different)."""
+    return float(nets.lpips(_image(a), _image(b))[0])
+
+
+def texture_scores(reference_views, sample_views, nets: FeatureNets | None = None) -> dict:
+    """The texture metrics of renders, view by view: ``patch_swd`` and ``render_div`` always, ``sifid`` and
+    ``lpips`` (the paper's T-Qual and T-Div) with ``nets``; the diversities are None for one sample."""
+    sample_views = list(sample_views)
+    several = len(sample_views) > 1
+    out = {"patch_swd": t_qual(reference_views, sample_views, patch_swd),
+           "render_div": render_div(sample_views) if several else None}
+    if nets is not None:
+        out["sifid"] = t_qual(reference_views, sample_views, lambda x, y: sifid(x, y, nets))
+        out["lpips"] = t_div(sample_views, lambda x, y: lpips(x, y, nets)) if several else None
+    return out
+
+
 __all__ = [
+    "FeatureNets",
+    "InceptionStem",
+    "LPIPSAlex",
+    "SSFID_UNAVAILABLE",
+    "colour_distance",
     "extract_patches",
+    "foreground",
+    "frechet_distance",
+    "geometry_scores",
+    "load_feature_weights",
+    "lpips",
+    "patch_swd",
+    "render_div",
+    "sifid",
+    "t_div",
+    "t_qual",
+    "texture_scores",
     "g_div",
     "input_occupancy",
     "iou",

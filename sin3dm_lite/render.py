@@ -15,6 +15,7 @@ Public API::
     save_views(mesh, folder, n_views=8, size=512, ...) -> [Path, ...]     # view_000.png ... hero.png
     contact_sheet(images, labels=None, columns=4) -> (H, W, 3) uint8      # a labelled grid
     view_angles(n_views=8, elevation=45) -> [(azimuth, elevation), ...]   # degrees
+    renderer_problem() -> None or the one-line reason rendering cannot start here
 
 Coordinates: y is up (as the viewer's default ``up="y"``); azimuth 0 looks at
 the shape's front (the camera on +z), azimuth 90 from +x.
@@ -84,6 +85,24 @@ def _pyrender():
     except ImportError as e:
         raise Sin3DMInputError(f"rendering needs pyrender ({e}); install it with `pip install pyrender-maintained`") from None
     return pyrender
+
+
+_PROBLEM: list = []  # renderer_problem's answer, found once per process
+
+
+def renderer_problem() -> str | None:
+    """None if off-screen rendering works here, else the one-line reason (and fix); tried once per process."""
+    if not _PROBLEM:
+        try:
+            pyrender = _pyrender()
+            pyrender.OffscreenRenderer(16, 16).delete()
+            _PROBLEM.append(None)
+        except Sin3DMInputError as e:
+            _PROBLEM.append(str(e))
+        except Exception as e:  # noqa: BLE001 - no EGL / no display
+            _PROBLEM.append(f"cannot start an off-screen OpenGL context ({type(e).__name__}: {e}); on Linux install "
+                            "Mesa's EGL (`apt-get install libegl1 libgl1-mesa-dri`)")
+    return _PROBLEM[0]
 
 
 def view_angles(n_views: int = 8, elevation: float = 45.0) -> list[tuple[float, float]]:

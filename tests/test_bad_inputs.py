@@ -86,6 +86,9 @@ def template(tmp_path_factory):
     (root / "blocker").write_text("a file where a folder is expected")
     (root / "neighbour.txt").write_text("beside --out")
     (root / "grid.npz").write_bytes(b"someone else's grid")
+    (root / "report.json").write_text("{}")  # someone else's report
+    (root / "badsamples" / "000").mkdir(parents=True)
+    (root / "badsamples" / "000" / "mesh.obj").write_text("not a mesh\n")
     return root
 
 
@@ -172,6 +175,23 @@ CASES = {
     "render-out-is-file": (["render", "box.obj", "--out", "neighbour.txt"], "is a file"),
     "render-out-under-file": (["render", "box.obj", "--out", "blocker/v"], "is a file"),
     "render-out-not-writable": (["render", "box.obj", "--out", NOT_WRITABLE], "cannot write"),
+    # evaluate
+    "evaluate-unknown-run": (["evaluate", "nosuch", "badsamples"], "run folder 'nosuch' not found"),
+    "evaluate-missing-samples": (["evaluate", "run", "nosuch"], "samples folder 'nosuch' not found"),
+    "evaluate-samples-is-file": (["evaluate", "run", "box.obj"], "is a file"),
+    "evaluate-empty-samples": (["evaluate", "run", "full"], "no sample meshes"),
+    "evaluate-unreadable-mesh": (["evaluate", "run", "badsamples"], "cannot read sample mesh"),
+    "evaluate-missing-weights": (["evaluate", "run", "badsamples", "--weights", "."], "pt_inception"),
+    "evaluate-no-weights-folder": (["evaluate", "run", "badsamples", "--weights", "nowhere"], "weights folder"),
+    "evaluate-size": (["evaluate", "run", "badsamples", "--size", "8"], "--size"),
+    "evaluate-resolution": (["evaluate", "run", "badsamples", "--resolution", "1000"], "--resolution"),
+    "evaluate-out-not-json": (["evaluate", "run", "badsamples", "--out", "e.txt"], ".json"),
+    "evaluate-out-exists": (["evaluate", "run", "badsamples", "--out", "report.json"], "--overwrite"),
+    "evaluate-out-foreign-overwrite": (["evaluate", "run", "badsamples", "--out", "report.json", "--overwrite"],
+                                       "not written by sin3dm-lite"),
+    "evaluate-out-inside-run": (["evaluate", "run", "badsamples", "--out", "run/e.json"], "inside the run folder"),
+    "evaluate-out-under-file": (["evaluate", "run", "badsamples", "--out", "blocker/e.json"], "is a file"),
+    "evaluate-out-not-writable": (["evaluate", "run", "badsamples", "--out", NOT_WRITABLE + ".json"], "cannot write"),
 }
 
 
