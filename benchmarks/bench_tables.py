@@ -73,11 +73,10 @@ def textured(model: Sin3DM, samples, k: int, folder: Path) -> list[Path]:
 
 
 def texture_scores(model: Sin3DM, paths: list[Path], weights: str | None) -> dict:
-    evaluate = getattr(model, "evaluate", None)
-    if evaluate is None:  # the evaluation API is not in this checkout
-        return {}
-    report = evaluate([load_mesh(p) for p in paths], weights=weights)
-    return {k: v for k, v in report.get("texture", {}).items() if isinstance(v, (int, float))}
+    """Sin3DM.evaluate's texture metrics of the saved meshes (the weight-free ones; SIFID / LPIPS with weights)."""
+    report = model.evaluate([load_mesh(p) for p in paths], weights=weights, progress=False)
+    names = ("patch_swd", "render_div", "sifid", "lpips")
+    return {k: report["metrics"][k] for k in names if report["metrics"].get(k) is not None}
 
 
 def measure(model: Sin3DM, source: str, run: Path, out: Path, a) -> dict:
@@ -122,7 +121,7 @@ def main() -> None:
             key = f"{name} | {variant}"
             meshes = runs / "meshes" / name / variant.replace(" ", "_")
             if key in rows:  # measured; add the texture metrics if they were not available then
-                if not rows[key].get("texture") and hasattr(Sin3DM, "evaluate"):
+                if not rows[key].get("texture"):
                     paths = sorted(meshes.glob("*/mesh.glb"))[: a.textured]
                     rows[key]["texture"] = texture_scores(Sin3DM.load(run), paths, a.weights) if paths else {}
                     table.write_text(json.dumps(rows, indent=2))
