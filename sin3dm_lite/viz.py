@@ -771,7 +771,7 @@ def plot_meshes(meshes, labels: Sequence[str] | None = None, size: int = 256, co
             return m
         v, f = m if isinstance(m, tuple) else (m.vertices, m.faces)
         return TexturedMesh(np.asarray(v, np.float64), np.asarray(f, np.int64), np.zeros(len(f), np.int64),
-                            [Material(base_color=np.float32([0.75, 0.75, 0.75, 1.0]))])
+                            [Material(base_color=np.float32([0.55, 0.55, 0.55, 1.0]))])
 
     if isinstance(meshes, TexturedMesh) or hasattr(meshes, "faces"):
         meshes = [meshes]
