@@ -1,4 +1,5 @@
-"""Matplotlib figures for every stage: grid slices, triplanes, losses, denoising, receptive fields.
+"""Matplotlib figures for every stage: grid slices, triplanes, losses, denoising, receptive fields;
+and static pictures of meshes (``plot_meshes``, rendered by :mod:`sin3dm_lite.render`) to put beside k3d viewers.
 
 Every function takes plain data (numpy arrays, :class:`~sin3dm_lite.grid.ShapeGrid`,
 :class:`~sin3dm_lite.triplane.Triplane`) and *returns* a ``matplotlib.figure.Figure``;
@@ -745,4 +746,53 @@ def plot_uv_layout(uvs: np.ndarray, faces: np.ndarray | None = None, image: np.n
     ax.set_xlabel("u")
     ax.set_ylabel("v")
     ax.set_title(f"UV layout: {len(tri)} triangles", fontsize=9)
+    return fig
+
+
+def plot_meshes(meshes, labels: Sequence[str] | None = None, size: int = 256, columns: int = 4) -> Figure:
+    """A static picture of meshes side by side: each one's three-quarter view, its label underneath.
+
+    The picture beside a k3d viewer for a notebook read without a kernel (GitHub,
+    nbviewer, an exported page), where the viewer shows nothing. Every mesh is
+    drawn by :func:`sin3dm_lite.render.render_hero` at ``size``² pixels, all framed
+    by one box (the union of their bounds), so sizes compare; give them in one
+    coordinate frame. ``meshes``: a ``TexturedMesh`` or a list of them,
+    ``trimesh.Trimesh`` es or ``(vertices, faces)`` pairs (the last two in plain
+    grey). The figure is the contact sheet's pixels one to one (saved in the
+    notebook as a PNG). Where off-screen OpenGL cannot start (Linux without
+    Mesa's EGL) the figure is one line of text saying so: the notebook runs on.
+    """
+    from .errors import Sin3DMInputError
+    from .mesh_io import Material, TexturedMesh
+    from .render import contact_sheet, render_hero
+
+    def textured(m) -> TexturedMesh:
+        if isinstance(m, TexturedMesh):
+            return m
+        v, f = m if isinstance(m, tuple) else (m.vertices, m.faces)
+        return TexturedMesh(np.asarray(v, np.float64), np.asarray(f, np.int64), np.zeros(len(f), np.int64),
+                            [Material(base_color=np.float32([0.55, 0.55, 0.55, 1.0]))])
+
+    if isinstance(meshes, TexturedMesh) or hasattr(meshes, "faces"):
+        meshes = [meshes]
+    meshes = [textured(m) for m in meshes]
+    if not meshes or (labels is not None and len(labels) != len(meshes)):
+        raise Sin3DMInputError(f"plot_meshes needs at least one mesh and one label per mesh, got {len(meshes)} "
+                               f"meshes and {'no' if labels is None else len(labels)} labels")
+    if not 16 <= int(size) <= 1024:
+        raise Sin3DMInputError(f"size must be from 16 to 1024 pixels, got {size}")
+    corners = np.concatenate([np.asarray(m.vertices, np.float64).reshape(-1, 3) for m in meshes])
+    box = np.stack([corners.min(0), corners.max(0)]) if len(corners) else None
+    try:
+        sheet = contact_sheet([render_hero(m, size=int(size), box=box) for m in meshes], labels, columns=columns)
+    except Sin3DMInputError as e:  # no OpenGL context here, or a mesh with nothing to draw
+        fig = _figure(9.0, 0.5)
+        fig.text(0.01, 0.5, f"no static picture: {e}", fontsize=8, va="center", wrap=True)
+        return fig
+    dpi = 100
+    fig = plt.figure(figsize=(sheet.shape[1] / dpi, sheet.shape[0] / dpi), dpi=dpi)
+    plt.close(fig)  # shown once, as the cell's value
+    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+    ax.imshow(sheet, interpolation="none")
+    ax.set_axis_off()
     return fig

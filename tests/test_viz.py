@@ -1,12 +1,18 @@
 """The matplotlib figures of ``sin3dm_lite.viz``: right panels, right data drawn."""
+import ctypes.util
+import io
+import sys
+
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 import torch
+import trimesh
 from matplotlib.collections import LineCollection
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
+from PIL import Image
 
 from sin3dm_lite import viz
 from sin3dm_lite.triplane import pca_basis, pca_project, Triplane, plane_to_image
@@ -318,3 +324,63 @@ def test_plot_diversity_curve_draws_each_score_and_its_goal():
     curve = next(line for line in ax.get_lines() if line.get_label() == "LP-F (fidelity)")
     assert list(curve.get_ydata()) == [r["lp_fscore"] for r in rows]
     assert any(list(line.get_ydata()) == [0.2, 0.2] for line in ax.get_lines())  # the goal line
+
+
+# plot_meshes renders off-screen: the render tests' skip rule where libEGL is missing
+needs_egl = pytest.mark.skipif(sys.platform.startswith("linux") and ctypes.util.find_library("EGL") is None,
+                               reason="no libEGL on this machine: apt-get install libegl1 libgl1-mesa-dri")
+
+
+def sheet_of(fig):
+    """The picture in a ``plot_meshes`` figure, and the PNG the notebook keeps, as arrays."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=fig.dpi)
+    return fig.axes[0].images[0].get_array(), np.asarray(Image.open(buf).convert("RGB"))
+
+
+@needs_egl
+def test_plot_meshes_shows_a_textured_mesh_at_the_size_asked():
+    from .test_render import seen, textured_cube
+
+    before = plt.get_fignums()
+    fig = viz.plot_meshes(textured_cube(), size=64)
+    sheet, png = sheet_of(fig)
+    assert isinstance(fig, Figure) and plt.get_fignums() == before
+    assert png.shape == sheet.shape and 64 <= sheet.shape[0] <= 64 + 12 and 64 <= sheet.shape[1] <= 64 + 12
+    assert 0.05 < (sheet.min(2) < 250).mean() < 0.9  # the cube, framed, on white
+    assert seen(sheet)["+z"] > 0.02 and seen(sheet)["+y"] > 0.02  # its texture: magenta front, blue top
+
+
+@needs_egl
+def test_plot_meshes_puts_several_side_by_side_in_one_box():
+    from .test_render import textured_cube
+
+    cube = textured_cube()
+    half = trimesh.creation.box(extents=(0.5, 0.5, 0.5))  # plain geometry: drawn grey
+    sheet, _ = sheet_of(viz.plot_meshes([cube, half, (half.vertices, half.faces)], ["cube", "trimesh", "pair"],
+                                        size=48))
+    assert sheet.shape[1] >= 3 * 48 and 48 + 12 <= sheet.shape[0] < 2 * 48  # one row of three, labels below
+    tiles = [sheet[4:52, 4 + k * 52:4 + k * 52 + 48] for k in range(3)]
+    filled = [(t.min(2) < 250).sum() for t in tiles]
+    assert all(f > 0 for f in filled)
+    assert filled[1] < 0.5 * filled[0] and abs(filled[1] - filled[2]) < 0.1 * filled[1]  # one scale for all
+    grey = tiles[1][tiles[1].min(2) < 250].astype(int)
+    assert np.abs(grey.max(1) - grey.min(1)).max() < 10  # no colour
+    sheet, _ = sheet_of(viz.plot_meshes([cube] * 3, size=32, columns=2))
+    assert sheet.shape[0] > 2 * 32 and sheet.shape[1] < 3 * 32  # two rows
+
+
+def test_plot_meshes_without_a_renderer_says_so_in_one_line(monkeypatch):
+    from sin3dm_lite import render
+    from sin3dm_lite.errors import Sin3DMInputError
+
+    def no_context(*args, **kwargs):
+        raise Sin3DMInputError("cannot start an off-screen OpenGL context (no EGL)")
+
+    monkeypatch.setattr(render, "render_hero", no_context)
+    fig = viz.plot_meshes([(np.eye(3), np.array([[0, 1, 2]]))])
+    assert isinstance(fig, Figure) and not fig.axes and len(fig.texts) == 1  # a line of text, no picture
+    assert fig.texts[0].get_text().startswith("no static picture: cannot start") and "EGL" in fig.texts[0].get_text()
+    fig.savefig(io.BytesIO(), format="png")
+    with pytest.raises(Sin3DMInputError, match="one label per mesh"):
+        viz.plot_meshes([(np.eye(3), np.array([[0, 1, 2]]))], labels=["a", "b"])
