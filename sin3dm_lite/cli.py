@@ -4,9 +4,12 @@
     sin3dm-lite grid MESH --resolution N --out FILE.npz mesh → TSDF + colour grid
     sin3dm-lite fit MESH_OR_EXAMPLE --preset small --out RUN_DIR [--resume]
     sin3dm-lite sample RUN_DIR -n 4 --out DIR [--resize SX SY SZ] [--diversity D]
-    sin3dm-lite demo [--out DIR] [--train]              the whole method on the default example
+    sin3dm-lite demo [--example NAME] [--out DIR] [--train]   the whole method on a built-in example
     sin3dm-lite render MESH --views 8 --size 512 --out DIR   PNG views (no display or GPU needed)
     sin3dm-lite evaluate RUN SAMPLES_DIR [--out report.json] [--weights DIR]   the paper's metrics
+    sin3dm-lite --version                               the installed version
+
+With no arguments it prints the help; every option's help shows its default.
 
 Every user error prints one line naming the problem and the fix, and exits
 with code 2 (no traceback).
@@ -65,77 +68,137 @@ def _unit_float(text: str) -> float:
     return v
 
 
+class _Formatter(argparse.HelpFormatter):
+    """Every option's help ends with its default, unless it already names one or has none worth saying.
+
+    Like ``argparse.ArgumentDefaultsHelpFormatter``, but an option whose help
+    already says "default" is left alone, and flags (``store_true``), required
+    options and options whose default is None get nothing appended: their help
+    says in words what happens without them ("default: the preset's").
+    """
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if ("default" in text or not action.option_strings or action.required
+                or any(action.default is x for x in (None, False, argparse.SUPPRESS))):  # `is`: 0 == False
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 class _Parser(argparse.ArgumentParser):
-    """Argument errors as one line (no usage block), exit code 2."""
+    """Argument errors as one line (no usage block), exit code 2; help with defaults (:class:`_Formatter`)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def package_version() -> str:
+    """The installed package's version (its metadata), else the source tree's ``__version__``."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("sin3dm-lite")
+    except metadata.PackageNotFoundError:
+        import sin3dm_lite
+
+        return getattr(sin3dm_lite, "__version__", "unknown")
+
+
+#: each command's one-line description: its line in ``sin3dm-lite --help`` and the top of ``sin3dm-lite CMD --help``
+COMMANDS = {
+    "examples": "list the built-in example shapes, or write one as OBJ/MTL/PNG",
+    "grid": "turn a mesh into the truncated SDF + colour grid (.npz)",
+    "fit": "fit the autoencoder and the diffusion model to one mesh",
+    "sample": "generate textured meshes from a fitted run folder",
+    "demo": "the whole method on a built-in example: load its shipped model (or --train), sample, export",
+    "render": "PNG pictures of a mesh: the paper's views around it, a hero view, a contact sheet",
+    "evaluate": "the paper's geometry and texture metrics of sample meshes against the input",
+}
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from . import examples
     from .config import PRESETS
+    from .mesh_io import READABLE
 
-    p = _Parser(prog="sin3dm-lite", description="Sin3DM: learn a diffusion model from one textured mesh.")
-    sub = p.add_subparsers(dest="command", required=True)
+    p = _Parser(prog="sin3dm-lite", description="Sin3DM: learn a diffusion model from one textured mesh.",
+                epilog=f"Readable mesh formats: {READABLE}. Start with `sin3dm-lite demo`; "
+                       "`sin3dm-lite CMD --help` describes one command.")
+    p.add_argument("--version", action="version", version=f"sin3dm-lite {package_version()}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    e = sub.add_parser("examples", help="list the built-in example shapes, or write one as OBJ/MTL/PNG")
-    e.add_argument("--write", metavar="NAME", help="example to write")
+    def command(name: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=COMMANDS[name], description=COMMANDS[name])
+
+    mesh_help = f"mesh file ({READABLE}) or built-in example name"
+
+    e = command("examples")
+    e.add_argument("--write", metavar="NAME", help="example to write (default: list them)")
     e.add_argument("--out", default=".", help="folder for --write (default: current folder)")
-    e.add_argument("--seed", type=_seed, default=0)
+    e.add_argument("--seed", type=_seed, default=0, help="variant of the example")
     e.add_argument("--overwrite", action="store_true", help="replace files of the example that sin3dm-lite wrote before")
 
-    g = sub.add_parser("grid", help="turn a mesh into the truncated SDF + colour grid (.npz)")
-    g.add_argument("mesh", help="mesh file (OBJ, GLB/glTF, PLY) or example name")
-    g.add_argument("--resolution", type=int, default=128, help="voxels along the longest side (16-512)")
+    g = command("grid")
+    g.add_argument("mesh", help=mesh_help)
+    g.add_argument("--resolution", type=int, default=128, help="voxels along the longest side, 16-512")
     g.add_argument("--out", required=True, help="output .npz file")
     g.add_argument("--overwrite", action="store_true", help="replace an existing grid file that sin3dm-lite wrote")
 
-    f = sub.add_parser("fit", help="fit the autoencoder and the diffusion model to one mesh")
-    f.add_argument("mesh", help="mesh file (OBJ, GLB/glTF, PLY) or example name")
-    f.add_argument("--preset", choices=list(PRESETS), default="small")
+    f = command("fit")
+    f.add_argument("mesh", help=mesh_help)
+    f.add_argument("--preset", choices=list(PRESETS), default="small", help="training sizes and steps")
     f.add_argument("--out", required=True, help="run folder (new, or existing with --resume)")
     f.add_argument("--resume", action="store_true", help="continue an interrupted fit from its checkpoints")
-    f.add_argument("--seed", type=_seed, default=None)
+    f.add_argument("--seed", type=_seed, default=None, help="random seed (default: the preset's)")
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
 
-    s = sub.add_parser("sample", help="generate textured meshes from a fitted run folder")
+    s = command("sample")
     _sample_args(s)
     s.add_argument("run", help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon)")
     s.add_argument("--out", required=True, help="output folder (new or empty; see --overwrite)")
 
-    d = sub.add_parser("demo", help="the whole method on the default example: load (or --train), sample, export")
+    d = command("demo")
     _sample_args(d, n_default=4)
+    d.add_argument("--example", default=examples.DEFAULT_EXAMPLE, metavar="NAME",
+                   help=f"built-in example: {', '.join(examples.list_examples())} (only those with a shipped model "
+                        "run without --train)")
     d.add_argument("--out", default="sin3dm-demo", help="output folder (default: ./sin3dm-demo)")
-    d.add_argument("--train", action="store_true", help=f"fit from scratch with the '{DEMO_PRESET}' preset")
+    d.add_argument("--train", action="store_true",
+                   help=f"fit the example from scratch with the '{DEMO_PRESET}' preset instead of loading its shipped model")
 
-    r = sub.add_parser("render", help="PNG pictures of a mesh: the paper's views around it, a hero view, a contact sheet")
-    r.add_argument("mesh", help="mesh file (OBJ, GLB/glTF, PLY) or example name")
+    r = command("render")
+    r.add_argument("mesh", help=mesh_help)
     r.add_argument("--views", type=_positive_int, default=8, help="views around the shape, azimuth every 360/N degrees")
-    r.add_argument("--size", type=_positive_int, default=512, help="image width and height in pixels (16-4096)")
-    r.add_argument("--elevation", type=_float, default=45.0, help="camera elevation in degrees (-89 to 89)")
+    r.add_argument("--size", type=_positive_int, default=512, help="image width and height in pixels, 16-4096")
+    r.add_argument("--elevation", type=_float, default=45.0, help="camera elevation in degrees, -89 to 89")
     r.add_argument("--out", required=True, help="output folder (new or empty; see --overwrite)")
     r.add_argument("--overwrite", action="store_true",
                    help="write into a non-empty --out, replacing only the files sin3dm-lite wrote there before")
 
-    v = sub.add_parser("evaluate", help="the paper's geometry and texture metrics of sample meshes against the input")
+    v = command("evaluate")
     v.add_argument("run", help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon)")
     v.add_argument("samples", help="folder written by `sin3dm-lite sample` (NNN/mesh.obj or .glb)")
     v.add_argument("--input", default=None, help="the mesh the run was fitted to (default: the run's built-in example)")
-    v.add_argument("--out", default=None, help="write the results as JSON to this .json file")
+    v.add_argument("--out", default=None, help="write the results as JSON to this .json file (default: print only)")
     v.add_argument("--overwrite", action="store_true", help="replace an --out file that sin3dm-lite wrote before")
     v.add_argument("--weights", default=None, metavar="DIR",
-                   help="folder with InceptionV3 / AlexNet / LPIPS weights for SIFID and LPIPS (never downloaded)")
+                   help="folder with InceptionV3 / AlexNet / LPIPS weights for SIFID and LPIPS, never downloaded "
+                        "(default: none; weight-free stand-ins instead)")
     v.add_argument("--views", type=_positive_int, default=8, help="views per mesh, azimuth every 360/N degrees")
-    v.add_argument("--size", type=_positive_int, default=256, help="render size in pixels (16-4096; the paper: 512)")
+    v.add_argument("--size", type=_positive_int, default=256, help="render size in pixels, 16-4096; the paper uses 512")
     v.add_argument("--resolution", type=_positive_int, default=64,
-                   help="voxels along the longest side for the geometry metrics (16-512; the paper: 128)")
+                   help="voxels along the longest side for the geometry metrics, 16-512; the paper uses 128")
     return p
 
 
 def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
     s.add_argument("-n", type=_positive_int, default=n_default, help="number of samples")
-    ctl = s.add_argument_group("controlled generation (one at a time; boxes are fractions 0-1 of the model's box "
-                               "along x, y, z)").add_mutually_exclusive_group()
+    ctl = s.add_argument_group("controlled generation (one at a time, default: none, samples the input's size; "
+                               "boxes are fractions 0-1 of the model's box along x, y, z)").add_mutually_exclusive_group()
     ctl.add_argument("--resize", nargs=3, type=_positive_float, metavar=("SX", "SY", "SZ"), default=None,
                      help="retarget: scale factors of the x, y, z size")
     ctl.add_argument("--outpaint", nargs=3, type=_positive_float, metavar=("SX", "SY", "SZ"), default=None,
@@ -145,15 +208,16 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
     ctl.add_argument("--duplicate", nargs=9, type=_float, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1", "TX", "TY", "TZ"),
                      default=None, help="copy this box so its low corner lands at TX TY TZ; generate around both copies")
     s.add_argument("--anchor", default="center", choices=["center", "x-", "x+", "y-", "y+", "z-", "z+"],
-                   help="with --outpaint: where the input stays (the centre, or the face it sticks to)")
+                   help="with --outpaint: where the input stays, the centre or the face it sticks to")
     s.add_argument("--diversity", type=_unit_float, default=None,
                    help="0 = the input, 1 = from pure noise (the paper; default: the run's setting); "
                         "lower values keep more of the input's layout")
     s.add_argument("--steps", type=_positive_int, default=None, help="DDIM steps (default: the preset's)")
     s.add_argument("--ddpm", action="store_true", help="use full DDPM sampling (all timesteps) instead of DDIM")
-    s.add_argument("--seed", type=_seed, default=0)
-    s.add_argument("--faces", type=_positive_int, default=None, help="face budget per mesh")
-    s.add_argument("--texture-size", type=_positive_int, default=None, help="texture image size in pixels")
+    s.add_argument("--seed", type=_seed, default=0, help="random seed; the same seed gives the same samples")
+    s.add_argument("--faces", type=_positive_int, default=None, help="face budget per mesh (default: the preset's)")
+    s.add_argument("--texture-size", type=_positive_int, default=None,
+                   help="texture image size in pixels (default: the preset's)")
     s.add_argument("--mesh-resolution", type=_positive_int, default=None,
                    help="decode grid along the longest side (default: the preset's)")
     s.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
@@ -328,6 +392,8 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
     existing ``out`` (``--overwrite``) only the files its manifest lists are
     replaced (see :func:`sin3dm_lite.files.install_output`).
     """
+    from tqdm.auto import tqdm
+
     from .export import export_mesh
     from .files import install_output, make_temp_dir, remove_stale_temps
     from .viewer import gallery, save_html
@@ -347,11 +413,13 @@ def write_samples(model, out: Path, a, label: str = "sample") -> Path:
         samples = model.sample(a.n, plan=plan, steps=a.steps, method="ddpm" if a.ddpm else None, seed=a.seed,
                                diversity=a.diversity)
         meshes = []
-        for i in range(len(samples)):
+        # the bar (on stderr, like the sampler's and the trainers') over the slow part: decode, texture, export
+        for i in tqdm(range(len(samples)), desc=f"[{label}] decode, texture, export", unit="mesh", leave=False):
             mesh = model.to_mesh(samples, i, resolution=a.mesh_resolution, faces=a.faces, texture_size=a.texture_size)
             export_mesh(mesh, tmp / f"{i:03d}", name="mesh")
             meshes.append(mesh)
-            print(f"[{label}] {i + 1}/{len(samples)}: {len(mesh.faces):,} faces  ({time.perf_counter() - t0:.0f} s)")
+            tqdm.write(f"[{label}] {i + 1}/{len(samples)}: {len(mesh.faces):,} faces  ({time.perf_counter() - t0:.0f} s)",
+                       file=sys.stdout)
         if not a.no_pictures:
             write_pictures(model, meshes, tmp, a, label)
         save_html(gallery(meshes, labels=[f"{i:03d}" for i in range(len(meshes))]), tmp / "index.html")
@@ -390,18 +458,26 @@ def cmd_sample(a) -> None:
 def cmd_demo(a) -> None:
     from . import examples
     from .pipeline import Sin3DM
-    from .pretrained import pretrained_path
+    from .pretrained import shipped_model
 
     from .device import get_device
 
+    if a.example not in examples.list_examples():
+        raise Sin3DMInputError(f"unknown example '{a.example}'; choose one of: {', '.join(examples.list_examples())}")
+    shipped = None if a.train else shipped_model(a.example)
+    if not a.train and shipped is None:
+        have = [n for n in examples.list_examples() if shipped_model(n) is not None]
+        raise Sin3DMInputError(f"no shipped model of '{a.example}' (only {', '.join(have) or 'none'} is shipped); add "
+                               f"--train to fit it first with the '{DEMO_PRESET}' preset, or pick --example "
+                               f"{examples.DEFAULT_EXAMPLE}")
     out = Path(a.out)
     get_device(a.device)
-    check_sample_output(out, a, {} if a.train else {"shipped model folder": pretrained_path()})
+    check_sample_output(out, a, {} if a.train else {"shipped model folder": shipped})
     if a.train:
-        model = Sin3DM.fit(examples.DEFAULT_EXAMPLE, preset=DEMO_PRESET, out=None, device=a.device)
+        model = Sin3DM.fit(a.example, preset=DEMO_PRESET, out=None, device=a.device)
     else:
-        model = Sin3DM.load(pretrained_path(), device=a.device)
-        print(f"[demo] loaded the shipped '{DEMO_PRESET}' model of the '{examples.DEFAULT_EXAMPLE}' example")
+        model = Sin3DM.load(shipped, device=a.device)
+        print(f"[demo] loaded the shipped '{DEMO_PRESET}' model of the '{a.example}' example")
     write_samples(model, out, a, label="demo")
     print(
         f"[demo] done: {a.n} new shapes in {out}/NNN/ (mesh.obj + mesh.mtl + mesh.png, mesh.glb)\n"
@@ -538,6 +614,10 @@ def cmd_evaluate(a) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv:  # no command: the help, as a successful answer
+        parser.print_help()
+        return 0
     a = parser.parse_args(argv)
     show = warnings.showwarning
 

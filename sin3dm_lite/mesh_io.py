@@ -239,6 +239,8 @@ def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 #: File extensions :func:`load_mesh` reads.
 SUPPORTED_EXTENSIONS = (".obj", ".glb", ".gltf", ".ply", ".stl", ".off")
+#: The same formats in words, for help texts (``sin3dm-lite ... --help``); a test loads one file of each.
+READABLE = "OBJ (+MTL), GLB/glTF, PLY, STL, OFF"
 
 #: Textures larger than this (longest side, pixels) are shrunk on load: one
 #: float32 RGB 4096² image is already 200 MB, and a 256³ grid never needs more.

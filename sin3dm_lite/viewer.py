@@ -9,8 +9,9 @@ Frames. k3d's up axis is z; OBJ files (and our normalised meshes) are usually
 y-up. Every function here takes ``up="y"`` (default) or ``up="z"`` describing
 *the data*, and turns y-up data so that its y becomes k3d's z:
 ``(x, y, z) → (x, -z, y)``, a rotation (no mirror), so a shape's front (+z)
-faces k3d's -y, where :func:`fit_camera` puts the camera. ``offset`` arguments
-are in k3d's frame (after that rotation).
+faces k3d's -y, where :func:`fit_camera` puts the camera: in front, to the
+right and well above (:data:`VIEW`), so that a canyon's river shows. ``offset``
+arguments are in k3d's frame (after that rotation).
 
 k3d in practice: float32 vertices, uint32 indices, packed ``0xRRGGBB`` uint32
 colours; a textured mesh gets ``color=0xffffff`` (the texture is multiplied by
@@ -36,6 +37,11 @@ from .files import atomic_write
 from .mesh_io import TexturedMesh, array_to_pil, unique_rows
 
 UP_AXES = ("y", "z")
+
+#: the default camera of a saved page: (azimuth, elevation) in degrees, in the data's y-up frame with the
+#: renderer's convention (azimuth 0 = from the front, +z; 90 = from +x). From above at an angle: at 25° the
+#: canyon's near bank hides its river, at 60° the river runs through the picture.
+VIEW = (30.0, 60.0)
 
 
 # --------------------------------------------------------------------------- small helpers
@@ -253,8 +259,12 @@ def gallery(
 ) -> k3d.Plot:
     """Several meshes side by side along x (``spacing`` apart), in rows of ``columns``, each with a label.
 
-    Each mesh keeps its own scale; rows go downwards (k3d's -z). Labels are
-    ``k3d.text`` objects, which the standalone HTML page shows too.
+    Each mesh keeps its own scale; rows go downwards (k3d's -z), far enough apart
+    that they do not hide each other from the default camera (:data:`VIEW`,
+    from above). Labels are ``k3d.text`` objects, which the standalone HTML
+    page shows too, placed in front of each mesh's base and hanging down from
+    there (:func:`label_position`), so that from above they fall below the
+    mesh on the screen instead of over it.
     """
     plot = plot if plot is not None else new_plot()
     n = len(meshes)
@@ -262,24 +272,53 @@ def gallery(
         raise ValueError(f"got {len(labels)} labels for {n} meshes")
     columns = columns or n
     bounds = [_view_bounds(m, up) for m in meshes]
-    z_top = 0.0
+    screen_up = _screen_up(*VIEW)  # a point's height in the default view is roughly screen_up @ point
+    low = None  # the lowest screen height of the rows so far, labels included
     for row_start in range(0, n, columns):
         row = range(row_start, min(row_start + columns, n))
         row_height = max(bounds[k][1, 2] - bounds[k][0, 2] for k in row)
-        x = 0.0
-        for k in row:
+        offsets, x = [], 0.0
+        for k in row:  # left edge at x, centred in y, top of the row at 0
             lo, hi = bounds[k]
-            # left edge at x, centred in y, top of the row at z_top
-            offset = np.array([x - lo[0], -(lo[1] + hi[1]) / 2, z_top - hi[2]], np.float32)
-            name = labels[k] if labels is not None else getattr(meshes[k], "name", f"mesh {k}")
-            mesh_plot(meshes[k], plot=plot, texture=texture, name=str(name), offset=offset, up=up)
-            if labels is not None:
-                top = np.array([(lo[0] + hi[0]) / 2, 0.0, hi[2]]) + offset + [0.0, 0.0, 0.04 * row_height]
-                plot += k3d.text(html.escape(str(labels[k])), position=top.tolist(), reference_point="cb",
-                                 color=0x222222, size=0.9, label_box=False, is_html=True, name=f"label {k}")
+            offsets.append(np.array([x - lo[0], -(lo[1] + hi[1]) / 2, -hi[2]]))
             x += (hi[0] - lo[0]) + spacing
-        z_top -= row_height + spacing + (0.15 * row_height if labels is not None else 0.0)
+        corners = np.concatenate([_corners(bounds[k] + o) for k, o in zip(row, offsets)])
+        if low is not None:  # lower the row until its top is below the rows above, in the default view
+            drop = (screen_up @ corners.T).max() - low + spacing * screen_up[2]
+            for o in offsets:
+                o[2] -= drop / screen_up[2]
+            corners[:, 2] -= drop / screen_up[2]
+        low = (screen_up @ corners.T).min() if low is None else min(low, (screen_up @ corners.T).min())
+        for k, o in zip(row, offsets):
+            lo, hi = bounds[k] + o
+            name = labels[k] if labels is not None else getattr(meshes[k], "name", f"mesh {k}")
+            mesh_plot(meshes[k], plot=plot, texture=texture, name=str(name), offset=o.astype(np.float32), up=up)
+            if labels is not None:
+                at = label_position(lo, hi)
+                plot += k3d.text(html.escape(str(labels[k])), position=at, reference_point="ct", color=0x222222,
+                                 size=0.9, label_box=False, is_html=True, name=f"label {k}")
+                low = min(low, screen_up @ at - 0.15 * row_height)  # room for the text hanging below
     return plot
+
+
+def _corners(box) -> np.ndarray:
+    """The 8 corners of a ``(2, 3)`` box."""
+    (x0, y0, z0), (x1, y1, z1) = box
+    return np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)], np.float64)
+
+
+def _screen_up(azimuth: float, elevation: float) -> np.ndarray:
+    """The screen's up direction (k3d frame) of a camera at ``azimuth``/``elevation`` (:func:`view_camera`)."""
+    az, el = np.radians(azimuth), np.radians(elevation)
+    return to_view([-np.sin(el) * np.sin(az), np.cos(el), -np.sin(el) * np.cos(az)])[0].astype(np.float64)
+
+
+def label_position(lo, hi) -> list[float]:
+    """Where :func:`gallery` anchors a mesh's label (k3d frame, box ``lo``..``hi``): the middle of its base,
+    moved towards the viewer (k3d's -y) by a fifth of the box's largest side. The text hangs down from there."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    pad = 0.2 * float((hi - lo).max())
+    return [float((lo[0] + hi[0]) / 2), float(lo[1] - pad), float(lo[2])]
 
 
 def volume_plot(
@@ -356,14 +395,59 @@ def points_plot(
 
 
 # --------------------------------------------------------------------------- HTML
-def fit_camera(plot: k3d.Plot, yaw: float = -65.0, pitch: float = 65.0, factor: float = 1.1) -> list[float]:
-    """Point the camera at everything in the plot: from the front (-y) and a little above, by default.
+def view_camera(lo, hi, azimuth: float = VIEW[0], elevation: float = VIEW[1], fov: float = 60.0,
+                factor: float = 1.1) -> list[float]:
+    """k3d's camera vector ``[eye, target, up]`` (9 numbers) looking at the box ``lo``..``hi`` (k3d's frame).
 
-    ``pitch`` is the angle from k3d's up axis (z) and ``yaw`` the direction
-    around it (-90 is straight from -y). Returns the camera vector it set.
+    ``azimuth`` and ``elevation`` (degrees) are in the data's y-up frame, as in
+    :mod:`sin3dm_lite.render`: azimuth 0 from the front (+z of the data, k3d's
+    -y), 90 from +x; elevation 90 straight from above. The eye is far enough
+    away that the box's bounding sphere, times ``factor``, fits in a view of
+    ``fov`` degrees.
     """
-    plot.camera = plot.get_auto_camera(factor=factor, yaw=yaw, pitch=pitch)
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    centre = (lo + hi) / 2
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-9)
+    distance = radius * factor / np.sin(np.radians(fov) / 2)
+    az, el = np.radians(azimuth), np.radians(elevation)
+    direction = to_view([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)])[0].astype(np.float64)
+    eye = centre + distance * direction
+    return [*map(float, eye), *map(float, centre), 0.0, 0.0, 1.0]
+
+
+def fit_camera(plot: k3d.Plot, azimuth: float = VIEW[0], elevation: float = VIEW[1], factor: float = 1.1) -> list[float]:
+    """Point the camera at everything in the plot, from above at an angle by default (:func:`view_camera`).
+
+    Returns the camera vector it set.
+    """
+    b = plot.get_auto_grid()  # [xmin, xmax, ymin, ymax, zmin, zmax] of all objects
+    plot.camera = view_camera(b[::2], b[1::2], azimuth, elevation, fov=plot.camera_fov, factor=factor)
     return list(plot.camera)
+
+
+#: shown instead of a blank page by a browser without WebGL (:func:`save_html`)
+NO_WEBGL = ("This page needs WebGL to show the 3D view, and this browser has it turned off or cannot use it. "
+            "Turn on hardware acceleration (or try another browser), or open the mesh files (mesh.obj, mesh.glb) "
+            "in Blender or any 3D viewer.")
+
+
+def with_webgl_message(page: str) -> str:
+    """A k3d page with a message that shows when the browser has no WebGL (or no JavaScript) instead of a blank page."""
+    box = "position:relative;z-index:10;max-width:40em;margin:3em auto;padding:1em 1.5em;font:16px sans-serif;" \
+          "background:#fff3cd;border:1px solid #d4a017;border-radius:4px"
+    note = html.escape(NO_WEBGL)
+    extra = (f'<div id="sin3dm-no-webgl" style="display:none;{box}">{note}</div>\n'
+             f'<noscript><div style="{box}">{note} (It also needs JavaScript.)</div></noscript>\n'
+             "<script>(function () {\n"
+             "  var gl = null, c = document.createElement('canvas');\n"
+             "  try { gl = c.getContext('webgl2') || c.getContext('webgl') || c.getContext('experimental-webgl'); }"
+             " catch (e) {}\n"
+             "  if (!gl) { document.getElementById('sin3dm-no-webgl').style.display = 'block'; }\n"
+             "})();</script>\n")
+    m = re.search(r"<body[^>]*>\s*", page)
+    if m is None:
+        raise ValueError("no <body> in this page")
+    return page[:m.end()] + extra + page[m.end():]
 
 
 def save_html(plot: k3d.Plot, path, fit: bool = True, **camera) -> Path:
@@ -371,8 +455,9 @@ def save_html(plot: k3d.Plot, path, fit: bool = True, **camera) -> Path:
 
     With ``fit`` the camera is first pointed at the whole scene (:func:`fit_camera`,
     keyword arguments go there) and the page keeps that view; otherwise the
-    plot's current camera is used. The file is written atomically (a reader never
-    sees half a page). Returns the path.
+    plot's current camera is used. A browser without WebGL shows a short
+    message (:data:`NO_WEBGL`) instead of a blank page. The file is written
+    atomically (a reader never sees half a page). Returns the path.
     """
     path = Path(path)
     auto_fit = plot.camera_auto_fit
@@ -383,7 +468,7 @@ def save_html(plot: k3d.Plot, path, fit: bool = True, **camera) -> Path:
         page = plot.get_snapshot()
     finally:
         plot.camera_auto_fit = auto_fit
-    atomic_write(path, page)
+    atomic_write(path, with_webgl_message(page))
     return path
 
 

@@ -134,6 +134,8 @@ CASES = {
     "demo-out-not-empty": (["demo", "--out", "full"], "--overwrite"),
     "demo-out-inside-shipped": (["demo", "--out", str(SHIPPED / "s")], "shipped model"),
     "demo-out-not-writable": (["demo", "--out", NOT_WRITABLE], "cannot write"),
+    "demo-unknown-example": (["demo", "--example", "teapot", "--out", "s"], "unknown example 'teapot'"),
+    "demo-example-not-shipped": (["demo", "--example", "wall", "--out", "s"], "(only canyon is shipped); add --train"),
     # fit
     "fit-device": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--device", "gpu"], "device"),
     "fit-negative-seed": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--seed", "-3"], "seed"),

@@ -106,3 +106,102 @@ def test_bad_diversity_is_rejected_by_the_parser(capsys, value):
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert "--diversity" in err and len(err.strip().splitlines()) == 1
+
+
+# ----------------------------------------------------------------------------- help, version, formats
+def _flat(text: str) -> str:
+    return " ".join(text.split())
+
+
+def test_no_arguments_prints_the_help_and_succeeds(capsys):
+    from sin3dm_lite.cli import COMMANDS
+
+    code, out, err = run(capsys)
+    assert code == 0 and err == "" and out.startswith("usage: sin3dm-lite")
+    for name, line in COMMANDS.items():  # every command with its one-line description
+        assert f"{name} {line}" in _flat(out), name
+    assert "--version" in out
+
+
+def test_version(capsys):
+    from importlib import metadata
+
+    from sin3dm_lite.cli import package_version
+
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out == f"sin3dm-lite {package_version()}\n"
+    assert package_version() == metadata.version("sin3dm-lite")
+
+
+def _subparsers():
+    import argparse
+
+    from sin3dm_lite.cli import build_parser
+
+    (sub,) = [a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)]
+    return sub.choices
+
+
+@pytest.mark.parametrize("command", ["examples", "grid", "fit", "sample", "demo", "render", "evaluate"])
+def test_every_command_has_a_description_and_every_option_its_default(capsys, command):
+    import argparse
+
+    from sin3dm_lite.cli import COMMANDS
+
+    with pytest.raises(SystemExit) as e:
+        main([command, "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert "\n" not in COMMANDS[command] and COMMANDS[command] in _flat(out)
+    parser = _subparsers()[command]
+    fmt = parser._get_formatter()
+    groups = {id(a): g.title for g in parser._action_groups for a in g._group_actions}
+    for action in parser._actions:
+        if not action.option_strings or isinstance(action, (argparse._HelpAction, argparse._StoreTrueAction)) \
+                or action.required:
+            continue
+        text = fmt._expand_help(action)
+        if action.default is None and "default" in (groups.get(id(action)) or ""):
+            continue  # --resize/--outpaint/...: their group's title says what happens without them
+        assert text.count("default") == 1, (action.option_strings, text)  # shown, and only once
+
+
+def test_the_help_lists_exactly_the_formats_that_load(tmp_path, capsys):
+    """``READABLE`` names every suffix the loader takes and no other; one tiny mesh of each loads."""
+    import re
+
+    from sin3dm_lite.mesh_io import READABLE, SUPPORTED_EXTENSIONS, load_mesh
+
+    words = {w.lower() for w in re.findall(r"[A-Za-z]+", READABLE)} - {"mtl"}
+    assert words == {ext[1:] for ext in SUPPORTED_EXTENSIONS}
+    box = trimesh.creation.box(extents=(1.0, 0.5, 0.25))
+    for ext in SUPPORTED_EXTENSIONS:
+        path = tmp_path / f"box{ext}"
+        if ext == ".gltf":  # a .gltf is a JSON file plus its buffers
+            for name, data in box.export(file_type="gltf").items():
+                (tmp_path / (path.name if name.endswith(".gltf") else name)).write_bytes(data)
+        else:
+            box.export(path)
+        m = load_mesh(path)
+        assert len(m.faces) == 12, ext
+        np.testing.assert_allclose(m.vertices.max(0) - m.vertices.min(0), [1.0, 0.5, 0.25], atol=1e-6)
+    for command in ("grid", "fit", "render"):  # each command that reads a mesh says so
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        assert READABLE in _flat(capsys.readouterr().out), command
+
+
+def test_demo_example_with_train_fits_that_example(capsys, tmp_path, monkeypatch):
+    """`demo --example wall --train` fits the wall (the tiny preset here, to be quick) and writes its samples."""
+    import sin3dm_lite.cli as cli
+
+    monkeypatch.setattr(cli, "DEMO_PRESET", "tiny")
+    out = tmp_path / "demo"
+    code, text, err = run(capsys, "demo", "--example", "wall", "--train", "--out", str(out), "-n", "1", "--steps", "3",
+                          "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64", "--no-pictures")
+    assert code == 0, err
+    assert (out / "000" / "mesh.obj").is_file() and (out / "index.html").is_file()
+    assert "decode, texture, export" in err  # the progress bar over the per-mesh work
+    assert "[demo] 1/1:" in text

@@ -165,15 +165,79 @@ def test_gallery_layout_and_labels():
     xs = [(m.vertices[:, 0].min(), m.vertices[:, 0].max()) for m in ms]
     assert xs[1][0] - xs[0][1] == pytest.approx(0.5) and xs[2][0] - xs[1][1] == pytest.approx(0.5)
     assert xs[1][1] - xs[1][0] == pytest.approx(2.0)  # each mesh keeps its size
-    # labels sit above their mesh
+    # labels sit outside their mesh's box: at its base, in front of it (towards the camera)
     for t, m in zip(texts, ms):
-        assert t.position[2] > m.vertices[:, 2].max()
+        lo, hi = m.vertices.min(0), m.vertices.max(0)
+        assert t.position[1] < lo[1] and t.position[2] <= lo[2] + 1e-6 and t.reference_point == "ct"
     # two columns: the third mesh starts a new row below the first
     ms = meshes_of(viewer.gallery([quad, quad, quad], columns=2))
     assert ms[2].vertices[:, 2].max() < ms[0].vertices[:, 2].min()
     assert ms[2].vertices[:, 0].min() == pytest.approx(ms[0].vertices[:, 0].min())
     with pytest.raises(ValueError):
         viewer.gallery([quad], labels=["a", "b"])
+
+
+def screen(camera, points) -> np.ndarray:
+    """Perspective screen coordinates (right, up) of k3d-frame points seen through a camera vector."""
+    eye, target, up = np.array(camera[:3]), np.array(camera[3:6]), np.array(camera[6:])
+    f = (target - eye) / np.linalg.norm(target - eye)
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    p = np.asarray(points, np.float64) - eye
+    depth = p @ f
+    assert (depth > 0).all()  # in front of the camera
+    return np.stack([p @ r / depth, p @ u / depth], axis=1)
+
+
+def lowest_on_screen(corners2d: np.ndarray, x: float) -> float:
+    """The lower edge of the convex hull of projected box corners at screen x (the min over segments crossing x)."""
+    ys = []
+    for i in range(len(corners2d)):
+        for j in range(len(corners2d)):
+            (x0, y0), (x1, y1) = corners2d[i], corners2d[j]
+            if min(x0, x1) <= x <= max(x0, x1):
+                ys.append(y0 if x1 == x0 else y0 + (y1 - y0) * (x - x0) / (x1 - x0))
+    return min(ys) if ys else np.inf
+
+
+def test_view_camera_looks_from_above_at_an_angle():
+    lo, hi = np.array([0.0, 0.0, 0.0]), np.array([4.0, 2.0, 1.5])  # k3d frame: z is up
+    cam = viewer.view_camera(lo, hi)
+    eye, target = np.array(cam[:3]), np.array(cam[3:6])
+    np.testing.assert_allclose(target, (lo + hi) / 2)
+    assert eye[2] > hi[2]  # above the box top
+    assert (eye < lo).any() or (eye > hi).any()  # outside the box
+    assert eye[1] < lo[1]  # in front (k3d -y is the data's front, +z)
+    elevation = np.degrees(np.arcsin((eye - target)[2] / np.linalg.norm(eye - target)))
+    assert elevation == pytest.approx(viewer.VIEW[1]) and 35 <= elevation <= 75  # from above, not straight down
+    # the whole box is in view: every corner within the field of view
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    d = (corners - eye) @ ((target - eye) / np.linalg.norm(target - eye))
+    off = np.linalg.norm(corners - eye - np.outer(d, (target - eye) / np.linalg.norm(target - eye)), axis=1)
+    assert (np.degrees(np.arctan2(off, d)) < 30).all()
+
+
+def test_gallery_labels_do_not_overlap_the_meshes_on_screen():
+    """From the saved page's default camera each label's anchor (its text hangs down from it) lies below every
+    mesh's picture, not on it, and the meshes of two rows do not cover each other."""
+    quad = textured_quad()
+    big = trimesh.creation.box(extents=(2.0, 1.0, 1.0))
+    plot = viewer.gallery([big, quad, big, quad], labels=["000", "001", "002", "003"], columns=2)
+    cam = viewer.fit_camera(plot)
+    boxes = [(m.vertices.min(0), m.vertices.max(0)) for m in meshes_of(plot)]
+    texts = [o for o in plot.objects if isinstance(o, k3d.objects.Text)]
+    for k, t in enumerate(texts):
+        anchor = screen(cam, [t.position])[0]
+        for lo, hi in boxes:
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+            c2 = screen(cam, corners)
+            inside_x = c2[:, 0].min() <= anchor[0] <= c2[:, 0].max()
+            assert not inside_x or anchor[1] < lowest_on_screen(c2, anchor[0]) or anchor[1] > c2[:, 1].max(), k
+    # rows: the second row's meshes lie wholly below the first row's on screen
+    first = screen(cam, [c for lo, hi in boxes[:2] for c in (lo, hi, [lo[0], lo[1], hi[2]], [hi[0], hi[1], lo[2]])])
+    second = screen(cam, [c for lo, hi in boxes[2:] for c in (lo, hi, [lo[0], lo[1], hi[2]], [hi[0], hi[1], lo[2]])])
+    assert second[:, 1].max() < first[:, 1].min()
 
 
 def hot_voxel_grid(shape=(4, 5, 6), at=(1, 2, 3)):
@@ -253,6 +317,10 @@ def test_save_html_standalone_page(tmp_path):
     assert plot.camera_auto_fit is True
     cam = np.array(snap["plot"]["camera"])
     assert cam[1] < cam[4]  # the camera stands in front of the quad (k3d -y) looking towards +y
+    assert cam[2] > meshes_of(plot)[0].vertices[:, 2].max()  # and above it
+    # without WebGL the page says so instead of staying blank
+    assert viewer.NO_WEBGL.split(",")[0] in text and "getContext('webgl')" in text
+    assert text.index('id="sin3dm-no-webgl"') < text.index("CreateK3DAndLoadBinarySnapshot", text.index("<body"))
 
 
 def test_index_page(tmp_path):
