@@ -36,6 +36,7 @@ import json
 import re
 import struct
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from urllib.parse import unquote
 
@@ -521,172 +522,6 @@ def _warn(message: str) -> None:
 
 
 # ----------------------------------------------------------------------- OBJ
-_TEX_OPTION_ARGS = {  # MTL texture options and how many arguments each takes (at most)
-    "-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1,
-    "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1, "-type": 1,
-}
-
-
-def _parse_tex_line(rest: str):
-    """``[options] filename`` of an MTL map line → (filename, {option: [args]})."""
-    tokens = rest.split()
-    opts: dict[str, list[str]] = {}
-    i = 0
-    while i < len(tokens) and tokens[i].lower() in _TEX_OPTION_ARGS and len(tokens) > i + 1:
-        opt, n = tokens[i].lower(), _TEX_OPTION_ARGS[tokens[i].lower()]
-        args = []
-        i += 1
-        while len(args) < n and i < len(tokens) - 1:
-            if n > 1 and args and not _is_number(tokens[i]):
-                break
-            args.append(tokens[i])
-            i += 1
-        opts[opt] = args
-    return " ".join(tokens[i:]), opts
-
-
-def _is_number(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
-
-
-def _resolve_asset(name: str, base):
-    """Find a file an OBJ/MTL names: as written, then by its base name (also ignoring case) in ``base``."""
-
-    name = name.strip().strip('"').replace("\\", "/")
-    cands = [base / name, Path(name)] if not Path(name).is_absolute() else [Path(name)]
-    cands.append(base / Path(name).name)
-    for c in cands:
-        if c.is_file():
-            return c
-    low = Path(name).name.lower()
-    try:
-        for c in base.iterdir():
-            if c.name.lower() == low and c.is_file():
-                return c
-    except OSError:
-        pass
-    return None
-
-
-class _TextureCache:
-    """Loads each texture file once (several materials often share one atlas)."""
-
-    def __init__(self, max_size):
-        self.max_size = max_size
-        self.cache: dict = {}
-
-    def load(self, ref: str, base, what: str, owner: str):
-        from PIL import Image
-
-        path = _resolve_asset(ref, base)
-        if path is None:
-            _warn(
-                f"texture file '{ref}' ({what} of {owner}) was not found (looked in '{base}'); "
-                "using the material colour instead: put the image next to the .mtl file or fix the path"
-            )
-            return None
-        key = path.resolve()
-        if key not in self.cache:
-            try:
-                with Image.open(path) as img:
-                    self.cache[key] = image_to_array(img, self.max_size)
-            except Exception as exc:  # corrupt / unsupported image: warn and fall back
-                _warn(
-                    f"texture file '{path.name}' ({what} of {owner}) could not be read "
-                    f"({type(exc).__name__}: {exc}); using the material colour instead: re-save the image as PNG or JPEG"
-                )
-                self.cache[key] = None
-        return self.cache[key]
-
-
-def _parse_mtl(path, textures: _TextureCache, used=None) -> dict[str, tuple[Material, tuple | None]]:
-    """``newmtl`` blocks of an MTL file → ``{name: (material, uv transform or None)}``, in file order.
-
-    Only the materials named in ``used`` (all when None) are built, so textures
-    that no face shows are neither decoded nor warned about.
-
-    A loaded ``map_Kd`` replaces ``Kd`` and a loaded ``map_Pr``/``map_Pm``
-    replaces ``Pr``/``Pm`` (as Blender and three.js read them). The uv
-    transform is ``(scale, offset)`` from the ``map_Kd -s/-o`` options.
-    """
-    base = path.parent
-    raw: dict[str, dict] = {}
-    cur = None
-    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
-        parts = line.strip().split(None, 1)
-        if not parts or parts[0].startswith("#"):
-            continue
-        key, rest = parts[0], (parts[1].strip() if len(parts) > 1 else "")
-        if key == "newmtl":
-            cur = raw.setdefault(rest, {})
-            continue
-        if cur is None:
-            continue
-        k = key.lower()
-        try:
-            if k == "kd":
-                vals = [float(x) for x in rest.split()[:3]]
-                cur["Kd"] = vals * 3 if len(vals) == 1 else vals
-            elif k == "d":
-                cur["d"] = float(rest.split()[-1])
-            elif k == "tr" and "d" not in cur:
-                cur["d"] = 1.0 - float(rest.split()[-1])
-            elif k in ("pm", "pr"):
-                cur[k] = float(rest.split()[0])
-            elif k in ("map_kd", "map_pm", "map_pr", "map_bump", "bump", "norm"):
-                cur[k] = _parse_tex_line(rest)
-        except (ValueError, IndexError):
-            continue  # a malformed optional line: ignore it like other viewers do
-    out = {}
-    for mname, d in raw.items():
-        if used is not None and mname not in used:
-            continue
-        owner = f"material '{mname}' in '{path.name}'"
-        kd = np.array((d.get("Kd", list(DEFAULT_COLOR)) + [1.0, 1.0, 1.0])[:3], np.float32)
-        mat = Material(name=mname, base_color=np.array([*np.clip(kd, 0, 1), d.get("d", 1.0)], np.float32))
-        mat.metallic = float(d.get("pm", 0.0))
-        mat.roughness = float(d.get("pr", 1.0))
-        uv_transform = None
-        if "map_kd" in d:
-            fname, opts = d["map_kd"]
-            mat.image = textures.load(fname, base, "map_Kd", owner)
-            if mat.image is not None:
-                mat.base_color[:3] = 1.0  # the texture replaces Kd (Blender, three.js and co. agree)
-                s = [float(x) for x in opts.get("-s", [])] + [1.0, 1.0]
-                o = [float(x) for x in opts.get("-o", [])] + [0.0, 0.0]
-                if s[:2] != [1.0, 1.0] or o[:2] != [0.0, 0.0]:
-                    uv_transform = (np.array(s[:2], np.float32), np.array(o[:2], np.float32))
-        mr = {}
-        for key, chan in (("map_pr", 1), ("map_pm", 2)):  # glTF layout: roughness in G, metallic in B
-            if key in d:
-                img = textures.load(d[key][0], base, key.replace("map_p", "map_P"), owner)
-                if img is not None:
-                    mr[chan] = img[:, :, 0]
-        if mr:
-            shape = next(iter(mr.values())).shape
-            mr_img = np.ones((*shape, 3), np.float32)
-            for chan, img in mr.items():
-                if img.shape != shape:
-                    img = image_to_array(array_to_pil(img).resize(shape[::-1]))[:, :, 0]
-                mr_img[:, :, chan] = img
-            mat.metallic_roughness_image = mr_img
-            mat.roughness = 1.0 if 1 in mr else mat.roughness
-            mat.metallic = 1.0 if 2 in mr else mat.metallic
-        for key in ("norm", "map_bump", "bump"):
-            if key in d:
-                img = textures.load(d[key][0], base, key, owner)
-                # a grey bump map is a height map, not a normal map: not used
-                if img is not None and np.ptp(img, axis=2).max() > 1e-3:
-                    mat.normal_image = img
-                break
-        out[mname] = (mat, uv_transform)
-    return out
-
-
 def _load_obj(path, max_size):
     """A Wavefront OBJ (+ MTL) → one part and its materials."""
     data = path.read_bytes()
@@ -704,34 +539,18 @@ def _load_obj(path, max_size):
     vt_rows, vt_pos = scan("vt")
     f_rows, f_pos = scan("f")
     use_names, use_pos = scan("usemtl")
-    mtllibs = [m.strip() for m in scan("mtllib")[0]]
-    # the material in force at each face: the last usemtl before it (slot 0: none yet)
-    mat_names: list[str | None] = [None]
-    slot_of: dict = {}
-    use_slot = [0]
-    for name in use_names:
-        name = name.strip()
-        if name not in slot_of:
-            slot_of[name] = len(mat_names)
-            mat_names.append(name)
-        use_slot.append(slot_of[name])
-    info = np.stack([
-        f_pos,
-        np.asarray(use_slot)[np.searchsorted(use_pos, f_pos)],
-        np.searchsorted(v_pos, f_pos),  # vertices defined before the face (for negative indices)
-        np.searchsorted(vt_pos, f_pos),
-    ], axis=1)
+    # the material slot in force at each face: that of the last usemtl before it (slot 0: none yet)
+    mat_names = [None, *dict.fromkeys(name.strip() for name in use_names)]
+    slot_of = {name: slot for slot, name in enumerate(mat_names)}
+    use_slot = np.array([0] + [slot_of[name.strip()] for name in use_names], np.int64)
+    info = np.stack([f_pos, use_slot[np.searchsorted(use_pos, f_pos)],
+                     np.searchsorted(v_pos, f_pos), np.searchsorted(vt_pos, f_pos)], axis=1)
     fv, ft, fm = _obj_faces(path, f_rows, info, line_of=lambda pos: text.count("\n", 0, pos))
-    # keep only material slots that faces use (in first-use order)
-    used_slots = np.unique(fm)
+    used_slots, fm = np.unique(fm, return_inverse=True)  # keep only the material slots faces use
     mat_names = [mat_names[i] for i in used_slots]
-    fm = np.searchsorted(used_slots, fm)
 
     vertices, colors = _obj_vertices(path, v_rows)
-    uvs = np.zeros((0, 2))
-    if vt_rows:
-        uvs = _obj_numbers(path, vt_rows, "vt", 1)
-        uvs = np.nan_to_num(uvs[:, :2]) if uvs.shape[1] >= 2 else np.column_stack([uvs[:, 0], np.zeros(len(uvs))])
+    uvs = np.nan_to_num(_obj_numbers(path, vt_rows, "vt", 1, width=2)[:, :2])
     if len(fv) and fv.max() >= len(vertices):
         raise _unreadable(path, "a Wavefront OBJ", f"a face refers to vertex {fv.max() + 1} but the file "
                           f"defines only {len(vertices)} vertices")
@@ -739,15 +558,14 @@ def _load_obj(path, max_size):
         raise _unreadable(path, "a Wavefront OBJ", f"a face refers to texture coordinate {ft.max() + 1} but the "
                           f"file defines only {len(uvs)} ('vt' lines)")
 
-    # materials: the MTL libraries, then one Material per used name
-    textures = _TextureCache(max_size)
+    # the used materials' definitions in the MTL libraries
+    texture = partial(_load_texture, max_size=max_size, cache={})
     library: dict[str, tuple[Material, tuple | None]] = {}
     loaded_any = False
-    for entry in mtllibs:
-        files = [_resolve_asset(entry, path.parent)]
-        if files[0] is None and " " in entry:  # "mtllib a.mtl b.mtl"
-            files = [_resolve_asset(e, path.parent) for e in entry.split()]
-        for name, mtl in zip([entry] if len(files) == 1 else entry.split(), files):
+    for entry in (e.strip() for e in scan("mtllib")[0]):
+        # "mtllib a.mtl b.mtl", unless that is one file name with spaces
+        for name in entry.split() if " " in entry and not _resolve_asset(entry, path.parent) else [entry]:
+            mtl = _resolve_asset(name, path.parent)
             if mtl is None:
                 _warn(
                     f"material library '{name}' named in '{path.name}' was not found (looked in '{path.parent}'); "
@@ -755,13 +573,16 @@ def _load_obj(path, max_size):
                 )
                 continue
             try:
-                library.update(_parse_mtl(mtl, textures, used=set(mat_names)))
+                library.update(_parse_mtl(mtl, set(mat_names), texture))
                 loaded_any = True
             except OSError as exc:
                 _warn(f"material library '{mtl.name}' could not be read ({exc}); using plain colours")
 
+    # one Material per used name, ordered as the MTL defines them (the file's intent), undefined ones last
+    lib_order = {name: i for i, name in enumerate(library)}
+    order = sorted(range(len(mat_names)), key=lambda i: (lib_order.get(mat_names[i], len(lib_order)), i))
     materials, uv_transforms = [], []
-    for mname in mat_names:
+    for mname in (mat_names[i] for i in order):
         mat, uv_t = library.get(mname, (None, None))
         if mat is None:
             if mname is not None and loaded_any:
@@ -771,126 +592,225 @@ def _load_obj(path, max_size):
             mat = replace(mat, base_color=np.array([1, 1, 1, mat.base_color[3]], np.float32))
         materials.append(mat)
         uv_transforms.append(uv_t)
-    # order materials as the MTL defines them (the file's intent), undefined ones last
-    lib_order = {n: i for i, n in enumerate(library)}
-    order = sorted(range(len(materials)), key=lambda i: (lib_order.get(mat_names[i], len(lib_order)), i))
-    rank = np.empty(len(order), np.int64)
-    rank[order] = np.arange(len(order))
-    materials = [materials[i] for i in order]
-    uv_transforms = [uv_transforms[i] for i in order]
+    face_material = np.argsort(order)[fm]
 
-    faces = fv
-    face_material = rank[fm] if len(fm) else np.zeros(0, np.int64)
     face_uvs = None
-    ft_arr = ft
-    if len(uvs) and (ft_arr >= 0).any():
-        face_uvs = np.where((ft_arr >= 0)[..., None], uvs[np.maximum(ft_arr, 0)], np.nan).astype(np.float32)
+    if len(uvs) and (ft >= 0).any():
+        face_uvs = np.where((ft >= 0)[..., None], uvs[np.maximum(ft, 0)], np.nan).astype(np.float32)
         for mi, t in enumerate(uv_transforms):
             if t is not None:
                 sel = face_material == mi
                 face_uvs[sel] = face_uvs[sel] * t[0] + t[1]
-    return [_Part(vertices, faces, face_material, face_uvs, colors)], materials
+    return [_Part(vertices, fv, face_material, face_uvs, colors)], materials
 
 
 def _obj_faces(path, rows: list[str], info: np.ndarray, line_of):
-    """Face lines → triangles ``(F, 3)`` vertex and uv indices (0-based; uv -1: none) and material slots.
+    """Face lines → triangles ``(F, 3)`` of vertex and uv indices (0-based; uv -1: none) and material slots.
 
-    Indices are 1-based; negative ones count back from the last vertex defined
-    so far. Polygons are fan-triangulated. All-triangle files with one index
-    layout (the usual case) are parsed in one vectorised step.
+    ``info`` holds, for each line, its position in the text, its material slot
+    and how many vertices and uvs were defined before it. Indices are 1-based;
+    negative ones count back from the last vertex (uv) defined so far.
+    Polygons are fan-triangulated; lines with fewer than three corners are
+    skipped. Files with one index layout (the usual case) are parsed in one
+    vectorised step.
     """
-    empty = np.zeros((0, 3), np.int64)
-    if not rows:
-        return empty, empty, np.zeros(0, np.int64)
-    joined = " ".join(rows)
-    tokens = joined.split()
-    if len(tokens) == 3 * len(rows) and all(len(r.split()) == 3 for r in rows):  # three corners on every line
-        if len({t.count("/") for t in tokens}) == 1:  # one index layout: v, v/vt, v//vn or v/vt/vn
-            try:
-                nums = np.array(joined.replace("//", "/0/").replace("/", " ").split(), dtype=np.int64)
-            except ValueError:
-                nums = None
-            if nums is not None and len(nums) % (3 * len(rows)) == 0:
-                nums = nums.reshape(len(rows), 3, -1)
-                vi = np.where(nums[..., 0] < 0, nums[..., 0] + info[:, 2:3], nums[..., 0] - 1)
-                ti = np.full_like(vi, -1)
-                if nums.shape[2] >= 2:
-                    t = nums[..., 1]
-                    ti = np.where(t < 0, t + info[:, 3:4], np.where(t == 0, -1, t - 1))
-                    ti[(t < 0) & (ti < 0)] = -2  # points before the first vt
-                bad = (vi < 0).any(axis=1) | (ti < -1).any(axis=1)
-                if not bad.any():
-                    return vi, ti, info[:, 1].copy()
-    # general path, line by line (polygons, mixed layouts, or an error to locate)
-    fv: list[int] = []
-    ft: list[int] = []
-    fm: list[int] = []
-    for row, (pos, slot, nv, nt) in zip(rows, info.tolist()):
-        toks = row.split()
-        if len(toks) < 3:
-            continue
+    counts = np.array([len(row.split()) for row in rows], np.int64)  # corners per line
+    line = np.repeat(np.arange(len(rows)), np.maximum(counts - 2, 0))  # the line of each triangle
+    if (counts == 3).all():
+        tri = " ".join(rows).split()
+    else:  # fan triangulation
+        tri = [t for c in map(str.split, rows) for k in range(1, len(c) - 1) for t in (c[0], c[k], c[k + 1])]
+    nums = None
+    if len({t.count("/") for t in tri}) == 1:  # v, v/vt, v//vn or v/vt/vn on every corner
         try:
-            idx = []
-            for tok in toks:
-                sub = tok.split("/")
-                vi = _obj_index(sub[0], nv)
-                ti = _obj_index(sub[1], nt) if len(sub) > 1 and sub[1] else -1
-                idx.append((vi, ti))
-        except (ValueError, IndexError):
-            raise _unreadable(
-                path, "a Wavefront OBJ", f"line {line_of(pos)}: bad face 'f {row.strip()[:80]}' (an index is not a "
-                "number, is 0, or points before the first vertex)"
-            ) from None
-        for k in range(1, len(idx) - 1):  # fan triangulation
-            for vi, ti in (idx[0], idx[k], idx[k + 1]):
-                fv.append(vi)
-                ft.append(ti)
-            fm.append(slot)
-    return (np.array(fv, np.int64).reshape(-1, 3), np.array(ft, np.int64).reshape(-1, 3),
-            np.array(fm, np.int64))
+            nums = np.array(" ".join(tri).replace("//", "/0/").replace("/", " ").split(), np.int64)
+            nums = np.pad(nums.reshape(len(line), 3, -1), [(0, 0), (0, 0), (0, 1)])[..., :2]  # vt 0: absent
+        except ValueError:
+            nums = None
+    if nums is None:  # mixed layouts, or an error to locate: corner by corner
+
+        def corner(token):
+            s = token.split("/")
+            try:
+                return int(s[0]), (int(s[1]) if len(s) > 1 and s[1] else 0)
+            except ValueError:
+                return 0, 0  # reported below, like an index 0
+
+        nums = np.array([corner(t) for t in tri], np.int64).reshape(-1, 3, 2)
+    v, t = nums[..., 0], nums[..., 1]
+    vi = np.where(v < 0, v + info[line, 2:3], v - 1)
+    ti = np.where(t < 0, t + info[line, 3:4], t - 1)  # vt 0 (absent) → -1
+    bad = (vi < 0).any(axis=1) | ((t < 0) & (ti < 0)).any(axis=1)
+    if bad.any():
+        i = line[np.argmax(bad)]
+        raise _unreadable(
+            path, "a Wavefront OBJ", f"line {line_of(info[i, 0])}: bad face 'f {rows[i].strip()[:80]}' (an index is "
+            "not a number, is 0, or points before the first vertex)"
+        )
+    return vi, ti, info[line, 1]
 
 
-def _obj_index(token: str, count: int) -> int:
-    i = int(token)
-    i = i - 1 if i > 0 else count + i if i < 0 else -1
-    if i < 0:
-        raise IndexError(token)
-    return i
-
-
-def _obj_numbers(path, rows, what, min_cols):
-    """Lines of numbers → ``(n, width)`` float64, NaN where a line is shorter than the longest."""
+def _obj_numbers(path, rows, what, min_cols, width):
+    """Lines of numbers → ``(n, width)`` float64 (``width`` at least), NaN where a line is shorter."""
+    rows = [row.split() for row in rows]
+    widths = set(map(len, rows)) | {width}
     try:
-        rows = [r.split() for r in rows]
-        widths = {len(r) for r in rows}
-        if len(widths) == 1 and min(widths) >= min_cols:
-            return np.array(rows, dtype=np.float64)
-        width = max(widths)
-        out = np.full((len(rows), width), np.nan)
-        for i, r in enumerate(rows):
-            if len(r) < min_cols:
-                raise ValueError(f"{what} line #{i + 1} has {len(r)} numbers, needs {min_cols}")
-            out[i, : len(r)] = [float(x) for x in r]
-        return out
+        short = next((i for i, row in enumerate(rows) if len(row) < min_cols), None)
+        if short is not None:
+            raise ValueError(f"{what} line #{short + 1} has {len(rows[short])} numbers, needs {min_cols}")
+        if len(widths) > 1:
+            rows = [row + ["nan"] * (max(widths) - len(row)) for row in rows]
+        return np.array(rows, np.float64).reshape(len(rows), max(widths))
     except ValueError as exc:
         raise _unreadable(path, "a Wavefront OBJ", f"bad '{what}' line: {exc}") from None
 
 
 def _obj_vertices(path, rows):
     """``v x y z [w]`` or ``v x y z r g b`` rows → positions and (optional) colours."""
-    if not rows:
-        return np.zeros((0, 3)), None
-    arr = _obj_numbers(path, rows, "v", 3)
-    xyz = arr[:, :3]
-    colors = None
-    if arr.shape[1] >= 6:
-        rgb = arr[:, 3:6]
-        has = np.isfinite(rgb).all(axis=1)
-        if has.any():
-            if np.nanmax(rgb) > 1.0:  # some writers use 0..255
-                rgb = rgb / 255.0
-            colors = np.where(has[:, None], np.clip(np.nan_to_num(rgb), 0, 1), 1.0).astype(np.float32)
-    return xyz, colors
+    arr = _obj_numbers(path, rows, "v", 3, width=3)
+    rgb = arr[:, 3:6] if arr.shape[1] >= 6 else np.full((len(arr), 3), np.nan)
+    has = np.isfinite(rgb).all(axis=1)
+    if not has.any():
+        return arr[:, :3], None
+    if np.nanmax(rgb) > 1.0:  # some writers use 0..255
+        rgb = rgb / 255.0
+    return arr[:, :3], np.where(has[:, None], np.clip(np.nan_to_num(rgb), 0, 1), 1.0).astype(np.float32)
+
+
+def _parse_mtl(path, used: set, texture) -> dict[str, tuple[Material, tuple | None]]:
+    """The ``newmtl`` blocks of an MTL file → ``{name: (material, uv transform or None)}``, in file order.
+
+    Only the materials named in ``used`` are built, so textures that no face
+    shows are neither decoded nor warned about; ``texture`` loads an image
+    (:func:`_load_texture`). A loaded ``map_Kd`` replaces ``Kd`` and a loaded
+    ``map_Pr``/``map_Pm`` replaces ``Pr``/``Pm`` (as Blender and three.js
+    read them). The uv transform is ``(scale, offset)`` from the ``map_Kd
+    -s/-o`` options.
+    """
+    raw: dict[str, dict] = {}
+    cur: dict = {}  # statements before the first newmtl belong to no material
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        key, rest = (line.split(None, 1) + ["", ""])[:2]
+        k, rest = key.lower(), rest.strip()
+        try:
+            if key == "newmtl":
+                cur = raw.setdefault(rest, {})
+            elif k == "kd":
+                vals = [float(x) for x in rest.split()[:3]]
+                cur["Kd"] = vals * 3 if len(vals) == 1 else vals
+            elif k == "d":
+                cur["d"] = float(rest.split()[-1])
+            elif k == "tr" and "d" not in cur:
+                cur["d"] = 1.0 - float(rest.split()[-1])
+            elif k in ("pm", "pr"):
+                cur[k] = float(rest.split()[0])
+            elif k in ("map_kd", "map_pm", "map_pr", "map_bump", "bump", "norm"):
+                cur[k] = _parse_tex_line(rest)
+        except (ValueError, IndexError):
+            continue  # a malformed optional line: ignore it like other viewers do
+    out = {}
+    for mname, d in raw.items():
+        if mname not in used:
+            continue
+        kd = np.clip((d.get("Kd", list(DEFAULT_COLOR)) + [1.0, 1.0, 1.0])[:3], 0, 1)
+        mat = Material(name=mname, base_color=np.array([*kd, d.get("d", 1.0)], np.float32),
+                       metallic=d.get("pm", 0.0), roughness=d.get("pr", 1.0))
+        uv_transform = None
+        if "map_kd" in d:
+            fname, opts = d["map_kd"]
+            mat.image = texture(fname, "map_Kd", mname, path)
+            if mat.image is not None:
+                mat.base_color[:3] = 1.0  # the texture replaces Kd (Blender, three.js and co. agree)
+                s = [float(x) for x in opts.get("-s", [])] + [1.0, 1.0]
+                o = [float(x) for x in opts.get("-o", [])] + [0.0, 0.0]
+                if s[:2] != [1.0, 1.0] or o[:2] != [0.0, 0.0]:
+                    uv_transform = (np.array(s[:2], np.float32), np.array(o[:2], np.float32))
+        for key, chan in (("map_pr", 1), ("map_pm", 2)):  # glTF layout: roughness in G, metallic in B
+            img = texture(d[key][0], key.replace("map_p", "map_P"), mname, path) if key in d else None
+            if img is None:
+                continue
+            if mat.metallic_roughness_image is None:
+                mat.metallic_roughness_image = np.ones_like(img)
+            elif img.shape != mat.metallic_roughness_image.shape:  # to the size of the first map
+                img = image_to_array(array_to_pil(img).resize(mat.metallic_roughness_image.shape[1::-1]))
+            mat.metallic_roughness_image[:, :, chan] = img[:, :, 0]
+            setattr(mat, "roughness" if chan == 1 else "metallic", 1.0)
+        key = next((k for k in ("norm", "map_bump", "bump") if k in d), None)
+        img = texture(d[key][0], key, mname, path) if key else None
+        if img is not None and np.ptp(img, axis=2).max() > 1e-3:  # a grey bump map is a height map: not used
+            mat.normal_image = img
+        out[mname] = (mat, uv_transform)
+    return out
+
+
+_TEX_OPTION_ARGS = {  # MTL texture options and how many arguments each takes (at most)
+    "-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1,
+    "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1, "-type": 1,
+}
+
+
+def _parse_tex_line(rest: str):
+    """``[options] filename`` of an MTL map line → (filename, {option: [args]}).
+
+    An option's first argument is taken as it is, further ones only while
+    they are numbers; the last token always belongs to the filename.
+    """
+    tokens, opts = rest.split(), {}
+    while len(tokens) > 1 and tokens[0].lower() in _TEX_OPTION_ARGS:
+        opt = tokens.pop(0).lower()
+        args = opts[opt] = []
+        while len(args) < _TEX_OPTION_ARGS[opt] and len(tokens) > 1 and (not args or _is_number(tokens[0])):
+            args.append(tokens.pop(0))
+    return " ".join(tokens), opts
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _load_texture(ref: str, what: str, mname: str, mtl: Path, *, max_size, cache: dict):
+    """The image an MTL map line names, as an array; ``None`` with a warning if it is missing or unreadable.
+
+    Each file is decoded once (``cache``): several materials often share one atlas.
+    """
+    from PIL import Image
+
+    owner = f"{what} of material '{mname}' in '{mtl.name}'"
+    path = _resolve_asset(ref, mtl.parent)
+    if path is None:
+        _warn(
+            f"texture file '{ref}' ({owner}) was not found (looked in '{mtl.parent}'); "
+            "using the material colour instead: put the image next to the .mtl file or fix the path"
+        )
+        return None
+    key = path.resolve()
+    if key not in cache:
+        try:
+            with Image.open(path) as img:
+                cache[key] = image_to_array(img, max_size)
+        except Exception as exc:  # corrupt / unsupported image: warn and fall back
+            cache[key] = None
+            _warn(
+                f"texture file '{path.name}' ({owner}) could not be read ({type(exc).__name__}: {exc}); "
+                "using the material colour instead: re-save the image as PNG or JPEG"
+            )
+    return cache[key]
+
+
+def _resolve_asset(name: str, base: Path) -> Path | None:
+    """Find a file an OBJ/MTL names: as written, then by its base name (also ignoring case) in ``base``."""
+    name = Path(name.strip().strip('"').replace("\\", "/"))
+    for candidate in (base / name, name, base / name.name):  # base / an absolute path = the path
+        if candidate.is_file():
+            return candidate
+    try:
+        return next((c for c in base.iterdir() if c.name.lower() == name.name.lower() and c.is_file()), None)
+    except OSError:
+        return None
 
 
 # ------------------------------------------------------- glTF / PLY / STL / OFF
