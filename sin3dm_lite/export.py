@@ -212,8 +212,7 @@ def _baked_vertex_colors(mesh: TexturedMesh) -> np.ndarray | None:
     if mesh.vertex_colors is None:
         return None
     factor = np.ones((len(mesh.vertices), 3), np.float32)
-    for k in reversed(range(len(mesh.materials))):  # reversed: lower material index wins
-        mat = mesh.materials[k]
+    for k, mat in reversed(list(enumerate(mesh.materials))):  # reversed: lower material index wins
         if mat.image is None or mesh.face_uvs is None:
             idx = np.unique(mesh.faces[mesh.face_material == k])
             factor[idx] = np.asarray(mat.base_color, np.float32)[:3]

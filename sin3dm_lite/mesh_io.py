@@ -245,9 +245,6 @@ SUPPORTED_EXTENSIONS = (".obj", ".glb", ".gltf", ".ply", ".stl", ".off")
 #: float32 RGB 4096² image is already 200 MB, and a 256³ grid never needs more.
 MAX_TEXTURE_SIZE = 4096
 
-_WHITE = np.ones(4, np.float32)
-
-
 def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE) -> TexturedMesh:
     """Read a textured mesh file into a :class:`TexturedMesh` (the file's own coordinates).
 
@@ -279,12 +276,8 @@ def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE) -> Textu
             no faces, NaN/inf coordinates, zero-size bounding box or zero area.
     """
     path = _check_input_path(path)
-    ext = path.suffix.lower()
-    if ext == ".obj":
-        parts, materials = _load_obj(path, max_texture_size)
-    else:
-        parts, materials = _load_with_trimesh(path, max_texture_size)
-    return _assemble(parts, materials, name=path.stem, source=path.name)
+    load = _load_obj if path.suffix.lower() == ".obj" else _load_with_trimesh
+    return _assemble(*load(path, max_texture_size), name=path.stem, source=path.name)
 
 
 # the largest vertex coordinate accepted: beyond it the bounding box or the triangle areas overflow, or
@@ -306,7 +299,6 @@ def load_any(source, **kwargs) -> TexturedMesh:
 
 # ----------------------------------------------------------------- validation
 def _check_input_path(path) -> Path:
-
     try:
         path = Path(path).expanduser()
     except TypeError:
@@ -372,10 +364,8 @@ def _assemble(parts: list[_Part], materials: list[Material], name: str, source: 
     # keep only referenced vertices: stray points must not enlarge the bounding box
     used = np.zeros(len(vertices), bool)
     used[faces] = True
-    if not used.all():
-        remap = np.cumsum(used) - 1
-        vertices, faces = vertices[used], remap[faces]
-        colors = colors[used] if colors is not None else None
+    vertices, faces = vertices[used], (np.cumsum(used) - 1)[faces]
+    colors = colors[used] if colors is not None else None
 
     bad = ~np.isfinite(vertices).all(axis=1)
     if bad.any():
@@ -383,7 +373,9 @@ def _assemble(parts: list[_Part], materials: list[Material], name: str, source: 
             f"'{source}' has {int(bad.sum())} vertices with NaN or infinite coordinates (the first is "
             f"vertex {int(np.argmax(bad))}); repair or delete them in a mesh editor and export again"
         )
-    vertices, faces, colors = _weld(vertices, faces, colors)
+    # weld vertices with exactly equal position (and colour), in first-occurrence order
+    keep, inverse = unique_rows(vertices if colors is None else np.hstack([vertices, colors.astype(np.float64)]))
+    vertices, faces, colors = vertices[keep], inverse[faces], (colors[keep] if colors is not None else None)
 
     extent = vertices.max(0) - vertices.min(0)
     if extent.max() <= 0:
@@ -405,33 +397,12 @@ def _assemble(parts: list[_Part], materials: list[Material], name: str, source: 
             "vertices); Sin3DM needs a surface mesh"
         )
 
-    # drop materials no face uses (they may hold large images)
-    used_m = np.unique(face_material)
-    if len(used_m) < len(materials):
-        remap_m = np.full(len(materials), -1, np.int64)
-        remap_m[used_m] = np.arange(len(used_m))
-        materials = [materials[i] for i in used_m]
-        face_material = remap_m[face_material]
+    used_materials, face_material = np.unique(face_material, return_inverse=True)  # unused ones may hold big images
     if face_uvs is not None and not np.isfinite(face_uvs).any():
         face_uvs = None
-    return TexturedMesh(
-        vertices=vertices,
-        faces=faces,
-        face_material=face_material,
-        materials=list(materials),
-        face_uvs=face_uvs,
-        vertex_colors=colors,
-        name=name,
-    )
-
-
-def _weld(vertices, faces, colors):
-    """Merge vertices with exactly equal position (and colour); keeps first-occurrence order."""
-    key = vertices if colors is None else np.hstack([vertices, colors.astype(np.float64)])
-    keep, inverse = unique_rows(key)
-    if len(keep) == len(vertices):
-        return vertices, faces, colors
-    return vertices[keep], inverse[faces], (colors[keep] if colors is not None else None)
+    return TexturedMesh(vertices=vertices, faces=faces, face_material=face_material,
+                        materials=[materials[i] for i in used_materials], face_uvs=face_uvs, vertex_colors=colors,
+                        name=name)
 
 
 def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -817,28 +788,29 @@ def _resolve_asset(name: str, base: Path) -> Path | None:
 def _load_with_trimesh(path, max_size):
     """Every triangle geometry of the file's scene, node transforms applied."""
     import trimesh
+    from trimesh.visual import ColorVisuals, TextureVisuals
 
     fmt = {".glb": "a binary glTF (GLB)", ".gltf": "a glTF", ".ply": "a PLY mesh", ".stl": "an STL mesh",
            ".off": "an OFF mesh"}[path.suffix.lower()]
     if path.stat().st_size == 0:
         raise _unreadable(path, fmt, "the file is empty")
-    image_problems = _gltf_image_problems(path, fmt) if path.suffix.lower() in (".glb", ".gltf") else {}
+    image_problems = _gltf_image_problems(path, fmt) if path.suffix.lower() in (".glb", ".gltf") else []
     try:
         scene = trimesh.load(str(path), force="scene", process=False)
     except Exception as exc:
         raise _unreadable(path, fmt, exc) from None
-    for problem in image_problems.values():
+    for problem in image_problems:
         _warn(problem)
 
     parts: list[_Part] = []
     materials: list[Material] = []
-    mat_index: dict = {}  # id(trimesh material) -> index in materials
+    index: dict = {}  # a trimesh material (by id) or a colour → its position in materials
 
-    def add_material(m: Material, key) -> int:
-        if key not in mat_index:
-            mat_index[key] = len(materials)
-            materials.append(m)
-        return mat_index[key]
+    def add(mat: Material, key) -> int:
+        if key not in index:
+            index[key] = len(materials)
+            materials.append(mat)
+        return index[key]
 
     for node in scene.graph.nodes_geometry:
         transform, geom_name = scene.graph[node]
@@ -849,42 +821,35 @@ def _load_with_trimesh(path, max_size):
         faces = np.asarray(geom.faces, np.int64)
         if np.linalg.det(np.asarray(transform)[:3, :3]) < 0:
             faces = faces[:, ::-1]  # a mirroring transform flips the winding: restore outward normals
-        visual = geom.visual
-        n = len(faces)
-        if isinstance(visual, trimesh.visual.TextureVisuals) and visual.material is not None:
-            tm = visual.material
+        visual, n = geom.visual, len(faces)
+        if isinstance(visual, TextureVisuals) and visual.material is not None:
             uv = getattr(visual, "uv", None)
             has_uv = uv is not None and len(uv) == len(vertices)
-            mat = _material_from_trimesh(tm, max_size, path, geom_name)
-            key = id(tm)
+            mat, key = _material_from_trimesh(visual.material, max_size, path, geom_name), id(visual.material)
             if not has_uv and any(x is not None for x in (mat.image, mat.metallic_roughness_image, mat.normal_image)):
                 if mat.image is not None:
                     _warn(f"'{geom_name}' in '{path.name}' has a texture but no UV coordinates; using its base colour")
-                mat = replace(mat, image=None, metallic_roughness_image=None, normal_image=None)
-                key = (id(tm), "no-uv")
-            mi = add_material(mat, key)
+                mat, key = replace(mat, image=None, metallic_roughness_image=None, normal_image=None), (key, "no-uv")
             face_uvs = np.asarray(uv, np.float64)[faces].astype(np.float32) if has_uv else None
             colors = _color_array(visual.vertex_attributes.get("color"), len(vertices))
-            parts.append(_Part(vertices, faces, np.full(n, mi), face_uvs, colors))
-        elif isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
-            mi = add_material(Material(name="vertex_colors", base_color=_WHITE.copy()), "vertex_colors")
+            parts.append(_Part(vertices, faces, np.full(n, add(mat, key)), face_uvs, colors))
+        elif isinstance(visual, ColorVisuals) and visual.kind == "vertex":
+            mi = add(Material(name="vertex_colors", base_color=np.ones(4, np.float32)), "vertex_colors")
             colors = _color_array(visual.vertex_colors, len(vertices))
             parts.append(_Part(vertices, faces, np.full(n, mi), None, colors))
-        elif isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "face":
+        elif isinstance(visual, ColorVisuals) and visual.kind == "face":
             fc = _color_array(visual.face_colors, n)
             uniq, inv = np.unique(np.round(fc * 255).astype(np.int64), axis=0, return_inverse=True)
-            inv = inv.reshape(-1)
             if len(uniq) <= 64:  # a few colours: one material each
-                idx = [add_material(Material(name=f"face_color_{k}", base_color=np.array([*c / 255.0, 1.0], np.float32)),
-                                    ("face", tuple(c))) for k, c in enumerate(uniq)]
-                parts.append(_Part(vertices, faces, np.asarray(idx)[inv], None, None))
+                mi = [add(Material(name=f"face_color_{k}", base_color=np.array([*c / 255.0, 1.0], np.float32)),
+                          ("face", tuple(c))) for k, c in enumerate(uniq)]
+                parts.append(_Part(vertices, faces, np.asarray(mi)[inv.reshape(-1)]))
             else:  # many colours: give every face its own three vertices
-                mi = add_material(Material(name="vertex_colors", base_color=_WHITE.copy()), "vertex_colors")
+                mi = add(Material(name="vertex_colors", base_color=np.ones(4, np.float32)), "vertex_colors")
                 parts.append(_Part(vertices[faces].reshape(-1, 3), np.arange(3 * n).reshape(-1, 3),
                                    np.full(n, mi), None, np.repeat(fc, 3, axis=0)))
         else:
-            mi = add_material(Material(name="default", base_color=_default_rgba()), "default")
-            parts.append(_Part(vertices, faces, np.full(n, mi)))
+            parts.append(_Part(vertices, faces, np.full(n, add(Material(base_color=_default_rgba()), "default"))))
     return parts, materials
 
 
@@ -914,39 +879,30 @@ def _material_from_trimesh(tm, max_size, path, geom_name) -> Material:
     name = getattr(tm, "name", None) or geom_name
 
     def img(pil, what):
-        if pil is None:
-            return None
         try:
-            return image_to_array(pil, max_size)
+            return None if pil is None else image_to_array(pil, max_size)
         except Exception as exc:
             _warn(f"the {what} texture of material '{name}' in '{path.name}' could not be decoded "
                   f"({type(exc).__name__}: {exc}); continuing without it")
             return None
 
     if isinstance(tm, PBRMaterial):
-        factor = tm.baseColorFactor
-        factor = _WHITE.copy() if factor is None else _rgba(factor)
         return Material(
             name=name,
-            base_color=factor,
+            base_color=np.ones(4, np.float32) if tm.baseColorFactor is None else _rgba(tm.baseColorFactor),
             image=img(tm.baseColorTexture, "base colour"),
             # glTF's defaults when a factor is absent are 1.0 (metallic and rough)
-            metallic=float(tm.metallicFactor) if tm.metallicFactor is not None else 1.0,
-            roughness=float(tm.roughnessFactor) if tm.roughnessFactor is not None else 1.0,
+            metallic=1.0 if tm.metallicFactor is None else float(tm.metallicFactor),
+            roughness=1.0 if tm.roughnessFactor is None else float(tm.roughnessFactor),
             metallic_roughness_image=img(getattr(tm, "metallicRoughnessTexture", None), "metallic-roughness"),
             normal_image=img(getattr(tm, "normalTexture", None), "normal"),
         )
-    pil = getattr(tm, "image", None)
-    if _is_trimesh_placeholder(pil):
+    if _is_trimesh_placeholder(getattr(tm, "image", None)):
         # trimesh invents a 2x2 grey image for UVs without a texture (e.g. a PLY with
         # texture coordinates but no TextureFile): that is "no colour", not a texture
         return Material(name="default", base_color=_default_rgba())
-    image = img(pil, "diffuse")
-    diffuse = getattr(tm, "diffuse", None)
-    if image is not None or diffuse is None:
-        base = _WHITE.copy()
-    else:
-        base = _rgba(diffuse)
+    image, diffuse = img(getattr(tm, "image", None), "diffuse"), getattr(tm, "diffuse", None)
+    base = np.ones(4, np.float32) if image is not None or diffuse is None else _rgba(diffuse)
     return Material(name=name, base_color=base, image=image)
 
 
@@ -959,11 +915,11 @@ def _is_trimesh_placeholder(pil) -> bool:
         return False
 
 
-def _gltf_image_problems(path, fmt: str) -> dict:
-    """Read a glTF's JSON once: a clear error if it is not glTF at all, else the textures its
-    materials use that are missing or undecodable (trimesh silently drops them).
+def _gltf_image_problems(path, fmt: str) -> list[str]:
+    """Read a glTF's JSON once: a clear error if it is not glTF at all, else a warning for each
+    texture its materials use that is missing or undecodable (trimesh silently drops them).
 
-    Returns ``{image index: warning message}``; best effort (any other surprise → no warnings).
+    Best effort: any other surprise → no warnings.
     """
     from PIL import Image
 
@@ -971,7 +927,7 @@ def _gltf_image_problems(path, fmt: str) -> dict:
     if path.suffix.lower() == ".gltf":
         try:
             header = json.loads(data.decode("utf-8"))
-        except (ValueError, UnicodeDecodeError) as exc:
+        except ValueError as exc:  # UnicodeDecodeError is one
             raise _unreadable(path, fmt, f"not valid JSON: {exc}") from None
     elif data[:4] != b"glTF":
         raise _unreadable(path, fmt, "it does not start with the GLB magic bytes 'glTF'")
@@ -1004,7 +960,7 @@ def _gltf_image_problems(path, fmt: str) -> dict:
                     src = exts[-1]["source"] if exts else tex.get("source")
                     if src is not None and src < len(images):
                         users.setdefault(src, []).append(f"{slot} of material '{mat.get('name', '?')}'")
-        problems = {}
+        problems = []
         for src, used_by in users.items():
             im = images[src]
             label = f"'{unquote(im['uri'])}'" if "uri" in im and not im["uri"].startswith("data:") else f"#{src} (embedded)"
@@ -1013,8 +969,8 @@ def _gltf_image_problems(path, fmt: str) -> dict:
                     pil.verify()
             except Exception as exc:
                 reason = "not a readable image" if "cannot identify image" in str(exc) else f"{type(exc).__name__}: {exc}"
-                problems[src] = (f"texture image {label} in '{path.name}' ({', '.join(used_by)}) is missing or "
-                                 f"unreadable ({reason}); using the material colour instead")
+                problems.append(f"texture image {label} in '{path.name}' ({', '.join(used_by)}) is missing or "
+                                f"unreadable ({reason}); using the material colour instead")
         return problems
     except Exception:
-        return {}
+        return []
