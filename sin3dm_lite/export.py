@@ -117,103 +117,81 @@ def save_obj(mesh: TexturedMesh, path) -> Path:
       on whether ``Kd`` tints ``map_Kd``; this way they all agree);
       ``Pm``/``Pr`` scalars, ``map_Pr``/``map_Pm`` (grey PNGs) and
       ``map_Bump`` (normal map, as Blender writes it) for PBR materials.
-    Files are written into a temporary folder (:func:`files.atomic_folder`)
-    and moved into place at the end, so an error leaves no half-written output.
+
     ``load_mesh`` on the result gives the same geometry and colours.
     """
     path = _prepare_output(path, ".obj")
-    textured = [k for k, m in enumerate(mesh.materials) if m.image is not None]
-    with atomic_folder(path.parent) as tmp:  # images and the .mtl are moved first, the .obj last
-        _write_obj_files(mesh, tmp, path.stem, len(textured) == 1)
-    return path
-
-
-def _write_obj_files(mesh: TexturedMesh, folder, stem: str, single_texture: bool) -> None:
-    """Write ``<stem>.obj``, ``<stem>.mtl`` and the PNGs into ``folder``."""
-    has_uv_mesh = mesh.face_uvs is not None
+    stem, has_uv = path.stem, mesh.face_uvs is not None
+    single_texture = sum(m.image is not None for m in mesh.materials) == 1
     used_names: set = set()
     names = [_safe_name(m.name, used_names) for m in mesh.materials]
+    with atomic_folder(path.parent) as folder:  # images and the .mtl are moved first, the .obj last
+        lines = ["# written by sin3dm-lite", ""]
+        baked: dict = {}  # (image, factor) → file: materials sharing an atlas share its PNG
+        for k, mat in enumerate(mesh.materials):
+            prefix = stem if (single_texture and mat.image is not None) else f"{stem}_{k}"
+            c = np.asarray(mat.base_color, np.float64)
+            kd, maps = tuple(np.clip(c[:3], 0, 1)), []
+            if mat.image is not None and has_uv:
+                key = (id(mat.image), tuple(np.asarray(mat.base_color, np.float32)[:3]))
+                if key not in baked:
+                    baked[key] = f"{prefix}.png"
+                    array_to_pil(baked_image(mat)).save(folder / baked[key])
+                maps.append(f"map_Kd {baked[key]}")
+                kd = (1.0, 1.0, 1.0)
+            roughness, metallic = float(mat.roughness), float(mat.metallic)
+            if mat.metallic_roughness_image is not None and has_uv:
+                for chan, tag, factor in ((1, "Pr", roughness), (2, "Pm", metallic)):
+                    fname = f"{prefix}_{'roughness' if chan == 1 else 'metallic'}.png"
+                    array_to_pil(mat.metallic_roughness_image[:, :, chan] * factor).save(folder / fname)  # grey
+                    maps.append(f"map_{tag} {fname}")
+            if mat.normal_image is not None and has_uv:
+                array_to_pil(mat.normal_image).save(folder / f"{prefix}_normal.png")
+                maps.append(f"map_Bump -bm 1.000000 {prefix}_normal.png")
+            lines += [
+                f"newmtl {names[k]}",
+                "Ka 0.000000 0.000000 0.000000",
+                "Kd {:.6f} {:.6f} {:.6f}".format(*kd),
+                "Ks 0.000000 0.000000 0.000000",
+                "Ns 10.000000",
+                f"d {float(c[3]) if len(c) > 3 else 1.0:.6f}",
+                "illum 1",
+                f"Pr {roughness:.6f}",
+                f"Pm {metallic:.6f}",
+                *maps,
+                "",
+            ]
+        (folder / f"{stem}.mtl").write_text("\n".join(lines), encoding="utf-8")
 
-    # ---- textures and .mtl
-    lines = ["# written by sin3dm-lite", ""]
-    baked: dict = {}  # (image, factor) → file: materials sharing an atlas share its PNG
-    for k, mat in enumerate(mesh.materials):
-        prefix = stem if (single_texture and mat.image is not None) else f"{stem}_{k}"
-        c = np.asarray(mat.base_color, np.float64)
-        alpha = float(c[3]) if len(c) > 3 else 1.0
-        lines.append(f"newmtl {names[k]}")
-        maps = []
-        if mat.image is not None and has_uv_mesh:
-            key = (id(mat.image), tuple(np.asarray(mat.base_color, np.float32)[:3]))
-            if key not in baked:
-                baked[key] = f"{prefix}.png"
-                array_to_pil(baked_image(mat)).save(folder / baked[key])
-            maps.append(f"map_Kd {baked[key]}")
-            kd = (1.0, 1.0, 1.0)
-        else:
-            kd = tuple(np.clip(c[:3], 0, 1))
-        roughness, metallic = float(mat.roughness), float(mat.metallic)
-        if mat.metallic_roughness_image is not None and has_uv_mesh:
-            for chan, tag, factor in ((1, "Pr", roughness), (2, "Pm", metallic)):
-                grey = np.clip(mat.metallic_roughness_image[:, :, chan] * factor, 0, 1)
-                fname = f"{prefix}_{'roughness' if chan == 1 else 'metallic'}.png"
-                array_to_pil(np.repeat(grey[:, :, None], 3, axis=2)).convert("L").save(folder / fname)
-                maps.append(f"map_{tag} {fname}")
-        if mat.normal_image is not None and has_uv_mesh:
-            fname = f"{prefix}_normal.png"
-            array_to_pil(mat.normal_image).save(folder / fname)
-            maps.append(f"map_Bump -bm 1.000000 {fname}")
-        lines += [
-            "Ka 0.000000 0.000000 0.000000",
-            "Kd {:.6f} {:.6f} {:.6f}".format(*kd),
-            "Ks 0.000000 0.000000 0.000000",
-            "Ns 10.000000",
-            f"d {alpha:.6f}",
-            "illum 1",
-            f"Pr {roughness:.6f}",
-            f"Pm {metallic:.6f}",
-            *maps,
-            "",
-        ]
-    (folder / f"{stem}.mtl").write_text("\n".join(lines), encoding="utf-8")
-
-    # ---- .obj
-    faces = np.asarray(mesh.faces, np.int64)
-    fm = np.asarray(mesh.face_material, np.int64)
-    if has_uv_mesh:
-        fuv = np.asarray(mesh.face_uvs, np.float32)
+        # every distinct corner UV once (faces without UVs hold NaN)
+        faces, fm = np.asarray(mesh.faces, np.int64), np.asarray(mesh.face_material, np.int64)
+        fuv = np.asarray(mesh.face_uvs, np.float32) if has_uv else np.full((len(faces), 3, 2), np.nan, np.float32)
         face_has_uv = np.isfinite(fuv).all(axis=(1, 2))
-        corner_uv = fuv[face_has_uv].reshape(-1, 2)
-        first, inv = unique_rows(corner_uv)
-        uv_rows = corner_uv[first]
+        first, inv = unique_rows(fuv[face_has_uv].reshape(-1, 2))
         uv_index = np.zeros((len(faces), 3), np.int64)
         uv_index[face_has_uv] = inv.reshape(-1, 3)
-    else:
-        face_has_uv = np.zeros(len(faces), bool)
-        uv_rows, uv_index = np.zeros((0, 2)), None
-    colors = _baked_vertex_colors(mesh)
-    with open(folder / f"{stem}.obj", "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(f"# written by sin3dm-lite: {len(mesh.vertices)} vertices, {len(faces)} faces\n")
-        fh.write(f"mtllib {stem}.mtl\no {_safe_name(mesh.name, set())}\n")
-        if colors is None:
-            _write_rows(fh, "v %.9g %.9g %.9g\n", mesh.vertices)
-        else:
-            _write_rows(fh, "v %.9g %.9g %.9g %.6f %.6f %.6f\n", np.hstack([mesh.vertices, colors]))
-        if len(uv_rows) and face_has_uv.any():
-            _write_rows(fh, "vt %.9g %.9g\n", uv_rows)
-        # runs of faces with the same material and the same has-uv flag, in the original order
-        change = np.flatnonzero((np.diff(fm) != 0) | (np.diff(face_has_uv.astype(np.int8)) != 0)) + 1
-        starts, ends = np.r_[0, change], np.r_[change, len(faces)]
-        last = None
-        for a, b in zip(starts, ends):
-            if fm[a] != last:
-                fh.write(f"usemtl {names[fm[a]]}\n")
-                last = fm[a]
-            if face_has_uv[a]:
-                block = np.stack([faces[a:b] + 1, uv_index[a:b] + 1], axis=2).reshape(b - a, 6)
-                _write_rows(fh, "f %d/%d %d/%d %d/%d\n", block)
+        colors = _baked_vertex_colors(mesh)
+        with open(folder / f"{stem}.obj", "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(f"# written by sin3dm-lite: {len(mesh.vertices)} vertices, {len(faces)} faces\n")
+            fh.write(f"mtllib {stem}.mtl\no {_safe_name(mesh.name, set())}\n")
+            if colors is None:
+                _write_rows(fh, "v %.9g %.9g %.9g\n", mesh.vertices)
             else:
-                _write_rows(fh, "f %d %d %d\n", faces[a:b] + 1)
+                _write_rows(fh, "v %.9g %.9g %.9g %.6f %.6f %.6f\n", np.hstack([mesh.vertices, colors]))
+            _write_rows(fh, "vt %.9g %.9g\n", fuv[face_has_uv].reshape(-1, 2)[first])
+            # runs of faces with the same material and the same has-uv flag, in the original order
+            change = np.flatnonzero((np.diff(fm) != 0) | (np.diff(face_has_uv.astype(np.int8)) != 0)) + 1
+            last = None
+            for a, b in zip(np.r_[0, change], np.r_[change, len(faces)]):
+                if fm[a] != last:
+                    fh.write(f"usemtl {names[fm[a]]}\n")
+                    last = fm[a]
+                if face_has_uv[a]:
+                    block = np.stack([faces[a:b] + 1, uv_index[a:b] + 1], axis=2).reshape(b - a, 6)
+                    _write_rows(fh, "f %d/%d %d/%d %d/%d\n", block)
+                else:
+                    _write_rows(fh, "f %d %d %d\n", faces[a:b] + 1)
+    return path
 
 
 def _write_rows(fh, row_format: str, array: np.ndarray, chunk: int = 65536) -> None:
@@ -234,8 +212,7 @@ def _baked_vertex_colors(mesh: TexturedMesh) -> np.ndarray | None:
     if mesh.vertex_colors is None:
         return None
     factor = np.ones((len(mesh.vertices), 3), np.float32)
-    for k in reversed(range(len(mesh.materials))):  # reversed: lower material index wins
-        mat = mesh.materials[k]
+    for k, mat in reversed(list(enumerate(mesh.materials))):  # reversed: lower material index wins
         if mat.image is None or mesh.face_uvs is None:
             idx = np.unique(mesh.faces[mesh.face_material == k])
             factor[idx] = np.asarray(mat.base_color, np.float32)[:3]
@@ -249,22 +226,19 @@ def save_glb(mesh: TexturedMesh, path) -> Path:
     ``metallicRoughnessTexture``, ``normalTexture``, metallic and roughness
     factors) with vertices split where a vertex has several UVs; an untextured
     material with vertex colours becomes ``COLOR_0`` (factor multiplied in);
-    otherwise a plain ``baseColorFactor``. Written to a temporary file and
-    renamed, so an error leaves no half-written file. Readable by
-    :func:`load_mesh`, trimesh, Blender and web viewers.
+    otherwise a plain ``baseColorFactor``. Readable by :func:`load_mesh`,
+    trimesh, Blender and web viewers.
     """
     import trimesh
+    from trimesh.visual import ColorVisuals, TextureVisuals
     from trimesh.visual.material import PBRMaterial
 
     path = _prepare_output(path, ".glb")
-    scene = trimesh.Scene()
-    used_names: set = set()
+    scene, used_names = trimesh.Scene(), set()
     for k, mat in enumerate(mesh.materials):
         sel = np.flatnonzero(mesh.face_material == k)
         if len(sel) == 0:
             continue
-        faces = mesh.faces[sel]
-        gname = _safe_name(f"{mesh.name}_{mat.name}", used_names)
         maps = {"baseColorTexture": mat.image, "metallicRoughnessTexture": mat.metallic_roughness_image,
                 "normalTexture": mat.normal_image}
         maps = {k: array_to_pil(m) for k, m in maps.items() if m is not None and mesh.face_uvs is not None}
@@ -273,24 +247,21 @@ def save_glb(mesh: TexturedMesh, path) -> Path:
         pbr = PBRMaterial(name=mat.name, baseColorFactor=factor, metallicFactor=float(mat.metallic),
                           roughnessFactor=float(mat.roughness), **maps)
         if maps:
-            vert_of, uv, new_faces = split_corners(faces, mesh.face_uvs[sel])
-            geom = trimesh.Trimesh(mesh.vertices[vert_of], new_faces,
-                                   visual=trimesh.visual.TextureVisuals(uv=uv, material=pbr), process=False)
+            vertex_of, uv, faces = split_corners(mesh.faces[sel], mesh.face_uvs[sel])
+            visual = TextureVisuals(uv=uv, material=pbr)
         else:
-            used, new_faces = np.unique(faces, return_inverse=True)
-            new_faces = new_faces.reshape(-1, 3)
+            vertex_of, faces = np.unique(mesh.faces[sel], return_inverse=True)
+            visual = TextureVisuals(material=pbr)
             if mesh.vertex_colors is not None:
-                col = np.clip(mesh.vertex_colors[used] * np.asarray(mat.base_color, np.float32)[:3], 0, 1)
+                col = np.clip(mesh.vertex_colors[vertex_of] * np.asarray(mat.base_color, np.float32)[:3], 0, 1)
                 rgba = np.column_stack([np.round(col * 255), np.full(len(col), factor[3])]).astype(np.uint8)
-                geom = trimesh.Trimesh(mesh.vertices[used], new_faces, vertex_colors=rgba, process=False)
-            else:
-                geom = trimesh.Trimesh(mesh.vertices[used], new_faces,
-                                       visual=trimesh.visual.TextureVisuals(material=pbr), process=False)
+                visual = ColorVisuals(vertex_colors=rgba)
+        geom = trimesh.Trimesh(mesh.vertices[vertex_of], faces.reshape(-1, 3), visual=visual, process=False)
+        gname = _safe_name(f"{mesh.name}_{mat.name}", used_names)
         scene.add_geometry(geom, geom_name=gname, node_name=gname)
     if not scene.geometry:
         raise Sin3DMInputError(f"mesh '{mesh.name}' has no faces to write")
-    data = scene.export(file_type="glb")
-    atomic_write(path, data)
+    atomic_write(path, scene.export(file_type="glb"))
     return path
 
 

@@ -36,6 +36,7 @@ import json
 import re
 import struct
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from urllib.parse import unquote
 
@@ -246,9 +247,6 @@ READABLE = "OBJ (+MTL), GLB/glTF, PLY, STL, OFF"
 #: float32 RGB 4096² image is already 200 MB, and a 256³ grid never needs more.
 MAX_TEXTURE_SIZE = 4096
 
-_WHITE = np.ones(4, np.float32)
-
-
 def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE) -> TexturedMesh:
     """Read a textured mesh file into a :class:`TexturedMesh` (the file's own coordinates).
 
@@ -280,12 +278,8 @@ def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE) -> Textu
             no faces, NaN/inf coordinates, zero-size bounding box or zero area.
     """
     path = _check_input_path(path)
-    ext = path.suffix.lower()
-    if ext == ".obj":
-        parts, materials = _load_obj(path, max_texture_size)
-    else:
-        parts, materials = _load_with_trimesh(path, max_texture_size)
-    return _assemble(parts, materials, name=path.stem, source=path.name)
+    load = _load_obj if path.suffix.lower() == ".obj" else _load_with_trimesh
+    return _assemble(*load(path, max_texture_size), name=path.stem, source=path.name)
 
 
 # the largest vertex coordinate accepted: beyond it the bounding box or the triangle areas overflow, or
@@ -307,7 +301,6 @@ def load_any(source, **kwargs) -> TexturedMesh:
 
 # ----------------------------------------------------------------- validation
 def _check_input_path(path) -> Path:
-
     try:
         path = Path(path).expanduser()
     except TypeError:
@@ -373,10 +366,8 @@ def _assemble(parts: list[_Part], materials: list[Material], name: str, source: 
     # keep only referenced vertices: stray points must not enlarge the bounding box
     used = np.zeros(len(vertices), bool)
     used[faces] = True
-    if not used.all():
-        remap = np.cumsum(used) - 1
-        vertices, faces = vertices[used], remap[faces]
-        colors = colors[used] if colors is not None else None
+    vertices, faces = vertices[used], (np.cumsum(used) - 1)[faces]
+    colors = colors[used] if colors is not None else None
 
     bad = ~np.isfinite(vertices).all(axis=1)
     if bad.any():
@@ -384,7 +375,9 @@ def _assemble(parts: list[_Part], materials: list[Material], name: str, source: 
             f"'{source}' has {int(bad.sum())} vertices with NaN or infinite coordinates (the first is "
             f"vertex {int(np.argmax(bad))}); repair or delete them in a mesh editor and export again"
         )
-    vertices, faces, colors = _weld(vertices, faces, colors)
+    # weld vertices with exactly equal position (and colour), in first-occurrence order
+    keep, inverse = unique_rows(vertices if colors is None else np.hstack([vertices, colors.astype(np.float64)]))
+    vertices, faces, colors = vertices[keep], inverse[faces], (colors[keep] if colors is not None else None)
 
     extent = vertices.max(0) - vertices.min(0)
     if extent.max() <= 0:
@@ -406,33 +399,12 @@ def _assemble(parts: list[_Part], materials: list[Material], name: str, source: 
             "vertices); Sin3DM needs a surface mesh"
         )
 
-    # drop materials no face uses (they may hold large images)
-    used_m = np.unique(face_material)
-    if len(used_m) < len(materials):
-        remap_m = np.full(len(materials), -1, np.int64)
-        remap_m[used_m] = np.arange(len(used_m))
-        materials = [materials[i] for i in used_m]
-        face_material = remap_m[face_material]
+    used_materials, face_material = np.unique(face_material, return_inverse=True)  # unused ones may hold big images
     if face_uvs is not None and not np.isfinite(face_uvs).any():
         face_uvs = None
-    return TexturedMesh(
-        vertices=vertices,
-        faces=faces,
-        face_material=face_material,
-        materials=list(materials),
-        face_uvs=face_uvs,
-        vertex_colors=colors,
-        name=name,
-    )
-
-
-def _weld(vertices, faces, colors):
-    """Merge vertices with exactly equal position (and colour); keeps first-occurrence order."""
-    key = vertices if colors is None else np.hstack([vertices, colors.astype(np.float64)])
-    keep, inverse = unique_rows(key)
-    if len(keep) == len(vertices):
-        return vertices, faces, colors
-    return vertices[keep], inverse[faces], (colors[keep] if colors is not None else None)
+    return TexturedMesh(vertices=vertices, faces=faces, face_material=face_material,
+                        materials=[materials[i] for i in used_materials], face_uvs=face_uvs, vertex_colors=colors,
+                        name=name)
 
 
 def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -523,172 +495,6 @@ def _warn(message: str) -> None:
 
 
 # ----------------------------------------------------------------------- OBJ
-_TEX_OPTION_ARGS = {  # MTL texture options and how many arguments each takes (at most)
-    "-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1,
-    "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1, "-type": 1,
-}
-
-
-def _parse_tex_line(rest: str):
-    """``[options] filename`` of an MTL map line → (filename, {option: [args]})."""
-    tokens = rest.split()
-    opts: dict[str, list[str]] = {}
-    i = 0
-    while i < len(tokens) and tokens[i].lower() in _TEX_OPTION_ARGS and len(tokens) > i + 1:
-        opt, n = tokens[i].lower(), _TEX_OPTION_ARGS[tokens[i].lower()]
-        args = []
-        i += 1
-        while len(args) < n and i < len(tokens) - 1:
-            if n > 1 and args and not _is_number(tokens[i]):
-                break
-            args.append(tokens[i])
-            i += 1
-        opts[opt] = args
-    return " ".join(tokens[i:]), opts
-
-
-def _is_number(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
-
-
-def _resolve_asset(name: str, base):
-    """Find a file an OBJ/MTL names: as written, then by its base name (also ignoring case) in ``base``."""
-
-    name = name.strip().strip('"').replace("\\", "/")
-    cands = [base / name, Path(name)] if not Path(name).is_absolute() else [Path(name)]
-    cands.append(base / Path(name).name)
-    for c in cands:
-        if c.is_file():
-            return c
-    low = Path(name).name.lower()
-    try:
-        for c in base.iterdir():
-            if c.name.lower() == low and c.is_file():
-                return c
-    except OSError:
-        pass
-    return None
-
-
-class _TextureCache:
-    """Loads each texture file once (several materials often share one atlas)."""
-
-    def __init__(self, max_size):
-        self.max_size = max_size
-        self.cache: dict = {}
-
-    def load(self, ref: str, base, what: str, owner: str):
-        from PIL import Image
-
-        path = _resolve_asset(ref, base)
-        if path is None:
-            _warn(
-                f"texture file '{ref}' ({what} of {owner}) was not found (looked in '{base}'); "
-                "using the material colour instead: put the image next to the .mtl file or fix the path"
-            )
-            return None
-        key = path.resolve()
-        if key not in self.cache:
-            try:
-                with Image.open(path) as img:
-                    self.cache[key] = image_to_array(img, self.max_size)
-            except Exception as exc:  # corrupt / unsupported image: warn and fall back
-                _warn(
-                    f"texture file '{path.name}' ({what} of {owner}) could not be read "
-                    f"({type(exc).__name__}: {exc}); using the material colour instead: re-save the image as PNG or JPEG"
-                )
-                self.cache[key] = None
-        return self.cache[key]
-
-
-def _parse_mtl(path, textures: _TextureCache, used=None) -> dict[str, tuple[Material, tuple | None]]:
-    """``newmtl`` blocks of an MTL file → ``{name: (material, uv transform or None)}``, in file order.
-
-    Only the materials named in ``used`` (all when None) are built, so textures
-    that no face shows are neither decoded nor warned about.
-
-    A loaded ``map_Kd`` replaces ``Kd`` and a loaded ``map_Pr``/``map_Pm``
-    replaces ``Pr``/``Pm`` (as Blender and three.js read them). The uv
-    transform is ``(scale, offset)`` from the ``map_Kd -s/-o`` options.
-    """
-    base = path.parent
-    raw: dict[str, dict] = {}
-    cur = None
-    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
-        parts = line.strip().split(None, 1)
-        if not parts or parts[0].startswith("#"):
-            continue
-        key, rest = parts[0], (parts[1].strip() if len(parts) > 1 else "")
-        if key == "newmtl":
-            cur = raw.setdefault(rest, {})
-            continue
-        if cur is None:
-            continue
-        k = key.lower()
-        try:
-            if k == "kd":
-                vals = [float(x) for x in rest.split()[:3]]
-                cur["Kd"] = vals * 3 if len(vals) == 1 else vals
-            elif k == "d":
-                cur["d"] = float(rest.split()[-1])
-            elif k == "tr" and "d" not in cur:
-                cur["d"] = 1.0 - float(rest.split()[-1])
-            elif k in ("pm", "pr"):
-                cur[k] = float(rest.split()[0])
-            elif k in ("map_kd", "map_pm", "map_pr", "map_bump", "bump", "norm"):
-                cur[k] = _parse_tex_line(rest)
-        except (ValueError, IndexError):
-            continue  # a malformed optional line: ignore it like other viewers do
-    out = {}
-    for mname, d in raw.items():
-        if used is not None and mname not in used:
-            continue
-        owner = f"material '{mname}' in '{path.name}'"
-        kd = np.array((d.get("Kd", list(DEFAULT_COLOR)) + [1.0, 1.0, 1.0])[:3], np.float32)
-        mat = Material(name=mname, base_color=np.array([*np.clip(kd, 0, 1), d.get("d", 1.0)], np.float32))
-        mat.metallic = float(d.get("pm", 0.0))
-        mat.roughness = float(d.get("pr", 1.0))
-        uv_transform = None
-        if "map_kd" in d:
-            fname, opts = d["map_kd"]
-            mat.image = textures.load(fname, base, "map_Kd", owner)
-            if mat.image is not None:
-                mat.base_color[:3] = 1.0  # the texture replaces Kd (Blender, three.js and co. agree)
-                s = [float(x) for x in opts.get("-s", [])] + [1.0, 1.0]
-                o = [float(x) for x in opts.get("-o", [])] + [0.0, 0.0]
-                if s[:2] != [1.0, 1.0] or o[:2] != [0.0, 0.0]:
-                    uv_transform = (np.array(s[:2], np.float32), np.array(o[:2], np.float32))
-        mr = {}
-        for key, chan in (("map_pr", 1), ("map_pm", 2)):  # glTF layout: roughness in G, metallic in B
-            if key in d:
-                img = textures.load(d[key][0], base, key.replace("map_p", "map_P"), owner)
-                if img is not None:
-                    mr[chan] = img[:, :, 0]
-        if mr:
-            shape = next(iter(mr.values())).shape
-            mr_img = np.ones((*shape, 3), np.float32)
-            for chan, img in mr.items():
-                if img.shape != shape:
-                    img = image_to_array(array_to_pil(img).resize(shape[::-1]))[:, :, 0]
-                mr_img[:, :, chan] = img
-            mat.metallic_roughness_image = mr_img
-            mat.roughness = 1.0 if 1 in mr else mat.roughness
-            mat.metallic = 1.0 if 2 in mr else mat.metallic
-        for key in ("norm", "map_bump", "bump"):
-            if key in d:
-                img = textures.load(d[key][0], base, key, owner)
-                # a grey bump map is a height map, not a normal map: not used
-                if img is not None and np.ptp(img, axis=2).max() > 1e-3:
-                    mat.normal_image = img
-                break
-        out[mname] = (mat, uv_transform)
-    return out
-
-
 def _load_obj(path, max_size):
     """A Wavefront OBJ (+ MTL) → one part and its materials."""
     data = path.read_bytes()
@@ -706,34 +512,18 @@ def _load_obj(path, max_size):
     vt_rows, vt_pos = scan("vt")
     f_rows, f_pos = scan("f")
     use_names, use_pos = scan("usemtl")
-    mtllibs = [m.strip() for m in scan("mtllib")[0]]
-    # the material in force at each face: the last usemtl before it (slot 0: none yet)
-    mat_names: list[str | None] = [None]
-    slot_of: dict = {}
-    use_slot = [0]
-    for name in use_names:
-        name = name.strip()
-        if name not in slot_of:
-            slot_of[name] = len(mat_names)
-            mat_names.append(name)
-        use_slot.append(slot_of[name])
-    info = np.stack([
-        f_pos,
-        np.asarray(use_slot)[np.searchsorted(use_pos, f_pos)],
-        np.searchsorted(v_pos, f_pos),  # vertices defined before the face (for negative indices)
-        np.searchsorted(vt_pos, f_pos),
-    ], axis=1)
+    # the material slot in force at each face: that of the last usemtl before it (slot 0: none yet)
+    mat_names = [None, *dict.fromkeys(name.strip() for name in use_names)]
+    slot_of = {name: slot for slot, name in enumerate(mat_names)}
+    use_slot = np.array([0] + [slot_of[name.strip()] for name in use_names], np.int64)
+    info = np.stack([f_pos, use_slot[np.searchsorted(use_pos, f_pos)],
+                     np.searchsorted(v_pos, f_pos), np.searchsorted(vt_pos, f_pos)], axis=1)
     fv, ft, fm = _obj_faces(path, f_rows, info, line_of=lambda pos: text.count("\n", 0, pos))
-    # keep only material slots that faces use (in first-use order)
-    used_slots = np.unique(fm)
+    used_slots, fm = np.unique(fm, return_inverse=True)  # keep only the material slots faces use
     mat_names = [mat_names[i] for i in used_slots]
-    fm = np.searchsorted(used_slots, fm)
 
     vertices, colors = _obj_vertices(path, v_rows)
-    uvs = np.zeros((0, 2))
-    if vt_rows:
-        uvs = _obj_numbers(path, vt_rows, "vt", 1)
-        uvs = np.nan_to_num(uvs[:, :2]) if uvs.shape[1] >= 2 else np.column_stack([uvs[:, 0], np.zeros(len(uvs))])
+    uvs = np.nan_to_num(_obj_numbers(path, vt_rows, "vt", 1, width=2)[:, :2])
     if len(fv) and fv.max() >= len(vertices):
         raise _unreadable(path, "a Wavefront OBJ", f"a face refers to vertex {fv.max() + 1} but the file "
                           f"defines only {len(vertices)} vertices")
@@ -741,15 +531,14 @@ def _load_obj(path, max_size):
         raise _unreadable(path, "a Wavefront OBJ", f"a face refers to texture coordinate {ft.max() + 1} but the "
                           f"file defines only {len(uvs)} ('vt' lines)")
 
-    # materials: the MTL libraries, then one Material per used name
-    textures = _TextureCache(max_size)
+    # the used materials' definitions in the MTL libraries
+    texture = partial(_load_texture, max_size=max_size, cache={})
     library: dict[str, tuple[Material, tuple | None]] = {}
     loaded_any = False
-    for entry in mtllibs:
-        files = [_resolve_asset(entry, path.parent)]
-        if files[0] is None and " " in entry:  # "mtllib a.mtl b.mtl"
-            files = [_resolve_asset(e, path.parent) for e in entry.split()]
-        for name, mtl in zip([entry] if len(files) == 1 else entry.split(), files):
+    for entry in (e.strip() for e in scan("mtllib")[0]):
+        # "mtllib a.mtl b.mtl", unless that is one file name with spaces
+        for name in entry.split() if " " in entry and not _resolve_asset(entry, path.parent) else [entry]:
+            mtl = _resolve_asset(name, path.parent)
             if mtl is None:
                 _warn(
                     f"material library '{name}' named in '{path.name}' was not found (looked in '{path.parent}'); "
@@ -757,13 +546,16 @@ def _load_obj(path, max_size):
                 )
                 continue
             try:
-                library.update(_parse_mtl(mtl, textures, used=set(mat_names)))
+                library.update(_parse_mtl(mtl, set(mat_names), texture))
                 loaded_any = True
             except OSError as exc:
                 _warn(f"material library '{mtl.name}' could not be read ({exc}); using plain colours")
 
+    # one Material per used name, ordered as the MTL defines them (the file's intent), undefined ones last
+    lib_order = {name: i for i, name in enumerate(library)}
+    order = sorted(range(len(mat_names)), key=lambda i: (lib_order.get(mat_names[i], len(lib_order)), i))
     materials, uv_transforms = [], []
-    for mname in mat_names:
+    for mname in (mat_names[i] for i in order):
         mat, uv_t = library.get(mname, (None, None))
         if mat is None:
             if mname is not None and loaded_any:
@@ -773,154 +565,254 @@ def _load_obj(path, max_size):
             mat = replace(mat, base_color=np.array([1, 1, 1, mat.base_color[3]], np.float32))
         materials.append(mat)
         uv_transforms.append(uv_t)
-    # order materials as the MTL defines them (the file's intent), undefined ones last
-    lib_order = {n: i for i, n in enumerate(library)}
-    order = sorted(range(len(materials)), key=lambda i: (lib_order.get(mat_names[i], len(lib_order)), i))
-    rank = np.empty(len(order), np.int64)
-    rank[order] = np.arange(len(order))
-    materials = [materials[i] for i in order]
-    uv_transforms = [uv_transforms[i] for i in order]
+    face_material = np.argsort(order)[fm]
 
-    faces = fv
-    face_material = rank[fm] if len(fm) else np.zeros(0, np.int64)
     face_uvs = None
-    ft_arr = ft
-    if len(uvs) and (ft_arr >= 0).any():
-        face_uvs = np.where((ft_arr >= 0)[..., None], uvs[np.maximum(ft_arr, 0)], np.nan).astype(np.float32)
+    if len(uvs) and (ft >= 0).any():
+        face_uvs = np.where((ft >= 0)[..., None], uvs[np.maximum(ft, 0)], np.nan).astype(np.float32)
         for mi, t in enumerate(uv_transforms):
             if t is not None:
                 sel = face_material == mi
                 face_uvs[sel] = face_uvs[sel] * t[0] + t[1]
-    return [_Part(vertices, faces, face_material, face_uvs, colors)], materials
+    return [_Part(vertices, fv, face_material, face_uvs, colors)], materials
 
 
 def _obj_faces(path, rows: list[str], info: np.ndarray, line_of):
-    """Face lines → triangles ``(F, 3)`` vertex and uv indices (0-based; uv -1: none) and material slots.
+    """Face lines → triangles ``(F, 3)`` of vertex and uv indices (0-based; uv -1: none) and material slots.
 
-    Indices are 1-based; negative ones count back from the last vertex defined
-    so far. Polygons are fan-triangulated. All-triangle files with one index
-    layout (the usual case) are parsed in one vectorised step.
+    ``info`` holds, for each line, its position in the text, its material slot
+    and how many vertices and uvs were defined before it. Indices are 1-based;
+    negative ones count back from the last vertex (uv) defined so far.
+    Polygons are fan-triangulated; lines with fewer than three corners are
+    skipped. Files with one index layout (the usual case) are parsed in one
+    vectorised step.
     """
-    empty = np.zeros((0, 3), np.int64)
-    if not rows:
-        return empty, empty, np.zeros(0, np.int64)
-    joined = " ".join(rows)
-    tokens = joined.split()
-    if len(tokens) == 3 * len(rows) and all(len(r.split()) == 3 for r in rows):  # three corners on every line
-        if len({t.count("/") for t in tokens}) == 1:  # one index layout: v, v/vt, v//vn or v/vt/vn
-            try:
-                nums = np.array(joined.replace("//", "/0/").replace("/", " ").split(), dtype=np.int64)
-            except ValueError:
-                nums = None
-            if nums is not None and len(nums) % (3 * len(rows)) == 0:
-                nums = nums.reshape(len(rows), 3, -1)
-                vi = np.where(nums[..., 0] < 0, nums[..., 0] + info[:, 2:3], nums[..., 0] - 1)
-                ti = np.full_like(vi, -1)
-                if nums.shape[2] >= 2:
-                    t = nums[..., 1]
-                    ti = np.where(t < 0, t + info[:, 3:4], np.where(t == 0, -1, t - 1))
-                    ti[(t < 0) & (ti < 0)] = -2  # points before the first vt
-                bad = (vi < 0).any(axis=1) | (ti < -1).any(axis=1)
-                if not bad.any():
-                    return vi, ti, info[:, 1].copy()
-    # general path, line by line (polygons, mixed layouts, or an error to locate)
-    fv: list[int] = []
-    ft: list[int] = []
-    fm: list[int] = []
-    for row, (pos, slot, nv, nt) in zip(rows, info.tolist()):
-        toks = row.split()
-        if len(toks) < 3:
-            continue
+    counts = np.array([len(row.split()) for row in rows], np.int64)  # corners per line
+    line = np.repeat(np.arange(len(rows)), np.maximum(counts - 2, 0))  # the line of each triangle
+    if (counts == 3).all():
+        tri = " ".join(rows).split()
+    else:  # fan triangulation
+        tri = [t for c in map(str.split, rows) for k in range(1, len(c) - 1) for t in (c[0], c[k], c[k + 1])]
+    nums = None
+    if len({t.count("/") for t in tri}) == 1:  # v, v/vt, v//vn or v/vt/vn on every corner
         try:
-            idx = []
-            for tok in toks:
-                sub = tok.split("/")
-                vi = _obj_index(sub[0], nv)
-                ti = _obj_index(sub[1], nt) if len(sub) > 1 and sub[1] else -1
-                idx.append((vi, ti))
-        except (ValueError, IndexError):
-            raise _unreadable(
-                path, "a Wavefront OBJ", f"line {line_of(pos)}: bad face 'f {row.strip()[:80]}' (an index is not a "
-                "number, is 0, or points before the first vertex)"
-            ) from None
-        for k in range(1, len(idx) - 1):  # fan triangulation
-            for vi, ti in (idx[0], idx[k], idx[k + 1]):
-                fv.append(vi)
-                ft.append(ti)
-            fm.append(slot)
-    return (np.array(fv, np.int64).reshape(-1, 3), np.array(ft, np.int64).reshape(-1, 3),
-            np.array(fm, np.int64))
+            nums = np.array(" ".join(tri).replace("//", "/0/").replace("/", " ").split(), np.int64)
+            nums = np.pad(nums.reshape(len(line), 3, -1), [(0, 0), (0, 0), (0, 1)])[..., :2]  # vt 0: absent
+        except ValueError:
+            nums = None
+    if nums is None:  # mixed layouts, or an error to locate: corner by corner
+
+        def corner(token):
+            s = token.split("/")
+            try:
+                return int(s[0]), (int(s[1]) if len(s) > 1 and s[1] else 0)
+            except ValueError:
+                return 0, 0  # reported below, like an index 0
+
+        nums = np.array([corner(t) for t in tri], np.int64).reshape(-1, 3, 2)
+    v, t = nums[..., 0], nums[..., 1]
+    vi = np.where(v < 0, v + info[line, 2:3], v - 1)
+    ti = np.where(t < 0, t + info[line, 3:4], t - 1)  # vt 0 (absent) → -1
+    bad = (vi < 0).any(axis=1) | ((t < 0) & (ti < 0)).any(axis=1)
+    if bad.any():
+        i = line[np.argmax(bad)]
+        raise _unreadable(
+            path, "a Wavefront OBJ", f"line {line_of(info[i, 0])}: bad face 'f {rows[i].strip()[:80]}' (an index is "
+            "not a number, is 0, or points before the first vertex)"
+        )
+    return vi, ti, info[line, 1]
 
 
-def _obj_index(token: str, count: int) -> int:
-    i = int(token)
-    i = i - 1 if i > 0 else count + i if i < 0 else -1
-    if i < 0:
-        raise IndexError(token)
-    return i
-
-
-def _obj_numbers(path, rows, what, min_cols):
-    """Lines of numbers → ``(n, width)`` float64, NaN where a line is shorter than the longest."""
+def _obj_numbers(path, rows, what, min_cols, width):
+    """Lines of numbers → ``(n, width)`` float64 (``width`` at least), NaN where a line is shorter."""
+    rows = [row.split() for row in rows]
+    widths = set(map(len, rows)) | {width}
     try:
-        rows = [r.split() for r in rows]
-        widths = {len(r) for r in rows}
-        if len(widths) == 1 and min(widths) >= min_cols:
-            return np.array(rows, dtype=np.float64)
-        width = max(widths)
-        out = np.full((len(rows), width), np.nan)
-        for i, r in enumerate(rows):
-            if len(r) < min_cols:
-                raise ValueError(f"{what} line #{i + 1} has {len(r)} numbers, needs {min_cols}")
-            out[i, : len(r)] = [float(x) for x in r]
-        return out
+        short = next((i for i, row in enumerate(rows) if len(row) < min_cols), None)
+        if short is not None:
+            raise ValueError(f"{what} line #{short + 1} has {len(rows[short])} numbers, needs {min_cols}")
+        if len(widths) > 1:
+            rows = [row + ["nan"] * (max(widths) - len(row)) for row in rows]
+        return np.array(rows, np.float64).reshape(len(rows), max(widths))
     except ValueError as exc:
         raise _unreadable(path, "a Wavefront OBJ", f"bad '{what}' line: {exc}") from None
 
 
 def _obj_vertices(path, rows):
     """``v x y z [w]`` or ``v x y z r g b`` rows → positions and (optional) colours."""
-    if not rows:
-        return np.zeros((0, 3)), None
-    arr = _obj_numbers(path, rows, "v", 3)
-    xyz = arr[:, :3]
-    colors = None
-    if arr.shape[1] >= 6:
-        rgb = arr[:, 3:6]
-        has = np.isfinite(rgb).all(axis=1)
-        if has.any():
-            if np.nanmax(rgb) > 1.0:  # some writers use 0..255
-                rgb = rgb / 255.0
-            colors = np.where(has[:, None], np.clip(np.nan_to_num(rgb), 0, 1), 1.0).astype(np.float32)
-    return xyz, colors
+    arr = _obj_numbers(path, rows, "v", 3, width=3)
+    rgb = arr[:, 3:6] if arr.shape[1] >= 6 else np.full((len(arr), 3), np.nan)
+    has = np.isfinite(rgb).all(axis=1)
+    if not has.any():
+        return arr[:, :3], None
+    if np.nanmax(rgb) > 1.0:  # some writers use 0..255
+        rgb = rgb / 255.0
+    return arr[:, :3], np.where(has[:, None], np.clip(np.nan_to_num(rgb), 0, 1), 1.0).astype(np.float32)
+
+
+def _parse_mtl(path, used: set, texture) -> dict[str, tuple[Material, tuple | None]]:
+    """The ``newmtl`` blocks of an MTL file → ``{name: (material, uv transform or None)}``, in file order.
+
+    Only the materials named in ``used`` are built, so textures that no face
+    shows are neither decoded nor warned about; ``texture`` loads an image
+    (:func:`_load_texture`). A loaded ``map_Kd`` replaces ``Kd`` and a loaded
+    ``map_Pr``/``map_Pm`` replaces ``Pr``/``Pm`` (as Blender and three.js
+    read them). The uv transform is ``(scale, offset)`` from the ``map_Kd
+    -s/-o`` options.
+    """
+    raw: dict[str, dict] = {}
+    cur: dict = {}  # statements before the first newmtl belong to no material
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        key, rest = (line.split(None, 1) + ["", ""])[:2]
+        k, rest = key.lower(), rest.strip()
+        try:
+            if key == "newmtl":
+                cur = raw.setdefault(rest, {})
+            elif k == "kd":
+                vals = [float(x) for x in rest.split()[:3]]
+                cur["Kd"] = vals * 3 if len(vals) == 1 else vals
+            elif k == "d":
+                cur["d"] = float(rest.split()[-1])
+            elif k == "tr" and "d" not in cur:
+                cur["d"] = 1.0 - float(rest.split()[-1])
+            elif k in ("pm", "pr"):
+                cur[k] = float(rest.split()[0])
+            elif k in ("map_kd", "map_pm", "map_pr", "map_bump", "bump", "norm"):
+                cur[k] = _parse_tex_line(rest)
+        except (ValueError, IndexError):
+            continue  # a malformed optional line: ignore it like other viewers do
+    out = {}
+    for mname, d in raw.items():
+        if mname not in used:
+            continue
+        kd = np.clip((d.get("Kd", list(DEFAULT_COLOR)) + [1.0, 1.0, 1.0])[:3], 0, 1)
+        mat = Material(name=mname, base_color=np.array([*kd, d.get("d", 1.0)], np.float32),
+                       metallic=d.get("pm", 0.0), roughness=d.get("pr", 1.0))
+        uv_transform = None
+        if "map_kd" in d:
+            fname, opts = d["map_kd"]
+            mat.image = texture(fname, "map_Kd", mname, path)
+            if mat.image is not None:
+                mat.base_color[:3] = 1.0  # the texture replaces Kd (Blender, three.js and co. agree)
+                s = [float(x) for x in opts.get("-s", [])] + [1.0, 1.0]
+                o = [float(x) for x in opts.get("-o", [])] + [0.0, 0.0]
+                if s[:2] != [1.0, 1.0] or o[:2] != [0.0, 0.0]:
+                    uv_transform = (np.array(s[:2], np.float32), np.array(o[:2], np.float32))
+        for key, chan in (("map_pr", 1), ("map_pm", 2)):  # glTF layout: roughness in G, metallic in B
+            img = texture(d[key][0], key.replace("map_p", "map_P"), mname, path) if key in d else None
+            if img is None:
+                continue
+            if mat.metallic_roughness_image is None:
+                mat.metallic_roughness_image = np.ones_like(img)
+            elif img.shape != mat.metallic_roughness_image.shape:  # to the size of the first map
+                img = image_to_array(array_to_pil(img).resize(mat.metallic_roughness_image.shape[1::-1]))
+            mat.metallic_roughness_image[:, :, chan] = img[:, :, 0]
+            setattr(mat, "roughness" if chan == 1 else "metallic", 1.0)
+        key = next((k for k in ("norm", "map_bump", "bump") if k in d), None)
+        img = texture(d[key][0], key, mname, path) if key else None
+        if img is not None and np.ptp(img, axis=2).max() > 1e-3:  # a grey bump map is a height map: not used
+            mat.normal_image = img
+        out[mname] = (mat, uv_transform)
+    return out
+
+
+_TEX_OPTION_ARGS = {  # MTL texture options and how many arguments each takes (at most)
+    "-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1,
+    "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1, "-type": 1,
+}
+
+
+def _parse_tex_line(rest: str):
+    """``[options] filename`` of an MTL map line → (filename, {option: [args]}).
+
+    An option's first argument is taken as it is, further ones only while
+    they are numbers; the last token always belongs to the filename.
+    """
+    tokens, opts = rest.split(), {}
+    while len(tokens) > 1 and tokens[0].lower() in _TEX_OPTION_ARGS:
+        opt = tokens.pop(0).lower()
+        args = opts[opt] = []
+        while len(args) < _TEX_OPTION_ARGS[opt] and len(tokens) > 1 and (not args or _is_number(tokens[0])):
+            args.append(tokens.pop(0))
+    return " ".join(tokens), opts
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _load_texture(ref: str, what: str, mname: str, mtl: Path, *, max_size, cache: dict):
+    """The image an MTL map line names, as an array; ``None`` with a warning if it is missing or unreadable.
+
+    Each file is decoded once (``cache``): several materials often share one atlas.
+    """
+    from PIL import Image
+
+    owner = f"{what} of material '{mname}' in '{mtl.name}'"
+    path = _resolve_asset(ref, mtl.parent)
+    if path is None:
+        _warn(
+            f"texture file '{ref}' ({owner}) was not found (looked in '{mtl.parent}'); "
+            "using the material colour instead: put the image next to the .mtl file or fix the path"
+        )
+        return None
+    key = path.resolve()
+    if key not in cache:
+        try:
+            with Image.open(path) as img:
+                cache[key] = image_to_array(img, max_size)
+        except Exception as exc:  # corrupt / unsupported image: warn and fall back
+            cache[key] = None
+            _warn(
+                f"texture file '{path.name}' ({owner}) could not be read ({type(exc).__name__}: {exc}); "
+                "using the material colour instead: re-save the image as PNG or JPEG"
+            )
+    return cache[key]
+
+
+def _resolve_asset(name: str, base: Path) -> Path | None:
+    """Find a file an OBJ/MTL names: as written, then by its base name (also ignoring case) in ``base``."""
+    name = Path(name.strip().strip('"').replace("\\", "/"))
+    for candidate in (base / name, name, base / name.name):  # base / an absolute path = the path
+        if candidate.is_file():
+            return candidate
+    try:
+        return next((c for c in base.iterdir() if c.name.lower() == name.name.lower() and c.is_file()), None)
+    except OSError:
+        return None
 
 
 # ------------------------------------------------------- glTF / PLY / STL / OFF
 def _load_with_trimesh(path, max_size):
     """Every triangle geometry of the file's scene, node transforms applied."""
     import trimesh
+    from trimesh.visual import ColorVisuals, TextureVisuals
 
     fmt = {".glb": "a binary glTF (GLB)", ".gltf": "a glTF", ".ply": "a PLY mesh", ".stl": "an STL mesh",
            ".off": "an OFF mesh"}[path.suffix.lower()]
     if path.stat().st_size == 0:
         raise _unreadable(path, fmt, "the file is empty")
-    image_problems = _gltf_image_problems(path, fmt) if path.suffix.lower() in (".glb", ".gltf") else {}
+    image_problems = _gltf_image_problems(path, fmt) if path.suffix.lower() in (".glb", ".gltf") else []
     try:
         scene = trimesh.load(str(path), force="scene", process=False)
     except Exception as exc:
         raise _unreadable(path, fmt, exc) from None
-    for problem in image_problems.values():
+    for problem in image_problems:
         _warn(problem)
 
     parts: list[_Part] = []
     materials: list[Material] = []
-    mat_index: dict = {}  # id(trimesh material) -> index in materials
+    index: dict = {}  # a trimesh material (by id) or a colour → its position in materials
 
-    def add_material(m: Material, key) -> int:
-        if key not in mat_index:
-            mat_index[key] = len(materials)
-            materials.append(m)
-        return mat_index[key]
+    def add(mat: Material, key) -> int:
+        if key not in index:
+            index[key] = len(materials)
+            materials.append(mat)
+        return index[key]
 
     for node in scene.graph.nodes_geometry:
         transform, geom_name = scene.graph[node]
@@ -931,42 +823,35 @@ def _load_with_trimesh(path, max_size):
         faces = np.asarray(geom.faces, np.int64)
         if np.linalg.det(np.asarray(transform)[:3, :3]) < 0:
             faces = faces[:, ::-1]  # a mirroring transform flips the winding: restore outward normals
-        visual = geom.visual
-        n = len(faces)
-        if isinstance(visual, trimesh.visual.TextureVisuals) and visual.material is not None:
-            tm = visual.material
+        visual, n = geom.visual, len(faces)
+        if isinstance(visual, TextureVisuals) and visual.material is not None:
             uv = getattr(visual, "uv", None)
             has_uv = uv is not None and len(uv) == len(vertices)
-            mat = _material_from_trimesh(tm, max_size, path, geom_name)
-            key = id(tm)
+            mat, key = _material_from_trimesh(visual.material, max_size, path, geom_name), id(visual.material)
             if not has_uv and any(x is not None for x in (mat.image, mat.metallic_roughness_image, mat.normal_image)):
                 if mat.image is not None:
                     _warn(f"'{geom_name}' in '{path.name}' has a texture but no UV coordinates; using its base colour")
-                mat = replace(mat, image=None, metallic_roughness_image=None, normal_image=None)
-                key = (id(tm), "no-uv")
-            mi = add_material(mat, key)
+                mat, key = replace(mat, image=None, metallic_roughness_image=None, normal_image=None), (key, "no-uv")
             face_uvs = np.asarray(uv, np.float64)[faces].astype(np.float32) if has_uv else None
             colors = _color_array(visual.vertex_attributes.get("color"), len(vertices))
-            parts.append(_Part(vertices, faces, np.full(n, mi), face_uvs, colors))
-        elif isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
-            mi = add_material(Material(name="vertex_colors", base_color=_WHITE.copy()), "vertex_colors")
+            parts.append(_Part(vertices, faces, np.full(n, add(mat, key)), face_uvs, colors))
+        elif isinstance(visual, ColorVisuals) and visual.kind == "vertex":
+            mi = add(Material(name="vertex_colors", base_color=np.ones(4, np.float32)), "vertex_colors")
             colors = _color_array(visual.vertex_colors, len(vertices))
             parts.append(_Part(vertices, faces, np.full(n, mi), None, colors))
-        elif isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "face":
+        elif isinstance(visual, ColorVisuals) and visual.kind == "face":
             fc = _color_array(visual.face_colors, n)
             uniq, inv = np.unique(np.round(fc * 255).astype(np.int64), axis=0, return_inverse=True)
-            inv = inv.reshape(-1)
             if len(uniq) <= 64:  # a few colours: one material each
-                idx = [add_material(Material(name=f"face_color_{k}", base_color=np.array([*c / 255.0, 1.0], np.float32)),
-                                    ("face", tuple(c))) for k, c in enumerate(uniq)]
-                parts.append(_Part(vertices, faces, np.asarray(idx)[inv], None, None))
+                mi = [add(Material(name=f"face_color_{k}", base_color=np.array([*c / 255.0, 1.0], np.float32)),
+                          ("face", tuple(c))) for k, c in enumerate(uniq)]
+                parts.append(_Part(vertices, faces, np.asarray(mi)[inv.reshape(-1)]))
             else:  # many colours: give every face its own three vertices
-                mi = add_material(Material(name="vertex_colors", base_color=_WHITE.copy()), "vertex_colors")
+                mi = add(Material(name="vertex_colors", base_color=np.ones(4, np.float32)), "vertex_colors")
                 parts.append(_Part(vertices[faces].reshape(-1, 3), np.arange(3 * n).reshape(-1, 3),
                                    np.full(n, mi), None, np.repeat(fc, 3, axis=0)))
         else:
-            mi = add_material(Material(name="default", base_color=_default_rgba()), "default")
-            parts.append(_Part(vertices, faces, np.full(n, mi)))
+            parts.append(_Part(vertices, faces, np.full(n, add(Material(base_color=_default_rgba()), "default"))))
     return parts, materials
 
 
@@ -996,39 +881,30 @@ def _material_from_trimesh(tm, max_size, path, geom_name) -> Material:
     name = getattr(tm, "name", None) or geom_name
 
     def img(pil, what):
-        if pil is None:
-            return None
         try:
-            return image_to_array(pil, max_size)
+            return None if pil is None else image_to_array(pil, max_size)
         except Exception as exc:
             _warn(f"the {what} texture of material '{name}' in '{path.name}' could not be decoded "
                   f"({type(exc).__name__}: {exc}); continuing without it")
             return None
 
     if isinstance(tm, PBRMaterial):
-        factor = tm.baseColorFactor
-        factor = _WHITE.copy() if factor is None else _rgba(factor)
         return Material(
             name=name,
-            base_color=factor,
+            base_color=np.ones(4, np.float32) if tm.baseColorFactor is None else _rgba(tm.baseColorFactor),
             image=img(tm.baseColorTexture, "base colour"),
             # glTF's defaults when a factor is absent are 1.0 (metallic and rough)
-            metallic=float(tm.metallicFactor) if tm.metallicFactor is not None else 1.0,
-            roughness=float(tm.roughnessFactor) if tm.roughnessFactor is not None else 1.0,
+            metallic=1.0 if tm.metallicFactor is None else float(tm.metallicFactor),
+            roughness=1.0 if tm.roughnessFactor is None else float(tm.roughnessFactor),
             metallic_roughness_image=img(getattr(tm, "metallicRoughnessTexture", None), "metallic-roughness"),
             normal_image=img(getattr(tm, "normalTexture", None), "normal"),
         )
-    pil = getattr(tm, "image", None)
-    if _is_trimesh_placeholder(pil):
+    if _is_trimesh_placeholder(getattr(tm, "image", None)):
         # trimesh invents a 2x2 grey image for UVs without a texture (e.g. a PLY with
         # texture coordinates but no TextureFile): that is "no colour", not a texture
         return Material(name="default", base_color=_default_rgba())
-    image = img(pil, "diffuse")
-    diffuse = getattr(tm, "diffuse", None)
-    if image is not None or diffuse is None:
-        base = _WHITE.copy()
-    else:
-        base = _rgba(diffuse)
+    image, diffuse = img(getattr(tm, "image", None), "diffuse"), getattr(tm, "diffuse", None)
+    base = np.ones(4, np.float32) if image is not None or diffuse is None else _rgba(diffuse)
     return Material(name=name, base_color=base, image=image)
 
 
@@ -1041,11 +917,11 @@ def _is_trimesh_placeholder(pil) -> bool:
         return False
 
 
-def _gltf_image_problems(path, fmt: str) -> dict:
-    """Read a glTF's JSON once: a clear error if it is not glTF at all, else the textures its
-    materials use that are missing or undecodable (trimesh silently drops them).
+def _gltf_image_problems(path, fmt: str) -> list[str]:
+    """Read a glTF's JSON once: a clear error if it is not glTF at all, else a warning for each
+    texture its materials use that is missing or undecodable (trimesh silently drops them).
 
-    Returns ``{image index: warning message}``; best effort (any other surprise → no warnings).
+    Best effort: any other surprise → no warnings.
     """
     from PIL import Image
 
@@ -1053,7 +929,7 @@ def _gltf_image_problems(path, fmt: str) -> dict:
     if path.suffix.lower() == ".gltf":
         try:
             header = json.loads(data.decode("utf-8"))
-        except (ValueError, UnicodeDecodeError) as exc:
+        except ValueError as exc:  # UnicodeDecodeError is one
             raise _unreadable(path, fmt, f"not valid JSON: {exc}") from None
     elif data[:4] != b"glTF":
         raise _unreadable(path, fmt, "it does not start with the GLB magic bytes 'glTF'")
@@ -1086,7 +962,7 @@ def _gltf_image_problems(path, fmt: str) -> dict:
                     src = exts[-1]["source"] if exts else tex.get("source")
                     if src is not None and src < len(images):
                         users.setdefault(src, []).append(f"{slot} of material '{mat.get('name', '?')}'")
-        problems = {}
+        problems = []
         for src, used_by in users.items():
             im = images[src]
             label = f"'{unquote(im['uri'])}'" if "uri" in im and not im["uri"].startswith("data:") else f"#{src} (embedded)"
@@ -1095,8 +971,8 @@ def _gltf_image_problems(path, fmt: str) -> dict:
                     pil.verify()
             except Exception as exc:
                 reason = "not a readable image" if "cannot identify image" in str(exc) else f"{type(exc).__name__}: {exc}"
-                problems[src] = (f"texture image {label} in '{path.name}' ({', '.join(used_by)}) is missing or "
-                                 f"unreadable ({reason}); using the material colour instead")
+                problems.append(f"texture image {label} in '{path.name}' ({', '.join(used_by)}) is missing or "
+                                f"unreadable ({reason}); using the material colour instead")
         return problems
     except Exception:
-        return {}
+        return []

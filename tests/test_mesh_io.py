@@ -277,6 +277,18 @@ def test_obj_face_lines_of_different_lengths(tmp_path):
     np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 2, 3]])  # the quad, fan-triangulated
 
 
+def test_obj_faces_polygons_and_triangles_read_alike(tmp_path):
+    """Polygons go through the same index checks as triangles: vt 0 means no uv, the first bad line is named."""
+    (tmp_path / "vt0.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nf 1/0 2/0 3/0 4/0\nf 1/1 2/0 3/1\n")
+    mesh = load_mesh(tmp_path / "vt0.obj")
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 2, 3], [0, 1, 2]])
+    assert np.isnan(mesh.face_uvs[:2]).all() and np.isnan(mesh.face_uvs[2, 1]).all()
+    np.testing.assert_array_equal(mesh.face_uvs[2, [0, 2]], 0)
+    (tmp_path / "bad.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\nf 1 -9 3 4\nf 1 2 x 4\n")
+    with pytest.raises(Sin3DMInputError, match="line 6: bad face 'f 1 -9 3 4'"):
+        load_mesh(tmp_path / "bad.obj")
+
+
 def test_obj_uv_scale_option(tmp_path):
     save_png(tmp_path / "t.png", quadrant_image())
     (tmp_path / "s.mtl").write_text("newmtl m\nmap_Kd -s 0.5 0.5 t.png\n")
