@@ -468,15 +468,11 @@ def sample_mesh_files(folder: Path) -> list[Path]:
 
 
 def print_evaluation(result: dict) -> None:
-    """The metrics as a table: our name, the value, the paper's name, which way is better."""
-    from .metrics import METRICS
+    """The metrics as a table: our name, the value, the paper's name and which way is better; then what was skipped."""
+    from .metrics import results_table
 
-    m = result["metrics"]
     print(f"{result['samples']} samples, {result['resolution']} voxels, {result['views']} views of {result['size']}²")
-    print(f"{'metric':14s} {'value':>8s}  {'paper':16s} meaning")
-    for key, paper, meaning in METRICS:
-        value = "-" if m.get(key) is None else f"{m[key]:.4f}"
-        print(f"{key:14s} {value:>8s}  {paper:16s} {meaning}")
+    print(results_table({"value": result}, digits=4))
     for key, why in result["skipped"].items():
         print(f"  {key}: {why}")
 

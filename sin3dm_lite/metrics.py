@@ -700,7 +700,7 @@ def lpips(a, b, nets: FeatureNets) -> float:
 METRICS = (("g_div", "G-Div", "higher = more diverse shapes"),
            ("lp_iou", "LP-IoU", "higher = local geometry like the input's"),
            ("lp_fscore", "LP-F", "higher = local geometry like the input's"),
-           ("iou_to_input", "-", "near 1 = copies of the input"),
+           ("iou_to_input", "not in the paper", "near 1 = copies of the input"),
            ("ssfid", "G-Qual (SSFID)", "lower = better"),
            ("patch_swd", "T-Qual stand-in", "lower = texture patches like the input's (weight-free, not SIFID)"),
            ("render_div", "T-Div stand-in", "higher = more varied renders (weight-free, not LPIPS)"),
