@@ -95,7 +95,7 @@ _API = {
     "lpips": "metrics",
 }
 
-_MODULES = {"viz", "widgets", "viewer", "metrics", "examples", "box", "extract", "export", "mesh_io"}
+_MODULES = {"viz", "widgets", "viewer", "metrics", "render", "examples", "box", "extract", "export", "mesh_io"}
 
 __all__ = sorted(_API) + sorted(_MODULES)
 

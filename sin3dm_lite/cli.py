@@ -544,22 +544,11 @@ def sample_mesh_files(folder: Path) -> list[Path]:
 
 
 def print_evaluation(result: dict) -> None:
-    """The metrics as a table: our name, the value, the paper's name, which way is better."""
-    rows = [("g_div", "G-Div", "higher = more diverse shapes"),
-            ("lp_iou", "LP-IoU", "higher = local geometry like the input's"),
-            ("lp_fscore", "LP-F", "higher = local geometry like the input's"),
-            ("iou_to_input", "-", "near 1 = copies of the input"),
-            ("ssfid", "G-Qual (SSFID)", "lower = better"),
-            ("patch_swd", "T-Qual stand-in", "lower = texture patches like the input's (weight-free, not SIFID)"),
-            ("render_div", "T-Div stand-in", "higher = more varied renders (weight-free, not LPIPS)"),
-            ("sifid", "T-Qual (SIFID)", "lower = better"),
-            ("lpips", "T-Div (LPIPS)", "higher = more diverse textures")]
-    m = result["metrics"]
+    """The metrics as a table: our name, the value, the paper's name and which way is better; then what was skipped."""
+    from .metrics import results_table
+
     print(f"{result['samples']} samples, {result['resolution']} voxels, {result['views']} views of {result['size']}²")
-    print(f"{'metric':14s} {'value':>8s}  {'paper':16s} meaning")
-    for key, paper, meaning in rows:
-        value = "-" if m.get(key) is None else f"{m[key]:.4f}"
-        print(f"{key:14s} {value:>8s}  {paper:16s} {meaning}")
+    print(results_table({"value": result}, digits=4))
     for key, why in result["skipped"].items():
         print(f"  {key}: {why}")
 

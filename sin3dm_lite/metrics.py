@@ -220,19 +220,24 @@ def extract_patches(grid: np.ndarray, patch: int = 11, stride: int = 5, center: 
     return windows[valid].reshape(-1, patch**3)
 
 
-def _best_matches(gen: np.ndarray, ref: np.ndarray, max_entries: int = 2**23) -> tuple[np.ndarray, np.ndarray]:
-    """For every generated patch, the best IoU and the best F-score against all reference patches."""
+def _best_matches(gen: np.ndarray, ref: np.ndarray, max_entries: int = 2**23,
+                  return_index: bool = False) -> tuple[np.ndarray, ...]:
+    """For every generated patch, the best IoU and the best F-score against all reference patches
+    (and, with ``return_index``, the index of the reference patch with the best IoU)."""
     g, r = gen.astype(np.float32), ref.astype(np.float32)
     gs, rs = g.sum(1), r.sum(1)
     best_iou = np.zeros(len(g), np.float64)
     best_f = np.zeros(len(g), np.float64)
+    best_at = np.zeros(len(g), np.int64)
     rows = max(1, max_entries // max(len(r), 1))
     for s in range(0, len(g), rows):
         inter = g[s:s + rows] @ r.T  # (m, n_ref) overlap counts, exact in float32
         size_sum = gs[s:s + rows, None] + rs[None, :]
-        best_iou[s:s + rows] = (inter / (size_sum - inter)).max(axis=1)
+        ious = inter / (size_sum - inter)
+        best_at[s:s + rows] = ious.argmax(axis=1)
+        best_iou[s:s + rows] = ious.max(axis=1)
         best_f[s:s + rows] = (2 * inter / size_sum).max(axis=1)
-    return best_iou, best_f
+    return (best_iou, best_f, best_at) if return_index else (best_iou, best_f)
 
 
 def lp_scores(reference: np.ndarray, generated, patch: int = 11, stride: int = 5, center: int = 3,
@@ -300,6 +305,36 @@ def lp_fscore(reference: np.ndarray, generated, patch: int = 11, stride: int = 5
               max_patches: int = 1000, threshold: float = 0.95, seed: int = 0) -> float:
     """LP-F-score: as :func:`lp_iou` with the patch F-score (Dice) instead of IoU; see :func:`lp_scores`."""
     return lp_scores(reference, generated, patch, stride, center, max_patches, threshold, seed)["lp_fscore"]
+
+
+def patch_matches(reference: np.ndarray, generated: np.ndarray, n: int = 4, patch: int = 11, stride: int = 5,
+                  center: int = 3, max_patches: int = 1000, seed: int = 0) -> dict:
+    """What LP-IoU compares, for a picture: ``n`` surface patches of one generated grid and their best input patch.
+
+    The patches are those :func:`lp_scores` takes (same ``patch``, ``stride``,
+    ``center``, ``max_patches`` and ``seed``); the ``n`` shown are spread evenly
+    over the range of best IoU, from the worst-matched patch to the best one.
+
+    Returns ``generated`` and ``matched`` (``(n, patch, patch, patch)`` bool: the
+    generated patches and, for each, the input patch with the highest IoU),
+    their ``iou`` and ``fscore`` (``(n,)``), ``best_iou`` (every compared patch's
+    best IoU: LP-IoU is the share of these above the threshold) and ``threshold``.
+    """
+    ref = extract_patches(reference, patch, stride, center)
+    gen = extract_patches(generated, patch, stride, center)
+    if len(ref) == 0 or len(gen) == 0:
+        raise Sin3DMInputError("both occupancy grids need surface patches (is one of them empty or full?)")
+    if len(gen) > max_patches:  # the same subset lp_scores draws for a first (or only) shape
+        gen = gen[np.random.default_rng(seed).choice(len(gen), max_patches, replace=False)]
+    best_iou, _, best_at = _best_matches(gen, ref, return_index=True)
+    order = np.argsort(best_iou, kind="stable")
+    pick = order[np.unique(np.round(np.linspace(0, len(order) - 1, min(n, len(order)))).astype(int))]
+    g, r = gen[pick].astype(np.float64), ref[best_at[pick]].astype(np.float64)
+    inter = (g * r).sum(1)
+    cube = (len(pick), patch, patch, patch)
+    return {"generated": gen[pick].reshape(cube), "matched": ref[best_at[pick]].reshape(cube),
+            "iou": best_iou[pick], "fscore": 2 * inter / (g.sum(1) + r.sum(1)), "best_iou": best_iou,
+            "threshold": 0.95}
 
 
 # ----------------------------------------------------------------------------- geometry, all at once
@@ -419,6 +454,28 @@ def colour_distance(a, b) -> float:
         return 0.0
     d = np.abs(_image(a)[0].numpy() - _image(b)[0].numpy()).mean(axis=0)
     return float(d[union].mean())
+
+
+def degraded(image, kind: str = "wash", amount: float = 0.6, seed: int = 0) -> np.ndarray:
+    """A render changed in a known way, to see what the texture metrics react to (the background stays white).
+
+    * ``"wash"``: the shape's colours pulled towards their mean by ``amount`` (0 = unchanged, 1 = one flat colour);
+    * ``"shuffle"``: the shape's pixels permuted among themselves (the same colours, no patterns left).
+    """
+    img = np.asarray(image)
+    img = (img if img.dtype == np.uint8 else np.round(np.clip(img, 0, 1) * 255)).astype(np.uint8)[..., :3].copy()
+    fg = foreground(img)
+    if kind == "wash":
+        if not 0 <= amount <= 1:
+            raise Sin3DMInputError(f"amount must be from 0 to 1, got {amount}")
+        px = img[fg].astype(np.float64)
+        washed = np.round((1 - amount) * px + amount * px.mean(0)) if len(px) else px
+        img[fg] = np.minimum(washed, 254).astype(np.uint8)  # never pure white: still the shape
+    elif kind == "shuffle":
+        img[fg] = img[fg][np.random.default_rng(seed).permutation(int(fg.sum()))]
+    else:
+        raise Sin3DMInputError(f"kind must be 'wash' or 'shuffle', got {kind!r}")
+    return img
 
 
 def _check_views(reference_views, sample_views) -> None:
@@ -639,6 +696,35 @@ def lpips(a, b, nets: FeatureNets) -> float:
     return float(nets.lpips(_image(a), _image(b))[0])
 
 
+#: the metrics of ``Sin3DM.evaluate``: (key, the paper's name, which way is better), in the order tables show them
+METRICS = (("g_div", "G-Div", "higher = more diverse shapes"),
+           ("lp_iou", "LP-IoU", "higher = local geometry like the input's"),
+           ("lp_fscore", "LP-F", "higher = local geometry like the input's"),
+           ("iou_to_input", "not in the paper", "near 1 = copies of the input"),
+           ("ssfid", "G-Qual (SSFID)", "lower = better"),
+           ("patch_swd", "T-Qual stand-in", "lower = texture patches like the input's (weight-free, not SIFID)"),
+           ("render_div", "T-Div stand-in", "higher = more varied renders (weight-free, not LPIPS)"),
+           ("sifid", "T-Qual (SIFID)", "lower = better"),
+           ("lpips", "T-Div (LPIPS)", "higher = more diverse textures"))
+
+
+def results_table(columns: dict, digits: int = 3) -> str:
+    """Several evaluations side by side as a text table: one row per metric of :data:`METRICS`, one column each.
+
+    ``columns`` maps a column label to a ``Sin3DM.evaluate`` result (or its
+    ``"metrics"`` dict); a metric that was not computed shows as ``-``.
+    """
+    if not columns:
+        raise Sin3DMInputError("results_table needs at least one column")
+    values = {label: r.get("metrics", r) for label, r in columns.items()}
+    width = max(10, digits + 4, *(len(label) for label in values))
+    lines = [f"{'metric':14s} " + " ".join(f"{label:>{width}s}" for label in values) + "  paper's name: meaning"]
+    for key, paper, meaning in METRICS:
+        cells = ["-" if m.get(key) is None else f"{m[key]:.{digits}f}" for m in values.values()]
+        lines.append(f"{key:14s} " + " ".join(f"{c:>{width}s}" for c in cells) + f"  {paper}: {meaning}")
+    return "\n".join(lines)
+
+
 def texture_scores(reference_views, sample_views, nets: FeatureNets | None = None) -> dict:
     """The texture metrics of renders, view by view: ``patch_swd`` and ``render_div`` always, ``sifid`` and
     ``lpips`` (the paper's T-Qual and T-Div) with ``nets``; the diversities are None for one sample."""
@@ -657,7 +743,9 @@ __all__ = [
     "InceptionStem",
     "LPIPSAlex",
     "SSFID_UNAVAILABLE",
+    "METRICS",
     "colour_distance",
+    "degraded",
     "extract_patches",
     "foreground",
     "frechet_distance",
@@ -677,8 +765,10 @@ __all__ = [
     "lp_iou",
     "lp_scores",
     "pairwise_iou",
+    "patch_matches",
     "reconstruction_metrics",
     "reconstruction_iou",
+    "results_table",
     "variation_scores",
     "voxelize",
 ]

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from .autoencoder import AutoencoderTrainer, TriplaneDecoder
-from .config import Config, get_preset
+from .config import Config, DiffusionConfig, get_preset
 from .decode import reconstructed_grid
 from .device import get_device
 from .errors import Sin3DMInputError
@@ -395,6 +395,16 @@ class Sin3DM:
         width = max(int(self.config.diffusion.base_channels), int(self.latent.channels)) * 2
         per_sample = 16 * (x * y + x * z + y * z) * width * 4
         return int(max(1, min(MAX_SAMPLES, 0.5 * memory_available(self.device) // per_sample)))
+
+    def with_denoiser(self, denoiser: torch.nn.Module, diffusion: DiffusionConfig) -> "Sin3DM":
+        """The same input (decoder, latent, box) with another denoiser, e.g. one retrained for an ablation.
+
+        ``diffusion`` is the config that denoiser was trained with (its
+        ``prediction`` and schedule decide how it is sampled). Decoder and
+        latent are shared with this model, not copied.
+        """
+        return Sin3DM(replace(self.config, diffusion=diffusion), self.decoder, self.latent, denoiser, self.aabb,
+                      self.normalization, dict(self.report), self.device)
 
     def input_sample(self) -> Samples:
         """The input's own latent as a one-item :class:`Samples` (decode it to see the reconstruction)."""

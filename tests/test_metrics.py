@@ -164,3 +164,35 @@ def test_input_occupancy_of_an_open_and_a_closed_mesh():
     np.testing.assert_array_equal(M.input_occupancy(open_box, aabb, 16), occ)
     # agrees with voxelize on a closed mesh
     np.testing.assert_array_equal(M.voxelize((box.vertices, box.faces), aabb, 16), occ)
+
+
+def test_patch_matches_show_the_pairs_lp_iou_scores():
+    ref = lattice()
+    shifted = np.roll(ref, 10, axis=0)
+    m = M.patch_matches(ref, shifted, n=3)
+    assert m["generated"].shape == m["matched"].shape == (3, 11, 11, 11)
+    np.testing.assert_array_equal(m["generated"], m["matched"])  # a shifted copy: every patch has its twin
+    assert np.all(m["iou"] == 1.0) and np.all(m["fscore"] == 1.0)
+    assert np.mean(m["best_iou"] > m["threshold"]) == M.lp_iou(ref, [shifted])
+    x, y, z = centres(60)
+    blob = x**2 + y**2 + z**2 < 0.5
+    m = M.patch_matches(ref, blob, n=4)
+    assert list(m["iou"]) == sorted(m["iou"])  # spread from the worst-matched patch to the best
+    assert m["iou"][0] == m["best_iou"].min() and m["iou"][-1] == m["best_iou"].max()
+    g, r = m["generated"][0], m["matched"][0]
+    assert m["iou"][0] == pytest.approx(M.iou(g, r))  # the pair shown is the pair scored
+    assert np.mean(m["best_iou"] > 0.95) == M.lp_iou(ref, [blob])
+    with pytest.raises(Sin3DMInputError, match="surface patches"):
+        M.patch_matches(ref, np.zeros_like(ref))
+
+
+def test_results_table_lines_up_columns_and_marks_missing_values():
+    text = M.results_table({"default": {"metrics": {"g_div": 0.21, "lp_iou": 0.5}}, "diversity 1.0": {"g_div": 0.3}})
+    lines = text.splitlines()
+    assert len(lines) == 1 + len(M.METRICS)
+    assert "default" in lines[0] and "diversity 1.0" in lines[0]
+    g = next(line for line in lines if line.startswith("g_div"))
+    assert "0.210" in g and "0.300" in g and "G-Div" in g
+    assert next(line for line in lines if line.startswith("lp_iou")).split()[1:3] == ["0.500", "-"]
+    with pytest.raises(Sin3DMInputError):
+        M.results_table({})

@@ -146,6 +146,25 @@ def test_bad_resize_is_a_clear_error(fitted, resize):
         model.sample(1, resize=resize, progress=False)
 
 
+def test_with_denoiser_samples_with_the_new_denoiser_and_its_config(fitted):
+    from dataclasses import replace
+
+    from sin3dm_lite.unet import TriplaneUNet
+
+    model, _ = fitted
+    eps = replace(model.config.diffusion, prediction="eps")
+    other = TriplaneUNet(model.latent.channels, eps)
+    twin = model.with_denoiser(other, eps)
+    assert twin.denoiser is other and twin.config.diffusion.prediction == "eps"
+    assert model.config.diffusion.prediction == "x0" and model.denoiser is not other  # the original is unchanged
+    assert twin.decoder is model.decoder and twin.latent.xy.data_ptr() == model.latent.xy.data_ptr()  # shared
+    assert twin.config.sampling == model.config.sampling and twin.report == model.report
+    a = twin.sample(1, seed=2, progress=False)
+    b = model.sample(1, seed=2, progress=False)
+    assert a.triplane.resolution == b.triplane.resolution
+    assert not torch.equal(a.triplane.xy, b.triplane.xy)
+
+
 def _mean_distance(samples, latent) -> float:
     """Mean squared difference of each sample's planes from the input latent's."""
     return float(sum(((p - q) ** 2).mean() for p, q in zip(samples.triplane.planes, latent.planes)))

@@ -147,3 +147,21 @@ def test_missing_or_mismatched_weights_give_one_clear_error(weights_dir, tmp_pat
         M.load_feature_weights(tmp_path)
     with pytest.raises(Sin3DMInputError, match="not found"):
         M.load_feature_weights(tmp_path / "nowhere")
+
+
+def test_degraded_pictures_keep_the_background_and_score_as_expected():
+    img = picture(size=96)
+    washed, shuffled_px = M.degraded(img, "wash", 0.6), M.degraded(img, "shuffle")
+    for out in (washed, shuffled_px):
+        assert out.dtype == np.uint8 and out.shape == img.shape
+        np.testing.assert_array_equal(M.foreground(out), M.foreground(img))  # the silhouette stays
+    fg = M.foreground(img)
+    np.testing.assert_array_equal(np.sort(shuffled_px[fg], axis=0), np.sort(img[fg], axis=0))  # same colours
+    assert washed[fg].std(axis=0).max() < img[fg].std(axis=0).max()  # flatter colours
+    np.testing.assert_array_equal(M.degraded(img, "wash", 0.0), img)
+    assert M.patch_swd(img, img) == 0.0
+    assert M.patch_swd(img, washed) > 0.01 and M.patch_swd(img, shuffled_px) > 0.01
+    with pytest.raises(Sin3DMInputError):
+        M.degraded(img, "blur")
+    with pytest.raises(Sin3DMInputError):
+        M.degraded(img, "wash", 1.5)

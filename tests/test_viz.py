@@ -14,6 +14,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 from PIL import Image
 
+from sin3dm_lite import metrics as M
 from sin3dm_lite import viz
 from sin3dm_lite.triplane import pca_basis, pca_project, Triplane, plane_to_image
 
@@ -384,3 +385,52 @@ def test_plot_meshes_without_a_renderer_says_so_in_one_line(monkeypatch):
     fig.savefig(io.BytesIO(), format="png")
     with pytest.raises(Sin3DMInputError, match="one label per mesh"):
         viz.plot_meshes([(np.eye(3), np.array([[0, 1, 2]]))], labels=["a", "b"])
+
+
+# --------------------------------------------------------------------------- evaluation figures
+def test_plot_iou_matrix_shows_one_minus_iou_and_g_div():
+    a = np.zeros((12, 12, 12), bool)
+    a[:6] = True
+    b = np.roll(a, 3, axis=0)  # IoU 1/3 with a
+    fig = viz.plot_iou_matrix([a, b, a], ["a", "b", "a again"])
+    ax = fig.axes[0]
+    shown = ax.images[0].get_array()
+    assert np.ma.getdata(shown)[0, 1] == pytest.approx(2 / 3) and np.ma.getdata(shown)[0, 2] == pytest.approx(0.0)
+    assert np.isnan(np.ma.getdata(shown)[1, 1])  # the diagonal is blank
+    assert f"{M.g_div([a, b, a]):.3f}" in ax.get_title()
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["a", "b", "a again"]
+
+
+def test_plot_patch_matches_draws_each_pair_and_the_histogram():
+    ref = np.zeros((30, 30, 30), bool)
+    ref[:, :, :15] = True
+    gen = np.roll(ref, 2, axis=2)
+    m = M.patch_matches(ref, gen, n=3)
+    fig = viz.plot_patch_matches(m, slices=(2, 5))
+    imgs = image_axes(fig)
+    assert len(imgs) == 2 * len(m["iou"])
+    strip = imgs[0].images[0].get_array()
+    assert strip.shape == (11, 2 * 11 + 1)  # two slices (y up, x right) and one gap
+    assert f"IoU {m['iou'][0]:.2f}" in imgs[0].get_title()
+    hist = [ax for ax in fig.axes if not ax.images][0]
+    assert f"{np.mean(m['best_iou'] > 0.95):.0%} above" in hist.get_title()
+
+
+def test_plot_render_pairs_shows_both_views_and_their_distance():
+    a = np.full((20, 20, 3), 255, np.uint8)
+    b = a.copy()
+    a[5:15, 5:15] = (200, 0, 0)
+    b[5:15, 5:15] = (0, 0, 200)
+    fig = viz.plot_render_pairs([a, a], [b, a], labels=("red", "blue"))
+    imgs = image_axes(fig)
+    assert len(imgs) == 6
+    assert f"distance {M.colour_distance(a, b):.3f}" in imgs[0].get_title()
+    assert "distance 0.000" in imgs[1].get_title()
+    with pytest.raises(ValueError):
+        viz.plot_render_pairs([a], [a, b])
+
+
+def test_plot_picture_shows_the_image():
+    img = np.zeros((10, 30, 3), np.uint8)
+    fig = viz.plot_picture(img, title="sheet")
+    assert fig.axes[0].images[0].get_array().shape[:2] == (10, 30) and fig.axes[0].get_title() == "sheet"
