@@ -67,6 +67,8 @@ _API = {
     "query_points": "decode",
     "reconstructed_grid": "decode",
     "TriplaneUNet": "unet",
+    "TriplaneConv": "unet",
+    "rollout_parts": "unet",
     "block_layout": "unet",
     "receptive_field": "unet",
     "analytic_receptive_field": "unet",
@@ -74,6 +76,7 @@ _API = {
     "DiffusionTrainer": "diffusion",
     "sample": "diffusion",
     "predict_clean": "diffusion",
+    "diffusion_loss": "diffusion",
     "triplane_mse": "diffusion",
     # generate
     "extract_mesh": "extract",

@@ -23,25 +23,58 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from .config import DiffusionConfig
-from .triplane import PLANES, Triplane
+from .triplane import PLANE_AXES, PLANES, Triplane
 
 
 # ------------------------------------------------------------------ building blocks
+def rollout_parts(tp: Triplane, detach_means: bool = False) -> dict[str, dict]:
+    """The rollout of a TriplaneConv taken apart (the paper's Fig. 3b): what each plane's Conv2d is fed.
+
+    For each plane (key ``"xy"``, ``"xz"``, ``"yz"``) a dict with
+
+    * ``"plane"``: the plane itself ``[B, C, A, B']``;
+    * ``"sources"``: the names of the two other planes, e.g. ``("xz", "yz")`` for xy;
+    * ``"axis"``: the axis the two others are averaged over, the one this plane lacks (``"z"`` for xy);
+    * ``"pooled"``: each other plane mean-pooled over that axis, a feature per texel of the axis it
+      shares with this plane, kept as ``[B, C, A, 1]`` (along this plane's first axis) or
+      ``[B, C, 1, B']`` (along its second): for xy, ``mean_z(xz)`` is ``[B, C, X, 1]`` and
+      ``mean_z(yz)`` is ``[B, C, 1, Y]``;
+    * ``"expanded"``: each pooled feature repeated along the other axis to the plane's size ``[B, C, A, B']``;
+    * ``"input"``: ``[plane, expanded_1, expanded_2]`` concatenated on channels, ``[B, 3C, A, B']``.
+
+    ``detach_means`` blocks gradients through the means (to measure the purely local receptive field).
+    """
+    src = tp.detach() if detach_means else tp  # sources of the means
+    planes, sources = dict(zip(PLANES, tp.planes)), dict(zip(PLANES, src.planes))
+    parts = {}
+    for name in PLANES:
+        a, b = PLANE_AXES[name]
+        lacking = 3 - a - b  # the axis this plane does not have
+        own = planes[name]
+        others = tuple(n for n in PLANES if n != name)
+        pooled, expanded = [], []
+        for other in others:
+            axes = PLANE_AXES[other]
+            v = sources[other].mean(2 + axes.index(lacking))  # [B, C, n]: a feature per texel of the shared axis
+            v = v[:, :, :, None] if (set(axes) - {lacking}) == {a} else v[:, :, None, :]  # [B,C,A,1] or [B,C,1,B']
+            pooled.append(v)
+            expanded.append(v.expand(-1, -1, *own.shape[-2:]))
+        parts[name] = {"plane": own, "sources": others, "axis": "xyz"[lacking], "pooled": tuple(pooled),
+                       "expanded": tuple(expanded), "input": torch.cat([own, *expanded], 1)}
+    return parts
+
+
 def cross_plane_inputs(tp: Triplane, detach_means: bool = False) -> Triplane:
-    """The "rollout": append to each plane the other two planes, mean-pooled along the shared axis.
+    """The "rollout": append to each plane the other two planes, mean-pooled along the axis it lacks.
 
     ``xy [X,Y]`` gets ``mean_z(xz)`` (a feature per x, repeated along y) and
     ``mean_z(yz)`` (a feature per y, repeated along x); likewise for ``xz`` and
     ``yz``. Channels go from C to 3C; sizes do not change. ``detach_means``
     blocks gradients through the means (to measure the purely local receptive field).
+    :func:`rollout_parts` returns the pieces.
     """
-    (x, y, z), cat = tp.resolution, torch.cat
-    xy, xz, yz = (tp.detach() if detach_means else tp).planes  # sources of the means
-    grow = lambda p, a, b: p.expand(-1, -1, a, b)  # noqa: E731  broadcast a [B,C,n,1] or [B,C,1,n] feature
-    xy_in = cat([tp.xy, grow(xz.mean(3, keepdim=True), x, y), grow(yz.mean(3)[:, :, None], x, y)], 1)
-    xz_in = cat([tp.xz, grow(xy.mean(3, keepdim=True), x, z), grow(yz.mean(2, keepdim=True), x, z)], 1)
-    yz_in = cat([tp.yz, grow(xy.mean(2)[..., None], y, z), grow(xz.mean(2, keepdim=True), y, z)], 1)
-    return Triplane(xy_in, xz_in, yz_in)  # each [B, 3C, ., .]
+    parts = rollout_parts(tp, detach_means)
+    return Triplane(*(parts[name]["input"] for name in PLANES))  # each [B, 3C, ., .]
 
 
 class TriplaneConv(nn.Module):
@@ -375,5 +408,6 @@ __all__ = [
     "cross_plane_inputs",
     "num_groups",
     "receptive_field",
+    "rollout_parts",
     "timestep_embedding",
 ]

@@ -349,6 +349,190 @@ def plot_triplane(
     return fig
 
 
+def _view_words(name: str, up: int) -> str:
+    """How a picture of plane ``name`` (first axis →, second ↑) looks at the shape when axis ``up`` is vertical."""
+    u, v = PLANE_AXES[name]
+    lacking = 3 - u - v
+    if lacking == up:
+        return f"seen from above ({AXES[u]} →, {AXES[v]} ↑)"
+    side = f"a side view along {AXES[lacking]}"
+    if v == up:
+        return f"{side} ({AXES[u]} →, {AXES[v]} ↑: upright)"
+    return f"{side} ({AXES[u]} →, {AXES[v]} ↑):\n    on its side, the height {AXES[up]} runs →"
+
+
+def _slice_words(axis: int, up: int) -> str:
+    u, v = _plane_axes(axis, up)
+    kind = "horizontal" if axis == up else "vertical"
+    return f"slice across {AXES[axis]} ({kind}): {AXES[u]} →, {AXES[v]} ↑"
+
+
+def plot_plane_axes(shape=None, up: str = "y", n_points: int = 4000, azim: float = 30.0) -> Figure:
+    """The three triplane planes drawn on the shape's box, labelled, with the x, y, z axes and ``up`` vertical.
+
+    ``shape`` is a mesh (``TexturedMesh``, ``trimesh.Trimesh`` or anything with
+    ``vertices`` and ``faces``; drawn as ``n_points`` points on its surface), a
+    :class:`ShapeGrid` (its box and ``n_points`` of its near-surface points) or a box ``(6,)`` array
+    ``(min xyz, max xyz)``; None draws a unit cube. Each plane sits on the box face
+    it is named after (xy on the back wall z = min, xz on the floor y = min,
+    yz on the left wall x = min): the encoder averages the volume onto it along
+    the third axis. The text beside the box says how the package's 2D figures
+    orient each plane (first axis →, second ↑, see :func:`plot_triplane`) and each
+    grid slice (:func:`plot_grid_slices`, the ``up`` axis vertical), which the
+    three view names follow from.
+    """
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    ui = _axis_index(up)
+    points = None
+    if shape is None:
+        lo, hi = -np.ones(3), np.ones(3)
+    elif isinstance(shape, ShapeGrid):
+        lo, hi = np.asarray(shape.aabb[:3], float), np.asarray(shape.aabb[3:], float)
+        pts = np.asarray(shape.points, float).reshape(-1, 3)
+        points = pts[np.random.default_rng(0).choice(len(pts), min(len(pts), n_points), replace=False)] if len(pts) else None
+    elif hasattr(shape, "vertices") and hasattr(shape, "faces"):
+        v, f = np.asarray(shape.vertices, float), np.asarray(shape.faces)
+        lo, hi = v.min(0), v.max(0)
+        tri = v[f]  # (F, 3, 3); random surface points, area-weighted
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        rng = np.random.default_rng(0)
+        pick = rng.choice(len(f), n_points, p=area / area.sum()) if area.sum() > 0 else rng.choice(len(f), n_points)
+        r = rng.random((n_points, 2))
+        r = np.where(r.sum(1, keepdims=True) > 1, 1 - r, r)
+        points = tri[pick, 0] + r[:, :1] * (tri[pick, 1] - tri[pick, 0]) + r[:, 1:] * (tri[pick, 2] - tri[pick, 0])
+    else:
+        box = np.asarray(_numpy(shape), float).reshape(-1)
+        if box.shape != (6,):
+            raise ValueError(f"give a mesh, a ShapeGrid or a box (6,) = (min xyz, max xyz), got shape {box.shape}")
+        lo, hi = box[:3], box[3:]
+    ext = np.maximum(hi - lo, 1e-9)
+
+    fig = _figure(10.0, 5.2)
+    gs = fig.add_gridspec(1, 2, width_ratios=[1.5, 1.0])
+    ax = fig.add_subplot(gs[0, 0], projection="3d")
+    if points is not None:  # the shape, shaded by height
+        ax.scatter(*points.T, s=1.5, c=points[:, ui], cmap="Greys", vmin=lo[ui] - 0.6 * ext[ui], vmax=hi[ui],
+                   alpha=0.7, depthshade=False)
+    corners = np.array([[lo[0] if i & 1 == 0 else hi[0], lo[1] if i & 2 == 0 else hi[1], lo[2] if i & 4 == 0 else hi[2]]
+                        for i in range(8)])
+    for i in range(8):
+        for bit in (1, 2, 4):
+            if not i & bit:
+                ax.plot(*corners[[i, i | bit]].T, color="k", lw=0.6)
+    colors = {"xy": "tab:blue", "xz": "tab:green", "yz": "tab:orange"}
+    for name in PLANES:
+        u, v = PLANE_AXES[name]
+        m = 3 - u - v
+        quad = np.zeros((4, 3))
+        for k, (a, b) in enumerate(((0, 0), (1, 0), (1, 1), (0, 1))):
+            quad[k, u] = (lo[u], hi[u])[a]
+            quad[k, v] = (lo[v], hi[v])[b]
+            quad[k, m] = lo[m]
+        ax.add_collection3d(Poly3DCollection([quad], facecolor=colors[name], edgecolor=colors[name], alpha=0.25, lw=1.5))
+        spot = quad.mean(0)  # the label sits just outside the box, next to its wall
+        if m == ui:  # the floor: in front of its front edge
+            front = [k for k in range(3) if k not in (u, v, ui)] or [v]
+            spot[front[0]] = hi[front[0]] + 0.25 * ext.max()
+        elif ui in (u, v):  # a wall: above its top edge
+            spot[ui] = hi[ui] + 0.12 * ext.max()
+        ax.text(*spot, f"{name} plane\n(mean over {AXES[m]})", color=colors[name], fontsize=10, ha="center",
+                va="center", fontweight="bold", zorder=10)
+    arrow = 0.3 * ext.max()
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = arrow
+        start = lo.copy()  # the triad stands outside the box, off its corner at (min, min, max of the third)
+        third = [a for a in range(3) if a not in (0, ui)][0]
+        start[third] = hi[third] + 0.15 * ext.max()
+        start[0] -= 0.15 * ext.max()
+        ax.quiver(*start, *d, color="crimson", lw=1.5, arrow_length_ratio=0.2)
+        ax.text(*(start + 1.18 * d), AXES[k] + (" (up)" if k == ui else ""), color="crimson", fontsize=11,
+                fontweight="bold")
+    pad = 0.15 * ext.max()
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_zlim(lo[2] - pad, hi[2] + pad)
+    ax.set_box_aspect(tuple(np.roll(ext + 2 * pad, 2 - ui)))  # with vertical_axis, matplotlib reads it rolled
+    ax.view_init(elev=22, azim=azim, vertical_axis=AXES[ui])  # x → (a little back), up ↑, the third axis towards us
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_zlabel("z")
+    ax.tick_params(labelsize=7)
+
+    lines = ["How the 2D figures draw each plane", "(first axis →, second ↑):", ""]
+    for name in PLANES:
+        lines += [f"{name}: {_view_words(name, ui)}"]
+    lines += ["", f"Grid slices ({AXES[ui]} drawn vertically):", ""]
+    lines += [_slice_words(a, ui) for a in range(3)]
+    text = fig.add_subplot(gs[0, 1])
+    text.set_axis_off()
+    text.text(0.0, 0.5, "\n".join(lines), fontsize=9, va="center", ha="left", transform=text.transAxes)
+    fig.suptitle(f"the three planes on the shape's box ({AXES[ui]} up)", fontsize=10)
+    return fig
+
+
+def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0) -> Figure:
+    """One TriplaneConv's rollout for ``plane`` (the paper's Fig. 3b), from :func:`sin3dm_lite.unet.rollout_parts`.
+
+    Columns: this plane, and each of the two other planes. Top row: the three
+    planes, each in its own orientation (first axis →, second ↑). Middle: the two
+    others mean-pooled over the axis this plane lacks, a feature per texel of
+    the axis they share with it, drawn along that axis. Bottom: those features
+    expanded (repeated) to this plane's size, and on the left the concatenation
+    ``[plane, expanded, expanded]`` (3C channels) that this plane's Conv2d reads.
+    Colours: PCA, one basis per column (fitted on the top row's plane; the
+    concatenation has its own).
+    """
+    if plane not in PLANES:
+        raise ValueError(f"plane must be one of {PLANES}, got {plane!r}")
+    part = parts[plane]
+    u, v = PLANE_AXES[plane]
+    lacking = part["axis"]
+    fig = _figure(10.0, 8.0)
+    gs = fig.add_gridspec(3, 3, height_ratios=[1.0, 0.55, 1.0])
+    own = _numpy(part["plane"][batch])
+    mean, basis = pca_basis(own)
+
+    def draw(ax, img, title, axes_uv):
+        _show(ax, img)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel(AXES[axes_uv[0]], fontsize=8)
+        ax.set_ylabel(AXES[axes_uv[1]], fontsize=8)
+        ax.tick_params(labelsize=7)
+
+    draw(fig.add_subplot(gs[0, 0]), pca_project(own, mean, basis), f"{plane}: this plane, C = {own.shape[0]}", (u, v))
+    note = fig.add_subplot(gs[1, 0])
+    note.set_axis_off()
+    note.text(0.5, 0.5, f"{plane} is kept as it is;\nthe other two planes are\naveraged over {lacking},\n"
+              f"the axis {plane} lacks", ha="center", va="center", fontsize=9, transform=note.transAxes)
+    cat = _numpy(part["input"][batch])
+    draw(fig.add_subplot(gs[2, 0]), pca_project(cat, *pca_basis(cat)),
+         f"concatenated: {cat.shape[0]} = 3C channels\n→ the Conv2d of {plane}", (u, v))
+    for c, (other, pooled, expanded) in enumerate(zip(part["sources"], part["pooled"], part["expanded"]), start=1):
+        src = _numpy(parts[other]["plane"][batch])
+        m_, b_ = pca_basis(src)
+        draw(fig.add_subplot(gs[0, c]), pca_project(src, m_, b_), f"{other}: averaged over {lacking} ↓", PLANE_AXES[other])
+        vec = _numpy(pooled[batch])  # [C, A, 1] or [C, 1, B']
+        along = u if vec.shape[2] == 1 else v
+        ax = fig.add_subplot(gs[1, c])
+        _show(ax, pca_project(vec, m_, b_), aspect="auto")
+        ax.set_title(f"mean over {lacking} of {other}:\na feature per {AXES[along]}, {list(vec.shape)}", fontsize=9)
+        if along == u:
+            ax.set_xlabel(AXES[u], fontsize=8)
+            ax.set_yticks([])
+        else:
+            ax.set_ylabel(AXES[v], fontsize=8)
+            ax.set_xticks([])
+        ax.tick_params(labelsize=7)
+        across = v if along == u else u
+        draw(fig.add_subplot(gs[2, c]), pca_project(_numpy(expanded[batch]), m_, b_),
+             f"expanded along {AXES[across]} to {plane}'s size", (u, v))
+    fig.suptitle(f"TriplaneConv on {plane}: Conv2d(concat[{plane}, mean_{lacking}({part['sources'][0]}), "
+                 f"mean_{lacking}({part['sources'][1]})])", fontsize=10)
+    return fig
+
+
 def plot_denoising(
     intermediates: Sequence[dict],
     plane: str = "xy",

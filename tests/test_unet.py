@@ -12,8 +12,10 @@ from sin3dm_lite.unet import (
     TriplaneUNet,
     analytic_receptive_field,
     block_layout,
+    cross_plane_inputs,
     num_groups,
     receptive_field,
+    rollout_parts,
 )
 
 RESOLUTIONS = [(13, 7, 10), (16, 12, 8)]
@@ -151,3 +153,22 @@ def test_receptive_field_of_a_model_on_a_non_square_plane_leaves_the_model_alone
     assert rf.measured_map.shape == (12, 16) and rf.plane_width == 16 and rf.analytic == 20
     assert all(torch.equal(before[k], v) for k, v in net.state_dict().items())
     assert next(net.parameters()).dtype == torch.float32
+
+
+def test_rollout_parts_are_the_pieces_of_the_conv_input():
+    torch.manual_seed(0)
+    x, y, z = 6, 5, 4
+    tp = Triplane.randn(2, 3, (x, y, z))
+    parts = rollout_parts(tp)
+    joined = cross_plane_inputs(tp)
+    for name, plane in zip(("xy", "xz", "yz"), joined.planes):
+        assert torch.equal(parts[name]["input"], plane)
+    xy = parts["xy"]
+    assert xy["sources"] == ("xz", "yz") and xy["axis"] == "z"
+    assert [tuple(p.shape) for p in xy["pooled"]] == [(2, 3, x, 1), (2, 3, 1, y)]  # a feature per x, one per y
+    torch.testing.assert_close(xy["pooled"][0][..., 0], tp.xz.mean(3))
+    torch.testing.assert_close(xy["pooled"][1][:, :, 0], tp.yz.mean(3))
+    assert all(tuple(e.shape) == (2, 3, x, y) for e in xy["expanded"])
+    yz = parts["yz"]
+    assert yz["axis"] == "x" and [tuple(p.shape) for p in yz["pooled"]] == [(2, 3, y, 1), (2, 3, 1, z)]
+    torch.testing.assert_close(yz["pooled"][1][:, :, 0], tp.xz.mean(2))

@@ -434,3 +434,48 @@ def test_plot_picture_shows_the_image():
     img = np.zeros((10, 30, 3), np.uint8)
     fig = viz.plot_picture(img, title="sheet")
     assert fig.axes[0].images[0].get_array().shape[:2] == (10, 30) and fig.axes[0].get_title() == "sheet"
+
+
+def _text(fig):
+    return " ".join(t.get_text() for ax in fig.axes for t in ax.texts) + " " + (fig._suptitle.get_text() if fig._suptitle else "")
+
+
+@pytest.mark.parametrize("shape", ["grid", "mesh", "box", None])
+def test_plot_plane_axes_labels_each_plane_on_its_wall(sphere_grid, shape, tmp_path):
+    obj = {"grid": sphere_grid, "mesh": trimesh.creation.box(extents=(2.0, 1.0, 0.5)),
+           "box": np.array([-1.0, -0.5, -0.25, 1.0, 0.5, 0.25]), None: None}[shape]
+    fig = viz.plot_plane_axes(obj)
+    ax3d = [ax for ax in fig.axes if ax.name == "3d"][0]
+    text = _text(fig)
+    for name, lacking in (("xy", "z"), ("xz", "y"), ("yz", "x")):
+        assert f"{name} plane\n(mean over {lacking})" in text
+    assert "y (up)" in text and "xz: seen from above (x →, z ↑)" in text  # y up: xz is the top view
+    assert "xy: a side view along z (x →, y ↑: upright)" in text
+    assert "slice across y (horizontal): x →, z ↑" in text and "slice across x (vertical): z →, y ↑" in text
+    # the planes lie on the walls at the minimum of the axis each lacks
+    quads = [c for c in ax3d.collections if type(c).__name__ == "Poly3DCollection"]
+    assert len(quads) == 3
+    fig.savefig(tmp_path / "axes.png", dpi=40)
+    with pytest.raises(ValueError):
+        viz.plot_plane_axes(np.zeros(4))
+
+
+def test_plot_plane_axes_words_follow_the_up_axis():
+    text = _text(viz.plot_plane_axes(None, up="z"))
+    assert "xy: seen from above (x →, y ↑)" in text and "z (up)" in text
+    assert "slice across z (horizontal): x →, y ↑" in text
+
+
+def test_plot_triplane_conv_shows_the_rollout_of_each_plane(tp, tmp_path):
+    from sin3dm_lite.unet import rollout_parts
+
+    parts = rollout_parts(tp)
+    for plane, lacking, others in (("xy", "z", ("xz", "yz")), ("xz", "y", ("xy", "yz")), ("yz", "x", ("xy", "xz"))):
+        fig = viz.plot_triplane_conv(parts, plane)
+        assert len(image_axes(fig)) == 8  # 3 planes, 2 pooled strips, 2 expanded, 1 concatenation
+        titles = [ax.get_title() for ax in fig.axes]
+        assert f"{others[0]}: averaged over {lacking} ↓" in titles and f"{others[1]}: averaged over {lacking} ↓" in titles
+        assert any(t.startswith(f"concatenated: {3 * tp.channels} = 3C") for t in titles)
+        fig.savefig(tmp_path / f"{plane}.png", dpi=40)
+    with pytest.raises(ValueError):
+        viz.plot_triplane_conv(parts, "zz")
