@@ -467,7 +467,7 @@ def cmd_demo(a) -> None:
     shipped = None if a.train else shipped_model(a.example)
     if not a.train and shipped is None:
         have = [n for n in examples.list_examples() if shipped_model(n) is not None]
-        raise Sin3DMInputError(f"no shipped model of '{a.example}' (only {', '.join(have) or 'none'} is shipped); add "
+        raise Sin3DMInputError(f"no shipped model of '{a.example}' (shipped: {', '.join(have) or 'none'}); add "
                                f"--train to fit it first with the '{DEMO_PRESET}' preset, or pick --example "
                                f"{examples.DEFAULT_EXAMPLE}")
     out = Path(a.out)

@@ -1,4 +1,4 @@
-"""The pretrained ``small`` model of the default example, shipped inside the package.
+"""The pretrained ``small`` models of built-in examples (the default one first), shipped inside the package.
 
 It was produced by our own ``sin3dm-lite fit`` (the exact command is in
 ``data/README.md`` next to the file), so the demo and the quickstart notebook

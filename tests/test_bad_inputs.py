@@ -20,9 +20,11 @@ import trimesh
 
 from sin3dm_lite.cli import main
 from sin3dm_lite.files import LOCK, MANIFEST, TEMP_PREFIX, read_manifest
-from sin3dm_lite.pretrained import pretrained_path
+from sin3dm_lite.examples import list_examples
+from sin3dm_lite.pretrained import pretrained_path, shipped_model
 
 SHIPPED = pretrained_path()
+UNSHIPPED = next((name for name in list_examples() if shipped_model(name) is None), None)
 SMALL = ["--steps", "3", "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64"]
 
 
@@ -135,7 +137,10 @@ CASES = {
     "demo-out-inside-shipped": (["demo", "--out", str(SHIPPED / "s")], "shipped model"),
     "demo-out-not-writable": (["demo", "--out", NOT_WRITABLE], "cannot write"),
     "demo-unknown-example": (["demo", "--example", "teapot", "--out", "s"], "unknown example 'teapot'"),
-    "demo-example-not-shipped": (["demo", "--example", "wall", "--out", "s"], "(only canyon is shipped); add --train"),
+}
+if UNSHIPPED is not None:  # an example without a shipped model, while there is one
+    CASES["demo-example-not-shipped"] = (["demo", "--example", UNSHIPPED, "--out", "s"], "(shipped: canyon")
+CASES |= {
     # fit
     "fit-device": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--device", "gpu"], "device"),
     "fit-negative-seed": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--seed", "-3"], "seed"),
