@@ -50,9 +50,11 @@ _API = {
     "Normalization": "mesh_io",
     "load_mesh": "mesh_io",
     "load_any": "mesh_io",
+    "tangent_frames": "mesh_io",
     "grid_shape": "box",
     "margin_scale": "box",
     "ShapeGrid": "grid",
+    "PBR_CHANNELS": "grid",
     "mesh_to_grid": "grid",
     "load_grid": "grid",
     "save_grid": "grid",
@@ -81,6 +83,7 @@ _API = {
     # generate
     "extract_mesh": "extract",
     "marching_cubes": "extract",
+    "pbr_maps": "extract",
     "export_mesh": "export",
     # eval
     "reconstruction_metrics": "metrics",

@@ -15,6 +15,13 @@ Shapes (grid ``X × Y × Z``, latent ``X' = X/2`` etc.)::
       concat → volume [1, 12, X', Y', Z']
       mean over z → xy [1, 12, X', Y'];  over y → xz;  over x → yz
       each plane: InstanceNorm → ×0.5 → tanh          (latent values in (-1, 1))
+
+PBR variant (``AutoencoderConfig.pbr``, paper appendix): the grid carries 8
+texture channels (RGB, metallic, roughness, normal; ``grid.PBR_CHANNELS``), so
+the texture convolution reads 1 + 8 = 9 channels, and the decoder gets two
+more heads on the same texture features: metallic-roughness (2) and normal (3).
+The latent keeps its 12 channels: the 8 texture channels now also describe
+the material.
 """
 from __future__ import annotations
 
@@ -94,6 +101,10 @@ class PreparedPlanes:
     tex: Triplane
 
 
+#: texture channels of the PBR variant and the heads that predict them: colour (3), metallic-roughness (2), normal (3)
+PBR_HEADS = {"tex_mlp": 3, "mr_mlp": 2, "normal_mlp": 3}
+
+
 class TriplaneDecoder(nn.Module):
     """Triplane → (SDF, colour) at any 3D point.
 
@@ -102,7 +113,10 @@ class TriplaneDecoder(nn.Module):
     between planes), a bilinear lookup at the point's three projections, the
     sum of the three features, and a :class:`SkipMLP` head. The SDF head
     predicts ``sdf / threshold`` so its targets are O(1); the colour head ends
-    in a sigmoid.
+    in a sigmoid. With ``cfg.pbr`` two more :class:`SkipMLP` heads read the same
+    texture features, ``mr_mlp`` (metallic, roughness) and ``normal_mlp``
+    (world-space normal · ½ + ½), also through a sigmoid, and ``query_color``
+    returns all 8 channels in ``grid.PBR_CHANNELS`` order.
 
     Use it in two steps so the plane convolutions run once per triplane, not
     once per chunk of points::
@@ -118,7 +132,17 @@ class TriplaneDecoder(nn.Module):
         self.geo_blocks = nn.ModuleList(PlaneResBlock(cfg.geo_channels, c, k) for _ in range(3))
         self.tex_blocks = nn.ModuleList(PlaneResBlock(cfg.tex_channels, c, k) for _ in range(3))
         self.geo_mlp = SkipMLP(c, cfg.mlp_hidden, 1)
-        self.tex_mlp = SkipMLP(c, cfg.mlp_hidden, color_channels)
+        self.color_channels = color_channels
+        if cfg.pbr:
+            if color_channels != sum(PBR_HEADS.values()):
+                raise ValueError(f"the PBR decoder predicts {sum(PBR_HEADS.values())} texture channels, not {color_channels}")
+            self.tex_mlp = SkipMLP(c, cfg.mlp_hidden, PBR_HEADS["tex_mlp"])
+            self.mr_mlp = SkipMLP(c, cfg.mlp_hidden, PBR_HEADS["mr_mlp"])
+            self.normal_mlp = SkipMLP(c, cfg.mlp_hidden, PBR_HEADS["normal_mlp"])
+            self.heads = [self.tex_mlp, self.mr_mlp, self.normal_mlp]
+        else:
+            self.tex_mlp = SkipMLP(c, cfg.mlp_hidden, color_channels)
+            self.heads = [self.tex_mlp]
         self.register_buffer("threshold", torch.tensor(float(threshold)))
 
     def prepare(self, tp: Triplane) -> PreparedPlanes:
@@ -133,16 +157,16 @@ class TriplaneDecoder(nn.Module):
         return self.geo_mlp(f)[..., 0] * self.threshold
 
     def query_color(self, prep: PreparedPlanes, points: torch.Tensor) -> torch.Tensor:
-        """Colour in [0, 1], ``[B, N, K]``."""
+        """Colour (and with PBR metallic, roughness, normal · ½ + ½) in [0, 1], ``[B, N, K]``."""
         f = prep.tex.sample(points, reduce="sum")
-        return torch.sigmoid(self.tex_mlp(f))
+        return torch.sigmoid(torch.cat([head(f) for head in self.heads], dim=-1))
 
     def query(self, prep: PreparedPlanes, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.query_sdf(prep, points), self.query_color(prep, points)
 
     def param_groups(self) -> tuple[list[nn.Parameter], list[nn.Parameter]]:
         geo = [*self.geo_blocks.parameters(), *self.geo_mlp.parameters()]
-        tex = [*self.tex_blocks.parameters(), *self.tex_mlp.parameters()]
+        tex = [*self.tex_blocks.parameters(), *(p for head in self.heads for p in head.parameters())]
         return geo, tex
 
 
@@ -253,6 +277,16 @@ class AutoencoderTrainer(Trainer):
 
     def __init__(self, grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: int = 0):
         super().__init__(cfg, device, seed, generator_device="cpu")
+        if cfg.pbr != grid.has_pbr:
+            from .errors import Sin3DMInputError
+
+            raise Sin3DMInputError(
+                f"the grid has {grid.color.shape[-1]} texture channels but the config says pbr={cfg.pbr}; "
+                f"use AutoencoderConfig(pbr={grid.has_pbr}) (or rebuild the grid with mesh_to_grid(..., pbr={cfg.pbr}))"
+            )
+        if cfg.pbr:  # the history also keeps the two material losses
+            self.loss_names = (*self.loss_names, "material", "normal")
+            self.history.update(material=[], normal=[])
         self.grid = grid
         self.model = self.init_model(lambda: TriplaneAutoencoder(cfg, grid.shape, grid.threshold, grid.color.shape[-1]))
         self.grid_t = grid_tensor(grid, self.device) if cfg.use_encoder else None  # the auto-decoder never reads it
@@ -263,7 +297,12 @@ class AutoencoderTrainer(Trainer):
         self.scheduler = torch.optim.lr_scheduler.ExponentialLR(self.optimizer, gamma)
 
     def losses(self) -> dict[str, torch.Tensor]:
-        """SDF loss on a batch of points plus the L1 colour loss on those within the truncation band."""
+        """SDF loss on a batch of points plus the L1 colour loss on those within the truncation band.
+
+        PBR: L1 on metallic-roughness (``material``) and on the normal in its
+        [0, 1] encoding (``normal``) at the same band points, each weighted 1
+        like the colour (the paper gives no weights).
+        """
         cfg = self.cfg
         p, s_gt, c_gt = self.sampler(cfg.points_per_step, cfg.grid_fraction, self.generator)
         band = s_gt.abs() < self.grid.threshold  # colour is only defined near the surface
@@ -273,8 +312,13 @@ class AutoencoderTrainer(Trainer):
             s = self.model.decoder.query_sdf(prep, p[None])[0].float()
             c = self.model.decoder.query_color(prep, p[band][None])[0].float()
         l_sdf = sdf_loss(s, s_gt, self.grid.threshold, cfg.near_weight, cfg.far_weight)
-        l_col = (c - c_gt[band]).abs().mean() if band.any() else torch.zeros((), device=self.device)
-        return {"loss": l_sdf + l_col, "sdf": l_sdf, "color": l_col}
+        zero = torch.zeros((), device=self.device)
+        if not cfg.pbr:
+            l_col = (c - c_gt[band]).abs().mean() if band.any() else zero
+            return {"loss": l_sdf + l_col, "sdf": l_sdf, "color": l_col}
+        err = (c - c_gt[band]).abs()
+        l_col, l_mat, l_nrm = ((err[:, a:b].mean() if band.any() else zero) for a, b in ((0, 3), (3, 5), (5, 8)))
+        return {"loss": l_sdf + l_col + l_mat + l_nrm, "sdf": l_sdf, "color": l_col, "material": l_mat, "normal": l_nrm}
 
     @torch.no_grad()
     def latent(self) -> Triplane:

@@ -153,6 +153,9 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--preset", choices=list(PRESETS), default="small", help="training sizes and steps")
     f.add_argument("--out", required=True, help="run folder (new, or existing with --resume)")
     f.add_argument("--resume", action="store_true", help="continue an interrupted fit from its checkpoints")
+    f.add_argument("--pbr", action=argparse.BooleanOptionalAction, default=None,
+                   help="learn metallic, roughness and normals too (default: when the mesh has PBR maps; "
+                        "--pbr on a mesh without maps learns its constant factors and geometric normals)")
     f.add_argument("--seed", type=_seed, default=None, help="random seed (default: the preset's)")
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
 
@@ -319,7 +322,7 @@ def cmd_fit(a) -> None:
     if a.resume and not Path(a.out).is_dir():
         raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")
     t0 = time.perf_counter()
-    model = Sin3DM.fit(a.mesh, preset=a.preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device)
+    model = Sin3DM.fit(a.mesh, preset=a.preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device, pbr=a.pbr)
     r = model.report["reconstruction"]
     print(
         f"fit done in {time.perf_counter() - t0:.0f} s: occupancy IoU {r['occupancy_iou']:.3f}, "

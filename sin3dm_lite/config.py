@@ -48,6 +48,7 @@ class AutoencoderConfig:
     near_weight: float = 1.5  # SDF L1 weight where the error points towards / across the surface
     far_weight: float = 0.5  # ... and where it points away from it
     precision: str = "auto"  # "bf16" (mixed precision), "fp32", or "auto": bf16 where the hardware runs it natively
+    pbr: bool = False  # PBR variant: 8 texture channels in, two more decoder heads (metallic-roughness, normal)
 
     @property
     def latent_channels(self) -> int:

@@ -365,7 +365,7 @@ def reconstructed_grid(decoder: "TriplaneDecoder", h: Triplane, grid: ShapeGrid,
     assert sdf.shape == grid.shape, (sdf.shape, grid.shape)  # a ShapeGrid box is ±n_axis / n_max
     return dataclasses.replace(
         grid, sdf=sdf, color=color, name=name,
-        points=np.zeros((0, 3), np.float32), point_sdf=np.zeros(0, np.float32), point_color=np.zeros((0, 3), np.float32),
+        points=np.zeros((0, 3), np.float32), point_sdf=np.zeros(0, np.float32), point_color=np.zeros((0, color.shape[-1]), np.float32),
     )
 
 

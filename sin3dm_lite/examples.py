@@ -33,6 +33,8 @@ EXAMPLES = {
     "canyon": "a river canyon cut into a block: terraced cliffs banded with rock strata, steps varying along its length",
     "wall": "a crenellated brick wall: protruding bricks of varied colour in grey mortar, merlons of varied width",
     "colonnade": "four turned columns with painted rings on a stepped base, carrying a beam with a triglyph frieze",
+    "tiles": "a PBR tiled floor: brushed and hammered steel tiles and chipped painted tiles in rough grout "
+             "(metallic, roughness and normal maps)",
 }
 
 #: The input the quickstart uses.
@@ -215,11 +217,15 @@ class _AtlasBuilder:
 
     def build(self, name: str, paint: Callable[[str, np.ndarray, np.ndarray], np.ndarray],
               size: tuple[int, int] = (1024, 1024), pad: int = 4,
-              detail: Callable[[str], float] = lambda chart: 1.0) -> TexturedMesh:
+              detail: Callable[[str], float] = lambda chart: 1.0, pbr: Callable | None = None) -> TexturedMesh:
         """Pack the charts into a ``size = (height, width)`` image, paint it, assign UVs.
 
         All charts share one texel size, divided by ``detail(chart)``: give
         hidden faces (the underside of a base) a small value, showpieces a large one.
+        ``pbr(chart, p, q) -> (metallic, roughness, normal)`` paints PBR maps over
+        the same layout: metallic and roughness ``(h, w)`` in [0, 1], the
+        tangent-space unit normal ``(h, w, 3)`` with x along ``p`` and y along
+        ``q`` (the chart's ``u`` and ``v`` directions, see ``mesh_io.tangent_frames``).
         """
         height, width = size
         pq = np.concatenate(self.pq)
@@ -244,6 +250,9 @@ class _AtlasBuilder:
             texel *= 1.05
 
         image = np.full((height, width, 3), 0.5, np.float32)
+        if pbr is not None:  # glTF layout: roughness in G, metallic in B; a flat normal is (0.5, 0.5, 1)
+            mr_image = np.tile(np.float32([1, 1, 0]), (height, width, 1))
+            normal_image = np.tile(np.float32([0.5, 0.5, 1]), (height, width, 1))
         uv = np.empty_like(pq, dtype=np.float64)
         for c in names:
             (lo, hi), (w, h), (x0, y0), ts = ranges[c], dims[c], place[c], size_of[c]
@@ -251,16 +260,25 @@ class _AtlasBuilder:
             q = hi[1] + pad * ts - (np.arange(h) + 0.5) * ts
             P, Q = np.meshgrid(p.astype(np.float32), q.astype(np.float32))
             image[y0:y0 + h, x0:x0 + w] = np.clip(paint(c, P, Q), 0, 1)
+            if pbr is not None:
+                metal, rough, normal = pbr(c, P, Q)
+                mr_image[y0:y0 + h, x0:x0 + w, 1] = np.clip(rough, 0, 1)
+                mr_image[y0:y0 + h, x0:x0 + w, 2] = np.clip(metal, 0, 1)
+                normal_image[y0:y0 + h, x0:x0 + w] = np.clip(normal * 0.5 + 0.5, 0, 1)
             sel = charts == c
             uv[sel, :, 0] = (x0 + pad + (pq[sel, :, 0] - lo[0]) / ts) / width
             uv[sel, :, 1] = 1 - (y0 + pad + (hi[1] - pq[sel, :, 1]) / ts) / height
 
         faces = np.concatenate(self.faces)
+        material = Material(name=f"{name}_material", base_color=np.array([1, 1, 1, 1], np.float32), image=image)
+        if pbr is not None:
+            material.metallic, material.roughness = 1.0, 1.0  # the factors that multiply the maps (glTF)
+            material.metallic_roughness_image, material.normal_image = mr_image, normal_image
         return TexturedMesh(
             vertices=np.concatenate(self.vertices).astype(np.float64),
             faces=faces.astype(np.int64),
             face_material=np.zeros(len(faces), np.int64),
-            materials=[Material(name=f"{name}_material", base_color=np.array([1, 1, 1, 1], np.float32), image=image)],
+            materials=[material],
             face_uvs=uv.astype(np.float32),
             name=name,
         )
@@ -548,8 +566,97 @@ def _colonnade(rng: np.random.Generator) -> TexturedMesh:
     return atlas.build("colonnade", paint, size=(1024, 1024), detail=detail)
 
 
+# ========================================================================== tiles
+def _tiles(rng: np.random.Generator) -> TexturedMesh:
+    """A 3.2 × 2 m floor slab, 0.45 m thick, of 0.4 m tiles: steel tiles and chipped painted ones (PBR).
+
+    What each map shows, all varying with the tile pattern:
+
+    * base colour: steel grey; paint from a palette, chipped where noise says so (steel shows through);
+      dark grout;
+    * metallic: 1 on steel and on the chips, 0 on paint and grout;
+    * roughness: low on steel (brushed tiles 0.2-0.35, hammered ones 0.35-0.5), 0.55-0.75 on paint, 0.95 grout;
+    * normal (tangent space): brushing grooves or hammer dimples on steel tiles, the raised edge of
+      the paint around each chip. The tiles' bevels are geometry, not map.
+    """
+    size_x, size_y, thick = 3.2, 2.0, 0.45
+    tile, grout, bevel = 0.4, 0.03, 0.03
+    noise = _Noise(rng)
+    nx, ny = int(round(size_x / tile)), int(round(size_y / tile))
+    kind = rng.choice(3, size=(nx, ny), p=[0.3, 0.2, 0.5])  # 0 brushed steel, 1 hammered steel, 2 painted
+    raise_ = rng.uniform(0.03, 0.05, (nx, ny))
+    paints = [[0.72, 0.18, 0.14], [0.16, 0.38, 0.62], [0.85, 0.68, 0.20], [0.20, 0.48, 0.30], [0.88, 0.86, 0.80]]
+    paint_col = _palette(rng, paints, nx * ny, jitter=0.1).reshape(nx, ny, 3)
+    roughness = np.where(kind == 0, rng.uniform(0.2, 0.35, (nx, ny)),
+                         np.where(kind == 1, rng.uniform(0.35, 0.5, (nx, ny)), rng.uniform(0.55, 0.75, (nx, ny))))
+    brush_angle = rng.uniform(0, np.pi, (nx, ny))
+    steel = np.float32([0.70, 0.71, 0.73])
+
+    def cell(x, y):
+        """Tile index and distance to the grout (negative in the grout)."""
+        i = np.clip(np.floor(x / tile).astype(np.int64), 0, nx - 1)
+        j = np.clip(np.floor(y / tile).astype(np.int64), 0, ny - 1)
+        u, v = x - i * tile, y - j * tile
+        return i, j, np.minimum(np.minimum(u, tile - u), np.minimum(v, tile - v)) - grout / 2
+
+    def chips(x, y):
+        """How much paint is left in [0, 1] (0: chipped down to the steel)."""
+        return _smooth((0.6 - noise.fbm(x * 6 + 40, y * 6, octaves=4)) / 0.03)
+
+    def fine_height(x, y, i, j):
+        """Detail the normal map carries (metres): brushing, dimples, paint thickness."""
+        a = brush_angle[i, j]
+        brushed = 0.0015 * noise(80 * (x * np.cos(a) + y * np.sin(a)), 2 * (y * np.cos(a) - x * np.sin(a)))
+        dimples = 0.004 * np.abs(np.sin(x * 45 + j) * np.sin(y * 45 + i)) * (0.5 + noise(x * 20, y * 20))
+        painted = 0.002 * (1 - chips(x, y))
+        return np.where(kind[i, j] == 0, brushed, np.where(kind[i, j] == 1, dimples, -painted))
+
+    def paint(chart, p, q):
+        if chart.split(":")[1] != "+z":  # sides and bottom: concrete
+            return np.float32([0.5, 0.49, 0.46]) * (0.85 + 0.3 * noise.fbm(p * 10, q * 10 + 9))[..., None]
+        i, j, dist = cell(p, q)
+        grime = (0.85 + 0.25 * noise.fbm(p * 25, q * 25, octaves=3))[..., None]
+        metal = steel * (0.9 + 0.15 * noise(p * 60, q * 60))[..., None]
+        painted = _mix(metal, paint_col[i, j], chips(p, q)) * grime
+        col = np.where((kind[i, j] == 2)[..., None], painted, metal)
+        return np.where((dist < 0)[..., None], np.float32([0.24, 0.23, 0.22]) * grime, col)
+
+    def pbr(chart, p, q):
+        if chart.split(":")[1] != "+z":
+            flat = np.zeros(p.shape + (3,), np.float32)
+            flat[..., 2] = 1
+            return np.zeros(p.shape, np.float32), np.full(p.shape, 0.9, np.float32), flat
+        i, j, dist = cell(p, q)
+        left = np.where(kind[i, j] == 2, chips(p, q), 0.0)  # paint left
+        metal = np.where(dist < 0, 0.0, 1 - left)
+        rough = np.where(dist < 0, 0.95, np.where(kind[i, j] == 2, left * roughness[i, j] + (1 - left) * 0.3,
+                                                  roughness[i, j]))
+        h = np.where(dist < 0, 0.0, fine_height(p, q, i, j))
+        dh_dq, dh_dp = np.gradient(h, q[:, 0], p[0, :])  # rows follow q, columns p
+        normal = np.stack([-dh_dp, -dh_dq, np.ones_like(h)], -1)
+        return metal, rough, normal / np.linalg.norm(normal, axis=-1, keepdims=True)
+
+    def nodes(n_tiles):
+        """Grid lines dense at every grout joint and bevel, sparse across the tile."""
+        inner = [0.0, grout / 2, grout / 2 + bevel / 2, grout / 2 + bevel, tile / 4, tile / 2, 3 * tile / 4,
+                 tile - grout / 2 - bevel, tile - grout / 2 - bevel / 2, tile - grout / 2]
+        return np.array([k * tile + t for k in range(n_tiles) for t in inner] + [n_tiles * tile])
+
+    X, Y = np.meshgrid(nodes(nx), nodes(ny), indexing="ij")
+    i, j, dist = cell(X, Y)
+    top = np.stack([X, Y, thick - 0.05 + raise_[i, j] * _smooth(dist / bevel)], -1)
+    bottom = np.stack([X, Y, np.zeros_like(X)], -1)
+    vertices, faces = _grid_solid(top, bottom)
+    axis = np.full(len(faces), -1)
+    axis[: 2 * (X.shape[0] - 1) * (X.shape[1] - 1)] = 2  # the tiled sheet (bevels too) projects along z
+    atlas = _AtlasBuilder()
+    atlas.add_box_projected("floor", vertices, faces, axis=axis)
+    return atlas.build("tiles", paint, size=(1024, 1024), pbr=pbr, detail=lambda c: 1.0 if c.endswith("+z") else 0.15)
+
+
 _BUILDERS: dict[str, Callable[[np.random.Generator], TexturedMesh]] = {
     "canyon": _canyon,
     "wall": _wall,
     "colonnade": _colonnade,
+    "tiles": _tiles,
 }

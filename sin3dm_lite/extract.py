@@ -12,7 +12,9 @@ a signed distance (negative inside) and a colour. To get a mesh we
    (:func:`uv_atlas`),
 6. bake a texture: every texel covered by a triangle in UV space gets the
    decoder's colour at its 3D point (:func:`bake_texture`), and the gutter
-   around the UV islands is filled so seams do not show (:func:`pad_gutter`).
+   around the UV islands is filled so seams do not show (:func:`pad_gutter`);
+   a PBR decoder's metallic, roughness and normals go into their own maps over
+   the same atlas (:func:`pbr_maps`).
 
 :func:`extract_mesh` runs the whole path and can hand back every intermediate
 for a notebook to show.
@@ -42,7 +44,7 @@ import numpy as np
 from .box import as_aabb, to_box
 from .decode import PreparedTriplane, decode_grid, prepare, query_points
 from .errors import Sin3DMInputError
-from .mesh_io import Material, Normalization, TexturedMesh, component_labels
+from .mesh_io import Material, Normalization, TexturedMesh, component_labels, tangent_frames
 from .triplane import Triplane
 
 
@@ -244,11 +246,12 @@ def uv_to_pixel(uvs: np.ndarray, size: int) -> np.ndarray:
     return np.stack([uvs[:, 0] * size - 0.5, (1 - uvs[:, 1]) * size - 0.5], axis=1)
 
 
-def position_map(verts: np.ndarray, faces_uv: np.ndarray, uvs: np.ndarray, size: int):
+def position_map(verts: np.ndarray, faces_uv: np.ndarray, uvs: np.ndarray, size: int, return_faces: bool = False):
     """Rasterise the UV layout: the 3D point behind every covered texel.
 
     Returns ``positions (size, size, 3)`` float32 (0 where uncovered) and
-    ``covered (size, size)`` bool.
+    ``covered (size, size)`` bool; with ``return_faces`` also ``face (size, size)``
+    int64, the face behind each texel (-1 where uncovered).
     """
     verts = np.asarray(verts, np.float64)
     if len(verts) != len(uvs):
@@ -261,6 +264,10 @@ def position_map(verts: np.ndarray, faces_uv: np.ndarray, uvs: np.ndarray, size:
     covered = np.zeros((size, size), bool)
     positions[y, x] = np.einsum("nk,nkd->nd", bary, verts[faces_uv[f]])
     covered[y, x] = True
+    if return_faces:
+        face = np.full((size, size), -1, np.int64)
+        face[y, x] = f
+        return positions, covered, face
     return positions, covered
 
 
@@ -287,6 +294,35 @@ def bake_texture(decoder, triplane: Triplane | PreparedTriplane, aabb, verts: np
     image = np.zeros((size, size, color.shape[-1]), np.float32)
     image[covered] = np.clip(color, 0.0, 1.0)
     return image, covered
+
+
+def pbr_maps(baked: np.ndarray, covered: np.ndarray, verts: np.ndarray, faces_uv: np.ndarray, uvs: np.ndarray,
+             size: int) -> tuple[np.ndarray, np.ndarray]:
+    """A PBR bake's channels 3-7 → glTF's ``metallic_roughness`` and tangent-space ``normal`` images.
+
+    ``baked`` is :func:`bake_texture`'s ``(size, size, 8)`` image in
+    ``grid.PBR_CHANNELS`` order. Metallic goes to B, roughness to G (R = 1,
+    glTF leaves it to occlusion). The decoded normal is in world space; a
+    normal map stores it in each face's tangent frame, so texel by texel it is
+    written as ``(n·T, n·B, n·N)`` with the frame of the face behind the texel
+    (:func:`mesh_io.tangent_frames` of the new atlas, the convention the grid
+    read the input's map with), kept in the upper half (z ≥ 0.05, a normal
+    pointing into the surface would shade black), then encoded ``· ½ + ½``.
+    Gutters are filled with :func:`pad_gutter`.
+    """
+    _, _, face = position_map(verts, faces_uv, uvs, size, return_faces=True)
+    mr = np.ones((size, size, 3), np.float32)
+    mr[..., 1], mr[..., 2] = baked[..., 4], baked[..., 3]
+    t, b, n = tangent_frames(verts, faces_uv, uvs[faces_uv])
+    inside = covered & (face >= 0)
+    f = face[inside]
+    w = baked[inside][:, 5:8].astype(np.float64) * 2 - 1
+    tn = np.stack([np.einsum("ij,ij->i", w, t[f]), np.einsum("ij,ij->i", w, b[f]), np.einsum("ij,ij->i", w, n[f])], 1)
+    tn[:, 2] = np.maximum(tn[:, 2], 0.05)
+    tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
+    normal = np.tile(np.float32([0.5, 0.5, 1.0]), (size, size, 1))
+    normal[inside] = (tn * 0.5 + 0.5).astype(np.float32)
+    return pad_gutter(mr, inside), pad_gutter(normal, inside)
 
 
 def pad_gutter(image: np.ndarray, covered: np.ndarray, pixels: int | None = 8) -> np.ndarray:
@@ -386,6 +422,12 @@ def extract_mesh(decoder, triplane: Triplane, aabb, normalization: Normalization
         lap("pad_gutter")
         steps.update(uv=(uvs, faces_uv), vmapping=vmapping, baked=image, texture=texture, covered=covered)
         material = Material(name="baked", base_color=np.ones(4, np.float32), image=texture)
+        if image.shape[-1] == 8:  # a PBR decoder: metallic-roughness and normal maps over the same atlas
+            material.metallic = material.roughness = 1.0  # glTF factors that multiply the maps
+            material.metallic_roughness_image, material.normal_image = pbr_maps(image, covered, v[vmapping], faces_uv,
+                                                                                 uvs, texture_size)
+            lap("pbr_maps")
+            steps.update(metallic_roughness=material.metallic_roughness_image, normal=material.normal_image)
         # keep the welded vertices (watertight); the seams live in the per-corner UVs
         mesh = TexturedMesh(v, f, np.zeros(len(f), np.int64), [material], face_uvs=uvs[faces_uv])
 
@@ -408,6 +450,7 @@ __all__ = [
     "keep_components",
     "marching_cubes",
     "pad_gutter",
+    "pbr_maps",
     "position_map",
     "rasterize_triangles",
     "remove_unused_vertices",

@@ -5,6 +5,12 @@ distance to the surface, clipped to a thin band of ±3 voxels (a *truncated*
 SDF: only the surface's neighbourhood carries information), and the surface
 colour at every voxel inside that band. The autoencoder later compresses this
 grid into a triplane.
+
+The PBR variant (paper, appendix "Supporting PBR Material") keeps more than
+colour per voxel: base colour (3), metallic, roughness and the surface normal
+(3), eight channels in :data:`PBR_CHANNELS` order, all in [0, 1] (the
+world-space normal stored as ``n · 0.5 + 0.5``, as a normal map stores its
+vectors). With the SDF that is the paper's 9-channel grid.
 """
 from __future__ import annotations
 
@@ -21,6 +27,9 @@ from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
 from .files import atomic_path
 from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, component_labels, unique_rows
 
+#: The channels of ``ShapeGrid.color`` in a PBR grid: base colour, metallic, roughness, world-space normal · ½ + ½.
+PBR_CHANNELS = ("red", "green", "blue", "metallic", "roughness", "normal_x", "normal_y", "normal_z")
+
 
 @dataclass
 class ShapeGrid:
@@ -29,7 +38,9 @@ class ShapeGrid:
     Attributes:
         sdf: ``(H, W, D)`` float32 truncated signed distance (negative inside),
             clipped to ``±threshold``; axis 0 is x, 1 is y, 2 is z.
-        color: ``(H, W, D, K)`` float32 in [0, 1] (K = 3 for RGB); 0 outside the band.
+        color: ``(H, W, D, K)`` float32 in [0, 1]; 0 outside the band. K = 3 for RGB;
+            K = 8 for PBR (:data:`PBR_CHANNELS`: RGB, metallic, roughness,
+            world-space normal · ½ + ½).
         aabb: ``(6,)`` the symmetric box ``(xmin, ymin, zmin, xmax, ymax, zmax)`` in
             normalised coordinates, ``±n_axis / n_max``.
         threshold: truncation distance in normalised units (3 voxels by default).
@@ -52,6 +63,25 @@ class ShapeGrid:
     @property
     def shape(self) -> tuple[int, int, int]:
         return tuple(self.sdf.shape)  # type: ignore[return-value]
+
+    @property
+    def has_pbr(self) -> bool:
+        """True for a PBR grid (8 channels: :data:`PBR_CHANNELS`)."""
+        return self.color.shape[-1] == len(PBR_CHANNELS)
+
+    @property
+    def rgb(self) -> np.ndarray:
+        """``(H, W, D, 3)`` base colour (the first three channels)."""
+        return self.color[..., :3]
+
+    def channel(self, name: str) -> np.ndarray:
+        """One PBR quantity: ``"metallic"`` / ``"roughness"`` ``(H, W, D)``, ``"normal"`` ``(H, W, D, 3)`` in [-1, 1]."""
+        if not self.has_pbr:
+            raise Sin3DMInputError(f"grid '{self.name}' has no PBR channels (it was built from a mesh without PBR maps)")
+        if name == "normal":
+            band = np.abs(self.sdf) < self.threshold
+            return np.where(band[..., None], self.color[..., 5:8] * 2 - 1, 0.0).astype(np.float32)
+        return self.color[..., PBR_CHANNELS.index(name)]
 
     @property
     def voxel_size(self) -> float:
@@ -153,6 +183,15 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
     return np.ascontiguousarray(faces), not open_part.any(), int(flip.sum()), int(closed.sum())
 
 
+def surface_channels(mesh: TexturedMesh, face_index: np.ndarray, barycentric: np.ndarray, pbr: bool = False) -> np.ndarray:
+    """What a voxel stores about its closest surface point: RGB ``(n, 3)``, or with ``pbr`` the 8 :data:`PBR_CHANNELS`."""
+    rgb = mesh.colors_at(face_index, barycentric)
+    if not pbr:
+        return rgb
+    m = mesh.pbr_at(face_index, barycentric)  # metallic, roughness, unit normal in [-1, 1]
+    return np.concatenate([rgb, m[:, :2], m[:, 2:] * 0.5 + 0.5], axis=1).astype(np.float32)
+
+
 def _block_view(a: np.ndarray, s: int) -> np.ndarray:
     """View an ``(H, W, D, ...)`` array as ``(H/s, s, W/s, s, D/s, s, ...)`` blocks (writes go through)."""
     h, w, d = a.shape[:3]
@@ -160,7 +199,8 @@ def _block_view(a: np.ndarray, s: int) -> np.ndarray:
 
 
 def _tsdf_grid(
-    dist: _Distance, mesh: TexturedMesh, dims, aabb: np.ndarray, vs: float, threshold: float, say, sure_margin: float = 0.4
+    dist: _Distance, mesh: TexturedMesh, dims, aabb: np.ndarray, vs: float, threshold: float, say, sure_margin: float = 0.4,
+    pbr: bool = False,
 ):
     """Truncated SDF and colour on the cell-centred grid, by coarse-to-fine block refinement.
 
@@ -186,7 +226,7 @@ def _tsdf_grid(
     dims = np.asarray(dims)
     lo = aabb[:3].astype(np.float64)
     sdf = np.empty(tuple(dims), np.float32)
-    color = np.zeros((*dims, 3), np.float32)
+    color = np.zeros((*dims, len(PBR_CHANNELS) if pbr else 3), np.float32)
     sure_grid = np.empty(tuple(dims), bool)
     s = 8
     blocks = np.argwhere(np.ones(tuple(dims // s), bool))  # block coordinates at level s
@@ -208,7 +248,7 @@ def _tsdf_grid(
             sdf[i, j, k] = sign * np.minimum(d, threshold)
             sure_grid[i, j, k] = sure
             band = d < threshold
-            color[i[band], j[band], k[band]] = mesh.colors_at(fi[band[~far]], bc[band[~far]])
+            color[i[band], j[band], k[band]] = surface_channels(mesh, fi[band[~far]], bc[band[~far]], pbr)
             break
         h = (s - 1) * np.sqrt(3) / 2 * vs
         far = d >= threshold + h
@@ -259,7 +299,7 @@ def _signs_from_grid(p, d, grid_sdf, sure, lo, vs, closed: bool):
     return resolved, inside
 
 
-def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float, grid: tuple):
+def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float, grid: tuple, pbr: bool = False):
     """Exact truncated SDF and colour (0 outside the band) at arbitrary points.
 
     ``grid = (sdf, sure, lo, voxel_size)`` from :func:`_tsdf_grid`: most signs
@@ -271,9 +311,9 @@ def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: f
     resolved, inside = _signs_from_grid(p, d, *grid, closed=dist.closed)
     inside[~resolved] = dist.winding(p[~resolved]) > 0.5
     sdf = (np.where(inside, -1.0, 1.0) * np.minimum(d, threshold)).astype(np.float32)
-    col = np.zeros((len(p), 3), np.float32)
+    col = np.zeros((len(p), len(PBR_CHANNELS) if pbr else 3), np.float32)
     band = d < threshold
-    col[band] = mesh.colors_at(fi[band], bc[band])
+    col[band] = surface_channels(mesh, fi[band], bc[band], pbr)
     return sdf, col
 
 
@@ -300,6 +340,7 @@ def mesh_to_grid(
     seed: int = 0,
     progress: bool = True,
     margin_voxels: float = 0.0,
+    pbr: bool | None = None,
 ) -> ShapeGrid:
     """Turn a textured mesh into the paper's truncated SDF + colour grid.
 
@@ -323,11 +364,21 @@ def mesh_to_grid(
        ``near_surface_sigma``), with their exact truncated SDF and colour
        (most signs from the voxels around each point, see
        :func:`_signs_from_grid`; the rest from their own winding number).
+
+    ``pbr`` (``None``: whenever the mesh has a metallic-roughness or normal
+    map) stores the 8 :data:`PBR_CHANNELS` instead of RGB: metallic and
+    roughness as glTF defines them (factor × map), and the normal in world
+    (normalised-frame) coordinates: the normal map's tangent-space vector
+    turned by the closest face's tangent frame (``mesh_io.tangent_frames``:
+    T, B along the UV directions, N the face normal), or the face normal
+    itself where there is no normal map. ``pbr=True`` on a mesh without maps
+    stores its constant factors and its geometric normals.
     """
     check_resolution(resolution)
     say = print if progress else (lambda *a, **k: None)
     t0 = time.perf_counter()
     _check_coordinates(mesh)
+    pbr = mesh.has_pbr if pbr is None else bool(pbr)
     m = mesh.normalized()
     extent = m.bounds[1] - m.bounds[0]
     dims = np.array(grid_shape(extent, resolution, multiple=8))
@@ -341,6 +392,8 @@ def mesh_to_grid(
     aabb = centred_box(dims)
     vs = 2.0 / dims.max()
     threshold = float(threshold_voxels * vs)
+    if pbr:
+        say(f"[grid] PBR channels: {', '.join(PBR_CHANNELS)}")
     say(f"[grid] '{mesh.name}': {len(m.faces):,} faces → grid {dims[0]}×{dims[1]}×{dims[2]}, band ±{threshold:.4f}")
 
     dist = _Distance(m)
@@ -349,7 +402,7 @@ def mesh_to_grid(
                 else f"{dist.flipped} of the {dist.closed_parts} closed parts of '{mesh.name}' are inside out")
         warnings.warn(f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
                       "to tell inside from outside", stacklevel=2)
-    sdf, color, sure = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say)
+    sdf, color, sure = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say, pbr=pbr)
     if not (sdf < 0).any():
         raise Sin3DMInputError(
             f"'{mesh.name}' has no inside at {resolution} voxels: it encloses no volume (a single triangle, an open "
@@ -364,7 +417,7 @@ def mesh_to_grid(
         sp, _, _ = m.surface_points(n_surface_points, rng)
         sp = sp + rng.normal(scale=near_surface_sigma, size=sp.shape)
         sp = np.clip(sp, aabb[:3], aabb[3:])
-        ps, pc = _point_tsdf(dist, m, sp, threshold, grid=(sdf, sure, aabb[:3].astype(np.float64), vs))
+        ps, pc = _point_tsdf(dist, m, sp, threshold, grid=(sdf, sure, aabb[:3].astype(np.float64), vs), pbr=pbr)
         out.points, out.point_sdf, out.point_color = sp.astype(np.float32), ps, pc
     say(f"[grid] done in {time.perf_counter() - t0:.1f} s: {int((np.abs(out.sdf) < threshold).sum()):,} voxels in the band")
     return out

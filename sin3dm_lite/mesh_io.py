@@ -132,6 +132,48 @@ class TexturedMesh:
     def has_texture(self) -> bool:
         return self.face_uvs is not None and any(m.image is not None for m in self.materials)
 
+    @property
+    def has_pbr(self) -> bool:
+        """True when a material has a metallic-roughness or normal *map* (factors alone do not count)."""
+        return self.face_uvs is not None and any(
+            m.metallic_roughness_image is not None or m.normal_image is not None for m in self.materials
+        )
+
+    def pbr_at(self, face_index: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+        """Metallic, roughness and the world-space unit normal at surface points: ``(n, 5)`` float32.
+
+        glTF's rules: the material's ``metallic`` / ``roughness`` factors times
+        the map's B / G channel where there is a map. The normal is the
+        face's geometric normal, bent by the tangent-space normal map where
+        there is one: ``n = x·T + y·B + z·N`` with ``(x, y, z) = 2·texel − 1``
+        and the face's tangent frame from :func:`tangent_frames`.
+        """
+        face_index = np.asarray(face_index, dtype=np.int64)
+        bc = np.asarray(barycentric, dtype=np.float64)
+        out = np.empty((len(face_index), 5), dtype=np.float32)
+        t, b, n = tangent_frames(self.vertices, self.faces[face_index],
+                                 None if self.face_uvs is None else self.face_uvs[face_index])
+        mat_of = self.face_material[face_index]
+        for mi, mat in enumerate(self.materials):
+            sel = np.nonzero(mat_of == mi)[0]
+            if len(sel) == 0:
+                continue
+            out[sel, 0], out[sel, 1] = mat.metallic, mat.roughness
+            normal = n[sel]
+            if self.face_uvs is not None and (mat.metallic_roughness_image is not None or mat.normal_image is not None):
+                uv = np.einsum("nk,nkd->nd", bc[sel], self.face_uvs[face_index[sel]].astype(np.float64))
+                if mat.metallic_roughness_image is not None:
+                    mr = sample_texture(mat.metallic_roughness_image, uv)
+                    out[sel, 0] *= mr[:, 2]
+                    out[sel, 1] *= mr[:, 1]
+                if mat.normal_image is not None:
+                    tn = sample_texture(mat.normal_image, uv)[:, :3].astype(np.float64) * 2 - 1
+                    normal = tn[:, :1] * t[sel] + tn[:, 1:2] * b[sel] + tn[:, 2:3] * n[sel]
+                    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+            out[sel, 2:] = normal
+        out[:, :2] = np.clip(out[:, :2], 0.0, 1.0)
+        return out
+
     def colors_at(self, face_index: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
         """Surface RGB in [0, 1] at points given by face index and barycentric coordinates.
 
@@ -197,6 +239,48 @@ def component_labels(n_verts: int, faces: np.ndarray) -> np.ndarray:
     graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n_verts, n_verts))
     _, labels = connected_components(graph, directed=False)
     return labels[faces[:, 0]]
+
+
+def tangent_frames(vertices: np.ndarray, faces: np.ndarray, face_uvs: np.ndarray | None):
+    """Per-face tangent frame ``(T, B, N)``, each ``(F, 3)`` unit vectors, for tangent-space normal maps.
+
+    ``N`` is the geometric face normal (counter-clockwise winding). ``T`` and
+    ``B`` are the directions in which the texture coordinates ``u`` and ``v``
+    grow on the face (solve ``e1 = du1·T + dv1·B``, ``e2 = du2·T + dv2·B``
+    for the two edges), made orthonormal to ``N``: ``T`` by Gram-Schmidt,
+    ``B = ±N × T`` with the sign of the ``v`` direction, so mirrored UV
+    islands keep their handedness (MikkTSpace's bitangent sign; ``v`` up, the
+    OpenGL / glTF "+Y up" normal-map convention). Faces without usable UVs
+    (none, NaN or zero UV area) get any ``T`` perpendicular to ``N``. The
+    grid reads normal maps with these frames and mesh extraction writes them
+    with the same function, so a map survives the round trip.
+    """
+    tri = np.asarray(vertices, np.float64)[faces]
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    n = np.cross(e1, e2)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    t = np.zeros_like(n)
+    vdir = np.zeros_like(n)
+    if face_uvs is not None:
+        uv = np.asarray(face_uvs, np.float64)
+        d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+        det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+        ok = np.isfinite(det) & (np.abs(det) > 1e-20)
+        r = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)[:, None]
+        t = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * r
+        vdir = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * r
+    t = t - np.einsum("fi,fi->f", t, n)[:, None] * n
+    norm = np.linalg.norm(t, axis=1)
+    bad = ~(norm > 1e-12)
+    if bad.any():  # any perpendicular: the axis least aligned with N, projected
+        axis = np.eye(3)[np.abs(n[bad]).argmin(1)]
+        t[bad] = axis - np.einsum("fi,fi->f", axis, n[bad])[:, None] * n[bad]
+        norm[bad] = np.linalg.norm(t[bad], axis=1)
+    t /= np.maximum(norm, 1e-30)[:, None]
+    b = np.cross(n, t)
+    flip = np.einsum("fi,fi->f", b, vdir) < 0
+    b[flip] *= -1
+    return t, b, n
 
 
 def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:

@@ -70,20 +70,38 @@ def reconstruction_metrics(reconstruction, grid) -> dict[str, float]:
       shift of the surface, and a mesh whose flat faces run along a layer of voxel
       centres (a block filling its box) has thousands of them;
     * ``color_l1`` / ``color_psnr``: colour error on voxels within the truncation band.
+
+    PBR grids (``grid.has_pbr``) add, on the same voxels: ``metallic_l1``,
+    ``roughness_l1``, ``normal_angle_deg`` (mean angle between the decoded
+    and the input normal) and ``metallic_iou`` (IoU of the ``metallic > 0.5``
+    voxels: are the metal parts in the same places?).
     """
-    sdf, col = reconstruction.sdf, reconstruction.color
+    sdf, col = reconstruction.sdf, reconstruction.color[..., :3]
     gt_in, pr_in = grid.sdf < 0, sdf < 0
     clear = np.abs(grid.sdf) >= 0.25 * grid.voxel_size
     band = np.abs(grid.sdf) < grid.threshold
-    err = col[band] - grid.color[band]
+    err = col[band] - grid.color[band][:, :3]
     mse = float((err**2).mean()) if band.any() else float("nan")
-    return {
+    out = {
         "sign_accuracy": float((gt_in == pr_in).mean()),
         "occupancy_iou": iou(gt_in, pr_in),
         "occupancy_iou_quarter_voxel": iou(gt_in[clear], pr_in[clear]),
         "color_l1": float(np.abs(err).mean()) if band.any() else float("nan"),
         "color_psnr": float(10 * math.log10(1.0 / max(mse, 1e-12))),
     }
+    if getattr(grid, "has_pbr", False) and reconstruction.color.shape[-1] == grid.color.shape[-1] and band.any():
+        rec, ref = reconstruction.color[band], grid.color[band]
+        n_rec, n_ref = rec[:, 5:8] * 2 - 1, ref[:, 5:8] * 2 - 1
+        n_rec = n_rec / np.maximum(np.linalg.norm(n_rec, axis=1, keepdims=True), 1e-8)
+        n_ref = n_ref / np.maximum(np.linalg.norm(n_ref, axis=1, keepdims=True), 1e-8)
+        cos = np.clip(np.einsum("ij,ij->i", n_rec, n_ref), -1, 1)
+        out.update(
+            metallic_l1=float(np.abs(rec[:, 3] - ref[:, 3]).mean()),
+            roughness_l1=float(np.abs(rec[:, 4] - ref[:, 4]).mean()),
+            normal_angle_deg=float(np.degrees(np.arccos(cos)).mean()),
+            metallic_iou=iou(ref[:, 3] > 0.5, rec[:, 3] > 0.5),
+        )
+    return out
 
 
 # ----------------------------------------------------------------------------- voxelisation

@@ -169,8 +169,16 @@ class Sin3DM:
         seed: int | None = None,
         device=None,
         progress: bool = True,
+        pbr: bool | None = None,
     ) -> "Sin3DM":
         """Fit the whole model to one textured mesh (a path, a ``TexturedMesh`` or an example name).
+
+        ``pbr`` (the PBR variant: metallic, roughness and normals learned and
+        generated beside the colour) is on by default exactly when the mesh
+        has a metallic-roughness or normal map (a one-line message says so);
+        ``pbr=True`` on a mesh without maps learns its constant factors and
+        its geometric normals, ``pbr=False`` learns colour only. A resumed run
+        keeps the choice in its ``config.json``.
 
         With ``out`` a run folder is written (see the module docstring); with
         ``resume=True`` an existing run folder is continued from its last
@@ -203,7 +211,7 @@ class Sin3DM:
                     load_grid(run / "grid.npz")
         existed = run is not None and run.exists()
         try:
-            model = cls._fit(source, preset, run, resume, seed, device, progress)
+            model = cls._fit(source, preset, run, resume, seed, device, progress, pbr)
         except KeyboardInterrupt:
             raise  # the checkpoints stay: continue with resume=True
         except BaseException:
@@ -217,7 +225,7 @@ class Sin3DM:
         return model
 
     @classmethod
-    def _fit(cls, source, preset, out, resume, seed, device, progress) -> "Sin3DM":
+    def _fit(cls, source, preset, out, resume, seed, device, progress, pbr=None) -> "Sin3DM":
         """:meth:`fit`'s stages, after its checks."""
         from .diffusion import DiffusionTrainer
 
@@ -226,6 +234,11 @@ class Sin3DM:
         run = Path(out) if out is not None else None
         have_grid = run is not None and resume and (run / "grid.npz").exists()
         mesh = None if have_grid else resolve_mesh(source)  # bad input fails before any folder is written
+        if mesh is not None and not (resume and run is not None and (run / "config.json").exists()):
+            pbr = _choose_pbr(mesh, pbr, preset, say)
+            base = preset if isinstance(preset, Config) else get_preset(preset)
+            if base.autoencoder.pbr != pbr:
+                preset = base.updated(**{"autoencoder.pbr": pbr})
         cfg = _prepare_run(run, preset, resume, seed)
         timings: dict[str, float] = {}
 
@@ -237,7 +250,7 @@ class Sin3DM:
         else:
             g = cfg.grid
             grid = mesh_to_grid(mesh, g.resolution, g.threshold_voxels, g.n_surface_points, g.near_surface_sigma, cfg.seed,
-                                progress, margin_voxels=g.margin_voxels)
+                                progress, margin_voxels=g.margin_voxels, pbr=cfg.autoencoder.pbr)
             if run is not None:
                 save_grid(grid, run / "grid.npz")
         timings["grid_s"] = time.perf_counter() - t0
@@ -606,7 +619,7 @@ class Sin3DM:
             "aabb": torch.from_numpy(self.aabb.copy()),
             "center": torch.from_numpy(np.asarray(self.normalization.center, np.float64)),
             "scale": float(self.normalization.scale),
-            "color_channels": int(self.decoder.tex_mlp.out.out_features),
+            "color_channels": int(self.decoder.color_channels),
             "report": json.dumps(self.report),
         }
         atomic_torch_save(bundle, run / MODEL_FILE)
@@ -645,6 +658,18 @@ class Sin3DM:
 
 
 # --------------------------------------------------------------------------- helpers
+def _choose_pbr(mesh: TexturedMesh, pbr: bool | None, preset, say) -> bool:
+    """Whether to fit the PBR variant: asked for, or (``pbr=None``) whenever the mesh has PBR maps."""
+    already = isinstance(preset, Config) and preset.autoencoder.pbr
+    if pbr is None:
+        pbr = bool(already or mesh.has_pbr)
+        if pbr and mesh.has_pbr:
+            say(f"[fit] '{mesh.name}' has PBR maps: learning base colour, metallic, roughness and normals (pbr=False: colour only)")
+    elif pbr and not mesh.has_pbr:
+        say(f"[fit] '{mesh.name}' has no PBR maps: learning its constant metallic / roughness and its geometric normals")
+    return bool(pbr)
+
+
 def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Config:
     """Resolve the config and check the run folder (new, or resumable)."""
     cfg = preset if isinstance(preset, Config) else get_preset(preset)

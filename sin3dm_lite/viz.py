@@ -1104,3 +1104,91 @@ def plot_render_pairs(views_a: Sequence[np.ndarray], views_b: Sequence[np.ndarra
         panels[r, 0].set_ylabel(label, fontsize=8)
     fig.colorbar(im, ax=panels[2, :].tolist(), shrink=0.8, label="colour difference")
     return fig
+
+
+# --------------------------------------------------------------------------- PBR
+def pbr_map_images(source) -> dict[str, np.ndarray]:
+    """The four PBR maps of a mesh (its first material with maps) or a ``Material``, as float images.
+
+    ``{"base colour": (h, w, 3), "metallic": (h, w), "roughness": (h, w), "normal": (h, w, 3)}``:
+    metallic is the metallic-roughness map's B channel times the factor,
+    roughness its G channel times the factor (glTF); the normal map is shown
+    as stored (tangent space, flat = (0.5, 0.5, 1), the familiar lilac).
+    Missing maps come out as constant images of the factor (or flat normals).
+    """
+    materials = getattr(source, "materials", None) or [source]
+    mat = next((m for m in materials if m.metallic_roughness_image is not None or m.normal_image is not None),
+               materials[0])
+    base = _as_float_image(mat.image) if mat.image is not None else np.ones((8, 8, 3), np.float32)
+    base = base * np.asarray(mat.base_color, np.float32)[:3]
+    shape = base.shape[:2]
+    if mat.metallic_roughness_image is not None:
+        mr = _as_float_image(mat.metallic_roughness_image)
+        metal, rough = mr[..., 2] * mat.metallic, mr[..., 1] * mat.roughness
+    else:
+        metal, rough = np.full(shape, mat.metallic, np.float32), np.full(shape, mat.roughness, np.float32)
+    normal = (_as_float_image(mat.normal_image) if mat.normal_image is not None
+              else np.broadcast_to(np.float32([0.5, 0.5, 1.0]), (*shape, 3)))
+    return {"base colour": base, "metallic": metal, "roughness": rough, "normal": normal}
+
+
+def plot_pbr_maps(source, title: str | None = None) -> Figure:
+    """Base colour, metallic, roughness and normal maps side by side (a mesh or a ``Material``).
+
+    k3d shades only a colour texture, so this is how a reader sees the
+    material of a PBR result; the 3D viewers show its base colour.
+    Axes read (u, v): row 0 of every map is ``v = 1``.
+    """
+    maps = pbr_map_images(source)
+    fig = _figure(13.0, 3.6)
+    panels = fig.subplots(1, 4)
+    for ax, (name, img) in zip(panels, maps.items()):
+        gray = img.ndim == 2
+        ax.imshow(img, extent=(0, 1, 0, 1), origin="upper", interpolation="nearest",
+                  cmap="gray" if gray else None, vmin=0 if gray else None, vmax=1 if gray else None)
+        stats = f"mean {img.mean():.2f}, std {img.std():.2f}" if gray else f"{img.shape[1]}×{img.shape[0]}"
+        ax.set_title(f"{name}\n{stats}", fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def pbr_slice_images(grid: ShapeGrid, axis: int | str = "y", index: int | None = None) -> dict[str, np.ndarray]:
+    """One slice of each PBR quantity of a grid, :data:`NEUTRAL` grey outside the band.
+
+    ``{"base colour", "metallic", "roughness", "normal"}``; the world-space
+    normal is shown as ``n · ½ + ½`` (x → red, y → green, z → blue).
+    """
+    if not grid.has_pbr:
+        raise ValueError(f"grid '{grid.name}' has no PBR channels")
+    sdf, index = grid_slice(grid.sdf, axis, index)
+    col, _ = grid_slice(grid.color, axis, index)
+    band = (np.abs(sdf) < grid.threshold)[..., None]
+    pick = {"base colour": col[..., :3], "metallic": col[..., 3:4].repeat(3, -1),
+            "roughness": col[..., 4:5].repeat(3, -1), "normal": col[..., 5:8]}
+    return {k: np.where(band, np.clip(v, 0, 1), NEUTRAL).astype(np.float32) for k, v in pick.items()}
+
+
+def plot_pbr_slices(grid: ShapeGrid, axis: int | str = "y", index: int | None = None, up: str | None = "y") -> Figure:
+    """The channels of a PBR grid in one slice: base colour, metallic, roughness, world-space normal.
+
+    Same orientation as :func:`plot_grid_slices` (the ``up`` axis vertical).
+    """
+    a = _axis_index(axis)
+    imgs = pbr_slice_images(grid, a, index)
+    _, index = grid_slice(grid.sdf, a, index)
+    u, v = _plane_axes(a, up)
+    swap = u > v
+    ext = _extent(grid, a, up)
+    aspect = (ext[3] - ext[2]) / (ext[1] - ext[0])
+    fig = _figure(13.0, _panel_height(3.2, aspect))
+    panels = fig.subplots(1, 4)
+    for ax, (name, img) in zip(panels, imgs.items()):
+        _show(ax, img.swapaxes(0, 1) if swap else img, extent=ext)
+        ax.set_title(f"{name}", fontsize=9)
+        ax.set_xlabel(AXES[u])
+        ax.set_ylabel(AXES[v])
+    fig.suptitle(_slice_title(grid, a, index, "PBR channels"), fontsize=10)
+    return fig
