@@ -38,6 +38,7 @@ _API = {
     "fast_mode": "config",
     "pretrained_path": "pretrained",
     "shipped_names": "pretrained",
+    "shipped_examples": "pretrained",
     "open_run": "runs",
     "Sin3DMInputError": "errors",
     "get_device": "device",

@@ -65,7 +65,7 @@ def cached_run(source, preset=None, cache: str | Path = CACHE) -> Path:
 
 def _resolve(run, preset, cache) -> tuple[str, Path]:
     from . import examples
-    from .pretrained import shipped_model, shipped_names
+    from .pretrained import shipped_examples, shipped_model
 
     if not isinstance(run, (str, Path)) or not str(run).strip():
         raise Sin3DMInputError(f"RUN must be a name or a path, got {run!r}")
@@ -85,7 +85,7 @@ def _resolve(run, preset, cache) -> tuple[str, Path]:
     if path.is_file() or (isinstance(run, str) and name in examples.list_examples()):
         return "fit", cached_run(run, preset, cache)
     raise Sin3DMInputError(
-        f"RUN '{run}' is not a shipped model ({', '.join(n.removesuffix('_small') for n in shipped_names())}), "
+        f"RUN '{run}' is not a shipped model ({', '.join(shipped_examples())}), "
         f"a run folder, a mesh file or a built-in example ({', '.join(examples.list_examples())})")
 
 
