@@ -73,6 +73,9 @@ def test_shipped_names_load_the_shipped_folder(tmp_path, fit_calls):
     model = runs.open_run("canyon", cache=tmp_path, progress=False)
     assert model.run_dir == pretrained_path() and fit_calls == [] and not list(tmp_path.iterdir())
     assert runs.open_run("canyon_small", cache=tmp_path, progress=False).run_dir == pretrained_path()
+
+
+def test_shipped_examples_default_first():
     from sin3dm_lite.pretrained import shipped_examples, shipped_names
 
     assert shipped_examples()[0] == "canyon" and len(shipped_examples()) == len(shipped_names())
