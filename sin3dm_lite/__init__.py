@@ -10,7 +10,7 @@ stages before it)::
               decode (decoder queries, SDF grids) · unet · diffusion (training, sampling)
     Generate  extract (SDF → textured mesh) · export (OBJ / GLB writers) · control (what to sample: outpaint, ...)
     Eval      metrics          Show  viz (figures) · widgets (panels) · viewer (k3d / HTML)
-    Facade    pipeline (Sin3DM: fit, sample, save, load) · cli · examples · pretrained
+    Facade    pipeline (Sin3DM: fit, sample, save, load) · runs (RUN → model, cached fits) · cli · examples · pretrained
 
 Everything a notebook or script needs is importable from here::
 
@@ -37,6 +37,9 @@ _API = {
     "notebook_preset": "config",
     "fast_mode": "config",
     "pretrained_path": "pretrained",
+    "shipped_names": "pretrained",
+    "shipped_examples": "pretrained",
+    "open_run": "runs",
     "Sin3DMInputError": "errors",
     "get_device": "device",
     "count_parameters": "device",

@@ -627,6 +627,14 @@ class Sin3DM:
         return run / MODEL_FILE
 
     @classmethod
+    def open(cls, run, preset=None, cache="runs/cache", device=None, progress: bool = True) -> "Sin3DM":
+        """The model ``run`` names: a shipped model, a run folder, or a mesh / example fitted once into ``cache``
+        and reused after (:func:`sin3dm_lite.runs.open_run` has the rules)."""
+        from .runs import open_run
+
+        return open_run(run, preset, cache, device, progress)
+
+    @classmethod
     def load(cls, run_dir: str | Path, device=None) -> "Sin3DM":
         """Load a fitted model from a run folder (or a ``model.pt`` file)."""
         from .unet import TriplaneUNet

@@ -30,6 +30,14 @@ def shipped_names() -> list[str]:
     return sorted(p.name for p in DATA.iterdir() if (p / "model.pt").is_file())
 
 
+def shipped_examples() -> list[str]:
+    """Built-in examples that have a shipped model (the default one first): what ``Sin3DM.open(name)`` loads."""
+    from . import examples
+
+    names = [n for n in examples.list_examples() if shipped_model(n) is not None]
+    return sorted(names, key=lambda n: n != examples.DEFAULT_EXAMPLE)
+
+
 def shipped_model(name: str) -> Path | None:
     """The shipped run folder called ``name``, or that of the example ``name`` (``canyon`` → ``canyon_small``); None if none."""
     for candidate in (name, f"{name}_small"):

@@ -307,12 +307,11 @@ class ReceptiveField:
     threshold: float
 
 
-def _centre_gradient(net: TriplaneUNet, x: Triplane, t: torch.Tensor, k: int) -> np.ndarray:
-    """|∂ (centre texel of output plane k, summed over channels) / ∂ input plane k|, summed over channels, max 1."""
+def _texel_gradient(net: TriplaneUNet, x: Triplane, t: torch.Tensor, k: int, texel: tuple[int, int]) -> np.ndarray:
+    """|∂ (``texel`` of output plane k, summed over channels) / ∂ input plane k|, summed over channels, max 1."""
     x = x.map(lambda p: p.detach().requires_grad_())
     out = net(x, t).planes[k]  # [1, C, A, B]
-    a, b = out.shape[-2:]
-    out[0, :, a // 2, b // 2].sum().backward()
+    out[0, :, texel[0], texel[1]].sum().backward()
     g = x.planes[k].grad[0].abs().sum(0).numpy()  # (A, B)
     return g / g.max()
 
@@ -330,8 +329,12 @@ def receptive_field(
     t: int | None = None,
     threshold: float = 1e-3,
     seed: int = 0,
+    texel: tuple[int, int] | None = None,
 ) -> ReceptiveField:
     """Receptive field of the denoiser at ``resolution``: the computed width and measured gradient maps.
+
+    The field is that of one output texel of ``plane``: ``texel = (i, j)``
+    (indices along the plane's first and second axis), the centre by default.
 
     The measurement backpropagates from the centre texel of ``plane`` to the
     input plane on a float64 copy of the network (``model_or_cfg`` may be a
@@ -372,15 +375,19 @@ def receptive_field(
             m.weight.data.uniform_(-bound, bound, generator=gen)
     x = Triplane.randn(1, net.latent_channels, res, generator=gen).to(torch.float64)
     t_, k = torch.tensor([net.cfg.timesteps // 2 if t is None else t]), PLANES.index(plane)
-    full = _centre_gradient(net, x, t_, k)
+    a, b = x.planes[k].shape[-2:]
+    ca, cb = (a // 2, b // 2) if texel is None else (int(texel[0]), int(texel[1]))
+    if not (0 <= ca < a and 0 <= cb < b):
+        raise ValueError(f"texel {texel} is outside the {plane} plane of {a}×{b} texels")
+    full = _texel_gradient(net, x, t_, k, (ca, cb))
     for m in net.modules():
         if isinstance(m, (TriplaneConv, TriplaneGroupNorm)):
             m.local_only = True
-    local = _centre_gradient(net, x, t_, k)
-    analytic, (a, b) = analytic_receptive_field(net), full.shape
+    local = _texel_gradient(net, x, t_, k, (ca, cb))
+    analytic = analytic_receptive_field(net)
     h = analytic // 2
     outside = np.ones_like(full, dtype=bool)
-    outside[max(a // 2 - h, 0) : a // 2 + h + 1, max(b // 2 - h, 0) : b // 2 + h + 1] = False
+    outside[max(ca - h, 0) : ca + h + 1, max(cb - h, 0) : cb + h + 1] = False
     return ReceptiveField(
         analytic=analytic,
         measured_map=full,

@@ -472,7 +472,7 @@ def plot_plane_axes(shape=None, up: str = "y", n_points: int = 4000, azim: float
     return fig
 
 
-def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0) -> Figure:
+def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0, channel: int | None = None) -> Figure:
     """One TriplaneConv's rollout for ``plane`` (the paper's Fig. 3b), from :func:`sin3dm_lite.unet.rollout_parts`.
 
     Columns: this plane, and each of the two other planes. Top row: the three
@@ -482,11 +482,23 @@ def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0) -> Figure
     expanded (repeated) to this plane's size, and on the left the concatenation
     ``[plane, expanded, expanded]`` (3C channels) that this plane's Conv2d reads.
     Colours: PCA, one basis per column (fitted on the top row's plane; the
-    concatenation has its own).
+    concatenation has its own). With ``channel`` = c: that channel in grey, on
+    one scale per column (its plane's range), and the concatenation's channels
+    c, C+c, 2C+c (the plane's and the two expanded ones) as red, green, blue.
     """
     if plane not in PLANES:
         raise ValueError(f"plane must be one of {PLANES}, got {plane!r}")
     part = parts[plane]
+    n_channels = int(part["plane"].shape[1])
+    if channel is not None and not 0 <= channel < n_channels:
+        raise ValueError(f"channel must be from 0 to {n_channels - 1}, got {channel}")
+
+    def colours(arr, m_, b_, ref):  # [C, A, B] → (A, B, 3): PCA, or the one channel in grey on ref's scale
+        if channel is None:
+            return pca_project(arr, m_, b_)
+        lo, hi = float(ref[channel].min()), float(ref[channel].max())
+        return np.repeat(np.clip((arr[channel] - lo) / (hi - lo + 1e-8), 0, 1)[..., None], 3, axis=-1)
+
     u, v = PLANE_AXES[plane]
     lacking = part["axis"]
     fig = _figure(10.0, 8.0)
@@ -501,22 +513,30 @@ def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0) -> Figure
         ax.set_ylabel(AXES[axes_uv[1]], fontsize=8)
         ax.tick_params(labelsize=7)
 
-    draw(fig.add_subplot(gs[0, 0]), pca_project(own, mean, basis), f"{plane}: this plane, C = {own.shape[0]}", (u, v))
+    draw(fig.add_subplot(gs[0, 0]), colours(own, mean, basis, own),
+         f"{plane}: this plane, C = {own.shape[0]}" + ("" if channel is None else f", channel {channel}"), (u, v))
     note = fig.add_subplot(gs[1, 0])
     note.set_axis_off()
     note.text(0.5, 0.5, f"{plane} is kept as it is;\nthe other two planes are\naveraged over {lacking},\n"
               f"the axis {plane} lacks", ha="center", va="center", fontsize=9, transform=note.transAxes)
     cat = _numpy(part["input"][batch])
-    draw(fig.add_subplot(gs[2, 0]), pca_project(cat, *pca_basis(cat)),
-         f"concatenated: {cat.shape[0]} = 3C channels\n→ the Conv2d of {plane}", (u, v))
+    if channel is None:
+        cat_img, cat_note = pca_project(cat, *pca_basis(cat)), ""
+    else:
+        picked = cat[[channel, n_channels + channel, 2 * n_channels + channel]]
+        lo, hi = picked.min(axis=(1, 2), keepdims=True), picked.max(axis=(1, 2), keepdims=True)
+        cat_img = np.moveaxis((picked - lo) / (hi - lo + 1e-8), 0, -1)
+        cat_note = f"\nchannels {channel}, {n_channels + channel}, {2 * n_channels + channel} as RGB"
+    draw(fig.add_subplot(gs[2, 0]), cat_img,
+         f"concatenated: {cat.shape[0]} = 3C channels\n→ the Conv2d of {plane}" + cat_note, (u, v))
     for c, (other, pooled, expanded) in enumerate(zip(part["sources"], part["pooled"], part["expanded"]), start=1):
         src = _numpy(parts[other]["plane"][batch])
         m_, b_ = pca_basis(src)
-        draw(fig.add_subplot(gs[0, c]), pca_project(src, m_, b_), f"{other}: averaged over {lacking} ↓", PLANE_AXES[other])
+        draw(fig.add_subplot(gs[0, c]), colours(src, m_, b_, src), f"{other}: averaged over {lacking} ↓", PLANE_AXES[other])
         vec = _numpy(pooled[batch])  # [C, A, 1] or [C, 1, B']
         along = u if vec.shape[2] == 1 else v
         ax = fig.add_subplot(gs[1, c])
-        _show(ax, pca_project(vec, m_, b_), aspect="auto")
+        _show(ax, colours(vec, m_, b_, src), aspect="auto")
         ax.set_title(f"mean over {lacking} of {other}:\na feature per {AXES[along]}, {list(vec.shape)}", fontsize=9)
         if along == u:
             ax.set_xlabel(AXES[u], fontsize=8)
@@ -526,7 +546,7 @@ def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0) -> Figure
             ax.set_xticks([])
         ax.tick_params(labelsize=7)
         across = v if along == u else u
-        draw(fig.add_subplot(gs[2, c]), pca_project(_numpy(expanded[batch]), m_, b_),
+        draw(fig.add_subplot(gs[2, c]), colours(_numpy(expanded[batch]), m_, b_, src),
              f"expanded along {AXES[across]} to {plane}'s size", (u, v))
     fig.suptitle(f"TriplaneConv on {plane}: Conv2d(concat[{plane}, mean_{lacking}({part['sources'][0]}), "
                  f"mean_{lacking}({part['sources'][1]})])", fontsize=10)

@@ -1,5 +1,10 @@
 """Small ipywidgets panels around the :mod:`sin3dm_lite.viz` figures.
 
+Two kinds: explorers re-plot arrays computed earlier (slices, triplanes, a
+recorded trajectory); live panels call the model on every change
+(:func:`sampling_panel`, :func:`denoising_slider`, :func:`texel_receptive_field`,
+:func:`control_panel`), on coarse grids while dragging and at full quality on a button.
+
 Each panel is an :class:`Explorer`: a row of controls above an ``Output``
 area. Moving a control calls a *library* function (``viz.plot_slice``,
 ``viz.plot_triplane``, ...) with the controls' values and shows the figure it
@@ -18,12 +23,16 @@ from contextlib import contextmanager
 from typing import Callable, Sequence
 
 import ipywidgets as widgets
+import numpy as np
+import torch
 from IPython.display import clear_output, display
 from matplotlib.figure import Figure
 
 from . import viz
+from .decode import decode_grid
 from .grid import ShapeGrid
-from .triplane import PLANES, Triplane
+from .triplane import PLANE_AXES, PLANES, Triplane
+from .unet import receptive_field, rollout_parts
 
 
 class Explorer(widgets.VBox):
@@ -255,3 +264,193 @@ def control_panel(model, n_samples: int = 2, resolution: int | None = None, **sa
     panel.run = run
     panel.children = (*panel.children, widgets.HBox([seed, button]), result)
     return panel
+
+
+# ----------------------------------------------------------------------------- panels that run the model
+def _seed_box(value: int = 0) -> widgets.BoundedIntText:
+    return widgets.BoundedIntText(value=value, min=0, max=2**31 - 1, description="seed", layout={"width": "170px"})
+
+
+def _show_in(output: widgets.Output, *items) -> None:
+    with output:
+        clear_output(wait=True)
+        for item in items:
+            display(item)
+
+
+def sampling_panel(model, n_samples: int = 2, preview: int = 32, steps: int | None = None, mesh: dict | None = None,
+                   k3d: bool = True) -> Explorer:
+    """Seed, DDIM steps, diversity and resize (x, y, z) → ``model.sample`` → a cheap preview; a button decodes meshes.
+
+    Every change samples ``n_samples`` new triplanes and draws
+    :func:`viz.plot_projections` of their shapes beside the input's, decoded
+    with :func:`decode.decode_grid` on a coarse grid (``preview`` voxels along
+    the input box's longest side, the same voxel size for resized samples).
+    The **full quality** button (``panel.full()`` from code) decodes textured
+    meshes with ``model.to_mesh(**mesh)`` (default: the model's sampling
+    settings) and shows :func:`viz.plot_meshes` (and a k3d gallery with
+    ``k3d``). ``panel.state`` holds ``"samples"`` and, after the button, ``"meshes"``.
+    """
+    s = model.config.sampling
+    steps = int(steps or min(s.steps, 10))
+    state: dict = {}
+
+    def factor(name):
+        return widgets.FloatSlider(value=1.0, min=0.5, max=2.0, step=0.25, description=name, continuous_update=False,
+                                   readout_format=".2f", layout={"width": "230px"})
+
+    controls = {"seed": _seed_box(),
+                "steps": widgets.IntSlider(value=steps, min=1, max=max(s.steps, steps), description="DDIM steps",
+                                           continuous_update=False),
+                "diversity": widgets.FloatSlider(value=float(s.diversity), min=0.0, max=1.0, step=0.1,
+                                                 description="diversity", continuous_update=False, readout_format=".1f"),
+                "sx": factor("resize x"), "sy": factor("resize y"), "sz": factor("resize z")}
+
+    def occupancy(tp, aabb, res):
+        return decode_grid(model.decoder, tp, aabb, res) < 0
+
+    def render(seed, steps, diversity, sx, sy, sz):
+        samples = model.sample(n_samples, resize=(sx, sy, sz), steps=int(steps), seed=int(seed), diversity=diversity,
+                               progress=False)
+        state["samples"] = samples
+        if "input" not in state:
+            state["input"] = occupancy(model.latent, model.aabb, preview)
+        res = model.same_voxels(samples, preview)
+        grids = [occupancy(samples.triplane[i], samples.aabb, res) for i in range(len(samples))]
+        size = "" if np.allclose((sx, sy, sz), 1) else f", ×({sx:g}, {sy:g}, {sz:g})"
+        return viz.plot_projections([state["input"], *grids],
+                                    ["input", *(f"seed {seed} #{i}{size}" for i in range(len(grids)))])
+
+    panel = Explorer(controls, render, title=f"sampling: preview on a {preview}-voxel grid")
+    panel.state = state
+    button = widgets.Button(description="full quality", button_style="primary")
+    result = widgets.Output()
+
+    def full(_=None):
+        samples = state["samples"]
+        meshes = model.to_mesh(samples, **(mesh or {}))
+        labels = [f"sample {i}" for i in range(len(meshes))]
+        state["meshes"] = meshes
+        fig = viz.plot_meshes(meshes, labels)
+        items = [fig]
+        if k3d:
+            from . import viewer
+
+            items.insert(0, viewer.gallery(meshes, labels=labels))
+        _show_in(result, *items)
+        return fig
+
+    button.on_click(full)
+    panel.full = full
+    panel.children = (*panel.children, button, result)
+    return panel
+
+
+def denoising_slider(model, seed: int = 0, steps: int | None = None, record: int = 8, plane: str = "xz",
+                     preview: int = 32) -> Explorer:
+    """A freshly sampled trajectory (``model.sample(return_intermediates=record)``) and a slider over its steps.
+
+    Shows ``x_t`` and the predicted ``x0`` of the chosen step on one plane
+    (:func:`viz.plot_denoising`, one PCA basis: the final result's), or, with
+    ``view="shape"``, y slices of the SDF the decoder gives for that ``x0`` on a
+    ``preview``-voxel grid. **resample** (``panel.resample()``) draws a new
+    trajectory with the seed shown. ``panel.state["samples"]`` holds it.
+    """
+    steps = int(steps or min(model.config.sampling.steps, 10))
+    state: dict = {}
+    seed_c = _seed_box(seed)
+
+    def draw_trajectory():
+        state["samples"] = model.sample(1, steps=steps, seed=int(seed_c.value), return_intermediates=record,
+                                        diversity=1.0, progress=False)
+        return [(f"t={int(e['t'])}", k) for k, e in enumerate(state["samples"].intermediates)]
+
+    step_c = widgets.SelectionSlider(options=draw_trajectory(), value=0, description="step", continuous_update=False)
+    plane_c = widgets.Dropdown(options=list(PLANES), value=plane, description="plane", layout={"width": "140px"})
+    view_c = widgets.ToggleButtons(options=["planes", "shape"], value="planes", description="show")
+
+    def render(step, plane, view):
+        inter = state["samples"].intermediates
+        e = inter[step]
+        if view == "planes":
+            return viz.plot_denoising([e], plane=plane, reference=inter[-1]["x0"])
+        sdf = decode_grid(model.decoder, e["x0"], state["samples"].aabb, preview)
+        return viz.plot_samples_slices([sdf], axis="y", titles=[f"predicted x0 at t = {int(e['t'])}"])
+
+    panel = Explorer({"step": step_c, "plane": plane_c, "view": view_c}, render, title="denoising, step by step")
+    panel.state = state
+    button = widgets.Button(description="resample", button_style="primary")
+
+    def resample(_=None):
+        with panel.hold():
+            step_c.options = draw_trajectory()
+            step_c.value = 0
+        return panel.refresh()
+
+    button.on_click(resample)
+    panel.resample = resample
+    panel.children = (*panel.children, widgets.HBox([seed_c, button]))
+    return panel
+
+
+def texel_receptive_field(model, plane: str = "xy") -> Explorer:
+    """Pick an output texel (sliders along the plane's two axes): its measured receptive field in the model's denoiser.
+
+    Calls :func:`unet.receptive_field` on ``model.denoiser`` at the latent's
+    size with ``texel=(i, j)`` and draws :func:`viz.plot_receptive_field`
+    centred on it: ``map="local"`` through the convolutions only,
+    ``"whole"`` the whole network (GroupNorm and cross-plane means couple every
+    texel). Each texel is measured once (two backward passes) and kept.
+    """
+    res = model.latent.resolution
+
+    def size(p):
+        a, b = PLANE_AXES[p]
+        return res[a], res[b]
+
+    a, b = size(plane)
+    plane_c = widgets.Dropdown(options=list(PLANES), value=plane, description="plane", layout={"width": "140px"})
+    i_c = widgets.IntSlider(value=a // 2, min=0, max=a - 1, description=viz.AXES[PLANE_AXES[plane][0]],
+                            continuous_update=False)
+    j_c = widgets.IntSlider(value=b // 2, min=0, max=b - 1, description=viz.AXES[PLANE_AXES[plane][1]],
+                            continuous_update=False)
+    map_c = widgets.ToggleButtons(options=["local", "whole"], value="local", description="map")
+    cache: dict = {}
+
+    def on_change(name, value):
+        if name == "plane":
+            a, b = size(value)
+            u, v = PLANE_AXES[value]
+            i_c.max, i_c.value, i_c.description = a - 1, a // 2, viz.AXES[u]
+            j_c.max, j_c.value, j_c.description = b - 1, b // 2, viz.AXES[v]
+
+    def render(plane, i, j, map):
+        key = (plane, int(i), int(j))
+        if key not in cache:
+            cache[key] = receptive_field(model.denoiser, resolution=res, latent_channels=model.latent.channels,
+                                         plane=plane, texel=(int(i), int(j)))
+        rf = cache[key]
+        u, v = PLANE_AXES[plane]
+        return viz.plot_receptive_field(rf.local_map if map == "local" else rf.measured_map, rf.analytic,
+                                        title=f"{plane} texel ({viz.AXES[u]} {i}, {viz.AXES[v]} {j}), {map} map",
+                                        center=(int(i), int(j)))
+
+    panel = Explorer({"plane": plane_c, "i": i_c, "j": j_c, "map": map_c}, render, on_change=on_change,
+                     title="receptive field of one texel")
+    panel.cache = cache
+    return panel
+
+
+def triplane_conv_explorer(tp: Triplane, plane: str = "xy") -> Explorer:
+    """A TriplaneConv taken apart on ``tp`` (:func:`unet.rollout_parts`): plane dropdown, PCA or one channel
+    → :func:`viz.plot_triplane_conv`."""
+    with torch.no_grad():
+        parts = rollout_parts(tp.detach().cpu())
+    plane_c = widgets.Dropdown(options=list(PLANES), value=plane, description="plane", layout={"width": "140px"})
+    mode_c = widgets.ToggleButtons(options=["pca", "channel"], value="pca", description="colour")
+    channel_c = widgets.IntSlider(value=0, min=0, max=tp.channels - 1, description="channel", continuous_update=False)
+
+    def render(plane, mode, channel):
+        return viz.plot_triplane_conv(parts, plane, channel=None if mode == "pca" else int(channel))
+
+    return Explorer({"plane": plane_c, "mode": mode_c, "channel": channel_c}, render, title="TriplaneConv taken apart")

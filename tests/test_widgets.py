@@ -102,3 +102,117 @@ def test_receptive_field_explorer_caches():
     assert "4 ResBlocks" in panel.last_figure.axes[0].get_title()
     fig = panel.refresh()
     assert isinstance(fig, Figure) and calls == [4, 6]
+
+
+# ----------------------------------------------------------------------------- live panels: they call the model
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    import warnings
+
+    from sin3dm_lite.pipeline import Sin3DM
+
+    from .test_pipeline import micro_config
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a micro fit reconstructs poorly
+        return Sin3DM.fit("wall", preset=micro_config(), out=tmp_path_factory.mktemp("run") / "wall", progress=False)
+
+
+def spy(monkeypatch, obj, name):
+    """Record the keyword arguments of every call of ``obj.name`` (still calling it)."""
+    calls, original = [], getattr(obj, name)
+
+    def wrapper(*a, **k):
+        calls.append(k)
+        return original(*a, **k)
+
+    monkeypatch.setattr(obj, name, wrapper)
+    return calls
+
+
+def images(fig):
+    return [np.asarray(ax.images[0].get_array()) for ax in fig.axes if ax.images]
+
+
+def test_sampling_panel_samples_on_every_change_and_decodes_on_the_button(model, monkeypatch):
+    calls = spy(monkeypatch, model, "sample")
+    panel = sw.sampling_panel(model, n_samples=2, preview=16, steps=3, mesh=dict(resolution=24, faces=500,
+                                                                                  texture_size=64), k3d=False)
+    c = panel.controls
+    assert set(c) == {"seed", "steps", "diversity", "sx", "sy", "sz"} and panel.last_error is None
+    assert calls == [dict(resize=(1.0, 1.0, 1.0), steps=3, seed=0, diversity=model.config.sampling.diversity,
+                          progress=False)]
+    before = images(panel.last_figure)
+    assert len(before) == 2 * 3  # input + 2 samples, two views each
+    c["seed"].value = 5
+    assert calls[-1]["seed"] == 5 and panel.last_error is None
+    assert any(not np.array_equal(a, b) for a, b in zip(before, images(panel.last_figure)))  # new samples drawn
+    c["diversity"].value = 1.0
+    c["sx"].value = 1.5
+    assert calls[-1]["resize"] == (1.5, 1.0, 1.0) and calls[-1]["diversity"] == 1.0 and len(calls) == 3
+    assert panel.state["samples"].plan.resolution[0] > model.latent.resolution[0]
+    shown = images(panel.last_figure)
+    assert shown[1].shape[1] > shown[0].shape[1]  # the longer sample is drawn longer (x →) than the input
+    fig = panel.full()
+    assert len(panel.state["meshes"]) == 2 and isinstance(fig, Figure)
+    assert all(len(m.faces) > 0 for m in panel.state["meshes"])
+
+
+def test_denoising_slider_samples_a_trajectory_and_resamples(model, monkeypatch):
+    calls = spy(monkeypatch, model, "sample")
+    panel = sw.denoising_slider(model, seed=1, steps=4, record=3, plane="xz", preview=16)
+    assert calls[-1]["return_intermediates"] == 3 and calls[-1]["seed"] == 1 and panel.last_error is None
+    step = panel.controls["step"]
+    assert len(step.options) == 3 and step.options[0][0].startswith("t=")
+    first = images(panel.last_figure)
+    step.value = 2
+    last = images(panel.last_figure)
+    assert not np.array_equal(first[0], last[0])  # x_t at the last step is not the noise of the first
+    trajectory = panel.state["samples"]
+    panel.children[-1].children[0].value = 7  # the seed box, then the button
+    panel.resample()
+    assert calls[-1]["seed"] == 7 and panel.state["samples"] is not trajectory and step.value == 0
+    panel.controls["view"].value = "shape"
+    assert panel.last_error is None and "predicted x0" in panel.last_figure.axes[0].get_title()
+
+
+def test_texel_receptive_field_follows_the_texel(model, monkeypatch):
+    from sin3dm_lite import unet
+
+    calls = spy(monkeypatch, sw, "receptive_field")
+    panel = sw.texel_receptive_field(model, plane="xy")
+    x, y, z = model.latent.resolution
+    c = panel.controls
+    assert (c["i"].max, c["j"].max, c["i"].value, c["j"].value) == (x - 1, y - 1, x // 2, y // 2)
+    assert calls[-1]["texel"] == (x // 2, y // 2) and panel.last_error is None
+    c["i"].value = 0
+    c["j"].value = 1
+    assert calls[-1]["texel"] == (0, 1) and calls[-1]["plane"] == "xy"
+    rf = panel.cache[("xy", 0, 1)]
+    peak = np.unravel_index(np.argmax(rf.local_map), rf.local_map.shape)
+    assert peak == (0, 1)  # the field sits on the chosen texel, not the centre
+    assert np.allclose(panel.last_figure.axes[0].lines[0].get_xydata(), [[0, 1]])  # the cross marks it
+    n = len(calls)
+    c["map"].value = "whole"  # the same texel: drawn from the cache
+    assert len(calls) == n and panel.last_error is None
+    c["plane"].value = "yz"  # sliders refit to y × z before one measurement
+    assert (c["i"].max, c["j"].max) == (y - 1, z - 1) and calls[-1]["texel"] == (y // 2, z // 2)
+    assert len(calls) == n + 1 and calls[-1]["plane"] == "yz"
+    with pytest.raises(ValueError, match="outside"):
+        unet.receptive_field(model.denoiser, resolution=(x, y, z), latent_channels=model.latent.channels, texel=(x, 0))
+
+
+def test_triplane_conv_explorer_takes_the_latent_apart(model, monkeypatch):
+    parts_calls = spy(monkeypatch, sw, "rollout_parts")
+    draws = spy(monkeypatch, sw.viz, "plot_triplane_conv")
+    panel = sw.triplane_conv_explorer(model.latent)
+    assert len(parts_calls) == 1 and panel.last_error is None and len(draws) == 1
+    pca = images(panel.last_figure)
+    panel.controls["mode"].value = "channel"
+    panel.controls["channel"].value = 2
+    grey = images(panel.last_figure)
+    assert draws[-1] == {"channel": 2} and grey[0].shape == pca[0].shape and not np.allclose(grey[0], pca[0])
+    assert np.allclose(grey[0][..., 0], grey[0][..., 1])  # one channel: grey
+    panel.controls["plane"].value = "yz"
+    assert panel.last_error is None and "TriplaneConv on yz" in panel.last_figure.texts[-1].get_text()
+    assert len(parts_calls) == 1  # taken apart once

@@ -1,0 +1,117 @@
+"""One setting, ``RUN``, names the model a notebook works on; fitted runs are cached.
+
+    model = open_run("canyon")              # a shipped model: loaded
+    model = open_run("runs/my_vase")        # a run folder (holding model.pt): loaded
+    model = open_run("my_vase.glb")         # a mesh file: fitted once into the cache, then loaded
+    model = open_run("colonnade")           # an example without a shipped model: the same
+
+What ``RUN`` may be, checked in this order:
+
+1. the name of a shipped model (``canyon`` or ``canyon_small``, :func:`pretrained.shipped_names`);
+2. an existing run folder with ``model.pt`` (or a ``model.pt`` file);
+3. a mesh file or the name of a built-in example: fitted with ``preset`` into
+   ``cache/<stem>-<hash12>``, where the hash covers the input (the file's bytes,
+   or the example's name and generator seed) and the preset's JSON. The same
+   input and settings find the same folder: a finished fit (``model.pt``) is
+   loaded, an interrupted one (``config.json`` and checkpoints) is resumed, so
+   a kernel restart reloads instead of training again.
+
+Anything else is refused with one line that says what ``RUN`` may be.
+"""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from .config import Config, get_preset, notebook_preset
+from .errors import Sin3DMInputError
+
+CACHE = Path("runs/cache")  # relative to the working directory (a notebook's: notebooks/)
+EXAMPLE_SEED = 0  # the generator seed ``Sin3DM.fit`` builds an example with
+MODEL_FILE = "model.pt"
+
+
+def _preset(preset) -> Config:
+    if preset is None:
+        return notebook_preset()
+    return preset if isinstance(preset, Config) else get_preset(preset)
+
+
+def run_key(source, preset=None) -> str:
+    """``<stem>-<hash12>``: the cache folder's name for fitting ``source`` (mesh path or example name) with ``preset``."""
+    from . import examples
+
+    cfg = _preset(preset)
+    h = hashlib.sha256()
+    if isinstance(source, str) and source in examples.list_examples() and not Path(source).is_file():
+        stem = source
+        h.update(f"example:{source}:seed={EXAMPLE_SEED}".encode())
+    else:
+        path = Path(source)
+        if not path.is_file():
+            raise Sin3DMInputError(f"'{source}' is neither a mesh file nor a built-in example")
+        stem = path.stem
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    h.update(b"\0config:" + cfg.to_json().encode())
+    return f"{stem}-{h.hexdigest()[:12]}"
+
+
+def cached_run(source, preset=None, cache: str | Path = CACHE) -> Path:
+    """The cache folder a fit of ``source`` with ``preset`` goes to (it may not exist yet)."""
+    return Path(cache) / run_key(source, preset)
+
+
+def _resolve(run, preset, cache) -> tuple[str, Path]:
+    from . import examples
+    from .pretrained import shipped_examples, shipped_model
+
+    if not isinstance(run, (str, Path)) or not str(run).strip():
+        raise Sin3DMInputError(f"RUN must be a name or a path, got {run!r}")
+    name = str(run)
+    shipped = shipped_model(name) if isinstance(run, str) else None
+    if shipped is not None:
+        return "shipped", shipped
+    path = Path(run).expanduser()
+    if path.is_dir():
+        if (path / MODEL_FILE).is_file():
+            return "folder", path
+        raise Sin3DMInputError(
+            f"RUN '{run}' is a folder without {MODEL_FILE}: an unfinished fit; continue it with "
+            f"`sin3dm-lite fit MESH --out {run} --resume`, or set RUN to the mesh to fit it into the cache")
+    if path.is_file() and path.name == MODEL_FILE:
+        return "folder", path.parent
+    if path.is_file() or (isinstance(run, str) and name in examples.list_examples()):
+        return "fit", cached_run(run, preset, cache)
+    raise Sin3DMInputError(
+        f"RUN '{run}' is not a shipped model ({', '.join(shipped_examples())}), "
+        f"a run folder, a mesh file or a built-in example ({', '.join(examples.list_examples())})")
+
+
+def open_run(run, preset=None, cache: str | Path = CACHE, device=None, progress: bool = True):
+    """The :class:`~sin3dm_lite.pipeline.Sin3DM` model ``run`` names (see the module docstring for the rules).
+
+    ``preset`` (default: :func:`config.notebook_preset`, ``tiny`` under
+    ``SIN3DM_FAST=1``, else ``small``) is used only when ``run`` has to be fitted.
+    The model's ``run_dir`` attribute is the folder it was loaded from.
+    """
+    from .pipeline import Sin3DM
+
+    kind, folder = _resolve(run, preset, cache)
+    say = print if progress else (lambda *a, **k: None)
+    if kind == "fit":
+        if (folder / MODEL_FILE).is_file():
+            say(f"[run] '{run}': the cached fit {folder} (delete it to fit again)")
+        else:
+            resume = (folder / "config.json").is_file()
+            say(f"[run] '{run}': {'resuming the interrupted' if resume else 'fitting once (cached)'} fit in {folder}")
+            model = Sin3DM.fit(run, preset=_preset(preset), out=folder, resume=resume, device=device, progress=progress)
+            model.run_dir = folder
+            return model
+    model = Sin3DM.load(folder, device=device)
+    model.run_dir = folder
+    return model
+
+
+__all__ = ["CACHE", "cached_run", "open_run", "run_key"]

@@ -1,0 +1,97 @@
+"""``open_run`` / ``Sin3DM.open``: RUN names a shipped model, a run folder, or an input fitted once into a cache."""
+import pytest
+
+from sin3dm_lite import runs
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.examples import write_example
+from sin3dm_lite.pipeline import Sin3DM
+from sin3dm_lite.pretrained import pretrained_path
+
+from .test_pipeline import micro_config
+
+pytestmark = pytest.mark.filterwarnings("ignore:low reconstruction quality")
+
+
+@pytest.fixture
+def fit_calls(monkeypatch):
+    """Record every ``Sin3DM.fit`` (and still run it); the wall example counts as not shipped."""
+    from sin3dm_lite import pretrained
+
+    shipped = pretrained.shipped_model
+    monkeypatch.setattr(pretrained, "shipped_model", lambda name: None if name.startswith("wall") else shipped(name))
+    calls = []
+    fit = Sin3DM.fit.__func__
+
+    def spy(cls, source, *a, **k):
+        calls.append((source, k.get("resume")))
+        return fit(cls, source, *a, **k)
+
+    monkeypatch.setattr(Sin3DM, "fit", classmethod(spy))
+    return calls
+
+
+def test_same_input_and_config_is_fitted_once_then_loaded(tmp_path, fit_calls):
+    cfg = micro_config()
+    first = runs.open_run("wall", preset=cfg, cache=tmp_path, progress=False)
+    assert fit_calls == [("wall", False)] and (first.run_dir / "model.pt").is_file()
+    assert first.run_dir.parent == tmp_path and first.run_dir.name.startswith("wall-")
+    again = Sin3DM.open("wall", preset=cfg, cache=tmp_path, progress=False)  # e.g. after a kernel restart
+    assert fit_calls == [("wall", False)] and again.run_dir == first.run_dir
+    assert again.report == first.report
+    # a run folder is loaded as it is
+    assert runs.open_run(str(first.run_dir), progress=False).run_dir == first.run_dir
+    assert runs.open_run(first.run_dir / "model.pt", progress=False).run_dir == first.run_dir
+
+
+def test_interrupted_fit_is_resumed(tmp_path, fit_calls):
+    cfg = micro_config()
+    folder = runs.cached_run("wall", cfg, tmp_path)
+    runs.open_run("wall", preset=cfg, cache=tmp_path, progress=False)
+    (folder / "model.pt").unlink()  # as if killed before the end: config and checkpoints are there
+    model = runs.open_run("wall", preset=cfg, cache=tmp_path, progress=False)
+    assert fit_calls[-1] == ("wall", True) and (folder / "model.pt").is_file() and model.run_dir == folder
+
+
+def test_the_key_covers_input_and_config(tmp_path):
+    cfg = micro_config()
+    key = runs.run_key("wall", cfg)
+    assert key == runs.run_key("wall", micro_config()) and key.startswith("wall-") and len(key) == len("wall-") + 12
+    assert runs.run_key("wall", cfg.updated(**{"diffusion.steps": 31})) != key  # changed config: other folder
+    assert runs.run_key("canyon", cfg) != key
+    mesh = write_example("wall", tmp_path / "a")
+    by_file = runs.run_key(str(mesh), cfg)
+    assert by_file.startswith("wall-") and by_file != key  # a file is keyed by its bytes
+    copy = tmp_path / "b" / "wall.obj"
+    copy.parent.mkdir()
+    copy.write_bytes(mesh.read_bytes())
+    assert runs.run_key(copy, cfg) == by_file
+    copy.write_bytes(mesh.read_bytes() + b"\n# changed\n")
+    assert runs.run_key(copy, cfg) != by_file
+
+
+def test_shipped_names_load_the_shipped_folder(tmp_path, fit_calls):
+    model = runs.open_run("canyon", cache=tmp_path, progress=False)
+    assert model.run_dir == pretrained_path() and fit_calls == [] and not list(tmp_path.iterdir())
+    assert runs.open_run("canyon_small", cache=tmp_path, progress=False).run_dir == pretrained_path()
+
+
+def test_shipped_examples_default_first():
+    from sin3dm_lite.pretrained import shipped_examples, shipped_names
+
+    assert shipped_examples()[0] == "canyon" and len(shipped_examples()) == len(shipped_names())
+
+
+@pytest.mark.parametrize("bad", ["no_such_thing", "missing/model.pt", "", 3])
+def test_bad_run_is_one_clear_error(bad, tmp_path):
+    with pytest.raises(Sin3DMInputError) as e:
+        runs.open_run(bad, cache=tmp_path, progress=False)
+    assert "\n" not in str(e.value)
+    if bad == "no_such_thing":
+        assert "shipped model (canyon" in str(e.value) and "built-in example" in str(e.value)
+
+
+def test_an_unfinished_run_folder_says_how_to_continue(tmp_path):
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "config.json").write_text("{}")
+    with pytest.raises(Sin3DMInputError, match="--resume"):
+        runs.open_run(tmp_path / "run", progress=False)
