@@ -10,7 +10,8 @@ What ``RUN`` may be, checked in this order:
 1. the name of a shipped model (``canyon`` or ``canyon_small``, :func:`pretrained.shipped_names`);
 2. an existing run folder with ``model.pt`` (or a ``model.pt`` file);
 3. a mesh file or the name of a built-in example: fitted with ``preset`` into
-   ``cache/<stem>-<hash12>``, where the hash covers the input (the file's bytes,
+   ``cache/<stem>-<hash12>``, where the hash covers the input (what is read from the file, its MTL and
+   textures included,
    or the example's name and generator seed) and the preset's JSON. The same
    input and settings find the same folder: a finished fit (``model.pt``) is
    loaded, an interrupted one (``config.json`` and checkpoints) is resumed, so
@@ -23,8 +24,11 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+import numpy as np
+
 from .config import Config, get_preset, notebook_preset
 from .errors import Sin3DMInputError
+from .mesh_io import load_mesh
 
 CACHE = Path("runs/cache")  # relative to the working directory (a notebook's: notebooks/)
 EXAMPLE_SEED = 0  # the generator seed ``Sin3DM.fit`` builds an example with
@@ -51,11 +55,18 @@ def run_key(source, preset=None) -> str:
         if not path.is_file():
             raise Sin3DMInputError(f"'{source}' is neither a mesh file nor a built-in example")
         stem = path.stem
-        with open(path, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
+        _hash_mesh(h, load_mesh(path))  # what was read, so an OBJ's MTL and textures count too
     h.update(b"\0config:" + cfg.to_json().encode())
     return f"{stem}-{h.hexdigest()[:12]}"
+
+
+def _hash_mesh(h, mesh) -> None:
+    """Feed everything of ``mesh`` the fit reads (geometry, UVs, colours, materials and their images) to ``h``."""
+    arrays = [mesh.vertices, mesh.faces, mesh.face_material, mesh.face_uvs, mesh.vertex_colors]
+    for m in mesh.materials:
+        arrays += [m.base_color, np.float64([m.metallic, m.roughness]), m.image, m.metallic_roughness_image, m.normal_image]
+    for a in arrays:
+        h.update(b"\0none" if a is None else np.ascontiguousarray(a).tobytes() + str(np.shape(a)).encode())
 
 
 def cached_run(source, preset=None, cache: str | Path = CACHE) -> Path:

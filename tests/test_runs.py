@@ -1,5 +1,8 @@
 """``open_run`` / ``Sin3DM.open``: RUN names a shipped model, a run folder, or an input fitted once into a cache."""
+import shutil
+
 import pytest
+from PIL import Image
 
 from sin3dm_lite import runs
 from sin3dm_lite.errors import Sin3DMInputError
@@ -60,12 +63,15 @@ def test_the_key_covers_input_and_config(tmp_path):
     assert runs.run_key("canyon", cfg) != key
     mesh = write_example("wall", tmp_path / "a")
     by_file = runs.run_key(str(mesh), cfg)
-    assert by_file.startswith("wall-") and by_file != key  # a file is keyed by its bytes
-    copy = tmp_path / "b" / "wall.obj"
-    copy.parent.mkdir()
-    copy.write_bytes(mesh.read_bytes())
+    assert by_file.startswith("wall-") and by_file != key  # a file is keyed by what it holds
+    copy = tmp_path / "b"
+    shutil.copytree(mesh.parent, copy)  # the OBJ with its MTL and texture, elsewhere
+    copy = copy / mesh.name
     assert runs.run_key(copy, cfg) == by_file
-    copy.write_bytes(mesh.read_bytes() + b"\n# changed\n")
+    copy.write_text(copy.read_text() + "\n# a comment changes nothing the fit reads\n")
+    assert runs.run_key(copy, cfg) == by_file
+    texture = next(p for p in copy.parent.iterdir() if p.suffix == ".png")
+    Image.open(texture).transpose(Image.Transpose.FLIP_LEFT_RIGHT).save(texture)  # another texture: refit
     assert runs.run_key(copy, cfg) != by_file
 
 
