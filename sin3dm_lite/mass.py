@@ -38,6 +38,7 @@ import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -316,7 +317,7 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
         files = {f"{name}/{k}": v for k, v in file_record(tmp, sorted(p.name for p in tmp.iterdir())).items()}
         append_manifest_part(out, f"rank{ranks.rank}", {
             "index": i, "seed": a.seed + i, "folder": name, "files": files, "faces": info["faces"],
-            "seconds": round(time.perf_counter() - started, 3), "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            "seconds": round(time.perf_counter() - started, 3), "time": datetime.now().isoformat(timespec="milliseconds"),
             "rank": ranks.rank})
         install_sample(tmp, out / name, out, ours)
         if info["no_pictures"] and not said:
