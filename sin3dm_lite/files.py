@@ -295,7 +295,8 @@ def check_output_folder(out: Path, overwrite: bool, names=(), option: str = "--o
         raise Sin3DMInputError(f"{option} '{out}' is a file; give a folder to write into")
     if not out.is_dir():
         return
-    present = [p for p in out.iterdir() if not (_TEMP_DIR.match(p.name) or _TEMP_FILE.match(p.name))]
+    present = [p for p in out.iterdir()  # temporaries and a lock (a writer killed at its start) are no content
+               if not (_TEMP_DIR.match(p.name) or _TEMP_FILE.match(p.name) or p.name == LOCK)]
     if not present:
         return
     if not overwrite:

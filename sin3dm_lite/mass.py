@@ -222,12 +222,16 @@ def prepare_folder(out: Path, a, settings: dict, run: str, names_for) -> list[in
     check_writable(out)
     out.mkdir(parents=True, exist_ok=True)
     acquire_lock(out)  # one writer per folder; removes temporaries a killed run left
-    if not continuing:
-        remove_ours(out)
-        atomic_write(out / SETTINGS, json.dumps({"tool": "sin3dm-lite", "kind": "samples", "run": run,
-                                                 "settings": settings}, indent=1))
-        record_written(out, [SETTINGS])
-    done = finished(out)
+    try:
+        if not continuing:
+            remove_ours(out)
+            atomic_write(out / SETTINGS, json.dumps({"tool": "sin3dm-lite", "kind": "samples", "run": run,
+                                                     "settings": settings}, indent=1))
+            record_written(out, [SETTINGS])
+        done = finished(out)
+    except BaseException:
+        release_lock(out)
+        raise
     return [i for i in range(a.start, a.start + a.n) if i not in done]
 
 
