@@ -4,6 +4,7 @@
     sin3dm-lite grid MESH --resolution N --out FILE.npz mesh → TSDF + colour grid
     sin3dm-lite fit MESH_OR_EXAMPLE --preset small --out RUN_DIR [--resume]
     sin3dm-lite sample RUN_DIR -n 4 --out DIR [--resize SX SY SZ] [--diversity D]
+    torchrun --nproc_per_node=N -m sin3dm_lite.cli sample RUN_DIR -n 1000 --out DIR   sharded (see mass.py)
     sin3dm-lite demo [--example NAME] [--out DIR] [--train]   the whole method on a built-in example
     sin3dm-lite render MESH --views 8 --size 512 --out DIR   PNG views (no display or GPU needed)
     sin3dm-lite evaluate RUN SAMPLES_DIR [--out report.json] [--weights DIR]   the paper's metrics
@@ -21,6 +22,8 @@ tool) are replaced. Outputs are checked (writable, not overlapping the run
 folder or the input) before the long work starts; results are written into a
 temporary folder beside the target (``.sin3dm-tmp-<pid>-*``, removed by the
 next run if the process was killed) and moved into place at the end.
+``sample`` and ``demo`` move each sample folder into place as it finishes and
+continue a folder of samples with the same settings (:mod:`sin3dm_lite.mass`).
 """
 from __future__ import annotations
 
@@ -162,7 +165,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = command("sample")
     _sample_args(s)
     s.add_argument("run", help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon)")
-    s.add_argument("--out", required=True, help="output folder (new or empty; see --overwrite)")
+    s.add_argument("--out", required=True,
+                   help="output folder (new, empty, or one this command wrote with the same settings: continued; "
+                        "see --overwrite)")
 
     d = command("demo")
     _sample_args(d, n_default=4)
@@ -199,7 +204,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
-    s.add_argument("-n", type=_positive_int, default=n_default, help="number of samples")
+    s.add_argument("-n", type=_positive_int, default=n_default,
+                   help="number of samples; each lands in --out as it finishes, and the same command again continues")
+    s.add_argument("--start", type=_whole, default=0,
+                   help="index of the first sample (sample i comes from seed + i: `--start 7 -n 1` draws sample 7 again)")
+    s.add_argument("--batch", type=_positive_int, default=None,
+                   help="samples per denoiser call (default: 8, fewer if memory is short)")
+    s.add_argument("--workers", type=_whole, default=1,
+                   help="processes that decode, texture and export meshes while the next batch is sampled "
+                        "(0: in the sampling process)")
     ctl = s.add_argument_group("controlled generation (one at a time, default: none, samples the input's size; "
                                "boxes are fractions 0-1 of the model's box along x, y, z)").add_mutually_exclusive_group()
     ctl.add_argument("--resize", nargs=3, type=_positive_float, metavar=("SX", "SY", "SZ"), default=None,
@@ -225,7 +238,8 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
                    help="decode grid along the longest side (default: the preset's)")
     s.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     s.add_argument("--overwrite", action="store_true",
-                   help="write into a non-empty --out, replacing only the files sin3dm-lite wrote there before")
+                   help="write into a non-empty --out, first removing the files sin3dm-lite wrote there before "
+                        "(without it, a folder of samples with the same settings is continued)")
     s.add_argument("--no-pictures", action="store_true",
                    help="skip NNN/preview.png and contact_sheet.png (rendered off-screen; they need Mesa's EGL on Linux)")
 
@@ -237,6 +251,16 @@ def _float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
     if v != v or v in (float("inf"), float("-inf")):
         raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
+    return v
+
+
+def _whole(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected 0 or more, got {v}")
     return v
 
 
@@ -332,21 +356,33 @@ def cmd_fit(a) -> None:
 
 
 def check_sample_output(out: Path, a, protected: dict) -> None:
-    """Everything about ``--out`` and ``-n`` that can fail, checked before any work or writing."""
-    from .files import check_not_overlapping, check_output_folder, check_writable
-    from .pipeline import MAX_SAMPLES
+    """Everything about ``--out``, ``-n`` and ``--start`` that can fail, checked before any work or writing.
 
-    if a.n > MAX_SAMPLES:
-        raise Sin3DMInputError(f"-n {a.n} is too many samples (at most {MAX_SAMPLES} per run, fewer if memory is short); "
-                               "ask for fewer and run again with another --seed")
+    A folder holding a sample run of ours (``sampling.json``) passes here; its
+    settings are compared once the model is loaded (:func:`mass.check_folder`).
+    """
+    from .files import check_not_overlapping, check_output_folder, check_writable
+    from .mass import MAX_RUN_SAMPLES, read_settings
+
+    if a.start + a.n > MAX_RUN_SAMPLES:
+        raise Sin3DMInputError(f"-n {a.n} (from --start {a.start}) is too many samples: indices go up to at most "
+                               f"{MAX_RUN_SAMPLES - 1} per output folder; use several --out folders with other --seed")
     check_not_overlapping(out, protected)
-    names = ["index.html", "contact_sheet.png"]  # and a sample folder's files (mesh.obj/.mtl/.glb, mesh*.png, preview.png)
-    for d in (out.iterdir() if out.is_dir() else []):
-        if d.name.isdigit() and int(d.name) < a.n:
-            names += ([f"{d.name}/{f.name}" for f in d.iterdir() if f.name.startswith("mesh") or f.name == "preview.png"]
-                      if d.is_dir() else [d.name])
-    check_output_folder(out, a.overwrite, names)
+    if not (out.is_dir() and read_settings(out) is not None and not a.overwrite):
+        check_output_folder(out, a.overwrite, sample_output_names(out, a))
     check_writable(out)
+
+
+def sample_output_names(out: Path, a) -> list[str]:
+    """The files a sample run into ``out`` writes where something may already be (checked for foreign files)."""
+    from .mass import SAMPLE_FILES, SAMPLES, SETTINGS
+
+    names = ["index.html", "contact_sheet.png", SETTINGS, SAMPLES]
+    for d in (out.iterdir() if out.is_dir() else []):
+        if d.name.isdigit() and a.start <= int(d.name) < a.start + a.n:
+            names += ([f"{d.name}/{f.name}" for f in d.iterdir() if f.name.startswith(SAMPLE_FILES)]
+                      if d.is_dir() else [d.name])
+    return names
 
 
 def control_args(a) -> dict:
@@ -360,76 +396,49 @@ def control_args(a) -> dict:
     return {"resize": tuple(a.resize) if a.resize else (1.0, 1.0, 1.0)}
 
 
-def write_pictures(model, meshes, folder: Path, a, label: str) -> None:
-    """``NNN/preview.png`` per sample and ``contact_sheet.png`` of the input beside them, one scale for all.
+def write_samples(model, out: Path, a, label: str = "sample", ranks=None, run: str = "") -> dict:
+    """Sample ``-n`` shapes from index ``--start`` into ``out``, each written as it finishes (see :mod:`.mass`).
 
-    Without an off-screen OpenGL context (a Linux machine without Mesa's EGL)
-    this says so in one line and the meshes are written without pictures.
+    Rank 0 checks and prepares the folder (continue, or start over with
+    ``--overwrite``) and lists the missing indices; every rank samples its
+    share in batches of ``--batch`` while ``--workers`` processes decode,
+    texture and export; rank 0 then writes ``samples.jsonl``, ``index.html``,
+    ``contact_sheet.png`` and the manifest. Returns ``{"pending", "new", "total", "seconds"}``.
     """
-    from .files import atomic_write
-    from .render import contact_sheet, render_hero
-    from .viewer import png_bytes
+    from .files import release_lock
+    from .mass import DEFAULT_BATCH, Ranks, finish_folder, prepare_folder, sample_many, sample_settings
 
-    try:
-        reference = model.to_mesh(model.input_sample(), 0, resolution=a.mesh_resolution, faces=a.faces,
-                                  texture_size=a.texture_size)
-        everything = [reference, *meshes]
-        box = np.array([np.min([m.vertices.min(0) for m in everything], axis=0),
-                        np.max([m.vertices.max(0) for m in everything], axis=0)])
-        images = [render_hero(m, size=384, box=box) for m in everything]
-    except Sin3DMInputError as e:
-        print(f"[{label}] no pictures: {e}")
-        return
-    for i, img in enumerate(images[1:]):
-        atomic_write(folder / f"{i:03d}" / "preview.png", png_bytes(img))
-    sheet = contact_sheet(images, ["input (reconstruction)"] + [f"{i:03d}" for i in range(len(meshes))])
-    atomic_write(folder / "contact_sheet.png", png_bytes(sheet))
-    print(f"[{label}] pictures: NNN/preview.png and contact_sheet.png (the input beside the samples)")
-
-
-def write_samples(model, out: Path, a, label: str = "sample") -> Path:
-    """Sample, decode and export into ``out``.
-
-    Everything is written into a temporary folder beside ``out``
-    (``.sin3dm-tmp-<pid>-*``) and moved into place at the end; into an
-    existing ``out`` (``--overwrite``) only the files its manifest lists are
-    replaced (see :func:`sin3dm_lite.files.install_output`).
-    """
-    from tqdm.auto import tqdm
-
-    from .export import export_mesh
-    from .files import install_output, make_temp_dir, remove_stale_temps
-    from .viewer import gallery, save_html
-
+    ranks = ranks or Ranks()
     out = Path(out)
     plan = model.plan(**control_args(a))  # a bad box fails here, before anything is written
     limit = model.max_samples(tuple(r / b for r, b in zip(plan.resolution, model.latent.resolution)))
-    if a.n > limit:
-        raise Sin3DMInputError(f"-n {a.n} is more samples than fit in memory at once here (at most {limit} with this "
-                               f"model and size); ask for fewer and run again with another --seed")
-    check_sample_output(out, a, {})
-    out.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temps(out.parent)  # left by a killed run
-    tmp = make_temp_dir(out.parent)  # before the long work: the location must be writable
+    if a.batch is not None and a.batch > limit:
+        raise Sin3DMInputError(f"--batch {a.batch} is more samples than fit in memory at once here (at most {limit} "
+                               "with this model and size); ask for a smaller --batch")
+    a.batch = a.batch or min(DEFAULT_BATCH, a.n, limit)
+    settings = sample_settings(model, plan, a, control_args(a))
+    why, pending = None, None
+    if ranks.rank == 0:
+        try:
+            pending = prepare_folder(out, a, settings, run, lambda o: sample_output_names(o, a))
+        except Sin3DMInputError as e:
+            why = str(e)
+    why, pending = ranks.from_rank0((why, pending))
+    if why is not None:
+        if ranks.rank == 0:
+            raise Sin3DMInputError(why)
+        raise SystemExit(2)  # rank 0 says why
     try:
-        t0 = time.perf_counter()
-        samples = model.sample(a.n, plan=plan, steps=a.steps, method="ddpm" if a.ddpm else None, seed=a.seed,
-                               diversity=a.diversity)
-        meshes = []
-        # the bar (on stderr, like the sampler's and the trainers') over the slow part: decode, texture, export
-        for i in tqdm(range(len(samples)), desc=f"[{label}] decode, texture, export", unit="mesh", leave=False):
-            mesh = model.to_mesh(samples, i, resolution=a.mesh_resolution, faces=a.faces, texture_size=a.texture_size)
-            export_mesh(mesh, tmp / f"{i:03d}", name="mesh")
-            meshes.append(mesh)
-            tqdm.write(f"[{label}] {i + 1}/{len(samples)}: {len(mesh.faces):,} faces  ({time.perf_counter() - t0:.0f} s)",
-                       file=sys.stdout)
-        if not a.no_pictures:
-            write_pictures(model, meshes, tmp, a, label)
-        save_html(gallery(meshes, labels=[f"{i:03d}" for i in range(len(meshes))]), tmp / "index.html")
-        install_output(tmp, out)
+        if ranks.rank == 0 and len(pending) < a.n:
+            print(f"[{label}] {out}: {a.n - len(pending)} of the {a.n} samples are there already; "
+                  f"sampling the other {len(pending)}")
+        stats = sample_many(model, out, a, ranks, plan, pending, label)
+        ranks.barrier()
+        total = len(finish_folder(model, out, a, plan, label)) if ranks.rank == 0 else None
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return out
+        if ranks.rank == 0:
+            release_lock(out)
+    return {"pending": len(pending), "total": total, **stats}
 
 
 def find_run(name: str) -> Path:
@@ -446,16 +455,24 @@ def find_run(name: str) -> Path:
 
 
 def cmd_sample(a) -> None:
-    from .pipeline import Sin3DM
-
     from .device import get_device
+    from .mass import start_ranks, stop_ranks
+    from .pipeline import Sin3DM
 
     run = find_run(a.run)
     get_device(a.device)
-    check_sample_output(Path(a.out), a, {"run folder": run})
-    model = Sin3DM.load(run, device=a.device)
-    out = write_samples(model, Path(a.out), a)
-    print(f"wrote {a.n} samples to {out}/NNN/mesh.obj|.glb; open {out / 'index.html'} in a browser")
+    check_sample_output(Path(a.out), a, {"run folder": run})  # every rank, before any rank writes
+    ranks, device = start_ranks(a.device)
+    try:
+        model = Sin3DM.load(run, device=device)
+        r = write_samples(model, Path(a.out), a, ranks=ranks, run=str(run))
+    finally:
+        stop_ranks(ranks)
+    if ranks.rank == 0:
+        rate = 60 * r["new"] / r["seconds"] if r["seconds"] > 0 and r["new"] else 0.0
+        where = f" on {ranks.world} processes" if ranks.world > 1 else ""
+        print(f"wrote {r['pending']} new samples{where} ({rate:.1f} meshes/min on rank 0); {a.out} holds {r['total']}: "
+              f"NNN/mesh.obj|.glb, samples.jsonl; open {Path(a.out) / 'index.html'} in a browser")
 
 
 def cmd_demo(a) -> None:
@@ -481,7 +498,7 @@ def cmd_demo(a) -> None:
     else:
         model = Sin3DM.load(shipped, device=a.device)
         print(f"[demo] loaded the shipped '{DEMO_PRESET}' model of the '{a.example}' example")
-    write_samples(model, out, a, label="demo")
+    write_samples(model, out, a, label="demo", run=str(shipped or "trained by demo"))
     print(
         f"[demo] done: {a.n} new shapes in {out}/NNN/ (mesh.obj + mesh.mtl + mesh.png, mesh.glb)\n"
         f"[demo] look at them: open {out / 'index.html'} in a browser, or import mesh.obj in Blender"

@@ -262,6 +262,33 @@ def predict_clean(model, schedule: NoiseSchedule, x_t: Triplane, t: torch.Tensor
     return x0.map(lambda p: p.clamp(-1.0, 1.0)) if clip else x0
 
 
+class SampleNoise:
+    """Gaussian noise for a batch where sample ``i`` comes from its own generator seeded ``seeds[i]``.
+
+    ``seed`` is an int (samples ``seed, seed+1, ...``), a list of seeds, or one
+    ``torch.Generator`` shared by the whole batch. Per-sample noise is drawn on
+    the CPU and moved to the device, so a sample is the same on any device and in any batch.
+    """
+
+    def __init__(self, seed: int | Sequence[int] | torch.Generator, n: int):
+        if isinstance(seed, torch.Generator):
+            self.shared, self.gens = seed, None
+            return
+        seeds = list(range(int(seed), int(seed) + n)) if isinstance(seed, (int, np.integer)) else [int(s) for s in seed]
+        if len(seeds) != n:
+            raise Sin3DMInputError(f"{len(seeds)} seeds for {n} samples; give one seed per sample")
+        self.shared, self.gens = None, [torch.Generator().manual_seed(s) for s in seeds]
+
+    def draw(self, like: Triplane, device) -> Triplane:
+        """Noise of ``like``'s shape (which may live on the ``meta`` device) on ``device``."""
+        if self.gens is None:
+            return like.map(lambda p: torch.randn(p.shape, generator=self.shared, device=self.shared.device).to(device))
+        return like.map(lambda p: torch.cat([torch.randn((1, *p.shape[1:]), generator=g) for g in self.gens]).to(device))
+
+    def like(self, tp: Triplane) -> Triplane:
+        return self.draw(tp, tp.device).to(dtype=tp.xy.dtype)
+
+
 def sample(
     model: TriplaneUNet,
     schedule: NoiseSchedule | None,
@@ -270,7 +297,7 @@ def sample(
     latent_channels: int | None = None,
     method: str = "ddim",
     steps: int = 50,
-    seed: int | torch.Generator = 0,
+    seed: int | Sequence[int] | torch.Generator = 0,
     clip: bool = True,
     known: Triplane | None = None,
     mask: Triplane | None = None,
@@ -301,6 +328,13 @@ def sample(
     values keep the input's layout and regenerate only fine detail, 1 is the
     paper's unconditional sampling; 0 returns ``start`` itself.
 
+    Seeds: sample ``i`` draws all its noise (the start, DDPM's per-step noise,
+    the noised known latent) from its own generator seeded ``seed + i`` (or
+    ``seed[i]`` for a list of seeds), on the CPU, so it depends on its seed and
+    the settings only: not on the batch it is drawn in, nor on the device
+    (``sample(n=4, seed=0)[2]`` equals ``sample(n=1, seed=2)``, up to float
+    rounding). A ``torch.Generator`` instead draws the whole batch from that one generator.
+
     ``return_intermediates``: an int k (k evenly spaced steps, first and last
     included) or step indices; then returns ``(latents, [{"step", "t", "x_t",
     "x0"}, ...])`` with CPU tensors, ``x_t`` the input of that step and ``x0``
@@ -311,7 +345,7 @@ def sample(
     schedule = schedule or NoiseSchedule.from_config(model.cfg)
     prediction = prediction or getattr(getattr(model, "cfg", None), "prediction", "x0")
     channels = latent_channels or model.latent_channels
-    gen = seed if isinstance(seed, torch.Generator) else torch.Generator(device=device).manual_seed(seed)
+    noise = SampleNoise(seed, n)
     t0 = start_step(schedule, diversity)
     if t0 < schedule.timesteps - 1 and start is None:
         raise Sin3DMInputError("diversity below 1 starts from a noised latent: pass `start` (e.g. the input's latent)")
@@ -325,7 +359,7 @@ def sample(
     if known is not None:
         known, mask = known.to(device, torch.float32), mask.to(device, torch.float32)
 
-    x = Triplane.randn(n, channels, tuple(resolution), generator=gen, device=device)  # x_T
+    x = noise.draw(Triplane.randn(n, channels, tuple(resolution), device="meta"), device)  # x_T, shape from a meta tensor
     if t0 < schedule.timesteps - 1:  # x_t0 = the start latent noised to t0
         if start.resolution != tuple(resolution):
             raise Sin3DMInputError(f"start latent is {start.resolution}, the samples are {tuple(resolution)}")
@@ -333,7 +367,7 @@ def sample(
         x0_start = x0_start.repeat(n) if x0_start.batch == 1 else x0_start
         x = schedule.q_sample(x0_start, t0, x)
     if known is not None:
-        x = _blend(mask, schedule.q_sample(known, ts[0], Triplane.randn_like(x, gen)), x)
+        x = _blend(mask, schedule.q_sample(known, ts[0], noise.like(x)), x)
     for i, t in enumerate(tqdm(ts, disable=not progress, desc=method)):
         tt = torch.full((n,), t, dtype=torch.long, device=device)
         x0 = predict_clean(model, schedule, x, tt, prediction, clip)
@@ -342,12 +376,12 @@ def sample(
         t_prev = ts[i + 1] if i + 1 < len(ts) else -1
         if method == "ddpm":
             mean, var = schedule.posterior(x0, x, tt)
-            x = mean + Triplane.randn_like(x, gen) * var.sqrt() if t > 0 else mean
+            x = mean + noise.like(x) * var.sqrt() if t > 0 else mean
         else:  # DDIM, η = 0: keep the predicted noise direction, move to ᾱ_{t_prev}
             eps, ab_prev = schedule.predict_eps(x, tt, x0), float(schedule.alpha_bar(t_prev))
             x = x0.zip_map(eps, lambda a, e: math.sqrt(ab_prev) * a + math.sqrt(1 - ab_prev) * e)
         if known is not None:
-            keep = schedule.q_sample(known, t_prev, Triplane.randn_like(x, gen)) if t_prev >= 0 else known
+            keep = schedule.q_sample(known, t_prev, noise.like(x)) if t_prev >= 0 else known
             x = _blend(mask, keep, x)
     return (x, intermediates) if return_intermediates is not None else x
 
@@ -393,5 +427,6 @@ __all__ = [
     "start_step",
     "fit_diffusion",
     "sample",
+    "SampleNoise",
     "soft_mask",
 ]

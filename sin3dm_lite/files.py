@@ -6,6 +6,10 @@
 * Temporary files and folders carry the writer's PID in their name, so that a
   later run removes the ones a killed process left behind
   (:func:`atomic_path` for one file, :func:`atomic_folder` for several).
+* A long writer (``sample`` of many shapes) records as it goes in manifest
+  parts (``.sin3dm-manifest-<name>.jsonl``, one JSON object with a ``files``
+  entry per line, appended and flushed per item); they count as the manifest
+  until the writer merges them into it at the end (:func:`append_manifest_part`).
 * A run folder is locked (``.sin3dm-lock`` holding the PID) while one process writes it.
 """
 from __future__ import annotations
@@ -25,6 +29,8 @@ from .errors import Sin3DMInputError
 
 TEMP_PREFIX = ".sin3dm-tmp-"  # temporary folders: .sin3dm-tmp-<pid>-<random>
 MANIFEST = ".sin3dm-manifest.json"
+MANIFEST_PART = ".sin3dm-manifest-{}.jsonl"  # parts of the manifest appended by a long writer (one per process)
+_PART = re.compile(r"^\.sin3dm-manifest-[\w.-]+\.jsonl$")
 LOCK = ".sin3dm-lock"
 _TEMP_DIR = re.compile(r"^\.sin3dm-tmp-(\d+)-")
 _TEMP_FILE = re.compile(r"^\..*\.sin3dm-(\d+)-[^.]*\.tmp")  # from atomic_path
@@ -184,12 +190,58 @@ def read_manifest(folder: Path) -> dict[str, list[int]]:
         files = dict(files)
     except (OSError, ValueError, KeyError, AttributeError, TypeError):
         return {}
+    for record in read_manifest_parts(folder):
+        if isinstance(record.get("files"), dict):
+            files.update(record["files"])
     out = {}
     for f, st in files.items():
         if (isinstance(f, str) and f and not os.path.isabs(f) and ".." not in Path(f).parts and f != MANIFEST
                 and isinstance(st, list) and len(st) == 2):
             out[Path(f).as_posix()] = st
     return out
+
+
+def manifest_parts(folder: Path) -> list[Path]:
+    """The manifest parts (``.sin3dm-manifest-<name>.jsonl``) in ``folder``, by name."""
+    try:
+        return sorted(p for p in Path(folder).iterdir() if _PART.match(p.name) and p.is_file())
+    except OSError:
+        return []
+
+
+def read_manifest_parts(folder: Path) -> list[dict]:
+    """Every record (one JSON object per line) of ``folder``'s manifest parts; a line cut short by a kill is skipped."""
+    records = []
+    for part in manifest_parts(folder):
+        try:
+            lines = part.read_text(encoding="utf-8").splitlines()
+        except OSError:
+            continue
+        for line in lines:
+            try:
+                r = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(r, dict):
+                records.append(r)
+    return records
+
+
+def append_manifest_part(folder: Path, name: str, record: dict) -> None:
+    """Append ``record`` (with ``files: {relative path: [size, mtime_ns]}``) as one line to the part ``name``, on disk.
+
+    Call it *before* moving those files into place (a move keeps size and
+    time): a kill then leaves no file of ours unrecorded.
+    """
+    with open(Path(folder) / MANIFEST_PART.format(name), "a", encoding="utf-8") as f:
+        f.write(json.dumps(record) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def file_record(folder: Path, names) -> dict[str, list[int]]:
+    """``{relative path: [size, mtime_ns]}`` of ``names`` in ``folder`` as they are now (what a manifest holds)."""
+    return {Path(n).as_posix(): _stat(Path(folder) / n) for n in names}
 
 
 def is_ours(folder: Path, rel: str, manifest: dict | None = None) -> bool:
@@ -243,7 +295,8 @@ def check_output_folder(out: Path, overwrite: bool, names=(), option: str = "--o
         raise Sin3DMInputError(f"{option} '{out}' is a file; give a folder to write into")
     if not out.is_dir():
         return
-    present = [p for p in out.iterdir() if not (_TEMP_DIR.match(p.name) or _TEMP_FILE.match(p.name))]
+    present = [p for p in out.iterdir()  # temporaries and a lock (a writer killed at its start) are no content
+               if not (_TEMP_DIR.match(p.name) or _TEMP_FILE.match(p.name) or p.name == LOCK)]
     if not present:
         return
     if not overwrite:
@@ -305,6 +358,8 @@ def install_output(tmp: Path, out: Path) -> list[str]:
         dst.parent.mkdir(parents=True, exist_ok=True)
         os.replace(tmp / f, dst)
     write_manifest(out, new)
+    for part in manifest_parts(out):  # folded into the old manifest, which is replaced now
+        part.unlink(missing_ok=True)
     shutil.rmtree(tmp, ignore_errors=True)
     return sorted(new)
 

@@ -298,7 +298,7 @@ class Sin3DM:
         resize: tuple[float, float, float] | float = (1.0, 1.0, 1.0),
         steps: int | None = None,
         method: str | None = None,
-        seed: int = 0,
+        seed: int | list[int] = 0,
         return_intermediates=None,
         known: Triplane | None = None,
         mask: Triplane | None = None,
@@ -332,6 +332,10 @@ class Sin3DM:
         its size, an outpainted or edited one from the known latent), so the
         layout stays and only what the noise erased is regenerated; 0 gives
         the input (or the known latent) back. The result's ``plan`` says what was sampled.
+
+        Sample ``i`` comes from the seed ``seed + i`` alone (or ``seed[i]`` for a
+        list): ``sample(4, seed=0)``'s third is ``sample(1, seed=2)``, whatever
+        the batch or the device, so any sample of a large run can be drawn again on its own.
         """
         from .diffusion import sample as diffusion_sample, start_step
 

@@ -89,6 +89,9 @@ def template(tmp_path_factory):
     (root / "neighbour.txt").write_text("beside --out")
     (root / "grid.npz").write_bytes(b"someone else's grid")
     (root / "report.json").write_text("{}")  # someone else's report
+    # a folder of samples (settings: 3 steps, no pictures) for "other settings" rows
+    assert main(["sample", str(root / "run"), "--out", str(root / "samples"), "-n", "1", "--workers", "0", "--no-pictures",
+                 *SMALL]) == 0
     (root / "badsamples" / "000").mkdir(parents=True)
     (root / "badsamples" / "000" / "mesh.obj").write_text("not a mesh\n")
     return root
@@ -115,7 +118,14 @@ CASES = {
     "sample-device": (["sample", "run", "--out", "s", "--device", "gpu"], "device"),
     "sample-cuda-index": (["sample", "run", "--out", "s", "--device", "cuda:99"], "cuda"),
     "sample-huge-n": (["sample", "run", "--out", "s", "-n", "1000000000"], "at most"),
-    "sample-n-beyond-memory": (["sample", "run", "--out", "s", "-n", "9000", "--resize", "8", "8", "8"], "fit in memory"),
+    "sample-batch-beyond-memory": (["sample", "run", "--out", "s", "--batch", "9000", "--resize", "8", "8", "8"],
+                                   "fit in memory"),
+    "sample-start-beyond-limit": (["sample", "run", "--out", "s", "--start", "999999", "-n", "5"], "at most"),
+    "sample-negative-start": (["sample", "run", "--out", "s", "--start", "-1"], "0 or more"),
+    "sample-zero-batch": (["sample", "run", "--out", "s", "--batch", "0"], "positive"),
+    "sample-negative-workers": (["sample", "run", "--out", "s", "--workers", "-2"], "0 or more"),
+    "sample-other-settings": (["sample", "run", "--out", "samples", "-n", "1", *SMALL, "--steps", "4", "--no-pictures"],
+                              "other settings (steps: 3 there, 4 now)"),
     "sample-negative-seed": (["sample", "run", "--out", "s", "--seed", "-1"], "seed"),
     "sample-truncated": (["sample", "truncated", "--out", "s"], "not made by this version"),
     "sample-random-bytes": (["sample", "random", "--out", "s"], "not made by this version"),
@@ -202,13 +212,17 @@ CASES |= {
 }
 
 
+PARSER_CASES = ("seed", "negative-start", "zero-batch", "negative-workers")  # refused by argparse (SystemExit)
+
+
 @pytest.mark.parametrize("case", list(CASES))
 def test_bad_input_exits_2_with_one_line_and_writes_nothing(work, capsys, case):
     argv, words = CASES[case]
     before = snapshot(work)
-    with pytest.raises(SystemExit) if "seed" in case else _nothing() as e:
+    by_parser = any(w in case for w in PARSER_CASES)
+    with pytest.raises(SystemExit) if by_parser else _nothing() as e:
         code = main(argv)
-    if "seed" in case:  # found by the parser
+    if by_parser:  # found by the parser
         code = e.value.code
     err = capsys.readouterr().err
     lines = [line for line in err.strip().splitlines() if ": warning: " not in line]
@@ -218,7 +232,7 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(work, capsys, case):
     assert "weights_only=False" not in err
     assert snapshot(work) == before  # nothing written, nothing beside --out touched
     assert not (work / "PWNED").exists()  # the pickled code never ran
-    assert not [p for p in Path(work).rglob(".sin3dm-*")]
+    assert not [p for p in Path(work).rglob(".sin3dm-*") if p.name != MANIFEST]  # the template's "samples" has one
 
 
 class _nothing:
@@ -247,7 +261,7 @@ def test_sample_keeps_foreign_files_and_replaces_only_its_own(work, capsys):
     assert (out / "000" / "their_edit.blend").is_file() and (out / "theirs.txt").is_file()
     pictures = {"contact_sheet.png"} if (out / "contact_sheet.png").exists() else set()  # none without EGL
     assert set(read_manifest(out)) == ({f"000/{p.name}" for p in (out / "000").iterdir() if p.name != "their_edit.blend"}
-                                       | {"index.html"} | pictures)
+                                       | {"index.html", "sampling.json", "samples.jsonl"} | pictures)
     # a foreign file exactly where a new output goes is never replaced
     (out / "index.html").unlink()
     (out / "index.html").write_text("their page")

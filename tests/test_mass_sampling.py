@@ -1,0 +1,141 @@
+"""Mass generation: per-sample seeds, two processes under torchrun, a killed run continued, one sample drawn again."""
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from sin3dm_lite.files import LOCK, MANIFEST, TEMP_PREFIX, manifest_parts, read_manifest
+from sin3dm_lite.pipeline import Sin3DM
+from sin3dm_lite.pretrained import pretrained_path
+
+RUN = str(pretrained_path())
+SMALL = ["--steps", "3", "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64", "--no-pictures"]
+N = 4
+ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
+
+
+def _cli(*argv, torchrun: int = 0, **kw) -> subprocess.Popen:
+    launcher = []
+    if torchrun:
+        with socket.socket() as s:  # a free port for the rendezvous
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        launcher = ["-m", "torch.distributed.run", f"--nproc_per_node={torchrun}", f"--master_port={port}"]
+    return subprocess.Popen([sys.executable, *launcher, "-m", "sin3dm_lite.cli", *argv], env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+
+
+def _ok(p: subprocess.Popen, timeout=600) -> str:
+    out, err = p.communicate(timeout=timeout)
+    assert p.returncode == 0, err[-3000:]
+    return out
+
+
+def _latent(folder: Path, i: int) -> dict:
+    return torch.load(folder / f"{i:03d}" / "latent.pt", weights_only=True)["triplane"]
+
+
+def _same(a: dict, b: dict) -> bool:
+    return all(torch.allclose(a[k], b[k], atol=1e-5) for k in ("xy", "xz", "yz"))
+
+
+def _check_folder(out: Path, indices) -> list[dict]:
+    """samples.jsonl holds each index once; the folders are exactly those; the manifest lists exactly the files."""
+    records = [json.loads(line) for line in (out / "samples.jsonl").read_text().splitlines()]
+    assert [r["index"] for r in records] == list(indices)
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == [f"{i:03d}" for i in indices]
+    files = {p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file() and p.name != MANIFEST}
+    assert set(read_manifest(out)) == files
+    assert set().union(*(r["files"] for r in records)) == {f for f in files if "/" in f}
+    assert not [p for p in out.rglob("*") if p.name.startswith((TEMP_PREFIX, LOCK))] and not manifest_parts(out)
+    return records
+
+
+@pytest.fixture(scope="module")
+def one_process(tmp_path_factory):
+    """The reference: one process, batches of 3 (so batch composition differs from the two-process run)."""
+    out = tmp_path_factory.mktemp("mass") / "one"
+    _ok(_cli("sample", RUN, "-n", str(N), "--out", str(out), "--batch", "3", *SMALL))
+    return out
+
+
+def test_a_sample_depends_on_its_seed_only_not_on_its_batch():
+    model = Sin3DM.load(RUN)
+    for kw in ({}, {"regenerate": ((0.2, 0.0, 0.0), (0.6, 1.0, 1.0))}, {"method": "ddpm", "diversity": 0.03}):
+        batch = model.sample(3, seed=5, steps=4, progress=False, **kw).triplane
+        alone = model.sample(1, seed=7, steps=4, progress=False, **kw).triplane
+        listed = model.sample(2, seed=[7, 5], steps=4, progress=False, **kw).triplane
+        assert all(torch.allclose(p[2:3], q, atol=1e-5) for p, q in zip(batch.planes, alone.planes)), kw
+        assert all(torch.allclose(p[0:1], q[1:2], atol=1e-5) for p, q in zip(batch.planes, listed.planes)), kw
+        assert not torch.allclose(batch.xy[0], batch.xy[1]), kw
+
+
+def test_one_process_writes_every_index_once(one_process):
+    records = _check_folder(one_process, range(N))
+    assert [r["seed"] for r in records] == list(range(N))
+    assert json.loads((one_process / "sampling.json").read_text())["settings"]["seed"] == 0
+
+
+def test_two_processes_with_gloo_give_the_same_samples(one_process, tmp_path):
+    out = tmp_path / "two"
+    _ok(_cli("sample", RUN, "-n", str(N), "--out", str(out), *SMALL, torchrun=2))
+    records = _check_folder(out, range(N))
+    assert {r["rank"] for r in records} == {0, 1}
+    for i in range(N):
+        assert _same(_latent(out, i), _latent(one_process, i)), i
+
+
+def test_one_sample_drawn_again_alone_is_the_same(one_process, tmp_path):
+    out = tmp_path / "again"
+    _ok(_cli("sample", RUN, "--start", "2", "-n", "1", "--out", str(out), *SMALL))
+    _check_folder(out, [2])
+    assert _same(_latent(out, 2), _latent(one_process, 2))
+
+
+def test_a_killed_run_continues_and_ends_with_every_index_once(one_process, tmp_path):
+    out = tmp_path / "killed"
+    argv = ["sample", RUN, "-n", str(N), "--out", str(out), "--batch", "1", "--workers", "0", *SMALL]
+    p = _cli(*argv)
+    t0 = time.monotonic()
+    while p.poll() is None and time.monotonic() - t0 < 300:  # kill once two samples are in the manifest
+        lines = sum(len(part.read_text().splitlines()) for part in manifest_parts(out)) if out.is_dir() else 0
+        if lines >= 2:
+            break
+        time.sleep(0.02)
+    p.send_signal(signal.SIGKILL)
+    p.communicate()
+    assert p.returncode == -signal.SIGKILL, "the run ended before it was killed; make it slower"
+    (out / "000" / "mesh.glb").unlink(missing_ok=True)  # as if killed while that folder was written: redone
+    text = _ok(_cli(*argv))
+    assert "already" in text
+    _check_folder(out, range(N))
+    for i in range(N):
+        assert _same(_latent(out, i), _latent(one_process, i)), i
+    assert "0 new samples" in _ok(_cli(*argv))  # all there: nothing to do
+    more = _ok(_cli(*argv[:2], "-n", str(N + 1), *argv[4:]))  # -n grows: the folder grows
+    assert "1 new samples" in more
+    _check_folder(out, range(N + 1))
+
+
+def test_other_settings_are_refused_and_overwrite_starts_over(one_process, tmp_path):
+    import shutil
+
+    out = tmp_path / "copy"
+    shutil.copytree(one_process, out)
+    for f, st in read_manifest(one_process).items():  # copytree changes the times; keep the manifest true
+        os.utime(out / f, ns=(st[1], st[1]))
+    p = _cli("sample", RUN, "-n", "2", "--out", str(out), *SMALL, "--steps", "4")
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 2 and "other settings (steps: 3 there, 4 now)" in err and len(err.strip().splitlines()) == 1
+    (out / "theirs.txt").write_text("keep")
+    _ok(_cli("sample", RUN, "-n", "2", "--out", str(out), *SMALL, "--steps", "4", "--overwrite"))
+    assert (out / "theirs.txt").read_text() == "keep"
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["000", "001"]
+    assert json.loads((out / "sampling.json").read_text())["settings"]["steps"] == 4
