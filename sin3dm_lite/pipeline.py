@@ -273,6 +273,8 @@ class Sin3DM:
         report = {
             "preset": cfg.name,
             "input": grid.name,
+            # the mesh file, so the run can be compared with its input later (Sin3DM.input_mesh)
+            "input_path": str(Path(source).resolve()) if isinstance(source, (str, Path)) and Path(source).is_file() else None,
             "grid_shape": list(grid.shape),
             "latent_shape": list(h0.resolution),
             "autoencoder_steps": ae.step_count,
@@ -524,12 +526,16 @@ class Sin3DM:
         return input_occupancy(m, self.aabb if aabb is None else aabb, resolution)
 
     def input_mesh(self) -> TexturedMesh:
-        """The mesh this model was fitted to, when it was a built-in example (its name is in the run's report)."""
+        """The mesh this model was fitted to: the mesh file the run's report names, if it is still there, or the
+        built-in example of that name."""
         from . import examples
 
-        name = self.report.get("input")
-        if name not in examples.list_examples():
-            raise Sin3DMInputError(f"this model was fitted to '{name}', not a built-in example; pass the input mesh "
+        path, name = self.report.get("input_path"), self.report.get("input")
+        if path and Path(path).is_file():
+            return resolve_mesh(path)
+        if path or name not in examples.list_examples():  # a file (even one named like an example) is not the example
+            where = f"'{path}' is gone" if path else f"it was fitted to '{name}', not a built-in example"
+            raise Sin3DMInputError(f"cannot find this model's input mesh ({where}); pass the input mesh "
                                    "(CLI: --input MESH) to compare samples with it")
         return examples.build_example(name)
 

@@ -233,3 +233,20 @@ def test_occupancy_of_a_sample_without_surface_is_empty_or_full(fitted, monkeypa
     monkeypatch.setattr(model, "to_mesh", no_surface)
     (grid,) = model.occupancy(s, 16)
     assert grid.shape[0] == 16 and grid.dtype == bool and (grid == expected).all()
+
+
+def test_input_mesh_is_the_example_or_the_file_the_run_was_fitted_to(fitted, tmp_path):
+    from sin3dm_lite.examples import build_example, write_example
+
+    model, run = fitted
+    assert len(model.input_mesh().faces) == len(build_example("wall").faces)  # an example: built again
+    mesh_file = write_example("wall", tmp_path / "mine")  # a file of the user's: read again from where it was
+    fitted_file = Sin3DM.fit(mesh_file, preset=micro_config().updated(**{"diffusion.steps": 2}), out=tmp_path / "run",
+                             progress=False)
+    reloaded = Sin3DM.load(tmp_path / "run")
+    assert reloaded.report["input_path"] == str(mesh_file.resolve())
+    assert len(reloaded.input_mesh().faces) == len(fitted_file.input_mesh().faces) > 0
+    for p in mesh_file.parent.iterdir():
+        p.unlink()
+    with pytest.raises(Sin3DMInputError, match="is gone.*--input MESH"):
+        reloaded.input_mesh()
