@@ -156,10 +156,12 @@ class TriplaneDecoder(nn.Module):
         f = prep.geo.sample(points, reduce="sum")  # [B, N, 64]: the three plane features added
         return self.geo_mlp(f)[..., 0] * self.threshold
 
-    def query_color(self, prep: PreparedPlanes, points: torch.Tensor) -> torch.Tensor:
-        """Colour (and with PBR metallic, roughness, normal · ½ + ½) in [0, 1], ``[B, N, K]``."""
+    def query_color(self, prep: PreparedPlanes, points: torch.Tensor, logits: bool = False) -> torch.Tensor:
+        """Colour (and with PBR metallic, roughness, normal · ½ + ½) in [0, 1], ``[B, N, K]``
+        (``logits``: the heads' outputs before the sigmoid)."""
         f = prep.tex.sample(points, reduce="sum")
-        return torch.sigmoid(torch.cat([head(f) for head in self.heads], dim=-1))
+        out = torch.cat([head(f) for head in self.heads], dim=-1)
+        return out if logits else torch.sigmoid(out)
 
     def query(self, prep: PreparedPlanes, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.query_sdf(prep, points), self.query_color(prep, points)
@@ -299,9 +301,14 @@ class AutoencoderTrainer(Trainer):
     def losses(self) -> dict[str, torch.Tensor]:
         """SDF loss on a batch of points plus the L1 colour loss on those within the truncation band.
 
-        PBR: L1 on metallic-roughness (``material``) and on the normal in its
-        [0, 1] encoding (``normal``) at the same band points, each weighted 1
-        like the colour (the paper gives no weights).
+        PBR: binary cross-entropy on metallic-roughness (``material``; on the
+        heads' logits) and L1 on the normal in its [0, 1] encoding (``normal``)
+        at the same band points, each weighted 1 like the colour (the paper
+        gives no weights). Not L1 for metallic: mostly 0 with metal islands,
+        L1 drove the head's logits of every point to -400 within a few hundred
+        steps (the median), where the sigmoid passes no gradient and the metal
+        never came back (the ``tiles`` example at the small preset: metallic IoU
+        0.0); the cross-entropy's gradient, sigmoid(logit) - target, does not vanish.
         """
         cfg = self.cfg
         p, s_gt, c_gt = self.sampler(cfg.points_per_step, cfg.grid_fraction, self.generator)
@@ -310,14 +317,18 @@ class AutoencoderTrainer(Trainer):
             h = self.model.encode(self.grid_t)
             prep = self.model.decoder.prepare(h)
             s = self.model.decoder.query_sdf(prep, p[None])[0].float()
-            c = self.model.decoder.query_color(prep, p[band][None])[0].float()
+            out = self.model.decoder.query_color(prep, p[band][None], logits=cfg.pbr)[0].float()
         l_sdf = sdf_loss(s, s_gt, self.grid.threshold, cfg.near_weight, cfg.far_weight)
         zero = torch.zeros((), device=self.device)
-        if not cfg.pbr:
-            l_col = (c - c_gt[band]).abs().mean() if band.any() else zero
+        if not cfg.pbr:  # out is the colour
+            l_col = (out - c_gt[band]).abs().mean() if band.any() else zero
             return {"loss": l_sdf + l_col, "sdf": l_sdf, "color": l_col}
-        err = (c - c_gt[band]).abs()
-        l_col, l_mat, l_nrm = ((err[:, a:b].mean() if band.any() else zero) for a, b in ((0, 3), (3, 5), (5, 8)))
+        logit, c, gt = out, torch.sigmoid(out), c_gt[band]
+        if not band.any():
+            l_col = l_mat = l_nrm = zero
+        else:
+            l_col, l_nrm = (c[:, :3] - gt[:, :3]).abs().mean(), (c[:, 5:8] - gt[:, 5:8]).abs().mean()
+            l_mat = F.binary_cross_entropy_with_logits(logit[:, 3:5], gt[:, 3:5])
         return {"loss": l_sdf + l_col + l_mat + l_nrm, "sdf": l_sdf, "color": l_col, "material": l_mat, "normal": l_nrm}
 
     @torch.no_grad()
