@@ -119,7 +119,7 @@ def main() -> None:
         fit_or_load(source, a.preset, run)
         for variant in a.variants:
             key = f"{name} | {variant}"
-            meshes = runs / "meshes" / name / variant.replace(" ", "_")
+            meshes = runs / "meshes" / name / variant.replace(" ", "_").replace("/", "")
             if key in rows:  # measured; add the texture metrics if they were not available then
                 if not rows[key].get("texture"):
                     paths = sorted(meshes.glob("*/mesh.glb"))[: a.textured]
