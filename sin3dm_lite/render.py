@@ -6,7 +6,10 @@ box. :func:`render_views` makes those pictures as arrays on a CPU with no
 display and no GPU; pass the *input's* box as ``box`` when rendering its
 samples so that all of them are framed alike. Shading is simple: the texture
 (or vertex) colour lit by a light at the camera plus some ambient light
-(a diffuse, Lambert-like material: metallic 0, roughness 1), on white.
+(a diffuse, Lambert-like material: metallic 0, roughness 1), on white. A
+material with PBR maps (``metallic_roughness_image``, ``normal_image``: the
+``tiles`` example, a PBR fit's samples) is shaded with them: metal shows its
+highlights and the normal map its bumps.
 
 Public API::
 
@@ -139,6 +142,14 @@ def _corner_normals(mesh: TexturedMesh) -> np.ndarray:
     return vn[f]
 
 
+def _texture(image: np.ndarray, pyrender):
+    """An ``(h, w, 3)`` image in [0, 1] (or uint8) as a linearly filtered pyrender texture."""
+    if image.dtype != np.uint8:
+        image = (np.clip(image[..., :3], 0, 1) * 255 + 0.5).astype(np.uint8)
+    return pyrender.Texture(source=np.ascontiguousarray(image[..., :3]), source_channels="RGB",
+                            sampler=pyrender.Sampler(magFilter=0x2601, minFilter=0x2601))  # GL_LINEAR
+
+
 def _primitives(mesh: TexturedMesh, pyrender) -> list:
     """One pyrender primitive per material: textured ones carry UVs and the baked texture, others corner colours.
 
@@ -158,11 +169,13 @@ def _primitives(mesh: TexturedMesh, pyrender) -> list:
                       indices=np.arange(3 * n, dtype=np.uint32).reshape(-1, 3))
         if mat.image is not None and mesh.face_uvs is not None:
             uv = np.nan_to_num(np.asarray(mesh.face_uvs)[sel]).reshape(-1, 2).astype(np.float32)
-            image = (np.clip(baked_image(mat)[..., :3], 0, 1) * 255 + 0.5).astype(np.uint8)
-            tex = pyrender.Texture(source=image, source_channels="RGB",
-                                   sampler=pyrender.Sampler(magFilter=0x2601, minFilter=0x2601))  # GL_LINEAR
-            material = pyrender.MetallicRoughnessMaterial(baseColorTexture=tex, metallicFactor=0.0,
+            material = pyrender.MetallicRoughnessMaterial(baseColorTexture=_texture(baked_image(mat), pyrender), metallicFactor=0.0,
                                                           roughnessFactor=1.0, doubleSided=True)
+            if mat.metallic_roughness_image is not None:  # PBR: glTF's maps and factors (metal, gloss)
+                material.metallicRoughnessTexture = _texture(mat.metallic_roughness_image, pyrender)
+                material.metallicFactor, material.roughnessFactor = float(mat.metallic), float(mat.roughness)
+            if mat.normal_image is not None:  # tangent frames from the UVs' screen derivatives (pyrender's shader)
+                material.normalTexture = _texture(mat.normal_image, pyrender)
             prims.append(pyrender.Primitive(texcoord_0=uv, material=material, **common))
         else:
             fi = np.repeat(sel, 3)

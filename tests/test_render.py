@@ -115,6 +115,22 @@ def test_vertex_colours_and_plain_materials_render():
     assert (fg[:, 0] > fg[:, 1] + 30).mean() > 0.95  # the material's red
 
 
+def test_pbr_maps_shade_the_picture_and_factors_alone_do_not():
+    """The tiles' metal shows its highlights and normal-map bumps; a loaded GLB's default factors (metallic 1,
+    no maps) do not turn a plain texture into metal."""
+    from dataclasses import replace
+
+    from sin3dm_lite.examples import build_example
+
+    tiles = build_example("tiles")
+    plain = replace(tiles, materials=[replace(m, metallic_roughness_image=None, normal_image=None)
+                                      for m in tiles.materials])
+    pbr, flat = render_hero(tiles, size=128), render_hero(plain, size=128)
+    assert np.abs(pbr.astype(int) - flat.astype(int)).mean() > 1.0
+    factors = replace(plain, materials=[replace(m, metallic=1.0, roughness=0.1) for m in plain.materials])
+    np.testing.assert_array_equal(render_hero(factors, size=128), flat)
+
+
 def test_a_larger_box_frames_alike_and_shows_the_mesh_smaller(cube):
     own = render_views(cube, n_views=1, size=96)[0]
     wide = render_views(cube, n_views=1, size=96, box=[[-2, -2, -2], [2, 2, 2]])[0]
