@@ -205,3 +205,14 @@ def test_demo_example_with_train_fits_that_example(capsys, tmp_path, monkeypatch
     assert (out / "000" / "mesh.obj").is_file() and (out / "index.html").is_file()
     assert "decode, texture, export" in err  # the progress bar over the per-mesh work
     assert "[demo] 1/1:" in text
+
+
+def test_demo_of_an_example_without_a_shipped_model_says_what_to_do(capsys, tmp_path, monkeypatch):
+    """Every built-in example may have a shipped model; hide the wall's to see the message for one that has none."""
+    from sin3dm_lite import pretrained
+
+    real = pretrained.shipped_model
+    monkeypatch.setattr(pretrained, "shipped_model", lambda name: None if name in ("wall", "wall_small") else real(name))
+    code, out, err = run(capsys, "demo", "--example", "wall", "--out", str(tmp_path / "s"))
+    assert code == 2 and "no shipped model of 'wall'" in err and "--train" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "s").exists()
