@@ -1,8 +1,9 @@
-"""The pretrained ``small`` models of built-in examples (the default one first), shipped inside the package.
+"""The pretrained ``small`` models of the built-in examples, shipped inside the package.
 
-It was produced by our own ``sin3dm-lite fit`` (the exact command is in
-``data/README.md`` next to the file), so the demo and the quickstart notebook
-can generate shapes immediately on a CPU.
+Each was produced by our own ``sin3dm-lite fit`` (the exact commands are in
+``data/README.md`` next to them), so the demo and the notebooks can generate
+shapes of every example immediately on a CPU (``demo --example NAME``,
+``Sin3DM.open(NAME)``).
 """
 from __future__ import annotations
 
