@@ -34,8 +34,6 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 from .errors import Sin3DMInputError
 
 DEMO_PRESET = "small"

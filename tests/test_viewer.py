@@ -167,7 +167,7 @@ def test_gallery_layout_and_labels():
     assert xs[1][1] - xs[1][0] == pytest.approx(2.0)  # each mesh keeps its size
     # labels sit outside their mesh's box: at its base, in front of it (towards the camera)
     for t, m in zip(texts, ms):
-        lo, hi = m.vertices.min(0), m.vertices.max(0)
+        lo = m.vertices.min(0)
         assert t.position[1] < lo[1] and t.position[2] <= lo[2] + 1e-6 and t.reference_point == "ct"
     # two columns: the third mesh starts a new row below the first
     ms = meshes_of(viewer.gallery([quad, quad, quad], columns=2))
