@@ -209,11 +209,12 @@ def variation_scores(reference: np.ndarray, samples) -> dict:
 
     Returns ``iou_to_input`` (mean IoU of each sample with ``reference``: near 1
     means copies of the input), ``per_sample_iou`` (the list) and ``g_div``
-    (:func:`g_div` of the samples; needs at least two).
+    (:func:`g_div` of the samples; None for a single sample).
     """
     samples = list(samples)
     per = [iou(s, reference) for s in samples]
-    return {"iou_to_input": float(np.mean(per)), "per_sample_iou": per, "g_div": g_div(samples)}
+    return {"iou_to_input": float(np.mean(per)), "per_sample_iou": per,
+            "g_div": g_div(samples) if len(samples) > 1 else None}
 
 
 def reconstruction_iou(mesh_a, mesh_b, aabb, resolution: int = 128) -> float:
@@ -365,13 +366,9 @@ def geometry_scores(reference: np.ndarray, samples) -> dict:
     * ``iou_to_input`` — mean IoU of each sample with the input (near 1 = copies of the input).
     """
     samples = list(samples)
-    lp = lp_scores(reference, samples)
-    return {
-        "g_div": g_div(samples) if len(samples) > 1 else None,
-        "lp_iou": lp["lp_iou"],
-        "lp_fscore": lp["lp_fscore"],
-        "iou_to_input": float(np.mean([iou(s, reference) for s in samples])),
-    }
+    lp, var = lp_scores(reference, samples), variation_scores(reference, samples)
+    return {"g_div": var["g_div"], "lp_iou": lp["lp_iou"], "lp_fscore": lp["lp_fscore"],
+            "iou_to_input": var["iou_to_input"]}
 
 
 # ----------------------------------------------------------------------------- texture: weight-free

@@ -149,6 +149,7 @@ def test_variation_scores_of_copies_and_shifted_samples():
     assert v == {"iou_to_input": 1.0, "per_sample_iou": [1.0, 1.0], "g_div": 0.0}
     v = M.variation_scores(ref, [ref, moved])
     assert v["per_sample_iou"] == [1.0, 0.5] and v["iou_to_input"] == 0.75 and v["g_div"] == 0.5
+    assert M.variation_scores(ref, [moved]) == {"iou_to_input": 0.5, "per_sample_iou": [0.5], "g_div": None}
 
 
 def test_input_occupancy_of_an_open_and_a_closed_mesh():
