@@ -39,7 +39,7 @@ def grid_shape(extent, resolution: int, multiple: int = 1, margin_voxels: float 
 
     The one rule: the longest axis gets ``resolution`` voxels, every other
     axis ``int(resolution · extent / longest extent)``, its share rounded
-    down (the original code's rule; a share within 1e-6 of a whole number
+    down (the original code's rule; a share within 1e-3 of a whole number
     counts as that number). Then, for the training grid:
 
     * ``margin_voxels`` > 0: the shorter axes are measured against the box's
@@ -68,7 +68,7 @@ def grid_shape(extent, resolution: int, multiple: int = 1, margin_voxels: float 
         if margin_voxels > 0:
             n = int(np.ceil(n_long * side / 2 + 2 * margin_voxels))
         else:
-            n = int(np.floor(resolution * side / e.max() + 1e-6))
+            n = int(np.floor(resolution * side / e.max() + 1e-3))  # a float32 box (±n/n_max) is off by ~1e-5 voxel
         dims.append(max(2, multiple, _round_up(n, multiple)))
     return tuple(dims)  # type: ignore[return-value]
 

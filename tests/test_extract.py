@@ -27,6 +27,12 @@ def test_grid_shape_follows_longest_side():
     assert box.grid_shape([-1, -1, -0.01, 1, 1, 0.01], 16) == (16, 16, 2)  # at least 2 voxels per axis
 
 
+@pytest.mark.parametrize("shape", [(96, 48, 56), (64, 32, 40), (128, 72, 120), (256, 136, 200)])
+def test_a_training_grids_float32_box_gives_back_its_own_shape(shape):
+    # decode and the metrics rebuild the grid from its stored float32 box: 56/96 in float32 · 96 = 55.99999
+    assert box.grid_shape(box.centred_box(shape), shape[0]) == shape
+
+
 def test_decode_grid_chunked_equals_one_shot_and_prepares_once():
     dec = SphereDecoder()
     tp = zero_triplane()
