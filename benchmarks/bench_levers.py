@@ -12,13 +12,12 @@ of bench_samples.py at the fit's grid resolution. Prints one row.
 from __future__ import annotations
 
 import argparse
-import ast
 import time
 from pathlib import Path
 
 import torch
 
-from bench_samples import references, sample_grids, save_projections, scores
+from bench_samples import parse_settings, references, sample_grids, save_projections, scores
 from sin3dm_lite import AutoencoderTrainer, reconstructed_grid, reconstruction_metrics
 from sin3dm_lite.diffusion import DiffusionTrainer
 from sin3dm_lite.grid import load_grid
@@ -61,13 +60,7 @@ def main() -> None:
     ap.add_argument("--autoencoder-only", action="store_true", help="stop after the autoencoder's figures")
     a = ap.parse_args()
     model = Sin3DM.load(a.run)
-    changes = {}
-    for s in a.settings:
-        k, v = s.split("=", 1)
-        try:
-            changes[k] = ast.literal_eval(v)
-        except (ValueError, SyntaxError):
-            changes[k] = v
+    changes = parse_settings(a.settings)
     cfg = model.config.updated(**changes)
     fig = retrain(model, Path(a.run), cfg, seed=a.seed, autoencoder=any(k.startswith("autoencoder.") for k in changes))
     if "autoencoder_s" in fig:

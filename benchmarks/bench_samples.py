@@ -28,6 +28,7 @@ fit ≤ 300 s, ≤ 15 s per mesh.
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import time
 from pathlib import Path
@@ -36,6 +37,7 @@ import numpy as np
 import torch
 
 from sin3dm_lite import metrics
+from sin3dm_lite.config import get_preset
 from sin3dm_lite.export import export_mesh
 from sin3dm_lite.extract import marching_cubes
 from sin3dm_lite.grid import load_grid
@@ -44,10 +46,23 @@ from sin3dm_lite.pipeline import Sin3DM, resolve_mesh
 GOALS = {"g_div": 0.20, "lp_f": 0.70, "lp_iou": 0.55, "recon_iou": 0.95, "fit_s": 300.0, "mesh_s": 15.0}
 
 
-def fit_or_load(source: str, preset: str, run: Path) -> Sin3DM:
+def parse_settings(settings) -> dict:
+    """``["grid.resolution=96", "diffusion.rollout=True"]`` → ``{"grid.resolution": 96, "diffusion.rollout": True}``."""
+    changes = {}
+    for s in settings:
+        k, v = s.split("=", 1)
+        try:
+            changes[k] = ast.literal_eval(v)
+        except (ValueError, SyntaxError):
+            changes[k] = v
+    return changes
+
+
+def fit_or_load(source: str, preset: str, run: Path, settings=()) -> Sin3DM:
     if (run / "model.pt").exists():
         return Sin3DM.load(run)
-    return Sin3DM.fit(source, preset=preset, out=run, progress=False)
+    cfg = get_preset(preset).updated(**parse_settings(settings)) if settings else preset
+    return Sin3DM.fit(source, preset=cfg, out=run, progress=False)
 
 
 def sample_grids(model: Sin3DM, n: int, resolutions, seed: int = 0, diversity: float | None = None,
@@ -151,13 +166,16 @@ def main() -> None:
     ap.add_argument("--diversity", type=float, nargs="+", default=None,
                     help="knob values: print G-Div / LP at each (default: the run's setting)")
     ap.add_argument("--resolutions", type=int, nargs="+", default=None, help="default: the fit's and 128")
+    ap.add_argument("--set", nargs="+", default=[], metavar="SETTING",
+                    help="dotted settings changed from the preset, e.g. grid.resolution=96 (run folders get a suffix)")
     a = ap.parse_args()
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, preset {a.preset}, n={a.n}")
     rows = []
     for source in a.inputs:
         name = Path(source).stem
-        run = Path(a.runs) / f"{name}_{a.preset}"
-        model = fit_or_load(source, a.preset, run)
+        tag = "".join(f"_{x}" for x in a.set).replace("=", "-")
+        run = Path(a.runs) / f"{name}_{a.preset}{tag}"
+        model = fit_or_load(source, a.preset, run, a.set)
         rep = model.report
         res = a.resolutions or sorted({model.config.grid.resolution, 128})
         refs = references(model, source, run, res)
