@@ -172,3 +172,16 @@ def test_rollout_parts_are_the_pieces_of_the_conv_input():
     yz = parts["yz"]
     assert yz["axis"] == "x" and [tuple(p.shape) for p in yz["pooled"]] == [(2, 3, y, 1), (2, 3, 1, z)]
     torch.testing.assert_close(yz["pooled"][1][:, :, 0], tp.xz.mean(2))
+
+
+def test_the_presets_fields_are_a_share_of_their_latents():
+    # REFERENCE.md, last section: the field must shrink with the latent, or every sample copies the input
+    from sin3dm_lite.config import get_preset
+
+    share = {}
+    for name in ("small", "detail", "paper"):
+        cfg = get_preset(name)
+        latent = cfg.grid.resolution // 2
+        share[name] = analytic_receptive_field(TriplaneUNet(cfg.autoencoder.latent_channels, cfg.diffusion)) / latent
+    assert share["small"] == 9 / 32 and share["detail"] == 17 / 48 and share["paper"] == 28 / 128
+    assert max(share.values()) < 0.4  # none sees nearly the whole latent (the paper's network at 32 texels: 28/32)
