@@ -27,6 +27,10 @@ from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
 from .files import atomic_path
 from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, component_labels, unique_rows
 
+#: :meth:`Sin3DM.fit` with the ``small`` preset suggests ``detail`` when more of the solid than this is thin
+#: (:meth:`ShapeGrid.thin_share`): measured on five shapes, ``detail`` helped the three above it, not the two below.
+THIN_SHARE_HINT = 0.2
+
 #: The channels of ``ShapeGrid.color`` in a PBR grid: base colour, metallic, roughness, world-space normal · ½ + ½.
 PBR_CHANNELS = ("red", "green", "blue", "metallic", "roughness", "normal_x", "normal_y", "normal_z")
 
@@ -99,6 +103,29 @@ class ShapeGrid:
     def to_box(self, points: np.ndarray) -> np.ndarray:
         """Normalised coordinates → box coordinates in [-1, 1] (what triplane lookups take)."""
         return to_box(points, self.aabb, dtype=np.float32)
+
+    def thin_share(self, radius: int = 2) -> float:
+        """Share of the solid (voxels with SDF < 0) in parts thinner than about ``2·radius + 1`` voxels.
+
+        A morphological opening with a ball of ``radius`` voxels keeps every
+        part the ball fits into and removes the rest: columns, slats, small
+        boxes, thin walls. The latent has half the grid's resolution, so a
+        part 5 voxels thick is drawn from about two texels; such parts are the
+        first to swell, break or vanish in samples. At 64 voxels the built-in
+        canyon and wall score 0.13 and 0.10, the colonnade 0.24, a slab of
+        small boxes 0.44 and one of tiles with one-voxel gaps 1.0 (at 96
+        voxels: 0.05, 0.05, 0.11, 0.07, 0.58). :meth:`Sin3DM.fit` suggests the
+        ``detail`` preset above :data:`THIN_SHARE_HINT`.
+        """
+        from scipy import ndimage
+
+        solid = self.sdf < 0
+        if not solid.any():
+            return 0.0
+        o = np.indices((2 * radius + 1,) * 3) - radius
+        ball = (o**2).sum(0) <= radius**2
+        kept = ndimage.binary_opening(solid, ball)
+        return float((solid & ~kept).sum() / solid.sum())
 
 
 # --------------------------------------------------------------------------- building

@@ -225,3 +225,14 @@ def test_save_load_round_trip(tmp_path):
 def test_bad_resolution_is_a_clear_error(res):
     with pytest.raises(Sin3DMInputError, match="resolution"):
         mesh_to_grid(textured(trimesh.creation.box()), res, progress=False)
+
+
+def test_thin_share_tells_thin_parts_from_solid_ones():
+    """A row of slats 2 voxels thick (6 at 96 voxels) is all thin; one block is not; the slats are less thin on a finer grid."""
+    slats = trimesh.util.concatenate([trimesh.creation.box(extents=(0.1, 0.8, 0.8)).apply_translation((x, 0, 0))
+                                      for x in np.linspace(-0.8, 0.8, 6)])
+    block = trimesh.creation.box(extents=(1.0, 0.8, 0.8))
+    thin32 = mesh_to_grid(textured(slats), 32, n_surface_points=0, progress=False).thin_share()
+    thin96 = mesh_to_grid(textured(slats), 96, n_surface_points=0, progress=False).thin_share()
+    fat = mesh_to_grid(textured(block), 32, n_surface_points=0, progress=False).thin_share()
+    assert thin32 > 0.9 and fat < 0.1 and thin96 < 0.2

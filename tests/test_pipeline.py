@@ -250,3 +250,19 @@ def test_input_mesh_is_the_example_or_the_file_the_run_was_fitted_to(fitted, tmp
         p.unlink()
     with pytest.raises(Sin3DMInputError, match="is gone.*--input MESH"):
         reloaded.input_mesh()
+
+
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
+def test_a_small_fit_of_a_thin_shape_suggests_the_detail_preset(tmp_path, capsys):
+    """Only a `small` fit whose grid is mostly thin parts prints the hint; the share is in the report."""
+    from sin3dm_lite.grid import load_grid
+    from sin3dm_lite.pipeline import detail_hint
+
+    cfg = micro_config().updated(**{"name": "small", "grid.resolution": 32, "autoencoder.steps": 2, "diffusion.steps": 2})
+    model = Sin3DM.fit("tiles", preset=cfg, out=tmp_path / "tiles", progress=True)
+    assert "--preset detail" in capsys.readouterr().out
+    assert model.report["thin_share"] > 0.2
+    assert json.loads((tmp_path / "tiles" / "report.json").read_text())["thin_share"] == model.report["thin_share"]
+    grid = load_grid(tmp_path / "tiles" / "grid.npz")
+    assert detail_hint(cfg.updated(name="detail"), grid) is None  # other presets: no hint
+    assert detail_hint(cfg, grid, thin=0.1) is None
