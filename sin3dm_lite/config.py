@@ -10,7 +10,7 @@
 * ``detail`` – ``small`` at 96 voxels (a 48-texel latent) with 4 ResBlocks (a
   17-texel field, about the same share of the latent), sampled from pure noise:
   for shapes with parts 2-3 voxels thin at 64 (columns, railings), which
-  ``small``'s 32-texel latent smears; its fit takes ~1.45 × ``small``'s. Shapes whose
+  ``small``'s 32-texel latent smears; its fit takes about as long as ``small``'s. Shapes whose
   global layout should vary (the canyon) copy the input with it.
 * ``paper`` – the paper's numbers (256 grid, 25k + 25k steps) for one GPU.
 """

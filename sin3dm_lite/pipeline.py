@@ -56,8 +56,8 @@ def detail_hint(cfg: Config, grid: ShapeGrid, thin: float | None = None) -> str 
 
     The ``small`` preset's 64-voxel grid and 9-texel denoiser field swell or
     break parts a few voxels thick (columns, small boxes, slats); the
-    ``detail`` preset (96 voxels, 4 ResBlocks) keeps them, at 1.5× the fit
-    time (README, "Thin parts"). ``thin`` is :meth:`ShapeGrid.thin_share`.
+    ``detail`` preset (96 voxels, 4 ResBlocks, 1,000 autoencoder steps) keeps
+    them in about the same fit time (README, "Thin parts"). ``thin`` is :meth:`ShapeGrid.thin_share`.
     """
     if cfg.name != "small":
         return None
@@ -66,7 +66,7 @@ def detail_hint(cfg: Config, grid: ShapeGrid, thin: float | None = None) -> str 
         return None
     return (f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels: "
             "samples of the small preset may swell or break them. The 'detail' preset (96 voxels, wider denoiser "
-            "field, about 1.5x the fit time) keeps such parts: preset='detail' (CLI: --preset detail).")
+            "field, about the same fit time) keeps such parts: preset='detail' (CLI: --preset detail).")
 
 
 def atomic_torch_save(obj, path: Path) -> None:
