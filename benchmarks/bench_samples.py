@@ -107,13 +107,12 @@ def references(model: Sin3DM, source: str, run: Path, resolutions) -> dict:
 
 
 def _moved_input(model: Sin3DM, mesh, resolution: int, axis: int, voxels: float = 0.25) -> np.ndarray:
-    """The input voxelised after moving it ``voxels`` of a voxel along ``axis``: a perfect copy, placed off the lattice."""
-    from dataclasses import replace
+    """The input voxelised after moving it ``voxels`` of a voxel along ``axis``: a perfect copy, placed off the lattice.
 
-    vs = float(model.aabb[3] - model.aabb[0]) / grid_shape(model.aabb, resolution)[0]
-    v = model.normalization.to_normalized(np.asarray(mesh.vertices)).copy()
-    v[:, axis] += voxels * vs
-    return metrics.input_occupancy(replace(mesh, vertices=v), model.aabb, resolution)
+    Moving the box the other way is the same thing, so the input's own voxelisation does the work."""
+    box = np.array(model.aabb, np.float64)
+    box[[axis, axis + 3]] -= voxels * (box[3] - box[0]) / grid_shape(box, resolution)[0]
+    return model.input_occupancy(mesh, resolution, aabb=box)
 
 
 def scores(refs: dict, occ: dict) -> dict:
