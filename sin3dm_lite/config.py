@@ -2,15 +2,17 @@
 
 * ``tiny``  – for CI and notebook tests: every stage in seconds on 2 CPU cores.
   The shapes it makes are rough; it exists to exercise the code paths.
-* ``small`` – for a laptop CPU: the whole fit in about 4-4.5 minutes on 2 cores,
-  a 64-voxel grid and a 32-texel latent. Its U-Net has no downsampling level and
+* ``small`` – for a laptop CPU: the whole fit in about 5.5 minutes on 2 AVX2 cores
+  (no native bf16), a 64-voxel grid, a 32-texel latent and a light autoencoder
+  (MLP heads 128 wide, half the paper's). Its U-Net has no downsampling level and
   no cross-plane rollout so that what it sees shrinks with the latent
   (REFERENCE.md, last section: with the paper's network on a 32-wide latent
   every sample is a copy); it samples at diversity 0.7 (README, "Presets").
 * ``detail`` – ``small`` at 96 voxels (a 48-texel latent) with 4 ResBlocks (a
   17-texel field, about the same share of the latent), sampled from pure noise:
   for shapes with parts 2-3 voxels thin at 64 (columns, railings), which
-  ``small``'s 32-texel latent smears; its fit takes about as long as ``small``'s. Shapes whose
+  ``small``'s 32-texel latent smears; it keeps the paper-width autoencoder, so its fit takes about
+  as long as ``small``'s only where the CPU runs bf16 natively. Shapes whose
   global layout should vary (the canyon) copy the input with it.
 * ``paper`` – the paper's numbers (256 grid, 25k + 25k steps) for one GPU.
 """
@@ -162,11 +164,16 @@ def _small() -> Config:
         # 3.25, not 3: a whole number of voxels put the faces of simply proportioned shapes (the canyon's 2:1)
         # exactly on voxel centres, where inside/outside is a coin toss (12 % of its inside voxels)
         grid=GridConfig(resolution=64, n_surface_points=300_000, margin_voxels=3.25),
-        # paper-size decoder: hidden 128 gave IoU 0.935, 256 gives 0.949. 2,000 steps, not 1,000: the colonnade's
-        # thin columns need them (its samples' LP-F against the input 0.43 → 0.69; canyon and wall unchanged)
-        autoencoder=AutoencoderConfig(steps=2000, points_per_step=8192),
+        # a light decoder: MLPs 128 wide, 4,096 points, 1,000 steps. The paper's 256-wide MLPs are most of a fit,
+        # and on a CPU without native bf16 (AVX2 only, most laptops) 2,000 such steps × 8,192 points took 20 min
+        # on 2 cores (0.61 s/step); this takes 0.2 s/step and 1,000 steps. Samples as good (canyon at diversity
+        # 0.7: G-Div 0.18 / LP-IoU 0.59 / LP-F 0.75 against 0.20 / 0.57 / 0.70; wall 0.11 / 0.69 / 0.85 against
+        # 0.14 / 0.64 / 0.83), reconstruction IoU 0.993 / 0.979, about 2.5-3 dB less colour PSNR (README, "Presets")
+        autoencoder=AutoencoderConfig(steps=1000, points_per_step=4096, mlp_hidden=128),
         diffusion=DiffusionConfig(
-            base_channels=32, n_resblocks=2, downsample=False, steps=2000, batch_size=8, lr=1e-3, ema_decay=0.0,
+            # 1,500 steps: the canyon's samples as with 2,000 (diversity 0.7: G-Div 0.19 / LP-IoU 0.57 / LP-F 0.72
+            # against 0.19 / 0.58 / 0.73), 1,000 lose LP-F (0.70); 40 s less on a 2-core AVX2 CPU
+            base_channels=32, n_resblocks=2, downsample=False, steps=1500, batch_size=8, lr=1e-3, ema_decay=0.0,
             # no cross-plane rollout: on a 32-texel latent the plane means tell every texel the global layout, and
             # samples copy it (canyon G-Div 0.12 with it, 0.27 without; measured with benchmarks/bench_levers.py)
             rollout=False,
@@ -188,8 +195,11 @@ def _detail() -> Config:
     # 0.206 / 0.672 / 0.776 against 0.213 / 0.655 / 0.759 with 2,000; rocks.stl 0.157 / 0.510 / 0.678 against
     # 0.157 / 0.515 / 0.682), and the autoencoder is most of the fit. It costs about 1 dB of colour PSNR
     # (colonnade 21.5 → 20.4, tiles.obj 17.2 → 16.2)
+    # It keeps the paper-width decoder (MLPs 256 wide, 8,192 points) and the 2,000 denoiser steps with which it was
+    # measured; small's lighter settings are untested on thin parts at 96 voxels.
     return _small().updated(**{"name": "detail", "grid.resolution": 96, "diffusion.n_resblocks": 4,
-                               "autoencoder.steps": 1000, "sampling.diversity": 1.0})
+                               "autoencoder.steps": 1000, "autoencoder.mlp_hidden": 256,
+                               "autoencoder.points_per_step": 8192, "diffusion.steps": 2000, "sampling.diversity": 1.0})
 
 
 def _paper() -> Config:
