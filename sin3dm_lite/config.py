@@ -1,18 +1,22 @@
-"""All settings in one place, and the four named presets.
+"""All settings in one place, and the five named presets.
 
 * ``tiny``  – for CI and notebook tests: every stage in seconds on 2 CPU cores.
   The shapes it makes are rough; it exists to exercise the code paths.
-* ``small`` – for a laptop CPU: the whole fit in about 5.5 minutes on 2 AVX2 cores
-  (no native bf16), a 64-voxel grid, a 32-texel latent and a light autoencoder
-  (MLP heads 128 wide, half the paper's). Its U-Net has no downsampling level and
+* ``small`` – for a laptop CPU: the whole fit in about 4-4.5 minutes on 2 cores,
+  a 64-voxel grid and a 32-texel latent. Its U-Net has no downsampling level and
   no cross-plane rollout so that what it sees shrinks with the latent
   (REFERENCE.md, last section: with the paper's network on a 32-wide latent
   every sample is a copy); it samples at diversity 0.7 (README, "Presets").
+* ``quick`` – ``small`` with a light autoencoder (MLP heads 128 wide, 4,096 points,
+  1,000 steps) and 1,500 denoiser steps, for CPUs without native bf16 (AVX2
+  only, most laptops), where ``small``'s paper-width autoencoder alone takes
+  about 20 minutes on 2 cores: the whole fit in about 5 minutes there, samples
+  of the same shape and variation, but blurrier texture (a brick wall loses its
+  vertical mortar joints). ``Sin3DM.fit`` suggests it on such a CPU.
 * ``detail`` – ``small`` at 96 voxels (a 48-texel latent) with 4 ResBlocks (a
   17-texel field, about the same share of the latent), sampled from pure noise:
   for shapes with parts 2-3 voxels thin at 64 (columns, railings), which
-  ``small``'s 32-texel latent smears; it keeps the paper-width autoencoder, so its fit takes about
-  as long as ``small``'s only where the CPU runs bf16 natively. Shapes whose
+  ``small``'s 32-texel latent smears; its fit takes about as long as ``small``'s. Shapes whose
   global layout should vary (the canyon) copy the input with it.
 * ``paper`` – the paper's numbers (256 grid, 25k + 25k steps) for one GPU.
 """
@@ -164,16 +168,11 @@ def _small() -> Config:
         # 3.25, not 3: a whole number of voxels put the faces of simply proportioned shapes (the canyon's 2:1)
         # exactly on voxel centres, where inside/outside is a coin toss (12 % of its inside voxels)
         grid=GridConfig(resolution=64, n_surface_points=300_000, margin_voxels=3.25),
-        # a light decoder: MLPs 128 wide, 4,096 points, 1,000 steps. The paper's 256-wide MLPs are most of a fit,
-        # and on a CPU without native bf16 (AVX2 only, most laptops) 2,000 such steps × 8,192 points took 20 min
-        # on 2 cores (0.61 s/step); this takes 0.2 s/step and 1,000 steps. Samples as good (canyon at diversity
-        # 0.7: G-Div 0.18 / LP-IoU 0.59 / LP-F 0.75 against 0.20 / 0.57 / 0.70; wall 0.11 / 0.69 / 0.85 against
-        # 0.14 / 0.64 / 0.83), reconstruction IoU 0.993 / 0.979, about 2.5-3 dB less colour PSNR (README, "Presets")
-        autoencoder=AutoencoderConfig(steps=1000, points_per_step=4096, mlp_hidden=128),
+        # paper-size decoder: hidden 128 gave IoU 0.935, 256 gives 0.949. 2,000 steps, not 1,000: the colonnade's
+        # thin columns need them (its samples' LP-F against the input 0.43 → 0.69; canyon and wall unchanged)
+        autoencoder=AutoencoderConfig(steps=2000, points_per_step=8192),
         diffusion=DiffusionConfig(
-            # 1,500 steps: the canyon's samples as with 2,000 (diversity 0.7: G-Div 0.19 / LP-IoU 0.57 / LP-F 0.72
-            # against 0.19 / 0.58 / 0.73), 1,000 lose LP-F (0.70); 40 s less on a 2-core AVX2 CPU
-            base_channels=32, n_resblocks=2, downsample=False, steps=1500, batch_size=8, lr=1e-3, ema_decay=0.0,
+            base_channels=32, n_resblocks=2, downsample=False, steps=2000, batch_size=8, lr=1e-3, ema_decay=0.0,
             # no cross-plane rollout: on a 32-texel latent the plane means tell every texel the global layout, and
             # samples copy it (canyon G-Div 0.12 with it, 0.27 without; measured with benchmarks/bench_levers.py)
             rollout=False,
@@ -195,11 +194,23 @@ def _detail() -> Config:
     # 0.206 / 0.672 / 0.776 against 0.213 / 0.655 / 0.759 with 2,000; rocks.stl 0.157 / 0.510 / 0.678 against
     # 0.157 / 0.515 / 0.682), and the autoencoder is most of the fit. It costs about 1 dB of colour PSNR
     # (colonnade 21.5 → 20.4, tiles.obj 17.2 → 16.2)
-    # It keeps the paper-width decoder (MLPs 256 wide, 8,192 points) and the 2,000 denoiser steps with which it was
-    # measured; small's lighter settings are untested on thin parts at 96 voxels.
     return _small().updated(**{"name": "detail", "grid.resolution": 96, "diffusion.n_resblocks": 4,
-                               "autoencoder.steps": 1000, "autoencoder.mlp_hidden": 256,
-                               "autoencoder.points_per_step": 8192, "diffusion.steps": 2000, "sampling.diversity": 1.0})
+                               "autoencoder.steps": 1000, "sampling.diversity": 1.0})
+
+
+def _quick() -> Config:
+    """``small`` with a light autoencoder and 1,500 denoiser steps: about 4x faster where bf16 is not native."""
+    # The autoencoder's MLPs are most of a fit. On a 2-core AVX2 CPU (AMD EPYC, no AVX512-BF16; bf16 is emulated
+    # there, 9 s/step) small's step takes 0.61 s in fp32, so its 2,000 steps take ~20 min; 128-wide MLPs on 4,096
+    # points take 0.18 s, 1,000 of them 182 s, and the canyon's whole fit 314 s (6 + 182 + 126) instead of ~23 min.
+    # Geometry and variation hold (canyon at diversity 0.7: G-Div 0.19 / LP-IoU 0.57 / LP-F 0.72 against small's
+    # 0.20 / 0.57 / 0.70; wall 0.12 / 0.64 / 0.84 against 0.14 / 0.64 / 0.83); colour does not: reconstruction PSNR
+    # 2.5-3 dB lower (canyon 24.3 -> 21.8, wall 26.2 -> 23.3) and the wall's bricks lose their vertical joints. That
+    # is the step count, not the width or the points: at 1,000 steps 256-wide MLPs or 8,192 points give the same
+    # 23.4 dB, 2,000 light steps 24.5 dB (README, "Presets"). 1,500 denoiser steps: the canyon's samples as with
+    # 2,000 (0.19 / 0.57 / 0.72 against 0.19 / 0.58 / 0.73), 1,000 lose LP-F (0.70).
+    return _small().updated(**{"name": "quick", "autoencoder.mlp_hidden": 128, "autoencoder.points_per_step": 4096,
+                               "autoencoder.steps": 1000, "diffusion.steps": 1500})
 
 
 def _paper() -> Config:
@@ -213,11 +224,11 @@ def _paper() -> Config:
     )
 
 
-PRESETS = {"tiny": _tiny, "small": _small, "detail": _detail, "paper": _paper}
+PRESETS = {"tiny": _tiny, "small": _small, "quick": _quick, "detail": _detail, "paper": _paper}
 
 
 def get_preset(name: str) -> Config:
-    """Return a fresh copy of a named preset (``tiny``, ``small``, ``detail`` or ``paper``)."""
+    """Return a fresh copy of a named preset (``tiny``, ``small``, ``quick``, ``detail`` or ``paper``)."""
     if name not in PRESETS:
         raise Sin3DMInputError(f"unknown preset '{name}'; choose one of: {', '.join(PRESETS)}")
     return PRESETS[name]()

@@ -2,6 +2,7 @@
 import json
 import os
 import signal
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -266,3 +267,28 @@ def test_a_small_fit_of_a_thin_shape_suggests_the_detail_preset(tmp_path, capsys
     grid = load_grid(tmp_path / "tiles" / "grid.npz")
     assert detail_hint(cfg.updated(name="detail"), grid) is None  # other presets: no hint
     assert detail_hint(cfg, grid, thin=0.1) is None
+
+
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
+def test_a_small_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, capsys, monkeypatch):
+    """small's paper-width autoencoder runs in fp32 where bf16 is not native: the fit says so and names `quick`."""
+    from sin3dm_lite import pipeline
+
+    cfg = micro_config().updated(**{"name": "small", "autoencoder.steps": 2, "diffusion.steps": 2})
+    monkeypatch.setattr(pipeline, "bf16_is_fast", lambda device: False)
+    Sin3DM.fit("canyon", preset=cfg, out=tmp_path / "fp32", device="cpu", progress=True)
+    assert "--preset quick" in capsys.readouterr().out
+    assert pipeline.quick_hint(cfg.updated(name="quick"), "cpu") is None  # other presets: no hint
+    assert pipeline.quick_hint(cfg.updated(**{"autoencoder.precision": "bf16"}), "cpu") is None  # bf16 asked for
+    monkeypatch.setattr(pipeline, "bf16_is_fast", lambda device: True)
+    Sin3DM.fit("canyon", preset=cfg, out=tmp_path / "bf16", device="cpu", progress=True)
+    assert "--preset quick" not in capsys.readouterr().out
+
+
+def test_the_quick_preset_is_small_with_a_lighter_autoencoder():
+    """`quick` changes only the autoencoder's cost and the denoiser's steps: same grid, latent and denoiser field."""
+    small, quick = get_preset("small"), get_preset("quick")
+    assert quick.grid == small.grid and quick.sampling == small.sampling
+    assert quick.autoencoder.mlp_hidden < small.autoencoder.mlp_hidden
+    assert quick.autoencoder.points_per_step * quick.autoencoder.steps < small.autoencoder.points_per_step * small.autoencoder.steps
+    assert replace(quick.diffusion, steps=small.diffusion.steps) == small.diffusion
