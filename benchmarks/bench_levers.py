@@ -2,6 +2,7 @@
 
     python benchmarks/bench_levers.py runs/bench/canyon_small canyon diffusion.steps=1000 diffusion.crop=16
     python benchmarks/bench_levers.py RUN SOURCE [setting=value ...] [-n 8] [--diversity 1.0]
+    python benchmarks/bench_levers.py RUN wall autoencoder.steps=2000 --autoencoder-only --render pics/
 
 The grid and the autoencoder (the latent) are reused from RUN, so one lever of
 the denoiser (receptive field, rollout, crops, steps, EMA, ...) is measured at
@@ -58,6 +59,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--png", default=None, help="folder for a picture of the samples (top and front view)")
     ap.add_argument("--autoencoder-only", action="store_true", help="stop after the autoencoder's figures")
+    ap.add_argument("--render", default=None, help="folder for a hero view (PNG) of the new autoencoder's textured "
+                    "reconstruction: colour detail (a wall's mortar joints) that PSNR alone does not show")
     a = ap.parse_args()
     model = Sin3DM.load(a.run)
     changes = parse_settings(a.settings)
@@ -69,6 +72,16 @@ def main() -> None:
               f"({fig['autoencoder_s'] / cfg.autoencoder.steps:.3f} s/step) | recon IoU {fig['recon_iou']:.3f} | colour PSNR "
               f"{fig['color_psnr']:.1f} | reconstruction vs input: LP-IoU {ref['ae_lp_iou']:.3f} LP-F {ref['ae_lp_f']:.3f}",
               flush=True)
+        if a.render:
+            from PIL import Image
+
+            from sin3dm_lite.render import render_hero
+
+            tag = "_".join(a.settings).replace("=", "-").replace(".", "") or "as-fitted"
+            path = Path(a.render) / f"{Path(a.run).name}_{tag}_reconstruction.png"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            Image.fromarray(render_hero(model.to_mesh(model.input_sample(), 0), size=384)).save(path)
+            print(f"reconstruction rendered: {path}", flush=True)
         if a.autoencoder_only:
             return
     train_s = fig["diffusion_s"]
