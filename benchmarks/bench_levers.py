@@ -62,6 +62,7 @@ def main() -> None:
     ap.add_argument("--render", default=None, help="folder for a hero view (PNG) of the new autoencoder's textured "
                     "reconstruction: colour detail (a wall's mortar joints) that PSNR alone does not show")
     a = ap.parse_args()
+    tag = "_".join(a.settings).replace("=", "-").replace(".", "") or "as-fitted"  # picture file names
     model = Sin3DM.load(a.run)
     changes = parse_settings(a.settings)
     cfg = model.config.updated(**changes)
@@ -77,7 +78,6 @@ def main() -> None:
 
             from sin3dm_lite.render import render_hero
 
-            tag = "_".join(a.settings).replace("=", "-").replace(".", "") or "as-fitted"
             path = Path(a.render) / f"{Path(a.run).name}_{tag}_reconstruction.png"
             path.parent.mkdir(parents=True, exist_ok=True)
             Image.fromarray(render_hero(model.to_mesh(model.input_sample(), 0), size=384)).save(path)
@@ -91,7 +91,6 @@ def main() -> None:
         occ = sample_grids(model, a.n, res, diversity=d)["occ"]
         sc = scores(refs, occ)[res[0]]
         if a.png:
-            tag = "_".join(a.settings).replace("=", "-").replace(".", "") or "as-fitted"
             save_projections(refs[res[0]]["input"], occ[res[0]], Path(a.png) / f"{Path(a.run).name}_{tag}_div{d}.png",
                              f"{' '.join(a.settings)} div {d}: G-Div {sc['g_div']:.3f} LP-IoU {sc['lp_iou']:.3f} LP-F {sc['lp_f']:.3f}")
         print(f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}: diffusion {train_s:.0f} s "
