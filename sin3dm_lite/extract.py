@@ -153,7 +153,12 @@ def simplify(verts: np.ndarray, faces: np.ndarray, target_faces: int | None):
 
 
 # ----------------------------------------------------------------------------- 5. UV atlas
-def uv_atlas(verts: np.ndarray, faces: np.ndarray, resolution: int = 1024, padding: int = 4):
+#: no UV chart may cover more than this share of the surface (xatlas ``max_chart_area``); see :func:`uv_atlas`
+MAX_CHART_SHARE = 1 / 7
+
+
+def uv_atlas(verts: np.ndarray, faces: np.ndarray, resolution: int = 1024, padding: int = 4,
+             max_chart_share: float = MAX_CHART_SHARE):
     """Cut the mesh into charts and pack them into one square-ish atlas with xatlas.
 
     Args:
@@ -161,6 +166,14 @@ def uv_atlas(verts: np.ndarray, faces: np.ndarray, resolution: int = 1024, paddi
             texel density to fill about this many texels per side).
         padding: empty texels between charts (room for the gutter fill, so
             bilinear filtering and mipmaps do not mix neighbouring charts).
+        max_chart_share: no chart grows beyond this share of the surface area
+            (0: no limit). xatlas grows charts without a limit by default, and
+            on bricky, many-faceted surfaces that takes long: a 20,000-face
+            sample of the wall took 9-11 s there, of the tiles 16 s; with 1/7
+            3.7 and 5.4 s, with the same share of the atlas used (0.84-0.86).
+            Smooth shapes barely change (canyon 2.4 → 2.1 s, colonnade 2.8 s).
+            A flat region stays one chart whatever its size (xatlas makes
+            planar charts first).
 
     Returns:
         ``vmapping (V',)``: the original vertex of each atlas vertex (seams
@@ -177,11 +190,16 @@ def uv_atlas(verts: np.ndarray, faces: np.ndarray, resolution: int = 1024, paddi
     pack.resolution = int(resolution)
     pack.padding = int(padding)
     pack.bilinear = True
-    atlas.generate(xatlas.ChartOptions(), pack)
+    chart = xatlas.ChartOptions()
+    if max_chart_share > 0:
+        v, f = np.asarray(verts, np.float64), np.asarray(faces, np.int64)
+        area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum()
+        chart.max_chart_area = float(area * max_chart_share)
+    atlas.generate(chart, pack)
     if atlas.atlas_count > 1:  # charts did not fit one page: repack at the density found, on one page
         pack.texels_per_unit = atlas.texels_per_unit
         pack.resolution = 0
-        atlas.generate(xatlas.ChartOptions(), pack)
+        atlas.generate(chart, pack)
     vmapping, new_faces, uvs = atlas[0]
     return vmapping.astype(np.int64), new_faces.astype(np.int64), uvs.astype(np.float32)
 

@@ -315,6 +315,28 @@ def test_extract_mesh_textured_steps_and_colours():
     assert err.mean() < 0.01 and np.quantile(err, 0.99) < 0.05
 
 
+def test_uv_charts_are_capped_at_a_share_of_the_surface():
+    """Large curved charts are cut (they made xatlas slow on bricky samples); the atlas stays a valid one."""
+    import trimesh
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    cyl = trimesh.creation.cylinder(0.3, 3.0, sections=32)
+    v, f = np.asarray(cyl.vertices), np.asarray(cyl.faces)
+
+    def largest_chart(share):
+        vmapping, faces_uv, uvs = ex.uv_atlas(v, f, resolution=256, max_chart_share=share)
+        assert np.array_equal(vmapping[faces_uv], f) and uvs.min() >= 0 and uvs.max() <= 1
+        n = len(faces_uv)  # faces sharing an atlas vertex lie in one chart
+        rows, cols = np.repeat(np.arange(n), 3), faces_uv.reshape(-1) + n
+        links = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n + len(vmapping),) * 2)
+        label = connected_components(links, directed=False)[1][:n]
+        return (np.bincount(label, cyl.area_faces) / cyl.area).max()
+
+    assert largest_chart(0) > 0.25  # xatlas alone: the side in two charts
+    assert largest_chart(ex.MAX_CHART_SHARE) <= ex.MAX_CHART_SHARE * 1.01
+
+
 def test_extract_mesh_original_coordinates_and_vertex_colours():
     dec = SphereDecoder()
     norm = Normalization(center=np.array([1.0, 2.0, 3.0]), scale=0.5)
