@@ -168,9 +168,9 @@ def uv_atlas(verts: np.ndarray, faces: np.ndarray, resolution: int = 1024, paddi
             bilinear filtering and mipmaps do not mix neighbouring charts).
         max_chart_share: no chart grows beyond this share of the surface area
             (0: no limit). xatlas grows charts without a limit by default, and
-            on bricky, many-faceted surfaces that takes long: a 20,000-face
-            sample of the wall took 9-11 s there, of the tiles 16 s; with 1/7
-            3.7 and 5.4 s, with the same share of the atlas used (0.84-0.86).
+            on bricky, many-faceted surfaces that takes long: charting a
+            20,000-face sample of the wall took 9-11 s without a cap, of the
+            tiles 16 s; with 1/7 3.7 and 5.4 s, the atlas as full (0.84-0.86 used).
             Smooth shapes barely change (canyon 2.4 → 2.1 s, colonnade 2.8 s).
             A flat region stays one chart whatever its size (xatlas makes
             planar charts first).
