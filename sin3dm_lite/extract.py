@@ -44,7 +44,7 @@ import numpy as np
 from .box import as_aabb, to_box
 from .decode import PreparedTriplane, decode_grid, prepare, query_points
 from .errors import Sin3DMInputError
-from .mesh_io import Material, Normalization, TexturedMesh, component_labels, tangent_frames
+from .mesh_io import Material, Normalization, TexturedMesh, component_labels, face_areas, tangent_frames
 from .triplane import Triplane
 
 
@@ -192,9 +192,7 @@ def uv_atlas(verts: np.ndarray, faces: np.ndarray, resolution: int = 1024, paddi
     pack.bilinear = True
     chart = xatlas.ChartOptions()
     if max_chart_share > 0:
-        v, f = np.asarray(verts, np.float64), np.asarray(faces, np.int64)
-        area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum()
-        chart.max_chart_area = float(area * max_chart_share)
+        chart.max_chart_area = float(face_areas(verts, faces).sum() * max_chart_share)
     atlas.generate(chart, pack)
     if atlas.atlas_count > 1:  # charts did not fit one page: repack at the density found, on one page
         pack.texels_per_unit = atlas.texels_per_unit

@@ -203,7 +203,7 @@ class TexturedMesh:
     def surface_points(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Area-uniform surface samples: ``(points (n,3), face_index (n,), barycentric (n,3))``."""
         tri = self.vertices[self.faces]
-        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        area = face_areas(self.vertices, self.faces)
         total = area.sum()
         if not np.isfinite(total) or total <= 0:
             raise Sin3DMInputError(f"mesh '{self.name}' has zero surface area; give a mesh with non-degenerate triangles")
@@ -227,6 +227,12 @@ class TexturedMesh:
         scale = 2.0 / (extent.max() * BOX_MARGIN)
         new = Normalization(center=self.normalization.to_original(center), scale=self.normalization.scale * scale)
         return replace(self, vertices=(self.vertices - center) * scale, normalization=new)
+
+
+def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area of each triangle, ``(F,)``."""
+    tri = np.asarray(vertices, np.float64)[np.asarray(faces)]
+    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
 
 
 def component_labels(n_verts: int, faces: np.ndarray) -> np.ndarray:
@@ -475,8 +481,7 @@ def _assemble(parts: list[_Part], materials: list[Material], name: str, source: 
             f"'{source}' has a vertex coordinate of {big:.3g}, too large for its bounding box (the limit is "
             f"{MAX_COORDINATE:.0e}); remove the stray vertex or scale the mesh down in a mesh editor"
         )
-    tri = vertices[faces]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = face_areas(vertices, faces)
     if not area.sum() > 0:
         raise Sin3DMInputError(
             f"'{source}' has zero surface area (every triangle is degenerate: collinear or repeated "
