@@ -22,7 +22,11 @@ over n DDIM samples, each labelled by what it is compared with:
               faces lie near a layer of voxel centres (the axis-aligned examples at 64 voxels):
               there the LP metrics also punish sub-voxel shifts, not only lost detail;
 * vs recon    LP metrics of the samples against the autoencoder's reconstruction instead of the input
-              (softer: the model's own view of the shape; not the paper's metric).
+              (softer: the model's own view of the shape; not the paper's metric);
+* family      built-in examples only: the same figures for 8 other variants of the example (its
+              generator with seeds 1-8: other merlon widths, river bends, column rings) against the
+              input: how much shapes of the same kind differ, and how many of their patches match
+              the input's. A reference for reading G-Div, not a goal.
 
 Resolutions: the fit's grid resolution and 128 (the paper's evaluation grid).
 Goals (issue 8): G-Div ≥ 0.20 with LP-F ≥ min(0.70, 0.9·ceiling) and
@@ -103,6 +107,23 @@ def references(model: Sin3DM, source: str, run: Path, resolutions) -> dict:
                   "ceiling_lp_iou": ceiling["lp_iou"], "ceiling_lp_f": ceiling["lp_fscore"],
                   "ceiling_iou": metrics.iou(data, inp),
                   "ae_lp_iou": ae["lp_iou"], "ae_lp_f": ae["lp_fscore"], "ae_iou": metrics.iou(rec, inp)}
+    return out
+
+
+def family(model: Sin3DM, source: str, resolutions, n: int = 8) -> dict | None:
+    """Per resolution: G-Div, IoU→input and LP against the input of the example's own variants (seeds 1..n)."""
+    from sin3dm_lite.examples import build_example, list_examples
+
+    if source not in list_examples():
+        return None
+    meshes = [build_example(source, seed) for seed in range(1, n + 1)]
+    out = {}
+    for r in resolutions:
+        inp = model.input_occupancy(build_example(source), r)
+        occ = [model.input_occupancy(m, r) for m in meshes]
+        var, lp = metrics.variation_scores(inp, occ), metrics.lp_scores(inp, occ)
+        out[r] = {"g_div": var["g_div"], "iou_to_input": var["iou_to_input"], "lp_iou": lp["lp_iou"],
+                  "lp_f": lp["lp_fscore"]}
     return out
 
 
@@ -202,6 +223,10 @@ def main() -> None:
         print(f"{name}: fit {fit_s:.0f} s {_mark(fit_s <= GOALS['fit_s'])} (grid {t['grid_s']:.0f} + autoencoder "
               f"{t['autoencoder_s']:.0f} + diffusion {t['diffusion_s']:.0f}) | recon IoU {recon:.3f} "
               f"{_mark(recon >= GOALS['recon_iou'])} | input vs its own grid @{res[0]}: IoU {refs[res[0]]['ceiling_iou']:.3f}")
+        fam = family(model, source, res)
+        for r, v in (fam or {}).items():
+            print(f"  family @{r:<3d} (8 other variants of the example; a reference, not a goal) G-Div {v['g_div']:.3f}"
+                  f" | IoU→input {v['iou_to_input']:.3f} | vs input: LP-IoU {v['lp_iou']:.3f} LP-F {v['lp_f']:.3f}")
         for d in a.diversity or [None]:
             s = sample_grids(model, a.n, res, diversity=d, export=a.export if d is None or d == a.diversity[0] else 0,
                              export_dir=run / "samples")
@@ -213,18 +238,27 @@ def main() -> None:
             print_scores(label, sc)
             rows.append({"input": name, "preset": a.preset, "diversity": d, "fit_s": fit_s, "timings_s": t,
                          "recon_iou": recon, "sample_s": s["sample_s"], "mesh_s": s["mesh_s"],
+                         "family": {str(r): v for r, v in fam.items()} if fam else None,
                          "scores": {str(r): v for r, v in sc.items()}})
     Path(a.runs).mkdir(parents=True, exist_ok=True)
     (Path(a.runs) / "bench_samples.json").write_text(json.dumps(rows, indent=2))
     r0 = lambda row: row["scores"][min(row["scores"], key=int)]  # noqa: E731  scores at the fit's resolution
-    print("\n| input | diversity | fit s (grid+AE+diff) | recon IoU | G-Div | IoU→input | LP-IoU | LP-F | ceiling LP-IoU/LP-F | s per mesh |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("\n| input | diversity | fit s (grid+AE+diff) | recon IoU | G-Div | IoU→input | LP-IoU | LP-F | ceiling LP-IoU/LP-F "
+          "| family G-Div, LP-IoU/LP-F | s per mesh |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         v, t = r0(row), row["timings_s"]
         mesh_s = f"{row['mesh_s']:.1f}" if row["mesh_s"] else "-"
         print(f"| {row['input']} | {row['diversity'] or 'default'} | {row['fit_s']:.0f} ({t['grid_s']:.0f}+{t['autoencoder_s']:.0f}+"
               f"{t['diffusion_s']:.0f}) | {row['recon_iou']:.3f} | {v['g_div']:.3f} | {v['iou_to_input']:.3f} | {v['lp_iou']:.3f} | "
-              f"{v['lp_f']:.3f} | {v['ceiling_lp_iou']:.2f}/{v['ceiling_lp_f']:.2f} | {mesh_s} |")
+              f"{v['lp_f']:.3f} | {v['ceiling_lp_iou']:.2f}/{v['ceiling_lp_f']:.2f} | {_family_cell(row)} | {mesh_s} |")
+
+
+def _family_cell(row: dict) -> str:
+    if not row["family"]:
+        return "-"
+    f = row["family"][min(row["family"], key=int)]
+    return f"{f['g_div']:.3f}, {f['lp_iou']:.2f}/{f['lp_f']:.2f}"
 
 
 if __name__ == "__main__":

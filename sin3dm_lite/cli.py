@@ -167,6 +167,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="learn metallic, roughness and normals too (default: when the mesh has PBR maps; "
                         "--pbr on a mesh without maps learns its constant factors and geometric normals)")
     f.add_argument("--seed", type=_seed, default=None, help="random seed (default: the preset's)")
+    f.add_argument("--thin-switch", action=argparse.BooleanOptionalAction, default=True,
+                   help="on a shape with many thin parts, fit small at the 'detail' settings (96 voxels, wider "
+                        "denoiser field); --no-thin-switch keeps the preset's grid")
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
 
     s = command("sample")
@@ -338,12 +341,14 @@ def cmd_grid(a) -> None:
 
 
 def cmd_fit(a) -> None:
+    from .config import get_preset
     from .pipeline import Sin3DM
 
     if a.resume and not Path(a.out).is_dir():
         raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")
     t0 = time.perf_counter()
-    model = Sin3DM.fit(a.mesh, preset=a.preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device, pbr=a.pbr)
+    preset = a.preset if a.thin_switch else get_preset(a.preset).updated(thin_parts={})
+    model = Sin3DM.fit(a.mesh, preset=preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device, pbr=a.pbr)
     r = model.report["reconstruction"]
     print(
         f"fit done in {time.perf_counter() - t0:.0f} s: occupancy IoU {r['occupancy_iou']:.3f}, "

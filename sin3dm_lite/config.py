@@ -7,6 +7,10 @@
   no cross-plane rollout so that what it sees shrinks with the latent
   (REFERENCE.md, last section: with the paper's network on a 32-wide latent
   every sample is a copy); it samples at diversity 0.7 (README, "Presets").
+  On a shape with many thin parts (columns, slats: :meth:`ShapeGrid.thin_share`)
+  the fit switches by itself to ``detail``'s settings (``Config.thin_parts``),
+  which keep them in about the same time; the run's config is then named
+  ``small+thin``.
 * ``quick`` – ``small`` with a light autoencoder (MLP heads 128 wide, 4,096 points,
   1,000 steps) and 1,500 denoiser steps, for CPUs without native bf16 (AVX2
   only, most laptops), where ``small``'s paper-width autoencoder alone takes
@@ -16,8 +20,10 @@
 * ``detail`` – ``small`` at 96 voxels (a 48-texel latent) with 4 ResBlocks (a
   17-texel field, about the same share of the latent), sampled from pure noise:
   for shapes with parts 2-3 voxels thin at 64 (columns, railings), which
-  ``small``'s 32-texel latent smears; its fit takes about as long as ``small``'s. Shapes whose
-  global layout should vary (the canyon) copy the input with it.
+  ``small``'s 32-texel latent smears; its fit takes about as long as ``small``'s.
+  ``small`` picks it by itself for such shapes; naming it forces it on any
+  shape, but shapes whose global layout should vary (the canyon) copy the
+  input with it.
 * ``paper`` – the paper's numbers (256 grid, 25k + 25k steps) for one GPU.
 """
 from __future__ import annotations
@@ -109,6 +115,20 @@ class Config:
     diffusion: DiffusionConfig = field(default_factory=DiffusionConfig)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     checkpoint_every: int = 500  # training steps between checkpoints in a run folder
+    # Dotted settings that replace these ones when the input has many thin parts (ShapeGrid.thin_share above
+    # grid.THIN_SHARE_HINT on this grid): Sin3DM.fit switches to them after building the grid. {} never switches.
+    thin_parts: dict = field(default_factory=dict)
+
+    def for_thin_parts(self) -> "Config":
+        """These settings with :attr:`thin_parts` applied, nothing left to switch, named ``<name>+thin``.
+
+        A grid too coarse for a shape's thin parts (columns 2-3 voxels thick)
+        swells or breaks them in every sample; the finer grid needs a wider
+        denoiser field too, so that the field keeps its share of the latent.
+        """
+        if not self.thin_parts:
+            return self
+        return self.updated(**self.thin_parts, name=f"{self.name}+thin", thin_parts={})
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -121,7 +141,12 @@ class Config:
         return _from_dict(cls, d)
 
     def updated(self, **changes: Any) -> "Config":
-        """Copy with dotted-path changes, e.g. ``cfg.updated(**{"diffusion.steps": 100})``."""
+        """Copy with dotted-path changes, e.g. ``cfg.updated(**{"diffusion.steps": 100})``.
+
+        A setting you change is yours: it also leaves :attr:`thin_parts`, so
+        the thin-part switch never undoes it (``small`` with 6 ResBlocks keeps
+        6 on the colonnade), unless the same call sets ``thin_parts`` itself.
+        """
         d = self.to_dict()
         for key, value in changes.items():
             node = d
@@ -131,6 +156,8 @@ class Config:
             if leaf not in node:
                 raise Sin3DMInputError(f"unknown config setting '{key}'")
             node[leaf] = value
+        if "thin_parts" not in changes:
+            d["thin_parts"] = {k: v for k, v in d["thin_parts"].items() if k not in changes}
         return Config.from_dict(d)
 
 
@@ -160,6 +187,10 @@ def _tiny() -> Config:
     )
 
 
+#: what ``detail`` changes in ``small``; ``small`` switches to it by itself on shapes with many thin parts
+DETAIL_CHANGES = {"grid.resolution": 96, "diffusion.n_resblocks": 4, "autoencoder.steps": 1000, "sampling.diversity": 1.0}
+
+
 def _small() -> Config:
     return Config(
         name="small",
@@ -180,6 +211,9 @@ def _small() -> Config:
         # diversity 0.7 (start at t = 700 from the input's latent, noised): canyon G-Div 0.21 with LP-F 0.71
         sampling=SamplingConfig(steps=50, mesh_resolution=128, faces=20_000, texture_size=1024, diversity=0.7),
         checkpoint_every=250,
+        # shapes with thin parts get the 'detail' settings (see _detail): the colonnade's samples at 64 voxels keep
+        # 25 % of the input's patches (LP-IoU), at 96 with a 17-texel field 68 %, in about the same fit time
+        thin_parts=dict(DETAIL_CHANGES),
     )
 
 
@@ -194,8 +228,7 @@ def _detail() -> Config:
     # 0.206 / 0.672 / 0.776 against 0.213 / 0.655 / 0.759 with 2,000; rocks.stl 0.157 / 0.510 / 0.678 against
     # 0.157 / 0.515 / 0.682), and the autoencoder is most of the fit. It costs about 1 dB of colour PSNR
     # (colonnade 21.5 → 20.4, tiles.obj 17.2 → 16.2)
-    return _small().updated(**{"name": "detail", "grid.resolution": 96, "diffusion.n_resblocks": 4,
-                               "autoencoder.steps": 1000, "sampling.diversity": 1.0})
+    return _small().for_thin_parts().updated(name="detail")
 
 
 def _quick() -> Config:
@@ -210,7 +243,9 @@ def _quick() -> Config:
     # 23.4 dB, 2,000 light steps 24.5 dB (README, "Presets"). 1,500 denoiser steps: the canyon's samples as with
     # 2,000 (0.19 / 0.57 / 0.72 against 0.19 / 0.58 / 0.73), 1,000 lose LP-F (0.70).
     return _small().updated(**{"name": "quick", "autoencoder.mlp_hidden": 128, "autoencoder.points_per_step": 4096,
-                               "autoencoder.steps": 1000, "diffusion.steps": 1500})
+                               "autoencoder.steps": 1000, "diffusion.steps": 1500,
+                               # no switch: detail's settings take about 19 minutes on such a CPU (README, "Presets")
+                               "thin_parts": {}})
 
 
 def _paper() -> Config:

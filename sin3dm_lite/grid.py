@@ -27,7 +27,7 @@ from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
 from .files import atomic_path
 from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, component_labels, unique_rows
 
-#: :meth:`Sin3DM.fit` with the ``small`` preset suggests ``detail`` when more of the solid than this is thin
+#: :meth:`Sin3DM.fit` with the ``small`` preset switches to ``detail``'s settings when more of the solid than this is thin
 #: (:meth:`ShapeGrid.thin_share`): measured on five shapes, ``detail`` helped the three above it, not the two below.
 THIN_SHARE_HINT = 0.2
 
@@ -114,8 +114,9 @@ class ShapeGrid:
         first to swell, break or vanish in samples. At 64 voxels the built-in
         canyon and wall score 0.13 and 0.10, the colonnade 0.24, a slab of
         small boxes 0.44 and one of tiles with one-voxel gaps 1.0 (at 96
-        voxels: 0.05, 0.05, 0.11, 0.07, 0.58). :meth:`Sin3DM.fit` suggests the
-        ``detail`` preset above :data:`THIN_SHARE_HINT`.
+        voxels: 0.05, 0.05, 0.11, 0.07, 0.58). Above :data:`THIN_SHARE_HINT` a
+        ``small`` fit switches to the ``detail`` preset's settings
+        (:func:`sin3dm_lite.pipeline.thin_parts_switch`).
         """
         from scipy import ndimage
 

@@ -51,22 +51,35 @@ MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 
 RUN_FILES = ("config.json", "grid.npz", "autoencoder.pt", "diffusion.pt", MODEL_FILE, "losses.json", "report.json")
 
 
-def detail_hint(cfg: Config, grid: ShapeGrid, thin: float | None = None) -> str | None:
-    """What :meth:`Sin3DM.fit` says when a ``small`` fit's grid has many thin parts, else None.
+def thin_parts_switch(cfg: Config, grid: ShapeGrid, thin: float | None = None) -> Config | None:
+    """The settings :meth:`Sin3DM.fit` switches to when ``grid`` is mostly thin parts, else None.
 
-    The ``small`` preset's 64-voxel grid and 9-texel denoiser field swell or
-    break parts a few voxels thick (columns, small boxes, slats); the
-    ``detail`` preset (96 voxels, 4 ResBlocks, 1,000 autoencoder steps) keeps
-    them in about the same fit time (README, "Thin parts"). ``thin`` is :meth:`ShapeGrid.thin_share`.
+    A preset with :attr:`Config.thin_parts` (``small``: the ``detail``
+    settings, 96 voxels and a 17-texel denoiser field) swaps them in when
+    more than :data:`THIN_SHARE_HINT` of the solid lies in parts under ~5
+    voxels thick (:meth:`ShapeGrid.thin_share`): its 64-voxel grid and 9-texel
+    field swell or break such parts (columns, small boxes, slats) in every
+    sample, the finer grid keeps them in about the same fit time (README,
+    "Thin parts"). ``thin`` is the share, if already measured.
     """
-    if cfg.name != "small":
+    if not cfg.thin_parts:
         return None
     thin = grid.thin_share() if thin is None else thin
-    if thin <= THIN_SHARE_HINT:
-        return None
-    return (f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels: "
-            "samples of the small preset may swell or break them. The 'detail' preset (96 voxels, wider denoiser "
-            "field, about the same fit time) keeps such parts: preset='detail' (CLI: --preset detail).")
+    return cfg.for_thin_parts() if thin > THIN_SHARE_HINT else None
+
+
+def _grid_for(mesh: TexturedMesh, cfg: Config, progress: bool) -> ShapeGrid:
+    g = cfg.grid
+    return mesh_to_grid(mesh, g.resolution, g.threshold_voxels, g.n_surface_points, g.near_surface_sigma, cfg.seed,
+                        progress, margin_voxels=g.margin_voxels, pbr=cfg.autoencoder.pbr)
+
+
+def _thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -> str:
+    return (f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
+            f"the {cfg.name} preset's samples would swell or break: fitting at {new.grid.resolution} voxels with a "
+            f"{new.diffusion.n_resblocks}-ResBlock denoiser instead (the 'detail' preset's settings, about the same "
+            f"fit time; the run's config is named '{new.name}'). To keep {cfg.grid.resolution} voxels: CLI "
+            "--no-thin-switch, Python preset=get_preset(...).updated(thin_parts={}).")
 
 
 def quick_hint(cfg: Config, device) -> str | None:
@@ -78,7 +91,7 @@ def quick_hint(cfg: Config, device) -> str | None:
     about 5 minutes there, with blurrier texture (README, "Presets").
     """
     dev = torch.device(device)
-    if cfg.name != "small" or dev.type != "cpu" or bf16_is_fast(dev):
+    if cfg.name not in ("small", "small+thin") or dev.type != "cpu" or bf16_is_fast(dev):
         return None
     return ("this CPU has no native bf16, so the small preset's paper-width autoencoder is slow here: about 20 "
             "minutes on 2 cores in fp32 (longer in emulated bf16). The 'quick' preset (a lighter autoencoder) fits in "
@@ -267,6 +280,7 @@ class Sin3DM:
         dev = get_device(device)
         run = Path(out) if out is not None else None
         have_grid = run is not None and resume and (run / "grid.npz").exists()
+        thin_parts = None  # set when this fit switched to the preset's thin-part settings
         mesh = None if have_grid else resolve_mesh(source)  # bad input fails before any folder is written
         if mesh is not None and not (resume and run is not None and (run / "config.json").exists()):
             pbr = _choose_pbr(mesh, pbr, preset, say)
@@ -282,16 +296,23 @@ class Sin3DM:
             grid = load_grid(run / "grid.npz")
             say(f"[fit] grid loaded from {run / 'grid.npz'}")
         else:
-            g = cfg.grid
-            grid = mesh_to_grid(mesh, g.resolution, g.threshold_voxels, g.n_surface_points, g.near_surface_sigma, cfg.seed,
-                                progress, margin_voxels=g.margin_voxels, pbr=cfg.autoencoder.pbr)
+            grid = _grid_for(mesh, cfg, progress)
+            thin = grid.thin_share()
+            switched = thin_parts_switch(cfg, grid, thin)
+            if switched is not None:  # too coarse for this shape's thin parts: the finer settings, recorded first
+                say("[fit] " + _thin_parts_message(cfg, switched, grid, thin))
+                thin_parts = {"from": cfg.name, "resolution": max(grid.shape), "thin_share": thin}
+                cfg = switched
+                if run is not None:
+                    atomic_write(run / "config.json", cfg.to_json())
+                grid = _grid_for(mesh, cfg, progress)
             if run is not None:
                 save_grid(grid, run / "grid.npz")
         timings["grid_s"] = time.perf_counter() - t0
         thin = grid.thin_share()
-        for hint in (detail_hint(cfg, grid, thin), quick_hint(cfg, dev)):
-            if hint:
-                say("[fit] " + hint)
+        hint = quick_hint(cfg, dev)
+        if hint:
+            say("[fit] " + hint)
 
         # stage 2: autoencoder
         t0 = time.perf_counter()
@@ -314,7 +335,8 @@ class Sin3DM:
             # the mesh file, so the run can be compared with its input later (Sin3DM.input_mesh)
             "input_path": str(Path(source).resolve()) if isinstance(source, (str, Path)) and Path(source).is_file() else None,
             "grid_shape": list(grid.shape),
-            "thin_share": thin,  # ShapeGrid.thin_share: share of the solid in parts under ~5 voxels thick
+            "thin_share": thin,  # ShapeGrid.thin_share of the training grid: share of the solid in parts under ~5 voxels thick
+            "thin_parts_switch": thin_parts,  # {from, resolution, thin_share} when small switched to finer settings
             "latent_shape": list(h0.resolution),
             "autoencoder_steps": ae.step_count,
             "diffusion_steps": dm.step_count,

@@ -216,3 +216,26 @@ def test_demo_of_an_example_without_a_shipped_model_says_what_to_do(capsys, tmp_
     code, out, err = run(capsys, "demo", "--example", "wall", "--out", str(tmp_path / "s"))
     assert code == 2 and "no shipped model of 'wall'" in err and "--train" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("flag, switches", [([], True), (["--no-thin-switch"], False)])
+def test_fit_passes_the_thin_part_switch_choice(capsys, tmp_path, monkeypatch, flag, switches):
+    """`fit` hands small (with its thin-part settings) to Sin3DM.fit; --no-thin-switch hands small without them."""
+    from sin3dm_lite.config import Config, get_preset
+    from sin3dm_lite.pipeline import Sin3DM
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_fit(mesh, preset, **kw):
+        seen["preset"] = preset
+        raise Stop
+
+    monkeypatch.setattr(Sin3DM, "fit", staticmethod(fake_fit))
+    with pytest.raises(Stop):
+        main(["fit", "colonnade", "--out", str(tmp_path / "run"), *flag])
+    cfg = seen["preset"] if isinstance(seen["preset"], Config) else get_preset(seen["preset"])
+    assert cfg.name == "small" and bool(cfg.thin_parts) is switches
+    assert cfg.grid.resolution == 64

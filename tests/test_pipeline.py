@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from sin3dm_lite import autoencoder
-from sin3dm_lite.config import get_preset
+from sin3dm_lite.config import Config, get_preset
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.pipeline import Sin3DM
+from sin3dm_lite.pipeline import Sin3DM, thin_parts_switch
 
 
 def micro_config():
@@ -254,19 +254,45 @@ def test_input_mesh_is_the_example_or_the_file_the_run_was_fitted_to(fitted, tmp
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
-def test_a_small_fit_of_a_thin_shape_suggests_the_detail_preset(tmp_path, capsys):
-    """Only a `small` fit whose grid is mostly thin parts prints the hint; the share is in the report."""
+def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, capsys):
+    """A preset with thin_parts refits the grid at the finer settings when the shape is mostly thin parts, says so,
+    and records the settings it used, so that the run folder loads and resumes as what it is."""
     from sin3dm_lite.grid import load_grid
-    from sin3dm_lite.pipeline import detail_hint
 
-    cfg = micro_config().updated(**{"name": "small", "grid.resolution": 32, "autoencoder.steps": 2, "diffusion.steps": 2})
+    cfg = micro_config().updated(**{"name": "small", "grid.resolution": 32, "autoencoder.steps": 2, "diffusion.steps": 2,
+                                    "thin_parts": {"grid.resolution": 40, "diffusion.n_resblocks": 3}})
     model = Sin3DM.fit("tiles", preset=cfg, out=tmp_path / "tiles", progress=True)
-    assert "--preset detail" in capsys.readouterr().out
-    assert model.report["thin_share"] > 0.2
-    assert json.loads((tmp_path / "tiles" / "report.json").read_text())["thin_share"] == model.report["thin_share"]
-    grid = load_grid(tmp_path / "tiles" / "grid.npz")
-    assert detail_hint(cfg.updated(name="detail"), grid) is None  # other presets: no hint
-    assert detail_hint(cfg, grid, thin=0.1) is None
+    out = capsys.readouterr().out
+    assert "lies in parts under ~5 voxels thick at 32 voxels" in out and "fitting at 40 voxels" in out
+    assert "--no-thin-switch" in out
+    saved = Config.from_dict(json.loads((tmp_path / "tiles" / "config.json").read_text()))
+    assert saved.name == "small+thin" and saved.grid.resolution == 40 and saved.diffusion.n_resblocks == 3
+    assert saved.thin_parts == {} and model.config.grid.resolution == 40
+    assert max(load_grid(tmp_path / "tiles" / "grid.npz").shape) == 40
+    switch = json.loads((tmp_path / "tiles" / "report.json").read_text())["thin_parts_switch"]
+    assert switch["from"] == "small" and switch["resolution"] == 32 and switch["thin_share"] > 0.2
+    assert Sin3DM.load(tmp_path / "tiles").config.grid.resolution == 40
+
+    # the same settings without thin_parts, or on a shape with few thin parts, keep the preset's grid
+    model = Sin3DM.fit("tiles", preset=cfg.updated(thin_parts={}), out=tmp_path / "kept", progress=True)
+    assert "fitting at" not in capsys.readouterr().out
+    assert model.config.name == "small" and model.report["thin_parts_switch"] is None
+    assert max(load_grid(tmp_path / "kept" / "grid.npz").shape) == 32
+    grid = load_grid(tmp_path / "kept" / "grid.npz")
+    assert thin_parts_switch(cfg, grid, thin=0.1) is None
+    assert thin_parts_switch(cfg, grid, thin=0.5).grid.resolution == 40
+
+
+def test_small_switches_to_exactly_the_detail_settings():
+    """The 'detail' preset is what small switches to (one source of truth), and it does not switch again."""
+    small, detail = get_preset("small"), get_preset("detail")
+    switched = small.for_thin_parts()
+    assert switched.updated(name="detail") == detail and switched.name == "small+thin"
+    assert detail.thin_parts == {} and detail.for_thin_parts() == detail
+    assert get_preset("quick").thin_parts == {}  # the light preset for CPUs without bf16 never switches
+    # a setting the user changes is never undone by the switch; the others still switch
+    mine = small.updated(**{"diffusion.n_resblocks": 6}).for_thin_parts()
+    assert mine.diffusion.n_resblocks == 6 and mine.grid.resolution == 96
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
