@@ -227,6 +227,12 @@ class Sin3DM:
         its geometric normals, ``pbr=False`` learns colour only. A resumed run
         keeps the choice in its ``config.json``.
 
+        A preset with thin-part settings (``small``) fits a shape that is
+        mostly thin parts with those instead (:func:`thin_parts_switch`: the
+        ``detail`` settings, 96 voxels), says so and saves them as the run's
+        config; ``preset=get_preset("small").updated(thin_parts={})`` keeps
+        64 voxels whatever the shape.
+
         With ``out`` a run folder is written (see the module docstring); with
         ``resume=True`` an existing run folder is continued from its last
         checkpoint. The run folder is locked (``.sin3dm-lock``) while the fit
