@@ -110,18 +110,18 @@ def references(model: Sin3DM, source: str, run: Path, resolutions) -> dict:
     return out
 
 
-def family(model: Sin3DM, source: str, resolutions, n: int = 8) -> dict | None:
-    """Per resolution: G-Div, IoU→input and LP against the input of the example's own variants (seeds 1..n)."""
+def family(model: Sin3DM, source: str, refs: dict, n: int = 8) -> dict | None:
+    """Per resolution of ``refs`` (:func:`references`): G-Div, IoU→input and LP against the input of the example's
+    own variants (seeds 1..n)."""
     from sin3dm_lite.examples import build_example, list_examples
 
     if source not in list_examples():
         return None
     meshes = [build_example(source, seed) for seed in range(1, n + 1)]
     out = {}
-    for r in resolutions:
-        inp = model.input_occupancy(build_example(source), r)
+    for r, ref in refs.items():
         occ = [model.input_occupancy(m, r) for m in meshes]
-        var, lp = metrics.variation_scores(inp, occ), metrics.lp_scores(inp, occ)
+        var, lp = metrics.variation_scores(ref["input"], occ), metrics.lp_scores(ref["input"], occ)
         out[r] = {"g_div": var["g_div"], "iou_to_input": var["iou_to_input"], "lp_iou": lp["lp_iou"],
                   "lp_f": lp["lp_fscore"]}
     return out
@@ -223,7 +223,7 @@ def main() -> None:
         print(f"{name}: fit {fit_s:.0f} s {_mark(fit_s <= GOALS['fit_s'])} (grid {t['grid_s']:.0f} + autoencoder "
               f"{t['autoencoder_s']:.0f} + diffusion {t['diffusion_s']:.0f}) | recon IoU {recon:.3f} "
               f"{_mark(recon >= GOALS['recon_iou'])} | input vs its own grid @{res[0]}: IoU {refs[res[0]]['ceiling_iou']:.3f}")
-        fam = family(model, source, res)
+        fam = family(model, source, refs)
         for r, v in (fam or {}).items():
             print(f"  family @{r:<3d} (8 other variants of the example; a reference, not a goal) G-Div {v['g_div']:.3f}"
                   f" | IoU→input {v['iou_to_input']:.3f} | vs input: LP-IoU {v['lp_iou']:.3f} LP-F {v['lp_f']:.3f}")

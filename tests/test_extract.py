@@ -318,8 +318,8 @@ def test_extract_mesh_textured_steps_and_colours():
 def test_uv_charts_are_capped_at_a_share_of_the_surface():
     """Large curved charts are cut (they made xatlas slow on bricky samples); the atlas stays a valid one."""
     import trimesh
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+
+    from sin3dm_lite.mesh_io import component_labels
 
     cyl = trimesh.creation.cylinder(0.3, 3.0, sections=32)
     v, f = np.asarray(cyl.vertices), np.asarray(cyl.faces)
@@ -327,10 +327,7 @@ def test_uv_charts_are_capped_at_a_share_of_the_surface():
     def largest_chart(share):
         vmapping, faces_uv, uvs = ex.uv_atlas(v, f, resolution=256, max_chart_share=share)
         assert np.array_equal(vmapping[faces_uv], f) and uvs.min() >= 0 and uvs.max() <= 1
-        n = len(faces_uv)  # faces sharing an atlas vertex lie in one chart
-        rows, cols = np.repeat(np.arange(n), 3), faces_uv.reshape(-1) + n
-        links = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n + len(vmapping),) * 2)
-        label = connected_components(links, directed=False)[1][:n]
+        label = component_labels(len(vmapping), faces_uv)  # atlas vertices are split at seams: a chart is a component
         return (np.bincount(label, cyl.area_faces) / cyl.area).max()
 
     assert largest_chart(0) > 0.25  # xatlas alone: the side in two charts
