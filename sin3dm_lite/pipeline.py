@@ -77,7 +77,8 @@ def _grid_for(mesh: TexturedMesh, cfg: Config, progress: bool) -> ShapeGrid:
 def _thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -> str:
     return (f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
             f"the {cfg.name} preset's samples would swell or break: fitting at {new.grid.resolution} voxels with a "
-            f"{new.diffusion.n_resblocks}-ResBlock denoiser instead (its thin-part settings; small's are the 'detail' "
+            f"{new.diffusion.n_resblocks}-ResBlock denoiser{' whose planes see each other' if new.diffusion.rollout else ''} "
+            f"instead (its thin-part settings; small's are the 'detail' "
             f"preset's, about the same fit time; the run's config is named '{new.name}'). To keep {cfg.grid.resolution} voxels: CLI "
             "--no-thin-switch, Python preset=get_preset(...).updated(thin_parts={}).")
 

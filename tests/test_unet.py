@@ -39,6 +39,24 @@ def test_triplane_conv_shapes(res, rollout, k):
     assert shapes(conv(Triplane.randn(2, 5, res))) == expected(2, 7, res)
 
 
+@pytest.mark.parametrize("k", [1, 3, 5])
+@pytest.mark.parametrize("res", [(13, 7, 10), (2, 9, 4), (1, 6, 6)])
+def test_rollout_conv_equals_the_conv_of_the_concatenated_input(k, res):
+    # TriplaneConv convolves the plane and the two repeated means apart (cheaper): the same values and
+    # gradients as the paper's Conv2d of the 3C-channel concatenation, borders included
+    torch.manual_seed(0)
+    conv = TriplaneConv(4, 5, k, rollout=True)
+    x = Triplane.randn(2, 4, res).map(lambda p: p.requires_grad_())
+    ref = Triplane(*(c(p) for c, p in zip(conv.convs, cross_plane_inputs(x).planes)))
+    out = conv(x)
+    for a, b in zip(out.planes, ref.planes):
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+    g_out = torch.autograd.grad(sum((o * o).sum() for o in out.planes), x.planes + tuple(conv.parameters()))
+    g_ref = torch.autograd.grad(sum((o * o).sum() for o in ref.planes), x.planes + tuple(conv.parameters()))
+    for a, b in zip(g_out, g_ref):
+        torch.testing.assert_close(a, b, atol=1e-4, rtol=1e-4)
+
+
 def _perturbed_outputs(rollout: bool, plane: int):
     torch.manual_seed(0)
     conv = TriplaneConv(3, 4, 1, rollout=rollout)
