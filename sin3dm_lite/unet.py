@@ -96,10 +96,11 @@ class TriplaneConv(nn.Module):
     def forward(self, tp: Triplane) -> Triplane:
         if not self.rollout:
             return Triplane(*(conv(p) for conv, p in zip(self.convs, tp.planes)))  # [B, out, ., .]
-        # The same as conv(cross_plane_inputs(tp)), in about a third of the time: the convolution is linear, so
+        # The same as conv(cross_plane_inputs(tp)), in about half the time: the convolution is linear, so
         # it splits into the plane's own channels and the two repeated means; a mean repeated along an axis
         # gives the same output all along that axis but at its k//2 border texels (zero padding), so it is
         # convolved on a strip of k texels and the middle column repeated (tests check it against the cat).
+        # A training step of detail's denoiser: 0.115 s instead of 0.160 on 2 CPU cores (0.064 without rollout).
         parts = rollout_parts(tp, self.local_only, concat=False)
         out = []
         for name, conv in zip(PLANES, self.convs):
