@@ -18,8 +18,9 @@ from pathlib import Path
 
 import torch
 
-from bench_samples import parse_settings, references, sample_grids, save_projections, scores
+from bench_samples import references, sample_grids, save_projections, scores
 from sin3dm_lite import AutoencoderTrainer, reconstructed_grid, reconstruction_metrics
+from sin3dm_lite.config import parse_settings
 from sin3dm_lite.diffusion import DiffusionTrainer
 from sin3dm_lite.grid import load_grid
 from sin3dm_lite.pipeline import Sin3DM

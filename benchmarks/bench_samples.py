@@ -36,7 +36,6 @@ fit ≤ 300 s, ≤ 15 s per mesh.
 from __future__ import annotations
 
 import argparse
-import ast
 import json
 import time
 from pathlib import Path
@@ -46,25 +45,13 @@ import torch
 
 from sin3dm_lite import metrics
 from sin3dm_lite.box import grid_shape
-from sin3dm_lite.config import get_preset
+from sin3dm_lite.config import get_preset, parse_settings
 from sin3dm_lite.export import export_mesh
 from sin3dm_lite.extract import marching_cubes
 from sin3dm_lite.grid import load_grid
 from sin3dm_lite.pipeline import Sin3DM, resolve_mesh
 
 GOALS = {"g_div": 0.20, "lp_f": 0.70, "lp_iou": 0.55, "recon_iou": 0.95, "fit_s": 300.0, "mesh_s": 15.0}
-
-
-def parse_settings(settings) -> dict:
-    """``["grid.resolution=96", "diffusion.rollout=True"]`` → ``{"grid.resolution": 96, "diffusion.rollout": True}``."""
-    changes = {}
-    for s in settings:
-        k, v = s.split("=", 1)
-        try:
-            changes[k] = ast.literal_eval(v)
-        except (ValueError, SyntaxError):
-            changes[k] = v
-    return changes
 
 
 def fit_or_load(source: str, preset: str, run: Path, settings=()) -> Sin3DM:

@@ -170,6 +170,9 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--thin-switch", action=argparse.BooleanOptionalAction, default=True,
                    help="on a shape with many thin parts, fit small at the 'detail' settings (96 voxels, wider "
                         "denoiser field); --no-thin-switch keeps the preset's grid")
+    f.add_argument("--set", nargs="+", default=[], metavar="SETTING=VALUE",
+                   help="change settings of the preset, e.g. --set diffusion.rollout=true (crisper brick-like "
+                        "textures, README 'Measured') diffusion.steps=3000; names as in the run's config.json")
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
 
     s = command("sample")
@@ -341,13 +344,16 @@ def cmd_grid(a) -> None:
 
 
 def cmd_fit(a) -> None:
-    from .config import get_preset
+    from .config import get_preset, parse_settings
     from .pipeline import Sin3DM
 
     if a.resume and not Path(a.out).is_dir():
         raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")
     t0 = time.perf_counter()
-    preset = a.preset if a.thin_switch else get_preset(a.preset).updated(thin_parts={})
+    changes = parse_settings(a.set)
+    if not a.thin_switch:
+        changes["thin_parts"] = {}
+    preset = get_preset(a.preset).updated(**changes) if changes else a.preset
     model = Sin3DM.fit(a.mesh, preset=preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device, pbr=a.pbr)
     r = model.report["reconstruction"]
     print(

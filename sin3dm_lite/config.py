@@ -30,7 +30,9 @@
 """
 from __future__ import annotations
 
+import ast
 import json
+import numbers
 from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Any
 
@@ -157,10 +159,50 @@ class Config:
                 node = node[p]
             if leaf not in node:
                 raise Sin3DMInputError(f"unknown config setting '{key}'")
+            _check_type(key, node[leaf], value)
             node[leaf] = value
         if "thin_parts" not in changes:
             d["thin_parts"] = {k: v for k, v in d["thin_parts"].items() if k not in changes}
         return Config.from_dict(d)
+
+
+def _check_type(key: str, old: Any, value: Any) -> None:
+    """A setting keeps its kind: a switch stays a bool, a count an integer, a rate a number, a name a string."""
+    if old is None:
+        return
+    if isinstance(old, bool):
+        ok, kind = isinstance(value, bool), "true or false"
+    elif isinstance(old, numbers.Integral):
+        ok, kind = isinstance(value, numbers.Integral) and not isinstance(value, bool), "a whole number"
+    elif isinstance(old, numbers.Real):
+        ok, kind = isinstance(value, numbers.Real) and not isinstance(value, bool), "a number"
+    else:
+        ok, kind = isinstance(value, type(old)), type(old).__name__
+    if not ok:
+        raise Sin3DMInputError(f"config setting '{key}' must be {kind} (it is {old!r} in this preset), not {value!r}")
+
+
+def parse_settings(items) -> dict:
+    """``["diffusion.rollout=true", "diffusion.steps=1500"]`` → ``{"diffusion.rollout": True, "diffusion.steps": 1500}``.
+
+    What ``sin3dm-lite fit --set`` and the benchmarks take: ``true`` / ``false`` in any case, numbers, and
+    anything else as a string; :meth:`Config.updated` then checks the names and kinds.
+    """
+    changes = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise Sin3DMInputError(f"'{item}' is not SETTING=VALUE; e.g. --set diffusion.rollout=true")
+        text = text.strip()
+        if text.lower() in ("true", "false"):
+            value: Any = text.lower() == "true"
+        else:
+            try:
+                value = ast.literal_eval(text)
+            except (ValueError, SyntaxError):
+                value = text
+        changes[key.strip()] = value
+    return changes
 
 
 def _from_dict(cls, d: dict):

@@ -239,3 +239,27 @@ def test_fit_passes_the_thin_part_switch_choice(capsys, tmp_path, monkeypatch, f
     cfg = seen["preset"] if isinstance(seen["preset"], Config) else get_preset(seen["preset"])
     assert cfg.name == "small" and bool(cfg.thin_parts) is switches
     assert cfg.grid.resolution == 64
+
+
+def test_fit_set_changes_the_preset_and_names_a_bad_setting(capsys, tmp_path, monkeypatch):
+    """`fit --set diffusion.rollout=true` fits small with the rollout; a misspelt setting is one line, no folder."""
+    from sin3dm_lite.pipeline import Sin3DM
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_fit(mesh, preset, **kw):
+        seen["preset"] = preset
+        raise Stop
+
+    monkeypatch.setattr(Sin3DM, "fit", staticmethod(fake_fit))
+    with pytest.raises(Stop):
+        main(["fit", "wall", "--out", str(tmp_path / "run"), "--set", "diffusion.rollout=true", "diffusion.steps=1500"])
+    cfg = seen["preset"]
+    assert cfg.name == "small" and cfg.diffusion.rollout is True and cfg.diffusion.steps == 1500
+    assert cfg.thin_parts and "diffusion.steps" not in cfg.thin_parts  # the user's steps survive a thin-part switch
+    code, _, err = run(capsys, "fit", "wall", "--out", str(tmp_path / "bad"), "--set", "diffusion.rolout=true")
+    assert code == 2 and "unknown config setting 'diffusion.rolout'" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "bad").exists()

@@ -295,6 +295,26 @@ def test_small_switches_to_exactly_the_detail_settings():
     assert mine.diffusion.n_resblocks == 6 and mine.grid.resolution == 96
 
 
+def test_settings_from_text_keep_their_kinds():
+    """`fit --set` text becomes typed settings; a wrong name or kind is one clear error, not a crash in training."""
+    from sin3dm_lite.config import parse_settings
+    from sin3dm_lite.errors import Sin3DMInputError
+
+    changes = parse_settings(["diffusion.rollout=True", "diffusion.steps=1500", "sampling.diversity=0.5",
+                              "sampling.method=ddpm", "autoencoder.precision = fp32"])
+    assert changes == {"diffusion.rollout": True, "diffusion.steps": 1500, "sampling.diversity": 0.5,
+                       "sampling.method": "ddpm", "autoencoder.precision": "fp32"}
+    assert parse_settings(["diffusion.rollout=false"]) == {"diffusion.rollout": False}
+    cfg = get_preset("small").updated(**{**changes, "sampling.diversity": 1})  # an integer is a number too
+    assert cfg.diffusion.rollout is True and cfg.diffusion.steps == 1500 and cfg.sampling.diversity == 1
+    for bad, words in [({"diffusion.steps": "many"}, "whole number"), ({"diffusion.rollout": 1}, "true or false"),
+                       ({"sampling.diversity": "high"}, "a number"), ({"diffusion.stepz": 3}, "unknown")]:
+        with pytest.raises(Sin3DMInputError, match=words):
+            get_preset("small").updated(**bad)
+    with pytest.raises(Sin3DMInputError, match="SETTING=VALUE"):
+        parse_settings(["diffusion.rollout"])
+
+
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
 def test_a_small_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, capsys, monkeypatch):
     """small's paper-width autoencoder runs in fp32 where bf16 is not native: the fit says so and names `quick`."""
