@@ -218,46 +218,38 @@ def test_demo_of_an_example_without_a_shipped_model_says_what_to_do(capsys, tmp_
     assert not (tmp_path / "s").exists()
 
 
-@pytest.mark.parametrize("flag, switches", [([], True), (["--no-thin-switch"], False)])
-def test_fit_passes_the_thin_part_switch_choice(capsys, tmp_path, monkeypatch, flag, switches):
-    """`fit` hands small (with its thin-part settings) to Sin3DM.fit; --no-thin-switch hands small without them."""
+class _FitCalled(Exception):
+    pass
+
+
+def _preset_fit_gets(tmp_path, monkeypatch, *argv):
+    """Run `sin3dm-lite fit ...` up to Sin3DM.fit and return the preset (a Config) it would fit with."""
     from sin3dm_lite.config import Config, get_preset
     from sin3dm_lite.pipeline import Sin3DM
 
     seen = {}
 
-    class Stop(Exception):
-        pass
-
     def fake_fit(mesh, preset, **kw):
         seen["preset"] = preset
-        raise Stop
+        raise _FitCalled
 
     monkeypatch.setattr(Sin3DM, "fit", staticmethod(fake_fit))
-    with pytest.raises(Stop):
-        main(["fit", "colonnade", "--out", str(tmp_path / "run"), *flag])
-    cfg = seen["preset"] if isinstance(seen["preset"], Config) else get_preset(seen["preset"])
+    with pytest.raises(_FitCalled):
+        main(["fit", *argv, "--out", str(tmp_path / "run")])
+    return seen["preset"] if isinstance(seen["preset"], Config) else get_preset(seen["preset"])
+
+
+@pytest.mark.parametrize("flag, switches", [([], True), (["--no-thin-switch"], False)])
+def test_fit_passes_the_thin_part_switch_choice(tmp_path, monkeypatch, flag, switches):
+    """`fit` hands small (with its thin-part settings) to Sin3DM.fit; --no-thin-switch hands small without them."""
+    cfg = _preset_fit_gets(tmp_path, monkeypatch, "colonnade", *flag)
     assert cfg.name == "small" and bool(cfg.thin_parts) is switches
     assert cfg.grid.resolution == 64
 
 
 def test_fit_set_changes_the_preset_and_names_a_bad_setting(capsys, tmp_path, monkeypatch):
     """`fit --set diffusion.rollout=true` fits small with the rollout; a misspelt setting is one line, no folder."""
-    from sin3dm_lite.pipeline import Sin3DM
-
-    seen = {}
-
-    class Stop(Exception):
-        pass
-
-    def fake_fit(mesh, preset, **kw):
-        seen["preset"] = preset
-        raise Stop
-
-    monkeypatch.setattr(Sin3DM, "fit", staticmethod(fake_fit))
-    with pytest.raises(Stop):
-        main(["fit", "wall", "--out", str(tmp_path / "run"), "--set", "diffusion.rollout=true", "diffusion.steps=1500"])
-    cfg = seen["preset"]
+    cfg = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--set", "diffusion.rollout=true", "diffusion.steps=1500")
     assert cfg.name == "small" and cfg.diffusion.rollout is True and cfg.diffusion.steps == 1500
     assert cfg.thin_parts and "diffusion.steps" not in cfg.thin_parts  # the user's steps survive a thin-part switch
     code, _, err = run(capsys, "fit", "wall", "--out", str(tmp_path / "bad"), "--set", "diffusion.rolout=true")
