@@ -104,28 +104,27 @@ class TriplaneConv(nn.Module):
         parts = rollout_parts(tp, self.local_only, concat=False)
         out = []
         for name, conv in zip(PLANES, self.convs):
-            own, (e1, e2) = parts[name]["plane"], parts[name]["expanded"]
-            c = own.shape[1]
+            own, (v1, v2) = parts[name]["plane"], parts[name]["pooled"]
+            c, size = own.shape[1], own.shape[-2:]
             w = conv.weight  # [out, 3c, k, k]: the plane's channels, then the two means'
             o = F.conv2d(own, w[:, :c], conv.bias, padding=conv.padding)
-            o = o + _conv_repeated(e1, w[:, c:2 * c]) + _conv_repeated(e2, w[:, 2 * c:])
+            o = o + _conv_repeated(v1, w[:, c:2 * c], size) + _conv_repeated(v2, w[:, 2 * c:], size)
             out.append(o)
         return Triplane(*out)  # [B, out, ., .]
 
 
-def _conv_repeated(e: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """``conv2d(e, w, padding=k//2)`` for an ``e [B,C,A,B']`` that repeats one value along an axis (a stride-0 view).
+def _conv_repeated(v: torch.Tensor, w: torch.Tensor, size) -> torch.Tensor:
+    """``conv2d(v repeated to size, w, padding=k//2)`` for a pooled mean ``v`` ``[B,C,A,1]`` or ``[B,C,1,B']``.
 
-    Along that axis the output only changes within ``k//2`` texels of the borders, so the convolution runs on
-    ``k`` texels of it and the middle one is repeated: exact, ``length / k`` times less work.
+    Along the repeated axis the output only changes within ``k//2`` texels of the borders, so the convolution
+    runs on ``k`` texels of it and the middle one is repeated: exact, ``length / k`` times less work.
     """
     k, p = w.shape[-1], w.shape[-1] // 2
-    dim = 3 if e.stride(3) == 0 else 2 if e.stride(2) == 0 else None
-    if dim is None or e.shape[dim] <= k:
-        return F.conv2d(e, w, padding=p)
-    n = e.shape[dim]
-    strip = e.narrow(dim, 0, k)  # [.., k, ..] along the repeated axis
-    o = F.conv2d(strip, w, padding=p)
+    dim = 3 if v.shape[3] == 1 else 2  # the axis v is repeated along
+    n = size[dim - 2]
+    if n <= k:
+        return F.conv2d(v.expand(-1, -1, *size), w, padding=p)
+    o = F.conv2d(v.expand(-1, -1, *[k if d == dim else size[d - 2] for d in (2, 3)]), w, padding=p)
     mid = o.narrow(dim, p, 1).expand(*[n - 2 * p if d == dim else -1 for d in range(4)])
     return torch.cat([o.narrow(dim, 0, p), mid, o.narrow(dim, p + 1, p)], dim)
 
