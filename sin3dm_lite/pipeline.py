@@ -16,7 +16,8 @@ an uninterrupted one would::
     RUN/model.pt           what sampling needs: decoder, latent, denoiser (written last)
     RUN/losses.json        loss histories of both stages: {"autoencoder": {"loss", "sdf", "color"},
                            "diffusion": {"loss"}}, each a list with one value per step
-    RUN/report.json        reconstruction metrics, timings, step counts
+    RUN/report.json        reconstruction metrics, timings, step counts (while a switched fit runs:
+                           only the thin-part switch's record, kept for --resume)
 """
 from __future__ import annotations
 
@@ -83,20 +84,46 @@ def _thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) 
             "--no-thin-switch, Python preset=get_preset(...).updated(thin_parts={}).")
 
 
+def fp32_autoencoder_minutes(cfg: Config) -> float:
+    """About how long ``cfg``'s autoencoder trains in fp32 on 2 CPU cores (AVX2), in minutes.
+
+    Fitted to two measured steps on a 2-core AMD EPYC without AVX512-BF16:
+    ``small``'s (256-wide MLPs, 8,192 points, 64 voxels) 0.61 s, ``quick``'s
+    (128 wide, 4,096 points) 0.18 s: a part that grows with the planes' area
+    (their encoder and decoder) plus one that grows with points × width².
+    ``detail``'s step (96 voxels) is 1.4x ``small``'s in fp32 here; the
+    formula gives 1.25x.
+    """
+    a = cfg.autoencoder
+    step_s = 0.119 * (cfg.grid.resolution / 64) ** 2 + 0.491 * (a.points_per_step / 8192) * (a.mlp_hidden / 256) ** 2
+    return a.steps * step_s / 60
+
+
+#: :func:`quick_hint` speaks up when an fp32 autoencoder would take longer than this (minutes, 2 cores)
+QUICK_HINT_MINUTES = 8.0
+
+
 def quick_hint(cfg: Config, device) -> str | None:
-    """What :meth:`Sin3DM.fit` says when a ``small`` fit runs on a CPU without native bf16, else None.
+    """What :meth:`Sin3DM.fit` says when its autoencoder would be slow on a CPU without native bf16, else None.
 
     ``small``'s paper-width autoencoder (its MLPs are most of a fit) runs in
     bf16 where the CPU has AVX512-BF16 or AMX; elsewhere it runs in fp32, about
-    20 minutes on 2 AVX2 cores. The ``quick`` preset's light autoencoder fits in
-    about 5 minutes there, with blurrier texture (README, "Presets").
+    20 minutes on 2 AVX2 cores (:func:`fp32_autoencoder_minutes`). The ``quick``
+    preset's light autoencoder fits in about 5 minutes there, with blurrier
+    texture (README, "Presets"). Any config whose autoencoder would take over
+    :data:`QUICK_HINT_MINUTES` gets the hint, not only ``small``.
     """
     dev = torch.device(device)
-    if cfg.name not in ("small", "small+thin") or dev.type != "cpu" or bf16_is_fast(dev):
+    if dev.type != "cpu" or bf16_is_fast(dev):
         return None
-    return ("this CPU has no native bf16, so the small preset's paper-width autoencoder is slow here: about 20 "
-            "minutes on 2 cores in fp32 (longer in emulated bf16). The 'quick' preset (a lighter autoencoder) fits in "
-            "about 5 minutes, with the same shapes but blurrier texture: preset='quick' (CLI: --preset quick).")
+    minutes = fp32_autoencoder_minutes(cfg)
+    if minutes <= QUICK_HINT_MINUTES:
+        return None
+    return (f"this CPU has no native bf16, so the {cfg.name} config's autoencoder ({cfg.autoencoder.steps:,} steps of "
+            f"{cfg.autoencoder.points_per_step:,} points, {cfg.autoencoder.mlp_hidden}-wide MLPs) is slow here: about "
+            f"{minutes:.0f} minutes on 2 cores in fp32 (longer in emulated bf16). The 'quick' preset (a lighter "
+            "autoencoder) fits in about 5 minutes, with the same shapes but blurrier texture: preset='quick' "
+            "(CLI: --preset quick).")
 
 
 def atomic_torch_save(obj, path: Path) -> None:
@@ -287,7 +314,8 @@ class Sin3DM:
         dev = get_device(device)
         run = Path(out) if out is not None else None
         have_grid = run is not None and resume and (run / "grid.npz").exists()
-        thin_parts = None  # set when this fit switched to the preset's thin-part settings
+        # set when this fit switches to the preset's thin-part settings (resumed: when the run switched before it stopped)
+        thin_parts = _read_report(run).get("thin_parts_switch") if resume and run is not None else None
         mesh = None if have_grid else resolve_mesh(source)  # bad input fails before any folder is written
         if mesh is not None and not (resume and run is not None and (run / "config.json").exists()):
             pbr = _choose_pbr(mesh, pbr, preset, say)
@@ -311,8 +339,9 @@ class Sin3DM:
                 say("[fit] " + _thin_parts_message(cfg, switched, grid, thin))
                 thin_parts = {"from": cfg.name, "resolution": max(grid.shape), "thin_share": thin}
                 cfg = switched
-                if run is not None:
+                if run is not None:  # a resumed run still knows it switched (its report is completed at the end)
                     atomic_write(run / "config.json", cfg.to_json())
+                    atomic_write(run / "report.json", json.dumps({"thin_parts_switch": thin_parts}, indent=2))
                 grid = _grid_for(mesh, cfg, progress)  # the coarse grid served only to measure (~1 s at 64 voxels)
                 thin = grid.thin_share()
             if run is not None:
@@ -782,6 +811,15 @@ def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Co
     # folder or only a temporary one (removed by the next run), never a folder that blocks the next try
     create_locked_folder(run, {"config.json": cfg.to_json()}, option="--out")
     return cfg
+
+
+def _read_report(run: Path) -> dict:
+    """The run folder's report.json, or {} when it is missing or unreadable (it is only a record)."""
+    try:
+        report = json.loads((run / "report.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return report if isinstance(report, dict) else {}
 
 
 def _remove_failed_run(run: Path, existed: bool) -> None:

@@ -272,6 +272,10 @@ def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, caps
     switch = json.loads((tmp_path / "tiles" / "report.json").read_text())["thin_parts_switch"]
     assert switch["from"] == "small" and switch["resolution"] == 32 and switch["thin_share"] > 0.2
     assert Sin3DM.load(tmp_path / "tiles").config.grid.resolution == 40
+    # a resumed run (here with nothing left to train) keeps the record of its switch
+    resumed = Sin3DM.fit("tiles", out=tmp_path / "tiles", resume=True, progress=False)
+    assert resumed.report["thin_parts_switch"] == switch and resumed.config.name == "small+thin"
+    assert json.loads((tmp_path / "tiles" / "report.json").read_text())["thin_parts_switch"] == switch
 
     # the same settings without thin_parts, or on a shape with few thin parts, keep the preset's grid
     model = Sin3DM.fit("tiles", preset=cfg.updated(thin_parts={}), out=tmp_path / "kept", progress=True)
@@ -316,17 +320,27 @@ def test_settings_from_text_keep_their_kinds():
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
-def test_a_small_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, capsys, monkeypatch):
-    """small's paper-width autoencoder runs in fp32 where bf16 is not native: the fit says so and names `quick`."""
+def test_a_slow_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, capsys, monkeypatch):
+    """A paper-width autoencoder runs in fp32 where bf16 is not native: the fit says how long and names `quick`.
+
+    The hint follows the autoencoder's cost, not the preset's name: small, its thin-part switch and detail get it,
+    quick, tiny and a small with a short autoencoder do not, and nobody gets it where bf16 is native."""
     from sin3dm_lite import pipeline
 
-    cfg = micro_config().updated(**{"name": "small", "autoencoder.steps": 2, "diffusion.steps": 2})
     monkeypatch.setattr(pipeline, "bf16_is_fast", lambda device: False)
+    for name in ("small", "detail", "paper"):
+        assert "--preset quick" in pipeline.quick_hint(get_preset(name), "cpu"), name
+    assert "about 20 minutes" in pipeline.quick_hint(get_preset("small"), "cpu")  # 2,000 steps of 0.61 s
+    assert "--preset quick" in pipeline.quick_hint(get_preset("small").for_thin_parts(), "cpu")
+    for cfg in (get_preset("quick"), get_preset("tiny"), get_preset("small").updated(**{"autoencoder.steps": 500})):
+        assert pipeline.quick_hint(cfg, "cpu") is None, cfg.name
+    # the fit prints it (a micro fit priced like small's)
+    monkeypatch.setattr(pipeline, "fp32_autoencoder_minutes", lambda cfg: 20.0)
+    cfg = micro_config().updated(**{"name": "small", "autoencoder.steps": 2, "diffusion.steps": 2})
     Sin3DM.fit("canyon", preset=cfg, out=tmp_path / "fp32", device="cpu", progress=True)
     assert "--preset quick" in capsys.readouterr().out
-    assert pipeline.quick_hint(cfg.updated(name="quick"), "cpu") is None  # other presets: no hint
     monkeypatch.setattr(pipeline, "bf16_is_fast", lambda device: True)
-    assert pipeline.quick_hint(cfg, "cpu") is None  # native bf16: small is fast enough
+    assert pipeline.quick_hint(get_preset("small"), "cpu") is None  # native bf16: small is fast enough
 
 
 def test_the_quick_preset_is_small_with_a_lighter_autoencoder():
