@@ -29,7 +29,7 @@ import torch.nn.functional as F
 
 from sin3dm_lite.autoencoder import AutoencoderTrainer, sdf_loss
 from sin3dm_lite.config import get_preset
-from sin3dm_lite.device import bf16_is_fast
+from sin3dm_lite.device import autocast, bf16_is_fast
 from sin3dm_lite.diffusion import DiffusionTrainer
 from sin3dm_lite.grid import ShapeGrid
 from sin3dm_lite.mesh_io import Normalization
@@ -152,7 +152,7 @@ def main() -> None:
         fp32_losses = bf.losses
 
         def bf16_losses():
-            with torch.autocast("cpu", dtype=torch.bfloat16):
+            with autocast("cpu", "bf16"):  # as the autoencoder's step does
                 return fp32_losses()
 
         bf.losses = bf16_losses

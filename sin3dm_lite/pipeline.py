@@ -840,9 +840,9 @@ def _remove_failed_run(run: Path, existed: bool) -> None:
             pass  # someone put a file there meanwhile: leave it
 
 
-def _warn_if_poor(rec: dict, cfg: Config | None = None) -> None:
-    """Warn when the autoencoder's reconstruction is too poor for useful samples, with the likely cause and,
-    given the run's ``cfg``, the setting to fit again with.
+def _warn_if_poor(rec: dict, cfg: Config) -> None:
+    """Warn when the autoencoder's reconstruction is too poor for useful samples, with the likely cause and the
+    setting of the run's ``cfg`` to fit again with.
 
     Colour: more autoencoder steps, about 1.3 dB per doubling (tiles.obj, two textures, at 96 voxels: 16.2 /
     17.2 / 18.8 dB with 1,000 / 2,000 / 4,000 steps; a 128-voxel grid gave 16.3 with 1,000, so the grid is not
@@ -851,17 +851,14 @@ def _warn_if_poor(rec: dict, cfg: Config | None = None) -> None:
     import warnings
 
     def fix(setting: str, value: int, also: str = "") -> str:
-        if cfg is None:
-            return "use a larger preset"
         base = cfg.name.split("+")[0]
         change = f".updated(**{{'{setting}': {value}}})"
         python = f"preset=get_preset('{base}'){change}" if base in PRESETS else f"your Config{change}"
         return f"fit again with {setting}={value}{also} (CLI: --set {setting}={value}; Python: {python})"
 
-    iou, psnr = rec.get("occupancy_iou"), rec.get("color_psnr")
-    steps = cfg.autoencoder.steps if cfg is not None else 0
+    iou, psnr, steps = rec.get("occupancy_iou"), rec.get("color_psnr"), cfg.autoencoder.steps
     if iou is not None and iou < MIN_IOU:
-        finer = f" or grid.resolution={8 * round(1.5 * cfg.grid.resolution / 8)}" if cfg is not None else ""
+        finer = f" or grid.resolution={8 * round(1.5 * cfg.grid.resolution / 8)}"
         warnings.warn(f"low reconstruction quality: occupancy IoU {iou:.3f} < {MIN_IOU} (likely cause: too few "
                       f"autoencoder steps or a grid too coarse for thin parts); "
                       f"{fix('autoencoder.steps', 2 * steps, finer)}", stacklevel=3)
