@@ -94,6 +94,8 @@ class DiffusionConfig:
     lr: float = 5e-4
     ema_decay: float = 0.9999  # use ~0.999 or 0 (raw weights) for short runs
     crop: int = 0  # train on random crops of this many latent texels per axis (0: the whole latent, the paper)
+    precision: str = "fp32"  # the training forward: "fp32", "bf16" (autocast) or "auto" (bf16 where the hardware runs it natively)
+    compile: bool = False  # torch.compile the denoiser's training forward on a CUDA GPU (a CPU trains it as it is)
 
 
 @dataclass
@@ -307,7 +309,8 @@ def _paper() -> Config:
         name="paper",
         grid=GridConfig(resolution=256, n_surface_points=2_000_000),
         autoencoder=AutoencoderConfig(),
-        diffusion=DiffusionConfig(),
+        # on one H200: 25.7 ms per denoiser step instead of 55 (benchmarks/bench_gpu.py; a ~60 s compile first)
+        diffusion=DiffusionConfig(precision="auto", compile=True),
         sampling=SamplingConfig(steps=100, mesh_resolution=256, faces=50_000, texture_size=2048),
         checkpoint_every=2500,
     )

@@ -22,6 +22,7 @@ import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from .config import DiffusionConfig
+from .device import PRECISIONS, autocast
 from .errors import Sin3DMInputError
 from .training import Trainer, checkpoint_problem
 from .triplane import PLANE_AXES, Triplane
@@ -140,11 +141,15 @@ class DiffusionTrainer(Trainer):
             raise Sin3DMInputError(f"the diffusion model trains on one latent; got a batch of {h0.batch} (use h0[0])")
         if cfg.prediction not in ("x0", "eps"):
             raise Sin3DMInputError(f"unknown prediction '{cfg.prediction}'; use 'x0' (the paper) or 'eps'")
+        if cfg.precision not in PRECISIONS:
+            raise Sin3DMInputError(f"unknown diffusion precision '{cfg.precision}'; use one of {', '.join(PRECISIONS)}")
         super().__init__(cfg, device, seed)
         self.h0 = h0.detach().to(self.device, torch.float32).clone()
         self.schedule = NoiseSchedule.from_config(cfg)
         self.model = self.init_model(lambda: TriplaneUNet(h0.channels, cfg))
         self.ema = copy.deepcopy(self.model).requires_grad_(False).eval() if cfg.ema_decay > 0 else None
+        # the training forward: compiled on a GPU when asked (the same module and weights; sampling uses it uncompiled)
+        self.train_forward = torch.compile(self.model) if cfg.compile and self.device.type == "cuda" else self.model
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr)
         steps = max(cfg.steps, 1)
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: max(0.0, 1.0 - s / steps))
@@ -160,13 +165,14 @@ class DiffusionTrainer(Trainer):
         x0 = self.h0.repeat(b) if self.cfg.crop <= 0 else random_crops(self.h0, b, self.cfg.crop, g)  # [B, C, ., .]
         t = torch.randint(0, self.schedule.timesteps, (b,), generator=g, device=self.device)
         noise = Triplane.randn_like(x0, generator=g)
-        return {"loss": diffusion_loss(self.model, self.schedule, x0, t, noise, self.cfg.prediction)}
+        with autocast(self.device, self.cfg.precision):  # the MSE itself runs in fp32 under autocast
+            loss = diffusion_loss(self.train_forward, self.schedule, x0, t, noise, self.cfg.prediction)
+        return {"loss": loss.float()}
 
     def after_step(self) -> None:
-        if self.ema is not None:
+        if self.ema is not None:  # one fused update over all weights (a loop of small kernels is slow on a GPU)
             with torch.no_grad():
-                for pe, p in zip(self.ema.parameters(), self.model.parameters()):
-                    pe.lerp_(p, 1.0 - self.cfg.ema_decay)
+                torch._foreach_lerp_(list(self.ema.parameters()), list(self.model.parameters()), 1.0 - self.cfg.ema_decay)
 
     def extra_state(self) -> dict:
         return {"ema": self.ema.state_dict() if self.ema is not None else None, "h0": self.h0.state_dict()}

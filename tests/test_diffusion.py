@@ -86,6 +86,24 @@ def test_eps_prediction_trains(h0):
         DiffusionTrainer(h0, tiny_diffusion_cfg(prediction="v"), device="cpu")
     with pytest.raises(Sin3DMInputError):
         DiffusionTrainer(h0.repeat(2), tiny_diffusion_cfg(), device="cpu")
+    with pytest.raises(Sin3DMInputError, match="precision 'fp16'"):
+        DiffusionTrainer(h0, tiny_diffusion_cfg(precision="fp16"), device="cpu")
+
+
+def test_bf16_training_keeps_fp32_weights_and_compile_is_gpu_only(h0):
+    """The paper preset's GPU settings: bf16 autocast trains (loss in fp32, weights and EMA in fp32), and
+    ``compile=True`` on a CPU trains the module as it is (torch.compile pays off only on a GPU)."""
+    fp32 = DiffusionTrainer(h0, tiny_diffusion_cfg(steps=30), device="cpu", seed=1)
+    bf16 = DiffusionTrainer(h0, tiny_diffusion_cfg(steps=30, precision="bf16", compile=True, ema_decay=0.9),
+                            device="cpu", seed=1)
+    assert bf16.train_forward is bf16.model
+    fp32.run(progress=False)
+    bf16.run(progress=False)
+    assert all(p.dtype == torch.float32 for p in [*bf16.model.parameters(), *bf16.ema.parameters()])
+    first, last = np.mean(bf16.history["loss"][:5]), np.mean(bf16.history["loss"][-5:])
+    assert np.isfinite(bf16.history["loss"]).all() and last < 0.85 * first  # it learns ...
+    assert last == pytest.approx(np.mean(fp32.history["loss"][-5:]), rel=0.1)  # ... about as fp32 does
+    assert bf16.history["loss"] != fp32.history["loss"]  # the autocast is really on
 
 
 def test_resume_is_bit_identical_and_checkpoints_load_weights_only(h0):
