@@ -364,6 +364,8 @@ class Sin3DM:
         # stage 3: diffusion on the latent
         t0 = time.perf_counter()
         dm = DiffusionTrainer(h0, cfg.diffusion, dev, cfg.seed)
+        if dm.train_forward is not dm.model:
+            say("[fit] diffusion: the first step compiles the denoiser for this GPU (torch.compile, about a minute)")
         _train(dm, run / "diffusion.pt" if run else None, cfg.checkpoint_every, progress, say)
         timings["diffusion_s"] = time.perf_counter() - t0
 
