@@ -106,6 +106,22 @@ def test_bf16_training_keeps_fp32_weights_and_compile_is_gpu_only(h0):
     assert bf16.history["loss"] != fp32.history["loss"]  # the autocast is really on
 
 
+def test_a_failed_compile_falls_back_to_the_plain_denoiser(h0):
+    """A GPU without a working torch.compile toolchain (Triton, a C++ compiler) trains eagerly, with one warning."""
+    tr = DiffusionTrainer(h0, tiny_diffusion_cfg(steps=3), device="cpu")
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("no Triton here")
+
+    tr.train_forward = broken  # what a compiled forward does on such a machine
+    with pytest.warns(UserWarning, match="torch.compile of the denoiser failed"):
+        tr.step()
+    assert tr.train_forward is tr.model and tr.step_count == 1 and np.isfinite(tr.history["loss"]).all()
+    tr.train_forward = broken  # once a compiled step ran, an error is the training's own: it is raised
+    with pytest.raises(RuntimeError, match="no Triton"):
+        tr.step()
+
+
 def test_resume_is_bit_identical_and_checkpoints_load_weights_only(h0):
     cfg = tiny_diffusion_cfg(steps=12, ema_decay=0.9)
     straight = DiffusionTrainer(h0, cfg, device="cpu", seed=3)
