@@ -2,6 +2,7 @@
 
     python benchmarks/bench_samples.py [--inputs canyon wall colonnade my.obj] [--runs runs/bench] [-n 8]
     python benchmarks/bench_samples.py --inputs canyon --diversity 0.2 0.4 0.6 0.8 1.0   # the knob's curve
+    python benchmarks/bench_samples.py --seeds 0 100 200   # 3 × 8 samples: the figures' spread over sample seeds
 
 Per input: fit time per stage (or the one recorded in an existing run folder),
 reconstruction IoU, time per mesh (sampling + decode + texture + export), and
@@ -191,6 +192,9 @@ def main() -> None:
     ap.add_argument("--diversity", type=float, nargs="+", default=None,
                     help="knob values: print G-Div / LP at each (default: the run's setting)")
     ap.add_argument("--resolutions", type=int, nargs="+", default=None, help="default: the fit's and 128")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0],
+                    help="sample seeds: n samples from each (8 samples' figures move by a few hundredths with the seed; "
+                         "several seeds print their mean and range)")
     ap.add_argument("--set", nargs="+", default=[], metavar="SETTING",
                     help="dotted settings changed from the preset, e.g. grid.resolution=96 (run folders get a suffix)")
     a = ap.parse_args()
@@ -215,30 +219,44 @@ def main() -> None:
             print(f"  family @{r:<3d} (8 other variants of the example; a reference, not a goal) G-Div {v['g_div']:.3f}"
                   f" | IoU→input {v['iou_to_input']:.3f} | vs input: LP-IoU {v['lp_iou']:.3f} LP-F {v['lp_f']:.3f}")
         for d in a.diversity or [None]:
-            s = sample_grids(model, a.n, res, diversity=d, export=a.export if d is None or d == a.diversity[0] else 0,
-                             export_dir=run / "samples")
-            sc = scores(refs, s["occ"])
             label = "default" if d is None else f"div {d:.2f}"
-            if s["mesh_s"] is not None:
-                print(f"  {label}: {s['sample_s']:.2f} s sampling + decode/texture/export = {s['mesh_s']:.1f} s per mesh "
-                      f"{_mark(s['mesh_s'] <= GOALS['mesh_s'])}")
-            print_scores(label, sc)
-            rows.append({"input": name, "preset": a.preset, "diversity": d, "fit_s": fit_s, "timings_s": t,
-                         "recon_iou": recon, "sample_s": s["sample_s"], "mesh_s": s["mesh_s"],
-                         "family": {str(r): v for r, v in fam.items()} if fam else None,
-                         "scores": {str(r): v for r, v in sc.items()}})
+            for k, seed in enumerate(a.seeds):
+                first = k == 0 and (d is None or d == a.diversity[0])
+                s = sample_grids(model, a.n, res, seed=seed, diversity=d, export=a.export if first else 0,
+                                 export_dir=run / "samples")
+                sc = scores(refs, s["occ"])
+                if s["mesh_s"] is not None:
+                    print(f"  {label}: {s['sample_s']:.2f} s sampling + decode/texture/export = {s['mesh_s']:.1f} s per "
+                          f"mesh {_mark(s['mesh_s'] <= GOALS['mesh_s'])}")
+                print_scores(label if len(a.seeds) == 1 else f"{label}, seed {seed}", sc)
+                rows.append({"input": name, "preset": a.preset, "diversity": d, "seed": seed, "fit_s": fit_s,
+                             "timings_s": t, "recon_iou": recon, "sample_s": s["sample_s"], "mesh_s": s["mesh_s"],
+                             "family": {str(r): v for r, v in fam.items()} if fam else None,
+                             "scores": {str(r): v for r, v in sc.items()}})
+            if len(a.seeds) > 1:
+                print_spread(label, rows[-len(a.seeds):])
     Path(a.runs).mkdir(parents=True, exist_ok=True)
     (Path(a.runs) / "bench_samples.json").write_text(json.dumps(rows, indent=2))
     r0 = lambda row: row["scores"][min(row["scores"], key=int)]  # noqa: E731  scores at the fit's resolution
-    print("\n| input | diversity | fit s (grid+AE+diff) | recon IoU | G-Div | IoU→input | LP-IoU | LP-F | ceiling LP-IoU/LP-F "
-          "| family G-Div, LP-IoU/LP-F | s per mesh |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("\n| input | diversity | seed | fit s (grid+AE+diff) | recon IoU | G-Div | IoU→input | LP-IoU | LP-F | ceiling "
+          "LP-IoU/LP-F | family G-Div, LP-IoU/LP-F | s per mesh |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         v, t = r0(row), row["timings_s"]
         mesh_s = f"{row['mesh_s']:.1f}" if row["mesh_s"] else "-"
-        print(f"| {row['input']} | {row['diversity'] or 'default'} | {row['fit_s']:.0f} ({t['grid_s']:.0f}+{t['autoencoder_s']:.0f}+"
+        print(f"| {row['input']} | {row['diversity'] or 'default'} | {row['seed']} | {row['fit_s']:.0f} ({t['grid_s']:.0f}+{t['autoencoder_s']:.0f}+"
               f"{t['diffusion_s']:.0f}) | {row['recon_iou']:.3f} | {v['g_div']:.3f} | {v['iou_to_input']:.3f} | {v['lp_iou']:.3f} | "
               f"{v['lp_f']:.3f} | {v['ceiling_lp_iou']:.2f}/{v['ceiling_lp_f']:.2f} | {_family_cell(row)} | {mesh_s} |")
+
+
+def print_spread(label: str, rows: list) -> None:
+    """Mean and range over sample seeds of G-Div, LP-IoU and LP-F at each resolution."""
+    for r in rows[0]["scores"]:
+        parts = []
+        for key, name in (("g_div", "G-Div"), ("lp_iou", "LP-IoU"), ("lp_f", "LP-F")):
+            v = np.array([row["scores"][r][key] for row in rows])
+            parts.append(f"{name} {v.mean():.3f} ({v.min():.3f}-{v.max():.3f})")
+        print(f"  {label} @{int(r):<3d} mean over {len(rows)} sample seeds (range): " + " | ".join(parts))
 
 
 def _family_cell(row: dict) -> str:
