@@ -48,11 +48,11 @@ def _texture(kind: str, size: int = 256) -> Image.Image:
     return Image.fromarray(img)
 
 
-def tiles(out: Path, n: int = 6) -> Path:
-    """An OBJ with two materials (brick / check), each with its own PNG and UVs per tile."""
+def tiles(out: Path, n: int = 6, seed: int = 3) -> Path:
+    """An OBJ with two materials (brick / check), each with its own PNG and UVs per tile (heights drawn from ``seed``)."""
     lines_v, lines_vt, faces = [], [], {"brick": [], "check": []}
     box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     for i in range(n):
         for j in range(n // 2):
             h = 0.2 + 0.25 * rng.random()
