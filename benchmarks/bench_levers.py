@@ -57,7 +57,9 @@ def main() -> None:
     ap.add_argument("settings", nargs="*", help="dotted config settings, e.g. diffusion.crop=16")
     ap.add_argument("-n", type=int, default=8)
     ap.add_argument("--diversity", type=float, nargs="+", default=[1.0])
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="training seed")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0],
+                    help="sample seeds (8 samples' figures move by a few hundredths with them; several print the mean)")
     ap.add_argument("--png", default=None, help="folder for a picture of the samples (top and front view)")
     ap.add_argument("--autoencoder-only", action="store_true", help="stop after the autoencoder's figures")
     ap.add_argument("--render", default=None, help="folder for a hero view (PNG) of the new autoencoder's textured "
@@ -89,17 +91,27 @@ def main() -> None:
     res = [cfg.grid.resolution]
     refs = references(model, a.source, Path(a.run), res)
     for d in a.diversity:
-        occ = sample_grids(model, a.n, res, diversity=d)["occ"]
-        sc = scores(refs, occ)[res[0]]
-        if a.png:
-            save_projections(refs[res[0]]["input"], occ[res[0]], Path(a.png) / f"{Path(a.run).name}_{tag}_div{d}.png",
-                             f"{' '.join(a.settings)} div {d}: G-Div {sc['g_div']:.3f} LP-IoU {sc['lp_iou']:.3f} LP-F {sc['lp_f']:.3f}")
-        print(f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}: diffusion {train_s:.0f} s "
-              f"({train_s / max(cfg.diffusion.steps, 1):.3f} s/step, {torch.get_num_threads()} threads) | "
-              f"G-Div {sc['g_div']:.3f} | IoU→input {sc['iou_to_input']:.3f} | LP-IoU {sc['lp_iou']:.3f} | "
-              f"LP-F {sc['lp_f']:.3f} | ceiling {sc['ceiling_lp_iou']:.3f}/{sc['ceiling_lp_f']:.3f} | final loss "
-              f"{fig['final_loss']:.4f}", flush=True)
-
+        rows = []
+        for seed in a.seeds:
+            occ = sample_grids(model, a.n, res, seed=seed, diversity=d)["occ"]
+            sc = scores(refs, occ)[res[0]]
+            rows.append(sc)
+            if a.png:
+                save_projections(refs[res[0]]["input"], occ[res[0]],
+                                 Path(a.png) / f"{Path(a.run).name}_{tag}_div{d}{f'_seed{seed}' if seed else ''}.png",
+                                 f"{' '.join(a.settings)} div {d} seed {seed}: G-Div {sc['g_div']:.3f} "
+                                 f"LP-IoU {sc['lp_iou']:.3f} LP-F {sc['lp_f']:.3f}")
+            print(f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}"
+                  f"{f' seed {seed}' if len(a.seeds) > 1 else ''}: diffusion {train_s:.0f} s "
+                  f"({train_s / max(cfg.diffusion.steps, 1):.3f} s/step, {torch.get_num_threads()} threads) | "
+                  f"G-Div {sc['g_div']:.3f} | IoU→input {sc['iou_to_input']:.3f} | LP-IoU {sc['lp_iou']:.3f} | "
+                  f"LP-F {sc['lp_f']:.3f} | ceiling {sc['ceiling_lp_iou']:.3f}/{sc['ceiling_lp_f']:.3f} | final loss "
+                  f"{fig['final_loss']:.4f}", flush=True)
+        if len(rows) > 1:
+            mean = {k: sum(r[k] for r in rows) / len(rows) for k in ("g_div", "lp_iou", "lp_f")}
+            print(f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}: mean over sample seeds "
+                  f"{' '.join(map(str, a.seeds))}: G-Div {mean['g_div']:.3f} | LP-IoU {mean['lp_iou']:.3f} | "
+                  f"LP-F {mean['lp_f']:.3f}", flush=True)
 
 if __name__ == "__main__":
     main()
