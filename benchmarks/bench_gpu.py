@@ -8,7 +8,7 @@ script does two things and labels each figure with which one it comes from:
 1. **Timing at the preset's real size.** One autoencoder trainer and one denoiser
    trainer are built exactly as a fit builds them (256-voxel grid, 65,536 points,
    batch 32 on the 128-texel latent) and timed over ``--timed`` steps after a
-   warm-up, with CUDA synchronised around the loop. Peak GPU memory is read per
+   warm-up (``bench_training.timed``; each step ends in a device sync). Peak GPU memory is read per
    stage. The denoiser is timed as the preset trains it (``paper``: bf16
    autocast and torch.compile on CUDA, the compile in its first step) and, for
    comparison, eager in fp32 (TF32 convolutions, PyTorch's default) and in bf16.
@@ -39,6 +39,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from bench_training import timed  # noqa: E402  (a step ends in a device sync: the .tolist() of its losses)
 from sin3dm_lite import metrics  # noqa: E402
 from sin3dm_lite.autoencoder import AutoencoderTrainer  # noqa: E402
 from sin3dm_lite.config import get_preset, parse_settings  # noqa: E402
@@ -63,18 +64,6 @@ def reset_peak(dev: torch.device) -> None:
 
 def peak_gib(dev: torch.device) -> float | None:
     return torch.cuda.max_memory_allocated(dev) / 2**30 if dev.type == "cuda" else None
-
-
-def seconds_per_step(trainer, dev: torch.device, steps: int, warmup: int = 3) -> float:
-    """Mean wall time of ``steps`` training steps after ``warmup`` ones (device synchronised around the loop)."""
-    for _ in range(warmup):
-        trainer.step()
-    sync(dev)
-    t = time.perf_counter()
-    for _ in range(steps):
-        trainer.step()
-    sync(dev)
-    return (time.perf_counter() - t) / steps
 
 
 def main() -> None:
@@ -117,7 +106,7 @@ def main() -> None:
 
     reset_peak(dev)
     ae = AutoencoderTrainer(grid, cfg.autoencoder, dev, cfg.seed)
-    res["ae_s_per_step"] = seconds_per_step(ae, dev, args.timed)
+    res["ae_s_per_step"] = timed(ae.step, args.timed, warmup=3)
     res["ae_peak_gib"] = peak_gib(dev)
     h = ae.latent()  # untrained, but the latent's size: the step time does not depend on its content
     res["latent_shape"] = list(h.resolution)
@@ -132,9 +121,8 @@ def main() -> None:
         dm = DiffusionTrainer(h, dcfg, dev, cfg.seed)
         t = time.perf_counter()
         dm.step()  # a compiled step compiles here
-        sync(dev)
         res.setdefault("dm_variants", {})[name] = {"first_step_s": time.perf_counter() - t,
-                                                   "s_per_step": seconds_per_step(dm, dev, args.timed),
+                                                   "s_per_step": timed(dm.step, args.timed, warmup=3),
                                                    "peak_gib": peak_gib(dev)}
         del dm
         save(f"denoiser timing ({name})")

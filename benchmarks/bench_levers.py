@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from bench_samples import references, sample_grids, save_projections, scores
+from bench_samples import print_spread, references, sample_grids, save_projections, scores
 from sin3dm_lite import AutoencoderTrainer, reconstructed_grid, reconstruction_metrics
 from sin3dm_lite.config import parse_settings
 from sin3dm_lite.diffusion import DiffusionTrainer
@@ -108,10 +108,8 @@ def main() -> None:
                   f"LP-F {sc['lp_f']:.3f} | ceiling {sc['ceiling_lp_iou']:.3f}/{sc['ceiling_lp_f']:.3f} | final loss "
                   f"{fig['final_loss']:.4f}", flush=True)
         if len(rows) > 1:
-            mean = {k: sum(r[k] for r in rows) / len(rows) for k in ("g_div", "lp_iou", "lp_f")}
-            print(f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}: mean over sample seeds "
-                  f"{' '.join(map(str, a.seeds))}: G-Div {mean['g_div']:.3f} | LP-IoU {mean['lp_iou']:.3f} | "
-                  f"LP-F {mean['lp_f']:.3f}", flush=True)
+            print_spread(f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}",
+                         [{"scores": {res[0]: sc}} for sc in rows])
 
 if __name__ == "__main__":
     main()

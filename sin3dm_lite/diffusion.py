@@ -151,7 +151,7 @@ class DiffusionTrainer(Trainer):
         self.ema = copy.deepcopy(self.model).requires_grad_(False).eval() if cfg.ema_decay > 0 else None
         # the training forward: compiled on a GPU when asked (the same module and weights; sampling uses it uncompiled)
         self.train_forward = torch.compile(self.model) if cfg.compile and self.device.type == "cuda" else self.model
-        self._compiled_once = False
+        self._compile_checked = False  # True once a compiled step ran (later errors are the training's own)
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr)
         steps = max(cfg.steps, 1)
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: max(0.0, 1.0 - s / steps))
@@ -167,18 +167,22 @@ class DiffusionTrainer(Trainer):
         x0 = self.h0.repeat(b) if self.cfg.crop <= 0 else random_crops(self.h0, b, self.cfg.crop, g)  # [B, C, ., .]
         t = torch.randint(0, self.schedule.timesteps, (b,), generator=g, device=self.device)
         noise = Triplane.randn_like(x0, generator=g)
-        try:
+
+        def loss() -> torch.Tensor:
             with autocast(self.device, self.cfg.precision):  # the MSE itself runs in fp32 under autocast
-                loss = diffusion_loss(self.train_forward, self.schedule, x0, t, noise, self.cfg.prediction)
-        except Exception as e:  # torch.compile needs a working Triton / C++ toolchain; without one, train eagerly
-            if self.train_forward is self.model or self._compiled_once:
-                raise
+                return diffusion_loss(self.train_forward, self.schedule, x0, t, noise, self.cfg.prediction).float()
+
+        if self.train_forward is self.model or self._compile_checked:
+            return {"loss": loss()}
+        try:  # the first compiled step: torch.compile needs a working Triton / C++ toolchain
+            out = loss()
+        except Exception as e:
             warnings.warn(f"torch.compile of the denoiser failed here ({type(e).__name__}); training it uncompiled "
                           "(set diffusion.compile=false to skip the attempt)", stacklevel=2)
             self.train_forward = self.model
-            return self.losses()
-        self._compiled_once = True
-        return {"loss": loss.float()}
+            out = loss()  # the same batch, eagerly
+        self._compile_checked = True
+        return {"loss": out}
 
     def after_step(self) -> None:
         if self.ema is not None:  # one fused update over all weights (a loop of small kernels is slow on a GPU)
