@@ -211,15 +211,16 @@ def main() -> None:
         t = rep["timings_s"]
         fit_s = sum(t.values())
         recon = rep["reconstruction"]["occupancy_iou"]
-        print(f"{name}: fit {fit_s:.0f} s {_mark(fit_s <= GOALS['fit_s'])} (grid {t['grid_s']:.0f} + autoencoder "
-              f"{t['autoencoder_s']:.0f} + diffusion {t['diffusion_s']:.0f}) | recon IoU {recon:.3f} "
+        cal = rep.get("calibration")
+        chose = f" → diversity {cal['diversity']:g}" if cal else ""
+        print(f"{name}: fit {fit_s:.0f} s {_mark(fit_s <= GOALS['fit_s'])} ({_stages(t)}){chose} | recon IoU {recon:.3f} "
               f"{_mark(recon >= GOALS['recon_iou'])} | input vs its own grid @{res[0]}: IoU {refs[res[0]]['ceiling_iou']:.3f}")
         fam = family(model, source, refs)
         for r, v in (fam or {}).items():
             print(f"  family @{r:<3d} (8 other variants of the example; a reference, not a goal) G-Div {v['g_div']:.3f}"
                   f" | IoU→input {v['iou_to_input']:.3f} | vs input: LP-IoU {v['lp_iou']:.3f} LP-F {v['lp_f']:.3f}")
         for d in a.diversity or [None]:
-            label = "default" if d is None else f"div {d:.2f}"
+            label = f"default ({model.config.sampling.diversity:g})" if d is None else f"div {d:.2f}"
             for k, seed in enumerate(a.seeds):
                 first = k == 0 and (d is None or d == a.diversity[0])
                 s = sample_grids(model, a.n, res, seed=seed, diversity=d, export=a.export if first else 0,
@@ -230,7 +231,7 @@ def main() -> None:
                           f"mesh {_mark(s['mesh_s'] <= GOALS['mesh_s'])}")
                 print_scores(label if len(a.seeds) == 1 else f"{label}, seed {seed}", sc)
                 rows.append({"input": name, "preset": a.preset, "diversity": d, "seed": seed, "fit_s": fit_s,
-                             "timings_s": t, "recon_iou": recon, "sample_s": s["sample_s"], "mesh_s": s["mesh_s"],
+                             "default": f"default ({model.config.sampling.diversity:g})", "timings_s": t, "recon_iou": recon, "sample_s": s["sample_s"], "mesh_s": s["mesh_s"],
                              "family": {str(r): v for r, v in fam.items()} if fam else None,
                              "scores": {str(r): v for r, v in sc.items()}})
             if len(a.seeds) > 1:
@@ -238,15 +239,24 @@ def main() -> None:
     Path(a.runs).mkdir(parents=True, exist_ok=True)
     (Path(a.runs) / "bench_samples.json").write_text(json.dumps(rows, indent=2))
     r0 = lambda row: row["scores"][min(row["scores"], key=int)]  # noqa: E731  scores at the fit's resolution
-    print("\n| input | diversity | seed | fit s (grid+AE+diff) | recon IoU | G-Div | IoU→input | LP-IoU | LP-F | ceiling "
+    print("\n| input | diversity | seed | fit s (grid+AE+diff[+calibration]) | recon IoU | G-Div | IoU→input | LP-IoU | LP-F | ceiling "
           "LP-IoU/LP-F | family G-Div, LP-IoU/LP-F | s per mesh |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         v, t = r0(row), row["timings_s"]
         mesh_s = f"{row['mesh_s']:.1f}" if row["mesh_s"] else "-"
-        print(f"| {row['input']} | {row['diversity'] or 'default'} | {row['seed']} | {row['fit_s']:.0f} ({t['grid_s']:.0f}+{t['autoencoder_s']:.0f}+"
-              f"{t['diffusion_s']:.0f}) | {row['recon_iou']:.3f} | {v['g_div']:.3f} | {v['iou_to_input']:.3f} | {v['lp_iou']:.3f} | "
+        stages = "+".join(f"{t[k]:.0f}" for k in STAGES if k in t)
+        print(f"| {row['input']} | {row['diversity'] or row.get('default', 'default')} | {row['seed']} | {row['fit_s']:.0f} ({stages}) | {row['recon_iou']:.3f} | {v['g_div']:.3f} | {v['iou_to_input']:.3f} | {v['lp_iou']:.3f} | "
               f"{v['lp_f']:.3f} | {v['ceiling_lp_iou']:.2f}/{v['ceiling_lp_f']:.2f} | {_family_cell(row)} | {mesh_s} |")
+
+
+STAGES = ("grid_s", "autoencoder_s", "diffusion_s", "calibrate_s")
+
+
+def _stages(t: dict) -> str:
+    """A fit's stage times: grid + autoencoder + diffusion, and the diversity calibration where the preset has one."""
+    names = {"grid_s": "grid", "autoencoder_s": "autoencoder", "diffusion_s": "diffusion", "calibrate_s": "calibration"}
+    return " + ".join(f"{names[k]} {t[k]:.0f}" for k in STAGES if k in t)
 
 
 def print_spread(label: str, rows: list) -> None:

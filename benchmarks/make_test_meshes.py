@@ -1,4 +1,4 @@
-"""Write two meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
+"""Write three meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
 
     python benchmarks/make_test_meshes.py OUT_DIR
 
@@ -6,6 +6,8 @@
   squashed spheres on it, some merged (a closed mesh of several parts).
 * ``tiles.obj``  — two materials, each with its own texture image: a tiled slab whose even
   tiles are red brick-like stripes and odd tiles blue checks, raised by different heights.
+* ``dunes.ply``  — vertex colours only (no UVs): a slab whose top is a field of crossing
+  sand ridges, darker in the troughs (a smooth, organic surface; no thin parts).
 """
 from __future__ import annotations
 
@@ -81,11 +83,45 @@ def tiles(out: Path, n: int = 6, seed: int = 3) -> Path:
     return out / "tiles.obj"
 
 
+def dunes(seed: int = 2, nx: int = 121, nz: int = 61) -> trimesh.Trimesh:
+    """A closed heightfield slab 4 × 2 (x, z): ridges of a few random directions and wavelengths, coloured by height."""
+    rng = np.random.default_rng(seed)
+    x, z = np.meshgrid(np.linspace(-2, 2, nx), np.linspace(-1, 1, nz), indexing="ij")
+    h = np.zeros_like(x)
+    for _ in range(4):
+        a = rng.uniform(0, np.pi)
+        k = 2 * np.pi / rng.uniform(0.6, 1.6)
+        t = (x * np.cos(a) + z * np.sin(a)) * k + rng.uniform(0, 2 * np.pi)
+        h += rng.uniform(0.05, 0.12) * (np.abs(np.sin(t / 2)) * 2 - 1)  # sharp crests, round troughs
+    h = 0.35 + h - h.min()
+    top = np.stack([x, h, z], -1).reshape(-1, 3)
+    bottom = np.stack([x, np.zeros_like(h), z], -1).reshape(-1, 3)
+    v = np.concatenate([top, bottom])
+    idx = np.arange(nx * nz).reshape(nx, nz)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    faces = [np.stack([a, c, b], 1), np.stack([a, d, c], 1)]  # top, facing +y
+    off = nx * nz
+    faces += [np.stack([a, b, c], 1) + off, np.stack([a, c, d], 1) + off]  # bottom, facing -y
+    for edge in (idx[:, 0], idx[-1, :], idx[::-1, -1], idx[0, ::-1]):  # the four sides, walked around the rim
+        p, q = edge[:-1], edge[1:]
+        faces += [np.stack([p, q, q + off], 1), np.stack([p, q + off, p + off], 1)]
+    mesh = trimesh.Trimesh(v, np.concatenate(faces), process=True)
+    if mesh.volume < 0:
+        mesh.invert()
+    t = (v[:, 1] - h.min()) / (h.max() - h.min() + 1e-9)
+    t = np.where(v[:, 1] == 0, 0.0, t)
+    sand, shade = np.array([222, 190, 130]), np.array([150, 105, 60])
+    rgb = (shade + (sand - shade) * t[:, None]).astype(np.uint8)
+    mesh.visual.vertex_colors = np.concatenate([rgb, np.full((len(v), 1), 255, np.uint8)], 1)[: len(mesh.vertices)]
+    return mesh
+
+
 def main() -> None:
     out = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/meshes")
     out.mkdir(parents=True, exist_ok=True)
     rocks().export(out / "rocks.stl")
-    print(f"wrote {out / 'rocks.stl'} and {tiles(out)}")
+    dunes().export(out / "dunes.ply")
+    print(f"wrote {out / 'rocks.stl'}, {tiles(out)} and {out / 'dunes.ply'}")
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@
     sin3dm-lite demo [--example NAME] [--out DIR] [--train]   the whole method on a built-in example
     sin3dm-lite render MESH --views 8 --size 512 --out DIR   PNG views (no display or GPU needed)
     sin3dm-lite evaluate RUN SAMPLES_DIR [--out report.json] [--weights DIR]   the paper's metrics
+    sin3dm-lite calibrate RUN_DIR [-n 8]                choose the run's diversity for its shape (fit does it too)
     sin3dm-lite --version                               the installed version
 
 With no arguments it prints the help; every option's help shows its default.
@@ -127,6 +128,7 @@ COMMANDS = {
     "demo": "the whole method on a built-in example: load its shipped model (or --train), sample, export",
     "render": "PNG pictures of a mesh: the paper's views around it, a hero view, a contact sheet",
     "evaluate": "the paper's geometry and texture metrics of sample meshes against the input",
+    "calibrate": "choose a run's diversity: the most varied setting whose samples keep the input's patches",
 }
 
 
@@ -213,6 +215,16 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--size", type=_positive_int, default=256, help="render size in pixels, 16-4096; the paper uses 512")
     v.add_argument("--resolution", type=_positive_int, default=64,
                    help="voxels along the longest side for the geometry metrics, 16-512; the paper uses 128")
+
+    c = command("calibrate")
+    c.add_argument("run", help="run folder written by `sin3dm-lite fit` (a shipped model's name: print only)")
+    c.add_argument("--input", default=None,
+                   help="the mesh the run was fitted to, when the run has no grid.npz (default: the run's grid)")
+    c.add_argument("-n", type=_int_at_least(2, "at least 2 (G-Div compares them)"), default=8,
+                   help="samples per setting tried")
+    c.add_argument("--seed", type=_seed, default=10_000, help="first sample seed, the same at every setting")
+    c.add_argument("--lp-iou", type=_unit_score, default=None, help="LP-IoU the samples must keep (default: 0.55)")
+    c.add_argument("--lp-f", type=_unit_score, default=None, help="LP-F the samples must keep (default: 0.70)")
     return p
 
 
@@ -255,6 +267,13 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
                         "(without it, a folder of samples with the same settings is continued)")
     s.add_argument("--no-pictures", action="store_true",
                    help="skip NNN/preview.png and contact_sheet.png (rendered off-screen; they need Mesa's EGL on Linux)")
+
+
+def _unit_score(text: str) -> float:
+    v = _float(text)
+    if not 0 <= v <= 1:
+        raise argparse.ArgumentTypeError(f"a patch score is from 0 to 1, got {v}")
+    return v
 
 
 def _float(text: str) -> float:
@@ -629,6 +648,44 @@ def cmd_evaluate(a) -> None:
         print(f"wrote {out} ({time.perf_counter() - t0:.1f} s)")
 
 
+def cmd_calibrate(a) -> None:
+    import json
+
+    from .calibrate import GOALS
+    from .files import atomic_write, check_writable
+    from .grid import load_grid
+    from .pipeline import Sin3DM, resolve_mesh
+
+    run = find_run(a.run)
+    shipped = not Path(a.run).is_dir()  # a shipped model's folder is part of the installed package: print only
+    if not shipped:
+        check_writable(run)
+    model = Sin3DM.load(run)
+    if (run / "grid.npz").is_file() and a.input is None:
+        reference = load_grid(run / "grid.npz").sdf < 0
+    else:
+        mesh = model.input_mesh() if a.input is None else resolve_mesh(a.input)
+        shape = model.report.get("grid_shape") or [model.config.grid.resolution]
+        reference = model.input_occupancy(mesh, max(shape))
+    goals = {"lp_iou": GOALS["lp_iou"] if a.lp_iou is None else a.lp_iou,
+             "lp_fscore": GOALS["lp_fscore"] if a.lp_f is None else a.lp_f}
+    before = model.config.sampling.diversity
+    t0 = time.perf_counter()
+    cal = model.calibrate(reference, goals=goals, n=a.n, seed=a.seed)
+    took = time.perf_counter() - t0
+    if shipped:
+        print(f"{a.run}: diversity {cal.diversity:g} would keep the goals ({took:.0f} s); a shipped model is not "
+              f"changed: sample it with --diversity {cal.diversity:g}")
+        return
+    model.save(run)
+    if (run / "report.json").is_file():
+        report = json.loads((run / "report.json").read_text())
+        report["calibration"] = cal.to_dict()
+        atomic_write(run / "report.json", json.dumps(report, indent=2))
+    print(f"{run}: diversity {before:g} → {cal.diversity:g} ({took:.0f} s), saved in its config.json; "
+          f"`sin3dm-lite sample {run}` uses it, --diversity overrides it")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -644,7 +701,8 @@ def main(argv: list[str] | None = None) -> int:
     warnings.showwarning = one_line
     try:
         {"examples": cmd_examples, "grid": cmd_grid, "fit": cmd_fit, "sample": cmd_sample, "demo": cmd_demo,
-         "render": cmd_render, "evaluate": cmd_evaluate}[a.command](a)
+         "render": cmd_render, "evaluate": cmd_evaluate,
+         "calibrate": cmd_calibrate}[a.command](a)
     except Sin3DMInputError as e:
         print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
         return 2

@@ -6,7 +6,9 @@
   a 64-voxel grid and a 32-texel latent. Its U-Net has no downsampling level and
   no cross-plane rollout so that what it sees shrinks with the latent
   (REFERENCE.md, last section: with the paper's network on a 32-wide latent
-  every sample is a copy); it samples at diversity 0.7 (README, "Presets").
+  every sample is a copy). The fit ends by choosing the diversity knob for the
+  shape (``sampling.calibrate``: the most varied setting whose samples keep the
+  input's patches, :mod:`sin3dm_lite.calibrate`), which the run's config keeps.
   On a shape with many thin parts (columns, slats: :meth:`ShapeGrid.thin_share`)
   the fit switches by itself to ``detail``'s settings (``Config.thin_parts``),
   which keep them in about the same time; the run's config is then named
@@ -110,6 +112,9 @@ class SamplingConfig:
     mesh_resolution: int = 256  # decode grid along the longest side
     faces: int = 30_000  # face budget after simplification
     texture_size: int = 2048
+    # choose ``diversity`` for each shape at the end of a fit: the most varied setting whose samples still keep the
+    # input's patches (LP-IoU / LP-F goals; :func:`sin3dm_lite.calibrate.calibrate_diversity`), saved in the run's config
+    calibrate: bool = False
 
 
 @dataclass
@@ -257,8 +262,11 @@ def _small() -> Config:
             # samples copy it (canyon G-Div 0.12 with it, 0.27 without; measured with benchmarks/bench_levers.py)
             rollout=False,
         ),
-        # diversity 0.7 (start at t = 700 from the input's latent, noised): canyon G-Div 0.21 with LP-F 0.71
-        sampling=SamplingConfig(steps=50, mesh_resolution=128, faces=20_000, texture_size=1024, diversity=0.7),
+        # diversity 0.7 (start at t = 700 from the input's latent, noised): canyon G-Div 0.21 with LP-F 0.71. The fit
+        # then calibrates it for the shape (calibrate=True): the knob's curve is steep and differs between shapes
+        # (tiles.obj at 1.0 LP-IoU 0.42 against the input, rocks.stl at 0.68 near-copies; README "Diversity ↔ fidelity")
+        sampling=SamplingConfig(steps=50, mesh_resolution=128, faces=20_000, texture_size=1024, diversity=0.7,
+                                calibrate=True),
         checkpoint_every=250,
         # shapes with thin parts get the 'detail' settings (see _detail): the colonnade's samples at 64 voxels keep
         # 25 % of the input's patches (LP-IoU), at 96 with a 17-texel field 68 %, in about the same fit time

@@ -28,7 +28,7 @@ import threading
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -44,6 +44,9 @@ from .mesh_io import Normalization, TexturedMesh
 from .metrics import reconstruction_metrics
 from .training import checkpoint_problem
 from .triplane import Triplane
+
+if TYPE_CHECKING:
+    from .calibrate import Calibration
 
 MODEL_FILE = "model.pt"
 MAX_SAMPLES = 10_000  # per call, whatever the memory
@@ -386,6 +389,14 @@ class Sin3DM:
             "device": str(dev),
         }
         model = cls(cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, report, dev)
+
+        # stage 4: the diversity knob for this shape (calibrate.py): the most varied samples that keep its patches
+        if cfg.sampling.calibrate:
+            say("[fit] calibrating the diversity knob for this shape: a few samples at a few settings, scored against "
+                "the input (LP-IoU / LP-F); the most varied setting that keeps the goals becomes the run's default")
+            t0 = time.perf_counter()
+            model.calibrate(reference=grid.sdf < 0, progress=progress)
+            timings["calibrate_s"] = time.perf_counter() - t0
         if run is not None:
             model.save(run)
             atomic_write(run / "losses.json", json.dumps({"autoencoder": ae.history, "diffusion": dm.history}))
@@ -525,6 +536,33 @@ class Sin3DM:
         """
         return Sin3DM(replace(self.config, diffusion=diffusion), self.decoder, self.latent, denoiser, self.aabb,
                       self.normalization, dict(self.report), self.device)
+
+    def calibrate(self, reference: np.ndarray | None = None, progress: bool = True, **options) -> "Calibration":
+        """Set ``config.sampling.diversity`` to the most varied setting whose samples keep the input's patches.
+
+        :func:`sin3dm_lite.calibrate.calibrate_diversity` draws a few samples
+        at a handful of settings and scores them with the paper's LP-IoU / LP-F
+        against ``reference``, the input's occupancy on this model's box
+        (default: :meth:`input_mesh` voxelised at the fit's grid resolution).
+        The choice and what was tried land in ``report["calibration"]``;
+        ``options`` go to ``calibrate_diversity`` (``goals``, ``n``, ``seed``,
+        ``lowest``, ``rounds``). :meth:`save` (or ``sin3dm-lite calibrate``) keeps it.
+        """
+        from .calibrate import calibrate_diversity
+
+        if reference is None:
+            shape = self.report.get("grid_shape")
+            if not shape:
+                raise Sin3DMInputError("this model's report has no grid shape; pass reference= (the training "
+                                       "grid's occupancy, grid.sdf < 0)")
+            reference = self.input_occupancy(self.input_mesh(), max(shape))
+        cal = calibrate_diversity(self, reference, progress=progress, **options)
+        self.config = self.config.updated(**{"sampling.diversity": cal.diversity})
+        self.report["calibration"] = cal.to_dict()
+        if progress:
+            print(f"[calibrate] {'chose' if cal.kept_goals else 'no setting kept the goals; the lowest tried,'} "
+                  f"diversity {cal.diversity:g}", flush=True)
+        return cal
 
     def input_sample(self) -> Samples:
         """The input's own latent as a one-item :class:`Samples` (decode it to see the reconstruction)."""

@@ -1,0 +1,133 @@
+"""Choosing the diversity knob per shape: the bisection, its scoring path, and what a fit and the CLI keep of it."""
+import json
+
+import numpy as np
+import pytest
+
+from sin3dm_lite import calibrate as C
+from sin3dm_lite.box import grid_shape
+from sin3dm_lite.cli import main
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.metrics import iou
+from sin3dm_lite.pipeline import Sin3DM
+
+from .test_pipeline import micro_config
+
+AABB = np.array([-1.0, -0.5, -0.75, 1.0, 0.5, 0.75], np.float32)
+
+
+class _Box:
+    aabb = AABB
+
+
+def _reference() -> np.ndarray:
+    """A slab with a ridge: enough surface patches for LP scores."""
+    ref = np.zeros(grid_shape(AABB, 24), bool)
+    ref[:, :6] = True
+    ref[8:14, 6:9] = True
+    return ref
+
+
+class _Knob:
+    """Fake samples: the input up to diversity ``edge``, empty above it; ``drawn`` records each call."""
+
+    def __init__(self, edge: float):
+        self.edge, self.drawn = edge, []
+
+    def __call__(self, model, diversity, n, seed, resolution):
+        self.drawn.append((diversity, n, seed, resolution))
+        ref = _reference()
+        return [ref if diversity <= self.edge else np.zeros_like(ref) for _ in range(n)]
+
+
+@pytest.fixture
+def knob(monkeypatch):
+    k = _Knob(0.7)
+    monkeypatch.setattr(C, "sample_occupancy", k)
+    return k
+
+
+def test_bisection_finds_the_highest_setting_that_keeps_the_goals(knob):
+    cal = C.calibrate_diversity(_Box(), _reference(), n=3, seed=5, progress=False)
+    assert [t["diversity"] for t in cal.tried] == [1.0, 0.75, 0.625, 0.6875, 0.7188]
+    assert cal.diversity == 0.6875 and cal.kept_goals
+    assert [t["kept"] for t in cal.tried] == [False, False, True, True, False]
+    assert {(n, seed, res) for _, n, seed, res in knob.drawn} == {(3, 5, 24)}  # same seeds at every setting
+    assert cal.tried[2]["lp_iou"] == 1.0 and cal.tried[0]["lp_fscore"] == 0.0
+
+
+def test_pure_noise_that_keeps_the_goals_is_taken_at_once(knob):
+    knob.edge = 1.0
+    cal = C.calibrate_diversity(_Box(), _reference(), progress=False)
+    assert cal.diversity == 1.0 and len(cal.tried) == 1 and cal.kept_goals
+
+
+def test_goals_out_of_reach_give_the_lowest_setting_and_say_so(knob):
+    knob.edge = 0.1
+    cal = C.calibrate_diversity(_Box(), _reference(), lowest=0.4, rounds=2, progress=False)
+    assert cal.diversity == 0.4 and not cal.kept_goals
+    assert [t["diversity"] for t in cal.tried] == [1.0, 0.7, 0.55, 0.4]
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"n": 1}, "at least 2 samples"),
+    ({"lowest": 1.0}, "lowest"),
+    ({"goals": {"g_div": 0.2}}, "unknown calibration goals"),
+])
+def test_bad_options_are_named(kw, match):
+    with pytest.raises(Sin3DMInputError, match=match):
+        C.calibrate_diversity(_Box(), _reference(), progress=False, **kw)
+
+
+def test_a_reference_on_another_box_is_refused():
+    with pytest.raises(Sin3DMInputError, match="not on this model's box"):
+        C.calibrate_diversity(_Box(), np.zeros((24, 24, 24), bool), progress=False)
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    run = tmp_path_factory.mktemp("cal") / "wall"
+    cfg = micro_config().updated(**{"sampling.calibrate": True, "sampling.diversity": 0.9})
+    return Sin3DM.fit("wall", preset=cfg, out=run, progress=False), run
+
+
+def test_a_fit_saves_its_calibrated_diversity(calibrated):
+    model, run = calibrated
+    cal = model.report["calibration"]
+    assert model.config.sampling.diversity == cal["diversity"]
+    assert 0.5 <= cal["diversity"] <= 1.0 and cal["tried"][0]["diversity"] == 1.0
+    assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == cal["diversity"]
+    report = json.loads((run / "report.json").read_text())
+    assert report["calibration"] == cal and report["timings_s"]["calibrate_s"] > 0
+    assert Sin3DM.load(run).config.sampling.diversity == cal["diversity"]  # what `sample` uses by default
+
+
+def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
+    """The SDF's sign on the training grid (calibration) and the exported mesh voxelised (the metrics) agree."""
+    model, run = calibrated
+    res = max(model.report["grid_shape"])
+    fast = C.sample_occupancy(model, 1.0, 2, 3, res)
+    samples = model.sample(2, seed=3, diversity=1.0, progress=False)
+    slow = model.occupancy(samples, res, mesh_resolution=res)
+    for a, b in zip(fast, slow):
+        assert a.shape == b.shape and a.any()
+        assert iou(a, b) > 0.9
+
+
+def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
+    _, run = calibrated
+    code = main(["calibrate", str(run), "-n", "2", "--lp-iou", "0", "--lp-f", "0"])
+    out = capsys.readouterr().out
+    assert code == 0 and "→ 1 " in out and "saved" in out
+    assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == 1.0
+    report = json.loads((run / "report.json").read_text())
+    assert report["calibration"]["goals"] == {"lp_iou": 0.0, "lp_fscore": 0.0}
+
+
+def test_cli_calibrate_errors_in_one_line(capsys, tmp_path):
+    assert main(["calibrate", str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err
+    assert "not found" in err and len(err.strip().splitlines()) == 1
+    with pytest.raises(SystemExit) as e:
+        main(["calibrate", "run", "-n", "1"])
+    assert e.value.code == 2 and "at least 2" in capsys.readouterr().err
