@@ -9,7 +9,7 @@ stages before it)::
     Model     triplane · training (what both trainers share) · autoencoder (grid → latent, decoder)
               decode (decoder queries, SDF grids) · unet · diffusion (training, sampling)
     Generate  extract (SDF → textured mesh) · export (OBJ / GLB writers) · control (what to sample: outpaint, ...)
-    Eval      metrics          Show  viz (figures) · widgets (panels) · viewer (k3d / HTML)
+    Eval      metrics · calibrate (the diversity knob per shape)          Show  viz (figures) · widgets (panels) · viewer (k3d / HTML)
     Facade    pipeline (Sin3DM: fit, sample, save, load) · runs (RUN → model, cached fits) · cli · examples · pretrained
 
 Everything a notebook or script needs is importable from here::
@@ -102,6 +102,8 @@ _API = {
     "load_feature_weights": "metrics",
     "sifid": "metrics",
     "lpips": "metrics",
+    "calibrate_diversity": "calibrate",
+    "Calibration": "calibrate",
 }
 
 _MODULES = {"viz", "widgets", "viewer", "metrics", "render", "examples", "box", "extract", "export", "mesh_io"}
