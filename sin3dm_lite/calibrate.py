@@ -19,7 +19,7 @@ that kept them. Every setting uses the same sample seeds, so settings are
 compared on the same noise.
 
 ``Sin3DM.fit`` runs it at the end of a fit when the preset's
-``sampling.calibrate`` is on (``small``) and saves the chosen value as the
+``sampling.calibrate`` is on (``small``, ``detail``, ``quick``) and saves the chosen value as the
 run's ``sampling.diversity``; ``sin3dm-lite calibrate RUN`` runs it on a
 fitted run. It costs a few seconds per setting tried: a handful of samples
 decoded on the training grid, no meshes.
@@ -91,8 +91,8 @@ def calibrate_diversity(model, reference: np.ndarray, goals: dict | None = None,
         rounds: bisection steps below 1: the answer is within
             ``(1 - lowest) / 2**rounds`` of the setting where the goals stop holding.
 
-    Only 1 and the bisection's midpoints are tried (``lowest`` too when every
-    midpoint missed), ``rounds + 1`` settings at most.
+    Only 1 and the bisection's midpoints are tried, ``rounds + 1`` settings
+    (and ``lowest`` as well when every midpoint missed).
     """
     goals = dict(GOALS if goals is None else goals)
     unknown = set(goals) - set(GOALS)
@@ -102,6 +102,11 @@ def calibrate_diversity(model, reference: np.ndarray, goals: dict | None = None,
         raise Sin3DMInputError(f"calibration needs at least 2 samples per setting (G-Div compares them), got {n!r}")
     if not 0.0 <= lowest < 1.0:
         raise Sin3DMInputError(f"lowest must be a diversity from 0 to below 1, got {lowest!r}")
+    if isinstance(rounds, bool) or not isinstance(rounds, (int, np.integer)) or rounds < 0:
+        raise Sin3DMInputError(f"rounds must be a whole number of bisection steps (0 or more), got {rounds!r}")
+    bad = {k: v for k, v in goals.items() if not 0.0 <= v <= 1.0}
+    if bad:
+        raise Sin3DMInputError(f"calibration goals are shares of patches, from 0 to 1; got {bad}")
     reference = np.asarray(reference, bool)
     resolution = max(reference.shape)
     from .box import grid_shape

@@ -73,6 +73,8 @@ def test_goals_out_of_reach_give_the_lowest_setting_and_say_so(knob):
     ({"n": 1}, "at least 2 samples"),
     ({"lowest": 1.0}, "lowest"),
     ({"goals": {"g_div": 0.2}}, "unknown calibration goals"),
+    ({"goals": {"lp_iou": 55}}, "from 0 to 1"),
+    ({"rounds": -1}, "rounds"),
 ])
 def test_bad_options_are_named(kw, match):
     with pytest.raises(Sin3DMInputError, match=match):
