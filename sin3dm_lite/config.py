@@ -133,20 +133,15 @@ class Config:
     thin_parts: dict = field(default_factory=dict)
 
     def for_thin_parts(self) -> "Config":
-        """These settings with :attr:`thin_parts` applied, named ``<name>+thin`` (``+thinner`` the second time).
+        """These settings with :attr:`thin_parts` applied, nothing left to switch, named ``<name>+thin``.
 
         A grid too coarse for a shape's thin parts (columns 2-3 voxels thick)
         swells or breaks them in every sample; the finer grid needs a wider
         denoiser field too, so that the field keeps its share of the latent.
-        ``thin_parts`` may hold a ``thin_parts`` of its own: the next switch,
-        for shapes still mostly thin on the finer grid; none is left after it.
         """
         if not self.thin_parts:
             return self
-        changes = dict(self.thin_parts)
-        after = changes.pop("thin_parts", {})
-        name = self.name[:-5] + "+thinner" if self.name.endswith("+thin") else f"{self.name}+thin"
-        return self.updated(**changes, name=name, thin_parts=after)
+        return self.updated(**self.thin_parts, name=f"{self.name}+thin", thin_parts={})
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -176,13 +171,8 @@ class Config:
             _check_type(key, node[leaf], value)
             node[leaf] = value
         if "thin_parts" not in changes:
-            d["thin_parts"] = _without(d["thin_parts"], changes)
+            d["thin_parts"] = {k: v for k, v in d["thin_parts"].items() if k not in changes}
         return Config.from_dict(d)
-
-
-def _without(thin_parts: dict, changes: dict) -> dict:
-    """``thin_parts`` (and the switches nested in it) without the settings in ``changes``."""
-    return {k: _without(v, changes) if k == "thin_parts" else v for k, v in thin_parts.items() if k not in changes}
 
 
 def _check_type(key: str, old: Any, value: Any) -> None:
@@ -250,15 +240,9 @@ def _tiny() -> Config:
     )
 
 
-#: what a fit at ``detail``'s settings changes once more when its 96-voxel grid is still mostly thin parts (tiles with
-#: one-voxel gaps: share 0.58 at 96, the colonnade 0.11): 128 voxels, a 64-texel latent and 5 ResBlocks (a 21-texel
-#: field, about the same share of the latent). tiles.obj, calibrated: G-Div / LP-IoU / LP-F 0.182 / 0.659 / 0.739
-#: against 0.144 / 0.561 / 0.751 at 96 (24 samples; README "Thin parts")
-FINER_CHANGES = {"grid.resolution": 128, "diffusion.n_resblocks": 5}
-
 #: what ``detail`` changes in ``small``; ``small`` switches to it by itself on shapes with many thin parts
 DETAIL_CHANGES = {"grid.resolution": 96, "diffusion.n_resblocks": 4, "diffusion.rollout": True, "diffusion.steps": 1250,
-                  "autoencoder.steps": 1000, "sampling.diversity": 1.0, "thin_parts": FINER_CHANGES}
+                  "autoencoder.steps": 1000, "sampling.diversity": 1.0}
 
 
 def _small() -> Config:

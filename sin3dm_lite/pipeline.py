@@ -83,8 +83,8 @@ def _thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) 
     return (f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
             f"the {cfg.name} preset's samples would swell or break: fitting at {new.grid.resolution} voxels with a "
             f"{new.diffusion.n_resblocks}-ResBlock denoiser{' whose planes see each other' if new.diffusion.rollout else ''} "
-            f"instead (its thin-part settings: small's are the 'detail' preset's, and 128 voxels for parts still "
-            f"thin at 96; about the same fit time; the run's config is named '{new.name}'). To keep {cfg.grid.resolution} voxels: CLI "
+            f"instead (its thin-part settings; small's are the 'detail' "
+            f"preset's, about the same fit time; the run's config is named '{new.name}'). To keep {cfg.grid.resolution} voxels: CLI "
             "--no-thin-switch, Python preset=get_preset(...).updated(thin_parts={}).")
 
 
@@ -338,15 +338,10 @@ class Sin3DM:
         else:
             grid = _grid_for(mesh, cfg, progress)
             thin = grid.thin_share()
-            # too coarse for this shape's thin parts: the finer settings, recorded first (twice where the finer grid
-            # is still mostly thin parts: small → detail's 96 voxels → 128)
-            while (switched := thin_parts_switch(cfg, grid, thin)) is not None:
+            switched = thin_parts_switch(cfg, grid, thin)
+            if switched is not None:  # too coarse for this shape's thin parts: the finer settings, recorded first
                 say("[fit] " + _thin_parts_message(cfg, switched, grid, thin))
-                step = {"from": cfg.name, "resolution": max(grid.shape), "thin_share": thin}
-                if thin_parts is None:
-                    thin_parts = step
-                else:  # the second switch: {from small at 64, ..., "then": [{from small+thin at 96, ...}]}
-                    thin_parts.setdefault("then", []).append(step)
+                thin_parts = {"from": cfg.name, "resolution": max(grid.shape), "thin_share": thin}
                 cfg = switched
                 if run is not None:  # a resumed run still knows it switched (its report is completed at the end)
                     atomic_write(run / "config.json", cfg.to_json())

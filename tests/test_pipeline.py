@@ -287,42 +287,16 @@ def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, caps
     assert thin_parts_switch(cfg, grid, thin=0.5).grid.resolution == 40
 
 
-def test_a_shape_still_thin_on_the_finer_grid_switches_twice(tmp_path, capsys, monkeypatch):
-    """Each switch rebuilds the grid and measures it again; the report keeps both, the run resumes as what it is."""
-    from sin3dm_lite.grid import ShapeGrid, load_grid
-
-    monkeypatch.setattr(ShapeGrid, "thin_share", lambda self, radius=2: 0.5)  # every grid mostly thin
-    cfg = micro_config().updated(**{"name": "small", "grid.resolution": 24, "autoencoder.steps": 2, "diffusion.steps": 2,
-                                    "thin_parts": {"grid.resolution": 32, "thin_parts": {"grid.resolution": 40,
-                                                                                         "diffusion.n_resblocks": 3}}})
-    model = Sin3DM.fit("wall", preset=cfg, out=tmp_path / "w", progress=True)
-    out = capsys.readouterr().out
-    assert "fitting at 32 voxels" in out and "fitting at 40 voxels" in out
-    assert model.config.name == "small+thinner" and model.config.diffusion.n_resblocks == 3
-    assert max(load_grid(tmp_path / "w" / "grid.npz").shape) == 40
-    switch = json.loads((tmp_path / "w" / "report.json").read_text())["thin_parts_switch"]
-    assert (switch["from"], switch["resolution"]) == ("small", 24)
-    assert [(s["from"], s["resolution"]) for s in switch["then"]] == [("small+thin", 32)]
-    assert Sin3DM.fit("wall", out=tmp_path / "w", resume=True, progress=False).config.name == "small+thinner"
-
-
 def test_small_switches_to_exactly_the_detail_settings():
     """The 'detail' preset is what small switches to (one source of truth), and it does not switch again."""
     small, detail = get_preset("small"), get_preset("detail")
     switched = small.for_thin_parts()
     assert switched.updated(name="detail") == detail and switched.name == "small+thin"
-    # a shape still mostly thin at detail's 96 voxels (tiles with one-voxel gaps) switches once more, then never again
-    finer = switched.for_thin_parts()
-    assert finer.name == "small+thinner" and finer.grid.resolution == 128 and finer.diffusion.n_resblocks == 5
-    assert finer.diffusion.rollout is True and finer.thin_parts == {} and finer.for_thin_parts() == finer
-    assert detail.for_thin_parts().grid.resolution == 128
+    assert detail.thin_parts == {} and detail.for_thin_parts() == detail
     assert get_preset("quick").thin_parts == {}  # the light preset for CPUs without bf16 never switches
     # a setting the user changes is never undone by the switch; the others still switch
     mine = small.updated(**{"diffusion.n_resblocks": 6}).for_thin_parts()
     assert mine.diffusion.n_resblocks == 6 and mine.grid.resolution == 96
-    assert mine.for_thin_parts().diffusion.n_resblocks == 6 and mine.for_thin_parts().grid.resolution == 128
-    mine = small.updated(**{"grid.resolution": 80}).for_thin_parts().for_thin_parts()  # not in either switch
-    assert mine.grid.resolution == 80 and mine.diffusion.n_resblocks == 5
 
 
 def test_settings_from_text_keep_their_kinds():
