@@ -546,7 +546,7 @@ class Sin3DM:
         (default: :meth:`input_mesh` voxelised at the fit's grid resolution).
         The choice and what was tried land in ``report["calibration"]``;
         ``options`` go to ``calibrate_diversity`` (``goals``, ``n``, ``seed``,
-        ``lowest``, ``rounds``). :meth:`save` (or ``sin3dm-lite calibrate``) keeps it.
+        ``lowest``, ``step``, ``margin``). :meth:`save` (or ``sin3dm-lite calibrate``) keeps it.
         """
         from .calibrate import calibrate_diversity
 

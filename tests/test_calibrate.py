@@ -47,13 +47,23 @@ def knob(monkeypatch):
     return k
 
 
-def test_bisection_finds_the_highest_setting_that_keeps_the_goals(knob):
+def test_the_ladder_walks_down_to_the_first_setting_that_keeps_the_goals(knob):
     cal = C.calibrate_diversity(_Box(), _reference(), n=3, seed=5, progress=False)
-    assert [t["diversity"] for t in cal.tried] == [1.0, 0.75, 0.625, 0.6875, 0.7188]
-    assert cal.diversity == 0.6875 and cal.kept_goals
-    assert [t["kept"] for t in cal.tried] == [False, False, True, True, False]
-    assert {(n, seed, res) for _, n, seed, res in knob.drawn} == {(3, 5, 24)}  # same seeds at every setting
-    assert cal.tried[2]["lp_iou"] == 1.0 and cal.tried[0]["lp_fscore"] == 0.0
+    assert [t["diversity"] for t in cal.tried] == [1.0, 0.9, 0.8, 0.7]  # 0.7 keeps both goals by the margin: stop
+    assert [t["kept"] for t in cal.tried] == [False, False, False, True]
+    assert [seed for _, _, seed, _ in knob.drawn] == [5, 1005, 2005, 3005]  # seeds of its own at every setting
+    assert {(n, res) for _, n, _, res in knob.drawn} == {(3, 24)}
+    # the scores jump from 0 to 1 between 0.8 and 0.7: the crossing of LP-F 0.70 lies at 0.73, of LP-IoU 0.55 at 0.745
+    assert cal.diversity == 0.73 and cal.kept_goals
+
+
+def test_scores_that_rise_with_the_knob_by_chance_are_pooled():
+    """A noisy curve is made to fall with the knob before its crossing is read."""
+    fitted = C._non_increasing([0.8, 0.6, 0.65, 0.5], [1.0] * 4)
+    assert fitted == pytest.approx([0.8, 0.625, 0.625, 0.5])
+    levels = [1.0, 0.9, 0.8]
+    assert C._crossing(levels, [0.4, 0.5, 0.6], 0.55) == pytest.approx(0.85)
+    assert C._crossing(levels, [0.6, 0.7, 0.8], 0.55) == 1.0 and C._crossing(levels, [0.1, 0.2, 0.3], 0.55) is None
 
 
 def test_pure_noise_that_keeps_the_goals_is_taken_at_once(knob):
@@ -64,9 +74,9 @@ def test_pure_noise_that_keeps_the_goals_is_taken_at_once(knob):
 
 def test_goals_out_of_reach_give_the_lowest_setting_and_say_so(knob):
     knob.edge = 0.1
-    cal = C.calibrate_diversity(_Box(), _reference(), lowest=0.4, rounds=2, progress=False)
+    cal = C.calibrate_diversity(_Box(), _reference(), lowest=0.4, step=0.2, progress=False)
     assert cal.diversity == 0.4 and not cal.kept_goals
-    assert [t["diversity"] for t in cal.tried] == [1.0, 0.7, 0.55, 0.4]
+    assert [t["diversity"] for t in cal.tried] == [1.0, 0.8, 0.6, 0.4]
 
 
 @pytest.mark.parametrize("kw, match", [
@@ -74,7 +84,8 @@ def test_goals_out_of_reach_give_the_lowest_setting_and_say_so(knob):
     ({"lowest": 1.0}, "lowest"),
     ({"goals": {"g_div": 0.2}}, "unknown calibration goals"),
     ({"goals": {"lp_iou": 55}}, "from 0 to 1"),
-    ({"rounds": -1}, "rounds"),
+    ({"step": 0.0}, "step"),
+    ({"step": 0.6}, "step"),
 ])
 def test_bad_options_are_named(kw, match):
     with pytest.raises(Sin3DMInputError, match=match):
@@ -97,7 +108,7 @@ def test_a_fit_saves_its_calibrated_diversity(calibrated):
     model, run = calibrated
     cal = model.report["calibration"]
     assert model.config.sampling.diversity == cal["diversity"]
-    assert 0.5 <= cal["diversity"] <= 1.0 and cal["tried"][0]["diversity"] == 1.0
+    assert 0.5 <= cal["diversity"] <= 1.0 and cal["tried"][0]["diversity"] == 1.0 and "lp_iou_fitted" in cal["tried"][0]
     assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == cal["diversity"]
     report = json.loads((run / "report.json").read_text())
     assert report["calibration"] == cal and report["timings_s"]["calibrate_s"] > 0
