@@ -53,8 +53,10 @@ def test_the_ladder_walks_down_to_the_first_setting_that_keeps_the_goals(knob):
     assert [t["kept"] for t in cal.tried] == [False, False, False, True]
     assert [seed for _, _, seed, _ in knob.drawn] == [5, 1005, 2005, 3005]  # seeds of its own at every setting
     assert {(n, res) for _, n, _, res in knob.drawn} == {(3, 24)}
-    # the scores jump from 0 to 1 between 0.8 and 0.7: the crossing of LP-F 0.70 lies at 0.73, of LP-IoU 0.55 at 0.745
+    # the scores jump from 0 to 1 between 0.8 and 0.7: the crossing of LP-F 0.70 + 0.02 lies at 0.728 (of LP-IoU
+    # 0.55 + 0.02 at 0.743), without the safety margin at 0.73
     assert cal.diversity == 0.73 and cal.kept_goals
+    assert C.calibrate_diversity(_Box(), _reference(), n=3, safety=0.2, progress=False).diversity == 0.71
 
 
 def test_scores_that_rise_with_the_knob_by_chance_are_pooled():
@@ -86,6 +88,7 @@ def test_goals_out_of_reach_give_the_lowest_setting_and_say_so(knob):
     ({"goals": {"lp_iou": 55}}, "from 0 to 1"),
     ({"step": 0.0}, "step"),
     ({"step": 0.6}, "step"),
+    ({"safety": 1.5}, "safety"),
 ])
 def test_bad_options_are_named(kw, match):
     with pytest.raises(Sin3DMInputError, match=match):
