@@ -131,13 +131,19 @@ def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
 
 
 def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
+    """The barely trained micro model keeps no patches, so the calibration lands on its lowest setting, 0.5."""
     _, run = calibrated
-    code = main(["calibrate", str(run), "-n", "2", "--lp-iou", "0", "--lp-f", "0"])
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["sampling"]["diversity"] = 0.9  # config.json is rewritten from the model the command loads and calibrates
+    (run / "config.json").write_text(json.dumps(cfg))
+    code = main(["calibrate", str(run), "-n", "2", "--lp-iou", "0.3", "--lp-f", "0.4"])
     out = capsys.readouterr().out
-    assert code == 0 and "→ 1 " in out and "saved" in out
-    assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == 1.0
+    assert code == 0 and "→ 0.5 " in out and "saved" in out
+    assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == 0.5
+    assert Sin3DM.load(run).config.sampling.diversity == 0.5
     report = json.loads((run / "report.json").read_text())
-    assert report["calibration"]["goals"] == {"lp_iou": 0.0, "lp_fscore": 0.0}
+    assert report["calibration"]["goals"] == {"lp_iou": 0.3, "lp_fscore": 0.4}
+    assert report["calibration"]["kept_goals"] is False
 
 
 def test_cli_calibrate_errors_in_one_line(capsys, tmp_path):
