@@ -222,7 +222,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the mesh the run was fitted to, when the run has no grid.npz (default: the run's grid)")
     c.add_argument("-n", type=_int_at_least(2, "at least 2 (G-Div compares them)"), default=8,
                    help="samples per setting tried")
-    c.add_argument("--seed", type=_seed, default=10_000, help="first sample seed, the same at every setting")
+    c.add_argument("--seed", type=_seed, default=10_000,
+                   help="first sample seed (the k-th setting drawn takes seeds from seed + 1000·k)")
     c.add_argument("--lp-iou", type=_unit_score, default=None, help="LP-IoU the samples must keep (default: 0.55)")
     c.add_argument("--lp-f", type=_unit_score, default=None, help="LP-F the samples must keep (default: 0.70)")
     return p
