@@ -231,7 +231,8 @@ def main() -> None:
                           f"mesh {_mark(s['mesh_s'] <= GOALS['mesh_s'])}")
                 print_scores(label if len(a.seeds) == 1 else f"{label}, seed {seed}", sc)
                 rows.append({"input": name, "preset": a.preset, "diversity": d, "seed": seed, "fit_s": fit_s,
-                             "default": f"default ({model.config.sampling.diversity:g})", "timings_s": t, "recon_iou": recon, "sample_s": s["sample_s"], "mesh_s": s["mesh_s"],
+                             "default": f"default ({model.config.sampling.diversity:g})", "timings_s": t,
+                             "recon_iou": recon, "sample_s": s["sample_s"], "mesh_s": s["mesh_s"],
                              "family": {str(r): v for r, v in fam.items()} if fam else None,
                              "scores": {str(r): v for r, v in sc.items()}})
             if len(a.seeds) > 1:
@@ -246,8 +247,9 @@ def main() -> None:
         v, t = r0(row), row["timings_s"]
         mesh_s = f"{row['mesh_s']:.1f}" if row["mesh_s"] else "-"
         stages = "+".join(f"{t[k]:.0f}" for k in STAGES if k in t)
-        print(f"| {row['input']} | {row['diversity'] or row.get('default', 'default')} | {row['seed']} | {row['fit_s']:.0f} ({stages}) | {row['recon_iou']:.3f} | {v['g_div']:.3f} | {v['iou_to_input']:.3f} | {v['lp_iou']:.3f} | "
-              f"{v['lp_f']:.3f} | {v['ceiling_lp_iou']:.2f}/{v['ceiling_lp_f']:.2f} | {_family_cell(row)} | {mesh_s} |")
+        print(f"| {row['input']} | {row['diversity'] or row.get('default', 'default')} | {row['seed']} | "
+              f"{row['fit_s']:.0f} ({stages}) | {row['recon_iou']:.3f} | {v['g_div']:.3f} | {v['iou_to_input']:.3f} | "
+              f"{v['lp_iou']:.3f} | {v['lp_f']:.3f} | {v['ceiling_lp_iou']:.2f}/{v['ceiling_lp_f']:.2f} | {_family_cell(row)} | {mesh_s} |")
 
 
 STAGES = ("grid_s", "autoencoder_s", "diffusion_s", "calibrate_s")

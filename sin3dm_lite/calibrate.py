@@ -54,9 +54,13 @@ class Calibration:
         return asdict(self)
 
     def summary(self) -> str:
-        steps = ", ".join(f"{t['diversity']:g}: LP-IoU {t['lp_iou']:.2f} LP-F {t['lp_fscore']:.2f} "
-                          f"G-Div {t['g_div']:.2f}{' ✓' if t['kept'] else ''}" for t in self.tried)
-        return f"diversity {self.diversity:g} ({steps})"
+        """One line per setting drawn (raw and smoothed patch scores, G-Div), then the choice."""
+        lines = [f"diversity {t['diversity']:.2f}: LP-IoU {t['lp_iou']:.3f} (smoothed {t['lp_iou_fitted']:.3f}) · "
+                 f"LP-F {t['lp_fscore']:.3f} (smoothed {t['lp_fscore_fitted']:.3f}) · G-Div {t['g_div']:.3f}"
+                 for t in self.tried]
+        lines.append(f"chosen: {self.diversity:g}" + ("" if self.kept_goals else
+                                                        " (the lowest drawn: no setting kept the goals)"))
+        return "\n".join(lines)
 
 
 def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int) -> list[np.ndarray]:

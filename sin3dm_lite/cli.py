@@ -656,24 +656,20 @@ def cmd_calibrate(a) -> None:
     from .calibrate import GOALS
     from .files import atomic_write, check_writable
     from .grid import load_grid
-    from .pipeline import Sin3DM, resolve_mesh
+    from .pipeline import Sin3DM
 
     run = find_run(a.run)
     shipped = not Path(a.run).is_dir()  # a shipped model's folder is part of the installed package: print only
     if not shipped:
         check_writable(run)
     model = Sin3DM.load(run)
-    if (run / "grid.npz").is_file() and a.input is None:
-        reference = load_grid(run / "grid.npz").sdf < 0
-    else:
-        mesh = model.input_mesh() if a.input is None else resolve_mesh(a.input)
-        shape = model.report.get("grid_shape") or [model.config.grid.resolution]
-        reference = model.input_occupancy(mesh, max(shape))
+    # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, the mesh
+    reference = load_grid(run / "grid.npz").sdf < 0 if (run / "grid.npz").is_file() and a.input is None else None
     goals = {"lp_iou": GOALS["lp_iou"] if a.lp_iou is None else a.lp_iou,
              "lp_fscore": GOALS["lp_fscore"] if a.lp_f is None else a.lp_f}
     before = model.config.sampling.diversity
     t0 = time.perf_counter()
-    cal = model.calibrate(reference, goals=goals, n=a.n, seed=a.seed)
+    cal = model.calibrate(reference, input_mesh=a.input, goals=goals, n=a.n, seed=a.seed)
     took = time.perf_counter() - t0
     if shipped:
         print(f"{a.run}: diversity {cal.diversity:g} would keep the goals ({took:.0f} s); a shipped model is not "

@@ -537,25 +537,25 @@ class Sin3DM:
         return Sin3DM(replace(self.config, diffusion=diffusion), self.decoder, self.latent, denoiser, self.aabb,
                       self.normalization, dict(self.report), self.device)
 
-    def calibrate(self, reference: np.ndarray | None = None, progress: bool = True, **options) -> "Calibration":
+    def calibrate(self, reference: np.ndarray | None = None, input_mesh=None, progress: bool = True,
+                  **options) -> "Calibration":
         """Set ``config.sampling.diversity`` to the most varied setting whose samples keep the input's patches.
 
         :func:`sin3dm_lite.calibrate.calibrate_diversity` draws a few samples
         at a handful of settings and scores them with the paper's LP-IoU / LP-F
         against ``reference``, the input's occupancy on this model's box
-        (default: :meth:`input_mesh` voxelised at the fit's grid resolution).
+        (default: ``input_mesh``, a mesh, path or example name, or else
+        :meth:`input_mesh`, voxelised at the fit's grid resolution).
         The choice and what was tried land in ``report["calibration"]``;
         ``options`` go to ``calibrate_diversity`` (``goals``, ``n``, ``seed``,
-        ``lowest``, ``step``, ``margin``). :meth:`save` (or ``sin3dm-lite calibrate``) keeps it.
+        ``lowest``, ``step``, ``margin``, ``safety``). :meth:`save` (or ``sin3dm-lite calibrate``) keeps it.
         """
         from .calibrate import calibrate_diversity
 
         if reference is None:
-            shape = self.report.get("grid_shape")
-            if not shape:
-                raise Sin3DMInputError("this model's report has no grid shape; pass reference= (the training "
-                                       "grid's occupancy, grid.sdf < 0)")
-            reference = self.input_occupancy(self.input_mesh(), max(shape))
+            mesh = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
+            resolution = max(self.report.get("grid_shape") or [self.config.grid.resolution])
+            reference = self.input_occupancy(mesh, resolution)
         cal = calibrate_diversity(self, reference, progress=progress, **options)
         self.config = self.config.updated(**{"sampling.diversity": cal.diversity})
         self.report["calibration"] = cal.to_dict()

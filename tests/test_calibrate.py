@@ -1,4 +1,4 @@
-"""Choosing the diversity knob per shape: the bisection, its scoring path, and what a fit and the CLI keep of it."""
+"""Choosing the diversity knob per shape: the ladder, its smoothing, its scoring path, and what a fit and the CLI keep."""
 import json
 
 import numpy as np
@@ -56,6 +56,8 @@ def test_the_ladder_walks_down_to_the_first_setting_that_keeps_the_goals(knob):
     # the scores jump from 0 to 1 between 0.8 and 0.7: the crossing of LP-F 0.70 + 0.02 lies at 0.728 (of LP-IoU
     # 0.55 + 0.02 at 0.743), without the safety margin at 0.73
     assert cal.diversity == 0.73 and cal.kept_goals
+    text = cal.summary().splitlines()  # what notebook 04 prints: a line per setting drawn, then the choice
+    assert len(text) == 5 and text[0].startswith("diversity 1.00: LP-IoU 0.000") and text[-1] == "chosen: 0.73"
     assert C.calibrate_diversity(_Box(), _reference(), n=3, safety=0.2, progress=False).diversity == 0.71
 
 
@@ -77,7 +79,7 @@ def test_pure_noise_that_keeps_the_goals_is_taken_at_once(knob):
 def test_goals_out_of_reach_give_the_lowest_setting_and_say_so(knob):
     knob.edge = 0.1
     cal = C.calibrate_diversity(_Box(), _reference(), lowest=0.4, step=0.2, progress=False)
-    assert cal.diversity == 0.4 and not cal.kept_goals
+    assert cal.diversity == 0.4 and not cal.kept_goals and "no setting kept the goals" in cal.summary()
     assert [t["diversity"] for t in cal.tried] == [1.0, 0.8, 0.6, 0.4]
 
 
@@ -144,6 +146,21 @@ def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
     report = json.loads((run / "report.json").read_text())
     assert report["calibration"]["goals"] == {"lp_iou": 0.3, "lp_fscore": 0.4}
     assert report["calibration"]["kept_goals"] is False
+
+
+def test_cli_calibrate_without_the_grid_uses_the_input_mesh(calibrated, capsys, tmp_path):
+    """A run folder without grid.npz is calibrated against the mesh --input names, voxelised on the model's box."""
+    import shutil
+
+    _, run = calibrated
+    bare = tmp_path / "bare"
+    shutil.copytree(run, bare)
+    (bare / "grid.npz").unlink()
+    assert main(["calibrate", str(bare), "-n", "2", "--input", "wall"]) == 0
+    cal = json.loads((bare / "report.json").read_text())["calibration"]
+    assert cal["resolution"] == max(json.loads((bare / "report.json").read_text())["grid_shape"])
+    assert main(["calibrate", str(bare), "-n", "2", "--input", str(tmp_path / "gone.obj")]) == 2
+    assert "gone.obj" in capsys.readouterr().err
 
 
 def test_cli_calibrate_errors_in_one_line(capsys, tmp_path):
