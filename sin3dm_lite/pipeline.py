@@ -548,7 +548,8 @@ class Sin3DM:
         :meth:`input_mesh`, voxelised at the fit's grid resolution).
         The choice and what was tried land in ``report["calibration"]``;
         ``options`` go to ``calibrate_diversity`` (``goals``, ``n``, ``seed``,
-        ``lowest``, ``step``, ``margin``, ``safety``). :meth:`save` (or ``sin3dm-lite calibrate``) keeps it.
+        ``lowest``, ``step``, ``margin``, ``refine``, ``caution``, ``safety``). :meth:`save` (or
+        ``sin3dm-lite calibrate``) keeps it.
         """
         from .calibrate import calibrate_diversity
 

@@ -48,7 +48,7 @@ def knob(monkeypatch):
 
 
 def test_the_ladder_walks_down_to_the_first_setting_that_keeps_the_goals(knob):
-    cal = C.calibrate_diversity(_Box(), _reference(), n=3, seed=5, progress=False)
+    cal = C.calibrate_diversity(_Box(), _reference(), n=3, seed=5, refine=0, safety=0.02, progress=False)
     assert [t["diversity"] for t in cal.tried] == [1.0, 0.9, 0.8, 0.7]  # 0.7 keeps both goals by the margin: stop
     assert [t["kept"] for t in cal.tried] == [False, False, False, True]
     assert [seed for _, _, seed, _ in knob.drawn] == [5, 1005, 2005, 3005]  # seeds of its own at every setting
@@ -58,7 +58,60 @@ def test_the_ladder_walks_down_to_the_first_setting_that_keeps_the_goals(knob):
     assert cal.diversity == 0.73 and cal.kept_goals
     text = cal.summary().splitlines()  # what notebook 04 prints: a line per setting drawn, then the choice
     assert len(text) == 5 and text[0].startswith("diversity 1.00: LP-IoU 0.000") and text[-1] == "chosen: 0.73"
-    assert C.calibrate_diversity(_Box(), _reference(), n=3, safety=0.2, progress=False).diversity == 0.71
+    assert C.calibrate_diversity(_Box(), _reference(), n=3, refine=0, safety=0.2, progress=False).diversity == 0.71
+
+
+def test_refinement_draws_where_the_answer_lies_and_pools_repeated_settings(knob):
+    """The ladder brackets the edge between 0.8 and 0.7; refinement draws at the half-step point nearest the answer
+    (0.75, which misses), narrowing the answer to between 0.75 and 0.7, then at 0.7 again, whose 6 samples are
+    pooled with the ladder's 3 there."""
+    cal = C.calibrate_diversity(_Box(), _reference(), n=3, seed=5, refine=2, safety=0.02, progress=False)
+    assert [t["diversity"] for t in cal.tried] == [1.0, 0.9, 0.8, 0.7, 0.75, 0.7]
+    assert [seed for _, _, seed, _ in knob.drawn] == [5, 1005, 2005, 3005, 4005, 5005]
+    assert cal.diversity == 0.71 and cal.kept_goals  # 0.7 + 0.05 · (1 - 0.72): the edge is at 0.7
+    assert C._curve(cal.tried, "lp_fscore")[:2] == ([1.0, 0.9, 0.8, 0.75, 0.7], [0.0, 0.0, 0.0, 0.0, 1.0])
+    assert C.calibrate_diversity(_Box(), _reference(), n=3, refine=0, safety=0.02, progress=False).diversity == 0.73
+    knob.edge = 1.0  # nothing to refine when pure noise keeps the goals
+    assert len(C.calibrate_diversity(_Box(), _reference(), n=3, refine=2, progress=False).tried) == 1
+
+
+def test_the_walk_goes_on_down_when_the_lowered_curve_misses_where_it_stopped():
+    """0.9's 8 samples keep the goals by the margin on average but scatter widely: one standard error below, they
+    miss, so the ladder goes on to 0.8 instead of answering with the lowest setting."""
+    scores = {1.0: (0.3, 0.4, 0.0), 0.9: (0.61, 0.76, 0.3), 0.8: (0.9, 0.95, 0.0)}
+
+    def draw(d, k):
+        iou_, f, sd = scores[d]
+        return {"lp_iou": iou_, "lp_fscore": f, "g_div": 0.1, "lp_iou_sd": sd, "lp_fscore_sd": sd}
+
+    cal = C.Calibration(diversity=0.5, goals=dict(C.GOALS), n=8, resolution=24)
+    C._walk(cal, draw, lowest=0.5, step=0.1, margin=0.05, safety=0.0, refine=0, caution=1.0, progress=False)
+    assert [t["diversity"] for t in cal.tried] == [1.0, 0.9, 0.8]
+    assert cal.kept_goals and 0.8 <= cal.diversity <= 0.9
+
+
+def test_a_setting_drawn_twice_counts_by_its_samples():
+    tried = [{"diversity": 0.8, "n": 8, "lp_iou": 0.6}, {"diversity": 0.7, "n": 8, "lp_iou": 0.8},
+             {"diversity": 0.7, "n": 24, "lp_iou": 0.4}]
+    # 0.7's 32 samples score 0.5, below 0.8's 8 samples (0.6) by chance: pooled by samples, (0.6·8 + 0.5·32) / 40
+    levels, fitted, _ = C._curve(tried, "lp_iou")
+    assert levels == [0.8, 0.7] and fitted == pytest.approx([0.52, 0.52])
+
+
+def test_the_curve_is_read_standard_errors_below_its_scores():
+    """Two settings of 8 samples with a spread of 0.2 each: standard error 0.2 / √8 on each smoothed score; read
+    one standard error low, the curve crosses 0.6 nearer the setting that keeps it. Pooling settings (by chance, or
+    by drawing one again) rests a score on more samples and narrows its error."""
+    tried = [{"diversity": 0.8, "n": 8, "lp_iou": 0.5, "lp_iou_sd": 0.2},
+             {"diversity": 0.7, "n": 8, "lp_iou": 0.7, "lp_iou_sd": 0.2}]
+    levels, fitted, se = C._curve(tried, "lp_iou")
+    assert fitted == [0.5, 0.7] and se == pytest.approx([0.2 / 8 ** 0.5] * 2)
+    assert C._choice(tried, {"lp_iou": 0.6}, safety=0.0, caution=0.0) == pytest.approx(0.75)
+    assert C._choice(tried, {"lp_iou": 0.6}, safety=0.0, caution=1.0) == pytest.approx(0.7 + 0.1 * (0.7 - 0.2 / 8 ** 0.5 - 0.6) / 0.2)
+    tried.append({"diversity": 0.7, "n": 24, "lp_iou": 0.7, "lp_iou_sd": 0.2})
+    assert C._curve(tried, "lp_iou")[2] == pytest.approx([0.2 / 8 ** 0.5, 0.2 / 32 ** 0.5])
+    tried[0]["lp_iou"] = 0.9  # rises above 0.7's by chance: one block of 40 samples
+    assert C._curve(tried, "lp_iou")[2] == pytest.approx([0.2 / 40 ** 0.5] * 2)
 
 
 def test_scores_that_rise_with_the_knob_by_chance_are_pooled():
@@ -91,6 +144,8 @@ def test_goals_out_of_reach_give_the_lowest_setting_and_say_so(knob):
     ({"step": 0.0}, "step"),
     ({"step": 0.6}, "step"),
     ({"safety": 1.5}, "safety"),
+    ({"refine": -1}, "refine"),
+    ({"caution": -1.0}, "caution"),
 ])
 def test_bad_options_are_named(kw, match):
     with pytest.raises(Sin3DMInputError, match=match):
