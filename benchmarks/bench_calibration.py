@@ -31,16 +31,16 @@ from sin3dm_lite.calibrate import GOALS, Calibration, _crossing, _non_increasing
 
 SETTINGS = [round(0.5 + 0.05 * k, 2) for k in range(11)]
 
-#: (name, options): the shipped calibration first
+#: (name, options): the former rule first; the package default is marked
 VARIANTS = [
-    ("shipped: ladder, read 0.02 above", dict(n=8, refine=0, safety=0.02, caution=0.0)),
+    ("former: ladder, read 0.02 above", dict(n=8, refine=0, safety=0.02, caution=0.0)),
     ("+ 2 refine", dict(n=8, refine=2, safety=0.02, caution=0.0)),
     ("+ 4 refine", dict(n=8, refine=4, safety=0.02, caution=0.0)),
     ("ladder, read 1 SE above", dict(n=8, refine=0, safety=0.0, caution=1.0)),
     ("+ 2 refine, 1 SE", dict(n=8, refine=2, safety=0.0, caution=1.0)),
     ("+ 4 refine, 1 SE", dict(n=8, refine=4, safety=0.0, caution=1.0)),
     ("+ 2 refine, 1.5 SE", dict(n=8, refine=2, safety=0.0, caution=1.5)),
-    ("+ 4 refine, 1.5 SE", dict(n=8, refine=4, safety=0.0, caution=1.5)),
+    ("+ 4 refine, 1.5 SE (the default)", dict(n=8, refine=4, safety=0.0, caution=1.5)),
     ("+ 4 refine, 2 SE", dict(n=8, refine=4, safety=0.0, caution=2.0)),
     ("+ 2 refine, 0.01 + 1 SE", dict(n=8, refine=2, safety=0.01, caution=1.0)),
     ("+ 4 refine, 0.01 + 1 SE", dict(n=8, refine=4, safety=0.01, caution=1.0)),
