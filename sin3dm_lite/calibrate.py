@@ -71,13 +71,20 @@ class Calibration:
 
 def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int) -> list[np.ndarray]:
     """``n`` samples at ``diversity`` (seeds ``seed`` …), each decoded to occupancy (SDF < 0) on the model's
-    box at ``resolution`` voxels along its longest side: the sign of the decoder, no mesh."""
+    box at ``resolution`` voxels along its longest side: the sign of the decoder, no mesh.
+
+    Only the sign is needed, so the coarse-to-fine decode queries the decoder
+    only where its bound cannot prove the sign (``exact_band=0``; a mesh needs
+    exact values two voxels around the surface): the same occupancy, voxel for
+    voxel, on 12 samples of the canyon, the tiles and the rocks, in 0.18-0.37 s
+    per sample instead of 0.43-0.62 at 64-96 voxels.
+    """
     from .decode import decode_grid
 
     samples = model.sample(n, seed=seed, diversity=diversity, progress=False)
     out = []
     for i in range(n):
-        sdf = decode_grid(model.decoder, samples.triplane[i:i + 1], samples.aabb, resolution)
+        sdf = decode_grid(model.decoder, samples.triplane[i:i + 1], samples.aabb, resolution, exact_band=0.0)
         out.append(sdf < 0)
     return out
 

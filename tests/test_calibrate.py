@@ -176,15 +176,19 @@ def test_a_fit_saves_its_calibrated_diversity(calibrated):
 
 
 def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
-    """The SDF's sign on the training grid (calibration) and the exported mesh voxelised (the metrics) agree."""
+    """The SDF's sign on the training grid (calibration) and the exported mesh voxelised (the metrics) agree, and
+    the sign-only decode gives the full decode's signs voxel for voxel."""
+    from sin3dm_lite.decode import decode_grid
+
     model, run = calibrated
     res = max(model.report["grid_shape"])
     fast = C.sample_occupancy(model, 1.0, 2, 3, res)
     samples = model.sample(2, seed=3, diversity=1.0, progress=False)
     slow = model.occupancy(samples, res, mesh_resolution=res)
-    for a, b in zip(fast, slow):
+    for i, (a, b) in enumerate(zip(fast, slow)):
         assert a.shape == b.shape and a.any()
         assert iou(a, b) > 0.9
+        assert np.array_equal(a, decode_grid(model.decoder, samples.triplane[i:i + 1], samples.aabb, res) < 0)
 
 
 def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
