@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sin3dm_lite.calibrate import GOALS, Calibration, _crossing, _non_increasing, _walk
+from sin3dm_lite.calibrate import GOALS, Calibration, _crossing, _non_increasing, _walk, summarize
 
 SETTINGS = [round(0.5 + 0.05 * k, 2) for k in range(11)]
 
@@ -50,18 +50,16 @@ VARIANTS = [
 
 def draw_pool(run: str, out: str, n: int) -> None:
     from sin3dm_lite import Sin3DM
-    from sin3dm_lite.calibrate import sample_occupancy
-    from sin3dm_lite.metrics import lp_scores
+    from sin3dm_lite.calibrate import score_setting
 
     model = Sin3DM.load(run)
     ref = np.load(Path(run) / "grid.npz")["sdf"] < 0
     res = max(ref.shape)
     pool, t0 = {}, time.perf_counter()
     for j, d in enumerate(SETTINGS):
-        occ = sample_occupancy(model, d, n, 50_000 + 1000 * j, res)  # seeds apart from the calibration's (10,000+)
-        lp = lp_scores(ref, occ)
-        pool[str(d)] = {"lp_iou": lp["per_shape_iou"], "lp_fscore": lp["per_shape_fscore"]}
-        print(f"{run} diversity {d:.2f}: LP-IoU {lp['lp_iou']:.3f} LP-F {lp['lp_fscore']:.3f} "
+        row = score_setting(model, ref, d, n, 50_000 + 1000 * j)  # seeds apart from the calibration's (10,000+)
+        pool[str(d)] = row["per_sample"]
+        print(f"{run} diversity {d:.2f}: LP-IoU {row['lp_iou']:.3f} LP-F {row['lp_fscore']:.3f} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
         Path(out).write_text(json.dumps({"run": run, "resolution": res, "n": n, "pool": pool}))
 
@@ -84,11 +82,7 @@ def replay(pool: dict, options: dict, rng: np.random.Generator) -> tuple[float, 
             raise RuntimeError(f"the pool has too few samples left at {d}; draw a larger pool")
         take, left[:] = left[:n], left[n:]
         scores = pool[str(round(d, 2))]
-        row = {"g_div": float("nan")}
-        for key in GOALS:
-            row[key] = float(np.mean([scores[key][i] for i in take]))
-            row[f"{key}_sd"] = float(np.std([scores[key][i] for i in take], ddof=1))
-        return row
+        return summarize({key: [scores[key][i] for i in take] for key in GOALS})
 
     cal = Calibration(diversity=0.5, goals=dict(GOALS), n=n, resolution=0)
     _walk(cal, draw, 0.5, 0.1, 0.05, options["safety"], options["refine"], options["caution"], progress=False)

@@ -89,6 +89,26 @@ def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int
     return out
 
 
+def summarize(per_sample: dict, g_div: float = float("nan")) -> dict:
+    """A setting's row from its samples' scores (``{"lp_iou": [...], "lp_fscore": [...]}``): each goal's mean and
+    per-sample spread (``*_sd``, for the standard errors), and the samples' G-Div."""
+    row = {"g_div": float(g_div)}
+    for key, values in per_sample.items():
+        row[key], row[f"{key}_sd"] = float(np.mean(values)), float(np.std(values, ddof=1))
+    return row
+
+
+def score_setting(model, reference: np.ndarray, diversity: float, n: int, seed: int) -> dict:
+    """``n`` samples at ``diversity`` scored against ``reference`` (its longest side sets the resolution): the row
+    :func:`summarize` makes, plus the per-sample scores (``per_sample``)."""
+    from .metrics import g_div, lp_scores
+
+    occ = sample_occupancy(model, diversity, n, seed, max(reference.shape))
+    lp = lp_scores(reference, occ)
+    per_sample = {"lp_iou": lp["per_shape_iou"], "lp_fscore": lp["per_shape_fscore"]}
+    return {**summarize(per_sample, g_div(occ)), "per_sample": per_sample}
+
+
 def _non_increasing(values: list[float], weights: list[float], pooled: bool = False):
     """The closest non-increasing sequence to ``values`` in weighted least squares (pool adjacent violators).
 
@@ -228,14 +248,8 @@ def calibrate_diversity(model, reference: np.ndarray, goals: dict | None = None,
     if tuple(grid_shape(model.aabb, resolution)) != reference.shape:
         raise Sin3DMInputError(f"the reference grid {reference.shape} is not on this model's box at {resolution} "
                                "voxels; pass the training grid's occupancy (grid.sdf < 0 of the run's grid.npz)")
-    from .metrics import g_div, lp_scores
-
     def draw(d: float, k: int) -> dict:
-        occ = sample_occupancy(model, d, n, seed + 1000 * k, resolution)
-        lp = lp_scores(reference, occ)
-        return {"lp_iou": lp["lp_iou"], "lp_fscore": lp["lp_fscore"], "g_div": g_div(occ),
-                "lp_iou_sd": float(np.std(lp["per_shape_iou"], ddof=1)),
-                "lp_fscore_sd": float(np.std(lp["per_shape_fscore"], ddof=1))}
+        return score_setting(model, reference, d, n, seed + 1000 * k)
 
     result = Calibration(diversity=lowest, goals=goals, n=int(n), resolution=resolution)
     _walk(result, draw, lowest, step, margin, safety, refine, caution, progress)
@@ -251,6 +265,7 @@ def _walk(result: Calibration, draw, lowest: float, step: float, margin: float, 
 
     def add(d: float, why: str = "") -> dict:
         row = {"diversity": d, "n": result.n, **draw(d, len(result.tried))}
+        row.pop("per_sample", None)  # the report keeps the summary
         row["kept"] = all(row[key] >= v for key, v in goals.items())
         result.tried.append(row)
         if progress:
@@ -285,4 +300,4 @@ def _walk(result: Calibration, draw, lowest: float, step: float, margin: float, 
         result.kept_goals = True
 
 
-__all__ = ["GOALS", "Calibration", "calibrate_diversity", "sample_occupancy"]
+__all__ = ["GOALS", "Calibration", "calibrate_diversity", "sample_occupancy", "score_setting", "summarize"]

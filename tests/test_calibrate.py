@@ -75,6 +75,14 @@ def test_refinement_draws_where_the_answer_lies_and_pools_repeated_settings(knob
     assert len(C.calibrate_diversity(_Box(), _reference(), n=3, refine=2, progress=False).tried) == 1
 
 
+def test_a_setting_row_keeps_each_goals_mean_and_spread(knob):
+    row = C.summarize({"lp_iou": [0.2, 0.4, 0.6], "lp_fscore": [1.0, 1.0, 1.0]}, 0.3)
+    assert row["lp_iou"] == pytest.approx(0.4) and row["lp_iou_sd"] == pytest.approx(0.2)
+    assert row["lp_fscore_sd"] == 0.0 and row["g_div"] == 0.3
+    scored = C.score_setting(_Box(), _reference(), 0.5, 3, 0)  # the fake knob: the input itself, three times
+    assert scored["per_sample"]["lp_iou"] == [1.0] * 3 and scored["lp_iou"] == 1.0 and scored["lp_iou_sd"] == 0.0
+
+
 def test_the_walk_goes_on_down_when_the_lowered_curve_misses_where_it_stopped():
     """0.9's 8 samples keep the goals by the margin on average but scatter widely: one standard error below, they
     miss, so the ladder goes on to 0.8 instead of answering with the lowest setting."""
