@@ -338,7 +338,7 @@ def cmd_grid(a) -> None:
     from .grid import mesh_to_grid, save_grid
     from .pipeline import resolve_mesh
 
-    from .files import check_not_overlapping, check_writable, is_ours, record_written, remove_stale_temps
+    from .files import check_not_overlapping, check_writable, is_ours, recorded_path, remove_stale_temps
 
     out = Path(a.out)
     if out.suffix != ".npz":
@@ -358,8 +358,8 @@ def cmd_grid(a) -> None:
     mesh = resolve_mesh(a.mesh)
     grid = mesh_to_grid(mesh, a.resolution)
     remove_stale_temps(out.parent)
-    save_grid(grid, out)
-    record_written(out.parent, [out.name])
+    with recorded_path(out) as tmp:
+        save_grid(grid, tmp)
     print(f"wrote {out}: sdf {grid.shape}, color {grid.color.shape}, box {[round(float(x), 3) for x in grid.aabb]}")
 
 
@@ -605,7 +605,7 @@ def print_evaluation(result: dict) -> None:
 def cmd_evaluate(a) -> None:
     import json
 
-    from .files import atomic_write, check_not_overlapping, check_writable, is_ours, record_written
+    from .files import check_not_overlapping, check_writable, is_ours, write_recorded
     from .mesh_io import load_any
     from .metrics import load_feature_weights
     from .pipeline import Sin3DM, resolve_mesh
@@ -645,8 +645,7 @@ def cmd_evaluate(a) -> None:
     result.update(run=str(run), samples_folder=str(a.samples), files=[str(f) for f in files])
     print_evaluation(result)
     if out is not None:
-        atomic_write(out, json.dumps(result, indent=2))
-        record_written(out.parent, [out.name])
+        write_recorded(out, json.dumps(result, indent=2))
         print(f"wrote {out} ({time.perf_counter() - t0:.1f} s)")
 
 

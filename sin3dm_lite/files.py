@@ -196,7 +196,7 @@ def read_manifest(folder: Path) -> dict[str, list[int]]:
     out = {}
     for f, st in files.items():
         if (isinstance(f, str) and f and not os.path.isabs(f) and ".." not in Path(f).parts and f != MANIFEST
-                and isinstance(st, list) and len(st) == 2):
+                and _stats(st)):
             out[Path(f).as_posix()] = st
     return out
 
@@ -249,9 +249,18 @@ def is_ours(folder: Path, rel: str, manifest: dict | None = None) -> bool:
     manifest = read_manifest(folder) if manifest is None else manifest
     p = Path(folder) / rel
     try:
-        return rel in manifest and p.is_file() and not p.is_symlink() and _stat(p) == list(manifest[rel])
+        return rel in manifest and p.is_file() and not p.is_symlink() and _stat(p) in _stats(manifest[rel])
     except OSError:
         return False
+
+
+def _stats(entry) -> list[list[int]]:
+    """A manifest entry's acceptable ``[size, mtime_ns]`` pairs: one, or two while a replacement is under way."""
+    if isinstance(entry, list) and len(entry) == 2 and all(isinstance(x, int) for x in entry):
+        return [list(entry)]
+    if isinstance(entry, list) and entry and all(isinstance(x, list) and len(x) == 2 for x in entry):
+        return [list(x) for x in entry]
+    return []
 
 
 def write_manifest(folder: Path, files: dict[str, list[int]]) -> None:
@@ -264,6 +273,59 @@ def record_written(folder: Path, names) -> None:
     m = read_manifest(folder)
     m.update({Path(n).as_posix(): _stat(Path(folder) / n) for n in names})
     write_manifest(folder, m)
+
+
+@contextmanager
+def recorded_path(path: str | Path):
+    """Yield a temporary path beside ``path``; when the block succeeds, record it as ours and move it onto ``path``.
+
+    Like :func:`atomic_path`, but the manifest of ``path``'s folder learns the
+    new file *before* it appears, and keeps the old file of ours acceptable
+    until the move is done. A kill at any moment leaves ``path`` absent, the old
+    file or the new one, always recorded: a rerun with ``--overwrite`` replaces
+    it instead of refusing it as someone else's. (Writing the file and then
+    recording it left a window in which a kill made our own file look foreign.)
+    """
+    path = Path(path)
+    folder, rel = path.parent, path.name
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.sin3dm-{os.getpid()}-", suffix=f".tmp{path.suffix}", dir=folder)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.chmod(tmp, 0o644)
+        m = read_manifest(folder)
+        write_manifest(folder, replacing(folder, m, {rel: _stat(tmp)}))  # os.replace keeps size and time
+        os.replace(tmp, path)
+        record_written(folder, [rel])  # the old file's stat is no longer acceptable
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def replacing(folder: Path, manifest: dict, new: dict[str, list[int]]) -> dict:
+    """``manifest`` with the files ``new`` (``{relative path: [size, mtime_ns]}``, about to be moved into ``folder``) added.
+
+    Write it *before* the moves: a file of ours that one of them replaces stays
+    acceptable (its old stat is kept beside the new one), so a kill between the
+    manifest and the moves leaves nothing of ours looking foreign. Write the
+    plain manifest again once the moves are done.
+    """
+    out = dict(manifest)
+    for f, st in new.items():
+        old = _stats(manifest[f]) if is_ours(folder, f, manifest) else []
+        out[f] = old + [list(st)] if old else list(st)
+    return out
+
+
+def write_recorded(path: str | Path, data: bytes | str) -> Path:
+    """Write ``data`` (text as UTF-8) to ``path`` atomically and record it in its folder's manifest (:func:`recorded_path`)."""
+    with recorded_path(path) as tmp:
+        if isinstance(data, str):
+            tmp.write_text(data, encoding="utf-8")
+        else:
+            tmp.write_bytes(data)
+    return Path(path)
 
 
 def _files_under(folder: Path) -> list[str]:
@@ -320,9 +382,11 @@ def merge_output(tmp: Path, out: Path) -> None:
     """
     names = sorted(p.name for p in Path(tmp).iterdir())
     new = {n: _stat(Path(tmp) / n) for n in names}  # os.replace keeps size and time
-    write_manifest(out, {**read_manifest(out), **new})  # first: a kill leaves no file of ours unrecorded
+    old = read_manifest(out)
+    write_manifest(out, replacing(out, old, new))  # first: a kill leaves no file of ours unrecorded
     for n in names:
         os.replace(Path(tmp) / n, Path(out) / n)
+    write_manifest(out, {**old, **new})
 
 
 def install_output(tmp: Path, out: Path) -> list[str]:
@@ -345,7 +409,7 @@ def install_output(tmp: Path, out: Path) -> list[str]:
     clash = [f for f in new if (out / f).exists() and f not in mine]
     if clash:
         raise Sin3DMInputError(f"'{out / clash[0]}' was not written by sin3dm-lite and would be replaced; move it away and run again")
-    write_manifest(out, {**mine, **new})
+    write_manifest(out, replacing(out, mine, new))
     for f in sorted(mine, key=lambda f: -len(Path(f).parts)):
         (out / f).unlink(missing_ok=True)
         for d in list(Path(f).parents)[:-1]:  # folders of ours left empty

@@ -45,8 +45,9 @@ import numpy as np
 import torch
 
 from .errors import Sin3DMInputError
-from .files import (acquire_lock, append_manifest_part, atomic_write, file_record, foreign_files, is_ours,
-                    make_temp_dir, manifest_parts, read_manifest, read_manifest_parts, release_lock, write_manifest)
+from .files import (acquire_lock, append_manifest_part, file_record, foreign_files, is_ours,
+                    make_temp_dir, manifest_parts, read_manifest, read_manifest_parts, release_lock, replacing,
+                    write_manifest)
 
 SETTINGS = "sampling.json"
 SAMPLES = "samples.jsonl"
@@ -216,7 +217,7 @@ def remove_ours(out: Path) -> None:
 
 def prepare_folder(out: Path, a, settings: dict, run: str, names_for) -> list[int]:
     """Rank 0: check, lock and set up ``out``; returns the indices still to sample."""
-    from .files import check_writable, record_written
+    from .files import check_writable, write_recorded
 
     continuing = check_folder(out, a, settings, names_for)
     check_writable(out)
@@ -225,9 +226,8 @@ def prepare_folder(out: Path, a, settings: dict, run: str, names_for) -> list[in
     try:
         if not continuing:
             remove_ours(out)
-            atomic_write(out / SETTINGS, json.dumps({"tool": "sin3dm-lite", "kind": "samples", "run": run,
-                                                     "settings": settings}, indent=1))
-            record_written(out, [SETTINGS])
+            write_recorded(out / SETTINGS, json.dumps({"tool": "sin3dm-lite", "kind": "samples", "run": run,
+                                                       "settings": settings}, indent=1))
         done = finished(out)
     except BaseException:
         release_lock(out)
@@ -388,9 +388,11 @@ def finish_folder(model, out: Path, a, plan, label: str = "sample") -> dict[int,
         names = sorted(p.name for p in tmp.iterdir())
         new = file_record(tmp, names)
         m = read_manifest(out)
-        write_manifest(out, {**{f: st for f, st in m.items() if is_ours(out, f, m)}, **new})  # first: nothing unrecorded
+        m = {f: st for f, st in m.items() if is_ours(out, f, m)}
+        write_manifest(out, replacing(out, m, new))  # first: nothing of ours unrecorded, old or new
         for n in names:
             os.replace(tmp / n, out / n)
+        write_manifest(out, {**m, **new})
         for part in manifest_parts(out):  # merged into samples.jsonl and the manifest
             part.unlink(missing_ok=True)
     finally:

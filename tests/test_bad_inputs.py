@@ -349,6 +349,56 @@ def test_killed_sample_leaves_nothing_stale_and_the_next_run_succeeds(work, dela
     assert (work / "out" / "beside.txt").read_text() == "keep"
 
 
+class _Killed(BaseException):
+    """Stands for a SIGKILL at one exact step (the subprocess tests above hit such steps only by chance)."""
+
+
+def _kill(*_args, **_kwargs):
+    raise _Killed
+
+
+@pytest.mark.parametrize("step", ["before the move", "after the move"])
+def test_a_kill_while_a_recorded_file_is_replaced_leaves_it_ours(tmp_path, monkeypatch, step):
+    # CI once failed the test above: a kill between writing sampling.json and recording it made the
+    # rerun refuse our own file as foreign. Now the record comes first and keeps the old file acceptable.
+    from sin3dm_lite import files
+
+    out = tmp_path / "out"
+    files.write_recorded(out / "sampling.json", "old")
+    real = os.replace
+    if step == "before the move":
+        monkeypatch.setattr(os, "replace", lambda a, b: _kill() if Path(b).name == "sampling.json" else real(a, b))
+    else:
+        monkeypatch.setattr(files, "record_written", _kill)
+    with pytest.raises(_Killed):
+        files.write_recorded(out / "sampling.json", "newer")  # another size: a stat the old record cannot match
+    monkeypatch.undo()
+    assert (out / "sampling.json").read_text() == ("old" if step == "before the move" else "newer")
+    assert files.is_ours(out, "sampling.json") and files.foreign_files(out, ["sampling.json"]) == []
+    files.write_recorded(out / "sampling.json", "again!")
+    assert files.read_manifest(out) == {"sampling.json": files._stat(out / "sampling.json")}  # one stat once done
+
+
+def test_a_kill_while_an_output_folder_is_replaced_leaves_its_files_ours(tmp_path, monkeypatch):
+    from sin3dm_lite import files
+
+    out, tmp = tmp_path / "out", tmp_path / "tmp"
+    out.mkdir()
+    (out / "a.txt").write_text("old a")
+    (out / "b.txt").write_text("old b")
+    files.record_written(out, ["a.txt", "b.txt"])
+    tmp.mkdir()
+    (tmp / "a.txt").write_text("new a, longer")
+    (tmp / "b.txt").write_text("new b, longer")
+    real = os.replace
+    monkeypatch.setattr(os, "replace", lambda a, b: _kill() if Path(b).name == "b.txt" else real(a, b))
+    with pytest.raises(_Killed):
+        files.merge_output(tmp, out)  # killed with a.txt new and b.txt old
+    monkeypatch.undo()
+    assert [(out / n).read_text() for n in ("a.txt", "b.txt")] == ["new a, longer", "old b"]
+    assert files.foreign_files(out, ["a.txt", "b.txt"]) == []
+
+
 @pytest.mark.parametrize("stage, delay", [("start", 0.0), ("training", random.Random(2).uniform(0.0, 1.5))])
 def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay):
     run = work / "runs" / "r"
