@@ -319,6 +319,8 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
         name = folder_name(i)
         ours = read_manifest(out) if (out / name).exists() else None  # before this record joins it
         files = {f"{name}/{k}": v for k, v in file_record(tmp, sorted(p.name for p in tmp.iterdir())).items()}
+        if ours is not None:  # files of an earlier, killed try stay ours until this one replaces them
+            files = {f: st for f, st in replacing(out, ours, files).items() if f in files}
         append_manifest_part(out, f"rank{ranks.rank}", {
             "index": i, "seed": a.seed + i, "folder": name, "files": files, "faces": info["faces"],
             "seconds": round(time.perf_counter() - started, 3), "time": datetime.now().isoformat(timespec="milliseconds"),
