@@ -3,6 +3,9 @@
 * Atomically: a reader (or a crash) sees the old file or the new one, never half of one.
 * Never over another's files: an output folder records what this tool wrote
   in a manifest (``.sin3dm-manifest.json``); only those files are ever replaced.
+  A file is recorded *before* it appears, and a file of ours it replaces stays
+  recorded until the move is done (:func:`recorded_path`, :func:`replacing`),
+  so no kill makes our own file look foreign to the next run.
 * Temporary files and folders carry the writer's PID in their name, so that a
   later run removes the ones a killed process left behind
   (:func:`atomic_path` for one file, :func:`atomic_folder` for several).
@@ -59,11 +62,15 @@ def atomic_path(path: str | Path):
 def atomic_write(path: str | Path, data: bytes | str) -> Path:
     """Write ``data`` (text as UTF-8) to ``path`` atomically."""
     with atomic_path(path) as tmp:
-        if isinstance(data, str):
-            tmp.write_text(data, encoding="utf-8")
-        else:
-            tmp.write_bytes(data)
+        _write(tmp, data)
     return Path(path)
+
+
+def _write(path: Path, data: bytes | str) -> None:
+    if isinstance(data, str):
+        path.write_text(data, encoding="utf-8")
+    else:
+        path.write_bytes(data)
 
 
 # --------------------------------------------------------------------------- temporaries
@@ -321,10 +328,7 @@ def replacing(folder: Path, manifest: dict, new: dict[str, list[int]]) -> dict:
 def write_recorded(path: str | Path, data: bytes | str) -> Path:
     """Write ``data`` (text as UTF-8) to ``path`` atomically and record it in its folder's manifest (:func:`recorded_path`)."""
     with recorded_path(path) as tmp:
-        if isinstance(data, str):
-            tmp.write_text(data, encoding="utf-8")
-        else:
-            tmp.write_bytes(data)
+        _write(tmp, data)
     return Path(path)
 
 
