@@ -1046,6 +1046,32 @@ def plot_iou_matrix(grids: Sequence[np.ndarray], labels: Sequence[str] | None = 
     return fig
 
 
+def plot_layer_variation(reference: np.ndarray, grids: Sequence[np.ndarray], axis: int | str = "y") -> Figure:
+    """Where the samples differ, layer by layer along ``axis`` (default y: heights, bottom to top).
+
+    Left: the input's solid voxels per layer (what there is to vary). Right:
+    each layer's share of G-Div (:func:`metrics.g_div_by_layer`; the bars sum to G-Div).
+    """
+    from .metrics import g_div_by_layer
+
+    k = _axis_index(axis)
+    parts = g_div_by_layer(grids, k)
+    other = tuple(a for a in range(3) if a != k)
+    solid = np.asarray(reference, bool).sum(other)
+    layers = np.arange(len(parts))
+    fig = _figure(8.0, 1.6 + 0.08 * len(parts))
+    left, right = fig.subplots(1, 2, sharey=True)
+    left.barh(layers, solid, color="0.55", height=0.9)
+    left.set_xlabel("solid voxels in the input", fontsize=8)
+    left.set_ylabel(f"layer along {'xyz'[k]}", fontsize=8)
+    right.barh(layers, parts, color="tab:orange", height=0.9)
+    right.set_xlabel("share of G-Div", fontsize=8)
+    right.set_title(f"G-Div {parts.sum():.3f} = sum of the bars", fontsize=9)
+    for ax in (left, right):
+        ax.tick_params(labelsize=7)
+    return fig
+
+
 def _patch_strip(cube: np.ndarray, slices: Sequence[int]) -> np.ndarray:
     """Slices ``cube[:, :, k]`` of an occupancy patch side by side (x →, y ↑), NaN gaps between them."""
     parts = []

@@ -197,3 +197,32 @@ def test_results_table_lines_up_columns_and_marks_missing_values():
     assert next(line for line in lines if line.startswith("lp_iou")).split()[1:3] == ["0.500", "-"]
     with pytest.raises(Sin3DMInputError):
         M.results_table({})
+
+
+def _battlements(n=5, seed=0):
+    """A slab that every shape shares, with random columns on top (layers 8-10 of 12 along y)."""
+    rng = np.random.default_rng(seed)
+    body = np.zeros((16, 12, 10), bool)
+    body[2:14, 1:8, 3:7] = True
+    grids = []
+    for _ in range(n):
+        g = body.copy()
+        g[2:14, 8:11, 3:7] = rng.random((12, 1, 4)) < 0.5
+        grids.append(g)
+    return grids
+
+
+def test_g_div_by_layer_sums_to_g_div_and_shows_where_the_shapes_differ():
+    grids = _battlements()
+    parts = M.g_div_by_layer(grids, axis=1)
+    assert parts.shape == (12,) and parts.sum() == pytest.approx(M.g_div(grids))
+    assert np.all(parts[:8] == 0) and np.all(parts[8:11] > 0) and parts[11] == 0  # only the top varies
+    assert np.allclose(parts[8:11], parts[8])  # a column is one random choice: the same in all its layers
+    along_x = M.g_div_by_layer(grids, axis=0)
+    assert along_x.shape == (16,) and along_x.sum() == pytest.approx(M.g_div(grids))
+    assert np.all(along_x[:2] == 0) and np.all(along_x[14:] == 0)
+    assert np.all(M.g_div_by_layer([grids[0], grids[0]]) == 0)
+    with pytest.raises(Sin3DMInputError, match="at least two"):
+        M.g_div_by_layer(grids[:1])
+    with pytest.raises(Sin3DMInputError, match="axis must be 0, 1 or 2"):
+        M.g_div_by_layer(grids, axis=3)

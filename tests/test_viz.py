@@ -401,6 +401,19 @@ def test_plot_iou_matrix_shows_one_minus_iou_and_g_div():
     assert [t.get_text() for t in ax.get_xticklabels()] == ["a", "b", "a again"]
 
 
+def test_plot_layer_variation_draws_the_input_per_layer_and_g_div_per_layer():
+    grids = [np.zeros((8, 6, 4), bool) for _ in range(3)]
+    for k, g in enumerate(grids):
+        g[:, :3] = True  # the same body
+        g[k:k + 2, 3:5] = True  # a block on top, elsewhere in each
+    fig = viz.plot_layer_variation(grids[0], grids, axis="y")
+    left, right = fig.axes
+    assert [b.get_width() for b in left.patches] == [32, 32, 32, 8, 8, 0]
+    widths = np.array([b.get_width() for b in right.patches])
+    assert widths == pytest.approx(M.g_div_by_layer(grids, 1)) and np.all(widths[:3] == 0) and np.all(widths[3:5] > 0)
+    assert f"{M.g_div(grids):.3f}" in right.get_title()
+
+
 def test_plot_patch_matches_draws_each_pair_and_the_histogram():
     ref = np.zeros((30, 30, 30), bool)
     ref[:, :, :15] = True
