@@ -16,6 +16,7 @@ from PIL import Image
 
 from sin3dm_lite import metrics as M
 from sin3dm_lite import viz
+from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.triplane import pca_basis, pca_project, Triplane, plane_to_image
 
 from .conftest import rf_square
@@ -412,6 +413,8 @@ def test_plot_layer_variation_draws_the_input_per_layer_and_g_div_per_layer():
     widths = np.array([b.get_width() for b in right.patches])
     assert widths == pytest.approx(M.g_div_by_layer(grids, 1)) and np.all(widths[:3] == 0) and np.all(widths[3:5] > 0)
     assert f"{M.g_div(grids):.3f}" in right.get_title()
+    with pytest.raises(Sin3DMInputError, match="different shapes"):
+        viz.plot_layer_variation(grids[0][:4], grids)  # the input on another grid
 
 
 def test_plot_patch_matches_draws_each_pair_and_the_histogram():
