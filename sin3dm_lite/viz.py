@@ -1052,10 +1052,14 @@ def plot_layer_variation(reference: np.ndarray, grids: Sequence[np.ndarray], axi
     Left: the input's solid voxels per layer (what there is to vary). Right:
     each layer's share of G-Div (:func:`metrics.g_div_by_layer`; the bars sum to G-Div).
     """
-    from .metrics import _check_same_grid, g_div_by_layer
+    from .errors import Sin3DMInputError
+    from .metrics import g_div_by_layer
 
     k = _axis_index(axis)
-    _check_same_grid([np.asarray(reference, bool), *(np.asarray(g, bool) for g in grids)])  # one box
+    shapes = sorted({np.shape(reference), *(np.shape(g) for g in grids)})
+    if len(shapes) > 1:
+        raise Sin3DMInputError(f"the input and the samples are occupancy grids of different shapes {shapes}; "
+                               "voxelise them in the same box and resolution")
     parts = g_div_by_layer(grids, k)
     other = tuple(a for a in range(3) if a != k)
     solid = np.asarray(reference, bool).sum(other)
