@@ -183,6 +183,33 @@ def test_a_fit_saves_its_calibrated_diversity(calibrated):
     assert Sin3DM.load(run).config.sampling.diversity == cal["diversity"]  # what `sample` uses by default
 
 
+def test_a_fit_calibrated_to_pure_noise_hints_at_the_rollout(calibrated):
+    from sin3dm_lite.config import get_preset
+    from sin3dm_lite.pipeline import rollout_hint
+
+    small = get_preset("small")
+    hint = rollout_hint(small, {"diversity": 1.0, "kept_goals": True})
+    assert "--set diffusion.rollout=true" in hint and "get_preset('small').updated(**{'diffusion.rollout': True})" in hint
+    assert rollout_hint(small, {"diversity": 0.73, "kept_goals": True}) is None  # the canyon: its layout varies
+    assert rollout_hint(small, {"diversity": 1.0, "kept_goals": False}) is None  # 1 only as the lowest drawn
+    assert rollout_hint(small.updated(**{"diffusion.rollout": True}), {"diversity": 1.0, "kept_goals": True}) is None
+    assert rollout_hint(small, None) is None  # no calibration
+    model, run = calibrated  # the fit gives it exactly when it applies, and keeps it in report.json
+    report = json.loads((run / "report.json").read_text())
+    assert report.get("rollout_hint") == rollout_hint(model.config, report["calibration"])
+
+
+def test_a_plain_fit_that_keeps_the_goals_from_pure_noise_says_the_hint(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(C, "GOALS", {"lp_iou": 0.0, "lp_fscore": 0.0})  # kept at every setting: calibrated to 1
+    cfg = micro_config().updated(**{"sampling.calibrate": True, "diffusion.rollout": False})
+    model = Sin3DM.fit("wall", preset=cfg, out=tmp_path / "w", progress=True)
+    assert model.config.sampling.diversity == 1.0 and not model.config.diffusion.rollout
+    out = capsys.readouterr().out
+    report = json.loads((tmp_path / "w" / "report.json").read_text())
+    assert report["rollout_hint"] in out and "--set diffusion.rollout=true" in report["rollout_hint"]
+    assert ".updated(**{'diffusion.rollout': True})" in report["rollout_hint"]
+
+
 def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
     """The SDF's sign on the training grid (calibration) and the exported mesh voxelised (the metrics) agree, and
     the sign-only decode gives the full decode's signs voxel for voxel."""
