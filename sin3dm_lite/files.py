@@ -40,11 +40,13 @@ _TEMP_FILE = re.compile(r"^\..*\.sin3dm-(\d+)-[^.]*\.tmp")  # from atomic_path
 
 
 @contextmanager
-def atomic_path(path: str | Path):
+def atomic_path(path: str | Path, before_move=None):
     """Yield a temporary path next to ``path``; move it onto ``path`` when the block succeeds.
 
     The temporary name keeps ``path``'s suffix (``np.savez`` and friends care).
     On an exception the temporary file is removed and ``path`` is untouched.
+    ``before_move(tmp)``, if given, runs on the finished file just before the
+    move (:func:`recorded_path` records it there).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -53,6 +55,8 @@ def atomic_path(path: str | Path):
     try:
         yield Path(tmp)
         os.chmod(tmp, 0o644)  # mkstemp makes the file private; the result is an ordinary file
+        if before_move is not None:
+            before_move(Path(tmp))
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -295,30 +299,25 @@ def recorded_path(path: str | Path):
     """
     path = Path(path)
     folder, rel = path.parent, path.name
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.sin3dm-{os.getpid()}-", suffix=f".tmp{path.suffix}", dir=folder)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.chmod(tmp, 0o644)
+
+    def record(tmp: Path) -> None:  # os.replace keeps size and time
         m = read_manifest(folder)
-        write_manifest(folder, replacing(folder, m, {rel: _stat(tmp)}))  # os.replace keeps size and time
-        os.replace(tmp, path)
-        record_written(folder, [rel])  # the old file's stat is no longer acceptable
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+        write_manifest(folder, {**m, **replacing(folder, m, {rel: _stat(tmp)})})
+
+    with atomic_path(path, before_move=record) as tmp:
+        yield tmp
+    record_written(folder, [rel])  # the old file's stat is no longer acceptable
 
 
 def replacing(folder: Path, manifest: dict, new: dict[str, list[int]]) -> dict:
-    """``manifest`` with the files ``new`` (``{relative path: [size, mtime_ns]}``, about to be moved into ``folder``) added.
+    """The manifest entries of the files ``new`` (``{relative path: [size, mtime_ns]}``) about to be moved into
+    ``folder``: where one replaces a file of ours (by ``manifest``), its entry keeps the old stat beside the new.
 
-    Write it *before* the moves: a file of ours that one of them replaces stays
-    acceptable (its old stat is kept beside the new one), so a kill between the
-    manifest and the moves leaves nothing of ours looking foreign. Write the
-    plain manifest again once the moves are done.
+    Write ``{**manifest, **replacing(...)}`` *before* the moves, so a kill
+    between the manifest and the moves leaves nothing of ours looking foreign,
+    and the plain entries once the moves are done.
     """
-    out = dict(manifest)
+    out = {}
     for f, st in new.items():
         old = _stats(manifest[f]) if is_ours(folder, f, manifest) else []
         out[f] = old + [list(st)] if old else list(st)
@@ -387,7 +386,7 @@ def merge_output(tmp: Path, out: Path) -> None:
     names = sorted(p.name for p in Path(tmp).iterdir())
     new = {n: _stat(Path(tmp) / n) for n in names}  # os.replace keeps size and time
     old = read_manifest(out)
-    write_manifest(out, replacing(out, old, new))  # first: a kill leaves no file of ours unrecorded
+    write_manifest(out, {**old, **replacing(out, old, new)})  # first: a kill leaves no file of ours unrecorded
     for n in names:
         os.replace(Path(tmp) / n, Path(out) / n)
     write_manifest(out, {**old, **new})
@@ -413,7 +412,7 @@ def install_output(tmp: Path, out: Path) -> list[str]:
     clash = [f for f in new if (out / f).exists() and f not in mine]
     if clash:
         raise Sin3DMInputError(f"'{out / clash[0]}' was not written by sin3dm-lite and would be replaced; move it away and run again")
-    write_manifest(out, replacing(out, mine, new))
+    write_manifest(out, {**mine, **replacing(out, mine, new)})
     for f in sorted(mine, key=lambda f: -len(Path(f).parts)):
         (out / f).unlink(missing_ok=True)
         for d in list(Path(f).parents)[:-1]:  # folders of ours left empty

@@ -320,7 +320,7 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
         ours = read_manifest(out) if (out / name).exists() else None  # before this record joins it
         files = {f"{name}/{k}": v for k, v in file_record(tmp, sorted(p.name for p in tmp.iterdir())).items()}
         if ours is not None:  # files of an earlier, killed try stay ours until this one replaces them
-            files = {f: st for f, st in replacing(out, ours, files).items() if f in files}
+            files = replacing(out, ours, files)
         append_manifest_part(out, f"rank{ranks.rank}", {
             "index": i, "seed": a.seed + i, "folder": name, "files": files, "faces": info["faces"],
             "seconds": round(time.perf_counter() - started, 3), "time": datetime.now().isoformat(timespec="milliseconds"),
@@ -391,7 +391,7 @@ def finish_folder(model, out: Path, a, plan, label: str = "sample") -> dict[int,
         new = file_record(tmp, names)
         m = read_manifest(out)
         m = {f: st for f, st in m.items() if is_ours(out, f, m)}
-        write_manifest(out, replacing(out, m, new))  # first: nothing of ours unrecorded, old or new
+        write_manifest(out, {**m, **replacing(out, m, new)})  # first: nothing of ours unrecorded, old or new
         for n in names:
             os.replace(tmp / n, out / n)
         write_manifest(out, {**m, **new})

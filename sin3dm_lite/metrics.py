@@ -159,7 +159,8 @@ def input_occupancy(mesh, aabb, resolution: int = 128) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- whole-shape overlap
-def _check_same_grid(grids: list[np.ndarray]) -> None:
+def check_same_grid(grids: list[np.ndarray]) -> None:
+    """Refuse occupancy grids of different shapes (one clear error): they cannot be compared voxel by voxel."""
     shapes = {tuple(np.shape(g)) for g in grids}
     if len(shapes) > 1:
         raise Sin3DMInputError(
@@ -170,7 +171,7 @@ def _check_same_grid(grids: list[np.ndarray]) -> None:
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
     """Intersection over union of two occupancy grids of the same shape (1.0 when both are empty)."""
-    _check_same_grid([a, b])
+    check_same_grid([a, b])
     a, b = np.asarray(a, bool), np.asarray(b, bool)
     union = np.logical_or(a, b).sum()
     return 1.0 if union == 0 else float(np.logical_and(a, b).sum() / union)
@@ -179,7 +180,7 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
 def pairwise_iou(grids) -> np.ndarray:
     """``(n, n)`` IoU matrix of occupancy grids that share one shape."""
     grids = [np.asarray(g, bool) for g in grids]
-    _check_same_grid(grids)
+    check_same_grid(grids)
     grids = [g.reshape(-1) for g in grids]
     n = len(grids)
     out = np.ones((n, n))
@@ -217,7 +218,7 @@ def g_div_by_layer(grids, axis: int = 1) -> np.ndarray:
     grids = [np.asarray(g, bool) for g in grids]
     if len(grids) < 2:
         raise Sin3DMInputError(f"g_div_by_layer needs at least two shapes, got {len(grids)}")
-    _check_same_grid(grids)
+    check_same_grid(grids)
     if axis not in (0, 1, 2):
         raise Sin3DMInputError(f"axis must be 0, 1 or 2 (x, y, z), got {axis!r}")
     other = tuple(a for a in range(3) if a != axis)
@@ -781,6 +782,7 @@ def texture_scores(reference_views, sample_views, nets: FeatureNets | None = Non
 
 __all__ = [
     "FeatureNets",
+    "check_same_grid",
     "InceptionStem",
     "LPIPSAlex",
     "SSFID_UNAVAILABLE",

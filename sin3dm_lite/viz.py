@@ -1052,14 +1052,10 @@ def plot_layer_variation(reference: np.ndarray, grids: Sequence[np.ndarray], axi
     Left: the input's solid voxels per layer (what there is to vary). Right:
     each layer's share of G-Div (:func:`metrics.g_div_by_layer`; the bars sum to G-Div).
     """
-    from .errors import Sin3DMInputError
-    from .metrics import g_div_by_layer
+    from .metrics import check_same_grid, g_div_by_layer
 
     k = _axis_index(axis)
-    shapes = sorted({np.shape(reference), *(np.shape(g) for g in grids)})
-    if len(shapes) > 1:
-        raise Sin3DMInputError(f"the input and the samples are occupancy grids of different shapes {shapes}; "
-                               "voxelise them in the same box and resolution")
+    check_same_grid([reference, *grids])  # the input and the samples in one box
     parts = g_div_by_layer(grids, k)
     other = tuple(a for a in range(3) if a != k)
     solid = np.asarray(reference, bool).sum(other)
