@@ -252,12 +252,14 @@ def main() -> None:
               f"{v['lp_iou']:.3f} | {v['lp_f']:.3f} | {v['ceiling_lp_iou']:.2f}/{v['ceiling_lp_f']:.2f} | {_family_cell(row)} | {mesh_s} |")
 
 
-STAGES = ("grid_s", "autoencoder_s", "diffusion_s", "calibrate_s")
+STAGES = ("grid_s", "autoencoder_s", "rollout_switch_s", "diffusion_s", "calibrate_s")
 
 
 def _stages(t: dict) -> str:
-    """A fit's stage times: grid + autoencoder + diffusion, and the diversity calibration where the preset has one."""
-    names = {"grid_s": "grid", "autoencoder_s": "autoencoder", "diffusion_s": "diffusion", "calibrate_s": "calibration"}
+    """A fit's stage times: grid + autoencoder + diffusion, and the diversity calibration where the preset has one
+    (with the rollout switch, the plain denoiser and its calibration come before the rollout's)."""
+    names = {"grid_s": "grid", "autoencoder_s": "autoencoder", "rollout_switch_s": "plain denoiser + calibration",
+             "diffusion_s": "diffusion", "calibrate_s": "calibration"}
     return " + ".join(f"{names[k]} {t[k]:.0f}" for k in STAGES if k in t)
 
 

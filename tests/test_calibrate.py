@@ -207,6 +207,52 @@ def test_a_plain_fit_that_keeps_the_goals_from_pure_noise_says_the_hint(tmp_path
     assert ".updated(**{'diffusion.rollout': True})" in report["rollout_hint"]
 
 
+def _has_rollout(denoiser) -> bool:
+    return any(getattr(m, "rollout", False) for m in denoiser.modules())
+
+
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
+def test_a_fit_that_keeps_the_goals_from_pure_noise_switches_to_the_rollout(tmp_path, monkeypatch, capsys):
+    """With rollout_switch a plain fit calibrated to 1 trains its denoiser again with the rollout, says so, records
+    the first calibration and its time, and its run folder loads and resumes as what it is: a rollout denoiser."""
+    from sin3dm_lite.config import Config
+
+    monkeypatch.setattr(C, "GOALS", {"lp_iou": 0.0, "lp_fscore": 0.0})  # kept at every setting: calibrated to 1
+    cfg = micro_config().updated(**{"sampling.calibrate": True, "diffusion.rollout": False,
+                                    "rollout_switch": {"diffusion.rollout": True, "diffusion.steps": 20}})
+    run = tmp_path / "w"
+    model = Sin3DM.fit("wall", preset=cfg, out=run, progress=True)
+    out = capsys.readouterr().out
+    assert "trained again with the cross-plane rollout" in out and "--no-rollout-switch" in out
+    assert "rollout_hint" not in model.report
+    assert model.config.diffusion.rollout and model.config.diffusion.steps == 20 and not model.config.rollout_switch
+    assert _has_rollout(model.denoiser)  # the denoiser sampling uses is the rollout one
+    report = json.loads((run / "report.json").read_text())
+    switch = report["rollout_switch"]
+    assert switch["plain_calibration"] == {"diversity": 1.0, "kept_goals": True} and switch["plain_s"] > 0
+    t = report["timings_s"]
+    assert t["rollout_switch_s"] == switch["plain_s"] and t["diffusion_s"] > 0 and t["calibrate_s"] > 0
+    assert report["calibration"]["kept_goals"]
+    saved = Config.from_dict(json.loads((run / "config.json").read_text()))
+    assert saved.diffusion.rollout and not saved.rollout_switch
+    loaded = Sin3DM.load(run)
+    assert loaded.config.diffusion.rollout and _has_rollout(loaded.denoiser)
+    losses = json.loads((run / "losses.json").read_text())
+    assert len(losses["diffusion"]["loss"]) == 20  # the rollout denoiser's, not both
+
+    # killed during the second training: the run resumes with the rollout and keeps the record of its switch
+    (run / "model.pt").unlink()
+    (run / "report.json").write_text(json.dumps({"thin_parts_switch": None, "rollout_switch": switch}))
+    resumed = Sin3DM.fit("wall", out=run, resume=True, progress=True)
+    out = capsys.readouterr().out
+    assert "trained again" not in out and resumed.report["rollout_switch"] == switch
+    assert resumed.config.diffusion.rollout and resumed.report["timings_s"]["rollout_switch_s"] == switch["plain_s"]
+
+    # --no-rollout-switch (rollout_switch={}) keeps the plain denoiser and only hints
+    plain = Sin3DM.fit("wall", preset=cfg.updated(rollout_switch={}), out=tmp_path / "p", progress=False)
+    assert not plain.config.diffusion.rollout and plain.report["rollout_switch"] is None and "rollout_hint" in plain.report
+
+
 def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
     """The SDF's sign on the training grid (calibration) and the exported mesh voxelised (the metrics) agree, and
     the sign-only decode gives the full decode's signs voxel for voxel."""

@@ -247,11 +247,20 @@ def test_fit_passes_the_thin_part_switch_choice(tmp_path, monkeypatch, flag, swi
     assert cfg.grid.resolution == 64
 
 
+@pytest.mark.parametrize("flag, switches", [([], True), (["--no-rollout-switch"], False)])
+def test_fit_passes_the_rollout_switch_choice(tmp_path, monkeypatch, flag, switches):
+    """`fit` hands small with its rollout switch on; --no-rollout-switch turns it off and keeps the rest."""
+    cfg = _preset_fit_gets(tmp_path, monkeypatch, "wall", *flag)
+    assert cfg.name == "small" and bool(cfg.rollout_switch) is switches and cfg.diffusion.rollout is False
+    assert cfg.thin_parts  # the other switch is untouched
+
+
 def test_fit_set_changes_the_preset_and_names_a_bad_setting(capsys, tmp_path, monkeypatch):
     """`fit --set diffusion.rollout=true` fits small with the rollout; a misspelt setting is one line, no folder."""
     cfg = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--set", "diffusion.rollout=true", "diffusion.steps=1500")
     assert cfg.name == "small" and cfg.diffusion.rollout is True and cfg.diffusion.steps == 1500
     assert cfg.thin_parts and "diffusion.steps" not in cfg.thin_parts  # the user's steps survive a thin-part switch
+    assert cfg.rollout_switch == {}  # the rollout chosen by hand: nothing left to switch
     code, _, err = run(capsys, "fit", "wall", "--out", str(tmp_path / "bad"), "--set", "diffusion.rolout=true")
     assert code == 2 and "unknown config setting 'diffusion.rolout'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "bad").exists()

@@ -294,6 +294,14 @@ def test_small_switches_to_exactly_the_detail_settings():
     assert switched.updated(name="detail") == detail and switched.name == "small+thin"
     assert detail.thin_parts == {} and detail.for_thin_parts() == detail
     assert get_preset("quick").thin_parts == {}  # the light preset for CPUs without bf16 never switches
+    # the rollout switch: small has it, what already has the rollout (detail, paper) or a light CPU (quick) does not
+    assert small.rollout_switch and not detail.rollout_switch and not get_preset("quick").rollout_switch
+    rolled = small.for_rollout()
+    assert rolled.diffusion.rollout and rolled.diffusion.steps == 1250 and rolled.rollout_switch == {}
+    assert rolled.grid == small.grid and rolled.thin_parts == small.thin_parts and detail.for_rollout() == detail
+    assert small.updated(**{"diffusion.rollout": False}).rollout_switch == {}  # chosen by hand: kept
+    mine = small.updated(**{"diffusion.steps": 3000}).for_rollout()  # the user's steps survive the switch
+    assert mine.diffusion.rollout and mine.diffusion.steps == 3000
     # a setting the user changes is never undone by the switch; the others still switch
     mine = small.updated(**{"diffusion.n_resblocks": 6}).for_thin_parts()
     assert mine.diffusion.n_resblocks == 6 and mine.grid.resolution == 96
