@@ -253,6 +253,21 @@ def test_a_fit_that_keeps_the_goals_from_pure_noise_switches_to_the_rollout(tmp_
     assert not plain.config.diffusion.rollout and plain.report["rollout_switch"] is None and "rollout_hint" in plain.report
 
 
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
+def test_a_switched_fit_whose_rollout_keeps_no_goal_warns_with_the_way_back(tmp_path, monkeypatch):
+    """The switch's only risk, said plainly: the rollout denoiser kept no setting where the plain one did."""
+    def fake(model, reference, progress=True, **options):
+        kept = not model.config.diffusion.rollout  # the plain denoiser keeps the goals from pure noise, the rollout none
+        return C.Calibration(diversity=1.0 if kept else 0.5, goals={}, n=1, resolution=8, kept_goals=kept)
+
+    monkeypatch.setattr(C, "calibrate_diversity", fake)
+    cfg = micro_config().updated(**{"sampling.calibrate": True, "diffusion.rollout": False, "diffusion.steps": 5,
+                                    "rollout_switch": {"diffusion.rollout": True, "diffusion.steps": 5}})
+    with pytest.warns(UserWarning, match="with the cross-plane rollout no diversity setting kept.*--no-rollout-switch"):
+        model = Sin3DM.fit("wall", preset=cfg, out=tmp_path / "w", progress=False)
+    assert model.config.diffusion.rollout and model.report["rollout_switch"]["plain_calibration"]["kept_goals"]
+
+
 def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
     """The SDF's sign on the training grid (calibration) and the exported mesh voxelised (the metrics) agree, and
     the sign-only decode gives the full decode's signs voxel for voxel."""
