@@ -954,7 +954,8 @@ def _rollout_message(cfg: Config) -> str:
     return ("this shape keeps the input's patches even from pure noise (calibrated to diversity 1): its layout "
             "varies little whatever the knob, so the denoiser is trained again with the cross-plane rollout, which "
             "makes the planes agree on fine detail at no cost in variation (on the wall: whole bricks instead of "
-            "smeared joints), in about 1.8x the plain denoiser's time; to keep the plain denoiser: "
+            f"smeared joints): {cfg.for_rollout().diffusion.steps:,} steps, each about 1.8x a plain one; to keep "
+            "the plain denoiser: "
             f"--no-rollout-switch (Python: preset={python}.updated(rollout_switch={{}}))")
 
 
