@@ -254,6 +254,46 @@ def test_a_fit_that_keeps_the_goals_from_pure_noise_switches_to_the_rollout(tmp_
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
+def test_a_fit_interrupted_in_its_rollout_denoiser_resumes_to_the_same_model(tmp_path, monkeypatch):
+    """Ctrl-C during the second training leaves a rollout config, a rollout checkpoint and the switch's record;
+    --resume ends with the uninterrupted switched fit's model, bit for bit."""
+    import os
+    import signal
+
+    import torch
+
+    from sin3dm_lite import diffusion
+
+    monkeypatch.setattr(C, "GOALS", {"lp_iou": 0.0, "lp_fscore": 0.0})
+    cfg = micro_config().updated(**{"sampling.calibrate": True, "diffusion.rollout": False,
+                                    "rollout_switch": {"diffusion.rollout": True, "diffusion.steps": 20}})
+    Sin3DM.fit("wall", preset=cfg, out=tmp_path / "full", progress=False)
+    real_step = diffusion.DiffusionTrainer.step
+
+    def step_then_ctrl_c(self):
+        loss = real_step(self)
+        if self.cfg.rollout and self.step_count == 7:
+            os.kill(os.getpid(), signal.SIGINT)
+        return loss
+
+    monkeypatch.setattr(diffusion.DiffusionTrainer, "step", step_then_ctrl_c)
+    run = tmp_path / "cut"
+    with pytest.raises(KeyboardInterrupt):
+        Sin3DM.fit("wall", preset=cfg, out=run, progress=False)
+    assert json.loads((run / "config.json").read_text())["diffusion"]["rollout"] is True
+    assert torch.load(run / "diffusion.pt", weights_only=True)["step"] == 7
+    assert json.loads((run / "report.json").read_text())["rollout_switch"]["plain_calibration"]["kept_goals"]
+    monkeypatch.setattr(diffusion.DiffusionTrainer, "step", real_step)
+    resumed = Sin3DM.fit("wall", out=run, resume=True, progress=False)
+    a = torch.load(tmp_path / "full" / "model.pt", weights_only=True)
+    b = torch.load(run / "model.pt", weights_only=True)
+    for part in ("decoder", "denoiser", "latent"):
+        for k in a[part]:
+            assert torch.equal(a[part][k], b[part][k]), (part, k)
+    assert resumed.report["diffusion_steps"] == 20 and resumed.report["rollout_switch"]["plain_calibration"]["kept_goals"]
+
+
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
 def test_a_switched_fit_whose_rollout_keeps_no_goal_warns_with_the_way_back(tmp_path, monkeypatch):
     """The switch's only risk, said plainly: the rollout denoiser kept no setting where the plain one did."""
     def fake(model, reference, progress=True, **options):
