@@ -369,7 +369,7 @@ class Sin3DM:
 
         # stage 3: diffusion on the latent, stage 4: the diversity knob for this shape (calibrate.py)
         rollout = _read_report(run).get("rollout_switch") if resume and run is not None else None
-        model, history = cls._denoise(cfg, grid, h0, ae, metrics, dev, run, progress, say, timings, report_base={
+        base = {
             "preset": cfg.name,
             "input": grid.name,
             # the mesh file, so the run can be compared with its input later (Sin3DM.input_mesh)
@@ -377,8 +377,10 @@ class Sin3DM:
             "grid_shape": list(grid.shape),
             "thin_share": thin,  # ShapeGrid.thin_share of the training grid: share of the solid in parts under ~5 voxels thick
             "thin_parts_switch": thin_parts,  # {from, resolution, thin_share} when small switched to finer settings
-            "rollout_switch": rollout,  # {plain_calibration, plain_s} when a plain denoiser was trained again with the rollout
-        })
+        }
+        # rollout_switch: {plain_calibration, plain_s} when a plain denoiser was trained again with the rollout
+        model, history = cls._denoise(cfg, grid, h0, ae, metrics, dev, run, progress, say, timings,
+                                      {**base, "rollout_switch": rollout})
         calibration = model.report.get("calibration")
         if rollout is None and cfg.rollout_switch and keeps_goals_from_noise(cfg, calibration):
             # the shape's layout varies little whatever the knob: the rollout costs it no variation (rollout_hint)
@@ -392,13 +394,13 @@ class Sin3DM:
                 atomic_write(run / "report.json", json.dumps({"thin_parts_switch": thin_parts,
                                                               "rollout_switch": rollout}, indent=2))
             model, history = cls._denoise(cfg, grid, h0, ae, metrics, dev, run, progress, say, timings,
-                                          report_base={**model.report, "rollout_switch": rollout})
+                                          {**base, "rollout_switch": rollout})
             if not (model.report.get("calibration") or {}).get("kept_goals"):
                 import warnings
 
                 warnings.warn("with the cross-plane rollout no diversity setting kept the input's patches, which "
-                              "the plain denoiser did from pure noise; fit again without the switch (CLI: "
-                              "--no-rollout-switch; Python: preset=...updated(rollout_switch={}))", stacklevel=3)
+                              "the plain denoiser did from pure noise; fit again without the switch: "
+                              + _no_rollout_switch(cfg), stacklevel=3)
         if rollout is not None:
             timings["rollout_switch_s"] = rollout["plain_s"]
         report = model.report
@@ -436,7 +438,6 @@ class Sin3DM:
             "timings_s": timings,
             "device": str(dev),
         }
-        report.pop("calibration", None)
         model = cls(cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, report, dev)
         # stage 4: the diversity knob for this shape: the most varied samples that keep its patches
         if cfg.sampling.calibrate:
@@ -924,13 +925,21 @@ def _remove_failed_run(run: Path, existed: bool) -> None:
             pass  # someone put a file there meanwhile: leave it
 
 
+def _preset_expr(cfg: Config) -> str:
+    """How a user names the run's preset in Python: ``preset=get_preset('small')`` (or ``your Config``)."""
+    base = cfg.name.split("+")[0]
+    return f"preset=get_preset('{base}')" if base in PRESETS else "your Config"
+
+
 def _refit_advice(cfg: Config, setting: str, value, also: str = "") -> str:
     """"fit again with SETTING=VALUE (CLI: --set ...; Python: ...)" for the run's ``cfg``."""
-    base = cfg.name.split("+")[0]
-    change = f".updated(**{{'{setting}': {value!r}}})"
-    python = f"preset=get_preset('{base}'){change}" if base in PRESETS else f"your Config{change}"
+    python = f"{_preset_expr(cfg)}.updated(**{{'{setting}': {value!r}}})"
     cli = str(value).lower() if isinstance(value, bool) else value
     return f"fit again with {setting}={cli}{also} (CLI: --set {setting}={cli}; Python: {python})"
+
+
+def _no_rollout_switch(cfg: Config) -> str:
+    return f"--no-rollout-switch (Python: {_preset_expr(cfg)}.updated(rollout_switch={{}}))"
 
 
 def keeps_goals_from_noise(cfg: Config, calibration: dict | None) -> bool:
@@ -950,14 +959,11 @@ def keeps_goals_from_noise(cfg: Config, calibration: dict | None) -> bool:
 
 
 def _rollout_message(cfg: Config) -> str:
-    base = cfg.name.split("+")[0]
-    python = f"get_preset('{base}')" if base in PRESETS else "your Config"
     return ("this shape keeps the input's patches even from pure noise (calibrated to diversity 1): its layout "
             "varies little whatever the knob, so the denoiser is trained again with the cross-plane rollout, which "
             "makes the planes agree on fine detail at no cost in variation (on the wall: whole bricks instead of "
             f"smeared joints): {cfg.for_rollout().diffusion.steps:,} steps, each about 1.8x a plain one; to keep "
-            "the plain denoiser: "
-            f"--no-rollout-switch (Python: preset={python}.updated(rollout_switch={{}}))")
+            "the plain denoiser: " + _no_rollout_switch(cfg))
 
 
 def rollout_hint(cfg: Config, calibration: dict | None) -> str | None:
