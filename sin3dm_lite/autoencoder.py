@@ -35,7 +35,7 @@ from .config import AutoencoderConfig
 from .device import autocast
 from .grid import ShapeGrid
 from .training import Trainer
-from .triplane import Triplane
+from .triplane import PLANES, Triplane
 
 
 # --------------------------------------------------------------------------- encoder
@@ -63,13 +63,35 @@ class TriplaneEncoder(nn.Module):
 
 
 # --------------------------------------------------------------------------- decoder
-class PlaneResBlock(nn.Module):
-    """2D ResNet block applied to one plane: Conv5×5+IN+SiLU → Conv5×5 (zero-init), plus a 1×1 shortcut."""
+class MirrorConv2d(nn.Conv2d):
+    """A convolution whose kernel is symmetric along ``dims`` (-2: rows, -1: columns): it commutes with flipping
+    the plane along them, ``conv(x.flip(d)) == conv(x).flip(d)``. The stored weight is free; the forward uses
+    its average with its mirror image."""
 
-    def __init__(self, c_in: int, c_out: int, k: int = 5):
+    def __init__(self, c_in: int, c_out: int, k: int, dims: tuple[int, ...]):
+        super().__init__(c_in, c_out, k, padding=k // 2)
+        self.dims = tuple(dims)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        w = self.weight
+        for d in self.dims:
+            w = 0.5 * (w + w.flip(d))
+        return self._conv_forward(x, w, self.bias)
+
+
+#: the kernel axes a mirror decoder keeps symmetric on each plane: x and z flips (y is up, never flipped)
+MIRROR_DIMS = {"xy": (-2,), "xz": (-2, -1), "yz": (-1,)}
+
+
+class PlaneResBlock(nn.Module):
+    """2D ResNet block applied to one plane: Conv5×5+IN+SiLU → Conv5×5 (zero-init), plus a 1×1 shortcut.
+
+    With ``mirror`` (the plane's kernel axes to keep symmetric) it commutes with flips along them."""
+
+    def __init__(self, c_in: int, c_out: int, k: int = 5, mirror: tuple[int, ...] = ()):
         super().__init__()
-        self.conv1 = nn.Conv2d(c_in, c_out, k, padding=k // 2)
-        self.conv2 = nn.Conv2d(c_out, c_out, k, padding=k // 2)
+        self.conv1 = MirrorConv2d(c_in, c_out, k, mirror) if mirror else nn.Conv2d(c_in, c_out, k, padding=k // 2)
+        self.conv2 = MirrorConv2d(c_out, c_out, k, mirror) if mirror else nn.Conv2d(c_out, c_out, k, padding=k // 2)
         self.skip = nn.Conv2d(c_in, c_out, 1)
         nn.init.zeros_(self.conv2.weight)
         nn.init.zeros_(self.conv2.bias)
@@ -129,8 +151,9 @@ class TriplaneDecoder(nn.Module):
         super().__init__()
         self.geo_channels = cfg.geo_channels
         c, k = cfg.decoder_channels, cfg.decoder_kernel
-        self.geo_blocks = nn.ModuleList(PlaneResBlock(cfg.geo_channels, c, k) for _ in range(3))
-        self.tex_blocks = nn.ModuleList(PlaneResBlock(cfg.tex_channels, c, k) for _ in range(3))
+        dims = [MIRROR_DIMS[p] if cfg.mirror else () for p in PLANES]
+        self.geo_blocks = nn.ModuleList(PlaneResBlock(cfg.geo_channels, c, k, d) for d in dims)
+        self.tex_blocks = nn.ModuleList(PlaneResBlock(cfg.tex_channels, c, k, d) for d in dims)
         self.geo_mlp = SkipMLP(c, cfg.mlp_hidden, 1)
         self.color_channels = color_channels
         if cfg.pbr:

@@ -74,6 +74,9 @@ class AutoencoderConfig:
     far_weight: float = 0.5  # ... and where it points away from it
     precision: str = "auto"  # "bf16" (mixed precision), "fp32", or "auto": bf16 where the hardware runs it natively
     pbr: bool = False  # PBR variant: 8 texture channels in, two more decoder heads (metallic-roughness, normal)
+    # decoder convolutions symmetric along x and z, so a latent flipped along x or z decodes to the mirrored shape
+    # exactly (what lets the denoiser learn from mirrored copies of the latent: diffusion.flips)
+    mirror: bool = False
 
     @property
     def latent_channels(self) -> int:
@@ -97,6 +100,9 @@ class DiffusionConfig:
     batch_size: int = 32
     lr: float = 5e-4
     ema_decay: float = 0.9999  # use ~0.999 or 0 (raw weights) for short runs
+    # mirror each training copy of the latent along these axes at random ("x", "z" or "xz"; y is up and never
+    # flipped): four times the patches to learn from; needs autoencoder.mirror, or a flipped latent decodes to garbage
+    flips: str = ""
     crop: int = 0  # train on random crops of this many latent texels per axis (0: the whole latent, the paper)
     precision: str = "fp32"  # the training forward: "fp32", "bf16" (autocast) or "auto" (bf16 where the hardware runs it natively)
     compile: bool = False  # torch.compile the denoiser's training forward on a CUDA GPU (a CPU trains it as it is)

@@ -122,6 +122,25 @@ def random_crops(h0: Triplane, n: int, size: int, generator: torch.Generator) ->
     return Triplane(*(torch.cat(p, 0) for p in zip(*planes)))
 
 
+def check_flips(axes: str) -> None:
+    """``diffusion.flips`` names axes to mirror the latent along: "", "x", "z" or "xz" (y is up)."""
+    if not isinstance(axes, str) or set(axes) - set("xz") or len(set(axes)) != len(axes):
+        raise Sin3DMInputError(f"diffusion.flips must be '', 'x', 'z' or 'xz' (y is up and never flipped), not {axes!r}")
+
+
+def random_flips(x: Triplane, axes: str, generator: torch.Generator) -> Triplane:
+    """Mirror each latent of the batch along each of ``axes`` ("x", "z") with probability ½.
+
+    Only meaningful with a decoder that commutes with flips (``AutoencoderConfig.mirror``): then a flipped latent
+    is the latent of the mirrored shape, and the denoiser learns from up to four shapes instead of one.
+    """
+    for axis in axes:
+        pick = (torch.rand(x.batch, generator=generator, device=generator.device) < 0.5).to(x.device)
+        flipped = x.flipped(axis)
+        x = x.zip_map(flipped, lambda a, f: torch.where(pick[:, None, None, None], f, a))
+    return x
+
+
 class DiffusionTrainer(Trainer):
     """Trains the denoiser on one latent ``h0``, resumable bit for bit.
 
@@ -144,6 +163,7 @@ class DiffusionTrainer(Trainer):
             raise Sin3DMInputError(f"unknown prediction '{cfg.prediction}'; use 'x0' (the paper) or 'eps'")
         if cfg.precision not in PRECISIONS:
             raise Sin3DMInputError(f"unknown diffusion precision '{cfg.precision}'; use one of {', '.join(PRECISIONS)}")
+        check_flips(cfg.flips)
         super().__init__(cfg, device, seed)
         self.h0 = h0.detach().to(self.device, torch.float32).clone()
         self.schedule = NoiseSchedule.from_config(cfg)
@@ -165,6 +185,8 @@ class DiffusionTrainer(Trainer):
         """The denoising loss on a batch of noised copies (or crops) of ``h0``."""
         b, g = self.cfg.batch_size, self.generator
         x0 = self.h0.repeat(b) if self.cfg.crop <= 0 else random_crops(self.h0, b, self.cfg.crop, g)  # [B, C, ., .]
+        if self.cfg.flips:
+            x0 = random_flips(x0, self.cfg.flips, g)
         t = torch.randint(0, self.schedule.timesteps, (b,), generator=g, device=self.device)
         noise = Triplane.randn_like(x0, generator=g)
 

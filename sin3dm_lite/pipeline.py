@@ -37,6 +37,7 @@ from .autoencoder import AutoencoderTrainer, TriplaneDecoder
 from .config import PRESETS, Config, DiffusionConfig, get_preset
 from .decode import reconstructed_grid
 from .device import bf16_is_fast, get_device
+from .diffusion import check_flips
 from .errors import Sin3DMInputError
 from .files import acquire_lock, atomic_path, atomic_write, create_locked_folder, holds_lock, release_lock
 from .grid import THIN_SHARE_HINT, ShapeGrid, load_grid, mesh_to_grid, save_grid
@@ -224,7 +225,7 @@ class Sin3DM:
         report: dict | None = None,
         device=None,
     ):
-        from .diffusion import NoiseSchedule
+        from .diffusion import check_flips, NoiseSchedule
 
         self.config = config
         self.device = get_device(device)
@@ -872,9 +873,25 @@ def _choose_pbr(mesh: TexturedMesh, pbr: bool | None, preset, say) -> bool:
     return bool(pbr)
 
 
+def _check_flips(cfg: Config) -> None:
+    """``diffusion.flips`` needs a decoder that commutes with flips, and a colour that is not a direction."""
+    if not cfg.diffusion.flips:
+        return
+    check_flips(cfg.diffusion.flips)
+    if not cfg.autoencoder.mirror:
+        raise Sin3DMInputError(
+            f"diffusion.flips='{cfg.diffusion.flips}' needs autoencoder.mirror=true: only a decoder with mirror-symmetric "
+            "kernels decodes a flipped latent to the mirrored shape (CLI: --set autoencoder.mirror=true)")
+    if cfg.autoencoder.pbr:
+        raise Sin3DMInputError(
+            "diffusion.flips does not work with the PBR variant: a mirrored shape's normals change direction, which a "
+            "flipped latent does not say; fit with pbr=False (CLI: --no-pbr) or without flips")
+
+
 def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Config:
     """Resolve the config and check the run folder (new, or resumable)."""
     cfg = preset if isinstance(preset, Config) else get_preset(preset)
+    _check_flips(cfg)
     if seed is not None:
         cfg = cfg.updated(seed=seed)
     if run is None:

@@ -314,3 +314,25 @@ def test_training_on_crops_runs_and_samples_the_whole_latent(h0):
     trainer.run(progress=False)
     out = sample(trainer.model_for_sampling, trainer.schedule, LATENT_RES, n=1, steps=3, progress=False, device="cpu")
     assert out.resolution == LATENT_RES and all(torch.isfinite(p).all() for p in out.planes)
+
+
+def test_random_flips_mirror_each_copy_along_the_asked_axes(h0):
+    from sin3dm_lite.diffusion import random_flips
+
+    batch = h0.repeat(32)
+    out = random_flips(batch, "xz", torch.Generator().manual_seed(0))
+    variants = [h0, h0.flipped("x"), h0.flipped("z"), h0.flipped("x").flipped("z")]
+    seen = set()
+    for b in range(32):
+        match = [i for i, v in enumerate(variants) if all(torch.equal(p, q) for p, q in zip(out[b].planes, v.planes))]
+        assert len(match) == 1  # each copy is the latent or one of its mirror images, nothing in between
+        seen.add(match[0])
+    assert seen == {0, 1, 2, 3}
+    only_x = random_flips(batch, "x", torch.Generator().manual_seed(0))
+    torch.testing.assert_close(only_x.yz, batch.yz)  # x flips leave the yz plane alone
+
+
+@pytest.mark.parametrize("flips", ["y", "xx", "xyz"])
+def test_flips_along_other_axes_are_a_clear_error(h0, flips):
+    with pytest.raises(Sin3DMInputError, match="never flipped"):
+        DiffusionTrainer(h0, tiny_diffusion_cfg(flips=flips), device="cpu")

@@ -358,3 +358,21 @@ def test_the_quick_preset_is_small_with_a_lighter_autoencoder():
     assert quick.autoencoder.mlp_hidden < small.autoencoder.mlp_hidden
     assert quick.autoencoder.points_per_step * quick.autoencoder.steps < small.autoencoder.points_per_step * small.autoencoder.steps
     assert replace(quick.diffusion, steps=small.diffusion.steps) == small.diffusion
+
+
+def test_flip_augmentation_fits_with_a_mirror_decoder_and_refuses_without(tmp_path):
+    from sin3dm_lite.autoencoder import MirrorConv2d
+
+    cfg = micro_config().updated(**{"diffusion.flips": "xz"})
+    with pytest.raises(Sin3DMInputError, match="autoencoder.mirror=true"):
+        Sin3DM.fit("wall", preset=cfg, out=tmp_path / "plain", progress=False)
+    with pytest.raises(Sin3DMInputError, match="PBR"):
+        Sin3DM.fit("wall", preset=cfg.updated(**{"autoencoder.mirror": True}), out=tmp_path / "pbr", pbr=True,
+                   progress=False)
+    assert not (tmp_path / "plain").exists() and not (tmp_path / "pbr").exists()  # refused before writing
+    run = tmp_path / "mirror"
+    Sin3DM.fit("wall", preset=cfg.updated(**{"autoencoder.mirror": True}), out=run, progress=False)
+    model = Sin3DM.load(run)
+    assert model.config.diffusion.flips == "xz" and isinstance(model.decoder.geo_blocks[1].conv1, MirrorConv2d)
+    s = model.sample(2, seed=0, progress=False)
+    assert s.triplane.batch == 2 and all(torch.isfinite(p).all() for p in s.triplane.planes)
