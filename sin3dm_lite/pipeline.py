@@ -225,7 +225,7 @@ class Sin3DM:
         report: dict | None = None,
         device=None,
     ):
-        from .diffusion import check_flips, NoiseSchedule
+        from .diffusion import NoiseSchedule
 
         self.config = config
         self.device = get_device(device)
@@ -874,7 +874,7 @@ def _choose_pbr(mesh: TexturedMesh, pbr: bool | None, preset, say) -> bool:
 
 
 def _check_flips(cfg: Config) -> None:
-    """``diffusion.flips`` needs a decoder that commutes with flips, and a colour that is not a direction."""
+    """``diffusion.flips`` needs a decoder that commutes with flips (autoencoder.mirror), and no PBR normals."""
     if not cfg.diffusion.flips:
         return
     check_flips(cfg.diffusion.flips)
