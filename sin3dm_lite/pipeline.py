@@ -663,13 +663,16 @@ class Sin3DM:
 
         All at the voxel size the input's box has at ``resolution`` (larger
         samples look larger). The reconstruction's grid is computed once per
-        resolution and kept.
+        resolution and kept. Each shape is decoded at twice the picture's
+        voxels (not the export's mesh resolution): a picture needs no more.
         """
         from .viz import plot_projections
 
         if resolution not in self._reconstruction_occupancy:
-            self._reconstruction_occupancy[resolution] = self.occupancy(self.input_sample(), resolution)[0]
-        grids = self.occupancy(samples, self.same_voxels(samples, resolution))
+            self._reconstruction_occupancy[resolution] = self.occupancy(
+                self.input_sample(), resolution, mesh_resolution=2 * resolution)[0]
+        res = self.same_voxels(samples, resolution)
+        grids = self.occupancy(samples, res, mesh_resolution=2 * res)
         labels = list(labels) if labels is not None else [f"{i:03d}" for i in range(len(grids))]
         return plot_projections([self._reconstruction_occupancy[resolution], *grids], ["input", *labels])
 

@@ -376,3 +376,17 @@ def test_flip_augmentation_fits_with_a_mirror_decoder_and_refuses_without(tmp_pa
     assert model.config.diffusion.flips == "xz" and isinstance(model.decoder.geo_blocks[1].conv1, MirrorConv2d)
     s = model.sample(2, seed=0, progress=False)
     assert s.triplane.batch == 2 and all(torch.isfinite(p).all() for p in s.triplane.planes)
+
+
+def test_plot_beside_input_draws_each_shape_at_the_inputs_voxel_size_decoded_for_the_picture(fitted, monkeypatch):
+    model, _ = fitted
+    samples = model.sample(2, resize=(1.5, 1.0, 1.0), seed=0, progress=False)
+    asked = []
+    to_mesh = Sin3DM.to_mesh
+    monkeypatch.setattr(Sin3DM, "to_mesh", lambda self, s, i, **kw: asked.append(kw["resolution"]) or to_mesh(self, s, i, **kw))
+    fig = model.plot_beside_input(samples, 16, ["a", "b"])
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert titles == ["input", "a", "b"]
+    widths = [ax.images[0].get_array().shape[1] for ax in fig.axes[:3]]  # front views: x across
+    assert widths[1] == widths[2] == round(1.5 * widths[0])  # the longer samples look longer
+    assert asked == [32, 48, 48]  # twice the picture's voxels, not the export's mesh resolution
