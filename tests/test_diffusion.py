@@ -336,3 +336,25 @@ def test_random_flips_mirror_each_copy_along_the_asked_axes(h0):
 def test_flips_along_other_axes_are_a_clear_error(h0, flips):
     with pytest.raises(Sin3DMInputError, match="never flipped"):
         DiffusionTrainer(h0, tiny_diffusion_cfg(flips=flips), device="cpu")
+
+
+def test_a_trainer_with_flips_trains_on_mirrored_copies_and_one_without_does_not(h0, monkeypatch):
+    from sin3dm_lite import diffusion
+
+    seen = []
+    real_loss = diffusion.diffusion_loss
+    monkeypatch.setattr(diffusion, "diffusion_loss", lambda m, s, x0, *a: seen.append(x0) or real_loss(m, s, x0, *a))
+    mirrored = h0.flipped("x")
+
+    def kinds(flips):
+        seen.clear()
+        DiffusionTrainer(h0, tiny_diffusion_cfg(steps=3, batch_size=8, flips=flips), device="cpu").run(progress=False)
+        out = set()
+        for x0 in seen:
+            for b in range(x0.batch):
+                same = lambda v: all(torch.equal(p, q) for p, q in zip(x0[b].planes, v.planes))  # noqa: E731
+                out.add("input" if same(h0) else "mirrored" if same(mirrored) else "other")
+        return out
+
+    assert kinds("x") == {"input", "mirrored"}
+    assert kinds("") == {"input"}
