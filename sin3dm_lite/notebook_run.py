@@ -128,7 +128,7 @@ def run_notebook(path: str | Path, fast: bool = False, timeout: int = 1800, kern
     start = time.perf_counter()
     try:
         NotebookClient(nb, timeout=timeout, kernel_name=kernel, resources={"metadata": {"path": str(path.parent)}},
-                       record_timing=False, store_widget_state=False).execute()
+                       record_timing=False).execute()  # widget state is kept while running (Output widgets need it), stripped below
     finally:
         if saved is None:
             os.environ.pop("SIN3DM_FAST", None)
