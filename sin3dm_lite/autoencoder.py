@@ -40,7 +40,7 @@ from .triplane import PLANES, Triplane
 
 # --------------------------------------------------------------------------- encoder
 class TriplaneEncoder(nn.Module):
-    """Conv3D (k4, s2) + axis mean-pooling + InstanceNorm + ×0.5 + tanh (REFERENCE.md "Triplane autoencoder")."""
+    """Conv3D (k4, s2) + axis mean-pooling + InstanceNorm + ×0.5 + tanh (docs/paper-notes.md "Triplane autoencoder")."""
 
     def __init__(self, cfg: AutoencoderConfig, color_channels: int = 3):
         super().__init__()

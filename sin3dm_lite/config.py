@@ -5,7 +5,7 @@
 * ``small`` – for a laptop CPU: the whole fit in about 4-4.5 minutes on 2 cores,
   a 64-voxel grid and a 32-texel latent. Its U-Net has no downsampling level and
   no cross-plane rollout so that what it sees shrinks with the latent
-  (REFERENCE.md, last section: with the paper's network on a 32-wide latent
+  (docs/paper-notes.md, last section: with the paper's network on a 32-wide latent
   every sample is a copy). The fit ends by choosing the diversity knob for the
   shape (``sampling.calibrate``: the most varied setting whose samples keep the
   input's patches, :mod:`sin3dm_lite.calibrate`), which the run's config keeps.
@@ -45,7 +45,7 @@ from .errors import Sin3DMInputError
 
 @dataclass
 class GridConfig:
-    """Mesh → truncated SDF + colour grid (REFERENCE.md "Input grid")."""
+    """Mesh → truncated SDF + colour grid (docs/paper-notes.md "Input grid")."""
 
     resolution: int = 128  # voxels along the longest side (each axis rounded up to a multiple of 8)
     threshold_voxels: float = 3.0  # truncation band, in voxels
@@ -56,7 +56,7 @@ class GridConfig:
 
 @dataclass
 class AutoencoderConfig:
-    """Triplane autoencoder (REFERENCE.md "Triplane autoencoder")."""
+    """Triplane autoencoder (docs/paper-notes.md "Triplane autoencoder")."""
 
     geo_channels: int = 4  # latent channels 0..3 describe geometry
     tex_channels: int = 8  # latent channels 4..11 describe texture
@@ -85,7 +85,7 @@ class AutoencoderConfig:
 
 @dataclass
 class DiffusionConfig:
-    """Triplane diffusion model (REFERENCE.md "Diffusion on triplanes")."""
+    """Triplane diffusion model (docs/paper-notes.md "Diffusion on triplanes")."""
 
     base_channels: int = 64
     n_resblocks: int = 4  # 2 / 4 / 6 as in the paper's receptive-field ablation

@@ -251,8 +251,8 @@ def start_step(schedule: NoiseSchedule, diversity: float) -> int:
 
     The knob is the share of the reverse process that runs. 1 starts at T-1
     from pure noise (the paper); 0 runs nothing and returns the input. With
-    the linear β schedule the noise share ``1 - ᾱ_t0`` rises fast: 0.1 → 0.1,
-    0.3 → 0.7, 0.5 → 0.92, 0.7 → 0.99, so most of the variation comes from
+    the linear β schedule the noise share ``1 - ᾱ_t0`` rises fast: 0.1 → 0.10,
+    0.3 → 0.61, 0.5 → 0.92, 0.7 → 0.99, so most of the variation comes from
     settings above ~0.3, where the input's large shapes are drowned.
     """
     if isinstance(diversity, bool) or not (isinstance(diversity, (int, float)) and 0.0 <= float(diversity) <= 1.0):

@@ -24,7 +24,7 @@ The decoder protocol (see ``autoencoder.py``)::
     prepared = decoder.prepare(triplane)          # per-plane 2D conv blocks, once per triplane
     sdf, color = decoder.query(prepared, points)  # points [B, N, 3] in box coordinates [-1, 1]^3
 
-Two flaws of the original implementation are avoided on purpose (REFERENCE.md,
+Two flaws of the original implementation are avoided on purpose (docs/paper-notes.md,
 "Decoding to a textured mesh"): the 2D conv blocks run once per triplane, not
 once per chunk of query points, and marching-cubes vertices are placed on the
 voxel centres (no half-voxel shift). All components are kept by default and the

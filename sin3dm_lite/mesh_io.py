@@ -7,7 +7,7 @@ material textures, vertex colours, or a plain material colour).  Keeping the
 materials separate (instead of packing them into one atlas) means a
 multi-material OBJ or a glTF scene loses nothing.
 
-The paper normalises every input the same way (REFERENCE.md, "Input grid"):
+The paper normalises every input the same way (docs/paper-notes.md, "Input grid"):
 centre the bounding box, scale so that the longest side times 1.03 spans
 [-1, 1]. :class:`Normalization` keeps that transform so generated shapes can
 be mapped back into the input's own coordinates.

@@ -288,7 +288,7 @@ def _best_matches(gen: np.ndarray, ref: np.ndarray, max_entries: int = 2**23,
 
 def lp_scores(reference: np.ndarray, generated, patch: int = 11, stride: int = 5, center: int = 3,
               max_patches: int = 1000, threshold: float = 0.95, seed: int = 0) -> dict:
-    """LP-IoU and LP-F-score (REFERENCE.md "Evaluation", from the SSG / Sin3DM evaluation).
+    """LP-IoU and LP-F-score (docs/paper-notes.md "Evaluation", from the SSG / Sin3DM evaluation).
 
     For each generated shape: take its surface patches (:func:`extract_patches`),
     keep at most ``max_patches`` of them chosen at random (``seed``), and find

@@ -729,7 +729,7 @@ class Sin3DM:
 
     def evaluate(self, samples, input_mesh=None, resolution: int = 64, views: int = 8, size: int = 256,
                  weights=None, progress: bool = True) -> dict:
-        """The paper's metrics of generated shapes against the input mesh (REFERENCE.md "Evaluation").
+        """The paper's metrics of generated shapes against the input mesh (docs/paper-notes.md "Evaluation").
 
         ``samples``: a :class:`Samples` (decoded here) or meshes in the input
         file's coordinates (what ``sample`` exports). ``input_mesh``: a mesh,

@@ -381,7 +381,7 @@ def receptive_field(
     in the map is a little smaller (``measured_width``: 25 of 28 texels for the
     paper network at 128). The paper quotes ≈ 40 % of a 128 map for its
     network; the gradient through its convolutions covers 28 × 28 texels
-    (≈ 22 %, REFERENCE.md), exactly the computed value here.
+    (≈ 22 %, docs/paper-notes.md), exactly the computed value here.
     (2) GroupNorm statistics and the cross-plane means couple every texel to
     every other one: formally the field is global. The coupling is weak and
     shrinks as the map grows: GroupNorm's scales like 1 / texels per norm group

@@ -353,8 +353,10 @@ def _view_words(name: str, up: int) -> str:
     """How a picture of plane ``name`` (first axis →, second ↑) looks at the shape when axis ``up`` is vertical."""
     u, v = PLANE_AXES[name]
     lacking = 3 - u - v
-    if lacking == up:
-        return f"seen from above ({AXES[u]} →, {AXES[v]} ↑)"
+    if lacking == up:  # a plan: a true top view when (→, ↑, up) is right-handed, else the view from below
+        if (u, v, lacking) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+            return f"seen from above ({AXES[u]} →, {AXES[v]} ↑)"
+        return f"seen from below ({AXES[u]} →, {AXES[v]} ↑):\n    a top view, mirrored"
     side = f"a side view along {AXES[lacking]}"
     if v == up:
         return f"{side} ({AXES[u]} →, {AXES[v]} ↑: upright)"
@@ -866,8 +868,8 @@ def plot_projections(grids: Sequence[np.ndarray], titles: Sequence[str] | None =
 
     A static picture of decoded shapes (e.g. from ``Sin3DM.occupancy``) that
     needs no 3D viewer. With ``up="y"`` the front view looks along z (x →,
-    y ↑) and the top view along y (x →, z ↑). Grids of different sizes keep
-    their relative sizes.
+    y ↑) and the top view along y (x →, z ↑: as seen from below, a mirrored
+    top view). Grids of different sizes keep their relative sizes.
     """
     grids = [_numpy(g) for g in grids]
     ui = _axis_index(up)

@@ -21,6 +21,7 @@ STAGES = {
     "extract": 3, "export": 3, "control": 3,  # generate
     "metrics": 4, "viz": 4, "widgets": 4, "viewer": 4, "render": 4, "calibrate": 4,  # eval and show
     "pipeline": 5, "cli": 5, "mass": 5, "runs": 5, "examples": 5, "pretrained": 5,  # the facade and its built-in inputs
+    "notebook_run": 5,  # the tool that runs the notebooks and records their outputs
 }
 
 

@@ -23,7 +23,7 @@ def box_sdf(p, half):
 
 
 def test_grid_dims_follow_the_paper():
-    # REFERENCE.md: extents 4.56 x 6.32 x 4.54 at 256 → 184 x 256 x 184
+    # docs/paper-notes.md: extents 4.56 x 6.32 x 4.54 at 256 → 184 x 256 x 184
     assert grid_dims(np.array([4.56, 6.32, 4.54]), 256) == (184, 256, 184)
     assert all(d % 8 == 0 for d in grid_dims(np.array([1.0, 0.33, 0.1]), 64))
 

@@ -465,7 +465,7 @@ def test_plot_plane_axes_labels_each_plane_on_its_wall(sphere_grid, shape, tmp_p
     text = _text(fig)
     for name, lacking in (("xy", "z"), ("xz", "y"), ("yz", "x")):
         assert f"{name} plane\n(mean over {lacking})" in text
-    assert "y (up)" in text and "xz: seen from above (x →, z ↑)" in text  # y up: xz is the top view
+    assert "y (up)" in text and "xz: seen from below (x →, z ↑)" in text  # y up: xz with z ↑ is a mirrored top view
     assert "xy: a side view along z (x →, y ↑: upright)" in text
     assert "slice across y (horizontal): x →, z ↑" in text and "slice across x (vertical): z →, y ↑" in text
     # the planes lie on the walls at the minimum of the axis each lacks
