@@ -689,6 +689,23 @@ def cmd_calibrate(a) -> None:
           f"`sin3dm-lite sample {run}` uses it, --diversity overrides it")
 
 
+def disk_error(e: OSError, out: str | None = None) -> str:
+    """One line for a failed write or read (in this process or in an export worker): what, where and the fix.
+
+    ``out``: the command's ``--out``, named when the error names no file (a ``write`` on a full disk).
+    """
+    import errno
+
+    from .files import shown_path
+
+    where = f" {shown_path(e.filename)}" if e.filename else ""
+    if e.errno in (errno.ENOSPC, errno.EDQUOT):
+        what = "no space left on device" if e.errno == errno.ENOSPC else "disk quota exceeded"
+        where = where or (f" into '{out}'" if out else " the output")
+        return f"{what} while writing{where}; free space or choose another --out"
+    return f"{e.strerror or e}{where}; check that path (permissions, free space) or choose another --out"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -710,9 +727,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # the disk, not the code: a full disk, a folder made read-only meanwhile
-        where = f" '{e.filename}'" if e.filename else ""
-        print(f"sin3dm-lite {a.command}: error: {e.strerror or e}{where}; check that path (permissions, free space) "
-              "or choose another --out", file=sys.stderr)
+        print(f"sin3dm-lite {a.command}: error: {disk_error(e, getattr(a, 'out', None))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -39,7 +39,8 @@ from .decode import reconstructed_grid
 from .device import bf16_is_fast, get_device
 from .diffusion import check_flips
 from .errors import Sin3DMInputError
-from .files import acquire_lock, atomic_path, atomic_write, create_locked_folder, holds_lock, release_lock
+from .files import (acquire_lock, atomic_path, atomic_write, create_locked_folder, holds_lock, release_lock,
+                    save_torch)
 from .grid import THIN_SHARE_HINT, ShapeGrid, load_grid, mesh_to_grid, save_grid
 from .mesh_io import Normalization, TexturedMesh
 from .metrics import reconstruction_metrics
@@ -134,7 +135,7 @@ def quick_hint(cfg: Config, device) -> str | None:
 def atomic_torch_save(obj, path: Path) -> None:
     """Write ``obj`` with ``torch.save`` so that ``path`` is either the old or the new file, never half of one."""
     with atomic_path(path) as tmp:
-        torch.save(obj, tmp)
+        save_torch(obj, tmp)  # a full disk: OSError(ENOSPC), not torch's "unexpected pos" RuntimeError
 
 
 def _not_ours(path: Path, what: str, why: str) -> Sin3DMInputError:
