@@ -123,7 +123,7 @@ def shown_path(path: str | Path) -> str:
 
 def named(e: OSError, path: str | Path) -> OSError:
     """``e`` itself if it names a file, else the same error naming ``path`` (``fh.write`` on a full disk names none)."""
-    return e if e.filename else type(e)(e.errno, e.strerror or str(e), str(path))
+    return e if e.filename or e.errno is None else OSError(e.errno, e.strerror or str(e), str(path))
 
 
 def write_failed(path: Path, detail: str) -> OSError:
