@@ -33,7 +33,6 @@ from __future__ import annotations
 import base64
 import io
 import json
-import os
 import re
 import struct
 from dataclasses import dataclass, field, replace
@@ -410,7 +409,7 @@ class _Scope:
         return self.anywhere or p.resolve().is_relative_to(self.mesh.parent.resolve())
 
     def refuse(self, ref: str, what: str, found: Path) -> Sin3DMInputError:
-        link = ", through a symbolic link" if Path(os.path.abspath(found)) != found.resolve() else ""
+        link = ", through a symbolic link" if found.is_symlink() else ""
         return Sin3DMInputError(
             f"'{self.mesh.name}' names a file outside its folder: {what} '{ref}' is '{found.resolve()}'{link}; a mesh "
             f"file may only make sin3dm-lite read files in its own folder '{self.mesh.parent.resolve()}': copy the "
@@ -1074,7 +1073,8 @@ def _resolver(path: Path, scope: _Scope):
 
 def _ply_texture_file(path: Path) -> str | None:
     """The ``comment TextureFile NAME`` of a PLY header (trimesh loads that image), or None."""
-    head = path.read_bytes()[:65536].split(b"end_header", 1)[0].decode("latin-1")
+    with open(path, "rb") as f:
+        head = f.read(65536).split(b"end_header", 1)[0].decode("latin-1")
     for line in head.splitlines():
         at = line.lower().find("texturefile")
         if at >= 0:
