@@ -159,6 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--resolution", type=int, default=128, help="voxels along the longest side, 16-512")
     g.add_argument("--out", required=True, help="output .npz file")
     g.add_argument("--overwrite", action="store_true", help="replace an existing grid file that sin3dm-lite wrote")
+    _outside_paths_arg(g)
 
     f = command("fit")
     f.add_argument("mesh", help=mesh_help)
@@ -180,6 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="change settings of the preset, e.g. --set diffusion.rollout=true (crisper brick-like "
                         "textures, README 'Measured') diffusion.steps=3000; names as in the run's config.json")
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
+    _outside_paths_arg(f)
 
     s = command("sample")
     _sample_args(s)
@@ -205,6 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="output folder (new or empty; see --overwrite)")
     r.add_argument("--overwrite", action="store_true",
                    help="write into a non-empty --out, replacing only the files sin3dm-lite wrote there before")
+    _outside_paths_arg(r)
 
     v = command("evaluate")
     v.add_argument("run", help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon)")
@@ -219,6 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--size", type=_positive_int, default=256, help="render size in pixels, 16-4096; the paper uses 512")
     v.add_argument("--resolution", type=_positive_int, default=64,
                    help="voxels along the longest side for the geometry metrics, 16-512; the paper uses 128")
+    _outside_paths_arg(v)
 
     c = command("calibrate")
     c.add_argument("run", help="run folder written by `sin3dm-lite fit` (a shipped model's name: print only)")
@@ -230,7 +234,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="first sample seed (the k-th setting drawn takes seeds from seed + 1000·k)")
     c.add_argument("--lp-iou", type=_unit_score, default=None, help="LP-IoU the samples must keep (default: 0.55)")
     c.add_argument("--lp-f", type=_unit_score, default=None, help="LP-F the samples must keep (default: 0.70)")
+    _outside_paths_arg(c)
     return p
+
+
+def _outside_paths_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--allow-outside-paths", action="store_true",
+                   help="let the mesh file name textures, material libraries and buffers outside its own folder "
+                        "(refused by default: a mesh from the internet must not make sin3dm-lite read other files)")
 
 
 def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
@@ -359,7 +370,7 @@ def cmd_grid(a) -> None:
     if out.exists() and not is_ours(out.parent, out.name):
         raise Sin3DMInputError(f"'{out}' was not written by sin3dm-lite; move it away or choose another --out")
     check_writable(out)
-    mesh = resolve_mesh(a.mesh)
+    mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
     grid = mesh_to_grid(mesh, a.resolution)
     remove_stale_temps(out.parent)
     with recorded_path(out) as tmp:
@@ -380,7 +391,8 @@ def cmd_fit(a) -> None:
     if not a.rollout_switch:
         changes["rollout_switch"] = {}
     preset = get_preset(a.preset).updated(**changes) if changes else a.preset
-    model = Sin3DM.fit(a.mesh, preset=preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device, pbr=a.pbr)
+    model = Sin3DM.fit(a.mesh, preset=preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device, pbr=a.pbr,
+                       allow_outside_paths=a.allow_outside_paths)
     r = model.report["reconstruction"]
     print(
         f"fit done in {time.perf_counter() - t0:.0f} s: occupancy IoU {r['occupancy_iou']:.3f}, "
@@ -562,7 +574,7 @@ def cmd_render(a) -> None:
         check_not_overlapping(out, {"input mesh": Path(a.mesh)})
     check_output_folder(out, a.overwrite, names)
     check_writable(out)
-    mesh = resolve_mesh(a.mesh)
+    mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
     t0 = time.perf_counter()
     views = render_views(mesh, n_views=a.views, size=a.size, elevation=a.elevation)
     hero = render_hero(mesh, size=a.size)
@@ -639,7 +651,8 @@ def cmd_evaluate(a) -> None:
         check_writable(out)
     nets = load_feature_weights(a.weights) if a.weights else None  # a missing file fails before the long work
     model = Sin3DM.load(run)
-    reference = model.input_mesh() if a.input is None else resolve_mesh(a.input)
+    allow = a.allow_outside_paths
+    reference = model.input_mesh(allow) if a.input is None else resolve_mesh(a.input, allow_outside_paths=allow)
     meshes = []
     for f in files:
         try:
@@ -661,7 +674,7 @@ def cmd_calibrate(a) -> None:
     from .calibrate import GOALS
     from .files import atomic_write, check_writable
     from .grid import load_grid
-    from .pipeline import Sin3DM
+    from .pipeline import Sin3DM, resolve_mesh
 
     run = find_run(a.run)
     shipped = not Path(a.run).is_dir()  # a shipped model's folder is part of the installed package: print only
@@ -674,7 +687,11 @@ def cmd_calibrate(a) -> None:
              "lp_fscore": GOALS["lp_fscore"] if a.lp_f is None else a.lp_f}
     before = model.config.sampling.diversity
     t0 = time.perf_counter()
-    cal = model.calibrate(reference, input_mesh=a.input, goals=goals, n=a.n, seed=a.seed)
+    input_mesh = None
+    if reference is None:  # the input mesh is read here, with --allow-outside-paths if given
+        allow = a.allow_outside_paths
+        input_mesh = model.input_mesh(allow) if a.input is None else resolve_mesh(a.input, allow_outside_paths=allow)
+    cal = model.calibrate(reference, input_mesh=input_mesh, goals=goals, n=a.n, seed=a.seed)
     took = time.perf_counter() - t0
     if shipped:
         print(f"{a.run}: diversity {cal.diversity:g} would keep the goals ({took:.0f} s); a shipped model is not "
@@ -687,6 +704,23 @@ def cmd_calibrate(a) -> None:
         atomic_write(run / "report.json", json.dumps(report, indent=2))
     print(f"{run}: diversity {before:g} → {cal.diversity:g} ({took:.0f} s), saved in its config.json; "
           f"`sin3dm-lite sample {run}` uses it, --diversity overrides it")
+
+
+def disk_error(e: OSError, out: str | None = None) -> str:
+    """One line for a failed write or read (in this process or in an export worker): what, where and the fix.
+
+    ``out``: the command's ``--out``, named when the error names no file (a ``write`` on a full disk).
+    """
+    import errno
+
+    from .files import shown_path
+
+    where = f" {shown_path(e.filename)}" if e.filename else ""
+    if e.errno in (errno.ENOSPC, errno.EDQUOT):
+        what = "no space left on device" if e.errno == errno.ENOSPC else "disk quota exceeded"
+        where = where or (f" into '{out}'" if out else " the output")
+        return f"{what} while writing{where}; free space or choose another --out"
+    return f"{e.strerror or e}{where}; check that path (permissions, free space) or choose another --out"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -710,9 +744,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # the disk, not the code: a full disk, a folder made read-only meanwhile
-        where = f" '{e.filename}'" if e.filename else ""
-        print(f"sin3dm-lite {a.command}: error: {e.strerror or e}{where}; check that path (permissions, free space) "
-              "or choose another --out", file=sys.stderr)
+        print(f"sin3dm-lite {a.command}: error: {disk_error(e, getattr(a, 'out', None))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

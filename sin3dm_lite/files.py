@@ -17,6 +17,7 @@
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -58,6 +59,8 @@ def atomic_path(path: str | Path, before_move=None):
         if before_move is not None:
             before_move(Path(tmp))
         os.replace(tmp, path)
+    except OSError as e:
+        raise named(e, path) from None
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
@@ -75,6 +78,63 @@ def _write(path: Path, data: bytes | str) -> None:
         path.write_text(data, encoding="utf-8")
     else:
         path.write_bytes(data)
+
+
+#: below this much free space a failed write is taken for a full disk
+NEARLY_FULL = 64 << 20
+# how torch.save reports a write that did not go through (its C++ writer raises RuntimeError, not OSError)
+_TORCH_WRITE_FAILED = ("inline_container", "PytorchStreamWriter", "file write failed", "unexpected pos")
+
+
+def save_torch(obj, path: str | Path) -> None:
+    """``torch.save(obj, path)``; a write that fails (a full disk) is an :class:`OSError` naming ``path``.
+
+    torch's own error for a full disk is a ``RuntimeError`` such as
+    ``[enforce fail at inline_container.cc:672] unexpected pos …``, which says
+    nothing to a user; this raises ``OSError(ENOSPC)`` instead when the disk
+    holding ``path`` is (nearly) full, else an ``OSError(EIO)`` quoting torch.
+    """
+    import torch
+
+    try:
+        torch.save(obj, path)
+    except RuntimeError as e:
+        if not any(s in str(e) for s in _TORCH_WRITE_FAILED):
+            raise
+        raise write_failed(Path(path), str(e).strip().splitlines()[0][:200]) from None
+
+
+def shown_path(path: str | Path) -> str:
+    """``'NAME' in 'FOLDER'`` for a file being written, our temporaries (``.sin3dm-tmp-*``, ``atomic_path``'s) left out.
+
+    What a user recognises in a message: ``out/.sin3dm-tmp-12-ab/model.pt`` is ``'model.pt' in 'out'``, and
+    a temporary folder itself is ``into 'out'``.
+    """
+    path = Path(path)
+    m = re.match(r"^\.(.*)\.sin3dm-\d+-[^.]*\.tmp(.*)$", path.name)  # atomic_path's .STEM.sin3dm-PID-X.tmpSUFFIX
+    name = m.group(1) + m.group(2) if m else path.name
+    while _TEMP_DIR.match(path.name):
+        path, name = path.parent, None
+    folder = path.parent
+    while _TEMP_DIR.match(folder.name):
+        folder = folder.parent
+    return f"'{name}' in '{folder}'" if name else f"into '{path}'"
+
+
+def named(e: OSError, path: str | Path) -> OSError:
+    """``e`` itself if it names a file, else the same error naming ``path`` (``fh.write`` on a full disk names none)."""
+    return e if e.filename or e.errno is None else OSError(e.errno, e.strerror or str(e), str(path))
+
+
+def write_failed(path: Path, detail: str) -> OSError:
+    """The :class:`OSError` for a write to ``path`` that failed without one: ENOSPC if its disk is (nearly) full."""
+    try:
+        full = shutil.disk_usage(Path(path).parent).free < NEARLY_FULL
+    except OSError:
+        full = False
+    if full:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    return OSError(errno.EIO, f"the write failed ({detail})", str(path))
 
 
 # --------------------------------------------------------------------------- temporaries
@@ -126,6 +186,8 @@ def atomic_folder(folder: str | Path):
         else:
             for item in sorted(tmp.iterdir(), key=lambda p: (p.suffix == ".obj", p.name)):
                 os.replace(item, folder / item.name)
+    except OSError as e:
+        raise named(e, folder) from None
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

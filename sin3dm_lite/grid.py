@@ -359,6 +359,35 @@ def _check_coordinates(mesh: TexturedMesh) -> None:
         )
 
 
+#: longest sides (in the file's units) outside this range get a warning with the normalisation's scale factor
+USUAL_SIZE = (1e-3, 1e5)
+
+
+def normalisation_notes(mesh: TexturedMesh, normalised: TexturedMesh, closed: bool) -> list[str]:
+    """One line each for what a user would not expect from the normalisation: a mesh of an unusual size
+    (:data:`USUAL_SIZE`: wrong units?) scaled by a large factor, and an open mesh or triangle soup whose
+    inside is only approximate (the generalised winding number)."""
+    notes = []
+    longest = float(np.ptp(np.asarray(mesh.vertices, np.float64), axis=0).max())
+    if not USUAL_SIZE[0] <= longest <= USUAL_SIZE[1]:
+        factor = normalised.normalization.scale / mesh.normalization.scale
+        notes.append(f"'{mesh.name}' is {longest:.3g} units long: the normalisation scales it by {factor:.3g} into the "
+                     "box [-1, 1] (samples are mapped back to the input's size); if the units are wrong, rescale it "
+                     "in a mesh editor")
+    if not closed:
+        _, weld = unique_rows(np.asarray(normalised.vertices))
+        edges = np.sort(weld[normalised.faces][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        _, counts = np.unique(edges[:, 0] * (int(weld.max()) + 1) + edges[:, 1], return_counts=True)
+        alone = float((counts == 1).mean())
+        what = ("a triangle soup (no two faces share an edge)" if alone == 1.0 else
+                f"not watertight ({alone:.1%} of its edges border a hole)" if alone > 0 else
+                "not consistently wound (neighbouring faces that face opposite ways)")
+        notes.append(f"'{mesh.name}' is {what}: inside and outside come from the generalised winding number, which "
+                     "is approximate near holes; look at the grid's slices (notebook 01) or close the mesh in an "
+                     "editor if the shape comes out wrong")
+    return notes
+
+
 def mesh_to_grid(
     mesh: TexturedMesh,
     resolution: int = 128,
@@ -430,6 +459,8 @@ def mesh_to_grid(
                 else f"{dist.flipped} of the {dist.closed_parts} closed parts of '{mesh.name}' are inside out")
         warnings.warn(f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
                       "to tell inside from outside", stacklevel=2)
+    for message in normalisation_notes(mesh, m, dist.closed):
+        warnings.warn(message, stacklevel=2)
     sdf, color, sure = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say, pbr=pbr)
     if not (sdf < 0).any():
         raise Sin3DMInputError(

@@ -37,6 +37,7 @@ import shutil
 import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -47,7 +48,7 @@ import torch
 from .errors import Sin3DMInputError
 from .files import (acquire_lock, append_manifest_part, file_record, foreign_files, is_ours,
                     make_temp_dir, manifest_parts, read_manifest, read_manifest_parts, release_lock, replacing,
-                    write_manifest)
+                    save_torch, write_manifest)
 
 SETTINGS = "sampling.json"
 SAMPLES = "samples.jsonl"
@@ -301,15 +302,9 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
             "texture_size": a.texture_size or s.texture_size, "pictures": not a.no_pictures,
             "box": model.normalization.to_original(box_n)}  # one scale for every preview
     tag = f"[{label}]" if ranks.world == 1 else f"[{label} rank {ranks.rank}]"
-    pool, model_tmp = None, None
+    pool = None
+    temps: set[Path] = set()  # this run's temporary folders not moved into place: removed at the end
     workers = a.workers if len(mine) > 1 else 0
-    if workers > 0:
-        import multiprocessing
-
-        model_tmp = make_temp_dir(out)
-        model.save(model_tmp)
-        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_worker_init, initargs=(str(model_tmp / "model.pt"), opts))
     futures: dict = {}
     t0 = time.perf_counter()
     bar = tqdm(total=len(mine), desc=f"{tag} decode, texture, export", unit="mesh", leave=False)
@@ -326,6 +321,7 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
             "seconds": round(time.perf_counter() - started, 3), "time": datetime.now().isoformat(timespec="milliseconds"),
             "rank": ranks.rank})
         install_sample(tmp, out / name, out, ours)
+        temps.discard(tmp)
         if info["no_pictures"] and not said:
             said.append(info["no_pictures"])
             print(f"{tag} no pictures: {info['no_pictures']}")
@@ -336,10 +332,22 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
     def collect(block: bool) -> None:
         done, _ = wait(list(futures), return_when=FIRST_COMPLETED) if block else (
             [f for f in futures if f.done()], None)
-        for f in done:
-            land(*futures.pop(f), f.result())
+        for f in sorted(done, key=lambda f: futures[f][0]):
+            try:
+                info = f.result()
+            except BrokenProcessPool:  # the OOM killer, a kill -9: every waiting sample fails with it
+                raise Sin3DMInputError(worker_died(out, min(i for i, _, _ in futures.values()))) from None
+            land(*futures.pop(f), info)
 
     try:
+        if workers > 0:
+            import multiprocessing
+
+            model_tmp = make_temp_dir(out)
+            temps.add(model_tmp)
+            model.save(model_tmp)
+            pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                       initializer=_worker_init, initargs=(str(model_tmp / "model.pt"), opts))
         batch = max(1, a.batch)
         for k in range(0, len(mine), batch):
             chunk = mine[k:k + batch]
@@ -348,8 +356,9 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
                                    seed=[a.seed + i for i in chunk], diversity=a.diversity, progress=False)
             for j, i in enumerate(chunk):
                 tmp = make_temp_dir(out)
+                temps.add(tmp)
                 latent = samples.triplane[j].clone().state_dict()  # its own storage, not the whole batch's
-                torch.save({"triplane": latent, "aabb": torch.from_numpy(np.asarray(samples.aabb, np.float64)),
+                save_torch({"triplane": latent, "aabb": torch.from_numpy(np.asarray(samples.aabb, np.float64)),
                             "index": i, "seed": a.seed + i}, tmp / "latent.pt")
                 if pool is None:
                     land(i, tmp, started, export_sample(str(tmp), latent, samples.aabb, model, opts))
@@ -365,9 +374,18 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
         bar.close()
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
-        if model_tmp is not None:
-            shutil.rmtree(model_tmp, ignore_errors=True)
+        for tmp in temps:  # the model copy, and unfinished samples after an error (finished ones were moved)
+            shutil.rmtree(tmp, ignore_errors=True)
     return {"new": len(mine), "seconds": time.perf_counter() - t0}
+
+
+def worker_died(out: Path, index: int) -> str:
+    """The one-line message for an export worker that died (killed, out of memory) while exporting ``index``."""
+    kept = len(finished(out))
+    kept = {0: "no sample was finished yet", 1: "the finished sample is kept"}.get(kept, f"the {kept} finished samples are kept")
+    return (f"the export worker process died while exporting sample {folder_name(index)} to '{out}' (killed, perhaps "
+            f"for lack of memory); {kept}: run the same command again to continue (it resumes), with --workers 0 "
+            "to export in the sampling process if memory is short")
 
 
 def finish_folder(model, out: Path, a, plan, label: str = "sample") -> dict[int, dict]:

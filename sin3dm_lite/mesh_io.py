@@ -14,7 +14,7 @@ be mapped back into the input's own coordinates.
 
 Public API::
 
-    load_mesh(path, *, max_texture_size=4096) -> TexturedMesh   # .obj .glb .gltf .ply .stl .off
+    load_mesh(path, *, max_texture_size=4096, allow_outside_paths=False) -> TexturedMesh   # .obj .glb .gltf .ply .stl .off
     load_any(source) -> TexturedMesh          # a path, or a TexturedMesh (returned as is)
     image_to_array(image, max_size=None)      # PIL image / array -> (h, w, 3) float32 in [0, 1]
     array_to_pil(array, max_size=None)        # the other way: (h, w, 3) in [0, 1] -> 8-bit PIL image
@@ -337,7 +337,7 @@ READABLE = "OBJ (+MTL), GLB/glTF, PLY, STL, OFF"
 #: float32 RGB 4096² image is already 200 MB, and a 256³ grid never needs more.
 MAX_TEXTURE_SIZE = 4096
 
-def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE) -> TexturedMesh:
+def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE, allow_outside_paths: bool = False) -> TexturedMesh:
     """Read a textured mesh file into a :class:`TexturedMesh` (the file's own coordinates).
 
     Formats (by extension, case-insensitive):
@@ -363,13 +363,21 @@ def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE) -> Textu
     (alpha dropped, grey expanded; sRGB values kept as stored), shrunk to
     ``max_texture_size`` pixels on the longest side (``None``: never).
 
+    A mesh file reads only files in its own folder (and below): an MTL library,
+    texture, glTF buffer or image, or PLY texture that it names outside that
+    folder (``../../x.png``, ``/etc/passwd``, a symbolic link pointing out) is
+    refused, unless ``allow_outside_paths=True`` (CLI: ``--allow-outside-paths``)
+    says that the mesh is trusted.
+
     Raises:
         Sin3DMInputError: missing file, unsupported extension, unreadable file,
-            no faces, NaN/inf coordinates, zero-size bounding box or zero area.
+            no faces, NaN/inf coordinates, zero-size bounding box or zero area,
+            a file named outside the mesh's folder.
     """
     path = _check_input_path(path)
     load = _load_obj if path.suffix.lower() == ".obj" else _load_with_trimesh
-    return _assemble(*load(path, max_texture_size), name=path.stem, source=path.name)
+    return _assemble(*load(path, max_texture_size, _Scope(path, allow_outside_paths)), name=path.stem,
+                     source=path.name)
 
 
 # the largest vertex coordinate accepted: beyond it the bounding box or the triangle areas overflow, or
@@ -390,6 +398,25 @@ def load_any(source, **kwargs) -> TexturedMesh:
 
 
 # ----------------------------------------------------------------- validation
+@dataclass(frozen=True)
+class _Scope:
+    """Where a mesh file may make the loader read: its own folder (symbolic links resolved), or anywhere if allowed."""
+
+    mesh: Path
+    anywhere: bool = False
+
+    def allows(self, p: Path) -> bool:
+        return self.anywhere or p.resolve().is_relative_to(self.mesh.parent.resolve())
+
+    def refuse(self, ref: str, what: str, found: Path) -> Sin3DMInputError:
+        link = ", through a symbolic link" if found.is_symlink() else ""
+        return Sin3DMInputError(
+            f"'{self.mesh.name}' names a file outside its folder: {what} '{ref}' is '{found.resolve()}'{link}; a mesh "
+            f"file may only make sin3dm-lite read files in its own folder '{self.mesh.parent.resolve()}': copy the "
+            "file there, or pass --allow-outside-paths (Python: allow_outside_paths=True) if you trust this mesh"
+        )
+
+
 def _check_input_path(path) -> Path:
     try:
         path = Path(path).expanduser()
@@ -584,7 +611,7 @@ def _warn(message: str) -> None:
 
 
 # ----------------------------------------------------------------------- OBJ
-def _load_obj(path, max_size):
+def _load_obj(path, max_size, scope: _Scope):
     """A Wavefront OBJ (+ MTL) → one part and its materials."""
     data = path.read_bytes()
     if b"\x00" in data[:65536]:
@@ -621,13 +648,14 @@ def _load_obj(path, max_size):
                           f"file defines only {len(uvs)} ('vt' lines)")
 
     # the used materials' definitions in the MTL libraries
-    texture = partial(_load_texture, max_size=max_size, cache={})
+    texture = partial(_load_texture, max_size=max_size, cache={}, scope=scope)
     library: dict[str, tuple[Material, tuple | None]] = {}
     loaded_any = False
     for entry in (e.strip() for e in scan("mtllib")[0]):
         # "mtllib a.mtl b.mtl", unless that is one file name with spaces
-        for name in entry.split() if " " in entry and not _resolve_asset(entry, path.parent) else [entry]:
-            mtl = _resolve_asset(name, path.parent)
+        for name in (entry.split() if " " in entry and not _resolve_asset(entry, path.parent, scope, "the material "
+                     "library") else [entry]):
+            mtl = _resolve_asset(name, path.parent, scope, "the material library")
             if mtl is None:
                 _warn(
                     f"material library '{name}' named in '{path.name}' was not found (looked in '{path.parent}'); "
@@ -834,7 +862,7 @@ def _is_number(s: str) -> bool:
         return False
 
 
-def _load_texture(ref: str, what: str, mname: str, mtl: Path, *, max_size, cache: dict):
+def _load_texture(ref: str, what: str, mname: str, mtl: Path, *, max_size, cache: dict, scope: _Scope):
     """The image an MTL map line names, as an array; ``None`` with a warning if it is missing or unreadable.
 
     Each file is decoded once (``cache``): several materials often share one atlas.
@@ -842,7 +870,7 @@ def _load_texture(ref: str, what: str, mname: str, mtl: Path, *, max_size, cache
     from PIL import Image
 
     owner = f"{what} of material '{mname}' in '{mtl.name}'"
-    path = _resolve_asset(ref, mtl.parent)
+    path = _resolve_asset(ref, mtl.parent, scope, f"the {what} texture of material '{mname}' in '{mtl.name}'")
     if path is None:
         _warn(
             f"texture file '{ref}' ({owner}) was not found (looked in '{mtl.parent}'); "
@@ -863,20 +891,35 @@ def _load_texture(ref: str, what: str, mname: str, mtl: Path, *, max_size, cache
     return cache[key]
 
 
-def _resolve_asset(name: str, base: Path) -> Path | None:
-    """Find a file an OBJ/MTL names: as written, then by its base name (also ignoring case) in ``base``."""
-    name = Path(name.strip().strip('"').replace("\\", "/"))
-    for candidate in (base / name, name, base / name.name):  # base / an absolute path = the path
+def _resolve_asset(ref: str, base: Path, scope: _Scope, what: str, cwd: bool = True) -> Path | None:
+    """Find a file a mesh file names: as written (relative to ``base``, else to the working directory if ``cwd``),
+    then by its base name (also ignoring case) in ``base``; None if there is none.
+
+    Files outside the mesh's folder are skipped (``scope``); if only such files exist, the reference is
+    refused (:class:`Sin3DMInputError` naming ``what``, the reference and the file).
+    """
+    name = Path(ref.strip().strip('"').replace("\\", "/"))
+
+    def candidates():
+        yield from (base / name, name, base / name.name) if cwd else (base / name, base / name.name)
+        try:  # base / an absolute path = the path
+            yield from (c for c in base.iterdir() if c.name.lower() == name.name.lower())
+        except OSError:
+            return
+
+    outside = None
+    for candidate in candidates():
         if candidate.is_file():
-            return candidate
-    try:
-        return next((c for c in base.iterdir() if c.name.lower() == name.name.lower() and c.is_file()), None)
-    except OSError:
-        return None
+            if scope.allows(candidate):
+                return candidate
+            outside = outside or candidate
+    if outside is not None:
+        raise scope.refuse(ref.strip(), what, outside)
+    return None
 
 
 # ------------------------------------------------------- glTF / PLY / STL / OFF
-def _load_with_trimesh(path, max_size):
+def _load_with_trimesh(path, max_size, scope: _Scope):
     """Every triangle geometry of the file's scene, node transforms applied."""
     import trimesh
     from trimesh.visual import ColorVisuals, TextureVisuals
@@ -885,9 +928,21 @@ def _load_with_trimesh(path, max_size):
            ".off": "an OFF mesh"}[path.suffix.lower()]
     if path.stat().st_size == 0:
         raise _unreadable(path, fmt, "the file is empty")
-    image_problems = _gltf_image_problems(path, fmt) if path.suffix.lower() in (".glb", ".gltf") else []
+    image_problems = []
+    if path.suffix.lower() in (".glb", ".gltf"):
+        header, binary = _gltf_json(path, fmt)
+        for kind in ("buffers", "images"):  # external files trimesh would read: in the mesh's folder only
+            for item in header.get(kind, []) if isinstance(header.get(kind), list) else []:
+                uri = item.get("uri") if isinstance(item, dict) else None
+                if isinstance(uri, str) and not uri.startswith("data:"):
+                    _resolve_asset(unquote(uri), path.parent, scope, f"the glTF {kind[:-1]}", cwd=False)
+        image_problems = _gltf_image_problems(path, header, binary)
+    elif path.suffix.lower() == ".ply":
+        texture = _ply_texture_file(path)
+        if texture is not None:
+            _resolve_asset(texture, path.parent, scope, "the texture file", cwd=False)
     try:
-        scene = trimesh.load(str(path), force="scene", process=False)
+        scene = trimesh.load(str(path), force="scene", process=False, resolver=_resolver(path, scope))
     except Exception as exc:
         raise _unreadable(path, fmt, exc) from None
     for problem in image_problems:
@@ -1006,22 +1061,54 @@ def _is_trimesh_placeholder(pil) -> bool:
         return False
 
 
-def _gltf_image_problems(path, fmt: str) -> list[str]:
-    """Read a glTF's JSON once: a clear error if it is not glTF at all, else a warning for each
-    texture its materials use that is missing or undecodable (trimesh silently drops them).
+def _resolver(path: Path, scope: _Scope):
+    """trimesh's file resolver for ``path`` (its own folder only, unless ``scope`` allows anywhere)."""
+    from trimesh.resolvers import FilePathResolver
 
-    Best effort: any other surprise → no warnings.
-    """
-    from PIL import Image
+    try:
+        return FilePathResolver(str(path), allow_anywhere=scope.anywhere)
+    except TypeError:  # an older trimesh: no such option
+        return FilePathResolver(str(path))
 
-    data, binary = path.read_bytes(), b""
+
+def _ply_texture_file(path: Path) -> str | None:
+    """The ``comment TextureFile NAME`` of a PLY header (trimesh loads that image), or None."""
+    with open(path, "rb") as f:
+        head = f.read(65536).split(b"end_header", 1)[0].decode("latin-1")
+    for line in head.splitlines():
+        at = line.lower().find("texturefile")
+        if at >= 0:
+            return line[at + len("texturefile"):].strip() or None
+    return None
+
+
+def _gltf_json(path, fmt: str) -> tuple[dict, bytes]:
+    """A glTF's JSON and (GLB) binary chunk; a clear error if it is not glTF at all, ``({}, b"")`` on other surprises."""
+    data = path.read_bytes()
     if path.suffix.lower() == ".gltf":
         try:
             header = json.loads(data.decode("utf-8"))
         except ValueError as exc:  # UnicodeDecodeError is one
             raise _unreadable(path, fmt, f"not valid JSON: {exc}") from None
-    elif data[:4] != b"glTF":
+        return (header if isinstance(header, dict) else {}), b""
+    if data[:4] != b"glTF":
         raise _unreadable(path, fmt, "it does not start with the GLB magic bytes 'glTF'")
+    try:  # 12-byte header, then the JSON chunk and the binary chunk
+        off = 20 + struct.unpack_from("<I", data, 12)[0]
+        header = json.loads(data[20:off])
+        binary = data[off + 8 : off + 8 + struct.unpack_from("<I", data, off)[0]] if off + 8 <= len(data) else b""
+        return (header if isinstance(header, dict) else {}), binary
+    except Exception:
+        return {}, b""
+
+
+def _gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
+    """A warning for each texture a glTF's materials use that is missing or undecodable (trimesh silently drops
+    them). Its external files were checked to be in its folder (:func:`_load_with_trimesh`).
+
+    Best effort: any other surprise → no warnings.
+    """
+    from PIL import Image
 
     def blob(item):  # the bytes of an image or buffer: data URI, file beside the glTF, or buffer view
         if "uri" not in item:
@@ -1035,10 +1122,6 @@ def _gltf_image_problems(path, fmt: str) -> list[str]:
         return (path.parent / unquote(item["uri"])).read_bytes()
 
     try:
-        if path.suffix.lower() == ".glb":  # 12-byte header, then the JSON chunk and the binary chunk
-            off = 20 + struct.unpack_from("<I", data, 12)[0]
-            header = json.loads(data[20:off])
-            binary = data[off + 8 : off + 8 + struct.unpack_from("<I", data, off)[0]] if off + 8 <= len(data) else b""
         images, textures, users = header.get("images", []), header.get("textures", []), {}
         for mat in header.get("materials", []):
             pbr = mat.get("pbrMetallicRoughness", {})

@@ -39,7 +39,8 @@ from .decode import reconstructed_grid
 from .device import bf16_is_fast, get_device
 from .diffusion import check_flips
 from .errors import Sin3DMInputError
-from .files import acquire_lock, atomic_path, atomic_write, create_locked_folder, holds_lock, release_lock
+from .files import (acquire_lock, atomic_path, atomic_write, create_locked_folder, holds_lock, release_lock,
+                    save_torch)
 from .grid import THIN_SHARE_HINT, ShapeGrid, load_grid, mesh_to_grid, save_grid
 from .mesh_io import Normalization, TexturedMesh
 from .metrics import reconstruction_metrics
@@ -134,7 +135,7 @@ def quick_hint(cfg: Config, device) -> str | None:
 def atomic_torch_save(obj, path: Path) -> None:
     """Write ``obj`` with ``torch.save`` so that ``path`` is either the old or the new file, never half of one."""
     with atomic_path(path) as tmp:
-        torch.save(obj, tmp)
+        save_torch(obj, tmp)  # a full disk: OSError(ENOSPC), not torch's "unexpected pos" RuntimeError
 
 
 def _not_ours(path: Path, what: str, why: str) -> Sin3DMInputError:
@@ -179,8 +180,11 @@ def load_trainer_checkpoint(path: Path, kind: str) -> dict:
     return b
 
 
-def resolve_mesh(source) -> TexturedMesh:
-    """A ``TexturedMesh`` from the name of a built-in example, or whatever ``mesh_io.load_any`` takes."""
+def resolve_mesh(source, allow_outside_paths: bool = False) -> TexturedMesh:
+    """A ``TexturedMesh`` from the name of a built-in example, or whatever ``mesh_io.load_any`` takes.
+
+    ``allow_outside_paths``: let a mesh file name files outside its folder (:func:`mesh_io.load_mesh`).
+    """
     from . import examples
     from .mesh_io import load_any
 
@@ -190,7 +194,7 @@ def resolve_mesh(source) -> TexturedMesh:
         raise Sin3DMInputError(
             f"'{source}' is neither a mesh file nor a built-in example; examples: {', '.join(examples.list_examples())}"
         )
-    return load_any(source)
+    return load_any(source, allow_outside_paths=allow_outside_paths)
 
 
 @dataclass
@@ -250,8 +254,12 @@ class Sin3DM:
         device=None,
         progress: bool = True,
         pbr: bool | None = None,
+        allow_outside_paths: bool = False,
     ) -> "Sin3DM":
         """Fit the whole model to one textured mesh (a path, a ``TexturedMesh`` or an example name).
+
+        ``allow_outside_paths``: let the mesh file name textures and libraries outside its folder
+        (:func:`~sin3dm_lite.mesh_io.load_mesh`; CLI: ``--allow-outside-paths``).
 
         ``pbr`` (the PBR variant: metallic, roughness and normals learned and
         generated beside the colour) is on by default exactly when the mesh
@@ -302,7 +310,7 @@ class Sin3DM:
                     load_grid(run / "grid.npz")
         existed = run is not None and run.exists()
         try:
-            model = cls._fit(source, preset, run, resume, seed, device, progress, pbr)
+            model = cls._fit(source, preset, run, resume, seed, device, progress, pbr, allow_outside_paths)
         except KeyboardInterrupt:
             raise  # the checkpoints stay: continue with resume=True
         except BaseException:
@@ -316,7 +324,7 @@ class Sin3DM:
         return model
 
     @classmethod
-    def _fit(cls, source, preset, out, resume, seed, device, progress, pbr=None) -> "Sin3DM":
+    def _fit(cls, source, preset, out, resume, seed, device, progress, pbr=None, allow_outside_paths=False) -> "Sin3DM":
         """:meth:`fit`'s stages, after its checks."""
         say = print if progress else (lambda *a, **k: None)
         dev = get_device(device)
@@ -324,7 +332,8 @@ class Sin3DM:
         have_grid = run is not None and resume and (run / "grid.npz").exists()
         # set when this fit switches to the preset's thin-part settings (resumed: when the run switched before it stopped)
         thin_parts = _read_report(run).get("thin_parts_switch") if resume and run is not None else None
-        mesh = None if have_grid else resolve_mesh(source)  # bad input fails before any folder is written
+        # bad input fails before any folder is written
+        mesh = None if have_grid else resolve_mesh(source, allow_outside_paths=allow_outside_paths)
         if mesh is not None and not (resume and run is not None and (run / "config.json").exists()):
             pbr = _choose_pbr(mesh, pbr, preset, say)
             base = preset if isinstance(preset, Config) else get_preset(preset)
@@ -713,14 +722,14 @@ class Sin3DM:
         m = replace(mesh, vertices=self.normalization.to_normalized(np.asarray(mesh.vertices)))
         return input_occupancy(m, self.aabb if aabb is None else aabb, resolution)
 
-    def input_mesh(self) -> TexturedMesh:
+    def input_mesh(self, allow_outside_paths: bool = False) -> TexturedMesh:
         """The mesh this model was fitted to: the mesh file the run's report names, if it is still there, or the
-        built-in example of that name."""
+        built-in example of that name (``allow_outside_paths``: see :func:`mesh_io.load_mesh`)."""
         from . import examples
 
         path, name = self.report.get("input_path"), self.report.get("input")
         if path and Path(path).is_file():
-            return resolve_mesh(path)
+            return resolve_mesh(path, allow_outside_paths=allow_outside_paths)
         if path or name not in examples.list_examples():  # a file (even one named like an example) is not the example
             where = f"'{path}' is gone" if path else f"it was fitted to '{name}', not a built-in example"
             raise Sin3DMInputError(f"cannot find this model's input mesh ({where}); pass the input mesh "

@@ -236,3 +236,37 @@ def test_thin_share_tells_thin_parts_from_solid_ones():
     thin96 = mesh_to_grid(textured(slats), 96, n_surface_points=0, progress=False).thin_share()
     fat = mesh_to_grid(textured(block), 32, n_surface_points=0, progress=False).thin_share()
     assert thin32 > 0.9 and fat < 0.1 and thin96 < 0.2
+
+
+def _grid_warnings(mesh) -> list[str]:
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        mesh_to_grid(mesh, 16, n_surface_points=0, progress=False)
+    return [str(w.message) for w in caught]
+
+
+@pytest.mark.parametrize("size", [1e9, 1e-12])
+def test_a_mesh_of_an_unusual_size_says_how_much_the_normalisation_scaled_it(size):
+    """Issue 35: a 1e9- or 1e-12-scale mesh was accepted without a word; now one line with the factor."""
+    box = trimesh.creation.box(extents=(1.0, 0.5, 0.3))
+    box.apply_scale(size)
+    notes = _grid_warnings(textured(box))
+    assert len(notes) == 1 and "\n" not in notes[0]
+    assert notes[0].startswith(f"'m' is {size:.3g} units long: the normalisation scales it by {2 / 1.03 / size:.3g}")
+    assert _grid_warnings(textured(trimesh.creation.box(extents=(1.0, 0.5, 0.3)))) == []  # an ordinary one: none
+
+
+def test_an_open_mesh_or_a_triangle_soup_says_that_its_inside_is_approximate():
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    tri = sphere.vertices[sphere.faces]
+    tri = tri - 0.02 * (tri - tri.mean(1, keepdims=True))  # every triangle shrunk a little: none touches another
+    soup = trimesh.Trimesh(tri.reshape(-1, 3), np.arange(tri.size // 3).reshape(-1, 3), process=False)
+    notes = _grid_warnings(textured(soup))
+    assert len(notes) == 1 and notes[0].startswith("'m' is a triangle soup (no two faces share an edge): inside and "
+                                                   "outside come from the generalised winding number")
+    cup = trimesh.Trimesh(sphere.vertices, sphere.faces[sphere.triangles_center[:, 2] < 0.9])
+    notes = _grid_warnings(textured(cup))
+    assert len(notes) == 1 and notes[0].startswith("'m' is not watertight (")
+    assert "% of its edges border a hole): inside and outside" in notes[0]

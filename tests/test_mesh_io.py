@@ -884,3 +884,91 @@ def test_gltf_with_embedded_buffers_loads_without_warnings(tmp_path):
         mesh = load_mesh(tmp_path / "emb.gltf")
     for face, bc, color in LOOKUPS:
         np.testing.assert_allclose(lookup(mesh, face, bc), color, atol=1e-6)
+
+
+# ================================================= files a mesh names outside its folder (issue 35, case 8)
+def _outside(tmp_path) -> tuple[Path, Path]:
+    """``tmp_path/mesh/`` for the mesh and ``tmp_path/secret/tex.png`` outside it."""
+    (tmp_path / "mesh").mkdir()
+    (tmp_path / "secret").mkdir()
+    save_png(tmp_path / "secret" / "tex.png", quadrant_image())
+    return tmp_path / "mesh", tmp_path / "secret" / "tex.png"
+
+
+@pytest.mark.parametrize("how", ["relative", "absolute", "symlink", "mtllib"])
+def test_an_obj_may_not_make_the_loader_read_outside_its_folder(tmp_path, how):
+    folder, secret = _outside(tmp_path)
+    tex = {"relative": "../secret/tex.png", "absolute": str(secret), "symlink": "link.png", "mtllib": "tex.png"}[how]
+    if how == "symlink":
+        (folder / "link.png").symlink_to(secret)
+    path = write_square(folder, tex=tex, image=False)
+    if how == "mtllib":  # the MTL itself outside
+        (folder / "square.mtl").rename(tmp_path / "secret" / "square.mtl")
+        path.write_text(path.read_text().replace("mtllib square.mtl", "mtllib ../secret/square.mtl"))
+    ref = "../secret/square.mtl" if how == "mtllib" else tex
+    with pytest.raises(Sin3DMInputError) as e:
+        load_mesh(path)
+    msg = str(e.value)
+    assert f"'square.obj' names a file outside its folder: the " in msg and f"'{ref}' is '" in msg
+    assert "--allow-outside-paths" in msg and "allow_outside_paths=True" in msg and "\n" not in msg
+    assert ("through a symbolic link" in msg) == (how == "symlink")
+    mesh = load_mesh(path, allow_outside_paths=True)  # the user says they trust it
+    assert mesh.materials[0].image is not None
+    np.testing.assert_allclose(lookup(mesh, *LOOKUPS[0][:2]), LOOKUPS[0][2], atol=1e-6)
+
+
+def test_a_texture_named_outside_but_present_in_the_folder_is_taken_from_the_folder(tmp_path):
+    folder, _ = _outside(tmp_path)
+    path = write_square(folder, tex="../secret/tex.png", image=False)
+    save_png(folder / "tex.png", quadrant_image(bl=CYAN))  # found by its base name, as before
+    assert np.allclose(lookup(load_mesh(path), *LOOKUPS[0][:2]), CYAN)
+
+
+def test_gltf_buffers_and_images_outside_the_folder_are_refused(tmp_path):
+    folder, secret = _outside(tmp_path)
+    mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()))
+    files = trimesh.Scene(textured_square_trimesh(mat)).export(file_type="gltf")
+    header = json.loads(files["model.gltf"])
+    for name, blob in files.items():
+        if name.endswith(".bin"):
+            (secret.parent / name).write_bytes(blob)
+    for buffer in header["buffers"]:
+        buffer["uri"] = f"../secret/{buffer['uri']}"
+    (folder / "m.gltf").write_text(json.dumps(header))
+    with pytest.raises(Sin3DMInputError, match=r"names a file outside its folder: the glTF buffer '\.\./secret/"):
+        load_mesh(folder / "m.gltf")
+    assert len(load_mesh(folder / "m.gltf", allow_outside_paths=True).faces) == 2
+    for buffer in header["buffers"]:
+        buffer["uri"] = buffer["uri"].removeprefix("../secret/")
+        (folder / buffer["uri"]).write_bytes(files[buffer["uri"]])
+    header["images"] = [{"uri": "../secret/tex.png"}]
+    (folder / "m.gltf").write_text(json.dumps(header))
+    with pytest.raises(Sin3DMInputError, match=r"the glTF image '\.\./secret/tex\.png' is '"):
+        load_mesh(folder / "m.gltf")
+
+
+def test_a_ply_texture_file_outside_the_folder_is_refused(tmp_path):
+    folder, _ = _outside(tmp_path)
+    (folder / "t.ply").write_text("ply\nformat ascii 1.0\ncomment TextureFile ../secret/tex.png\nelement vertex 3\n"
+                                  "property float x\nproperty float y\nproperty float z\nelement face 1\n"
+                                  "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    with pytest.raises(Sin3DMInputError, match=r"the texture file '\.\./secret/tex\.png' is '"):
+        load_mesh(folder / "t.ply")
+    assert len(load_mesh(folder / "t.ply", allow_outside_paths=True).faces) == 1
+
+
+def test_cli_refuses_outside_paths_in_one_line_unless_allowed(tmp_path, capsys):
+    from sin3dm_lite.cli import main
+
+    folder, _ = _outside(tmp_path)
+    path = write_square(folder, tex="../secret/tex.png", image=False)
+    out = tmp_path / "g.npz"
+    assert main(["grid", str(path), "--resolution", "16", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("sin3dm-lite grid: error: 'square.obj' names a file outside its folder") and "\n" not in err
+    assert "--allow-outside-paths" in err and not out.exists()
+    assert main(["grid", str(path), "--resolution", "16", "--out", str(out), "--allow-outside-paths"]) == 0
+    for cmd in ("fit", "render", "evaluate", "calibrate"):  # every command that reads a mesh has the switch
+        with pytest.raises(SystemExit):
+            main([cmd, "--help"])
+        assert "--allow-outside-paths" in capsys.readouterr().out
