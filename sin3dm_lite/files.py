@@ -350,9 +350,11 @@ def recorded_path(path: str | Path, by: str | None = None):
         m = read_manifest(folder)
         write_manifest(folder, {**m, **replacing(folder, m, {rel: file_entry(tmp, by)})})
 
-    with atomic_path(path, before_move=record) as tmp:
-        yield tmp
-    record_written(folder, [rel], by)  # the old file's stat is no longer acceptable
+    folder.mkdir(parents=True, exist_ok=True)
+    with locked(folder):  # no other process writes the folder (and its manifest) meanwhile
+        with atomic_path(path, before_move=record) as tmp:
+            yield tmp
+        record_written(folder, [rel], by)  # the old file's stat is no longer acceptable
 
 
 def replacing(folder: Path, manifest: dict, new: dict[str, dict]) -> dict:
@@ -446,11 +448,12 @@ def merge_output(tmp: Path, out: Path, by: str | None = None) -> None:
     """
     names = sorted(p.name for p in Path(tmp).iterdir())
     new = file_record(tmp, names, by)  # os.replace keeps size and time
-    old = read_manifest(out)
-    write_manifest(out, {**old, **replacing(out, old, new)})  # first: a kill leaves no file of ours unrecorded
-    for n in names:
-        os.replace(Path(tmp) / n, Path(out) / n)
-    write_manifest(out, {**old, **new})
+    with locked(out):
+        old = read_manifest(out)
+        write_manifest(out, {**old, **replacing(out, old, new)})  # first: a kill leaves no file of ours unrecorded
+        for n in names:
+            os.replace(Path(tmp) / n, Path(out) / n)
+        write_manifest(out, {**old, **new})
 
 
 def install_output(tmp: Path, out: Path, by: str | None = None) -> list[str]:
@@ -469,6 +472,11 @@ def install_output(tmp: Path, out: Path, by: str | None = None) -> list[str]:
         write_manifest(tmp, new)
         os.rename(tmp, out)
         return sorted(new)
+    with locked(out):  # no other process writes it meanwhile (a `sample` run filling it)
+        return _install_into(tmp, out, new, by)
+
+
+def _install_into(tmp: Path, out: Path, new: dict, by: str | None) -> list[str]:
     old = read_manifest(out)
     kept = {f: e for f, e in old.items() if is_ours(out, f, old)}
     clash = [f for f in new if ((out / f).exists() or (out / f).is_symlink()) and not is_ours(out, f, old, by)]
@@ -628,6 +636,19 @@ def acquire_lock(folder: Path, what: str = "folder") -> None:
         remove_stale_temps(folder)  # the folder is ours now: leftovers of a killed writer can go
         return
     raise Sin3DMInputError(f"could not lock {what} '{folder}'; another process keeps taking '{lock}'")
+
+
+@contextmanager
+def locked(folder: Path, what: str = "output folder"):
+    """Hold ``folder``'s lock for the block (unless this process holds it already)."""
+    if holds_lock(folder):
+        yield
+        return
+    acquire_lock(folder, what)
+    try:
+        yield
+    finally:
+        release_lock(folder)
 
 
 def holds_lock(folder: Path) -> bool:

@@ -9,7 +9,7 @@ The folder, as it fills::
     DIR/NNN/              one folder per sample, appearing whole: mesh.obj/.mtl/.png, mesh.glb,
                           latent.pt (the triplane: decode or edit it again), preview.png
     DIR/.sin3dm-manifest-rank<r>.jsonl   while running: one line per finished sample of rank r (index, seed,
-                          folder, files with size and time, faces, seconds, time), appended and flushed
+                          folder, files with size, time and SHA-256, faces, seconds, time), appended and flushed
     DIR/samples.jsonl     at the end: those lines of all ranks, sorted by index (rank 0 merges them)
     DIR/index.html        a 3D gallery of the first samples; contact_sheet.png: the input beside them
 
