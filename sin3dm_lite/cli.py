@@ -18,8 +18,9 @@ with code 2 (no traceback).
 
 No command deletes or overwrites a file it did not write: an output folder
 that is not empty is refused unless ``--overwrite`` is given, and then only
-the files listed in its manifest (``.sin3dm-manifest.json``, written by this
-tool) are replaced. Outputs are checked (writable, not overlapping the run
+the files its manifest (``.sin3dm-manifest.json``, written by this tool) lists
+as written there by the same command are replaced (``render --overwrite`` into a
+folder of samples keeps the samples). Outputs are checked (writable, not overlapping the run
 folder or the input) before the long work starts; results are written into a
 temporary folder beside the target (``.sin3dm-tmp-<pid>-*``, removed by the
 next run if the process was killed) and moved into place at the end.
@@ -317,7 +318,7 @@ def cmd_examples(a) -> None:
     from . import examples
 
     if a.write:
-        from .files import check_writable, foreign_files, make_temp_dir, merge_output, remove_stale_temps
+        from .files import check_writable, clash_error, foreign_files, make_temp_dir, merge_output, remove_stale_temps
 
         if a.write not in examples.list_examples():
             raise Sin3DMInputError(f"unknown example '{a.write}'; choose one of: {', '.join(examples.list_examples())}")
@@ -329,16 +330,16 @@ def cmd_examples(a) -> None:
         if there and not a.overwrite:
             raise Sin3DMInputError(f"'{out / there[0]}' exists; pass --overwrite to replace it if sin3dm-lite wrote it, "
                                    "or choose another --out")
-        clash = foreign_files(out, names) if out.is_dir() else []
+        clash = foreign_files(out, names, by="examples") if out.is_dir() else []
         if clash:
-            raise Sin3DMInputError(f"'{out / clash[0]}' was not written by sin3dm-lite; move it away or choose another --out")
+            raise clash_error(out, clash[0], by="examples")
         check_writable(out)
         out.mkdir(parents=True, exist_ok=True)
         remove_stale_temps(out)
         tmp = make_temp_dir(out)
         try:
             path = examples.write_example(a.write, tmp, seed=a.seed)
-            merge_output(tmp, out)
+            merge_output(tmp, out, by="examples")
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         path = out / path.name
@@ -353,7 +354,7 @@ def cmd_grid(a) -> None:
     from .grid import mesh_to_grid, save_grid
     from .pipeline import resolve_mesh
 
-    from .files import check_not_overlapping, check_writable, is_ours, recorded_path, remove_stale_temps
+    from .files import check_not_overlapping, check_writable, clash_error, is_ours, recorded_path, remove_stale_temps
 
     out = Path(a.out)
     if out.suffix != ".npz":
@@ -367,13 +368,13 @@ def cmd_grid(a) -> None:
         raise Sin3DMInputError(f"--out '{out}' is a folder; give a file name like {out / 'grid.npz'}")
     if out.exists() and not a.overwrite:
         raise Sin3DMInputError(f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) or choose another --out")
-    if out.exists() and not is_ours(out.parent, out.name):
-        raise Sin3DMInputError(f"'{out}' was not written by sin3dm-lite; move it away or choose another --out")
+    if out.exists() and not is_ours(out.parent, out.name, by="grid"):
+        raise clash_error(out.parent, out.name, by="grid")
     check_writable(out)
     mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
     grid = mesh_to_grid(mesh, a.resolution)
     remove_stale_temps(out.parent)
-    with recorded_path(out) as tmp:
+    with recorded_path(out, by="grid") as tmp:
         save_grid(grid, tmp)
     print(f"wrote {out}: sdf {grid.shape}, color {grid.color.shape}, box {[round(float(x), 3) for x in grid.aabb]}")
 
@@ -409,14 +410,14 @@ def check_sample_output(out: Path, a, protected: dict) -> None:
     settings are compared once the model is loaded (:func:`mass.check_folder`).
     """
     from .files import check_not_overlapping, check_output_folder, check_writable
-    from .mass import MAX_RUN_SAMPLES, read_settings
+    from .mass import MAX_RUN_SAMPLES, WRITER, read_settings
 
     if a.start + a.n > MAX_RUN_SAMPLES:
         raise Sin3DMInputError(f"-n {a.n} (from --start {a.start}) is too many samples: indices go up to at most "
                                f"{MAX_RUN_SAMPLES - 1} per output folder; use several --out folders with other --seed")
     check_not_overlapping(out, protected)
     if not (out.is_dir() and read_settings(out) is not None and not a.overwrite):
-        check_output_folder(out, a.overwrite, sample_output_names(out, a))
+        check_output_folder(out, a.overwrite, sample_output_names(out, a), by=WRITER)
     check_writable(out)
 
 
@@ -424,7 +425,7 @@ def sample_output_names(out: Path, a) -> list[str]:
     """The files a sample run into ``out`` writes where something may already be (checked for foreign files)."""
     from .mass import SAMPLE_FILES, SAMPLES, SETTINGS
 
-    names = ["index.html", "contact_sheet.png", SETTINGS, SAMPLES]
+    names = ["index.html", SETTINGS, SAMPLES] + ([] if a.no_pictures else ["contact_sheet.png"])
     for d in (out.iterdir() if out.is_dir() else []):
         if d.name.isdigit() and a.start <= int(d.name) < a.start + a.n:
             names += ([f"{d.name}/{f.name}" for f in d.iterdir() if f.name.startswith(SAMPLE_FILES)]
@@ -453,7 +454,8 @@ def write_samples(model, out: Path, a, label: str = "sample", ranks=None, run: s
     ``contact_sheet.png`` and the manifest. Returns ``{"pending", "new", "total", "seconds"}``.
     """
     from .files import release_lock
-    from .mass import DEFAULT_BATCH, Ranks, finish_folder, prepare_folder, sample_many, sample_settings
+    from .mass import DEFAULT_BATCH, Ranks, abandon, check_request, finish_folder, prepare_folder, sample_many, \
+        sample_settings
 
     ranks = ranks or Ranks()
     out = Path(out)
@@ -463,8 +465,10 @@ def write_samples(model, out: Path, a, label: str = "sample", ranks=None, run: s
         raise Sin3DMInputError(f"--batch {a.batch} is more samples than fit in memory at once here (at most {limit} "
                                "with this model and size); ask for a smaller --batch")
     a.batch = a.batch or min(DEFAULT_BATCH, a.n, limit)
+    check_request(model, a)  # every flag checked before the folder is touched
     settings = sample_settings(model, plan, a, control_args(a))
     why, pending = None, None
+    created = not out.exists()
     if ranks.rank == 0:
         try:
             pending = prepare_folder(out, a, settings, run, lambda o: sample_output_names(o, a))
@@ -482,6 +486,15 @@ def write_samples(model, out: Path, a, label: str = "sample", ranks=None, run: s
         stats = sample_many(model, out, a, ranks, plan, pending, label)
         ranks.barrier()
         total = len(finish_folder(model, out, a, plan, label)) if ranks.rank == 0 else None
+    except BaseException:
+        if ranks.rank == 0 and ranks.world == 1 and abandon(out):  # nothing finished: leave nothing that blocks a rerun
+            release_lock(out)
+            if created:
+                try:
+                    out.rmdir()
+                except OSError:
+                    pass  # files not ours, or temporaries of a killed worker: keep the folder
+        raise
     finally:
         if ranks.rank == 0:
             release_lock(out)
@@ -572,7 +585,7 @@ def cmd_render(a) -> None:
     names = view_names(a.views) + ["contact_sheet.png"]
     if Path(a.mesh).exists():
         check_not_overlapping(out, {"input mesh": Path(a.mesh)})
-    check_output_folder(out, a.overwrite, names)
+    check_output_folder(out, a.overwrite, names, by="render")
     check_writable(out)
     mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
     t0 = time.perf_counter()
@@ -585,7 +598,7 @@ def cmd_render(a) -> None:
     try:
         for name, img in zip(names, views + [hero, sheet]):
             (tmp / name).write_bytes(png_bytes(img))
-        install_output(tmp, out)
+        install_output(tmp, out, by="render")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     print(f"wrote {a.views} views + hero.png + contact_sheet.png to {out} ({time.perf_counter() - t0:.1f} s)")
@@ -623,7 +636,7 @@ def print_evaluation(result: dict) -> None:
 def cmd_evaluate(a) -> None:
     import json
 
-    from .files import check_not_overlapping, check_writable, is_ours, write_recorded
+    from .files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
     from .mesh_io import load_any
     from .metrics import load_feature_weights
     from .pipeline import Sin3DM, resolve_mesh
@@ -646,8 +659,8 @@ def cmd_evaluate(a) -> None:
         if out.exists() and not a.overwrite:
             raise Sin3DMInputError(f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) "
                                    "or choose another --out")
-        if out.exists() and not is_ours(out.parent, out.name):
-            raise Sin3DMInputError(f"'{out}' was not written by sin3dm-lite; move it away or choose another --out")
+        if out.exists() and not is_ours(out.parent, out.name, by="evaluate"):
+            raise clash_error(out.parent, out.name, by="evaluate")
         check_writable(out)
     nets = load_feature_weights(a.weights) if a.weights else None  # a missing file fails before the long work
     model = Sin3DM.load(run)
@@ -664,22 +677,33 @@ def cmd_evaluate(a) -> None:
     result.update(run=str(run), samples_folder=str(a.samples), files=[str(f) for f in files])
     print_evaluation(result)
     if out is not None:
-        write_recorded(out, json.dumps(result, indent=2))
+        write_recorded(out, json.dumps(result, indent=2), by="evaluate")
         print(f"wrote {out} ({time.perf_counter() - t0:.1f} s)")
 
 
 def cmd_calibrate(a) -> None:
-    import json
-
-    from .calibrate import GOALS
-    from .files import atomic_write, check_writable
-    from .grid import load_grid
-    from .pipeline import Sin3DM, resolve_mesh
+    from .files import acquire_lock, check_writable, release_lock
 
     run = find_run(a.run)
     shipped = not Path(a.run).is_dir()  # a shipped model's folder is part of the installed package: print only
     if not shipped:
         check_writable(run)
+        acquire_lock(run, "run folder")  # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile
+    try:
+        _calibrate(a, run, shipped)
+    finally:
+        if not shipped:
+            release_lock(run)
+
+
+def _calibrate(a, run: Path, shipped: bool) -> None:
+    import json
+
+    from .calibrate import GOALS
+    from .files import atomic_write
+    from .grid import load_grid
+    from .pipeline import Sin3DM, resolve_mesh
+
     model = Sin3DM.load(run)
     # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, the mesh
     reference = load_grid(run / "grid.npz").sdf < 0 if (run / "grid.npz").is_file() and a.input is None else None

@@ -13,11 +13,13 @@
   parts (``.sin3dm-manifest-<name>.jsonl``, one JSON object with a ``files``
   entry per line, appended and flushed per item); they count as the manifest
   until the writer merges them into it at the end (:func:`append_manifest_part`).
-* A run folder is locked (``.sin3dm-lock`` holding the PID) while one process writes it.
+* A folder is locked while one process writes it: an OS lock held on ``.sin3dm-lock`` (which
+  names the PID) for the writer's life, see :func:`acquire_lock`.
 """
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 import os
 import re
@@ -250,13 +252,30 @@ def check_writable(path: Path, option: str = "--out") -> None:
 
 
 # --------------------------------------------------------------------------- manifest
-def _stat(p: Path) -> list[int]:
+#: A manifest entry: ``{"size": bytes, "mtime_ns": time, "sha256": content digest, "by": command}``.
+#: A file is ours when its size and time match (the fast check), or its size and content do: a copy
+#: (``cp -r``) or a move keeps the content but not always the time. ``by`` names the command that wrote
+#: it (``sample``, ``render``, ...): ``--overwrite`` of one command replaces only that command's files.
+#: Entries of older versions (``[size, mtime_ns]``) are still read, as written by any command.
+
+
+def _digest(p: Path) -> str:
+    h = hashlib.sha256()
+    with open(p, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def file_entry(p: Path, by: str | None = None) -> dict:
+    """The manifest entry of the file ``p`` as it is now, written by the command ``by``."""
     st = os.stat(p)
-    return [st.st_size, st.st_mtime_ns]
+    entry = {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": _digest(p)}
+    return {**entry, "by": by} if by else entry
 
 
-def read_manifest(folder: Path) -> dict[str, list[int]]:
-    """What this tool wrote in ``folder`` before: ``{relative path: [size, mtime_ns]}`` (empty without a valid manifest)."""
+def read_manifest(folder: Path) -> dict[str, dict | list]:
+    """What this tool wrote in ``folder`` before: ``{relative path: entry}`` (empty without a valid manifest)."""
     try:
         data = json.loads((Path(folder) / MANIFEST).read_text(encoding="utf-8"))
         files = data["files"] if data.get("tool") == "sin3dm-lite" else {}
@@ -269,7 +288,7 @@ def read_manifest(folder: Path) -> dict[str, list[int]]:
     out = {}
     for f, st in files.items():
         if (isinstance(f, str) and f and not os.path.isabs(f) and ".." not in Path(f).parts and f != MANIFEST
-                and _stats(st)):
+                and _entries(st)):
             out[Path(f).as_posix()] = st
     return out
 
@@ -301,7 +320,7 @@ def read_manifest_parts(folder: Path) -> list[dict]:
 
 
 def append_manifest_part(folder: Path, name: str, record: dict) -> None:
-    """Append ``record`` (with ``files: {relative path: [size, mtime_ns]}``) as one line to the part ``name``, on disk.
+    """Append ``record`` (with ``files: {relative path: entry}``) as one line to the part ``name``, on disk.
 
     Call it *before* moving those files into place (a move keeps size and
     time): a kill then leaves no file of ours unrecorded.
@@ -312,44 +331,71 @@ def append_manifest_part(folder: Path, name: str, record: dict) -> None:
         os.fsync(f.fileno())
 
 
-def file_record(folder: Path, names) -> dict[str, list[int]]:
-    """``{relative path: [size, mtime_ns]}`` of ``names`` in ``folder`` as they are now (what a manifest holds)."""
-    return {Path(n).as_posix(): _stat(Path(folder) / n) for n in names}
+def file_record(folder: Path, names, by: str | None = None) -> dict[str, dict]:
+    """``{relative path: entry}`` of ``names`` in ``folder`` as they are now, written by ``by`` (what a manifest holds)."""
+    return {Path(n).as_posix(): file_entry(Path(folder) / n, by) for n in names}
 
 
-def is_ours(folder: Path, rel: str, manifest: dict | None = None) -> bool:
-    """Whether ``folder/rel`` is a file this tool wrote and nobody changed since (same size and time)."""
+def writer(folder: Path, rel: str, manifest: dict | None = None) -> str | None:
+    """The command that wrote ``folder/rel`` if it is a file of ours nobody changed since ("" when an older
+    version wrote it without saying), else None. Same size and time, or same size and content (a copy)."""
     manifest = read_manifest(folder) if manifest is None else manifest
     p = Path(folder) / rel
+    if rel not in manifest:
+        return None
     try:
-        return rel in manifest and p.is_file() and not p.is_symlink() and _stat(p) in _stats(manifest[rel])
+        if not p.is_file() or p.is_symlink():
+            return None
+        st = os.stat(p)
     except OSError:
-        return False
+        return None
+    same_size = [e for e in _entries(manifest[rel]) if e["size"] == st.st_size]
+    match = next((e for e in same_size if e.get("mtime_ns") == st.st_mtime_ns), None)
+    if match is None and any(e.get("sha256") for e in same_size):
+        try:
+            digest = _digest(p)
+        except OSError:
+            return None
+        match = next((e for e in same_size if e.get("sha256") == digest), None)
+    return None if match is None else str(match.get("by") or "")
 
 
-def _stats(entry) -> list[list[int]]:
-    """A manifest entry's acceptable ``[size, mtime_ns]`` pairs: one, or two while a replacement is under way."""
-    if isinstance(entry, list) and len(entry) == 2 and all(isinstance(x, int) for x in entry):
-        return [list(entry)]
-    if isinstance(entry, list) and entry and all(isinstance(x, list) and len(x) == 2 for x in entry):
-        return [list(x) for x in entry]
+def is_ours(folder: Path, rel: str, manifest: dict | None = None, by: str | None = None) -> bool:
+    """Whether ``folder/rel`` is a file this tool wrote (with the command ``by``, if given) and nobody changed since."""
+    w = writer(folder, rel, manifest)
+    return w is not None and (by is None or w in ("", by))
+
+
+def _entries(entry) -> list[dict]:
+    """A manifest entry's acceptable states: one, or two while a replacement is under way."""
+    def one(e):
+        if isinstance(e, dict) and isinstance(e.get("size"), int) and isinstance(e.get("mtime_ns"), int):
+            return e
+        if isinstance(e, list) and len(e) == 2 and all(isinstance(x, int) for x in e):  # older versions
+            return {"size": e[0], "mtime_ns": e[1]}
+        return None
+
+    if one(entry) is not None:
+        return [one(entry)]
+    if isinstance(entry, list) and entry and all(one(e) is not None for e in entry):
+        return [one(e) for e in entry]
     return []
 
 
-def write_manifest(folder: Path, files: dict[str, list[int]]) -> None:
-    """Record ``files`` (``{relative path: [size, mtime_ns]}``) as written by this tool in ``folder``."""
+def write_manifest(folder: Path, files: dict) -> None:
+    """Record ``files`` (``{relative path: entry}``) as written by this tool in ``folder``."""
     atomic_write(Path(folder) / MANIFEST, json.dumps({"tool": "sin3dm-lite", "files": dict(sorted(files.items()))}, indent=1))
 
 
-def record_written(folder: Path, names) -> None:
-    """Add the files ``names`` (relative to ``folder``, as they are now) to its manifest."""
+def record_written(folder: Path, names, by: str | None = None) -> None:
+    """Add the files ``names`` (relative to ``folder``, as they are now, written by the command ``by``) to its manifest."""
     m = read_manifest(folder)
-    m.update({Path(n).as_posix(): _stat(Path(folder) / n) for n in names})
+    m.update(file_record(folder, names, by))
     write_manifest(folder, m)
 
 
 @contextmanager
-def recorded_path(path: str | Path):
+def recorded_path(path: str | Path, by: str | None = None):
     """Yield a temporary path beside ``path``; when the block succeeds, record it as ours and move it onto ``path``.
 
     Like :func:`atomic_path`, but the manifest of ``path``'s folder learns the
@@ -364,15 +410,17 @@ def recorded_path(path: str | Path):
 
     def record(tmp: Path) -> None:  # os.replace keeps size and time
         m = read_manifest(folder)
-        write_manifest(folder, {**m, **replacing(folder, m, {rel: _stat(tmp)})})
+        write_manifest(folder, {**m, **replacing(folder, m, {rel: file_entry(tmp, by)})})
 
-    with atomic_path(path, before_move=record) as tmp:
-        yield tmp
-    record_written(folder, [rel])  # the old file's stat is no longer acceptable
+    folder.mkdir(parents=True, exist_ok=True)
+    with locked(folder):  # no other process writes the folder (and its manifest) meanwhile
+        with atomic_path(path, before_move=record) as tmp:
+            yield tmp
+        record_written(folder, [rel], by)  # the old file's stat is no longer acceptable
 
 
-def replacing(folder: Path, manifest: dict, new: dict[str, list[int]]) -> dict:
-    """The manifest entries of the files ``new`` (``{relative path: [size, mtime_ns]}``) about to be moved into
+def replacing(folder: Path, manifest: dict, new: dict[str, dict]) -> dict:
+    """The manifest entries of the files ``new`` (``{relative path: entry}``) about to be moved into
     ``folder``: where one replaces a file of ours (by ``manifest``), its entry keeps the old stat beside the new.
 
     Write ``{**manifest, **replacing(...)}`` *before* the moves, so a kill
@@ -381,14 +429,14 @@ def replacing(folder: Path, manifest: dict, new: dict[str, list[int]]) -> dict:
     """
     out = {}
     for f, st in new.items():
-        old = _stats(manifest[f]) if is_ours(folder, f, manifest) else []
-        out[f] = old + [list(st)] if old else list(st)
+        old = _entries(manifest[f]) if is_ours(folder, f, manifest) else []
+        out[f] = old + _entries(st) if old else st
     return out
 
 
-def write_recorded(path: str | Path, data: bytes | str) -> Path:
+def write_recorded(path: str | Path, data: bytes | str, by: str | None = None) -> Path:
     """Write ``data`` (text as UTF-8) to ``path`` atomically and record it in its folder's manifest (:func:`recorded_path`)."""
-    with recorded_path(path) as tmp:
+    with recorded_path(path, by) as tmp:
         _write(tmp, data)
     return Path(path)
 
@@ -397,48 +445,63 @@ def _files_under(folder: Path) -> list[str]:
     return sorted(p.relative_to(folder).as_posix() for p in Path(folder).rglob("*") if p.is_file() or p.is_symlink())
 
 
-def foreign_files(out: Path, names) -> list[str]:
-    """Of ``names`` (relative paths, files or folders), those that exist in ``out`` and are not (all) ours."""
+def foreign_files(out: Path, names, by: str | None = None) -> list[str]:
+    """Of ``names`` (relative paths, files or folders), those that exist in ``out`` and are not (all) ours
+    (written by the command ``by``, if given)."""
     out = Path(out)
     ours = read_manifest(out)
     found = []
     for n in names:
         p = out / n
         if p.is_dir() and not p.is_symlink():
-            found += [f"{n}/{f}" for f in _files_under(p) if not is_ours(out, f"{n}/{f}", ours)]
-        elif (p.exists() or p.is_symlink()) and not is_ours(out, Path(n).as_posix(), ours):
+            found += [f"{n}/{f}" for f in _files_under(p) if not is_ours(out, f"{n}/{f}", ours, by)]
+        elif (p.exists() or p.is_symlink()) and not is_ours(out, Path(n).as_posix(), ours, by):
             found.append(Path(n).as_posix())
     return found
 
 
-def check_output_folder(out: Path, overwrite: bool, names=(), option: str = "--out") -> None:
+def clash_error(out: Path, rel: str, by: str | None = None, option: str = "--out") -> Sin3DMInputError:
+    """The one-line refusal for ``out/rel``, a file in the way that is not ours, or another command's."""
+    w = writer(out, rel)
+    if w:
+        return Sin3DMInputError(
+            f"'{Path(out) / rel}' was written by `sin3dm-lite {w}`, and `sin3dm-lite {by}` replaces only files it "
+            f"wrote itself; move it away or choose another {option}")
+    return Sin3DMInputError(
+        f"'{Path(out) / rel}' was not written by sin3dm-lite and would be replaced; move it away or choose another {option}")
+
+
+def present(out: Path) -> list[Path]:
+    """What ``out`` holds, less temporaries and a lock (a writer killed at its start): no content of anyone's."""
+    try:
+        return [p for p in Path(out).iterdir()
+                if not (_TEMP_DIR.match(p.name) or _TEMP_FILE.match(p.name) or p.name == LOCK)]
+    except OSError:
+        return []
+
+
+def check_output_folder(out: Path, overwrite: bool, names=(), option: str = "--out", by: str | None = None) -> None:
     """Refuse an ``out`` that is a file, or a non-empty folder without ``overwrite``.
 
     With ``overwrite``, refuse if any of ``names`` (what the command will write)
-    is a file this tool did not write there before.
+    is a file this tool did not write there before (with the command ``by``, if given).
     """
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise Sin3DMInputError(f"{option} '{out}' is a file; give a folder to write into")
-    if not out.is_dir():
-        return
-    present = [p for p in out.iterdir()  # temporaries and a lock (a writer killed at its start) are no content
-               if not (_TEMP_DIR.match(p.name) or _TEMP_FILE.match(p.name) or p.name == LOCK)]
-    if not present:
+    if not out.is_dir() or not present(out):
         return
     if not overwrite:
         raise Sin3DMInputError(
             f"output folder '{out}' is not empty; pass --overwrite to replace what sin3dm-lite wrote there before "
             f"(other files are kept), or choose another {option}"
         )
-    clash = foreign_files(out, names)
+    clash = foreign_files(out, names, by)
     if clash:
-        raise Sin3DMInputError(
-            f"'{out / clash[0]}' was not written by sin3dm-lite and would be replaced; move it away or choose another {option}"
-        )
+        raise clash_error(out, clash[0], by, option)
 
 
-def merge_output(tmp: Path, out: Path) -> None:
+def merge_output(tmp: Path, out: Path, by: str | None = None) -> None:
     """Move the files of ``tmp`` into the existing folder ``out`` beside what is there, recording them in its manifest.
 
     Unlike :func:`install_output` nothing else of ours in ``out`` is removed
@@ -446,35 +509,45 @@ def merge_output(tmp: Path, out: Path) -> None:
     that no foreign file is in the way.
     """
     names = sorted(p.name for p in Path(tmp).iterdir())
-    new = {n: _stat(Path(tmp) / n) for n in names}  # os.replace keeps size and time
-    old = read_manifest(out)
-    write_manifest(out, {**old, **replacing(out, old, new)})  # first: a kill leaves no file of ours unrecorded
-    for n in names:
-        os.replace(Path(tmp) / n, Path(out) / n)
-    write_manifest(out, {**old, **new})
+    new = file_record(tmp, names, by)  # os.replace keeps size and time
+    with locked(out):
+        old = read_manifest(out)
+        write_manifest(out, {**old, **replacing(out, old, new)})  # first: a kill leaves no file of ours unrecorded
+        for n in names:
+            os.replace(Path(tmp) / n, Path(out) / n)
+        write_manifest(out, {**old, **new})
 
 
-def install_output(tmp: Path, out: Path) -> list[str]:
+def install_output(tmp: Path, out: Path, by: str | None = None) -> list[str]:
     """Move everything in the finished folder ``tmp`` into ``out`` and record it in ``out``'s manifest.
 
-    A new ``out`` appears in one rename. Into an existing ``out``, the files
-    the old manifest lists (unchanged since) are removed first; other files are
-    never touched, and one in the way of a new file stops everything before
-    any change. The manifest is written first with old and new entries, so a
-    kill halfway leaves no file of ours unrecorded. Returns the new files.
+    A new ``out`` appears in one rename. Into an existing ``out``, the files of
+    ours that the command ``by`` wrote there before (unchanged since) are
+    removed first; files other commands wrote (a ``sample`` run's meshes beside
+    a ``render``'s pictures) and files not ours are never touched, and one in the way of
+    a new file stops everything before any change. The manifest is written first with old and
+    new entries, so a kill halfway leaves no file of ours unrecorded. Returns the new files.
     """
     tmp, out = Path(tmp), Path(out)
-    new = {f: _stat(tmp / f) for f in _files_under(tmp)}
+    new = file_record(tmp, _files_under(tmp), by)
     if not out.exists():
         write_manifest(tmp, new)
         os.rename(tmp, out)
         return sorted(new)
+    with locked(out):  # no other process writes it meanwhile (a `sample` run filling it)
+        return _install_into(tmp, out, new, by)
+
+
+def _install_into(tmp: Path, out: Path, new: dict, by: str | None) -> list[str]:
     old = read_manifest(out)
-    mine = {f: st for f, st in old.items() if is_ours(out, f, old)}
-    clash = [f for f in new if (out / f).exists() and f not in mine]
+    kept = {f: e for f, e in old.items() if is_ours(out, f, old)}
+    clash = [f for f in new if ((out / f).exists() or (out / f).is_symlink()) and not is_ours(out, f, old, by)]
     if clash:
-        raise Sin3DMInputError(f"'{out / clash[0]}' was not written by sin3dm-lite and would be replaced; move it away and run again")
-    write_manifest(out, {**mine, **replacing(out, mine, new)})
+        raise clash_error(out, clash[0], by)
+    # this command's earlier files (a render of more views leaves none behind); an older version's, where replaced
+    mine = {f: e for f, e in kept.items() if f in new or (by is not None and writer(out, f, old) == by)}
+    others = {f: e for f, e in kept.items() if f not in mine}
+    write_manifest(out, {**kept, **replacing(out, kept, new)})
     for f in sorted(mine, key=lambda f: -len(Path(f).parts)):
         (out / f).unlink(missing_ok=True)
         for d in list(Path(f).parents)[:-1]:  # folders of ours left empty
@@ -486,19 +559,63 @@ def install_output(tmp: Path, out: Path) -> list[str]:
         dst = out / f
         dst.parent.mkdir(parents=True, exist_ok=True)
         os.replace(tmp / f, dst)
-    write_manifest(out, new)
-    for part in manifest_parts(out):  # folded into the old manifest, which is replaced now
-        part.unlink(missing_ok=True)
+    write_manifest(out, {**others, **new})
     shutil.rmtree(tmp, ignore_errors=True)
     return sorted(new)
 
 
-# --------------------------------------------------------------------------- run-folder lock
-_held: set[Path] = set()
+# --------------------------------------------------------------------------- folder lock
+# A writer holds an OS lock (flock; a byte lock on Windows) on ``folder/.sin3dm-lock`` for as long as it
+# writes, and keeps its PID, host and start time in the file for the messages. The OS drops the lock when
+# the process ends however it ends, so a lock file nobody holds is provably stale, and a file that is
+# created but not yet written (a writer just starting) is never mistaken for one: its writer holds it.
+try:
+    import fcntl
+
+    def _try_lock(fd: int) -> bool:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except (BlockingIOError, PermissionError):
+            return False
+except ImportError:  # Windows
+    import msvcrt
+
+    def _try_lock(fd: int) -> bool:
+        try:
+            os.lseek(fd, 0, os.SEEK_SET)
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+            return True
+        except OSError:
+            return False
+
+_held: dict[Path, int] = {}  # locked folder → the open lock file
 
 
 def _lock_info() -> dict:
     return {"pid": os.getpid(), "host": socket.gethostname(), "since": time.strftime("%Y-%m-%d %H:%M:%S")}
+
+
+def _write_info(fd: int) -> None:
+    os.lseek(fd, 0, os.SEEK_SET)
+    os.ftruncate(fd, 0)
+    os.write(fd, json.dumps(_lock_info()).encode())
+    os.fsync(fd)
+
+
+def _read_info(fd_or_path) -> dict:
+    """The owner a lock file names ({} while its writer has not written it yet, or unreadable)."""
+    try:
+        if isinstance(fd_or_path, int):
+            os.lseek(fd_or_path, 0, os.SEEK_SET)
+            text = os.read(fd_or_path, 4096).decode()
+        else:
+            text = Path(fd_or_path).read_text()
+        info = json.loads(text)
+        int(info["pid"])
+        return info
+    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError):
+        return {}
 
 
 def create_locked_folder(folder: Path, files: dict[str, str], option: str = "--out") -> None:
@@ -511,52 +628,89 @@ def create_locked_folder(folder: Path, files: dict[str, str], option: str = "--o
     folder.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temps(folder.parent)
     tmp = make_temp_dir(folder.parent)
+    fd = None
     try:
         for name, text in files.items():
             (tmp / name).write_text(text, encoding="utf-8")
-        (tmp / LOCK).write_text(json.dumps(_lock_info()))
+        fd = os.open(tmp / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        if not _try_lock(fd):  # nobody else can see it yet
+            raise OSError(0, "could not lock a new file")
+        _write_info(fd)
         os.rename(tmp, folder)  # replaces an empty folder; fails if another process filled it meanwhile
     except OSError as e:
+        if fd is not None:
+            os.close(fd)
         shutil.rmtree(tmp, ignore_errors=True)
         raise Sin3DMInputError(f"cannot create '{folder}' ({e.strerror}); choose another {option}") from None
-    _held.add(_resolved(folder))
+    _held[_resolved(folder)] = fd
 
 
-def acquire_lock(folder: Path) -> None:
-    """Lock ``folder`` for this process (``folder/.sin3dm-lock`` with the PID).
+def acquire_lock(folder: Path, what: str = "folder") -> None:
+    """Lock ``folder`` for this process (an OS lock on ``folder/.sin3dm-lock``, which names the PID).
 
-    A lock of a live process refuses; a lock of a dead one is taken over with a warning.
+    A lock another process holds refuses, even one whose file is still empty
+    (that writer is just starting). A lock file nobody holds is stale and
+    taken over (with a warning when it names a process), unless it names a
+    process that still runs here, or one on another machine: then it refuses
+    too, since nothing proves that process gone. ``what`` names the folder in messages.
     """
     folder = Path(folder)
     lock = folder / LOCK
+    key = _resolved(folder)
+    if key in _held:
+        raise Sin3DMInputError(f"{what} '{folder}' is already being written by this process; wait for that to finish")
     me = _lock_info()
     for _ in range(3):
         try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            try:
-                info = json.loads(lock.read_text())
-                pid, host = int(info["pid"]), str(info.get("host", ""))
-            except (OSError, ValueError, KeyError, TypeError):
-                info, pid, host = {}, -1, me["host"]  # unreadable: a writer killed while writing it
-            if host == me["host"] and not pid_alive(pid) or pid == -1:
-                warnings.warn(f"run folder '{folder}' was locked by process {pid}, which no longer runs; taking it over",
-                              stacklevel=3)
-                try:
-                    lock.unlink()
-                except FileNotFoundError:
-                    pass
-                continue
-            raise Sin3DMInputError(
-                f"run folder '{folder}' is being written by another sin3dm-lite process (PID {pid} on {host or 'this machine'}, "
-                f"since {info.get('since', '?')}); wait for it to finish, or delete '{lock}' if that process is gone"
-            ) from None
-        with os.fdopen(fd, "w") as f:
-            json.dump(me, f)
-        _held.add(_resolved(folder))
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise Sin3DMInputError(f"cannot lock {what} '{folder}' ({e.strerror}); check its permissions") from None
+        if not _try_lock(fd):
+            info = _read_info(fd)
+            os.close(fd)
+            who = (f"PID {info['pid']} on {info.get('host') or 'this machine'}, since {info.get('since', '?')}"
+                   if info else "it is just starting")
+            raise Sin3DMInputError(f"{what} '{folder}' is being written by another sin3dm-lite process ({who}); "
+                                   "wait for it to finish, or choose another --out") from None
+        try:
+            same = os.path.samestat(os.fstat(fd), os.stat(lock))
+        except OSError:
+            same = False
+        if not same:  # its owner removed the file while we opened it: take the new one
+            os.close(fd)
+            continue
+        info = _read_info(fd)
+        if info:
+            pid, host = int(info["pid"]), str(info.get("host", ""))
+            if host and host != me["host"] or pid_alive(pid) and pid != me["pid"]:
+                os.close(fd)  # a writer of an older version (no OS lock), or on another machine: not provably gone
+                raise Sin3DMInputError(
+                    f"{what} '{folder}' is being written by another sin3dm-lite process (PID {pid} on "
+                    f"{host or 'this machine'}, since {info.get('since', '?')}); wait for it to finish, or delete "
+                    f"'{lock}' if that process is gone")
+            warnings.warn(f"{what} '{folder}' was locked by process {pid}, which no longer runs; taking it over",
+                          stacklevel=3)
+        elif os.fstat(fd).st_size:
+            warnings.warn(f"{what} '{folder}' had an unreadable lock that no process holds; taking it over",
+                          stacklevel=3)
+        _write_info(fd)
+        _held[key] = fd
         remove_stale_temps(folder)  # the folder is ours now: leftovers of a killed writer can go
         return
-    raise Sin3DMInputError(f"could not lock run folder '{folder}'; another process keeps taking '{lock}'")
+    raise Sin3DMInputError(f"could not lock {what} '{folder}'; another process keeps taking '{lock}'")
+
+
+@contextmanager
+def locked(folder: Path, what: str = "output folder"):
+    """Hold ``folder``'s lock for the block (unless this process holds it already)."""
+    if holds_lock(folder):
+        yield
+        return
+    acquire_lock(folder, what)
+    try:
+        yield
+    finally:
+        release_lock(folder)
 
 
 def holds_lock(folder: Path) -> bool:
@@ -564,11 +718,17 @@ def holds_lock(folder: Path) -> bool:
 
 
 def release_lock(folder: Path) -> None:
-    """Remove ``folder``'s lock if this process holds it."""
-    key = _resolved(folder)
-    if key in _held:
-        _held.discard(key)
-        try:
-            (Path(folder) / LOCK).unlink()
-        except FileNotFoundError:
-            pass
+    """Remove ``folder``'s lock if this process holds it (the file first, so no one locks a removed file)."""
+    fd = _held.pop(_resolved(folder), None)
+    if fd is None:
+        return
+    try:
+        (Path(folder) / LOCK).unlink()
+    except FileNotFoundError:
+        pass
+    except PermissionError:  # Windows removes no open file
+        os.close(fd)
+        fd = None
+        (Path(folder) / LOCK).unlink(missing_ok=True)
+    if fd is not None:
+        os.close(fd)

@@ -9,7 +9,7 @@ The folder, as it fills::
     DIR/NNN/              one folder per sample, appearing whole: mesh.obj/.mtl/.png, mesh.glb,
                           latent.pt (the triplane: decode or edit it again), preview.png
     DIR/.sin3dm-manifest-rank<r>.jsonl   while running: one line per finished sample of rank r (index, seed,
-                          folder, files with size and time, faces, seconds, time), appended and flushed
+                          folder, files with size, time and SHA-256, faces, seconds, time), appended and flushed
     DIR/samples.jsonl     at the end: those lines of all ranks, sorted by index (rank 0 merges them)
     DIR/index.html        a 3D gallery of the first samples; contact_sheet.png: the input beside them
 
@@ -21,7 +21,10 @@ Rules:
   finished when its line exists and all its files are there unchanged; anything else is redone.
 * Rerunning into a folder whose ``sampling.json`` holds the same settings continues it
   (``-n`` and ``--start`` may differ: the folder grows); other settings are refused unless
-  ``--overwrite``, which first removes every file sin3dm-lite wrote there (other files stay).
+  ``--overwrite``, which first removes every file ``sample`` wrote there (other files stay,
+  those of other sin3dm-lite commands too), or unless no sample there finished yet.
+* Every flag is checked before the folder is touched; a run that fails before its first
+  sample finished removes what it wrote (:func:`abandon`), so the folder blocks nothing.
 * Under torchrun (``RANK``/``WORLD_SIZE``/``LOCAL_RANK`` set) rank 0 checks and prepares the
   folder and lists the missing indices; rank ``r`` takes every ``world``-th of them; rank 0
   merges at the end. gloo on CPU, nccl on CUDA (``cuda:LOCAL_RANK``).
@@ -46,7 +49,7 @@ import numpy as np
 import torch
 
 from .errors import Sin3DMInputError
-from .files import (acquire_lock, append_manifest_part, file_record, foreign_files, is_ours,
+from .files import (MANIFEST, acquire_lock, append_manifest_part, file_record, foreign_files, is_ours,
                     make_temp_dir, manifest_parts, read_manifest, read_manifest_parts, release_lock, replacing,
                     save_torch, write_manifest)
 
@@ -56,6 +59,7 @@ MAX_RUN_SAMPLES = 1_000_000  # per run folder
 DEFAULT_BATCH = 8
 GALLERY_MAX = 16  # samples shown in index.html and contact_sheet.png
 SAMPLE_FILES = ("mesh", "preview.png", "latent.pt")  # names (prefixes) written into NNN/
+WRITER = "sample"  # the command that owns these files in the manifest: --overwrite replaces only them
 
 
 def folder_name(i: int) -> str:
@@ -144,7 +148,7 @@ def sample_settings(model, plan, a, control: dict) -> dict:
 def read_settings(out: Path) -> dict | None:
     """The settings of the sample run in ``out`` (None without a ``sampling.json`` of ours)."""
     try:
-        if not is_ours(out, SETTINGS):
+        if not is_ours(out, SETTINGS, by=WRITER):
             return None
         data = json.loads((out / SETTINGS).read_text(encoding="utf-8"))
         return data["settings"] if data.get("tool") == "sin3dm-lite" else None
@@ -168,7 +172,7 @@ def finished(out: Path) -> dict[int, dict]:
             i, files = int(r["index"]), r["files"]
         except (KeyError, TypeError, ValueError):
             continue
-        if files and all(is_ours(out, f, ours) for f in files):
+        if files and all(is_ours(out, f, ours, WRITER) for f in files):
             done[i] = r
     return done
 
@@ -180,60 +184,120 @@ def check_folder(out: Path, a, settings: dict, names_for) -> bool:
     ``--overwrite``. A non-empty folder without them: refused unless ``--overwrite``.
     ``names_for(out)`` lists the files the run will write (checked for foreign ones).
     """
-    from .files import check_output_folder
+    from .files import check_output_folder, clash_error, present
 
     if out.exists() and not out.is_dir():
         raise Sin3DMInputError(f"--out '{out}' is a file; give a folder to write into")
     old = read_settings(out) if out.is_dir() else None
     if old is not None and not a.overwrite:
+        content = [p.name for p in present(out) if p.name != MANIFEST and p not in manifest_parts(out)]
+        if old != settings and not finished(out) and not foreign_files(out, content, WRITER):
+            return False  # a run stopped before its first sample (killed): nothing there to keep, start over
         if old != settings:
             key = next(k for k in sorted(set(old) | set(settings)) if old.get(k) != settings.get(k))
             raise Sin3DMInputError(f"'{out}' holds samples with other settings ({key}: {old.get(key)} there, "
                                    f"{settings.get(key)} now); choose another --out, or pass --overwrite to replace "
                                    "them (files sin3dm-lite did not write are kept)")
-        clash = foreign_files(out, names_for(out))
+        clash = foreign_files(out, names_for(out), WRITER)
         if clash:
-            raise Sin3DMInputError(f"'{out / clash[0]}' was not written by sin3dm-lite and would be replaced; move it "
-                                   "away or choose another --out")
+            raise clash_error(out, clash[0], WRITER)
         return True
-    check_output_folder(out, a.overwrite, names_for(out))
+    check_output_folder(out, a.overwrite, names_for(out), by=WRITER)
     return False
 
 
+def sample_file(rel: str) -> bool:
+    """Whether ``rel`` is a name a sample run writes (how files of older versions, which did not say, are told apart)."""
+    parts = Path(rel).parts
+    if len(parts) == 1:
+        return rel in (SETTINGS, SAMPLES, "index.html", "contact_sheet.png")
+    return len(parts) == 2 and parts[0].isdigit() and parts[1].startswith(SAMPLE_FILES)
+
+
 def remove_ours(out: Path) -> None:
-    """Remove every file the manifest (and its parts) lists as ours and unchanged, and folders left empty."""
+    """Remove every file of a sample run the manifest (and its parts) lists as ours and unchanged, and folders
+    left empty; files other commands wrote there (a ``render``'s pictures, an ``evaluate`` report) stay."""
+    from .files import writer
+
     m = read_manifest(out)
+    kept = {}
     for f in sorted(m, key=lambda f: -len(Path(f).parts)):
-        if is_ours(out, f, m):
+        w = writer(out, f, m)
+        if w == WRITER or w == "" and sample_file(f):
             (out / f).unlink(missing_ok=True)
             for d in list(Path(f).parents)[:-1]:
                 try:
                     (out / d).rmdir()
                 except OSError:
                     break
-    write_manifest(out, {})
+        elif w is not None:
+            kept[f] = m[f]
+    write_manifest(out, kept)
     for part in manifest_parts(out):
         part.unlink(missing_ok=True)
 
 
+def check_request(model, a) -> None:
+    """Refuse what sampling would refuse about the flags (``--steps`` out of range, ...) before the folder is touched."""
+    from .diffusion import sampling_timesteps
+
+    s = model.config.sampling
+    steps, top = a.steps or s.steps, model.schedule.timesteps
+    if not a.ddpm and s.method == "ddim" and not 1 <= steps <= top:
+        raise Sin3DMInputError(f"--steps {steps} is more than this model's {top} time steps; ask for 1 to {top} "
+                               "DDIM steps")
+    sampling_timesteps(model.schedule, "ddpm" if a.ddpm else s.method, steps)
+
+
+def abandon(out: Path) -> bool:
+    """After a run failed before any sample finished: remove what it wrote, so that the folder blocks no
+    corrected command (its ``sampling.json`` would refuse other settings). Returns whether it did."""
+    if finished(out):
+        return False
+    remove_ours(out)
+    if not read_manifest(out):
+        (out / MANIFEST).unlink(missing_ok=True)
+    return True
+
+
 def prepare_folder(out: Path, a, settings: dict, run: str, names_for) -> list[int]:
-    """Rank 0: check, lock and set up ``out``; returns the indices still to sample."""
+    """Rank 0: lock, check and set up ``out``; returns the indices still to sample.
+
+    The lock comes before the checks: a check made before another writer
+    filled the folder would be out of date (and remove its samples as ours).
+    """
     from .files import check_writable, write_recorded
 
-    continuing = check_folder(out, a, settings, names_for)
+    if out.exists() and not out.is_dir():
+        raise Sin3DMInputError(f"--out '{out}' is a file; give a folder to write into")
     check_writable(out)
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    acquire_lock(out)  # one writer per folder; removes temporaries a killed run left
     try:
+        acquire_lock(out, "output folder")  # one writer per folder; removes temporaries a killed run left
+    except BaseException:
+        _remove_if_empty(out, created)
+        raise
+    try:
+        continuing = check_folder(out, a, settings, names_for)
         if not continuing:
             remove_ours(out)
             write_recorded(out / SETTINGS, json.dumps({"tool": "sin3dm-lite", "kind": "samples", "run": run,
-                                                       "settings": settings}, indent=1))
+                                                       "settings": settings}, indent=1), by=WRITER)
         done = finished(out)
     except BaseException:
         release_lock(out)
+        _remove_if_empty(out, created)
         raise
     return [i for i in range(a.start, a.start + a.n) if i not in done]
+
+
+def _remove_if_empty(out: Path, created: bool) -> None:
+    if created:
+        try:
+            out.rmdir()
+        except OSError:
+            pass  # something is there
 
 
 # --------------------------------------------------------------------------- one sample: decode, texture, export
@@ -283,9 +347,9 @@ def install_sample(tmp: Path, dst: Path, out: Path, ours: dict | None) -> None:
         return
     for item in sorted(tmp.iterdir(), key=lambda p: (p.suffix == ".obj", p.name)):  # an OBJ appears last
         rel = f"{dst.name}/{item.name}"
-        if (dst / item.name).exists() and not is_ours(out, rel, ours):
-            raise Sin3DMInputError(f"'{dst / item.name}' was not written by sin3dm-lite and would be replaced; move "
-                                   "it away and run again")
+        if (dst / item.name).exists() and not is_ours(out, rel, ours, WRITER):
+            raise Sin3DMInputError(f"'{dst / item.name}' was not written by `sin3dm-lite sample` and would be "
+                                   "replaced; move it away and run again")
         os.replace(item, dst / item.name)
     shutil.rmtree(tmp, ignore_errors=True)
 
@@ -313,7 +377,7 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
     def land(i: int, tmp: Path, started: float, info: dict) -> None:
         name = folder_name(i)
         ours = read_manifest(out) if (out / name).exists() else None  # before this record joins it
-        files = {f"{name}/{k}": v for k, v in file_record(tmp, sorted(p.name for p in tmp.iterdir())).items()}
+        files = {f"{name}/{k}": v for k, v in file_record(tmp, sorted(p.name for p in tmp.iterdir()), WRITER).items()}
         if ours is not None:  # files of an earlier, killed try stay ours until this one replaces them
             files = replacing(out, ours, files)
         append_manifest_part(out, f"rank{ranks.rank}", {
@@ -406,7 +470,7 @@ def finish_folder(model, out: Path, a, plan, label: str = "sample") -> dict[int,
             write_contact_sheet(model, a, plan, previews, [folder_name(i) for i in first], tmp / "contact_sheet.png",
                                 label)
         names = sorted(p.name for p in tmp.iterdir())
-        new = file_record(tmp, names)
+        new = file_record(tmp, names, WRITER)
         m = read_manifest(out)
         m = {f: st for f, st in m.items() if is_ours(out, f, m)}
         write_manifest(out, {**m, **replacing(out, m, new)})  # first: nothing of ours unrecorded, old or new

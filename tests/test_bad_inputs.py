@@ -376,7 +376,7 @@ def test_a_kill_while_a_recorded_file_is_replaced_leaves_it_ours(tmp_path, monke
     assert (out / "sampling.json").read_text() == ("old" if step == "before the move" else "newer")
     assert files.is_ours(out, "sampling.json") and files.foreign_files(out, ["sampling.json"]) == []
     files.write_recorded(out / "sampling.json", "again!")
-    assert files.read_manifest(out) == {"sampling.json": files._stat(out / "sampling.json")}  # one stat once done
+    assert files.read_manifest(out) == files.file_record(out, ["sampling.json"])  # one state once done
 
 
 def test_a_kill_while_an_output_folder_is_replaced_leaves_its_files_ours(tmp_path, monkeypatch):
