@@ -24,6 +24,10 @@ from __future__ import annotations
 
 import importlib
 
+from .threads import apply_wait_policy as _apply_wait_policy
+
+_apply_wait_policy()  # before torch loads: idle OpenMP threads sleep, so processes sharing the cores don't stall
+
 __version__ = "0.1.0"
 
 #: public name → module that defines it

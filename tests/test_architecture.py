@@ -15,7 +15,7 @@ PACKAGE = Path(sin3dm_lite.__file__).parent
 
 #: stage of every module (a module may import only from stages <= its own)
 STAGES = {
-    "errors": 0, "config": 0, "device": 0, "files": 0,  # utilities used everywhere
+    "errors": 0, "config": 0, "device": 0, "files": 0, "threads": 0,  # utilities used everywhere
     "mesh_io": 1, "box": 1, "grid": 1,  # data
     "triplane": 2, "training": 2, "autoencoder": 2, "decode": 2, "unet": 2, "diffusion": 2,  # model
     "extract": 3, "export": 3, "control": 3,  # generate
