@@ -249,9 +249,9 @@ def _worker_init(model_path: str, opts: dict) -> None:
 
 def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: dict | None = None) -> dict:
     """Decode one latent into a textured mesh in ``tmp`` (mesh.*, preview.png); returns ``{"faces", "no_pictures"}``."""
-    from .export import export_mesh
+    from .generate.export import export_mesh
     from .pipeline import Samples
-    from .triplane import Triplane
+    from .model.triplane import Triplane
 
     model = model or _WORKER["model"]
     opts = opts or _WORKER["opts"]
@@ -261,8 +261,8 @@ def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: di
     export_mesh(mesh, Path(tmp), name="mesh")
     why = None
     if opts["pictures"] and not _WORKER.get("no_pictures"):
-        from .render import render_hero
-        from .viewer import png_bytes
+        from .evaluate.render import render_hero
+        from .show.viewer import png_bytes
 
         try:
             (Path(tmp) / "preview.png").write_bytes(png_bytes(render_hero(mesh, size=384, box=opts["box"])))
@@ -372,8 +372,8 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
 
 def finish_folder(model, out: Path, a, plan, label: str = "sample") -> dict[int, dict]:
     """Rank 0, after every rank is done: samples.jsonl, index.html, contact_sheet.png and the manifest."""
-    from .mesh_io import load_any
-    from .viewer import gallery, save_html
+    from .data.mesh_io import load_any
+    from .show.viewer import gallery, save_html
 
     done = finished(out)
     tmp = make_temp_dir(out)
@@ -406,8 +406,8 @@ def write_contact_sheet(model, a, plan, previews: list[Path], labels: list[str],
     """The input's reconstruction (rendered at the previews' scale) beside the samples' previews."""
     from PIL import Image
 
-    from .render import contact_sheet, render_hero
-    from .viewer import png_bytes
+    from .evaluate.render import contact_sheet, render_hero
+    from .show.viewer import png_bytes
 
     box_n = np.array([np.minimum(model.aabb[:3], plan.aabb[:3]), np.maximum(model.aabb[3:], plan.aabb[3:])])
     try:

@@ -42,9 +42,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .errors import Sin3DMInputError
-from .box import as_aabb, axis_centres, grid_shape, to_index
-from .extract import rasterize_triangles
+from ..errors import Sin3DMInputError
+from ..data.box import as_aabb, axis_centres, grid_shape, to_index
+from ..generate.extract import rasterize_triangles
 
 #: Tiny shift (in voxels) of the mesh against the ray grid: marching-cubes vertices of the same grid lie
 #: exactly on the rays, and a ray through an edge would be counted twice.
@@ -149,7 +149,7 @@ def input_occupancy(mesh, aabb, resolution: int = 128) -> np.ndarray:
     mesh (a ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)``) must be in the same (normalised) coordinates as ``aabb``, e.g.
     ``mesh.normalized()`` for the box a fit used.
     """
-    from .grid import inside
+    from ..data.grid import inside
 
     box = as_aabb(aabb)
     shape = grid_shape(box, resolution)

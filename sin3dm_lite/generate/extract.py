@@ -41,11 +41,11 @@ from typing import Any
 
 import numpy as np
 
-from .box import as_aabb, to_box
-from .decode import PreparedTriplane, decode_grid, prepare, query_points
-from .errors import Sin3DMInputError
-from .mesh_io import Material, Normalization, TexturedMesh, component_labels, face_areas, tangent_frames
-from .triplane import Triplane
+from ..data.box import as_aabb, to_box
+from ..model.decode import PreparedTriplane, decode_grid, prepare, query_points
+from ..errors import Sin3DMInputError
+from ..data.mesh_io import Material, Normalization, TexturedMesh, component_labels, face_areas, tangent_frames
+from ..model.triplane import Triplane
 
 
 class NoSurfaceError(Sin3DMInputError):

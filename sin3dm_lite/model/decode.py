@@ -30,9 +30,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from .box import as_aabb, cell_centres, grid_shape
-from .errors import Sin3DMInputError
-from .grid import ShapeGrid
+from ..data.box import as_aabb, cell_centres, grid_shape
+from ..errors import Sin3DMInputError
+from ..data.grid import ShapeGrid
 from .triplane import Triplane
 
 if TYPE_CHECKING:

@@ -22,9 +22,9 @@ import torch
 import torch.nn.functional as F
 from tqdm.auto import tqdm
 
-from .config import DiffusionConfig
-from .device import PRECISIONS, autocast
-from .errors import Sin3DMInputError
+from ..data.config import DiffusionConfig
+from ..device import PRECISIONS, autocast
+from ..errors import Sin3DMInputError
 from .training import Trainer, checkpoint_problem
 from .triplane import PLANE_AXES, Triplane
 from .unet import TriplaneUNet

@@ -31,9 +31,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from .config import AutoencoderConfig
-from .device import autocast
-from .grid import ShapeGrid
+from ..data.config import AutoencoderConfig
+from ..device import autocast
+from ..data.grid import ShapeGrid
 from .training import Trainer
 from .triplane import PLANES, Triplane
 
@@ -303,7 +303,7 @@ class AutoencoderTrainer(Trainer):
     def __init__(self, grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: int = 0):
         super().__init__(cfg, device, seed, generator_device="cpu")
         if cfg.pbr != grid.has_pbr:
-            from .errors import Sin3DMInputError
+            from ..errors import Sin3DMInputError
 
             raise Sin3DMInputError(
                 f"the grid has {grid.color.shape[-1]} texture channels but the config says pbr={cfg.pbr}; "

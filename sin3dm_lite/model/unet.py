@@ -22,7 +22,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from .config import DiffusionConfig
+from ..data.config import DiffusionConfig
 from .triplane import PLANE_AXES, PLANES, Triplane
 
 

@@ -66,11 +66,11 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import Sin3DMInputError
-from .export import baked_image
-from .files import atomic_write
-from .mesh_io import TexturedMesh
-from .viewer import png_bytes
+from ..errors import Sin3DMInputError
+from ..generate.export import baked_image
+from ..files import atomic_write
+from ..data.mesh_io import TexturedMesh
+from ..show.viewer import png_bytes
 
 #: vertical field of view of the camera, degrees
 FOV = 40.0

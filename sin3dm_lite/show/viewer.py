@@ -32,9 +32,9 @@ from typing import Sequence
 import k3d
 import numpy as np
 
-from .export import baked_image, split_corners
-from .files import atomic_write
-from .mesh_io import TexturedMesh, array_to_pil, unique_rows
+from ..generate.export import baked_image, split_corners
+from ..files import atomic_write
+from ..data.mesh_io import TexturedMesh, array_to_pil, unique_rows
 
 UP_AXES = ("y", "z")
 

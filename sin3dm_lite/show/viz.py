@@ -26,8 +26,8 @@ from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from .grid import ShapeGrid
-from .triplane import PLANE_AXES, PLANES, Triplane, pca_basis, pca_project, plane_to_image
+from ..data.grid import ShapeGrid
+from ..model.triplane import PLANE_AXES, PLANES, Triplane, pca_basis, pca_project, plane_to_image
 
 AXES = ("x", "y", "z")
 SDF_CMAP = "RdBu"  # red inside (negative), blue outside
@@ -966,9 +966,9 @@ def plot_meshes(meshes, labels: Sequence[str] | None = None, size: int = 256, co
     notebook as a PNG). Where off-screen OpenGL cannot start (Linux without
     Mesa's EGL) the figure is one line of text saying so: the notebook runs on.
     """
-    from .errors import Sin3DMInputError
-    from .mesh_io import Material, TexturedMesh
-    from .render import contact_sheet, render_hero
+    from ..errors import Sin3DMInputError
+    from ..data.mesh_io import Material, TexturedMesh
+    from ..evaluate.render import contact_sheet, render_hero
 
     def textured(m) -> TexturedMesh:
         if isinstance(m, TexturedMesh):
@@ -1021,7 +1021,7 @@ def plot_iou_matrix(grids: Sequence[np.ndarray], labels: Sequence[str] | None = 
     G-Div is the mean of the cells above the diagonal; the diagonal (a shape
     with itself, 0) is left blank.
     """
-    from .metrics import pairwise_iou
+    from ..evaluate.metrics import pairwise_iou
 
     d = 1.0 - pairwise_iou(grids)
     n = len(d)
@@ -1052,7 +1052,7 @@ def plot_layer_variation(reference: np.ndarray, grids: Sequence[np.ndarray], axi
     Left: the input's solid voxels per layer (what there is to vary). Right:
     each layer's share of G-Div (:func:`metrics.g_div_by_layer`; the bars sum to G-Div).
     """
-    from .metrics import check_same_grid, g_div_by_layer
+    from ..evaluate.metrics import check_same_grid, g_div_by_layer
 
     k = _axis_index(axis)
     check_same_grid([reference, *grids])  # the input and the samples in one box
@@ -1128,7 +1128,7 @@ def plot_render_pairs(views_a: Sequence[np.ndarray], views_b: Sequence[np.ndarra
     ``metrics.colour_distance``, the mean of that difference. ``views`` picks
     the view indices shown (default: all; views are assumed every ``360 / len(views_a)`` degrees).
     """
-    from .metrics import colour_distance, foreground
+    from ..evaluate.metrics import colour_distance, foreground
 
     if len(views_a) != len(views_b):
         raise ValueError(f"both shapes need the same views, got {len(views_a)} and {len(views_b)}")
