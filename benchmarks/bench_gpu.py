@@ -45,7 +45,7 @@ from sin3dm_lite.model.autoencoder import AutoencoderTrainer  # noqa: E402
 from sin3dm_lite.data.config import get_preset, parse_settings  # noqa: E402
 from sin3dm_lite.device import get_device  # noqa: E402
 from sin3dm_lite.model.diffusion import DiffusionTrainer  # noqa: E402
-from sin3dm_lite.generate.export import export_mesh  # noqa: E402
+from sin3dm_lite.data.export import export_mesh  # noqa: E402
 from sin3dm_lite.pipeline import Sin3DM, _grid_for, resolve_mesh  # noqa: E402
 
 SHORT_RUN_EMA = 0.999

@@ -87,7 +87,7 @@ _API = {
     "extract_mesh": "generate.extract",
     "marching_cubes": "generate.extract",
     "pbr_maps": "generate.extract",
-    "export_mesh": "generate.export",
+    "export_mesh": "data.export",
     # eval
     "reconstruction_metrics": "evaluate.metrics",
     "voxelize": "evaluate.metrics",
@@ -110,7 +110,7 @@ _API = {
 _MODULES = {name: module for name, module in (
     ("viz", "show.viz"), ("widgets", "show.widgets"), ("viewer", "show.viewer"),
     ("metrics", "evaluate.metrics"), ("render", "evaluate.render"), ("examples", "data.examples"),
-    ("box", "data.box"), ("extract", "generate.extract"), ("export", "generate.export"), ("mesh_io", "data.mesh_io"),
+    ("box", "data.box"), ("extract", "generate.extract"), ("export", "data.export"), ("mesh_io", "data.mesh_io"),
 )}
 
 __all__ = sorted(_API) + sorted(_MODULES)

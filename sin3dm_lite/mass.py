@@ -249,7 +249,7 @@ def _worker_init(model_path: str, opts: dict) -> None:
 
 def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: dict | None = None) -> dict:
     """Decode one latent into a textured mesh in ``tmp`` (mesh.*, preview.png); returns ``{"faces", "no_pictures"}``."""
-    from .generate.export import export_mesh
+    from .data.export import export_mesh
     from .pipeline import Samples
     from .model.triplane import Triplane
 

@@ -20,7 +20,7 @@ from trimesh.visual.material import PBRMaterial
 
 from sin3dm_lite import export, mesh_io
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.generate.export import save_glb, save_obj
+from sin3dm_lite.data.export import save_glb, save_obj
 from sin3dm_lite.show.viewer import to_trimesh
 from sin3dm_lite.data.mesh_io import (
     DEFAULT_COLOR,

@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from sin3dm_lite.cli import main
-from sin3dm_lite.generate.export import export_mesh
+from sin3dm_lite.data.export import export_mesh
 from sin3dm_lite.data.mesh_io import Material, TexturedMesh
 from sin3dm_lite.evaluate.render import contact_sheet, render_hero, render_views, save_views, view_angles, view_names
 

@@ -59,7 +59,7 @@ def build_example(name: str, seed: int = 0) -> TexturedMesh:
 
 def write_example(name: str, out_dir, seed: int = 0) -> Path:
     """Write ``out_dir/<name>.obj`` (+ ``.mtl`` and ``.png``) for Blender or any viewer; returns the OBJ path."""
-    from ..generate.export import save_obj
+    from .export import save_obj
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import os
 import re
 import zlib
@@ -32,7 +31,8 @@ from typing import Sequence
 import k3d
 import numpy as np
 
-from ..generate.export import baked_image, split_corners
+from ..data.export import baked_image, split_corners
+from ..evaluate.render import png_bytes
 from ..files import atomic_write
 from ..data.mesh_io import TexturedMesh, array_to_pil, unique_rows
 
@@ -95,22 +95,6 @@ def pack_colors(rgb: np.ndarray) -> np.ndarray:
         c = np.clip(np.round(np.asarray(c, np.float64) * 255.0), 0, 255).astype(np.uint8)
     c = c[..., :3].astype(np.uint32)
     return (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
-
-
-def png_bytes(image: np.ndarray, max_size: int | None = None) -> bytes:
-    """Encode an ``(h, w, 3|4)`` image (float in [0, 1] or uint8) as PNG, shrunk to ``max_size`` if larger."""
-    from PIL import Image
-
-    img = np.asarray(image)
-    if img.dtype != np.uint8:
-        img = np.clip(np.round(img.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
-    pil = Image.fromarray(img[..., :3] if img.ndim == 3 else img)
-    if max_size and max(pil.size) > max_size:
-        scale = max_size / max(pil.size)
-        pil = pil.resize((max(1, round(pil.size[0] * scale)), max(1, round(pil.size[1] * scale))), Image.BILINEAR)
-    buf = io.BytesIO()
-    pil.save(buf, format="png")
-    return buf.getvalue()
 
 
 def new_plot(**kwargs) -> k3d.Plot:
