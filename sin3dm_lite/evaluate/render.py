@@ -67,10 +67,10 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import Sin3DMInputError
 from ..data.export import baked_image
-from ..files import atomic_write
 from ..data.mesh_io import TexturedMesh
+from ..errors import Sin3DMInputError
+from ..files import atomic_write
 
 #: vertical field of view of the camera, degrees
 FOV = 40.0

@@ -10,7 +10,21 @@ from matplotlib.patches import Rectangle
 
 from ..data.grid import ShapeGrid
 from ..model.triplane import PLANE_AXES, PLANES
-from .figures import AXES, NEUTRAL, SDF_CMAP, as_numpy, axis_index, draw_slice, grid_slice, new_figure, panel_height, plane_axes, plane_extent, show_image, slice_title
+from .figures import (
+    AXES,
+    NEUTRAL,
+    SDF_CMAP,
+    as_numpy,
+    axis_index,
+    draw_slice,
+    grid_slice,
+    new_figure,
+    panel_height,
+    plane_axes,
+    plane_extent,
+    show_image,
+    slice_title,
+)
 
 
 # --------------------------------------------------------------------------- grids

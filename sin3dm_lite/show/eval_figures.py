@@ -6,9 +6,9 @@ from typing import Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
+from ..evaluate.metrics import check_same_grid, colour_distance, foreground, g_div_by_layer, pairwise_iou
 from .data_figures import as_float_image
 from .figures import axis_index, new_figure, show_image
-from ..evaluate.metrics import check_same_grid, colour_distance, foreground, g_div_by_layer, pairwise_iou
 
 
 # --------------------------------------------------------------------------- evaluation

@@ -14,7 +14,6 @@ from matplotlib.figure import Figure
 
 from ..data.grid import ShapeGrid
 
-
 AXES = ("x", "y", "z")
 SDF_CMAP = "RdBu"  # red inside (negative), blue outside
 NEUTRAL = np.array([0.82, 0.82, 0.82], np.float32)  # background where the colour grid is undefined

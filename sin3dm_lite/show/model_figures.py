@@ -11,7 +11,6 @@ from matplotlib.patches import Rectangle
 
 from ..data.grid import ShapeGrid
 from ..model.triplane import PLANE_AXES, PLANES, Triplane, pca_basis, pca_project, plane_to_image
-from .data_figures import plot_grid_slices
 from .figures import AXES, as_numpy, axis_index, new_figure, plane_axes, show_image
 
 

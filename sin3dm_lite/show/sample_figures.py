@@ -7,11 +7,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
+from ..data.mesh_io import Material, TexturedMesh
+from ..errors import Sin3DMInputError
+from ..evaluate import render
 from ..model.triplane import PLANE_AXES, PLANES, pca_basis, pca_project
 from .figures import AXES, SDF_CMAP, as_numpy, axis_index, grid_slice, new_figure, panel_height, plane_axes, show_image
-from ..errors import Sin3DMInputError
-from ..data.mesh_io import Material, TexturedMesh
-from ..evaluate import render
 
 
 # --------------------------------------------------------------------------- samples and textures

@@ -32,9 +32,9 @@ import k3d
 import numpy as np
 
 from ..data.export import baked_image, split_corners
+from ..data.mesh_io import TexturedMesh, array_to_pil, unique_rows
 from ..evaluate.render import png_bytes
 from ..files import atomic_write
-from ..data.mesh_io import TexturedMesh, array_to_pil, unique_rows
 
 UP_AXES = ("y", "z")
 

@@ -12,23 +12,52 @@ script saves it with ``fig.savefig(path)``. The widgets in
 """
 from __future__ import annotations
 
-from .figures import (  # noqa: F401
-    AXES, NEUTRAL, SDF_CMAP, color_slice_image, grid_slice,
-)
 from .data_figures import (  # noqa: F401
-    pbr_map_images, pbr_slice_images, plot_grid_slices, plot_pbr_maps, plot_pbr_slices,
-    plot_points, plot_slice, plot_texture, plot_truncation, plot_uv_layout,
-)
-from .model_figures import (  # noqa: F401
-    RF_LEVEL, measured_width, plot_plane_axes, plot_receptive_field, plot_receptive_fields,
-    plot_triplane, plot_triplane_conv, triplane_images,
+    pbr_map_images,
+    pbr_slice_images,
+    plot_grid_slices,
+    plot_pbr_maps,
+    plot_pbr_slices,
+    plot_points,
+    plot_slice,
+    plot_texture,
+    plot_truncation,
+    plot_uv_layout,
 )
 from .diffusion_figures import (  # noqa: F401
-    moving_average, plot_denoising, plot_losses, plot_schedule,
-)
-from .sample_figures import (  # noqa: F401
-    plot_diversity_curve, plot_meshes, plot_plan, plot_projections, plot_samples_slices,
+    moving_average,
+    plot_denoising,
+    plot_losses,
+    plot_schedule,
 )
 from .eval_figures import (  # noqa: F401
-    plot_iou_matrix, plot_layer_variation, plot_patch_matches, plot_picture, plot_render_pairs,
+    plot_iou_matrix,
+    plot_layer_variation,
+    plot_patch_matches,
+    plot_picture,
+    plot_render_pairs,
+)
+from .figures import (  # noqa: F401
+    AXES,
+    NEUTRAL,
+    SDF_CMAP,
+    color_slice_image,
+    grid_slice,
+)
+from .model_figures import (  # noqa: F401
+    RF_LEVEL,
+    measured_width,
+    plot_plane_axes,
+    plot_receptive_field,
+    plot_receptive_fields,
+    plot_triplane,
+    plot_triplane_conv,
+    triplane_images,
+)
+from .sample_figures import (  # noqa: F401
+    plot_diversity_curve,
+    plot_meshes,
+    plot_plan,
+    plot_projections,
+    plot_samples_slices,
 )

@@ -28,11 +28,11 @@ import torch
 from IPython.display import clear_output, display
 from matplotlib.figure import Figure
 
-from . import viz
-from ..model.decode import decode_grid
 from ..data.grid import ShapeGrid
+from ..model.decode import decode_grid
 from ..model.triplane import PLANE_AXES, PLANES, Triplane
 from ..model.unet import receptive_field, rollout_parts
+from . import viz
 
 
 class Explorer(widgets.VBox):
