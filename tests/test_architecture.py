@@ -204,7 +204,8 @@ def _notebook_attributes():
         imported = set()
         for m in re.finditer(r"from sin3dm_lite import \(?([\w,\s]+)\)?", code):
             imported |= {n.strip() for n in m.group(1).replace("\n", ",").split(",")}
-        for m in re.finditer(r"(?<![\w.])(%s)\.(\w+)" % "|".join(namespaces), code):
+        pattern = r"(?<![\w.])(" + "|".join(namespaces) + r")\.(\w+)"
+        for m in re.finditer(pattern, code):
             if m.group(1) in imported:
                 found.add((nb.name, m.group(1), m.group(2)))
     return sorted(found)

@@ -32,8 +32,8 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..data.config import AutoencoderConfig
-from ..device import autocast
 from ..data.grid import ShapeGrid
+from ..device import autocast
 from .training import Trainer
 from .triplane import PLANES, Triplane
 

@@ -31,8 +31,9 @@
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from dataclasses import asdict
-from typing import Any, Callable
+from typing import Any
 
 import torch
 import torch.nn as nn
@@ -119,7 +120,7 @@ class Trainer:
         self,
         until_step: int | None = None,
         progress: bool = True,
-        callback: Callable[["Trainer"], Any] | None = None,
+        callback: Callable[[Trainer], Any] | None = None,
     ) -> dict[str, list[float]]:
         """Train from ``step_count`` to ``until_step`` (default and at most ``cfg.steps``); returns ``history``.
 

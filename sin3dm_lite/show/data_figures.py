@@ -1,7 +1,7 @@
 """Figures of the Data stage: slices of the TSDF and colour grid, the truncation, sample points, the input's texture and UV layout, PBR maps and slices."""
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.collections import LineCollection

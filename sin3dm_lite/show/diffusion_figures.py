@@ -1,7 +1,7 @@
 """Figures of diffusion: the denoising steps (x_t and predicted x0), training losses, the noise schedule."""
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.figure import Figure

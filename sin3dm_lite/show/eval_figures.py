@@ -1,7 +1,7 @@
 """Figures of the Evaluate stage: pictures, the IoU matrix, layer variation, patch matches and rendered pairs."""
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.figure import Figure

@@ -1,7 +1,7 @@
 """Figures of the Model stage: the three triplane feature maps, how a plane sees the volume, one TriplaneConv, the U-Net's receptive field."""
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import matplotlib.pyplot as plt
 import numpy as np

@@ -1,7 +1,7 @@
 """Figures of the Generate stage: slices of samples, the diversity curve, a control plan, projections and rendered pictures of meshes."""
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -100,7 +100,7 @@ def plot_plan(plan, samples=None, batch: int = 0, title: str | None = None) -> F
     fig = new_figure(9.5, (max(heights) * scale + 0.6) * len(rows) + 0.3)
     panels = fig.subplots(len(rows), 3, squeeze=False, gridspec_kw={"width_ratios": widths})
     bases = []
-    for c, name in enumerate(PLANES):
+    for name in PLANES:
         p0 = as_numpy(getattr(top, name)[0])
         bases.append(pca_basis(p0))
     for r, (label, tp) in enumerate(rows):

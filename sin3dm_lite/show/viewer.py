@@ -25,8 +25,8 @@ import html
 import os
 import re
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import k3d
 import numpy as np

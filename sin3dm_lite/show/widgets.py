@@ -19,8 +19,8 @@ redraws the output (and returns the figure).
 from __future__ import annotations
 
 import traceback
+from collections.abc import Callable, Sequence
 from contextlib import contextmanager
-from typing import Callable, Sequence
 
 import ipywidgets as widgets
 import numpy as np
