@@ -2,15 +2,17 @@
 
 From one textured mesh: a truncated SDF + colour grid, a triplane latent, a
 small-receptive-field diffusion model on the triplane, and new textured
-meshes. The stages, in the order data flows (a module imports only from
-stages before it)::
+meshes. One sub-package per stage, in the order data flows; a module imports
+only from its own level or a lower one (``tests/test_architecture.py`` holds the
+table of levels and checks it, imports inside functions included)::
 
-    Data      mesh_io (read meshes) · box (box/grid geometry) · grid (mesh → TSDF grid)
-    Model     triplane · training (what both trainers share) · autoencoder (grid → latent, decoder)
-              decode (decoder queries, SDF grids) · unet · diffusion (training, sampling)
-    Generate  extract (SDF → textured mesh) · export (OBJ / GLB writers) · control (what to sample: outpaint, ...)
-    Eval      metrics · calibrate (the diversity knob per shape)          Show  viz (figures) · widgets (panels) · viewer (k3d / HTML)
-    Facade    pipeline (Sin3DM: fit, sample, save, load) · runs (RUN → model, cached fits) · cli · examples · pretrained
+    0 base      errors · device · files
+    1 data      data: config · box · mesh_io (read meshes) · export (OBJ / GLB writers) · examples · grid (mesh → TSDF)
+    2 model     model: triplane · training · autoencoder · decode · unet · diffusion (schedule, training, sampling)
+    3 generate  generate: control (what to sample: outpaint, ...) · extract (SDF → textured mesh)
+    4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render · calibrate
+    5 show      show: figures · data/model/diffusion/sample/eval_figures · viz (all figures) · viewer · widgets
+    6 app       pipeline (Sin3DM: fit, sample, save, load) · runs · mass · cli · pretrained (models in shipped/)
 
 Everything a notebook or script needs is importable from here::
 

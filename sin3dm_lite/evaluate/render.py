@@ -23,39 +23,14 @@ Public API::
 Coordinates: y is up (as the viewer's default ``up="y"``); azimuth 0 looks at
 the shape's front (the camera on +z), azimuth 90 from +x.
 
-Which renderer, and why (measured 2026-11, on the project's 2-core CPU
-machine, no display, no GPU; a 20,000-face mesh with a 512² texture, 8 views
-of 512², ``OMP_NUM_THREADS=1``; each candidate in a fresh virtualenv):
-
-=================================  ===========  ===============  ==========  =========================
-candidate                          from PyPI    installed size   headless    time per 512² view
-=================================  ===========  ===============  ==========  =========================
-pyrender-maintained 1.0.1 (EGL)    yes          ~50 MB new here  yes (EGL)   0.11 s (setup 0.4 s)
-                                                (PyOpenGL 32,
-                                                pyglet 11, ...)
-pyvista 0.49 / VTK 9.7 off-screen  yes          ~580 MB          yes (EGL)   0.04 s (setup 0.8 s)
-bpy 5.0 (Blender, Workbench)       yes, but     ~820 MB          yes (EGL)   0.56 s (setup 0.5 s)
-                                   CPython 3.11
-                                   only
-own numpy rasteriser               --           --               --          not written: not needed
-=================================  ===========  ===============  ==========  =========================
-
-All three GL candidates render here through Mesa's software EGL (llvmpipe):
-``libegl1``, ``libegl-mesa0`` and ``libgl1-mesa-dri`` are Debian packages
-that are part of this project's machine image (so CI has them); a bare Linux
-box needs ``apt-get install libegl1 libgl1-mesa-dri`` for *any* of them. With
-that cost equal, pyrender wins: a twelfth of VTK's size (it reuses the
-trimesh/scipy/numpy the package already has), any Python >= 3.10 (bpy pins
-one CPython), and 8 views in about a second, which is plenty for
-figures and metrics. VTK is 2.5× faster per view but not worth +580 MB on a
-laptop. On Linux without ``$DISPLAY`` we select EGL (``PYOPENGL_PLATFORM=egl``)
-before OpenGL is imported; with a display (or on macOS / Windows) pyrender
-uses an invisible pyglet window.
-
-This module, same mesh, same machine (under other jobs' load): 8 views at 512²
-in 3.5 s, i.e. about 0.28 s a view in pyrender's draw and read-back (faces are
-unwelded, 3 vertices each, so UV seams need no care) plus 0.5 s of setup; the
-first call of a process also pays about 1.2 s to import pyrender.
+Why pyrender: it renders headless through Mesa's software EGL (``libegl1``,
+``libgl1-mesa-dri`` on a bare Linux box, as any GL renderer needs), reuses the
+trimesh/scipy/numpy the package already has, works on any Python >= 3.10 and
+is fast enough for figures and metrics; the candidates compared and their
+timings are in ``docs/performance.md`` ("Which renderer"). On Linux without
+``$DISPLAY`` we select EGL (``PYOPENGL_PLATFORM=egl``) before OpenGL is
+imported; with a display (or on macOS / Windows) pyrender uses an invisible
+pyglet window.
 """
 from __future__ import annotations
 
