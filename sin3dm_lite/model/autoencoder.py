@@ -293,7 +293,7 @@ class AutoencoderTrainer(Trainer):
     AdamW with a geometry and a texture learning rate, both decayed
     exponentially to ``lr_final_factor`` of their start over ``cfg.steps``.
     The shared interface (``step``, ``run``, ``history`` with ``"loss"``,
-    ``"sdf"`` and ``"color"``, ``state_dict``) is :class:`~sin3dm_lite.training.Trainer`'s.
+    ``"sdf"`` and ``"color"``, ``state_dict``) is :class:`~sin3dm_lite.model.training.Trainer`'s.
     The point batches are drawn on the CPU (the same batches on every device).
     """
 

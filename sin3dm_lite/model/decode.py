@@ -18,7 +18,7 @@ The decoder protocol::
     features = decoder.prepare(triplane)          # per-plane 2D conv blocks, once per triplane
     sdf, color = decoder.query(features, points)  # points [B, N, 3] in box coordinates [-1, 1]^3
 
-Coordinates and grid sizes: see :mod:`sin3dm_lite.box`.
+Coordinates and grid sizes: see :mod:`sin3dm_lite.data.box`.
 """
 from __future__ import annotations
 

@@ -149,7 +149,7 @@ class DiffusionTrainer(Trainer):
     ``generator`` on the training device. AdamW, learning rate annealed
     linearly to 0 over ``cfg.steps``, and an EMA copy of the weights
     (``cfg.ema_decay = 0``: none). The shared interface (``step``, ``run``,
-    ``history``, ``state_dict``) is :class:`~sin3dm_lite.training.Trainer`'s;
+    ``history``, ``state_dict``) is :class:`~sin3dm_lite.model.training.Trainer`'s;
     the checkpoint adds ``ema`` and ``h0``, so :meth:`from_state_dict` rebuilds
     the trainer from it alone.
     """

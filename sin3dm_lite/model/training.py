@@ -1,7 +1,7 @@
 """What the two trainers share: the step loop, the loss history, the random generator and the checkpoint.
 
-:class:`~sin3dm_lite.autoencoder.AutoencoderTrainer` and
-:class:`~sin3dm_lite.diffusion.DiffusionTrainer` are both a :class:`Trainer`:
+:class:`~sin3dm_lite.model.autoencoder.AutoencoderTrainer` and
+:class:`~sin3dm_lite.model.diffusion.DiffusionTrainer` are both a :class:`Trainer`:
 
 * ``step()`` runs one optimisation step and returns its loss; ``run(until_step,
   progress, callback)`` steps to ``until_step`` (at most ``cfg.steps``) and

@@ -198,7 +198,7 @@ def _describe_views(fig, gs, ui: int) -> None:
 
 
 def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0, channel: int | None = None) -> Figure:
-    """One TriplaneConv's rollout for ``plane`` (the paper's Fig. 3b), from :func:`sin3dm_lite.unet.rollout_parts`.
+    """One TriplaneConv's rollout for ``plane`` (the paper's Fig. 3b), from :func:`sin3dm_lite.model.unet.rollout_parts`.
 
     Columns: this plane, and each of the two other planes. Top row: the three
     planes, each in its own orientation (first axis →, second ↑). Middle: the two

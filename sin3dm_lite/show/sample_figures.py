@@ -162,7 +162,7 @@ def plot_meshes(meshes, labels: Sequence[str] | None = None, size: int = 256, co
 
     The picture beside a k3d viewer for a notebook read without a kernel (GitHub,
     nbviewer, an exported page), where the viewer shows nothing. Every mesh is
-    drawn by :func:`sin3dm_lite.render.render_hero` at ``size``² pixels, all framed
+    drawn by :func:`sin3dm_lite.evaluate.render.render_hero` at ``size``² pixels, all framed
     by one box (the union of their bounds), so sizes compare; give them in one
     coordinate frame. ``meshes``: a ``TexturedMesh`` or a list of them,
     ``trimesh.Trimesh`` es or ``(vertices, faces)`` pairs (the last two in plain

@@ -384,7 +384,7 @@ def view_camera(lo, hi, azimuth: float = VIEW[0], elevation: float = VIEW[1], fo
     """k3d's camera vector ``[eye, target, up]`` (9 numbers) looking at the box ``lo``..``hi`` (k3d's frame).
 
     ``azimuth`` and ``elevation`` (degrees) are in the data's y-up frame, as in
-    :mod:`sin3dm_lite.render`: azimuth 0 from the front (+z of the data, k3d's
+    :mod:`sin3dm_lite.evaluate.render`: azimuth 0 from the front (+z of the data, k3d's
     -y), 90 from +x; elevation 90 straight from above. The eye is far enough
     away that the box's bounding sphere, times ``factor``, fits in a view of
     ``fov`` degrees.
