@@ -7,7 +7,7 @@ stores the per-sample scores in ``POOL.json``. Its means, made
 non-increasing in the knob, are the "true" curve; where it crosses the goals
 is the true answer (no safety margin).
 
-Step 2 (the default) replays :func:`sin3dm_lite.calibrate._walk` (the
+Step 2 (the default) replays :func:`sin3dm_lite.evaluate.calibrate._walk` (the
 calibration's own ladder, smoothing and refinement) ``--replays`` times per
 variant, each draw taking ``n`` samples not yet used in that replay from the
 pool at the setting asked for. It prints per variant: the chosen diversity's
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sin3dm_lite.calibrate import GOALS, Calibration, _crossing, _non_increasing, _walk, summarize
+from sin3dm_lite.evaluate.calibrate import GOALS, Calibration, _crossing, _non_increasing, _walk, summarize
 
 SETTINGS = [round(0.5 + 0.05 * k, 2) for k in range(11)]
 
@@ -50,7 +50,7 @@ VARIANTS = [
 
 def draw_pool(run: str, out: str, n: int) -> None:
     from sin3dm_lite import Sin3DM
-    from sin3dm_lite.calibrate import score_setting
+    from sin3dm_lite.evaluate.calibrate import score_setting
 
     model = Sin3DM.load(run)
     ref = np.load(Path(run) / "grid.npz")["sdf"] < 0

@@ -9,8 +9,8 @@ import tracemalloc
 import numpy as np
 import trimesh
 
-from sin3dm_lite.grid import mesh_to_grid
-from sin3dm_lite.mesh_io import Material, TexturedMesh
+from sin3dm_lite.data.grid import mesh_to_grid
+from sin3dm_lite.data.mesh_io import Material, TexturedMesh
 
 
 def bumpy_textured_sphere(target_faces: int) -> TexturedMesh:

@@ -20,9 +20,9 @@ import torch
 
 from bench_samples import print_spread, references, sample_grids, save_projections, scores
 from sin3dm_lite import AutoencoderTrainer, reconstructed_grid, reconstruction_metrics
-from sin3dm_lite.config import parse_settings
-from sin3dm_lite.diffusion import DiffusionTrainer
-from sin3dm_lite.grid import load_grid
+from sin3dm_lite.data.config import parse_settings
+from sin3dm_lite.model.diffusion import DiffusionTrainer
+from sin3dm_lite.data.grid import load_grid
 from sin3dm_lite.pipeline import Sin3DM
 
 
@@ -79,7 +79,7 @@ def main() -> None:
         if a.render:
             from PIL import Image
 
-            from sin3dm_lite.render import render_hero
+            from sin3dm_lite.evaluate.render import render_hero
 
             path = Path(a.render) / f"{Path(a.run).name}_{tag}_reconstruction.png"
             path.parent.mkdir(parents=True, exist_ok=True)

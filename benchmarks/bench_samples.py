@@ -45,11 +45,11 @@ import numpy as np
 import torch
 
 from sin3dm_lite import metrics
-from sin3dm_lite.box import grid_shape
-from sin3dm_lite.config import get_preset, parse_settings
-from sin3dm_lite.export import export_mesh
-from sin3dm_lite.extract import marching_cubes
-from sin3dm_lite.grid import load_grid
+from sin3dm_lite.data.box import grid_shape
+from sin3dm_lite.data.config import get_preset, parse_settings
+from sin3dm_lite.data.export import export_mesh
+from sin3dm_lite.generate.extract import marching_cubes
+from sin3dm_lite.data.grid import load_grid
 from sin3dm_lite.pipeline import Sin3DM, resolve_mesh
 
 GOALS = {"g_div": 0.20, "lp_f": 0.70, "lp_iou": 0.55, "recon_iou": 0.95, "fit_s": 300.0, "mesh_s": 15.0}
@@ -101,7 +101,7 @@ def references(model: Sin3DM, source: str, run: Path, resolutions) -> dict:
 def family(model: Sin3DM, source: str, refs: dict, n: int = 8) -> dict | None:
     """Per resolution of ``refs`` (:func:`references`): G-Div, IoU→input and LP against the input of the example's
     own variants (seeds 1..n)."""
-    from sin3dm_lite.examples import build_example, list_examples
+    from sin3dm_lite.data.examples import build_example, list_examples
 
     if source not in list_examples():
         return None

@@ -28,14 +28,14 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from sin3dm_lite.autoencoder import AutoencoderTrainer, sdf_loss
-from sin3dm_lite.config import get_preset
+from sin3dm_lite.model.autoencoder import AutoencoderTrainer, sdf_loss
+from sin3dm_lite.data.config import get_preset
 from sin3dm_lite.device import bf16_is_fast
-from sin3dm_lite.diffusion import DiffusionTrainer
-from sin3dm_lite.grid import ShapeGrid
-from sin3dm_lite.mesh_io import Normalization
-from sin3dm_lite.triplane import Triplane
-from sin3dm_lite.unet import TriplaneConv, cross_plane_inputs
+from sin3dm_lite.model.diffusion import DiffusionTrainer
+from sin3dm_lite.data.grid import ShapeGrid
+from sin3dm_lite.data.mesh_io import Normalization
+from sin3dm_lite.model.triplane import Triplane
+from sin3dm_lite.model.unet import TriplaneConv, cross_plane_inputs
 
 
 def synthetic_grid(dims, n_points: int) -> ShapeGrid:

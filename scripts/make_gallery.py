@@ -10,8 +10,8 @@ picture (the 2D lesson's, say), write ``def picture_2d(out: Path) -> list[Path]`
 with the library's plotting functions and add it to ``PICTURES``.
 
 Everything comes from the library: ``Sin3DM.open`` loads a shipped model,
-``Sin3DM.sample`` / ``to_mesh`` make the shapes, :mod:`sin3dm_lite.render`
-draws them off-screen and :mod:`sin3dm_lite.viz` draws the rest. Samples use
+``Sin3DM.sample`` / ``to_mesh`` make the shapes, :mod:`sin3dm_lite.evaluate.render`
+draws them off-screen and :mod:`sin3dm_lite.show.viz` draws the rest. Samples use
 fixed seeds, so a rerun on the same code gives the same shapes. A PNG over
 ``MAX_BYTES`` is written with a 256-colour palette instead (none is, today:
 44-215 KB). Cost: about 2 minutes of CPU time with ``OMP_NUM_THREADS=1``
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from sin3dm_lite import Sin3DM, build_example, viz
-from sin3dm_lite.render import contact_sheet, render_hero
+from sin3dm_lite.evaluate.render import contact_sheet, render_hero
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "img"

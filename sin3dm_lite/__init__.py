@@ -2,15 +2,17 @@
 
 From one textured mesh: a truncated SDF + colour grid, a triplane latent, a
 small-receptive-field diffusion model on the triplane, and new textured
-meshes. The stages, in the order data flows (a module imports only from
-stages before it)::
+meshes. One sub-package per stage, in the order data flows; a module imports
+only from its own level or a lower one (``tests/test_architecture.py`` holds the
+table of levels and checks it, imports inside functions included)::
 
-    Data      mesh_io (read meshes) · box (box/grid geometry) · grid (mesh → TSDF grid)
-    Model     triplane · training (what both trainers share) · autoencoder (grid → latent, decoder)
-              decode (decoder queries, SDF grids) · unet · diffusion (training, sampling)
-    Generate  extract (SDF → textured mesh) · export (OBJ / GLB writers) · control (what to sample: outpaint, ...)
-    Eval      metrics · calibrate (the diversity knob per shape)          Show  viz (figures) · widgets (panels) · viewer (k3d / HTML)
-    Facade    pipeline (Sin3DM: fit, sample, save, load) · runs (RUN → model, cached fits) · cli · examples · pretrained
+    0 base      errors · device · files
+    1 data      data: config · box · mesh_io (read meshes) · export (OBJ / GLB writers) · examples · grid (mesh → TSDF)
+    2 model     model: triplane · training · autoencoder · decode · unet · diffusion (schedule, training, sampling)
+    3 generate  generate: control (what to sample: outpaint, ...) · extract (SDF → textured mesh)
+    4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render · calibrate
+    5 show      show: figures · data/model/diffusion/sample/eval_figures · viz (all figures) · viewer · widgets
+    6 app       pipeline (Sin3DM: fit, sample, save, load) · runs · mass · cli · pretrained (models in shipped/)
 
 Everything a notebook or script needs is importable from here::
 
@@ -36,10 +38,10 @@ _API = {
     "Sin3DM": "pipeline",
     "Samples": "pipeline",
     "resolve_mesh": "pipeline",
-    "Config": "config",
-    "get_preset": "config",
-    "notebook_preset": "config",
-    "fast_mode": "config",
+    "Config": "data.config",
+    "get_preset": "data.config",
+    "notebook_preset": "data.config",
+    "fast_mode": "data.config",
     "pretrained_path": "pretrained",
     "shipped_names": "pretrained",
     "shipped_examples": "pretrained",
@@ -48,69 +50,74 @@ _API = {
     "get_device": "device",
     "count_parameters": "device",
     # data
-    "DEFAULT_EXAMPLE": "examples",
-    "build_example": "examples",
-    "list_examples": "examples",
-    "write_example": "examples",
-    "TexturedMesh": "mesh_io",
-    "Material": "mesh_io",
-    "Normalization": "mesh_io",
-    "load_mesh": "mesh_io",
-    "load_any": "mesh_io",
-    "tangent_frames": "mesh_io",
-    "grid_shape": "box",
-    "margin_scale": "box",
-    "ShapeGrid": "grid",
-    "PBR_CHANNELS": "grid",
-    "mesh_to_grid": "grid",
-    "load_grid": "grid",
-    "save_grid": "grid",
+    "DEFAULT_EXAMPLE": "data.examples",
+    "build_example": "data.examples",
+    "list_examples": "data.examples",
+    "write_example": "data.examples",
+    "TexturedMesh": "data.mesh_io",
+    "Material": "data.mesh_io",
+    "Normalization": "data.mesh_io",
+    "load_mesh": "data.mesh_io",
+    "load_any": "data.mesh_io",
+    "tangent_frames": "data.mesh_io",
+    "grid_shape": "data.box",
+    "margin_scale": "data.box",
+    "ShapeGrid": "data.grid",
+    "PBR_CHANNELS": "data.grid",
+    "mesh_to_grid": "data.grid",
+    "load_grid": "data.grid",
+    "save_grid": "data.grid",
     # model
-    "Triplane": "triplane",
-    "TriplaneEncoder": "autoencoder",
-    "TriplaneDecoder": "autoencoder",
-    "AutoencoderTrainer": "autoencoder",
-    "grid_tensor": "autoencoder",
-    "decode_grid": "decode",
-    "prepare": "decode",
-    "query_points": "decode",
-    "reconstructed_grid": "decode",
-    "TriplaneUNet": "unet",
-    "TriplaneConv": "unet",
-    "rollout_parts": "unet",
-    "block_layout": "unet",
-    "receptive_field": "unet",
-    "analytic_receptive_field": "unet",
-    "NoiseSchedule": "diffusion",
-    "DiffusionTrainer": "diffusion",
-    "sample": "diffusion",
-    "predict_clean": "diffusion",
-    "diffusion_loss": "diffusion",
-    "triplane_mse": "diffusion",
+    "Triplane": "model.triplane",
+    "TriplaneEncoder": "model.autoencoder",
+    "TriplaneDecoder": "model.autoencoder",
+    "AutoencoderTrainer": "model.autoencoder",
+    "grid_tensor": "model.autoencoder",
+    "decode_grid": "model.decode",
+    "prepare": "model.decode",
+    "query_points": "model.decode",
+    "reconstructed_grid": "model.decode",
+    "TriplaneUNet": "model.unet",
+    "TriplaneConv": "model.unet",
+    "rollout_parts": "model.unet",
+    "block_layout": "model.unet",
+    "receptive_field": "model.unet",
+    "analytic_receptive_field": "model.unet",
+    "NoiseSchedule": "model.diffusion",
+    "DiffusionTrainer": "model.diffusion",
+    "sample": "model.diffusion",
+    "predict_clean": "model.diffusion",
+    "diffusion_loss": "model.diffusion",
+    "triplane_mse": "model.diffusion",
     # generate
-    "extract_mesh": "extract",
-    "marching_cubes": "extract",
-    "pbr_maps": "extract",
-    "export_mesh": "export",
+    "extract_mesh": "generate.extract",
+    "marching_cubes": "generate.extract",
+    "pbr_maps": "generate.extract",
+    "export_mesh": "data.export",
     # eval
-    "reconstruction_metrics": "metrics",
-    "voxelize": "metrics",
-    "input_occupancy": "metrics",
-    "iou": "metrics",
-    "g_div": "metrics",
-    "lp_scores": "metrics",
-    "geometry_scores": "metrics",
-    "patch_swd": "metrics",
-    "render_div": "metrics",
-    "texture_scores": "metrics",
-    "load_feature_weights": "metrics",
-    "sifid": "metrics",
-    "lpips": "metrics",
-    "calibrate_diversity": "calibrate",
-    "Calibration": "calibrate",
+    "reconstruction_metrics": "evaluate.metrics",
+    "voxelize": "evaluate.metrics",
+    "input_occupancy": "evaluate.metrics",
+    "iou": "evaluate.metrics",
+    "g_div": "evaluate.metrics",
+    "lp_scores": "evaluate.metrics",
+    "geometry_scores": "evaluate.metrics",
+    "patch_swd": "evaluate.metrics",
+    "render_div": "evaluate.metrics",
+    "texture_scores": "evaluate.metrics",
+    "load_feature_weights": "evaluate.metrics",
+    "sifid": "evaluate.metrics",
+    "lpips": "evaluate.metrics",
+    "calibrate_diversity": "evaluate.calibrate",
+    "Calibration": "evaluate.calibrate",
 }
 
-_MODULES = {"viz", "widgets", "viewer", "metrics", "render", "examples", "box", "extract", "export", "mesh_io"}
+#: module-valued public names (namespaces a notebook uses: ``viz.plot_slice``) → the module
+_MODULES = {name: module for name, module in (
+    ("viz", "show.viz"), ("widgets", "show.widgets"), ("viewer", "show.viewer"),
+    ("metrics", "evaluate.metrics"), ("render", "evaluate.render"), ("examples", "data.examples"),
+    ("box", "data.box"), ("extract", "generate.extract"), ("export", "data.export"), ("mesh_io", "data.mesh_io"),
+)}
 
 __all__ = sorted(_API) + sorted(_MODULES)
 
@@ -121,7 +128,7 @@ def __getattr__(name: str):
         globals()[name] = value  # next time without this function
         return value
     if name in _MODULES:
-        return importlib.import_module(f".{name}", __name__)
+        return importlib.import_module(f".{_MODULES[name]}", __name__)
     raise AttributeError(f"module 'sin3dm_lite' has no attribute '{name}'")
 
 

@@ -134,9 +134,9 @@ COMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import examples
-    from .config import PRESETS
-    from .mesh_io import READABLE
+    from .data import examples
+    from .data.config import PRESETS
+    from .data.mesh_io import READABLE
 
     p = _Parser(prog="sin3dm-lite", description="Sin3DM: learn a diffusion model from one textured mesh.",
                 epilog=f"Readable mesh formats: {READABLE}. Start with `sin3dm-lite demo`; "
@@ -315,7 +315,7 @@ def _seed(text: str) -> int:
 
 # --------------------------------------------------------------------------- commands
 def cmd_examples(a) -> None:
-    from . import examples
+    from .data import examples
 
     if a.write:
         from .files import check_writable, clash_error, foreign_files, make_temp_dir, merge_output, remove_stale_temps
@@ -351,7 +351,7 @@ def cmd_examples(a) -> None:
 
 
 def cmd_grid(a) -> None:
-    from .grid import mesh_to_grid, save_grid
+    from .data.grid import mesh_to_grid, save_grid
     from .pipeline import resolve_mesh
 
     from .files import check_not_overlapping, check_writable, clash_error, is_ours, recorded_path, remove_stale_temps
@@ -359,7 +359,7 @@ def cmd_grid(a) -> None:
     out = Path(a.out)
     if out.suffix != ".npz":
         raise Sin3DMInputError(f"--out must be a .npz file, got '{out}'")
-    from .grid import check_resolution
+    from .data.grid import check_resolution
 
     check_resolution(a.resolution)
     if Path(a.mesh).exists():
@@ -380,7 +380,7 @@ def cmd_grid(a) -> None:
 
 
 def cmd_fit(a) -> None:
-    from .config import get_preset, parse_settings
+    from .data.config import get_preset, parse_settings
     from .pipeline import Sin3DM
 
     if a.resume and not Path(a.out).is_dir():
@@ -536,7 +536,7 @@ def cmd_sample(a) -> None:
 
 
 def cmd_demo(a) -> None:
-    from . import examples
+    from .data import examples
     from .pipeline import Sin3DM
     from .pretrained import shipped_model
 
@@ -572,8 +572,8 @@ def cmd_render(a) -> None:
     from .files import check_not_overlapping, check_output_folder, check_writable, install_output, make_temp_dir, \
         remove_stale_temps
     from .pipeline import resolve_mesh
-    from .render import contact_sheet, render_views, render_hero, view_names
-    from .viewer import png_bytes
+    from .evaluate.render import contact_sheet, render_views, render_hero, view_names
+    from .show.viewer import png_bytes
 
     out = Path(a.out)
     if a.views > MAX_VIEWS:
@@ -625,7 +625,7 @@ def sample_mesh_files(folder: Path) -> list[Path]:
 
 def print_evaluation(result: dict) -> None:
     """The metrics as a table: our name, the value, the paper's name and which way is better; then what was skipped."""
-    from .metrics import results_table
+    from .evaluate.metrics import results_table
 
     print(f"{result['samples']} samples, {result['resolution']} voxels, {result['views']} views of {result['size']}²")
     print(results_table({"value": result}, digits=4))
@@ -636,9 +636,9 @@ def print_evaluation(result: dict) -> None:
 def cmd_evaluate(a) -> None:
     import json
 
+    from .data.mesh_io import load_any
+    from .evaluate.metrics import load_feature_weights
     from .files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
-    from .mesh_io import load_any
-    from .metrics import load_feature_weights
     from .pipeline import Sin3DM, resolve_mesh
 
     if a.views > MAX_VIEWS:
@@ -699,9 +699,9 @@ def cmd_calibrate(a) -> None:
 def _calibrate(a, run: Path, shipped: bool) -> None:
     import json
 
-    from .calibrate import GOALS
+    from .evaluate.calibrate import GOALS
     from .files import atomic_write
-    from .grid import load_grid
+    from .data.grid import load_grid
     from .pipeline import Sin3DM, resolve_mesh
 
     model = Sin3DM.load(run)

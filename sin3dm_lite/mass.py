@@ -239,7 +239,7 @@ def remove_ours(out: Path) -> None:
 
 def check_request(model, a) -> None:
     """Refuse what sampling would refuse about the flags (``--steps`` out of range, ...) before the folder is touched."""
-    from .diffusion import sampling_timesteps
+    from .model.diffusion import sampling_timesteps
 
     s = model.config.sampling
     steps, top = a.steps or s.steps, model.schedule.timesteps
@@ -314,9 +314,9 @@ def _worker_init(model_path: str, opts: dict) -> None:
 
 def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: dict | None = None) -> dict:
     """Decode one latent into a textured mesh in ``tmp`` (mesh.*, preview.png); returns ``{"faces", "no_pictures"}``."""
-    from .export import export_mesh
+    from .data.export import export_mesh
     from .pipeline import Samples
-    from .triplane import Triplane
+    from .model.triplane import Triplane
 
     model = model or _WORKER["model"]
     opts = opts or _WORKER["opts"]
@@ -326,8 +326,8 @@ def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: di
     export_mesh(mesh, Path(tmp), name="mesh")
     why = None
     if opts["pictures"] and not _WORKER.get("no_pictures"):
-        from .render import render_hero
-        from .viewer import png_bytes
+        from .evaluate.render import render_hero
+        from .show.viewer import png_bytes
 
         try:
             (Path(tmp) / "preview.png").write_bytes(png_bytes(render_hero(mesh, size=384, box=opts["box"])))
@@ -454,8 +454,8 @@ def worker_died(out: Path, index: int) -> str:
 
 def finish_folder(model, out: Path, a, plan, label: str = "sample") -> dict[int, dict]:
     """Rank 0, after every rank is done: samples.jsonl, index.html, contact_sheet.png and the manifest."""
-    from .mesh_io import load_any
-    from .viewer import gallery, save_html
+    from .data.mesh_io import load_any
+    from .show.viewer import gallery, save_html
 
     done = finished(out)
     tmp = make_temp_dir(out)
@@ -488,8 +488,8 @@ def write_contact_sheet(model, a, plan, previews: list[Path], labels: list[str],
     """The input's reconstruction (rendered at the previews' scale) beside the samples' previews."""
     from PIL import Image
 
-    from .render import contact_sheet, render_hero
-    from .viewer import png_bytes
+    from .evaluate.render import contact_sheet, render_hero
+    from .show.viewer import png_bytes
 
     box_n = np.array([np.minimum(model.aabb[:3], plan.aabb[:3]), np.maximum(model.aabb[3:], plan.aabb[3:])])
     try:

@@ -33,22 +33,22 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from .autoencoder import AutoencoderTrainer, TriplaneDecoder
-from .config import PRESETS, Config, DiffusionConfig, get_preset
-from .decode import reconstructed_grid
+from .model.autoencoder import AutoencoderTrainer, TriplaneDecoder
+from .data.config import PRESETS, Config, DiffusionConfig, get_preset
+from .model.decode import reconstructed_grid
 from .device import bf16_is_fast, get_device
-from .diffusion import check_flips
+from .model.diffusion import check_flips
 from .errors import Sin3DMInputError
 from .files import (acquire_lock, atomic_path, atomic_write, create_locked_folder, holds_lock, release_lock,
                     save_torch)
-from .grid import THIN_SHARE_HINT, ShapeGrid, load_grid, mesh_to_grid, save_grid
-from .mesh_io import Normalization, TexturedMesh
-from .metrics import reconstruction_metrics
-from .training import checkpoint_problem
-from .triplane import Triplane
+from .data.grid import THIN_SHARE_HINT, ShapeGrid, load_grid, mesh_to_grid, save_grid
+from .data.mesh_io import Normalization, TexturedMesh
+from .evaluate.metrics import reconstruction_metrics
+from .model.training import checkpoint_problem
+from .model.triplane import Triplane
 
 if TYPE_CHECKING:
-    from .calibrate import Calibration
+    from .evaluate.calibrate import Calibration
 
 MODEL_FILE = "model.pt"
 MAX_SAMPLES = 10_000  # per call, whatever the memory
@@ -185,8 +185,8 @@ def resolve_mesh(source, allow_outside_paths: bool = False) -> TexturedMesh:
 
     ``allow_outside_paths``: let a mesh file name files outside its folder (:func:`mesh_io.load_mesh`).
     """
-    from . import examples
-    from .mesh_io import load_any
+    from .data import examples
+    from .data.mesh_io import load_any
 
     if isinstance(source, str) and source in examples.list_examples():
         return examples.build_example(source)
@@ -229,7 +229,7 @@ class Sin3DM:
         report: dict | None = None,
         device=None,
     ):
-        from .diffusion import NoiseSchedule
+        from .model.diffusion import NoiseSchedule
 
         self.config = config
         self.device = get_device(device)
@@ -429,7 +429,7 @@ class Sin3DM:
     def _denoise(cls, cfg, grid, h0, ae, metrics, dev, run, progress, say, timings, report_base):
         """:meth:`fit`'s stages 3 and 4: train the denoiser on the latent ``h0``, then calibrate the knob
         (where ``cfg.sampling.calibrate``); the model, with its report, and the denoiser's loss history."""
-        from .diffusion import DiffusionTrainer
+        from .model.diffusion import DiffusionTrainer
 
         t0 = time.perf_counter()
         dm = DiffusionTrainer(h0, cfg.diffusion, dev, cfg.seed)
@@ -505,7 +505,7 @@ class Sin3DM:
         list): ``sample(4, seed=0)``'s third is ``sample(1, seed=2)``, whatever
         the batch or the device, so any sample of a large run can be drawn again on its own.
         """
-        from .diffusion import sample as diffusion_sample, start_step
+        from .model.diffusion import sample as diffusion_sample, start_step
 
         if n < 1:
             raise Sin3DMInputError(f"number of samples must be at least 1, got {n}")
@@ -546,7 +546,7 @@ class Sin3DM:
     def plan(self, resize=(1.0, 1.0, 1.0), outpaint=None, anchor: str = "center", regenerate=None, duplicate=None,
              plan=None):
         """The :class:`control.Plan` that :meth:`sample` carries out for these arguments (checked: one clear error)."""
-        from . import control
+        from .generate import control
 
         resized = np.any(np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,)) != 1.0)
         asked = [k for k, v in (("resize", resized or None), ("outpaint", outpaint), ("regenerate", regenerate),
@@ -605,7 +605,7 @@ class Sin3DM:
         ``lowest``, ``step``, ``margin``, ``refine``, ``caution``, ``safety``). :meth:`save` (or
         ``sin3dm-lite calibrate``) keeps it.
         """
-        from .calibrate import calibrate_diversity
+        from .evaluate.calibrate import calibrate_diversity
 
         if reference is None:
             mesh = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
@@ -635,7 +635,7 @@ class Sin3DM:
         original_coords: bool = True,
     ) -> list[TexturedMesh] | TexturedMesh:
         """Decode samples into textured meshes (all of them, or the one at ``index``)."""
-        from .extract import extract_mesh
+        from .generate.extract import extract_mesh
 
         s = self.config.sampling
         items = range(len(samples)) if index is None else [index]
@@ -675,7 +675,7 @@ class Sin3DM:
         resolution and kept. Each shape is decoded at twice the picture's
         voxels (not the export's mesh resolution): a picture needs no more.
         """
-        from .viz import plot_projections
+        from .show.viz import plot_projections
 
         if resolution not in self._reconstruction_occupancy:
             self._reconstruction_occupancy[resolution] = self.occupancy(
@@ -694,9 +694,9 @@ class Sin3DM:
         A sample with no surface (a diverged one: all empty, or the box all inside) counts as an
         empty or a full grid, so it lowers the scores instead of stopping the evaluation.
         """
-        from .box import grid_shape
-        from .extract import NoSurfaceError
-        from .metrics import voxelize
+        from .data.box import grid_shape
+        from .generate.extract import NoSurfaceError
+        from .evaluate.metrics import voxelize
 
         several = not isinstance(resolution, (int, np.integer))
         res = list(resolution) if several else [resolution]
@@ -717,7 +717,7 @@ class Sin3DM:
     def input_occupancy(self, mesh: TexturedMesh, resolution: int = 128, aabb=None) -> np.ndarray:
         """The input mesh (in its file's coordinates) as an occupancy grid over this model's box (or ``aabb``,
         normalised coordinates): the metrics' reference."""
-        from .metrics import input_occupancy
+        from .evaluate.metrics import input_occupancy
 
         m = replace(mesh, vertices=self.normalization.to_normalized(np.asarray(mesh.vertices)))
         return input_occupancy(m, self.aabb if aabb is None else aabb, resolution)
@@ -725,7 +725,7 @@ class Sin3DM:
     def input_mesh(self, allow_outside_paths: bool = False) -> TexturedMesh:
         """The mesh this model was fitted to: the mesh file the run's report names, if it is still there, or the
         built-in example of that name (``allow_outside_paths``: see :func:`mesh_io.load_mesh`)."""
-        from . import examples
+        from .data import examples
 
         path, name = self.report.get("input_path"), self.report.get("input")
         if path and Path(path).is_file():
@@ -765,9 +765,9 @@ class Sin3DM:
         weight-free texture metrics (+2.9 s for SIFID and LPIPS): about 2.5 s
         per sample plus the input's renders.
         """
-        from .metrics import SSFID_UNAVAILABLE, FeatureNets, geometry_scores, load_feature_weights, texture_scores, \
+        from .evaluate.metrics import SSFID_UNAVAILABLE, FeatureNets, geometry_scores, load_feature_weights, texture_scores, \
             voxelize
-        from .render import render_views, renderer_problem
+        from .evaluate.render import render_views, renderer_problem
 
         say = print if progress else (lambda *a, **k: None)
         nets = weights if isinstance(weights, FeatureNets) or weights is None else load_feature_weights(weights)
@@ -844,7 +844,7 @@ class Sin3DM:
     @classmethod
     def load(cls, run_dir: str | Path, device=None) -> "Sin3DM":
         """Load a fitted model from a run folder (or a ``model.pt`` file)."""
-        from .unet import TriplaneUNet
+        from .model.unet import TriplaneUNet
 
         path = Path(run_dir)
         path = path / MODEL_FILE if path.is_dir() else path

@@ -1,7 +1,7 @@
 """The pretrained ``small`` models of the built-in examples, shipped inside the package.
 
 Each was produced by our own ``sin3dm-lite fit`` (the exact commands are in
-``data/README.md`` next to them), so the demo and the notebooks can generate
+``shipped/README.md`` next to them), so the demo and the notebooks can generate
 shapes of every example immediately on a CPU (``demo --example NAME``,
 ``Sin3DM.open(NAME)``).
 """
@@ -11,12 +11,12 @@ from pathlib import Path
 
 from .errors import Sin3DMInputError
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).parent / "shipped"
 
 
 def pretrained_path(name: str = "default") -> Path:
     """Path of a shipped run folder (holding ``model.pt``)."""
-    from . import examples
+    from .data import examples
 
     folder = DATA / (examples.DEFAULT_EXAMPLE + "_small" if name == "default" else name)
     if not (folder / "model.pt").is_file():
@@ -33,7 +33,7 @@ def shipped_names() -> list[str]:
 
 def shipped_examples() -> list[str]:
     """Built-in examples that have a shipped model (the default one first): what ``Sin3DM.open(name)`` loads."""
-    from . import examples
+    from .data import examples
 
     names = [n for n in examples.list_examples() if shipped_model(n) is not None]
     return sorted(names, key=lambda n: n != examples.DEFAULT_EXAMPLE)

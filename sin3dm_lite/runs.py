@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import Config, get_preset, notebook_preset
+from .data.config import Config, get_preset, notebook_preset
 from .errors import Sin3DMInputError
-from .mesh_io import load_mesh
+from .data.mesh_io import load_mesh
 
 CACHE = Path("runs/cache")  # relative to the working directory (a notebook's: notebooks/)
 EXAMPLE_SEED = 0  # the generator seed ``Sin3DM.fit`` builds an example with
@@ -43,7 +43,7 @@ def _preset(preset) -> Config:
 
 def run_key(source, preset=None) -> str:
     """``<stem>-<hash12>``: the cache folder's name for fitting ``source`` (mesh path or example name) with ``preset``."""
-    from . import examples
+    from .data import examples
 
     cfg = _preset(preset)
     h = hashlib.sha256()
@@ -75,7 +75,7 @@ def cached_run(source, preset=None, cache: str | Path = CACHE) -> Path:
 
 
 def _resolve(run, preset, cache) -> tuple[str, Path]:
-    from . import examples
+    from .data import examples
     from .pretrained import shipped_examples, shipped_model
 
     if not isinstance(run, (str, Path)) or not str(run).strip():

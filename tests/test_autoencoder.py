@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 import torch
 
-from sin3dm_lite.autoencoder import (
+from sin3dm_lite.model.autoencoder import (
     AutoencoderTrainer,
     TriplaneDecoder,
     TriplaneEncoder,
     sdf_loss,
 )
-from sin3dm_lite.config import AutoencoderConfig
-from sin3dm_lite.decode import reconstructed_grid
-from sin3dm_lite.metrics import reconstruction_metrics
-from sin3dm_lite.triplane import Triplane
+from sin3dm_lite.data.config import AutoencoderConfig
+from sin3dm_lite.model.decode import reconstructed_grid
+from sin3dm_lite.evaluate.metrics import reconstruction_metrics
+from sin3dm_lite.model.triplane import Triplane
 
 from .conftest import tiny_ae_cfg
 
@@ -75,7 +75,7 @@ def test_tiny_fit_reduces_loss_and_reconstructs(box_grid, use_encoder):
 
 
 def test_fit_autoencoder_is_the_trainer_run_to_the_end(box_grid):
-    from sin3dm_lite.autoencoder import fit_autoencoder
+    from sin3dm_lite.model.autoencoder import fit_autoencoder
 
     cfg = tiny_ae_cfg(steps=6)
     model, h0, history = fit_autoencoder(box_grid, cfg, seed=2, progress=False)

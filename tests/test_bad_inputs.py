@@ -20,7 +20,7 @@ import trimesh
 
 from sin3dm_lite.cli import main
 from sin3dm_lite.files import LOCK, MANIFEST, TEMP_PREFIX, read_manifest
-from sin3dm_lite.examples import list_examples
+from sin3dm_lite.data.examples import list_examples
 from sin3dm_lite.pretrained import pretrained_path, shipped_model
 
 SHIPPED = pretrained_path()
@@ -421,7 +421,7 @@ def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay):
 
 
 def test_poor_reconstruction_is_a_warning_with_the_likely_cause():
-    from sin3dm_lite.config import get_preset
+    from sin3dm_lite.data.config import get_preset
     from sin3dm_lite.pipeline import MIN_IOU, MIN_PSNR, _warn_if_poor
 
     # the fix is a setting of the run's config with its value, as the CLI and Python take it

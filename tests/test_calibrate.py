@@ -4,11 +4,11 @@ import json
 import numpy as np
 import pytest
 
-from sin3dm_lite import calibrate as C
-from sin3dm_lite.box import grid_shape
+from sin3dm_lite.evaluate import calibrate as C
+from sin3dm_lite.data.box import grid_shape
 from sin3dm_lite.cli import main
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.metrics import iou
+from sin3dm_lite.evaluate.metrics import iou
 from sin3dm_lite.pipeline import Sin3DM
 
 from .test_pipeline import micro_config
@@ -184,7 +184,7 @@ def test_a_fit_saves_its_calibrated_diversity(calibrated):
 
 
 def test_the_rollout_hint_applies_only_to_a_plain_denoiser_calibrated_to_pure_noise():
-    from sin3dm_lite.config import get_preset
+    from sin3dm_lite.data.config import get_preset
     from sin3dm_lite.pipeline import rollout_hint
 
     small = get_preset("small")
@@ -216,7 +216,7 @@ def test_a_fit_that_keeps_the_goals_from_pure_noise_switches_to_the_rollout(tmp_
     """With rollout_switch a plain fit calibrated to 1 trains its denoiser again with the rollout, says so, records
     the first calibration and its time, and its run folder loads as what it is: a rollout denoiser (the resume:
     the next test)."""
-    from sin3dm_lite.config import Config
+    from sin3dm_lite.data.config import Config
 
     monkeypatch.setattr(C, "GOALS", {"lp_iou": 0.0, "lp_fscore": 0.0})  # kept at every setting: calibrated to 1
     cfg = micro_config().updated(**{"sampling.calibrate": True, "diffusion.rollout": False,
@@ -255,7 +255,7 @@ def test_a_fit_interrupted_in_its_rollout_denoiser_resumes_to_the_same_model(tmp
 
     import torch
 
-    from sin3dm_lite import diffusion
+    from sin3dm_lite.model import diffusion
 
     monkeypatch.setattr(C, "GOALS", {"lp_iou": 0.0, "lp_fscore": 0.0})
     cfg = micro_config().updated(**{"sampling.calibrate": True, "diffusion.rollout": False,
@@ -304,7 +304,7 @@ def test_a_switched_fit_whose_rollout_keeps_no_goal_warns_with_the_way_back(tmp_
 def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
     """The SDF's sign on the training grid (calibration) and the exported mesh voxelised (the metrics) agree, and
     the sign-only decode gives the full decode's signs voxel for voxel."""
-    from sin3dm_lite.decode import decode_grid
+    from sin3dm_lite.model.decode import decode_grid
 
     model, run = calibrated
     res = max(model.report["grid_shape"])

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from sin3dm_lite.diffusion import (
+from sin3dm_lite.model.diffusion import (
     DiffusionTrainer,
     NoiseSchedule,
     ddim_timesteps,
@@ -18,7 +18,7 @@ from sin3dm_lite.diffusion import (
     start_step,
 )
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.triplane import Triplane
+from sin3dm_lite.model.triplane import Triplane
 
 from .conftest import LATENT_RES, tiny_diffusion_cfg
 
@@ -236,7 +236,7 @@ def test_soft_mask_and_partial_masked_sampling(trained, h0):
 
 
 def test_triplane_mse_is_the_plane_mean_summed_over_planes():
-    from sin3dm_lite.diffusion import triplane_mse
+    from sin3dm_lite.model.diffusion import triplane_mse
 
     a = Triplane.randn(1, 2, (3, 4, 5))
     b = a.map(lambda p: p + 0.5)
@@ -289,7 +289,7 @@ def test_diversity_moves_samples_from_the_start_latent_to_noise(h0, method):
 
 
 def test_random_crops_cut_one_box_out_of_all_three_planes():
-    from sin3dm_lite.diffusion import random_crops
+    from sin3dm_lite.model.diffusion import random_crops
 
     x, y, z = 10, 6, 8
     # planes whose values encode their coordinates: xy = 100·x + y, xz = 100·x + z, yz = 100·y + z
@@ -317,7 +317,7 @@ def test_training_on_crops_runs_and_samples_the_whole_latent(h0):
 
 
 def test_random_flips_mirror_each_copy_along_the_asked_axes(h0):
-    from sin3dm_lite.diffusion import random_flips
+    from sin3dm_lite.model.diffusion import random_flips
 
     batch = h0.repeat(32)
     out = random_flips(batch, "xz", torch.Generator().manual_seed(0))
@@ -339,7 +339,7 @@ def test_flips_along_other_axes_are_a_clear_error(h0, flips):
 
 
 def test_a_trainer_with_flips_trains_on_mirrored_copies_and_one_without_does_not(h0, monkeypatch):
-    from sin3dm_lite import diffusion
+    from sin3dm_lite.model import diffusion
 
     seen = []
     real_loss = diffusion.diffusion_loss

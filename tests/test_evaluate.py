@@ -57,9 +57,9 @@ def test_the_facade_evaluates_samples_it_just_drew(tiny_samples):
 
 
 def test_without_a_renderer_only_the_geometry_is_reported(tiny_samples, capsys, monkeypatch):
-    import sin3dm_lite.render
+    import sin3dm_lite.evaluate.render
 
-    monkeypatch.setattr(sin3dm_lite.render, "renderer_problem", lambda: "no EGL here (test)")
+    monkeypatch.setattr(sin3dm_lite.evaluate.render, "renderer_problem", lambda: "no EGL here (test)")
     capsys.readouterr()
     assert main(["evaluate", str(tiny_samples / "run"), str(tiny_samples / "samples"), "--resolution", "32"]) == 0
     text = capsys.readouterr().out

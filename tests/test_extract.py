@@ -7,11 +7,11 @@ import torch
 from torch import nn
 
 from sin3dm_lite import box
-from sin3dm_lite import decode as dc
+from sin3dm_lite.model import decode as dc
 from sin3dm_lite import extract as ex
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.mesh_io import Normalization
-from sin3dm_lite.triplane import Triplane
+from sin3dm_lite.data.mesh_io import Normalization
+from sin3dm_lite.model.triplane import Triplane
 
 from .conftest import AABB, SphereDecoder, zero_triplane
 
@@ -108,8 +108,8 @@ def test_coarse_to_fine_truncated_sdf_touching_the_box_and_colours():
 @functools.lru_cache(maxsize=None)
 def random_triplane_decoder(seed=0):
     """A real ``TriplaneDecoder`` with random weights, a smooth random triplane prepared once (conv blocks run)."""
-    from sin3dm_lite.autoencoder import TriplaneDecoder
-    from sin3dm_lite.config import AutoencoderConfig
+    from sin3dm_lite.model.autoencoder import TriplaneDecoder
+    from sin3dm_lite.data.config import AutoencoderConfig
 
     torch.manual_seed(seed)
     dec = TriplaneDecoder(AutoencoderConfig(decoder_channels=16, mlp_hidden=32), threshold=0.1)
@@ -127,7 +127,7 @@ def sdf_like_triplane_decoder(truncation=None, seed=0):
     through the decoder's MLP, whose last bits depend on the batch unless
     ``query_points`` pads it.
     """
-    from sin3dm_lite.autoencoder import TriplaneDecoder
+    from sin3dm_lite.model.autoencoder import TriplaneDecoder
 
     base, prepared = random_triplane_decoder(seed)
     raw = dc.decode_grid(base, prepared, AABB, 32, coarse=None)
@@ -319,7 +319,7 @@ def test_uv_charts_are_capped_at_a_share_of_the_surface():
     """Large curved charts are cut (they made xatlas slow on bricky samples); the atlas stays a valid one."""
     import trimesh
 
-    from sin3dm_lite.mesh_io import component_labels
+    from sin3dm_lite.data.mesh_io import component_labels
 
     cyl = trimesh.creation.cylinder(0.3, 3.0, sections=32)
     v, f = np.asarray(cyl.vertices), np.asarray(cyl.faces)

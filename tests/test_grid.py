@@ -4,10 +4,10 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from sin3dm_lite.box import grid_shape
+from sin3dm_lite.data.box import grid_shape
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.grid import load_grid, mesh_to_grid, save_grid
-from sin3dm_lite.mesh_io import Material, TexturedMesh
+from sin3dm_lite.data.grid import load_grid, mesh_to_grid, save_grid
+from sin3dm_lite.data.mesh_io import Material, TexturedMesh
 
 from .conftest import textured
 
@@ -139,7 +139,7 @@ def test_inside_out_parts_are_turned_round_with_a_warning():
 
 
 def test_closed_means_every_edge_used_both_ways():
-    from sin3dm_lite.grid import _Distance
+    from sin3dm_lite.data.grid import _Distance
 
     sphere = trimesh.creation.icosphere(subdivisions=2)
     assert _Distance(textured(sphere)).closed

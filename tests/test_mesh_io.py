@@ -1,4 +1,4 @@
-"""Tests of sin3dm_lite.mesh_io (loaders, bad input, normalisation) and round trips through export's writers.
+"""Tests of sin3dm_lite.data.mesh_io (loaders, bad input, normalisation) and round trips through export's writers.
 
 Every input is written on the fly into ``tmp_path`` (no binary fixtures).
 The texture used throughout has four coloured quadrants so that a lookup can
@@ -20,9 +20,9 @@ from trimesh.visual.material import PBRMaterial
 
 from sin3dm_lite import export, mesh_io
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.export import save_glb, save_obj
-from sin3dm_lite.viewer import to_trimesh
-from sin3dm_lite.mesh_io import (
+from sin3dm_lite.data.export import save_glb, save_obj
+from sin3dm_lite.show.viewer import to_trimesh
+from sin3dm_lite.data.mesh_io import (
     DEFAULT_COLOR,
     Material,
     TexturedMesh,

@@ -5,6 +5,7 @@ import trimesh
 
 from sin3dm_lite import extract as ex
 from sin3dm_lite import metrics as M
+from sin3dm_lite.evaluate import geometry
 from sin3dm_lite.errors import Sin3DMInputError
 
 BOX = np.array([-1.0, -1, -1, 1, 1, 1])
@@ -78,7 +79,7 @@ def test_patch_fscore_is_dice_of_occupied_voxels():
     r = np.zeros((1, 1331), bool)
     g[0, :10] = True
     r[0, :20] = True
-    best_iou, best_f = M._best_matches(g, r)
+    best_iou, best_f = geometry._best_matches(g, r)
     assert best_iou[0] == pytest.approx(0.5) and best_f[0] == pytest.approx(2 / 3)
 
 

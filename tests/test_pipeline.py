@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from sin3dm_lite import autoencoder
-from sin3dm_lite.config import Config, get_preset
+from sin3dm_lite.model import autoencoder
+from sin3dm_lite.data.config import Config, get_preset
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.pipeline import Sin3DM, thin_parts_switch
 
@@ -150,7 +150,7 @@ def test_bad_resize_is_a_clear_error(fitted, resize):
 def test_with_denoiser_samples_with_the_new_denoiser_and_its_config(fitted):
     from dataclasses import replace
 
-    from sin3dm_lite.unet import TriplaneUNet
+    from sin3dm_lite.model.unet import TriplaneUNet
 
     model, _ = fitted
     eps = replace(model.config.diffusion, prediction="eps")
@@ -223,7 +223,7 @@ def test_occupancy_of_samples_at_one_or_several_resolutions(fitted):
 @pytest.mark.parametrize("sdf_value, expected", [(1.0, False), (-1.0, True)])
 def test_occupancy_of_a_sample_without_surface_is_empty_or_full(fitted, monkeypatch, sdf_value, expected):
     """A diverged sample (no surface) scores as an empty or full box instead of stopping an evaluation."""
-    from sin3dm_lite.extract import marching_cubes
+    from sin3dm_lite.generate.extract import marching_cubes
 
     model, _ = fitted
     s = model.input_sample()
@@ -237,7 +237,7 @@ def test_occupancy_of_a_sample_without_surface_is_empty_or_full(fitted, monkeypa
 
 
 def test_input_mesh_is_the_example_or_the_file_the_run_was_fitted_to(fitted, tmp_path):
-    from sin3dm_lite.examples import build_example, write_example
+    from sin3dm_lite.data.examples import build_example, write_example
 
     model, run = fitted
     assert len(model.input_mesh().faces) == len(build_example("wall").faces)  # an example: built again
@@ -257,7 +257,7 @@ def test_input_mesh_is_the_example_or_the_file_the_run_was_fitted_to(fitted, tmp
 def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, capsys):
     """A preset with thin_parts refits the grid at the finer settings when the shape is mostly thin parts, says so,
     and records the settings it used, so that the run folder loads and resumes as what it is."""
-    from sin3dm_lite.grid import load_grid
+    from sin3dm_lite.data.grid import load_grid
 
     cfg = micro_config().updated(**{"name": "small", "grid.resolution": 32, "autoencoder.steps": 2, "diffusion.steps": 2,
                                     "thin_parts": {"grid.resolution": 40, "diffusion.n_resblocks": 3}})
@@ -309,7 +309,7 @@ def test_small_switches_to_exactly_the_detail_settings():
 
 def test_settings_from_text_keep_their_kinds():
     """`fit --set` text becomes typed settings; a wrong name or kind is one clear error, not a crash in training."""
-    from sin3dm_lite.config import parse_settings
+    from sin3dm_lite.data.config import parse_settings
     from sin3dm_lite.errors import Sin3DMInputError
 
     changes = parse_settings(["diffusion.rollout=True", "diffusion.steps=1500", "sampling.diversity=0.5",
@@ -361,7 +361,7 @@ def test_the_quick_preset_is_small_with_a_lighter_autoencoder():
 
 
 def test_flip_augmentation_fits_with_a_mirror_decoder_and_refuses_without(tmp_path):
-    from sin3dm_lite.autoencoder import MirrorConv2d
+    from sin3dm_lite.model.autoencoder import MirrorConv2d
 
     cfg = micro_config().updated(**{"diffusion.flips": "xz"})
     with pytest.raises(Sin3DMInputError, match="autoencoder.mirror=true"):

@@ -7,9 +7,9 @@ import pytest
 from PIL import Image
 
 from sin3dm_lite.cli import main
-from sin3dm_lite.export import export_mesh
-from sin3dm_lite.mesh_io import Material, TexturedMesh
-from sin3dm_lite.render import contact_sheet, render_hero, render_views, save_views, view_angles, view_names
+from sin3dm_lite.data.export import export_mesh
+from sin3dm_lite.data.mesh_io import Material, TexturedMesh
+from sin3dm_lite.evaluate.render import contact_sheet, render_hero, render_views, save_views, view_angles, view_names
 
 # Off-screen OpenGL needs Mesa's EGL on a Linux machine without a display (the CI image has it); elsewhere the
 # render command says how to install it (tested in test_bad_inputs' table only where rendering never starts)
@@ -120,7 +120,7 @@ def test_pbr_maps_shade_the_picture_and_factors_alone_do_not():
     no maps) do not turn a plain texture into metal."""
     from dataclasses import replace
 
-    from sin3dm_lite.examples import build_example
+    from sin3dm_lite.data.examples import build_example
 
     tiles = build_example("tiles")
     plain = replace(tiles, materials=[replace(m, metallic_roughness_image=None, normal_image=None)

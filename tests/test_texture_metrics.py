@@ -86,7 +86,7 @@ def test_t_qual_averages_over_views_and_samples():
 # --------------------------------------------------------------------------- weight-free, real renders
 @needs_egl
 def test_texture_metrics_on_renders_of_a_textured_cube():
-    from sin3dm_lite.render import render_views
+    from sin3dm_lite.evaluate.render import render_views
 
     from .test_render import textured_cube
 

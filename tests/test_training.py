@@ -4,11 +4,11 @@ import io
 import pytest
 import torch
 
-from sin3dm_lite.autoencoder import AutoencoderTrainer, TriplaneAutoencoder
-from sin3dm_lite.diffusion import DiffusionTrainer
+from sin3dm_lite.model.autoencoder import AutoencoderTrainer, TriplaneAutoencoder
+from sin3dm_lite.model.diffusion import DiffusionTrainer
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.training import TRAINER_FORMAT, Trainer
-from sin3dm_lite.unet import TriplaneUNet
+from sin3dm_lite.model.training import TRAINER_FORMAT, Trainer
+from sin3dm_lite.model.unet import TriplaneUNet
 
 from .conftest import tiny_ae_cfg, tiny_diffusion_cfg
 

@@ -1,7 +1,7 @@
 """Triplane lookups: which plane axis is which, texel centres, the border."""
 import torch
 
-from sin3dm_lite.triplane import Triplane
+from sin3dm_lite.model.triplane import Triplane
 
 
 def centres(n):
@@ -40,7 +40,7 @@ def test_sample_hits_texel_centres_and_clamps_at_the_border():
 def test_pca_image_shows_the_strongest_pattern_first():
     import numpy as np
 
-    from sin3dm_lite.triplane import pca_basis, plane_to_image
+    from sin3dm_lite.model.triplane import pca_basis, plane_to_image
 
     rng = np.random.default_rng(0)
     a, b = np.meshgrid(np.linspace(-1, 1, 10), np.linspace(-1, 1, 7), indexing="ij")

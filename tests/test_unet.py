@@ -3,10 +3,10 @@
 import pytest
 import torch
 
-from sin3dm_lite.config import DiffusionConfig
+from sin3dm_lite.data.config import DiffusionConfig
 from sin3dm_lite.device import count_parameters
-from sin3dm_lite.triplane import Triplane
-from sin3dm_lite.unet import (
+from sin3dm_lite.model.triplane import Triplane
+from sin3dm_lite.model.unet import (
     TriplaneConv,
     TriplaneResBlock,
     TriplaneUNet,
@@ -194,7 +194,7 @@ def test_rollout_parts_are_the_pieces_of_the_conv_input():
 
 def test_the_presets_fields_are_a_share_of_their_latents():
     # docs/paper-notes.md, last section: the field must shrink with the latent, or every sample copies the input
-    from sin3dm_lite.config import get_preset
+    from sin3dm_lite.data.config import get_preset
 
     share = {}
     for name in ("small", "detail", "paper"):

@@ -1,4 +1,4 @@
-"""The k3d viewers of ``sin3dm_lite.viewer``: objects, dtypes, texture bytes and orientation, HTML pages."""
+"""The k3d viewers of ``sin3dm_lite.show.viewer``: objects, dtypes, texture bytes and orientation, HTML pages."""
 import io
 
 import k3d
@@ -8,7 +8,7 @@ import trimesh
 from PIL import Image
 
 from sin3dm_lite import viewer
-from sin3dm_lite.mesh_io import Material, TexturedMesh, sample_texture
+from sin3dm_lite.data.mesh_io import Material, TexturedMesh, sample_texture
 
 
 def red_top_blue_bottom(h=8, w=4) -> np.ndarray:

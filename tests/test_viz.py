@@ -1,4 +1,4 @@
-"""The matplotlib figures of ``sin3dm_lite.viz``: right panels, right data drawn."""
+"""The matplotlib figures of ``sin3dm_lite.show.viz``: right panels, right data drawn."""
 import ctypes.util
 import io
 import sys
@@ -17,7 +17,7 @@ from PIL import Image
 from sin3dm_lite import metrics as M
 from sin3dm_lite import viz
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.triplane import pca_basis, pca_project, Triplane, plane_to_image
+from sin3dm_lite.model.triplane import pca_basis, pca_project, Triplane, plane_to_image
 
 from .conftest import rf_square
 
@@ -316,7 +316,7 @@ def test_every_figure_renders(sphere_grid, tp, tmp_path):
 
 
 def test_plot_diversity_curve_draws_each_score_and_its_goal():
-    from sin3dm_lite.viz import plot_diversity_curve
+    from sin3dm_lite.show.viz import plot_diversity_curve
 
     rows = [{"g_div": 0.01 * i, "lp_fscore": 0.9 - 0.1 * i, "iou_to_input": 1 - 0.05 * i} for i in range(3)]
     fig = plot_diversity_curve([0.2, 0.6, 1.0], rows, goals={"g_div": 0.2})
@@ -483,7 +483,7 @@ def test_plot_plane_axes_words_follow_the_up_axis():
 
 
 def test_plot_triplane_conv_shows_the_rollout_of_each_plane(tp, tmp_path):
-    from sin3dm_lite.unet import rollout_parts
+    from sin3dm_lite.model.unet import rollout_parts
 
     parts = rollout_parts(tp)
     for plane, lacking, others in (("xy", "z", ("xz", "yz")), ("xz", "y", ("xy", "yz")), ("yz", "x", ("xy", "xz"))):

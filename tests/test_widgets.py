@@ -1,4 +1,4 @@
-"""The ipywidgets panels of ``sin3dm_lite.widgets``: the right controls, and their callbacks draw."""
+"""The ipywidgets panels of ``sin3dm_lite.show.widgets``: the right controls, and their callbacks draw."""
 import ipywidgets as widgets
 import numpy as np
 import pytest
@@ -6,7 +6,7 @@ import torch
 from matplotlib.figure import Figure
 
 from sin3dm_lite import widgets as sw
-from sin3dm_lite.triplane import Triplane, plane_to_image
+from sin3dm_lite.model.triplane import Triplane, plane_to_image
 
 from .conftest import rf_square
 
@@ -177,7 +177,7 @@ def test_denoising_slider_samples_a_trajectory_and_resamples(model, monkeypatch)
 
 
 def test_texel_receptive_field_follows_the_texel(model, monkeypatch):
-    from sin3dm_lite import unet
+    from sin3dm_lite.model import unet
 
     calls = spy(monkeypatch, sw, "receptive_field")
     panel = sw.texel_receptive_field(model, plane="xy")

@@ -42,7 +42,7 @@ from urllib.parse import unquote
 
 import numpy as np
 
-from .errors import Sin3DMInputError
+from ..errors import Sin3DMInputError
 
 #: Colour used for a mesh that has no texture, vertex colour or material colour.
 DEFAULT_COLOR = np.array([0.7, 0.7, 0.7], dtype=np.float32)

@@ -19,12 +19,12 @@ sits on the brick's bump).
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from .errors import Sin3DMInputError
+from ..errors import Sin3DMInputError
 from .mesh_io import Material, TexturedMesh
 
 #: name -> one-line description of each built-in example.

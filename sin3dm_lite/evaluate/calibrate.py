@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .errors import Sin3DMInputError
+from ..errors import Sin3DMInputError
 
 #: what the samples must keep against the input: the paper's averages are LP-F 0.699 at G-Div 0.224, and the
 #: project's goals (issue "real variations") LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter
@@ -79,7 +79,7 @@ def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int
     voxel, on 12 samples of the canyon, the tiles and the rocks, in 0.18-0.37 s
     per sample instead of 0.43-0.62 at 64-96 voxels.
     """
-    from .decode import decode_grid
+    from ..model.decode import decode_grid
 
     samples = model.sample(n, seed=seed, diversity=diversity, progress=False)
     out = []
@@ -243,7 +243,7 @@ def calibrate_diversity(model, reference: np.ndarray, goals: dict | None = None,
         raise Sin3DMInputError(f"calibration goals are shares of patches, from 0 to 1; got {bad}")
     reference = np.asarray(reference, bool)
     resolution = max(reference.shape)
-    from .box import grid_shape
+    from ..data.box import grid_shape
 
     if tuple(grid_shape(model.aabb, resolution)) != reference.shape:
         raise Sin3DMInputError(f"the reference grid {reference.shape} is not on this model's box at {resolution} "

@@ -23,60 +23,51 @@ Public API::
 Coordinates: y is up (as the viewer's default ``up="y"``); azimuth 0 looks at
 the shape's front (the camera on +z), azimuth 90 from +x.
 
-Which renderer, and why (measured 2026-11, on the project's 2-core CPU
-machine, no display, no GPU; a 20,000-face mesh with a 512² texture, 8 views
-of 512², ``OMP_NUM_THREADS=1``; each candidate in a fresh virtualenv):
-
-=================================  ===========  ===============  ==========  =========================
-candidate                          from PyPI    installed size   headless    time per 512² view
-=================================  ===========  ===============  ==========  =========================
-pyrender-maintained 1.0.1 (EGL)    yes          ~50 MB new here  yes (EGL)   0.11 s (setup 0.4 s)
-                                                (PyOpenGL 32,
-                                                pyglet 11, ...)
-pyvista 0.49 / VTK 9.7 off-screen  yes          ~580 MB          yes (EGL)   0.04 s (setup 0.8 s)
-bpy 5.0 (Blender, Workbench)       yes, but     ~820 MB          yes (EGL)   0.56 s (setup 0.5 s)
-                                   CPython 3.11
-                                   only
-own numpy rasteriser               --           --               --          not written: not needed
-=================================  ===========  ===============  ==========  =========================
-
-All three GL candidates render here through Mesa's software EGL (llvmpipe):
-``libegl1``, ``libegl-mesa0`` and ``libgl1-mesa-dri`` are Debian packages
-that are part of this project's machine image (so CI has them); a bare Linux
-box needs ``apt-get install libegl1 libgl1-mesa-dri`` for *any* of them. With
-that cost equal, pyrender wins: a twelfth of VTK's size (it reuses the
-trimesh/scipy/numpy the package already has), any Python >= 3.10 (bpy pins
-one CPython), and 8 views in about a second, which is plenty for
-figures and metrics. VTK is 2.5× faster per view but not worth +580 MB on a
-laptop. On Linux without ``$DISPLAY`` we select EGL (``PYOPENGL_PLATFORM=egl``)
-before OpenGL is imported; with a display (or on macOS / Windows) pyrender
-uses an invisible pyglet window.
-
-This module, same mesh, same machine (under other jobs' load): 8 views at 512²
-in 3.5 s, i.e. about 0.28 s a view in pyrender's draw and read-back (faces are
-unwelded, 3 vertices each, so UV seams need no care) plus 0.5 s of setup; the
-first call of a process also pays about 1.2 s to import pyrender.
+Why pyrender: it renders headless through Mesa's software EGL (``libegl1``,
+``libgl1-mesa-dri`` on a bare Linux box, as any GL renderer needs), reuses the
+trimesh/scipy/numpy the package already has, works on any Python >= 3.10 and
+is fast enough for figures and metrics; the candidates compared and their
+timings are in ``docs/performance.md`` ("Which renderer"). On Linux without
+``$DISPLAY`` we select EGL (``PYOPENGL_PLATFORM=egl``) before OpenGL is
+imported; with a display (or on macOS / Windows) pyrender uses an invisible
+pyglet window.
 """
 from __future__ import annotations
 
+import io
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
-from .errors import Sin3DMInputError
-from .export import baked_image
-from .files import atomic_write
-from .mesh_io import TexturedMesh
-from .viewer import png_bytes
+from ..data.export import baked_image
+from ..data.mesh_io import TexturedMesh
+from ..errors import Sin3DMInputError
+from ..files import atomic_write
 
 #: vertical field of view of the camera, degrees
 FOV = 40.0
 #: the hero view: (azimuth, elevation) in degrees
 HERO = (35.0, 25.0)
 BACKGROUND = 255
+
+
+def png_bytes(image: np.ndarray, max_size: int | None = None) -> bytes:
+    """Encode an ``(h, w, 3|4)`` image (float in [0, 1] or uint8) as PNG, shrunk to ``max_size`` if larger."""
+    from PIL import Image
+
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        img = np.clip(np.round(img.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
+    pil = Image.fromarray(img[..., :3] if img.ndim == 3 else img)
+    if max_size and max(pil.size) > max_size:
+        scale = max_size / max(pil.size)
+        pil = pil.resize((max(1, round(pil.size[0] * scale)), max(1, round(pil.size[1] * scale))), Image.BILINEAR)
+    buf = io.BytesIO()
+    pil.save(buf, format="png")
+    return buf.getvalue()
 
 
 def _pyrender():

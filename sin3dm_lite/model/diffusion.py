@@ -15,16 +15,16 @@ from __future__ import annotations
 import copy
 import math
 import warnings
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from tqdm.auto import tqdm
 
-from .config import DiffusionConfig
-from .device import PRECISIONS, autocast
-from .errors import Sin3DMInputError
+from ..data.config import DiffusionConfig
+from ..device import PRECISIONS, autocast
+from ..errors import Sin3DMInputError
 from .training import Trainer, checkpoint_problem
 from .triplane import PLANE_AXES, Triplane
 from .unet import TriplaneUNet
@@ -46,7 +46,7 @@ class NoiseSchedule:
         self.posterior_coef_xt = (1 - self.alphas_cumprod_prev) * self.alphas.sqrt() / (1 - self.alphas_cumprod)
 
     @classmethod
-    def from_config(cls, cfg: DiffusionConfig) -> "NoiseSchedule":
+    def from_config(cls, cfg: DiffusionConfig) -> NoiseSchedule:
         return cls(cfg.timesteps, cfg.beta_start, cfg.beta_end)
 
     def alpha_bar(self, t: torch.Tensor | int) -> torch.Tensor:
@@ -137,7 +137,7 @@ def random_flips(x: Triplane, axes: str, generator: torch.Generator) -> Triplane
     for axis in axes:
         pick = (torch.rand(x.batch, generator=generator, device=generator.device) < 0.5).to(x.device)
         flipped = x.flipped(axis)
-        x = x.zip_map(flipped, lambda a, f: torch.where(pick[:, None, None, None], f, a))
+        x = x.zip_map(flipped, lambda a, f: torch.where(pick[:, None, None, None], f, a))  # noqa: B023 (used at once)
     return x
 
 
@@ -149,7 +149,7 @@ class DiffusionTrainer(Trainer):
     ``generator`` on the training device. AdamW, learning rate annealed
     linearly to 0 over ``cfg.steps``, and an EMA copy of the weights
     (``cfg.ema_decay = 0``: none). The shared interface (``step``, ``run``,
-    ``history``, ``state_dict``) is :class:`~sin3dm_lite.training.Trainer`'s;
+    ``history``, ``state_dict``) is :class:`~sin3dm_lite.model.training.Trainer`'s;
     the checkpoint adds ``ema`` and ``h0``, so :meth:`from_state_dict` rebuilds
     the trainer from it alone.
     """
@@ -219,7 +219,7 @@ class DiffusionTrainer(Trainer):
             self.ema.load_state_dict(sd["ema"])
 
     @classmethod
-    def from_state_dict(cls, sd: dict, device: str | torch.device | None = None) -> "DiffusionTrainer":
+    def from_state_dict(cls, sd: dict, device: str | torch.device | None = None) -> DiffusionTrainer:
         """Rebuild a trainer (latent, config, seed) from a ``state_dict()`` and load it."""
         why = checkpoint_problem(sd, cls.kind)
         if why is not None:
@@ -393,22 +393,12 @@ def sample(
     if t0 < schedule.timesteps - 1 and start is None:
         raise Sin3DMInputError("diversity below 1 starts from a noised latent: pass `start` (e.g. the input's latent)")
     if t0 < 0:  # diversity 0: nothing is regenerated
-        x = start.to(device, torch.float32).repeat(n) if start.batch == 1 else start.to(device, torch.float32)
+        x = _batch_of(start, n, device)
         return (x, []) if return_intermediates is not None else x
     ts = sampling_timesteps(schedule, method, steps, t0)
     record, intermediates = _steps_to_record(return_intermediates, len(ts)), []
-    if (known is None) != (mask is None):
-        raise Sin3DMInputError("masked sampling needs both `known` and `mask`")
-    if known is not None:
-        known, mask = known.to(device, torch.float32), mask.to(device, torch.float32)
-
-    x = noise.draw(Triplane.randn(n, channels, tuple(resolution), device="meta"), device)  # x_T, shape from a meta tensor
-    if t0 < schedule.timesteps - 1:  # x_t0 = the start latent noised to t0
-        if start.resolution != tuple(resolution):
-            raise Sin3DMInputError(f"start latent is {start.resolution}, the samples are {tuple(resolution)}")
-        x0_start = start.to(device, torch.float32)
-        x0_start = x0_start.repeat(n) if x0_start.batch == 1 else x0_start
-        x = schedule.q_sample(x0_start, t0, x)
+    known, mask = _known_and_mask(known, mask, device)
+    x = _first_latent(schedule, noise, n, channels, resolution, device, t0, start)
     if known is not None:
         x = _blend(mask, schedule.q_sample(known, ts[0], noise.like(x)), x)
     for i, t in enumerate(tqdm(ts, disable=not progress, desc=method)):
@@ -417,16 +407,48 @@ def sample(
         if i in record:
             intermediates.append({"step": i, "t": t, "x_t": x.cpu(), "x0": x0.cpu()})
         t_prev = ts[i + 1] if i + 1 < len(ts) else -1
-        if method == "ddpm":
-            mean, var = schedule.posterior(x0, x, tt)
-            x = mean + noise.like(x) * var.sqrt() if t > 0 else mean
-        else:  # DDIM, η = 0: keep the predicted noise direction, move to ᾱ_{t_prev}
-            eps, ab_prev = schedule.predict_eps(x, tt, x0), float(schedule.alpha_bar(t_prev))
-            x = x0.zip_map(eps, lambda a, e: math.sqrt(ab_prev) * a + math.sqrt(1 - ab_prev) * e)
+        x = _step(schedule, method, x, x0, tt, t, t_prev, noise)
         if known is not None:
             keep = schedule.q_sample(known, t_prev, noise.like(x)) if t_prev >= 0 else known
             x = _blend(mask, keep, x)
     return (x, intermediates) if return_intermediates is not None else x
+
+
+def _batch_of(start: Triplane, n: int, device) -> Triplane:
+    """``start`` as float32 on ``device``, one copy per sample if it holds a single latent."""
+    x = start.to(device, torch.float32)
+    return x.repeat(n) if x.batch == 1 else x
+
+
+def _known_and_mask(known: Triplane | None, mask: Triplane | None, device):
+    """Masked sampling's inputs on ``device`` (both or neither)."""
+    if (known is None) != (mask is None):
+        raise Sin3DMInputError("masked sampling needs both `known` and `mask`")
+    if known is not None:
+        known, mask = known.to(device, torch.float32), mask.to(device, torch.float32)
+    return known, mask
+
+
+def _first_latent(schedule: NoiseSchedule, noise: SampleNoise, n: int, channels: int, resolution, device,
+                  t0: int, start: Triplane | None) -> Triplane:
+    """Where the walk starts: x_T from the samples' own noise, or, below full diversity, the start latent noised to t0."""
+    x = noise.draw(Triplane.randn(n, channels, tuple(resolution), device="meta"), device)  # x_T, shape from a meta tensor
+    if t0 < schedule.timesteps - 1:  # x_t0 = the start latent noised to t0
+        if start.resolution != tuple(resolution):
+            raise Sin3DMInputError(f"start latent is {start.resolution}, the samples are {tuple(resolution)}")
+        x = schedule.q_sample(_batch_of(start, n, device), t0, x)
+    return x
+
+
+def _step(schedule: NoiseSchedule, method: str, x: Triplane, x0: Triplane, tt: torch.Tensor, t: int, t_prev: int,
+          noise: SampleNoise) -> Triplane:
+    """One reverse step from x_t to x_{t_prev}, given the predicted x0: DDPM's posterior draw or DDIM's (η = 0) jump."""
+    if method == "ddpm":
+        mean, var = schedule.posterior(x0, x, tt)
+        return mean + noise.like(x) * var.sqrt() if t > 0 else mean
+    # DDIM, η = 0: keep the predicted noise direction, move to ᾱ_{t_prev}
+    eps, ab_prev = schedule.predict_eps(x, tt, x0), float(schedule.alpha_bar(t_prev))
+    return x0.zip_map(eps, lambda a, e: math.sqrt(ab_prev) * a + math.sqrt(1 - ab_prev) * e)
 
 
 def soft_mask(

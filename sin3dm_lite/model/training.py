@@ -1,7 +1,7 @@
 """What the two trainers share: the step loop, the loss history, the random generator and the checkpoint.
 
-:class:`~sin3dm_lite.autoencoder.AutoencoderTrainer` and
-:class:`~sin3dm_lite.diffusion.DiffusionTrainer` are both a :class:`Trainer`:
+:class:`~sin3dm_lite.model.autoencoder.AutoencoderTrainer` and
+:class:`~sin3dm_lite.model.diffusion.DiffusionTrainer` are both a :class:`Trainer`:
 
 * ``step()`` runs one optimisation step and returns its loss; ``run(until_step,
   progress, callback)`` steps to ``until_step`` (at most ``cfg.steps``) and
@@ -31,15 +31,16 @@
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from dataclasses import asdict
-from typing import Any, Callable
+from typing import Any
 
 import torch
 import torch.nn as nn
 from tqdm.auto import tqdm
 
-from .device import get_device
-from .errors import Sin3DMInputError
+from ..device import get_device
+from ..errors import Sin3DMInputError
 
 TRAINER_FORMAT = "sin3dm-lite-trainer/2"
 
@@ -119,7 +120,7 @@ class Trainer:
         self,
         until_step: int | None = None,
         progress: bool = True,
-        callback: Callable[["Trainer"], Any] | None = None,
+        callback: Callable[[Trainer], Any] | None = None,
     ) -> dict[str, list[float]]:
         """Train from ``step_count`` to ``until_step`` (default and at most ``cfg.steps``); returns ``history``.
 

@@ -18,8 +18,8 @@ Conventions used everywhere in the package:
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import torch
@@ -69,41 +69,41 @@ class Triplane:
     def device(self) -> torch.device:
         return self.xy.device
 
-    def map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> "Triplane":
+    def map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> Triplane:
         """Apply ``fn`` to each plane."""
         return Triplane(fn(self.xy), fn(self.xz), fn(self.yz))
 
-    def zip_map(self, other: "Triplane", fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]) -> "Triplane":
+    def zip_map(self, other: Triplane, fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]) -> Triplane:
         return Triplane(fn(self.xy, other.xy), fn(self.xz, other.xz), fn(self.yz, other.yz))
 
-    def to(self, *args, **kwargs) -> "Triplane":
+    def to(self, *args, **kwargs) -> Triplane:
         return self.map(lambda p: p.to(*args, **kwargs))
 
-    def detach(self) -> "Triplane":
+    def detach(self) -> Triplane:
         return self.map(torch.Tensor.detach)
 
-    def clone(self) -> "Triplane":
+    def clone(self) -> Triplane:
         return self.map(torch.Tensor.clone)
 
-    def cpu(self) -> "Triplane":
+    def cpu(self) -> Triplane:
         return self.map(torch.Tensor.cpu)
 
-    def __getitem__(self, index) -> "Triplane":
+    def __getitem__(self, index) -> Triplane:
         """Batch indexing that keeps the batch dimension: ``tp[0]`` is a batch of one."""
         if isinstance(index, int):
             index = slice(index, index + 1) if index != -1 else slice(-1, None)
         return self.map(lambda p: p[index])
 
-    def repeat(self, n: int) -> "Triplane":
+    def repeat(self, n: int) -> Triplane:
         return self.map(lambda p: p.repeat(n, 1, 1, 1))
 
-    def flipped(self, axis: str) -> "Triplane":
+    def flipped(self, axis: str) -> Triplane:
         """The latent of the shape mirrored along ``axis`` ("x", "y" or "z"): each plane holding that axis is flipped
         along it. A decoder that commutes with flips (``AutoencoderConfig.mirror``) decodes it to the mirrored shape."""
         dim = {"x": {"xy": 2, "xz": 2}, "y": {"xy": 3, "yz": 2}, "z": {"xz": 3, "yz": 3}}[axis]
         return Triplane(*(p.flip(dim[n]) if n in dim else p for n, p in zip(PLANES, self.planes)))
 
-    def resized(self, resolution: tuple[int, int, int]) -> "Triplane":
+    def resized(self, resolution: tuple[int, int, int]) -> Triplane:
         """Bilinear resampling of every plane to the spatial size ``(X, Y, Z)`` (texel centres kept in place)."""
         x, y, z = resolution
         sizes = {"xy": (x, y), "xz": (x, z), "yz": (y, z)}
@@ -124,7 +124,7 @@ class Triplane:
     __rmul__ = __mul__
 
     @staticmethod
-    def randn_like(tp: "Triplane", generator: torch.Generator | None = None) -> "Triplane":
+    def randn_like(tp: Triplane, generator: torch.Generator | None = None) -> Triplane:
         return tp.map(lambda p: torch.randn(p.shape, generator=generator, device=p.device, dtype=p.dtype))
 
     @staticmethod
@@ -134,7 +134,7 @@ class Triplane:
         resolution: tuple[int, int, int],
         generator: torch.Generator | None = None,
         device: torch.device | str = "cpu",
-    ) -> "Triplane":
+    ) -> Triplane:
         x, y, z = resolution
         shapes = [(batch, channels, x, y), (batch, channels, x, z), (batch, channels, y, z)]
         return Triplane(*(torch.randn(s, generator=generator, device=device) for s in shapes))
@@ -144,7 +144,7 @@ class Triplane:
         return {name: p.detach().cpu() for name, p in zip(PLANES, self.planes)}
 
     @classmethod
-    def from_state_dict(cls, d: dict[str, torch.Tensor]) -> "Triplane":
+    def from_state_dict(cls, d: dict[str, torch.Tensor]) -> Triplane:
         return cls(d["xy"], d["xz"], d["yz"])
 
     # ---------------------------------------------------------------- lookup

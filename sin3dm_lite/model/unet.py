@@ -22,7 +22,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from .config import DiffusionConfig
+from ..data.config import DiffusionConfig
 from .triplane import PLANE_AXES, PLANES, Triplane
 
 
@@ -354,6 +354,18 @@ def _box_width(m: np.ndarray) -> int:
     return int(max(rows.max() - rows.min(), cols.max() - cols.min()) + 1)
 
 
+def _probe_copy(model: TriplaneUNet, seed: int) -> tuple[TriplaneUNet, torch.Generator]:
+    """A float64 CPU copy of the network to measure on, with random weights where a layer starts at zero, and the
+    generator (seeded ``seed``) that drew them, for the input to draw from next."""
+    net = copy.deepcopy(model).to("cpu", torch.float64).eval()
+    gen = torch.Generator().manual_seed(seed)
+    for m in net.modules():  # random weights where the layer starts at zero
+        if isinstance(m, nn.Conv2d) and not m.weight.any():
+            bound = 1 / math.sqrt(m.weight[0].numel())
+            m.weight.data.uniform_(-bound, bound, generator=gen)
+    return net, gen
+
+
 def receptive_field(
     model_or_cfg: TriplaneUNet | DiffusionConfig,
     resolution: int | tuple[int, int, int] = (32, 32, 32),
@@ -400,12 +412,7 @@ def receptive_field(
     else:
         model = model_or_cfg
     res = (resolution,) * 3 if isinstance(resolution, int) else tuple(resolution)
-    net = copy.deepcopy(model).to("cpu", torch.float64).eval()
-    gen = torch.Generator().manual_seed(seed)
-    for m in net.modules():  # random weights where the layer starts at zero
-        if isinstance(m, nn.Conv2d) and not m.weight.any():
-            bound = 1 / math.sqrt(m.weight[0].numel())
-            m.weight.data.uniform_(-bound, bound, generator=gen)
+    net, gen = _probe_copy(model, seed)
     x = Triplane.randn(1, net.latent_channels, res, generator=gen).to(torch.float64)
     t_, k = torch.tensor([net.cfg.timesteps // 2 if t is None else t]), PLANES.index(plane)
     a, b = x.planes[k].shape[-2:]

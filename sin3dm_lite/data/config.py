@@ -40,7 +40,7 @@ import numbers
 from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Any
 
-from .errors import Sin3DMInputError
+from ..errors import Sin3DMInputError
 
 
 @dataclass

@@ -41,11 +41,11 @@ from typing import Any
 
 import numpy as np
 
-from .box import as_aabb, to_box
-from .decode import PreparedTriplane, decode_grid, prepare, query_points
-from .errors import Sin3DMInputError
-from .mesh_io import Material, Normalization, TexturedMesh, component_labels, face_areas, tangent_frames
-from .triplane import Triplane
+from ..data.box import as_aabb, to_box
+from ..data.mesh_io import Material, Normalization, TexturedMesh, component_labels, face_areas, tangent_frames
+from ..errors import Sin3DMInputError
+from ..model.decode import PreparedTriplane, decode_grid, prepare, query_points
+from ..model.triplane import Triplane
 
 
 class NoSurfaceError(Sin3DMInputError):
@@ -424,28 +424,10 @@ def extract_mesh(decoder, triplane: Triplane, aabb, normalization: Normalization
     steps["simplified"] = (v, f)
 
     if vertex_colors:
-        _, col = query_points(decoder, prepared, to_box(v, box), chunk=chunk, sdf=False)
+        mesh = _vertex_coloured_mesh(decoder, prepared, box, v, f, chunk)
         lap("vertex_colors")
-        material = Material(name="vertex_colors", base_color=np.ones(4, np.float32))
-        mesh = TexturedMesh(v, f, np.zeros(len(f), np.int64), [material],
-                            vertex_colors=np.clip(col[:, :3], 0, 1).astype(np.float32))
     else:
-        vmapping, faces_uv, uvs = uv_atlas(v, f, resolution=texture_size)
-        lap("uv_atlas")
-        image, covered = bake_texture(decoder, prepared, box, v[vmapping], faces_uv, uvs, texture_size, chunk=chunk)
-        lap("bake_texture")
-        texture = pad_gutter(image[..., :3], covered)
-        lap("pad_gutter")
-        steps.update(uv=(uvs, faces_uv), vmapping=vmapping, baked=image, texture=texture, covered=covered)
-        material = Material(name="baked", base_color=np.ones(4, np.float32), image=texture)
-        if image.shape[-1] == 8:  # a PBR decoder: metallic-roughness and normal maps over the same atlas
-            material.metallic = material.roughness = 1.0  # glTF factors that multiply the maps
-            material.metallic_roughness_image, material.normal_image = pbr_maps(image, covered, v[vmapping], faces_uv,
-                                                                                 uvs, texture_size)
-            lap("pbr_maps")
-            steps.update(metallic_roughness=material.metallic_roughness_image, normal=material.normal_image)
-        # keep the welded vertices (watertight); the seams live in the per-corner UVs
-        mesh = TexturedMesh(v, f, np.zeros(len(f), np.int64), [material], face_uvs=uvs[faces_uv])
+        mesh = _baked_mesh(decoder, prepared, box, v, f, texture_size, chunk, steps, lap)
 
     norm = normalization if normalization is not None else Normalization.identity()
     if original_coords and normalization is not None:
@@ -456,6 +438,35 @@ def extract_mesh(decoder, triplane: Triplane, aabb, normalization: Normalization
     mesh.name = "sample"
     steps.update(seconds=seconds, normalization=norm)
     return (mesh, steps) if return_steps else mesh
+
+
+def _vertex_coloured_mesh(decoder, prepared: PreparedTriplane, box: np.ndarray, v, f, chunk: int) -> TexturedMesh:
+    """The quick look: the decoder's colour at each vertex, no atlas."""
+    _, col = query_points(decoder, prepared, to_box(v, box), chunk=chunk, sdf=False)
+    material = Material(name="vertex_colors", base_color=np.ones(4, np.float32))
+    return TexturedMesh(v, f, np.zeros(len(f), np.int64), [material],
+                        vertex_colors=np.clip(col[:, :3], 0, 1).astype(np.float32))
+
+
+def _baked_mesh(decoder, prepared: PreparedTriplane, box: np.ndarray, v, f, texture_size: int, chunk: int,
+                steps: dict, lap) -> TexturedMesh:
+    """xatlas UVs → texture baked from the decoder → gutter filled (→ PBR maps for a PBR decoder)."""
+    vmapping, faces_uv, uvs = uv_atlas(v, f, resolution=texture_size)
+    lap("uv_atlas")
+    image, covered = bake_texture(decoder, prepared, box, v[vmapping], faces_uv, uvs, texture_size, chunk=chunk)
+    lap("bake_texture")
+    texture = pad_gutter(image[..., :3], covered)
+    lap("pad_gutter")
+    steps.update(uv=(uvs, faces_uv), vmapping=vmapping, baked=image, texture=texture, covered=covered)
+    material = Material(name="baked", base_color=np.ones(4, np.float32), image=texture)
+    if image.shape[-1] == 8:  # a PBR decoder: metallic-roughness and normal maps over the same atlas
+        material.metallic = material.roughness = 1.0  # glTF factors that multiply the maps
+        material.metallic_roughness_image, material.normal_image = pbr_maps(image, covered, v[vmapping], faces_uv,
+                                                                             uvs, texture_size)
+        lap("pbr_maps")
+        steps.update(metallic_roughness=material.metallic_roughness_image, normal=material.normal_image)
+    # keep the welded vertices (watertight); the seams live in the per-corner UVs
+    return TexturedMesh(v, f, np.zeros(len(f), np.int64), [material], face_uvs=uvs[faces_uv])
 
 
 __all__ = [

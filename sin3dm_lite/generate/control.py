@@ -39,8 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .errors import Sin3DMInputError
-from .triplane import PLANE_AXES, PLANES, Triplane
+from ..errors import Sin3DMInputError
+from ..model.triplane import PLANE_AXES, PLANES, Triplane
 
 ANCHORS = ("center", "x-", "x+", "y-", "y+", "z-", "z+")
 BORDER = 2  # texels of linear ramp between kept and generated

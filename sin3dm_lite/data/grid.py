@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import point_cloud_utils as pcu
 
-from .errors import Sin3DMInputError
+from ..errors import Sin3DMInputError
+from ..files import atomic_path
 from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
-from .files import atomic_path
 from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, component_labels, unique_rows
 
 #: :meth:`Sin3DM.fit` with the ``small`` preset switches to ``detail``'s settings when more of the solid than this is thin

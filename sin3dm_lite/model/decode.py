@@ -18,7 +18,7 @@ The decoder protocol::
     features = decoder.prepare(triplane)          # per-plane 2D conv blocks, once per triplane
     sdf, color = decoder.query(features, points)  # points [B, N, 3] in box coordinates [-1, 1]^3
 
-Coordinates and grid sizes: see :mod:`sin3dm_lite.box`.
+Coordinates and grid sizes: see :mod:`sin3dm_lite.data.box`.
 """
 from __future__ import annotations
 
@@ -30,9 +30,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from .box import as_aabb, cell_centres, grid_shape
-from .errors import Sin3DMInputError
-from .grid import ShapeGrid
+from ..data.box import as_aabb, cell_centres, grid_shape
+from ..data.grid import ShapeGrid
+from ..errors import Sin3DMInputError
 from .triplane import Triplane
 
 if TYPE_CHECKING:
@@ -300,31 +300,9 @@ def _decode_coarse_to_fine(decoder, prepared: PreparedTriplane, box: np.ndarray,
         for off in itertools.product(range(r), repeat=3):
             if off == (0, 0, 0):
                 continue
-            # per axis: the corners (slice of the known lattice, weight, distance) of the cells holding these points
-            choices = []
-            for a, o in enumerate(off):
-                if o == 0:
-                    choices.append([(slice(None), 1.0, 0.0)])
-                else:
-                    t = o / r
-                    choices.append([(slice(0, cells[a]), 1 - t, o * h * spacing[a]),
-                                    (slice(1, cells[a] + 1), t, (r - o) * h * spacing[a])])
-            same_pos = same_neg = lower = interp = icol = None
-            for combo in itertools.product(*choices):
-                sl = tuple(c[0] for c in combo)
-                w = np.float32(np.prod([c[1] for c in combo]))
-                dist = float(np.sqrt(sum(c[2] ** 2 for c in combo)))
-                lb = c_bound[sl] - np.float32(lipschitz * dist)
-                if lower is None:
-                    same_pos, same_neg, lower, interp = c_pos[sl].copy(), c_neg[sl].copy(), lb, w * c_val[sl]
-                    icol = w * c_col[sl] if with_color else None
-                else:
-                    same_pos &= c_pos[sl]
-                    same_neg &= c_neg[sl]
-                    lower = np.maximum(lower, lb)  # NaN stays NaN and gets decoded
-                    interp += w * c_val[sl]
-                    if with_color:
-                        icol += w * c_col[sl]
+            choices = _cell_corners(off, r, h, cells, spacing)
+            same_pos, same_neg, lower, interp, icol = _from_corners(choices, c_pos, c_neg, c_val, c_bound, c_col,
+                                                                    lipschitz, with_color)
             far = (same_pos | same_neg) & (lower >= band)
             target = tuple(slice(o, None, r) for o in off)
             f_val[target][far] = interp[far]
@@ -352,8 +330,43 @@ def _decode_coarse_to_fine(decoder, prepared: PreparedTriplane, box: np.ndarray,
     return np.ascontiguousarray(sdf), (np.ascontiguousarray(col[0][crop]) if with_color else None)
 
 
+def _cell_corners(off, r: int, h: int, cells, spacing) -> list[list[tuple]]:
+    """Per axis: the corners (slice of the known lattice, weight, distance) of the cells holding the points at ``off``."""
+    choices = []
+    for a, o in enumerate(off):
+        if o == 0:
+            choices.append([(slice(None), 1.0, 0.0)])
+        else:
+            t = o / r
+            choices.append([(slice(0, cells[a]), 1 - t, o * h * spacing[a]),
+                            (slice(1, cells[a] + 1), t, (r - o) * h * spacing[a])])
+    return choices
+
+
+def _from_corners(choices, c_pos, c_neg, c_val, c_bound, c_col, lipschitz: float, with_color: bool):
+    """What the corners of each cell say about the points inside it: all positive, all negative, a lower bound on
+    ``|sdf|`` (the Lipschitz bound from the nearest corner) and the trilinear interpolation of SDF (and colour)."""
+    same_pos = same_neg = lower = interp = icol = None
+    for combo in itertools.product(*choices):
+        sl = tuple(c[0] for c in combo)
+        w = np.float32(np.prod([c[1] for c in combo]))
+        dist = float(np.sqrt(sum(c[2] ** 2 for c in combo)))
+        lb = c_bound[sl] - np.float32(lipschitz * dist)
+        if lower is None:
+            same_pos, same_neg, lower, interp = c_pos[sl].copy(), c_neg[sl].copy(), lb, w * c_val[sl]
+            icol = w * c_col[sl] if with_color else None
+        else:
+            same_pos &= c_pos[sl]
+            same_neg &= c_neg[sl]
+            lower = np.maximum(lower, lb)  # NaN stays NaN and gets decoded
+            interp += w * c_val[sl]
+            if with_color:
+                icol += w * c_col[sl]
+    return same_pos, same_neg, lower, interp, icol
+
+
 # ----------------------------------------------------------------------------- the input's reconstruction
-def reconstructed_grid(decoder: "TriplaneDecoder", h: Triplane, grid: ShapeGrid, name: str = "reconstruction") -> ShapeGrid:
+def reconstructed_grid(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid, name: str = "reconstruction") -> ShapeGrid:
     """The grid the latent ``h`` describes: decoded SDF and colour at every voxel of ``grid``.
 
     Same box, threshold and normalisation as ``grid`` (so the two can be shown

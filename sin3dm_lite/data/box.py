@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import Sin3DMInputError
+from ..errors import Sin3DMInputError
 
 
 def as_aabb(aabb) -> np.ndarray:

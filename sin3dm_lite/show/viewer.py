@@ -22,19 +22,19 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import os
 import re
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import k3d
 import numpy as np
 
-from .export import baked_image, split_corners
-from .files import atomic_write
-from .mesh_io import TexturedMesh, array_to_pil, unique_rows
+from ..data.export import baked_image, split_corners
+from ..data.mesh_io import TexturedMesh, array_to_pil, unique_rows
+from ..evaluate.render import png_bytes
+from ..files import atomic_write
 
 UP_AXES = ("y", "z")
 
@@ -95,22 +95,6 @@ def pack_colors(rgb: np.ndarray) -> np.ndarray:
         c = np.clip(np.round(np.asarray(c, np.float64) * 255.0), 0, 255).astype(np.uint8)
     c = c[..., :3].astype(np.uint32)
     return (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
-
-
-def png_bytes(image: np.ndarray, max_size: int | None = None) -> bytes:
-    """Encode an ``(h, w, 3|4)`` image (float in [0, 1] or uint8) as PNG, shrunk to ``max_size`` if larger."""
-    from PIL import Image
-
-    img = np.asarray(image)
-    if img.dtype != np.uint8:
-        img = np.clip(np.round(img.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
-    pil = Image.fromarray(img[..., :3] if img.ndim == 3 else img)
-    if max_size and max(pil.size) > max_size:
-        scale = max_size / max(pil.size)
-        pil = pil.resize((max(1, round(pil.size[0] * scale)), max(1, round(pil.size[1] * scale))), Image.BILINEAR)
-    buf = io.BytesIO()
-    pil.save(buf, format="png")
-    return buf.getvalue()
 
 
 def new_plot(**kwargs) -> k3d.Plot:
@@ -400,7 +384,7 @@ def view_camera(lo, hi, azimuth: float = VIEW[0], elevation: float = VIEW[1], fo
     """k3d's camera vector ``[eye, target, up]`` (9 numbers) looking at the box ``lo``..``hi`` (k3d's frame).
 
     ``azimuth`` and ``elevation`` (degrees) are in the data's y-up frame, as in
-    :mod:`sin3dm_lite.render`: azimuth 0 from the front (+z of the data, k3d's
+    :mod:`sin3dm_lite.evaluate.render`: azimuth 0 from the front (+z of the data, k3d's
     -y), 90 from +x; elevation 90 straight from above. The eye is far enough
     away that the box's bounding sphere, times ``factor``, fits in a view of
     ``fov`` degrees.

@@ -31,9 +31,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from .config import AutoencoderConfig
-from .device import autocast
-from .grid import ShapeGrid
+from ..data.config import AutoencoderConfig
+from ..data.grid import ShapeGrid
+from ..device import autocast
 from .training import Trainer
 from .triplane import PLANES, Triplane
 
@@ -293,7 +293,7 @@ class AutoencoderTrainer(Trainer):
     AdamW with a geometry and a texture learning rate, both decayed
     exponentially to ``lr_final_factor`` of their start over ``cfg.steps``.
     The shared interface (``step``, ``run``, ``history`` with ``"loss"``,
-    ``"sdf"`` and ``"color"``, ``state_dict``) is :class:`~sin3dm_lite.training.Trainer`'s.
+    ``"sdf"`` and ``"color"``, ``state_dict``) is :class:`~sin3dm_lite.model.training.Trainer`'s.
     The point batches are drawn on the CPU (the same batches on every device).
     """
 
@@ -303,7 +303,7 @@ class AutoencoderTrainer(Trainer):
     def __init__(self, grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: int = 0):
         super().__init__(cfg, device, seed, generator_device="cpu")
         if cfg.pbr != grid.has_pbr:
-            from .errors import Sin3DMInputError
+            from ..errors import Sin3DMInputError
 
             raise Sin3DMInputError(
                 f"the grid has {grid.color.shape[-1]} texture channels but the config says pbr={cfg.pbr}; "

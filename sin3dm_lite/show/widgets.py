@@ -19,8 +19,8 @@ redraws the output (and returns the figure).
 from __future__ import annotations
 
 import traceback
+from collections.abc import Callable, Sequence
 from contextlib import contextmanager
-from typing import Callable, Sequence
 
 import ipywidgets as widgets
 import numpy as np
@@ -28,11 +28,11 @@ import torch
 from IPython.display import clear_output, display
 from matplotlib.figure import Figure
 
+from ..data.grid import ShapeGrid
+from ..model.decode import decode_grid
+from ..model.triplane import PLANE_AXES, PLANES, Triplane
+from ..model.unet import receptive_field, rollout_parts
 from . import viz
-from .decode import decode_grid
-from .grid import ShapeGrid
-from .triplane import PLANE_AXES, PLANES, Triplane
-from .unet import receptive_field, rollout_parts
 
 
 class Explorer(widgets.VBox):
@@ -211,7 +211,7 @@ def control_panel(model, n_samples: int = 2, resolution: int | None = None, **sa
     decoded shapes (``model.plot_beside_input`` at ``resolution``, default the
     grid's) below; ``panel.last_samples`` keeps them.
     """
-    from .errors import Sin3DMInputError
+    from ..errors import Sin3DMInputError
 
     def rng(lo, hi, name):
         return widgets.FloatRangeSlider(value=(lo, hi), min=0, max=1, step=0.05, description=name,

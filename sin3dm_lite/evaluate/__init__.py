@@ -1,0 +1,2 @@
+"""Evaluate: quality and diversity metrics (``metrics``), the diversity calibration (``calibrate``) and
+headless rendering (``render``)."""

@@ -1,0 +1,378 @@
+"""Geometry metrics of the paper's evaluation (no network): occupancy grids and how alike they are.
+
+Everything works on *occupancy grids*: boolean ``(X, Y, Z)`` arrays on the
+same cell-centred grid that :mod:`sin3dm_lite.generate.extract` decodes on (``resolution``
+voxels along the longest side of a box, the paper uses 128).
+
+* :func:`voxelize` — mesh → occupancy grid; :func:`input_occupancy` — the
+  same for the input mesh (open meshes too), the reference of the LP metrics.
+* :func:`iou`, :func:`g_div` — whole-shape overlap and the diversity score
+  G-Div = mean pairwise ``1 − IoU`` among generated shapes. Whole-shape
+  comparisons need every grid to have the same shape, so retargeted samples
+  (another box) cannot enter G-Div with the others.
+* :func:`lp_iou`, :func:`lp_fscore` (:func:`lp_scores` computes both) — local
+  patch quality: does every small piece of a generated shape look like *some*
+  piece of the reference? These only compare 11³ patches, so they work for
+  shapes of any grid size as long as the voxel size is the same.
+
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..data.box import as_aabb, axis_centres, grid_shape, to_index
+from ..errors import Sin3DMInputError
+from ..generate.extract import rasterize_triangles
+
+#: Tiny shift (in voxels) of the mesh against the ray grid: marching-cubes vertices of the same grid lie
+#: exactly on the rays, and a ray through an edge would be counted twice.
+_RAY_JITTER = np.array([3.1e-6, 2.3e-6])
+
+
+def _verts_faces(mesh) -> tuple[np.ndarray, np.ndarray]:
+    if isinstance(mesh, (tuple, list)):
+        verts, faces = mesh
+    else:  # TexturedMesh, trimesh.Trimesh
+        verts, faces = mesh.vertices, mesh.faces
+    return np.asarray(verts, np.float64), np.asarray(faces, np.int64)
+
+
+# ----------------------------------------------------------------------------- the autoencoder's reconstruction
+def reconstruction_metrics(reconstruction, grid) -> dict[str, float]:
+    """How well a reconstruction (``decode.reconstructed_grid``, both ``ShapeGrid``) reproduces the input grid.
+
+    * ``sign_accuracy``: share of voxels where the decoded SDF has the input's sign;
+    * ``occupancy_iou``: IoU of the inside voxels (SDF < 0);
+    * ``occupancy_iou_quarter_voxel``: the same IoU leaving out voxels whose centre lies
+      within a quarter voxel of the input surface. Their sign flips with any sub-voxel
+      shift of the surface, and a mesh whose flat faces run along a layer of voxel
+      centres (a block filling its box) has thousands of them;
+    * ``color_l1`` / ``color_psnr``: colour error on voxels within the truncation band.
+
+    PBR grids (``grid.has_pbr``) add, on the same voxels: ``metallic_l1``,
+    ``roughness_l1``, ``normal_angle_deg`` (mean angle between the decoded
+    and the input normal) and ``metallic_iou`` (IoU of the ``metallic > 0.5``
+    voxels: are the metal parts in the same places?).
+    """
+    sdf, col = reconstruction.sdf, reconstruction.color[..., :3]
+    gt_in, pr_in = grid.sdf < 0, sdf < 0
+    clear = np.abs(grid.sdf) >= 0.25 * grid.voxel_size
+    band = np.abs(grid.sdf) < grid.threshold
+    err = col[band] - grid.color[band][:, :3]
+    mse = float((err**2).mean()) if band.any() else float("nan")
+    out = {
+        "sign_accuracy": float((gt_in == pr_in).mean()),
+        "occupancy_iou": iou(gt_in, pr_in),
+        "occupancy_iou_quarter_voxel": iou(gt_in[clear], pr_in[clear]),
+        "color_l1": float(np.abs(err).mean()) if band.any() else float("nan"),
+        "color_psnr": float(10 * math.log10(1.0 / max(mse, 1e-12))),
+    }
+    if getattr(grid, "has_pbr", False) and reconstruction.color.shape[-1] == grid.color.shape[-1] and band.any():
+        rec, ref = reconstruction.color[band], grid.color[band]
+        n_rec, n_ref = rec[:, 5:8] * 2 - 1, ref[:, 5:8] * 2 - 1
+        n_rec = n_rec / np.maximum(np.linalg.norm(n_rec, axis=1, keepdims=True), 1e-8)
+        n_ref = n_ref / np.maximum(np.linalg.norm(n_ref, axis=1, keepdims=True), 1e-8)
+        cos = np.clip(np.einsum("ij,ij->i", n_rec, n_ref), -1, 1)
+        out.update(
+            metallic_l1=float(np.abs(rec[:, 3] - ref[:, 3]).mean()),
+            roughness_l1=float(np.abs(rec[:, 4] - ref[:, 4]).mean()),
+            normal_angle_deg=float(np.degrees(np.arccos(cos)).mean()),
+            metallic_iou=iou(ref[:, 3] > 0.5, rec[:, 3] > 0.5),
+        )
+    return out
+
+
+# ----------------------------------------------------------------------------- voxelisation
+def voxelize(mesh, aabb, resolution: int = 128) -> np.ndarray:
+    """Occupancy of the voxel centres of a grid over ``aabb`` → bool ``(X, Y, Z)``.
+
+    Ray casting along +z through every column of voxel centres: each triangle
+    the ray crosses adds +1 (leaving the shape, normal pointing up) or −1
+    (entering); a voxel is inside when the crossings above it do not cancel
+    (a winding number along the ray). This fills closed shells, handles
+    nested or overlapping closed pieces, and does not care whether the whole
+    mesh is oriented inwards or outwards; it needs a closed mesh (marching
+    cubes output is).
+
+    Args:
+        mesh: a ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)``,
+            in the same coordinates as ``aabb`` (normalised coordinates: use
+            ``extract_mesh(..., original_coords=False)``).
+        resolution: voxels along the box's longest side (the paper uses 128).
+    """
+    verts, faces = _verts_faces(mesh)
+    box = as_aabb(aabb)
+    shape = grid_shape(box, resolution)
+    nx, ny, nz = shape
+    # continuous voxel index: voxel centre k sits at k
+    idx = to_index(verts, box, shape)
+    idx[:, :2] += _RAY_JITTER
+    tri = idx[faces]
+    f, x, y, bary = rasterize_triangles(tri[:, :, :2], nx, ny, eps=0.0)
+    ab, ac = tri[:, 1, :2] - tri[:, 0, :2], tri[:, 2, :2] - tri[:, 0, :2]
+    sign = np.sign(ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])[f]  # z of the normal: +1 exit, −1 entry
+    z_hit = np.einsum("nk,nk->n", bary, tri[f, :, 2])
+    m = np.clip(np.ceil(z_hit), 0, nz).astype(np.int64)  # the hit lies above voxels k < m
+    acc = np.bincount((x * ny + y) * (nz + 1) + m, weights=sign, minlength=nx * ny * (nz + 1))
+    acc = acc.reshape(nx, ny, nz + 1)
+    winding = np.cumsum(acc[..., ::-1], axis=-1)[..., ::-1]  # winding[k] = sum of acc[m] for m >= k
+    return np.abs(np.rint(winding[..., 1:])) > 0
+
+
+def input_occupancy(mesh, aabb, resolution: int = 128) -> np.ndarray:
+    """The *input* mesh as an occupancy grid: inside (winding number > ½) at every voxel centre.
+
+    This is the reference the paper's LP-IoU / LP-F compare against. Unlike
+    :func:`voxelize` it needs no closed mesh (a user's open scan works). The
+    mesh (a ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)``) must be in the same (normalised) coordinates as ``aabb``, e.g.
+    ``mesh.normalized()`` for the box a fit used.
+    """
+    from ..data.grid import inside
+
+    box = as_aabb(aabb)
+    shape = grid_shape(box, resolution)
+    axes = [axis_centres(box, shape, a) for a in range(3)]
+    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    return inside(*_verts_faces(mesh), centres).reshape(shape)
+
+
+# ----------------------------------------------------------------------------- whole-shape overlap
+def check_same_grid(grids: list[np.ndarray]) -> None:
+    """Refuse occupancy grids of different shapes (one clear error): they cannot be compared voxel by voxel."""
+    shapes = {tuple(np.shape(g)) for g in grids}
+    if len(shapes) > 1:
+        raise Sin3DMInputError(
+            f"occupancy grids of different shapes {sorted(shapes)} cannot be compared voxel by voxel; "
+            "voxelise every shape in the same box and resolution (retargeted samples need their own set)"
+        )
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two occupancy grids of the same shape (1.0 when both are empty)."""
+    check_same_grid([a, b])
+    a, b = np.asarray(a, bool), np.asarray(b, bool)
+    union = np.logical_or(a, b).sum()
+    return 1.0 if union == 0 else float(np.logical_and(a, b).sum() / union)
+
+
+def pairwise_iou(grids) -> np.ndarray:
+    """``(n, n)`` IoU matrix of occupancy grids that share one shape."""
+    grids = [np.asarray(g, bool) for g in grids]
+    check_same_grid(grids)
+    grids = [g.reshape(-1) for g in grids]
+    n = len(grids)
+    out = np.ones((n, n))
+    for i in range(n):
+        for j in range(i + 1, n):
+            union = np.count_nonzero(grids[i] | grids[j])
+            out[i, j] = out[j, i] = 1.0 if union == 0 else np.count_nonzero(grids[i] & grids[j]) / union
+    return out
+
+
+def g_div(grids) -> float:
+    """G-Div: mean of ``1 − IoU`` over all pairs of generated shapes (0 = all identical, 1 = all disjoint).
+
+    The grids must share one shape (same box and resolution); retargeted
+    samples are not comparable to the others.
+    """
+    grids = list(grids)
+    if len(grids) < 2:
+        raise Sin3DMInputError(f"g_div needs at least two shapes, got {len(grids)}")
+    m = pairwise_iou(grids)
+    i, j = np.triu_indices(len(grids), k=1)
+    return float(np.mean(1.0 - m[i, j]))
+
+
+def g_div_by_layer(grids, axis: int = 1) -> np.ndarray:
+    """G-Div split over the layers of the grid along ``axis`` (1, y: heights): where the samples differ.
+
+    ``1 − IoU(a, b) = |a xor b| / |a ∪ b|``, and the voxels two samples
+    disagree on are a sum over layers. Entry ``k`` is the mean over pairs of
+    the disagreeing voxels in layer ``k`` divided by the pair's union, so the
+    entries sum to :func:`g_div`. A wall's samples keep its brick body and
+    differ almost only in the layers of its top; a canyon's differ at every
+    height its river and terraces reach.
+    """
+    grids = [np.asarray(g, bool) for g in grids]
+    if len(grids) < 2:
+        raise Sin3DMInputError(f"g_div_by_layer needs at least two shapes, got {len(grids)}")
+    check_same_grid(grids)
+    if axis not in (0, 1, 2):
+        raise Sin3DMInputError(f"axis must be 0, 1 or 2 (x, y, z), got {axis!r}")
+    other = tuple(a for a in range(3) if a != axis)
+    out = np.zeros(grids[0].shape[axis])
+    i, j = np.triu_indices(len(grids), k=1)
+    for a, b in zip(i, j):
+        union = np.count_nonzero(grids[a] | grids[b])
+        if union:
+            out += (grids[a] ^ grids[b]).sum(other) / union
+    return out / len(i)
+
+
+def variation_scores(reference: np.ndarray, samples) -> dict:
+    """How far samples stray from the input and from each other (occupancy grids in one box).
+
+    Returns ``iou_to_input`` (mean IoU of each sample with ``reference``: near 1
+    means copies of the input), ``per_sample_iou`` (the list) and ``g_div``
+    (:func:`g_div` of the samples; None for a single sample).
+    """
+    samples = list(samples)
+    per = [iou(s, reference) for s in samples]
+    return {"iou_to_input": float(np.mean(per)), "per_sample_iou": per,
+            "g_div": g_div(samples) if len(samples) > 1 else None}
+
+
+def reconstruction_iou(mesh_a, mesh_b, aabb, resolution: int = 128) -> float:
+    """IoU of two meshes voxelised in the same box (e.g. the input and its autoencoder reconstruction)."""
+    return iou(voxelize(mesh_a, aabb, resolution), voxelize(mesh_b, aabb, resolution))
+
+
+# ----------------------------------------------------------------------------- local patches
+def extract_patches(grid: np.ndarray, patch: int = 11, stride: int = 5, center: int = 3) -> np.ndarray:
+    """Surface patches of an occupancy grid → bool ``(n, patch**3)``.
+
+    The grid is zero-padded by ``patch // 2`` on every side, so patches are
+    centred on voxels ``0, stride, 2·stride, ...`` of each axis. A patch is
+    kept when its central ``center³`` block holds both occupied and empty
+    voxels, i.e. it straddles the surface.
+    """
+    g = np.pad(np.asarray(grid, bool), patch // 2)
+    windows = np.lib.stride_tricks.sliding_window_view(g, (patch,) * 3)[::stride, ::stride, ::stride]
+    c0 = (patch - center) // 2
+    count = windows[..., c0:c0 + center, c0:c0 + center, c0:c0 + center].sum(axis=(-3, -2, -1))
+    valid = (count > 0) & (count < center**3)
+    return windows[valid].reshape(-1, patch**3)
+
+
+def _best_matches(gen: np.ndarray, ref: np.ndarray, max_entries: int = 2**23,
+                  return_index: bool = False) -> tuple[np.ndarray, ...]:
+    """For every generated patch, the best IoU and the best F-score against all reference patches
+    (and, with ``return_index``, the index of the reference patch with the best IoU)."""
+    g, r = gen.astype(np.float32), ref.astype(np.float32)
+    gs, rs = g.sum(1), r.sum(1)
+    best_iou = np.zeros(len(g), np.float64)
+    best_f = np.zeros(len(g), np.float64)
+    best_at = np.zeros(len(g), np.int64)
+    rows = max(1, max_entries // max(len(r), 1))
+    for s in range(0, len(g), rows):
+        inter = g[s:s + rows] @ r.T  # (m, n_ref) overlap counts, exact in float32
+        size_sum = gs[s:s + rows, None] + rs[None, :]
+        ious = inter / (size_sum - inter)
+        best_at[s:s + rows] = ious.argmax(axis=1)
+        best_iou[s:s + rows] = ious.max(axis=1)
+        best_f[s:s + rows] = (2 * inter / size_sum).max(axis=1)
+    return (best_iou, best_f, best_at) if return_index else (best_iou, best_f)
+
+
+def lp_scores(reference: np.ndarray, generated, patch: int = 11, stride: int = 5, center: int = 3,
+              max_patches: int = 1000, threshold: float = 0.95, seed: int = 0) -> dict:
+    """LP-IoU and LP-F-score (docs/paper-notes.md "Evaluation", from the SSG / Sin3DM evaluation).
+
+    For each generated shape: take its surface patches (:func:`extract_patches`),
+    keep at most ``max_patches`` of them chosen at random (``seed``), and find
+    for each the best match among *all* reference patches:
+
+    * IoU of two patches ``g`` and ``r`` (sets of occupied voxels):
+      ``|g ∩ r| / |g ∪ r|``;
+    * F-score: precision ``P = |g ∩ r| / |g|`` (how much of the generated
+      patch's occupied voxels the reference has), recall ``R = |g ∩ r| / |r|``,
+      ``F = 2PR / (P + R) = 2|g ∩ r| / (|g| + |r|)``.
+
+    The shape's score is the fraction of its patches whose best match is above
+    ``threshold`` (strictly); the metric is the mean over generated shapes.
+    A generated shape without surface patches scores 0.
+
+    Returns:
+        dict with ``lp_iou``, ``lp_fscore`` (the metrics), ``lp_iou_mean_best``,
+        ``lp_fscore_mean_best`` (mean best match, a softer number) and the
+        per-shape lists ``per_shape_iou``, ``per_shape_fscore``.
+    """
+    if isinstance(generated, np.ndarray) and generated.ndim == 3:
+        generated = [generated]
+    ref = extract_patches(reference, patch, stride, center)
+    if len(ref) == 0:
+        raise Sin3DMInputError("the reference occupancy grid has no surface patches (is it empty or full?)")
+    rng = np.random.default_rng(seed)
+    per_iou, per_f, mean_iou, mean_f = [], [], [], []
+    for grid in generated:
+        gen = extract_patches(grid, patch, stride, center)
+        if len(gen) > max_patches:
+            gen = gen[rng.choice(len(gen), max_patches, replace=False)]
+        if len(gen) == 0:
+            best_iou = best_f = np.zeros(1)
+        else:
+            best_iou, best_f = _best_matches(gen, ref)
+        per_iou.append(float(np.mean(best_iou > threshold)))
+        per_f.append(float(np.mean(best_f > threshold)))
+        mean_iou.append(float(best_iou.mean()))
+        mean_f.append(float(best_f.mean()))
+    return {
+        "lp_iou": float(np.mean(per_iou)),
+        "lp_fscore": float(np.mean(per_f)),
+        "lp_iou_mean_best": float(np.mean(mean_iou)),
+        "lp_fscore_mean_best": float(np.mean(mean_f)),
+        "per_shape_iou": per_iou,
+        "per_shape_fscore": per_f,
+    }
+
+
+def lp_iou(reference: np.ndarray, generated, patch: int = 11, stride: int = 5, center: int = 3,
+           max_patches: int = 1000, threshold: float = 0.95, seed: int = 0) -> float:
+    """LP-IoU: mean fraction of generated patches whose best reference IoU exceeds ``threshold``.
+
+    See :func:`lp_scores`, which computes LP-IoU and LP-F-score in one pass.
+    """
+    return lp_scores(reference, generated, patch, stride, center, max_patches, threshold, seed)["lp_iou"]
+
+
+def lp_fscore(reference: np.ndarray, generated, patch: int = 11, stride: int = 5, center: int = 3,
+              max_patches: int = 1000, threshold: float = 0.95, seed: int = 0) -> float:
+    """LP-F-score: as :func:`lp_iou` with the patch F-score (Dice) instead of IoU; see :func:`lp_scores`."""
+    return lp_scores(reference, generated, patch, stride, center, max_patches, threshold, seed)["lp_fscore"]
+
+
+def patch_matches(reference: np.ndarray, generated: np.ndarray, n: int = 4, patch: int = 11, stride: int = 5,
+                  center: int = 3, max_patches: int = 1000, seed: int = 0) -> dict:
+    """What LP-IoU compares, for a picture: ``n`` surface patches of one generated grid and their best input patch.
+
+    The patches are those :func:`lp_scores` takes (same ``patch``, ``stride``,
+    ``center``, ``max_patches`` and ``seed``); the ``n`` shown are spread evenly
+    over the range of best IoU, from the worst-matched patch to the best one.
+
+    Returns ``generated`` and ``matched`` (``(n, patch, patch, patch)`` bool: the
+    generated patches and, for each, the input patch with the highest IoU),
+    their ``iou`` and ``fscore`` (``(n,)``), ``best_iou`` (every compared patch's
+    best IoU: LP-IoU is the share of these above the threshold) and ``threshold``.
+    """
+    ref = extract_patches(reference, patch, stride, center)
+    gen = extract_patches(generated, patch, stride, center)
+    if len(ref) == 0 or len(gen) == 0:
+        raise Sin3DMInputError("both occupancy grids need surface patches (is one of them empty or full?)")
+    if len(gen) > max_patches:  # the same subset lp_scores draws for a first (or only) shape
+        gen = gen[np.random.default_rng(seed).choice(len(gen), max_patches, replace=False)]
+    best_iou, _, best_at = _best_matches(gen, ref, return_index=True)
+    order = np.argsort(best_iou, kind="stable")
+    pick = order[np.unique(np.round(np.linspace(0, len(order) - 1, min(n, len(order)))).astype(int))]
+    g, r = gen[pick].astype(np.float64), ref[best_at[pick]].astype(np.float64)
+    inter = (g * r).sum(1)
+    cube = (len(pick), patch, patch, patch)
+    return {"generated": gen[pick].reshape(cube), "matched": ref[best_at[pick]].reshape(cube),
+            "iou": best_iou[pick], "fscore": 2 * inter / (g.sum(1) + r.sum(1)), "best_iou": best_iou,
+            "threshold": 0.95}
+
+
+# ----------------------------------------------------------------------------- geometry, all at once
+def geometry_scores(reference: np.ndarray, samples) -> dict:
+    """The paper's weight-free geometry metrics of generated shapes against the input (occupancy grids, one box).
+
+    * ``g_div`` — G-Div: mean pairwise ``1 − IoU`` among the samples (higher = more diverse; None for one sample);
+    * ``lp_iou``, ``lp_fscore`` — LP-IoU / LP-F: share of the samples' local 11³ patches that have a near-exact
+      match (> 0.95) somewhere in the input (higher = locally more plausible), see :func:`lp_scores`;
+    * ``iou_to_input`` — mean IoU of each sample with the input (near 1 = copies of the input).
+    """
+    samples = list(samples)
+    lp, var = lp_scores(reference, samples), variation_scores(reference, samples)
+    return {"g_div": var["g_div"], "lp_iou": lp["lp_iou"], "lp_fscore": lp["lp_fscore"],
+            "iou_to_input": var["iou_to_input"]}

@@ -1,0 +1,129 @@
+"""The paper's evaluation in one namespace (``from sin3dm_lite import metrics``) and the table of its results.
+
+Geometry metrics on occupancy grids live in :mod:`~sin3dm_lite.evaluate.geometry` (G-Div, LP-IoU, LP-F-score),
+texture metrics on rendered views in :mod:`~sin3dm_lite.evaluate.texture` (patch SWD, render diversity: no
+weights) and :mod:`~sin3dm_lite.evaluate.features` (SIFID and LPIPS with their two pre-trained networks,
+InceptionV3's first block and AlexNet + LPIPS, whose weights are given by path).
+"""
+from __future__ import annotations
+
+from ..errors import Sin3DMInputError
+from .features import (  # noqa: F401
+    ALEXNET_FILE,
+    INCEPTION_FILES,
+    LPIPS_FILE,
+    SSFID_UNAVAILABLE,
+    BasicConv2d,
+    FeatureNets,
+    InceptionStem,
+    LPIPSAlex,
+    frechet_distance,
+    load_feature_weights,
+    lpips,
+    sifid,
+)
+from .geometry import (  # noqa: F401
+    check_same_grid,
+    extract_patches,
+    g_div,
+    g_div_by_layer,
+    geometry_scores,
+    input_occupancy,
+    iou,
+    lp_fscore,
+    lp_iou,
+    lp_scores,
+    pairwise_iou,
+    patch_matches,
+    reconstruction_iou,
+    reconstruction_metrics,
+    variation_scores,
+    voxelize,
+)
+from .texture import (  # noqa: F401
+    BACKGROUND,
+    colour_distance,
+    degraded,
+    foreground,
+    patch_swd,
+    render_div,
+    t_div,
+    t_qual,
+)
+
+METRICS = (("g_div", "G-Div", "higher = more diverse shapes"),
+           ("lp_iou", "LP-IoU", "higher = local geometry like the input's"),
+           ("lp_fscore", "LP-F", "higher = local geometry like the input's"),
+           ("iou_to_input", "not in the paper", "near 1 = copies of the input"),
+           ("ssfid", "G-Qual (SSFID)", "lower = better"),
+           ("patch_swd", "T-Qual stand-in", "lower = texture patches like the input's (weight-free, not SIFID)"),
+           ("render_div", "T-Div stand-in", "higher = more varied renders (weight-free, not LPIPS)"),
+           ("sifid", "T-Qual (SIFID)", "lower = better"),
+           ("lpips", "T-Div (LPIPS)", "higher = more diverse textures"))
+
+
+def results_table(columns: dict, digits: int = 3) -> str:
+    """Several evaluations side by side as a text table: one row per metric of :data:`METRICS`, one column each.
+
+    ``columns`` maps a column label to a ``Sin3DM.evaluate`` result (or its
+    ``"metrics"`` dict); a metric that was not computed shows as ``-``.
+    """
+    if not columns:
+        raise Sin3DMInputError("results_table needs at least one column")
+    values = {label: r.get("metrics", r) for label, r in columns.items()}
+    width = max(10, digits + 4, *(len(label) for label in values))
+    lines = [f"{'metric':14s} " + " ".join(f"{label:>{width}s}" for label in values) + "  paper's name: meaning"]
+    for key, paper, meaning in METRICS:
+        cells = ["-" if m.get(key) is None else f"{m[key]:.{digits}f}" for m in values.values()]
+        lines.append(f"{key:14s} " + " ".join(f"{c:>{width}s}" for c in cells) + f"  {paper}: {meaning}")
+    return "\n".join(lines)
+
+
+def texture_scores(reference_views, sample_views, nets: FeatureNets | None = None) -> dict:
+    """The texture metrics of renders, view by view: ``patch_swd`` and ``render_div`` always, ``sifid`` and
+    ``lpips`` (the paper's T-Qual and T-Div) with ``nets``; the diversities are None for one sample."""
+    sample_views = list(sample_views)
+    several = len(sample_views) > 1
+    out = {"patch_swd": t_qual(reference_views, sample_views, patch_swd),
+           "render_div": render_div(sample_views) if several else None}
+    if nets is not None:
+        out["sifid"] = t_qual(reference_views, sample_views, lambda x, y: sifid(x, y, nets))
+        out["lpips"] = t_div(sample_views, lambda x, y: lpips(x, y, nets)) if several else None
+    return out
+
+
+__all__ = [
+    "FeatureNets",
+    "check_same_grid",
+    "InceptionStem",
+    "LPIPSAlex",
+    "SSFID_UNAVAILABLE",
+    "METRICS",
+    "colour_distance",
+    "degraded",
+    "extract_patches",
+    "foreground",
+    "frechet_distance",
+    "geometry_scores",
+    "load_feature_weights",
+    "lpips",
+    "patch_swd",
+    "render_div",
+    "sifid",
+    "t_div",
+    "t_qual",
+    "texture_scores",
+    "g_div",
+    "input_occupancy",
+    "iou",
+    "lp_fscore",
+    "lp_iou",
+    "lp_scores",
+    "pairwise_iou",
+    "patch_matches",
+    "reconstruction_metrics",
+    "reconstruction_iou",
+    "results_table",
+    "variation_scores",
+    "voxelize",
+]

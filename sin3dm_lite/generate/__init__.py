@@ -1,0 +1,2 @@
+"""Generate: what to sample in the input's coordinates (``control``), SDF → textured mesh (``extract``) and
+the mesh writers (``export``)."""

@@ -1,0 +1,63 @@
+"""The figures of every stage in one namespace (``from sin3dm_lite import viz``; ``viz.plot_slice(grid)``).
+
+Each function takes plain data (numpy arrays, :class:`~sin3dm_lite.data.grid.ShapeGrid`,
+:class:`~sin3dm_lite.model.triplane.Triplane`) and *returns* a ``matplotlib.figure.Figure``;
+nothing here calls ``plt.show``. The figures are removed from pyplot's list of
+open figures as soon as they are made, so in Jupyter each one appears exactly
+once, as the value of the cell (``fig = plot_slice(...)``; ``fig``), and a
+script saves it with ``fig.savefig(path)``. The widgets in
+:mod:`sin3dm_lite.show.widgets` call these same functions. They live in one module per stage:
+``figures`` (what they share), ``data_figures``, ``model_figures``, ``diffusion_figures``,
+``sample_figures``, ``eval_figures``.
+"""
+from __future__ import annotations
+
+from .data_figures import (  # noqa: F401
+    pbr_map_images,
+    pbr_slice_images,
+    plot_grid_slices,
+    plot_pbr_maps,
+    plot_pbr_slices,
+    plot_points,
+    plot_slice,
+    plot_texture,
+    plot_truncation,
+    plot_uv_layout,
+)
+from .diffusion_figures import (  # noqa: F401
+    moving_average,
+    plot_denoising,
+    plot_losses,
+    plot_schedule,
+)
+from .eval_figures import (  # noqa: F401
+    plot_iou_matrix,
+    plot_layer_variation,
+    plot_patch_matches,
+    plot_picture,
+    plot_render_pairs,
+)
+from .figures import (  # noqa: F401
+    AXES,
+    NEUTRAL,
+    SDF_CMAP,
+    color_slice_image,
+    grid_slice,
+)
+from .model_figures import (  # noqa: F401
+    RF_LEVEL,
+    measured_width,
+    plot_plane_axes,
+    plot_receptive_field,
+    plot_receptive_fields,
+    plot_triplane,
+    plot_triplane_conv,
+    triplane_images,
+)
+from .sample_figures import (  # noqa: F401
+    plot_diversity_curve,
+    plot_meshes,
+    plot_plan,
+    plot_projections,
+    plot_samples_slices,
+)
