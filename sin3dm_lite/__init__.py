@@ -10,6 +10,7 @@ stages before it)::
               decode (decoder queries, SDF grids) · unet · diffusion (training, sampling)
     Generate  extract (SDF → textured mesh) · export (OBJ / GLB writers) · control (what to sample: outpaint, ...)
     Eval      metrics · calibrate (the diversity knob per shape)          Show  viz (figures) · widgets (panels) · viewer (k3d / HTML)
+    Teach     lesson2d (the method on one 2D image) · exercises (``check_…`` a piece of the method you wrote)
     Facade    pipeline (Sin3DM: fit, sample, save, load) · runs (RUN → model, cached fits) · cli · examples · pretrained
 
 Everything a notebook or script needs is importable from here::
@@ -77,6 +78,8 @@ _API = {
     "block_layout": "unet",
     "receptive_field": "unet",
     "analytic_receptive_field": "unet",
+    "layer_walk": "unet",
+    "layers_receptive_field": "unet",
     "NoiseSchedule": "diffusion",
     "DiffusionTrainer": "diffusion",
     "sample": "diffusion",
@@ -104,9 +107,19 @@ _API = {
     "lpips": "metrics",
     "calibrate_diversity": "calibrate",
     "Calibration": "calibrate",
+    # exercises: write a piece of the method, check it against the library
+    "ExerciseError": "exercises",
+    "check_q_sample": "exercises",
+    "check_ddpm_posterior": "exercises",
+    "check_ddim_step": "exercises",
+    "check_triplane_lookup": "exercises",
+    "check_receptive_field": "exercises",
+    "check_rollout": "exercises",
+    "check_best_patch_iou": "exercises",
 }
 
-_MODULES = {"viz", "widgets", "viewer", "metrics", "render", "examples", "box", "extract", "export", "mesh_io"}
+_MODULES = {"viz", "widgets", "viewer", "metrics", "render", "examples", "box", "extract", "export", "mesh_io",
+            "lesson2d", "exercises"}
 
 __all__ = sorted(_API) + sorted(_MODULES)
 

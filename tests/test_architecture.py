@@ -20,6 +20,7 @@ STAGES = {
     "triplane": 2, "training": 2, "autoencoder": 2, "decode": 2, "unet": 2, "diffusion": 2,  # model
     "extract": 3, "export": 3, "control": 3,  # generate
     "metrics": 4, "viz": 4, "widgets": 4, "viewer": 4, "render": 4, "calibrate": 4,  # eval and show
+    "lesson2d": 4, "exercises": 4,  # teaching: the method in 2D, the exercises' checks
     "pipeline": 5, "cli": 5, "mass": 5, "runs": 5, "examples": 5, "pretrained": 5,  # the facade and its built-in inputs
 }
 
