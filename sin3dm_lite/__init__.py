@@ -6,12 +6,13 @@ meshes. One sub-package per stage, in the order data flows; a module imports
 only from its own level or a lower one (``tests/test_architecture.py`` holds the
 table of levels and checks it, imports inside functions included)::
 
-    0 base      errors · device · files
+    0 base      errors · device · threads (how CPU threads wait) · files
     1 data      data: config · box · mesh_io (read meshes) · export (OBJ / GLB writers) · examples · grid (mesh → TSDF)
     2 model     model: triplane · training · autoencoder · decode · unet · diffusion (schedule, training, sampling)
     3 generate  generate: control (what to sample: outpaint, ...) · extract (SDF → textured mesh)
     4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render · calibrate
     5 show      show: figures · data/model/diffusion/sample/eval_figures · viz (all figures) · viewer · widgets
+    5 teach     teach: lesson2d (the method on one 2D image) · exercises (``check_…`` a piece you wrote)
     6 app       pipeline (Sin3DM: fit, sample, save, load) · runs · mass · cli · pretrained (models in shipped/)
 
 Everything a notebook or script needs is importable from here::
@@ -83,6 +84,8 @@ _API = {
     "block_layout": "model.unet",
     "receptive_field": "model.unet",
     "analytic_receptive_field": "model.unet",
+    "layer_walk": "model.unet",
+    "layers_receptive_field": "model.unet",
     "NoiseSchedule": "model.diffusion",
     "DiffusionTrainer": "model.diffusion",
     "sample": "model.diffusion",
@@ -110,6 +113,15 @@ _API = {
     "lpips": "evaluate.metrics",
     "calibrate_diversity": "evaluate.calibrate",
     "Calibration": "evaluate.calibrate",
+    # exercises: write a piece of the method, check it against the library
+    "ExerciseError": "teach.exercises",
+    "check_q_sample": "teach.exercises",
+    "check_ddpm_posterior": "teach.exercises",
+    "check_ddim_step": "teach.exercises",
+    "check_triplane_lookup": "teach.exercises",
+    "check_receptive_field": "teach.exercises",
+    "check_rollout": "teach.exercises",
+    "check_best_patch_iou": "teach.exercises",
 }
 
 #: module-valued public names (namespaces a notebook uses: ``viz.plot_slice``) → the module
@@ -117,6 +129,7 @@ _MODULES = {name: module for name, module in (
     ("viz", "show.viz"), ("widgets", "show.widgets"), ("viewer", "show.viewer"),
     ("metrics", "evaluate.metrics"), ("render", "evaluate.render"), ("examples", "data.examples"),
     ("box", "data.box"), ("extract", "generate.extract"), ("export", "data.export"), ("mesh_io", "data.mesh_io"),
+    ("lesson2d", "teach.lesson2d"), ("exercises", "teach.exercises"),
 )}
 
 __all__ = sorted(_API) + sorted(_MODULES)

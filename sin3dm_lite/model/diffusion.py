@@ -79,6 +79,12 @@ class NoiseSchedule:
         a, s = self._scales(t, x_t.xy)
         return x_t.zip_map(x0, lambda p, x: (p - a * x) / s)
 
+    def ddim_step(self, x0: Triplane, x_t: Triplane, t: torch.Tensor, t_prev: int) -> Triplane:
+        """One DDIM step (η = 0) from ``x_t`` to ``x_{t_prev}``: keep the noise that ``x_t`` and ``x0`` imply,
+        ``√ᾱ_prev·x0 + √(1-ᾱ_prev)·ε̂`` (``t_prev = -1``: the clean end, ᾱ = 1)."""
+        eps, ab_prev = self.predict_eps(x_t, t, x0), float(self.alpha_bar(t_prev))
+        return x0.zip_map(eps, lambda a, e: math.sqrt(ab_prev) * a + math.sqrt(1 - ab_prev) * e)
+
     def posterior(self, x0: Triplane, x_t: Triplane, t: torch.Tensor) -> tuple[Triplane, torch.Tensor]:
         """Mean (a Triplane) and variance ``[B,1,1,1]`` of q(x_{t-1} | x_t, x0): one DDPM reverse step."""
         t = torch.as_tensor(t, device="cpu")
@@ -446,9 +452,7 @@ def _step(schedule: NoiseSchedule, method: str, x: Triplane, x0: Triplane, tt: t
     if method == "ddpm":
         mean, var = schedule.posterior(x0, x, tt)
         return mean + noise.like(x) * var.sqrt() if t > 0 else mean
-    # DDIM, η = 0: keep the predicted noise direction, move to ᾱ_{t_prev}
-    eps, ab_prev = schedule.predict_eps(x, tt, x0), float(schedule.alpha_bar(t_prev))
-    return x0.zip_map(eps, lambda a, e: math.sqrt(ab_prev) * a + math.sqrt(1 - ab_prev) * e)
+    return schedule.ddim_step(x0, x, tt, t_prev)  # DDIM, η = 0: keep the predicted noise direction, move to ᾱ_{t_prev}
 
 
 def soft_mask(

@@ -274,7 +274,7 @@ class TriplaneUNet(nn.Module):
 
 
 # ------------------------------------------------------------------ receptive field
-def _layer_walk(model: TriplaneUNet) -> list[tuple[str, int]]:
+def layer_walk(model: TriplaneUNet) -> list[tuple[str, int]]:
     """The layers on the deepest path, as ``("conv", k)``, ``("down", 2)``, ``("up", 2)``."""
     convs = lambda blocks: [("conv", b.conv1.kernel_size) for b in blocks for _ in range(2)]  # noqa: E731
     ops = [("conv", model.in_conv.kernel_size)] + convs(model.down)
@@ -284,7 +284,12 @@ def _layer_walk(model: TriplaneUNet) -> list[tuple[str, int]]:
 
 
 def analytic_receptive_field(model: TriplaneUNet) -> int:
-    """Receptive-field width in input texels, from kernel sizes and strides alone.
+    """Receptive-field width in input texels of the denoiser, from its :func:`layer_walk` (:func:`layers_receptive_field`)."""
+    return layers_receptive_field(layer_walk(model))
+
+
+def layers_receptive_field(layers: list[tuple[str, int]]) -> int:
+    """Receptive-field width in input texels of a chain of layers, from kernel sizes and strides alone.
 
     Walk the layers keeping the width ``r`` (texels one output texel sees) and
     the jump ``j`` (input texels between neighbouring texels of the current
@@ -295,7 +300,7 @@ def analytic_receptive_field(model: TriplaneUNet) -> int:
     Paper network (n=4): 1 → +4 → pool +1 (j=2) → +16 → up +2 → +4 = 28.
     """
     r, j = 1, 1
-    for op, k in _layer_walk(model):
+    for op, k in layers:
         if op == "conv":
             r += (k - 1) * j
         elif op == "down":
@@ -453,6 +458,8 @@ __all__ = [
     "analytic_receptive_field",
     "block_layout",
     "cross_plane_inputs",
+    "layer_walk",
+    "layers_receptive_field",
     "num_groups",
     "receptive_field",
     "rollout_parts",
