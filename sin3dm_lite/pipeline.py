@@ -282,7 +282,9 @@ class Sin3DM:
         """
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32):
             raise Sin3DMInputError(f"seed must be a whole number from 0 to {2**32 - 1}, got {seed!r}")
-        if not isinstance(preset, Config):
+        if isinstance(preset, Config):
+            preset.check()  # a setting out of range (changed in place) fails here
+        elif preset is not None:
             get_preset(preset)  # a bad name fails here
         get_device(device)
         run = Path(out) if out is not None else None
@@ -907,6 +909,8 @@ def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Co
             raise Sin3DMInputError(f"cannot resume: '{run}' has no config.json; start a new fit without --resume")
         try:
             cfg = Config.from_dict(json.loads(cfg_file.read_text()))
+        except Sin3DMInputError as e:  # a setting out of range
+            raise Sin3DMInputError(f"cannot resume: '{cfg_file}': {e}") from None
         except Exception:  # noqa: BLE001 - a damaged or foreign config: one clear message
             raise _not_ours(cfg_file, "config", "it is not a readable configuration") from None
         acquire_lock(run)

@@ -327,6 +327,42 @@ def test_settings_from_text_keep_their_kinds():
         parse_settings(["diffusion.rollout"])
 
 
+def test_every_setting_is_checked_against_its_range_where_a_config_is_made(tmp_path):
+    """Issue 35: `--set autoencoder.steps=-5` trained to IoU 0, `diffusion.steps=0` and `sampling.diversity=5` were
+    taken, `nosuch.key` was a KeyError. Every setting has a range (config.LIMITS), checked by `updated`, by `Config(...)`
+    and by `fit` (a setting changed in place), with the range or the valid names in the one-line message."""
+    from sin3dm_lite.config import LIMITS, Config, DiffusionConfig, SamplingConfig, _settings
+
+    tiny = get_preset("tiny")
+    assert set(_settings(tiny.to_dict())) == set(LIMITS)  # every setting has a rule
+    for name in ("tiny", "small", "quick", "detail", "paper"):
+        get_preset(name).check()  # the presets keep their own rules
+    for bad, words in [({"autoencoder.steps": -5}, "'autoencoder.steps' must be a whole number from 1 to"),
+                       ({"diffusion.steps": 0}, "'diffusion.steps' must be a whole number from 1 to"),
+                       ({"sampling.diversity": 5}, "'sampling.diversity' must be a number from 0 to 1, not 5"),
+                       ({"sampling.diversity": float("nan")}, "from 0 to 1"),
+                       ({"sampling.method": "euler"}, "one of 'ddim', 'ddpm'"),
+                       ({"autoencoder.decoder_kernel": 4}, "one of 1, 3, 5"),
+                       ({"diffusion.beta_start": 0.5}, "below diffusion.beta_end"),
+                       ({"sampling.steps": 5000}, "diffusion.timesteps"),
+                       ({"thin_parts": {"grid.resolution": 8}}, r"thin_parts\['grid.resolution'\] must be"),
+                       ({"nosuch.key": 1}, "SECTION one of autoencoder, diffusion, grid, sampling"),
+                       ({"diffusion.stpes": 3}, "did you mean 'diffusion.steps'"),
+                       ({"diffusion.foo": 3}, "the diffusion settings are: base_channels"),
+                       ({"diffusion.steps.x": 3}, "unknown config setting")]:
+        with pytest.raises(Sin3DMInputError, match=words):
+            tiny.updated(**bad)
+    with pytest.raises(Sin3DMInputError, match="'sampling.diversity' must be"):  # the Python API's own Config
+        Config(sampling=SamplingConfig(diversity=5.0))
+    with pytest.raises(Sin3DMInputError, match="'diffusion.steps' must be"):
+        Config(diffusion=DiffusionConfig(steps=0))
+    cfg = get_preset("tiny")
+    cfg.autoencoder.steps = -5  # changed in place: fit checks before it writes anything
+    with pytest.raises(Sin3DMInputError, match="'autoencoder.steps' must be"):
+        Sin3DM.fit("wall", preset=cfg, out=tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
 def test_a_slow_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, capsys, monkeypatch):
     """A paper-width autoencoder runs in fp32 where bf16 is not native: the fit says how long and names `quick`.
