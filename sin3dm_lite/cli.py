@@ -162,7 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     f = command("fit")
     f.add_argument("mesh", help=mesh_help)
-    f.add_argument("--preset", choices=list(PRESETS), default="small", help="training sizes and steps")
+    f.add_argument("--preset", choices=list(PRESETS), default=None,
+                   help="training sizes and steps (default: small; with --resume, the run's own)")
     f.add_argument("--out", required=True, help="run folder (new, or existing with --resume)")
     f.add_argument("--resume", action="store_true", help="continue an interrupted fit from its checkpoints")
     f.add_argument("--pbr", action=argparse.BooleanOptionalAction, default=None,
@@ -379,7 +380,7 @@ def cmd_fit(a) -> None:
         changes["thin_parts"] = {}
     if not a.rollout_switch:
         changes["rollout_switch"] = {}
-    preset = get_preset(a.preset).updated(**changes) if changes else a.preset
+    preset = get_preset(a.preset or "small").updated(**changes) if changes else a.preset  # None: the run's on --resume
     model = Sin3DM.fit(a.mesh, preset=preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device, pbr=a.pbr)
     r = model.report["reconstruction"]
     print(

@@ -173,6 +173,10 @@ class Config:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    def settings(self) -> dict:
+        """Every setting by its dotted name: ``{"seed": 0, "grid.resolution": 32, ...}`` (the names ``--set`` takes)."""
+        return _settings(self.to_dict())
+
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
 

@@ -18,6 +18,8 @@ an uninterrupted one would::
                            "diffusion": {"loss"}}, each a list with one value per step
     RUN/report.json        reconstruction metrics, timings, step counts (while a switched fit runs:
                            only the records of its thin-part and rollout switches, kept for --resume)
+    RUN/input.json         what the fit was asked for: the input's name and digest (runs.input_digest) and the
+                           settings before any switch; --resume refuses another input or other settings
 """
 from __future__ import annotations
 
@@ -54,7 +56,8 @@ MAX_SAMPLES = 10_000  # per call, whatever the memory
 MODEL_FORMAT = "sin3dm-lite/1"
 MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
 MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 % (the colonnade example gets 20)
-RUN_FILES = ("config.json", "grid.npz", "autoencoder.pt", "diffusion.pt", MODEL_FILE, "losses.json", "report.json")
+INPUT_FILE = "input.json"
+RUN_FILES = ("config.json", INPUT_FILE, "grid.npz", "autoencoder.pt", "diffusion.pt", MODEL_FILE, "losses.json", "report.json")
 
 
 def thin_parts_switch(cfg: Config, grid: ShapeGrid, thin: float | None = None) -> Config | None:
@@ -243,7 +246,7 @@ class Sin3DM:
     def fit(
         cls,
         source,
-        preset: str | Config = "small",
+        preset: str | Config | None = None,
         out: str | Path | None = None,
         resume: bool = False,
         seed: int | None = None,
@@ -271,9 +274,14 @@ class Sin3DM:
         keeps the first calibration as ``rollout_switch``);
         ``.updated(rollout_switch={})`` keeps the plain one.
 
+        ``preset`` is a preset's name or a :class:`Config` (default: ``small``).
+
         With ``out`` a run folder is written (see the module docstring); with
         ``resume=True`` an existing run folder is continued from its last
-        checkpoint. The run folder is locked (``.sin3dm-lock``) while the fit
+        checkpoint, with its own settings (``preset=None``): another input
+        (``runs.input_digest``: the mesh's contents, textures included, or the
+        example's name) or other settings (``preset``, ``seed``, ``pbr``) are
+        refused, naming what differs. The run folder is locked (``.sin3dm-lock``) while the fit
         writes it. Every argument is checked before anything is written; a new
         run folder appears with its ``config.json`` in one rename, and a fresh
         fit that fails with an error removes what it wrote (an interrupted one,
@@ -327,12 +335,20 @@ class Sin3DM:
         # set when this fit switches to the preset's thin-part settings (resumed: when the run switched before it stopped)
         thin_parts = _read_report(run).get("thin_parts_switch") if resume and run is not None else None
         mesh = None if have_grid else resolve_mesh(source)  # bad input fails before any folder is written
-        if mesh is not None and not (resume and run is not None and (run / "config.json").exists()):
+        resuming = resume and run is not None and (run / "config.json").exists()
+        if preset is None and not resuming:
+            preset = "small"
+        if mesh is not None and not resuming:
             pbr = _choose_pbr(mesh, pbr, preset, say)
             base = preset if isinstance(preset, Config) else get_preset(preset)
             if base.autoencoder.pbr != pbr:
                 preset = base.updated(**{"autoencoder.pbr": pbr})
-        cfg = _prepare_run(run, preset, resume, seed)
+        asked = None
+        if run is not None:  # what the run is fitted to, recorded in a new run folder and compared on resume
+            from .runs import input_digest
+
+            asked = {"input": _input_name(source), "name": _stem(source), "digest": input_digest(source, mesh)}
+        cfg = _prepare_run(run, preset, resume, seed, asked, pbr)
         timings: dict[str, float] = {}
 
         # stage 1: mesh → grid
@@ -893,12 +909,15 @@ def _check_flips(cfg: Config) -> None:
             "flipped latent does not say; fit with pbr=False (CLI: --no-pbr) or without flips")
 
 
-def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Config:
-    """Resolve the config and check the run folder (new, or resumable)."""
-    cfg = preset if isinstance(preset, Config) else get_preset(preset)
-    _check_flips(cfg)
-    if seed is not None:
-        cfg = cfg.updated(seed=seed)
+def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None, asked: dict | None = None,
+                 pbr: bool | None = None) -> Config:
+    """Resolve the config and check the run folder (new, or resumable with the same input and settings)."""
+    cfg = None
+    if preset is not None:
+        cfg = preset if isinstance(preset, Config) else get_preset(preset)
+        _check_flips(cfg)
+        if seed is not None:
+            cfg = cfg.updated(seed=seed)
     if run is None:
         if resume:
             raise Sin3DMInputError("resume needs a run folder; pass out=RUN_DIR (CLI: --out RUN_DIR)")
@@ -906,21 +925,109 @@ def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Co
     cfg_file = run / "config.json"
     if resume:
         if not cfg_file.exists():
-            raise Sin3DMInputError(f"cannot resume: '{run}' has no config.json; start a new fit without --resume")
+            raise Sin3DMInputError(f"cannot resume: '{run}' is not a fit's run folder (it has no config.json, which a "
+                                   "fit writes first); start a new fit into a new or empty folder (CLI: --out)")
+        asked_cfg = cfg
         try:
             cfg = Config.from_dict(json.loads(cfg_file.read_text()))
         except Sin3DMInputError as e:  # a setting out of range
             raise Sin3DMInputError(f"cannot resume: '{cfg_file}': {e}") from None
         except Exception:  # noqa: BLE001 - a damaged or foreign config: one clear message
             raise _not_ours(cfg_file, "config", "it is not a readable configuration") from None
+        if asked is not None:  # another mesh or other settings would train on top of this run's checkpoints
+            if asked_cfg is None and (seed is not None or pbr is not None):  # the run's own, with these changed
+                asked_cfg = _recorded_config(run, cfg).updated(**({} if seed is None else {"seed": seed}))
+            _check_same_request(run, asked, asked_cfg, pbr, cfg)
         acquire_lock(run)
         return cfg
     if run.exists() and any(run.iterdir()):
-        raise Sin3DMInputError(f"run folder '{run}' is not empty; continue it with --resume or choose another --out")
+        if (run / "config.json").is_file():
+            raise Sin3DMInputError(f"run folder '{run}' is not empty: it holds a fit; continue it with --resume, or "
+                                   "choose a new or empty --out")
+        raise Sin3DMInputError(f"--out '{run}' is not empty and holds no fit of sin3dm-lite; choose a new or empty "
+                               "folder for --out (nothing in it is touched)")
     # the new run folder appears with its config and lock in one rename: a kill leaves a resumable
     # folder or only a temporary one (removed by the next run), never a folder that blocks the next try
-    create_locked_folder(run, {"config.json": cfg.to_json()}, option="--out")
+    files = {"config.json": cfg.to_json()}
+    if asked is not None:
+        files[INPUT_FILE] = json.dumps({**asked, "config": cfg.to_dict()}, indent=2)
+    create_locked_folder(run, files, option="--out")
     return cfg
+
+
+def _stem(source) -> str:
+    """The input's name as a grid and a report keep it: the example's name, the file's stem, the mesh's name."""
+    from . import examples
+
+    if isinstance(source, TexturedMesh):
+        return source.name
+    if isinstance(source, str) and source in examples.list_examples() and not Path(source).is_file():
+        return source
+    return Path(source).stem
+
+
+def _input_name(source) -> str:
+    """How a message names the input: the example's name, the mesh file's path, or the mesh's name."""
+    if isinstance(source, TexturedMesh):
+        return f"the mesh '{source.name}'"
+    from . import examples
+
+    if isinstance(source, str) and source in examples.list_examples() and not Path(source).is_file():
+        return f"the example '{source}'"
+    return f"'{source}'"
+
+
+def _read_input(run: Path) -> dict | None:
+    """The run folder's input.json (what it was fitted to), or None when it has none (an older version's run)."""
+    try:
+        rec = json.loads((run / INPUT_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return rec if isinstance(rec, dict) and isinstance(rec.get("digest"), str) else None
+
+
+def _recorded_config(run: Path, cfg: Config) -> Config:
+    """The settings a run was asked for (its input.json), else its config.json's ``cfg``."""
+    rec = _read_input(run)
+    try:
+        return Config.from_dict(rec["config"]) if rec and isinstance(rec.get("config"), dict) else cfg
+    except (Sin3DMInputError, TypeError):
+        return cfg
+
+
+def _check_same_request(run: Path, asked: dict, asked_cfg: Config | None, pbr: bool | None, cfg: Config) -> None:
+    """Refuse to resume ``run`` with another input than it was fitted to, or other settings (one line: what differs)."""
+    rec = _read_input(run)
+    if rec is not None:
+        other_input = rec["digest"] != asked["digest"]
+        was = rec.get("input", "another mesh")
+    else:  # a run of an older version: its report names the input, if it got that far
+        name = _read_report(run).get("input")
+        other_input = isinstance(name, str) and name != asked["name"]
+        was = f"'{name}'"
+    if other_input:
+        raise Sin3DMInputError(
+            f"cannot resume: '{run}' was fitted to {was}, not {asked['input']}; resume it with that input, or fit "
+            f"{asked['input']} into a new --out")
+    if asked_cfg is None:
+        return
+    want, have = asked_cfg.to_dict(), _recorded_config(run, cfg).to_dict()
+    if pbr is not None:
+        want["autoencoder"]["pbr"] = bool(pbr)
+    elif not want["autoencoder"]["pbr"]:  # chosen from the mesh, which is the same
+        want["autoencoder"]["pbr"] = have["autoencoder"]["pbr"]
+    want, have = Config.from_dict(want).settings(), Config.from_dict(have).settings()
+    if rec is None:  # an older run records only its config.json, which its switches and calibration changed
+        have.update(name=have["name"].split("+")[0])
+        differ = [k for k in ("name",) if want[k] != have[k]]
+    else:
+        differ = [k for k in want if want[k] != have.get(k)]
+    if differ:
+        shown = [f"{'preset' if k == 'name' else k} {have.get(k)!r} there, {want[k]!r} now" for k in differ[:3]]
+        more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
+        raise Sin3DMInputError(
+            f"cannot resume: '{run}' was fitted with other settings ({'; '.join(shown)}{more}); resume it with its "
+            "own (leave out --preset, --set, --seed and --pbr; Python: preset=None), or fit into a new --out")
 
 
 def _read_report(run: Path) -> dict:

@@ -159,7 +159,16 @@ CASES |= {
     "fit-huge-vertex": (["fit", "huge.obj", "--preset", "tiny", "--out", "r"], "too large"),
     "fit-overflowing-box": (["fit", "overflow.obj", "--preset", "tiny", "--out", "r"], "too large"),
     "fit-out-contains-mesh": (["fit", "box.obj", "--preset", "tiny", "--out", "."], "input mesh"),
-    "fit-out-not-empty": (["fit", "box.obj", "--preset", "tiny", "--out", "full"], "--resume"),
+    # a folder of the user's is no fit to resume: a new or empty one (issue 35: the message suggested --resume)
+    "fit-out-not-empty": (["fit", "box.obj", "--preset", "tiny", "--out", "full"],
+                          "--out 'full' is not empty and holds no fit of sin3dm-lite; choose a new or empty folder"),
+    "fit-out-is-a-run": (["fit", "box.obj", "--preset", "tiny", "--out", "run"], "holds a fit; continue it with --resume"),
+    "fit-resume-not-a-run": (["fit", "box.obj", "--out", "full", "--resume"], "'full' is not a fit's run folder"),
+    # issue 35: resuming a canyon run with a cube said "fit done" and mixed the two
+    "fit-resume-other-mesh": (["fit", "box.obj", "--preset", "tiny", "--resume", "--out", "run"],
+                              "cannot resume: 'run' was fitted to 'canyon', not 'box.obj'; resume it with that input"),
+    "fit-resume-other-preset": (["fit", "canyon", "--preset", "tiny", "--resume", "--out", "run"],
+                                "other settings (preset 'small' there, 'tiny' now)"),
     "fit-out-under-file": (["fit", "box.obj", "--preset", "tiny", "--out", "blocker/r"], "is a file"),
     "fit-out-not-writable": (["fit", "box.obj", "--preset", "tiny", "--out", NOT_WRITABLE], "cannot write"),
     "fit-set-negative-steps": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "autoencoder.steps=-5"],

@@ -109,6 +109,49 @@ def test_interrupted_fit_resumes_to_the_same_result(fitted, tmp_path, monkeypatc
     assert resumed.report["autoencoder_steps"] == 30
 
 
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
+def test_resume_refuses_another_input_or_other_settings_and_writes_nothing(fitted, tmp_path):
+    """Issue 35: `fit cube.obj --preset tiny --resume --out <a canyon run>` said "fit done" and left a report naming
+    the cube beside the canyon's model. The run records its input's digest (contents, not the file's name) and the
+    settings asked for (input.json); resume refuses anything else, saying what differs, before it writes."""
+    import re
+    import shutil
+
+    import trimesh
+
+    from sin3dm_lite.pipeline import INPUT_FILE
+
+    def snapshot(folder):
+        return {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
+
+    _, full = fitted
+    run = tmp_path / "wall"
+    shutil.copytree(full, run)
+    assert json.loads((run / INPUT_FILE).read_text())["config"] == micro_config().to_dict()
+    before = snapshot(run)
+    for kwargs, words in [({"source": "canyon"}, "was fitted to the example 'wall', not the example 'canyon'"),
+                          ({"preset": "tiny"}, "other settings (grid.resolution 24 there, 32 now;"),
+                          ({"preset": "small"}, "other settings (preset 'tiny' there, 'small' now;"),
+                          ({"seed": 3}, "other settings (seed 0 there, 3 now)"),
+                          ({"pbr": True}, "autoencoder.pbr False there, True now")]:
+        with pytest.raises(Sin3DMInputError, match=re.escape(words)):
+            Sin3DM.fit(**{"source": "wall", **kwargs}, out=run, resume=True, progress=False)
+        assert snapshot(run) == before, kwargs  # nothing written, no lock left
+    # a mesh file: its contents decide, not its name
+    trimesh.creation.box(extents=(1.0, 0.6, 0.4)).export(tmp_path / "box.obj")
+    trimesh.creation.box(extents=(1.0, 0.5, 0.4)).export(tmp_path / "other.obj")
+    shutil.copy(tmp_path / "box.obj", tmp_path / "renamed.obj")
+    cfg = micro_config().updated(**{"autoencoder.steps": 2, "diffusion.steps": 2})
+    Sin3DM.fit(str(tmp_path / "box.obj"), preset=cfg, out=tmp_path / "box", progress=False)
+    before = snapshot(tmp_path / "box")
+    with pytest.raises(Sin3DMInputError, match="was fitted to '.*box.obj', not '.*other.obj'; resume it with that "
+                                               "input, or fit '.*other.obj' into a new --out"):
+        Sin3DM.fit(str(tmp_path / "other.obj"), preset=cfg, out=tmp_path / "box", resume=True, progress=False)
+    assert snapshot(tmp_path / "box") == before
+    resumed = Sin3DM.fit(str(tmp_path / "renamed.obj"), preset=cfg, out=tmp_path / "box", resume=True, progress=False)
+    assert resumed.report["autoencoder_steps"] == 2
+
+
 def test_checkpoints_are_written_once_per_step(tmp_path, monkeypatch):
     from sin3dm_lite import pipeline
 
