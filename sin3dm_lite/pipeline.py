@@ -53,6 +53,10 @@ if TYPE_CHECKING:
 
 MODEL_FILE = "model.pt"
 MAX_SAMPLES = 10_000  # per call, whatever the memory
+# what one mesh export holds at its peak (to_mesh: SDF grid, marching cubes, atlas, baked maps), measured on the shipped
+# canyon model: 467 MiB at 256 voxels (256 x 128 x 160), 1,008 MiB at 2,048 texels; rounded up
+EXPORT_BYTES_PER_VOXEL = 96
+EXPORT_BYTES_PER_TEXEL = 256
 MODEL_FORMAT = "sin3dm-lite/1"
 MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
 MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 % (the colonnade example gets 20)
@@ -590,6 +594,49 @@ class Sin3DM:
         per_sample = 16 * (x * y + x * z + y * z) * width * 4
         return int(max(1, min(MAX_SAMPLES, 0.5 * memory_available(self.device) // per_sample)))
 
+    def check_mesh_sizes(self, resolution: int, texture_size: int, aabb=None, parallel: int = 1,
+                         names: tuple[str, str] = ("mesh resolution", "texture size")) -> None:
+        """Refuse a mesh resolution or texture size out of range (:data:`config.LIMITS`) or beyond memory.
+
+        One export holds about :data:`EXPORT_BYTES_PER_VOXEL` per voxel of the decode grid over ``aabb``
+        (default: the model's box) and :data:`EXPORT_BYTES_PER_TEXEL` per texel; ``parallel`` exports at once
+        (``--workers``) may use half the free RAM between them, as :meth:`max_samples` does. ``names``: what the
+        message calls the two (CLI flags). The message gives the largest value that fits.
+        """
+        from .box import grid_shape
+        from .config import LIMITS, check_setting
+        from .device import memory_available
+
+        keys = ("sampling.mesh_resolution", "sampling.texture_size")
+        for key, value, name in zip(keys, (resolution, texture_size), names):  # a whole number, not too small
+            check_setting(key, min(value, LIMITS[key][1]) if isinstance(value, int) else value, option=name)
+        box = np.asarray(self.aabb if aabb is None else aabb, np.float64)
+        ext = box[3:] - box[:3]
+        share = float(np.prod(ext / ext.max()))  # voxels ≈ share · resolution³
+        budget = 0.5 * memory_available("cpu") / max(1, parallel)  # the export's arrays live in RAM, whatever the device
+        cap_res, cap_tex = LIMITS[keys[0]][1], LIMITS[keys[1]][1]
+
+        def most_res(texels: float) -> int:  # the largest resolution that fits beside ``texels``
+            return min(cap_res, int((max(budget - texels * EXPORT_BYTES_PER_TEXEL, 0) / EXPORT_BYTES_PER_VOXEL / share)
+                                    ** (1 / 3)))
+
+        def most_tex(voxels: float) -> int:  # the largest texture that fits beside ``voxels``
+            return min(cap_tex, int((max(budget - voxels * EXPORT_BYTES_PER_VOXEL, 0) / EXPORT_BYTES_PER_TEXEL) ** 0.5))
+
+        at_once = f", {parallel} exports at once (--workers)" if parallel > 1 else ""
+        if resolution > most_res(0):  # too large even without a texture
+            fits = texture_size <= most_tex(0)
+            most = most_res(float(texture_size) ** 2) if fits else most_res(0)
+            beside = f" and {names[1]} {texture_size}" if fits else ""
+            raise Sin3DMInputError(
+                f"{names[0]} {resolution} is too large: at most {most} here ({cap_res:,} anywhere; what fits in memory "
+                f"with this box{beside}{at_once}); ask for a smaller one")
+        most = most_tex(float(np.prod(grid_shape(box, resolution))))
+        if texture_size > most:
+            raise Sin3DMInputError(
+                f"{names[1]} {texture_size} is too large: at most {most} here ({cap_tex:,} anywhere; what fits in "
+                f"memory with {names[0]} {resolution}{at_once}); ask for a smaller one")
+
     def with_denoiser(self, denoiser: torch.nn.Module, diffusion: DiffusionConfig) -> "Sin3DM":
         """The same input (decoder, latent, box) with another denoiser, e.g. one retrained for an ablation.
 
@@ -647,6 +694,7 @@ class Sin3DM:
         from .extract import extract_mesh
 
         s = self.config.sampling
+        self.check_mesh_sizes(resolution or s.mesh_resolution, texture_size or s.texture_size, samples.aabb)
         items = range(len(samples)) if index is None else [index]
         meshes = []
         for i in items:

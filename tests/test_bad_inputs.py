@@ -126,6 +126,22 @@ CASES = {
     "sample-negative-workers": (["sample", "run", "--out", "s", "--workers", "-2"], "0 or more"),
     "sample-other-settings": (["sample", "run", "--out", "samples", "-n", "1", *SMALL, "--steps", "4", "--no-pictures"],
                               "other settings (steps: 3 there, 4 now)"),
+    # issue 35: --texture-size 100000 ran 3 minutes into 11 GB, --mesh-resolution 100000 was an ArrayMemoryError
+    "sample-huge-texture": (["sample", "run", "--out", "s", "--texture-size", "100000"],
+                            "--texture-size 100000 is too large: at most"),
+    "sample-huge-mesh-resolution": (["sample", "run", "--out", "s", "--mesh-resolution", "100000"],
+                                    "--mesh-resolution 100000 is too large: at most"),
+    "sample-texture-too-small": (["sample", "run", "--out", "s", "--texture-size", "8"],
+                                 "--texture-size must be a whole number from 16 to"),
+    "sample-steps-beyond-schedule": (["sample", "run", "--out", "s", "--steps", "5000"], "1000 time steps"),
+    "sample-too-few-faces": (["sample", "run", "--out", "s", "--faces", "2"], "--faces must be a whole number from 4"),
+    "demo-huge-texture-many-workers": (["demo", "--out", "s", "--texture-size", "16000", "--workers", "64"],
+                                       "64 exports at once (--workers)"),
+    # issue 35: the error spoke of resize factors
+    "sample-outpaint-negative": (["sample", "run", "--out", "s", "--outpaint", "-1", "1", "1"],
+                                 "outpaint factors must be from 1 to 8"),
+    "sample-outpaint-shrinks": (["sample", "run", "--out", "s", "--outpaint", "0.5", "1", "1"],
+                                "outpaint factors must be from 1 to 8"),
     "sample-negative-seed": (["sample", "run", "--out", "s", "--seed", "-1"], "seed"),
     "sample-truncated": (["sample", "truncated", "--out", "s"], "not made by this version"),
     "sample-random-bytes": (["sample", "random", "--out", "s"], "not made by this version"),
@@ -209,6 +225,10 @@ CASES |= {
     "render-out-is-file": (["render", "box.obj", "--out", "neighbour.txt"], "is a file"),
     "render-out-under-file": (["render", "box.obj", "--out", "blocker/v"], "is a file"),
     "render-out-not-writable": (["render", "box.obj", "--out", NOT_WRITABLE], "cannot write"),
+    # calibrate (issue 35: a file that is no run folder was "not found")
+    "calibrate-file-not-a-run": (["calibrate", "box.obj"], "'box.obj' is a file, not a run folder: a run folder is what"),
+    "calibrate-unknown-run": (["calibrate", "nosuch"], "run folder 'nosuch' not found"),
+    "sample-run-is-a-file": (["sample", "neighbour.txt", "--out", "s"], "is a file, not a run folder"),
     # evaluate
     "evaluate-unknown-run": (["evaluate", "nosuch", "badsamples"], "run folder 'nosuch' not found"),
     "evaluate-missing-samples": (["evaluate", "run", "nosuch"], "samples folder 'nosuch' not found"),
@@ -229,7 +249,7 @@ CASES |= {
 }
 
 
-PARSER_CASES = ("seed", "negative-start", "zero-batch", "negative-workers")  # refused by argparse (SystemExit)
+PARSER_CASES = ("seed", "negative-start", "zero-batch", "negative-workers", "outpaint")  # refused by argparse (SystemExit)
 
 
 @pytest.mark.parametrize("case", list(CASES))

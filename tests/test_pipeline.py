@@ -152,6 +152,25 @@ def test_resume_refuses_another_input_or_other_settings_and_writes_nothing(fitte
     assert resumed.report["autoencoder_steps"] == 2
 
 
+def test_mesh_sizes_beyond_memory_are_refused_with_the_largest_that_fits(fitted, monkeypatch):
+    """Issue 35: a huge texture or mesh resolution ran for minutes into gigabytes or an ArrayMemoryError; to_mesh
+    (and `sample` before it makes a folder) refuses it at once, naming the most the free memory holds."""
+    from sin3dm_lite import device
+    from sin3dm_lite.pipeline import EXPORT_BYTES_PER_TEXEL
+
+    model, _ = fitted
+    s = model.input_sample()
+    with pytest.raises(Sin3DMInputError, match="mesh resolution 100000 is too large: at most [0-9]+ here"):
+        model.to_mesh(s, 0, resolution=100000)
+    monkeypatch.setattr(device, "memory_available", lambda dev: 1 << 30)  # 1 GiB free: half of it for one export
+    with pytest.raises(Sin3DMInputError, match="texture size 4096 is too large: at most ([0-9]+) here") as e:
+        model.to_mesh(s, 0, resolution=32, texture_size=4096)
+    told = int(str(e.value).split("at most ")[1].split()[0])
+    assert 1024 < told < ((1 << 29) // EXPORT_BYTES_PER_TEXEL) ** 0.5  # the grid's share comes off the texture's
+    with pytest.raises(Sin3DMInputError, match="texture size must be a whole number from 16 to"):
+        model.to_mesh(s, 0, resolution=32, texture_size=8)
+
+
 def test_checkpoints_are_written_once_per_step(tmp_path, monkeypatch):
     from sin3dm_lite import pipeline
 
