@@ -390,7 +390,8 @@ def cmd_fit(a) -> None:
         changes["thin_parts"] = {}
     if not a.rollout_switch:
         changes["rollout_switch"] = {}
-    preset = get_preset(a.preset or "small").updated(**changes) if changes else a.preset  # None: the run's on --resume
+    name = a.preset or (None if a.resume else "small")  # None: the run's own (Sin3DM.fit)
+    preset = get_preset(name or "small").updated(**changes) if changes else name
     model = Sin3DM.fit(a.mesh, preset=preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device, pbr=a.pbr)
     r = model.report["reconstruction"]
     print(
