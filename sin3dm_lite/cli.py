@@ -60,14 +60,24 @@ _positive_int = _int_at_least(1, "a positive number")
 _whole = _int_at_least(0, "0 or more")
 
 
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if not (0 < v <= 8):
-        raise argparse.ArgumentTypeError(f"resize factors must be in (0, 8], got {v}")
-    return v
+def _factor(what: str, low: float, low_included: bool):
+    """An argparse type: a size factor up to 8 above ``low``; ``what`` names the flag in the error."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+        if not ((low <= v if low_included else low < v) and v <= 8):
+            raise argparse.ArgumentTypeError(f"{what}, got {v:g}")
+        return v
+
+    return parse
+
+
+_resize_factor = _factor("resize factors must be in (0, 8]", 0.0, False)
+_outpaint_factor = _factor("outpaint factors must be from 1 to 8 (outpainting grows the box; --resize shrinks it)",
+                           1.0, True)
 
 
 def _unit_float(text: str) -> float:
@@ -164,7 +174,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     f = command("fit")
     f.add_argument("mesh", help=mesh_help)
-    f.add_argument("--preset", choices=list(PRESETS), default="small", help="training sizes and steps")
+    f.add_argument("--preset", choices=list(PRESETS), default=None,
+                   help="training sizes and steps (default: small; with --resume, the run's own)")
     f.add_argument("--out", required=True, help="run folder (new, or existing with --resume)")
     f.add_argument("--resume", action="store_true", help="continue an interrupted fit from its checkpoints")
     f.add_argument("--pbr", action=argparse.BooleanOptionalAction, default=None,
@@ -257,9 +268,9 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
                         "(0: in the sampling process)")
     ctl = s.add_argument_group("controlled generation (one at a time, default: none, samples the input's size; "
                                "boxes are fractions 0-1 of the model's box along x, y, z)").add_mutually_exclusive_group()
-    ctl.add_argument("--resize", nargs=3, type=_positive_float, metavar=("SX", "SY", "SZ"), default=None,
+    ctl.add_argument("--resize", nargs=3, type=_resize_factor, metavar=("SX", "SY", "SZ"), default=None,
                      help="retarget: scale factors of the x, y, z size")
-    ctl.add_argument("--outpaint", nargs=3, type=_positive_float, metavar=("SX", "SY", "SZ"), default=None,
+    ctl.add_argument("--outpaint", nargs=3, type=_outpaint_factor, metavar=("SX", "SY", "SZ"), default=None,
                      help="grow the box by these factors (each >= 1), keep the input, generate the rest")
     ctl.add_argument("--regenerate", nargs=6, type=_float, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"), default=None,
                      help="resample this box, keep everything else (the box must reach the faces along one axis)")
@@ -391,7 +402,8 @@ def cmd_fit(a) -> None:
         changes["thin_parts"] = {}
     if not a.rollout_switch:
         changes["rollout_switch"] = {}
-    preset = get_preset(a.preset).updated(**changes) if changes else a.preset
+    name = a.preset or (None if a.resume else "small")  # None: the run's own (Sin3DM.fit)
+    preset = get_preset(name or "small").updated(**changes) if changes else name
     model = Sin3DM.fit(a.mesh, preset=preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device, pbr=a.pbr,
                        allow_outside_paths=a.allow_outside_paths)
     r = model.report["reconstruction"]
@@ -466,6 +478,7 @@ def write_samples(model, out: Path, a, label: str = "sample", ranks=None, run: s
                                "with this model and size); ask for a smaller --batch")
     a.batch = a.batch or min(DEFAULT_BATCH, a.n, limit)
     check_request(model, a)  # every flag checked before the folder is touched
+    check_sample_sizes(model, plan, a)
     settings = sample_settings(model, plan, a, control_args(a))
     why, pending = None, None
     created = not out.exists()
@@ -501,11 +514,29 @@ def write_samples(model, out: Path, a, label: str = "sample", ranks=None, run: s
     return {"pending": len(pending), "total": total, **stats}
 
 
+def check_sample_sizes(model, plan, a) -> None:
+    """``--faces``, ``--mesh-resolution`` and ``--texture-size`` against their ranges and the memory
+    (``--workers`` exports at once), before any folder is made."""
+    from .data.config import check_setting
+
+    s = model.config.sampling  # --steps: mass.check_request
+    if a.faces is not None:
+        check_setting("sampling.faces", a.faces, option="--faces")
+    model.check_mesh_sizes(a.mesh_resolution or s.mesh_resolution, a.texture_size or s.texture_size, plan.aabb,
+                           parallel=max(1, a.workers), names=("--mesh-resolution", "--texture-size"))
+
+
 def find_run(name: str) -> Path:
     """A run folder, or the shipped model called ``name``; one-line error if neither."""
     from .pretrained import shipped_model, shipped_names
 
     run = Path(name)
+    if run.is_file() and run.name == "model.pt":  # the run folder's model, as Sin3DM.load takes it
+        run = run.parent
+    if run.exists() and not run.is_dir():
+        raise Sin3DMInputError(f"'{name}' is a file, not a run folder: a run folder is what `sin3dm-lite fit MESH --out "
+                               f"DIR` writes (config.json, model.pt, report.json, ...); give that folder, or a shipped "
+                               f"model's name ({', '.join(shipped_names())})")
     if not run.is_dir():
         run = shipped_model(name)
         if run is None:
@@ -685,7 +716,7 @@ def cmd_calibrate(a) -> None:
     from .files import acquire_lock, check_writable, release_lock
 
     run = find_run(a.run)
-    shipped = not Path(a.run).is_dir()  # a shipped model's folder is part of the installed package: print only
+    shipped = not Path(a.run).exists()  # a shipped model's folder is part of the installed package: print only
     if not shipped:
         check_writable(run)
         acquire_lock(run, "run folder")  # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile

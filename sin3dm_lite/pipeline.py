@@ -18,6 +18,8 @@ an uninterrupted one would::
                            "diffusion": {"loss"}}, each a list with one value per step
     RUN/report.json        reconstruction metrics, timings, step counts (while a switched fit runs:
                            only the records of its thin-part and rollout switches, kept for --resume)
+    RUN/input.json         what the fit was asked for: the input's name and digest (runs.input_digest) and the
+                           settings before any switch; --resume refuses another input or other settings
 """
 from __future__ import annotations
 
@@ -52,10 +54,15 @@ if TYPE_CHECKING:
 
 MODEL_FILE = "model.pt"
 MAX_SAMPLES = 10_000  # per call, whatever the memory
+# what one mesh export holds at its peak (to_mesh: SDF grid, marching cubes, atlas, baked maps), measured on the shipped
+# canyon model: 467 MiB at 256 voxels (256 x 128 x 160), 1,008 MiB at 2,048 texels; rounded up
+EXPORT_BYTES_PER_VOXEL = 96
+EXPORT_BYTES_PER_TEXEL = 256
 MODEL_FORMAT = "sin3dm-lite/1"
 MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
 MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 % (the colonnade example gets 20)
-RUN_FILES = ("config.json", "grid.npz", "autoencoder.pt", "diffusion.pt", MODEL_FILE, "losses.json", "report.json")
+INPUT_FILE = "input.json"
+RUN_FILES = ("config.json", INPUT_FILE, "grid.npz", "autoencoder.pt", "diffusion.pt", MODEL_FILE, "losses.json", "report.json")
 
 
 def thin_parts_switch(cfg: Config, grid: ShapeGrid, thin: float | None = None) -> Config | None:
@@ -247,7 +254,7 @@ class Sin3DM:
     def fit(
         cls,
         source,
-        preset: str | Config = "small",
+        preset: str | Config | None = None,
         out: str | Path | None = None,
         resume: bool = False,
         seed: int | None = None,
@@ -279,9 +286,14 @@ class Sin3DM:
         keeps the first calibration as ``rollout_switch``);
         ``.updated(rollout_switch={})`` keeps the plain one.
 
+        ``preset`` is a preset's name or a :class:`Config` (default: ``small``).
+
         With ``out`` a run folder is written (see the module docstring); with
         ``resume=True`` an existing run folder is continued from its last
-        checkpoint. The run folder is locked (``.sin3dm-lock``) while the fit
+        checkpoint, with its own settings (``preset=None``): another input
+        (``runs.input_digest``: the mesh's contents, textures included, or the
+        example's name) or other settings (``preset``, ``seed``, ``pbr``) are
+        refused, naming what differs. The run folder is locked (``.sin3dm-lock``) while the fit
         writes it. Every argument is checked before anything is written; a new
         run folder appears with its ``config.json`` in one rename, and a fresh
         fit that fails with an error removes what it wrote (an interrupted one,
@@ -290,7 +302,9 @@ class Sin3DM:
         """
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32):
             raise Sin3DMInputError(f"seed must be a whole number from 0 to {2**32 - 1}, got {seed!r}")
-        if not isinstance(preset, Config):
+        if isinstance(preset, Config):
+            preset.check()  # a setting out of range (changed in place) fails here
+        elif preset is not None:
             get_preset(preset)  # a bad name fails here
         get_device(device)
         run = Path(out) if out is not None else None
@@ -332,14 +346,21 @@ class Sin3DM:
         have_grid = run is not None and resume and (run / "grid.npz").exists()
         # set when this fit switches to the preset's thin-part settings (resumed: when the run switched before it stopped)
         thin_parts = _read_report(run).get("thin_parts_switch") if resume and run is not None else None
-        # bad input fails before any folder is written
-        mesh = None if have_grid else resolve_mesh(source, allow_outside_paths=allow_outside_paths)
-        if mesh is not None and not (resume and run is not None and (run / "config.json").exists()):
+        mesh = None if have_grid else resolve_mesh(source, allow_outside_paths=allow_outside_paths)  # bad input fails before any folder is written
+        resuming = resume and run is not None and (run / "config.json").exists()
+        if preset is None and not resuming:
+            preset = "small"
+        if mesh is not None and not resuming:
             pbr = _choose_pbr(mesh, pbr, preset, say)
             base = preset if isinstance(preset, Config) else get_preset(preset)
             if base.autoencoder.pbr != pbr:
                 preset = base.updated(**{"autoencoder.pbr": pbr})
-        cfg = _prepare_run(run, preset, resume, seed)
+        asked = None
+        if run is not None:  # what the run is fitted to, recorded in a new run folder and compared on resume
+            from .runs import input_digest
+
+            asked = {"input": _input_name(source), "name": _stem(source), "digest": input_digest(source, mesh)}
+        cfg = _prepare_run(run, preset, resume, seed, asked, pbr)
         timings: dict[str, float] = {}
 
         # stage 1: mesh → grid
@@ -581,6 +602,49 @@ class Sin3DM:
         per_sample = 16 * (x * y + x * z + y * z) * width * 4
         return int(max(1, min(MAX_SAMPLES, 0.5 * memory_available(self.device) // per_sample)))
 
+    def check_mesh_sizes(self, resolution: int, texture_size: int, aabb=None, parallel: int = 1,
+                         names: tuple[str, str] = ("mesh resolution", "texture size")) -> None:
+        """Refuse a mesh resolution or texture size out of range (:data:`config.LIMITS`) or beyond memory.
+
+        One export holds about :data:`EXPORT_BYTES_PER_VOXEL` per voxel of the decode grid over ``aabb``
+        (default: the model's box) and :data:`EXPORT_BYTES_PER_TEXEL` per texel; ``parallel`` exports at once
+        (``--workers``) may use half the free RAM between them, as :meth:`max_samples` does. ``names``: what the
+        message calls the two (CLI flags). The message gives the largest value that fits.
+        """
+        from .data.box import grid_shape
+        from .data.config import LIMITS, check_setting
+        from .device import memory_available
+
+        keys = ("sampling.mesh_resolution", "sampling.texture_size")
+        for key, value, name in zip(keys, (resolution, texture_size), names):  # a whole number, not too small
+            check_setting(key, min(value, LIMITS[key][1]) if isinstance(value, int) else value, option=name)
+        box = np.asarray(self.aabb if aabb is None else aabb, np.float64)
+        ext = box[3:] - box[:3]
+        share = float(np.prod(ext / ext.max()))  # voxels ≈ share · resolution³
+        budget = 0.5 * memory_available("cpu") / max(1, parallel)  # the export's arrays live in RAM, whatever the device
+        cap_res, cap_tex = LIMITS[keys[0]][1], LIMITS[keys[1]][1]
+
+        def most_res(texels: float) -> int:  # the largest resolution that fits beside ``texels``
+            return min(cap_res, int((max(budget - texels * EXPORT_BYTES_PER_TEXEL, 0) / EXPORT_BYTES_PER_VOXEL / share)
+                                    ** (1 / 3)))
+
+        def most_tex(voxels: float) -> int:  # the largest texture that fits beside ``voxels``
+            return min(cap_tex, int((max(budget - voxels * EXPORT_BYTES_PER_VOXEL, 0) / EXPORT_BYTES_PER_TEXEL) ** 0.5))
+
+        at_once = f", {parallel} exports at once (--workers)" if parallel > 1 else ""
+        if resolution > most_res(0):  # too large even without a texture
+            fits = texture_size <= most_tex(0)
+            most = most_res(float(texture_size) ** 2) if fits else most_res(0)
+            beside = f" and {names[1]} {texture_size}" if fits else ""
+            raise Sin3DMInputError(
+                f"{names[0]} {resolution} is too large: at most {most} here ({cap_res:,} anywhere; what fits in memory "
+                f"with this box{beside}{at_once}); ask for a smaller one")
+        most = most_tex(float(np.prod(grid_shape(box, resolution))))
+        if texture_size > most:
+            raise Sin3DMInputError(
+                f"{names[1]} {texture_size} is too large: at most {most} here ({cap_tex:,} anywhere; what fits in "
+                f"memory with {names[0]} {resolution}{at_once}); ask for a smaller one")
+
     def with_denoiser(self, denoiser: torch.nn.Module, diffusion: DiffusionConfig) -> "Sin3DM":
         """The same input (decoder, latent, box) with another denoiser, e.g. one retrained for an ablation.
 
@@ -638,6 +702,7 @@ class Sin3DM:
         from .generate.extract import extract_mesh
 
         s = self.config.sampling
+        self.check_mesh_sizes(resolution or s.mesh_resolution, texture_size or s.texture_size, samples.aabb)
         items = range(len(samples)) if index is None else [index]
         meshes = []
         for i in items:
@@ -900,12 +965,15 @@ def _check_flips(cfg: Config) -> None:
             "flipped latent does not say; fit with pbr=False (CLI: --no-pbr) or without flips")
 
 
-def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Config:
-    """Resolve the config and check the run folder (new, or resumable)."""
-    cfg = preset if isinstance(preset, Config) else get_preset(preset)
-    _check_flips(cfg)
-    if seed is not None:
-        cfg = cfg.updated(seed=seed)
+def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None, asked: dict | None = None,
+                 pbr: bool | None = None) -> Config:
+    """Resolve the config and check the run folder (new, or resumable with the same input and settings)."""
+    cfg = None
+    if preset is not None:
+        cfg = preset if isinstance(preset, Config) else get_preset(preset)
+        _check_flips(cfg)
+        if seed is not None:
+            cfg = cfg.updated(seed=seed)
     if run is None:
         if resume:
             raise Sin3DMInputError("resume needs a run folder; pass out=RUN_DIR (CLI: --out RUN_DIR)")
@@ -913,19 +981,109 @@ def _prepare_run(run: Path | None, preset, resume: bool, seed: int | None) -> Co
     cfg_file = run / "config.json"
     if resume:
         if not cfg_file.exists():
-            raise Sin3DMInputError(f"cannot resume: '{run}' has no config.json; start a new fit without --resume")
+            raise Sin3DMInputError(f"cannot resume: '{run}' is not a fit's run folder (it has no config.json, which a "
+                                   "fit writes first); start a new fit into a new or empty folder (CLI: --out)")
+        asked_cfg = cfg
         try:
             cfg = Config.from_dict(json.loads(cfg_file.read_text()))
+        except Sin3DMInputError as e:  # a setting out of range
+            raise Sin3DMInputError(f"cannot resume: '{cfg_file}': {e}") from None
         except Exception:  # noqa: BLE001 - a damaged or foreign config: one clear message
             raise _not_ours(cfg_file, "config", "it is not a readable configuration") from None
+        if asked is not None:  # another mesh or other settings would train on top of this run's checkpoints
+            if asked_cfg is None and (seed is not None or pbr is not None):  # the run's own, with these changed
+                asked_cfg = _recorded_config(run, cfg).updated(**({} if seed is None else {"seed": seed}))
+            _check_same_request(run, asked, asked_cfg, pbr, cfg)
         acquire_lock(run)
         return cfg
     if run.exists() and any(run.iterdir()):
-        raise Sin3DMInputError(f"run folder '{run}' is not empty; continue it with --resume or choose another --out")
+        if (run / "config.json").is_file():
+            raise Sin3DMInputError(f"run folder '{run}' is not empty: it holds a fit; continue it with --resume, or "
+                                   "choose a new or empty --out")
+        raise Sin3DMInputError(f"--out '{run}' is not empty and holds no fit of sin3dm-lite; choose a new or empty "
+                               "folder for --out (nothing in it is touched)")
     # the new run folder appears with its config and lock in one rename: a kill leaves a resumable
     # folder or only a temporary one (removed by the next run), never a folder that blocks the next try
-    create_locked_folder(run, {"config.json": cfg.to_json()}, option="--out")
+    files = {"config.json": cfg.to_json()}
+    if asked is not None:
+        files[INPUT_FILE] = json.dumps({**asked, "config": cfg.to_dict()}, indent=2)
+    create_locked_folder(run, files, option="--out")
     return cfg
+
+
+def _stem(source) -> str:
+    """The input's name as a grid and a report keep it: the example's name, the file's stem, the mesh's name."""
+    from .data import examples
+
+    if isinstance(source, TexturedMesh):
+        return source.name
+    if isinstance(source, str) and source in examples.list_examples() and not Path(source).is_file():
+        return source
+    return Path(source).stem
+
+
+def _input_name(source) -> str:
+    """How a message names the input: the example's name, the mesh file's path, or the mesh's name."""
+    if isinstance(source, TexturedMesh):
+        return f"the mesh '{source.name}'"
+    from .data import examples
+
+    if isinstance(source, str) and source in examples.list_examples() and not Path(source).is_file():
+        return f"the example '{source}'"
+    return f"'{source}'"
+
+
+def _read_input(run: Path) -> dict | None:
+    """The run folder's input.json (what it was fitted to), or None when it has none (an older version's run)."""
+    try:
+        rec = json.loads((run / INPUT_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return rec if isinstance(rec, dict) and isinstance(rec.get("digest"), str) else None
+
+
+def _recorded_config(run: Path, cfg: Config) -> Config:
+    """The settings a run was asked for (its input.json), else its config.json's ``cfg``."""
+    rec = _read_input(run)
+    try:
+        return Config.from_dict(rec["config"]) if rec and isinstance(rec.get("config"), dict) else cfg
+    except (Sin3DMInputError, TypeError):
+        return cfg
+
+
+def _check_same_request(run: Path, asked: dict, asked_cfg: Config | None, pbr: bool | None, cfg: Config) -> None:
+    """Refuse to resume ``run`` with another input than it was fitted to, or other settings (one line: what differs)."""
+    rec = _read_input(run)
+    if rec is not None:
+        other_input = rec["digest"] != asked["digest"]
+        was = rec.get("input", "another mesh")
+    else:  # a run of an older version: its report names the input, if it got that far
+        name = _read_report(run).get("input")
+        other_input = isinstance(name, str) and name != asked["name"]
+        was = f"'{name}'"
+    if other_input:
+        raise Sin3DMInputError(
+            f"cannot resume: '{run}' was fitted to {was}, not {asked['input']}; resume it with that input, or fit "
+            f"{asked['input']} into a new --out")
+    if asked_cfg is None:
+        return
+    want, have = asked_cfg.to_dict(), _recorded_config(run, cfg).to_dict()
+    if pbr is not None:
+        want["autoencoder"]["pbr"] = bool(pbr)
+    elif not want["autoencoder"]["pbr"]:  # chosen from the mesh, which is the same
+        want["autoencoder"]["pbr"] = have["autoencoder"]["pbr"]
+    want, have = Config.from_dict(want).settings(), Config.from_dict(have).settings()
+    if rec is None:  # an older run records only its config.json, which its switches and calibration changed
+        have.update(name=have["name"].split("+")[0])
+        differ = [k for k in ("name",) if want[k] != have[k]]
+    else:
+        differ = [k for k in want if want[k] != have.get(k)]
+    if differ:
+        shown = [f"{'preset' if k == 'name' else k} {have.get(k)!r} there, {want[k]!r} now" for k in differ[:3]]
+        more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
+        raise Sin3DMInputError(
+            f"cannot resume: '{run}' was fitted with other settings ({'; '.join(shown)}{more}); resume it with its "
+            "own (leave out --preset, --set, --seed and --pbr; Python: preset=None), or fit into a new --out")
 
 
 def _read_report(run: Path) -> dict:

@@ -47,17 +47,37 @@ def run_key(source, preset=None) -> str:
 
     cfg = _preset(preset)
     h = hashlib.sha256()
-    if isinstance(source, str) and source in examples.list_examples() and not Path(source).is_file():
-        stem = source
-        h.update(f"example:{source}:seed={EXAMPLE_SEED}".encode())
-    else:
-        path = Path(source)
-        if not path.is_file():
-            raise Sin3DMInputError(f"'{source}' is neither a mesh file nor a built-in example")
-        stem = path.stem
-        _hash_mesh(h, load_mesh(path))  # what was read, so an OBJ's MTL and textures count too
+    stem = _feed_input(h, source)
     h.update(b"\0config:" + cfg.to_json().encode())
     return f"{stem}-{h.hexdigest()[:12]}"
+
+
+def _feed_input(h, source, mesh=None) -> str:
+    """Feed what a fit of ``source`` reads to ``h`` (an example's name and seed, or the mesh with its MTL and
+    textures); ``mesh``: ``source`` already loaded. Returns the input's stem (the example's name, the file's stem)."""
+    from .data import examples
+    from .data.mesh_io import TexturedMesh
+
+    if isinstance(source, str) and source in examples.list_examples() and not Path(source).is_file():
+        h.update(f"example:{source}:seed={EXAMPLE_SEED}".encode())
+        return source
+    if isinstance(source, TexturedMesh):
+        _hash_mesh(h, source)
+        return source.name or "mesh"
+    path = Path(source)
+    if not path.is_file():
+        raise Sin3DMInputError(f"'{source}' is neither a mesh file nor a built-in example")
+    _hash_mesh(h, mesh if mesh is not None else load_mesh(path))  # what was read, so an OBJ's MTL and textures count too
+    return path.stem
+
+
+def input_digest(source, mesh=None) -> str:
+    """SHA-256 of what a fit of ``source`` (mesh path, ``TexturedMesh`` or example name) reads: the same input, the
+    same digest, whatever the file is called; another mesh, texture or example, another digest. ``mesh``: ``source``
+    already loaded (it is not read again)."""
+    h = hashlib.sha256()
+    _feed_input(h, source, mesh)
+    return h.hexdigest()
 
 
 def _hash_mesh(h, mesh) -> None:
@@ -125,4 +145,4 @@ def open_run(run, preset=None, cache: str | Path = CACHE, device=None, progress:
     return model
 
 
-__all__ = ["CACHE", "cached_run", "open_run", "run_key"]
+__all__ = ["CACHE", "cached_run", "input_digest", "open_run", "run_key"]

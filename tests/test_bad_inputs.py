@@ -126,6 +126,22 @@ CASES = {
     "sample-negative-workers": (["sample", "run", "--out", "s", "--workers", "-2"], "0 or more"),
     "sample-other-settings": (["sample", "run", "--out", "samples", "-n", "1", *SMALL, "--steps", "4", "--no-pictures"],
                               "other settings (steps: 3 there, 4 now)"),
+    # issue 35: --texture-size 100000 ran 3 minutes into 11 GB, --mesh-resolution 100000 was an ArrayMemoryError
+    "sample-huge-texture": (["sample", "run", "--out", "s", "--texture-size", "100000"],
+                            "--texture-size 100000 is too large: at most"),
+    "sample-huge-mesh-resolution": (["sample", "run", "--out", "s", "--mesh-resolution", "100000"],
+                                    "--mesh-resolution 100000 is too large: at most"),
+    "sample-texture-too-small": (["sample", "run", "--out", "s", "--texture-size", "8"],
+                                 "--texture-size must be a whole number from 16 to"),
+    "sample-steps-beyond-schedule": (["sample", "run", "--out", "s", "--steps", "5000"], "1000 time steps"),
+    "sample-too-few-faces": (["sample", "run", "--out", "s", "--faces", "2"], "--faces must be a whole number from 4"),
+    "demo-huge-texture-many-workers": (["demo", "--out", "s", "--texture-size", "16000", "--workers", "64"],
+                                       "64 exports at once (--workers)"),
+    # issue 35: the error spoke of resize factors
+    "sample-outpaint-negative": (["sample", "run", "--out", "s", "--outpaint", "-1", "1", "1"],
+                                 "outpaint factors must be from 1 to 8"),
+    "sample-outpaint-shrinks": (["sample", "run", "--out", "s", "--outpaint", "0.5", "1", "1"],
+                                "outpaint factors must be from 1 to 8"),
     "sample-negative-seed": (["sample", "run", "--out", "s", "--seed", "-1"], "seed"),
     "sample-truncated": (["sample", "truncated", "--out", "s"], "not made by this version"),
     "sample-random-bytes": (["sample", "random", "--out", "s"], "not made by this version"),
@@ -159,9 +175,26 @@ CASES |= {
     "fit-huge-vertex": (["fit", "huge.obj", "--preset", "tiny", "--out", "r"], "too large"),
     "fit-overflowing-box": (["fit", "overflow.obj", "--preset", "tiny", "--out", "r"], "too large"),
     "fit-out-contains-mesh": (["fit", "box.obj", "--preset", "tiny", "--out", "."], "input mesh"),
-    "fit-out-not-empty": (["fit", "box.obj", "--preset", "tiny", "--out", "full"], "--resume"),
+    # a folder of the user's is no fit to resume: a new or empty one (issue 35: the message suggested --resume)
+    "fit-out-not-empty": (["fit", "box.obj", "--preset", "tiny", "--out", "full"],
+                          "--out 'full' is not empty and holds no fit of sin3dm-lite; choose a new or empty folder"),
+    "fit-out-is-a-run": (["fit", "box.obj", "--preset", "tiny", "--out", "run"], "holds a fit; continue it with --resume"),
+    "fit-resume-not-a-run": (["fit", "box.obj", "--out", "full", "--resume"], "'full' is not a fit's run folder"),
+    # issue 35: resuming a canyon run with a cube said "fit done" and mixed the two
+    "fit-resume-other-mesh": (["fit", "box.obj", "--preset", "tiny", "--resume", "--out", "run"],
+                              "cannot resume: 'run' was fitted to 'canyon', not 'box.obj'; resume it with that input"),
+    "fit-resume-other-preset": (["fit", "canyon", "--preset", "tiny", "--resume", "--out", "run"],
+                                "other settings (preset 'small' there, 'tiny' now)"),
     "fit-out-under-file": (["fit", "box.obj", "--preset", "tiny", "--out", "blocker/r"], "is a file"),
     "fit-out-not-writable": (["fit", "box.obj", "--preset", "tiny", "--out", NOT_WRITABLE], "cannot write"),
+    "fit-set-negative-steps": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "autoencoder.steps=-5"],
+                               "'autoencoder.steps' must be a whole number from 1 to"),
+    "fit-set-zero-steps": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "diffusion.steps=0"],
+                           "'diffusion.steps' must be a whole number from 1 to"),
+    "fit-set-diversity": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "sampling.diversity=5"],
+                          "must be a number from 0 to 1"),
+    "fit-set-unknown-section": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "nosuch.key=1"],
+                                "unknown config setting 'nosuch.key'; settings are SECTION.NAME"),
     "fit-resume-missing": (["fit", "box.obj", "--out", "nothing", "--resume"], "resume"),
     "fit-resume-bad-checkpoint": (["fit", "box.obj", "--out", "badresume", "--resume"], "not made by this version"),
     "fit-resume-old-autoencoder-checkpoint": (["fit", "box.obj", "--out", "oldautoencoder", "--resume"], "older version"),
@@ -192,6 +225,10 @@ CASES |= {
     "render-out-is-file": (["render", "box.obj", "--out", "neighbour.txt"], "is a file"),
     "render-out-under-file": (["render", "box.obj", "--out", "blocker/v"], "is a file"),
     "render-out-not-writable": (["render", "box.obj", "--out", NOT_WRITABLE], "cannot write"),
+    # calibrate (issue 35: a file that is no run folder was "not found")
+    "calibrate-file-not-a-run": (["calibrate", "box.obj"], "'box.obj' is a file, not a run folder: a run folder is what"),
+    "calibrate-unknown-run": (["calibrate", "nosuch"], "run folder 'nosuch' not found"),
+    "sample-run-is-a-file": (["sample", "neighbour.txt", "--out", "s"], "is a file, not a run folder"),
     # evaluate
     "evaluate-unknown-run": (["evaluate", "nosuch", "badsamples"], "run folder 'nosuch' not found"),
     "evaluate-missing-samples": (["evaluate", "run", "nosuch"], "samples folder 'nosuch' not found"),
@@ -212,7 +249,7 @@ CASES |= {
 }
 
 
-PARSER_CASES = ("seed", "negative-start", "zero-batch", "negative-workers")  # refused by argparse (SystemExit)
+PARSER_CASES = ("seed", "negative-start", "zero-batch", "negative-workers", "outpaint")  # refused by argparse (SystemExit)
 
 
 @pytest.mark.parametrize("case", list(CASES))

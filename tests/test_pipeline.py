@@ -109,6 +109,68 @@ def test_interrupted_fit_resumes_to_the_same_result(fitted, tmp_path, monkeypatc
     assert resumed.report["autoencoder_steps"] == 30
 
 
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
+def test_resume_refuses_another_input_or_other_settings_and_writes_nothing(fitted, tmp_path):
+    """Issue 35: `fit cube.obj --preset tiny --resume --out <a canyon run>` said "fit done" and left a report naming
+    the cube beside the canyon's model. The run records its input's digest (contents, not the file's name) and the
+    settings asked for (input.json); resume refuses anything else, saying what differs, before it writes."""
+    import re
+    import shutil
+
+    import trimesh
+
+    from sin3dm_lite.pipeline import INPUT_FILE
+
+    def snapshot(folder):
+        return {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
+
+    _, full = fitted
+    run = tmp_path / "wall"
+    shutil.copytree(full, run)
+    assert json.loads((run / INPUT_FILE).read_text())["config"] == micro_config().to_dict()
+    before = snapshot(run)
+    for kwargs, words in [({"source": "canyon"}, "was fitted to the example 'wall', not the example 'canyon'"),
+                          ({"preset": "tiny"}, "other settings (grid.resolution 24 there, 32 now;"),
+                          ({"preset": "small"}, "other settings (preset 'tiny' there, 'small' now;"),
+                          ({"seed": 3}, "other settings (seed 0 there, 3 now)"),
+                          ({"pbr": True}, "autoencoder.pbr False there, True now")]:
+        with pytest.raises(Sin3DMInputError, match=re.escape(words)):
+            Sin3DM.fit(**{"source": "wall", **kwargs}, out=run, resume=True, progress=False)
+        assert snapshot(run) == before, kwargs  # nothing written, no lock left
+    # a mesh file: its contents decide, not its name
+    trimesh.creation.box(extents=(1.0, 0.6, 0.4)).export(tmp_path / "box.obj")
+    trimesh.creation.box(extents=(1.0, 0.5, 0.4)).export(tmp_path / "other.obj")
+    shutil.copy(tmp_path / "box.obj", tmp_path / "renamed.obj")
+    cfg = micro_config().updated(**{"autoencoder.steps": 2, "diffusion.steps": 2})
+    Sin3DM.fit(str(tmp_path / "box.obj"), preset=cfg, out=tmp_path / "box", progress=False)
+    before = snapshot(tmp_path / "box")
+    with pytest.raises(Sin3DMInputError, match="was fitted to '.*box.obj', not '.*other.obj'; resume it with that "
+                                               "input, or fit '.*other.obj' into a new --out"):
+        Sin3DM.fit(str(tmp_path / "other.obj"), preset=cfg, out=tmp_path / "box", resume=True, progress=False)
+    assert snapshot(tmp_path / "box") == before
+    resumed = Sin3DM.fit(str(tmp_path / "renamed.obj"), preset=cfg, out=tmp_path / "box", resume=True, progress=False)
+    assert resumed.report["autoencoder_steps"] == 2
+
+
+def test_mesh_sizes_beyond_memory_are_refused_with_the_largest_that_fits(fitted, monkeypatch):
+    """Issue 35: a huge texture or mesh resolution ran for minutes into gigabytes or an ArrayMemoryError; to_mesh
+    (and `sample` before it makes a folder) refuses it at once, naming the most the free memory holds."""
+    from sin3dm_lite import device
+    from sin3dm_lite.pipeline import EXPORT_BYTES_PER_TEXEL
+
+    model, _ = fitted
+    s = model.input_sample()
+    with pytest.raises(Sin3DMInputError, match="mesh resolution 100000 is too large: at most [0-9]+ here"):
+        model.to_mesh(s, 0, resolution=100000)
+    monkeypatch.setattr(device, "memory_available", lambda dev: 1 << 30)  # 1 GiB free: half of it for one export
+    with pytest.raises(Sin3DMInputError, match="texture size 4096 is too large: at most ([0-9]+) here") as e:
+        model.to_mesh(s, 0, resolution=32, texture_size=4096)
+    told = int(str(e.value).split("at most ")[1].split()[0])
+    assert 1024 < told < ((1 << 29) // EXPORT_BYTES_PER_TEXEL) ** 0.5  # the grid's share comes off the texture's
+    with pytest.raises(Sin3DMInputError, match="texture size must be a whole number from 16 to"):
+        model.to_mesh(s, 0, resolution=32, texture_size=8)
+
+
 def test_checkpoints_are_written_once_per_step(tmp_path, monkeypatch):
     from sin3dm_lite import pipeline
 
@@ -325,6 +387,42 @@ def test_settings_from_text_keep_their_kinds():
             get_preset("small").updated(**bad)
     with pytest.raises(Sin3DMInputError, match="SETTING=VALUE"):
         parse_settings(["diffusion.rollout"])
+
+
+def test_every_setting_is_checked_against_its_range_where_a_config_is_made(tmp_path):
+    """Issue 35: `--set autoencoder.steps=-5` trained to IoU 0, `diffusion.steps=0` and `sampling.diversity=5` were
+    taken, `nosuch.key` was a KeyError. Every setting has a range (config.LIMITS), checked by `updated`, by `Config(...)`
+    and by `fit` (a setting changed in place), with the range or the valid names in the one-line message."""
+    from sin3dm_lite.data.config import LIMITS, Config, DiffusionConfig, SamplingConfig, _settings
+
+    tiny = get_preset("tiny")
+    assert set(_settings(tiny.to_dict())) == set(LIMITS)  # every setting has a rule
+    for name in ("tiny", "small", "quick", "detail", "paper"):
+        get_preset(name).check()  # the presets keep their own rules
+    for bad, words in [({"autoencoder.steps": -5}, "'autoencoder.steps' must be a whole number from 1 to"),
+                       ({"diffusion.steps": 0}, "'diffusion.steps' must be a whole number from 1 to"),
+                       ({"sampling.diversity": 5}, "'sampling.diversity' must be a number from 0 to 1, not 5"),
+                       ({"sampling.diversity": float("nan")}, "from 0 to 1"),
+                       ({"sampling.method": "euler"}, "one of 'ddim', 'ddpm'"),
+                       ({"autoencoder.decoder_kernel": 4}, "one of 1, 3, 5"),
+                       ({"diffusion.beta_start": 0.5}, "below diffusion.beta_end"),
+                       ({"sampling.steps": 5000}, "diffusion.timesteps"),
+                       ({"thin_parts": {"grid.resolution": 8}}, r"thin_parts\['grid.resolution'\] must be"),
+                       ({"nosuch.key": 1}, "SECTION one of autoencoder, diffusion, grid, sampling"),
+                       ({"diffusion.stpes": 3}, "did you mean 'diffusion.steps'"),
+                       ({"diffusion.foo": 3}, "the diffusion settings are: base_channels"),
+                       ({"diffusion.steps.x": 3}, "unknown config setting")]:
+        with pytest.raises(Sin3DMInputError, match=words):
+            tiny.updated(**bad)
+    with pytest.raises(Sin3DMInputError, match="'sampling.diversity' must be"):  # the Python API's own Config
+        Config(sampling=SamplingConfig(diversity=5.0))
+    with pytest.raises(Sin3DMInputError, match="'diffusion.steps' must be"):
+        Config(diffusion=DiffusionConfig(steps=0))
+    cfg = get_preset("tiny")
+    cfg.autoencoder.steps = -5  # changed in place: fit checks before it writes anything
+    with pytest.raises(Sin3DMInputError, match="'autoencoder.steps' must be"):
+        Sin3DM.fit("wall", preset=cfg, out=tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps

@@ -40,6 +40,8 @@ import numbers
 from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Any
 
+import numpy as np
+
 from ..errors import Sin3DMInputError
 
 
@@ -143,6 +145,14 @@ class Config:
     # detail at no cost in variation. {} never switches.
     rollout_switch: dict = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        check_config(self)  # a setting out of range fails where it is made, before any work
+
+    def check(self) -> "Config":
+        """Check every setting (:data:`LIMITS`; e.g. after changing one in place); returns ``self``."""
+        check_config(self)
+        return self
+
     def for_thin_parts(self) -> "Config":
         """These settings with :attr:`thin_parts` applied, nothing left to switch, named ``<name>+thin``.
 
@@ -163,6 +173,10 @@ class Config:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    def settings(self) -> dict:
+        """Every setting by its dotted name: ``{"seed": 0, "grid.resolution": 32, ...}`` (the names ``--set`` takes)."""
+        return _settings(self.to_dict())
+
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
 
@@ -181,13 +195,14 @@ class Config:
         """
         d = self.to_dict()
         for key, value in changes.items():
+            if key not in LIMITS:
+                raise unknown_setting(key)
             node = d
             *parents, leaf = key.split(".")
             for p in parents:
                 node = node[p]
-            if leaf not in node:
-                raise Sin3DMInputError(f"unknown config setting '{key}'")
             _check_type(key, node[leaf], value)
+            check_setting(key, value)
             node[leaf] = value
         if "thin_parts" not in changes:
             d["thin_parts"] = {k: v for k, v in d["thin_parts"].items() if k not in changes}
@@ -195,6 +210,158 @@ class Config:
             kept = {k: v for k, v in d["rollout_switch"].items() if k not in changes}
             d["rollout_switch"] = kept if "diffusion.rollout" in kept else {}  # the rollout chosen: nothing to switch
         return Config.from_dict(d)
+
+
+# --------------------------------------------------------------------------- what each setting may be
+#: every setting's allowed values, checked in one place (:func:`check_setting`) whenever a :class:`Config` is made,
+#: changed (``updated``, ``--set``) or fitted: ``(low, high)`` for a number (both ends allowed; ``None``: no end),
+#: a list for a choice, ``bool``, ``str`` or ``dict`` for the rest
+LIMITS: dict[str, Any] = {
+    "name": str,
+    "seed": (0, 2**32 - 1),
+    "checkpoint_every": (1, 10**9),
+    "thin_parts": dict,
+    "rollout_switch": dict,
+    "grid.resolution": (16, 512),
+    "grid.threshold_voxels": (0.5, 32.0),
+    "grid.n_surface_points": (1_000, 50_000_000),
+    "grid.near_surface_sigma": (0.0, 0.5),
+    "grid.margin_voxels": (0.0, 64.0),
+    "autoencoder.geo_channels": (1, 256),
+    "autoencoder.tex_channels": (1, 256),
+    "autoencoder.decoder_channels": (1, 4096),
+    "autoencoder.decoder_kernel": [1, 3, 5, 7, 9, 11, 13, 15],  # odd: the convolutions keep the plane's size
+    "autoencoder.mlp_hidden": (1, 8192),
+    "autoencoder.use_encoder": bool,
+    "autoencoder.steps": (1, 10**8),
+    "autoencoder.points_per_step": (1, 2**24),
+    "autoencoder.grid_fraction": (0.0, 1.0),
+    "autoencoder.lr_geo": (1e-12, 1.0),
+    "autoencoder.lr_tex": (1e-12, 1.0),
+    "autoencoder.lr_final_factor": (1e-12, 1.0),
+    "autoencoder.near_weight": (0.0, 1000.0),
+    "autoencoder.far_weight": (0.0, 1000.0),
+    "autoencoder.precision": ["auto", "fp32", "bf16"],
+    "autoencoder.pbr": bool,
+    "autoencoder.mirror": bool,
+    "diffusion.base_channels": (1, 4096),
+    "diffusion.n_resblocks": (1, 64),
+    "diffusion.downsample": bool,
+    "diffusion.rollout": bool,
+    "diffusion.time_embed_dim": (2, 4096),
+    "diffusion.timesteps": (2, 100_000),
+    "diffusion.beta_start": (1e-12, 0.999),
+    "diffusion.beta_end": (1e-12, 0.999),
+    "diffusion.prediction": ["x0", "eps"],
+    "diffusion.steps": (1, 10**8),
+    "diffusion.batch_size": (1, 4096),
+    "diffusion.lr": (1e-12, 1.0),
+    "diffusion.ema_decay": (0.0, 0.999999),
+    "diffusion.flips": ["", "x", "z", "xz", "zx"],
+    "diffusion.crop": (0, 4096),
+    "diffusion.precision": ["auto", "fp32", "bf16"],
+    "diffusion.compile": bool,
+    "sampling.method": ["ddim", "ddpm"],
+    "sampling.steps": (1, 100_000),
+    "sampling.diversity": (0.0, 1.0),
+    "sampling.mesh_resolution": (16, 2048),
+    "sampling.faces": (4, 100_000_000),
+    "sampling.texture_size": (16, 16384),
+    "sampling.calibrate": bool,
+}
+
+
+def _number(x: float) -> str:
+    """``10000`` → ``10,000``, ``0.5`` → ``0.5``, ``1e-12`` → ``1e-12``."""
+    return f"{x:,}" if isinstance(x, int) else f"{x:g}"
+
+
+def allowed(key: str) -> str:
+    """What ``key`` may be, in words: ``a whole number from 1 to 100,000,000``, ``one of 'ddim', 'ddpm'``, ..."""
+    rule = LIMITS[key]
+    if rule is bool:
+        return "true or false"
+    if rule in (str, dict):
+        return "a string" if rule is str else "a dict of dotted settings"
+    if isinstance(rule, list):
+        return "one of " + ", ".join(repr(c) for c in rule)
+    low, high = rule
+    kind = "a whole number" if isinstance(low, int) else "a number"
+    return f"{kind} from {_number(low)} to {_number(high)}"
+
+
+def check_setting(key: str, value: Any, option: str | None = None) -> None:
+    """Refuse ``value`` for the dotted setting ``key`` unless :data:`LIMITS` allows it (one line: the valid range).
+
+    ``option`` names the setting as the user gave it (a CLI flag such as ``--texture-size``); default the key.
+    """
+    rule = LIMITS[key]
+    what = option or f"config setting '{key}'"
+    if rule is bool:
+        ok = isinstance(value, (bool, np.bool_))
+    elif rule in (str, dict):
+        ok = isinstance(value, rule)
+    elif isinstance(rule, list):
+        ok = type(value) is type(rule[0]) and value in rule
+    else:
+        low, high = rule
+        whole = isinstance(low, int)
+        kind_ok = (isinstance(value, numbers.Integral) if whole else isinstance(value, numbers.Real)) and not isinstance(
+            value, (bool, np.bool_))
+        ok = kind_ok and low <= value <= high  # NaN fails both comparisons
+    if not ok:
+        raise Sin3DMInputError(f"{what} must be {allowed(key)}, not {value!r}")
+
+
+def _settings(d: dict, prefix: str = "") -> dict:
+    """A nested config dict as ``{dotted key: value}`` (the dict-valued settings kept whole)."""
+    flat = {}
+    for k, v in d.items():
+        key = prefix + k
+        if isinstance(v, dict) and key not in LIMITS:
+            flat.update(_settings(v, key + "."))
+        else:
+            flat[key] = v
+    return flat
+
+
+def unknown_setting(key: str) -> Sin3DMInputError:
+    """The error for a dotted name that is not a setting: the close match, or the settings of that section."""
+    import difflib
+
+    names = list(LIMITS)
+    section, _, leaf = key.partition(".")
+    sections = sorted({k.split(".")[0] for k in names if "." in k})
+    if section in sections:
+        leaves = [k.split(".", 1)[1] for k in names if k.startswith(section + ".")]
+        close = difflib.get_close_matches(leaf, leaves, n=1, cutoff=0.7)
+        hint = (f"did you mean '{section}.{close[0]}'? " if close else "") + f"the {section} settings are: " + ", ".join(leaves)
+    else:
+        close = difflib.get_close_matches(key, names, n=1, cutoff=0.7)
+        hint = (f"did you mean '{close[0]}'? " if close else "") + (
+            f"settings are SECTION.NAME with SECTION one of {', '.join(sections)}, or one of "
+            + ", ".join(k for k in names if "." not in k))
+    return Sin3DMInputError(f"unknown config setting '{key}'; {hint} (names as in a run's config.json)")
+
+
+def check_config(cfg: "Config") -> None:
+    """Every setting of ``cfg`` against :data:`LIMITS`, and the rules that tie two settings together."""
+    flat = _settings(cfg.to_dict())
+    for key, value in flat.items():
+        if key not in LIMITS:
+            raise unknown_setting(key)
+        check_setting(key, value)
+    for switch in ("thin_parts", "rollout_switch"):
+        for key, value in flat[switch].items():
+            if key not in LIMITS or LIMITS[key] is dict:
+                raise Sin3DMInputError(f"{switch} names '{key}', which is not a setting it can change; "
+                                       f"{unknown_setting(key) if key not in LIMITS else 'give dotted settings'}")
+            check_setting(key, value, option=f"{switch}['{key}']")
+    d, s = cfg.diffusion, cfg.sampling
+    if not d.beta_start < d.beta_end:
+        raise Sin3DMInputError(f"diffusion.beta_start ({d.beta_start:g}) must be below diffusion.beta_end ({d.beta_end:g})")
+    if s.steps > d.timesteps:
+        raise Sin3DMInputError(f"sampling.steps must be from 1 to diffusion.timesteps ({d.timesteps:,}), not {s.steps!r}")
 
 
 def _check_type(key: str, old: Any, value: Any) -> None:
@@ -382,6 +549,8 @@ def notebook_preset() -> Config:
 __all__ = [
     "AutoencoderConfig",
     "Config",
+    "LIMITS",
+    "check_setting",
     "DiffusionConfig",
     "GridConfig",
     "SamplingConfig",

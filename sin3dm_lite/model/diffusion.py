@@ -80,8 +80,7 @@ class NoiseSchedule:
         return x_t.zip_map(x0, lambda p, x: (p - a * x) / s)
 
     def ddim_step(self, x0: Triplane, x_t: Triplane, t: torch.Tensor, t_prev: int) -> Triplane:
-        """One DDIM step (η = 0) from ``x_t`` to ``x_{t_prev}``: keep the noise that ``x_t`` and ``x0`` imply,
-        ``√ᾱ_prev·x0 + √(1-ᾱ_prev)·ε̂`` (``t_prev = -1``: the clean end, ᾱ = 1)."""
+        """One DDIM step (η = 0), ``x_t`` → ``√ᾱ_prev·x0 + √(1-ᾱ_prev)·ε̂`` (``t_prev = -1``: the clean end)."""
         eps, ab_prev = self.predict_eps(x_t, t, x0), float(self.alpha_bar(t_prev))
         return x0.zip_map(eps, lambda a, e: math.sqrt(ab_prev) * a + math.sqrt(1 - ab_prev) * e)
 
