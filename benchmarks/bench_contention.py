@@ -8,9 +8,9 @@ thread policy it times one job alone, then two at once (fit beside fit, and samp
 prints wall times and the ratio *together / alone* (the goal: ≤ 2.2 on a 2-core CPU; 2.0 is a fair
 share). The policies:
 
-* ``before``: libgomp's default, idle threads spin (``GOMP_SPINCOUNT=300000``), 1 thread per core;
-* ``after``: what ``import sin3dm_lite`` now sets (``OMP_WAIT_POLICY=PASSIVE``), 1 thread per core;
-* ``one-thread``: ``OMP_NUM_THREADS=1`` in every process.
+* ``before``: PyTorch's defaults, one thread per core whose idle threads spin (``GOMP_SPINCOUNT=300000``);
+* ``passive``: one thread per core whose idle threads sleep (``OMP_WAIT_POLICY=PASSIVE``);
+* ``after``: what ``import sin3dm_lite`` sets (sin3dm_lite/threads.py: one thread, idle threads sleep).
 
 Run it on a quiet machine: anything else running changes every figure.
 """
@@ -30,10 +30,11 @@ from pathlib import Path
 
 CHEAP = ["--steps", "5", "--mesh-resolution", "32", "--faces", "2000", "--texture-size", "64", "--no-pictures",
          "--workers", "0"]
+CORES = str(os.cpu_count() or 1)
 POLICIES = {
-    "before": {"GOMP_SPINCOUNT": "300000"},
+    "before": {"GOMP_SPINCOUNT": "300000", "OMP_NUM_THREADS": CORES},
+    "passive": {"OMP_NUM_THREADS": CORES},
     "after": {},
-    "one-thread": {"OMP_NUM_THREADS": "1"},
 }
 
 
@@ -48,7 +49,8 @@ def job_cmd(job: str, out: Path) -> list[str]:
 
 def run_jobs(jobs: list[str], env_extra: dict) -> list[float]:
     """Start ``jobs`` at the same moment; their wall times in seconds."""
-    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OMP_NUM_THREADS", "OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "SIN3DM_THREADS")}
     env.update(env_extra)
     tmp = Path(tempfile.mkdtemp(prefix="bench-contention-"))
 

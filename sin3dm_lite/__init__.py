@@ -27,9 +27,9 @@ from __future__ import annotations
 
 import importlib
 
-from .threads import apply_wait_policy as _apply_wait_policy
+from .threads import apply_policy as _apply_thread_policy
 
-_apply_wait_policy()  # before torch loads: idle OpenMP threads sleep, so processes sharing the cores don't stall
+_apply_thread_policy()  # before torch loads: one CPU thread, idle threads sleep (threads.py says why)
 
 __version__ = "0.1.0"
 

@@ -191,7 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "--no-rollout-switch keeps the plain denoiser")
     f.add_argument("--set", nargs="+", default=[], metavar="SETTING=VALUE",
                    help="change settings of the preset, e.g. --set diffusion.rollout=true (crisper brick-like "
-                        "textures, README 'Measured') diffusion.steps=3000; names as in the run's config.json")
+                        "textures, docs/levers.md) diffusion.steps=3000; names as in the run's config.json")
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     _outside_paths_arg(f)
 

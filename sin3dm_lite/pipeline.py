@@ -73,8 +73,8 @@ def thin_parts_switch(cfg: Config, grid: ShapeGrid, thin: float | None = None) -
     more than :data:`THIN_SHARE_HINT` of the solid lies in parts under ~5
     voxels thick (:meth:`ShapeGrid.thin_share`): its 64-voxel grid and 9-texel
     field swell or break such parts (columns, small boxes, slats) in every
-    sample, the finer grid keeps them in about the same fit time (README,
-    "Thin parts"). ``thin`` is the share, if already measured.
+    sample, the finer grid keeps them in about the same fit time
+    (docs/thin-parts.md). ``thin`` is the share, if already measured.
     """
     if not cfg.thin_parts:
         return None
@@ -123,7 +123,7 @@ def quick_hint(cfg: Config, device) -> str | None:
     bf16 where the CPU has AVX512-BF16 or AMX; elsewhere it runs in fp32, about
     20 minutes on 2 AVX2 cores (:func:`fp32_autoencoder_minutes`). The ``quick``
     preset's light autoencoder fits in about 5 minutes there, with blurrier
-    texture (README, "Presets"). Any config whose autoencoder would take over
+    texture (docs/presets.md). Any config whose autoencoder would take over
     :data:`QUICK_HINT_MINUTES` gets the hint, not only ``small``.
     """
     dev = torch.device(device)
@@ -1135,11 +1135,9 @@ def keeps_goals_from_noise(cfg: Config, calibration: dict | None) -> bool:
 
     Such a shape's layout varies little whatever the knob (a wall's brick body, dunes), so the rollout
     costs it no variation and makes the three planes agree on the detail: on the wall a colour per brick
-    and its vertical joints, which the plain denoiser smears (24 samples, G-Div / LP-IoU / LP-F 0.127 /
-    0.616 / 0.830 with the switch's 1,250 rollout steps against 0.137 / 0.616 / 0.824); on the dunes
-    smoother crests and better patches (0.078 / 0.679 / 0.928 against 0.070 / 0.625 / 0.915). The
-    canyon, whose calibration stops at 0.73, copies its input with the rollout, so only a calibration
-    that reaches 1 calls for it.
+    and its vertical joints, which the plain denoiser smears; on the dunes smoother crests and better
+    patches (docs/levers.md, "The rollout switch"). The canyon, whose calibration stops below 1, copies
+    its input with the rollout, so only a calibration that reaches 1 calls for it.
     """
     return bool(not cfg.diffusion.rollout and calibration and calibration.get("kept_goals")
                 and calibration.get("diversity") == 1)
@@ -1168,9 +1166,8 @@ def _warn_if_poor(rec: dict, cfg: Config) -> None:
     """Warn when the autoencoder's reconstruction is too poor for useful samples, with the likely cause and the
     setting of the run's ``cfg`` to fit again with.
 
-    Colour: more autoencoder steps, about 1.3 dB per doubling (tiles.obj, two textures, at 96 voxels: 16.2 /
-    17.2 / 18.8 dB with 1,000 / 2,000 / 4,000 steps; a 128-voxel grid gave 16.3 with 1,000, so the grid is not
-    the fix there). Occupancy: more steps or a finer grid.
+    Colour: more autoencoder steps, about 1.3 dB per doubling (docs/levers.md; a finer grid is not the fix
+    there). Occupancy: more steps or a finer grid.
     """
     import warnings
 

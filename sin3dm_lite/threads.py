@@ -1,23 +1,28 @@
-"""How many CPU threads, and how they wait: the one place that decides (imported before torch).
+"""How many CPU threads, and how they wait: the one place that decides (applied by ``import sin3dm_lite``).
 
-PyTorch's CPU kernels run on OpenMP threads (GNU libgomp in the PyPI wheels). By
-default an idle OpenMP thread *spins* for a while before it sleeps, waiting for the
-next parallel loop. Alone on a machine that is a little faster; but two processes
-that each start one thread per core then spin on each other's cores, and each waits
-for a thread that cannot run: a fit beside a notebook kernel, a test suite beside its
-notebooks, or a sampler beside its export worker slow each other down many times over.
+PyTorch's CPU kernels run on OpenMP threads (GNU libgomp in the PyPI wheels), one
+per core by default, and an idle OpenMP thread *spins* for a while before it sleeps,
+waiting for the next parallel loop. This method's tensors are small (one latent of
+a few dozen texels a side, a few thousand points per step): a parallel loop is over
+before a second thread pays for itself. And two processes that each start one
+spinning thread per core stall each other many times over: a fit beside a notebook
+kernel, a test suite beside its notebooks, a sampler beside its export worker.
 
-The policy, applied when ``sin3dm_lite`` is imported (before torch):
+The policy, applied when ``sin3dm_lite`` is imported (before torch where it can be):
 
-* idle OpenMP threads sleep at once (``OMP_WAIT_POLICY=PASSIVE``), so processes
-  sharing the cores share them instead of stalling each other;
-* the number of threads stays PyTorch's (one per core);
-* helper processes (the sampler's export workers) use one thread each.
+* one thread per process (``OMP_NUM_THREADS=1``): on 2-core CPUs, with and without
+  AVX-512, every training step of the CPU presets measured faster on one thread
+  than on two, and two processes then share two cores instead of stalling;
+* idle OpenMP threads sleep at once (``OMP_WAIT_POLICY=PASSIVE``), for anyone who
+  asks for more threads;
+* ``SIN3DM_THREADS=N`` asks for N threads (a machine with many cores and a large
+  preset may gain from them).
 
-A user's own settings always win: with ``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT`` in the
-environment nothing is changed, and ``OMP_NUM_THREADS`` / ``torch.set_num_threads`` are
-never overridden. The measurements behind the choice are in docs/performance.md
-("Threads") and ``benchmarks/bench_contention.py`` prints them again.
+A user's own settings always win: with ``OMP_NUM_THREADS`` (or ``MKL_NUM_THREADS``) in
+the environment the thread count is not touched, with ``OMP_WAIT_POLICY`` /
+``GOMP_SPINCOUNT`` / ``KMP_BLOCKTIME`` the wait policy is not, and a
+``torch.set_num_threads`` made before importing the package is kept. The measurements
+are in docs/performance.md ("Threads"); ``benchmarks/bench_contention.py`` prints them again.
 """
 from __future__ import annotations
 
@@ -26,23 +31,32 @@ import sys
 
 #: environment variables that mean the user chose how OpenMP threads wait
 USER_WAIT_SETTINGS = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "KMP_BLOCKTIME")
+#: environment variables that mean the user chose how many threads
+USER_THREAD_SETTINGS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
+#: threads per process unless ``SIN3DM_THREADS`` or the user's settings say otherwise
+DEFAULT_THREADS = 1
 
 
-def apply_wait_policy(environ=os.environ) -> str | None:
-    """Make idle OpenMP threads sleep instead of spin, unless the user chose; returns what was set (or None).
+def chosen_threads(environ=os.environ) -> int:
+    """The thread count the policy asks for: ``SIN3DM_THREADS`` if it is a positive whole number, else 1."""
+    value = environ.get("SIN3DM_THREADS", "")
+    return int(value) if value.isdigit() and int(value) > 0 else DEFAULT_THREADS
 
-    Only takes effect in a process that has not loaded torch yet (OpenMP reads the
-    variable when it starts); :func:`policy_in_effect` tells whether it did.
+
+def apply_policy(environ=os.environ) -> dict[str, str]:
+    """Set the thread count and wait policy where the user did not; returns the variables it set.
+
+    The variables take effect in a process that has not loaded torch yet, and in every
+    process it starts (export workers, notebook kernels). Where torch is already loaded
+    with its default thread count, that count is set too.
     """
-    if any(k in environ for k in USER_WAIT_SETTINGS):
-        return None
-    environ["OMP_WAIT_POLICY"] = "PASSIVE"
-    return "PASSIVE"
-
-
-def policy_in_effect() -> bool:
-    """Whether this process's OpenMP threads sleep when idle (the variable was set before torch loaded)."""
-    return os.environ.get("OMP_WAIT_POLICY", "").upper() == "PASSIVE" and not _torch_loaded_before_policy
-
-
-_torch_loaded_before_policy = "torch" in sys.modules
+    changed = {}
+    if not any(k in environ for k in USER_WAIT_SETTINGS):
+        changed["OMP_WAIT_POLICY"] = "PASSIVE"
+    if not any(k in environ for k in USER_THREAD_SETTINGS):
+        changed["OMP_NUM_THREADS"] = str(chosen_threads(environ))
+    environ.update(changed)
+    torch = sys.modules.get("torch")
+    if "OMP_NUM_THREADS" in changed and torch is not None and torch.get_num_threads() == (os.cpu_count() or 1):
+        torch.set_num_threads(int(changed["OMP_NUM_THREADS"]))  # loaded before us, still at its default
+    return changed

@@ -1,35 +1,39 @@
-"""The thread policy: idle OpenMP threads sleep (so processes sharing the CPU don't stall), the user's settings win."""
+"""The thread policy: one thread, idle threads sleep (so processes sharing the CPU don't stall), the user's choice wins."""
 import os
 import subprocess
 import sys
 
-from sin3dm_lite.threads import apply_wait_policy
+from sin3dm_lite.threads import apply_policy, chosen_threads
 
 PROBE = "import os, sin3dm_lite, torch; print(os.environ.get('OMP_WAIT_POLICY'), torch.get_num_threads())"
+OURS = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "KMP_BLOCKTIME", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "SIN3DM_THREADS")
 
 
-def _probe(**env):
-    clean = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "KMP_BLOCKTIME",
-                                                                 "OMP_NUM_THREADS")}
-    out = subprocess.run([sys.executable, "-c", PROBE], env={**clean, **env}, capture_output=True, text=True, check=True)
+def _probe(code=PROBE, **env):
+    clean = {k: v for k, v in os.environ.items() if k not in OURS}
+    out = subprocess.run([sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True, check=True)
     policy, threads = out.stdout.split()
     return policy, int(threads)
 
 
-def test_import_makes_idle_threads_sleep_and_keeps_the_thread_count():
-    policy, threads = _probe()
-    assert policy == "PASSIVE"
-    assert threads == _probe(OMP_WAIT_POLICY="ACTIVE")[1]  # the number of threads is PyTorch's own
+def test_import_gives_one_thread_that_sleeps_when_idle():
+    assert _probe() == ("PASSIVE", 1)
 
 
 def test_the_users_settings_win():
     assert _probe(OMP_WAIT_POLICY="ACTIVE")[0] == "ACTIVE"
     assert _probe(GOMP_SPINCOUNT="300000")[0] == "None"
-    assert _probe(OMP_NUM_THREADS="1")[1] == 1
+    assert _probe(OMP_NUM_THREADS="2")[1] == 2
+    assert _probe(SIN3DM_THREADS="2")[1] == 2
+    # torch loaded first and set by the user: kept; loaded first at its default: one thread
+    assert _probe("import torch; torch.set_num_threads(3); import os, sin3dm_lite; "
+                  "print(os.environ.get('OMP_WAIT_POLICY'), torch.get_num_threads())")[1] == 3
+    assert _probe("import torch, os, sin3dm_lite; print(os.environ.get('OMP_WAIT_POLICY'), torch.get_num_threads())")[1] == 1
 
 
-def test_apply_wait_policy_on_a_given_environment():
+def test_apply_policy_on_a_given_environment():
     env = {}
-    assert apply_wait_policy(env) == "PASSIVE" and env == {"OMP_WAIT_POLICY": "PASSIVE"}
-    env = {"KMP_BLOCKTIME": "0"}
-    assert apply_wait_policy(env) is None and "OMP_WAIT_POLICY" not in env
+    assert apply_policy(env) == {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"} and env == apply_policy({})
+    env = {"KMP_BLOCKTIME": "0", "MKL_NUM_THREADS": "4"}
+    assert apply_policy(env) == {} and "OMP_WAIT_POLICY" not in env and "OMP_NUM_THREADS" not in env
+    assert chosen_threads({"SIN3DM_THREADS": "3"}) == 3 and chosen_threads({"SIN3DM_THREADS": "x"}) == 1

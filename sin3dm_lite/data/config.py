@@ -30,7 +30,7 @@
   input with it.
 * ``paper`` – the paper's numbers (256 grid, 25k + 25k steps) for one GPU; on CUDA
   the denoiser trains under bf16 autocast and ``torch.compile`` (about 25 min for
-  the whole fit on an H200 instead of 39: README, "The paper preset on one GPU").
+  the whole fit; docs/performance.md has the measured times).
 """
 from __future__ import annotations
 
@@ -439,76 +439,52 @@ ROLLOUT_CHANGES = {"diffusion.rollout": True, "diffusion.steps": 1250}
 
 
 def _small() -> Config:
+    # Why these numbers (measured, dated, in docs/presets.md, docs/calibration.md and docs/thin-parts.md):
+    # * grid: the paper's σ 0.005 (a wider band erodes the surface); a margin of 3.25 voxels so that the shape's
+    #   sides stay out of the latent's clamped outer texel, and not a whole number, which would put the faces of
+    #   simply proportioned shapes exactly on voxel centres, where inside/outside is a coin toss;
+    # * autoencoder: the paper's decoder width; 2,000 steps, which thin columns need;
+    # * denoiser: one level, no cross-plane rollout: on a 32-texel latent the plane means tell every texel the
+    #   global layout, and samples copy the input;
+    # * sampling: diversity 0.7 (start at t = 700 from the input's latent, noised), then calibrated per shape,
+    #   because the knob's curve is steep and differs between shapes;
+    # * thin_parts: shapes with many thin parts get the 'detail' settings (see _detail) in about the same time;
+    # * rollout_switch: a shape whose calibration keeps the goals from pure noise gets its denoiser trained again
+    #   with the rollout (Sin3DM.fit), which keeps regular patterns (bricks) whole.
     return Config(
         name="small",
-        # σ 0.005 (paper); 0.02 eroded the surface: IoU 0.95 → 0.85. A margin: with the paper's 1.03 alone the
-        # canyon's sides and bottom sat in the latent's clamped outer texel (LP-IoU of its reconstruction 0.58).
-        # 3.25, not 3: a whole number of voxels put the faces of simply proportioned shapes (the canyon's 2:1)
-        # exactly on voxel centres, where inside/outside is a coin toss (12 % of its inside voxels)
         grid=GridConfig(resolution=64, n_surface_points=300_000, margin_voxels=3.25),
-        # paper-size decoder: hidden 128 gave IoU 0.935, 256 gives 0.949. 2,000 steps, not 1,000: the colonnade's
-        # thin columns need them (its samples' LP-F against the input 0.43 → 0.69; canyon and wall unchanged)
         autoencoder=AutoencoderConfig(steps=2000, points_per_step=8192),
         diffusion=DiffusionConfig(
             base_channels=32, n_resblocks=2, downsample=False, steps=2000, batch_size=8, lr=1e-3, ema_decay=0.0,
-            # no cross-plane rollout: on a 32-texel latent the plane means tell every texel the global layout, and
-            # samples copy it (canyon G-Div 0.12 with it, 0.27 without; measured with benchmarks/bench_levers.py)
             rollout=False,
         ),
-        # diversity 0.7 (start at t = 700 from the input's latent, noised): canyon G-Div 0.21 with LP-F 0.71. The fit
-        # then calibrates it for the shape (calibrate=True): the knob's curve is steep and differs between shapes
-        # (tiles.obj at 1.0 LP-IoU 0.42 against the input, rocks.stl at 0.68 near-copies; README "Diversity ↔ fidelity")
         sampling=SamplingConfig(steps=50, mesh_resolution=128, faces=20_000, texture_size=1024, diversity=0.7,
                                 calibrate=True),
         checkpoint_every=250,
-        # shapes with thin parts get the 'detail' settings (see _detail): the colonnade's samples at 64 voxels keep
-        # 25 % of the input's patches (LP-IoU), at 96 with a 17-texel field 68 %, in about the same fit time
         thin_parts=dict(DETAIL_CHANGES),
-        # a shape whose calibration keeps the goals from pure noise gets its denoiser trained again with the
-        # rollout (Sin3DM.fit), 1,250 steps as detail's (a rollout step costs 1.8x): the wall's bricks keep their
-        # vertical joints, the dunes gain on every figure; about 45 s more on the wall (README, "Measured")
         rollout_switch=dict(ROLLOUT_CHANGES),
     )
 
 
 def _detail() -> Config:
     """``small`` at 96 voxels with 4 ResBlocks and the rollout, sampled from pure noise: for shapes with thin parts."""
-    # the colonnade's 2-3-voxel columns are 1-1.5 texels of a 32-texel latent: its samples keep 25 % of the input's
-    # surface patches exactly (LP-IoU at 64 voxels; a copy moved 1/4 voxel keeps 57 %, README "Thin parts"). At 96
-    # voxels they are 2-3 texels; the field grows with the latent (17 of 48 texels, 2 ResBlocks' 9 broke the columns: G-Div 0.52, LP-IoU 0.12),
-    # and at diversity 1.0 the samples meet G-Div 0.21 with LP-IoU 0.66-0.67 / LP-F 0.76-0.78 (three fits).
-    # Not for every shape: the canyon's samples copy it with these settings (G-Div 0.09 at 1.0). README, "Thin parts".
-    # 1,000 autoencoder steps, not small's 2,000: at 96 voxels the columns are thick enough (colonnade samples
-    # 0.206 / 0.672 / 0.776 against 0.213 / 0.655 / 0.759 with 2,000; rocks.stl 0.157 / 0.510 / 0.678 against
-    # 0.157 / 0.515 / 0.682), and the autoencoder is most of the fit. It costs about 1 dB of colour PSNR
-    # (colonnade 21.5 → 20.4, tiles.obj 17.2 → 16.2).
-    # The cross-plane rollout (TriplaneConv as in the paper): a column is a strip in xy, a strip in yz and a disc
-    # in xz, and planes denoised each on its own disagree on where it stands, which decodes as a stub hanging from
-    # the beam or a slanted column (3 of 8 colonnade samples without it, none with it). It keeps the other thin
-    # shapes' patches too: with it and 1,500 denoiser steps against without and 2,000 (same grid and latent,
-    # bench_levers.py, G-Div / LP-IoU / LP-F), colonnade 0.221 / 0.661 / 0.775 against 0.207 / 0.676 / 0.802,
-    # rocks.stl 0.157 / 0.567 / 0.732 against 0.157 / 0.521 / 0.694, tiles.obj 0.184 / 0.424 / 0.659 against
-    # 0.164 / 0.339 / 0.603. A rollout step costs 1.8x (0.111 s against 0.063 on the colonnade), so 1,250 steps
-    # (colonnade 0.228 / 0.671 / 0.776, columns as whole as with 1,500) keep the fit under 5 minutes. On the
-    # canyon's 32-texel latent it makes samples copy (small has none, above)
+    # A 2-3-voxel column is 1-1.5 texels of a 32-texel latent, too thin to keep; at 96 voxels it is 2-3 texels, and
+    # the receptive field grows with the latent (4 ResBlocks). The cross-plane rollout (TriplaneConv as in the
+    # paper) makes the three planes agree on where a column stands; without it some samples decode a stub hanging
+    # from the beam. 1,000 autoencoder and 1,250 rollout denoiser steps keep the fit as long as small's. Not for
+    # every shape: the canyon's samples copy it with these settings. Measured in docs/thin-parts.md.
     return _small().for_thin_parts().updated(name="detail")
 
 
 def _quick() -> Config:
     """``small`` with a light autoencoder and 1,500 denoiser steps: about 4x faster where bf16 is not native."""
-    # The autoencoder's MLPs are most of a fit. On a 2-core AVX2 CPU (AMD EPYC, no AVX512-BF16; bf16 is emulated
-    # there, 9 s/step) small's step takes 0.61 s in fp32, so its 2,000 steps take ~20 min; 128-wide MLPs on 4,096
-    # points take 0.18 s, 1,000 of them 182 s, and the canyon's whole fit 314 s (6 + 182 + 126) instead of ~23 min.
-    # Geometry and variation hold (canyon at diversity 0.7: G-Div 0.19 / LP-IoU 0.57 / LP-F 0.72 against small's
-    # 0.20 / 0.57 / 0.70; wall 0.12 / 0.64 / 0.84 against 0.14 / 0.64 / 0.83); colour does not: reconstruction PSNR
-    # 2.5-3 dB lower (canyon 24.3 -> 21.8, wall 26.2 -> 23.3) and the wall's bricks lose their vertical joints. That
-    # is the step count, not the width or the points: at 1,000 steps 256-wide MLPs or 8,192 points give the same
-    # 23.4 dB, 2,000 light steps 24.5 dB (README, "Presets"). 1,500 denoiser steps: the canyon's samples as with
-    # 2,000 (0.19 / 0.57 / 0.72 against 0.19 / 0.58 / 0.73), 1,000 lose LP-F (0.70).
+    # The autoencoder's MLPs are most of a fit, and without native bf16 they run in fp32: 128-wide MLPs on 4,096
+    # points for 1,000 steps. Geometry and variation hold; colour loses some detail (the step count, not the width
+    # or the points). No thin-part or rollout switch: their extra denoiser would double the fit on such a CPU.
+    # Measured in docs/presets.md.
     return _small().updated(**{"name": "quick", "autoencoder.mlp_hidden": 128, "autoencoder.points_per_step": 4096,
                                "autoencoder.steps": 1000, "diffusion.steps": 1500,
-                               # no switch: detail's settings take about 19 minutes on such a CPU (README, "Presets"),
-                               # and a second denoiser, 1,250 rollout steps at 1.8x a plain one's 84 ms there, about 3 more
                                "thin_parts": {}, "rollout_switch": {}})
 
 
@@ -517,7 +493,7 @@ def _paper() -> Config:
         name="paper",
         grid=GridConfig(resolution=256, n_surface_points=2_000_000),
         autoencoder=AutoencoderConfig(),
-        # on one H200: 25.7 ms per denoiser step instead of 55 (benchmarks/bench_gpu.py; a ~60 s compile first)
+        # on CUDA: bf16 autocast and a compiled training step (docs/performance.md)
         diffusion=DiffusionConfig(precision="auto", compile=True),
         sampling=SamplingConfig(steps=100, mesh_resolution=256, faces=50_000, texture_size=2048),
         checkpoint_every=2500,

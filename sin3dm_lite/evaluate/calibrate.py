@@ -3,10 +3,10 @@
 The paper names the trade-off between diversity and fidelity as its main
 limitation, and the knob (``Sin3DM.sample(diversity=...)``: start the reverse
 process at step ``d · 999`` from the input's latent, noised) turns it. Its
-curve differs from shape to shape, and it is steep: on one fit of a tiled
-slab the samples' LP-IoU against the input is 0.78 at 0.6, 0.62 at 0.68 and
-0.48 at 1.0, while a rock field keeps 0.72 at 1.0 (README, "Diversity ↔
-fidelity"). So no fixed default suits every mesh.
+curve differs from shape to shape, and it is steep: on a tiled slab the
+samples' LP-IoU against the input falls fast as the knob opens, while a rock
+field keeps its patches at 1.0 (docs/calibration.md). So no fixed default
+suits every mesh.
 
 :func:`calibrate_diversity` measures the curve instead. It walks down the
 knob from 1 (pure noise, the paper's sampling) in steps of 0.1, draws a few
@@ -35,8 +35,8 @@ import numpy as np
 from ..errors import Sin3DMInputError
 
 #: what the samples must keep against the input: the paper's averages are LP-F 0.699 at G-Div 0.224, and the
-#: project's goals (issue "real variations") LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter
-#: by a few hundredths around the figures of many (README "Diversity ↔ fidelity"), so the choice does too
+#: project's goals LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter by a few hundredths
+#: around the figures of many (docs/calibration.md), so the choice does too
 GOALS = {"lp_iou": 0.55, "lp_fscore": 0.70}
 
 #: extra settings drawn near the answer once the ladder has bracketed it (:func:`calibrate_diversity`)
@@ -192,20 +192,16 @@ def calibrate_diversity(model, reference: np.ndarray, goals: dict | None = None,
     lower crossing of the two goals wins.
 
     Why so (``benchmarks/bench_calibration.py`` replays the calibration 400
-    times on 48 stored samples per setting, README "The knob chosen per
-    shape"): independent seeds per setting matter, since one set of samples
+    times on 48 stored samples per setting; docs/calibration.md): independent seeds per setting matter, since one set of samples
     reused at every setting is lucky or unlucky at all of them at once (a
     bisection on one seed set chose anything from 0.59 to 0.88 on a tiled
     slab). Read at the goals themselves, 8 samples per setting land above the
     true crossing about half the time. A fixed 0.02 above them (the first
     rule) was too little where the curve is steep and bends between two
-    settings (tiles.obj: its choice missed a goal in half the replays, by up to
-    0.035) and too much where it is flat (rocks.stl: 0.80 against a true
-    crossing at 0.94). The refinement removes most of the bend's error and
-    the standard error shrinks as samples pool near the answer. With one
-    standard error the choices sat on the goals' edge where the curve is flat
-    (the canyon: 0.78, and 24 other samples kept LP-IoU 0.549); 1.5 missed a
-    goal in 0-1 % of the replays.
+    settings and too much where it is flat. The refinement removes most of
+    the bend's error and the standard error shrinks as samples pool near the
+    answer; 1.5 standard errors rather than one keep the choice off the goals'
+    edge where the curve is flat (the replays are in docs/calibration.md).
 
     Args:
         model: a fitted :class:`~sin3dm_lite.Sin3DM`.
