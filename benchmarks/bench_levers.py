@@ -17,12 +17,12 @@ import time
 from pathlib import Path
 
 import torch
-
 from bench_samples import print_spread, references, sample_grids, save_projections, scores
+
 from sin3dm_lite import AutoencoderTrainer, reconstructed_grid, reconstruction_metrics
 from sin3dm_lite.data.config import parse_settings
-from sin3dm_lite.model.diffusion import DiffusionTrainer
 from sin3dm_lite.data.grid import load_grid
+from sin3dm_lite.model.diffusion import DiffusionTrainer
 from sin3dm_lite.pipeline import Sin3DM
 
 

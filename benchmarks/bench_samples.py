@@ -48,8 +48,8 @@ from sin3dm_lite import metrics
 from sin3dm_lite.data.box import grid_shape
 from sin3dm_lite.data.config import get_preset, parse_settings
 from sin3dm_lite.data.export import export_mesh
-from sin3dm_lite.generate.extract import marching_cubes
 from sin3dm_lite.data.grid import load_grid
+from sin3dm_lite.generate.extract import marching_cubes
 from sin3dm_lite.pipeline import Sin3DM, resolve_mesh
 
 GOALS = {"g_div": 0.20, "lp_f": 0.70, "lp_iou": 0.55, "recon_iou": 0.95, "fit_s": 300.0, "mesh_s": 15.0}

@@ -36,12 +36,12 @@ import time
 from pathlib import Path
 
 import torch
-
 from bench_levers import retrain
 from bench_samples import fit_or_load, references, sample_grids, scores
+
 from sin3dm_lite.data.export import export_mesh
-from sin3dm_lite.generate.extract import NoSurfaceError
 from sin3dm_lite.data.mesh_io import load_mesh
+from sin3dm_lite.generate.extract import NoSurfaceError
 from sin3dm_lite.pipeline import Sin3DM
 
 VARIANTS = {

@@ -28,12 +28,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from sin3dm_lite.model.autoencoder import AutoencoderTrainer, sdf_loss
 from sin3dm_lite.data.config import get_preset
-from sin3dm_lite.device import bf16_is_fast
-from sin3dm_lite.model.diffusion import DiffusionTrainer
 from sin3dm_lite.data.grid import ShapeGrid
 from sin3dm_lite.data.mesh_io import Normalization
+from sin3dm_lite.device import bf16_is_fast
+from sin3dm_lite.model.autoencoder import AutoencoderTrainer, sdf_loss
+from sin3dm_lite.model.diffusion import DiffusionTrainer
 from sin3dm_lite.model.triplane import Triplane
 from sin3dm_lite.model.unet import TriplaneConv, cross_plane_inputs
 
@@ -131,7 +131,7 @@ def main() -> None:
         steps = 2 if name == "paper" else a.steps
         ae = AutoencoderTrainer(grid, replace(cfg.autoencoder, precision="fp32"))
         t_ours = timed(ae.step, steps)
-        t_chunk = timed(lambda: per_chunk_step(ae), steps)
+        t_chunk = timed(lambda ae=ae: per_chunk_step(ae), steps)
         ae16 = AutoencoderTrainer(grid, replace(cfg.autoencoder, precision="bf16"))
         t_bf16 = timed(ae16.step, steps)
         print(f"[{name}] autoencoder, grid {dims}, {cfg.autoencoder.points_per_step:,} points: "

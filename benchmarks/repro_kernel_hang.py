@@ -26,9 +26,8 @@ import subprocess
 import sys
 import tempfile
 import time
-from pathlib import Path
-
 from datetime import datetime
+from pathlib import Path
 
 import nbformat
 from nbclient import NotebookClient

@@ -147,7 +147,7 @@ def picture_pbr(out: Path, name: str = "tiles", n: int = 2) -> list[Path]:
     sample = meshes[0]
     maps = viz.pbr_map_images(sample)
     painted = []
-    for label, img in maps.items():
+    for img in maps.values():
         rgb = np.repeat(img[..., None], 3, axis=2) if img.ndim == 2 else np.asarray(img[..., :3])
         plain = [replace(m, image=rgb.astype(np.float32), base_color=np.ones(4, np.float32), metallic=0.0, roughness=1.0,
                          metallic_roughness_image=None, normal_image=None) for m in sample.materials]

@@ -363,9 +363,8 @@ def cmd_examples(a) -> None:
 
 def cmd_grid(a) -> None:
     from .data.grid import mesh_to_grid, save_grid
-    from .pipeline import resolve_mesh
-
     from .files import check_not_overlapping, check_writable, clash_error, is_ours, recorded_path, remove_stale_temps
+    from .pipeline import resolve_mesh
 
     out = Path(a.out)
     if out.suffix != ".npz":
@@ -466,8 +465,16 @@ def write_samples(model, out: Path, a, label: str = "sample", ranks=None, run: s
     ``contact_sheet.png`` and the manifest. Returns ``{"pending", "new", "total", "seconds"}``.
     """
     from .files import release_lock
-    from .mass import DEFAULT_BATCH, Ranks, abandon, check_request, finish_folder, prepare_folder, sample_many, \
-        sample_settings
+    from .mass import (
+        DEFAULT_BATCH,
+        Ranks,
+        abandon,
+        check_request,
+        finish_folder,
+        prepare_folder,
+        sample_many,
+        sample_settings,
+    )
 
     ranks = ranks or Ranks()
     out = Path(out)
@@ -568,10 +575,9 @@ def cmd_sample(a) -> None:
 
 def cmd_demo(a) -> None:
     from .data import examples
+    from .device import get_device
     from .pipeline import Sin3DM
     from .pretrained import shipped_model
-
-    from .device import get_device
 
     if a.example not in examples.list_examples():
         raise Sin3DMInputError(f"unknown example '{a.example}'; choose one of: {', '.join(examples.list_examples())}")
@@ -600,10 +606,16 @@ MAX_VIEWS = 360
 
 
 def cmd_render(a) -> None:
-    from .files import check_not_overlapping, check_output_folder, check_writable, install_output, make_temp_dir, \
-        remove_stale_temps
+    from .evaluate.render import contact_sheet, render_hero, render_views, view_names
+    from .files import (
+        check_not_overlapping,
+        check_output_folder,
+        check_writable,
+        install_output,
+        make_temp_dir,
+        remove_stale_temps,
+    )
     from .pipeline import resolve_mesh
-    from .evaluate.render import contact_sheet, render_views, render_hero, view_names
     from .show.viewer import png_bytes
 
     out = Path(a.out)
@@ -730,9 +742,9 @@ def cmd_calibrate(a) -> None:
 def _calibrate(a, run: Path, shipped: bool) -> None:
     import json
 
+    from .data.grid import load_grid
     from .evaluate.calibrate import GOALS
     from .files import atomic_write
-    from .data.grid import load_grid
     from .pipeline import Sin3DM, resolve_mesh
 
     model = Sin3DM.load(run)

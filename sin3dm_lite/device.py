@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import torch
@@ -40,7 +40,7 @@ def count_parameters(module: torch.nn.Module, trainable_only: bool = False) -> i
     return sum(p.numel() for p in module.parameters() if p.requires_grad or not trainable_only)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _cpu_has_bf16() -> bool:
     try:  # Linux; elsewhere we do not know, so stay in fp32
         flags = Path("/proc/cpuinfo").read_text()

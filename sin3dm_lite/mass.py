@@ -49,9 +49,22 @@ import numpy as np
 import torch
 
 from .errors import Sin3DMInputError
-from .files import (MANIFEST, acquire_lock, append_manifest_part, file_record, foreign_files, is_ours,
-                    make_temp_dir, manifest_parts, read_manifest, read_manifest_parts, release_lock, replacing,
-                    save_torch, write_manifest)
+from .files import (
+    MANIFEST,
+    acquire_lock,
+    append_manifest_part,
+    file_record,
+    foreign_files,
+    is_ours,
+    make_temp_dir,
+    manifest_parts,
+    read_manifest,
+    read_manifest_parts,
+    release_lock,
+    replacing,
+    save_torch,
+    write_manifest,
+)
 
 SETTINGS = "sampling.json"
 SAMPLES = "samples.jsonl"
@@ -315,8 +328,8 @@ def _worker_init(model_path: str, opts: dict) -> None:
 def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: dict | None = None) -> dict:
     """Decode one latent into a textured mesh in ``tmp`` (mesh.*, preview.png); returns ``{"faces", "no_pictures"}``."""
     from .data.export import export_mesh
-    from .pipeline import Samples
     from .model.triplane import Triplane
+    from .pipeline import Samples
 
     model = model or _WORKER["model"]
     opts = opts or _WORKER["opts"]

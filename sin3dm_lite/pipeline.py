@@ -35,17 +35,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from .model.autoencoder import AutoencoderTrainer, TriplaneDecoder
 from .data.config import PRESETS, Config, DiffusionConfig, get_preset
-from .model.decode import reconstructed_grid
-from .device import bf16_is_fast, get_device
-from .model.diffusion import check_flips
-from .errors import Sin3DMInputError
-from .files import (acquire_lock, atomic_path, atomic_write, create_locked_folder, holds_lock, release_lock,
-                    save_torch)
 from .data.grid import THIN_SHARE_HINT, ShapeGrid, load_grid, mesh_to_grid, save_grid
 from .data.mesh_io import Normalization, TexturedMesh
+from .device import bf16_is_fast, get_device
+from .errors import Sin3DMInputError
 from .evaluate.metrics import reconstruction_metrics
+from .files import acquire_lock, atomic_path, atomic_write, create_locked_folder, holds_lock, release_lock, save_torch
+from .model.autoencoder import AutoencoderTrainer, TriplaneDecoder
+from .model.decode import reconstructed_grid
+from .model.diffusion import check_flips
 from .model.training import checkpoint_problem
 from .model.triplane import Triplane
 
@@ -262,7 +261,7 @@ class Sin3DM:
         progress: bool = True,
         pbr: bool | None = None,
         allow_outside_paths: bool = False,
-    ) -> "Sin3DM":
+    ) -> Sin3DM:
         """Fit the whole model to one textured mesh (a path, a ``TexturedMesh`` or an example name).
 
         ``allow_outside_paths``: let the mesh file name textures and libraries outside its folder
@@ -338,7 +337,7 @@ class Sin3DM:
         return model
 
     @classmethod
-    def _fit(cls, source, preset, out, resume, seed, device, progress, pbr=None, allow_outside_paths=False) -> "Sin3DM":
+    def _fit(cls, source, preset, out, resume, seed, device, progress, pbr=None, allow_outside_paths=False) -> Sin3DM:
         """:meth:`fit`'s stages, after its checks."""
         say = print if progress else (lambda *a, **k: None)
         dev = get_device(device)
@@ -526,7 +525,8 @@ class Sin3DM:
         list): ``sample(4, seed=0)``'s third is ``sample(1, seed=2)``, whatever
         the batch or the device, so any sample of a large run can be drawn again on its own.
         """
-        from .model.diffusion import sample as diffusion_sample, start_step
+        from .model.diffusion import sample as diffusion_sample
+        from .model.diffusion import start_step
 
         if n < 1:
             raise Sin3DMInputError(f"number of samples must be at least 1, got {n}")
@@ -645,7 +645,7 @@ class Sin3DM:
                 f"{names[1]} {texture_size} is too large: at most {most} here ({cap_tex:,} anywhere; what fits in "
                 f"memory with {names[0]} {resolution}{at_once}); ask for a smaller one")
 
-    def with_denoiser(self, denoiser: torch.nn.Module, diffusion: DiffusionConfig) -> "Sin3DM":
+    def with_denoiser(self, denoiser: torch.nn.Module, diffusion: DiffusionConfig) -> Sin3DM:
         """The same input (decoder, latent, box) with another denoiser, e.g. one retrained for an ablation.
 
         ``diffusion`` is the config that denoiser was trained with (its
@@ -656,7 +656,7 @@ class Sin3DM:
                       self.normalization, dict(self.report), self.device)
 
     def calibrate(self, reference: np.ndarray | None = None, input_mesh=None, progress: bool = True,
-                  **options) -> "Calibration":
+                  **options) -> Calibration:
         """Set ``config.sampling.diversity`` to the most varied setting whose samples keep the input's patches.
 
         :func:`sin3dm_lite.calibrate.calibrate_diversity` draws a few samples
@@ -760,8 +760,8 @@ class Sin3DM:
         empty or a full grid, so it lowers the scores instead of stopping the evaluation.
         """
         from .data.box import grid_shape
-        from .generate.extract import NoSurfaceError
         from .evaluate.metrics import voxelize
+        from .generate.extract import NoSurfaceError
 
         several = not isinstance(resolution, (int, np.integer))
         res = list(resolution) if several else [resolution]
@@ -830,8 +830,14 @@ class Sin3DM:
         weight-free texture metrics (+2.9 s for SIFID and LPIPS): about 2.5 s
         per sample plus the input's renders.
         """
-        from .evaluate.metrics import SSFID_UNAVAILABLE, FeatureNets, geometry_scores, load_feature_weights, texture_scores, \
-            voxelize
+        from .evaluate.metrics import (
+            SSFID_UNAVAILABLE,
+            FeatureNets,
+            geometry_scores,
+            load_feature_weights,
+            texture_scores,
+            voxelize,
+        )
         from .evaluate.render import render_views, renderer_problem
 
         say = print if progress else (lambda *a, **k: None)
@@ -899,7 +905,7 @@ class Sin3DM:
         return run / MODEL_FILE
 
     @classmethod
-    def open(cls, run, preset=None, cache="runs/cache", device=None, progress: bool = True) -> "Sin3DM":
+    def open(cls, run, preset=None, cache="runs/cache", device=None, progress: bool = True) -> Sin3DM:
         """The model ``run`` names: a shipped model, a run folder, or a mesh / example fitted once into ``cache``
         and reused after (:func:`sin3dm_lite.runs.open_run` has the rules)."""
         from .runs import open_run
@@ -907,7 +913,7 @@ class Sin3DM:
         return open_run(run, preset, cache, device, progress)
 
     @classmethod
-    def load(cls, run_dir: str | Path, device=None) -> "Sin3DM":
+    def load(cls, run_dir: str | Path, device=None) -> Sin3DM:
         """Load a fitted model from a run folder (or a ``model.pt`` file)."""
         from .model.unet import TriplaneUNet
 

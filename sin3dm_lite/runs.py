@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from .data.config import Config, get_preset, notebook_preset
-from .errors import Sin3DMInputError
 from .data.mesh_io import load_mesh
+from .errors import Sin3DMInputError
 
 CACHE = Path("runs/cache")  # relative to the working directory (a notebook's: notebooks/)
 EXAMPLE_SEED = 0  # the generator seed ``Sin3DM.fit`` builds an example with
@@ -43,7 +43,6 @@ def _preset(preset) -> Config:
 
 def run_key(source, preset=None) -> str:
     """``<stem>-<hash12>``: the cache folder's name for fitting ``source`` (mesh path or example name) with ``preset``."""
-    from .data import examples
 
     cfg = _preset(preset)
     h = hashlib.sha256()

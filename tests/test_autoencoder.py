@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 import torch
 
+from sin3dm_lite.data.config import AutoencoderConfig
+from sin3dm_lite.evaluate.metrics import reconstruction_metrics
 from sin3dm_lite.model.autoencoder import (
     AutoencoderTrainer,
     TriplaneDecoder,
     TriplaneEncoder,
     sdf_loss,
 )
-from sin3dm_lite.data.config import AutoencoderConfig
 from sin3dm_lite.model.decode import reconstructed_grid
-from sin3dm_lite.evaluate.metrics import reconstruction_metrics
 from sin3dm_lite.model.triplane import Triplane
 
 from .conftest import tiny_ae_cfg

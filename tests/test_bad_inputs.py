@@ -19,8 +19,8 @@ import torch
 import trimesh
 
 from sin3dm_lite.cli import main
-from sin3dm_lite.files import LOCK, MANIFEST, TEMP_PREFIX, read_manifest
 from sin3dm_lite.data.examples import list_examples
+from sin3dm_lite.files import LOCK, MANIFEST, TEMP_PREFIX, read_manifest
 from sin3dm_lite.pretrained import pretrained_path, shipped_model
 
 SHIPPED = pretrained_path()

@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-from sin3dm_lite.evaluate import calibrate as C
-from sin3dm_lite.data.box import grid_shape
 from sin3dm_lite.cli import main
+from sin3dm_lite.data.box import grid_shape
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.evaluate import calibrate as C
 from sin3dm_lite.evaluate.metrics import iou
 from sin3dm_lite.pipeline import Sin3DM
 

@@ -6,9 +6,8 @@ import pytest
 import torch
 
 from sin3dm_lite import cli
-
-from sin3dm_lite.generate import control
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.generate import control
 from sin3dm_lite.pipeline import Sin3DM
 from sin3dm_lite.pretrained import shipped_model
 

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model.diffusion import (
     DiffusionTrainer,
     NoiseSchedule,
@@ -17,10 +18,10 @@ from sin3dm_lite.model.diffusion import (
     soft_mask,
     start_step,
 )
-from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model.triplane import Triplane
 
 from .conftest import LATENT_RES, tiny_diffusion_cfg
+
 
 @pytest.fixture(scope="module")
 def trained(h0):
@@ -352,7 +353,7 @@ def test_a_trainer_with_flips_trains_on_mirrored_copies_and_one_without_does_not
         out = set()
         for x0 in seen:
             for b in range(x0.batch):
-                same = lambda v: all(torch.equal(p, q) for p, q in zip(x0[b].planes, v.planes))  # noqa: E731
+                same = lambda v, x0=x0, b=b: all(torch.equal(p, q) for p, q in zip(x0[b].planes, v.planes))  # noqa: E731
                 out.add("input" if same(h0) else "mirrored" if same(mirrored) else "other")
         return out
 

@@ -1,16 +1,16 @@
 """The built-in example shapes: valid, textured, deterministic, the right size."""
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
 
-from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.data.examples import DEFAULT_EXAMPLE, EXAMPLES, build_example, list_examples, write_example
+from sin3dm_lite.errors import Sin3DMInputError
 
 NAMES = list_examples()
 
 
-@lru_cache(maxsize=None)
+@cache
 def built(name, seed=0):
     return build_example(name, seed)
 

@@ -7,13 +7,14 @@ import torch
 from torch import nn
 
 from sin3dm_lite import box
-from sin3dm_lite.model import decode as dc
 from sin3dm_lite import extract as ex
-from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.data.mesh_io import Normalization
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.model import decode as dc
 from sin3dm_lite.model.triplane import Triplane
 
 from .conftest import AABB, SphereDecoder, zero_triplane
+
 
 def sphere_sdf(shape, aabb=AABB, center=(0.0, 0.0, 0.0), radius=0.5):
     axes = [aabb[a] + (np.arange(n) + 0.5) / n * (aabb[a + 3] - aabb[a]) for a, n in enumerate(shape)]
@@ -105,11 +106,11 @@ def test_coarse_to_fine_truncated_sdf_touching_the_box_and_colours():
     np.testing.assert_allclose(col, col_full, atol=1e-5)  # the colour is linear: interpolation is exact
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def random_triplane_decoder(seed=0):
     """A real ``TriplaneDecoder`` with random weights, a smooth random triplane prepared once (conv blocks run)."""
-    from sin3dm_lite.model.autoencoder import TriplaneDecoder
     from sin3dm_lite.data.config import AutoencoderConfig
+    from sin3dm_lite.model.autoencoder import TriplaneDecoder
 
     torch.manual_seed(seed)
     dec = TriplaneDecoder(AutoencoderConfig(decoder_channels=16, mlp_hidden=32), threshold=0.1)

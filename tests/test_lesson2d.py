@@ -1,7 +1,5 @@
 """The 2D lesson's module: an image as a flat triplane, the forward process, the two denoisers, copy or recombine."""
 import numpy as np
-import pytest
-import torch
 from matplotlib.figure import Figure
 
 from sin3dm_lite import lesson2d as L

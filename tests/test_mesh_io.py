@@ -19,9 +19,7 @@ from PIL import Image
 from trimesh.visual.material import PBRMaterial
 
 from sin3dm_lite import export, mesh_io
-from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.data.export import save_glb, save_obj
-from sin3dm_lite.show.viewer import to_trimesh
 from sin3dm_lite.data.mesh_io import (
     DEFAULT_COLOR,
     Material,
@@ -30,6 +28,8 @@ from sin3dm_lite.data.mesh_io import (
     load_mesh,
     sample_texture,
 )
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.show.viewer import to_trimesh
 
 RED, GREEN, BLUE, YELLOW = (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)
 CYAN, MAGENTA = (0, 1, 1), (1, 0, 1)
@@ -909,7 +909,7 @@ def test_an_obj_may_not_make_the_loader_read_outside_its_folder(tmp_path, how):
     with pytest.raises(Sin3DMInputError) as e:
         load_mesh(path)
     msg = str(e.value)
-    assert f"'square.obj' names a file outside its folder: the " in msg and f"'{ref}' is '" in msg
+    assert "'square.obj' names a file outside its folder: the " in msg and f"'{ref}' is '" in msg
     assert "--allow-outside-paths" in msg and "allow_outside_paths=True" in msg and "\n" not in msg
     assert ("through a symbolic link" in msg) == (how == "symlink")
     mesh = load_mesh(path, allow_outside_paths=True)  # the user says they trust it

@@ -5,8 +5,8 @@ import trimesh
 
 from sin3dm_lite import extract as ex
 from sin3dm_lite import metrics as M
-from sin3dm_lite.evaluate import geometry
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.evaluate import geometry
 
 BOX = np.array([-1.0, -1, -1, 1, 1, 1])
 

@@ -5,8 +5,8 @@ import pytest
 from PIL import Image
 
 from sin3dm_lite import runs
-from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.data.examples import write_example
+from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.pipeline import Sin3DM
 from sin3dm_lite.pretrained import pretrained_path
 

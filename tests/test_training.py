@@ -4,9 +4,9 @@ import io
 import pytest
 import torch
 
+from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer, TriplaneAutoencoder
 from sin3dm_lite.model.diffusion import DiffusionTrainer
-from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model.training import TRAINER_FORMAT, Trainer
 from sin3dm_lite.model.unet import TriplaneUNet
 

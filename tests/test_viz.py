@@ -17,7 +17,7 @@ from PIL import Image
 from sin3dm_lite import metrics as M
 from sin3dm_lite import viz
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.model.triplane import pca_basis, pca_project, Triplane, plane_to_image
+from sin3dm_lite.model.triplane import Triplane, pca_basis, pca_project, plane_to_image
 
 from .conftest import rf_square
 

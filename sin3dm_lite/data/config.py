@@ -148,12 +148,12 @@ class Config:
     def __post_init__(self) -> None:
         check_config(self)  # a setting out of range fails where it is made, before any work
 
-    def check(self) -> "Config":
+    def check(self) -> Config:
         """Check every setting (:data:`LIMITS`; e.g. after changing one in place); returns ``self``."""
         check_config(self)
         return self
 
-    def for_thin_parts(self) -> "Config":
+    def for_thin_parts(self) -> Config:
         """These settings with :attr:`thin_parts` applied, nothing left to switch, named ``<name>+thin``.
 
         A grid too coarse for a shape's thin parts (columns 2-3 voxels thick)
@@ -164,7 +164,7 @@ class Config:
             return self
         return self.updated(**self.thin_parts, name=f"{self.name}+thin", thin_parts={})
 
-    def for_rollout(self) -> "Config":
+    def for_rollout(self) -> Config:
         """These settings with :attr:`rollout_switch` applied (the cross-plane rollout on), nothing left to switch."""
         if not self.rollout_switch:
             return self
@@ -181,10 +181,10 @@ class Config:
         return json.dumps(self.to_dict(), indent=2)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Config":
+    def from_dict(cls, d: dict) -> Config:
         return _from_dict(cls, d)
 
-    def updated(self, **changes: Any) -> "Config":
+    def updated(self, **changes: Any) -> Config:
         """Copy with dotted-path changes, e.g. ``cfg.updated(**{"diffusion.steps": 100})``.
 
         A setting you change is yours: it also leaves :attr:`thin_parts`, so
@@ -344,7 +344,7 @@ def unknown_setting(key: str) -> Sin3DMInputError:
     return Sin3DMInputError(f"unknown config setting '{key}'; {hint} (names as in a run's config.json)")
 
 
-def check_config(cfg: "Config") -> None:
+def check_config(cfg: Config) -> None:
     """Every setting of ``cfg`` against :data:`LIMITS`, and the rules that tie two settings together."""
     flat = _settings(cfg.to_dict())
     for key, value in flat.items():

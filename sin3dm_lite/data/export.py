@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.mesh_io import Material, TexturedMesh, array_to_pil, unique_rows
 from ..errors import Sin3DMInputError
 from ..files import atomic_folder, atomic_write
-from ..data.mesh_io import Material, TexturedMesh, array_to_pil, unique_rows
 
 FORMATS = ("obj", "glb")
 

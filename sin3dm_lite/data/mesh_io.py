@@ -91,7 +91,7 @@ class Normalization:
         return np.asarray(points, dtype=np.float64) / self.scale + self.center
 
     @classmethod
-    def identity(cls) -> "Normalization":
+    def identity(cls) -> Normalization:
         return cls(center=np.zeros(3), scale=1.0)
 
 
@@ -215,7 +215,7 @@ class TexturedMesh:
         return pts, fi, bc
 
     # -------------------------------------------------------------- transforms
-    def normalized(self) -> "TexturedMesh":
+    def normalized(self) -> TexturedMesh:
         """The paper's normalisation: centre the bounding box, longest side × 1.03 → [-1, 1]."""
         lo, hi = self.bounds
         extent = hi - lo

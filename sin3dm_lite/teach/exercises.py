@@ -27,8 +27,8 @@ import numpy as np
 import torch
 
 from ..data.config import DiffusionConfig
-from ..model.diffusion import NoiseSchedule
 from ..evaluate.metrics import extract_patches, lp_scores
+from ..model.diffusion import NoiseSchedule
 from ..model.triplane import PLANES, Triplane
 from ..model.unet import TriplaneUNet, cross_plane_inputs, layer_walk, layers_receptive_field
 
@@ -120,7 +120,7 @@ def check_ddpm_posterior(fn, seed: int = 0, tol: float = 1e-5) -> None:
         try:
             got_var = torch.broadcast_to(got_var, w.shape)
         except RuntimeError:
-            raise ExerciseError(f"your variance has shape {tuple(got_var.shape)}: give one value per sample, [B, 1, 1, 1]")
+            raise ExerciseError(f"your variance has shape {tuple(got_var.shape)}: give one value per sample, [B, 1, 1, 1]") from None
         for what, got, want in (("mean", got_mean, w.double()), ("variance", got_var, var.double().expand(w.shape))):
             err = (got - want).abs().amax((1, 2, 3))
             if float(err.max()) > tol:
