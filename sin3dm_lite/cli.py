@@ -421,27 +421,25 @@ def check_sample_output(out: Path, a, protected: dict) -> None:
     settings are compared once the model is loaded (:func:`mass.check_folder`).
     """
     from .files import check_not_overlapping, check_output_folder, check_writable
-    from .mass import MAX_RUN_SAMPLES, WRITER, read_settings
+    from .mass import MAX_RUN_SAMPLES, WRITER, read_settings, sample_output_names
 
     if a.start + a.n > MAX_RUN_SAMPLES:
         raise Sin3DMInputError(f"-n {a.n} (from --start {a.start}) is too many samples: indices go up to at most "
                                f"{MAX_RUN_SAMPLES - 1} per output folder; use several --out folders with other --seed")
     check_not_overlapping(out, protected)
     if not (out.is_dir() and read_settings(out) is not None and not a.overwrite):
-        check_output_folder(out, a.overwrite, sample_output_names(out, a), by=WRITER)
+        check_output_folder(out, a.overwrite, sample_output_names(out, sample_request(a)), by=WRITER)
     check_writable(out)
 
 
-def sample_output_names(out: Path, a) -> list[str]:
-    """The files a sample run into ``out`` writes where something may already be (checked for foreign files)."""
-    from .mass import SAMPLE_FILES, SAMPLES, SETTINGS
+def sample_request(a):
+    """The sampling flags of ``sample`` / ``demo`` as a :class:`mass.SampleRequest` (the library takes no argparse)."""
+    from .mass import SampleRequest
 
-    names = ["index.html", SETTINGS, SAMPLES] + ([] if a.no_pictures else ["contact_sheet.png"])
-    for d in (out.iterdir() if out.is_dir() else []):
-        if d.name.isdigit() and a.start <= int(d.name) < a.start + a.n:
-            names += ([f"{d.name}/{f.name}" for f in d.iterdir() if f.name.startswith(SAMPLE_FILES)]
-                      if d.is_dir() else [d.name])
-    return names
+    keys = ("n", "start", "seed", "steps", "ddpm", "diversity", "faces", "mesh_resolution", "texture_size",
+            "no_pictures", "overwrite", "batch", "workers")
+    defaults = SampleRequest()
+    return SampleRequest(**{k: getattr(a, k, getattr(defaults, k)) for k in keys}, control=control_args(a))
 
 
 def control_args(a) -> dict:
@@ -453,84 +451,6 @@ def control_args(a) -> dict:
     if a.duplicate:
         return {"duplicate": ((tuple(a.duplicate[:3]), tuple(a.duplicate[3:6])), tuple(a.duplicate[6:]))}
     return {"resize": tuple(a.resize) if a.resize else (1.0, 1.0, 1.0)}
-
-
-def write_samples(model, out: Path, a, label: str = "sample", ranks=None, run: str = "") -> dict:
-    """Sample ``-n`` shapes from index ``--start`` into ``out``, each written as it finishes (see :mod:`.mass`).
-
-    Rank 0 checks and prepares the folder (continue, or start over with
-    ``--overwrite``) and lists the missing indices; every rank samples its
-    share in batches of ``--batch`` while ``--workers`` processes decode,
-    texture and export; rank 0 then writes ``samples.jsonl``, ``index.html``,
-    ``contact_sheet.png`` and the manifest. Returns ``{"pending", "new", "total", "seconds"}``.
-    """
-    from .files import release_lock
-    from .mass import (
-        DEFAULT_BATCH,
-        Ranks,
-        abandon,
-        check_request,
-        finish_folder,
-        prepare_folder,
-        sample_many,
-        sample_settings,
-    )
-
-    ranks = ranks or Ranks()
-    out = Path(out)
-    plan = model.plan(**control_args(a))  # a bad box fails here, before anything is written
-    limit = model.max_samples(tuple(r / b for r, b in zip(plan.resolution, model.latent.resolution)))
-    if a.batch is not None and a.batch > limit:
-        raise Sin3DMInputError(f"--batch {a.batch} is more samples than fit in memory at once here (at most {limit} "
-                               "with this model and size); ask for a smaller --batch")
-    a.batch = a.batch or min(DEFAULT_BATCH, a.n, limit)
-    check_request(model, a)  # every flag checked before the folder is touched
-    check_sample_sizes(model, plan, a)
-    settings = sample_settings(model, plan, a, control_args(a))
-    why, pending = None, None
-    created = not out.exists()
-    if ranks.rank == 0:
-        try:
-            pending = prepare_folder(out, a, settings, run, lambda o: sample_output_names(o, a))
-        except Sin3DMInputError as e:
-            why = str(e)
-    why, pending = ranks.from_rank0((why, pending))
-    if why is not None:
-        if ranks.rank == 0:
-            raise Sin3DMInputError(why)
-        raise SystemExit(2)  # rank 0 says why
-    try:
-        if ranks.rank == 0 and len(pending) < a.n:
-            print(f"[{label}] {out}: {a.n - len(pending)} of the {a.n} samples are there already; "
-                  f"sampling the other {len(pending)}")
-        stats = sample_many(model, out, a, ranks, plan, pending, label)
-        ranks.barrier()
-        total = len(finish_folder(model, out, a, plan, label)) if ranks.rank == 0 else None
-    except BaseException:
-        if ranks.rank == 0 and ranks.world == 1 and abandon(out):  # nothing finished: leave nothing that blocks a rerun
-            release_lock(out)
-            if created:
-                try:
-                    out.rmdir()
-                except OSError:
-                    pass  # files not ours, or temporaries of a killed worker: keep the folder
-        raise
-    finally:
-        if ranks.rank == 0:
-            release_lock(out)
-    return {"pending": len(pending), "total": total, **stats}
-
-
-def check_sample_sizes(model, plan, a) -> None:
-    """``--faces``, ``--mesh-resolution`` and ``--texture-size`` against their ranges and the memory
-    (``--workers`` exports at once), before any folder is made."""
-    from .data.config import check_setting
-
-    s = model.config.sampling  # --steps: mass.check_request
-    if a.faces is not None:
-        check_setting("sampling.faces", a.faces, option="--faces")
-    model.check_mesh_sizes(a.mesh_resolution or s.mesh_resolution, a.texture_size or s.texture_size, plan.aabb,
-                           parallel=max(1, a.workers), names=("--mesh-resolution", "--texture-size"))
 
 
 def find_run(name: str) -> Path:
@@ -554,7 +474,7 @@ def find_run(name: str) -> Path:
 
 def cmd_sample(a) -> None:
     from .device import get_device
-    from .mass import start_ranks, stop_ranks
+    from .mass import start_ranks, stop_ranks, write_samples
     from .pipeline import Sin3DM
 
     run = find_run(a.run)
@@ -563,7 +483,7 @@ def cmd_sample(a) -> None:
     ranks, device = start_ranks(a.device)
     try:
         model = Sin3DM.load(run, device=device)
-        r = write_samples(model, Path(a.out), a, ranks=ranks, run=str(run))
+        r = write_samples(model, Path(a.out), sample_request(a), ranks=ranks, run=str(run))
     finally:
         stop_ranks(ranks)
     if ranks.rank == 0:
@@ -576,6 +496,7 @@ def cmd_sample(a) -> None:
 def cmd_demo(a) -> None:
     from .data import examples
     from .device import get_device
+    from .mass import write_samples
     from .pipeline import Sin3DM
     from .pretrained import shipped_model
 
@@ -595,7 +516,7 @@ def cmd_demo(a) -> None:
     else:
         model = Sin3DM.load(shipped, device=a.device)
         print(f"[demo] loaded the shipped '{DEMO_PRESET}' model of the '{a.example}' example")
-    write_samples(model, out, a, label="demo", run=str(shipped or "trained by demo"))
+    write_samples(model, out, sample_request(a), label="demo", run=str(shipped or "trained by demo"))
     print(
         f"[demo] done: {a.n} new shapes in {out}/NNN/ (mesh.obj + mesh.mtl + mesh.png, mesh.glb)\n"
         f"[demo] look at them: open {out / 'index.html'} in a browser, or import mesh.obj in Blender"

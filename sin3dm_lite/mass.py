@@ -41,13 +41,14 @@ import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from .data.config import check_setting
 from .errors import Sin3DMInputError
 from .files import (
     MANIFEST,
@@ -73,6 +74,30 @@ DEFAULT_BATCH = 8
 GALLERY_MAX = 16  # samples shown in index.html and contact_sheet.png
 SAMPLE_FILES = ("mesh", "preview.png", "latent.pt")  # names (prefixes) written into NNN/
 WRITER = "sample"  # the command that owns these files in the manifest: --overwrite replaces only them
+
+
+
+@dataclass
+class SampleRequest:
+    """What one sample run asks for: which indices and seeds, and the settings that override the model's (None: its own).
+
+    The CLI builds it from its flags (``cli.sample_request``); :func:`write_samples` resolves ``batch`` once.
+    """
+
+    n: int = 4
+    start: int = 0
+    seed: int = 0
+    steps: int | None = None
+    ddpm: bool = False
+    diversity: float | None = None
+    faces: int | None = None
+    mesh_resolution: int | None = None
+    texture_size: int | None = None
+    no_pictures: bool = False
+    overwrite: bool = False
+    batch: int | None = None
+    workers: int = 1
+    control: dict = field(default_factory=lambda: {"resize": (1.0, 1.0, 1.0)})  # Sin3DM.plan's arguments
 
 
 def folder_name(i: int) -> str:
@@ -146,15 +171,15 @@ def model_checksum(model) -> str:
     return h.hexdigest()[:16]
 
 
-def sample_settings(model, plan, a, control: dict) -> dict:
+def sample_settings(model, plan, req: SampleRequest, control: dict) -> dict:
     """Everything a sample's content depends on besides its index (what a continued run must share)."""
     s = model.config.sampling
-    diversity = a.diversity if a.diversity is not None else (s.diversity if plan.known is None else 1.0)
+    diversity = req.diversity if req.diversity is not None else (s.diversity if plan.known is None else 1.0)
     return json.loads(json.dumps({  # JSON types: tuples become lists, as when read back
-        "model": model_checksum(model), "control": control, "method": "ddpm" if a.ddpm else s.method,
-        "steps": a.steps or s.steps, "diversity": diversity, "seed": a.seed,
-        "mesh_resolution": a.mesh_resolution or s.mesh_resolution, "faces": a.faces or s.faces,
-        "texture_size": a.texture_size or s.texture_size, "pictures": not a.no_pictures,
+        "model": model_checksum(model), "control": control, "method": "ddpm" if req.ddpm else s.method,
+        "steps": req.steps or s.steps, "diversity": diversity, "seed": req.seed,
+        "mesh_resolution": req.mesh_resolution or s.mesh_resolution, "faces": req.faces or s.faces,
+        "texture_size": req.texture_size or s.texture_size, "pictures": not req.no_pictures,
     }))
 
 
@@ -190,7 +215,7 @@ def finished(out: Path) -> dict[int, dict]:
     return done
 
 
-def check_folder(out: Path, a, settings: dict, names_for) -> bool:
+def check_folder(out: Path, req: SampleRequest, settings: dict, names_for) -> bool:
     """Whether ``out`` continues a sample run (True) or starts a new one; refuses what must not be touched.
 
     Same settings in ``sampling.json``: continue. Other settings: refused unless
@@ -202,7 +227,7 @@ def check_folder(out: Path, a, settings: dict, names_for) -> bool:
     if out.exists() and not out.is_dir():
         raise Sin3DMInputError(f"--out '{out}' is a file; give a folder to write into")
     old = read_settings(out) if out.is_dir() else None
-    if old is not None and not a.overwrite:
+    if old is not None and not req.overwrite:
         content = [p.name for p in present(out) if p.name != MANIFEST and p not in manifest_parts(out)]
         if old != settings and not finished(out) and not foreign_files(out, content, WRITER):
             return False  # a run stopped before its first sample (killed): nothing there to keep, start over
@@ -215,7 +240,7 @@ def check_folder(out: Path, a, settings: dict, names_for) -> bool:
         if clash:
             raise clash_error(out, clash[0], WRITER)
         return True
-    check_output_folder(out, a.overwrite, names_for(out), by=WRITER)
+    check_output_folder(out, req.overwrite, names_for(out), by=WRITER)
     return False
 
 
@@ -250,16 +275,16 @@ def remove_ours(out: Path) -> None:
         part.unlink(missing_ok=True)
 
 
-def check_request(model, a) -> None:
+def check_request(model, req: SampleRequest) -> None:
     """Refuse what sampling would refuse about the flags (``--steps`` out of range, ...) before the folder is touched."""
     from .model.diffusion import sampling_timesteps
 
     s = model.config.sampling
-    steps, top = a.steps or s.steps, model.schedule.timesteps
-    if not a.ddpm and s.method == "ddim" and not 1 <= steps <= top:
+    steps, top = req.steps or s.steps, model.schedule.timesteps
+    if not req.ddpm and s.method == "ddim" and not 1 <= steps <= top:
         raise Sin3DMInputError(f"--steps {steps} is more than this model's {top} time steps; ask for 1 to {top} "
                                "DDIM steps")
-    sampling_timesteps(model.schedule, "ddpm" if a.ddpm else s.method, steps)
+    sampling_timesteps(model.schedule, "ddpm" if req.ddpm else s.method, steps)
 
 
 def abandon(out: Path) -> bool:
@@ -273,7 +298,7 @@ def abandon(out: Path) -> bool:
     return True
 
 
-def prepare_folder(out: Path, a, settings: dict, run: str, names_for) -> list[int]:
+def prepare_folder(out: Path, req: SampleRequest, settings: dict, run: str, names_for) -> list[int]:
     """Rank 0: lock, check and set up ``out``; returns the indices still to sample.
 
     The lock comes before the checks: a check made before another writer
@@ -292,7 +317,7 @@ def prepare_folder(out: Path, a, settings: dict, run: str, names_for) -> list[in
         _remove_if_empty(out, created)
         raise
     try:
-        continuing = check_folder(out, a, settings, names_for)
+        continuing = check_folder(out, req, settings, names_for)
         if not continuing:
             remove_ours(out)
             write_recorded(out / SETTINGS, json.dumps({"tool": "sin3dm-lite", "kind": "samples", "run": run,
@@ -302,7 +327,7 @@ def prepare_folder(out: Path, a, settings: dict, run: str, names_for) -> list[in
         release_lock(out)
         _remove_if_empty(out, created)
         raise
-    return [i for i in range(a.start, a.start + a.n) if i not in done]
+    return [i for i in range(req.start, req.start + req.n) if i not in done]
 
 
 def _remove_if_empty(out: Path, created: bool) -> None:
@@ -368,20 +393,20 @@ def install_sample(tmp: Path, dst: Path, out: Path, ours: dict | None) -> None:
 
 
 # --------------------------------------------------------------------------- the whole run
-def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], label: str = "sample") -> dict:
+def sample_many(model, out: Path, req: SampleRequest, ranks: Ranks, plan, pending: list[int], label: str = "sample") -> dict:
     """Sample this rank's share of ``pending`` into ``out``; returns ``{"new", "seconds"}``."""
     from tqdm.auto import tqdm
 
     mine = pending[ranks.rank::ranks.world]
     s = model.config.sampling
     box_n = np.array([np.minimum(model.aabb[:3], plan.aabb[:3]), np.maximum(model.aabb[3:], plan.aabb[3:])])
-    opts = {"mesh_resolution": a.mesh_resolution or s.mesh_resolution, "faces": a.faces or s.faces,
-            "texture_size": a.texture_size or s.texture_size, "pictures": not a.no_pictures,
+    opts = {"mesh_resolution": req.mesh_resolution or s.mesh_resolution, "faces": req.faces or s.faces,
+            "texture_size": req.texture_size or s.texture_size, "pictures": not req.no_pictures,
             "box": model.normalization.to_original(box_n)}  # one scale for every preview
     tag = f"[{label}]" if ranks.world == 1 else f"[{label} rank {ranks.rank}]"
     pool = None
     temps: set[Path] = set()  # this run's temporary folders not moved into place: removed at the end
-    workers = a.workers if len(mine) > 1 else 0
+    workers = req.workers if len(mine) > 1 else 0
     futures: dict = {}
     t0 = time.perf_counter()
     bar = tqdm(total=len(mine), desc=f"{tag} decode, texture, export", unit="mesh", leave=False)
@@ -394,7 +419,7 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
         if ours is not None:  # files of an earlier, killed try stay ours until this one replaces them
             files = replacing(out, ours, files)
         append_manifest_part(out, f"rank{ranks.rank}", {
-            "index": i, "seed": a.seed + i, "folder": name, "files": files, "faces": info["faces"],
+            "index": i, "seed": req.seed + i, "folder": name, "files": files, "faces": info["faces"],
             "seconds": round(time.perf_counter() - started, 3), "time": datetime.now().isoformat(timespec="milliseconds"),
             "rank": ranks.rank})
         install_sample(tmp, out / name, out, ours)
@@ -425,18 +450,18 @@ def sample_many(model, out: Path, a, ranks: Ranks, plan, pending: list[int], lab
             model.save(model_tmp)
             pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                        initializer=_worker_init, initargs=(str(model_tmp / "model.pt"), opts))
-        batch = max(1, a.batch)
+        batch = max(1, req.batch)
         for k in range(0, len(mine), batch):
             chunk = mine[k:k + batch]
             started = time.perf_counter()
-            samples = model.sample(len(chunk), plan=plan, steps=a.steps, method="ddpm" if a.ddpm else None,
-                                   seed=[a.seed + i for i in chunk], diversity=a.diversity, progress=False)
+            samples = model.sample(len(chunk), plan=plan, steps=req.steps, method="ddpm" if req.ddpm else None,
+                                   seed=[req.seed + i for i in chunk], diversity=req.diversity, progress=False)
             for j, i in enumerate(chunk):
                 tmp = make_temp_dir(out)
                 temps.add(tmp)
                 latent = samples.triplane[j].clone().state_dict()  # its own storage, not the whole batch's
                 save_torch({"triplane": latent, "aabb": torch.from_numpy(np.asarray(samples.aabb, np.float64)),
-                            "index": i, "seed": a.seed + i}, tmp / "latent.pt")
+                            "index": i, "seed": req.seed + i}, tmp / "latent.pt")
                 if pool is None:
                     land(i, tmp, started, export_sample(str(tmp), latent, samples.aabb, model, opts))
                     continue
@@ -465,7 +490,7 @@ def worker_died(out: Path, index: int) -> str:
             "to export in the sampling process if memory is short")
 
 
-def finish_folder(model, out: Path, a, plan, label: str = "sample") -> dict[int, dict]:
+def finish_folder(model, out: Path, req: SampleRequest, plan, label: str = "sample") -> dict[int, dict]:
     """Rank 0, after every rank is done: samples.jsonl, index.html, contact_sheet.png and the manifest."""
     from .data.mesh_io import load_any
     from .show.viewer import gallery, save_html
@@ -479,8 +504,8 @@ def finish_folder(model, out: Path, a, plan, label: str = "sample") -> dict[int,
         if meshes:
             save_html(gallery(meshes, labels=[folder_name(i) for i in first]), tmp / "index.html")
         previews = [out / folder_name(i) / "preview.png" for i in first]
-        if not a.no_pictures and previews and all(p.is_file() for p in previews):
-            write_contact_sheet(model, a, plan, previews, [folder_name(i) for i in first], tmp / "contact_sheet.png",
+        if not req.no_pictures and previews and all(p.is_file() for p in previews):
+            write_contact_sheet(model, req, plan, previews, [folder_name(i) for i in first], tmp / "contact_sheet.png",
                                 label)
         names = sorted(p.name for p in tmp.iterdir())
         new = file_record(tmp, names, WRITER)
@@ -497,7 +522,7 @@ def finish_folder(model, out: Path, a, plan, label: str = "sample") -> dict[int,
     return done
 
 
-def write_contact_sheet(model, a, plan, previews: list[Path], labels: list[str], path: Path, label: str) -> None:
+def write_contact_sheet(model, req: SampleRequest, plan, previews: list[Path], labels: list[str], path: Path, label: str) -> None:
     """The input's reconstruction (rendered at the previews' scale) beside the samples' previews."""
     from PIL import Image
 
@@ -506,8 +531,8 @@ def write_contact_sheet(model, a, plan, previews: list[Path], labels: list[str],
 
     box_n = np.array([np.minimum(model.aabb[:3], plan.aabb[:3]), np.maximum(model.aabb[3:], plan.aabb[3:])])
     try:
-        reference = model.to_mesh(model.input_sample(), 0, resolution=a.mesh_resolution, faces=a.faces,
-                                  texture_size=a.texture_size)
+        reference = model.to_mesh(model.input_sample(), 0, resolution=req.mesh_resolution, faces=req.faces,
+                                  texture_size=req.texture_size)
         ref = render_hero(reference, size=384, box=model.normalization.to_original(box_n))
     except Sin3DMInputError as e:
         print(f"[{label}] no contact sheet: {e}")
@@ -518,3 +543,78 @@ def write_contact_sheet(model, a, plan, previews: list[Path], labels: list[str],
 
 __all__ = ["sample_many", "finish_folder", "prepare_folder", "start_ranks", "stop_ranks", "Ranks", "finished",
            "read_settings", "sample_settings", "model_checksum", "launched_by_torchrun"]
+
+
+def check_sample_sizes(model, plan, req: SampleRequest) -> None:
+    """``--faces``, ``--mesh-resolution`` and ``--texture-size`` against their ranges and the memory
+    (``--workers`` exports at once), before any folder is made."""
+    s = model.config.sampling  # --steps: mass.check_request
+    if req.faces is not None:
+        check_setting("sampling.faces", req.faces, option="--faces")
+    model.check_mesh_sizes(req.mesh_resolution or s.mesh_resolution, req.texture_size or s.texture_size, plan.aabb,
+                           parallel=max(1, req.workers), names=("--mesh-resolution", "--texture-size"))
+
+
+def sample_output_names(out: Path, req: SampleRequest) -> list[str]:
+    """The files a sample run into ``out`` writes where something may already be (checked for foreign files)."""
+    names = ["index.html", SETTINGS, SAMPLES] + ([] if req.no_pictures else ["contact_sheet.png"])
+    for d in (out.iterdir() if out.is_dir() else []):
+        if d.name.isdigit() and req.start <= int(d.name) < req.start + req.n:
+            names += ([f"{d.name}/{f.name}" for f in d.iterdir() if f.name.startswith(SAMPLE_FILES)]
+                      if d.is_dir() else [d.name])
+    return names
+
+
+def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", ranks=None, run: str = "") -> dict:
+    """Sample ``req.n`` shapes from index ``req.start`` into ``out``, each written as it finishes.
+
+    Rank 0 checks and prepares the folder (continue, or start over with
+    ``--overwrite``) and lists the missing indices; every rank samples its
+    share in batches of ``--batch`` while ``--workers`` processes decode,
+    texture and export; rank 0 then writes ``samples.jsonl``, ``index.html``,
+    ``contact_sheet.png`` and the manifest. Returns ``{"pending", "new", "total", "seconds"}``.
+    """
+
+    ranks = ranks or Ranks()
+    out = Path(out)
+    plan = model.plan(**req.control)  # a bad box fails here, before anything is written
+    limit = model.max_samples(tuple(r / b for r, b in zip(plan.resolution, model.latent.resolution)))
+    if req.batch is not None and req.batch > limit:
+        raise Sin3DMInputError(f"--batch {req.batch} is more samples than fit in memory at once here (at most {limit} "
+                               "with this model and size); ask for a smaller --batch")
+    req.batch = req.batch or min(DEFAULT_BATCH, req.n, limit)
+    check_request(model, req)  # every flag checked before the folder is touched
+    check_sample_sizes(model, plan, req)
+    settings = sample_settings(model, plan, req, req.control)
+    why, pending = None, None
+    created = not out.exists()
+    if ranks.rank == 0:
+        try:
+            pending = prepare_folder(out, req, settings, run, lambda o: sample_output_names(o, req))
+        except Sin3DMInputError as e:
+            why = str(e)
+    why, pending = ranks.from_rank0((why, pending))
+    if why is not None:
+        if ranks.rank == 0:
+            raise Sin3DMInputError(why)
+        raise SystemExit(2)  # rank 0 says why
+    try:
+        if ranks.rank == 0 and len(pending) < req.n:
+            print(f"[{label}] {out}: {req.n - len(pending)} of the {req.n} samples are there already; "
+                  f"sampling the other {len(pending)}")
+        stats = sample_many(model, out, req, ranks, plan, pending, label)
+        ranks.barrier()
+        total = len(finish_folder(model, out, req, plan, label)) if ranks.rank == 0 else None
+    except BaseException:
+        if ranks.rank == 0 and ranks.world == 1 and abandon(out):  # nothing finished: leave nothing that blocks a rerun
+            release_lock(out)
+            if created:
+                try:
+                    out.rmdir()
+                except OSError:
+                    pass  # files not ours, or temporaries of a killed worker: keep the folder
+        raise
+    finally:
+        if ranks.rank == 0:
+            release_lock(out)
+    return {"pending": len(pending), "total": total, **stats}
