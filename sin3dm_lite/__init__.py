@@ -46,7 +46,7 @@ _API = {
     "pretrained_path": "pretrained",
     "shipped_names": "pretrained",
     "shipped_examples": "pretrained",
-    "open_run": "runs",
+    "open_run": "pipeline",
     "Sin3DMInputError": "errors",
     "get_device": "device",
     "count_parameters": "device",

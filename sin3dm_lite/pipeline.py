@@ -907,10 +907,25 @@ class Sin3DM:
     @classmethod
     def open(cls, run, preset=None, cache="runs/cache", device=None, progress: bool = True) -> Sin3DM:
         """The model ``run`` names: a shipped model, a run folder, or a mesh / example fitted once into ``cache``
-        and reused after (:func:`sin3dm_lite.runs.open_run` has the rules)."""
-        from .runs import open_run
+        and reused after (the rules: :mod:`sin3dm_lite.runs`).
 
-        return open_run(run, preset, cache, device, progress)
+        ``preset`` (default: :func:`config.notebook_preset`, ``tiny`` under ``SIN3DM_FAST=1``, else ``small``) is
+        used only when ``run`` has to be fitted. The model's ``run_dir`` attribute is the folder it was loaded from.
+        """
+        from .runs import fit_preset, resolve_run
+
+        kind, folder = resolve_run(run, preset, cache)
+        say = print if progress else (lambda *a, **k: None)
+        if kind == "fit" and not (folder / MODEL_FILE).is_file():
+            resume = (folder / "config.json").is_file()
+            say(f"[run] '{run}': {'resuming the interrupted' if resume else 'fitting once (cached)'} fit in {folder}")
+            model = cls.fit(run, preset=fit_preset(preset), out=folder, resume=resume, device=device, progress=progress)
+        else:
+            if kind == "fit":
+                say(f"[run] '{run}': the cached fit {folder} (delete it to fit again)")
+            model = cls.load(folder, device=device)
+        model.run_dir = folder
+        return model
 
     @classmethod
     def load(cls, run_dir: str | Path, device=None) -> Sin3DM:
@@ -1238,3 +1253,8 @@ def _train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:
         if main:
             signal.signal(signal.SIGINT, old)
     save(trainer)  # the last step, unless the callback just wrote it
+
+
+def open_run(run, preset=None, cache="runs/cache", device=None, progress: bool = True) -> Sin3DM:
+    """:meth:`Sin3DM.open` as a function: the model a shipped name, a run folder, a mesh or an example names."""
+    return Sin3DM.open(run, preset, cache, device, progress)

@@ -1,9 +1,9 @@
 """One setting, ``RUN``, names the model a notebook works on; fitted runs are cached.
 
-    model = open_run("canyon")              # a shipped model: loaded
-    model = open_run("runs/my_vase")        # a run folder (holding model.pt): loaded
-    model = open_run("my_vase.glb")         # a mesh file: fitted once into the cache, then loaded
-    model = open_run("colonnade")           # an example without a shipped model: the same
+    model = Sin3DM.open("canyon")              # a shipped model: loaded
+    model = Sin3DM.open("runs/my_vase")        # a run folder (holding model.pt): loaded
+    model = Sin3DM.open("my_vase.glb")         # a mesh file: fitted once into the cache, then loaded
+    model = Sin3DM.open("colonnade")           # an example without a shipped model: the same
 
 What ``RUN`` may be, checked in this order:
 
@@ -35,7 +35,7 @@ EXAMPLE_SEED = 0  # the generator seed ``Sin3DM.fit`` builds an example with
 MODEL_FILE = "model.pt"
 
 
-def _preset(preset) -> Config:
+def fit_preset(preset) -> Config:
     if preset is None:
         return notebook_preset()
     return preset if isinstance(preset, Config) else get_preset(preset)
@@ -44,7 +44,7 @@ def _preset(preset) -> Config:
 def run_key(source, preset=None) -> str:
     """``<stem>-<hash12>``: the cache folder's name for fitting ``source`` (mesh path or example name) with ``preset``."""
 
-    cfg = _preset(preset)
+    cfg = fit_preset(preset)
     h = hashlib.sha256()
     stem = _feed_input(h, source)
     h.update(b"\0config:" + cfg.to_json().encode())
@@ -93,7 +93,8 @@ def cached_run(source, preset=None, cache: str | Path = CACHE) -> Path:
     return Path(cache) / run_key(source, preset)
 
 
-def _resolve(run, preset, cache) -> tuple[str, Path]:
+def resolve_run(run, preset, cache) -> tuple[str, Path]:
+    """What ``run`` names: ``("shipped" | "folder", the folder to load)`` or ``("fit", the cache folder to fit into)``."""
     from .data import examples
     from .pretrained import shipped_examples, shipped_model
 
@@ -119,29 +120,4 @@ def _resolve(run, preset, cache) -> tuple[str, Path]:
         f"a run folder, a mesh file or a built-in example ({', '.join(examples.list_examples())})")
 
 
-def open_run(run, preset=None, cache: str | Path = CACHE, device=None, progress: bool = True):
-    """The :class:`~sin3dm_lite.pipeline.Sin3DM` model ``run`` names (see the module docstring for the rules).
-
-    ``preset`` (default: :func:`config.notebook_preset`, ``tiny`` under
-    ``SIN3DM_FAST=1``, else ``small``) is used only when ``run`` has to be fitted.
-    The model's ``run_dir`` attribute is the folder it was loaded from.
-    """
-    from .pipeline import Sin3DM
-
-    kind, folder = _resolve(run, preset, cache)
-    say = print if progress else (lambda *a, **k: None)
-    if kind == "fit":
-        if (folder / MODEL_FILE).is_file():
-            say(f"[run] '{run}': the cached fit {folder} (delete it to fit again)")
-        else:
-            resume = (folder / "config.json").is_file()
-            say(f"[run] '{run}': {'resuming the interrupted' if resume else 'fitting once (cached)'} fit in {folder}")
-            model = Sin3DM.fit(run, preset=_preset(preset), out=folder, resume=resume, device=device, progress=progress)
-            model.run_dir = folder
-            return model
-    model = Sin3DM.load(folder, device=device)
-    model.run_dir = folder
-    return model
-
-
-__all__ = ["CACHE", "cached_run", "input_digest", "open_run", "run_key"]
+__all__ = ["CACHE", "cached_run", "fit_preset", "input_digest", "resolve_run", "run_key"]

@@ -7,7 +7,7 @@ from PIL import Image
 from sin3dm_lite import runs
 from sin3dm_lite.data.examples import write_example
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.pipeline import Sin3DM
+from sin3dm_lite.pipeline import Sin3DM, open_run
 from sin3dm_lite.pretrained import pretrained_path
 
 from .test_pipeline import micro_config
@@ -35,23 +35,23 @@ def fit_calls(monkeypatch):
 
 def test_same_input_and_config_is_fitted_once_then_loaded(tmp_path, fit_calls):
     cfg = micro_config()
-    first = runs.open_run("wall", preset=cfg, cache=tmp_path, progress=False)
+    first = open_run("wall", preset=cfg, cache=tmp_path, progress=False)
     assert fit_calls == [("wall", False)] and (first.run_dir / "model.pt").is_file()
     assert first.run_dir.parent == tmp_path and first.run_dir.name.startswith("wall-")
     again = Sin3DM.open("wall", preset=cfg, cache=tmp_path, progress=False)  # e.g. after a kernel restart
     assert fit_calls == [("wall", False)] and again.run_dir == first.run_dir
     assert again.report == first.report
     # a run folder is loaded as it is
-    assert runs.open_run(str(first.run_dir), progress=False).run_dir == first.run_dir
-    assert runs.open_run(first.run_dir / "model.pt", progress=False).run_dir == first.run_dir
+    assert open_run(str(first.run_dir), progress=False).run_dir == first.run_dir
+    assert open_run(first.run_dir / "model.pt", progress=False).run_dir == first.run_dir
 
 
 def test_interrupted_fit_is_resumed(tmp_path, fit_calls):
     cfg = micro_config()
     folder = runs.cached_run("wall", cfg, tmp_path)
-    runs.open_run("wall", preset=cfg, cache=tmp_path, progress=False)
+    open_run("wall", preset=cfg, cache=tmp_path, progress=False)
     (folder / "model.pt").unlink()  # as if killed before the end: config and checkpoints are there
-    model = runs.open_run("wall", preset=cfg, cache=tmp_path, progress=False)
+    model = open_run("wall", preset=cfg, cache=tmp_path, progress=False)
     assert fit_calls[-1] == ("wall", True) and (folder / "model.pt").is_file() and model.run_dir == folder
 
 
@@ -76,9 +76,9 @@ def test_the_key_covers_input_and_config(tmp_path):
 
 
 def test_shipped_names_load_the_shipped_folder(tmp_path, fit_calls):
-    model = runs.open_run("canyon", cache=tmp_path, progress=False)
+    model = open_run("canyon", cache=tmp_path, progress=False)
     assert model.run_dir == pretrained_path() and fit_calls == [] and not list(tmp_path.iterdir())
-    assert runs.open_run("canyon_small", cache=tmp_path, progress=False).run_dir == pretrained_path()
+    assert open_run("canyon_small", cache=tmp_path, progress=False).run_dir == pretrained_path()
 
 
 def test_shipped_examples_default_first():
@@ -90,7 +90,7 @@ def test_shipped_examples_default_first():
 @pytest.mark.parametrize("bad", ["no_such_thing", "missing/model.pt", "", 3])
 def test_bad_run_is_one_clear_error(bad, tmp_path):
     with pytest.raises(Sin3DMInputError) as e:
-        runs.open_run(bad, cache=tmp_path, progress=False)
+        open_run(bad, cache=tmp_path, progress=False)
     assert "\n" not in str(e.value)
     if bad == "no_such_thing":
         assert "shipped model (canyon" in str(e.value) and "built-in example" in str(e.value)
@@ -100,4 +100,4 @@ def test_an_unfinished_run_folder_says_how_to_continue(tmp_path):
     (tmp_path / "run").mkdir()
     (tmp_path / "run" / "config.json").write_text("{}")
     with pytest.raises(Sin3DMInputError, match="--resume"):
-        runs.open_run(tmp_path / "run", progress=False)
+        open_run(tmp_path / "run", progress=False)
