@@ -156,10 +156,28 @@ def picture_pbr(out: Path, name: str = "tiles", n: int = 2) -> list[Path]:
     return [_png(_stack([rendered, maps_row]), out / "pbr.png")]
 
 
+def picture_2d(out: Path, size: int = 24) -> list[Path]:
+    """The 2D lesson (notebook 00b): one image, and samples of a denoiser with a small and with a large field.
+
+    The large field sees the whole image and copies it; the small one recombines its pebbles.
+    """
+    from sin3dm_lite import lesson2d
+
+    image = lesson2d.pebbles(size, seed=0)
+    rows, samples = ["input"], [image[None]]
+    for field, steps in (("small", 600), ("large", 200)):
+        cfg = lesson2d.lesson_config(field, steps, 32)
+        model, _ = lesson2d.fit_image(image, cfg)
+        samples.append(lesson2d.sample_images(model, (size, size), n=4, steps=25, seed=0))
+        rows.append(f"{field} field ({lesson2d.receptive_field_width(cfg)} px)")
+    return [_png(lesson2d.plot_images(samples, rows=rows), out / "lesson2d.png")]
+
+
 PICTURES = {
     "samples": picture_samples,
     "control": picture_control,
     "pbr": picture_pbr,
+    "2d": picture_2d,
 }
 
 
