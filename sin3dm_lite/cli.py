@@ -140,6 +140,7 @@ COMMANDS = {
     "render": "PNG pictures of a mesh: the paper's views around it, a hero view, a contact sheet",
     "evaluate": "the paper's geometry and texture metrics of sample meshes against the input",
     "calibrate": "choose a run's diversity: the most varied setting whose samples keep the input's patches",
+    "notebooks": "run the notebooks top to bottom at reading settings and keep their outputs (for the course's authors)",
 }
 
 
@@ -247,6 +248,13 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--lp-iou", type=_unit_score, default=None, help="LP-IoU the samples must keep (default: 0.55)")
     c.add_argument("--lp-f", type=_unit_score, default=None, help="LP-F the samples must keep (default: 0.70)")
     _outside_paths_arg(c)
+
+    n = command("notebooks")
+    n.add_argument("notebooks", nargs="*", type=Path, help="notebooks to run (default: every notebooks/*.ipynb)")
+    n.add_argument("--fast", action="store_true", help="run with SIN3DM_FAST=1 (to try it; the tests refuse such outputs)")
+    n.add_argument("--check", action="store_true", help="run nothing: list notebooks whose outputs are stale or missing")
+    n.add_argument("--clear", action="store_true", help="run nothing: remove every output and the recorded digest")
+    n.add_argument("--timeout", type=int, default=1800, help="seconds one cell may take (default 1800)")
     return p
 
 
@@ -711,6 +719,14 @@ def disk_error(e: OSError, out: str | None = None) -> str:
     return f"{e.strerror or e}{where}; check that path (permissions, free space) or choose another --out"
 
 
+def cmd_notebooks(a) -> None:
+    from .notebook_run import run_all
+
+    code = run_all(a.notebooks, fast=a.fast, check=a.check, clear=a.clear, timeout=a.timeout)
+    if code:
+        raise SystemExit(code)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -727,7 +743,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         {"examples": cmd_examples, "grid": cmd_grid, "fit": cmd_fit, "sample": cmd_sample, "demo": cmd_demo,
          "render": cmd_render, "evaluate": cmd_evaluate,
-         "calibrate": cmd_calibrate}[a.command](a)
+         "calibrate": cmd_calibrate, "notebooks": cmd_notebooks}[a.command](a)
     except Sin3DMInputError as e:
         print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
         return 2

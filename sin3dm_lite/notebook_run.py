@@ -1,8 +1,8 @@
 """Run the notebooks top to bottom and keep their outputs, so a reader sees the pictures on GitHub.
 
-    python -m sin3dm_lite.notebook_run                      # every notebooks/*.ipynb at reading settings
-    python -m sin3dm_lite.notebook_run notebooks/01_mesh_to_grid.ipynb
-    python -m sin3dm_lite.notebook_run --check              # only say which notebooks' outputs are stale
+    sin3dm-lite notebooks                      # every notebooks/*.ipynb at reading settings
+    sin3dm-lite notebooks notebooks/01_mesh_to_grid.ipynb
+    sin3dm-lite notebooks --check              # only say which notebooks' outputs are stale
 
 Each notebook runs in its own kernel from the ``notebooks/`` folder with
 ``SIN3DM_FAST`` unset (the `small` preset a reader gets; ``--fast`` sets it, for
@@ -20,18 +20,16 @@ cell changed after the outputs were made, naming this command.
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import importlib.util
 import os
-import sys
 import time
 from pathlib import Path
 
 NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
 WIDGET_MIME = "application/vnd.jupyter.widget-view+json"
 META_KEY = "sin3dm"
-COMMAND = "python -m sin3dm_lite.notebook_run"
+COMMAND = "sin3dm-lite notebooks"
 MAX_TOTAL_BYTES = 20 * 1024 * 1024  # all notebooks together, outputs included
 
 
@@ -143,22 +141,18 @@ def run_notebook(path: str | Path, fast: bool = False, timeout: int = 1800, kern
     return meta
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog=COMMAND, description=__doc__.split("\n\n")[0])
-    p.add_argument("notebooks", nargs="*", type=Path, help="notebooks to run (default: every notebooks/*.ipynb)")
-    p.add_argument("--fast", action="store_true", help="run with SIN3DM_FAST=1 (to try the tool; the test refuses such outputs)")
-    p.add_argument("--check", action="store_true", help="run nothing: list notebooks whose outputs are stale or missing")
-    p.add_argument("--clear", action="store_true", help="run nothing: remove every output and the recorded digest")
-    p.add_argument("--timeout", type=int, default=1800, help="seconds one cell may take (default 1800)")
-    a = p.parse_args(argv)
+def run_all(paths=(), fast: bool = False, check: bool = False, clear: bool = False, timeout: int = 1800) -> int:
+    """Run ``paths`` (default: every notebook) and keep their outputs; ``check`` lists stale ones, ``clear`` removes
+    outputs. Returns 1 if one failed, is stale or the notebooks are too large, else 0 (``sin3dm-lite``'s parser:
+    ``sin3dm-lite notebooks``)."""
     import nbformat
 
-    paths = a.notebooks or sorted(NOTEBOOKS.glob("*.ipynb"))
+    paths = list(paths) or sorted(NOTEBOOKS.glob("*.ipynb"))
     bad = 0
     for path in paths:
-        if a.check or a.clear:
+        if check or clear:
             nb = nbformat.read(path, as_version=4)
-            if a.clear:
+            if clear:
                 clear_outputs(nb)
                 nbformat.write(nb, path)
                 print(f"{path}: outputs cleared")
@@ -167,9 +161,9 @@ def main(argv: list[str] | None = None) -> int:
             bad += why is not None
             print(why or f"{path}: up to date")
             continue
-        print(f"running {path} ({'SIN3DM_FAST=1' if a.fast else 'reading settings'}) ...", flush=True)
+        print(f"running {path} ({'SIN3DM_FAST=1' if fast else 'reading settings'}) ...", flush=True)
         try:
-            meta = run_notebook(path, fast=a.fast, timeout=a.timeout)
+            meta = run_notebook(path, fast=fast, timeout=timeout)
         except Exception as e:  # a failing cell (an assert on a figure the text states): report, keep the file, go on
             bad += 1
             print(f"  FAILED, {path} left as it was: {type(e).__name__}: {str(e)[-2000:]}", flush=True)
@@ -180,5 +174,3 @@ def main(argv: list[str] | None = None) -> int:
     return 1 if bad or total > MAX_TOTAL_BYTES else 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())

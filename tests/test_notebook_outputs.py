@@ -1,4 +1,4 @@
-"""The notebooks' committed outputs: made at reading settings by `python -m sin3dm_lite.notebook_run`, never stale.
+"""The notebooks' committed outputs: made at reading settings by `sin3dm-lite notebooks`, never stale.
 
 A notebook whose metadata records no digest yet is skipped (its outputs have
 not been made); one whose recorded digest no longer matches its code cells
