@@ -25,6 +25,7 @@ import point_cloud_utils as pcu
 from ..errors import Sin3DMInputError
 from ..files import atomic_path
 from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
+from .config import LIMITS
 from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, component_labels, unique_rows
 
 #: :meth:`Sin3DM.fit` with the ``small`` preset switches to ``detail``'s settings when more of the solid than this is thin
@@ -131,9 +132,11 @@ class ShapeGrid:
 
 # --------------------------------------------------------------------------- building
 def check_resolution(resolution: int) -> None:
-    if not isinstance(resolution, (int, np.integer)) or resolution < 16 or resolution > 512:
+    """The grid resolution against its range, which :data:`config.LIMITS` owns."""
+    low, high = LIMITS["grid.resolution"]
+    if not isinstance(resolution, (int, np.integer)) or not low <= resolution <= high:
         raise Sin3DMInputError(
-            f"grid resolution {resolution!r} is out of range; use a whole number from 16 to 512 "
+            f"grid resolution {resolution!r} is out of range; use a whole number from {low} to {high} "
             "(32-64 for a CPU, 256 as in the paper)"
         )
 
