@@ -19,7 +19,7 @@ from PIL import Image
 from trimesh.visual.material import PBRMaterial
 
 from sin3dm_lite import export, mesh_io
-from sin3dm_lite.data.export import save_glb, save_obj
+from sin3dm_lite.data.export import save_glb, save_obj, to_trimesh_scene
 from sin3dm_lite.data.mesh_io import (
     DEFAULT_COLOR,
     Material,
@@ -29,7 +29,6 @@ from sin3dm_lite.data.mesh_io import (
     sample_texture,
 )
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.show.viewer import to_trimesh
 
 RED, GREEN, BLUE, YELLOW = (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)
 CYAN, MAGENTA = (0, 1, 1), (1, 0, 1)
@@ -807,16 +806,19 @@ def test_save_obj_pbr_maps_round_trip(tmp_path):
     assert m.metallic == 1.0 and m.roughness == 1.0
 
 
-def test_to_trimesh_texture_and_colors(tmp_path):
+def test_to_trimesh_scene_texture_and_materials(tmp_path):
     save_png(tmp_path / "t.png", quadrant_image())
     (tmp_path / "t.mtl").write_text("newmtl m\nmap_Kd t.png\n")
     (tmp_path / "t.obj").write_text("mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
                                     "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
-    tm = to_trimesh(load_mesh(tmp_path / "t.obj"))
+    (tm,) = to_trimesh_scene(load_mesh(tmp_path / "t.obj")).geometry.values()
     assert isinstance(tm.visual, trimesh.visual.TextureVisuals)
-    assert tm.visual.uv.shape == (4, 2) and tm.visual.material.image.size == (16, 16)
-    sq = to_trimesh(load_mesh(write_square(tmp_path)))  # two materials: vertex colours
-    assert sq.visual.kind == "vertex" and len(sq.vertices) == 18
+    assert tm.visual.uv.shape == (4, 2) and tm.visual.material.baseColorTexture.size == (16, 16)
+    square = load_mesh(write_square(tmp_path))  # two materials: one geometry each, the plain one without UVs
+    textured, plain = to_trimesh_scene(square).geometry.values()
+    assert textured.visual.uv is not None and plain.visual.uv is None
+    assert len(textured.faces) + len(plain.faces) == len(square.faces)
+    np.testing.assert_allclose(plain.visual.material.baseColorFactor[:3], uint8(0.2, 0.4, 0.6), atol=1)
 
 
 # ========================================================= misc & transforms

@@ -8,6 +8,7 @@ Public API::
 
     save_obj(mesh, path) -> Path              # .obj + .mtl + PNG textures
     save_glb(mesh, path) -> Path              # binary glTF with PBR materials
+    to_trimesh_scene(mesh) -> trimesh.Scene   # what save_glb writes (trimesh's viewers and exporters take it)
     export_mesh(mesh, out_dir, name, formats) -> {format: path}   # both, into one folder
     split_corners(faces, face_uvs)            # one vertex per distinct (vertex, uv) pair
     baked_image(material)                     # texture times the material's colour factor
@@ -220,20 +221,30 @@ def _baked_vertex_colors(mesh: TexturedMesh) -> np.ndarray | None:
 
 
 def save_glb(mesh: TexturedMesh, path) -> Path:
-    """Write a binary glTF: one primitive per material, PBR metallic-roughness.
+    """Write a binary glTF: the scene of :func:`to_trimesh_scene`, one primitive per material.
 
-    A textured material becomes ``baseColorTexture`` (+ ``baseColorFactor``,
-    ``metallicRoughnessTexture``, ``normalTexture``, metallic and roughness
-    factors) with vertices split where a vertex has several UVs; an untextured
-    material with vertex colours becomes ``COLOR_0`` (factor multiplied in);
-    otherwise a plain ``baseColorFactor``. Readable by :func:`load_mesh`,
-    trimesh, Blender and web viewers.
+    Readable by :func:`load_mesh`, trimesh, Blender and web viewers.
+    """
+    path = _prepare_output(path, ".glb")
+    atomic_write(path, to_trimesh_scene(mesh).export(file_type="glb"))
+    return path
+
+
+def to_trimesh_scene(mesh: TexturedMesh):
+    """A ``trimesh.Scene`` of the mesh, one geometry per material with a PBR metallic-roughness material.
+
+    What :func:`save_glb` writes, and what trimesh's own viewers (``scene.show()``)
+    and exporters take. A textured material becomes ``baseColorTexture``
+    (+ ``baseColorFactor``, ``metallicRoughnessTexture``, ``normalTexture``,
+    metallic and roughness factors) with vertices split where a vertex has
+    several UVs; an untextured material with vertex colours becomes vertex
+    colours (``COLOR_0`` in a GLB, factor multiplied in); otherwise a plain
+    ``baseColorFactor``.
     """
     import trimesh
     from trimesh.visual import ColorVisuals, TextureVisuals
     from trimesh.visual.material import PBRMaterial
 
-    path = _prepare_output(path, ".glb")
     scene, used_names = trimesh.Scene(), set()
     for k, mat in enumerate(mesh.materials):
         sel = np.flatnonzero(mesh.face_material == k)
@@ -261,9 +272,8 @@ def save_glb(mesh: TexturedMesh, path) -> Path:
         scene.add_geometry(geom, geom_name=gname, node_name=gname)
     if not scene.geometry:
         raise Sin3DMInputError(f"mesh '{mesh.name}' has no faces to write")
-    atomic_write(path, scene.export(file_type="glb"))
-    return path
+    return scene
 
 
 __all__ = [
-    "FORMATS", "baked_image", "export_mesh", "save_glb", "save_obj", "split_corners"]
+    "FORMATS", "baked_image", "export_mesh", "save_glb", "save_obj", "split_corners", "to_trimesh_scene"]
