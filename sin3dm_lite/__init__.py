@@ -11,7 +11,7 @@ table of levels and checks it, imports inside functions included)::
     2 model     model: triplane · training · autoencoder · decode · unet · diffusion (schedule, training, sampling)
     3 generate  generate: control (what to sample: outpaint, ...) · extract (SDF → textured mesh)
     4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render · calibrate
-    5 show      show: figures · data/model/diffusion/sample/eval_figures · viz (all figures) · viewer · widgets
+    5 show      show: figures · data/model/diffusion/sample/eval_figures · viz · camera · viewer · pages · widgets
     5 teach     teach: lesson2d (the method on one 2D image) · exercises (``check_…`` a piece you wrote)
     6 app       pipeline (Sin3DM: fit, sample, save, load) · runs · mass · cli · pretrained (models in shipped/)
 

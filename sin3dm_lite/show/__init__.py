@@ -1,1 +1,2 @@
-"""Show: matplotlib figures (``viz``), k3d viewers and HTML pages (``viewer``), ipywidgets panels (``widgets``)."""
+"""Show: matplotlib figures (``viz``), k3d viewers (``viewer``, with ``camera``), standalone HTML pages (``pages``),
+ipywidgets panels (``widgets``)."""

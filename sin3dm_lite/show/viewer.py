@@ -1,17 +1,15 @@
-"""Interactive 3D viewers with k3d: textured meshes, galleries, SDF volumes, points, standalone HTML.
+"""Interactive 3D viewers with k3d: textured meshes, galleries, SDF volumes, point clouds.
 
-Every function returns a ``k3d.Plot`` (show it by making it a cell's value, or
-``plot.display()``) and can add to an existing plot instead (``plot=``).
-:func:`save_html` writes a plot as a single self-contained page that opens in
-any browser without a server or a network connection.
+Every plot function returns a ``k3d.Plot`` (show it by making it a cell's value,
+or ``plot.display()``) and can add to an existing plot instead (``plot=``).
+Every function here takes ``up="y"`` (default) or ``up="z"`` describing *the
+data*; y-up data is turned into k3d's z-up frame by
+:func:`~sin3dm_lite.show.camera.to_view`, and ``offset`` arguments are in
+k3d's frame (after that rotation).
 
-Frames. k3d's up axis is z; OBJ files (and our normalised meshes) are usually
-y-up. Every function here takes ``up="y"`` (default) or ``up="z"`` describing
-*the data*, and turns y-up data so that its y becomes k3d's z:
-``(x, y, z) → (x, -z, y)``, a rotation (no mirror), so a shape's front (+z)
-faces k3d's -y, where :func:`fit_camera` puts the camera: in front, to the
-right and well above (:data:`VIEW`), so that a canyon's river shows. ``offset``
-arguments are in k3d's frame (after that rotation).
+This module is also the ``viewer`` namespace of the notebooks: it re-exports the
+frame and camera of :mod:`sin3dm_lite.show.camera` and the standalone HTML
+pages of :mod:`sin3dm_lite.show.pages` (``viewer.save_html``, ``viewer.index_page``).
 
 k3d in practice: float32 vertices, uint32 indices, packed ``0xRRGGBB`` uint32
 colours; a textured mesh gets ``color=0xffffff`` (the texture is multiplied by
@@ -20,74 +18,27 @@ vertex.
 """
 from __future__ import annotations
 
-import base64
 import html
-import os
-import re
-import zlib
 from collections.abc import Sequence
-from pathlib import Path
 
 import k3d
 import numpy as np
 
 from ..data.export import baked_image, split_corners
-from ..data.mesh_io import TexturedMesh, array_to_pil, unique_rows
+from ..data.mesh_io import TexturedMesh, unique_rows
 from ..evaluate.render import png_bytes
-from ..files import atomic_write
-
-UP_AXES = ("y", "z")
-
-#: the default camera of a saved page: (azimuth, elevation) in degrees, in the data's y-up frame with the
-#: renderer's convention (azimuth 0 = from the front, +z; 90 = from +x). From above at an angle: at 25° the
-#: canyon's near bank hides its river, at 60° the river runs through the picture.
-VIEW = (30.0, 60.0)
+from .camera import UP_AXES, VIEW, fit_camera, screen_up_vector, to_view, view_camera  # noqa: F401 (namespace)
+from .pages import (  # noqa: F401 (the viewer namespace: viewer.save_html in the notebooks)
+    NO_WEBGL,
+    index_page,
+    read_snapshot,
+    save_html,
+    snapshot_array,
+    with_webgl_message,
+)
 
 
 # --------------------------------------------------------------------------- small helpers
-
-def to_trimesh(mesh: TexturedMesh, max_texture: int = 1024):
-    """A ``trimesh.Trimesh`` for viewing (``trimesh``'s own viewers, scenes and exporters).
-
-    A mesh with exactly one material that has a texture (and per-corner
-    UVs) keeps it: the result has ``TextureVisuals`` with the texture (times
-    the material factor, longest side at most ``max_texture``) and vertices
-    split wherever a vertex has several UVs. Anything else gets vertex
-    colours evaluated at every face corner (every face has its own three
-    vertices, so colour edges stay sharp).
-    """
-    import trimesh
-
-    if len(mesh.materials) == 1 and mesh.materials[0].image is not None and mesh.face_uvs is not None:
-        mat = mesh.materials[0]
-        vert_of, uv, faces = split_corners(mesh.faces, mesh.face_uvs)
-        image = array_to_pil(baked_image(mat), max_size=max_texture)
-        visual = trimesh.visual.TextureVisuals(
-            uv=uv, material=trimesh.visual.material.SimpleMaterial(image=image, name=mat.name)
-        )
-        return trimesh.Trimesh(mesh.vertices[vert_of], faces, visual=visual, process=False)
-
-    tri = mesh.vertices[mesh.faces]
-    # colour each vertex by the colour at its corner in one face that uses it
-    fi = np.repeat(np.arange(len(mesh.faces)), 3)
-    bc = np.tile(np.eye(3), (len(mesh.faces), 1))
-    col = mesh.colors_at(fi, bc)
-    v = tri.reshape(-1, 3)
-    f = np.arange(len(v)).reshape(-1, 3)
-    m = trimesh.Trimesh(v, f, vertex_colors=np.round(col * 255).astype(np.uint8), process=False)
-    return m
-
-
-def to_view(points: np.ndarray, up: str = "y") -> np.ndarray:
-    """Data coordinates → k3d's z-up frame (``up="y"``: ``(x, y, z) → (x, -z, y)``), as float32."""
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if up == "y":
-        p = np.stack([p[:, 0], -p[:, 2], p[:, 1]], axis=1)
-    elif up != "z":
-        raise ValueError(f"up must be one of {UP_AXES}, got {up!r}")
-    return p.astype(np.float32)
-
-
 def pack_colors(rgb: np.ndarray) -> np.ndarray:
     """``(N, 3)`` colours (float in [0, 1] or uint8) → ``(N,)`` uint32 ``0xRRGGBB``."""
     c = np.asarray(rgb)
@@ -256,7 +207,7 @@ def gallery(
         raise ValueError(f"got {len(labels)} labels for {n} meshes")
     columns = columns or n
     bounds = [_view_bounds(m, up) for m in meshes]
-    screen_up = _screen_up(*VIEW)  # a point's height in the default view is roughly screen_up @ point
+    screen_up = screen_up_vector(*VIEW)  # a point's height in the default view is roughly screen_up @ point
     low = None  # the lowest screen height of the rows so far, labels included
     for row_start in range(0, n, columns):
         row = range(row_start, min(row_start + columns, n))
@@ -289,12 +240,6 @@ def _corners(box) -> np.ndarray:
     """The 8 corners of a ``(2, 3)`` box."""
     (x0, y0, z0), (x1, y1, z1) = box
     return np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)], np.float64)
-
-
-def _screen_up(azimuth: float, elevation: float) -> np.ndarray:
-    """The screen's up direction (k3d frame) of a camera at ``azimuth``/``elevation`` (:func:`view_camera`)."""
-    az, el = np.radians(azimuth), np.radians(elevation)
-    return to_view([-np.sin(el) * np.sin(az), np.cos(el), -np.sin(el) * np.cos(az)])[0].astype(np.float64)
 
 
 def label_position(lo, hi) -> list[float]:
@@ -376,171 +321,3 @@ def points_plot(
     plot = plot if plot is not None else new_plot()
     plot += k3d.points(pts, **opts)
     return plot
-
-
-# --------------------------------------------------------------------------- HTML
-def view_camera(lo, hi, azimuth: float = VIEW[0], elevation: float = VIEW[1], fov: float = 60.0,
-                factor: float = 1.1) -> list[float]:
-    """k3d's camera vector ``[eye, target, up]`` (9 numbers) looking at the box ``lo``..``hi`` (k3d's frame).
-
-    ``azimuth`` and ``elevation`` (degrees) are in the data's y-up frame, as in
-    :mod:`sin3dm_lite.evaluate.render`: azimuth 0 from the front (+z of the data, k3d's
-    -y), 90 from +x; elevation 90 straight from above. The eye is far enough
-    away that the box's bounding sphere, times ``factor``, fits in a view of
-    ``fov`` degrees.
-    """
-    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    centre = (lo + hi) / 2
-    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-9)
-    distance = radius * factor / np.sin(np.radians(fov) / 2)
-    az, el = np.radians(azimuth), np.radians(elevation)
-    direction = to_view([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)])[0].astype(np.float64)
-    eye = centre + distance * direction
-    return [*map(float, eye), *map(float, centre), 0.0, 0.0, 1.0]
-
-
-def fit_camera(plot: k3d.Plot, azimuth: float = VIEW[0], elevation: float = VIEW[1], factor: float = 1.1) -> list[float]:
-    """Point the camera at everything in the plot, from above at an angle by default (:func:`view_camera`).
-
-    Returns the camera vector it set.
-    """
-    b = plot.get_auto_grid()  # [xmin, xmax, ymin, ymax, zmin, zmax] of all objects
-    plot.camera = view_camera(b[::2], b[1::2], azimuth, elevation, fov=plot.camera_fov, factor=factor)
-    return list(plot.camera)
-
-
-#: shown instead of a blank page by a browser without WebGL (:func:`save_html`)
-NO_WEBGL = ("This page needs WebGL to show the 3D view, and this browser has it turned off or cannot use it. "
-            "Turn on hardware acceleration (or try another browser), or open the mesh files (mesh.obj, mesh.glb) "
-            "in Blender or any 3D viewer.")
-
-
-def with_webgl_message(page: str) -> str:
-    """A k3d page with a message that shows when the browser has no WebGL (or no JavaScript) instead of a blank page."""
-    box = "position:relative;z-index:10;max-width:40em;margin:3em auto;padding:1em 1.5em;font:16px sans-serif;" \
-          "background:#fff3cd;border:1px solid #d4a017;border-radius:4px"
-    note = html.escape(NO_WEBGL)
-    extra = (f'<div id="sin3dm-no-webgl" style="display:none;{box}">{note}</div>\n'
-             f'<noscript><div style="{box}">{note} (It also needs JavaScript.)</div></noscript>\n'
-             "<script>(function () {\n"
-             "  var gl = null, c = document.createElement('canvas');\n"
-             "  try { gl = c.getContext('webgl2') || c.getContext('webgl') || c.getContext('experimental-webgl'); }"
-             " catch (e) {}\n"
-             "  if (!gl) { document.getElementById('sin3dm-no-webgl').style.display = 'block'; }\n"
-             "})();</script>\n")
-    m = re.search(r"<body[^>]*>\s*", page)
-    if m is None:
-        raise ValueError("no <body> in this page")
-    return page[:m.end()] + extra + page[m.end():]
-
-
-def save_html(plot: k3d.Plot, path, fit: bool = True, **camera) -> Path:
-    """Write ``plot`` as one self-contained HTML page (k3d's JavaScript embedded; no server, no network).
-
-    With ``fit`` the camera is first pointed at the whole scene (:func:`fit_camera`,
-    keyword arguments go there) and the page keeps that view; otherwise the
-    plot's current camera is used. A browser without WebGL shows a short
-    message (:data:`NO_WEBGL`) instead of a blank page. The file is written
-    atomically (a reader never sees half a page). Returns the path.
-    """
-    path = Path(path)
-    auto_fit = plot.camera_auto_fit
-    if fit:
-        fit_camera(plot, **camera)
-        plot.camera_auto_fit = False  # keep our view instead of k3d's default one on load
-    try:
-        page = plot.get_snapshot()
-    finally:
-        plot.camera_auto_fit = auto_fit
-    atomic_write(path, with_webgl_message(page))
-    return path
-
-
-def read_snapshot(html_or_path) -> dict:
-    """Decode the scene stored in a page written by :func:`save_html` (for tests and checks).
-
-    Returns k3d's binary snapshot as a dict: ``objects`` (one dict per drawable,
-    arrays as ``{"dtype", "shape", "data"}``), ``plot`` (its parameters), ``version``.
-    """
-    import msgpack
-
-    text = str(html_or_path)
-    if "<html" not in text[:2000].lower():
-        text = Path(html_or_path).read_text(encoding="utf-8")
-    m = re.search(r"var data = '([A-Za-z0-9+/=]*)'", text)
-    if m is None:
-        raise ValueError("no k3d snapshot data in this page")
-    return msgpack.unpackb(zlib.decompress(base64.b64decode(m.group(1))), raw=False)
-
-
-def snapshot_array(obj: dict, key: str) -> np.ndarray:
-    """An array attribute of one object from :func:`read_snapshot` (e.g. ``"vertices"``) as numpy."""
-    a = obj[key]
-    data = a["data"]
-    if obj.get("compression_level", 0) and isinstance(data, bytes):
-        try:
-            data = zlib.decompress(data)
-        except zlib.error:
-            pass
-    return np.frombuffer(data, dtype=a["dtype"]).reshape(a["shape"])
-
-
-def _slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "sample"
-
-
-def index_page(entries: Sequence[dict], path, title: str = "sin3dm-lite samples") -> Path:
-    """A plain ``index.html`` listing samples: a viewer link and download links for each.
-
-    Each entry is a dict with ``title`` and any of ``html_path`` (an existing
-    viewer page), ``snapshot`` (a ``k3d.Plot`` or page text, written next to the
-    index as ``<title>.html``), ``obj_path``, ``glb_path``, ``thumbnail`` (an
-    image path). Links are relative to the index, so the folder can be moved
-    or zipped as a whole.
-    """
-    path = Path(path)
-    root = path.parent
-    root.mkdir(parents=True, exist_ok=True)
-
-    def rel(p) -> str:
-        return html.escape(Path(os.path.relpath(Path(p).resolve(), root.resolve())).as_posix(), quote=True)
-
-    rows = []
-    for k, e in enumerate(entries):
-        name = str(e.get("title", f"sample {k}"))
-        viewer = e.get("html_path")
-        snap = e.get("snapshot")
-        if viewer is None and snap is not None:
-            viewer = root / f"{_slug(name)}.html"
-            if isinstance(snap, str):
-                atomic_write(viewer, snap)
-            else:
-                save_html(snap, viewer)
-        links = []
-        if viewer is not None:
-            links.append(f'<a href="{rel(viewer)}">3D viewer</a>')
-        for key, label in (("obj_path", "OBJ"), ("glb_path", "GLB")):
-            if e.get(key):
-                links.append(f'<a href="{rel(e[key])}" download>{label}</a>')
-        thumb = (f'<a href="{rel(viewer)}"><img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160"></a>'
-                 if e.get("thumbnail") and viewer is not None
-                 else f'<img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160">' if e.get("thumbnail")
-                 else "")
-        rows.append(f"<tr><td>{thumb}</td><td>{html.escape(name)}</td><td>{' · '.join(links)}</td></tr>")
-    page = "\n".join([
-        "<!doctype html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        f"<title>{html.escape(title)}</title>",
-        "<style>body{font-family:sans-serif;margin:2em}td{padding:.4em 1em;vertical-align:middle}"
-        "table{border-collapse:collapse}tr:nth-child(even){background:#f4f4f4}</style>",
-        "</head><body>",
-        f"<h1>{html.escape(title)}</h1>",
-        "<table>",
-        "<tr><th></th><th>sample</th><th>open / download</th></tr>",
-        *rows,
-        "</table>",
-        "</body></html>",
-        "",
-    ])
-    atomic_write(path, page)
-    return path
