@@ -3,7 +3,8 @@
 Geometry metrics on occupancy grids live in :mod:`~sin3dm_lite.evaluate.geometry` (G-Div, LP-IoU, LP-F-score),
 texture metrics on rendered views in :mod:`~sin3dm_lite.evaluate.texture` (patch SWD, render diversity: no
 weights) and :mod:`~sin3dm_lite.evaluate.features` (SIFID and LPIPS with their two pre-trained networks,
-InceptionV3's first block and AlexNet + LPIPS, whose weights are given by path).
+InceptionV3's first block and AlexNet + LPIPS, whose weights are given by path). Here: :data:`METRICS` and
+:func:`results_table` (evaluations side by side), :func:`texture_scores` (every texture metric of a set of renders).
 """
 from __future__ import annotations
 
@@ -51,6 +52,7 @@ from .texture import (  # noqa: F401
     t_qual,
 )
 
+#: the metrics of ``Sin3DM.evaluate``: (key, the paper's name, which way is better), in the order tables show them
 METRICS = (("g_div", "G-Div", "higher = more diverse shapes"),
            ("lp_iou", "LP-IoU", "higher = local geometry like the input's"),
            ("lp_fscore", "LP-F", "higher = local geometry like the input's"),

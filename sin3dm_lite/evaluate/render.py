@@ -18,6 +18,8 @@ Public API::
     save_views(mesh, folder, n_views=8, size=512, ...) -> [Path, ...]     # view_000.png ... hero.png
     contact_sheet(images, labels=None, columns=4) -> (H, W, 3) uint8      # a labelled grid
     view_angles(n_views=8, elevation=45) -> [(azimuth, elevation), ...]   # degrees
+    view_names(n_views=8, hero=True) -> ["view_000.png", ..., "hero.png"] # the files save_views writes
+    camera_pose(box, azimuth, elevation) -> (4, 4) pose                   # a camera that frames the box
     renderer_problem() -> None or the one-line reason rendering cannot start here
 
 Coordinates: y is up (as the viewer's default ``up="y"``); azimuth 0 looks at

@@ -7,7 +7,9 @@ input's box) view by view:
 * weight-free, always available: :func:`patch_swd` (our stand-in for the
   paper's T-Qual = SIFID) and :func:`render_div` (our stand-in for T-Div =
   LPIPS); :func:`t_qual` and :func:`t_div` average any image distance the
-  paper's way;
+  paper's way; :func:`colour_distance` is the pixel distance behind
+  :func:`render_div`, :func:`degraded` spoils a render in a known way (to see
+  what a metric reacts to);
 * :func:`sin3dm_lite.evaluate.metrics.texture_scores` computes them all, and SIFID and LPIPS too when given
   the networks of :mod:`sin3dm_lite.evaluate.features`.
 """

@@ -1,4 +1,4 @@
-"""Small ipywidgets panels around the :mod:`sin3dm_lite.viz` figures.
+"""Small ipywidgets panels around the :mod:`sin3dm_lite.show.viz` figures (and a k3d gallery of full-quality samples).
 
 Two kinds: explorers re-plot arrays computed earlier (slices, triplanes, a
 recorded trajectory); live panels call the model on every change
