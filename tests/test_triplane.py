@@ -19,18 +19,18 @@ def test_sample_reads_each_plane_on_its_own_axes():
     tp = linear_triplane()
     # inside the texel-centre hull bilinear interpolation of a linear function is exact
     pts = torch.tensor([[0.1, -0.3, 0.5], [-0.6, 0.7, -0.8], [0.0, 0.0, 0.0]], dtype=torch.float64)
-    got = tp.sample(pts)[0, :, :, 0]  # [N, 3 planes]
+    got = tp.lookup(pts)[0, :, :, 0]  # [N, 3 planes]
     x, y, z = pts.T
     want = torch.stack([10 * x + y, 10 * x + z, 10 * y + z], 1)
     torch.testing.assert_close(got, want)
-    torch.testing.assert_close(tp.sample(pts, reduce="sum")[0, :, 0], want.sum(1))
+    torch.testing.assert_close(tp.lookup(pts, reduce="sum")[0, :, 0], want.sum(1))
 
 
 def test_sample_hits_texel_centres_and_clamps_at_the_border():
     tp = linear_triplane()
     x, y, z = centres(4), centres(6), centres(8)
     pts = torch.tensor([[x[0], y[5], z[3]], [1.5, -2.0, 0.0]], dtype=torch.float64)
-    got = tp.sample(pts)[0, :, :, 0]
+    got = tp.lookup(pts)[0, :, :, 0]
     torch.testing.assert_close(got[0], torch.stack([10 * x[0] + y[5], 10 * x[0] + z[3], 10 * y[5] + z[3]]))
     # outside the box: the value of the outermost texel centres (x = 1 - 1/4, y = -1 + 1/6)
     xb, yb = x[-1], y[0]
@@ -69,5 +69,5 @@ def test_flipped_mirrors_the_planes_that_hold_the_axis():
     # a point's feature in the flipped latent is the original's at the mirrored point
     p = torch.rand(2, 40, 3) * 2 - 1
     q = p * torch.tensor([-1.0, 1.0, 1.0])
-    torch.testing.assert_close(fx.sample(p), tp.sample(q))
+    torch.testing.assert_close(fx.lookup(p), tp.lookup(q))
     torch.testing.assert_close(fx.flipped("x").xy, tp.xy)

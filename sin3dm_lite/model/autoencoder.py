@@ -176,13 +176,13 @@ class TriplaneDecoder(nn.Module):
 
     def query_sdf(self, prep: PreparedPlanes, points: torch.Tensor) -> torch.Tensor:
         """SDF in normalised units (negative inside), ``[B, N]``."""
-        f = prep.geo.sample(points, reduce="sum")  # [B, N, 64]: the three plane features added
+        f = prep.geo.lookup(points, reduce="sum")  # [B, N, 64]: the three plane features added
         return self.geo_mlp(f)[..., 0] * self.threshold
 
     def query_color(self, prep: PreparedPlanes, points: torch.Tensor, logits: bool = False) -> torch.Tensor:
         """Colour (and with PBR metallic, roughness, normal · ½ + ½) in [0, 1], ``[B, N, K]``
         (``logits``: the heads' outputs before the sigmoid)."""
-        f = prep.tex.sample(points, reduce="sum")
+        f = prep.tex.lookup(points, reduce="sum")
         out = torch.cat([head(f) for head in self.heads], dim=-1)
         return out if logits else torch.sigmoid(out)
 

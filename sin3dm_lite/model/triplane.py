@@ -148,7 +148,7 @@ class Triplane:
         return cls(d["xy"], d["xz"], d["yz"])
 
     # ---------------------------------------------------------------- lookup
-    def sample(self, points: torch.Tensor, reduce: str | None = None) -> torch.Tensor:
+    def lookup(self, points: torch.Tensor, reduce: str | None = None) -> torch.Tensor:
         """Bilinear feature lookup.
 
         Args:
@@ -159,13 +159,13 @@ class Triplane:
         """
         if points.dim() == 2:
             points = points.unsqueeze(0).expand(self.batch, -1, -1)
-        feats = [sample_plane(p, points, PLANE_AXES[name]) for name, p in zip(PLANES, self.planes)]
+        feats = [lookup_plane(p, points, PLANE_AXES[name]) for name, p in zip(PLANES, self.planes)]
         if reduce == "sum":
             return feats[0] + feats[1] + feats[2]
         return torch.stack(feats, dim=2)
 
 
-def sample_plane(plane: torch.Tensor, points: torch.Tensor, axes: tuple[int, int]) -> torch.Tensor:
+def lookup_plane(plane: torch.Tensor, points: torch.Tensor, axes: tuple[int, int]) -> torch.Tensor:
     """Look up ``plane [B, C, A, B']`` at ``points [B, N, 3]`` projected on ``axes`` → ``[B, N, C]``.
 
     ``grid_sample`` indexes its input with (column, row) = (last dim, second to

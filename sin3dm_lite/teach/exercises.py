@@ -12,7 +12,7 @@ check                                   you write                            the
 :func:`check_q_sample`                  ``q_sample(x0, t, noise, ab)``       ``NoiseSchedule.q_sample``
 :func:`check_ddpm_posterior`            ``posterior(x0, x_t, t, betas, ab)``  ``NoiseSchedule.posterior``
 :func:`check_ddim_step`                 ``ddim_step(x_t, x0, t, t_prev, ab)``  ``NoiseSchedule.ddim_step``
-:func:`check_triplane_lookup`           ``lookup(xy, xz, yz, points)``       ``Triplane.sample``
+:func:`check_triplane_lookup`           ``lookup(xy, xz, yz, points)``       ``Triplane.lookup``
 :func:`check_receptive_field`           ``receptive_field(layers)``          ``unet.layers_receptive_field``
 :func:`check_rollout`                   ``rollout_xy(xy, xz, yz)``           ``unet.cross_plane_inputs``
 :func:`check_best_patch_iou`            ``best_patch_iou(gen, ref)``         ``metrics.lp_scores``
@@ -178,7 +178,7 @@ def check_triplane_lookup(fn, seed: int = 0, tol: float = 1e-5) -> None:
     inside = torch.rand(2, 60, 3, generator=g) * 2 - 1
     outside = torch.rand(2, 20, 3, generator=g) * 2.6 - 1.3
     points = torch.cat([inside, outside], 1)
-    want = tp.sample(points)  # [B, N, 3, C]
+    want = tp.lookup(points)  # [B, N, 3, C]
     got = _as64("lookup", _call("lookup", fn, tp.xy.clone(), tp.xz.clone(), tp.yz.clone(), points.clone()), want)
     err = (got - want.double()).abs().amax(-1)  # [B, N, 3]
     if float(err.max()) > tol:
