@@ -6,7 +6,7 @@ from scipy.spatial import cKDTree
 
 from sin3dm_lite.data.box import grid_shape
 from sin3dm_lite.data.grid import load_grid, mesh_to_grid, save_grid
-from sin3dm_lite.data.mesh_io import Material, TexturedMesh
+from sin3dm_lite.data.mesh import Material, TexturedMesh
 from sin3dm_lite.errors import Sin3DMInputError
 
 from .conftest import textured

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import Sin3DMInputError
-from .mesh_io import Material, TexturedMesh
+from .mesh import Material, TexturedMesh
 
 #: name -> one-line description of each built-in example.
 EXAMPLES = {

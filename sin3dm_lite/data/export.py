@@ -1,8 +1,8 @@
 """Write meshes to disk: OBJ + MTL + PNG and binary glTF (GLB).
 
-The readers and the shared types (:class:`~sin3dm_lite.mesh_io.TexturedMesh`,
-``Material``, ``Normalization``) live in :mod:`sin3dm_lite.mesh_io`; this
-module owns everything that writes them.
+The shared types (:class:`~sin3dm_lite.data.mesh.TexturedMesh`, ``Material``,
+``Normalization``) live in :mod:`sin3dm_lite.data.mesh` and the readers in
+:mod:`sin3dm_lite.data.formats`; this module owns everything that writes them.
 
 Public API::
 
@@ -20,7 +20,7 @@ the target, moved into place when everything is complete), so a failure
 
 PBR maps of a material (``metallic_roughness_image``, ``normal_image``) go
 into the GLB's metallic-roughness material; the OBJ writes them as
-``map_Pr`` / ``map_Pm`` / ``map_Bump`` PNGs. ``mesh_io.load_mesh`` reads
+``map_Pr`` / ``map_Pm`` / ``map_Bump`` PNGs. ``load.load_mesh`` reads
 everything written here back.
 """
 from __future__ import annotations
@@ -30,9 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.mesh_io import Material, TexturedMesh, array_to_pil, unique_rows
 from ..errors import Sin3DMInputError
 from ..files import atomic_folder, atomic_write
+from .formats.images import array_to_pil
+from .mesh import Material, TexturedMesh, unique_rows
 
 FORMATS = ("obj", "glb")
 

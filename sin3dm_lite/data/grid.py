@@ -26,7 +26,7 @@ from ..errors import Sin3DMInputError
 from ..files import atomic_path
 from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
 from .config import LIMITS
-from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, component_labels, unique_rows
+from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, component_labels, unique_rows
 
 #: :meth:`Sin3DM.fit` with the ``small`` preset switches to ``detail``'s settings when more of the solid than this is thin
 #: (:meth:`ShapeGrid.thin_share`): measured on five shapes, ``detail`` helped the three above it, not the two below.
@@ -429,7 +429,7 @@ def mesh_to_grid(
     map) stores the 8 :data:`PBR_CHANNELS` instead of RGB: metallic and
     roughness as glTF defines them (factor × map), and the normal in world
     (normalised-frame) coordinates: the normal map's tangent-space vector
-    turned by the closest face's tangent frame (``mesh_io.tangent_frames``:
+    turned by the closest face's tangent frame (``mesh.tangent_frames``:
     T, B along the UV directions, N the face normal), or the face normal
     itself where there is no normal map. ``pbr=True`` on a mesh without maps
     stores its constant factors and its geometric normals.

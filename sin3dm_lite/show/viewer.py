@@ -32,8 +32,8 @@ import k3d
 import numpy as np
 
 from ..data.export import baked_image, split_corners
-from ..data.mesh_io import TexturedMesh, array_to_pil, unique_rows
-from ..evaluate.render import png_bytes
+from ..data.formats.images import array_to_pil, png_bytes
+from ..data.mesh import TexturedMesh, unique_rows
 from ..files import atomic_write
 
 UP_AXES = ("y", "z")
