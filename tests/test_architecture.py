@@ -60,7 +60,7 @@ LAYERS = {
 # them (pipeline into facade + fit policy + sampling request, cli by command, files, mass); the pipeline ↔ runs
 # cycle is already broken, and the data stage is split (mesh_io into data/mesh + data/formats/ + data/load, the
 # presets out of data/config, data/distance out of data/grid, data/examples a package).
-PHASE_2_LONG = {"pipeline", "cli", "files", "mass", "data.export", "evaluate.calibrate"}
+PHASE_2_LONG = {"pipeline", "cli", "files", "mass", "evaluate.calibrate"}
 PHASE_2_CYCLES: list = []  # the pipeline ↔ runs cycle is gone: Sin3DM.open builds the model, runs only names folders
 # left over from phase 1 of issue 36 (not contended; split next): show.viewer (546; the HTML pages and gallery want
 # a module of their own)
