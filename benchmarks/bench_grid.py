@@ -10,7 +10,7 @@ import numpy as np
 import trimesh
 
 from sin3dm_lite.data.grid import mesh_to_grid
-from sin3dm_lite.data.mesh_io import Material, TexturedMesh
+from sin3dm_lite.data.mesh import Material, TexturedMesh
 
 
 def bumpy_textured_sphere(target_faces: int) -> TexturedMesh:

@@ -46,9 +46,10 @@ import torch
 
 from sin3dm_lite import metrics
 from sin3dm_lite.data.box import grid_shape
-from sin3dm_lite.data.config import get_preset, parse_settings
+from sin3dm_lite.data.config import parse_settings
 from sin3dm_lite.data.export import export_mesh
 from sin3dm_lite.data.grid import load_grid
+from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.generate.extract import marching_cubes
 from sin3dm_lite.pipeline import Sin3DM, resolve_mesh
 

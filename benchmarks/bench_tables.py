@@ -40,7 +40,7 @@ from bench_levers import retrain
 from bench_samples import fit_or_load, references, sample_grids, scores
 
 from sin3dm_lite.data.export import export_mesh
-from sin3dm_lite.data.mesh_io import load_mesh
+from sin3dm_lite.data.load import load_mesh
 from sin3dm_lite.generate.extract import NoSurfaceError
 from sin3dm_lite.pipeline import Sin3DM
 

@@ -28,9 +28,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from sin3dm_lite.data.config import get_preset
 from sin3dm_lite.data.grid import ShapeGrid
-from sin3dm_lite.data.mesh_io import Normalization
+from sin3dm_lite.data.mesh import Normalization
+from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.device import bf16_is_fast
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer, sdf_loss
 from sin3dm_lite.model.diffusion import DiffusionTrainer

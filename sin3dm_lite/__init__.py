@@ -7,7 +7,8 @@ only from its own level or a lower one (``tests/test_architecture.py`` holds the
 table of levels and checks it, imports inside functions included)::
 
     0 base      errors · device · threads (how CPU threads wait) · files
-    1 data      data: config · box · mesh_io (read meshes) · export (OBJ / GLB writers) · examples · grid (mesh → TSDF)
+    1 data      data: config · presets · box · mesh (the mesh type) · formats (file readers, images) · load (read
+                a mesh) · export (OBJ / GLB writers) · examples · distance · grid (mesh → TSDF)
     2 model     model: triplane · training · autoencoder · decode · unet · diffusion (schedule, training, sampling)
     3 generate  generate: control (what to sample: outpaint, ...) · extract (SDF → textured mesh)
     4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render · calibrate
@@ -40,9 +41,9 @@ _API = {
     "Samples": "pipeline",
     "resolve_mesh": "pipeline",
     "Config": "data.config",
-    "get_preset": "data.config",
-    "notebook_preset": "data.config",
-    "fast_mode": "data.config",
+    "get_preset": "data.presets",
+    "notebook_preset": "data.presets",
+    "fast_mode": "data.presets",
     "pretrained_path": "pretrained",
     "shipped_names": "pretrained",
     "shipped_examples": "pretrained",
@@ -55,12 +56,12 @@ _API = {
     "build_example": "data.examples",
     "list_examples": "data.examples",
     "write_example": "data.examples",
-    "TexturedMesh": "data.mesh_io",
-    "Material": "data.mesh_io",
-    "Normalization": "data.mesh_io",
-    "load_mesh": "data.mesh_io",
-    "load_any": "data.mesh_io",
-    "tangent_frames": "data.mesh_io",
+    "TexturedMesh": "data.mesh",
+    "Material": "data.mesh",
+    "Normalization": "data.mesh",
+    "load_mesh": "data.load",
+    "load_any": "data.load",
+    "tangent_frames": "data.mesh",
     "grid_shape": "data.box",
     "margin_scale": "data.box",
     "ShapeGrid": "data.grid",
@@ -128,7 +129,7 @@ _API = {
 _MODULES = {name: module for name, module in (
     ("viz", "show.viz"), ("widgets", "show.widgets"), ("viewer", "show.viewer"),
     ("metrics", "evaluate.metrics"), ("render", "evaluate.render"), ("examples", "data.examples"),
-    ("box", "data.box"), ("extract", "generate.extract"), ("export", "data.export"), ("mesh_io", "data.mesh_io"),
+    ("box", "data.box"), ("extract", "generate.extract"), ("export", "data.export"), ("mesh_io", "data.load"),
     ("lesson2d", "teach.lesson2d"), ("exercises", "teach.exercises"),
 )}
 

@@ -146,8 +146,8 @@ COMMANDS = {
 
 def build_parser() -> argparse.ArgumentParser:
     from .data import examples
-    from .data.config import PRESETS
-    from .data.mesh_io import READABLE
+    from .data.load import READABLE
+    from .data.presets import PRESETS
 
     p = _Parser(prog="sin3dm-lite", description="Sin3DM: learn a diffusion model from one textured mesh.",
                 epilog=f"Readable mesh formats: {READABLE}. Start with `sin3dm-lite demo`; "
@@ -398,7 +398,8 @@ def cmd_grid(a) -> None:
 
 
 def cmd_fit(a) -> None:
-    from .data.config import get_preset, parse_settings
+    from .data.config import parse_settings
+    from .data.presets import get_preset
     from .pipeline import Sin3DM
 
     if a.resume and not Path(a.out).is_dir():
@@ -608,7 +609,7 @@ def print_evaluation(result: dict) -> None:
 def cmd_evaluate(a) -> None:
     import json
 
-    from .data.mesh_io import load_any
+    from .data.load import load_any
     from .evaluate.metrics import load_feature_weights
     from .files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
     from .pipeline import Sin3DM, resolve_mesh

@@ -492,7 +492,7 @@ def worker_died(out: Path, index: int) -> str:
 
 def finish_folder(model, out: Path, req: SampleRequest, plan, label: str = "sample") -> dict[int, dict]:
     """Rank 0, after every rank is done: samples.jsonl, index.html, contact_sheet.png and the manifest."""
-    from .data.mesh_io import load_any
+    from .data.load import load_any
     from .show.viewer import gallery, save_html
 
     done = finished(out)

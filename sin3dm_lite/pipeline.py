@@ -35,9 +35,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from .data.config import PRESETS, Config, DiffusionConfig, get_preset
+from .data.config import Config, DiffusionConfig
 from .data.grid import THIN_SHARE_HINT, ShapeGrid, load_grid, mesh_to_grid, save_grid
-from .data.mesh_io import Normalization, TexturedMesh
+from .data.mesh import Normalization, TexturedMesh
+from .data.presets import PRESETS, get_preset
 from .device import bf16_is_fast, get_device
 from .errors import Sin3DMInputError
 from .evaluate.metrics import reconstruction_metrics
@@ -192,7 +193,7 @@ def resolve_mesh(source, allow_outside_paths: bool = False) -> TexturedMesh:
     ``allow_outside_paths``: let a mesh file name files outside its folder (:func:`mesh_io.load_mesh`).
     """
     from .data import examples
-    from .data.mesh_io import load_any
+    from .data.load import load_any
 
     if isinstance(source, str) and source in examples.list_examples():
         return examples.build_example(source)

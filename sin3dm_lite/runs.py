@@ -26,8 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .data.config import Config, get_preset, notebook_preset
-from .data.mesh_io import load_mesh
+from .data.config import Config
+from .data.load import load_mesh
+from .data.presets import get_preset, notebook_preset
 from .errors import Sin3DMInputError
 
 CACHE = Path("runs/cache")  # relative to the working directory (a notebook's: notebooks/)
@@ -55,7 +56,7 @@ def _feed_input(h, source, mesh=None) -> str:
     """Feed what a fit of ``source`` reads to ``h`` (an example's name and seed, or the mesh with its MTL and
     textures); ``mesh``: ``source`` already loaded. Returns the input's stem (the example's name, the file's stem)."""
     from .data import examples
-    from .data.mesh_io import TexturedMesh
+    from .data.mesh import TexturedMesh
 
     if isinstance(source, str) and source in examples.list_examples() and not Path(source).is_file():
         h.update(f"example:{source}:seed={EXAMPLE_SEED}".encode())

@@ -19,7 +19,7 @@ from torch import nn  # noqa: E402
 
 from sin3dm_lite.data.config import AutoencoderConfig, DiffusionConfig  # noqa: E402
 from sin3dm_lite.data.grid import ShapeGrid, mesh_to_grid  # noqa: E402
-from sin3dm_lite.data.mesh_io import Material, Normalization, TexturedMesh  # noqa: E402
+from sin3dm_lite.data.mesh import Material, Normalization, TexturedMesh  # noqa: E402
 from sin3dm_lite.model.triplane import Triplane  # noqa: E402
 
 # a non-cubic box, symmetric like ShapeGrid's (±n_axis / n_max): 24 × 32 × 20 voxels at resolution 32

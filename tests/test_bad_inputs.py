@@ -458,7 +458,7 @@ def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay):
 
 
 def test_poor_reconstruction_is_a_warning_with_the_likely_cause():
-    from sin3dm_lite.data.config import get_preset
+    from sin3dm_lite.data.presets import get_preset
     from sin3dm_lite.pipeline import MIN_IOU, MIN_PSNR, _warn_if_poor
 
     # the fix is a setting of the run's config with its value, as the CLI and Python take it

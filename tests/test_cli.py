@@ -172,7 +172,7 @@ def test_the_help_lists_exactly_the_formats_that_load(tmp_path, capsys):
     """``READABLE`` names every suffix the loader takes and no other; one tiny mesh of each loads."""
     import re
 
-    from sin3dm_lite.data.mesh_io import READABLE, SUPPORTED_EXTENSIONS, load_mesh
+    from sin3dm_lite.data.load import READABLE, SUPPORTED_EXTENSIONS, load_mesh
 
     words = {w.lower() for w in re.findall(r"[A-Za-z]+", READABLE)} - {"mtl"}
     assert words == {ext[1:] for ext in SUPPORTED_EXTENSIONS}
@@ -224,7 +224,8 @@ class _FitCalled(Exception):
 
 def _preset_fit_gets(tmp_path, monkeypatch, *argv):
     """Run `sin3dm-lite fit ...` up to Sin3DM.fit and return the preset (a Config) it would fit with."""
-    from sin3dm_lite.data.config import Config, get_preset
+    from sin3dm_lite.data.config import Config
+    from sin3dm_lite.data.presets import get_preset
     from sin3dm_lite.pipeline import Sin3DM
 
     seen = {}

@@ -104,7 +104,7 @@ def test_unknown_name():
 
 
 def test_write_example_round_trip(tmp_path):
-    from sin3dm_lite.data.mesh_io import load_mesh
+    from sin3dm_lite.data.load import load_mesh
 
     path = write_example("colonnade", tmp_path)
     assert path == tmp_path / "colonnade.obj"

@@ -8,7 +8,7 @@ from torch import nn
 
 from sin3dm_lite import box
 from sin3dm_lite import extract as ex
-from sin3dm_lite.data.mesh_io import Normalization
+from sin3dm_lite.data.mesh import Normalization
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model import decode as dc
 from sin3dm_lite.model.triplane import Triplane
@@ -320,7 +320,7 @@ def test_uv_charts_are_capped_at_a_share_of_the_surface():
     """Large curved charts are cut (they made xatlas slow on bricky samples); the atlas stays a valid one."""
     import trimesh
 
-    from sin3dm_lite.data.mesh_io import component_labels
+    from sin3dm_lite.data.mesh import component_labels
 
     cyl = trimesh.creation.cylinder(0.3, 3.0, sections=32)
     v, f = np.asarray(cyl.vertices), np.asarray(cyl.faces)

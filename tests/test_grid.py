@@ -6,7 +6,7 @@ from scipy.spatial import cKDTree
 
 from sin3dm_lite.data.box import grid_shape
 from sin3dm_lite.data.grid import load_grid, mesh_to_grid, save_grid
-from sin3dm_lite.data.mesh_io import Material, TexturedMesh
+from sin3dm_lite.data.mesh import Material, TexturedMesh
 from sin3dm_lite.errors import Sin3DMInputError
 
 from .conftest import textured
@@ -139,22 +139,22 @@ def test_inside_out_parts_are_turned_round_with_a_warning():
 
 
 def test_closed_means_every_edge_used_both_ways():
-    from sin3dm_lite.data.grid import _Distance
+    from sin3dm_lite.data.distance import Distance
 
     sphere = trimesh.creation.icosphere(subdivisions=2)
-    assert _Distance(textured(sphere)).closed
-    assert not _Distance(textured(trimesh.Trimesh(sphere.vertices, sphere.faces[1:]))).closed  # a hole
+    assert Distance(textured(sphere)).closed
+    assert not Distance(textured(trimesh.Trimesh(sphere.vertices, sphere.faces[1:]))).closed  # a hole
     wrong = sphere.faces.copy()
     wrong[0] = wrong[0, ::-1]
-    assert not _Distance(textured(trimesh.Trimesh(sphere.vertices, wrong, process=False))).closed  # one face flipped
+    assert not Distance(textured(trimesh.Trimesh(sphere.vertices, wrong, process=False))).closed  # one face flipped
     a, b = trimesh.creation.box(), trimesh.creation.box()
     b.apply_translation([1, 0, 0])  # two cubes sharing a face: still closed surfaces, edges used 4 times
-    assert _Distance(textured(trimesh.util.concatenate([a, b]))).closed
+    assert Distance(textured(trimesh.util.concatenate([a, b]))).closed
     # a UV seam (vertices duplicated at the same position) does not open the surface
     v, f = sphere.vertices, sphere.faces.copy()
     seam = np.vstack([v, v[f[0]]])
     f[0] = len(v) + np.arange(3)
-    assert _Distance(textured(trimesh.Trimesh(seam, f, process=False))).closed
+    assert Distance(textured(trimesh.Trimesh(seam, f, process=False))).closed
 
 
 def test_two_part_mesh_has_both_parts_inside():

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from sin3dm_lite.data.config import Config, get_preset
+from sin3dm_lite.data.config import Config
+from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model import autoencoder
 from sin3dm_lite.pipeline import Sin3DM, thin_parts_switch

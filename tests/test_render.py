@@ -8,7 +8,7 @@ from PIL import Image
 
 from sin3dm_lite.cli import main
 from sin3dm_lite.data.export import export_mesh
-from sin3dm_lite.data.mesh_io import Material, TexturedMesh
+from sin3dm_lite.data.mesh import Material, TexturedMesh
 from sin3dm_lite.evaluate.render import contact_sheet, render_hero, render_views, save_views, view_angles, view_names
 
 # Off-screen OpenGL needs Mesa's EGL on a Linux machine without a display (the CI image has it); elsewhere the

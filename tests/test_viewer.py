@@ -8,7 +8,7 @@ import trimesh
 from PIL import Image
 
 from sin3dm_lite import viewer
-from sin3dm_lite.data.mesh_io import Material, TexturedMesh, sample_texture
+from sin3dm_lite.data.mesh import Material, TexturedMesh, sample_texture
 
 
 def red_top_blue_bottom(h=8, w=4) -> np.ndarray:

@@ -1,2 +1,4 @@
-"""Data: settings and presets (``config``), box and grid geometry (``box``), meshes and their file formats
-(``mesh_io``), the built-in example shapes (``examples``) and mesh → truncated SDF + colour grid (``grid``)."""
+"""Data: settings (``config``) and the named presets (``presets``), box and grid geometry (``box``), the mesh type
+(``mesh``), reading meshes (``load``, with the file formats in ``formats``) and writing them (``export``), the
+built-in example shapes (``examples``), distances to a mesh (``distance``) and mesh → truncated SDF + colour grid
+(``grid``)."""

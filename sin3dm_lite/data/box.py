@@ -3,7 +3,7 @@
 Three frames appear in the package:
 
 * *original* coordinates: the input mesh as loaded;
-* *normalised* coordinates (``mesh_io.Normalization``): the mesh centred and
+* *normalised* coordinates (``mesh.Normalization``): the mesh centred and
   scaled so that its longest side spans about [-1, 1];
 * *box* coordinates: an axis-aligned box ``aabb = (xmin, ymin, zmin, xmax,
   ymax, zmax)`` in normalised coordinates mapped to [-1, 1]^3. Triplane

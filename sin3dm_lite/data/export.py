@@ -1,8 +1,8 @@
 """Write meshes to disk: OBJ + MTL + PNG and binary glTF (GLB).
 
-The readers and the shared types (:class:`~sin3dm_lite.mesh_io.TexturedMesh`,
-``Material``, ``Normalization``) live in :mod:`sin3dm_lite.mesh_io`; this
-module owns everything that writes them.
+The shared types (:class:`~sin3dm_lite.data.mesh.TexturedMesh`, ``Material``,
+``Normalization``) live in :mod:`sin3dm_lite.data.mesh` and the readers in
+:mod:`sin3dm_lite.data.formats`; this module owns everything that writes them.
 
 Public API::
 
@@ -21,7 +21,7 @@ the target, moved into place when everything is complete), so a failure
 
 PBR maps of a material (``metallic_roughness_image``, ``normal_image``) go
 into the GLB's metallic-roughness material; the OBJ writes them as
-``map_Pr`` / ``map_Pm`` / ``map_Bump`` PNGs. ``mesh_io.load_mesh`` reads
+``map_Pr`` / ``map_Pm`` / ``map_Bump`` PNGs. ``load.load_mesh`` reads
 everything written here back.
 """
 from __future__ import annotations
@@ -31,9 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.mesh_io import Material, TexturedMesh, array_to_pil, unique_rows
 from ..errors import Sin3DMInputError
 from ..files import atomic_folder, atomic_write
+from .formats.images import array_to_pil
+from .mesh import Material, TexturedMesh, unique_rows
 
 FORMATS = ("obj", "glb")
 
@@ -122,77 +123,91 @@ def save_obj(mesh: TexturedMesh, path) -> Path:
     ``load_mesh`` on the result gives the same geometry and colours.
     """
     path = _prepare_output(path, ".obj")
-    stem, has_uv = path.stem, mesh.face_uvs is not None
-    single_texture = sum(m.image is not None for m in mesh.materials) == 1
     used_names: set = set()
     names = [_safe_name(m.name, used_names) for m in mesh.materials]
     with atomic_folder(path.parent) as folder:  # images and the .mtl are moved first, the .obj last
-        lines = ["# written by sin3dm-lite", ""]
-        baked: dict = {}  # (image, factor) → file: materials sharing an atlas share its PNG
-        for k, mat in enumerate(mesh.materials):
-            prefix = stem if (single_texture and mat.image is not None) else f"{stem}_{k}"
-            c = np.asarray(mat.base_color, np.float64)
-            kd, maps = tuple(np.clip(c[:3], 0, 1)), []
-            if mat.image is not None and has_uv:
-                key = (id(mat.image), tuple(np.asarray(mat.base_color, np.float32)[:3]))
-                if key not in baked:
-                    baked[key] = f"{prefix}.png"
-                    array_to_pil(baked_image(mat)).save(folder / baked[key])
-                maps.append(f"map_Kd {baked[key]}")
-                kd = (1.0, 1.0, 1.0)
-            roughness, metallic = float(mat.roughness), float(mat.metallic)
-            if mat.metallic_roughness_image is not None and has_uv:
-                for chan, tag, factor in ((1, "Pr", roughness), (2, "Pm", metallic)):
-                    fname = f"{prefix}_{'roughness' if chan == 1 else 'metallic'}.png"
-                    array_to_pil(mat.metallic_roughness_image[:, :, chan] * factor).save(folder / fname)  # grey
-                    maps.append(f"map_{tag} {fname}")
-            if mat.normal_image is not None and has_uv:
-                array_to_pil(mat.normal_image).save(folder / f"{prefix}_normal.png")
-                maps.append(f"map_Bump -bm 1.000000 {prefix}_normal.png")
-            lines += [
-                f"newmtl {names[k]}",
-                "Ka 0.000000 0.000000 0.000000",
-                "Kd {:.6f} {:.6f} {:.6f}".format(*kd),
-                "Ks 0.000000 0.000000 0.000000",
-                "Ns 10.000000",
-                f"d {float(c[3]) if len(c) > 3 else 1.0:.6f}",
-                "illum 1",
-                f"Pr {roughness:.6f}",
-                f"Pm {metallic:.6f}",
-                *maps,
-                "",
-            ]
-        (folder / f"{stem}.mtl").write_text("\n".join(lines), encoding="utf-8")
-
-        # every distinct corner UV once (faces without UVs hold NaN)
-        faces, fm = np.asarray(mesh.faces, np.int64), np.asarray(mesh.face_material, np.int64)
-        fuv = np.asarray(mesh.face_uvs, np.float32) if has_uv else np.full((len(faces), 3, 2), np.nan, np.float32)
-        face_has_uv = np.isfinite(fuv).all(axis=(1, 2))
-        first, inv = unique_rows(fuv[face_has_uv].reshape(-1, 2))
-        uv_index = np.zeros((len(faces), 3), np.int64)
-        uv_index[face_has_uv] = inv.reshape(-1, 3)
-        colors = _baked_vertex_colors(mesh)
-        with open(folder / f"{stem}.obj", "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(f"# written by sin3dm-lite: {len(mesh.vertices)} vertices, {len(faces)} faces\n")
-            fh.write(f"mtllib {stem}.mtl\no {_safe_name(mesh.name, set())}\n")
-            if colors is None:
-                _write_rows(fh, "v %.9g %.9g %.9g\n", mesh.vertices)
-            else:
-                _write_rows(fh, "v %.9g %.9g %.9g %.6f %.6f %.6f\n", np.hstack([mesh.vertices, colors]))
-            _write_rows(fh, "vt %.9g %.9g\n", fuv[face_has_uv].reshape(-1, 2)[first])
-            # runs of faces with the same material and the same has-uv flag, in the original order
-            change = np.flatnonzero((np.diff(fm) != 0) | (np.diff(face_has_uv.astype(np.int8)) != 0)) + 1
-            last = None
-            for a, b in zip(np.r_[0, change], np.r_[change, len(faces)]):
-                if fm[a] != last:
-                    fh.write(f"usemtl {names[fm[a]]}\n")
-                    last = fm[a]
-                if face_has_uv[a]:
-                    block = np.stack([faces[a:b] + 1, uv_index[a:b] + 1], axis=2).reshape(b - a, 6)
-                    _write_rows(fh, "f %d/%d %d/%d %d/%d\n", block)
-                else:
-                    _write_rows(fh, "f %d %d %d\n", faces[a:b] + 1)
+        _write_mtl(mesh, folder, path.stem, names)
+        _write_obj_lines(mesh, folder, path.stem, names)
     return path
+
+
+def _write_mtl(mesh: TexturedMesh, folder: Path, stem: str, names: list[str]) -> None:
+    """``<stem>.mtl`` and the PNGs its materials name (see :func:`save_obj`)."""
+    lines = ["# written by sin3dm-lite", ""]
+    single_texture = sum(m.image is not None for m in mesh.materials) == 1
+    baked: dict = {}  # (image, factor) → file: materials sharing an atlas share its PNG
+    for k, mat in enumerate(mesh.materials):
+        prefix = stem if (single_texture and mat.image is not None) else f"{stem}_{k}"
+        c = np.asarray(mat.base_color, np.float64)
+        kd, maps = _material_maps(mat, mesh.face_uvs is not None, folder, prefix, baked)
+        roughness, metallic = float(mat.roughness), float(mat.metallic)
+        lines += [
+            f"newmtl {names[k]}",
+            "Ka 0.000000 0.000000 0.000000",
+            "Kd {:.6f} {:.6f} {:.6f}".format(*kd),
+            "Ks 0.000000 0.000000 0.000000",
+            "Ns 10.000000",
+            f"d {float(c[3]) if len(c) > 3 else 1.0:.6f}",
+            "illum 1",
+            f"Pr {roughness:.6f}",
+            f"Pm {metallic:.6f}",
+            *maps,
+            "",
+        ]
+    (folder / f"{stem}.mtl").write_text("\n".join(lines), encoding="utf-8")
+
+
+def _material_maps(mat: Material, has_uv: bool, folder: Path, prefix: str, baked: dict):
+    """Write a material's textures as ``<prefix>…png``; returns its ``Kd`` and its MTL map lines."""
+    kd, maps = tuple(np.clip(np.asarray(mat.base_color, np.float64)[:3], 0, 1)), []
+    if mat.image is not None and has_uv:
+        key = (id(mat.image), tuple(np.asarray(mat.base_color, np.float32)[:3]))
+        if key not in baked:
+            baked[key] = f"{prefix}.png"
+            array_to_pil(baked_image(mat)).save(folder / baked[key])
+        maps.append(f"map_Kd {baked[key]}")
+        kd = (1.0, 1.0, 1.0)
+    if mat.metallic_roughness_image is not None and has_uv:
+        for chan, tag, factor in ((1, "Pr", float(mat.roughness)), (2, "Pm", float(mat.metallic))):
+            fname = f"{prefix}_{'roughness' if chan == 1 else 'metallic'}.png"
+            array_to_pil(mat.metallic_roughness_image[:, :, chan] * factor).save(folder / fname)  # grey
+            maps.append(f"map_{tag} {fname}")
+    if mat.normal_image is not None and has_uv:
+        array_to_pil(mat.normal_image).save(folder / f"{prefix}_normal.png")
+        maps.append(f"map_Bump -bm 1.000000 {prefix}_normal.png")
+    return kd, maps
+
+
+def _write_obj_lines(mesh: TexturedMesh, folder: Path, stem: str, names: list[str]) -> None:
+    """``<stem>.obj``: every distinct corner UV once (faces without UVs hold NaN), faces in their order."""
+    faces, fm = np.asarray(mesh.faces, np.int64), np.asarray(mesh.face_material, np.int64)
+    has_uv = mesh.face_uvs is not None
+    fuv = np.asarray(mesh.face_uvs, np.float32) if has_uv else np.full((len(faces), 3, 2), np.nan, np.float32)
+    face_has_uv = np.isfinite(fuv).all(axis=(1, 2))
+    first, inv = unique_rows(fuv[face_has_uv].reshape(-1, 2))
+    uv_index = np.zeros((len(faces), 3), np.int64)
+    uv_index[face_has_uv] = inv.reshape(-1, 3)
+    colors = _baked_vertex_colors(mesh)
+    with open(folder / f"{stem}.obj", "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(f"# written by sin3dm-lite: {len(mesh.vertices)} vertices, {len(faces)} faces\n")
+        fh.write(f"mtllib {stem}.mtl\no {_safe_name(mesh.name, set())}\n")
+        if colors is None:
+            _write_rows(fh, "v %.9g %.9g %.9g\n", mesh.vertices)
+        else:
+            _write_rows(fh, "v %.9g %.9g %.9g %.6f %.6f %.6f\n", np.hstack([mesh.vertices, colors]))
+        _write_rows(fh, "vt %.9g %.9g\n", fuv[face_has_uv].reshape(-1, 2)[first])
+        # runs of faces with the same material and the same has-uv flag, in the original order
+        change = np.flatnonzero((np.diff(fm) != 0) | (np.diff(face_has_uv.astype(np.int8)) != 0)) + 1
+        last = None
+        for a, b in zip(np.r_[0, change], np.r_[change, len(faces)]):
+            if fm[a] != last:
+                fh.write(f"usemtl {names[fm[a]]}\n")
+                last = fm[a]
+            if face_has_uv[a]:
+                block = np.stack([faces[a:b] + 1, uv_index[a:b] + 1], axis=2).reshape(b - a, 6)
+                _write_rows(fh, "f %d/%d %d/%d %d/%d\n", block)
+            else:
+                _write_rows(fh, "f %d %d %d\n", faces[a:b] + 1)
 
 
 def _write_rows(fh, row_format: str, array: np.ndarray, chunk: int = 65536) -> None:

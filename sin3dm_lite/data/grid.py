@@ -20,13 +20,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import point_cloud_utils as pcu
 
 from ..errors import Sin3DMInputError
 from ..files import atomic_path
 from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
 from .config import LIMITS
-from .mesh_io import MAX_COORDINATE, Normalization, TexturedMesh, component_labels, unique_rows
+from .distance import Distance
+from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, unique_rows
 
 #: :meth:`Sin3DM.fit` with the ``small`` preset switches to ``detail``'s settings when more of the solid than this is thin
 #: (:meth:`ShapeGrid.thin_share`): measured on five shapes, ``detail`` helped the three above it, not the two below.
@@ -141,79 +141,6 @@ def check_resolution(resolution: int) -> None:
         )
 
 
-class _Distance:
-    """Truncated signed distance to a mesh, computed only where it matters.
-
-    Exact point-to-triangle distances are the expensive part, and far from the
-    surface the TSDF is just ``±threshold``. The sign comes from
-    point-cloud-utils' fast winding number (inside where it exceeds ½), which
-    is robust for open or multi-part meshes, where "make it watertight" tricks
-    fail. (pcu's ``signed_distance_to_mesh`` is not used: its distances are
-    approximate, and far off on open meshes.)
-    """
-
-    def __init__(self, mesh: TexturedMesh, chunk: int = 1 << 20):
-        self.v = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
-        faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
-        self.f, self.closed, self.flipped, self.closed_parts = _orient_outward(self.v, faces)
-        self.chunk = chunk
-
-    def winding(self, p: np.ndarray) -> np.ndarray:
-        """Generalised winding number: 1 inside a closed surface, 0 outside, in between near holes."""
-        if len(p) == 0:
-            return np.zeros(0, np.float64)
-        return pcu.triangle_soup_fast_winding_number(self.v, self.f, np.ascontiguousarray(p, dtype=np.float64))
-
-    def closest(self, p: np.ndarray):
-        """Unsigned distance, closest face and its barycentrics for every point (chunked)."""
-        p = np.ascontiguousarray(p, dtype=np.float64)
-        d = np.empty(len(p), np.float64)
-        fi = np.empty(len(p), np.int64)
-        bc = np.empty((len(p), 3), np.float64)
-        for a in range(0, len(p), self.chunk):
-            d[a : a + self.chunk], fi[a : a + self.chunk], bc[a : a + self.chunk] = pcu.closest_points_on_mesh(
-                p[a : a + self.chunk], self.v, self.f
-            )
-        return d, fi, bc
-
-
-def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
-    """Turn closed parts that are inside out (faces wound clockwise seen from outside) the right way round.
-
-    The winding number is +1 inside a surface whose faces wind
-    counter-clockwise seen from outside (outward normals) and -1 inside one
-    wound the other way, so an inside-out file would come out with no inside
-    at all. Each connected part (vertices joined by position) that is closed
-    (every edge used as often in one direction as in the other, as in a
-    watertight, consistently wound surface) and encloses a negative volume
-    gets its faces flipped; open parts are left alone (their volume has no
-    reliable sign). On a closed mesh the winding number is a whole number
-    that changes only across the surface.
-
-    Returns ``(faces, closed, flipped, closed_parts)``: the faces, whether the
-    whole mesh is closed, how many parts were flipped and how many are closed.
-    """
-    _, weld = unique_rows(vertices)  # vertices split at UV seams are one point here
-    fw = weld[faces]
-    n = int(fw.max()) + 1
-    part = component_labels(n, fw)  # (F,) the part of every face
-    parts = int(part.max()) + 1
-    edges = fw[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    # a closed, consistently wound surface uses every edge as often a → b as b → a
-    key = np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
-    _, inverse = np.unique(key, return_inverse=True)
-    balance = np.bincount(inverse.reshape(-1), np.where(edges[:, 0] < edges[:, 1], 1.0, -1.0))
-    open_edge = balance[inverse.reshape(-1)] != 0  # (3F,)
-    open_part = np.bincount(part.repeat(3)[open_edge], minlength=parts) > 0
-    tri = vertices[faces]  # a closed part's enclosed volume (× 6) does not depend on the origin
-    volume = np.bincount(part, np.einsum("fi,fi->f", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])), parts)
-    has_faces = np.bincount(part, minlength=parts) > 0  # (labels of vertices without faces are skipped)
-    closed = has_faces & ~open_part
-    flip = closed & (volume < 0)
-    faces = np.where(flip[part][:, None], faces[:, ::-1], faces)
-    return np.ascontiguousarray(faces), not open_part.any(), int(flip.sum()), int(closed.sum())
-
-
 def surface_channels(mesh: TexturedMesh, face_index: np.ndarray, barycentric: np.ndarray, pbr: bool = False) -> np.ndarray:
     """What a voxel stores about its closest surface point: RGB ``(n, 3)``, or with ``pbr`` the 8 :data:`PBR_CHANNELS`."""
     rgb = mesh.colors_at(face_index, barycentric)
@@ -230,7 +157,7 @@ def _block_view(a: np.ndarray, s: int) -> np.ndarray:
 
 
 def _tsdf_grid(
-    dist: _Distance, mesh: TexturedMesh, dims, aabb: np.ndarray, vs: float, threshold: float, say, sure_margin: float = 0.4,
+    dist: Distance, mesh: TexturedMesh, dims, aabb: np.ndarray, vs: float, threshold: float, say, sure_margin: float = 0.4,
     pbr: bool = False,
 ):
     """Truncated SDF and colour on the cell-centred grid, by coarse-to-fine block refinement.
@@ -330,7 +257,7 @@ def _signs_from_grid(p, d, grid_sdf, sure, lo, vs, closed: bool):
     return resolved, inside
 
 
-def _point_tsdf(dist: _Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float, grid: tuple, pbr: bool = False):
+def _point_tsdf(dist: Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float, grid: tuple, pbr: bool = False):
     """Exact truncated SDF and colour (0 outside the band) at arbitrary points.
 
     ``grid = (sdf, sure, lo, voxel_size)`` from :func:`_tsdf_grid`: most signs
@@ -429,7 +356,7 @@ def mesh_to_grid(
     map) stores the 8 :data:`PBR_CHANNELS` instead of RGB: metallic and
     roughness as glTF defines them (factor × map), and the normal in world
     (normalised-frame) coordinates: the normal map's tangent-space vector
-    turned by the closest face's tangent frame (``mesh_io.tangent_frames``:
+    turned by the closest face's tangent frame (``mesh.tangent_frames``:
     T, B along the UV directions, N the face normal), or the face normal
     itself where there is no normal map. ``pbr=True`` on a mesh without maps
     stores its constant factors and its geometric normals.
@@ -439,6 +366,34 @@ def mesh_to_grid(
     t0 = time.perf_counter()
     _check_coordinates(mesh)
     pbr = mesh.has_pbr if pbr is None else bool(pbr)
+    m, dims = _normalised(mesh, resolution, margin_voxels)
+    aabb = centred_box(dims)
+    vs = 2.0 / dims.max()
+    threshold = float(threshold_voxels * vs)
+    if pbr:
+        say(f"[grid] PBR channels: {', '.join(PBR_CHANNELS)}")
+    say(f"[grid] '{mesh.name}': {len(m.faces):,} faces → grid {dims[0]}×{dims[1]}×{dims[2]}, band ±{threshold:.4f}")
+
+    dist = Distance(m)
+    for message in _surprises(mesh, m, dist):
+        warnings.warn(message, stacklevel=2)
+    sdf, color, sure = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say, pbr=pbr)
+    if not (sdf < 0).any():
+        raise Sin3DMInputError(
+            f"'{mesh.name}' has no inside at {resolution} voxels: it encloses no volume (a single triangle, an open "
+            "sheet, or parts thinner than a voxel); give a closed (watertight) mesh or a solid with some thickness"
+        )
+    out = ShapeGrid(sdf, color, aabb, threshold, m.normalization, name=mesh.name)
+    say(f"[grid] grid done ({time.perf_counter() - t0:.1f} s)")
+    if n_surface_points > 0:
+        out.points, out.point_sdf, out.point_color = _training_points(
+            dist, m, out, (sure, vs), n_surface_points, near_surface_sigma, seed, pbr)
+    say(f"[grid] done in {time.perf_counter() - t0:.1f} s: {int((np.abs(out.sdf) < threshold).sum()):,} voxels in the band")
+    return out
+
+
+def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
+    """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space) and the grid's voxel counts."""
     m = mesh.normalized()
     extent = m.bounds[1] - m.bounds[0]
     dims = np.array(grid_shape(extent, resolution, multiple=8))
@@ -449,52 +404,35 @@ def mesh_to_grid(
                         normalization=Normalization(m.normalization.center, m.normalization.scale * shrink))
             extent = extent * shrink
         dims = np.array(grid_shape(extent, resolution, multiple=8, margin_voxels=margin_voxels))
-    aabb = centred_box(dims)
-    vs = 2.0 / dims.max()
-    threshold = float(threshold_voxels * vs)
-    if pbr:
-        say(f"[grid] PBR channels: {', '.join(PBR_CHANNELS)}")
-    say(f"[grid] '{mesh.name}': {len(m.faces):,} faces → grid {dims[0]}×{dims[1]}×{dims[2]}, band ±{threshold:.4f}")
+    return m, dims
 
-    dist = _Distance(m)
+
+def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance) -> list[str]:
+    """The warnings a grid comes with: inside-out parts turned round, then :func:`normalisation_notes`."""
+    notes = []
     if dist.flipped:
         what = (f"'{mesh.name}' is inside out" if dist.flipped == dist.closed_parts == 1
                 else f"{dist.flipped} of the {dist.closed_parts} closed parts of '{mesh.name}' are inside out")
-        warnings.warn(f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
-                      "to tell inside from outside", stacklevel=2)
-    for message in normalisation_notes(mesh, m, dist.closed):
-        warnings.warn(message, stacklevel=2)
-    sdf, color, sure = _tsdf_grid(dist, m, dims, aabb, vs, threshold, say, pbr=pbr)
-    if not (sdf < 0).any():
-        raise Sin3DMInputError(
-            f"'{mesh.name}' has no inside at {resolution} voxels: it encloses no volume (a single triangle, an open "
-            "sheet, or parts thinner than a voxel); give a closed (watertight) mesh or a solid with some thickness"
-        )
-    out = ShapeGrid(sdf, color, aabb, threshold, m.normalization, name=mesh.name)
-    say(f"[grid] grid done ({time.perf_counter() - t0:.1f} s)")
-
-    # training points near the surface
-    rng = np.random.default_rng(seed)
-    if n_surface_points > 0:
-        sp, _, _ = m.surface_points(n_surface_points, rng)
-        sp = sp + rng.normal(scale=near_surface_sigma, size=sp.shape)
-        sp = np.clip(sp, aabb[:3], aabb[3:])
-        ps, pc = _point_tsdf(dist, m, sp, threshold, grid=(sdf, sure, aabb[:3].astype(np.float64), vs), pbr=pbr)
-        out.points, out.point_sdf, out.point_color = sp.astype(np.float32), ps, pc
-    say(f"[grid] done in {time.perf_counter() - t0:.1f} s: {int((np.abs(out.sdf) < threshold).sum()):,} voxels in the band")
-    return out
+        notes.append(f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
+                     "to tell inside from outside")
+    return notes + normalisation_notes(mesh, normalised, dist.closed)
 
 
-def inside(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Which points lie inside the mesh ``(vertices, faces)``: generalised winding number above ½.
+def _training_points(dist: Distance, m: TexturedMesh, grid: ShapeGrid, sure_and_vs: tuple, n: int, sigma: float,
+                     seed: int, pbr: bool):
+    """``n`` points near the surface (surface samples plus Gaussian noise of ``sigma``, clipped to the box) with
+    their exact truncated SDF and colour: ``(points, sdf, colour)``.
 
-    The same inside test the grid uses, so it works for open and multi-part
-    meshes and turns inside-out closed parts round first.
+    ``sure_and_vs``: where the grid's signs are sure (:func:`_tsdf_grid`) and the voxel size it was built with.
     """
-    from types import SimpleNamespace
-
-    dist = _Distance(SimpleNamespace(vertices=vertices, faces=faces))
-    return dist.winding(np.asarray(points, np.float64).reshape(-1, 3)) > 0.5
+    rng = np.random.default_rng(seed)
+    sure, vs = sure_and_vs
+    aabb = grid.aabb
+    sp, _, _ = m.surface_points(n, rng)
+    sp = sp + rng.normal(scale=sigma, size=sp.shape)
+    sp = np.clip(sp, aabb[:3], aabb[3:])
+    ps, pc = _point_tsdf(dist, m, sp, grid.threshold, grid=(grid.sdf, sure, aabb[:3].astype(np.float64), vs), pbr=pbr)
+    return sp.astype(np.float32), ps, pc
 
 
 # --------------------------------------------------------------------------- files

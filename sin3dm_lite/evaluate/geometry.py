@@ -129,7 +129,7 @@ def input_occupancy(mesh, aabb, resolution: int = 128) -> np.ndarray:
     mesh (a ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)``) must be in the same (normalised) coordinates as ``aabb``, e.g.
     ``mesh.normalized()`` for the box a fit used.
     """
-    from ..data.grid import inside
+    from ..data.distance import inside
 
     box = as_aabb(aabb)
     shape = grid_shape(box, resolution)

@@ -36,7 +36,6 @@ pyglet window.
 """
 from __future__ import annotations
 
-import io
 import os
 import sys
 from collections.abc import Sequence
@@ -45,7 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from ..data.export import baked_image
-from ..data.mesh_io import TexturedMesh
+from ..data.formats.images import png_bytes
+from ..data.mesh import TexturedMesh
 from ..errors import Sin3DMInputError
 from ..files import atomic_write
 
@@ -54,22 +54,6 @@ FOV = 40.0
 #: the hero view: (azimuth, elevation) in degrees
 HERO = (35.0, 25.0)
 BACKGROUND = 255
-
-
-def png_bytes(image: np.ndarray, max_size: int | None = None) -> bytes:
-    """Encode an ``(h, w, 3|4)`` image (float in [0, 1] or uint8) as PNG, shrunk to ``max_size`` if larger."""
-    from PIL import Image
-
-    img = np.asarray(image)
-    if img.dtype != np.uint8:
-        img = np.clip(np.round(img.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
-    pil = Image.fromarray(img[..., :3] if img.ndim == 3 else img)
-    if max_size and max(pil.size) > max_size:
-        scale = max_size / max(pil.size)
-        pil = pil.resize((max(1, round(pil.size[0] * scale)), max(1, round(pil.size[1] * scale))), Image.BILINEAR)
-    buf = io.BytesIO()
-    pil.save(buf, format="png")
-    return buf.getvalue()
 
 
 def _pyrender():

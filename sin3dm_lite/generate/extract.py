@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..data.box import as_aabb, to_box
-from ..data.mesh_io import Material, Normalization, TexturedMesh, component_labels, face_areas, tangent_frames
+from ..data.mesh import Material, Normalization, TexturedMesh, component_labels, face_areas, tangent_frames
 from ..errors import Sin3DMInputError
 from ..model.decode import PreparedTriplane, decode_grid, prepare, query_points
 from ..model.triplane import Triplane

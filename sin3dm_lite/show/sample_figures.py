@@ -7,7 +7,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..data.mesh_io import Material, TexturedMesh
+from ..data.mesh import Material, TexturedMesh
 from ..errors import Sin3DMInputError
 from ..evaluate import render
 from ..model.triplane import PLANE_AXES, PLANES, pca_basis, pca_project

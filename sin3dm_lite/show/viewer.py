@@ -25,8 +25,8 @@ import k3d
 import numpy as np
 
 from ..data.export import baked_image, split_corners
-from ..data.mesh_io import TexturedMesh, unique_rows
-from ..evaluate.render import png_bytes
+from ..data.formats.images import png_bytes
+from ..data.mesh import TexturedMesh, unique_rows
 from .camera import UP_AXES, VIEW, fit_camera, screen_up_vector, to_view, view_camera  # noqa: F401 (namespace)
 from .pages import (  # noqa: F401 (the viewer namespace: viewer.save_html in the notebooks)
     NO_WEBGL,

@@ -1,4 +1,4 @@
-"""Tests of sin3dm_lite.data.mesh_io (loaders, bad input, normalisation) and round trips through export's writers.
+"""Tests of the mesh readers: sin3dm_lite.data.load and data/formats/ (loaders, bad input, normalisation) and round trips through export's writers.
 
 Every input is written on the fly into ``tmp_path`` (no binary fixtures).
 The texture used throughout has four coloured quadrants so that a lookup can
@@ -18,16 +18,11 @@ import trimesh
 from PIL import Image
 from trimesh.visual.material import PBRMaterial
 
-from sin3dm_lite import export, mesh_io
+from sin3dm_lite import export
 from sin3dm_lite.data.export import save_glb, save_obj, to_trimesh_scene
-from sin3dm_lite.data.mesh_io import (
-    DEFAULT_COLOR,
-    Material,
-    TexturedMesh,
-    load_any,
-    load_mesh,
-    sample_texture,
-)
+from sin3dm_lite.data.formats.images import image_to_array
+from sin3dm_lite.data.load import load_any, load_mesh
+from sin3dm_lite.data.mesh import BOX_MARGIN, DEFAULT_COLOR, Material, TexturedMesh, sample_texture
 from sin3dm_lite.errors import Sin3DMInputError
 
 RED, GREEN, BLUE, YELLOW = (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)
@@ -717,17 +712,17 @@ def test_missing_mtl_warns(tmp_path):
 
 def test_texture_image_modes(tmp_path):
     grey = Image.fromarray(np.full((4, 4), 128, np.uint8), "L")
-    np.testing.assert_allclose(mesh_io.image_to_array(grey), 128 / 255)
+    np.testing.assert_allclose(image_to_array(grey), 128 / 255)
     rgba = Image.fromarray(np.full((4, 4, 4), (255, 0, 0, 10), np.uint8), "RGBA")
-    arr = mesh_io.image_to_array(rgba)
+    arr = image_to_array(rgba)
     assert arr.shape == (4, 4, 3) and arr.dtype == np.float32
     np.testing.assert_allclose(arr[0, 0], RED)
     pal = Image.fromarray(quadrant_image()).convert("P")
-    np.testing.assert_allclose(mesh_io.image_to_array(pal)[0, 0], RED)
+    np.testing.assert_allclose(image_to_array(pal)[0, 0], RED)
     i16 = Image.fromarray(np.full((4, 4), 65535, np.uint16))
-    np.testing.assert_allclose(mesh_io.image_to_array(i16), 1.0)
+    np.testing.assert_allclose(image_to_array(i16), 1.0)
     big = Image.fromarray(quadrant_image(size=64))
-    small = mesh_io.image_to_array(big, max_size=16)
+    small = image_to_array(big, max_size=16)
     assert small.shape == (16, 16, 3)
     np.testing.assert_allclose(small[0, 0], RED)
 
@@ -735,12 +730,12 @@ def test_texture_image_modes(tmp_path):
 def test_image_arrays_are_scaled_clipped_and_left_alone():
     floats = np.array([[[-0.5, 0.25, np.nan, 0.7], [2.0, 1.0, 0.0, 0.1]]], np.float32)  # RGBA, out of range, NaN
     keep = floats.copy()
-    out = mesh_io.image_to_array(floats)
+    out = image_to_array(floats)
     np.testing.assert_array_equal(out, [[[0.0, 0.25, 0.0], [1.0, 1.0, 0.0]]])
     np.testing.assert_array_equal(floats, keep)  # the caller's array is not modified
     assert out.dtype == np.float32 and out.flags.c_contiguous
-    np.testing.assert_array_equal(mesh_io.image_to_array(np.array([[7, 255]], np.uint8)), [[[np.float32(7) / 255] * 3, [1.0] * 3]])
-    np.testing.assert_array_equal(mesh_io.image_to_array(np.array([[True, False]])), [[[1.0] * 3, [0.0] * 3]])
+    np.testing.assert_array_equal(image_to_array(np.array([[7, 255]], np.uint8)), [[[np.float32(7) / 255] * 3, [1.0] * 3]])
+    np.testing.assert_array_equal(image_to_array(np.array([[True, False]])), [[[1.0] * 3, [0.0] * 3]])
 
 
 # ================================================================== writers
@@ -849,7 +844,7 @@ def test_normalized_box_and_inverse():
                         face_material=np.zeros(12, np.int64), materials=[Material()])
     n = mesh.normalized()
     lo, hi = n.bounds
-    np.testing.assert_allclose((hi - lo).max() * mesh_io.BOX_MARGIN, 2.0)
+    np.testing.assert_allclose((hi - lo).max() * BOX_MARGIN, 2.0)
     np.testing.assert_allclose((lo + hi) / 2, 0, atol=1e-12)
     np.testing.assert_allclose(hi - lo, np.array([4, 2, 1]) * 2 / (4 * 1.03))
     np.testing.assert_allclose(n.normalization.to_original(n.vertices), mesh.vertices, atol=1e-12)

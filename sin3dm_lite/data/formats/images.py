@@ -1,0 +1,93 @@
+"""Images in and out: a texture file or array as float RGB, and float RGB as an 8-bit image or PNG.
+
+Every reader turns its textures into ``(h, w, 3)`` float32 in [0, 1]
+(:func:`image_to_array`); every writer and viewer turns such arrays back into
+8-bit pictures with :func:`array_to_pil` (and :func:`png_bytes` for PNG bytes
+in memory), so the rounding lives in one place.
+"""
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+
+def image_to_array(image, max_size: int | None = None) -> np.ndarray:
+    """A PIL image or array as ``(h, w, 3)`` float32 RGB in [0, 1].
+
+    Alpha is dropped, grey is repeated into RGB, 16-bit and float images are
+    scaled; images larger than ``max_size`` (longest side) are shrunk with a
+    box filter.
+    """
+    from PIL import Image
+
+    if isinstance(image, Image.Image):
+        image.load()
+        if image.mode in ("I;16", "I;16B", "I;16L", "I;16N", "I", "F"):
+            arr = np.asarray(image).astype(np.float32)
+            if image.mode.startswith("I;16"):
+                arr = arr / 65535.0
+            elif image.mode == "I":  # 32-bit int: 16-bit data in practice, 8-bit if it fits
+                arr = arr / (255.0 if arr.max(initial=0) <= 255 else 65535.0)
+            image = Image.fromarray(np.ascontiguousarray(arr, np.float32))  # mode "F", resized below if needed
+        elif image.mode != "RGB":
+            image = image.convert("RGBA" if image.mode in ("P", "PA", "LA", "RGBa", "La") else "RGB")
+        arr = np.asarray(shrink(image, max_size))
+    else:
+        arr = np.asarray(image)
+    if arr.ndim == 2:
+        arr = arr[:, :, None]
+    if arr.ndim != 3 or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise ValueError(f"not an image: array of shape {arr.shape}")
+    # pick the RGB channels first, then make one float32 copy (a 4096² texture is 200 MB per copy)
+    arr = np.repeat(arr[:, :, :1], 3, axis=2) if arr.shape[2] in (1, 2) else arr[:, :, :3]  # grey (+ alpha)
+    out = np.ascontiguousarray(arr, dtype=np.float32)
+    if out is arr:
+        out = out.copy()  # never scale the caller's array in place
+    if arr.dtype in (np.uint8, np.uint16):
+        out /= 255.0 if arr.dtype == np.uint8 else 65535.0
+    elif arr.dtype != bool:
+        np.nan_to_num(out, copy=False)
+        np.clip(out, 0.0, 1.0, out=out)
+    return out
+
+
+def array_to_pil(image: np.ndarray, max_size: int | None = None, resample: str = "box"):
+    """An image as an 8-bit PIL image, shrunk to ``max_size`` (longest side) if given.
+
+    ``image`` is ``(h, w)`` or ``(h, w, c)``: floats in [0, 1] (clipped, then
+    rounded to the nearest of 0..255 in their own precision) or ``uint8`` (as
+    it is). ``resample`` is the shrinking filter, ``"box"`` or ``"bilinear"``.
+    """
+    from PIL import Image
+
+    arr = np.asarray(image)
+    if arr.dtype != np.uint8:
+        arr = np.round(np.clip(arr, 0, 1) * 255).astype(np.uint8)
+    return shrink(Image.fromarray(arr), max_size, resample)
+
+
+def png_bytes(image: np.ndarray, max_size: int | None = None) -> bytes:
+    """Encode an ``(h, w, 3|4)`` image (float in [0, 1] or uint8) as PNG, shrunk to ``max_size`` if larger.
+
+    Alpha is dropped; floats are rounded in double precision and a larger
+    image is shrunk with a bilinear filter (what the viewers and renders have
+    always written).
+    """
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        img = img.astype(np.float64)
+    buf = io.BytesIO()
+    array_to_pil(img[..., :3] if img.ndim == 3 else img, max_size, resample="bilinear").save(buf, format="png")
+    return buf.getvalue()
+
+
+def shrink(img, max_size: int | None, resample: str = "box"):
+    """A PIL image shrunk (``"box"`` or ``"bilinear"`` filter) so that its longest side is at most ``max_size``."""
+    from PIL import Image
+
+    if not max_size or max(img.size) <= max_size:
+        return img
+    s = max_size / max(img.size)
+    filters = {"box": Image.BOX, "bilinear": Image.BILINEAR}
+    return img.resize((max(1, round(img.width * s)), max(1, round(img.height * s))), filters[resample])
