@@ -126,12 +126,13 @@ def test_the_near_copy_is_printed_with_its_goals(capsys):
 
 def test_a_near_copy_that_keeps_nothing_sets_no_ceiling():
     """A fit that cannot even copy its input (its near copy keeps no patch) is not judged against nothing: its goals
-    stop at a fifth of the absolute ones, which no setting keeps, so it gets the lowest setting and says why."""
+    stay absolute, no setting keeps them, so it gets the lowest setting and says why."""
     knob = _Knob(0.0)  # empty samples at every setting, the near copy's too
     cal = C.calibrate_diversity(knob, _reference(), n=2, refine=0, progress=False)
-    assert cal.near_copy["lp_iou"] == 0.0 and cal.goals == pytest.approx({k: C.FLOOR * v for k, v in C.GOALS.items()})
+    assert cal.near_copy["lp_fscore"] == 0.0 < C.MIN_CEILING and cal.goals == C.GOALS
     assert cal.diversity == C.LOWEST and not cal.kept_goals
-    assert "goal 0.11 (the floor, 20% of the absolute 0.55: the near copy keeps too little" in cal.story()
+    assert "LP-IoU: near copy 0.00; goal 0.55 (the absolute goal: a near copy of LP-F below 0.1 sets no ceiling)" \
+        in cal.story()
 
 
 def test_old_records_still_load():
@@ -283,7 +284,8 @@ def test_a_fit_saves_its_calibrated_diversity(calibrated):
     assert model.config.sampling.diversity == cal["diversity"]
     assert C.LOWEST <= cal["diversity"] <= 1.0 and cal["tried"][0]["diversity"] == 1.0 and "lp_iou_fitted" in cal["tried"][0]
     assert cal["near_copy"]["diversity"] == C.NEAR_COPY and cal["absolute_goals"] == C.GOALS
-    assert cal["goals"] == {k: min(v, max(round(C.RELATIVE * cal["near_copy"][k], 4), C.FLOOR * v))
+    ceiling = cal["near_copy"]["lp_fscore"] >= C.MIN_CEILING
+    assert cal["goals"] == {k: min(v, round(C.RELATIVE * cal["near_copy"][k], 4)) if ceiling else v
                             for k, v in C.GOALS.items()}
     assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == cal["diversity"]
     report = json.loads((run / "report.json").read_text())
@@ -427,20 +429,19 @@ def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
 
 
 def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
-    """The barely trained micro model keeps no patches, not even in its near copy, so its goals are the floor (a
-    fifth of the absolute ones) and the calibration lands on its lowest setting, 0.1."""
+    """The barely trained micro model keeps no patches, not even in its near copy, so its goals stay absolute and
+    the calibration lands on its lowest setting, 0.1."""
     _, run = calibrated
     cfg = json.loads((run / "config.json").read_text())
     cfg["sampling"]["diversity"] = 0.9  # config.json is rewritten from the model the command loads and calibrates
     (run / "config.json").write_text(json.dumps(cfg))
     code = main(["calibrate", str(run), "-n", "2", "--lp-iou", "0.3", "--lp-f", "0.4"])
     out = capsys.readouterr().out
-    assert code == 0 and "→ 0.1 " in out and "saved" in out and "the near copy keeps too little" in out
+    assert code == 0 and "→ 0.1 " in out and "saved" in out and "sets no ceiling" in out
     assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == 0.1
     assert Sin3DM.load(run).config.sampling.diversity == 0.1
     report = json.loads((run / "report.json").read_text())
-    assert report["calibration"]["absolute_goals"] == {"lp_iou": 0.3, "lp_fscore": 0.4}
-    assert report["calibration"]["goals"] == pytest.approx({"lp_iou": 0.06, "lp_fscore": 0.08})
+    assert report["calibration"]["goals"] == report["calibration"]["absolute_goals"] == {"lp_iou": 0.3, "lp_fscore": 0.4}
     assert report["calibration"]["kept_goals"] is False
 
 
