@@ -50,14 +50,14 @@ VARIANTS = [
 
 def draw_pool(run: str, out: str, n: int) -> None:
     from sin3dm_lite import Sin3DM
-    from sin3dm_lite.evaluate.calibrate import score_setting
+    from sin3dm_lite.evaluate.calibrate import model_sampler, score_setting
 
     model = Sin3DM.load(run)
     ref = np.load(Path(run) / "grid.npz")["sdf"] < 0
     res = max(ref.shape)
     pool, t0 = {}, time.perf_counter()
     for j, d in enumerate(SETTINGS):
-        row = score_setting(model, ref, d, n, 50_000 + 1000 * j)  # seeds apart from the calibration's (10,000+)
+        row = score_setting(model_sampler(model, ref), ref, d, n, 50_000 + 1000 * j)  # seeds apart from the calibration's (10,000+)
         pool[str(d)] = row["per_sample"]
         print(f"{run} diversity {d:.2f}: LP-IoU {row['lp_iou']:.3f} LP-F {row['lp_fscore']:.3f} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)

@@ -8,7 +8,7 @@ table of levels and checks it, imports inside functions included)::
 
     0 base      errors · device · threads (how CPU threads wait) · files
     1 data      data: config · presets · box · mesh (the mesh type) · formats (file readers, images) · load (read
-                a mesh) · export (OBJ / GLB writers) · examples · distance · grid (mesh → TSDF)
+                a mesh) · export (OBJ / GLB writers) · examples · ruin · distance · grid (mesh → TSDF)
     2 model     model: triplane · training · autoencoder · decode · unet · diffusion (schedule, training, sampling)
     3 generate  generate: control (what to sample: outpaint, ...) · extract (SDF → textured mesh)
     4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render · calibrate

@@ -667,21 +667,22 @@ class Sin3DM:
         :meth:`input_mesh`, voxelised at the fit's grid resolution).
         The choice and what was tried land in ``report["calibration"]``;
         ``options`` go to ``calibrate_diversity`` (``goals``, ``n``, ``seed``,
-        ``lowest``, ``step``, ``margin``, ``refine``, ``caution``, ``safety``). :meth:`save` (or
+        ``lowest``, ``step``, ``margin``, ``refine``, ``caution``, ``safety``, ``relative``). :meth:`save` (or
         ``sin3dm-lite calibrate``) keeps it.
         """
-        from .evaluate.calibrate import calibrate_diversity
+        from .evaluate.calibrate import calibrate_diversity, model_sampler
 
         if reference is None:
             mesh = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
             resolution = max(self.report.get("grid_shape") or [self.config.grid.resolution])
             reference = self.input_occupancy(mesh, resolution)
-        cal = calibrate_diversity(self, reference, progress=progress, **options)
+        cal = calibrate_diversity(model_sampler(self, reference), reference, progress=progress, **options)
         self.config = self.config.updated(**{"sampling.diversity": cal.diversity})
         self.report["calibration"] = cal.to_dict()
         if progress:
             print(f"[calibrate] {'chose' if cal.kept_goals else 'no setting kept the goals; the lowest tried,'} "
                   f"diversity {cal.diversity:g}", flush=True)
+            print("\n".join(f"[calibrate] {line}" for line in cal.story().splitlines()), flush=True)
         return cal
 
     def input_sample(self) -> Samples:

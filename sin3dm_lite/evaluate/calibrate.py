@@ -8,17 +8,43 @@ samples' LP-IoU against the input falls fast as the knob opens, while a rock
 field keeps its patches at 1.0 (docs/calibration.md). So no fixed default
 suits every mesh.
 
-:func:`calibrate_diversity` measures the curve instead. It walks down the
-knob from 1 (pure noise, the paper's sampling) in steps of 0.1, draws a few
-samples at each setting, decodes their occupancy at the fit's grid
-resolution and scores them against the input's occupancy with the paper's
-LP-IoU / LP-F (:func:`metrics.lp_scores`: the share of the samples' surface
-patches that have a near-exact match among the input's). It stops at the
-first setting that keeps the goals with room to spare, smooths the scores
-into a curve that falls with the knob, draws a few more settings where that
-curve crosses the goals, and returns the crossing of the curve lowered by 1.5
-standard errors (for the noise of a few samples). Each setting gets its own
-sample seeds, so no single lucky or unlucky set of samples decides.
+:func:`calibrate_diversity` measures the curve instead. It takes a *sampling
+function* ``sample_fn(diversity, n, seed) -> [occupancy grid, ...]`` (for a
+fitted model, :func:`model_sampler` makes one: a few samples decoded to their
+occupancy at the fit's grid resolution, no meshes) and scores what it returns
+against the input's occupancy with the paper's LP-IoU / LP-F
+(:func:`metrics.lp_scores`: the share of the samples' surface patches that have
+a near-exact match among the input's).
+
+First it scores the shape's own **near copy** (diversity 0.05, :data:`NEAR_COPY`):
+what this fit keeps of the input at this grid at all, its ceiling. A wall two
+voxels thick cannot be held exactly by the grid, so even a near copy of a thin
+ruin keeps few patches; goals it cannot reach would send the walk to its floor,
+the most varied setting. So each goal is the smaller of the absolute goal
+(:data:`GOALS`) and 85 % of the near copy's score (:data:`RELATIVE`); a near
+copy whose LP-F is below 0.1 (:data:`MIN_CEILING`) sets no ceiling, since a fit
+that cannot even copy its input is not to be judged against nothing. Shapes
+whose near copy keeps the input are judged as before, thin ones against their
+own ceiling.
+
+Then it walks down the knob from 1 (pure noise, the paper's sampling) in steps
+of 0.1, down to 0.1 (:data:`LOWEST`) if the shape needs it, draws a few samples
+at each setting, stops at the first setting that keeps the goals with room to
+spare, smooths the scores into a curve that falls with the knob, draws a few
+more settings where that curve crosses the goals, and returns the crossing of
+the curve lowered by 1.5 standard errors (for the noise of a few samples). Each
+setting gets its own sample seeds, so no single lucky or unlucky set of samples
+decides. The samples' G-Div at the choice is recorded against the diversity
+requirement (:data:`G_DIV_GOAL`); it does not move the choice, which fidelity
+decides. :meth:`Calibration.story` tells it: per goal, the near copy's score,
+the goal and the choice.
+
+**Grid.** Everything is measured on the grid of the reference given, for a fit
+its training grid (64 voxels along the longest side for ``small`` and
+``quick``), which is fast; the paper measures at 128 voxels, where thin parts
+score higher (``sin3dm-lite evaluate --resolution 128`` measures there, and
+``benchmarks/bench_samples.py`` reports both grids). The record keeps its
+resolution and the story names it.
 
 ``Sin3DM.fit`` runs it at the end of a fit when the preset's
 ``sampling.calibrate`` is on (``small``, ``detail``, ``quick``) and saves the chosen value as the
@@ -28,26 +54,51 @@ decoded on the training grid, no meshes.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
 from ..errors import Sin3DMInputError
 
-#: what the samples must keep against the input: the paper's averages are LP-F 0.699 at G-Div 0.224, and the
-#: project's goals LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter by a few hundredths
-#: around the figures of many (docs/calibration.md), so the choice does too
+#: what the samples must keep against the input at most: the paper's averages are LP-F 0.699 at G-Div 0.224, and
+#: the project's goals LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter by a few
+#: hundredths around the figures of many (docs/calibration.md), so the choice does too
 GOALS = {"lp_iou": 0.55, "lp_fscore": 0.70}
+#: the goals relative to the ceiling: each goal is at most this share of the shape's near-copy score
+RELATIVE = 0.85
+#: the least LP-F a near copy must keep to set a ceiling: below it the fit does not reproduce its input (a barely
+#: trained one keeps no patch) and the goals stay absolute. LP-F, the lenient score: a faithful near copy of walls
+#: 2-3 voxels thick on a 32-voxel grid (reconstruction IoU 0.94) keeps LP-IoU 0.02 but LP-F 0.15
+MIN_CEILING = 0.1
+#: the setting whose samples stand for the near copy (the ceiling), and where its seeds start (after ``seed``)
+NEAR_COPY, NEAR_COPY_SEEDS = 0.05, 100_000
+#: the diversity requirement: the samples' G-Div at the choice (the issue's goal; recorded, not a goal of the walk)
+G_DIV_GOAL = 0.15
+#: the ladder's floor: the lowest setting drawn, and the answer when even it misses the goals
+LOWEST = 0.1
 
 #: extra settings drawn near the answer once the ladder has bracketed it (:func:`calibrate_diversity`)
 REFINE = 4
 #: how the smoothed curve is read: lowered by CAUTION standard errors, SAFETY (a share of patches) above each goal
 SAFETY, CAUTION = 0.0, 1.5
+_NAMES = {"lp_iou": "LP-IoU", "lp_fscore": "LP-F"}
+
+#: ``sample_fn(diversity, n, seed)``: ``n`` samples' occupancy grids, seeds ``seed`` …, on the reference's grid
+SampleFn = Callable[[float, int, int], Sequence[np.ndarray]]
 
 
 @dataclass
 class Calibration:
-    """What :func:`calibrate_diversity` chose, and the settings it tried on the way (in order)."""
+    """What :func:`calibrate_diversity` chose, the settings it tried on the way (in order), and why.
+
+    ``goals`` are the goals the settings were judged by; with a near copy
+    (``near_copy``, the ceiling) each is the smaller of ``absolute_goals`` and
+    ``relative`` × the near copy's score (the absolute goal where the near copy's
+    LP-F is below :data:`MIN_CEILING`). ``at_choice`` holds the smoothed patch
+    scores and the samples' G-Div at the chosen setting. A record written
+    before the ceiling (absolute goals only) loads with :meth:`from_dict`.
+    """
 
     diversity: float
     goals: dict
@@ -55,15 +106,55 @@ class Calibration:
     resolution: int
     tried: list = field(default_factory=list)  # [{"diversity", "n", "lp_iou", "lp_fscore", "g_div", "kept", "*_sd", "*_fitted"}]
     kept_goals: bool = False  # False when even the lowest setting drawn missed the goals (then it is the answer)
+    near_copy: dict | None = None  # {"diversity", "n", "lp_iou", "lp_fscore", "g_div", "*_sd"}: the ceiling
+    absolute_goals: dict | None = None  # the caps (GOALS or the caller's); None: the goals were absolute
+    relative: float | None = None  # the share of the near copy's scores
+    at_choice: dict | None = None  # {"lp_iou", "lp_fscore", "g_div"} at the chosen setting (smoothed; G-Div between draws)
+    g_div_goal: float | None = None  # the diversity requirement the choice is reported against
 
     def to_dict(self) -> dict:
         return asdict(self)
 
+    @classmethod
+    def from_dict(cls, record: dict) -> Calibration:
+        """A record from a run's ``report.json`` (``report["calibration"]``), older ones (no ceiling) included."""
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in record.items() if k in known})
+
+    def story(self) -> str:
+        """Why this setting, a line per goal: the near copy's score (the ceiling), the goal, the choice."""
+        grid = f"at {self.resolution} voxels (the paper measures at 128)"
+        chosen = f"chosen {self.diversity:g}" + ("" if self.kept_goals else " (the lowest drawn: no setting kept the goals)")
+        at = self.at_choice or {}
+        if self.near_copy is None:
+            goals = ", ".join(f"{_NAMES.get(k, k)} {v:.2f}" for k, v in self.goals.items())
+            return f"absolute goals {goals} {grid} (no near copy scored); {chosen}"
+        lines = []
+        for key, goal in self.goals.items():
+            absolute = (self.absolute_goals or {}).get(key, goal)
+            if self.near_copy["lp_fscore"] < MIN_CEILING:
+                why = f"the absolute goal: a near copy of LP-F below {MIN_CEILING:g} sets no ceiling"
+            elif goal >= absolute:
+                why = f"the absolute goal; {self.relative:.0%} of the near copy is above it"
+            else:
+                why = f"{self.relative:.0%} of the near copy; the absolute {absolute:.2f} is out of its reach"
+            there = f", smoothed {at[key]:.2f} there" if key in at else ""
+            lines.append(f"{_NAMES.get(key, key)}: near copy {self.near_copy[key]:.2f}; goal {goal:.2f} ({why}); "
+                         f"{chosen}{there}")
+        if self.g_div_goal is not None and np.isfinite(at.get("g_div", np.nan)):
+            met = "meets" if at["g_div"] >= self.g_div_goal else "is below"
+            lines.append(f"G-Div at {self.diversity:g}: {at['g_div']:.2f}, which {met} the diversity requirement "
+                         f"{self.g_div_goal:.2f} (near copy {self.near_copy['g_div']:.2f})")
+        lines.append(f"measured {grid}; near copy = diversity {self.near_copy['diversity']:g}")
+        return "\n".join(lines)
+
     def summary(self) -> str:
-        """One line per setting drawn (raw and smoothed patch scores, G-Div), then the choice."""
+        """One line per setting drawn (raw and smoothed patch scores, G-Div), then the choice and why."""
         lines = [f"diversity {t['diversity']:.2f}: LP-IoU {t['lp_iou']:.3f} (smoothed {t['lp_iou_fitted']:.3f}) · "
                  f"LP-F {t['lp_fscore']:.3f} (smoothed {t['lp_fscore_fitted']:.3f}) · G-Div {t['g_div']:.3f}"
                  for t in self.tried]
+        if self.near_copy is not None:
+            lines.extend(self.story().splitlines())
         lines.append(f"chosen: {self.diversity:g}" + ("" if self.kept_goals else
                                                         " (the lowest drawn: no setting kept the goals)"))
         return "\n".join(lines)
@@ -89,6 +180,24 @@ def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int
     return out
 
 
+def model_sampler(model, reference: np.ndarray) -> SampleFn:
+    """The sampling function :func:`calibrate_diversity` takes, for a fitted :class:`~sin3dm_lite.Sin3DM`: its
+    samples decoded to occupancy (:func:`sample_occupancy`) on ``reference``'s grid, which must lie on the
+    model's box (the training grid's ``sdf < 0``, or the input voxelised on that box)."""
+    from ..data.box import grid_shape
+
+    shape = np.shape(reference)
+    resolution = max(shape)
+    if tuple(grid_shape(model.aabb, resolution)) != tuple(shape):
+        raise Sin3DMInputError(f"the reference grid {shape} is not on this model's box at {resolution} "
+                               "voxels; pass the training grid's occupancy (grid.sdf < 0 of the run's grid.npz)")
+
+    def sample_fn(diversity: float, n: int, seed: int) -> list[np.ndarray]:
+        return sample_occupancy(model, diversity, n, seed, resolution)
+
+    return sample_fn
+
+
 def summarize(per_sample: dict, g_div: float = float("nan")) -> dict:
     """A setting's row from its samples' scores (``{"lp_iou": [...], "lp_fscore": [...]}``): each goal's mean and
     per-sample spread (``*_sd``, for the standard errors), and the samples' G-Div."""
@@ -98,12 +207,15 @@ def summarize(per_sample: dict, g_div: float = float("nan")) -> dict:
     return row
 
 
-def score_setting(model, reference: np.ndarray, diversity: float, n: int, seed: int) -> dict:
-    """``n`` samples at ``diversity`` scored against ``reference`` (its longest side sets the resolution): the row
-    :func:`summarize` makes, plus the per-sample scores (``per_sample``)."""
+def score_setting(sample_fn: SampleFn, reference: np.ndarray, diversity: float, n: int, seed: int) -> dict:
+    """``n`` samples of ``sample_fn`` at ``diversity`` scored against ``reference``: the row :func:`summarize`
+    makes, plus the per-sample scores (``per_sample``)."""
     from .metrics import g_div, lp_scores
 
-    occ = sample_occupancy(model, diversity, n, seed, max(reference.shape))
+    occ = [np.asarray(o, bool) for o in sample_fn(diversity, n, seed)]
+    if len(occ) != n or any(o.shape != reference.shape for o in occ):
+        raise Sin3DMInputError(f"the sampling function gave {len(occ)} grids of shapes {sorted({o.shape for o in occ})}"
+                               f" for {n} samples; calibration needs {n} grids of the reference's {reference.shape}")
     lp = lp_scores(reference, occ)
     per_sample = {"lp_iou": lp["per_shape_iou"], "lp_fscore": lp["per_shape_fscore"]}
     return {**summarize(per_sample, g_div(occ)), "per_sample": per_sample}
@@ -172,15 +284,24 @@ def _choice(tried: list[dict], goals: dict, safety: float, caution: float) -> fl
     return None if any(c is None for c in crossings) else float(min(crossings))
 
 
-def calibrate_diversity(model, reference: np.ndarray, goals: dict | None = None, n: int = 8, seed: int = 10_000,
-                        lowest: float = 0.5, step: float = 0.1, margin: float = 0.05, safety: float = SAFETY,
-                        refine: int = REFINE, caution: float = CAUTION, progress: bool = True) -> Calibration:
-    """The highest diversity in ``[lowest, 1]`` whose samples keep ``goals`` against ``reference``.
+def calibrate_diversity(sample_fn: SampleFn, reference: np.ndarray, goals: dict | None = None, n: int = 8,
+                        seed: int = 10_000, lowest: float = LOWEST, step: float = 0.1, margin: float = 0.05,
+                        safety: float = SAFETY, refine: int = REFINE, caution: float = CAUTION,
+                        relative: float | None = RELATIVE, progress: bool = True) -> Calibration:
+    """The highest diversity in ``[lowest, 1]`` whose samples keep the goals against ``reference``.
 
-    Walks down a ladder of settings, 1, 1 - ``step``, ... ``lowest``, drawing
+    First the near copy: ``n`` samples at diversity :data:`NEAR_COPY` (seeds
+    from ``seed + NEAR_COPY_SEEDS``), scored against ``reference`` on its grid:
+    the ceiling of this fit at this grid. Each goal is the smaller of
+    ``goals[key]`` and ``relative`` × the near copy's score; a near copy whose
+    LP-F is below :data:`MIN_CEILING` sets none (``relative=None``: the goals as
+    given, no near copy drawn).
+
+    Then it walks down a ladder of settings, 1, 1 - ``step``, ... ``lowest``, drawing
     ``n`` samples at each with **seeds of its own** (``seed + 1000·k`` for the
     k-th setting drawn), and stops at the first setting whose samples keep
-    every goal by ``margin`` (lower settings only keep more). The patch scores
+    every goal by ``margin`` (lower settings only keep more; a goal lowered to its
+    ceiling lowers its margin in proportion). The patch scores
     of all settings drawn are made non-increasing in the knob (pooling
     neighbours that disagree by chance, weighted by their samples). Then,
     ``refine`` times, it draws ``n`` more samples at the point of a half-step
@@ -189,7 +310,9 @@ def calibrate_diversity(model, reference: np.ndarray, goals: dict | None = None,
     ``caution`` standard errors (the samples' spread over the root of the
     samples each smoothed score rests on) and read ``safety`` above each goal,
     crosses it, linearly between the two settings around the crossing; the
-    lower crossing of the two goals wins.
+    lower crossing of the two goals wins. The near copy's samples set the
+    goals and do not enter the curve, so a shape whose near copy keeps the
+    absolute goals is calibrated as it was before the ceiling.
 
     Why so (``benchmarks/bench_calibration.py`` replays the calibration 400
     times on 48 stored samples per setting; docs/calibration.md): independent seeds per setting matter, since one set of samples
@@ -204,11 +327,11 @@ def calibrate_diversity(model, reference: np.ndarray, goals: dict | None = None,
     edge where the curve is flat (the replays are in docs/calibration.md).
 
     Args:
-        model: a fitted :class:`~sin3dm_lite.Sin3DM`.
-        reference: the input's occupancy on the model's box (the training
-            grid's ``sdf < 0``; its longest side sets the resolution samples
-            are decoded at).
-        goals: minimum ``lp_iou`` and ``lp_fscore`` (default :data:`GOALS`).
+        sample_fn: ``sample_fn(diversity, n, seed)`` returns ``n`` samples' occupancy grids (seeds ``seed`` …)
+            on ``reference``'s grid; :func:`model_sampler` makes one for a fitted model.
+        reference: the input's occupancy (for a fit, the training grid's ``sdf < 0``: the calibration
+            measures on its grid, the training grid, not the paper's 128 voxels).
+        goals: the most ``lp_iou`` and ``lp_fscore`` asked for (default :data:`GOALS`).
         n: samples per setting (at least 2, for G-Div).
         seed: the first sample seed.
         lowest: the lowest setting drawn, and the answer when even it misses the goals.
@@ -217,8 +340,43 @@ def calibrate_diversity(model, reference: np.ndarray, goals: dict | None = None,
         safety: how far above each goal (a share of patches) the smoothed curve is read.
         refine: how many more settings to draw near the answer once the ladder has bracketed it.
         caution: how many standard errors the smoothed curve is lowered before it is read.
+        relative: each goal is at most this share of the near copy's score (None: absolute goals).
     """
-    goals = dict(GOALS if goals is None else goals)
+    absolute = dict(GOALS if goals is None else goals)
+    _check_options(absolute, n, refine, lowest, step, caution, safety, margin, relative)
+    reference = np.asarray(reference, bool)
+
+    def draw(d: float, k: int) -> dict:
+        return score_setting(sample_fn, reference, d, n, seed + 1000 * k)
+
+    result = Calibration(diversity=lowest, goals=absolute, n=int(n), resolution=max(reference.shape),
+                         g_div_goal=G_DIV_GOAL)
+    if relative is not None:
+        _set_ceiling(result, draw(NEAR_COPY, NEAR_COPY_SEEDS // 1000), relative, progress)
+    # a goal lowered to its ceiling lowers its margin alike: a near copy keeps only 1/RELATIVE of its goal
+    margins = {k: margin * (v / absolute[k] if absolute[k] > 0 else 1.0) for k, v in result.goals.items()}
+    _walk(result, draw, lowest, step, margins, safety, refine, caution, progress)
+    result.at_choice = _at_choice(result)
+    return result
+
+
+def _set_ceiling(result: Calibration, near: dict, relative: float, progress: bool) -> None:
+    """Record the near copy's row ``near`` and lower ``result.goals`` (the absolute ones) to ``relative`` × its
+    scores, unless its LP-F is below :data:`MIN_CEILING`."""
+    absolute = result.goals
+    near.pop("per_sample", None)
+    result.near_copy = {"diversity": NEAR_COPY, "n": result.n, **near}
+    if near["lp_fscore"] >= MIN_CEILING:
+        result.goals = {k: min(v, round(relative * near[k], 4)) for k, v in absolute.items()}
+    result.absolute_goals, result.relative = absolute, float(relative)
+    if progress:
+        print(f"[calibrate] near copy (diversity {NEAR_COPY:g}): " + "; ".join(
+            f"{_NAMES[k]} {near[k]:.3f}, goal {result.goals[k]:.3f}" for k in absolute)
+            + f" ({relative:.0%} of it, at most {', '.join(f'{v:.2f}' for v in absolute.values())})", flush=True)
+
+
+def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin, relative) -> None:
+    """:func:`calibrate_diversity`'s options, each refused in one line naming it."""
     unknown = set(goals) - set(GOALS)
     if unknown:
         raise Sin3DMInputError(f"unknown calibration goals {sorted(unknown)}; use {sorted(GOALS)}")
@@ -234,30 +392,36 @@ def calibrate_diversity(model, reference: np.ndarray, goals: dict | None = None,
         raise Sin3DMInputError(f"caution is a number of standard errors from 0 to 10, got {caution!r}")
     if not 0.0 <= safety < 1.0 or not 0.0 <= margin < 1.0:
         raise Sin3DMInputError(f"margin and safety are shares of patches from 0 to below 1, got {margin!r} and {safety!r}")
+    if relative is not None and not 0.0 < relative <= 1.0:
+        raise Sin3DMInputError(f"relative is a share of the near copy's scores, above 0 and at most 1, got {relative!r}")
     bad = {k: v for k, v in goals.items() if not 0.0 <= v <= 1.0}
     if bad:
         raise Sin3DMInputError(f"calibration goals are shares of patches, from 0 to 1; got {bad}")
-    reference = np.asarray(reference, bool)
-    resolution = max(reference.shape)
-    from ..data.box import grid_shape
-
-    if tuple(grid_shape(model.aabb, resolution)) != reference.shape:
-        raise Sin3DMInputError(f"the reference grid {reference.shape} is not on this model's box at {resolution} "
-                               "voxels; pass the training grid's occupancy (grid.sdf < 0 of the run's grid.npz)")
-    def draw(d: float, k: int) -> dict:
-        return score_setting(model, reference, d, n, seed + 1000 * k)
-
-    result = Calibration(diversity=lowest, goals=goals, n=int(n), resolution=resolution)
-    _walk(result, draw, lowest, step, margin, safety, refine, caution, progress)
-    return result
 
 
-def _walk(result: Calibration, draw, lowest: float, step: float, margin: float, safety: float, refine: int,
+def _at_choice(result: Calibration) -> dict:
+    """The smoothed patch scores at the chosen setting, and the samples' G-Div there (linear between the settings
+    drawn around it, each setting's samples pooled)."""
+    out = {}
+    for key in result.goals:
+        levels, fitted, _ = _curve(result.tried, key)
+        out[key] = float(np.interp(result.diversity, levels[::-1], fitted[::-1]))
+    by_setting: dict[float, list[float]] = {}
+    for t in result.tried:
+        by_setting.setdefault(t["diversity"], []).extend([t.get("g_div", np.nan)] * t["n"])
+    levels = sorted(by_setting)
+    out["g_div"] = float(np.interp(result.diversity, levels, [np.mean(by_setting[d]) for d in levels]))
+    return out
+
+
+def _walk(result: Calibration, draw, lowest: float, step: float, margin: float | dict, safety: float, refine: int,
           caution: float, progress: bool) -> None:
     """The ladder, then the refinement, with ``draw(diversity, k) -> {"lp_iou", "lp_fscore", "g_div"}`` scoring
     ``result.n`` samples with the k-th seeds. Fills ``result`` (kept apart from the sampling so that
-    ``benchmarks/bench_calibration.py`` can replay it on stored scores)."""
+    ``benchmarks/bench_calibration.py`` can replay it on stored scores). ``margin``: one for every goal, or one
+    per goal."""
     goals = result.goals
+    margins = margin if isinstance(margin, dict) else dict.fromkeys(goals, margin)
 
     def add(d: float, why: str = "") -> dict:
         row = {"diversity": d, "n": result.n, **draw(d, len(result.tried))}
@@ -273,7 +437,7 @@ def _walk(result: Calibration, draw, lowest: float, step: float, margin: float, 
     below = iter(levels)  # the ladder's settings not drawn yet
     for d in below:
         row = add(d)
-        if all(row[key] >= v + margin for key, v in goals.items()):
+        if all(row[key] >= v + margins[key] for key, v in goals.items()):
             break
 
     def read() -> float | None:
@@ -296,4 +460,5 @@ def _walk(result: Calibration, draw, lowest: float, step: float, margin: float, 
         result.kept_goals = True
 
 
-__all__ = ["GOALS", "Calibration", "calibrate_diversity", "sample_occupancy", "score_setting", "summarize"]
+__all__ = ["GOALS", "G_DIV_GOAL", "LOWEST", "MIN_CEILING", "NEAR_COPY", "RELATIVE", "Calibration", "SampleFn", "calibrate_diversity",
+           "model_sampler", "sample_occupancy", "score_setting", "summarize"]
