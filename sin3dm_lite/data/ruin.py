@@ -27,8 +27,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import Sin3DMInputError
-from .config import get_preset
-from .mesh_io import Material, TexturedMesh
+from .mesh import Material, TexturedMesh
+from .presets import get_preset
 
 #: samples of the signed distance per voxel of the training grid
 DETAIL = 2
