@@ -6,7 +6,7 @@ meshes. One sub-package per stage, in the order data flows; a module imports
 only from its own level or a lower one (``tests/test_architecture.py`` holds the
 table of levels and checks it, imports inside functions included)::
 
-    0 base      errors · device · threads (how CPU threads wait) · files
+    0 base      errors · device · threads (how CPU threads wait) · files: atomic · locks · manifest · outputs
     1 data      data: config · box · mesh_io (read meshes) · export (OBJ / GLB writers) · examples · grid (mesh → TSDF)
     2 model     model: triplane · training · autoencoder · decode · unet · diffusion (schedule, training, sampling)
     3 generate  generate: control (what to sample: outpaint, ...) · extract (SDF → textured mesh)
