@@ -426,10 +426,10 @@ def check_sample_output(out: Path, a, protected: dict) -> None:
     """Everything about ``--out``, ``-n`` and ``--start`` that can fail, checked before any work or writing.
 
     A folder holding a sample run of ours (``sampling.json``) passes here; its
-    settings are compared once the model is loaded (:func:`mass.check_folder`).
+    settings are compared once the model is loaded (:func:`mass_folder.check_folder`).
     """
     from .files import check_not_overlapping, check_output_folder, check_writable
-    from .mass import MAX_RUN_SAMPLES, WRITER, read_settings, sample_output_names
+    from .mass_folder import MAX_RUN_SAMPLES, WRITER, read_settings, sample_output_names
 
     if a.start + a.n > MAX_RUN_SAMPLES:
         raise Sin3DMInputError(f"-n {a.n} (from --start {a.start}) is too many samples: indices go up to at most "
@@ -482,7 +482,8 @@ def find_run(name: str) -> Path:
 
 def cmd_sample(a) -> None:
     from .device import get_device
-    from .mass import start_ranks, stop_ranks, write_samples
+    from .mass import write_samples
+    from .mass_workers import start_ranks, stop_ranks
     from .pipeline import Sin3DM
 
     run = find_run(a.run)
