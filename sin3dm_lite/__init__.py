@@ -13,7 +13,8 @@ table of levels and checks it, imports inside functions included)::
     4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render · calibrate
     5 show      show: figures · data/model/diffusion/sample/eval_figures · viz (all figures) · viewer · widgets
     5 teach     teach: lesson2d (the method on one 2D image) · exercises (``check_…`` a piece you wrote)
-    6 app       pipeline (Sin3DM: fit, sample, save, load) · runs · mass · cli · pretrained (models in shipped/)
+    6 app       pipeline (Sin3DM: fit, sample, save, load) · runs · pretrained (models in shipped/) ·
+                mass · mass_folder · mass_workers · cli: parser · fitting · sampling · evaluation
 
 Everything a notebook or script needs is importable from here::
 
