@@ -6,7 +6,7 @@ meshes. One sub-package per stage, in the order data flows; a module imports
 only from its own level or a lower one (``tests/test_architecture.py`` holds the
 table of levels and checks it, imports inside functions included)::
 
-    0 base      errors · device · threads (how CPU threads wait) · files
+    0 base      errors · device · threads (how CPU threads wait) · files: atomic · locks · manifest · outputs
     1 data      data: config · presets · box · mesh (the mesh type) · formats (file readers, images) · load (read
                 a mesh) · export (OBJ / GLB writers) · examples · ruin · distance · grid (mesh → TSDF)
     2 model     model: triplane · training · autoencoder · decode · unet · diffusion (schedule, training, sampling)
@@ -14,7 +14,8 @@ table of levels and checks it, imports inside functions included)::
     4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render · calibrate
     5 show      show: figures · data/model/diffusion/sample/eval_figures · viz · camera · viewer · pages · widgets
     5 teach     teach: lesson2d (the method on one 2D image) · exercises (``check_…`` a piece you wrote)
-    6 app       pipeline (Sin3DM: fit, sample, save, load) · runs · mass · cli · pretrained (models in shipped/)
+    6 app       pipeline (Sin3DM: fit, sample, save, load) · runs · pretrained (models in shipped/) ·
+                mass · mass_folder · mass_workers · cli: parser · fitting · sampling · evaluation
 
 Everything a notebook or script needs is importable from here::
 

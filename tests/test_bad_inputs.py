@@ -406,7 +406,7 @@ def test_a_kill_while_a_recorded_file_is_replaced_leaves_it_ours(tmp_path, monke
     if step == "before the move":
         monkeypatch.setattr(os, "replace", lambda a, b: _kill() if Path(b).name == "sampling.json" else real(a, b))
     else:
-        monkeypatch.setattr(files, "record_written", _kill)
+        monkeypatch.setattr(files.manifest, "record_written", _kill)  # what recorded_path calls
     with pytest.raises(_Killed):
         files.write_recorded(out / "sampling.json", "newer")  # another size: a stat the old record cannot match
     monkeypatch.undo()

@@ -84,7 +84,7 @@ def test_a_lock_created_but_not_yet_written_is_never_taken_over(tmp_path):
 def test_a_second_writer_arriving_between_create_and_write_is_refused(tmp_path, monkeypatch):
     out = tmp_path / "out"
     out.mkdir()
-    real, seen = files._write_info, []
+    real, seen = files.locks._write_info, []
 
     def then_another_writer(fd):  # the second `sample` started at the same moment runs here
         if not seen:
@@ -93,7 +93,7 @@ def test_a_second_writer_arriving_between_create_and_write_is_refused(tmp_path, 
             seen.append(str(e.value))
         real(fd)
 
-    monkeypatch.setattr(files, "_write_info", then_another_writer)
+    monkeypatch.setattr(files.locks, "_write_info", then_another_writer)
     files.acquire_lock(out, "output folder")
     try:
         assert seen and "just starting" in seen[0]

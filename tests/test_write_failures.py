@@ -12,10 +12,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from sin3dm_lite import mass
+from sin3dm_lite import mass_workers
 from sin3dm_lite.cli import main
 from sin3dm_lite.files import LOCK, TEMP_PREFIX, save_torch, shown_path
-from sin3dm_lite.mass import export_sample as real_export_sample
+from sin3dm_lite.mass_folder import finished
+from sin3dm_lite.mass_workers import export_sample as real_export_sample
 from sin3dm_lite.pipeline import Sin3DM
 from sin3dm_lite.pretrained import pretrained_path
 
@@ -52,18 +53,18 @@ def _no_leftovers(out: Path) -> None:
 
 
 def test_a_killed_export_worker_is_one_line_and_the_finished_samples_are_kept(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(mass, "export_sample", export_then_die)  # submitted to the worker by reference
+    monkeypatch.setattr(mass_workers, "export_sample", export_then_die)  # submitted to the worker by reference
     out = tmp_path / "s"
     assert main(["sample", RUN, "-n", "3", "--out", str(out), "--workers", "1", *CHEAP]) == 2
     msg = _error_line(capsys)
     assert msg.startswith("the export worker process died while exporting sample 001")
     assert "the finished sample is kept" in msg and "run the same command again to continue" in msg
-    assert set(mass.finished(out)) == {0} and (out / "000" / "mesh.obj").is_file()
+    assert set(finished(out)) == {0} and (out / "000" / "mesh.obj").is_file()
     _no_leftovers(out)
     monkeypatch.undo()
     assert main(["sample", RUN, "-n", "3", "--out", str(out), "--workers", "0", *CHEAP]) == 0  # resumes
     assert "1 of the 3 samples are there already; sampling the other 2" in capsys.readouterr().out
-    assert set(mass.finished(out)) == {0, 1, 2}
+    assert set(finished(out)) == {0, 1, 2}
 
 
 def test_torch_save_on_a_full_disk_is_one_line_and_leaves_no_temporary_folder(tmp_path, monkeypatch, capsys):
@@ -82,13 +83,13 @@ def test_torch_save_on_a_full_disk_is_one_line_and_leaves_no_temporary_folder(tm
 
 
 def test_a_full_disk_in_the_export_worker_is_one_line(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(mass, "export_sample", export_no_space)
+    monkeypatch.setattr(mass_workers, "export_sample", export_no_space)
     out = tmp_path / "s"
     assert main(["sample", RUN, "-n", "2", "--out", str(out), "--workers", "1", *CHEAP]) == 2
     assert _error_line(capsys) == (f"no space left on device while writing 'mesh.png' in '{out}'; free space or "
                                    "choose another --out")
     _no_leftovers(out)
-    assert not mass.finished(out)
+    assert not finished(out)
 
 
 def test_save_torch_turns_torch_write_failures_into_os_errors(tmp_path, monkeypatch):

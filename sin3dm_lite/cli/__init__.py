@@ -1,0 +1,102 @@
+"""The ``sin3dm-lite`` command.
+
+    sin3dm-lite examples [--write NAME --out DIR]      list / write the built-in example shapes
+    sin3dm-lite grid MESH --resolution N --out FILE.npz mesh → TSDF + colour grid
+    sin3dm-lite fit MESH_OR_EXAMPLE --preset small --out RUN_DIR [--resume]
+    sin3dm-lite sample RUN_DIR -n 4 --out DIR [--resize SX SY SZ] [--diversity D]
+    torchrun --nproc_per_node=N -m sin3dm_lite.cli sample RUN_DIR -n 1000 --out DIR   sharded (see mass.py)
+    sin3dm-lite demo [--example NAME] [--out DIR] [--train]   the whole method on a built-in example
+    sin3dm-lite render MESH --views 8 --size 512 --out DIR   PNG views (no display or GPU needed)
+    sin3dm-lite evaluate RUN SAMPLES_DIR [--out report.json] [--weights DIR]   the paper's metrics
+    sin3dm-lite calibrate RUN_DIR [-n 8]                choose the run's diversity for its shape (fit does it too)
+    sin3dm-lite --version                               the installed version
+
+With no arguments it prints the help; every option's help shows its default.
+
+Every user error prints one line naming the problem and the fix, and exits
+with code 2 (no traceback).
+
+No command deletes or overwrites a file it did not write: an output folder
+that is not empty is refused unless ``--overwrite`` is given, and then only
+the files its manifest (``.sin3dm-manifest.json``, written by this tool) lists
+as written there by the same command are replaced (``render --overwrite`` into a
+folder of samples keeps the samples). Outputs are checked (writable, not overlapping the run
+folder or the input) before the long work starts; results are written into a
+temporary folder beside the target (``.sin3dm-tmp-<pid>-*``, removed by the
+next run if the process was killed) and moved into place at the end.
+``sample`` and ``demo`` move each sample folder into place as it finishes and
+continue a folder of samples with the same settings (:mod:`sin3dm_lite.mass`).
+
+The parser is in ``parser`` (argparse stays inside this package); the commands in ``fitting``
+(examples, grid, fit), ``sampling`` (sample, demo) and ``evaluation`` (render, evaluate,
+calibrate); ``main`` here runs one and turns user errors into one line.
+"""
+from __future__ import annotations
+
+import sys
+import warnings
+
+from ..errors import Sin3DMInputError
+from .evaluation import cmd_calibrate, cmd_evaluate, cmd_render
+from .fitting import cmd_examples, cmd_fit, cmd_grid
+from .parser import COMMANDS, build_parser, package_version
+from .sampling import cmd_demo, cmd_sample, sample_request
+
+
+def disk_error(e: OSError, out: str | None = None) -> str:
+    """One line for a failed write or read (in this process or in an export worker): what, where and the fix.
+
+    ``out``: the command's ``--out``, named when the error names no file (a ``write`` on a full disk).
+    """
+    import errno
+
+    from ..files import shown_path
+
+    where = f" {shown_path(e.filename)}" if e.filename else ""
+    if e.errno in (errno.ENOSPC, errno.EDQUOT):
+        what = "no space left on device" if e.errno == errno.ENOSPC else "disk quota exceeded"
+        where = where or (f" into '{out}'" if out else " the output")
+        return f"{what} while writing{where}; free space or choose another --out"
+    return f"{e.strerror or e}{where}; check that path (permissions, free space) or choose another --out"
+
+
+def cmd_notebooks(a) -> None:
+    from ..notebook_run import run_all
+
+    code = run_all(a.notebooks, fast=a.fast, check=a.check, clear=a.clear, timeout=a.timeout)
+    if code:
+        raise SystemExit(code)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv:  # no command: the help, as a successful answer
+        parser.print_help()
+        return 0
+    a = parser.parse_args(argv)
+    show = warnings.showwarning
+
+    def one_line(message, category, filename, lineno, file=None, line=None):  # warnings as one line, no source
+        print(f"sin3dm-lite {a.command}: warning: {message}", file=sys.stderr)
+
+    warnings.showwarning = one_line
+    try:
+        {"examples": cmd_examples, "grid": cmd_grid, "fit": cmd_fit, "sample": cmd_sample, "demo": cmd_demo,
+         "render": cmd_render, "evaluate": cmd_evaluate,
+         "calibrate": cmd_calibrate, "notebooks": cmd_notebooks}[a.command](a)
+    except Sin3DMInputError as e:
+        print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # the disk, not the code: a full disk, a folder made read-only meanwhile
+        print(f"sin3dm-lite {a.command}: error: {disk_error(e, getattr(a, 'out', None))}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    finally:
+        warnings.showwarning = show
+    return 0
+
+
+__all__ = ["main", "build_parser", "COMMANDS", "package_version", "sample_request", "disk_error"]

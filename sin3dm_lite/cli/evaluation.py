@@ -1,0 +1,180 @@
+"""``sin3dm-lite render``, ``evaluate`` and ``calibrate``: pictures of a mesh, the paper's metrics of
+samples, and the diversity a run keeps its input's patches at."""
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+
+from ..errors import Sin3DMInputError
+from .sampling import find_run
+
+MAX_VIEWS = 360
+
+
+def cmd_render(a) -> None:
+    from ..evaluate.render import contact_sheet, render_hero, render_views, view_names
+    from ..files import (
+        check_not_overlapping,
+        check_output_folder,
+        check_writable,
+        install_output,
+        make_temp_dir,
+        remove_stale_temps,
+    )
+    from ..pipeline import resolve_mesh
+    from ..show.viewer import png_bytes
+
+    out = Path(a.out)
+    if a.views > MAX_VIEWS:
+        raise Sin3DMInputError(f"--views {a.views} is too many; ask for at most {MAX_VIEWS}")
+    if not 16 <= a.size <= 4096:
+        raise Sin3DMInputError(f"--size must be from 16 to 4096 pixels, got {a.size}")
+    if not -89 <= a.elevation <= 89:
+        raise Sin3DMInputError(f"--elevation must be from -89 to 89 degrees, got {a.elevation}")
+    names = view_names(a.views) + ["contact_sheet.png"]
+    if Path(a.mesh).exists():
+        check_not_overlapping(out, {"input mesh": Path(a.mesh)})
+    check_output_folder(out, a.overwrite, names, by="render")
+    check_writable(out)
+    mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
+    t0 = time.perf_counter()
+    views = render_views(mesh, n_views=a.views, size=a.size, elevation=a.elevation)
+    hero = render_hero(mesh, size=a.size)
+    sheet = contact_sheet(views + [hero], [f"azimuth {360 * k / a.views:g}" for k in range(a.views)] + ["hero"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(out.parent)
+    tmp = make_temp_dir(out.parent)
+    try:
+        for name, img in zip(names, views + [hero, sheet]):
+            (tmp / name).write_bytes(png_bytes(img))
+        install_output(tmp, out, by="render")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    print(f"wrote {a.views} views + hero.png + contact_sheet.png to {out} ({time.perf_counter() - t0:.1f} s)")
+
+
+MESH_NAMES = ("mesh.obj", "mesh.glb")  # what `sample` writes into each NNN/ folder, in order of preference
+
+
+def sample_mesh_files(folder: Path) -> list[Path]:
+    """The mesh of each ``NNN/`` sample folder in ``folder`` (``mesh.obj``, else ``mesh.glb``), in order."""
+    if not folder.is_dir():
+        what = "is a file" if folder.exists() else "not found"
+        raise Sin3DMInputError(f"samples folder '{folder}' {what}; give the --out folder of `sin3dm-lite sample`")
+    files = []
+    for d in sorted((d for d in folder.iterdir() if d.is_dir() and d.name.isdigit()), key=lambda d: int(d.name)):
+        found = next((d / n for n in MESH_NAMES if (d / n).is_file()), None)
+        if found is not None:
+            files.append(found)
+    if not files:
+        raise Sin3DMInputError(f"no sample meshes in '{folder}' (expected NNN/mesh.obj or NNN/mesh.glb, as "
+                               "`sin3dm-lite sample` writes); sample first, then evaluate that folder")
+    return files
+
+
+def print_evaluation(result: dict) -> None:
+    """The metrics as a table: our name, the value, the paper's name and which way is better; then what was skipped."""
+    from ..evaluate.metrics import results_table
+
+    print(f"{result['samples']} samples, {result['resolution']} voxels, {result['views']} views of {result['size']}²")
+    print(results_table({"value": result}, digits=4))
+    for key, why in result["skipped"].items():
+        print(f"  {key}: {why}")
+
+
+def cmd_evaluate(a) -> None:
+    import json
+
+    from ..data.load import load_any
+    from ..evaluate.metrics import load_feature_weights
+    from ..files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
+    from ..pipeline import Sin3DM, resolve_mesh
+
+    if a.views > MAX_VIEWS:
+        raise Sin3DMInputError(f"--views {a.views} is too many; ask for at most {MAX_VIEWS}")
+    if not 16 <= a.size <= 4096:
+        raise Sin3DMInputError(f"--size must be from 16 to 4096 pixels, got {a.size}")
+    if not 16 <= a.resolution <= 512:
+        raise Sin3DMInputError(f"--resolution must be from 16 to 512 voxels, got {a.resolution}")
+    run = find_run(a.run)
+    files = sample_mesh_files(Path(a.samples))
+    out = Path(a.out) if a.out else None
+    if out is not None:
+        if out.suffix != ".json":
+            raise Sin3DMInputError(f"--out must be a .json file, got '{out}'")
+        check_not_overlapping(out, {"run folder": run})
+        if out.is_dir():
+            raise Sin3DMInputError(f"--out '{out}' is a folder; give a file name like {out / 'evaluation.json'}")
+        if out.exists() and not a.overwrite:
+            raise Sin3DMInputError(f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) "
+                                   "or choose another --out")
+        if out.exists() and not is_ours(out.parent, out.name, by="evaluate"):
+            raise clash_error(out.parent, out.name, by="evaluate")
+        check_writable(out)
+    nets = load_feature_weights(a.weights) if a.weights else None  # a missing file fails before the long work
+    model = Sin3DM.load(run)
+    allow = a.allow_outside_paths
+    reference = model.input_mesh(allow) if a.input is None else resolve_mesh(a.input, allow_outside_paths=allow)
+    meshes = []
+    for f in files:
+        try:
+            meshes.append(load_any(f))
+        except Sin3DMInputError as e:
+            raise Sin3DMInputError(f"cannot read sample mesh '{f}': {e}") from None
+    t0 = time.perf_counter()
+    result = model.evaluate(meshes, reference, resolution=a.resolution, views=a.views, size=a.size, weights=nets)
+    result.update(run=str(run), samples_folder=str(a.samples), files=[str(f) for f in files])
+    print_evaluation(result)
+    if out is not None:
+        write_recorded(out, json.dumps(result, indent=2), by="evaluate")
+        print(f"wrote {out} ({time.perf_counter() - t0:.1f} s)")
+
+
+def cmd_calibrate(a) -> None:
+    from ..files import acquire_lock, check_writable, release_lock
+
+    run = find_run(a.run)
+    shipped = not Path(a.run).exists()  # a shipped model's folder is part of the installed package: print only
+    if not shipped:
+        check_writable(run)
+        acquire_lock(run, "run folder")  # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile
+    try:
+        _calibrate(a, run, shipped)
+    finally:
+        if not shipped:
+            release_lock(run)
+
+
+def _calibrate(a, run: Path, shipped: bool) -> None:
+    import json
+
+    from ..data.grid import load_grid
+    from ..evaluate.calibrate import GOALS
+    from ..files import atomic_write
+    from ..pipeline import Sin3DM, resolve_mesh
+
+    model = Sin3DM.load(run)
+    # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, the mesh
+    reference = load_grid(run / "grid.npz").sdf < 0 if (run / "grid.npz").is_file() and a.input is None else None
+    goals = {"lp_iou": GOALS["lp_iou"] if a.lp_iou is None else a.lp_iou,
+             "lp_fscore": GOALS["lp_fscore"] if a.lp_f is None else a.lp_f}
+    before = model.config.sampling.diversity
+    t0 = time.perf_counter()
+    input_mesh = None
+    if reference is None:  # the input mesh is read here, with --allow-outside-paths if given
+        allow = a.allow_outside_paths
+        input_mesh = model.input_mesh(allow) if a.input is None else resolve_mesh(a.input, allow_outside_paths=allow)
+    cal = model.calibrate(reference, input_mesh=input_mesh, goals=goals, n=a.n, seed=a.seed)
+    took = time.perf_counter() - t0
+    if shipped:
+        print(f"{a.run}: diversity {cal.diversity:g} would keep the goals ({took:.0f} s); a shipped model is not "
+              f"changed: sample it with --diversity {cal.diversity:g}")
+        return
+    model.save(run)
+    if (run / "report.json").is_file():
+        report = json.loads((run / "report.json").read_text())
+        report["calibration"] = cal.to_dict()
+        atomic_write(run / "report.json", json.dumps(report, indent=2))
+    print(f"{run}: diversity {before:g} → {cal.diversity:g} ({took:.0f} s), saved in its config.json; "
+          f"`sin3dm-lite sample {run}` uses it, --diversity overrides it")

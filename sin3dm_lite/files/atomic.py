@@ -1,0 +1,206 @@
+"""One file or folder written whole, and the temporaries a killed writer leaves behind.
+
+* Atomically: a reader (or a crash) sees the old file or the new one, never half of one
+  (:func:`atomic_path`, :func:`atomic_write`; :func:`atomic_folder` for several files).
+* Temporary files and folders carry the writer's PID in their name, so that a
+  later run removes the ones a killed process left behind (:func:`remove_stale_temps`).
+* A write that fails says which file, and a full disk says so (:func:`save_torch`, :func:`write_failed`).
+"""
+from __future__ import annotations
+
+import errno
+import os
+import re
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+TEMP_PREFIX = ".sin3dm-tmp-"  # temporary folders: .sin3dm-tmp-<pid>-<random>
+_TEMP_DIR = re.compile(r"^\.sin3dm-tmp-(\d+)-")
+_TEMP_FILE = re.compile(r"^\..*\.sin3dm-(\d+)-[^.]*\.tmp")  # from atomic_path
+
+
+@contextmanager
+def atomic_path(path: str | Path, before_move=None):
+    """Yield a temporary path next to ``path``; move it onto ``path`` when the block succeeds.
+
+    The temporary name keeps ``path``'s suffix (``np.savez`` and friends care).
+    On an exception the temporary file is removed and ``path`` is untouched.
+    ``before_move(tmp)``, if given, runs on the finished file just before the
+    move (:func:`recorded_path` records it there).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.sin3dm-{os.getpid()}-", suffix=f".tmp{path.suffix}", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.chmod(tmp, 0o644)  # mkstemp makes the file private; the result is an ordinary file
+        if before_move is not None:
+            before_move(Path(tmp))
+        os.replace(tmp, path)
+    except OSError as e:
+        raise named(e, path) from None
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def atomic_write(path: str | Path, data: bytes | str) -> Path:
+    """Write ``data`` (text as UTF-8) to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        write_data(tmp, data)
+    return Path(path)
+
+
+def write_data(path: Path, data: bytes | str) -> None:
+    """Write ``data`` to ``path`` as it is (text as UTF-8), not atomically: into a temporary path."""
+    if isinstance(data, str):
+        path.write_text(data, encoding="utf-8")
+    else:
+        path.write_bytes(data)
+
+
+#: below this much free space a failed write is taken for a full disk
+NEARLY_FULL = 64 << 20
+# how torch.save reports a write that did not go through (its C++ writer raises RuntimeError, not OSError)
+_TORCH_WRITE_FAILED = ("inline_container", "PytorchStreamWriter", "file write failed", "unexpected pos")
+
+
+def save_torch(obj, path: str | Path) -> None:
+    """``torch.save(obj, path)``; a write that fails (a full disk) is an :class:`OSError` naming ``path``.
+
+    torch's own error for a full disk is a ``RuntimeError`` such as
+    ``[enforce fail at inline_container.cc:672] unexpected pos …``, which says
+    nothing to a user; this raises ``OSError(ENOSPC)`` instead when the disk
+    holding ``path`` is (nearly) full, else an ``OSError(EIO)`` quoting torch.
+    """
+    import torch
+
+    try:
+        torch.save(obj, path)
+    except RuntimeError as e:
+        if not any(s in str(e) for s in _TORCH_WRITE_FAILED):
+            raise
+        raise write_failed(Path(path), str(e).strip().splitlines()[0][:200]) from None
+
+
+def shown_path(path: str | Path) -> str:
+    """``'NAME' in 'FOLDER'`` for a file being written, our temporaries (``.sin3dm-tmp-*``, ``atomic_path``'s) left out.
+
+    What a user recognises in a message: ``out/.sin3dm-tmp-12-ab/model.pt`` is ``'model.pt' in 'out'``, and
+    a temporary folder itself is ``into 'out'``.
+    """
+    path = Path(path)
+    m = re.match(r"^\.(.*)\.sin3dm-\d+-[^.]*\.tmp(.*)$", path.name)  # atomic_path's .STEM.sin3dm-PID-X.tmpSUFFIX
+    name = m.group(1) + m.group(2) if m else path.name
+    while _TEMP_DIR.match(path.name):
+        path, name = path.parent, None
+    folder = path.parent
+    while _TEMP_DIR.match(folder.name):
+        folder = folder.parent
+    return f"'{name}' in '{folder}'" if name else f"into '{path}'"
+
+
+def named(e: OSError, path: str | Path) -> OSError:
+    """``e`` itself if it names a file, else the same error naming ``path`` (``fh.write`` on a full disk names none)."""
+    return e if e.filename or e.errno is None else OSError(e.errno, e.strerror or str(e), str(path))
+
+
+def write_failed(path: Path, detail: str) -> OSError:
+    """The :class:`OSError` for a write to ``path`` that failed without one: ENOSPC if its disk is (nearly) full."""
+    try:
+        full = shutil.disk_usage(Path(path).parent).free < NEARLY_FULL
+    except OSError:
+        full = False
+    if full:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    return OSError(errno.EIO, f"the write failed ({detail})", str(path))
+
+
+# --------------------------------------------------------------------------- temporaries
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (a zombie counts as dead)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's process
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def make_temp_dir(parent: Path) -> Path:
+    """A new folder ``parent/.sin3dm-tmp-<pid>-<random>`` (mode 755); a later run removes it if this process dies."""
+    tmp = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{os.getpid()}-", dir=parent))
+    tmp.chmod(0o755)  # mkdtemp makes it private; the result becomes an ordinary folder
+    return tmp
+
+
+@contextmanager
+def atomic_folder(folder: str | Path):
+    """Yield a temporary folder to write files into; move them into ``folder`` when the block succeeds.
+
+    The temporary folder is ``.sin3dm-tmp-<pid>-<random>``: inside ``folder``
+    if it exists, else beside it (leftovers of killed writers there are removed
+    first, see :func:`remove_stale_temps`). A new ``folder`` appears in one
+    rename; into an existing one each file is moved with an atomic replace,
+    ``.obj`` files last (an OBJ only appears once the files it names are
+    there), and other files in it are left alone. On an exception ``folder`` is
+    unchanged and the temporary folder is removed.
+    """
+    folder = Path(folder)
+    base = folder if folder.is_dir() else folder.parent
+    base.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(base)
+    tmp = make_temp_dir(base)
+    try:
+        yield tmp
+        if not folder.exists():
+            os.rename(tmp, folder)  # the whole folder appears at once
+        else:
+            for item in sorted(tmp.iterdir(), key=lambda p: (p.suffix == ".obj", p.name)):
+                os.replace(item, folder / item.name)
+    except OSError as e:
+        raise named(e, folder) from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def remove_stale_temps(folder: Path) -> list[Path]:
+    """Remove temporary folders/files in ``folder`` left by sin3dm-lite processes that no longer run."""
+    removed = []
+    try:
+        entries = list(Path(folder).iterdir())
+    except OSError:
+        return removed
+    for e in entries:
+        m = _TEMP_DIR.match(e.name) or _TEMP_FILE.match(e.name)
+        if m is None or pid_alive(int(m.group(1))):
+            continue
+        try:
+            if e.is_dir() and not e.is_symlink():
+                shutil.rmtree(e)
+            else:
+                e.unlink()
+            removed.append(e)
+        except OSError:
+            pass
+    return removed
+
+
+def is_temporary(name: str) -> bool:
+    """Whether ``name`` is one of our temporaries (a ``.sin3dm-tmp-*`` folder or :func:`atomic_path`'s file)."""
+    return bool(_TEMP_DIR.match(name) or _TEMP_FILE.match(name))
+
+
+def resolved_path(p: str | Path) -> Path:
+    """``p`` absolute, with ``~`` and symbolic links resolved: one name for one folder."""
+    return Path(os.path.abspath(Path(p).expanduser())).resolve()

@@ -1,0 +1,178 @@
+"""Output folders: checked before the long work, filled without touching anything that is not ours.
+
+An output folder that is not empty is refused unless ``--overwrite`` is given, and then only the
+files its manifest lists as written there (by the same command) are replaced
+(:func:`check_output_folder`); a finished temporary folder is moved in with its files recorded
+first (:func:`install_output`, :func:`merge_output`); :func:`remove_files` deletes files of ours and
+the folders they leave empty.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+from ..errors import Sin3DMInputError
+from .atomic import is_temporary, resolved_path
+from .locks import LOCK, locked
+from .manifest import file_record, is_ours, read_manifest, replacing, write_manifest, writer
+
+
+def check_not_overlapping(out: Path, protected: dict[str, Path], option: str = "--out") -> None:
+    """Refuse ``out`` equal to, inside or containing any of ``protected`` (``{what: path}``)."""
+    o = resolved_path(out)
+    for what, p in protected.items():
+        if p is None:
+            continue
+        q = resolved_path(p)
+        if o == q or q in o.parents or o in q.parents:
+            how = "is" if o == q else ("is inside" if q in o.parents else "contains")
+            raise Sin3DMInputError(f"{option} '{out}' {how} the {what} '{p}'; choose an {option} outside it")
+
+
+def check_writable(path: Path, option: str = "--out") -> None:
+    """Fail now, not after the long work, if ``path`` (a file or folder to create) cannot be written."""
+    path = Path(path)
+    base = path if path.is_dir() else path.parent
+    while not base.exists():  # the nearest existing ancestor must let us create what is missing
+        if base.parent == base:
+            break
+        base = base.parent
+    if not base.is_dir():
+        raise Sin3DMInputError(f"cannot write {option} '{path}': '{base}' is a file, not a folder; choose another {option}")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".sin3dm-{os.getpid()}-probe.tmp", dir=base)
+        os.close(fd)
+        os.remove(probe)
+    except OSError as e:
+        raise Sin3DMInputError(f"cannot write {option} '{path}' ({e.strerror} in '{base}'); choose a writable {option}") from None
+
+
+def _files_under(folder: Path) -> list[str]:
+    return sorted(p.relative_to(folder).as_posix() for p in Path(folder).rglob("*") if p.is_file() or p.is_symlink())
+
+
+def foreign_files(out: Path, names, by: str | None = None) -> list[str]:
+    """Of ``names`` (relative paths, files or folders), those that exist in ``out`` and are not (all) ours
+    (written by the command ``by``, if given)."""
+    out = Path(out)
+    ours = read_manifest(out)
+    found = []
+    for n in names:
+        p = out / n
+        if p.is_dir() and not p.is_symlink():
+            found += [f"{n}/{f}" for f in _files_under(p) if not is_ours(out, f"{n}/{f}", ours, by)]
+        elif (p.exists() or p.is_symlink()) and not is_ours(out, Path(n).as_posix(), ours, by):
+            found.append(Path(n).as_posix())
+    return found
+
+
+def clash_error(out: Path, rel: str, by: str | None = None, option: str = "--out") -> Sin3DMInputError:
+    """The one-line refusal for ``out/rel``, a file in the way that is not ours, or another command's."""
+    w = writer(out, rel)
+    if w:
+        return Sin3DMInputError(
+            f"'{Path(out) / rel}' was written by `sin3dm-lite {w}`, and `sin3dm-lite {by}` replaces only files it "
+            f"wrote itself; move it away or choose another {option}")
+    return Sin3DMInputError(
+        f"'{Path(out) / rel}' was not written by sin3dm-lite and would be replaced; move it away or choose another {option}")
+
+
+def present(out: Path) -> list[Path]:
+    """What ``out`` holds, less temporaries and a lock (a writer killed at its start): no content of anyone's."""
+    try:
+        return [p for p in Path(out).iterdir()
+                if not (is_temporary(p.name) or p.name == LOCK)]
+    except OSError:
+        return []
+
+
+def check_output_folder(out: Path, overwrite: bool, names=(), option: str = "--out", by: str | None = None) -> None:
+    """Refuse an ``out`` that is a file, or a non-empty folder without ``overwrite``.
+
+    With ``overwrite``, refuse if any of ``names`` (what the command will write)
+    is a file this tool did not write there before (with the command ``by``, if given).
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise Sin3DMInputError(f"{option} '{out}' is a file; give a folder to write into")
+    if not out.is_dir() or not present(out):
+        return
+    if not overwrite:
+        raise Sin3DMInputError(
+            f"output folder '{out}' is not empty; pass --overwrite to replace what sin3dm-lite wrote there before "
+            f"(other files are kept), or choose another {option}"
+        )
+    clash = foreign_files(out, names, by)
+    if clash:
+        raise clash_error(out, clash[0], by, option)
+
+
+def merge_output(tmp: Path, out: Path, by: str | None = None) -> None:
+    """Move the files of ``tmp`` into the existing folder ``out`` beside what is there, recording them in its manifest.
+
+    Unlike :func:`install_output` nothing else of ours in ``out`` is removed
+    (``examples --write`` adds one example to a folder); the caller has checked
+    that no foreign file is in the way.
+    """
+    names = sorted(p.name for p in Path(tmp).iterdir())
+    new = file_record(tmp, names, by)  # os.replace keeps size and time
+    with locked(out):
+        old = read_manifest(out)
+        write_manifest(out, {**old, **replacing(out, old, new)})  # first: a kill leaves no file of ours unrecorded
+        for n in names:
+            os.replace(Path(tmp) / n, Path(out) / n)
+        write_manifest(out, {**old, **new})
+
+
+def install_output(tmp: Path, out: Path, by: str | None = None) -> list[str]:
+    """Move everything in the finished folder ``tmp`` into ``out`` and record it in ``out``'s manifest.
+
+    A new ``out`` appears in one rename. Into an existing ``out``, the files of
+    ours that the command ``by`` wrote there before (unchanged since) are
+    removed first; files other commands wrote (a ``sample`` run's meshes beside
+    a ``render``'s pictures) and files not ours are never touched, and one in the way of
+    a new file stops everything before any change. The manifest is written first with old and
+    new entries, so a kill halfway leaves no file of ours unrecorded. Returns the new files.
+    """
+    tmp, out = Path(tmp), Path(out)
+    new = file_record(tmp, _files_under(tmp), by)
+    if not out.exists():
+        write_manifest(tmp, new)
+        os.rename(tmp, out)
+        return sorted(new)
+    with locked(out):  # no other process writes it meanwhile (a `sample` run filling it)
+        return _install_into(tmp, out, new, by)
+
+
+def _install_into(tmp: Path, out: Path, new: dict, by: str | None) -> list[str]:
+    old = read_manifest(out)
+    kept = {f: e for f, e in old.items() if is_ours(out, f, old)}
+    clash = [f for f in new if ((out / f).exists() or (out / f).is_symlink()) and not is_ours(out, f, old, by)]
+    if clash:
+        raise clash_error(out, clash[0], by)
+    # this command's earlier files (a render of more views leaves none behind); an older version's, where replaced
+    mine = {f: e for f, e in kept.items() if f in new or (by is not None and writer(out, f, old) == by)}
+    others = {f: e for f, e in kept.items() if f not in mine}
+    write_manifest(out, {**kept, **replacing(out, kept, new)})
+    remove_files(out, mine)
+    for f in new:
+        dst = out / f
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp / f, dst)
+    write_manifest(out, {**others, **new})
+    shutil.rmtree(tmp, ignore_errors=True)
+    return sorted(new)
+
+
+def remove_files(out: Path, rels) -> None:
+    """Delete the files ``rels`` (relative to ``out``; the caller has checked that they are ours), deepest
+    first, then the folders they leave empty; a folder that still holds anything stays."""
+    for f in sorted(rels, key=lambda f: -len(Path(f).parts)):
+        (Path(out) / f).unlink(missing_ok=True)
+        for d in list(Path(f).parents)[:-1]:  # folders of ours left empty
+            try:
+                (Path(out) / d).rmdir()
+            except OSError:
+                break
