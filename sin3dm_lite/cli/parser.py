@@ -232,8 +232,8 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
                    help="samples per setting tried")
     c.add_argument("--seed", type=_seed, default=10_000,
                    help="first sample seed (the k-th setting drawn takes seeds from seed + 1000·k)")
-    c.add_argument("--lp-iou", type=_unit_score, default=None, help="LP-IoU the samples must keep (default: 0.55)")
-    c.add_argument("--lp-f", type=_unit_score, default=None, help="LP-F the samples must keep (default: 0.70)")
+    c.add_argument("--lp-iou", type=_unit_score, default=None, help="LP-IoU the samples must keep, at most (default: 0.55, lowered to 85%% of what a near copy of the input keeps)")
+    c.add_argument("--lp-f", type=_unit_score, default=None, help="LP-F the samples must keep, at most (default: 0.70, lowered to 85%% of what a near copy of the input keeps)")
     _outside_paths_arg(c)
 
 
