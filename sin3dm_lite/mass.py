@@ -41,7 +41,7 @@ import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
@@ -66,38 +66,15 @@ from .files import (
     save_torch,
     write_manifest,
 )
+from .request import SampleRequest  # what a run asks for (defined beside its defaults; named here too)
 
 SETTINGS = "sampling.json"
 SAMPLES = "samples.jsonl"
 MAX_RUN_SAMPLES = 1_000_000  # per run folder
-DEFAULT_BATCH = 8
 GALLERY_MAX = 16  # samples shown in index.html and contact_sheet.png
 SAMPLE_FILES = ("mesh", "preview.png", "latent.pt")  # names (prefixes) written into NNN/
 WRITER = "sample"  # the command that owns these files in the manifest: --overwrite replaces only them
 
-
-
-@dataclass
-class SampleRequest:
-    """What one sample run asks for: which indices and seeds, and the settings that override the model's (None: its own).
-
-    The CLI builds it from its flags (``cli.sample_request``); :func:`write_samples` resolves ``batch`` once.
-    """
-
-    n: int = 4
-    start: int = 0
-    seed: int = 0
-    steps: int | None = None
-    ddpm: bool = False
-    diversity: float | None = None
-    faces: int | None = None
-    mesh_resolution: int | None = None
-    texture_size: int | None = None
-    no_pictures: bool = False
-    overwrite: bool = False
-    batch: int | None = None
-    workers: int = 1
-    control: dict = field(default_factory=lambda: {"resize": (1.0, 1.0, 1.0)})  # Sin3DM.plan's arguments
 
 
 def folder_name(i: int) -> str:
@@ -173,13 +150,12 @@ def model_checksum(model) -> str:
 
 def sample_settings(model, plan, req: SampleRequest, control: dict) -> dict:
     """Everything a sample's content depends on besides its index (what a continued run must share)."""
-    s = model.config.sampling
-    diversity = req.diversity if req.diversity is not None else (s.diversity if plan.known is None else 1.0)
+    r = req.resolve(model.config.sampling, controlled=plan.known is not None)
     return json.loads(json.dumps({  # JSON types: tuples become lists, as when read back
-        "model": model_checksum(model), "control": control, "method": "ddpm" if req.ddpm else s.method,
-        "steps": req.steps or s.steps, "diversity": diversity, "seed": req.seed,
-        "mesh_resolution": req.mesh_resolution or s.mesh_resolution, "faces": req.faces or s.faces,
-        "texture_size": req.texture_size or s.texture_size, "pictures": not req.no_pictures,
+        "model": model_checksum(model), "control": control, "method": r.method,
+        "steps": r.steps, "diversity": r.diversity, "seed": req.seed,
+        "mesh_resolution": r.mesh_resolution, "faces": r.faces,
+        "texture_size": r.texture_size, "pictures": not req.no_pictures,
     }))
 
 
@@ -279,12 +255,12 @@ def check_request(model, req: SampleRequest) -> None:
     """Refuse what sampling would refuse about the flags (``--steps`` out of range, ...) before the folder is touched."""
     from .model.diffusion import sampling_timesteps
 
-    s = model.config.sampling
-    steps, top = req.steps or s.steps, model.schedule.timesteps
-    if not req.ddpm and s.method == "ddim" and not 1 <= steps <= top:
+    r = req.resolve(model.config.sampling)
+    steps, top = r.steps, model.schedule.timesteps
+    if r.method == "ddim" and not 1 <= steps <= top:
         raise Sin3DMInputError(f"--steps {steps} is more than this model's {top} time steps; ask for 1 to {top} "
                                "DDIM steps")
-    sampling_timesteps(model.schedule, "ddpm" if req.ddpm else s.method, steps)
+    sampling_timesteps(model.schedule, r.method, steps)
 
 
 def abandon(out: Path) -> bool:
@@ -398,10 +374,10 @@ def sample_many(model, out: Path, req: SampleRequest, ranks: Ranks, plan, pendin
     from tqdm.auto import tqdm
 
     mine = pending[ranks.rank::ranks.world]
-    s = model.config.sampling
+    r = req.resolve(model.config.sampling)
     box_n = np.array([np.minimum(model.aabb[:3], plan.aabb[:3]), np.maximum(model.aabb[3:], plan.aabb[3:])])
-    opts = {"mesh_resolution": req.mesh_resolution or s.mesh_resolution, "faces": req.faces or s.faces,
-            "texture_size": req.texture_size or s.texture_size, "pictures": not req.no_pictures,
+    opts = {"mesh_resolution": r.mesh_resolution, "faces": r.faces,
+            "texture_size": r.texture_size, "pictures": not req.no_pictures,
             "box": model.normalization.to_original(box_n)}  # one scale for every preview
     tag = f"[{label}]" if ranks.world == 1 else f"[{label} rank {ranks.rank}]"
     pool = None
@@ -454,7 +430,7 @@ def sample_many(model, out: Path, req: SampleRequest, ranks: Ranks, plan, pendin
         for k in range(0, len(mine), batch):
             chunk = mine[k:k + batch]
             started = time.perf_counter()
-            samples = model.sample(len(chunk), plan=plan, steps=req.steps, method="ddpm" if req.ddpm else None,
+            samples = model.sample(len(chunk), plan=plan, steps=req.steps, method=req.method,
                                    seed=[req.seed + i for i in chunk], diversity=req.diversity, progress=False)
             for j, i in enumerate(chunk):
                 tmp = make_temp_dir(out)
@@ -548,10 +524,10 @@ __all__ = ["sample_many", "finish_folder", "prepare_folder", "start_ranks", "sto
 def check_sample_sizes(model, plan, req: SampleRequest) -> None:
     """``--faces``, ``--mesh-resolution`` and ``--texture-size`` against their ranges and the memory
     (``--workers`` exports at once), before any folder is made."""
-    s = model.config.sampling  # --steps: mass.check_request
+    r = req.resolve(model.config.sampling)  # --steps: mass.check_request
     if req.faces is not None:
         check_setting("sampling.faces", req.faces, option="--faces")
-    model.check_mesh_sizes(req.mesh_resolution or s.mesh_resolution, req.texture_size or s.texture_size, plan.aabb,
+    model.check_mesh_sizes(r.mesh_resolution, r.texture_size, plan.aabb,
                            parallel=max(1, req.workers), names=("--mesh-resolution", "--texture-size"))
 
 
@@ -579,10 +555,7 @@ def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", r
     out = Path(out)
     plan = model.plan(**req.control)  # a bad box fails here, before anything is written
     limit = model.max_samples(tuple(r / b for r, b in zip(plan.resolution, model.latent.resolution)))
-    if req.batch is not None and req.batch > limit:
-        raise Sin3DMInputError(f"--batch {req.batch} is more samples than fit in memory at once here (at most {limit} "
-                               "with this model and size); ask for a smaller --batch")
-    req.batch = req.batch or min(DEFAULT_BATCH, req.n, limit)
+    req.batch = req.batch_size(limit)
     check_request(model, req)  # every flag checked before the folder is touched
     check_sample_sizes(model, plan, req)
     settings = sample_settings(model, plan, req, req.control)
