@@ -220,8 +220,8 @@ class Sin3DM:
                          names: tuple[str, str] = ("mesh resolution", "texture size")) -> None:
         """Refuse a mesh resolution or texture size out of range (:data:`config.LIMITS`) or beyond memory.
 
-        One export holds about :data:`EXPORT_BYTES_PER_VOXEL` per voxel of the decode grid over ``aabb``
-        (default: the model's box) and :data:`EXPORT_BYTES_PER_TEXEL` per texel; ``parallel`` exports at once
+        One export holds about :data:`sampling.EXPORT_BYTES_PER_VOXEL` per voxel of the decode grid over ``aabb``
+        (default: the model's box) and :data:`~sampling.EXPORT_BYTES_PER_TEXEL` per texel; ``parallel`` exports at once
         (``--workers``) may use half the free RAM between them, as :meth:`max_samples` does. ``names``: what the
         message calls the two (CLI flags). The message gives the largest value that fits.
         """

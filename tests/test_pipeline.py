@@ -10,8 +10,8 @@ import torch
 
 from sin3dm_lite.data.config import Config, get_preset
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.model import autoencoder
 from sin3dm_lite.fit_policy import thin_parts_switch
+from sin3dm_lite.model import autoencoder
 from sin3dm_lite.pipeline import Sin3DM
 
 
