@@ -8,14 +8,18 @@ table of levels and checks it, imports inside functions included)::
 
     0 base      errors · device · threads (how CPU threads wait) · files: atomic · locks · manifest · outputs
     1 data      data: config · presets · box · mesh (the mesh type) · formats (file readers, images) · load (read
-                a mesh) · export (OBJ / GLB writers) · examples · ruin · distance · grid (mesh → TSDF)
+                a mesh) · source (a fit's input by name) · export (OBJ / GLB writers) · examples · ruin · distance ·
+                grid (mesh → TSDF)
     2 model     model: triplane · training · autoencoder · decode · unet · diffusion (schedule, training, sampling)
     3 generate  generate: control (what to sample: outpaint, ...) · extract (SDF → textured mesh)
-    4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render · calibrate
+    4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render ·
+                calibrate · evaluation (samples against the input)
     5 show      show: figures · data/model/diffusion/sample/eval_figures · viz · camera · viewer · pages · widgets
     5 teach     teach: lesson2d (the method on one 2D image) · exercises (``check_…`` a piece you wrote)
-    6 app       pipeline (Sin3DM: fit, sample, save, load) · runs · pretrained (models in shipped/) ·
-                mass · mass_folder · mass_workers · cli: parser · fitting · sampling · evaluation
+    6 app       pipeline (Sin3DM: fit, sample, save, load, each a call into:) · fitting (the stages) · fit_policy
+                (what a fit decides) · run_folder · checkpoints · sampling · request (a sample run's settings) ·
+                runs · pretrained (models in shipped/) · mass · mass_folder · mass_workers ·
+                cli: parser · fitting · sampling · evaluation
 
 Everything a notebook or script needs is importable from here::
 
@@ -39,8 +43,8 @@ __version__ = "0.1.0"
 _API = {
     # facade and settings
     "Sin3DM": "pipeline",
-    "Samples": "pipeline",
-    "resolve_mesh": "pipeline",
+    "Samples": "sampling",
+    "resolve_mesh": "data.source",
     "Config": "data.config",
     "get_preset": "data.presets",
     "notebook_preset": "data.presets",

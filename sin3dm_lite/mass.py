@@ -37,7 +37,6 @@ Rules:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from .data.config import check_setting
@@ -45,52 +44,28 @@ from .errors import Sin3DMInputError
 from .files import release_lock
 from .mass_folder import abandon, finish_folder, prepare_folder, remove_if_empty, sample_output_names, sample_settings
 from .mass_workers import Ranks, sample_many
-
-DEFAULT_BATCH = 8
-
-
-@dataclass
-class SampleRequest:
-    """What one sample run asks for: which indices and seeds, and the settings that override the model's (None: its own).
-
-    The CLI builds it from its flags (``cli.sample_request``); :func:`write_samples` resolves ``batch`` once.
-    """
-
-    n: int = 4
-    start: int = 0
-    seed: int = 0
-    steps: int | None = None
-    ddpm: bool = False
-    diversity: float | None = None
-    faces: int | None = None
-    mesh_resolution: int | None = None
-    texture_size: int | None = None
-    no_pictures: bool = False
-    overwrite: bool = False
-    batch: int | None = None
-    workers: int = 1
-    control: dict = field(default_factory=lambda: {"resize": (1.0, 1.0, 1.0)})  # Sin3DM.plan's arguments
+from .request import DEFAULT_BATCH, SampleRequest  # what a run asks for (defined beside its defaults; named here too)
 
 
 def check_request(model, req: SampleRequest) -> None:
     """Refuse what sampling would refuse about the flags (``--steps`` out of range, ...) before the folder is touched."""
     from .model.diffusion import sampling_timesteps
 
-    s = model.config.sampling
-    steps, top = req.steps or s.steps, model.schedule.timesteps
-    if not req.ddpm and s.method == "ddim" and not 1 <= steps <= top:
+    r = req.resolve(model.config.sampling)
+    steps, top = r.steps, model.schedule.timesteps
+    if r.method == "ddim" and not 1 <= steps <= top:
         raise Sin3DMInputError(f"--steps {steps} is more than this model's {top} time steps; ask for 1 to {top} "
                                "DDIM steps")
-    sampling_timesteps(model.schedule, "ddpm" if req.ddpm else s.method, steps)
+    sampling_timesteps(model.schedule, r.method, steps)
 
 
 def check_sample_sizes(model, plan, req: SampleRequest) -> None:
     """``--faces``, ``--mesh-resolution`` and ``--texture-size`` against their ranges and the memory
     (``--workers`` exports at once), before any folder is made."""
-    s = model.config.sampling  # --steps: mass.check_request
+    r = req.resolve(model.config.sampling)  # --steps: mass.check_request
     if req.faces is not None:
         check_setting("sampling.faces", req.faces, option="--faces")
-    model.check_mesh_sizes(req.mesh_resolution or s.mesh_resolution, req.texture_size or s.texture_size, plan.aabb,
+    model.check_mesh_sizes(r.mesh_resolution, r.texture_size, plan.aabb,
                            parallel=max(1, req.workers), names=("--mesh-resolution", "--texture-size"))
 
 
@@ -107,10 +82,7 @@ def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", r
     out = Path(out)
     plan = model.plan(**req.control)  # a bad box fails here, before anything is written
     limit = model.max_samples(tuple(r / b for r, b in zip(plan.resolution, model.latent.resolution)))
-    if req.batch is not None and req.batch > limit:
-        raise Sin3DMInputError(f"--batch {req.batch} is more samples than fit in memory at once here (at most {limit} "
-                               "with this model and size); ask for a smaller --batch")
-    req.batch = req.batch or min(DEFAULT_BATCH, req.n, limit)
+    req.batch = req.batch_size(limit)
     check_request(model, req)  # every flag checked before the folder is touched
     check_sample_sizes(model, plan, req)
     settings = sample_settings(model, plan, req, req.control)

@@ -63,13 +63,12 @@ def model_checksum(model) -> str:
 
 def sample_settings(model, plan, req, control: dict) -> dict:
     """Everything a sample's content depends on besides its index (what a continued run must share)."""
-    s = model.config.sampling
-    diversity = req.diversity if req.diversity is not None else (s.diversity if plan.known is None else 1.0)
+    r = req.resolve(model.config.sampling, controlled=plan.known is not None)
     return json.loads(json.dumps({  # JSON types: tuples become lists, as when read back
-        "model": model_checksum(model), "control": control, "method": "ddpm" if req.ddpm else s.method,
-        "steps": req.steps or s.steps, "diversity": diversity, "seed": req.seed,
-        "mesh_resolution": req.mesh_resolution or s.mesh_resolution, "faces": req.faces or s.faces,
-        "texture_size": req.texture_size or s.texture_size, "pictures": not req.no_pictures,
+        "model": model_checksum(model), "control": control, "method": r.method,
+        "steps": r.steps, "diversity": r.diversity, "seed": req.seed,
+        "mesh_resolution": r.mesh_resolution, "faces": r.faces,
+        "texture_size": r.texture_size, "pictures": not req.no_pictures,
     }))
 
 

@@ -139,10 +139,10 @@ def install_sample(tmp: Path, dst: Path, out: Path, ours: dict | None) -> None:
 # --------------------------------------------------------------------------- this rank's share of the run
 def export_options(model, req, plan) -> dict:
     """What every export of the run shares: the mesh settings and one scale for every preview."""
-    s = model.config.sampling
+    r = req.resolve(model.config.sampling)
     box_n = np.array([np.minimum(model.aabb[:3], plan.aabb[:3]), np.maximum(model.aabb[3:], plan.aabb[3:])])
-    return {"mesh_resolution": req.mesh_resolution or s.mesh_resolution, "faces": req.faces or s.faces,
-            "texture_size": req.texture_size or s.texture_size, "pictures": not req.no_pictures,
+    return {"mesh_resolution": r.mesh_resolution, "faces": r.faces,
+            "texture_size": r.texture_size, "pictures": not req.no_pictures,
             "box": model.normalization.to_original(box_n)}  # one scale for every preview
 
 
@@ -176,7 +176,7 @@ class RankExport:
     def sample_batch(self, plan, chunk: list[int]) -> None:
         """Sample the indices ``chunk`` in one denoiser call; each latent is saved, then exported."""
         req, started = self.req, time.perf_counter()
-        samples = self.model.sample(len(chunk), plan=plan, steps=req.steps, method="ddpm" if req.ddpm else None,
+        samples = self.model.sample(len(chunk), plan=plan, steps=req.steps, method=req.method,
                                     seed=[req.seed + i for i in chunk], diversity=req.diversity, progress=False)
         for j, i in enumerate(chunk):
             tmp = make_temp_dir(self.out)

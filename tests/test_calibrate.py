@@ -295,7 +295,7 @@ def test_a_fit_saves_its_calibrated_diversity(calibrated):
 
 def test_the_rollout_hint_applies_only_to_a_plain_denoiser_calibrated_to_pure_noise():
     from sin3dm_lite.data.presets import get_preset
-    from sin3dm_lite.pipeline import rollout_hint
+    from sin3dm_lite.fit_policy import rollout_hint
 
     small = get_preset("small")
     hint = rollout_hint(small, {"diversity": 1.0, "kept_goals": True})

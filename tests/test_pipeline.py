@@ -11,8 +11,9 @@ import torch
 from sin3dm_lite.data.config import Config
 from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.fit_policy import thin_parts_switch
 from sin3dm_lite.model import autoencoder
-from sin3dm_lite.pipeline import Sin3DM, thin_parts_switch
+from sin3dm_lite.pipeline import Sin3DM
 
 
 def micro_config():
@@ -120,7 +121,7 @@ def test_resume_refuses_another_input_or_other_settings_and_writes_nothing(fitte
 
     import trimesh
 
-    from sin3dm_lite.pipeline import INPUT_FILE
+    from sin3dm_lite.run_folder import INPUT_FILE
 
     def snapshot(folder):
         return {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
@@ -157,7 +158,7 @@ def test_mesh_sizes_beyond_memory_are_refused_with_the_largest_that_fits(fitted,
     """Issue 35: a huge texture or mesh resolution ran for minutes into gigabytes or an ArrayMemoryError; to_mesh
     (and `sample` before it makes a folder) refuses it at once, naming the most the free memory holds."""
     from sin3dm_lite import device
-    from sin3dm_lite.pipeline import EXPORT_BYTES_PER_TEXEL
+    from sin3dm_lite.sampling import EXPORT_BYTES_PER_TEXEL
 
     model, _ = fitted
     s = model.input_sample()
@@ -173,11 +174,11 @@ def test_mesh_sizes_beyond_memory_are_refused_with_the_largest_that_fits(fitted,
 
 
 def test_checkpoints_are_written_once_per_step(tmp_path, monkeypatch):
-    from sin3dm_lite import pipeline
+    from sin3dm_lite import checkpoints
 
     writes = []
-    real = pipeline.atomic_torch_save
-    monkeypatch.setattr(pipeline, "atomic_torch_save", lambda obj, path: (writes.append(path.name), real(obj, path)))
+    real = checkpoints.atomic_torch_save
+    monkeypatch.setattr(checkpoints, "atomic_torch_save", lambda obj, path: (writes.append(path.name), real(obj, path)))
     cfg = micro_config().updated(checkpoint_every=20)  # 30 steps: at step 20, then the last one
     Sin3DM.fit("wall", preset=cfg, out=tmp_path / "run", progress=False)
     assert writes == ["autoencoder.pt"] * 2 + ["diffusion.pt"] * 2 + ["model.pt"]
@@ -432,22 +433,22 @@ def test_a_slow_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, ca
 
     The hint follows the autoencoder's cost, not the preset's name: small, its thin-part switch and detail get it,
     quick, tiny and a small with a short autoencoder do not, and nobody gets it where bf16 is native."""
-    from sin3dm_lite import pipeline
+    from sin3dm_lite import fit_policy
 
-    monkeypatch.setattr(pipeline, "bf16_is_fast", lambda device: False)
+    monkeypatch.setattr(fit_policy, "bf16_is_fast", lambda device: False)
     for name in ("small", "detail", "paper"):
-        assert "--preset quick" in pipeline.quick_hint(get_preset(name), "cpu"), name
-    assert "about 20 minutes" in pipeline.quick_hint(get_preset("small"), "cpu")  # 2,000 steps of 0.61 s
-    assert "--preset quick" in pipeline.quick_hint(get_preset("small").for_thin_parts(), "cpu")
+        assert "--preset quick" in fit_policy.quick_hint(get_preset(name), "cpu"), name
+    assert "about 20 minutes" in fit_policy.quick_hint(get_preset("small"), "cpu")  # 2,000 steps of 0.61 s
+    assert "--preset quick" in fit_policy.quick_hint(get_preset("small").for_thin_parts(), "cpu")
     for cfg in (get_preset("quick"), get_preset("tiny"), get_preset("small").updated(**{"autoencoder.steps": 500})):
-        assert pipeline.quick_hint(cfg, "cpu") is None, cfg.name
+        assert fit_policy.quick_hint(cfg, "cpu") is None, cfg.name
     # the fit prints it (a micro fit priced like small's)
-    monkeypatch.setattr(pipeline, "fp32_autoencoder_minutes", lambda cfg: 20.0)
+    monkeypatch.setattr(fit_policy, "fp32_autoencoder_minutes", lambda cfg: 20.0)
     cfg = micro_config().updated(**{"name": "small", "autoencoder.steps": 2, "diffusion.steps": 2})
     Sin3DM.fit("canyon", preset=cfg, out=tmp_path / "fp32", device="cpu", progress=True)
     assert "--preset quick" in capsys.readouterr().out
-    monkeypatch.setattr(pipeline, "bf16_is_fast", lambda device: True)
-    assert pipeline.quick_hint(get_preset("small"), "cpu") is None  # native bf16: small is fast enough
+    monkeypatch.setattr(fit_policy, "bf16_is_fast", lambda device: True)
+    assert fit_policy.quick_hint(get_preset("small"), "cpu") is None  # native bf16: small is fast enough
 
 
 def test_the_quick_preset_is_small_with_a_lighter_autoencoder():

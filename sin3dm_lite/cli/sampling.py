@@ -31,13 +31,15 @@ def check_sample_output(out: Path, a, protected: dict) -> None:
 
 
 def sample_request(a):
-    """The sampling flags of ``sample`` / ``demo`` as a :class:`mass.SampleRequest` (the library takes no argparse)."""
-    from ..mass import SampleRequest
+    """The sampling flags of ``sample`` / ``demo`` as a :class:`request.SampleRequest` (the library takes no argparse)."""
+    from ..request import SampleRequest
 
-    keys = ("n", "start", "seed", "steps", "ddpm", "diversity", "faces", "mesh_resolution", "texture_size",
+    keys = ("n", "start", "seed", "steps", "diversity", "faces", "mesh_resolution", "texture_size",
             "no_pictures", "overwrite", "batch", "workers")
     defaults = SampleRequest()
-    return SampleRequest(**{k: getattr(a, k, getattr(defaults, k)) for k in keys}, control=control_args(a))
+    method = "ddpm" if getattr(a, "ddpm", False) else None  # --ddpm; else the model's
+    return SampleRequest(**{k: getattr(a, k, getattr(defaults, k)) for k in keys}, method=method,
+                         control=control_args(a))
 
 
 def control_args(a) -> dict:

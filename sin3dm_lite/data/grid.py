@@ -117,7 +117,7 @@ class ShapeGrid:
         small boxes 0.44 and one of tiles with one-voxel gaps 1.0 (at 96
         voxels: 0.05, 0.05, 0.11, 0.07, 0.58). Above :data:`THIN_SHARE_HINT` a
         ``small`` fit switches to the ``detail`` preset's settings
-        (:func:`sin3dm_lite.pipeline.thin_parts_switch`).
+        (:func:`sin3dm_lite.fit_policy.thin_parts_switch`).
         """
         from scipy import ndimage
 

@@ -1,6 +1,7 @@
 """Figures of the Generate stage: slices of samples, the diversity curve, a control plan, projections and rendered pictures of meshes."""
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 
 import matplotlib.pyplot as plt
@@ -155,6 +156,24 @@ def plot_projections(grids: Sequence[np.ndarray], titles: Sequence[str] | None =
     panels[0, 0].set_ylabel(f"front ({AXES[ui]} up)", fontsize=8)
     panels[1, 0].set_ylabel(f"top ({AXES[depth]} up)", fontsize=8)
     return fig
+
+
+_RECONSTRUCTIONS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model → {resolution: occupancy grid}
+
+
+def plot_beside_input(model, samples, resolution: int = 64, labels: Sequence[str] | None = None) -> Figure:
+    """``Sin3DM.plot_beside_input``: front and top views (:func:`plot_projections`) of ``model``'s samples beside
+    the input's reconstruction, all at the voxel size the input's box has at ``resolution``.
+
+    Each shape is decoded at twice the picture's voxels; the reconstruction's grid once per model and resolution.
+    """
+    kept = _RECONSTRUCTIONS.setdefault(model, {})
+    if resolution not in kept:
+        kept[resolution] = model.occupancy(model.input_sample(), resolution, mesh_resolution=2 * resolution)[0]
+    res = model.same_voxels(samples, resolution)
+    grids = model.occupancy(samples, res, mesh_resolution=2 * res)
+    labels = list(labels) if labels is not None else [f"{i:03d}" for i in range(len(grids))]
+    return plot_projections([kept[resolution], *grids], ["input", *labels])
 
 
 def plot_meshes(meshes, labels: Sequence[str] | None = None, size: int = 256, columns: int = 4) -> Figure:

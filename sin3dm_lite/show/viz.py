@@ -55,6 +55,7 @@ from .model_figures import (  # noqa: F401
     triplane_images,
 )
 from .sample_figures import (  # noqa: F401
+    plot_beside_input,
     plot_diversity_curve,
     plot_meshes,
     plot_plan,

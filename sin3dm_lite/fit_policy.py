@@ -1,0 +1,203 @@
+"""What a fit decides about its input and settings, and what it says about them.
+
+* :func:`thin_parts_switch`: finer settings for a shape that is mostly thin parts;
+* :func:`keeps_goals_from_noise` / :func:`rollout_hint`: the cross-plane rollout for a shape whose layout
+  varies little whatever the diversity knob;
+* :func:`quick_hint`: the ``quick`` preset where the autoencoder would be slow (no native bf16);
+* :func:`choose_pbr`, :func:`check_flips`: which variant to fit, and settings that do not go together;
+* :func:`warn_if_poor`: a reconstruction too poor for useful samples, with the setting to fit again with.
+
+:mod:`sin3dm_lite.fitting` runs the stages and asks these functions; each one is a plain function of the
+config (and the grid or the calibration), so a test or a notebook can ask it too.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .data.config import Config
+from .data.grid import THIN_SHARE_HINT, ShapeGrid
+from .data.mesh import TexturedMesh
+from .data.presets import PRESETS
+from .device import bf16_is_fast
+from .errors import Sin3DMInputError
+from .model.diffusion import check_flips as check_flip_axes
+
+MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
+MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 % (the colonnade example gets 20)
+
+#: :func:`quick_hint` speaks up when an fp32 autoencoder would take longer than this (minutes, 2 cores)
+QUICK_HINT_MINUTES = 8.0
+
+
+# --------------------------------------------------------------------------- thin parts
+def thin_parts_switch(cfg: Config, grid: ShapeGrid, thin: float | None = None) -> Config | None:
+    """The settings :meth:`Sin3DM.fit` switches to when ``grid`` is mostly thin parts, else None.
+
+    A preset with :attr:`Config.thin_parts` (``small``: the ``detail``
+    settings, 96 voxels and a 17-texel denoiser field) swaps them in when
+    more than :data:`THIN_SHARE_HINT` of the solid lies in parts under ~5
+    voxels thick (:meth:`ShapeGrid.thin_share`): its 64-voxel grid and 9-texel
+    field swell or break such parts (columns, small boxes, slats) in every
+    sample, the finer grid keeps them in about the same fit time
+    (docs/thin-parts.md). ``thin`` is the share, if already measured.
+    """
+    if not cfg.thin_parts:
+        return None
+    thin = grid.thin_share() if thin is None else thin
+    return cfg.for_thin_parts() if thin > THIN_SHARE_HINT else None
+
+
+def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -> str:
+    """What the fit says when it switches from ``cfg`` to ``new`` (:func:`thin_parts_switch`)."""
+    return (f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
+            f"the {cfg.name} preset's samples would swell or break: fitting at {new.grid.resolution} voxels with a "
+            f"{new.diffusion.n_resblocks}-ResBlock denoiser{' whose planes see each other' if new.diffusion.rollout else ''} "
+            f"instead (its thin-part settings; small's are the 'detail' "
+            f"preset's, about the same fit time; the run's config is named '{new.name}'). To keep {cfg.grid.resolution} voxels: CLI "
+            "--no-thin-switch, Python preset=get_preset(...).updated(thin_parts={}).")
+
+
+# --------------------------------------------------------------------------- time
+def fp32_autoencoder_minutes(cfg: Config) -> float:
+    """About how long ``cfg``'s autoencoder trains in fp32 on 2 CPU cores (AVX2), in minutes.
+
+    Fitted to two measured steps on a 2-core AMD EPYC without AVX512-BF16:
+    ``small``'s (256-wide MLPs, 8,192 points, 64 voxels) 0.61 s, ``quick``'s
+    (128 wide, 4,096 points) 0.18 s: a part that grows with the planes' area
+    (their encoder and decoder) plus one that grows with points × width².
+    ``detail``'s step (96 voxels) is 1.4x ``small``'s in fp32 here; the
+    formula gives 1.25x.
+    """
+    a = cfg.autoencoder
+    step_s = 0.119 * (cfg.grid.resolution / 64) ** 2 + 0.491 * (a.points_per_step / 8192) * (a.mlp_hidden / 256) ** 2
+    return a.steps * step_s / 60
+
+
+def quick_hint(cfg: Config, device) -> str | None:
+    """What :meth:`Sin3DM.fit` says when its autoencoder would be slow on a CPU without native bf16, else None.
+
+    ``small``'s paper-width autoencoder (its MLPs are most of a fit) runs in
+    bf16 where the CPU has AVX512-BF16 or AMX; elsewhere it runs in fp32, about
+    20 minutes on 2 AVX2 cores (:func:`fp32_autoencoder_minutes`). The ``quick``
+    preset's light autoencoder fits in about 5 minutes there, with blurrier
+    texture (docs/presets.md). Any config whose autoencoder would take over
+    :data:`QUICK_HINT_MINUTES` gets the hint, not only ``small``.
+    """
+    dev = torch.device(device)
+    if dev.type != "cpu" or bf16_is_fast(dev):
+        return None
+    minutes = fp32_autoencoder_minutes(cfg)
+    if minutes <= QUICK_HINT_MINUTES:
+        return None
+    return (f"this CPU has no native bf16, so the {cfg.name} config's autoencoder ({cfg.autoencoder.steps:,} steps of "
+            f"{cfg.autoencoder.points_per_step:,} points, {cfg.autoencoder.mlp_hidden}-wide MLPs) is slow here: about "
+            f"{minutes:.0f} minutes on 2 cores in fp32 (longer in emulated bf16). The 'quick' preset (a lighter "
+            "autoencoder) fits in about 5 minutes, with the same shapes but blurrier texture: preset='quick' "
+            "(CLI: --preset quick).")
+
+
+# --------------------------------------------------------------------------- advice
+def preset_expr(cfg: Config) -> str:
+    """How a user names the run's preset in Python: ``preset=get_preset('small')`` (or ``your Config``)."""
+    base = cfg.name.split("+")[0]
+    return f"preset=get_preset('{base}')" if base in PRESETS else "your Config"
+
+
+def refit_advice(cfg: Config, setting: str, value, also: str = "") -> str:
+    """"fit again with SETTING=VALUE (CLI: --set ...; Python: ...)" for the run's ``cfg``."""
+    python = f"{preset_expr(cfg)}.updated(**{{'{setting}': {value!r}}})"
+    cli = str(value).lower() if isinstance(value, bool) else value
+    return f"fit again with {setting}={cli}{also} (CLI: --set {setting}={cli}; Python: {python})"
+
+
+def warn_if_poor(rec: dict, cfg: Config) -> None:
+    """Warn when the autoencoder's reconstruction is too poor for useful samples, with the likely cause and the
+    setting of the run's ``cfg`` to fit again with.
+
+    Colour: more autoencoder steps, about 1.3 dB per doubling (docs/levers.md; a finer grid is not the fix
+    there). Occupancy: more steps or a finer grid.
+    """
+    import warnings
+
+    iou, psnr, steps = rec.get("occupancy_iou"), rec.get("color_psnr"), cfg.autoencoder.steps
+    if iou is not None and iou < MIN_IOU:
+        finer = f" or grid.resolution={8 * round(1.5 * cfg.grid.resolution / 8)}"
+        warnings.warn(f"low reconstruction quality: occupancy IoU {iou:.3f} < {MIN_IOU} (likely cause: too few "
+                      f"autoencoder steps or a grid too coarse for thin parts); "
+                      f"{refit_advice(cfg, 'autoencoder.steps', 2 * steps, finer)}", stacklevel=3)
+    if psnr is not None and psnr < MIN_PSNR:
+        doublings = min(3, math.ceil((MIN_PSNR - psnr) / 1.3))  # about 1.3 dB per doubling of the steps
+        warnings.warn(f"low reconstruction quality: colour PSNR {psnr:.2f} dB < {MIN_PSNR:.0f} dB (likely cause: too "
+                      "few autoencoder steps for this texture's detail: each doubling gave about 1.3 dB on a "
+                      f"two-texture mesh, and doubles the autoencoder's time); "
+                      f"{refit_advice(cfg, 'autoencoder.steps', steps * 2 ** doublings)}", stacklevel=3)
+
+
+# --------------------------------------------------------------------------- the rollout switch
+def no_rollout_switch(cfg: Config) -> str:
+    """How to keep the plain denoiser (CLI and Python)."""
+    return f"--no-rollout-switch (Python: {preset_expr(cfg)}.updated(rollout_switch={{}}))"
+
+
+def keeps_goals_from_noise(cfg: Config, calibration: dict | None) -> bool:
+    """Whether a fit's denoiser has no cross-plane rollout and its calibration kept the input's patches even from
+    pure noise (diversity 1): the case for the rollout (:attr:`Config.rollout_switch`, :func:`rollout_hint`).
+
+    Such a shape's layout varies little whatever the knob (a wall's brick body, dunes), so the rollout
+    costs it no variation and makes the three planes agree on the detail: on the wall a colour per brick
+    and its vertical joints, which the plain denoiser smears; on the dunes smoother crests and better
+    patches (docs/levers.md, "The rollout switch"). The canyon, whose calibration stops below 1, copies
+    its input with the rollout, so only a calibration that reaches 1 calls for it.
+    """
+    return bool(not cfg.diffusion.rollout and calibration and calibration.get("kept_goals")
+                and calibration.get("diversity") == 1)
+
+
+def rollout_message(cfg: Config) -> str:
+    """What the fit says when it trains the denoiser again with the rollout (:attr:`Config.rollout_switch`)."""
+    return ("this shape keeps the input's patches even from pure noise (calibrated to diversity 1): its layout "
+            "varies little whatever the knob, so the denoiser is trained again with the cross-plane rollout, which "
+            "makes the planes agree on fine detail at no cost in variation (on the wall: whole bricks instead of "
+            f"smeared joints): {cfg.for_rollout().diffusion.steps:,} steps, each about 1.8x a plain one; to keep "
+            "the plain denoiser: " + no_rollout_switch(cfg))
+
+
+def rollout_hint(cfg: Config, calibration: dict | None) -> str | None:
+    """The hint a fit without :attr:`Config.rollout_switch` gives when :func:`keeps_goals_from_noise` holds
+    (``None`` otherwise): fit again with the rollout."""
+    if not keeps_goals_from_noise(cfg, calibration):
+        return None
+    return ("[fit] this shape keeps the input's patches even from pure noise (calibrated to diversity 1), so its "
+            "layout varies little and the cross-plane rollout would cost it no variation, while making the planes "
+            "agree on fine detail (on the wall: whole bricks instead of smeared joints); to try it, "
+            + refit_advice(cfg, "diffusion.rollout", True))
+
+
+# --------------------------------------------------------------------------- variants
+def choose_pbr(mesh: TexturedMesh, pbr: bool | None, preset, say) -> bool:
+    """Whether to fit the PBR variant: asked for, or (``pbr=None``) whenever the mesh has PBR maps."""
+    already = isinstance(preset, Config) and preset.autoencoder.pbr
+    if pbr is None:
+        pbr = bool(already or mesh.has_pbr)
+        if pbr and mesh.has_pbr:
+            say(f"[fit] '{mesh.name}' has PBR maps: learning base colour, metallic, roughness and normals (pbr=False: colour only)")
+    elif pbr and not mesh.has_pbr:
+        say(f"[fit] '{mesh.name}' has no PBR maps: learning its constant metallic / roughness and its geometric normals")
+    return bool(pbr)
+
+
+def check_flips(cfg: Config) -> None:
+    """``diffusion.flips`` needs a decoder that commutes with flips (autoencoder.mirror), and no PBR normals."""
+    if not cfg.diffusion.flips:
+        return
+    check_flip_axes(cfg.diffusion.flips)
+    if not cfg.autoencoder.mirror:
+        raise Sin3DMInputError(
+            f"diffusion.flips='{cfg.diffusion.flips}' needs autoencoder.mirror=true: only a decoder with mirror-symmetric "
+            "kernels decodes a flipped latent to the mirrored shape (CLI: --set autoencoder.mirror=true)")
+    if cfg.autoencoder.pbr:
+        raise Sin3DMInputError(
+            "diffusion.flips does not work with the PBR variant: a mirrored shape's normals change direction, which a "
+            "flipped latent does not say; fit with pbr=False (CLI: --no-pbr) or without flips")

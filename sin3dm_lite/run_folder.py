@@ -1,0 +1,184 @@
+"""A fit's run folder: made in one rename, checked before a resume, cleaned up after a failed fresh fit.
+
+Every stage of a fit saves its result here, and training checkpoints are
+written atomically every ``config.checkpoint_every`` steps, so
+``fit(..., resume=True)`` continues an interrupted run and ends exactly where
+an uninterrupted one would::
+
+    RUN/config.json        the full configuration
+    RUN/grid.npz           the input's TSDF + colour grid (stage 1)
+    RUN/autoencoder.pt     autoencoder trainer state (stage 2, checkpoint)
+    RUN/diffusion.pt       diffusion trainer state (stage 3, checkpoint)
+    RUN/model.pt           what sampling needs: decoder, latent, denoiser (written last)
+    RUN/losses.json        loss histories of both stages: {"autoencoder": {"loss", "sdf", "color"},
+                           "diffusion": {"loss"}}, each a list with one value per step
+    RUN/report.json        reconstruction metrics, timings, step counts (while a switched fit runs:
+                           only the records of its thin-part and rollout switches, kept for --resume)
+    RUN/input.json         what the fit was asked for: the input's name and digest (runs.input_digest) and the
+                           settings before any switch; --resume refuses another input or other settings
+
+The torch files in it are read and written by :mod:`sin3dm_lite.checkpoints`.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .checkpoints import MODEL_FILE, load_trainer_checkpoint, not_ours
+from .data.config import Config
+from .data.grid import load_grid
+from .data.presets import get_preset
+from .errors import Sin3DMInputError
+from .files import acquire_lock, create_locked_folder, release_lock
+from .fit_policy import check_flips
+
+INPUT_FILE = "input.json"
+RUN_FILES = ("config.json", INPUT_FILE, "grid.npz", "autoencoder.pt", "diffusion.pt", MODEL_FILE, "losses.json", "report.json")
+
+
+def check_run_folder(run: Path, source, resume: bool) -> None:
+    """Refuse a run folder the fit cannot write (a file, the input's own folder, read-only) or, for a resume,
+    damaged checkpoints: before any stage writes."""
+    from .files import check_not_overlapping, check_writable
+
+    if isinstance(source, (str, Path)) and Path(source).exists():
+        check_not_overlapping(run, {"input mesh": Path(source)})
+    if run.exists() and not run.is_dir():
+        raise Sin3DMInputError(f"run folder '{run}' is a file; choose a folder for out (CLI: --out)")
+    check_writable(run)
+    if resume:  # a damaged checkpoint fails now, before any stage writes
+        for kind in ("autoencoder", "diffusion"):
+            if (run / f"{kind}.pt").exists():
+                load_trainer_checkpoint(run / f"{kind}.pt", kind)
+        if (run / "grid.npz").exists():
+            load_grid(run / "grid.npz")
+
+
+def prepare_run(run: Path | None, preset, resume: bool, seed: int | None, asked: dict | None = None,
+                pbr: bool | None = None) -> Config:
+    """Resolve the config and check the run folder (new, or resumable with the same input and settings)."""
+    cfg = None
+    if preset is not None:
+        cfg = preset if isinstance(preset, Config) else get_preset(preset)
+        check_flips(cfg)
+        if seed is not None:
+            cfg = cfg.updated(seed=seed)
+    if run is None:
+        if resume:
+            raise Sin3DMInputError("resume needs a run folder; pass out=RUN_DIR (CLI: --out RUN_DIR)")
+        return cfg
+    if resume:
+        return _resumed_config(run, cfg, seed, asked, pbr)
+    if run.exists() and any(run.iterdir()):
+        if (run / "config.json").is_file():
+            raise Sin3DMInputError(f"run folder '{run}' is not empty: it holds a fit; continue it with --resume, or "
+                                   "choose a new or empty --out")
+        raise Sin3DMInputError(f"--out '{run}' is not empty and holds no fit of sin3dm-lite; choose a new or empty "
+                               "folder for --out (nothing in it is touched)")
+    # the new run folder appears with its config and lock in one rename: a kill leaves a resumable
+    # folder or only a temporary one (removed by the next run), never a folder that blocks the next try
+    files = {"config.json": cfg.to_json()}
+    if asked is not None:
+        files[INPUT_FILE] = json.dumps({**asked, "config": cfg.to_dict()}, indent=2)
+    create_locked_folder(run, files, option="--out")
+    return cfg
+
+
+def _resumed_config(run: Path, asked_cfg: Config | None, seed: int | None, asked: dict | None,
+                    pbr: bool | None) -> Config:
+    """The config of the run folder ``run`` to resume (checked against what is asked now), with its lock taken."""
+    cfg_file = run / "config.json"
+    if not cfg_file.exists():
+        raise Sin3DMInputError(f"cannot resume: '{run}' is not a fit's run folder (it has no config.json, which a "
+                               "fit writes first); start a new fit into a new or empty folder (CLI: --out)")
+    try:
+        cfg = Config.from_dict(json.loads(cfg_file.read_text()))
+    except Sin3DMInputError as e:  # a setting out of range
+        raise Sin3DMInputError(f"cannot resume: '{cfg_file}': {e}") from None
+    except Exception:  # noqa: BLE001 - a damaged or foreign config: one clear message
+        raise not_ours(cfg_file, "config", "it is not a readable configuration") from None
+    if asked is not None:  # another mesh or other settings would train on top of this run's checkpoints
+        if asked_cfg is None and (seed is not None or pbr is not None):  # the run's own, with these changed
+            asked_cfg = recorded_config(run, cfg).updated(**({} if seed is None else {"seed": seed}))
+        check_same_request(run, asked, asked_cfg, pbr, cfg)
+    acquire_lock(run)
+    return cfg
+
+
+def read_input(run: Path) -> dict | None:
+    """The run folder's input.json (what it was fitted to), or None when it has none (an older version's run)."""
+    try:
+        rec = json.loads((run / INPUT_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return rec if isinstance(rec, dict) and isinstance(rec.get("digest"), str) else None
+
+
+def recorded_config(run: Path, cfg: Config) -> Config:
+    """The settings a run was asked for (its input.json), else its config.json's ``cfg``."""
+    rec = read_input(run)
+    try:
+        return Config.from_dict(rec["config"]) if rec and isinstance(rec.get("config"), dict) else cfg
+    except (Sin3DMInputError, TypeError):
+        return cfg
+
+
+def check_same_request(run: Path, asked: dict, asked_cfg: Config | None, pbr: bool | None, cfg: Config) -> None:
+    """Refuse to resume ``run`` with another input than it was fitted to, or other settings (one line: what differs)."""
+    rec = read_input(run)
+    if rec is not None:
+        other_input = rec["digest"] != asked["digest"]
+        was = rec.get("input", "another mesh")
+    else:  # a run of an older version: its report names the input, if it got that far
+        name = read_report(run).get("input")
+        other_input = isinstance(name, str) and name != asked["name"]
+        was = f"'{name}'"
+    if other_input:
+        raise Sin3DMInputError(
+            f"cannot resume: '{run}' was fitted to {was}, not {asked['input']}; resume it with that input, or fit "
+            f"{asked['input']} into a new --out")
+    if asked_cfg is None:
+        return
+    want, have = asked_cfg.to_dict(), recorded_config(run, cfg).to_dict()
+    if pbr is not None:
+        want["autoencoder"]["pbr"] = bool(pbr)
+    elif not want["autoencoder"]["pbr"]:  # chosen from the mesh, which is the same
+        want["autoencoder"]["pbr"] = have["autoencoder"]["pbr"]
+    want, have = Config.from_dict(want).settings(), Config.from_dict(have).settings()
+    if rec is None:  # an older run records only its config.json, which its switches and calibration changed
+        have.update(name=have["name"].split("+")[0])
+        differ = [k for k in ("name",) if want[k] != have[k]]
+    else:
+        differ = [k for k in want if want[k] != have.get(k)]
+    if differ:
+        shown = [f"{'preset' if k == 'name' else k} {have.get(k)!r} there, {want[k]!r} now" for k in differ[:3]]
+        more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
+        raise Sin3DMInputError(
+            f"cannot resume: '{run}' was fitted with other settings ({'; '.join(shown)}{more}); resume it with its "
+            "own (leave out --preset, --set, --seed and --pbr; Python: preset=None), or fit into a new --out")
+
+
+def read_report(run: Path) -> dict:
+    """The run folder's report.json, or {} when it is missing or unreadable (it is only a record)."""
+    try:
+        report = json.loads((run / "report.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return report if isinstance(report, dict) else {}
+
+
+def remove_failed_run(run: Path, existed: bool) -> None:
+    """Remove what a failed fresh fit wrote into ``run`` (and the folder, if the fit made it and it is empty)."""
+    import re
+
+    for name in RUN_FILES:
+        (run / name).unlink(missing_ok=True)
+    for p in run.iterdir():  # temporaries of atomic writes
+        if re.match(r"^\..*\.sin3dm-\d+-[^.]*\.tmp", p.name):
+            p.unlink(missing_ok=True)
+    release_lock(run)
+    if not existed:
+        try:
+            run.rmdir()
+        except OSError:
+            pass  # someone put a file there meanwhile: leave it
