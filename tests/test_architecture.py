@@ -56,7 +56,8 @@ LAYERS = {
     # app: the facade, run folders, mass sampling (the run, its folder, ranks and workers), the CLI (main, parser,
     # commands by group), shipped models, the public namespace
     "pipeline": APP, "runs": APP, "mass": APP, "mass_folder": APP, "mass_workers": APP, "pretrained": APP,
-    "cli": APP, "cli.__main__": APP, "cli.parser": APP, "cli.fitting": APP, "cli.sampling": APP, "cli.evaluation": APP,
+    "cli": APP, "cli.__main__": APP, "cli.parser_cli": APP, "cli.fit_cli": APP, "cli.sample_cli": APP,
+    "cli.evaluate_cli": APP,
     "__init__": APP,
     # the facade's stages: fitting (fit_policy decides, run_folder and checkpoints keep the files), sampling (request:
     # a sample run's settings and their defaults)

@@ -195,7 +195,7 @@ def test_the_help_lists_exactly_the_formats_that_load(tmp_path, capsys):
 
 def test_demo_example_with_train_fits_that_example(capsys, tmp_path, monkeypatch):
     """`demo --example wall --train` fits the wall (the tiny preset here, to be quick) and writes its samples."""
-    from sin3dm_lite.cli import sampling
+    from sin3dm_lite.cli import sample_cli as sampling
 
     monkeypatch.setattr(sampling, "DEMO_PRESET", "tiny")  # what cmd_demo fits with
     out = tmp_path / "demo"

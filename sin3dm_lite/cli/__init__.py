@@ -37,10 +37,10 @@ import sys
 import warnings
 
 from ..errors import Sin3DMInputError
-from .evaluation import cmd_calibrate, cmd_evaluate, cmd_render
-from .fitting import cmd_examples, cmd_fit, cmd_grid
-from .parser import COMMANDS, build_parser, package_version
-from .sampling import cmd_demo, cmd_sample, sample_request
+from .evaluate_cli import cmd_calibrate, cmd_evaluate, cmd_render
+from .fit_cli import cmd_examples, cmd_fit, cmd_grid
+from .parser_cli import COMMANDS, build_parser, package_version
+from .sample_cli import cmd_demo, cmd_sample, sample_request
 
 
 def disk_error(e: OSError, out: str | None = None) -> str:

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from ..errors import Sin3DMInputError
-from .sampling import find_run
+from .sample_cli import find_run
 
 MAX_VIEWS = 360
 

@@ -186,7 +186,7 @@ def _sample_command_args(s: argparse.ArgumentParser) -> None:
 
 def _demo_args(d: argparse.ArgumentParser) -> None:
     from ..data import examples
-    from .sampling import DEMO_PRESET
+    from .sample_cli import DEMO_PRESET
 
     _sample_args(d, n_default=4)
     d.add_argument("--example", default=examples.DEFAULT_EXAMPLE, metavar="NAME",
