@@ -9,12 +9,14 @@ table of levels and checks it, imports inside functions included)::
     0 base      errors · device · threads (how CPU threads wait) · files: atomic · locks · manifest · outputs
     1 data      data: config · presets · box · mesh (the mesh type) · formats (file readers, images) · load (read
                 a mesh) · source (a fit's input by name) · export (OBJ / GLB writers) · examples · ruin · distance ·
-                grid (mesh → TSDF)
-    2 model     model: triplane · training · autoencoder · decode · unet · diffusion (schedule, training, sampling)
-    3 generate  generate: control (what to sample: outpaint, ...) · extract (SDF → textured mesh)
+                tsdf (truncated SDF on a grid and at points) · grid (mesh → TSDF)
+    2 model     model: triplane · training · autoencoder · decode · unet · schedule (noise, the steps visited) ·
+                diffusion (training, sampling)
+    3 generate  generate: control (what to sample: outpaint, ...) · bake (textures) · extract (SDF → textured mesh)
     4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render ·
-                calibrate · evaluation (samples against the input)
-    5 show      show: figures · data/model/diffusion/sample/eval_figures · viz · camera · viewer · pages · widgets
+                calibration_record · calibrate · evaluation (samples against the input)
+    5 show      show: figures · data/model/diffusion/sample/eval_figures · viz · camera · viewer · pages · explorer ·
+                sampling_widgets · widgets
     5 teach     teach: lesson2d (the method on one 2D image) · exercises (``check_…`` a piece you wrote)
     6 app       pipeline (Sin3DM: fit, sample, save, load, each a call into:) · fitting (the stages) · fit_policy
                 (what a fit decides) · run_folder · checkpoints · sampling · request (a sample run's settings) ·
@@ -92,7 +94,7 @@ _API = {
     "analytic_receptive_field": "model.unet",
     "layer_walk": "model.unet",
     "layers_receptive_field": "model.unet",
-    "NoiseSchedule": "model.diffusion",
+    "NoiseSchedule": "model.schedule",
     "DiffusionTrainer": "model.diffusion",
     "sample": "model.diffusion",
     "predict_clean": "model.diffusion",
@@ -101,7 +103,7 @@ _API = {
     # generate
     "extract_mesh": "generate.extract",
     "marching_cubes": "generate.extract",
-    "pbr_maps": "generate.extract",
+    "pbr_maps": "generate.bake",
     "export_mesh": "data.export",
     # eval
     "reconstruction_metrics": "evaluate.metrics",
@@ -118,7 +120,7 @@ _API = {
     "sifid": "evaluate.metrics",
     "lpips": "evaluate.metrics",
     "calibrate_diversity": "evaluate.calibrate",
-    "Calibration": "evaluate.calibrate",
+    "Calibration": "evaluate.calibration_record",
     # exercises: write a piece of the method, check it against the library
     "ExerciseError": "teach.exercises",
     "check_q_sample": "teach.exercises",

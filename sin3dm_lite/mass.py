@@ -49,7 +49,7 @@ from .request import DEFAULT_BATCH, SampleRequest  # what a run asks for (define
 
 def check_request(model, req: SampleRequest) -> None:
     """Refuse what sampling would refuse about the flags (``--steps`` out of range, ...) before the folder is touched."""
-    from .model.diffusion import sampling_timesteps
+    from .model.schedule import sampling_timesteps
 
     r = req.resolve(model.config.sampling)
     steps, top = r.steps, model.schedule.timesteps

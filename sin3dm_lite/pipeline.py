@@ -40,7 +40,7 @@ from .model.triplane import Triplane
 from .sampling import Samples
 
 if TYPE_CHECKING:
-    from .evaluate.calibrate import Calibration
+    from .evaluate.calibration_record import Calibration
 
 
 class Sin3DM:
@@ -57,7 +57,7 @@ class Sin3DM:
         report: dict | None = None,
         device=None,
     ):
-        from .model.diffusion import NoiseSchedule
+        from .model.schedule import NoiseSchedule
 
         self.config = config
         self.device = get_device(device)

@@ -86,7 +86,7 @@ def draw(model, n: int, plan, steps=None, method=None, seed=0, return_intermedia
     """``model.sample`` (its docstring says what each argument does): ``n`` (≥ 1) new triplanes for ``plan``
     (:func:`plan_for`), at most as many as fit in memory at once (:func:`max_samples`)."""
     from .model.diffusion import sample as diffusion_sample
-    from .model.diffusion import start_step
+    from .model.schedule import start_step
 
     if plan.known is not None and known is not None:
         raise Sin3DMInputError(f"{plan.kind} chooses what to keep itself; do not pass known/mask with it")

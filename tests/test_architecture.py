@@ -30,27 +30,29 @@ LAYERS = {
     # base: used everywhere (errors, the device and thread policy, atomic files, locks, the manifest, output folders)
     "errors": BASE, "device": BASE, "threads": BASE,
     "files": BASE, "files.atomic": BASE, "files.locks": BASE, "files.manifest": BASE, "files.outputs": BASE,
-    # data: settings, geometry of the box, meshes and their files, built-in shapes, mesh → TSDF grid
+    # data: settings, geometry of the box, meshes and their files, built-in shapes, mesh → TSDF grid (tsdf computes it)
     "data": DATA, "data.config": DATA, "data.presets": DATA, "data.box": DATA, "data.mesh": DATA,
     "data.load": DATA, "data.export": DATA, "data.formats": DATA, "data.formats.common": DATA,
     "data.formats.images": DATA, "data.formats.obj": DATA, "data.formats.mtl": DATA, "data.formats.gltf": DATA,
     "data.formats.scene": DATA, "data.examples": DATA, "data.examples.geometry": DATA,
     "data.examples.texture": DATA, "data.examples.canyon": DATA, "data.examples.wall": DATA,
-    "data.examples.colonnade": DATA, "data.examples.tiles": DATA, "data.ruin": DATA, "data.distance": DATA, "data.grid": DATA,
+    "data.examples.colonnade": DATA, "data.examples.tiles": DATA, "data.ruin": DATA, "data.distance": DATA,
+    "data.tsdf": DATA, "data.grid": DATA,
     "data.source": DATA,
-    # model: triplane, autoencoder, decoding, U-Net, diffusion, the trainers
+    # model: triplane, autoencoder, decoding, U-Net, the noise schedule, diffusion, the trainers
     "model": MODEL, "model.triplane": MODEL, "model.training": MODEL, "model.autoencoder": MODEL,
-    "model.decode": MODEL, "model.unet": MODEL, "model.diffusion": MODEL,
-    # generate: what to sample (control) and the SDF → textured mesh step
-    "generate": GENERATE, "generate.control": GENERATE, "generate.extract": GENERATE,
+    "model.decode": MODEL, "model.unet": MODEL, "model.schedule": MODEL, "model.diffusion": MODEL,
+    # generate: what to sample (control), texture baking and the SDF → textured mesh step
+    "generate": GENERATE, "generate.control": GENERATE, "generate.bake": GENERATE, "generate.extract": GENERATE,
     # evaluate: metrics and their networks, headless rendering, the diversity calibration
     "evaluate": EVALUATE, "evaluate.geometry": EVALUATE, "evaluate.features": EVALUATE,
     "evaluate.texture": EVALUATE, "evaluate.metrics": EVALUATE, "evaluate.render": EVALUATE,
-    "evaluate.calibrate": EVALUATE, "evaluate.evaluation": EVALUATE,
-    # show: figures by stage, k3d viewers and pages, widget panels
+    "evaluate.calibration_record": EVALUATE, "evaluate.calibrate": EVALUATE, "evaluate.evaluation": EVALUATE,
+    # show: figures by stage, k3d viewers and pages, widget panels (the panel, the sampling stage's, all of them)
     "show": SHOW, "show.figures": SHOW, "show.data_figures": SHOW, "show.model_figures": SHOW,
     "show.diffusion_figures": SHOW, "show.sample_figures": SHOW, "show.eval_figures": SHOW, "show.viz": SHOW,
-    "show.camera": SHOW, "show.viewer": SHOW, "show.pages": SHOW, "show.widgets": SHOW,
+    "show.camera": SHOW, "show.viewer": SHOW, "show.pages": SHOW, "show.explorer": SHOW,
+    "show.sampling_widgets": SHOW, "show.widgets": SHOW,
     # teach: the 2D lesson and the exercises' checks (they use the model and the metrics)
     "teach": SHOW, "teach.lesson2d": SHOW, "teach.exercises": SHOW,
     # app: the facade, run folders, mass sampling (the run, its folder, ranks and workers), the CLI (main, parser,

@@ -8,16 +8,13 @@ import torch
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model.diffusion import (
     DiffusionTrainer,
-    NoiseSchedule,
-    ddim_timesteps,
     diffusion_loss,
     fit_diffusion,
     predict_clean,
     sample,
-    sampling_timesteps,
     soft_mask,
-    start_step,
 )
+from sin3dm_lite.model.schedule import NoiseSchedule, ddim_timesteps, sampling_timesteps, start_step
 from sin3dm_lite.model.triplane import Triplane
 
 from .conftest import LATENT_RES, tiny_diffusion_cfg

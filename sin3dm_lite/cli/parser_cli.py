@@ -252,6 +252,15 @@ def _outside_paths_arg(p: argparse.ArgumentParser) -> None:
 
 
 def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
+    """The flags of ``sample`` and ``demo``, in the order ``--help`` lists them."""
+    _run_args(s, n_default)
+    _control_args(s)
+    _sampler_args(s)
+    _output_args(s)
+
+
+def _run_args(s: argparse.ArgumentParser, n_default: int) -> None:
+    """How many samples, from which index, in batches of how many, exported by how many workers."""
     s.add_argument("-n", type=_positive_int, default=n_default,
                    help="number of samples; each lands in --out as it finishes, and the same command again continues")
     s.add_argument("--start", type=_whole, default=0,
@@ -261,6 +270,10 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
     s.add_argument("--workers", type=_whole, default=1,
                    help="processes that decode, texture and export meshes while the next batch is sampled "
                         "(0: in the sampling process)")
+
+
+def _control_args(s: argparse.ArgumentParser) -> None:
+    """Controlled generation: one of resize, outpaint, regenerate, duplicate (and outpaint's anchor)."""
     ctl = s.add_argument_group("controlled generation (one at a time, default: none, samples the input's size; "
                                "boxes are fractions 0-1 of the model's box along x, y, z)").add_mutually_exclusive_group()
     ctl.add_argument("--resize", nargs=3, type=_resize_factor, metavar=("SX", "SY", "SZ"), default=None,
@@ -273,12 +286,20 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
                      default=None, help="copy this box so its low corner lands at TX TY TZ; generate around both copies")
     s.add_argument("--anchor", default="center", choices=["center", "x-", "x+", "y-", "y+", "z-", "z+"],
                    help="with --outpaint: where the input stays, the centre or the face it sticks to")
+
+
+def _sampler_args(s: argparse.ArgumentParser) -> None:
+    """The sampler: diversity, DDIM steps or DDPM, seed."""
     s.add_argument("--diversity", type=_unit_float, default=None,
                    help="0 = the input, 1 = from pure noise (the paper; default: the run's setting); "
                         "lower values keep more of the input's layout")
     s.add_argument("--steps", type=_positive_int, default=None, help="DDIM steps (default: the preset's)")
     s.add_argument("--ddpm", action="store_true", help="use full DDPM sampling (all timesteps) instead of DDIM")
     s.add_argument("--seed", type=_seed, default=0, help="random seed; the same seed gives the same samples")
+
+
+def _output_args(s: argparse.ArgumentParser) -> None:
+    """The meshes (faces, texture, decode grid), the device, and what happens to --out."""
     s.add_argument("--faces", type=_positive_int, default=None, help="face budget per mesh (default: the preset's)")
     s.add_argument("--texture-size", type=_positive_int, default=None,
                    help="texture image size in pixels (default: the preset's)")

@@ -36,8 +36,21 @@ the curve lowered by 1.5 standard errors (for the noise of a few samples). Each
 setting gets its own sample seeds, so no single lucky or unlucky set of samples
 decides. The samples' G-Div at the choice is recorded against the diversity
 requirement (:data:`G_DIV_GOAL`); it does not move the choice, which fidelity
-decides. :meth:`Calibration.story` tells it: per goal, the near copy's score,
-the goal and the choice.
+decides. The record (:class:`Calibration`, in :mod:`.calibration_record`)
+tells it with :meth:`Calibration.story`: per goal, the near copy's score, the
+goal and the choice.
+
+**Why so** (``benchmarks/bench_calibration.py`` replays the calibration 400
+times on 48 stored samples per setting; docs/calibration.md): independent seeds
+per setting matter, since one set of samples reused at every setting is lucky
+or unlucky at all of them at once (a bisection on one seed set chose anything
+from 0.59 to 0.88 on a tiled slab). Read at the goals themselves, 8 samples per
+setting land above the true crossing about half the time. A fixed 0.02 above
+them (the first rule) was too little where the curve is steep and bends between
+two settings and too much where it is flat. The refinement removes most of the
+bend's error and the standard error shrinks as samples pool near the answer;
+1.5 standard errors rather than one keep the choice off the goals' edge where
+the curve is flat.
 
 **Grid.** Everything is measured on the grid of the reference given, for a fit
 its training grid (64 voxels along the longest side for ``small`` and
@@ -55,11 +68,11 @@ decoded on the training grid, no meshes.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
 from ..errors import Sin3DMInputError
+from .calibration_record import MIN_CEILING, SCORE_NAMES, Calibration
 
 #: what the samples must keep against the input at most: the paper's averages are LP-F 0.699 at G-Div 0.224, and
 #: the project's goals LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter by a few
@@ -67,10 +80,6 @@ from ..errors import Sin3DMInputError
 GOALS = {"lp_iou": 0.55, "lp_fscore": 0.70}
 #: the goals relative to the ceiling: each goal is at most this share of the shape's near-copy score
 RELATIVE = 0.85
-#: the least LP-F a near copy must keep to set a ceiling: below it the fit does not reproduce its input (a barely
-#: trained one keeps no patch) and the goals stay absolute. LP-F, the lenient score: a faithful near copy of walls
-#: 2-3 voxels thick on a 32-voxel grid (reconstruction IoU 0.94) keeps LP-IoU 0.02 but LP-F 0.15
-MIN_CEILING = 0.1
 #: the setting whose samples stand for the near copy (the ceiling), and where its seeds start (after ``seed``)
 NEAR_COPY, NEAR_COPY_SEEDS = 0.05, 100_000
 #: the diversity requirement: the samples' G-Div at the choice (the issue's goal; recorded, not a goal of the walk)
@@ -82,82 +91,9 @@ LOWEST = 0.1
 REFINE = 4
 #: how the smoothed curve is read: lowered by CAUTION standard errors, SAFETY (a share of patches) above each goal
 SAFETY, CAUTION = 0.0, 1.5
-_NAMES = {"lp_iou": "LP-IoU", "lp_fscore": "LP-F"}
 
 #: ``sample_fn(diversity, n, seed)``: ``n`` samples' occupancy grids, seeds ``seed`` …, on the reference's grid
 SampleFn = Callable[[float, int, int], Sequence[np.ndarray]]
-
-
-@dataclass
-class Calibration:
-    """What :func:`calibrate_diversity` chose, the settings it tried on the way (in order), and why.
-
-    ``goals`` are the goals the settings were judged by; with a near copy
-    (``near_copy``, the ceiling) each is the smaller of ``absolute_goals`` and
-    ``relative`` × the near copy's score (the absolute goal where the near copy's
-    LP-F is below :data:`MIN_CEILING`). ``at_choice`` holds the smoothed patch
-    scores and the samples' G-Div at the chosen setting. A record written
-    before the ceiling (absolute goals only) loads with :meth:`from_dict`.
-    """
-
-    diversity: float
-    goals: dict
-    n: int
-    resolution: int
-    tried: list = field(default_factory=list)  # [{"diversity", "n", "lp_iou", "lp_fscore", "g_div", "kept", "*_sd", "*_fitted"}]
-    kept_goals: bool = False  # False when even the lowest setting drawn missed the goals (then it is the answer)
-    near_copy: dict | None = None  # {"diversity", "n", "lp_iou", "lp_fscore", "g_div", "*_sd"}: the ceiling
-    absolute_goals: dict | None = None  # the caps (GOALS or the caller's); None: the goals were absolute
-    relative: float | None = None  # the share of the near copy's scores
-    at_choice: dict | None = None  # {"lp_iou", "lp_fscore", "g_div"} at the chosen setting (smoothed; G-Div between draws)
-    g_div_goal: float | None = None  # the diversity requirement the choice is reported against
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, record: dict) -> Calibration:
-        """A record from a run's ``report.json`` (``report["calibration"]``), older ones (no ceiling) included."""
-        known = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in record.items() if k in known})
-
-    def story(self) -> str:
-        """Why this setting, a line per goal: the near copy's score (the ceiling), the goal, the choice."""
-        grid = f"at {self.resolution} voxels (the paper measures at 128)"
-        chosen = f"chosen {self.diversity:g}" + ("" if self.kept_goals else " (the lowest drawn: no setting kept the goals)")
-        at = self.at_choice or {}
-        if self.near_copy is None:
-            goals = ", ".join(f"{_NAMES.get(k, k)} {v:.2f}" for k, v in self.goals.items())
-            return f"absolute goals {goals} {grid} (no near copy scored); {chosen}"
-        lines = []
-        for key, goal in self.goals.items():
-            absolute = (self.absolute_goals or {}).get(key, goal)
-            if self.near_copy["lp_fscore"] < MIN_CEILING:
-                why = f"the absolute goal: a near copy of LP-F below {MIN_CEILING:g} sets no ceiling"
-            elif goal >= absolute:
-                why = f"the absolute goal; {self.relative:.0%} of the near copy is above it"
-            else:
-                why = f"{self.relative:.0%} of the near copy; the absolute {absolute:.2f} is out of its reach"
-            there = f", smoothed {at[key]:.2f} there" if key in at else ""
-            lines.append(f"{_NAMES.get(key, key)}: near copy {self.near_copy[key]:.2f}; goal {goal:.2f} ({why}); "
-                         f"{chosen}{there}")
-        if self.g_div_goal is not None and np.isfinite(at.get("g_div", np.nan)):
-            met = "meets" if at["g_div"] >= self.g_div_goal else "is below"
-            lines.append(f"G-Div at {self.diversity:g}: {at['g_div']:.2f}, which {met} the diversity requirement "
-                         f"{self.g_div_goal:.2f} (near copy {self.near_copy['g_div']:.2f})")
-        lines.append(f"measured {grid}; near copy = diversity {self.near_copy['diversity']:g}")
-        return "\n".join(lines)
-
-    def summary(self) -> str:
-        """One line per setting drawn (raw and smoothed patch scores, G-Div), then the choice and why."""
-        lines = [f"diversity {t['diversity']:.2f}: LP-IoU {t['lp_iou']:.3f} (smoothed {t['lp_iou_fitted']:.3f}) · "
-                 f"LP-F {t['lp_fscore']:.3f} (smoothed {t['lp_fscore_fitted']:.3f}) · G-Div {t['g_div']:.3f}"
-                 for t in self.tried]
-        if self.near_copy is not None:
-            lines.extend(self.story().splitlines())
-        lines.append(f"chosen: {self.diversity:g}" + ("" if self.kept_goals else
-                                                        " (the lowest drawn: no setting kept the goals)"))
-        return "\n".join(lines)
 
 
 def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int) -> list[np.ndarray]:
@@ -314,17 +250,7 @@ def calibrate_diversity(sample_fn: SampleFn, reference: np.ndarray, goals: dict 
     goals and do not enter the curve, so a shape whose near copy keeps the
     absolute goals is calibrated as it was before the ceiling.
 
-    Why so (``benchmarks/bench_calibration.py`` replays the calibration 400
-    times on 48 stored samples per setting; docs/calibration.md): independent seeds per setting matter, since one set of samples
-    reused at every setting is lucky or unlucky at all of them at once (a
-    bisection on one seed set chose anything from 0.59 to 0.88 on a tiled
-    slab). Read at the goals themselves, 8 samples per setting land above the
-    true crossing about half the time. A fixed 0.02 above them (the first
-    rule) was too little where the curve is steep and bends between two
-    settings and too much where it is flat. The refinement removes most of
-    the bend's error and the standard error shrinks as samples pool near the
-    answer; 1.5 standard errors rather than one keep the choice off the goals'
-    edge where the curve is flat (the replays are in docs/calibration.md).
+    Why so: the module's docstring (the replays are in docs/calibration.md).
 
     Args:
         sample_fn: ``sample_fn(diversity, n, seed)`` returns ``n`` samples' occupancy grids (seeds ``seed`` …)
@@ -371,7 +297,7 @@ def _set_ceiling(result: Calibration, near: dict, relative: float, progress: boo
     result.absolute_goals, result.relative = absolute, float(relative)
     if progress:
         print(f"[calibrate] near copy (diversity {NEAR_COPY:g}): " + "; ".join(
-            f"{_NAMES[k]} {near[k]:.3f}, goal {result.goals[k]:.3f}" for k in absolute)
+            f"{SCORE_NAMES[k]} {near[k]:.3f}, goal {result.goals[k]:.3f}" for k in absolute)
             + f" ({relative:.0%} of it, at most {', '.join(f'{v:.2f}' for v in absolute.values())})", flush=True)
 
 

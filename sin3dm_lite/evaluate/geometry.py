@@ -24,7 +24,7 @@ import numpy as np
 
 from ..data.box import as_aabb, axis_centres, grid_shape, to_index
 from ..errors import Sin3DMInputError
-from ..generate.extract import rasterize_triangles
+from ..generate.bake import rasterize_triangles
 
 #: Tiny shift (in voxels) of the mesh against the ray grid: marching-cubes vertices of the same grid lie
 #: exactly on the rays, and a ray through an edge would be counted twice.

@@ -1,2 +1,2 @@
-"""Generate: what to sample in the input's coordinates (``control``), SDF → textured mesh (``extract``) and
-the mesh writers (``export``)."""
+"""Generate: what to sample in the input's coordinates (``control``) and SDF → textured mesh (``extract``, with
+its texture baking in ``bake``); the mesh writers are ``data.export``."""

@@ -135,29 +135,11 @@ def decode_grid(decoder, triplane: Triplane | PreparedTriplane, aabb, resolution
 
     **Coarse to fine** (default ``coarse=4``): most of the grid is far from the
     surface, where marching cubes only needs the sign. The decoder is queried
-    on every ``coarse``-th voxel first, then on lattices twice as fine (4 → 2 →
-    1), and a voxel of a finer lattice is decoded only if the values around it
-    cannot prove that it is far from the surface. It lies in a cell of the
-    previous lattice; if the cell's eight corners have one sign, the SDF is
-    assumed ``lipschitz``-Lipschitz (1 for an exact SDF; a learned decoder only
-    roughly, hence the default 2), which bounds it from below by
-    ``max over corners (|sdf(corner)| - lipschitz * distance)``. Where that
-    bound is at least ``exact_band`` voxels the voxel gets the trilinear
-    interpolation of the corners (right sign, magnitude not exact) instead of
-    a decoder query; otherwise, and in every cell whose corners change sign,
-    it is decoded. The bounds carry from level to level (a bounded voxel is a
-    corner of the next level's cells with its bound). A truncated SDF limits
-    what can be proven: no value exceeds the truncation distance, and with
-    the defaults a voxel is skipped only near corners whose ``|sdf|`` is
-    4–5.5 voxels or more, so most of the truncation band (3 voxels of the
-    training grid, 6 at twice its resolution) is decoded.
-
-    Last, a closure: every voxel that is a corner of a marching-cubes cube
-    not strictly on one side of 0 (the grid padded by an outside layer, as
-    :func:`marching_cubes` does) is decoded if it was not, until there is none
-    left. This is a flood fill: should an interpolated voxel have the wrong
-    sign (the decoder steeper than ``lipschitz``), it borders a decoded voxel
-    of its true sign, gets decoded, and so on through the whole wrong region.
+    on every ``coarse``-th voxel first, then on lattices twice as fine, and a
+    voxel is decoded only where the decoded values around it, assuming the SDF
+    is ``lipschitz``-Lipschitz, cannot prove it far from the surface; the
+    others get an interpolation. A closure then decodes every voxel marching
+    cubes can read (:func:`_decode_coarse_to_fine` says how, step by step).
 
     So every voxel within ``exact_band`` voxels of the zero level (as far as
     the Lipschitz assumption holds) has exactly the value of the full decode,
@@ -254,80 +236,120 @@ def mc_support(sdf: np.ndarray, level: float = 0.0) -> np.ndarray:
 
 def _decode_coarse_to_fine(decoder, prepared: PreparedTriplane, box: np.ndarray, shape, chunk: int,
                            with_color: bool, coarse: int, exact_band: float, lipschitz: float, stats: dict | None):
-    """See :func:`decode_grid`. Works on a grid padded to a whole number of coarse cells."""
+    """:func:`decode_grid`, coarse to fine, on a grid padded to a whole number of coarse cells.
+
+    Most of the grid is far from the surface, where marching cubes only needs
+    the sign. The decoder is queried on every ``coarse``-th voxel first, then
+    on lattices twice as fine (4 → 2 → 1), and a voxel of a finer lattice is
+    decoded only if the values around it cannot prove that it is far from the
+    surface. It lies in a cell of the previous lattice; if the cell's eight corners have one sign, the SDF is
+    assumed ``lipschitz``-Lipschitz (1 for an exact SDF; a learned decoder only
+    roughly, hence the default 2), which bounds it from below by
+    ``max over corners (|sdf(corner)| - lipschitz * distance)``. Where that
+    bound is at least ``exact_band`` voxels the voxel gets the trilinear
+    interpolation of the corners (right sign, magnitude not exact) instead of
+    a decoder query; otherwise, and in every cell whose corners change sign,
+    it is decoded. The bounds carry from level to level (a bounded voxel is a
+    corner of the next level's cells with its bound). A truncated SDF limits
+    what can be proven: no value exceeds the truncation distance, and with
+    the defaults a voxel is skipped only near corners whose ``|sdf|`` is
+    4–5.5 voxels or more, so most of the truncation band (3 voxels of the
+    training grid, 6 at twice its resolution) is decoded.
+
+    Last, a closure: every voxel that is a corner of a marching-cubes cube
+    not strictly on one side of 0 (the grid padded by an outside layer, as
+    :func:`marching_cubes` does) is decoded if it was not, until there is none
+    left. This is a flood fill: should an interpolated voxel have the wrong
+    sign (the decoder steeper than ``lipschitz``), it borders a decoded voxel
+    of its true sign, gets decoded, and so on through the whole wrong region.
+    """
     steps = _lattice_steps(coarse)
     first = steps[0]
-    padded = tuple(-(-(k - 1) // first) * first + 1 for k in shape)
-    # the same float64 → float32 formula as box.cell_centres, continued past the grid for the padding
-    axes = [(-1 + (2 * np.arange(m) + 1) / k).astype(np.float32) for m, k in zip(padded, shape)]
+    grid = _PaddedGrid(decoder, prepared, shape, first, chunk, with_color)
     spacing = (box[3:] - box[:3]) / np.array(shape, np.float64)  # normalised units per voxel
     band = np.float32(exact_band * spacing.max())
-    val = np.zeros(padded, np.float32)
-    bound = np.zeros(padded, np.float32)  # lower bound on |sdf|; |sdf| where decoded
-    done = np.zeros(padded, bool)
-    col: list[np.ndarray] = []
-    counts: list[tuple[int, int]] = []
-
-    def decode(idx) -> int:
-        if len(idx[0]) == 0:
-            return 0
-        pts = np.stack([axes[a][idx[a]] for a in range(3)], axis=-1)
-        d, c = query_points(decoder, prepared, pts, chunk=chunk, color=with_color)
-        val[idx] = d
-        bound[idx] = np.abs(d)
-        done[idx] = True
-        if with_color:
-            if not col:
-                col.append(np.zeros((*padded, c.shape[-1]), np.float32))
-            col[0][idx] = c
-        return len(d)
-
-    lattice = np.meshgrid(*(np.arange(0, m, first) for m in padded), indexing="ij")
-    counts.append((first, decode(tuple(g.ravel() for g in lattice))))
-
+    lattice = np.meshgrid(*(np.arange(0, m, first) for m in grid.padded), indexing="ij")
+    counts = [(first, grid.decode(tuple(g.ravel() for g in lattice)))]
     for big, h in zip(steps[:-1], steps[1:]):
-        r = big // h
-        cells = [(m - 1) // big for m in padded]
-        known = (slice(None, None, big),) * 3
-        c_val, c_bound = val[known], bound[known]
-        c_pos, c_neg = c_val > 0, c_val < 0
-        c_col = col[0][known] if with_color else None
-        fine = (slice(None, None, h),) * 3
-        f_val, f_bound = val[fine], bound[fine]
-        f_col = col[0][fine] if with_color else None
-        limit = [k - 1 + h for k in shape]  # lattice points from here on are corners of no cell that holds a voxel
-        todo: list[list[np.ndarray]] = [[], [], []]
-        for off in itertools.product(range(r), repeat=3):
-            if off == (0, 0, 0):
-                continue
-            choices = _cell_corners(off, r, h, cells, spacing)
-            same_pos, same_neg, lower, interp, icol = _from_corners(choices, c_pos, c_neg, c_val, c_bound, c_col,
-                                                                    lipschitz, with_color)
-            far = (same_pos | same_neg) & (lower >= band)
-            target = tuple(slice(o, None, r) for o in off)
-            f_val[target][far] = interp[far]
-            f_bound[target][far] = lower[far]
-            if with_color:
-                f_col[target][far] = icol[far]
-            miss = np.nonzero(~far)
-            idx = [h * (o + r * m) for o, m in zip(off, miss)]
-            keep = (idx[0] < limit[0]) & (idx[1] < limit[1]) & (idx[2] < limit[2])
-            for a in range(3):
-                todo[a].append(idx[a][keep])
-        counts.append((h, decode(tuple(np.concatenate(t) for t in todo))))
+        counts.append((h, grid.decode(_refine(grid, big, h, shape, spacing, band, lipschitz))))
 
     crop = tuple(slice(0, k) for k in shape)
-    sdf, decoded = val[crop], done[crop]  # views: decode() writes through
+    sdf, decoded = grid.val[crop], grid.done[crop]  # views: decode() writes through
     closure = 0
     while True:
         missing = mc_support(sdf) & ~decoded
         if not missing.any():
             break
-        closure += decode(np.nonzero(missing))
+        closure += grid.decode(np.nonzero(missing))
     if stats is not None:
         stats.update(voxels=int(np.prod(shape)), decoded=sum(c for _, c in counts) + closure, levels=counts,
                      closure=closure)
-    return np.ascontiguousarray(sdf), (np.ascontiguousarray(col[0][crop]) if with_color else None)
+    return np.ascontiguousarray(sdf), (np.ascontiguousarray(grid.col[crop]) if with_color else None)
+
+
+class _PaddedGrid:
+    """The grid being filled, padded to a whole number of coarse cells: values, lower bounds on ``|sdf|``
+    (``|sdf|`` where decoded), which voxels are decoded, and colours (``with_color``; made at the first decode)."""
+
+    def __init__(self, decoder, prepared: PreparedTriplane, shape, first: int, chunk: int, with_color: bool):
+        self.decoder, self.prepared, self.chunk, self.with_color = decoder, prepared, chunk, with_color
+        self.padded = tuple(-(-(k - 1) // first) * first + 1 for k in shape)
+        # the same float64 → float32 formula as box.cell_centres, continued past the grid for the padding
+        self.axes = [(-1 + (2 * np.arange(m) + 1) / k).astype(np.float32) for m, k in zip(self.padded, shape)]
+        self.val = np.zeros(self.padded, np.float32)
+        self.bound = np.zeros(self.padded, np.float32)  # lower bound on |sdf|; |sdf| where decoded
+        self.done = np.zeros(self.padded, bool)
+        self.col: np.ndarray | None = None
+
+    def decode(self, idx) -> int:
+        """Query the decoder at the voxels ``idx`` (a tuple of index arrays) and record them; returns how many."""
+        if len(idx[0]) == 0:
+            return 0
+        pts = np.stack([self.axes[a][idx[a]] for a in range(3)], axis=-1)
+        d, c = query_points(self.decoder, self.prepared, pts, chunk=self.chunk, color=self.with_color)
+        self.val[idx] = d
+        self.bound[idx] = np.abs(d)
+        self.done[idx] = True
+        if self.with_color:
+            if self.col is None:
+                self.col = np.zeros((*self.padded, c.shape[-1]), np.float32)
+            self.col[idx] = c
+        return len(d)
+
+
+def _refine(grid: _PaddedGrid, big: int, h: int, shape, spacing, band, lipschitz: float) -> tuple:
+    """One level finer, from lattice step ``big`` to ``h``: the points whose cell's corners prove them at least
+    ``band`` from the surface get the corners' interpolation and bound; returns the indices of the others (to decode)."""
+    with_color = grid.with_color
+    r = big // h
+    cells = [(m - 1) // big for m in grid.padded]
+    known = (slice(None, None, big),) * 3
+    c_val, c_bound = grid.val[known], grid.bound[known]
+    c_pos, c_neg = c_val > 0, c_val < 0
+    c_col = grid.col[known] if with_color else None
+    fine = (slice(None, None, h),) * 3
+    f_val, f_bound = grid.val[fine], grid.bound[fine]
+    f_col = grid.col[fine] if with_color else None
+    limit = [k - 1 + h for k in shape]  # lattice points from here on are corners of no cell that holds a voxel
+    todo: list[list[np.ndarray]] = [[], [], []]
+    for off in itertools.product(range(r), repeat=3):
+        if off == (0, 0, 0):
+            continue
+        choices = _cell_corners(off, r, h, cells, spacing)
+        same_pos, same_neg, lower, interp, icol = _from_corners(choices, c_pos, c_neg, c_val, c_bound, c_col,
+                                                                lipschitz, with_color)
+        far = (same_pos | same_neg) & (lower >= band)
+        target = tuple(slice(o, None, r) for o in off)
+        f_val[target][far] = interp[far]
+        f_bound[target][far] = lower[far]
+        if with_color:
+            f_col[target][far] = icol[far]
+        miss = np.nonzero(~far)
+        idx = [h * (o + r * m) for o, m in zip(off, miss)]
+        keep = (idx[0] < limit[0]) & (idx[1] < limit[1]) & (idx[2] < limit[2])
+        for a in range(3):
+            todo[a].append(idx[a][keep])
+    return tuple(np.concatenate(t) for t in todo)
 
 
 def _cell_corners(off, r: int, h: int, cells, spacing) -> list[list[tuple]]:

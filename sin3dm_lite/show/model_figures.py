@@ -219,34 +219,47 @@ def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0, channel: 
     n_channels = int(part["plane"].shape[1])
     if channel is not None and not 0 <= channel < n_channels:
         raise ValueError(f"channel must be from 0 to {n_channels - 1}, got {channel}")
-
-    def colours(arr, m_, b_, ref):  # [C, A, B] → (A, B, 3): PCA, or the one channel in grey on ref's scale
-        if channel is None:
-            return pca_project(arr, m_, b_)
-        lo, hi = float(ref[channel].min()), float(ref[channel].max())
-        return np.repeat(np.clip((arr[channel] - lo) / (hi - lo + 1e-8), 0, 1)[..., None], 3, axis=-1)
-
     u, v = PLANE_AXES[plane]
     lacking = part["axis"]
     fig = new_figure(10.0, 8.0)
     gs = fig.add_gridspec(3, 3, height_ratios=[1.0, 0.55, 1.0])
     own = as_numpy(part["plane"][batch])
     mean, basis = pca_basis(own)
-
-    def draw(ax, img, title, axes_uv):
-        show_image(ax, img)
-        ax.set_title(title, fontsize=9)
-        ax.set_xlabel(AXES[axes_uv[0]], fontsize=8)
-        ax.set_ylabel(AXES[axes_uv[1]], fontsize=8)
-        ax.tick_params(labelsize=7)
-
-    draw(fig.add_subplot(gs[0, 0]), colours(own, mean, basis, own),
-         f"{plane}: this plane, C = {own.shape[0]}" + ("" if channel is None else f", channel {channel}"), (u, v))
+    _conv_panel(fig.add_subplot(gs[0, 0]), _conv_colours(own, mean, basis, own, channel),
+                f"{plane}: this plane, C = {own.shape[0]}" + ("" if channel is None else f", channel {channel}"), (u, v))
     note = fig.add_subplot(gs[1, 0])
     note.set_axis_off()
     note.text(0.5, 0.5, f"{plane} is kept as it is;\nthe other two planes are\naveraged over {lacking},\n"
               f"the axis {plane} lacks", ha="center", va="center", fontsize=9, transform=note.transAxes)
-    cat = as_numpy(part["input"][batch])
+    _conv_concatenation(fig.add_subplot(gs[2, 0]), as_numpy(part["input"][batch]), plane, channel, n_channels)
+    for c, (other, pooled, expanded) in enumerate(zip(part["sources"], part["pooled"], part["expanded"]), start=1):
+        src = as_numpy(parts[other]["plane"][batch])
+        _conv_source_column(fig, [gs[r, c] for r in range(3)], (plane, other, lacking), src,
+                            as_numpy(pooled[batch]), as_numpy(expanded[batch]), channel)
+    fig.suptitle(f"TriplaneConv on {plane}: Conv2d(concat[{plane}, mean_{lacking}({part['sources'][0]}), "
+                 f"mean_{lacking}({part['sources'][1]})])", fontsize=10)
+    return fig
+
+
+def _conv_colours(arr, m_, b_, ref, channel: int | None) -> np.ndarray:
+    """``[C, A, B]`` → ``(A, B, 3)``: PCA with the basis ``(m_, b_)``, or ``channel`` in grey on ``ref``'s scale."""
+    if channel is None:
+        return pca_project(arr, m_, b_)
+    lo, hi = float(ref[channel].min()), float(ref[channel].max())
+    return np.repeat(np.clip((arr[channel] - lo) / (hi - lo + 1e-8), 0, 1)[..., None], 3, axis=-1)
+
+
+def _conv_panel(ax, img, title, axes_uv):
+    """One plane of :func:`plot_triplane_conv`, its axes named."""
+    show_image(ax, img)
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel(AXES[axes_uv[0]], fontsize=8)
+    ax.set_ylabel(AXES[axes_uv[1]], fontsize=8)
+    ax.tick_params(labelsize=7)
+
+
+def _conv_concatenation(ax, cat: np.ndarray, plane: str, channel: int | None, n_channels: int) -> None:
+    """The ``[plane, expanded, expanded]`` input of the plane's Conv2d: PCA, or channels c, C+c, 2C+c as RGB."""
     if channel is None:
         cat_img, cat_note = pca_project(cat, *pca_basis(cat)), ""
     else:
@@ -254,30 +267,33 @@ def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0, channel: 
         lo, hi = picked.min(axis=(1, 2), keepdims=True), picked.max(axis=(1, 2), keepdims=True)
         cat_img = np.moveaxis((picked - lo) / (hi - lo + 1e-8), 0, -1)
         cat_note = f"\nchannels {channel}, {n_channels + channel}, {2 * n_channels + channel} as RGB"
-    draw(fig.add_subplot(gs[2, 0]), cat_img,
-         f"concatenated: {cat.shape[0]} = 3C channels\n→ the Conv2d of {plane}" + cat_note, (u, v))
-    for c, (other, pooled, expanded) in enumerate(zip(part["sources"], part["pooled"], part["expanded"]), start=1):
-        src = as_numpy(parts[other]["plane"][batch])
-        m_, b_ = pca_basis(src)
-        draw(fig.add_subplot(gs[0, c]), colours(src, m_, b_, src), f"{other}: averaged over {lacking} ↓", PLANE_AXES[other])
-        vec = as_numpy(pooled[batch])  # [C, A, 1] or [C, 1, B']
-        along = u if vec.shape[2] == 1 else v
-        ax = fig.add_subplot(gs[1, c])
-        show_image(ax, colours(vec, m_, b_, src), aspect="auto")
-        ax.set_title(f"mean over {lacking} of {other}:\na feature per {AXES[along]}, {list(vec.shape)}", fontsize=9)
-        if along == u:
-            ax.set_xlabel(AXES[u], fontsize=8)
-            ax.set_yticks([])
-        else:
-            ax.set_ylabel(AXES[v], fontsize=8)
-            ax.set_xticks([])
-        ax.tick_params(labelsize=7)
-        across = v if along == u else u
-        draw(fig.add_subplot(gs[2, c]), colours(as_numpy(expanded[batch]), m_, b_, src),
-             f"expanded along {AXES[across]} to {plane}'s size", (u, v))
-    fig.suptitle(f"TriplaneConv on {plane}: Conv2d(concat[{plane}, mean_{lacking}({part['sources'][0]}), "
-                 f"mean_{lacking}({part['sources'][1]})])", fontsize=10)
-    return fig
+    _conv_panel(ax, cat_img, f"concatenated: {cat.shape[0]} = 3C channels\n→ the Conv2d of {plane}" + cat_note,
+                PLANE_AXES[plane])
+
+
+def _conv_source_column(fig: Figure, cells, names: tuple[str, str, str], src: np.ndarray, vec: np.ndarray,
+                        expanded: np.ndarray, channel: int | None) -> None:
+    """One of the other planes (``names``: this plane, the other, the axis this one lacks) in the three ``cells``:
+    itself, its mean over the lacking axis (``vec``: ``[C, A, 1]`` or ``[C, 1, B']``), that expanded to this plane."""
+    plane, other, lacking = names
+    u, v = PLANE_AXES[plane]
+    m_, b_ = pca_basis(src)
+    _conv_panel(fig.add_subplot(cells[0]), _conv_colours(src, m_, b_, src, channel),
+                f"{other}: averaged over {lacking} ↓", PLANE_AXES[other])
+    along = u if vec.shape[2] == 1 else v
+    ax = fig.add_subplot(cells[1])
+    show_image(ax, _conv_colours(vec, m_, b_, src, channel), aspect="auto")
+    ax.set_title(f"mean over {lacking} of {other}:\na feature per {AXES[along]}, {list(vec.shape)}", fontsize=9)
+    if along == u:
+        ax.set_xlabel(AXES[u], fontsize=8)
+        ax.set_yticks([])
+    else:
+        ax.set_ylabel(AXES[v], fontsize=8)
+        ax.set_xticks([])
+    ax.tick_params(labelsize=7)
+    across = v if along == u else u
+    _conv_panel(fig.add_subplot(cells[2]), _conv_colours(expanded, m_, b_, src, channel),
+                f"expanded along {AXES[across]} to {plane}'s size", (u, v))
 
 
 # --------------------------------------------------------------------------- receptive field
