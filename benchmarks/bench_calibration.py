@@ -18,6 +18,7 @@ replays, and the samples drawn.
     python benchmarks/bench_calibration.py --draw runs/canyon_small --pool-out /tmp/pool_canyon.json
     python benchmarks/bench_calibration.py /tmp/pool_canyon.json /tmp/pool_tiles.json
 """
+
 from __future__ import annotations
 
 import argparse
@@ -57,10 +58,15 @@ def draw_pool(run: str, out: str, n: int) -> None:
     res = max(ref.shape)
     pool, t0 = {}, time.perf_counter()
     for j, d in enumerate(SETTINGS):
-        row = score_setting(model_sampler(model, ref), ref, d, n, 50_000 + 1000 * j)  # seeds apart from the calibration's (10,000+)
+        row = score_setting(
+            model_sampler(model, ref), ref, d, n, 50_000 + 1000 * j
+        )  # seeds apart from the calibration's (10,000+)
         pool[str(d)] = row["per_sample"]
-        print(f"{run} diversity {d:.2f}: LP-IoU {row['lp_iou']:.3f} LP-F {row['lp_fscore']:.3f} "
-              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        print(
+            f"{run} diversity {d:.2f}: LP-IoU {row['lp_iou']:.3f} LP-F {row['lp_fscore']:.3f} "
+            f"({time.perf_counter() - t0:.0f} s)",
+            flush=True,
+        )
         Path(out).write_text(json.dumps({"run": run, "resolution": res, "n": n, "pool": pool}))
 
 
@@ -98,16 +104,20 @@ def report(path: str, replays: int) -> None:
     line = " · ".join(f"{key} " + " ".join(f"{y:.3f}" for y in curves[key][1][::-1]) for key in GOALS)
     print(f"\n{data['run']} ({data['n']} samples per setting, 0.50 … 1.00): {line}")
     print(f"true answer (the pool's curve crosses the goals): {truth:.3f}")
-    print(f"{'variant':38s} {'mean':>5s} {'sd':>5s} {'range':>11s} {'|Δ| to true':>11s} {'misses a goal':>13s} "
-          f"{'95% short by':>12s} {'samples':>7s}")
+    print(
+        f"{'variant':38s} {'mean':>5s} {'sd':>5s} {'range':>11s} {'|Δ| to true':>11s} {'misses a goal':>13s} "
+        f"{'95% short by':>12s} {'samples':>7s}"
+    )
     for name, options in VARIANTS:
         rng = np.random.default_rng(0)
         chosen, cost = np.array([replay(pool, options, rng) for _ in range(replays)]).T
         at = {key: np.interp(chosen, curves[key][0][::-1], curves[key][1][::-1]) for key in GOALS}
         short = np.max([goal - at[key] for key, goal in GOALS.items()], axis=0)  # > 0: the true curve misses a goal
-        print(f"{name:38s} {chosen.mean():5.3f} {chosen.std():5.3f} {chosen.min():5.2f}-{chosen.max():4.2f} "
-              f"{np.abs(chosen - truth).mean():11.3f} {np.mean(short > 1e-9):13.0%} "
-              f"{max(np.percentile(short, 95), 0.0):12.3f} {cost.mean():7.1f}")
+        print(
+            f"{name:38s} {chosen.mean():5.3f} {chosen.std():5.3f} {chosen.min():5.2f}-{chosen.max():4.2f} "
+            f"{np.abs(chosen - truth).mean():11.3f} {np.mean(short > 1e-9):13.0%} "
+            f"{max(np.percentile(short, 95), 0.0):12.3f} {cost.mean():7.1f}"
+        )
 
 
 def main() -> None:

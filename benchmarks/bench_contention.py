@@ -14,6 +14,7 @@ share). The policies:
 
 Run it on a quiet machine: anything else running changes every figure.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,8 +29,19 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-CHEAP = ["--steps", "5", "--mesh-resolution", "32", "--faces", "2000", "--texture-size", "64", "--no-pictures",
-         "--workers", "0"]
+CHEAP = [
+    "--steps",
+    "5",
+    "--mesh-resolution",
+    "32",
+    "--faces",
+    "2000",
+    "--texture-size",
+    "64",
+    "--no-pictures",
+    "--workers",
+    "0",
+]
 CORES = str(os.cpu_count() or 1)
 POLICIES = {
     "before": {"GOMP_SPINCOUNT": "300000", "OMP_NUM_THREADS": CORES},
@@ -49,8 +61,11 @@ def job_cmd(job: str, out: Path) -> list[str]:
 
 def run_jobs(jobs: list[str], env_extra: dict) -> list[float]:
     """Start ``jobs`` at the same moment; their wall times in seconds."""
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("OMP_NUM_THREADS", "OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "SIN3DM_THREADS")}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("OMP_NUM_THREADS", "OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "SIN3DM_THREADS")
+    }
     env.update(env_extra)
     tmp = Path(tempfile.mkdtemp(prefix="bench-contention-"))
 

@@ -9,6 +9,7 @@ settings; the median over ``--repeats`` runs (after one warm-up run), and how
 much of the latent each request keeps. ``--run`` is a run folder or a shipped
 model's name.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,8 +38,10 @@ def main() -> None:
     run = Path(a.run) if Path(a.run).is_dir() else shipped_model(a.run)
     model = Sin3DM.load(run)
     s = model.config.sampling
-    print(f"{run.name}: preset '{model.config.name}', latent {model.latent.resolution}, DDIM {s.steps} steps, mesh "
-          f"{s.mesh_resolution} voxels / {s.faces:,} faces / texture {s.texture_size}², {torch.get_num_threads()} threads")
+    print(
+        f"{run.name}: preset '{model.config.name}', latent {model.latent.resolution}, DDIM {s.steps} steps, mesh "
+        f"{s.mesh_resolution} voxels / {s.faces:,} faces / texture {s.texture_size}², {torch.get_num_threads()} threads"
+    )
     print(f"{'operation':26s} {'latent':>14s} {'kept':>6s} {'sample s':>9s} {'+ mesh s':>9s}")
     for name, kw in REQUESTS.items():
         times, totals = [], []
@@ -52,8 +55,10 @@ def main() -> None:
                 totals.append(time.perf_counter() - t)
         plan = samples.plan
         kept = plan.kept().mean() if plan.mask is not None else 0.0
-        print(f"{name:26s} {str(plan.resolution):>14s} {kept:6.0%} {statistics.median(times):9.2f} "
-              f"{statistics.median(totals):9.1f}")
+        print(
+            f"{name:26s} {str(plan.resolution):>14s} {kept:6.0%} {statistics.median(times):9.2f} "
+            f"{statistics.median(totals):9.1f}"
+        )
 
 
 if __name__ == "__main__":

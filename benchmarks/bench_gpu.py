@@ -25,6 +25,7 @@ script does two things and labels each figure with which one it comes from:
 Writes ``gpu.json`` (updated after every stage, so a run cut off still leaves its
 timings), ``projections.png`` and the exported sample into ``--out``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -71,7 +72,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--input", default="canyon", help="example name or mesh file")
     ap.add_argument("--preset", default="paper")
-    ap.add_argument("--set", nargs="+", default=[], metavar="SETTING", help="dotted settings, e.g. autoencoder.steps=100")
+    ap.add_argument(
+        "--set", nargs="+", default=[], metavar="SETTING", help="dotted settings, e.g. autoencoder.steps=100"
+    )
     ap.add_argument("--device", default=None, help="default: cuda when present")
     ap.add_argument("--budget-s", type=float, default=300.0, help="training seconds of the truncated fit, both stages")
     ap.add_argument("--ae-share", type=float, default=0.5, help="the autoencoder's share of the budget")
@@ -88,9 +91,14 @@ def main() -> None:
     if args.set:
         cfg = cfg.updated(**parse_settings(args.set))
     dev = get_device(args.device)
-    res: dict = {"input": args.input, "preset": cfg.name, "device": str(dev),
-                 "device_name": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu",
-                 "torch": torch.__version__, "settings": args.set}
+    res: dict = {
+        "input": args.input,
+        "preset": cfg.name,
+        "device": str(dev),
+        "device_name": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu",
+        "torch": torch.__version__,
+        "settings": args.set,
+    }
 
     start = time.perf_counter()
 
@@ -114,24 +122,32 @@ def main() -> None:
     del ae
     save("autoencoder timing")
 
-    variants = {"package": cfg.diffusion,  # this preset's denoiser step (paper: bf16 autocast + torch.compile on CUDA)
-                "fp32, not compiled": replace(cfg.diffusion, precision="fp32", compile=False),
-                "bf16, not compiled": replace(cfg.diffusion, precision="bf16", compile=False)}
+    variants = {
+        "package": cfg.diffusion,  # this preset's denoiser step (paper: bf16 autocast + torch.compile on CUDA)
+        "fp32, not compiled": replace(cfg.diffusion, precision="fp32", compile=False),
+        "bf16, not compiled": replace(cfg.diffusion, precision="bf16", compile=False),
+    }
     for name, dcfg in variants.items():
         reset_peak(dev)
         dm = DiffusionTrainer(h, dcfg, dev, cfg.seed)
         t = time.perf_counter()
         dm.step()  # a compiled step compiles here
-        res.setdefault("dm_variants", {})[name] = {"first_step_s": time.perf_counter() - t,
-                                                   "s_per_step": timed(dm.step, args.timed, warmup=3),
-                                                   "peak_gib": peak_gib(dev)}
+        res.setdefault("dm_variants", {})[name] = {
+            "first_step_s": time.perf_counter() - t,
+            "s_per_step": timed(dm.step, args.timed, warmup=3),
+            "peak_gib": peak_gib(dev),
+        }
         del dm
         save(f"denoiser timing ({name})")
     del h
     res["dm_s_per_step"] = res["dm_variants"]["package"]["s_per_step"]
     ae_steps, dm_steps = cfg.autoencoder.steps, cfg.diffusion.steps
-    res["full_fit_s_extrapolated"] = (res["grid_s"] + res["ae_s_per_step"] * ae_steps
-                                      + res["dm_variants"]["package"]["first_step_s"] + res["dm_s_per_step"] * dm_steps)
+    res["full_fit_s_extrapolated"] = (
+        res["grid_s"]
+        + res["ae_s_per_step"] * ae_steps
+        + res["dm_variants"]["package"]["first_step_s"]
+        + res["dm_s_per_step"] * dm_steps
+    )
     save("timing")
     if args.timing_only:
         return
@@ -141,14 +157,21 @@ def main() -> None:
     run_cfg = cfg.updated(**{"autoencoder.steps": n_ae, "diffusion.steps": n_dm})
     if n_dm < dm_steps and cfg.diffusion.ema_decay > SHORT_RUN_EMA:
         run_cfg = run_cfg.updated(**{"diffusion.ema_decay": SHORT_RUN_EMA})
-    res["truncated_fit"] = {"autoencoder_steps": n_ae, "diffusion_steps": n_dm,
-                            "ema_decay": run_cfg.diffusion.ema_decay}
+    res["truncated_fit"] = {
+        "autoencoder_steps": n_ae,
+        "diffusion_steps": n_dm,
+        "ema_decay": run_cfg.diffusion.ema_decay,
+    }
     save("plan")
     reset_peak(dev)
     t = time.perf_counter()
     model = Sin3DM.fit(mesh, preset=run_cfg, device=dev, progress=False)
-    res["truncated_fit"].update(total_s=time.perf_counter() - t, timings_s=model.report["timings_s"],
-                                reconstruction=model.report["reconstruction"], peak_gib=peak_gib(dev))
+    res["truncated_fit"].update(
+        total_s=time.perf_counter() - t,
+        timings_s=model.report["timings_s"],
+        reconstruction=model.report["reconstruction"],
+        peak_gib=peak_gib(dev),
+    )
     save("fit")
 
     # ---- samples, scored against the input mesh
@@ -167,32 +190,50 @@ def main() -> None:
     scores = {}
     for r in args.resolutions:
         inp = model.input_occupancy(mesh, r)
-        var, lp, lp_rec = metrics.variation_scores(inp, occ[r]), metrics.lp_scores(inp, occ[r]), metrics.lp_scores(inp, rec[r])
-        scores[r] = {"g_div": var["g_div"], "iou_to_input": var["iou_to_input"], "lp_iou": lp["lp_iou"],
-                     "lp_f": lp["lp_fscore"], "recon_iou_to_input": metrics.iou(rec[r][0], inp),
-                     "recon_lp_iou": lp_rec["lp_iou"], "recon_lp_f": lp_rec["lp_fscore"]}
+        var, lp, lp_rec = (
+            metrics.variation_scores(inp, occ[r]),
+            metrics.lp_scores(inp, occ[r]),
+            metrics.lp_scores(inp, rec[r]),
+        )
+        scores[r] = {
+            "g_div": var["g_div"],
+            "iou_to_input": var["iou_to_input"],
+            "lp_iou": lp["lp_iou"],
+            "lp_f": lp["lp_fscore"],
+            "recon_iou_to_input": metrics.iou(rec[r][0], inp),
+            "recon_lp_iou": lp_rec["lp_iou"],
+            "recon_lp_f": lp_rec["lp_fscore"],
+        }
         res["scores"] = scores
         save(f"scores at {r}")
         if r == args.resolutions[0]:
             from bench_samples import save_projections
 
-            save_projections(inp, occ[r], out / "projections.png", f"{args.input}, {cfg.name} (truncated fit), {r} voxels")
+            save_projections(
+                inp, occ[r], out / "projections.png", f"{args.input}, {cfg.name} (truncated fit), {r} voxels"
+            )
 
     print(json.dumps(res, indent=1))
     print(f"\n{args.input}, preset {cfg.name}, {res['device_name']}, torch {res['torch']}")
     print(f"grid {res['grid_shape']} in {res['grid_s']:.1f} s; latent {res['latent_shape']}")
     print(f"autoencoder {res['ae_s_per_step'] * 1e3:.1f} ms/step (peak {res['ae_peak_gib']} GiB)")
     for name, v in res["dm_variants"].items():
-        print(f"denoiser, {name}: {v['s_per_step'] * 1e3:.1f} ms/step (first step {v['first_step_s']:.1f} s, "
-              f"peak {v['peak_gib']} GiB)")
+        print(
+            f"denoiser, {name}: {v['s_per_step'] * 1e3:.1f} ms/step (first step {v['first_step_s']:.1f} s, "
+            f"peak {v['peak_gib']} GiB)"
+        )
     print(f"full fit ({ae_steps} + {dm_steps} steps), extrapolated: {res['full_fit_s_extrapolated'] / 60:.1f} min")
     tf = res["truncated_fit"]
-    print(f"truncated fit: {tf['autoencoder_steps']} + {tf['diffusion_steps']} steps in {tf['total_s']:.0f} s, "
-          f"recon {tf['reconstruction']}")
+    print(
+        f"truncated fit: {tf['autoencoder_steps']} + {tf['diffusion_steps']} steps in {tf['total_s']:.0f} s, "
+        f"recon {tf['reconstruction']}"
+    )
     for r, s in scores.items():
-        print(f"  {r} voxels vs input: G-Div {s['g_div']:.3f}  IoU→input {s['iou_to_input']:.3f}  "
-              f"LP-IoU {s['lp_iou']:.3f}  LP-F {s['lp_f']:.3f}  (reconstruction: LP-IoU {s['recon_lp_iou']:.3f} "
-              f"LP-F {s['recon_lp_f']:.3f})")
+        print(
+            f"  {r} voxels vs input: G-Div {s['g_div']:.3f}  IoU→input {s['iou_to_input']:.3f}  "
+            f"LP-IoU {s['lp_iou']:.3f}  LP-F {s['lp_f']:.3f}  (reconstruction: LP-IoU {s['recon_lp_iou']:.3f} "
+            f"LP-F {s['recon_lp_f']:.3f})"
+        )
 
 
 if __name__ == "__main__":

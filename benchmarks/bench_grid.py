@@ -1,7 +1,8 @@
 """Time mesh → grid (issue: 128³ ≤ 5 s and 256³ ≤ 20 s for a 77k-face textured mesh on 2 cores).
 
-    python benchmarks/bench_grid.py [--resolutions 128 256] [--faces 77000]
+python benchmarks/bench_grid.py [--resolutions 128 256] [--faces 77000]
 """
+
 import argparse
 import time
 import tracemalloc
@@ -23,8 +24,14 @@ def bumpy_textured_sphere(target_faces: int) -> TexturedMesh:
     uv = np.stack([np.arctan2(v[:, 1], v[:, 0]) / (2 * np.pi) + 0.5, v[:, 2] / 2 + 0.5], 1)
     yy, xx = np.mgrid[0:512, 0:512] / 512
     tex = np.stack([0.5 + 0.5 * np.sin(40 * yy), 0.5 + 0.5 * np.sin(25 * xx), 0.5 + 0 * xx], -1).astype(np.float32)
-    return TexturedMesh(v, f, np.zeros(len(f), np.int64), [Material(base_color=np.ones(4, np.float32), image=tex)],
-                        face_uvs=uv[f].astype(np.float32), name="bumpy_sphere")
+    return TexturedMesh(
+        v,
+        f,
+        np.zeros(len(f), np.int64),
+        [Material(base_color=np.ones(4, np.float32), image=tex)],
+        face_uvs=uv[f].astype(np.float32),
+        name="bumpy_sphere",
+    )
 
 
 def main() -> None:

@@ -10,6 +10,7 @@ a time; an ``autoencoder.*`` setting retrains the autoencoder on RUN's grid
 first (and prints its reconstruction figures),  against the input mesh SOURCE (example name or file), with the metrics
 of bench_samples.py at the fit's grid resolution. Prints one row.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,12 +59,21 @@ def main() -> None:
     ap.add_argument("-n", type=int, default=8)
     ap.add_argument("--diversity", type=float, nargs="+", default=[1.0])
     ap.add_argument("--seed", type=int, default=0, help="training seed")
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0],
-                    help="sample seeds (8 samples' figures move by a few hundredths with them; several print the mean)")
+    ap.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="sample seeds (8 samples' figures move by a few hundredths with them; several print the mean)",
+    )
     ap.add_argument("--png", default=None, help="folder for a picture of the samples (top and front view)")
     ap.add_argument("--autoencoder-only", action="store_true", help="stop after the autoencoder's figures")
-    ap.add_argument("--render", default=None, help="folder for a hero view (PNG) of the new autoencoder's textured "
-                    "reconstruction: colour detail (a wall's mortar joints) that PSNR alone does not show")
+    ap.add_argument(
+        "--render",
+        default=None,
+        help="folder for a hero view (PNG) of the new autoencoder's textured "
+        "reconstruction: colour detail (a wall's mortar joints) that PSNR alone does not show",
+    )
     a = ap.parse_args()
     tag = "_".join(a.settings).replace("=", "-").replace(".", "") or "as-fitted"  # picture file names
     model = Sin3DM.load(a.run)
@@ -72,10 +82,12 @@ def main() -> None:
     fig = retrain(model, Path(a.run), cfg, seed=a.seed, autoencoder=any(k.startswith("autoencoder.") for k in changes))
     if "autoencoder_s" in fig:
         ref = references(model, a.source, Path(a.run), [cfg.grid.resolution])[cfg.grid.resolution]
-        print(f"{Path(a.run).name} {' '.join(a.settings)}: autoencoder {fig['autoencoder_s']:.0f} s "
-              f"({fig['autoencoder_s'] / cfg.autoencoder.steps:.3f} s/step) | recon IoU {fig['recon_iou']:.3f} | colour PSNR "
-              f"{fig['color_psnr']:.1f} | reconstruction vs input: LP-IoU {ref['ae_lp_iou']:.3f} LP-F {ref['ae_lp_f']:.3f}",
-              flush=True)
+        print(
+            f"{Path(a.run).name} {' '.join(a.settings)}: autoencoder {fig['autoencoder_s']:.0f} s "
+            f"({fig['autoencoder_s'] / cfg.autoencoder.steps:.3f} s/step) | recon IoU {fig['recon_iou']:.3f} | colour PSNR "
+            f"{fig['color_psnr']:.1f} | reconstruction vs input: LP-IoU {ref['ae_lp_iou']:.3f} LP-F {ref['ae_lp_f']:.3f}",
+            flush=True,
+        )
         if a.render:
             from PIL import Image
 
@@ -97,19 +109,28 @@ def main() -> None:
             sc = scores(refs, occ)[res[0]]
             rows.append(sc)
             if a.png:
-                save_projections(refs[res[0]]["input"], occ[res[0]],
-                                 Path(a.png) / f"{Path(a.run).name}_{tag}_div{d}{f'_seed{seed}' if seed else ''}.png",
-                                 f"{' '.join(a.settings)} div {d} seed {seed}: G-Div {sc['g_div']:.3f} "
-                                 f"LP-IoU {sc['lp_iou']:.3f} LP-F {sc['lp_f']:.3f}")
-            print(f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}"
-                  f"{f' seed {seed}' if len(a.seeds) > 1 else ''}: diffusion {train_s:.0f} s "
-                  f"({train_s / max(cfg.diffusion.steps, 1):.3f} s/step, {torch.get_num_threads()} threads) | "
-                  f"G-Div {sc['g_div']:.3f} | IoU→input {sc['iou_to_input']:.3f} | LP-IoU {sc['lp_iou']:.3f} | "
-                  f"LP-F {sc['lp_f']:.3f} | ceiling {sc['ceiling_lp_iou']:.3f}/{sc['ceiling_lp_f']:.3f} | final loss "
-                  f"{fig['final_loss']:.4f}", flush=True)
+                save_projections(
+                    refs[res[0]]["input"],
+                    occ[res[0]],
+                    Path(a.png) / f"{Path(a.run).name}_{tag}_div{d}{f'_seed{seed}' if seed else ''}.png",
+                    f"{' '.join(a.settings)} div {d} seed {seed}: G-Div {sc['g_div']:.3f} "
+                    f"LP-IoU {sc['lp_iou']:.3f} LP-F {sc['lp_f']:.3f}",
+                )
+            print(
+                f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}"
+                f"{f' seed {seed}' if len(a.seeds) > 1 else ''}: diffusion {train_s:.0f} s "
+                f"({train_s / max(cfg.diffusion.steps, 1):.3f} s/step, {torch.get_num_threads()} threads) | "
+                f"G-Div {sc['g_div']:.3f} | IoU→input {sc['iou_to_input']:.3f} | LP-IoU {sc['lp_iou']:.3f} | "
+                f"LP-F {sc['lp_f']:.3f} | ceiling {sc['ceiling_lp_iou']:.3f}/{sc['ceiling_lp_f']:.3f} | final loss "
+                f"{fig['final_loss']:.4f}",
+                flush=True,
+            )
         if len(rows) > 1:
-            print_spread(f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}",
-                         [{"scores": {res[0]: sc}} for sc in rows])
+            print_spread(
+                f"{Path(a.run).name} {' '.join(a.settings) or '(as fitted)'} div {d}",
+                [{"scores": {res[0]: sc}} for sc in rows],
+            )
+
 
 if __name__ == "__main__":
     main()

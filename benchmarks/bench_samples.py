@@ -34,6 +34,7 @@ Goals (issue 8): G-Div ≥ 0.20 with LP-F ≥ min(0.70, 0.9·ceiling) and
 LP-IoU ≥ min(0.55, 0.9·ceiling) at the fit's resolution, recon IoU ≥ 0.95,
 fit ≤ 300 s, ≤ 15 s per mesh.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -63,8 +64,15 @@ def fit_or_load(source: str, preset: str, run: Path, settings=()) -> Sin3DM:
     return Sin3DM.fit(source, preset=cfg, out=run, progress=False)
 
 
-def sample_grids(model: Sin3DM, n: int, resolutions, seed: int = 0, diversity: float | None = None,
-                 export: int = 0, export_dir: Path | None = None) -> dict:
+def sample_grids(
+    model: Sin3DM,
+    n: int,
+    resolutions,
+    seed: int = 0,
+    diversity: float | None = None,
+    export: int = 0,
+    export_dir: Path | None = None,
+) -> dict:
     """Occupancy grids of n samples at each resolution, and the time per textured, exported mesh."""
     t = time.perf_counter()
     samples = model.sample(n, seed=seed, diversity=diversity, progress=False)
@@ -92,10 +100,18 @@ def references(model: Sin3DM, source: str, run: Path, resolutions) -> dict:
         rec = recs[r][0]
         ceiling, ae = metrics.lp_scores(inp, [data]), metrics.lp_scores(inp, [rec])
         moved = metrics.lp_scores(inp, [_moved_input(model, mesh, r, axis) for axis in range(3)])
-        out[r] = {"input": inp, "recon": rec, "moved_lp_iou": moved["lp_iou"], "moved_lp_f": moved["lp_fscore"],
-                  "ceiling_lp_iou": ceiling["lp_iou"], "ceiling_lp_f": ceiling["lp_fscore"],
-                  "ceiling_iou": metrics.iou(data, inp),
-                  "ae_lp_iou": ae["lp_iou"], "ae_lp_f": ae["lp_fscore"], "ae_iou": metrics.iou(rec, inp)}
+        out[r] = {
+            "input": inp,
+            "recon": rec,
+            "moved_lp_iou": moved["lp_iou"],
+            "moved_lp_f": moved["lp_fscore"],
+            "ceiling_lp_iou": ceiling["lp_iou"],
+            "ceiling_lp_f": ceiling["lp_fscore"],
+            "ceiling_iou": metrics.iou(data, inp),
+            "ae_lp_iou": ae["lp_iou"],
+            "ae_lp_f": ae["lp_fscore"],
+            "ae_iou": metrics.iou(rec, inp),
+        }
     return out
 
 
@@ -111,8 +127,12 @@ def family(model: Sin3DM, source: str, refs: dict, n: int = 8) -> dict | None:
     for r, ref in refs.items():
         occ = [model.input_occupancy(m, r) for m in meshes]
         var, lp = metrics.variation_scores(ref["input"], occ), metrics.lp_scores(ref["input"], occ)
-        out[r] = {"g_div": var["g_div"], "iou_to_input": var["iou_to_input"], "lp_iou": lp["lp_iou"],
-                  "lp_f": lp["lp_fscore"]}
+        out[r] = {
+            "g_div": var["g_div"],
+            "iou_to_input": var["iou_to_input"],
+            "lp_iou": lp["lp_iou"],
+            "lp_f": lp["lp_fscore"],
+        }
     return out
 
 
@@ -132,14 +152,21 @@ def scores(refs: dict, occ: dict) -> dict:
         lp_rec = metrics.lp_scores(ref["recon"], occ[r])
         var = metrics.variation_scores(ref["input"], occ[r])
         out[r] = {
-            "g_div": var["g_div"], "iou_to_input": var["iou_to_input"],
-            "lp_iou": lp_in["lp_iou"], "lp_f": lp_in["lp_fscore"],
-            "ceiling_lp_iou": ref["ceiling_lp_iou"], "ceiling_lp_f": ref["ceiling_lp_f"],
+            "g_div": var["g_div"],
+            "iou_to_input": var["iou_to_input"],
+            "lp_iou": lp_in["lp_iou"],
+            "lp_f": lp_in["lp_fscore"],
+            "ceiling_lp_iou": ref["ceiling_lp_iou"],
+            "ceiling_lp_f": ref["ceiling_lp_f"],
             "goal_lp_iou": min(GOALS["lp_iou"], 0.9 * ref["ceiling_lp_iou"]),
             "goal_lp_f": min(GOALS["lp_f"], 0.9 * ref["ceiling_lp_f"]),
-            "recon_lp_iou": lp_rec["lp_iou"], "recon_lp_f": lp_rec["lp_fscore"],
-            "ae_lp_iou": ref["ae_lp_iou"], "ae_lp_f": ref["ae_lp_f"], "ae_iou": ref["ae_iou"],
-            "moved_lp_iou": ref["moved_lp_iou"], "moved_lp_f": ref["moved_lp_f"],
+            "recon_lp_iou": lp_rec["lp_iou"],
+            "recon_lp_f": lp_rec["lp_fscore"],
+            "ae_lp_iou": ref["ae_lp_iou"],
+            "ae_lp_f": ref["ae_lp_f"],
+            "ae_iou": ref["ae_iou"],
+            "moved_lp_iou": ref["moved_lp_iou"],
+            "moved_lp_f": ref["moved_lp_f"],
         }
     return out
 
@@ -173,31 +200,50 @@ def _mark(ok: bool) -> str:
 
 def print_scores(label: str, s: dict) -> None:
     for r, v in s.items():
-        print(f"  {label} @{r:<3d} G-Div {v['g_div']:.3f} {_mark(v['g_div'] >= GOALS['g_div'])} | IoU→input "
-              f"{v['iou_to_input']:.3f} | vs input: LP-IoU {v['lp_iou']:.3f} {_mark(v['lp_iou'] >= v['goal_lp_iou'])}"
-              f" LP-F {v['lp_f']:.3f} {_mark(v['lp_f'] >= v['goal_lp_f'])} | ceiling LP-IoU {v['ceiling_lp_iou']:.3f}"
-              f" LP-F {v['ceiling_lp_f']:.3f} (goals {v['goal_lp_iou']:.2f} / {v['goal_lp_f']:.2f}) | reconstruction"
-              f" vs input: IoU {v['ae_iou']:.3f} LP-IoU {v['ae_lp_iou']:.3f} LP-F {v['ae_lp_f']:.3f} | samples vs recon"
-              f" (softer): LP-IoU {v['recon_lp_iou']:.3f} LP-F {v['recon_lp_f']:.3f} | the input moved ¼ voxel (a copy"
-              f" off the lattice): LP-IoU {v['moved_lp_iou']:.3f} LP-F {v['moved_lp_f']:.3f}", flush=True)
+        print(
+            f"  {label} @{r:<3d} G-Div {v['g_div']:.3f} {_mark(v['g_div'] >= GOALS['g_div'])} | IoU→input "
+            f"{v['iou_to_input']:.3f} | vs input: LP-IoU {v['lp_iou']:.3f} {_mark(v['lp_iou'] >= v['goal_lp_iou'])}"
+            f" LP-F {v['lp_f']:.3f} {_mark(v['lp_f'] >= v['goal_lp_f'])} | ceiling LP-IoU {v['ceiling_lp_iou']:.3f}"
+            f" LP-F {v['ceiling_lp_f']:.3f} (goals {v['goal_lp_iou']:.2f} / {v['goal_lp_f']:.2f}) | reconstruction"
+            f" vs input: IoU {v['ae_iou']:.3f} LP-IoU {v['ae_lp_iou']:.3f} LP-F {v['ae_lp_f']:.3f} | samples vs recon"
+            f" (softer): LP-IoU {v['recon_lp_iou']:.3f} LP-F {v['recon_lp_f']:.3f} | the input moved ¼ voxel (a copy"
+            f" off the lattice): LP-IoU {v['moved_lp_iou']:.3f} LP-F {v['moved_lp_f']:.3f}",
+            flush=True,
+        )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--inputs", "--examples", nargs="+", default=["canyon", "wall", "colonnade"],
-                    help="example names or mesh files")
+    ap.add_argument(
+        "--inputs", "--examples", nargs="+", default=["canyon", "wall", "colonnade"], help="example names or mesh files"
+    )
     ap.add_argument("--runs", default="runs/bench", help="run folders (reused when they exist)")
     ap.add_argument("--preset", default="small")
     ap.add_argument("-n", type=int, default=8)
     ap.add_argument("--export", type=int, default=2, help="samples timed through texture + export")
-    ap.add_argument("--diversity", type=float, nargs="+", default=None,
-                    help="knob values: print G-Div / LP at each (default: the run's setting)")
+    ap.add_argument(
+        "--diversity",
+        type=float,
+        nargs="+",
+        default=None,
+        help="knob values: print G-Div / LP at each (default: the run's setting)",
+    )
     ap.add_argument("--resolutions", type=int, nargs="+", default=None, help="default: the fit's and 128")
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0],
-                    help="sample seeds: n samples from each (8 samples' figures move by a few hundredths with the seed; "
-                         "several seeds print their mean and range)")
-    ap.add_argument("--set", nargs="+", default=[], metavar="SETTING",
-                    help="dotted settings changed from the preset, e.g. grid.resolution=96 (run folders get a suffix)")
+    ap.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="sample seeds: n samples from each (8 samples' figures move by a few hundredths with the seed; "
+        "several seeds print their mean and range)",
+    )
+    ap.add_argument(
+        "--set",
+        nargs="+",
+        default=[],
+        metavar="SETTING",
+        help="dotted settings changed from the preset, e.g. grid.resolution=96 (run folders get a suffix)",
+    )
     a = ap.parse_args()
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, preset {a.preset}, n={a.n}")
     rows = []
@@ -214,43 +260,65 @@ def main() -> None:
         recon = rep["reconstruction"]["occupancy_iou"]
         cal = rep.get("calibration")
         chose = f" → diversity {cal['diversity']:g}" if cal else ""
-        print(f"{name}: fit {fit_s:.0f} s {_mark(fit_s <= GOALS['fit_s'])} ({_stages(t)}){chose} | recon IoU {recon:.3f} "
-              f"{_mark(recon >= GOALS['recon_iou'])} | input vs its own grid @{res[0]}: IoU {refs[res[0]]['ceiling_iou']:.3f}")
+        print(
+            f"{name}: fit {fit_s:.0f} s {_mark(fit_s <= GOALS['fit_s'])} ({_stages(t)}){chose} | recon IoU {recon:.3f} "
+            f"{_mark(recon >= GOALS['recon_iou'])} | input vs its own grid @{res[0]}: IoU {refs[res[0]]['ceiling_iou']:.3f}"
+        )
         fam = family(model, source, refs)
         for r, v in (fam or {}).items():
-            print(f"  family @{r:<3d} (8 other variants of the example; a reference, not a goal) G-Div {v['g_div']:.3f}"
-                  f" | IoU→input {v['iou_to_input']:.3f} | vs input: LP-IoU {v['lp_iou']:.3f} LP-F {v['lp_f']:.3f}")
+            print(
+                f"  family @{r:<3d} (8 other variants of the example; a reference, not a goal) G-Div {v['g_div']:.3f}"
+                f" | IoU→input {v['iou_to_input']:.3f} | vs input: LP-IoU {v['lp_iou']:.3f} LP-F {v['lp_f']:.3f}"
+            )
         for d in a.diversity or [None]:
             label = f"default ({model.config.sampling.diversity:g})" if d is None else f"div {d:.2f}"
             for k, seed in enumerate(a.seeds):
                 first = k == 0 and (d is None or d == a.diversity[0])
-                s = sample_grids(model, a.n, res, seed=seed, diversity=d, export=a.export if first else 0,
-                                 export_dir=run / "samples")
+                s = sample_grids(
+                    model, a.n, res, seed=seed, diversity=d, export=a.export if first else 0, export_dir=run / "samples"
+                )
                 sc = scores(refs, s["occ"])
                 if s["mesh_s"] is not None:
-                    print(f"  {label}: {s['sample_s']:.2f} s sampling + decode/texture/export = {s['mesh_s']:.1f} s per "
-                          f"mesh {_mark(s['mesh_s'] <= GOALS['mesh_s'])}")
+                    print(
+                        f"  {label}: {s['sample_s']:.2f} s sampling + decode/texture/export = {s['mesh_s']:.1f} s per "
+                        f"mesh {_mark(s['mesh_s'] <= GOALS['mesh_s'])}"
+                    )
                 print_scores(label if len(a.seeds) == 1 else f"{label}, seed {seed}", sc)
-                rows.append({"input": name, "preset": a.preset, "diversity": d, "seed": seed, "fit_s": fit_s,
-                             "default": f"default ({model.config.sampling.diversity:g})", "timings_s": t,
-                             "recon_iou": recon, "sample_s": s["sample_s"], "mesh_s": s["mesh_s"],
-                             "family": {str(r): v for r, v in fam.items()} if fam else None,
-                             "scores": {str(r): v for r, v in sc.items()}})
+                rows.append(
+                    {
+                        "input": name,
+                        "preset": a.preset,
+                        "diversity": d,
+                        "seed": seed,
+                        "fit_s": fit_s,
+                        "default": f"default ({model.config.sampling.diversity:g})",
+                        "timings_s": t,
+                        "recon_iou": recon,
+                        "sample_s": s["sample_s"],
+                        "mesh_s": s["mesh_s"],
+                        "family": {str(r): v for r, v in fam.items()} if fam else None,
+                        "scores": {str(r): v for r, v in sc.items()},
+                    }
+                )
             if len(a.seeds) > 1:
-                print_spread(label, rows[-len(a.seeds):])
+                print_spread(label, rows[-len(a.seeds) :])
     Path(a.runs).mkdir(parents=True, exist_ok=True)
     (Path(a.runs) / "bench_samples.json").write_text(json.dumps(rows, indent=2))
     r0 = lambda row: row["scores"][min(row["scores"], key=int)]  # noqa: E731  scores at the fit's resolution
-    print("\n| input | diversity | seed | fit s (grid+AE+diff[+calibration]) | recon IoU | G-Div | IoU→input | LP-IoU | LP-F | ceiling "
-          "LP-IoU/LP-F | family G-Div, LP-IoU/LP-F | s per mesh |")
+    print(
+        "\n| input | diversity | seed | fit s (grid+AE+diff[+calibration]) | recon IoU | G-Div | IoU→input | LP-IoU | LP-F | ceiling "
+        "LP-IoU/LP-F | family G-Div, LP-IoU/LP-F | s per mesh |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         v, t = r0(row), row["timings_s"]
         mesh_s = f"{row['mesh_s']:.1f}" if row["mesh_s"] else "-"
         stages = "+".join(f"{t[k]:.0f}" for k in STAGES if k in t)
-        print(f"| {row['input']} | {row['diversity'] or row.get('default', 'default')} | {row['seed']} | "
-              f"{row['fit_s']:.0f} ({stages}) | {row['recon_iou']:.3f} | {v['g_div']:.3f} | {v['iou_to_input']:.3f} | "
-              f"{v['lp_iou']:.3f} | {v['lp_f']:.3f} | {v['ceiling_lp_iou']:.2f}/{v['ceiling_lp_f']:.2f} | {_family_cell(row)} | {mesh_s} |")
+        print(
+            f"| {row['input']} | {row['diversity'] or row.get('default', 'default')} | {row['seed']} | "
+            f"{row['fit_s']:.0f} ({stages}) | {row['recon_iou']:.3f} | {v['g_div']:.3f} | {v['iou_to_input']:.3f} | "
+            f"{v['lp_iou']:.3f} | {v['lp_f']:.3f} | {v['ceiling_lp_iou']:.2f}/{v['ceiling_lp_f']:.2f} | {_family_cell(row)} | {mesh_s} |"
+        )
 
 
 STAGES = ("grid_s", "autoencoder_s", "rollout_switch_s", "diffusion_s", "calibrate_s")
@@ -259,8 +327,13 @@ STAGES = ("grid_s", "autoencoder_s", "rollout_switch_s", "diffusion_s", "calibra
 def _stages(t: dict) -> str:
     """A fit's stage times: grid + autoencoder + diffusion, and the diversity calibration where the preset has one
     (with the rollout switch, the plain denoiser and its calibration come before the rollout's)."""
-    names = {"grid_s": "grid", "autoencoder_s": "autoencoder", "rollout_switch_s": "plain denoiser + calibration",
-             "diffusion_s": "diffusion", "calibrate_s": "calibration"}
+    names = {
+        "grid_s": "grid",
+        "autoencoder_s": "autoencoder",
+        "rollout_switch_s": "plain denoiser + calibration",
+        "diffusion_s": "diffusion",
+        "calibrate_s": "calibration",
+    }
     return " + ".join(f"{names[k]} {t[k]:.0f}" for k in STAGES if k in t)
 
 

@@ -28,6 +28,7 @@ Rows are written to RUNS/tables.json as they finish; a rerun skips rows that are
 there, so a long run can be stopped and continued. Each row is measured at the
 preset's diversity (0.7) and at 1.0 (pure noise, as in the paper).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -150,16 +151,22 @@ def main() -> None:
             label, changes = variant_changes(variant, model.config)
             fig = {}
             if changes:
-                fig = retrain(model, run, model.config.updated(**changes),
-                              autoencoder=any(k.startswith("autoencoder.") for k in changes))
-            row = {"input": name, "variant": label, "train": fig,
-                   **measure(model, source, run, meshes, a)}
+                fig = retrain(
+                    model,
+                    run,
+                    model.config.updated(**changes),
+                    autoencoder=any(k.startswith("autoencoder.") for k in changes),
+                )
+            row = {"input": name, "variant": label, "train": fig, **measure(model, source, run, meshes, a)}
             rows[key] = row
             table.write_text(json.dumps(rows, indent=2))
             d = row["default"]
-            print(f"{name} | {label}: G-Div {d['g_div']:.3f} LP-IoU {d['lp_iou']:.3f} LP-F {d['lp_f']:.3f} | div 1.0: "
-                  f"{row['div 1.0']['g_div']:.3f} / {row['div 1.0']['lp_iou']:.3f} / {row['div 1.0']['lp_f']:.3f} | "
-                  f"texture {row.get('texture')} | {fig}", flush=True)
+            print(
+                f"{name} | {label}: G-Div {d['g_div']:.3f} LP-IoU {d['lp_iou']:.3f} LP-F {d['lp_f']:.3f} | div 1.0: "
+                f"{row['div 1.0']['g_div']:.3f} / {row['div 1.0']['lp_iou']:.3f} / {row['div 1.0']['lp_f']:.3f} | "
+                f"texture {row.get('texture')} | {fig}",
+                flush=True,
+            )
     print_tables(rows)
 
 
@@ -172,8 +179,11 @@ def print_tables(rows: dict) -> None:
         d, d1 = r["default"], r["div 1.0"]
         cells = [f"{d['g_div']:.3f}", f"{d['lp_iou']:.3f}", f"{d['lp_f']:.3f}"]
         cells += [f"{r.get('texture', {}).get(k, float('nan')):.3f}" for k in tex]
-        print(f"| {r['input']} | {r['variant']} | " + " | ".join(cells)
-              + f" | {d1['g_div']:.3f} / {d1['lp_iou']:.3f} / {d1['lp_f']:.3f} |")
+        print(
+            f"| {r['input']} | {r['variant']} | "
+            + " | ".join(cells)
+            + f" | {d1['g_div']:.3f} / {d1['lp_iou']:.3f} / {d1['lp_f']:.3f} |"
+        )
     print("\nThe paper's figures (T-Div is LPIPS; a weight-free render diversity is not comparable with it):")
     for label, p in PAPER.items():
         print(f"  {label}: " + ", ".join(f"{k} {v:.3f}" for k, v in p.items()))

@@ -18,6 +18,7 @@ Diffusion step (a batch of noisy copies of the latent, forward + backward + Adam
                   apart; about 96 s for `detail` on 2 cores, for 9 % per step).
 The paper preset runs at its real size (256 grid / 128 latent, 65,536 points): slow on a CPU.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -44,7 +45,9 @@ def synthetic_grid(dims, n_points: int) -> ShapeGrid:
     half = dims / dims.max()
     aabb = np.concatenate([-half, half]).astype(np.float32)
     thr = 3 * 2 / dims.max()
-    g = ShapeGrid(np.zeros(tuple(dims), np.float32), np.zeros((*dims, 3), np.float32), aabb, thr, Normalization.identity())
+    g = ShapeGrid(
+        np.zeros(tuple(dims), np.float32), np.zeros((*dims, 3), np.float32), aabb, thr, Normalization.identity()
+    )
     c = g.voxel_centers()
     g.sdf = np.clip(np.linalg.norm(c, axis=-1) - 0.5 * half.min(), -thr, thr).astype(np.float32)
     g.color = np.where((np.abs(g.sdf) < thr)[..., None], (c + 1) / 2, 0).astype(np.float32)
@@ -134,9 +137,11 @@ def main() -> None:
         t_chunk = timed(lambda ae=ae: per_chunk_step(ae), steps)
         ae16 = AutoencoderTrainer(grid, replace(cfg.autoencoder, precision="bf16"))
         t_bf16 = timed(ae16.step, steps)
-        print(f"[{name}] autoencoder, grid {dims}, {cfg.autoencoder.points_per_step:,} points: "
-              f"ours {t_ours:.3f} s/step | per-chunk plane convs {t_chunk:.3f} s/step | ours in bf16 autocast "
-              f"{t_bf16:.3f} s/step (the preset's 'auto' picks bf16: {bf16_is_fast('cpu')})")
+        print(
+            f"[{name}] autoencoder, grid {dims}, {cfg.autoencoder.points_per_step:,} points: "
+            f"ours {t_ours:.3f} s/step | per-chunk plane convs {t_chunk:.3f} s/step | ours in bf16 autocast "
+            f"{t_bf16:.3f} s/step (the preset's 'auto' picks bf16: {bf16_is_fast('cpu')})"
+        )
         h0 = ae.latent()
         dcfg = replace(cfg.diffusion, ema_decay=0.0, precision="fp32", compile=False)  # the same work for all
         dm = DiffusionTrainer(h0, dcfg)
@@ -150,15 +155,19 @@ def main() -> None:
         cl.model.to(memory_format=torch.channels_last)
         t_cl = timed(cl.step, steps)
         t_bf = timed(DiffusionTrainer(h0, replace(dcfg, precision="bf16")).step, steps)
-        line = (f"[{name}] diffusion, latent {h0.resolution}, batch {cfg.diffusion.batch_size}, rollout "
-                f"{dcfg.rollout}: ours {t_ours:.3f} s/step | canvas {t_canvas:.3f} s/step | channels-last "
-                f"{t_cl:.3f} s/step | bf16 autocast {t_bf:.3f} s/step")
+        line = (
+            f"[{name}] diffusion, latent {h0.resolution}, batch {cfg.diffusion.batch_size}, rollout "
+            f"{dcfg.rollout}: ours {t_ours:.3f} s/step | canvas {t_canvas:.3f} s/step | channels-last "
+            f"{t_cl:.3f} s/step | bf16 autocast {t_bf:.3f} s/step"
+        )
         if a.compile:
             comp = DiffusionTrainer(h0, dcfg)
             comp.model.forward = torch.compile(comp.model.forward)
             t = time.perf_counter()
             comp.step()
-            line += f" | compiled {timed(comp.step, steps):.3f} s/step (after {time.perf_counter() - t:.0f} s to compile)"
+            line += (
+                f" | compiled {timed(comp.step, steps):.3f} s/step (after {time.perf_counter() - t:.0f} s to compile)"
+            )
         print(line, flush=True)
 
 

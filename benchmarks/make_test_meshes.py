@@ -9,6 +9,7 @@
 * ``dunes.ply``  — vertex colours only (no UVs): a slab whose top is a field of crossing
   sand ridges, darker in the troughs (a smooth, organic surface; no thin parts).
 """
+
 from __future__ import annotations
 
 import sys

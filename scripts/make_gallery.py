@@ -18,6 +18,7 @@ fixed seeds, so a rerun on the same code gives the same shapes. A PNG over
 (114 s on a 2-core AVX2 AMD EPYC, 2026-11-26); that run took 6.5 minutes of
 wall time because the machine was shared (load average 7).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -83,7 +84,8 @@ def _png(image_or_figure, path: Path) -> Path:
     if buf.tell() > MAX_BYTES:  # renders have many shades: a palette keeps them recognisable at a third of the size
         buf = io.BytesIO()
         img.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.FLOYDSTEINBERG).save(
-            buf, format="PNG", optimize=True)
+            buf, format="PNG", optimize=True
+        )
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(buf.getvalue())
     return path
@@ -98,8 +100,9 @@ def picture_samples(out: Path, examples=("canyon", "colonnade", "wall"), n: int 
         samples = model.sample(n, seed=0, progress=False)
         meshes = [build_example(name), *model.to_mesh(samples, **MESH)]
         d = model.config.sampling.diversity
-        rows.append(_views(meshes, [f"{name}: input", *(f"sample {i} (diversity {d:g})" for i in range(n))],
-                           columns=n + 1))
+        rows.append(
+            _views(meshes, [f"{name}: input", *(f"sample {i} (diversity {d:g})" for i in range(n))], columns=n + 1)
+        )
     return [_png(_stack(rows), out / "samples.png")]
 
 
@@ -113,8 +116,7 @@ def picture_control(out: Path, name: str = "canyon") -> list[Path]:
         ("resized to 2 x 1 x 1", dict(resize=(2.0, 1.0, 1.0), seed=0)),
         ("outpainted 1.5 x in x, input at x-", dict(outpaint=(1.5, 1.0, 1.0), anchor="x-", seed=0)),
         ("middle third regenerated", dict(regenerate=((0.35, 0.0, 0.0), (0.65, 1.0, 1.0)), seed=1)),
-        ("left third copied to x = 0.6", dict(duplicate=(((0.0, 0.0, 0.0), (0.3, 1.0, 1.0)), (0.6, 0.0, 0.0)),
-                                              seed=2)),
+        ("left third copied to x = 0.6", dict(duplicate=(((0.0, 0.0, 0.0), (0.3, 1.0, 1.0)), (0.6, 0.0, 0.0)), seed=2)),
     ]
     meshes, labels, plans = [build_example(name)], [f"{name}: input"], {}
     for label, kw in requests:
@@ -123,11 +125,16 @@ def picture_control(out: Path, name: str = "canyon") -> list[Path]:
         labels.append(label)
         plans[label] = s
     # one box for the two long results, one for the rest: sizes compare within a row
-    sheet = _stack([_views(meshes[:3], labels[:3], columns=3), _views([meshes[0], *meshes[3:]],
-                                                                      [labels[0], *labels[3:]], columns=3)])
+    sheet = _stack(
+        [
+            _views(meshes[:3], labels[:3], columns=3),
+            _views([meshes[0], *meshes[3:]], [labels[0], *labels[3:]], columns=3),
+        ]
+    )
     outp = plans[requests[1][0]]
-    fig = viz.plot_plan(outp.plan, outp, title="outpainting on the three planes: red = generated, "
-                                               "clear = kept from the input's latent")
+    fig = viz.plot_plan(
+        outp.plan, outp, title="outpainting on the three planes: red = generated, clear = kept from the input's latent"
+    )
     return [_png(sheet, out / "control.png"), _png(fig, out / "control_plan.png")]
 
 
@@ -142,15 +149,28 @@ def picture_pbr(out: Path, name: str = "tiles", n: int = 2) -> list[Path]:
     model = Sin3DM.open(name, progress=False)
     samples = model.sample(n, seed=0, progress=False)
     meshes = model.to_mesh(samples, **MESH)
-    rendered = _views([build_example(name), *meshes], [f"{name}: input (PBR render)", *(f"sample {i}" for i in range(n))],
-                      columns=n + 1)
+    rendered = _views(
+        [build_example(name), *meshes],
+        [f"{name}: input (PBR render)", *(f"sample {i}" for i in range(n))],
+        columns=n + 1,
+    )
     sample = meshes[0]
     maps = viz.pbr_map_images(sample)
     painted = []
     for img in maps.values():
         rgb = np.repeat(img[..., None], 3, axis=2) if img.ndim == 2 else np.asarray(img[..., :3])
-        plain = [replace(m, image=rgb.astype(np.float32), base_color=np.ones(4, np.float32), metallic=0.0, roughness=1.0,
-                         metallic_roughness_image=None, normal_image=None) for m in sample.materials]
+        plain = [
+            replace(
+                m,
+                image=rgb.astype(np.float32),
+                base_color=np.ones(4, np.float32),
+                metallic=0.0,
+                roughness=1.0,
+                metallic_roughness_image=None,
+                normal_image=None,
+            )
+            for m in sample.materials
+        ]
         painted.append(replace(sample, materials=plain))
     maps_row = _views(painted, [f"sample 0: {label}" for label in maps], columns=len(maps))
     return [_png(_stack([rendered, maps_row]), out / "pbr.png")]

@@ -31,6 +31,7 @@ The names load on first use, so ``import sin3dm_lite`` stays quick (the CLI
 answers bad arguments before torch is imported). The Show modules are used as
 namespaces: ``from sin3dm_lite import viz, widgets, viewer``.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -133,12 +134,23 @@ _API = {
 }
 
 #: module-valued public names (namespaces a notebook uses: ``viz.plot_slice``) → the module
-_MODULES = {name: module for name, module in (
-    ("viz", "show.viz"), ("widgets", "show.widgets"), ("viewer", "show.viewer"),
-    ("metrics", "evaluate.metrics"), ("render", "evaluate.render"), ("examples", "data.examples"),
-    ("box", "data.box"), ("extract", "generate.extract"), ("export", "data.export"), ("mesh_io", "data.load"),
-    ("lesson2d", "teach.lesson2d"), ("exercises", "teach.exercises"),
-)}
+_MODULES = {
+    name: module
+    for name, module in (
+        ("viz", "show.viz"),
+        ("widgets", "show.widgets"),
+        ("viewer", "show.viewer"),
+        ("metrics", "evaluate.metrics"),
+        ("render", "evaluate.render"),
+        ("examples", "data.examples"),
+        ("box", "data.box"),
+        ("extract", "generate.extract"),
+        ("export", "data.export"),
+        ("mesh_io", "data.load"),
+        ("lesson2d", "teach.lesson2d"),
+        ("exercises", "teach.exercises"),
+    )
+}
 
 __all__ = sorted(_API) + sorted(_MODULES)
 

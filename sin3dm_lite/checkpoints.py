@@ -6,6 +6,7 @@ normalisation, config and report, tagged :data:`MODEL_FORMAT`. Every file is rea
 (tensors and plain containers, never code); one that is damaged, foreign or of another version gives a one-line
 :class:`Sin3DMInputError` that names it.
 """
+
 from __future__ import annotations
 
 import json
@@ -36,8 +37,11 @@ def not_ours(path: Path, what: str, why: str) -> Sin3DMInputError:
     """The error for a file ``path`` (a ``what``: "model", a trainer's kind, "config") this version cannot read."""
     return Sin3DMInputError(
         f"'{path}' was not made by this version of sin3dm-lite ({why}); "
-        + ("fit the model again with `sin3dm-lite fit MESH --out DIR`" if what == "model"
-           else "delete it to restart that stage, or fit again into a new run folder")
+        + (
+            "fit the model again with `sin3dm-lite fit MESH --out DIR`"
+            if what == "model"
+            else "delete it to restart that stage, or fit again into a new run folder"
+        )
     )
 
 
@@ -56,8 +60,12 @@ def load_checkpoint(path: Path, what: str = "checkpoint") -> dict:
     except pickle.UnpicklingError:  # weights_only refused an object: the file holds more than tensors
         raise not_ours(path, what, "it holds Python objects other than tensors, which are not loaded") from None
     except (RuntimeError, EOFError, ValueError, zipfile.BadZipFile, OSError, UnicodeDecodeError, AttributeError) as e:
-        raise not_ours(path, what, "it is truncated or not a PyTorch checkpoint" + (
-            f": {e.strerror}" if isinstance(e, OSError) and e.strerror else "")) from None
+        raise not_ours(
+            path,
+            what,
+            "it is truncated or not a PyTorch checkpoint"
+            + (f": {e.strerror}" if isinstance(e, OSError) and e.strerror else ""),
+        ) from None
     if not isinstance(b, dict):
         raise not_ours(path, what, f"it holds a {type(b).__name__}, not a dictionary")
     return b

@@ -1,4 +1,5 @@
 """Pick the compute device in one place (CPU by default, CUDA when present), its precision, and count parameters."""
+
 from __future__ import annotations
 
 import contextlib

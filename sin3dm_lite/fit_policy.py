@@ -10,6 +10,7 @@
 :mod:`sin3dm_lite.fitting` runs the stages and asks these functions; each one is a plain function of the
 config (and the grid or the calibration), so a test or a notebook can ask it too.
 """
+
 from __future__ import annotations
 
 import math
@@ -51,12 +52,14 @@ def thin_parts_switch(cfg: Config, grid: ShapeGrid, thin: float | None = None) -
 
 def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -> str:
     """What the fit says when it switches from ``cfg`` to ``new`` (:func:`thin_parts_switch`)."""
-    return (f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
-            f"the {cfg.name} preset's samples would swell or break: fitting at {new.grid.resolution} voxels with a "
-            f"{new.diffusion.n_resblocks}-ResBlock denoiser{' whose planes see each other' if new.diffusion.rollout else ''} "
-            f"instead (its thin-part settings; small's are the 'detail' "
-            f"preset's, about the same fit time; the run's config is named '{new.name}'). To keep {cfg.grid.resolution} voxels: CLI "
-            "--no-thin-switch, Python preset=get_preset(...).updated(thin_parts={}).")
+    return (
+        f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
+        f"the {cfg.name} preset's samples would swell or break: fitting at {new.grid.resolution} voxels with a "
+        f"{new.diffusion.n_resblocks}-ResBlock denoiser{' whose planes see each other' if new.diffusion.rollout else ''} "
+        f"instead (its thin-part settings; small's are the 'detail' "
+        f"preset's, about the same fit time; the run's config is named '{new.name}'). To keep {cfg.grid.resolution} voxels: CLI "
+        "--no-thin-switch, Python preset=get_preset(...).updated(thin_parts={})."
+    )
 
 
 # --------------------------------------------------------------------------- time
@@ -91,11 +94,13 @@ def quick_hint(cfg: Config, device) -> str | None:
     minutes = fp32_autoencoder_minutes(cfg)
     if minutes <= QUICK_HINT_MINUTES:
         return None
-    return (f"this CPU has no native bf16, so the {cfg.name} config's autoencoder ({cfg.autoencoder.steps:,} steps of "
-            f"{cfg.autoencoder.points_per_step:,} points, {cfg.autoencoder.mlp_hidden}-wide MLPs) is slow here: about "
-            f"{minutes:.0f} minutes on 2 cores in fp32 (longer in emulated bf16). The 'quick' preset (a lighter "
-            "autoencoder) fits in about 5 minutes, with the same shapes but blurrier texture: preset='quick' "
-            "(CLI: --preset quick).")
+    return (
+        f"this CPU has no native bf16, so the {cfg.name} config's autoencoder ({cfg.autoencoder.steps:,} steps of "
+        f"{cfg.autoencoder.points_per_step:,} points, {cfg.autoencoder.mlp_hidden}-wide MLPs) is slow here: about "
+        f"{minutes:.0f} minutes on 2 cores in fp32 (longer in emulated bf16). The 'quick' preset (a lighter "
+        "autoencoder) fits in about 5 minutes, with the same shapes but blurrier texture: preset='quick' "
+        "(CLI: --preset quick)."
+    )
 
 
 # --------------------------------------------------------------------------- advice
@@ -106,7 +111,7 @@ def preset_expr(cfg: Config) -> str:
 
 
 def refit_advice(cfg: Config, setting: str, value, also: str = "") -> str:
-    """"fit again with SETTING=VALUE (CLI: --set ...; Python: ...)" for the run's ``cfg``."""
+    """ "fit again with SETTING=VALUE (CLI: --set ...; Python: ...)" for the run's ``cfg``."""
     python = f"{preset_expr(cfg)}.updated(**{{'{setting}': {value!r}}})"
     cli = str(value).lower() if isinstance(value, bool) else value
     return f"fit again with {setting}={cli}{also} (CLI: --set {setting}={cli}; Python: {python})"
@@ -124,15 +129,21 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
     iou, psnr, steps = rec.get("occupancy_iou"), rec.get("color_psnr"), cfg.autoencoder.steps
     if iou is not None and iou < MIN_IOU:
         finer = f" or grid.resolution={8 * round(1.5 * cfg.grid.resolution / 8)}"
-        warnings.warn(f"low reconstruction quality: occupancy IoU {iou:.3f} < {MIN_IOU} (likely cause: too few "
-                      f"autoencoder steps or a grid too coarse for thin parts); "
-                      f"{refit_advice(cfg, 'autoencoder.steps', 2 * steps, finer)}", stacklevel=3)
+        warnings.warn(
+            f"low reconstruction quality: occupancy IoU {iou:.3f} < {MIN_IOU} (likely cause: too few "
+            f"autoencoder steps or a grid too coarse for thin parts); "
+            f"{refit_advice(cfg, 'autoencoder.steps', 2 * steps, finer)}",
+            stacklevel=3,
+        )
     if psnr is not None and psnr < MIN_PSNR:
         doublings = min(3, math.ceil((MIN_PSNR - psnr) / 1.3))  # about 1.3 dB per doubling of the steps
-        warnings.warn(f"low reconstruction quality: colour PSNR {psnr:.2f} dB < {MIN_PSNR:.0f} dB (likely cause: too "
-                      "few autoencoder steps for this texture's detail: each doubling gave about 1.3 dB on a "
-                      f"two-texture mesh, and doubles the autoencoder's time); "
-                      f"{refit_advice(cfg, 'autoencoder.steps', steps * 2 ** doublings)}", stacklevel=3)
+        warnings.warn(
+            f"low reconstruction quality: colour PSNR {psnr:.2f} dB < {MIN_PSNR:.0f} dB (likely cause: too "
+            "few autoencoder steps for this texture's detail: each doubling gave about 1.3 dB on a "
+            f"two-texture mesh, and doubles the autoencoder's time); "
+            f"{refit_advice(cfg, 'autoencoder.steps', steps * 2**doublings)}",
+            stacklevel=3,
+        )
 
 
 # --------------------------------------------------------------------------- the rollout switch
@@ -151,17 +162,23 @@ def keeps_goals_from_noise(cfg: Config, calibration: dict | None) -> bool:
     patches (docs/levers.md, "The rollout switch"). The canyon, whose calibration stops below 1, copies
     its input with the rollout, so only a calibration that reaches 1 calls for it.
     """
-    return bool(not cfg.diffusion.rollout and calibration and calibration.get("kept_goals")
-                and calibration.get("diversity") == 1)
+    return bool(
+        not cfg.diffusion.rollout
+        and calibration
+        and calibration.get("kept_goals")
+        and calibration.get("diversity") == 1
+    )
 
 
 def rollout_message(cfg: Config) -> str:
     """What the fit says when it trains the denoiser again with the rollout (:attr:`Config.rollout_switch`)."""
-    return ("this shape keeps the input's patches even from pure noise (calibrated to diversity 1): its layout "
-            "varies little whatever the knob, so the denoiser is trained again with the cross-plane rollout, which "
-            "makes the planes agree on fine detail at no cost in variation (on the wall: whole bricks instead of "
-            f"smeared joints): {cfg.for_rollout().diffusion.steps:,} steps, each about 1.8x a plain one; to keep "
-            "the plain denoiser: " + no_rollout_switch(cfg))
+    return (
+        "this shape keeps the input's patches even from pure noise (calibrated to diversity 1): its layout "
+        "varies little whatever the knob, so the denoiser is trained again with the cross-plane rollout, which "
+        "makes the planes agree on fine detail at no cost in variation (on the wall: whole bricks instead of "
+        f"smeared joints): {cfg.for_rollout().diffusion.steps:,} steps, each about 1.8x a plain one; to keep "
+        "the plain denoiser: " + no_rollout_switch(cfg)
+    )
 
 
 def rollout_hint(cfg: Config, calibration: dict | None) -> str | None:
@@ -169,10 +186,12 @@ def rollout_hint(cfg: Config, calibration: dict | None) -> str | None:
     (``None`` otherwise): fit again with the rollout."""
     if not keeps_goals_from_noise(cfg, calibration):
         return None
-    return ("[fit] this shape keeps the input's patches even from pure noise (calibrated to diversity 1), so its "
-            "layout varies little and the cross-plane rollout would cost it no variation, while making the planes "
-            "agree on fine detail (on the wall: whole bricks instead of smeared joints); to try it, "
-            + refit_advice(cfg, "diffusion.rollout", True))
+    return (
+        "[fit] this shape keeps the input's patches even from pure noise (calibrated to diversity 1), so its "
+        "layout varies little and the cross-plane rollout would cost it no variation, while making the planes "
+        "agree on fine detail (on the wall: whole bricks instead of smeared joints); to try it, "
+        + refit_advice(cfg, "diffusion.rollout", True)
+    )
 
 
 # --------------------------------------------------------------------------- variants
@@ -182,9 +201,13 @@ def choose_pbr(mesh: TexturedMesh, pbr: bool | None, preset, say) -> bool:
     if pbr is None:
         pbr = bool(already or mesh.has_pbr)
         if pbr and mesh.has_pbr:
-            say(f"[fit] '{mesh.name}' has PBR maps: learning base colour, metallic, roughness and normals (pbr=False: colour only)")
+            say(
+                f"[fit] '{mesh.name}' has PBR maps: learning base colour, metallic, roughness and normals (pbr=False: colour only)"
+            )
     elif pbr and not mesh.has_pbr:
-        say(f"[fit] '{mesh.name}' has no PBR maps: learning its constant metallic / roughness and its geometric normals")
+        say(
+            f"[fit] '{mesh.name}' has no PBR maps: learning its constant metallic / roughness and its geometric normals"
+        )
     return bool(pbr)
 
 
@@ -196,8 +219,10 @@ def check_flips(cfg: Config) -> None:
     if not cfg.autoencoder.mirror:
         raise Sin3DMInputError(
             f"diffusion.flips='{cfg.diffusion.flips}' needs autoencoder.mirror=true: only a decoder with mirror-symmetric "
-            "kernels decodes a flipped latent to the mirrored shape (CLI: --set autoencoder.mirror=true)")
+            "kernels decodes a flipped latent to the mirrored shape (CLI: --set autoencoder.mirror=true)"
+        )
     if cfg.autoencoder.pbr:
         raise Sin3DMInputError(
             "diffusion.flips does not work with the PBR variant: a mirrored shape's normals change direction, which a "
-            "flipped latent does not say; fit with pbr=False (CLI: --no-pbr) or without flips")
+            "flipped latent does not say; fit with pbr=False (CLI: --no-pbr) or without flips"
+        )

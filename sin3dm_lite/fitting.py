@@ -10,6 +10,7 @@ With a run folder (:mod:`sin3dm_lite.run_folder`) every stage saves its result, 
 ``config.checkpoint_every`` steps and stop cleanly on Ctrl-C (:func:`train`), and a resumed fit continues where
 the last one stopped. What the fit decides and says about its input lives in :mod:`sin3dm_lite.fit_policy`.
 """
+
 from __future__ import annotations
 
 import json
@@ -45,15 +46,27 @@ from .model.decode import reconstructed_grid
 from .run_folder import check_run_folder, prepare_run, read_report, remove_failed_run
 
 
-def fit(build, source, preset=None, out=None, resume: bool = False, seed: int | None = None, device=None,
-        progress: bool = True, pbr: bool | None = None, allow_outside_paths: bool = False):
+def fit(
+    build,
+    source,
+    preset=None,
+    out=None,
+    resume: bool = False,
+    seed: int | None = None,
+    device=None,
+    progress: bool = True,
+    pbr: bool | None = None,
+    allow_outside_paths: bool = False,
+):
     """``Sin3DM.fit`` (its docstring says what each argument does); ``build`` makes the model from its parts
     (``build(config, decoder, latent, denoiser, aabb, normalization, report, device)``: the model class).
 
     Every argument is checked before anything is written; a fresh fit that fails with an error removes what it
     wrote, an interrupted one (Ctrl-C) keeps its checkpoints for ``resume=True``.
     """
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32):
+    if seed is not None and (
+        isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32
+    ):
         raise Sin3DMInputError(f"seed must be a whole number from 0 to {2**32 - 1}, got {seed!r}")
     if isinstance(preset, Config):
         preset.check()  # a setting out of range (changed in place) fails here
@@ -80,8 +93,17 @@ def fit(build, source, preset=None, out=None, resume: bool = False, seed: int | 
 def grid_for(mesh: TexturedMesh, cfg: Config, progress: bool) -> ShapeGrid:
     """Stage 1: ``mesh`` as the TSDF + colour grid of ``cfg.grid``."""
     g = cfg.grid
-    return mesh_to_grid(mesh, g.resolution, g.threshold_voxels, g.n_surface_points, g.near_surface_sigma, cfg.seed,
-                        progress, margin_voxels=g.margin_voxels, pbr=cfg.autoencoder.pbr)
+    return mesh_to_grid(
+        mesh,
+        g.resolution,
+        g.threshold_voxels,
+        g.n_surface_points,
+        g.near_surface_sigma,
+        cfg.seed,
+        progress,
+        margin_voxels=g.margin_voxels,
+        pbr=cfg.autoencoder.pbr,
+    )
 
 
 class FitRun:
@@ -110,7 +132,9 @@ class FitRun:
             "preset": cfg.name,
             "input": grid.name,
             # the mesh file, so the run can be compared with its input later (Sin3DM.input_mesh)
-            "input_path": str(Path(source).resolve()) if isinstance(source, (str, Path)) and Path(source).is_file() else None,
+            "input_path": str(Path(source).resolve())
+            if isinstance(source, (str, Path)) and Path(source).is_file()
+            else None,
             "grid_shape": list(grid.shape),
             "thin_share": thin,  # ShapeGrid.thin_share of the training grid: share of the solid in parts under ~5 voxels thick
             "thin_parts_switch": thin_parts,  # {from, resolution, thin_share} when small switched to finer settings
@@ -140,7 +164,9 @@ class FitRun:
         run has its grid already)."""
         run, resume = self.run, self.resume
         have_grid = run is not None and resume and (run / "grid.npz").exists()
-        mesh = None if have_grid else resolve_mesh(source, allow_outside_paths=allow_outside_paths)  # bad input fails before any folder is written
+        mesh = (
+            None if have_grid else resolve_mesh(source, allow_outside_paths=allow_outside_paths)
+        )  # bad input fails before any folder is written
         resuming = resume and run is not None and (run / "config.json").exists()
         if preset is None and not resuming:
             preset = "small"
@@ -204,7 +230,9 @@ class FitRun:
         t0 = time.perf_counter()
         dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
         if dm.train_forward is not dm.model:
-            self.say("[fit] diffusion: the first step compiles the denoiser for this GPU (torch.compile, about a minute)")
+            self.say(
+                "[fit] diffusion: the first step compiles the denoiser for this GPU (torch.compile, about a minute)"
+            )
         train(dm, self.run / "diffusion.pt" if self.run else None, cfg.checkpoint_every, self.progress, self.say)
         self.timings["diffusion_s"] = time.perf_counter() - t0
 
@@ -218,13 +246,16 @@ class FitRun:
             "timings_s": self.timings,
             "device": str(self.dev),
         }
-        model = self.build(cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, report,
-                           self.dev)
+        model = self.build(
+            cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, report, self.dev
+        )
         # stage 4: the diversity knob for this shape: the most varied samples that keep its patches
         if cfg.sampling.calibrate:
-            self.say("[fit] calibrating the diversity knob for this shape: a few samples at a few settings, scored "
-                     "against the input (LP-IoU / LP-F); the most varied setting that keeps the goals becomes the "
-                     "run's default")
+            self.say(
+                "[fit] calibrating the diversity knob for this shape: a few samples at a few settings, scored "
+                "against the input (LP-IoU / LP-F); the most varied setting that keeps the goals becomes the "
+                "run's default"
+            )
             t0 = time.perf_counter()
             model.calibrate(reference=grid.sdf < 0, progress=self.progress)
             self.timings["calibrate_s"] = time.perf_counter() - t0
@@ -235,23 +266,28 @@ class FitRun:
         loss history and the record of the switch."""
         run = self.run
         self.say("[fit] " + rollout_message(cfg))
-        rollout = {"plain_calibration": {k: calibration[k] for k in ("diversity", "kept_goals")},
-                   "plain_s": self.timings.pop("diffusion_s") + self.timings.pop("calibrate_s", 0.0)}
+        rollout = {
+            "plain_calibration": {k: calibration[k] for k in ("diversity", "kept_goals")},
+            "plain_s": self.timings.pop("diffusion_s") + self.timings.pop("calibrate_s", 0.0),
+        }
         thin_parts = base["thin_parts_switch"]
         cfg = cfg.for_rollout()
         if run is not None:  # the plain checkpoint goes first: a config with the rollout never meets it
             (run / "diffusion.pt").unlink(missing_ok=True)
             atomic_write(run / "config.json", cfg.to_json())
-            atomic_write(run / "report.json", json.dumps({"thin_parts_switch": thin_parts,
-                                                          "rollout_switch": rollout}, indent=2))
+            atomic_write(
+                run / "report.json", json.dumps({"thin_parts_switch": thin_parts, "rollout_switch": rollout}, indent=2)
+            )
         model, history = self.denoise(cfg, grid, h0, ae, metrics, {**base, "rollout_switch": rollout})
         if not (model.report.get("calibration") or {}).get("kept_goals"):
             import warnings
 
             # stacklevel: this method, stages, fitting.fit, Sin3DM.fit, and the code that called it
-            warnings.warn("with the cross-plane rollout no diversity setting kept the input's patches, which "
-                          "the plain denoiser did from pure noise; fit again without the switch: "
-                          + no_rollout_switch(cfg), stacklevel=5)
+            warnings.warn(
+                "with the cross-plane rollout no diversity setting kept the input's patches, which "
+                "the plain denoiser did from pure noise; fit again without the switch: " + no_rollout_switch(cfg),
+                stacklevel=5,
+            )
         return cfg, model, history, rollout
 
 

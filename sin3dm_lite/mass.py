@@ -35,6 +35,7 @@ Rules:
 * Memory is bounded by ``--batch`` (latents per denoiser call) and ``--workers`` (processes
   decoding, texturing and exporting meshes while the next batch is sampled), not by ``-n``.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -54,8 +55,9 @@ def check_request(model, req: SampleRequest) -> None:
     r = req.resolve(model.config.sampling)
     steps, top = r.steps, model.schedule.timesteps
     if r.method == "ddim" and not 1 <= steps <= top:
-        raise Sin3DMInputError(f"--steps {steps} is more than this model's {top} time steps; ask for 1 to {top} "
-                               "DDIM steps")
+        raise Sin3DMInputError(
+            f"--steps {steps} is more than this model's {top} time steps; ask for 1 to {top} DDIM steps"
+        )
     sampling_timesteps(model.schedule, r.method, steps)
 
 
@@ -65,8 +67,13 @@ def check_sample_sizes(model, plan, req: SampleRequest) -> None:
     r = req.resolve(model.config.sampling)  # --steps: mass.check_request
     if req.faces is not None:
         check_setting("sampling.faces", req.faces, option="--faces")
-    model.check_mesh_sizes(r.mesh_resolution, r.texture_size, plan.aabb,
-                           parallel=max(1, req.workers), names=("--mesh-resolution", "--texture-size"))
+    model.check_mesh_sizes(
+        r.mesh_resolution,
+        r.texture_size,
+        plan.aabb,
+        parallel=max(1, req.workers),
+        names=("--mesh-resolution", "--texture-size"),
+    )
 
 
 def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", ranks=None, run: str = "") -> dict:
@@ -100,8 +107,10 @@ def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", r
         raise SystemExit(2)  # rank 0 says why
     try:
         if ranks.rank == 0 and len(pending) < req.n:
-            print(f"[{label}] {out}: {req.n - len(pending)} of the {req.n} samples are there already; "
-                  f"sampling the other {len(pending)}")
+            print(
+                f"[{label}] {out}: {req.n - len(pending)} of the {req.n} samples are there already; "
+                f"sampling the other {len(pending)}"
+            )
         stats = sample_many(model, out, req, ranks, plan, pending, label)
         ranks.barrier()
         total = len(finish_folder(model, out, req, plan, label)) if ranks.rank == 0 else None

@@ -6,6 +6,7 @@ gallery, the contact sheet, the manifest); a run that fails before its first sam
 leaves nothing behind (:func:`abandon`). The folder's layout and rules: :mod:`sin3dm_lite.mass`.
 ``req`` is the run's :class:`mass.SampleRequest` throughout.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -64,12 +65,22 @@ def model_checksum(model) -> str:
 def sample_settings(model, plan, req, control: dict) -> dict:
     """Everything a sample's content depends on besides its index (what a continued run must share)."""
     r = req.resolve(model.config.sampling, controlled=plan.known is not None)
-    return json.loads(json.dumps({  # JSON types: tuples become lists, as when read back
-        "model": model_checksum(model), "control": control, "method": r.method,
-        "steps": r.steps, "diversity": r.diversity, "seed": req.seed,
-        "mesh_resolution": r.mesh_resolution, "faces": r.faces,
-        "texture_size": r.texture_size, "pictures": not req.no_pictures,
-    }))
+    return json.loads(
+        json.dumps(
+            {  # JSON types: tuples become lists, as when read back
+                "model": model_checksum(model),
+                "control": control,
+                "method": r.method,
+                "steps": r.steps,
+                "diversity": r.diversity,
+                "seed": req.seed,
+                "mesh_resolution": r.mesh_resolution,
+                "faces": r.faces,
+                "texture_size": r.texture_size,
+                "pictures": not req.no_pictures,
+            }
+        )
+    )
 
 
 def read_settings(out: Path) -> dict | None:
@@ -120,9 +131,11 @@ def check_folder(out: Path, req, settings: dict, names_for) -> bool:
             return False  # a run stopped before its first sample (killed): nothing there to keep, start over
         if old != settings:
             key = next(k for k in sorted(set(old) | set(settings)) if old.get(k) != settings.get(k))
-            raise Sin3DMInputError(f"'{out}' holds samples with other settings ({key}: {old.get(key)} there, "
-                                   f"{settings.get(key)} now); choose another --out, or pass --overwrite to replace "
-                                   "them (files sin3dm-lite did not write are kept)")
+            raise Sin3DMInputError(
+                f"'{out}' holds samples with other settings ({key}: {old.get(key)} there, "
+                f"{settings.get(key)} now); choose another --out, or pass --overwrite to replace "
+                "them (files sin3dm-lite did not write are kept)"
+            )
         clash = foreign_files(out, names_for(out), WRITER)
         if clash:
             raise clash_error(out, clash[0], WRITER)
@@ -159,10 +172,13 @@ def remove_ours(out: Path) -> None:
 def sample_output_names(out: Path, req) -> list[str]:
     """The files a sample run into ``out`` writes where something may already be (checked for foreign files)."""
     names = ["index.html", SETTINGS, SAMPLES] + ([] if req.no_pictures else ["contact_sheet.png"])
-    for d in (out.iterdir() if out.is_dir() else []):
+    for d in out.iterdir() if out.is_dir() else []:
         if d.name.isdigit() and req.start <= int(d.name) < req.start + req.n:
-            names += ([f"{d.name}/{f.name}" for f in d.iterdir() if f.name.startswith(SAMPLE_FILES)]
-                      if d.is_dir() else [d.name])
+            names += (
+                [f"{d.name}/{f.name}" for f in d.iterdir() if f.name.startswith(SAMPLE_FILES)]
+                if d.is_dir()
+                else [d.name]
+            )
     return names
 
 
@@ -197,8 +213,11 @@ def prepare_folder(out: Path, req, settings: dict, run: str, names_for) -> list[
         continuing = check_folder(out, req, settings, names_for)
         if not continuing:
             remove_ours(out)
-            write_recorded(out / SETTINGS, json.dumps({"tool": "sin3dm-lite", "kind": "samples", "run": run,
-                                                       "settings": settings}, indent=1), by=WRITER)
+            write_recorded(
+                out / SETTINGS,
+                json.dumps({"tool": "sin3dm-lite", "kind": "samples", "run": run, "settings": settings}, indent=1),
+                by=WRITER,
+            )
         done = finished(out)
     except BaseException:
         release_lock(out)
@@ -231,8 +250,9 @@ def finish_folder(model, out: Path, req, plan, label: str = "sample") -> dict[in
             save_html(gallery(meshes, labels=[folder_name(i) for i in first]), tmp / "index.html")
         previews = [out / folder_name(i) / "preview.png" for i in first]
         if not req.no_pictures and previews and all(p.is_file() for p in previews):
-            write_contact_sheet(model, req, plan, previews, [folder_name(i) for i in first], tmp / "contact_sheet.png",
-                                label)
+            write_contact_sheet(
+                model, req, plan, previews, [folder_name(i) for i in first], tmp / "contact_sheet.png", label
+            )
         names = sorted(p.name for p in tmp.iterdir())
         new = file_record(tmp, names, WRITER)
         m = read_manifest(out)
@@ -257,8 +277,9 @@ def write_contact_sheet(model, req, plan, previews: list[Path], labels: list[str
 
     box_n = np.array([np.minimum(model.aabb[:3], plan.aabb[:3]), np.maximum(model.aabb[3:], plan.aabb[3:])])
     try:
-        reference = model.to_mesh(model.input_sample(), 0, resolution=req.mesh_resolution, faces=req.faces,
-                                  texture_size=req.texture_size)
+        reference = model.to_mesh(
+            model.input_sample(), 0, resolution=req.mesh_resolution, faces=req.faces, texture_size=req.texture_size
+        )
         ref = render_hero(reference, size=384, box=model.normalization.to_original(box_n))
     except Sin3DMInputError as e:
         print(f"[{label}] no contact sheet: {e}")

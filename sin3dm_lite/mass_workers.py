@@ -6,6 +6,7 @@ the missing indices (:func:`start_ranks`, :class:`Ranks`). A rank samples its sh
 meshes (:func:`export_sample`); each finished sample is recorded, then moved into place
 (:class:`RankExport`, :func:`sample_many`). ``req`` is the run's :class:`mass.SampleRequest`.
 """
+
 from __future__ import annotations
 
 import os
@@ -103,8 +104,9 @@ def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: di
     model = model or _WORKER["model"]
     opts = opts or _WORKER["opts"]
     samples = Samples(Triplane.from_state_dict(latent).to(model.device), np.asarray(aabb))
-    mesh = model.to_mesh(samples, 0, resolution=opts["mesh_resolution"], faces=opts["faces"],
-                         texture_size=opts["texture_size"])
+    mesh = model.to_mesh(
+        samples, 0, resolution=opts["mesh_resolution"], faces=opts["faces"], texture_size=opts["texture_size"]
+    )
     export_mesh(mesh, Path(tmp), name="mesh")
     why = None
     if opts["pictures"] and not _WORKER.get("no_pictures"):
@@ -130,8 +132,10 @@ def install_sample(tmp: Path, dst: Path, out: Path, ours: dict | None) -> None:
     for item in sorted(tmp.iterdir(), key=lambda p: (p.suffix == ".obj", p.name)):  # an OBJ appears last
         rel = f"{dst.name}/{item.name}"
         if (dst / item.name).exists() and not is_ours(out, rel, ours, WRITER):
-            raise Sin3DMInputError(f"'{dst / item.name}' was not written by `sin3dm-lite sample` and would be "
-                                   "replaced; move it away and run again")
+            raise Sin3DMInputError(
+                f"'{dst / item.name}' was not written by `sin3dm-lite sample` and would be "
+                "replaced; move it away and run again"
+            )
         os.replace(item, dst / item.name)
     shutil.rmtree(tmp, ignore_errors=True)
 
@@ -141,9 +145,13 @@ def export_options(model, req, plan) -> dict:
     """What every export of the run shares: the mesh settings and one scale for every preview."""
     r = req.resolve(model.config.sampling)
     box_n = np.array([np.minimum(model.aabb[:3], plan.aabb[:3]), np.maximum(model.aabb[3:], plan.aabb[3:])])
-    return {"mesh_resolution": r.mesh_resolution, "faces": r.faces,
-            "texture_size": r.texture_size, "pictures": not req.no_pictures,
-            "box": model.normalization.to_original(box_n)}  # one scale for every preview
+    return {
+        "mesh_resolution": r.mesh_resolution,
+        "faces": r.faces,
+        "texture_size": r.texture_size,
+        "pictures": not req.no_pictures,
+        "box": model.normalization.to_original(box_n),
+    }  # one scale for every preview
 
 
 class RankExport:
@@ -169,21 +177,39 @@ class RankExport:
         model_tmp = make_temp_dir(self.out)
         self.temps.add(model_tmp)
         self.model.save(model_tmp)
-        self.pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_worker_init, initargs=(str(model_tmp / "model.pt"), self.opts))
+        self.pool = ProcessPoolExecutor(
+            workers,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_worker_init,
+            initargs=(str(model_tmp / "model.pt"), self.opts),
+        )
         self.workers = workers
 
     def sample_batch(self, plan, chunk: list[int]) -> None:
         """Sample the indices ``chunk`` in one denoiser call; each latent is saved, then exported."""
         req, started = self.req, time.perf_counter()
-        samples = self.model.sample(len(chunk), plan=plan, steps=req.steps, method=req.method,
-                                    seed=[req.seed + i for i in chunk], diversity=req.diversity, progress=False)
+        samples = self.model.sample(
+            len(chunk),
+            plan=plan,
+            steps=req.steps,
+            method=req.method,
+            seed=[req.seed + i for i in chunk],
+            diversity=req.diversity,
+            progress=False,
+        )
         for j, i in enumerate(chunk):
             tmp = make_temp_dir(self.out)
             self.temps.add(tmp)
             latent = samples.triplane[j].clone().state_dict()  # its own storage, not the whole batch's
-            save_torch({"triplane": latent, "aabb": torch.from_numpy(np.asarray(samples.aabb, np.float64)),
-                        "index": i, "seed": req.seed + i}, tmp / "latent.pt")
+            save_torch(
+                {
+                    "triplane": latent,
+                    "aabb": torch.from_numpy(np.asarray(samples.aabb, np.float64)),
+                    "index": i,
+                    "seed": req.seed + i,
+                },
+                tmp / "latent.pt",
+            )
             if self.pool is None:
                 self.land(i, tmp, started, export_sample(str(tmp), latent, samples.aabb, self.model, self.opts))
                 continue
@@ -202,24 +228,38 @@ class RankExport:
         files = {f"{name}/{k}": v for k, v in file_record(tmp, sorted(p.name for p in tmp.iterdir()), WRITER).items()}
         if ours is not None:  # files of an earlier, killed try stay ours until this one replaces them
             files = replacing(out, ours, files)
-        append_manifest_part(out, f"rank{self.ranks.rank}", {
-            "index": i, "seed": self.req.seed + i, "folder": name, "files": files, "faces": info["faces"],
-            "seconds": round(time.perf_counter() - started, 3), "time": datetime.now().isoformat(timespec="milliseconds"),
-            "rank": self.ranks.rank})
+        append_manifest_part(
+            out,
+            f"rank{self.ranks.rank}",
+            {
+                "index": i,
+                "seed": self.req.seed + i,
+                "folder": name,
+                "files": files,
+                "faces": info["faces"],
+                "seconds": round(time.perf_counter() - started, 3),
+                "time": datetime.now().isoformat(timespec="milliseconds"),
+                "rank": self.ranks.rank,
+            },
+        )
         install_sample(tmp, out / name, out, ours)
         self.temps.discard(tmp)
         if info["no_pictures"] and not self.said:
             self.said.append(info["no_pictures"])
             print(f"{self.tag} no pictures: {info['no_pictures']}")
         self.bar.update(1)
-        tqdm.write(f"{self.tag} {self.bar.n}/{self.total}: {folder_name(i)} {info['faces']:,} faces  "
-                   f"({time.perf_counter() - self.t0:.0f} s)", file=sys.stdout)
+        tqdm.write(
+            f"{self.tag} {self.bar.n}/{self.total}: {folder_name(i)} {info['faces']:,} faces  "
+            f"({time.perf_counter() - self.t0:.0f} s)",
+            file=sys.stdout,
+        )
 
     def collect(self, block: bool) -> None:
         """Land the exports the workers finished (waiting for one if ``block``), in index order."""
         futures = self.futures
-        done, _ = wait(list(futures), return_when=FIRST_COMPLETED) if block else (
-            [f for f in futures if f.done()], None)
+        done, _ = (
+            wait(list(futures), return_when=FIRST_COMPLETED) if block else ([f for f in futures if f.done()], None)
+        )
         for f in sorted(done, key=lambda f: futures[f][0]):
             try:
                 info = f.result()
@@ -238,14 +278,14 @@ class RankExport:
 
 def sample_many(model, out: Path, req, ranks: Ranks, plan, pending: list[int], label: str = "sample") -> dict:
     """Sample this rank's share of ``pending`` into ``out``; returns ``{"new", "seconds"}``."""
-    mine = pending[ranks.rank::ranks.world]
+    mine = pending[ranks.rank :: ranks.world]
     run = RankExport(model, out, req, ranks, export_options(model, req, plan), len(mine), label)
     try:
         if req.workers > 0 and len(mine) > 1:
             run.start_pool(req.workers)
         batch = max(1, req.batch)
         for k in range(0, len(mine), batch):
-            run.sample_batch(plan, mine[k:k + batch])
+            run.sample_batch(plan, mine[k : k + batch])
         while run.futures:
             run.collect(block=True)
     finally:
@@ -256,7 +296,11 @@ def sample_many(model, out: Path, req, ranks: Ranks, plan, pending: list[int], l
 def worker_died(out: Path, index: int) -> str:
     """The one-line message for an export worker that died (killed, out of memory) while exporting ``index``."""
     kept = len(finished(out))
-    kept = {0: "no sample was finished yet", 1: "the finished sample is kept"}.get(kept, f"the {kept} finished samples are kept")
-    return (f"the export worker process died while exporting sample {folder_name(index)} to '{out}' (killed, perhaps "
-            f"for lack of memory); {kept}: run the same command again to continue (it resumes), with --workers 0 "
-            "to export in the sampling process if memory is short")
+    kept = {0: "no sample was finished yet", 1: "the finished sample is kept"}.get(
+        kept, f"the {kept} finished samples are kept"
+    )
+    return (
+        f"the export worker process died while exporting sample {folder_name(index)} to '{out}' (killed, perhaps "
+        f"for lack of memory); {kept}: run the same command again to continue (it resumes), with --workers 0 "
+        "to export in the sampling process if memory is short"
+    )

@@ -17,6 +17,7 @@ Each method is a call into the stage that does the work, so a reader follows one
 A fit writes a *run folder* (its files: :mod:`sin3dm_lite.run_folder`); ``fit(..., resume=True)`` continues an
 interrupted run and ends exactly where an uninterrupted one would.
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -126,8 +127,9 @@ class Sin3DM:
         warn_if_poor(model.report.get("reconstruction", {}), model.config)
         return model
 
-    def calibrate(self, reference: np.ndarray | None = None, input_mesh=None, progress: bool = True,
-                  **options) -> Calibration:
+    def calibrate(
+        self, reference: np.ndarray | None = None, input_mesh=None, progress: bool = True, **options
+    ) -> Calibration:
         """Set ``config.sampling.diversity`` to the most varied setting whose samples keep the input's patches.
 
         :func:`sin3dm_lite.calibrate.calibrate_diversity` draws a few samples
@@ -150,8 +152,11 @@ class Sin3DM:
         self.config = self.config.updated(**{"sampling.diversity": cal.diversity})
         self.report["calibration"] = cal.to_dict()
         if progress:
-            print(f"[calibrate] {'chose' if cal.kept_goals else 'no setting kept the goals; the lowest tried,'} "
-                  f"diversity {cal.diversity:g}", flush=True)
+            print(
+                f"[calibrate] {'chose' if cal.kept_goals else 'no setting kept the goals; the lowest tried,'} "
+                f"diversity {cal.diversity:g}",
+                flush=True,
+            )
             print("\n".join(f"[calibrate] {line}" for line in cal.story().splitlines()), flush=True)
         return cal
 
@@ -207,8 +212,9 @@ class Sin3DM:
         plan = self.plan(resize, outpaint, anchor, regenerate, duplicate, plan)
         return sampling.draw(self, n, plan, steps, method, seed, return_intermediates, known, mask, progress, diversity)
 
-    def plan(self, resize=(1.0, 1.0, 1.0), outpaint=None, anchor: str = "center", regenerate=None, duplicate=None,
-             plan=None):
+    def plan(
+        self, resize=(1.0, 1.0, 1.0), outpaint=None, anchor: str = "center", regenerate=None, duplicate=None, plan=None
+    ):
         """The :class:`control.Plan` that :meth:`sample` carries out for these arguments (checked: one clear error)."""
         return sampling.plan_for(self, resize, outpaint, anchor, regenerate, duplicate, plan)
 
@@ -217,8 +223,14 @@ class Sin3DM:
         widest layer per sample, and half the free memory of the device may go to them (at most 10,000)."""
         return sampling.max_samples(self, resize)
 
-    def check_mesh_sizes(self, resolution: int, texture_size: int, aabb=None, parallel: int = 1,
-                         names: tuple[str, str] = ("mesh resolution", "texture size")) -> None:
+    def check_mesh_sizes(
+        self,
+        resolution: int,
+        texture_size: int,
+        aabb=None,
+        parallel: int = 1,
+        names: tuple[str, str] = ("mesh resolution", "texture size"),
+    ) -> None:
         """Refuse a mesh resolution or texture size out of range (:data:`config.LIMITS`) or beyond memory.
 
         One export holds about :data:`sampling.EXPORT_BYTES_PER_VOXEL` per voxel of the decode grid over ``aabb``
@@ -288,6 +300,7 @@ class Sin3DM:
         A sample with no surface (a diverged one: all empty, or the box all inside) counts as an
         empty or a full grid, so it lowers the scores instead of stopping the evaluation.
         """
+
         def to_mesh(i: int) -> TexturedMesh:
             return self.to_mesh(samples, i, resolution=mesh_resolution, original_coords=False, vertex_colors=True)
 
@@ -303,8 +316,16 @@ class Sin3DM:
         built-in example of that name (``allow_outside_paths``: see :func:`mesh_io.load_mesh`)."""
         return recorded_input(self.report.get("input_path"), self.report.get("input"), allow_outside_paths)
 
-    def evaluate(self, samples, input_mesh=None, resolution: int = 64, views: int = 8, size: int = 256,
-                 weights=None, progress: bool = True) -> dict:
+    def evaluate(
+        self,
+        samples,
+        input_mesh=None,
+        resolution: int = 64,
+        views: int = 8,
+        size: int = 256,
+        weights=None,
+        progress: bool = True,
+    ) -> dict:
         """The paper's metrics of generated shapes against the input mesh (docs/paper-notes.md "Evaluation").
 
         ``samples``: a :class:`Samples` (decoded here) or meshes in the input
@@ -329,8 +350,9 @@ class Sin3DM:
         nets = evaluation.feature_nets(weights)
         ref = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
         to_meshes = self.to_mesh if isinstance(samples, Samples) else list
-        return evaluation.evaluate(samples, to_meshes, ref, self.normalization, self.aabb, resolution, views, size,
-                                   nets, progress)
+        return evaluation.evaluate(
+            samples, to_meshes, ref, self.normalization, self.aabb, resolution, views, size, nets, progress
+        )
 
     # ------------------------------------------------------------ save/load
     def save(self, run_dir: str | Path) -> Path:

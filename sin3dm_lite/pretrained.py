@@ -5,6 +5,7 @@ Each was produced by our own ``sin3dm-lite fit`` (the exact commands are in
 shapes of every example immediately on a CPU (``demo --example NAME``,
 ``Sin3DM.open(NAME)``).
 """
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -6,6 +6,7 @@ A setting left at ``None`` takes the model's (:class:`~sin3dm_lite.data.config.S
 (``cli.sample_request`` builds one from the flags) all ask it, so a sample drawn by any of them gets the same
 settings for the same request.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -57,14 +58,21 @@ class SampleRequest:
         noise, as in the paper) instead of the model's."""
         s = sampling
         diversity = self.diversity if self.diversity is not None else (1.0 if controlled else s.diversity)
-        return Resolved(method=self.method or s.method, steps=self.steps or s.steps, diversity=diversity,
-                        mesh_resolution=self.mesh_resolution or s.mesh_resolution, faces=self.faces or s.faces,
-                        texture_size=self.texture_size or s.texture_size)
+        return Resolved(
+            method=self.method or s.method,
+            steps=self.steps or s.steps,
+            diversity=diversity,
+            mesh_resolution=self.mesh_resolution or s.mesh_resolution,
+            faces=self.faces or s.faces,
+            texture_size=self.texture_size or s.texture_size,
+        )
 
     def batch_size(self, limit: int) -> int:
         """Latents per denoiser call: ``batch``, or :data:`DEFAULT_BATCH` (at most ``n`` and ``limit``, what fits in
         memory at once); a ``batch`` over ``limit`` is refused."""
         if self.batch is not None and self.batch > limit:
-            raise Sin3DMInputError(f"--batch {self.batch} is more samples than fit in memory at once here (at most "
-                                   f"{limit} with this model and size); ask for a smaller --batch")
+            raise Sin3DMInputError(
+                f"--batch {self.batch} is more samples than fit in memory at once here (at most "
+                f"{limit} with this model and size); ask for a smaller --batch"
+            )
         return self.batch or min(DEFAULT_BATCH, self.n, limit)

@@ -19,6 +19,7 @@ an uninterrupted one would::
 
 The torch files in it are read and written by :mod:`sin3dm_lite.checkpoints`.
 """
+
 from __future__ import annotations
 
 import json
@@ -33,7 +34,16 @@ from .files import acquire_lock, create_locked_folder, release_lock
 from .fit_policy import check_flips
 
 INPUT_FILE = "input.json"
-RUN_FILES = ("config.json", INPUT_FILE, "grid.npz", "autoencoder.pt", "diffusion.pt", MODEL_FILE, "losses.json", "report.json")
+RUN_FILES = (
+    "config.json",
+    INPUT_FILE,
+    "grid.npz",
+    "autoencoder.pt",
+    "diffusion.pt",
+    MODEL_FILE,
+    "losses.json",
+    "report.json",
+)
 
 
 def check_run_folder(run: Path, source, resume: bool) -> None:
@@ -54,8 +64,9 @@ def check_run_folder(run: Path, source, resume: bool) -> None:
             load_grid(run / "grid.npz")
 
 
-def prepare_run(run: Path | None, preset, resume: bool, seed: int | None, asked: dict | None = None,
-                pbr: bool | None = None) -> Config:
+def prepare_run(
+    run: Path | None, preset, resume: bool, seed: int | None, asked: dict | None = None, pbr: bool | None = None
+) -> Config:
     """Resolve the config and check the run folder (new, or resumable with the same input and settings)."""
     cfg = None
     if preset is not None:
@@ -71,10 +82,14 @@ def prepare_run(run: Path | None, preset, resume: bool, seed: int | None, asked:
         return _resumed_config(run, cfg, seed, asked, pbr)
     if run.exists() and any(run.iterdir()):
         if (run / "config.json").is_file():
-            raise Sin3DMInputError(f"run folder '{run}' is not empty: it holds a fit; continue it with --resume, or "
-                                   "choose a new or empty --out")
-        raise Sin3DMInputError(f"--out '{run}' is not empty and holds no fit of sin3dm-lite; choose a new or empty "
-                               "folder for --out (nothing in it is touched)")
+            raise Sin3DMInputError(
+                f"run folder '{run}' is not empty: it holds a fit; continue it with --resume, or "
+                "choose a new or empty --out"
+            )
+        raise Sin3DMInputError(
+            f"--out '{run}' is not empty and holds no fit of sin3dm-lite; choose a new or empty "
+            "folder for --out (nothing in it is touched)"
+        )
     # the new run folder appears with its config and lock in one rename: a kill leaves a resumable
     # folder or only a temporary one (removed by the next run), never a folder that blocks the next try
     files = {"config.json": cfg.to_json()}
@@ -84,13 +99,16 @@ def prepare_run(run: Path | None, preset, resume: bool, seed: int | None, asked:
     return cfg
 
 
-def _resumed_config(run: Path, asked_cfg: Config | None, seed: int | None, asked: dict | None,
-                    pbr: bool | None) -> Config:
+def _resumed_config(
+    run: Path, asked_cfg: Config | None, seed: int | None, asked: dict | None, pbr: bool | None
+) -> Config:
     """The config of the run folder ``run`` to resume (checked against what is asked now), with its lock taken."""
     cfg_file = run / "config.json"
     if not cfg_file.exists():
-        raise Sin3DMInputError(f"cannot resume: '{run}' is not a fit's run folder (it has no config.json, which a "
-                               "fit writes first); start a new fit into a new or empty folder (CLI: --out)")
+        raise Sin3DMInputError(
+            f"cannot resume: '{run}' is not a fit's run folder (it has no config.json, which a "
+            "fit writes first); start a new fit into a new or empty folder (CLI: --out)"
+        )
     try:
         cfg = Config.from_dict(json.loads(cfg_file.read_text()))
     except Sin3DMInputError as e:  # a setting out of range
@@ -136,7 +154,8 @@ def check_same_request(run: Path, asked: dict, asked_cfg: Config | None, pbr: bo
     if other_input:
         raise Sin3DMInputError(
             f"cannot resume: '{run}' was fitted to {was}, not {asked['input']}; resume it with that input, or fit "
-            f"{asked['input']} into a new --out")
+            f"{asked['input']} into a new --out"
+        )
     if asked_cfg is None:
         return
     want, have = asked_cfg.to_dict(), recorded_config(run, cfg).to_dict()
@@ -155,7 +174,8 @@ def check_same_request(run: Path, asked: dict, asked_cfg: Config | None, pbr: bo
         more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
         raise Sin3DMInputError(
             f"cannot resume: '{run}' was fitted with other settings ({'; '.join(shown)}{more}); resume it with its "
-            "own (leave out --preset, --set, --seed and --pbr; Python: preset=None), or fit into a new --out")
+            "own (leave out --preset, --set, --seed and --pbr; Python: preset=None), or fit into a new --out"
+        )
 
 
 def read_report(run: Path) -> dict:

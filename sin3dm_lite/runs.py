@@ -19,6 +19,7 @@ What ``RUN`` may be, checked in this order:
 
 Anything else is refused with one line that says what ``RUN`` may be.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -67,7 +68,9 @@ def _feed_input(h, source, mesh=None) -> str:
     path = Path(source)
     if not path.is_file():
         raise Sin3DMInputError(f"'{source}' is neither a mesh file nor a built-in example")
-    _hash_mesh(h, mesh if mesh is not None else load_mesh(path))  # what was read, so an OBJ's MTL and textures count too
+    _hash_mesh(
+        h, mesh if mesh is not None else load_mesh(path)
+    )  # what was read, so an OBJ's MTL and textures count too
     return path.stem
 
 
@@ -84,7 +87,13 @@ def _hash_mesh(h, mesh) -> None:
     """Feed everything of ``mesh`` the fit reads (geometry, UVs, colours, materials and their images) to ``h``."""
     arrays = [mesh.vertices, mesh.faces, mesh.face_material, mesh.face_uvs, mesh.vertex_colors]
     for m in mesh.materials:
-        arrays += [m.base_color, np.float64([m.metallic, m.roughness]), m.image, m.metallic_roughness_image, m.normal_image]
+        arrays += [
+            m.base_color,
+            np.float64([m.metallic, m.roughness]),
+            m.image,
+            m.metallic_roughness_image,
+            m.normal_image,
+        ]
     for a in arrays:
         h.update(b"\0none" if a is None else np.ascontiguousarray(a).tobytes() + str(np.shape(a)).encode())
 
@@ -111,14 +120,16 @@ def resolve_run(run, preset, cache) -> tuple[str, Path]:
             return "folder", path
         raise Sin3DMInputError(
             f"RUN '{run}' is a folder without {MODEL_FILE}: an unfinished fit; continue it with "
-            f"`sin3dm-lite fit MESH --out {run} --resume`, or set RUN to the mesh to fit it into the cache")
+            f"`sin3dm-lite fit MESH --out {run} --resume`, or set RUN to the mesh to fit it into the cache"
+        )
     if path.is_file() and path.name == MODEL_FILE:
         return "folder", path.parent
     if path.is_file() or (isinstance(run, str) and name in examples.list_examples()):
         return "fit", cached_run(run, preset, cache)
     raise Sin3DMInputError(
         f"RUN '{run}' is not a shipped model ({', '.join(shipped_examples())}), "
-        f"a run folder, a mesh file or a built-in example ({', '.join(examples.list_examples())})")
+        f"a run folder, a mesh file or a built-in example ({', '.join(examples.list_examples())})"
+    )
 
 
 __all__ = ["CACHE", "cached_run", "fit_preset", "input_digest", "resolve_run", "run_key"]

@@ -5,6 +5,7 @@ takes the fitted model (its ``latent``, ``aabb``, ``config``, ``denoiser``, ``sc
 ``normalization`` and ``device``). Settings left at ``None`` take the model's through
 :meth:`~sin3dm_lite.request.SampleRequest.resolve`, as the mass sampler's do.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -41,14 +42,24 @@ class Samples:
         return self.triplane.batch
 
 
-def plan_for(model, resize=(1.0, 1.0, 1.0), outpaint=None, anchor: str = "center", regenerate=None, duplicate=None,
-             plan=None):
+def plan_for(
+    model, resize=(1.0, 1.0, 1.0), outpaint=None, anchor: str = "center", regenerate=None, duplicate=None, plan=None
+):
     """The :class:`control.Plan` that ``model.sample`` carries out for these arguments (checked: one clear error)."""
     from .generate import control
 
     resized = np.any(np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,)) != 1.0)
-    asked = [k for k, v in (("resize", resized or None), ("outpaint", outpaint), ("regenerate", regenerate),
-                            ("duplicate", duplicate), ("plan", plan)) if v is not None]
+    asked = [
+        k
+        for k, v in (
+            ("resize", resized or None),
+            ("outpaint", outpaint),
+            ("regenerate", regenerate),
+            ("duplicate", duplicate),
+            ("plan", plan),
+        )
+        if v is not None
+    ]
     if len(asked) > 1:
         raise Sin3DMInputError(f"one control at a time: got {' and '.join(asked)}")
     if plan is not None:
@@ -81,8 +92,19 @@ def max_samples(model, resize=(1.0, 1.0, 1.0)) -> int:
     return int(max(1, min(MAX_SAMPLES, 0.5 * memory_available(model.device) // per_sample)))
 
 
-def draw(model, n: int, plan, steps=None, method=None, seed=0, return_intermediates=None, known=None, mask=None,
-         progress: bool = True, diversity=None) -> Samples:
+def draw(
+    model,
+    n: int,
+    plan,
+    steps=None,
+    method=None,
+    seed=0,
+    return_intermediates=None,
+    known=None,
+    mask=None,
+    progress: bool = True,
+    diversity=None,
+) -> Samples:
     """``model.sample`` (its docstring says what each argument does): ``n`` (≥ 1) new triplanes for ``plan``
     (:func:`plan_for`), at most as many as fit in memory at once (:func:`max_samples`)."""
     from .model.diffusion import sample as diffusion_sample
@@ -94,11 +116,14 @@ def draw(model, n: int, plan, steps=None, method=None, seed=0, return_intermedia
     factors = np.array(plan.resolution) / np.array(model.latent.resolution)
     limit = max_samples(model, factors)
     if n > limit:
-        raise Sin3DMInputError(f"{n} samples do not fit in memory at once here (at most {limit} with "
-                               "this model and size); draw them in several calls with other seeds")
+        raise Sin3DMInputError(
+            f"{n} samples do not fit in memory at once here (at most {limit} with "
+            "this model and size); draw them in several calls with other seeds"
+        )
     # the run's settings; controlled generation regenerates from pure noise as in the paper
-    r = SampleRequest(steps=steps, method=method, diversity=diversity).resolve(model.config.sampling,
-                                                                               controlled=plan.known is not None)
+    r = SampleRequest(steps=steps, method=method, diversity=diversity).resolve(
+        model.config.sampling, controlled=plan.known is not None
+    )
     t0 = start_step(model.schedule, r.diversity)  # checks the value
     out = diffusion_sample(
         model.denoiser,
@@ -122,8 +147,13 @@ def draw(model, n: int, plan, steps=None, method=None, seed=0, return_intermedia
     return Samples(tp, plan.aabb, inter, plan)
 
 
-def check_mesh_sizes(resolution: int, texture_size: int, box, parallel: int = 1,
-                     names: tuple[str, str] = ("mesh resolution", "texture size")) -> None:
+def check_mesh_sizes(
+    resolution: int,
+    texture_size: int,
+    box,
+    parallel: int = 1,
+    names: tuple[str, str] = ("mesh resolution", "texture size"),
+) -> None:
     """``model.check_mesh_sizes`` for an export over ``box``: refuse a mesh resolution or texture size out of range
     (:data:`config.LIMITS`) or beyond memory (the rules: that method's docstring)."""
     from .data.box import grid_shape
@@ -140,8 +170,9 @@ def check_mesh_sizes(resolution: int, texture_size: int, box, parallel: int = 1,
     cap_res, cap_tex = LIMITS[keys[0]][1], LIMITS[keys[1]][1]
 
     def most_res(texels: float) -> int:  # the largest resolution that fits beside ``texels``
-        return min(cap_res, int((max(budget - texels * EXPORT_BYTES_PER_TEXEL, 0) / EXPORT_BYTES_PER_VOXEL / share)
-                                ** (1 / 3)))
+        return min(
+            cap_res, int((max(budget - texels * EXPORT_BYTES_PER_TEXEL, 0) / EXPORT_BYTES_PER_VOXEL / share) ** (1 / 3))
+        )
 
     def most_tex(voxels: float) -> int:  # the largest texture that fits beside ``voxels``
         return min(cap_tex, int((max(budget - voxels * EXPORT_BYTES_PER_VOXEL, 0) / EXPORT_BYTES_PER_TEXEL) ** 0.5))
@@ -153,16 +184,26 @@ def check_mesh_sizes(resolution: int, texture_size: int, box, parallel: int = 1,
         beside = f" and {names[1]} {texture_size}" if fits else ""
         raise Sin3DMInputError(
             f"{names[0]} {resolution} is too large: at most {most} here ({cap_res:,} anywhere; what fits in memory "
-            f"with this box{beside}{at_once}); ask for a smaller one")
+            f"with this box{beside}{at_once}); ask for a smaller one"
+        )
     most = most_tex(float(np.prod(grid_shape(box, resolution))))
     if texture_size > most:
         raise Sin3DMInputError(
             f"{names[1]} {texture_size} is too large: at most {most} here ({cap_tex:,} anywhere; what fits in "
-            f"memory with {names[0]} {resolution}{at_once}); ask for a smaller one")
+            f"memory with {names[0]} {resolution}{at_once}); ask for a smaller one"
+        )
 
 
-def decode(model, samples: Samples, index: int | None = None, resolution: int | None = None, faces: int | None = None,
-           texture_size: int | None = None, vertex_colors: bool = False, original_coords: bool = True):
+def decode(
+    model,
+    samples: Samples,
+    index: int | None = None,
+    resolution: int | None = None,
+    faces: int | None = None,
+    texture_size: int | None = None,
+    vertex_colors: bool = False,
+    original_coords: bool = True,
+):
     """``model.to_mesh``: the samples (or the one at ``index``) as textured meshes."""
     from .generate.extract import extract_mesh
 

@@ -24,6 +24,7 @@ the environment the thread count is not touched, with ``OMP_WAIT_POLICY`` /
 ``torch.set_num_threads`` made before importing the package is kept. The measurements
 are in docs/performance.md ("Threads"); ``benchmarks/bench_contention.py`` prints them again.
 """
+
 from __future__ import annotations
 
 import os

@@ -31,6 +31,7 @@ The parser is in ``parser`` (argparse stays inside this package); the commands i
 (examples, grid, fit), ``sampling`` (sample, demo) and ``evaluation`` (render, evaluate,
 calibrate); ``main`` here runs one and turns user errors into one line.
 """
+
 from __future__ import annotations
 
 import sys
@@ -82,9 +83,17 @@ def main(argv: list[str] | None = None) -> int:
 
     warnings.showwarning = one_line
     try:
-        {"examples": cmd_examples, "grid": cmd_grid, "fit": cmd_fit, "sample": cmd_sample, "demo": cmd_demo,
-         "render": cmd_render, "evaluate": cmd_evaluate,
-         "calibrate": cmd_calibrate, "notebooks": cmd_notebooks}[a.command](a)
+        {
+            "examples": cmd_examples,
+            "grid": cmd_grid,
+            "fit": cmd_fit,
+            "sample": cmd_sample,
+            "demo": cmd_demo,
+            "render": cmd_render,
+            "evaluate": cmd_evaluate,
+            "calibrate": cmd_calibrate,
+            "notebooks": cmd_notebooks,
+        }[a.command](a)
     except Sin3DMInputError as e:
         print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
         return 2

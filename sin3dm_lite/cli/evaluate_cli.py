@@ -1,5 +1,6 @@
 """``sin3dm-lite render``, ``evaluate`` and ``calibrate``: pictures of a mesh, the paper's metrics of
 samples, and the diversity a run keeps its input's patches at."""
+
 from __future__ import annotations
 
 import shutil
@@ -68,8 +69,10 @@ def sample_mesh_files(folder: Path) -> list[Path]:
         if found is not None:
             files.append(found)
     if not files:
-        raise Sin3DMInputError(f"no sample meshes in '{folder}' (expected NNN/mesh.obj or NNN/mesh.glb, as "
-                               "`sin3dm-lite sample` writes); sample first, then evaluate that folder")
+        raise Sin3DMInputError(
+            f"no sample meshes in '{folder}' (expected NNN/mesh.obj or NNN/mesh.glb, as "
+            "`sin3dm-lite sample` writes); sample first, then evaluate that folder"
+        )
     return files
 
 
@@ -107,8 +110,9 @@ def cmd_evaluate(a) -> None:
         if out.is_dir():
             raise Sin3DMInputError(f"--out '{out}' is a folder; give a file name like {out / 'evaluation.json'}")
         if out.exists() and not a.overwrite:
-            raise Sin3DMInputError(f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) "
-                                   "or choose another --out")
+            raise Sin3DMInputError(
+                f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) or choose another --out"
+            )
         if out.exists() and not is_ours(out.parent, out.name, by="evaluate"):
             raise clash_error(out.parent, out.name, by="evaluate")
         check_writable(out)
@@ -138,7 +142,9 @@ def cmd_calibrate(a) -> None:
     shipped = not Path(a.run).exists()  # a shipped model's folder is part of the installed package: print only
     if not shipped:
         check_writable(run)
-        acquire_lock(run, "run folder")  # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile
+        acquire_lock(
+            run, "run folder"
+        )  # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile
     try:
         _calibrate(a, run, shipped)
     finally:
@@ -157,8 +163,10 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     model = Sin3DM.load(run)
     # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, the mesh
     reference = load_grid(run / "grid.npz").sdf < 0 if (run / "grid.npz").is_file() and a.input is None else None
-    goals = {"lp_iou": GOALS["lp_iou"] if a.lp_iou is None else a.lp_iou,
-             "lp_fscore": GOALS["lp_fscore"] if a.lp_f is None else a.lp_f}
+    goals = {
+        "lp_iou": GOALS["lp_iou"] if a.lp_iou is None else a.lp_iou,
+        "lp_fscore": GOALS["lp_fscore"] if a.lp_f is None else a.lp_f,
+    }
     before = model.config.sampling.diversity
     t0 = time.perf_counter()
     input_mesh = None
@@ -168,13 +176,17 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     cal = model.calibrate(reference, input_mesh=input_mesh, goals=goals, n=a.n, seed=a.seed)
     took = time.perf_counter() - t0
     if shipped:
-        print(f"{a.run}: diversity {cal.diversity:g} would keep the goals ({took:.0f} s); a shipped model is not "
-              f"changed: sample it with --diversity {cal.diversity:g}")
+        print(
+            f"{a.run}: diversity {cal.diversity:g} would keep the goals ({took:.0f} s); a shipped model is not "
+            f"changed: sample it with --diversity {cal.diversity:g}"
+        )
         return
     model.save(run)
     if (run / "report.json").is_file():
         report = json.loads((run / "report.json").read_text())
         report["calibration"] = cal.to_dict()
         atomic_write(run / "report.json", json.dumps(report, indent=2))
-    print(f"{run}: diversity {before:g} → {cal.diversity:g} ({took:.0f} s), saved in its config.json; "
-          f"`sin3dm-lite sample {run}` uses it, --diversity overrides it")
+    print(
+        f"{run}: diversity {before:g} → {cal.diversity:g} ({took:.0f} s), saved in its config.json; "
+        f"`sin3dm-lite sample {run}` uses it, --diversity overrides it"
+    )

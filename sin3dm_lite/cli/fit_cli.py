@@ -1,4 +1,5 @@
 """``sin3dm-lite examples``, ``grid`` and ``fit``: from a mesh (or a built-in example) to a fitted run."""
+
 from __future__ import annotations
 
 import shutil
@@ -22,8 +23,10 @@ def cmd_examples(a) -> None:
         names = [f"{a.write}{ext}" for ext in (".obj", ".mtl", ".png")]
         there = [n for n in names if (out / n).exists()]
         if there and not a.overwrite:
-            raise Sin3DMInputError(f"'{out / there[0]}' exists; pass --overwrite to replace it if sin3dm-lite wrote it, "
-                                   "or choose another --out")
+            raise Sin3DMInputError(
+                f"'{out / there[0]}' exists; pass --overwrite to replace it if sin3dm-lite wrote it, "
+                "or choose another --out"
+            )
         clash = foreign_files(out, names, by="examples") if out.is_dir() else []
         if clash:
             raise clash_error(out, clash[0], by="examples")
@@ -60,7 +63,9 @@ def cmd_grid(a) -> None:
     if out.is_dir():
         raise Sin3DMInputError(f"--out '{out}' is a folder; give a file name like {out / 'grid.npz'}")
     if out.exists() and not a.overwrite:
-        raise Sin3DMInputError(f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) or choose another --out")
+        raise Sin3DMInputError(
+            f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) or choose another --out"
+        )
     if out.exists() and not is_ours(out.parent, out.name, by="grid"):
         raise clash_error(out.parent, out.name, by="grid")
     check_writable(out)
@@ -87,8 +92,16 @@ def cmd_fit(a) -> None:
         changes["rollout_switch"] = {}
     name = a.preset or (None if a.resume else "small")  # None: the run's own (Sin3DM.fit)
     preset = get_preset(name or "small").updated(**changes) if changes else name
-    model = Sin3DM.fit(a.mesh, preset=preset, out=a.out, resume=a.resume, seed=a.seed, device=a.device, pbr=a.pbr,
-                       allow_outside_paths=a.allow_outside_paths)
+    model = Sin3DM.fit(
+        a.mesh,
+        preset=preset,
+        out=a.out,
+        resume=a.resume,
+        seed=a.seed,
+        device=a.device,
+        pbr=a.pbr,
+        allow_outside_paths=a.allow_outside_paths,
+    )
     r = model.report["reconstruction"]
     print(
         f"fit done in {time.perf_counter() - t0:.0f} s: occupancy IoU {r['occupancy_iou']:.3f}, "

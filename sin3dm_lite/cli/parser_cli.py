@@ -4,6 +4,7 @@ Argument errors are one line and exit code 2 (:class:`_Parser`); the option type
 what no command could use (a negative count, a seed over 2**32 - 1, a non-finite number)
 before any work. argparse is used here and nowhere else in the package.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,8 +46,9 @@ def _factor(what: str, low: float, low_included: bool):
 
 
 _resize_factor = _factor("resize factors must be in (0, 8]", 0.0, False)
-_outpaint_factor = _factor("outpaint factors must be from 1 to 8 (outpainting grows the box; --resize shrinks it)",
-                           1.0, True)
+_outpaint_factor = _factor(
+    "outpaint factors must be from 1 to 8 (outpainting grows the box; --resize shrinks it)", 1.0, True
+)
 
 
 def _unit_float(text: str) -> float:
@@ -70,8 +72,12 @@ class _Formatter(argparse.HelpFormatter):
 
     def _get_help_string(self, action):
         text = action.help or ""
-        if ("default" in text or not action.option_strings or action.required
-                or any(action.default is x for x in (None, False, argparse.SUPPRESS))):  # `is`: 0 == False
+        if (
+            "default" in text
+            or not action.option_strings
+            or action.required
+            or any(action.default is x for x in (None, False, argparse.SUPPRESS))
+        ):  # `is`: 0 == False
             return text
         return f"{text} (default: %(default)s)"
 
@@ -116,14 +122,25 @@ COMMANDS = {
 def build_parser() -> argparse.ArgumentParser:
     from ..data.load import READABLE
 
-    p = _Parser(prog="sin3dm-lite", description="Sin3DM: learn a diffusion model from one textured mesh.",
-                epilog=f"Readable mesh formats: {READABLE}. Start with `sin3dm-lite demo`; "
-                       "`sin3dm-lite CMD --help` describes one command.")
+    p = _Parser(
+        prog="sin3dm-lite",
+        description="Sin3DM: learn a diffusion model from one textured mesh.",
+        epilog=f"Readable mesh formats: {READABLE}. Start with `sin3dm-lite demo`; "
+        "`sin3dm-lite CMD --help` describes one command.",
+    )
     p.add_argument("--version", action="version", version=f"sin3dm-lite {package_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    adders = {"examples": _examples_args, "grid": _grid_args, "fit": _fit_args, "sample": _sample_command_args,
-              "demo": _demo_args, "render": _render_args, "evaluate": _evaluate_args, "calibrate": _calibrate_args,
-              "notebooks": _notebooks_args}
+    adders = {
+        "examples": _examples_args,
+        "grid": _grid_args,
+        "fit": _fit_args,
+        "sample": _sample_command_args,
+        "demo": _demo_args,
+        "render": _render_args,
+        "evaluate": _evaluate_args,
+        "calibrate": _calibrate_args,
+        "notebooks": _notebooks_args,
+    }
     for name, description in COMMANDS.items():  # in this order in `sin3dm-lite --help`
         adders[name](sub.add_parser(name, help=description, description=description))
     return p
@@ -139,7 +156,9 @@ def _examples_args(e: argparse.ArgumentParser) -> None:
     e.add_argument("--write", metavar="NAME", help="example to write (default: list them)")
     e.add_argument("--out", default=".", help="folder for --write (default: current folder)")
     e.add_argument("--seed", type=_seed, default=0, help="variant of the example")
-    e.add_argument("--overwrite", action="store_true", help="replace files of the example that sin3dm-lite wrote before")
+    e.add_argument(
+        "--overwrite", action="store_true", help="replace files of the example that sin3dm-lite wrote before"
+    )
 
 
 def _grid_args(g: argparse.ArgumentParser) -> None:
@@ -154,24 +173,45 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
     from ..data.presets import PRESETS
 
     f.add_argument("mesh", help=_mesh_help())
-    f.add_argument("--preset", choices=list(PRESETS), default=None,
-                   help="training sizes and steps (default: small; with --resume, the run's own)")
+    f.add_argument(
+        "--preset",
+        choices=list(PRESETS),
+        default=None,
+        help="training sizes and steps (default: small; with --resume, the run's own)",
+    )
     f.add_argument("--out", required=True, help="run folder (new, or existing with --resume)")
     f.add_argument("--resume", action="store_true", help="continue an interrupted fit from its checkpoints")
-    f.add_argument("--pbr", action=argparse.BooleanOptionalAction, default=None,
-                   help="learn metallic, roughness and normals too (default: when the mesh has PBR maps; "
-                        "--pbr on a mesh without maps learns its constant factors and geometric normals)")
+    f.add_argument(
+        "--pbr",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="learn metallic, roughness and normals too (default: when the mesh has PBR maps; "
+        "--pbr on a mesh without maps learns its constant factors and geometric normals)",
+    )
     f.add_argument("--seed", type=_seed, default=None, help="random seed (default: the preset's)")
-    f.add_argument("--thin-switch", action=argparse.BooleanOptionalAction, default=True,
-                   help="on a shape with many thin parts, fit small at the 'detail' settings (96 voxels, wider "
-                        "denoiser field); --no-thin-switch keeps the preset's grid")
-    f.add_argument("--rollout-switch", action=argparse.BooleanOptionalAction, default=True,
-                   help="when the calibration keeps the input's patches even from pure noise (a wall, dunes), "
-                        "train the denoiser again with the cross-plane rollout (crisper detail, ~45 s more on small); "
-                        "--no-rollout-switch keeps the plain denoiser")
-    f.add_argument("--set", nargs="+", default=[], metavar="SETTING=VALUE",
-                   help="change settings of the preset, e.g. --set diffusion.rollout=true (crisper brick-like "
-                        "textures, docs/levers.md) diffusion.steps=3000; names as in the run's config.json")
+    f.add_argument(
+        "--thin-switch",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="on a shape with many thin parts, fit small at the 'detail' settings (96 voxels, wider "
+        "denoiser field); --no-thin-switch keeps the preset's grid",
+    )
+    f.add_argument(
+        "--rollout-switch",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="when the calibration keeps the input's patches even from pure noise (a wall, dunes), "
+        "train the denoiser again with the cross-plane rollout (crisper detail, ~45 s more on small); "
+        "--no-rollout-switch keeps the plain denoiser",
+    )
+    f.add_argument(
+        "--set",
+        nargs="+",
+        default=[],
+        metavar="SETTING=VALUE",
+        help="change settings of the preset, e.g. --set diffusion.rollout=true (crisper brick-like "
+        "textures, docs/levers.md) diffusion.steps=3000; names as in the run's config.json",
+    )
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     _outside_paths_arg(f)
 
@@ -179,9 +219,11 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
 def _sample_command_args(s: argparse.ArgumentParser) -> None:
     _sample_args(s)
     s.add_argument("run", help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon)")
-    s.add_argument("--out", required=True,
-                   help="output folder (new, empty, or one this command wrote with the same settings: continued; "
-                        "see --overwrite)")
+    s.add_argument(
+        "--out",
+        required=True,
+        help="output folder (new, empty, or one this command wrote with the same settings: continued; see --overwrite)",
+    )
 
 
 def _demo_args(d: argparse.ArgumentParser) -> None:
@@ -189,12 +231,19 @@ def _demo_args(d: argparse.ArgumentParser) -> None:
     from .sample_cli import DEMO_PRESET
 
     _sample_args(d, n_default=4)
-    d.add_argument("--example", default=examples.DEFAULT_EXAMPLE, metavar="NAME",
-                   help=f"built-in example: {', '.join(examples.list_examples())} (only those with a shipped model "
-                        "run without --train)")
+    d.add_argument(
+        "--example",
+        default=examples.DEFAULT_EXAMPLE,
+        metavar="NAME",
+        help=f"built-in example: {', '.join(examples.list_examples())} (only those with a shipped model "
+        "run without --train)",
+    )
     d.add_argument("--out", default="sin3dm-demo", help="output folder (default: ./sin3dm-demo)")
-    d.add_argument("--train", action="store_true",
-                   help=f"fit the example from scratch with the '{DEMO_PRESET}' preset instead of loading its shipped model")
+    d.add_argument(
+        "--train",
+        action="store_true",
+        help=f"fit the example from scratch with the '{DEMO_PRESET}' preset instead of loading its shipped model",
+    )
 
 
 def _render_args(r: argparse.ArgumentParser) -> None:
@@ -203,8 +252,11 @@ def _render_args(r: argparse.ArgumentParser) -> None:
     r.add_argument("--size", type=_positive_int, default=512, help="image width and height in pixels, 16-4096")
     r.add_argument("--elevation", type=_float, default=45.0, help="camera elevation in degrees, -89 to 89")
     r.add_argument("--out", required=True, help="output folder (new or empty; see --overwrite)")
-    r.add_argument("--overwrite", action="store_true",
-                   help="write into a non-empty --out, replacing only the files sin3dm-lite wrote there before")
+    r.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into a non-empty --out, replacing only the files sin3dm-lite wrote there before",
+    )
     _outside_paths_arg(r)
 
 
@@ -214,41 +266,74 @@ def _evaluate_args(v: argparse.ArgumentParser) -> None:
     v.add_argument("--input", default=None, help="the mesh the run was fitted to (default: the run's built-in example)")
     v.add_argument("--out", default=None, help="write the results as JSON to this .json file (default: print only)")
     v.add_argument("--overwrite", action="store_true", help="replace an --out file that sin3dm-lite wrote before")
-    v.add_argument("--weights", default=None, metavar="DIR",
-                   help="folder with InceptionV3 / AlexNet / LPIPS weights for SIFID and LPIPS, never downloaded "
-                        "(default: none; weight-free stand-ins instead)")
+    v.add_argument(
+        "--weights",
+        default=None,
+        metavar="DIR",
+        help="folder with InceptionV3 / AlexNet / LPIPS weights for SIFID and LPIPS, never downloaded "
+        "(default: none; weight-free stand-ins instead)",
+    )
     v.add_argument("--views", type=_positive_int, default=8, help="views per mesh, azimuth every 360/N degrees")
     v.add_argument("--size", type=_positive_int, default=256, help="render size in pixels, 16-4096; the paper uses 512")
-    v.add_argument("--resolution", type=_positive_int, default=64,
-                   help="voxels along the longest side for the geometry metrics, 16-512; the paper uses 128")
+    v.add_argument(
+        "--resolution",
+        type=_positive_int,
+        default=64,
+        help="voxels along the longest side for the geometry metrics, 16-512; the paper uses 128",
+    )
     _outside_paths_arg(v)
 
 
 def _calibrate_args(c: argparse.ArgumentParser) -> None:
     c.add_argument("run", help="run folder written by `sin3dm-lite fit` (a shipped model's name: print only)")
-    c.add_argument("--input", default=None,
-                   help="the mesh the run was fitted to, when the run has no grid.npz (default: the run's grid)")
-    c.add_argument("-n", type=_int_at_least(2, "at least 2 (G-Div compares them)"), default=8,
-                   help="samples per setting tried")
-    c.add_argument("--seed", type=_seed, default=10_000,
-                   help="first sample seed (the k-th setting drawn takes seeds from seed + 1000·k)")
-    c.add_argument("--lp-iou", type=_unit_score, default=None, help="LP-IoU the samples must keep, at most (default: 0.55, lowered to 85%% of what a near copy of the input keeps)")
-    c.add_argument("--lp-f", type=_unit_score, default=None, help="LP-F the samples must keep, at most (default: 0.70, lowered to 85%% of what a near copy of the input keeps)")
+    c.add_argument(
+        "--input",
+        default=None,
+        help="the mesh the run was fitted to, when the run has no grid.npz (default: the run's grid)",
+    )
+    c.add_argument(
+        "-n", type=_int_at_least(2, "at least 2 (G-Div compares them)"), default=8, help="samples per setting tried"
+    )
+    c.add_argument(
+        "--seed",
+        type=_seed,
+        default=10_000,
+        help="first sample seed (the k-th setting drawn takes seeds from seed + 1000·k)",
+    )
+    c.add_argument(
+        "--lp-iou",
+        type=_unit_score,
+        default=None,
+        help="LP-IoU the samples must keep, at most (default: 0.55, lowered to 85%% of what a near copy of the input keeps)",
+    )
+    c.add_argument(
+        "--lp-f",
+        type=_unit_score,
+        default=None,
+        help="LP-F the samples must keep, at most (default: 0.70, lowered to 85%% of what a near copy of the input keeps)",
+    )
     _outside_paths_arg(c)
 
 
 def _notebooks_args(n: argparse.ArgumentParser) -> None:
     n.add_argument("notebooks", nargs="*", type=Path, help="notebooks to run (default: every notebooks/*.ipynb)")
-    n.add_argument("--fast", action="store_true", help="run with SIN3DM_FAST=1 (to try it; the tests refuse such outputs)")
-    n.add_argument("--check", action="store_true", help="run nothing: list notebooks whose outputs are stale or missing")
+    n.add_argument(
+        "--fast", action="store_true", help="run with SIN3DM_FAST=1 (to try it; the tests refuse such outputs)"
+    )
+    n.add_argument(
+        "--check", action="store_true", help="run nothing: list notebooks whose outputs are stale or missing"
+    )
     n.add_argument("--clear", action="store_true", help="run nothing: remove every output and the recorded digest")
     n.add_argument("--timeout", type=int, default=1800, help="seconds one cell may take (default 1800)")
 
 
 def _outside_paths_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--allow-outside-paths", action="store_true",
-                   help="let the mesh file name textures, material libraries and buffers outside its own folder "
-                        "(refused by default: a mesh from the internet must not make sin3dm-lite read other files)")
+    p.add_argument(
+        "--allow-outside-paths",
+        action="store_true",
+        help="let the mesh file name textures, material libraries and buffers outside its own folder "
+        "(refused by default: a mesh from the internet must not make sin3dm-lite read other files)",
+    )
 
 
 def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
@@ -261,38 +346,88 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
 
 def _run_args(s: argparse.ArgumentParser, n_default: int) -> None:
     """How many samples, from which index, in batches of how many, exported by how many workers."""
-    s.add_argument("-n", type=_positive_int, default=n_default,
-                   help="number of samples; each lands in --out as it finishes, and the same command again continues")
-    s.add_argument("--start", type=_whole, default=0,
-                   help="index of the first sample (sample i comes from seed + i: `--start 7 -n 1` draws sample 7 again)")
-    s.add_argument("--batch", type=_positive_int, default=None,
-                   help="samples per denoiser call (default: 8, fewer if memory is short)")
-    s.add_argument("--workers", type=_whole, default=1,
-                   help="processes that decode, texture and export meshes while the next batch is sampled "
-                        "(0: in the sampling process)")
+    s.add_argument(
+        "-n",
+        type=_positive_int,
+        default=n_default,
+        help="number of samples; each lands in --out as it finishes, and the same command again continues",
+    )
+    s.add_argument(
+        "--start",
+        type=_whole,
+        default=0,
+        help="index of the first sample (sample i comes from seed + i: `--start 7 -n 1` draws sample 7 again)",
+    )
+    s.add_argument(
+        "--batch",
+        type=_positive_int,
+        default=None,
+        help="samples per denoiser call (default: 8, fewer if memory is short)",
+    )
+    s.add_argument(
+        "--workers",
+        type=_whole,
+        default=1,
+        help="processes that decode, texture and export meshes while the next batch is sampled "
+        "(0: in the sampling process)",
+    )
 
 
 def _control_args(s: argparse.ArgumentParser) -> None:
     """Controlled generation: one of resize, outpaint, regenerate, duplicate (and outpaint's anchor)."""
-    ctl = s.add_argument_group("controlled generation (one at a time, default: none, samples the input's size; "
-                               "boxes are fractions 0-1 of the model's box along x, y, z)").add_mutually_exclusive_group()
-    ctl.add_argument("--resize", nargs=3, type=_resize_factor, metavar=("SX", "SY", "SZ"), default=None,
-                     help="retarget: scale factors of the x, y, z size")
-    ctl.add_argument("--outpaint", nargs=3, type=_outpaint_factor, metavar=("SX", "SY", "SZ"), default=None,
-                     help="grow the box by these factors (each >= 1), keep the input, generate the rest")
-    ctl.add_argument("--regenerate", nargs=6, type=_float, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"), default=None,
-                     help="resample this box, keep everything else (the box must reach the faces along one axis)")
-    ctl.add_argument("--duplicate", nargs=9, type=_float, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1", "TX", "TY", "TZ"),
-                     default=None, help="copy this box so its low corner lands at TX TY TZ; generate around both copies")
-    s.add_argument("--anchor", default="center", choices=["center", "x-", "x+", "y-", "y+", "z-", "z+"],
-                   help="with --outpaint: where the input stays, the centre or the face it sticks to")
+    ctl = s.add_argument_group(
+        "controlled generation (one at a time, default: none, samples the input's size; "
+        "boxes are fractions 0-1 of the model's box along x, y, z)"
+    ).add_mutually_exclusive_group()
+    ctl.add_argument(
+        "--resize",
+        nargs=3,
+        type=_resize_factor,
+        metavar=("SX", "SY", "SZ"),
+        default=None,
+        help="retarget: scale factors of the x, y, z size",
+    )
+    ctl.add_argument(
+        "--outpaint",
+        nargs=3,
+        type=_outpaint_factor,
+        metavar=("SX", "SY", "SZ"),
+        default=None,
+        help="grow the box by these factors (each >= 1), keep the input, generate the rest",
+    )
+    ctl.add_argument(
+        "--regenerate",
+        nargs=6,
+        type=_float,
+        metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+        default=None,
+        help="resample this box, keep everything else (the box must reach the faces along one axis)",
+    )
+    ctl.add_argument(
+        "--duplicate",
+        nargs=9,
+        type=_float,
+        metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1", "TX", "TY", "TZ"),
+        default=None,
+        help="copy this box so its low corner lands at TX TY TZ; generate around both copies",
+    )
+    s.add_argument(
+        "--anchor",
+        default="center",
+        choices=["center", "x-", "x+", "y-", "y+", "z-", "z+"],
+        help="with --outpaint: where the input stays, the centre or the face it sticks to",
+    )
 
 
 def _sampler_args(s: argparse.ArgumentParser) -> None:
     """The sampler: diversity, DDIM steps or DDPM, seed."""
-    s.add_argument("--diversity", type=_unit_float, default=None,
-                   help="0 = the input, 1 = from pure noise (the paper; default: the run's setting); "
-                        "lower values keep more of the input's layout")
+    s.add_argument(
+        "--diversity",
+        type=_unit_float,
+        default=None,
+        help="0 = the input, 1 = from pure noise (the paper; default: the run's setting); "
+        "lower values keep more of the input's layout",
+    )
     s.add_argument("--steps", type=_positive_int, default=None, help="DDIM steps (default: the preset's)")
     s.add_argument("--ddpm", action="store_true", help="use full DDPM sampling (all timesteps) instead of DDIM")
     s.add_argument("--seed", type=_seed, default=0, help="random seed; the same seed gives the same samples")
@@ -301,16 +436,27 @@ def _sampler_args(s: argparse.ArgumentParser) -> None:
 def _output_args(s: argparse.ArgumentParser) -> None:
     """The meshes (faces, texture, decode grid), the device, and what happens to --out."""
     s.add_argument("--faces", type=_positive_int, default=None, help="face budget per mesh (default: the preset's)")
-    s.add_argument("--texture-size", type=_positive_int, default=None,
-                   help="texture image size in pixels (default: the preset's)")
-    s.add_argument("--mesh-resolution", type=_positive_int, default=None,
-                   help="decode grid along the longest side (default: the preset's)")
+    s.add_argument(
+        "--texture-size", type=_positive_int, default=None, help="texture image size in pixels (default: the preset's)"
+    )
+    s.add_argument(
+        "--mesh-resolution",
+        type=_positive_int,
+        default=None,
+        help="decode grid along the longest side (default: the preset's)",
+    )
     s.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
-    s.add_argument("--overwrite", action="store_true",
-                   help="write into a non-empty --out, first removing the files sin3dm-lite wrote there before "
-                        "(without it, a folder of samples with the same settings is continued)")
-    s.add_argument("--no-pictures", action="store_true",
-                   help="skip NNN/preview.png and contact_sheet.png (rendered off-screen; they need Mesa's EGL on Linux)")
+    s.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into a non-empty --out, first removing the files sin3dm-lite wrote there before "
+        "(without it, a folder of samples with the same settings is continued)",
+    )
+    s.add_argument(
+        "--no-pictures",
+        action="store_true",
+        help="skip NNN/preview.png and contact_sheet.png (rendered off-screen; they need Mesa's EGL on Linux)",
+    )
 
 
 def _unit_score(text: str) -> float:

@@ -3,6 +3,7 @@
 Their flags become a :class:`mass.SampleRequest` here (:func:`sample_request`): the library
 takes no argparse object. :func:`find_run` names a run folder or a shipped model.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -22,8 +23,10 @@ def check_sample_output(out: Path, a, protected: dict) -> None:
     from ..mass_folder import MAX_RUN_SAMPLES, WRITER, read_settings, sample_output_names
 
     if a.start + a.n > MAX_RUN_SAMPLES:
-        raise Sin3DMInputError(f"-n {a.n} (from --start {a.start}) is too many samples: indices go up to at most "
-                               f"{MAX_RUN_SAMPLES - 1} per output folder; use several --out folders with other --seed")
+        raise Sin3DMInputError(
+            f"-n {a.n} (from --start {a.start}) is too many samples: indices go up to at most "
+            f"{MAX_RUN_SAMPLES - 1} per output folder; use several --out folders with other --seed"
+        )
     check_not_overlapping(out, protected)
     if not (out.is_dir() and read_settings(out) is not None and not a.overwrite):
         check_output_folder(out, a.overwrite, sample_output_names(out, sample_request(a)), by=WRITER)
@@ -34,12 +37,25 @@ def sample_request(a):
     """The sampling flags of ``sample`` / ``demo`` as a :class:`request.SampleRequest` (the library takes no argparse)."""
     from ..request import SampleRequest
 
-    keys = ("n", "start", "seed", "steps", "diversity", "faces", "mesh_resolution", "texture_size",
-            "no_pictures", "overwrite", "batch", "workers")
+    keys = (
+        "n",
+        "start",
+        "seed",
+        "steps",
+        "diversity",
+        "faces",
+        "mesh_resolution",
+        "texture_size",
+        "no_pictures",
+        "overwrite",
+        "batch",
+        "workers",
+    )
     defaults = SampleRequest()
     method = "ddpm" if getattr(a, "ddpm", False) else None  # --ddpm; else the model's
-    return SampleRequest(**{k: getattr(a, k, getattr(defaults, k)) for k in keys}, method=method,
-                         control=control_args(a))
+    return SampleRequest(
+        **{k: getattr(a, k, getattr(defaults, k)) for k in keys}, method=method, control=control_args(a)
+    )
 
 
 def control_args(a) -> dict:
@@ -61,14 +77,18 @@ def find_run(name: str) -> Path:
     if run.is_file() and run.name == "model.pt":  # the run folder's model, as Sin3DM.load takes it
         run = run.parent
     if run.exists() and not run.is_dir():
-        raise Sin3DMInputError(f"'{name}' is a file, not a run folder: a run folder is what `sin3dm-lite fit MESH --out "
-                               f"DIR` writes (config.json, model.pt, report.json, ...); give that folder, or a shipped "
-                               f"model's name ({', '.join(shipped_names())})")
+        raise Sin3DMInputError(
+            f"'{name}' is a file, not a run folder: a run folder is what `sin3dm-lite fit MESH --out "
+            f"DIR` writes (config.json, model.pt, report.json, ...); give that folder, or a shipped "
+            f"model's name ({', '.join(shipped_names())})"
+        )
     if not run.is_dir():
         run = shipped_model(name)
         if run is None:
-            raise Sin3DMInputError(f"run folder '{name}' not found; fit one first with `sin3dm-lite fit MESH --out "
-                                   f"{name}`, or name a shipped model ({', '.join(shipped_names())})")
+            raise Sin3DMInputError(
+                f"run folder '{name}' not found; fit one first with `sin3dm-lite fit MESH --out "
+                f"{name}`, or name a shipped model ({', '.join(shipped_names())})"
+            )
     return run
 
 
@@ -90,8 +110,10 @@ def cmd_sample(a) -> None:
     if ranks.rank == 0:
         rate = 60 * r["new"] / r["seconds"] if r["seconds"] > 0 and r["new"] else 0.0
         where = f" on {ranks.world} processes" if ranks.world > 1 else ""
-        print(f"wrote {r['pending']} new samples{where} ({rate:.1f} meshes/min on rank 0); {a.out} holds {r['total']}: "
-              f"NNN/mesh.obj|.glb, samples.jsonl; open {Path(a.out) / 'index.html'} in a browser")
+        print(
+            f"wrote {r['pending']} new samples{where} ({rate:.1f} meshes/min on rank 0); {a.out} holds {r['total']}: "
+            f"NNN/mesh.obj|.glb, samples.jsonl; open {Path(a.out) / 'index.html'} in a browser"
+        )
 
 
 def cmd_demo(a) -> None:
@@ -106,9 +128,11 @@ def cmd_demo(a) -> None:
     shipped = None if a.train else shipped_model(a.example)
     if not a.train and shipped is None:
         have = [n for n in examples.list_examples() if shipped_model(n) is not None]
-        raise Sin3DMInputError(f"no shipped model of '{a.example}' (shipped: {', '.join(have) or 'none'}); add "
-                               f"--train to fit it first with the '{DEMO_PRESET}' preset, or pick --example "
-                               f"{examples.DEFAULT_EXAMPLE}")
+        raise Sin3DMInputError(
+            f"no shipped model of '{a.example}' (shipped: {', '.join(have) or 'none'}); add "
+            f"--train to fit it first with the '{DEMO_PRESET}' preset, or pick --example "
+            f"{examples.DEFAULT_EXAMPLE}"
+        )
     out = Path(a.out)
     get_device(a.device)
     check_sample_output(out, a, {} if a.train else {"shipped model folder": shipped})

@@ -15,6 +15,7 @@ coordinate ``-1 + (2k + 1) / n``. The voxel counts come from a resolution by
 one rule (:func:`grid_shape`): the longest side gets the resolution, the
 others their share of it, rounded down as the original implementation does.
 """
+
 from __future__ import annotations
 
 import numpy as np

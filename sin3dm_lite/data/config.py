@@ -5,6 +5,7 @@ seed); :data:`LIMITS` says what every setting may be, checked whenever a
 ``Config`` is made or changed. The five named presets (``tiny``, ``small``,
 ``quick``, ``detail``, ``paper``) are in :mod:`sin3dm_lite.data.presets`.
 """
+
 from __future__ import annotations
 
 import ast
@@ -79,7 +80,9 @@ class DiffusionConfig:
     # flipped): four times the patches to learn from; needs autoencoder.mirror, or a flipped latent decodes to garbage
     flips: str = ""
     crop: int = 0  # train on random crops of this many latent texels per axis (0: the whole latent, the paper)
-    precision: str = "fp32"  # the training forward: "fp32", "bf16" (autocast) or "auto" (bf16 where the hardware runs it natively)
+    precision: str = (
+        "fp32"  # the training forward: "fp32", "bf16" (autocast) or "auto" (bf16 where the hardware runs it natively)
+    )
     compile: bool = False  # torch.compile the denoiser's training forward on a CUDA GPU (a CPU trains it as it is)
 
 
@@ -89,7 +92,9 @@ class SamplingConfig:
 
     method: str = "ddim"  # "ddim" or "ddpm"
     steps: int = 50  # DDIM steps (DDPM always uses all timesteps)
-    diversity: float = 1.0  # 1 = from pure noise (the paper); lower starts from the input's latent, noised (closer copies)
+    diversity: float = (
+        1.0  # 1 = from pure noise (the paper); lower starts from the input's latent, noised (closer copies)
+    )
     mesh_resolution: int = 256  # decode grid along the longest side
     faces: int = 30_000  # face budget after simplification
     texture_size: int = 2048
@@ -279,8 +284,9 @@ def check_setting(key: str, value: Any, option: str | None = None) -> None:
     else:
         low, high = rule
         whole = isinstance(low, int)
-        kind_ok = (isinstance(value, numbers.Integral) if whole else isinstance(value, numbers.Real)) and not isinstance(
-            value, (bool, np.bool_))
+        kind_ok = (
+            isinstance(value, numbers.Integral) if whole else isinstance(value, numbers.Real)
+        ) and not isinstance(value, (bool, np.bool_))
         ok = kind_ok and low <= value <= high  # NaN fails both comparisons
     if not ok:
         raise Sin3DMInputError(f"{what} must be {allowed(key)}, not {value!r}")
@@ -308,12 +314,17 @@ def unknown_setting(key: str) -> Sin3DMInputError:
     if section in sections:
         leaves = [k.split(".", 1)[1] for k in names if k.startswith(section + ".")]
         close = difflib.get_close_matches(leaf, leaves, n=1, cutoff=0.7)
-        hint = (f"did you mean '{section}.{close[0]}'? " if close else "") + f"the {section} settings are: " + ", ".join(leaves)
+        hint = (
+            (f"did you mean '{section}.{close[0]}'? " if close else "")
+            + f"the {section} settings are: "
+            + ", ".join(leaves)
+        )
     else:
         close = difflib.get_close_matches(key, names, n=1, cutoff=0.7)
         hint = (f"did you mean '{close[0]}'? " if close else "") + (
             f"settings are SECTION.NAME with SECTION one of {', '.join(sections)}, or one of "
-            + ", ".join(k for k in names if "." not in k))
+            + ", ".join(k for k in names if "." not in k)
+        )
     return Sin3DMInputError(f"unknown config setting '{key}'; {hint} (names as in a run's config.json)")
 
 
@@ -327,14 +338,20 @@ def check_config(cfg: Config) -> None:
     for switch in ("thin_parts", "rollout_switch"):
         for key, value in flat[switch].items():
             if key not in LIMITS or LIMITS[key] is dict:
-                raise Sin3DMInputError(f"{switch} names '{key}', which is not a setting it can change; "
-                                       f"{unknown_setting(key) if key not in LIMITS else 'give dotted settings'}")
+                raise Sin3DMInputError(
+                    f"{switch} names '{key}', which is not a setting it can change; "
+                    f"{unknown_setting(key) if key not in LIMITS else 'give dotted settings'}"
+                )
             check_setting(key, value, option=f"{switch}['{key}']")
     d, s = cfg.diffusion, cfg.sampling
     if not d.beta_start < d.beta_end:
-        raise Sin3DMInputError(f"diffusion.beta_start ({d.beta_start:g}) must be below diffusion.beta_end ({d.beta_end:g})")
+        raise Sin3DMInputError(
+            f"diffusion.beta_start ({d.beta_start:g}) must be below diffusion.beta_end ({d.beta_end:g})"
+        )
     if s.steps > d.timesteps:
-        raise Sin3DMInputError(f"sampling.steps must be from 1 to diffusion.timesteps ({d.timesteps:,}), not {s.steps!r}")
+        raise Sin3DMInputError(
+            f"sampling.steps must be from 1 to diffusion.timesteps ({d.timesteps:,}), not {s.steps!r}"
+        )
 
 
 def _check_type(key: str, old: Any, value: Any) -> None:

@@ -7,6 +7,7 @@ from outside even for open or multi-part meshes. Closed parts that are
 inside out are turned round first (:func:`_orient_outward`).
 :func:`inside` is the same test for any point set (the metrics use it).
 """
+
 from __future__ import annotations
 
 import numpy as np

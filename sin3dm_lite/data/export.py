@@ -24,6 +24,7 @@ into the GLB's metallic-roughness material; the OBJ writes them as
 ``map_Pr`` / ``map_Pm`` / ``map_Bump`` PNGs. ``load.load_mesh`` reads
 everything written here back.
 """
+
 from __future__ import annotations
 
 import re
@@ -89,8 +90,10 @@ def _prepare_output(path, suffix):
     """``path`` as a Path after checking its suffix; its folder is created."""
     path = Path(path).expanduser()
     if path.suffix.lower() != suffix:
-        raise Sin3DMInputError(f"'{path.name}' should end in '{suffix}' (got '{path.suffix or '(none)'}'); "
-                               f"pick a file name like '{path.stem}{suffix}'")
+        raise Sin3DMInputError(
+            f"'{path.name}' should end in '{suffix}' (got '{path.suffix or '(none)'}'); "
+            f"pick a file name like '{path.stem}{suffix}'"
+        )
     if path.is_dir():
         raise Sin3DMInputError(f"'{path}' is a directory; give a file name")
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -265,13 +268,21 @@ def to_trimesh_scene(mesh: TexturedMesh):
         sel = np.flatnonzero(mesh.face_material == k)
         if len(sel) == 0:
             continue
-        maps = {"baseColorTexture": mat.image, "metallicRoughnessTexture": mat.metallic_roughness_image,
-                "normalTexture": mat.normal_image}
+        maps = {
+            "baseColorTexture": mat.image,
+            "metallicRoughnessTexture": mat.metallic_roughness_image,
+            "normalTexture": mat.normal_image,
+        }
         maps = {k: array_to_pil(m) for k, m in maps.items() if m is not None and mesh.face_uvs is not None}
         # uint8 on purpose: trimesh reads a list of ints as 0..255
         factor = trimesh.visual.color.to_rgba(np.clip(np.asarray(mat.base_color, np.float64), 0, 1))
-        pbr = PBRMaterial(name=mat.name, baseColorFactor=factor, metallicFactor=float(mat.metallic),
-                          roughnessFactor=float(mat.roughness), **maps)
+        pbr = PBRMaterial(
+            name=mat.name,
+            baseColorFactor=factor,
+            metallicFactor=float(mat.metallic),
+            roughnessFactor=float(mat.roughness),
+            **maps,
+        )
         if maps:
             vertex_of, uv, faces = split_corners(mesh.faces[sel], mesh.face_uvs[sel])
             visual = TextureVisuals(uv=uv, material=pbr)
@@ -290,5 +301,4 @@ def to_trimesh_scene(mesh: TexturedMesh):
     return scene
 
 
-__all__ = [
-    "FORMATS", "baked_image", "export_mesh", "save_glb", "save_obj", "split_corners", "to_trimesh_scene"]
+__all__ = ["FORMATS", "baked_image", "export_mesh", "save_glb", "save_obj", "split_corners", "to_trimesh_scene"]

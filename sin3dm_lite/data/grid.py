@@ -12,6 +12,7 @@ colour per voxel: base colour (3), metallic, roughness and the surface normal
 world-space normal stored as ``n · 0.5 + 0.5``, as a normal map stores its
 vectors). With the SDF that is the paper's 9-channel grid.
 """
+
 from __future__ import annotations
 
 import time
@@ -80,7 +81,9 @@ class ShapeGrid:
     def channel(self, name: str) -> np.ndarray:
         """One PBR quantity: ``"metallic"`` / ``"roughness"`` ``(H, W, D)``, ``"normal"`` ``(H, W, D, 3)`` in [-1, 1]."""
         if not self.has_pbr:
-            raise Sin3DMInputError(f"grid '{self.name}' has no PBR channels (it was built from a mesh without PBR maps)")
+            raise Sin3DMInputError(
+                f"grid '{self.name}' has no PBR channels (it was built from a mesh without PBR maps)"
+            )
         if name == "normal":
             band = np.abs(self.sdf) < self.threshold
             return np.where(band[..., None], self.color[..., 5:8] * 2 - 1, 0.0).astype(np.float32)
@@ -165,20 +168,28 @@ def normalisation_notes(mesh: TexturedMesh, normalised: TexturedMesh, closed: bo
     longest = float(np.ptp(np.asarray(mesh.vertices, np.float64), axis=0).max())
     if not USUAL_SIZE[0] <= longest <= USUAL_SIZE[1]:
         factor = normalised.normalization.scale / mesh.normalization.scale
-        notes.append(f"'{mesh.name}' is {longest:.3g} units long: the normalisation scales it by {factor:.3g} into the "
-                     "box [-1, 1] (samples are mapped back to the input's size); if the units are wrong, rescale it "
-                     "in a mesh editor")
+        notes.append(
+            f"'{mesh.name}' is {longest:.3g} units long: the normalisation scales it by {factor:.3g} into the "
+            "box [-1, 1] (samples are mapped back to the input's size); if the units are wrong, rescale it "
+            "in a mesh editor"
+        )
     if not closed:
         _, weld = unique_rows(np.asarray(normalised.vertices))
         edges = np.sort(weld[normalised.faces][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
         _, counts = np.unique(edges[:, 0] * (int(weld.max()) + 1) + edges[:, 1], return_counts=True)
         alone = float((counts == 1).mean())
-        what = ("a triangle soup (no two faces share an edge)" if alone == 1.0 else
-                f"not watertight ({alone:.1%} of its edges border a hole)" if alone > 0 else
-                "not consistently wound (neighbouring faces that face opposite ways)")
-        notes.append(f"'{mesh.name}' is {what}: inside and outside come from the generalised winding number, which "
-                     "is approximate near holes; look at the grid's slices (notebook 01) or close the mesh in an "
-                     "editor if the shape comes out wrong")
+        what = (
+            "a triangle soup (no two faces share an edge)"
+            if alone == 1.0
+            else f"not watertight ({alone:.1%} of its edges border a hole)"
+            if alone > 0
+            else "not consistently wound (neighbouring faces that face opposite ways)"
+        )
+        notes.append(
+            f"'{mesh.name}' is {what}: inside and outside come from the generalised winding number, which "
+            "is approximate near holes; look at the grid's slices (notebook 01) or close the mesh in an "
+            "editor if the shape comes out wrong"
+        )
     return notes
 
 
@@ -251,8 +262,11 @@ def mesh_to_grid(
     say(f"[grid] grid done ({time.perf_counter() - t0:.1f} s)")
     if n_surface_points > 0:
         out.points, out.point_sdf, out.point_color = _training_points(
-            dist, m, out, (sure, vs), n_surface_points, near_surface_sigma, seed, pbr)
-    say(f"[grid] done in {time.perf_counter() - t0:.1f} s: {int((np.abs(out.sdf) < threshold).sum()):,} voxels in the band")
+            dist, m, out, (sure, vs), n_surface_points, near_surface_sigma, seed, pbr
+        )
+    say(
+        f"[grid] done in {time.perf_counter() - t0:.1f} s: {int((np.abs(out.sdf) < threshold).sum()):,} voxels in the band"
+    )
     return out
 
 
@@ -264,8 +278,11 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
     if margin_voxels > 0:
         shrink = margin_scale(extent, int(dims.max()), margin_voxels)
         if shrink < 1:
-            m = replace(m, vertices=m.vertices * shrink,
-                        normalization=Normalization(m.normalization.center, m.normalization.scale * shrink))
+            m = replace(
+                m,
+                vertices=m.vertices * shrink,
+                normalization=Normalization(m.normalization.center, m.normalization.scale * shrink),
+            )
             extent = extent * shrink
         dims = np.array(grid_shape(extent, resolution, multiple=8, margin_voxels=margin_voxels))
     return m, dims
@@ -275,15 +292,21 @@ def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance) -> 
     """The warnings a grid comes with: inside-out parts turned round, then :func:`normalisation_notes`."""
     notes = []
     if dist.flipped:
-        what = (f"'{mesh.name}' is inside out" if dist.flipped == dist.closed_parts == 1
-                else f"{dist.flipped} of the {dist.closed_parts} closed parts of '{mesh.name}' are inside out")
-        notes.append(f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
-                     "to tell inside from outside")
+        what = (
+            f"'{mesh.name}' is inside out"
+            if dist.flipped == dist.closed_parts == 1
+            else f"{dist.flipped} of the {dist.closed_parts} closed parts of '{mesh.name}' are inside out"
+        )
+        notes.append(
+            f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
+            "to tell inside from outside"
+        )
     return notes + normalisation_notes(mesh, normalised, dist.closed)
 
 
-def _training_points(dist: Distance, m: TexturedMesh, grid: ShapeGrid, sure_and_vs: tuple, n: int, sigma: float,
-                     seed: int, pbr: bool):
+def _training_points(
+    dist: Distance, m: TexturedMesh, grid: ShapeGrid, sure_and_vs: tuple, n: int, sigma: float, seed: int, pbr: bool
+):
     """``n`` points near the surface (surface samples plus Gaussian noise of ``sigma``, clipped to the box) with
     their exact truncated SDF and colour: ``(points, sdf, colour)``.
 
@@ -327,7 +350,9 @@ def load_grid(path: str | Path) -> ShapeGrid:
     """Read a grid written by :func:`save_grid`."""
     path = Path(path)
     if not path.is_file():
-        raise Sin3DMInputError(f"grid file '{path}' not found; create one with `sin3dm-lite grid MESH --out {path.name}`")
+        raise Sin3DMInputError(
+            f"grid file '{path}' not found; create one with `sin3dm-lite grid MESH --out {path.name}`"
+        )
     try:
         with np.load(path) as z:
             return ShapeGrid(

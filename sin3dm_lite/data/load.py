@@ -22,6 +22,7 @@ Bad input raises one :class:`~sin3dm_lite.errors.Sin3DMInputError` whose
 message names the problem and the fix; a missing or unreadable texture is a
 ``UserWarning`` and the material falls back to its plain colour.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -63,7 +64,9 @@ READABLE = "OBJ (+MTL), GLB/glTF, PLY, STL, OFF"
 MAX_TEXTURE_SIZE = 4096
 
 
-def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE, allow_outside_paths: bool = False) -> TexturedMesh:
+def load_mesh(
+    path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE, allow_outside_paths: bool = False
+) -> TexturedMesh:
     """Read a textured mesh file into a :class:`TexturedMesh` (the file's own coordinates).
 
     Formats (by extension, case-insensitive):
@@ -102,8 +105,7 @@ def load_mesh(path, *, max_texture_size: int | None = MAX_TEXTURE_SIZE, allow_ou
     """
     path = check_input_path(path)
     load = load_obj if path.suffix.lower() == ".obj" else load_scene
-    return assemble(*load(path, max_texture_size, Scope(path, allow_outside_paths)), name=path.stem,
-                    source=path.name)
+    return assemble(*load(path, max_texture_size, Scope(path, allow_outside_paths)), name=path.stem, source=path.name)
 
 
 def load_any(source, **kwargs) -> TexturedMesh:

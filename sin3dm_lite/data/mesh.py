@@ -22,6 +22,7 @@ Public API::
     face_areas(vertices, faces), component_labels(n_verts, faces)
     unique_rows(array)                        # distinct rows in first-occurrence order (welding)
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -161,8 +162,9 @@ class TexturedMesh:
         face_index = np.asarray(face_index, dtype=np.int64)
         bc = np.asarray(barycentric, dtype=np.float64)
         out = np.empty((len(face_index), 5), dtype=np.float32)
-        t, b, n = tangent_frames(self.vertices, self.faces[face_index],
-                                 None if self.face_uvs is None else self.face_uvs[face_index])
+        t, b, n = tangent_frames(
+            self.vertices, self.faces[face_index], None if self.face_uvs is None else self.face_uvs[face_index]
+        )
         for mat, sel, uv in self._material_groups(face_index, bc):
             out[sel, 0], out[sel, 1] = mat.metallic, mat.roughness
             normal = n[sel]
@@ -205,7 +207,9 @@ class TexturedMesh:
         area = face_areas(self.vertices, self.faces)
         total = area.sum()
         if not np.isfinite(total) or total <= 0:
-            raise Sin3DMInputError(f"mesh '{self.name}' has zero surface area; give a mesh with non-degenerate triangles")
+            raise Sin3DMInputError(
+                f"mesh '{self.name}' has zero surface area; give a mesh with non-degenerate triangles"
+            )
         fi = rng.choice(len(self.faces), size=n, p=area / total)
         r1, r2 = rng.random(n), rng.random(n)
         s = np.sqrt(r1)

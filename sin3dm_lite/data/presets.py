@@ -32,6 +32,7 @@
   the denoiser trains under bf16 autocast and ``torch.compile`` (about 25 min for
   the whole fit; docs/performance.md has the measured times).
 """
+
 from __future__ import annotations
 
 from ..errors import Sin3DMInputError
@@ -52,8 +53,14 @@ def _tiny() -> Config:
 
 
 #: what ``detail`` changes in ``small``; ``small`` switches to it by itself on shapes with many thin parts
-DETAIL_CHANGES = {"grid.resolution": 96, "diffusion.n_resblocks": 4, "diffusion.rollout": True, "diffusion.steps": 1250,
-                  "autoencoder.steps": 1000, "sampling.diversity": 1.0}
+DETAIL_CHANGES = {
+    "grid.resolution": 96,
+    "diffusion.n_resblocks": 4,
+    "diffusion.rollout": True,
+    "diffusion.steps": 1250,
+    "autoencoder.steps": 1000,
+    "sampling.diversity": 1.0,
+}
 
 
 #: what ``small`` changes when its calibration keeps the goals from pure noise (Config.rollout_switch)
@@ -78,11 +85,18 @@ def _small() -> Config:
         grid=GridConfig(resolution=64, n_surface_points=300_000, margin_voxels=3.25),
         autoencoder=AutoencoderConfig(steps=2000, points_per_step=8192),
         diffusion=DiffusionConfig(
-            base_channels=32, n_resblocks=2, downsample=False, steps=2000, batch_size=8, lr=1e-3, ema_decay=0.0,
+            base_channels=32,
+            n_resblocks=2,
+            downsample=False,
+            steps=2000,
+            batch_size=8,
+            lr=1e-3,
+            ema_decay=0.0,
             rollout=False,
         ),
-        sampling=SamplingConfig(steps=50, mesh_resolution=128, faces=20_000, texture_size=1024, diversity=0.7,
-                                calibrate=True),
+        sampling=SamplingConfig(
+            steps=50, mesh_resolution=128, faces=20_000, texture_size=1024, diversity=0.7, calibrate=True
+        ),
         checkpoint_every=250,
         thin_parts=dict(DETAIL_CHANGES),
         rollout_switch=dict(ROLLOUT_CHANGES),
@@ -105,9 +119,17 @@ def _quick() -> Config:
     # points for 1,000 steps. Geometry and variation hold; colour loses some detail (the step count, not the width
     # or the points). No thin-part or rollout switch: their extra denoiser would double the fit on such a CPU.
     # Measured in docs/presets.md.
-    return _small().updated(**{"name": "quick", "autoencoder.mlp_hidden": 128, "autoencoder.points_per_step": 4096,
-                               "autoencoder.steps": 1000, "diffusion.steps": 1500,
-                               "thin_parts": {}, "rollout_switch": {}})
+    return _small().updated(
+        **{
+            "name": "quick",
+            "autoencoder.mlp_hidden": 128,
+            "autoencoder.points_per_step": 4096,
+            "autoencoder.steps": 1000,
+            "diffusion.steps": 1500,
+            "thin_parts": {},
+            "rollout_switch": {},
+        }
+    )
 
 
 def _paper() -> Config:

@@ -22,6 +22,7 @@ joints, an earthen slab. :func:`ruin_tower` builds it z-up from a random
 generator, like the examples' builders; :func:`build_ruin` y-up from a seed,
 like :func:`~sin3dm_lite.data.examples.build_example`.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -34,8 +35,10 @@ from .presets import get_preset
 DETAIL = 2
 #: how the top breaks: the number of steps around the tower
 STEPS = 12
-DESCRIPTION = ("a ruined round tower on a ground slab: walls 2-3 voxels thick at the training grid, a top broken "
-               "in steps, a door and two windows")
+DESCRIPTION = (
+    "a ruined round tower on a ground slab: walls 2-3 voxels thick at the training grid, a top broken "
+    "in steps, a door and two windows"
+)
 
 
 def ruin_tower(rng: np.random.Generator, resolution: int = 64, wall_voxels: float = 2.5) -> TexturedMesh:
@@ -51,8 +54,14 @@ def ruin_tower(rng: np.random.Generator, resolution: int = 64, wall_voxels: floa
     plan = _plan(rng, resolution, wall_voxels)
     vertices, faces = _surface(plan)
     colors = _colors(rng, vertices, plan)
-    return TexturedMesh(vertices=vertices / plan["height"], faces=faces, face_material=np.zeros(len(faces), np.int64),
-                        materials=[Material(name="stone")], vertex_colors=colors, name="ruin")
+    return TexturedMesh(
+        vertices=vertices / plan["height"],
+        faces=faces,
+        face_material=np.zeros(len(faces), np.int64),
+        materials=[Material(name="stone")],
+        vertex_colors=colors,
+        name="ruin",
+    )
 
 
 def build_ruin(seed: int = 0, resolution: int = 64, wall_voxels: float = 2.5) -> TexturedMesh:
@@ -76,10 +85,21 @@ def _plan(rng: np.random.Generator, resolution: int, wall: float) -> dict:
     door = {"angle": np.pi, "width": 0.16 * height, "bottom": slab, "top": slab + 0.3 * height}
     # the windows on the high side, two sectors either side of the highest, where the wall stands above them
     window_angles = -np.pi + (low + STEPS // 2 + np.array([-2, 2]) + 0.5) * 2 * np.pi / STEPS
-    windows = [{"angle": a, "width": 0.07 * height, "bottom": b * height, "top": (b + 0.12) * height}
-               for a, b in zip(window_angles, (0.42, 0.5))]
-    return {"height": height, "radius": radius, "wall": wall, "slab": slab, "half_slab": radius + 0.06 * height,
-            "tops": tops, "door": door, "windows": windows, "resolution": resolution}
+    windows = [
+        {"angle": a, "width": 0.07 * height, "bottom": b * height, "top": (b + 0.12) * height}
+        for a, b in zip(window_angles, (0.42, 0.5))
+    ]
+    return {
+        "height": height,
+        "radius": radius,
+        "wall": wall,
+        "slab": slab,
+        "half_slab": radius + 0.06 * height,
+        "tops": tops,
+        "door": door,
+        "windows": windows,
+        "resolution": resolution,
+    }
 
 
 def _opening(x, y, z, radius: float, wall: float, o: dict) -> np.ndarray:
@@ -87,8 +107,14 @@ def _opening(x, y, z, radius: float, wall: float, o: dict) -> np.ndarray:
     c, s = np.cos(o["angle"]), np.sin(o["angle"])
     radial, tangential = x * c + y * s, -x * s + y * c
     mid = radius - wall / 2
-    return np.maximum.reduce([np.abs(tangential) - o["width"] / 2, np.abs(radial - mid) - wall,
-                              np.maximum(o["bottom"] - z, z - o["top"]), -radial])
+    return np.maximum.reduce(
+        [
+            np.abs(tangential) - o["width"] / 2,
+            np.abs(radial - mid) - wall,
+            np.maximum(o["bottom"] - z, z - o["top"]),
+            -radial,
+        ]
+    )
 
 
 def _sdf(plan: dict, x, y, z) -> np.ndarray:

@@ -3,6 +3,7 @@
 :func:`resolve_mesh` turns it into the mesh; :func:`input_stem` and :func:`input_name` say how a grid, a report
 and a message name it; :func:`recorded_input` finds it again from what a fit's report recorded.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -57,6 +58,8 @@ def recorded_input(path: str | None, name: str | None, allow_outside_paths: bool
         return resolve_mesh(path, allow_outside_paths=allow_outside_paths)
     if path or name not in examples.list_examples():  # a file (even one named like an example) is not the example
         where = f"'{path}' is gone" if path else f"it was fitted to '{name}', not a built-in example"
-        raise Sin3DMInputError(f"cannot find this model's input mesh ({where}); pass the input mesh "
-                               "(CLI: --input MESH) to compare samples with it")
+        raise Sin3DMInputError(
+            f"cannot find this model's input mesh ({where}); pass the input mesh "
+            "(CLI: --input MESH) to compare samples with it"
+        )
     return examples.build_example(name)

@@ -7,6 +7,7 @@ training points, taking most signs from the voxels around each point
 (:func:`signs_from_grid`); :func:`surface_channels` is what a voxel stores
 about its closest surface point (RGB, or the 8 :data:`PBR_CHANNELS`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,7 +19,9 @@ from .mesh import TexturedMesh
 PBR_CHANNELS = ("red", "green", "blue", "metallic", "roughness", "normal_x", "normal_y", "normal_z")
 
 
-def surface_channels(mesh: TexturedMesh, face_index: np.ndarray, barycentric: np.ndarray, pbr: bool = False) -> np.ndarray:
+def surface_channels(
+    mesh: TexturedMesh, face_index: np.ndarray, barycentric: np.ndarray, pbr: bool = False
+) -> np.ndarray:
     """What a voxel stores about its closest surface point: RGB ``(n, 3)``, or with ``pbr`` the 8 :data:`PBR_CHANNELS`."""
     rgb = mesh.colors_at(face_index, barycentric)
     if not pbr:
@@ -34,7 +37,14 @@ def _block_view(a: np.ndarray, s: int) -> np.ndarray:
 
 
 def tsdf_grid(
-    dist: Distance, mesh: TexturedMesh, dims, aabb: np.ndarray, vs: float, threshold: float, say, sure_margin: float = 0.4,
+    dist: Distance,
+    mesh: TexturedMesh,
+    dims,
+    aabb: np.ndarray,
+    vs: float,
+    threshold: float,
+    say,
+    sure_margin: float = 0.4,
     pbr: bool = False,
 ):
     """Truncated SDF and colour on the cell-centred grid, by coarse-to-fine block refinement.

@@ -65,6 +65,7 @@ run's ``sampling.diversity``; ``sin3dm-lite calibrate RUN`` runs it on a
 fitted run. It costs a few seconds per setting drawn: a handful of samples
 decoded on the training grid, no meshes.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -111,7 +112,7 @@ def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int
     samples = model.sample(n, seed=seed, diversity=diversity, progress=False)
     out = []
     for i in range(n):
-        sdf = decode_grid(model.decoder, samples.triplane[i:i + 1], samples.aabb, resolution, exact_band=0.0)
+        sdf = decode_grid(model.decoder, samples.triplane[i : i + 1], samples.aabb, resolution, exact_band=0.0)
         out.append(sdf < 0)
     return out
 
@@ -125,8 +126,10 @@ def model_sampler(model, reference: np.ndarray) -> SampleFn:
     shape = np.shape(reference)
     resolution = max(shape)
     if tuple(grid_shape(model.aabb, resolution)) != tuple(shape):
-        raise Sin3DMInputError(f"the reference grid {shape} is not on this model's box at {resolution} "
-                               "voxels; pass the training grid's occupancy (grid.sdf < 0 of the run's grid.npz)")
+        raise Sin3DMInputError(
+            f"the reference grid {shape} is not on this model's box at {resolution} "
+            "voxels; pass the training grid's occupancy (grid.sdf < 0 of the run's grid.npz)"
+        )
 
     def sample_fn(diversity: float, n: int, seed: int) -> list[np.ndarray]:
         return sample_occupancy(model, diversity, n, seed, resolution)
@@ -150,8 +153,10 @@ def score_setting(sample_fn: SampleFn, reference: np.ndarray, diversity: float, 
 
     occ = [np.asarray(o, bool) for o in sample_fn(diversity, n, seed)]
     if len(occ) != n or any(o.shape != reference.shape for o in occ):
-        raise Sin3DMInputError(f"the sampling function gave {len(occ)} grids of shapes {sorted({o.shape for o in occ})}"
-                               f" for {n} samples; calibration needs {n} grids of the reference's {reference.shape}")
+        raise Sin3DMInputError(
+            f"the sampling function gave {len(occ)} grids of shapes {sorted({o.shape for o in occ})}"
+            f" for {n} samples; calibration needs {n} grids of the reference's {reference.shape}"
+        )
     lp = lp_scores(reference, occ)
     per_sample = {"lp_iou": lp["per_shape_iou"], "lp_fscore": lp["per_shape_fscore"]}
     return {**summarize(per_sample, g_div(occ)), "per_sample": per_sample}
@@ -220,10 +225,21 @@ def _choice(tried: list[dict], goals: dict, safety: float, caution: float) -> fl
     return None if any(c is None for c in crossings) else float(min(crossings))
 
 
-def calibrate_diversity(sample_fn: SampleFn, reference: np.ndarray, goals: dict | None = None, n: int = 8,
-                        seed: int = 10_000, lowest: float = LOWEST, step: float = 0.1, margin: float = 0.05,
-                        safety: float = SAFETY, refine: int = REFINE, caution: float = CAUTION,
-                        relative: float | None = RELATIVE, progress: bool = True) -> Calibration:
+def calibrate_diversity(
+    sample_fn: SampleFn,
+    reference: np.ndarray,
+    goals: dict | None = None,
+    n: int = 8,
+    seed: int = 10_000,
+    lowest: float = LOWEST,
+    step: float = 0.1,
+    margin: float = 0.05,
+    safety: float = SAFETY,
+    refine: int = REFINE,
+    caution: float = CAUTION,
+    relative: float | None = RELATIVE,
+    progress: bool = True,
+) -> Calibration:
     """The highest diversity in ``[lowest, 1]`` whose samples keep the goals against ``reference``.
 
     First the near copy: ``n`` samples at diversity :data:`NEAR_COPY` (seeds
@@ -275,8 +291,9 @@ def calibrate_diversity(sample_fn: SampleFn, reference: np.ndarray, goals: dict 
     def draw(d: float, k: int) -> dict:
         return score_setting(sample_fn, reference, d, n, seed + 1000 * k)
 
-    result = Calibration(diversity=lowest, goals=absolute, n=int(n), resolution=max(reference.shape),
-                         g_div_goal=G_DIV_GOAL)
+    result = Calibration(
+        diversity=lowest, goals=absolute, n=int(n), resolution=max(reference.shape), g_div_goal=G_DIV_GOAL
+    )
     if relative is not None:
         _set_ceiling(result, draw(NEAR_COPY, NEAR_COPY_SEEDS // 1000), relative, progress)
     # a goal lowered to its ceiling lowers its margin alike: a near copy keeps only 1/RELATIVE of its goal
@@ -296,9 +313,12 @@ def _set_ceiling(result: Calibration, near: dict, relative: float, progress: boo
         result.goals = {k: min(v, round(relative * near[k], 4)) for k, v in absolute.items()}
     result.absolute_goals, result.relative = absolute, float(relative)
     if progress:
-        print(f"[calibrate] near copy (diversity {NEAR_COPY:g}): " + "; ".join(
-            f"{SCORE_NAMES[k]} {near[k]:.3f}, goal {result.goals[k]:.3f}" for k in absolute)
-            + f" ({relative:.0%} of it, at most {', '.join(f'{v:.2f}' for v in absolute.values())})", flush=True)
+        print(
+            f"[calibrate] near copy (diversity {NEAR_COPY:g}): "
+            + "; ".join(f"{SCORE_NAMES[k]} {near[k]:.3f}, goal {result.goals[k]:.3f}" for k in absolute)
+            + f" ({relative:.0%} of it, at most {', '.join(f'{v:.2f}' for v in absolute.values())})",
+            flush=True,
+        )
 
 
 def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin, relative) -> None:
@@ -317,9 +337,13 @@ def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin
     if not 0.0 <= caution <= 10.0:
         raise Sin3DMInputError(f"caution is a number of standard errors from 0 to 10, got {caution!r}")
     if not 0.0 <= safety < 1.0 or not 0.0 <= margin < 1.0:
-        raise Sin3DMInputError(f"margin and safety are shares of patches from 0 to below 1, got {margin!r} and {safety!r}")
+        raise Sin3DMInputError(
+            f"margin and safety are shares of patches from 0 to below 1, got {margin!r} and {safety!r}"
+        )
     if relative is not None and not 0.0 < relative <= 1.0:
-        raise Sin3DMInputError(f"relative is a share of the near copy's scores, above 0 and at most 1, got {relative!r}")
+        raise Sin3DMInputError(
+            f"relative is a share of the near copy's scores, above 0 and at most 1, got {relative!r}"
+        )
     bad = {k: v for k, v in goals.items() if not 0.0 <= v <= 1.0}
     if bad:
         raise Sin3DMInputError(f"calibration goals are shares of patches, from 0 to 1; got {bad}")
@@ -340,8 +364,17 @@ def _at_choice(result: Calibration) -> dict:
     return out
 
 
-def _walk(result: Calibration, draw, lowest: float, step: float, margin: float | dict, safety: float, refine: int,
-          caution: float, progress: bool) -> None:
+def _walk(
+    result: Calibration,
+    draw,
+    lowest: float,
+    step: float,
+    margin: float | dict,
+    safety: float,
+    refine: int,
+    caution: float,
+    progress: bool,
+) -> None:
     """The ladder, then the refinement, with ``draw(diversity, k) -> {"lp_iou", "lp_fscore", "g_div"}`` scoring
     ``result.n`` samples with the k-th seeds. Fills ``result`` (kept apart from the sampling so that
     ``benchmarks/bench_calibration.py`` can replay it on stored scores). ``margin``: one for every goal, or one
@@ -355,8 +388,11 @@ def _walk(result: Calibration, draw, lowest: float, step: float, margin: float |
         row["kept"] = all(row[key] >= v for key, v in goals.items())
         result.tried.append(row)
         if progress:
-            print(f"[calibrate] {why}diversity {d:.4g}: LP-IoU {row['lp_iou']:.3f} LP-F {row['lp_fscore']:.3f} "
-                  f"G-Div {row['g_div']:.3f} {'keeps' if row['kept'] else 'misses'} the goals", flush=True)
+            print(
+                f"[calibrate] {why}diversity {d:.4g}: LP-IoU {row['lp_iou']:.3f} LP-F {row['lp_fscore']:.3f} "
+                f"G-Div {row['g_div']:.3f} {'keeps' if row['kept'] else 'misses'} the goals",
+                flush=True,
+            )
         return row
 
     levels = [round(1.0 - k * step, 4) for k in range(int(np.floor((1.0 - lowest) / step + 1e-9)) + 1)]
@@ -386,5 +422,18 @@ def _walk(result: Calibration, draw, lowest: float, step: float, margin: float |
         result.kept_goals = True
 
 
-__all__ = ["GOALS", "G_DIV_GOAL", "LOWEST", "MIN_CEILING", "NEAR_COPY", "RELATIVE", "Calibration", "SampleFn", "calibrate_diversity",
-           "model_sampler", "sample_occupancy", "score_setting", "summarize"]
+__all__ = [
+    "GOALS",
+    "G_DIV_GOAL",
+    "LOWEST",
+    "MIN_CEILING",
+    "NEAR_COPY",
+    "RELATIVE",
+    "Calibration",
+    "SampleFn",
+    "calibrate_diversity",
+    "model_sampler",
+    "sample_occupancy",
+    "score_setting",
+    "summarize",
+]

@@ -4,6 +4,7 @@ setting chosen, the settings tried on the way, the goals and the near copy that 
 A fit keeps it in its ``report.json`` (``report["calibration"]``); :meth:`Calibration.from_dict` reads it back,
 records written before the ceiling included, and :meth:`Calibration.story` tells it per goal.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
@@ -34,12 +35,16 @@ class Calibration:
     goals: dict
     n: int
     resolution: int
-    tried: list = field(default_factory=list)  # [{"diversity", "n", "lp_iou", "lp_fscore", "g_div", "kept", "*_sd", "*_fitted"}]
+    tried: list = field(
+        default_factory=list
+    )  # [{"diversity", "n", "lp_iou", "lp_fscore", "g_div", "kept", "*_sd", "*_fitted"}]
     kept_goals: bool = False  # False when even the lowest setting drawn missed the goals (then it is the answer)
     near_copy: dict | None = None  # {"diversity", "n", "lp_iou", "lp_fscore", "g_div", "*_sd"}: the ceiling
     absolute_goals: dict | None = None  # the caps (GOALS or the caller's); None: the goals were absolute
     relative: float | None = None  # the share of the near copy's scores
-    at_choice: dict | None = None  # {"lp_iou", "lp_fscore", "g_div"} at the chosen setting (smoothed; G-Div between draws)
+    at_choice: dict | None = (
+        None  # {"lp_iou", "lp_fscore", "g_div"} at the chosen setting (smoothed; G-Div between draws)
+    )
     g_div_goal: float | None = None  # the diversity requirement the choice is reported against
 
     def to_dict(self) -> dict:
@@ -54,7 +59,9 @@ class Calibration:
     def story(self) -> str:
         """Why this setting, a line per goal: the near copy's score (the ceiling), the goal, the choice."""
         grid = f"at {self.resolution} voxels (the paper measures at 128)"
-        chosen = f"chosen {self.diversity:g}" + ("" if self.kept_goals else " (the lowest drawn: no setting kept the goals)")
+        chosen = f"chosen {self.diversity:g}" + (
+            "" if self.kept_goals else " (the lowest drawn: no setting kept the goals)"
+        )
         at = self.at_choice or {}
         if self.near_copy is None:
             goals = ", ".join(f"{SCORE_NAMES.get(k, k)} {v:.2f}" for k, v in self.goals.items())
@@ -69,24 +76,32 @@ class Calibration:
             else:
                 why = f"{self.relative:.0%} of the near copy; the absolute {absolute:.2f} is out of its reach"
             there = f", smoothed {at[key]:.2f} there" if key in at else ""
-            lines.append(f"{SCORE_NAMES.get(key, key)}: near copy {self.near_copy[key]:.2f}; goal {goal:.2f} ({why}); "
-                         f"{chosen}{there}")
+            lines.append(
+                f"{SCORE_NAMES.get(key, key)}: near copy {self.near_copy[key]:.2f}; goal {goal:.2f} ({why}); "
+                f"{chosen}{there}"
+            )
         if self.g_div_goal is not None and np.isfinite(at.get("g_div", np.nan)):
             met = "meets" if at["g_div"] >= self.g_div_goal else "is below"
-            lines.append(f"G-Div at {self.diversity:g}: {at['g_div']:.2f}, which {met} the diversity requirement "
-                         f"{self.g_div_goal:.2f} (near copy {self.near_copy['g_div']:.2f})")
+            lines.append(
+                f"G-Div at {self.diversity:g}: {at['g_div']:.2f}, which {met} the diversity requirement "
+                f"{self.g_div_goal:.2f} (near copy {self.near_copy['g_div']:.2f})"
+            )
         lines.append(f"measured {grid}; near copy = diversity {self.near_copy['diversity']:g}")
         return "\n".join(lines)
 
     def summary(self) -> str:
         """One line per setting drawn (raw and smoothed patch scores, G-Div), then the choice and why."""
-        lines = [f"diversity {t['diversity']:.2f}: LP-IoU {t['lp_iou']:.3f} (smoothed {t['lp_iou_fitted']:.3f}) · "
-                 f"LP-F {t['lp_fscore']:.3f} (smoothed {t['lp_fscore_fitted']:.3f}) · G-Div {t['g_div']:.3f}"
-                 for t in self.tried]
+        lines = [
+            f"diversity {t['diversity']:.2f}: LP-IoU {t['lp_iou']:.3f} (smoothed {t['lp_iou_fitted']:.3f}) · "
+            f"LP-F {t['lp_fscore']:.3f} (smoothed {t['lp_fscore_fitted']:.3f}) · G-Div {t['g_div']:.3f}"
+            for t in self.tried
+        ]
         if self.near_copy is not None:
             lines.extend(self.story().splitlines())
-        lines.append(f"chosen: {self.diversity:g}" + ("" if self.kept_goals else
-                                                        " (the lowest drawn: no setting kept the goals)"))
+        lines.append(
+            f"chosen: {self.diversity:g}"
+            + ("" if self.kept_goals else " (the lowest drawn: no setting kept the goals)")
+        )
         return "\n".join(lines)
 
 

@@ -4,6 +4,7 @@ The work behind ``Sin3DM.occupancy``, ``input_occupancy``, ``same_voxels`` and `
 model class: each function takes what it needs of a fitted model, its box (``aabb``, normalised coordinates), its
 :class:`~sin3dm_lite.data.mesh.Normalization`, and a function that decodes a sample into a mesh.
 """
+
 from __future__ import annotations
 
 import time
@@ -63,8 +64,18 @@ def feature_nets(weights) -> FeatureNets | None:
     return weights if isinstance(weights, FeatureNets) or weights is None else load_feature_weights(weights)
 
 
-def evaluate(samples, to_meshes, reference, normalization, aabb, resolution: int = 64, views: int = 8,
-             size: int = 256, nets: FeatureNets | None = None, progress: bool = True) -> dict:
+def evaluate(
+    samples,
+    to_meshes,
+    reference,
+    normalization,
+    aabb,
+    resolution: int = 64,
+    views: int = 8,
+    size: int = 256,
+    nets: FeatureNets | None = None,
+    progress: bool = True,
+) -> dict:
     """``Sin3DM.evaluate`` (the metrics and what they return: its docstring): ``to_meshes(samples)`` gives the
     sample meshes in the input file's coordinates, ``reference`` is the input mesh, ``aabb`` the model's box.
 
@@ -93,12 +104,22 @@ def evaluate(samples, to_meshes, reference, normalization, aabb, resolution: int
     say(f"[evaluate] geometry of {len(meshes)} samples at {res} voxels: {timings['geometry_s']:.1f} s")
     skipped = {"ssfid": SSFID_UNAVAILABLE}
     metrics["ssfid"] = None
-    skipped.update(_texture_metrics(meshes, reference, normalization.to_original(np.stack([lo, hi])), views, size,
-                                    nets, metrics, timings, say))
+    skipped.update(
+        _texture_metrics(
+            meshes, reference, normalization.to_original(np.stack([lo, hi])), views, size, nets, metrics, timings, say
+        )
+    )
     if len(meshes) < 2:
         skipped["diversity"] = "G-Div and the texture diversities need at least two samples"
-    return {"samples": len(meshes), "resolution": res, "views": views, "size": size, "metrics": metrics,
-            "skipped": skipped, "timings_s": timings}
+    return {
+        "samples": len(meshes),
+        "resolution": res,
+        "views": views,
+        "size": size,
+        "metrics": metrics,
+        "skipped": skipped,
+        "timings_s": timings,
+    }
 
 
 def _texture_metrics(meshes, reference, frame, views, size, nets, metrics, timings, say) -> dict:
@@ -117,9 +138,13 @@ def _texture_metrics(meshes, reference, frame, views, size, nets, metrics, timin
     t0 = time.perf_counter()
     metrics.update({"sifid": None, "lpips": None, **texture_scores(ref_views, sample_views, nets)})
     timings["texture_s"] = time.perf_counter() - t0
-    say(f"[evaluate] {views} views of {len(meshes) + 1} meshes at {size}²: rendered in {timings['render_s']:.1f} s, "
-        f"texture metrics {timings['texture_s']:.1f} s")
+    say(
+        f"[evaluate] {views} views of {len(meshes) + 1} meshes at {size}²: rendered in {timings['render_s']:.1f} s, "
+        f"texture metrics {timings['texture_s']:.1f} s"
+    )
     if nets is None:
-        return {"sifid": "no pre-trained weights given (CLI: --weights DIR)",
-                "lpips": "no pre-trained weights given (CLI: --weights DIR)"}
+        return {
+            "sifid": "no pre-trained weights given (CLI: --weights DIR)",
+            "lpips": "no pre-trained weights given (CLI: --weights DIR)",
+        }
     return {}

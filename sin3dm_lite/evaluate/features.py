@@ -11,6 +11,7 @@ G-Qual = SSFID needs SSG's 3D voxel encoder pre-trained on ShapeNet, whose
 weights are not published in a loadable form: it is not here (see
 :data:`SSFID_UNAVAILABLE`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -37,8 +38,10 @@ INCEPTION_FILES = {
 }
 ALEXNET_FILE = ("alexnet-owt-7be5be79.pth", "https://download.pytorch.org/models/alexnet-owt-7be5be79.pth")
 LPIPS_FILE = ("alex.pth", "https://github.com/richzhang/PerceptualSimilarity/raw/master/lpips/weights/v0.1/alex.pth")
-SSFID_UNAVAILABLE = ("not implemented: G-Qual (SSFID) needs SSG's 3D CNN pre-trained on ShapeNet voxels "
-                     "(Wu & Zheng 2022), a network and weights this package does not have")
+SSFID_UNAVAILABLE = (
+    "not implemented: G-Qual (SSFID) needs SSG's 3D CNN pre-trained on ShapeNet voxels "
+    "(Wu & Zheng 2022), a network and weights this package does not have"
+)
 
 
 class BasicConv2d(nn.Module):
@@ -85,11 +88,18 @@ class LPIPSAlex(nn.Module):
     def __init__(self):
         super().__init__()
         self.features = nn.Sequential(
-            nn.Conv2d(3, 64, 11, stride=4, padding=2), nn.ReLU(), nn.MaxPool2d(3, 2),
-            nn.Conv2d(64, 192, 5, padding=2), nn.ReLU(), nn.MaxPool2d(3, 2),
-            nn.Conv2d(192, 384, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(384, 256, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(256, 256, 3, padding=1), nn.ReLU(),
+            nn.Conv2d(3, 64, 11, stride=4, padding=2),
+            nn.ReLU(),
+            nn.MaxPool2d(3, 2),
+            nn.Conv2d(64, 192, 5, padding=2),
+            nn.ReLU(),
+            nn.MaxPool2d(3, 2),
+            nn.Conv2d(192, 384, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(384, 256, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(256, 256, 3, padding=1),
+            nn.ReLU(),
         )
         for k, c in enumerate(self.CHANNELS):
             self.add_module(f"lin{k}", _Lin(c))
@@ -107,8 +117,10 @@ class LPIPSAlex(nn.Module):
         return out
 
     def forward(self, a, b):  # (B, 3, H, W) each, in [0, 1] → (B,)
-        return sum(getattr(self, f"lin{k}").model((fa - fb) ** 2).mean(dim=(2, 3))[:, 0]
-                   for k, (fa, fb) in enumerate(zip(self.taps(a), self.taps(b))))
+        return sum(
+            getattr(self, f"lin{k}").model((fa - fb) ** 2).mean(dim=(2, 3))[:, 0]
+            for k, (fa, fb) in enumerate(zip(self.taps(a), self.taps(b)))
+        )
 
 
 @dataclass
@@ -123,9 +135,13 @@ def _read_weights(path: Path, url: str) -> dict:
     try:
         sd = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - truncated, not a checkpoint, holds code: one clear message
-        raise Sin3DMInputError(f"cannot read weights '{path}' ({type(e).__name__}); get the original file from {url}") from None
+        raise Sin3DMInputError(
+            f"cannot read weights '{path}' ({type(e).__name__}); get the original file from {url}"
+        ) from None
     if not isinstance(sd, dict):
-        raise Sin3DMInputError(f"weights '{path}' hold a {type(sd).__name__}, not a state dict; get the original from {url}")
+        raise Sin3DMInputError(
+            f"weights '{path}' hold a {type(sd).__name__}, not a state dict; get the original from {url}"
+        )
     return sd
 
 
@@ -136,8 +152,12 @@ def _load_into(module: nn.Module, sd: dict, path: Path, url: str, prefix: str = 
     for k, v in want.items():
         got = sd.get(prefix + k)
         if not isinstance(got, torch.Tensor) or tuple(got.shape) != tuple(v.shape):
-            what = "is missing" if got is None else f"has shape {tuple(getattr(got, 'shape', ()))}, not {tuple(v.shape)}"
-            raise Sin3DMInputError(f"weights '{path}' do not match: '{prefix + k}' {what}; get the original file from {url}")
+            what = (
+                "is missing" if got is None else f"has shape {tuple(getattr(got, 'shape', ()))}, not {tuple(v.shape)}"
+            )
+            raise Sin3DMInputError(
+                f"weights '{path}' do not match: '{prefix + k}' {what}; get the original file from {url}"
+            )
         picked[k] = got.float()
     module.load_state_dict(picked, strict=False)
 
@@ -155,20 +175,29 @@ def load_feature_weights(weights_dir) -> FeatureNets:
     """
     folder = Path(weights_dir)
     if not folder.is_dir():
-        raise Sin3DMInputError(f"weights folder '{folder}' not found; give a folder holding "
-                               f"{next(iter(INCEPTION_FILES))}, {ALEXNET_FILE[0]} and {LPIPS_FILE[0]}")
+        raise Sin3DMInputError(
+            f"weights folder '{folder}' not found; give a folder holding "
+            f"{next(iter(INCEPTION_FILES))}, {ALEXNET_FILE[0]} and {LPIPS_FILE[0]}"
+        )
     inception = next(((folder / n, u) for n, u in INCEPTION_FILES.items() if (folder / n).is_file()), None)
     if inception is None:
         name, url = next(iter(INCEPTION_FILES.items()))
-        raise Sin3DMInputError(f"'{folder / name}' not found (InceptionV3 for SIFID); download it from {url} "
-                               f"(or torchvision's {list(INCEPTION_FILES)[1]}) into '{folder}'")
+        raise Sin3DMInputError(
+            f"'{folder / name}' not found (InceptionV3 for SIFID); download it from {url} "
+            f"(or torchvision's {list(INCEPTION_FILES)[1]}) into '{folder}'"
+        )
     for name, url in (ALEXNET_FILE, LPIPS_FILE):
         if not (folder / name).is_file():
             raise Sin3DMInputError(f"'{folder / name}' not found (for LPIPS); download it from {url} into '{folder}'")
     nets = FeatureNets(InceptionStem(), LPIPSAlex())
     _load_into(nets.inception, _read_weights(*inception), *inception)
-    _load_into(nets.lpips.features, _read_weights(folder / ALEXNET_FILE[0], ALEXNET_FILE[1]), folder / ALEXNET_FILE[0],
-               ALEXNET_FILE[1], prefix="features.")
+    _load_into(
+        nets.lpips.features,
+        _read_weights(folder / ALEXNET_FILE[0], ALEXNET_FILE[1]),
+        folder / ALEXNET_FILE[0],
+        ALEXNET_FILE[1],
+        prefix="features.",
+    )
     lin = nn.ModuleDict({f"lin{k}": getattr(nets.lpips, f"lin{k}") for k in range(5)})
     _load_into(lin, _read_weights(folder / LPIPS_FILE[0], LPIPS_FILE[1]), folder / LPIPS_FILE[0], LPIPS_FILE[1])
     nets.inception.eval()

@@ -16,6 +16,7 @@ voxels along the longest side of a box, the paper uses 128).
   shapes of any grid size as long as the voxel size is the same.
 
 """
+
 from __future__ import annotations
 
 import math
@@ -220,8 +221,11 @@ def variation_scores(reference: np.ndarray, samples) -> dict:
     """
     samples = list(samples)
     per = [iou(s, reference) for s in samples]
-    return {"iou_to_input": float(np.mean(per)), "per_sample_iou": per,
-            "g_div": g_div(samples) if len(samples) > 1 else None}
+    return {
+        "iou_to_input": float(np.mean(per)),
+        "per_sample_iou": per,
+        "g_div": g_div(samples) if len(samples) > 1 else None,
+    }
 
 
 def reconstruction_iou(mesh_a, mesh_b, aabb, resolution: int = 128) -> float:
@@ -241,13 +245,14 @@ def extract_patches(grid: np.ndarray, patch: int = 11, stride: int = 5, center: 
     g = np.pad(np.asarray(grid, bool), patch // 2)
     windows = np.lib.stride_tricks.sliding_window_view(g, (patch,) * 3)[::stride, ::stride, ::stride]
     c0 = (patch - center) // 2
-    count = windows[..., c0:c0 + center, c0:c0 + center, c0:c0 + center].sum(axis=(-3, -2, -1))
+    count = windows[..., c0 : c0 + center, c0 : c0 + center, c0 : c0 + center].sum(axis=(-3, -2, -1))
     valid = (count > 0) & (count < center**3)
     return windows[valid].reshape(-1, patch**3)
 
 
-def _best_matches(gen: np.ndarray, ref: np.ndarray, max_entries: int = 2**23,
-                  return_index: bool = False) -> tuple[np.ndarray, ...]:
+def _best_matches(
+    gen: np.ndarray, ref: np.ndarray, max_entries: int = 2**23, return_index: bool = False
+) -> tuple[np.ndarray, ...]:
     """For every generated patch, the best IoU and the best F-score against all reference patches
     (and, with ``return_index``, the index of the reference patch with the best IoU)."""
     g, r = gen.astype(np.float32), ref.astype(np.float32)
@@ -257,17 +262,25 @@ def _best_matches(gen: np.ndarray, ref: np.ndarray, max_entries: int = 2**23,
     best_at = np.zeros(len(g), np.int64)
     rows = max(1, max_entries // max(len(r), 1))
     for s in range(0, len(g), rows):
-        inter = g[s:s + rows] @ r.T  # (m, n_ref) overlap counts, exact in float32
-        size_sum = gs[s:s + rows, None] + rs[None, :]
+        inter = g[s : s + rows] @ r.T  # (m, n_ref) overlap counts, exact in float32
+        size_sum = gs[s : s + rows, None] + rs[None, :]
         ious = inter / (size_sum - inter)
-        best_at[s:s + rows] = ious.argmax(axis=1)
-        best_iou[s:s + rows] = ious.max(axis=1)
-        best_f[s:s + rows] = (2 * inter / size_sum).max(axis=1)
+        best_at[s : s + rows] = ious.argmax(axis=1)
+        best_iou[s : s + rows] = ious.max(axis=1)
+        best_f[s : s + rows] = (2 * inter / size_sum).max(axis=1)
     return (best_iou, best_f, best_at) if return_index else (best_iou, best_f)
 
 
-def lp_scores(reference: np.ndarray, generated, patch: int = 11, stride: int = 5, center: int = 3,
-              max_patches: int = 1000, threshold: float = 0.95, seed: int = 0) -> dict:
+def lp_scores(
+    reference: np.ndarray,
+    generated,
+    patch: int = 11,
+    stride: int = 5,
+    center: int = 3,
+    max_patches: int = 1000,
+    threshold: float = 0.95,
+    seed: int = 0,
+) -> dict:
     """LP-IoU and LP-F-score (docs/paper-notes.md "Evaluation", from the SSG / Sin3DM evaluation).
 
     For each generated shape: take its surface patches (:func:`extract_patches`),
@@ -318,8 +331,16 @@ def lp_scores(reference: np.ndarray, generated, patch: int = 11, stride: int = 5
     }
 
 
-def lp_iou(reference: np.ndarray, generated, patch: int = 11, stride: int = 5, center: int = 3,
-           max_patches: int = 1000, threshold: float = 0.95, seed: int = 0) -> float:
+def lp_iou(
+    reference: np.ndarray,
+    generated,
+    patch: int = 11,
+    stride: int = 5,
+    center: int = 3,
+    max_patches: int = 1000,
+    threshold: float = 0.95,
+    seed: int = 0,
+) -> float:
     """LP-IoU: mean fraction of generated patches whose best reference IoU exceeds ``threshold``.
 
     See :func:`lp_scores`, which computes LP-IoU and LP-F-score in one pass.
@@ -327,14 +348,30 @@ def lp_iou(reference: np.ndarray, generated, patch: int = 11, stride: int = 5, c
     return lp_scores(reference, generated, patch, stride, center, max_patches, threshold, seed)["lp_iou"]
 
 
-def lp_fscore(reference: np.ndarray, generated, patch: int = 11, stride: int = 5, center: int = 3,
-              max_patches: int = 1000, threshold: float = 0.95, seed: int = 0) -> float:
+def lp_fscore(
+    reference: np.ndarray,
+    generated,
+    patch: int = 11,
+    stride: int = 5,
+    center: int = 3,
+    max_patches: int = 1000,
+    threshold: float = 0.95,
+    seed: int = 0,
+) -> float:
     """LP-F-score: as :func:`lp_iou` with the patch F-score (Dice) instead of IoU; see :func:`lp_scores`."""
     return lp_scores(reference, generated, patch, stride, center, max_patches, threshold, seed)["lp_fscore"]
 
 
-def patch_matches(reference: np.ndarray, generated: np.ndarray, n: int = 4, patch: int = 11, stride: int = 5,
-                  center: int = 3, max_patches: int = 1000, seed: int = 0) -> dict:
+def patch_matches(
+    reference: np.ndarray,
+    generated: np.ndarray,
+    n: int = 4,
+    patch: int = 11,
+    stride: int = 5,
+    center: int = 3,
+    max_patches: int = 1000,
+    seed: int = 0,
+) -> dict:
     """What LP-IoU compares, for a picture: ``n`` surface patches of one generated grid and their best input patch.
 
     The patches are those :func:`lp_scores` takes (same ``patch``, ``stride``,
@@ -358,9 +395,14 @@ def patch_matches(reference: np.ndarray, generated: np.ndarray, n: int = 4, patc
     g, r = gen[pick].astype(np.float64), ref[best_at[pick]].astype(np.float64)
     inter = (g * r).sum(1)
     cube = (len(pick), patch, patch, patch)
-    return {"generated": gen[pick].reshape(cube), "matched": ref[best_at[pick]].reshape(cube),
-            "iou": best_iou[pick], "fscore": 2 * inter / (g.sum(1) + r.sum(1)), "best_iou": best_iou,
-            "threshold": 0.95}
+    return {
+        "generated": gen[pick].reshape(cube),
+        "matched": ref[best_at[pick]].reshape(cube),
+        "iou": best_iou[pick],
+        "fscore": 2 * inter / (g.sum(1) + r.sum(1)),
+        "best_iou": best_iou,
+        "threshold": 0.95,
+    }
 
 
 # ----------------------------------------------------------------------------- geometry, all at once
@@ -374,5 +416,9 @@ def geometry_scores(reference: np.ndarray, samples) -> dict:
     """
     samples = list(samples)
     lp, var = lp_scores(reference, samples), variation_scores(reference, samples)
-    return {"g_div": var["g_div"], "lp_iou": lp["lp_iou"], "lp_fscore": lp["lp_fscore"],
-            "iou_to_input": var["iou_to_input"]}
+    return {
+        "g_div": var["g_div"],
+        "lp_iou": lp["lp_iou"],
+        "lp_fscore": lp["lp_fscore"],
+        "iou_to_input": var["iou_to_input"],
+    }

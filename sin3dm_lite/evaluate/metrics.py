@@ -6,6 +6,7 @@ weights) and :mod:`~sin3dm_lite.evaluate.features` (SIFID and LPIPS with their t
 InceptionV3's first block and AlexNet + LPIPS, whose weights are given by path). Here: :data:`METRICS` and
 :func:`results_table` (evaluations side by side), :func:`texture_scores` (every texture metric of a set of renders).
 """
+
 from __future__ import annotations
 
 from ..errors import Sin3DMInputError
@@ -53,15 +54,17 @@ from .texture import (  # noqa: F401
 )
 
 #: the metrics of ``Sin3DM.evaluate``: (key, the paper's name, which way is better), in the order tables show them
-METRICS = (("g_div", "G-Div", "higher = more diverse shapes"),
-           ("lp_iou", "LP-IoU", "higher = local geometry like the input's"),
-           ("lp_fscore", "LP-F", "higher = local geometry like the input's"),
-           ("iou_to_input", "not in the paper", "near 1 = copies of the input"),
-           ("ssfid", "G-Qual (SSFID)", "lower = better"),
-           ("patch_swd", "T-Qual stand-in", "lower = texture patches like the input's (weight-free, not SIFID)"),
-           ("render_div", "T-Div stand-in", "higher = more varied renders (weight-free, not LPIPS)"),
-           ("sifid", "T-Qual (SIFID)", "lower = better"),
-           ("lpips", "T-Div (LPIPS)", "higher = more diverse textures"))
+METRICS = (
+    ("g_div", "G-Div", "higher = more diverse shapes"),
+    ("lp_iou", "LP-IoU", "higher = local geometry like the input's"),
+    ("lp_fscore", "LP-F", "higher = local geometry like the input's"),
+    ("iou_to_input", "not in the paper", "near 1 = copies of the input"),
+    ("ssfid", "G-Qual (SSFID)", "lower = better"),
+    ("patch_swd", "T-Qual stand-in", "lower = texture patches like the input's (weight-free, not SIFID)"),
+    ("render_div", "T-Div stand-in", "higher = more varied renders (weight-free, not LPIPS)"),
+    ("sifid", "T-Qual (SIFID)", "lower = better"),
+    ("lpips", "T-Div (LPIPS)", "higher = more diverse textures"),
+)
 
 
 def results_table(columns: dict, digits: int = 3) -> str:
@@ -86,8 +89,10 @@ def texture_scores(reference_views, sample_views, nets: FeatureNets | None = Non
     ``lpips`` (the paper's T-Qual and T-Div) with ``nets``; the diversities are None for one sample."""
     sample_views = list(sample_views)
     several = len(sample_views) > 1
-    out = {"patch_swd": t_qual(reference_views, sample_views, patch_swd),
-           "render_div": render_div(sample_views) if several else None}
+    out = {
+        "patch_swd": t_qual(reference_views, sample_views, patch_swd),
+        "render_div": render_div(sample_views) if several else None,
+    }
     if nets is not None:
         out["sifid"] = t_qual(reference_views, sample_views, lambda x, y: sifid(x, y, nets))
         out["lpips"] = t_div(sample_views, lambda x, y: lpips(x, y, nets)) if several else None

@@ -34,6 +34,7 @@ timings are in ``docs/performance.md`` ("Which renderer"). On Linux without
 imported; with a display (or on macOS / Windows) pyrender uses an invisible
 pyglet window.
 """
+
 from __future__ import annotations
 
 import os
@@ -63,7 +64,9 @@ def _pyrender():
     try:
         import pyrender
     except ImportError as e:
-        raise Sin3DMInputError(f"rendering needs pyrender ({e}); install it with `pip install pyrender-maintained`") from None
+        raise Sin3DMInputError(
+            f"rendering needs pyrender ({e}); install it with `pip install pyrender-maintained`"
+        ) from None
     return pyrender
 
 
@@ -80,8 +83,10 @@ def renderer_problem() -> str | None:
         except Sin3DMInputError as e:
             _PROBLEM.append(str(e))
         except Exception as e:  # noqa: BLE001 - no EGL / no display
-            _PROBLEM.append(f"cannot start an off-screen OpenGL context ({type(e).__name__}: {e}); on Linux install "
-                            "Mesa's EGL (`apt-get install libegl1 libgl1-mesa-dri`)")
+            _PROBLEM.append(
+                f"cannot start an off-screen OpenGL context ({type(e).__name__}: {e}); on Linux install "
+                "Mesa's EGL (`apt-get install libegl1 libgl1-mesa-dri`)"
+            )
     return _PROBLEM[0]
 
 
@@ -123,8 +128,11 @@ def _texture(image: np.ndarray, pyrender):
     """An ``(h, w, 3)`` image in [0, 1] (or uint8) as a linearly filtered pyrender texture."""
     if image.dtype != np.uint8:
         image = (np.clip(image[..., :3], 0, 1) * 255 + 0.5).astype(np.uint8)
-    return pyrender.Texture(source=np.ascontiguousarray(image[..., :3]), source_channels="RGB",
-                            sampler=pyrender.Sampler(magFilter=0x2601, minFilter=0x2601))  # GL_LINEAR
+    return pyrender.Texture(
+        source=np.ascontiguousarray(image[..., :3]),
+        source_channels="RGB",
+        sampler=pyrender.Sampler(magFilter=0x2601, minFilter=0x2601),
+    )  # GL_LINEAR
 
 
 def _primitives(mesh: TexturedMesh, pyrender) -> list:
@@ -142,12 +150,19 @@ def _primitives(mesh: TexturedMesh, pyrender) -> list:
         if len(sel) == 0:
             continue
         n = len(sel)
-        common = dict(positions=pos[sel].reshape(-1, 3), normals=nrm[sel].reshape(-1, 3),
-                      indices=np.arange(3 * n, dtype=np.uint32).reshape(-1, 3))
+        common = dict(
+            positions=pos[sel].reshape(-1, 3),
+            normals=nrm[sel].reshape(-1, 3),
+            indices=np.arange(3 * n, dtype=np.uint32).reshape(-1, 3),
+        )
         if mat.image is not None and mesh.face_uvs is not None:
             uv = np.nan_to_num(np.asarray(mesh.face_uvs)[sel]).reshape(-1, 2).astype(np.float32)
-            material = pyrender.MetallicRoughnessMaterial(baseColorTexture=_texture(baked_image(mat), pyrender), metallicFactor=0.0,
-                                                          roughnessFactor=1.0, doubleSided=True)
+            material = pyrender.MetallicRoughnessMaterial(
+                baseColorTexture=_texture(baked_image(mat), pyrender),
+                metallicFactor=0.0,
+                roughnessFactor=1.0,
+                doubleSided=True,
+            )
             if mat.metallic_roughness_image is not None:  # PBR: glTF's maps and factors (metal, gloss)
                 material.metallicRoughnessTexture = _texture(mat.metallic_roughness_image, pyrender)
                 material.metallicFactor, material.roughnessFactor = float(mat.metallic), float(mat.roughness)
@@ -158,10 +173,14 @@ def _primitives(mesh: TexturedMesh, pyrender) -> list:
             fi = np.repeat(sel, 3)
             bc = np.tile(np.eye(3), (n, 1))
             colors = mesh.colors_at(fi, bc).astype(np.float32)
-            material = pyrender.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0,
-                                                          roughnessFactor=1.0, doubleSided=True)
-            prims.append(pyrender.Primitive(color_0=np.column_stack([colors, np.ones(3 * n, np.float32)]),
-                                            material=material, **common))
+            material = pyrender.MetallicRoughnessMaterial(
+                baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True
+            )
+            prims.append(
+                pyrender.Primitive(
+                    color_0=np.column_stack([colors, np.ones(3 * n, np.float32)]), material=material, **common
+                )
+            )
     return prims
 
 
@@ -234,8 +253,9 @@ def _rotation(axis, angle: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
-def render_views(mesh: TexturedMesh, n_views: int = 8, size: int = 512, elevation: float = 45.0,
-                 box=None) -> list[np.ndarray]:
+def render_views(
+    mesh: TexturedMesh, n_views: int = 8, size: int = 512, elevation: float = 45.0, box=None
+) -> list[np.ndarray]:
     """The paper's views: ``n_views`` azimuths every ``360 / n_views`` degrees at ``elevation``, ``(size, size, 3)`` uint8.
 
     ``box`` (``(2, 3)`` low / high corners) is what the camera frames; it
@@ -257,8 +277,9 @@ def view_names(n_views: int = 8, hero: bool = True) -> list[str]:
     return [f"view_{k:03d}.png" for k in range(n_views)] + (["hero.png"] if hero else [])
 
 
-def save_views(mesh: TexturedMesh, folder, n_views: int = 8, size: int = 512, elevation: float = 45.0,
-               box=None, hero: bool = True) -> list[Path]:
+def save_views(
+    mesh: TexturedMesh, folder, n_views: int = 8, size: int = 512, elevation: float = 45.0, box=None, hero: bool = True
+) -> list[Path]:
     """Write ``view_000.png`` … (and ``hero.png``) into ``folder``; each file appears whole (atomic write)."""
     if int(n_views) < 1:
         raise Sin3DMInputError(f"n_views must be at least 1, got {n_views}")
@@ -269,8 +290,9 @@ def save_views(mesh: TexturedMesh, folder, n_views: int = 8, size: int = 512, el
     return [atomic_write(folder / name, png_bytes(img)) for name, img in zip(view_names(int(n_views), hero), images)]
 
 
-def contact_sheet(images: Sequence[np.ndarray], labels: Sequence[str] | None = None, columns: int = 4,
-                  pad: int = 4) -> np.ndarray:
+def contact_sheet(
+    images: Sequence[np.ndarray], labels: Sequence[str] | None = None, columns: int = 4, pad: int = 4
+) -> np.ndarray:
     """Images in a grid of ``columns``, each with its label underneath; ``(H, W, 3)`` uint8 on white.
 
     Tiles are the size of the largest image (smaller ones are centred).

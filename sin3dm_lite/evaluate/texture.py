@@ -13,6 +13,7 @@ input's box) view by view:
 * :func:`sin3dm_lite.evaluate.metrics.texture_scores` computes them all, and SIFID and LPIPS too when given
   the networks of :mod:`sin3dm_lite.evaluate.features`.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -73,8 +74,9 @@ def _quantiles(sorted_values: torch.Tensor, m: int) -> torch.Tensor:
 
 
 @torch.no_grad()
-def patch_swd(a, b, patch: int = 7, levels: int = 3, projections: int = 128, max_patches: int = 4096,
-              seed: int = 0) -> float:
+def patch_swd(
+    a, b, patch: int = 7, levels: int = 3, projections: int = 128, max_patches: int = 4096, seed: int = 0
+) -> float:
     """Sliced Wasserstein distance between the multi-scale patch distributions of two renders (0 = same patches).
 
     Our weight-free stand-in for the paper's **T-Qual = SIFID** — *not* SIFID
@@ -171,8 +173,16 @@ def t_div(sample_views, distance=colour_distance) -> float:
         raise Sin3DMInputError(f"texture diversity needs at least two samples, got {len(sample_views)}")
     _check_views(None, sample_views)
     n = len(sample_views)
-    return float(np.mean([distance(sample_views[j][i], sample_views[k][i])
-                          for i in range(len(sample_views[0])) for j in range(n) for k in range(j + 1, n)]))
+    return float(
+        np.mean(
+            [
+                distance(sample_views[j][i], sample_views[k][i])
+                for i in range(len(sample_views[0]))
+                for j in range(n)
+                for k in range(j + 1, n)
+            ]
+        )
+    )
 
 
 def render_div(sample_views) -> float:

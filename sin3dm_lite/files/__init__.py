@@ -18,6 +18,7 @@
 * Output folders are checked before the long work and filled without touching
   what is not ours (:func:`check_output_folder`, :func:`install_output`; ``outputs``).
 """
+
 from __future__ import annotations
 
 from .atomic import (
@@ -68,13 +69,49 @@ from .outputs import (
 )
 
 __all__ = [
-    "NEARLY_FULL", "TEMP_PREFIX", "atomic_folder", "atomic_path", "atomic_write", "is_temporary", "make_temp_dir",
-    "named", "pid_alive", "remove_stale_temps", "resolved_path", "save_torch", "shown_path", "write_data",
+    "NEARLY_FULL",
+    "TEMP_PREFIX",
+    "atomic_folder",
+    "atomic_path",
+    "atomic_write",
+    "is_temporary",
+    "make_temp_dir",
+    "named",
+    "pid_alive",
+    "remove_stale_temps",
+    "resolved_path",
+    "save_torch",
+    "shown_path",
+    "write_data",
     "write_failed",
-    "LOCK", "acquire_lock", "create_locked_folder", "holds_lock", "locked", "release_lock",
-    "MANIFEST", "MANIFEST_PART", "append_manifest_part", "file_entry", "file_record", "is_ours", "manifest_parts",
-    "read_manifest", "read_manifest_parts", "record_written", "recorded_path", "replacing", "write_manifest",
-    "write_recorded", "writer",
-    "check_not_overlapping", "check_output_folder", "check_writable", "clash_error", "foreign_files",
-    "install_output", "merge_output", "present", "remove_files",
+    "LOCK",
+    "acquire_lock",
+    "create_locked_folder",
+    "holds_lock",
+    "locked",
+    "release_lock",
+    "MANIFEST",
+    "MANIFEST_PART",
+    "append_manifest_part",
+    "file_entry",
+    "file_record",
+    "is_ours",
+    "manifest_parts",
+    "read_manifest",
+    "read_manifest_parts",
+    "record_written",
+    "recorded_path",
+    "replacing",
+    "write_manifest",
+    "write_recorded",
+    "writer",
+    "check_not_overlapping",
+    "check_output_folder",
+    "check_writable",
+    "clash_error",
+    "foreign_files",
+    "install_output",
+    "merge_output",
+    "present",
+    "remove_files",
 ]

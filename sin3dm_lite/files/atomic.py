@@ -6,6 +6,7 @@
   later run removes the ones a killed process left behind (:func:`remove_stale_temps`).
 * A write that fails says which file, and a full disk says so (:func:`save_torch`, :func:`write_failed`).
 """
+
 from __future__ import annotations
 
 import errno
@@ -32,7 +33,9 @@ def atomic_path(path: str | Path, before_move=None):
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.sin3dm-{os.getpid()}-", suffix=f".tmp{path.suffix}", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.stem}.sin3dm-{os.getpid()}-", suffix=f".tmp{path.suffix}", dir=path.parent
+    )
     os.close(fd)
     try:
         yield Path(tmp)

@@ -6,6 +6,7 @@ the process ends however it ends, so a lock file nobody holds is provably stale,
 created but not yet written (a writer just starting) is never mistaken for one: its writer holds it.
 See :func:`acquire_lock`, :func:`locked` and :func:`create_locked_folder`.
 """
+
 from __future__ import annotations
 
 import json
@@ -41,6 +42,7 @@ except ImportError:  # Windows
             return True
         except OSError:
             return False
+
 
 _held: dict[Path, int] = {}  # locked folder → the open lock file
 
@@ -121,10 +123,15 @@ def acquire_lock(folder: Path, what: str = "folder") -> None:
         if not _try_lock(fd):
             info = _read_info(fd)
             os.close(fd)
-            who = (f"PID {info['pid']} on {info.get('host') or 'this machine'}, since {info.get('since', '?')}"
-                   if info else "it is just starting")
-            raise Sin3DMInputError(f"{what} '{folder}' is being written by another sin3dm-lite process ({who}); "
-                                   "wait for it to finish, or choose another --out") from None
+            who = (
+                f"PID {info['pid']} on {info.get('host') or 'this machine'}, since {info.get('since', '?')}"
+                if info
+                else "it is just starting"
+            )
+            raise Sin3DMInputError(
+                f"{what} '{folder}' is being written by another sin3dm-lite process ({who}); "
+                "wait for it to finish, or choose another --out"
+            ) from None
         try:
             same = os.path.samestat(os.fstat(fd), os.stat(lock))
         except OSError:
@@ -140,12 +147,15 @@ def acquire_lock(folder: Path, what: str = "folder") -> None:
                 raise Sin3DMInputError(
                     f"{what} '{folder}' is being written by another sin3dm-lite process (PID {pid} on "
                     f"{host or 'this machine'}, since {info.get('since', '?')}); wait for it to finish, or delete "
-                    f"'{lock}' if that process is gone")
-            warnings.warn(f"{what} '{folder}' was locked by process {pid}, which no longer runs; taking it over",
-                          stacklevel=3)
+                    f"'{lock}' if that process is gone"
+                )
+            warnings.warn(
+                f"{what} '{folder}' was locked by process {pid}, which no longer runs; taking it over", stacklevel=3
+            )
         elif os.fstat(fd).st_size:
-            warnings.warn(f"{what} '{folder}' had an unreadable lock that no process holds; taking it over",
-                          stacklevel=3)
+            warnings.warn(
+                f"{what} '{folder}' had an unreadable lock that no process holds; taking it over", stacklevel=3
+            )
         _write_info(fd)
         _held[key] = fd
         remove_stale_temps(folder)  # the folder is ours now: leftovers of a killed writer can go

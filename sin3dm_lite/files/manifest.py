@@ -8,6 +8,7 @@ goes in manifest parts (``.sin3dm-manifest-<name>.jsonl``, one JSON object with 
 per line, appended and flushed per item); they count as the manifest until the writer merges
 them into it at the end (:func:`append_manifest_part`).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -59,8 +60,14 @@ def read_manifest(folder: Path) -> dict[str, dict | list]:
             files.update(record["files"])
     out = {}
     for f, st in files.items():
-        if (isinstance(f, str) and f and not os.path.isabs(f) and ".." not in Path(f).parts and f != MANIFEST
-                and _entries(st)):
+        if (
+            isinstance(f, str)
+            and f
+            and not os.path.isabs(f)
+            and ".." not in Path(f).parts
+            and f != MANIFEST
+            and _entries(st)
+        ):
             out[Path(f).as_posix()] = st
     return out
 
@@ -140,6 +147,7 @@ def is_ours(folder: Path, rel: str, manifest: dict | None = None, by: str | None
 
 def _entries(entry) -> list[dict]:
     """A manifest entry's acceptable states: one, or two while a replacement is under way."""
+
     def one(e):
         if isinstance(e, dict) and isinstance(e.get("size"), int) and isinstance(e.get("mtime_ns"), int):
             return e
@@ -156,7 +164,9 @@ def _entries(entry) -> list[dict]:
 
 def write_manifest(folder: Path, files: dict) -> None:
     """Record ``files`` (``{relative path: entry}``) as written by this tool in ``folder``."""
-    atomic_write(Path(folder) / MANIFEST, json.dumps({"tool": "sin3dm-lite", "files": dict(sorted(files.items()))}, indent=1))
+    atomic_write(
+        Path(folder) / MANIFEST, json.dumps({"tool": "sin3dm-lite", "files": dict(sorted(files.items()))}, indent=1)
+    )
 
 
 def record_written(folder: Path, names, by: str | None = None) -> None:

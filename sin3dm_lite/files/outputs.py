@@ -6,6 +6,7 @@ files its manifest lists as written there (by the same command) are replaced
 first (:func:`install_output`, :func:`merge_output`); :func:`remove_files` deletes files of ours and
 the folders they leave empty.
 """
+
 from __future__ import annotations
 
 import os
@@ -40,13 +41,17 @@ def check_writable(path: Path, option: str = "--out") -> None:
             break
         base = base.parent
     if not base.is_dir():
-        raise Sin3DMInputError(f"cannot write {option} '{path}': '{base}' is a file, not a folder; choose another {option}")
+        raise Sin3DMInputError(
+            f"cannot write {option} '{path}': '{base}' is a file, not a folder; choose another {option}"
+        )
     try:
         fd, probe = tempfile.mkstemp(prefix=f".sin3dm-{os.getpid()}-probe.tmp", dir=base)
         os.close(fd)
         os.remove(probe)
     except OSError as e:
-        raise Sin3DMInputError(f"cannot write {option} '{path}' ({e.strerror} in '{base}'); choose a writable {option}") from None
+        raise Sin3DMInputError(
+            f"cannot write {option} '{path}' ({e.strerror} in '{base}'); choose a writable {option}"
+        ) from None
 
 
 def _files_under(folder: Path) -> list[str]:
@@ -74,16 +79,17 @@ def clash_error(out: Path, rel: str, by: str | None = None, option: str = "--out
     if w:
         return Sin3DMInputError(
             f"'{Path(out) / rel}' was written by `sin3dm-lite {w}`, and `sin3dm-lite {by}` replaces only files it "
-            f"wrote itself; move it away or choose another {option}")
+            f"wrote itself; move it away or choose another {option}"
+        )
     return Sin3DMInputError(
-        f"'{Path(out) / rel}' was not written by sin3dm-lite and would be replaced; move it away or choose another {option}")
+        f"'{Path(out) / rel}' was not written by sin3dm-lite and would be replaced; move it away or choose another {option}"
+    )
 
 
 def present(out: Path) -> list[Path]:
     """What ``out`` holds, less temporaries and a lock (a writer killed at its start): no content of anyone's."""
     try:
-        return [p for p in Path(out).iterdir()
-                if not (is_temporary(p.name) or p.name == LOCK)]
+        return [p for p in Path(out).iterdir() if not (is_temporary(p.name) or p.name == LOCK)]
     except OSError:
         return []
 

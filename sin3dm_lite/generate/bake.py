@@ -7,6 +7,7 @@ gutter around the UV islands is filled so seams do not show
 (:func:`pad_gutter`); a PBR decoder's metallic, roughness and normals go into
 their own maps over the same atlas (:func:`pbr_maps`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,8 +19,7 @@ from ..model.decode import PreparedTriplane, prepare, query_points
 from ..model.triplane import Triplane
 
 
-def rasterize_triangles(tri: np.ndarray, width: int, height: int, eps: float = 1e-9,
-                        max_candidates: int = 2_000_000):
+def rasterize_triangles(tri: np.ndarray, width: int, height: int, eps: float = 1e-9, max_candidates: int = 2_000_000):
     """Find the pixel centres inside 2D triangles, vectorised over triangles.
 
     Pixel ``(x, y)`` has its centre at the integer point ``(x, y)``. Each
@@ -102,8 +102,16 @@ def position_map(verts: np.ndarray, faces_uv: np.ndarray, uvs: np.ndarray, size:
     return positions, covered
 
 
-def bake_texture(decoder, triplane: Triplane | PreparedTriplane, aabb, verts: np.ndarray, faces_uv: np.ndarray,
-                 uvs: np.ndarray, size: int, chunk: int = 2**16):
+def bake_texture(
+    decoder,
+    triplane: Triplane | PreparedTriplane,
+    aabb,
+    verts: np.ndarray,
+    faces_uv: np.ndarray,
+    uvs: np.ndarray,
+    size: int,
+    chunk: int = 2**16,
+):
     """Bake the decoder's colour into a texture image.
 
     Every texel covered by a triangle in UV space is mapped to its 3D point by
@@ -127,8 +135,9 @@ def bake_texture(decoder, triplane: Triplane | PreparedTriplane, aabb, verts: np
     return image, covered
 
 
-def pbr_maps(baked: np.ndarray, covered: np.ndarray, verts: np.ndarray, faces_uv: np.ndarray, uvs: np.ndarray,
-             size: int) -> tuple[np.ndarray, np.ndarray]:
+def pbr_maps(
+    baked: np.ndarray, covered: np.ndarray, verts: np.ndarray, faces_uv: np.ndarray, uvs: np.ndarray, size: int
+) -> tuple[np.ndarray, np.ndarray]:
     """A PBR bake's channels 3-7 → glTF's ``metallic_roughness`` and tangent-space ``normal`` images.
 
     ``baked`` is :func:`bake_texture`'s ``(size, size, 8)`` image in

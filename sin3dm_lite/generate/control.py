@@ -32,6 +32,7 @@ features from the edit and the other two from outside it. :meth:`Plan.kept`
 gives the voxels all three planes keep: there the latent is exactly the
 input's.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -88,8 +89,10 @@ def _factors(factors, what: str, at_least: float = 0.0) -> np.ndarray:
     if not np.all(np.isfinite(f)) or np.any(f <= 0) or np.any(f > 8):
         raise Sin3DMInputError(f"{what} factors must be positive numbers up to 8, got {_fmt(f)}")
     if np.any(f < at_least):
-        raise Sin3DMInputError(f"{what} factors must be at least {at_least:g} (outpainting grows the box; use "
-                               f"--resize to shrink), got {_fmt(f)}")
+        raise Sin3DMInputError(
+            f"{what} factors must be at least {at_least:g} (outpainting grows the box; use "
+            f"--resize to shrink), got {_fmt(f)}"
+        )
     return f
 
 
@@ -105,14 +108,17 @@ def _box(box, res, what: str) -> list[tuple[int, int]]:
     except (TypeError, ValueError):
         raise Sin3DMInputError(f"{what} must be two corners (x0, y0, z0), (x1, y1, z1), got {box!r}") from None
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(lo < 0) or np.any(hi > 1):
-        raise Sin3DMInputError(f"the corners of {what} must be fractions of the model's box in [0, 1], got "
-                               f"{_fmt(lo)} to {_fmt(hi)}")
+        raise Sin3DMInputError(
+            f"the corners of {what} must be fractions of the model's box in [0, 1], got {_fmt(lo)} to {_fmt(hi)}"
+        )
     ranges = [texel_range(a, b, n) for a, b, n in zip(lo, hi, res)]
     empty = [(ax, n) for ax, (a, b), n in zip("xyz", ranges, res) if b - a < 1]
     if empty:
-        raise Sin3DMInputError(f"{what} {_fmt(lo)} to {_fmt(hi)} is empty along {', '.join(ax for ax, _ in empty)} at "
-                               f"this latent's {res[0]}×{res[1]}×{res[2]} texels; make it larger (at least "
-                               f"{', '.join(f'1/{n} along {ax}' for ax, n in empty)})")
+        raise Sin3DMInputError(
+            f"{what} {_fmt(lo)} to {_fmt(hi)} is empty along {', '.join(ax for ax, _ in empty)} at "
+            f"this latent's {res[0]}×{res[1]}×{res[2]} texels; make it larger (at least "
+            f"{', '.join(f'1/{n} along {ax}' for ax, n in empty)})"
+        )
     return ranges
 
 
@@ -220,8 +226,10 @@ def outpaint(latent: Triplane, aabb, factors, anchor: str = "center", border: fl
         lo = o + trim if o > 0 else o  # a side that grows gives up its margin
         hi = o + n - trim if o + n < r else o + n
         if hi - lo < 1:
-            raise Sin3DMInputError(f"nothing of the input is left to keep after trimming {trim} texels of margin; "
-                                   "the latent is too small to outpaint")
+            raise Sin3DMInputError(
+                f"nothing of the input is left to keep after trimming {trim} texels of margin; "
+                "the latent is too small to outpaint"
+            )
         profiles.append(_profile(r, lo, hi, border, ramp_lo=o > 0, ramp_hi=o + n < r))
     request = {"factors": tuple(float(x) for x in f), "anchor": anchor, "trim": trim}
     return Plan("outpaint", res, _box_aabb(aabb, base, -off, res), known, known, _mask(profiles), request)
@@ -245,7 +253,8 @@ def regenerate(latent: Triplane, aabb, box, border: float = BORDER) -> Plan:
         raise Sin3DMInputError(
             "the box to regenerate must reach the model's box faces along at least one axis (e.g. z from 0 to 1): "
             "a triplane shares each plane's features with the whole line across it, so a pocket inside the shape "
-            "cannot be resampled on its own")
+            "cannot be resampled on its own"
+        )
     prof = [_outside_profile(n, a, b, border) for n, (a, b) in zip(res, ranges)]
     planes = []
     for a, b in PLANE_AXES.values():
@@ -278,8 +287,10 @@ def duplicate(latent: Triplane, aabb, box, to, border: float = BORDER, trim: int
     dst = [(int(round(t * n)), int(round(t * n)) + (b - a)) for t, n, (a, b) in zip(to, res, src)]
     over = [ax for ax, (a, b), n in zip("xyz", dst, res) if b > n]
     if over:
-        raise Sin3DMInputError(f"the copy of the box does not fit when its low corner is at {_fmt(to)}: it leaves "
-                               f"the model's box along {', '.join(over)}; move it or make the box smaller")
+        raise Sin3DMInputError(
+            f"the copy of the box does not fit when its low corner is at {_fmt(to)}: it leaves "
+            f"the model's box along {', '.join(over)}; move it or make the box smaller"
+        )
     for ax, n in enumerate(res):  # leave the margin behind where the copy moves away from a face
         (a, b), (c, d) = src[ax], dst[ax]
         if a == 0 and c > 0 and b - a > trim:
@@ -292,13 +303,17 @@ def duplicate(latent: Triplane, aabb, box, to, border: float = BORDER, trim: int
     planes = []
     for name, (a, b) in zip(PLANES, PLANE_AXES.values()):
         p = getattr(latent, name).clone()
-        p[..., dst[a][0]:dst[a][1], dst[b][0]:dst[b][1]] = getattr(latent, name)[..., src[a][0]:src[a][1], src[b][0]:src[b][1]]
+        p[..., dst[a][0] : dst[a][1], dst[b][0] : dst[b][1]] = getattr(latent, name)[
+            ..., src[a][0] : src[a][1], src[b][0] : src[b][1]
+        ]
         planes.append(p)
     known = Triplane(*planes)
     keep_src = _mask([_profile(n, a, b, border, a > 0, b < n) for n, (a, b) in zip(res, src)])
     keep_dst = _mask([_profile(n, a, b, border, a > 0, b < n) for n, (a, b) in zip(res, dst)])
     request = {"box": [list(map(float, c)) for c in box], "to": tuple(float(t) for t in to), "trim": trim}
-    return Plan("duplicate", res, np.asarray(aabb, np.float32).copy(), known, known, _union(keep_src, keep_dst), request)
+    return Plan(
+        "duplicate", res, np.asarray(aabb, np.float32).copy(), known, known, _union(keep_src, keep_dst), request
+    )
 
 
 __all__ = ["ANCHORS", "BORDER", "Plan", "duplicate", "outpaint", "regenerate", "retarget", "texel_range"]

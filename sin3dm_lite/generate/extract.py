@@ -36,6 +36,7 @@ Coordinates: *normalised* coordinates are the frame the input mesh was scaled
 into (``Normalization``); *box* coordinates map the ``aabb``
 ``(xmin, ymin, zmin, xmax, ymax, zmax)`` to ``[-1, 1]^3``.
 """
+
 from __future__ import annotations
 
 import time
@@ -160,8 +161,13 @@ def simplify(verts: np.ndarray, faces: np.ndarray, target_faces: int | None):
 MAX_CHART_SHARE = 1 / 7
 
 
-def uv_atlas(verts: np.ndarray, faces: np.ndarray, resolution: int = 1024, padding: int = 4,
-             max_chart_share: float = MAX_CHART_SHARE):
+def uv_atlas(
+    verts: np.ndarray,
+    faces: np.ndarray,
+    resolution: int = 1024,
+    padding: int = 4,
+    max_chart_share: float = MAX_CHART_SHARE,
+):
     """Cut the mesh into charts and pack them into one square-ish atlas with xatlas.
 
     Args:
@@ -206,11 +212,22 @@ def uv_atlas(verts: np.ndarray, faces: np.ndarray, resolution: int = 1024, paddi
 
 
 # ----------------------------------------------------------------------------- the whole path
-def extract_mesh(decoder, triplane: Triplane, aabb, normalization: Normalization | None = None,
-                 resolution: int = 128, faces: int | None = 30_000, texture_size: int = 1024,
-                 components: str = "all", min_component_faces: int = 0, vertex_colors: bool = False,
-                 original_coords: bool = True, chunk: int = 2**16, coarse: int | None = 4,
-                 return_steps: bool = False):
+def extract_mesh(
+    decoder,
+    triplane: Triplane,
+    aabb,
+    normalization: Normalization | None = None,
+    resolution: int = 128,
+    faces: int | None = 30_000,
+    texture_size: int = 1024,
+    components: str = "all",
+    min_component_faces: int = 0,
+    vertex_colors: bool = False,
+    original_coords: bool = True,
+    chunk: int = 2**16,
+    coarse: int | None = 4,
+    return_steps: bool = False,
+):
     """Decode a batch-1 triplane into a textured mesh.
 
     SDF grid (``resolution`` along the longest side of ``aabb``) → marching
@@ -244,8 +261,9 @@ def extract_mesh(decoder, triplane: Triplane, aabb, normalization: Normalization
     lap = _Stopwatch()
     prepared = prepare(decoder, triplane)
     lap("prepare")
-    v, f = _surface(decoder, prepared, box, resolution, chunk, coarse, (components, min_component_faces), faces,
-                    steps, lap)
+    v, f = _surface(
+        decoder, prepared, box, resolution, chunk, coarse, (components, min_component_faces), faces, steps, lap
+    )
     if vertex_colors:
         mesh = _vertex_coloured_mesh(decoder, prepared, box, v, f, chunk)
         lap("vertex_colors")
@@ -270,8 +288,18 @@ class _Stopwatch:
         self.t = now
 
 
-def _surface(decoder, prepared: PreparedTriplane, box: np.ndarray, resolution: int, chunk: int, coarse: int | None,
-             components: tuple[str, int], faces: int | None, steps: dict, lap: _Stopwatch):
+def _surface(
+    decoder,
+    prepared: PreparedTriplane,
+    box: np.ndarray,
+    resolution: int,
+    chunk: int,
+    coarse: int | None,
+    components: tuple[str, int],
+    faces: int | None,
+    steps: dict,
+    lap: _Stopwatch,
+):
     """Steps 1-4: the SDF grid, marching cubes, the components kept (mode, least faces), simplified → ``(v, f)``."""
     decode_stats: dict[str, Any] = {}
     sdf = decode_grid(decoder, prepared, box, resolution, chunk=chunk, coarse=coarse, stats=decode_stats)
@@ -304,12 +332,22 @@ def _vertex_coloured_mesh(decoder, prepared: PreparedTriplane, box: np.ndarray, 
     """The quick look: the decoder's colour at each vertex, no atlas."""
     _, col = query_points(decoder, prepared, to_box(v, box), chunk=chunk, sdf=False)
     material = Material(name="vertex_colors", base_color=np.ones(4, np.float32))
-    return TexturedMesh(v, f, np.zeros(len(f), np.int64), [material],
-                        vertex_colors=np.clip(col[:, :3], 0, 1).astype(np.float32))
+    return TexturedMesh(
+        v, f, np.zeros(len(f), np.int64), [material], vertex_colors=np.clip(col[:, :3], 0, 1).astype(np.float32)
+    )
 
 
-def _baked_mesh(decoder, prepared: PreparedTriplane, box: np.ndarray, v, f, texture_size: int, chunk: int,
-                steps: dict, lap: _Stopwatch) -> TexturedMesh:
+def _baked_mesh(
+    decoder,
+    prepared: PreparedTriplane,
+    box: np.ndarray,
+    v,
+    f,
+    texture_size: int,
+    chunk: int,
+    steps: dict,
+    lap: _Stopwatch,
+) -> TexturedMesh:
     """xatlas UVs → texture baked from the decoder → gutter filled (→ PBR maps for a PBR decoder)."""
     vmapping, faces_uv, uvs = uv_atlas(v, f, resolution=texture_size)
     lap("uv_atlas")
@@ -321,8 +359,9 @@ def _baked_mesh(decoder, prepared: PreparedTriplane, box: np.ndarray, v, f, text
     material = Material(name="baked", base_color=np.ones(4, np.float32), image=texture)
     if image.shape[-1] == 8:  # a PBR decoder: metallic-roughness and normal maps over the same atlas
         material.metallic = material.roughness = 1.0  # glTF factors that multiply the maps
-        material.metallic_roughness_image, material.normal_image = pbr_maps(image, covered, v[vmapping], faces_uv,
-                                                                             uvs, texture_size)
+        material.metallic_roughness_image, material.normal_image = pbr_maps(
+            image, covered, v[vmapping], faces_uv, uvs, texture_size
+        )
         lap("pbr_maps")
         steps.update(metallic_roughness=material.metallic_roughness_image, normal=material.normal_image)
     # keep the welded vertices (watertight); the seams live in the per-corner UVs

@@ -23,6 +23,7 @@ more heads on the same texture features: metallic-roughness (2) and normal (3).
 The latent keeps its 12 channels: the 8 texture channels now also describe
 the material.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -46,7 +47,9 @@ class TriplaneEncoder(nn.Module):
         super().__init__()
         # replicate padding: zeros would read as "surface" (sdf = 0) all around the box
         self.geo = nn.Conv3d(1, cfg.geo_channels, kernel_size=4, stride=2, padding=1, padding_mode="replicate")
-        self.tex = nn.Conv3d(1 + color_channels, cfg.tex_channels, kernel_size=4, stride=2, padding=1, padding_mode="replicate")
+        self.tex = nn.Conv3d(
+            1 + color_channels, cfg.tex_channels, kernel_size=4, stride=2, padding=1, padding_mode="replicate"
+        )
 
     def volume(self, grid: torch.Tensor) -> torch.Tensor:
         """``[B, 1+K, X, Y, Z]`` → the pre-pooling feature volume ``[B, 12, X/2, Y/2, Z/2]``."""
@@ -106,7 +109,12 @@ class SkipMLP(nn.Module):
     def __init__(self, c_in: int, hidden: int, c_out: int):
         super().__init__()
         self.a = nn.Sequential(
-            nn.Linear(c_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
+            nn.Linear(c_in, hidden),
+            nn.ReLU(),
+            nn.Linear(hidden, hidden),
+            nn.ReLU(),
+            nn.Linear(hidden, hidden),
+            nn.ReLU(),
         )
         self.b = nn.Sequential(nn.Linear(hidden + c_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU())
         self.out = nn.Linear(hidden, c_out)
@@ -158,7 +166,9 @@ class TriplaneDecoder(nn.Module):
         self.color_channels = color_channels
         if cfg.pbr:
             if color_channels != sum(PBR_HEADS.values()):
-                raise ValueError(f"the PBR decoder predicts {sum(PBR_HEADS.values())} texture channels, not {color_channels}")
+                raise ValueError(
+                    f"the PBR decoder predicts {sum(PBR_HEADS.values())} texture channels, not {color_channels}"
+                )
             self.tex_mlp = SkipMLP(c, cfg.mlp_hidden, PBR_HEADS["tex_mlp"])
             self.mr_mlp = SkipMLP(c, cfg.mlp_hidden, PBR_HEADS["mr_mlp"])
             self.normal_mlp = SkipMLP(c, cfg.mlp_hidden, PBR_HEADS["normal_mlp"])
@@ -206,7 +216,9 @@ def grid_tensor(grid: ShapeGrid, device: torch.device | str = "cpu") -> torch.Te
 class TriplaneAutoencoder(nn.Module):
     """Encoder (or, with ``use_encoder=False``, directly optimised planes) + decoder for one shape."""
 
-    def __init__(self, cfg: AutoencoderConfig, grid_shape: tuple[int, int, int], threshold: float, color_channels: int = 3):
+    def __init__(
+        self, cfg: AutoencoderConfig, grid_shape: tuple[int, int, int], threshold: float, color_channels: int = 3
+    ):
         super().__init__()
         self.cfg = cfg
         self.grid_shape = tuple(int(s) for s in grid_shape)
@@ -243,7 +255,9 @@ class TriplaneAutoencoder(nn.Module):
 
 
 # --------------------------------------------------------------------------- loss
-def sdf_loss(pred: torch.Tensor, gt: torch.Tensor, threshold: float, near_w: float = 1.5, far_w: float = 0.5) -> torch.Tensor:
+def sdf_loss(
+    pred: torch.Tensor, gt: torch.Tensor, threshold: float, near_w: float = 1.5, far_w: float = 0.5
+) -> torch.Tensor:
     """Weighted L1 on the truncated SDF.
 
     An error that moves the prediction towards or across the surface

@@ -20,6 +20,7 @@ The decoder protocol::
 
 Coordinates and grid sizes: see :mod:`sin3dm_lite.data.box`.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -79,8 +80,14 @@ def prepare(decoder, triplane: Triplane | PreparedTriplane) -> PreparedTriplane:
 ROW_TILE = 64
 
 
-def query_points(decoder, prepared: PreparedTriplane, points_box: np.ndarray, chunk: int = 2**16,
-                 sdf: bool = True, color: bool = True) -> tuple[np.ndarray | None, np.ndarray | None]:
+def query_points(
+    decoder,
+    prepared: PreparedTriplane,
+    points_box: np.ndarray,
+    chunk: int = 2**16,
+    sdf: bool = True,
+    color: bool = True,
+) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Decode ``(N, 3)`` box-coordinate points in chunks → ``sdf (N,)`` and ``color (N, K)``.
 
     Pass ``sdf=False`` or ``color=False`` to get ``None`` for that output; a
@@ -101,7 +108,7 @@ def query_points(decoder, prepared: PreparedTriplane, points_box: np.ndarray, ch
     parts: tuple[list, list] = ([], [])
     with torch.no_grad():
         for s in range(0, len(points_box), chunk):
-            part = points_box[s:s + chunk]
+            part = points_box[s : s + chunk]
             m = len(part)
             if m % ROW_TILE:  # repeat the last point: every real row goes through the full-tile kernel path
                 part = np.concatenate([part, np.repeat(part[-1:], ROW_TILE - m % ROW_TILE, axis=0)])
@@ -122,9 +129,18 @@ def query_points(decoder, prepared: PreparedTriplane, points_box: np.ndarray, ch
 
 
 # ----------------------------------------------------------------------------- the SDF grid
-def decode_grid(decoder, triplane: Triplane | PreparedTriplane, aabb, resolution: int, chunk: int = 2**16,
-                with_color: bool = False, coarse: int | None = 4, exact_band: float = 2.0, lipschitz: float = 2.0,
-                stats: dict | None = None):
+def decode_grid(
+    decoder,
+    triplane: Triplane | PreparedTriplane,
+    aabb,
+    resolution: int,
+    chunk: int = 2**16,
+    with_color: bool = False,
+    coarse: int | None = 4,
+    exact_band: float = 2.0,
+    lipschitz: float = 2.0,
+    stats: dict | None = None,
+):
     """Decode the SDF (and colour) on a cell-centred grid over ``aabb``.
 
     The grid has ``resolution`` voxels along the box's longest side (see
@@ -178,8 +194,9 @@ def decode_grid(decoder, triplane: Triplane | PreparedTriplane, aabb, resolution
     else:
         if exact_band < 0 or lipschitz <= 0:
             raise Sin3DMInputError(f"need exact_band >= 0 and lipschitz > 0, got {exact_band} and {lipschitz}")
-        sdf, color = _decode_coarse_to_fine(decoder, prepared, box, shape, chunk, with_color, int(coarse),
-                                            float(exact_band), float(lipschitz), stats)
+        sdf, color = _decode_coarse_to_fine(
+            decoder, prepared, box, shape, chunk, with_color, int(coarse), float(exact_band), float(lipschitz), stats
+        )
     if with_color:
         return sdf, color
     return sdf
@@ -195,11 +212,11 @@ def _decode_full(decoder, prepared: PreparedTriplane, shape, chunk: int, with_co
         idx = np.unravel_index(np.arange(s, min(s + chunk, total)), shape)
         pts = np.stack([axes[a][idx[a]] for a in range(3)], axis=-1)
         d, c = query_points(decoder, prepared, pts, chunk=chunk, color=with_color)
-        sdf[s:s + len(d)] = d
+        sdf[s : s + len(d)] = d
         if with_color:
             if color is None:
                 color = np.empty((total, c.shape[-1]), np.float32)
-            color[s:s + len(d)] = c
+            color[s : s + len(d)] = c
     return sdf.reshape(shape), (color.reshape(*shape, -1) if with_color else None)
 
 
@@ -234,8 +251,18 @@ def mc_support(sdf: np.ndarray, level: float = 0.0) -> np.ndarray:
     return mark[1:-1, 1:-1, 1:-1]
 
 
-def _decode_coarse_to_fine(decoder, prepared: PreparedTriplane, box: np.ndarray, shape, chunk: int,
-                           with_color: bool, coarse: int, exact_band: float, lipschitz: float, stats: dict | None):
+def _decode_coarse_to_fine(
+    decoder,
+    prepared: PreparedTriplane,
+    box: np.ndarray,
+    shape,
+    chunk: int,
+    with_color: bool,
+    coarse: int,
+    exact_band: float,
+    lipschitz: float,
+    stats: dict | None,
+):
     """:func:`decode_grid`, coarse to fine, on a grid padded to a whole number of coarse cells.
 
     Most of the grid is far from the surface, where marching cubes only needs
@@ -282,8 +309,9 @@ def _decode_coarse_to_fine(decoder, prepared: PreparedTriplane, box: np.ndarray,
             break
         closure += grid.decode(np.nonzero(missing))
     if stats is not None:
-        stats.update(voxels=int(np.prod(shape)), decoded=sum(c for _, c in counts) + closure, levels=counts,
-                     closure=closure)
+        stats.update(
+            voxels=int(np.prod(shape)), decoded=sum(c for _, c in counts) + closure, levels=counts, closure=closure
+        )
     return np.ascontiguousarray(sdf), (np.ascontiguousarray(grid.col[crop]) if with_color else None)
 
 
@@ -336,8 +364,9 @@ def _refine(grid: _PaddedGrid, big: int, h: int, shape, spacing, band, lipschitz
         if off == (0, 0, 0):
             continue
         choices = _cell_corners(off, r, h, cells, spacing)
-        same_pos, same_neg, lower, interp, icol = _from_corners(choices, c_pos, c_neg, c_val, c_bound, c_col,
-                                                                lipschitz, with_color)
+        same_pos, same_neg, lower, interp, icol = _from_corners(
+            choices, c_pos, c_neg, c_val, c_bound, c_col, lipschitz, with_color
+        )
         far = (same_pos | same_neg) & (lower >= band)
         target = tuple(slice(o, None, r) for o in off)
         f_val[target][far] = interp[far]
@@ -360,8 +389,9 @@ def _cell_corners(off, r: int, h: int, cells, spacing) -> list[list[tuple]]:
             choices.append([(slice(None), 1.0, 0.0)])
         else:
             t = o / r
-            choices.append([(slice(0, cells[a]), 1 - t, o * h * spacing[a]),
-                            (slice(1, cells[a] + 1), t, (r - o) * h * spacing[a])])
+            choices.append(
+                [(slice(0, cells[a]), 1 - t, o * h * spacing[a]), (slice(1, cells[a] + 1), t, (r - o) * h * spacing[a])]
+            )
     return choices
 
 
@@ -388,7 +418,9 @@ def _from_corners(choices, c_pos, c_neg, c_val, c_bound, c_col, lipschitz: float
 
 
 # ----------------------------------------------------------------------------- the input's reconstruction
-def reconstructed_grid(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid, name: str = "reconstruction") -> ShapeGrid:
+def reconstructed_grid(
+    decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid, name: str = "reconstruction"
+) -> ShapeGrid:
     """The grid the latent ``h`` describes: decoded SDF and colour at every voxel of ``grid``.
 
     Same box, threshold and normalisation as ``grid`` (so the two can be shown
@@ -399,8 +431,13 @@ def reconstructed_grid(decoder: TriplaneDecoder, h: Triplane, grid: ShapeGrid, n
     sdf, color = decode_grid(decoder, h[:1], grid.aabb, max(grid.shape), with_color=True, coarse=None)
     assert sdf.shape == grid.shape, (sdf.shape, grid.shape)  # a ShapeGrid box is ±n_axis / n_max
     return dataclasses.replace(
-        grid, sdf=sdf, color=color, name=name,
-        points=np.zeros((0, 3), np.float32), point_sdf=np.zeros(0, np.float32), point_color=np.zeros((0, color.shape[-1]), np.float32),
+        grid,
+        sdf=sdf,
+        color=color,
+        name=name,
+        points=np.zeros((0, 3), np.float32),
+        point_sdf=np.zeros(0, np.float32),
+        point_color=np.zeros((0, color.shape[-1]), np.float32),
     )
 
 

@@ -11,6 +11,7 @@ fully convolutional, sampling noise of another size gives a retargeted shape,
 and pasting a noised known latent into part of ``x_t`` at every step gives
 outpainting, patch duplication and local editing without touching the sampler.
 """
+
 from __future__ import annotations
 
 import copy
@@ -56,20 +57,29 @@ def random_crops(h0: Triplane, n: int, size: int, generator: torch.Generator) ->
     """
     res = h0.resolution
     sizes = [min(size, r) for r in res]
-    starts = [torch.randint(0, r - s + 1, (n,), generator=generator, device=generator.device).tolist()
-              for r, s in zip(res, sizes)]
+    starts = [
+        torch.randint(0, r - s + 1, (n,), generator=generator, device=generator.device).tolist()
+        for r, s in zip(res, sizes)
+    ]
     (sx, sy, sz), planes = sizes, []
     for i in range(n):
         ox, oy, oz = starts[0][i], starts[1][i], starts[2][i]
-        planes.append((h0.xy[:, :, ox:ox + sx, oy:oy + sy], h0.xz[:, :, ox:ox + sx, oz:oz + sz],
-                       h0.yz[:, :, oy:oy + sy, oz:oz + sz]))
+        planes.append(
+            (
+                h0.xy[:, :, ox : ox + sx, oy : oy + sy],
+                h0.xz[:, :, ox : ox + sx, oz : oz + sz],
+                h0.yz[:, :, oy : oy + sy, oz : oz + sz],
+            )
+        )
     return Triplane(*(torch.cat(p, 0) for p in zip(*planes)))
 
 
 def check_flips(axes: str) -> None:
     """``diffusion.flips`` names axes to mirror the latent along: "", "x", "z" or "xz" (y is up)."""
     if not isinstance(axes, str) or set(axes) - set("xz") or len(set(axes)) != len(axes):
-        raise Sin3DMInputError(f"diffusion.flips must be '', 'x', 'z' or 'xz' (y is up and never flipped), not {axes!r}")
+        raise Sin3DMInputError(
+            f"diffusion.flips must be '', 'x', 'z' or 'xz' (y is up and never flipped), not {axes!r}"
+        )
 
 
 def random_flips(x: Triplane, axes: str, generator: torch.Generator) -> Triplane:
@@ -143,8 +153,11 @@ class DiffusionTrainer(Trainer):
         try:  # the first compiled step: torch.compile needs a working Triton / C++ toolchain
             out = loss()
         except Exception as e:
-            warnings.warn(f"torch.compile of the denoiser failed here ({type(e).__name__}); training it uncompiled "
-                          "(set diffusion.compile=false to skip the attempt)", stacklevel=2)
+            warnings.warn(
+                f"torch.compile of the denoiser failed here ({type(e).__name__}); training it uncompiled "
+                "(set diffusion.compile=false to skip the attempt)",
+                stacklevel=2,
+            )
             self.train_forward = self.model
             out = loss()  # the same batch, eagerly
         self._compile_checked = True
@@ -153,7 +166,9 @@ class DiffusionTrainer(Trainer):
     def after_step(self) -> None:
         if self.ema is not None:  # one fused update over all weights (a loop of small kernels is slow on a GPU)
             with torch.no_grad():
-                torch._foreach_lerp_(list(self.ema.parameters()), list(self.model.parameters()), 1.0 - self.cfg.ema_decay)
+                torch._foreach_lerp_(
+                    list(self.ema.parameters()), list(self.model.parameters()), 1.0 - self.cfg.ema_decay
+                )
 
     def extra_state(self) -> dict:
         return {"ema": self.ema.state_dict() if self.ema is not None else None, "h0": self.h0.state_dict()}
@@ -197,8 +212,9 @@ def _blend(mask: Triplane, keep: Triplane, x: Triplane) -> Triplane:
 
 
 @torch.no_grad()
-def predict_clean(model, schedule: NoiseSchedule, x_t: Triplane, t: torch.Tensor, prediction: str = "x0",
-                  clip: bool = True) -> Triplane:
+def predict_clean(
+    model, schedule: NoiseSchedule, x_t: Triplane, t: torch.Tensor, prediction: str = "x0", clip: bool = True
+) -> Triplane:
     """The network's estimate of the clean latent x0 from ``x_t`` (converted from ε for an ε-model).
 
     The latent is a tanh output, so ``clip`` keeps the estimate in [-1, 1] as the sampler does.
@@ -229,7 +245,9 @@ class SampleNoise:
         """Noise of ``like``'s shape (which may live on the ``meta`` device) on ``device``."""
         if self.gens is None:
             return like.map(lambda p: torch.randn(p.shape, generator=self.shared, device=self.shared.device).to(device))
-        return like.map(lambda p: torch.cat([torch.randn((1, *p.shape[1:]), generator=g) for g in self.gens]).to(device))
+        return like.map(
+            lambda p: torch.cat([torch.randn((1, *p.shape[1:]), generator=g) for g in self.gens]).to(device)
+        )
 
     def like(self, tp: Triplane) -> Triplane:
         return self.draw(tp, tp.device).to(dtype=tp.xy.dtype)
@@ -332,10 +350,20 @@ def _known_and_mask(known: Triplane | None, mask: Triplane | None, device):
     return known, mask
 
 
-def _first_latent(schedule: NoiseSchedule, noise: SampleNoise, n: int, channels: int, resolution, device,
-                  t0: int, start: Triplane | None) -> Triplane:
+def _first_latent(
+    schedule: NoiseSchedule,
+    noise: SampleNoise,
+    n: int,
+    channels: int,
+    resolution,
+    device,
+    t0: int,
+    start: Triplane | None,
+) -> Triplane:
     """Where the walk starts: x_T from the samples' own noise, or, below full diversity, the start latent noised to t0."""
-    x = noise.draw(Triplane.randn(n, channels, tuple(resolution), device="meta"), device)  # x_T, shape from a meta tensor
+    x = noise.draw(
+        Triplane.randn(n, channels, tuple(resolution), device="meta"), device
+    )  # x_T, shape from a meta tensor
     if t0 < schedule.timesteps - 1:  # x_t0 = the start latent noised to t0
         if start.resolution != tuple(resolution):
             raise Sin3DMInputError(f"start latent is {start.resolution}, the samples are {tuple(resolution)}")
@@ -343,8 +371,16 @@ def _first_latent(schedule: NoiseSchedule, noise: SampleNoise, n: int, channels:
     return x
 
 
-def _step(schedule: NoiseSchedule, method: str, x: Triplane, x0: Triplane, tt: torch.Tensor, t: int, t_prev: int,
-          noise: SampleNoise) -> Triplane:
+def _step(
+    schedule: NoiseSchedule,
+    method: str,
+    x: Triplane,
+    x0: Triplane,
+    tt: torch.Tensor,
+    t: int,
+    t_prev: int,
+    noise: SampleNoise,
+) -> Triplane:
     """One reverse step from x_t to x_{t_prev}, given the predicted x0: DDPM's posterior draw or DDIM's (η = 0) jump."""
     if method == "ddpm":
         mean, var = schedule.posterior(x0, x, tt)

@@ -8,6 +8,7 @@ jump and one reverse step (DDPM's posterior, DDIM's η = 0 step);
 :func:`start_step` turns the diversity knob into the step a sample starts
 from. Training and the samplers themselves are in :mod:`.diffusion`.
 """
+
 from __future__ import annotations
 
 import math
@@ -80,7 +81,6 @@ class NoiseSchedule:
         tables = (self.posterior_coef_x0, self.posterior_coef_xt, self.posterior_variance)
         c0, ct, var = (self._at(v[t], x_t.xy) for v in tables)
         return x0.zip_map(x_t, lambda a, b: c0 * a + ct * b), var
-
 
 
 # ------------------------------------------------------------------------ the steps a sampler visits

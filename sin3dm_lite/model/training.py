@@ -28,6 +28,7 @@
 
   plus each trainer's extras (the diffusion trainer's ``ema`` and ``h0``).
 """
+
 from __future__ import annotations
 
 import copy
@@ -147,19 +148,21 @@ class Trainer:
 
     def state_dict(self) -> dict:
         """A CPU snapshot of everything needed to resume exactly (plain tensors and containers only)."""
-        return cpu_copy({
-            "format": TRAINER_FORMAT,
-            "kind": self.kind,
-            "model": self.model.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "scheduler": self.scheduler.state_dict(),
-            "generator": self.generator.get_state(),
-            "step": self.step_count,
-            "history": {k: torch.tensor(v, dtype=torch.float64) for k, v in self.history.items()},
-            "config": asdict(self.cfg),
-            "seed": self.seed,
-            **self.extra_state(),
-        })
+        return cpu_copy(
+            {
+                "format": TRAINER_FORMAT,
+                "kind": self.kind,
+                "model": self.model.state_dict(),
+                "optimizer": self.optimizer.state_dict(),
+                "scheduler": self.scheduler.state_dict(),
+                "generator": self.generator.get_state(),
+                "step": self.step_count,
+                "history": {k: torch.tensor(v, dtype=torch.float64) for k, v in self.history.items()},
+                "config": asdict(self.cfg),
+                "seed": self.seed,
+                **self.extra_state(),
+            }
+        )
 
     def load_state_dict(self, sd: dict) -> None:
         """Continue from a :meth:`state_dict` (of a trainer built with the same config)."""

@@ -16,6 +16,7 @@ Conventions used everywhere in the package:
   (``align_corners=False`` in PyTorch terms). Outside the box, lookups repeat
   the border texel.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -107,10 +108,14 @@ class Triplane:
         """Bilinear resampling of every plane to the spatial size ``(X, Y, Z)`` (texel centres kept in place)."""
         x, y, z = resolution
         sizes = {"xy": (x, y), "xz": (x, z), "yz": (y, z)}
-        return Triplane(*(
-            F.interpolate(p, size=sizes[name], mode="bilinear", align_corners=False) if p.shape[-2:] != sizes[name] else p
-            for name, p in zip(PLANES, self.planes)
-        ))
+        return Triplane(
+            *(
+                F.interpolate(p, size=sizes[name], mode="bilinear", align_corners=False)
+                if p.shape[-2:] != sizes[name]
+                else p
+                for name, p in zip(PLANES, self.planes)
+            )
+        )
 
     def __add__(self, other):
         return self.zip_map(other, torch.add) if isinstance(other, Triplane) else self.map(lambda p: p + other)

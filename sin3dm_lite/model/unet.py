@@ -11,6 +11,7 @@ axis they share, so the three planes stay consistent with one another.
 Shapes: a ``Triplane`` holds ``xy [B,C,X,Y]``, ``xz [B,C,X,Z]``, ``yz [B,C,Y,Z]``;
 every layer here keeps that structure, so odd and non-square sizes just work.
 """
+
 from __future__ import annotations
 
 import copy
@@ -60,8 +61,13 @@ def rollout_parts(tp: Triplane, detach_means: bool = False, concat: bool = True)
             v = v[:, :, :, None] if (set(axes) - {lacking}) == {a} else v[:, :, None, :]  # [B,C,A,1] or [B,C,1,B']
             pooled.append(v)
             expanded.append(v.expand(-1, -1, *own.shape[-2:]))
-        parts[name] = {"plane": own, "sources": others, "axis": "xyz"[lacking], "pooled": tuple(pooled),
-                       "expanded": tuple(expanded)}
+        parts[name] = {
+            "plane": own,
+            "sources": others,
+            "axis": "xyz"[lacking],
+            "pooled": tuple(pooled),
+            "expanded": tuple(expanded),
+        }
         if concat:
             parts[name]["input"] = torch.cat([own, *expanded], 1)
     return parts
@@ -108,7 +114,7 @@ class TriplaneConv(nn.Module):
             c, size = own.shape[1], own.shape[-2:]
             w = conv.weight  # [out, 3c, k, k]: the plane's channels, then the two means'
             o = F.conv2d(own, w[:, :c], conv.bias, padding=conv.padding)
-            o = o + _conv_repeated(v1, w[:, c:2 * c], size) + _conv_repeated(v2, w[:, 2 * c:], size)
+            o = o + _conv_repeated(v1, w[:, c : 2 * c], size) + _conv_repeated(v2, w[:, 2 * c :], size)
             out.append(o)
         return Triplane(*out)  # [B, out, ., .]
 

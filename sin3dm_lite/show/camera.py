@@ -8,6 +8,7 @@ right and well above (:data:`VIEW`), so that a canyon's river shows. The
 viewers of :mod:`sin3dm_lite.show.viewer` and the pages of
 :mod:`sin3dm_lite.show.pages` use both.
 """
+
 from __future__ import annotations
 
 import k3d
@@ -37,8 +38,9 @@ def screen_up_vector(azimuth: float, elevation: float) -> np.ndarray:
     return to_view([-np.sin(el) * np.sin(az), np.cos(el), -np.sin(el) * np.cos(az)])[0].astype(np.float64)
 
 
-def view_camera(lo, hi, azimuth: float = VIEW[0], elevation: float = VIEW[1], fov: float = 60.0,
-                factor: float = 1.1) -> list[float]:
+def view_camera(
+    lo, hi, azimuth: float = VIEW[0], elevation: float = VIEW[1], fov: float = 60.0, factor: float = 1.1
+) -> list[float]:
     """k3d's camera vector ``[eye, target, up]`` (9 numbers) looking at the box ``lo``..``hi`` (k3d's frame).
 
     ``azimuth`` and ``elevation`` (degrees) are in the data's y-up frame, as in
@@ -57,7 +59,9 @@ def view_camera(lo, hi, azimuth: float = VIEW[0], elevation: float = VIEW[1], fo
     return [*map(float, eye), *map(float, centre), 0.0, 0.0, 1.0]
 
 
-def fit_camera(plot: k3d.Plot, azimuth: float = VIEW[0], elevation: float = VIEW[1], factor: float = 1.1) -> list[float]:
+def fit_camera(
+    plot: k3d.Plot, azimuth: float = VIEW[0], elevation: float = VIEW[1], factor: float = 1.1
+) -> list[float]:
     """Point the camera at everything in the plot, from above at an angle by default (:func:`view_camera`).
 
     Returns the camera vector it set.
@@ -65,4 +69,3 @@ def fit_camera(plot: k3d.Plot, azimuth: float = VIEW[0], elevation: float = VIEW
     b = plot.get_auto_grid()  # [xmin, xmax, ymin, ymax, zmin, zmax] of all objects
     plot.camera = view_camera(b[::2], b[1::2], azimuth, elevation, fov=plot.camera_fov, factor=factor)
     return list(plot.camera)
-

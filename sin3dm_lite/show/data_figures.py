@@ -1,4 +1,5 @@
 """Figures of the Data stage: slices of the TSDF and colour grid, the truncation, sample points, the input's texture and UV layout, PBR maps and slices."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -66,13 +67,22 @@ def plot_grid_slices(
         if show_color:
             draw_slice(panels[1, col], grid, a, i, "color", threshold_lines, up)
     fig.colorbar(im, ax=panels[0, :].tolist(), label="truncated SDF", shrink=0.9)
-    fig.suptitle(f"{grid.name}: grid {grid.shape}, threshold {grid.threshold:.4f} "
-                 f"({grid.threshold / grid.voxel_size:.1f} voxels)", fontsize=10)
+    fig.suptitle(
+        f"{grid.name}: grid {grid.shape}, threshold {grid.threshold:.4f} "
+        f"({grid.threshold / grid.voxel_size:.1f} voxels)",
+        fontsize=10,
+    )
     return fig
 
 
-def plot_slice(grid: ShapeGrid, axis: int | str = "z", index: int | None = None, kind: str = "sdf",
-               threshold_lines: bool = True, up: str | None = "y") -> Figure:
+def plot_slice(
+    grid: ShapeGrid,
+    axis: int | str = "z",
+    index: int | None = None,
+    kind: str = "sdf",
+    threshold_lines: bool = True,
+    up: str | None = "y",
+) -> Figure:
     """One panel: the SDF (``kind="sdf"``) or colour (``kind="color"``) slice across ``axis`` at ``index``.
 
     ``up`` is drawn vertically when it is one of the panel's axes (see :func:`plot_grid_slices`).
@@ -111,8 +121,14 @@ def plot_truncation(
     if not isinstance(grid, ShapeGrid):
         field = np.asarray(as_numpy(grid), np.float32)
         half = np.array(field.shape, np.float64) / max(field.shape)
-        grid = ShapeGrid(field, np.zeros((1, 1, 1, 3), np.float32), np.concatenate([-half, half]),
-                         float(np.abs(field).max()), None, name="sdf")  # type: ignore[arg-type]
+        grid = ShapeGrid(
+            field,
+            np.zeros((1, 1, 1, 3), np.float32),
+            np.concatenate([-half, half]),
+            float(np.abs(field).max()),
+            None,
+            name="sdf",
+        )  # type: ignore[arg-type]
     a = axis_index(axis)
     own = grid.threshold / grid.voxel_size
     if thresholds is None:
@@ -149,8 +165,9 @@ def plot_truncation(
     prof.axhline(0.0, color="k", lw=0.6)
     prof.set_xlabel(AXES[u])
     prof.set_ylabel("SDF")
-    prof.set_title(f"SDF along {AXES[u]} at {AXES[v]} = {grid.axis_coords(v)[line]:+.3f} "
-                   f"(slice {AXES[a]} = {index})", fontsize=9)
+    prof.set_title(
+        f"SDF along {AXES[u]} at {AXES[v]} = {grid.axis_coords(v)[line]:+.3f} (slice {AXES[a]} = {index})", fontsize=9
+    )
     prof.legend(fontsize=8, loc="upper right")
     fig.colorbar(im, ax=fig.axes[1:], shrink=0.8)
     return fig
@@ -210,8 +227,7 @@ def plot_texture(image: np.ndarray, covered: np.ndarray | None = None) -> Figure
     panels[0].set_title(f"texture {img.shape[1]}×{img.shape[0]}", fontsize=9)
     if covered is not None:
         cov = np.asarray(covered).astype(bool)
-        panels[1].imshow(cov, extent=(0, 1, 0, 1), origin="upper", cmap="gray", vmin=0, vmax=1,
-                         interpolation="nearest")
+        panels[1].imshow(cov, extent=(0, 1, 0, 1), origin="upper", cmap="gray", vmin=0, vmax=1, interpolation="nearest")
         panels[1].set_title(f"covered texels: {cov.mean():.1%}", fontsize=9)
     for ax in panels:
         ax.set_xlabel("u")
@@ -219,8 +235,13 @@ def plot_texture(image: np.ndarray, covered: np.ndarray | None = None) -> Figure
     return fig
 
 
-def plot_uv_layout(uvs: np.ndarray, faces: np.ndarray | None = None, image: np.ndarray | None = None,
-                   linewidth: float = 0.3, color: str = "k") -> Figure:
+def plot_uv_layout(
+    uvs: np.ndarray,
+    faces: np.ndarray | None = None,
+    image: np.ndarray | None = None,
+    linewidth: float = 0.3,
+    color: str = "k",
+) -> Figure:
     """UV triangles as a wireframe (one ``LineCollection``), over the texture when given.
 
     ``uvs`` is either per vertex ``(V, 2)`` with ``faces (F, 3)``, or per face corner
@@ -263,8 +284,9 @@ def pbr_map_images(source) -> dict[str, np.ndarray]:
     Missing maps come out as constant images of the factor (or flat normals).
     """
     materials = getattr(source, "materials", None) or [source]
-    mat = next((m for m in materials if m.metallic_roughness_image is not None or m.normal_image is not None),
-               materials[0])
+    mat = next(
+        (m for m in materials if m.metallic_roughness_image is not None or m.normal_image is not None), materials[0]
+    )
     base = as_float_image(mat.image) if mat.image is not None else np.ones((8, 8, 3), np.float32)
     base = base * np.asarray(mat.base_color, np.float32)[:3]
     shape = base.shape[:2]
@@ -273,8 +295,11 @@ def pbr_map_images(source) -> dict[str, np.ndarray]:
         metal, rough = mr[..., 2] * mat.metallic, mr[..., 1] * mat.roughness
     else:
         metal, rough = np.full(shape, mat.metallic, np.float32), np.full(shape, mat.roughness, np.float32)
-    normal = (as_float_image(mat.normal_image) if mat.normal_image is not None
-              else np.broadcast_to(np.float32([0.5, 0.5, 1.0]), (*shape, 3)))
+    normal = (
+        as_float_image(mat.normal_image)
+        if mat.normal_image is not None
+        else np.broadcast_to(np.float32([0.5, 0.5, 1.0]), (*shape, 3))
+    )
     return {"base colour": base, "metallic": metal, "roughness": rough, "normal": normal}
 
 
@@ -290,8 +315,15 @@ def plot_pbr_maps(source, title: str | None = None) -> Figure:
     panels = fig.subplots(1, 4)
     for ax, (name, img) in zip(panels, maps.items()):
         gray = img.ndim == 2
-        ax.imshow(img, extent=(0, 1, 0, 1), origin="upper", interpolation="nearest",
-                  cmap="gray" if gray else None, vmin=0 if gray else None, vmax=1 if gray else None)
+        ax.imshow(
+            img,
+            extent=(0, 1, 0, 1),
+            origin="upper",
+            interpolation="nearest",
+            cmap="gray" if gray else None,
+            vmin=0 if gray else None,
+            vmax=1 if gray else None,
+        )
         stats = f"mean {img.mean():.2f}, std {img.std():.2f}" if gray else f"{img.shape[1]}×{img.shape[0]}"
         ax.set_title(f"{name}\n{stats}", fontsize=9)
         ax.set_xticks([])
@@ -312,8 +344,12 @@ def pbr_slice_images(grid: ShapeGrid, axis: int | str = "y", index: int | None =
     sdf, index = grid_slice(grid.sdf, axis, index)
     col, _ = grid_slice(grid.color, axis, index)
     band = (np.abs(sdf) < grid.threshold)[..., None]
-    pick = {"base colour": col[..., :3], "metallic": col[..., 3:4].repeat(3, -1),
-            "roughness": col[..., 4:5].repeat(3, -1), "normal": col[..., 5:8]}
+    pick = {
+        "base colour": col[..., :3],
+        "metallic": col[..., 3:4].repeat(3, -1),
+        "roughness": col[..., 4:5].repeat(3, -1),
+        "normal": col[..., 5:8],
+    }
     return {k: np.where(band, np.clip(v, 0, 1), NEUTRAL).astype(np.float32) for k, v in pick.items()}
 
 

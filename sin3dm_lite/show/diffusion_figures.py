@@ -1,4 +1,5 @@
 """Figures of diffusion: the denoising steps (x_t and predicted x0), training losses, the noise schedule."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -85,7 +86,7 @@ def plot_losses(history, log: bool = True, title: str | None = None, window: int
         ax.plot(steps, v, color=color, lw=0.6, alpha=0.35)
         w = window or max(1, len(v) // 50)
         ma = moving_average(v, w)
-        ax.plot(steps[w - 1:] if w <= len(v) else steps[-1:], ma, color=color, lw=2.0, label=f"{name} (avg {w})")
+        ax.plot(steps[w - 1 :] if w <= len(v) else steps[-1:], ma, color=color, lw=2.0, label=f"{name} (avg {w})")
     if log and all_positive:
         ax.set_yscale("log")
     ax.set_xlabel("step")

@@ -1,4 +1,5 @@
 """Figures of the Evaluate stage: pictures, the IoU matrix, layer variation, patch matches and rendered pairs."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -44,13 +45,21 @@ def plot_iou_matrix(grids: Sequence[np.ndarray], labels: Sequence[str] | None = 
     for a in range(n):
         for b in range(n):
             if a != b:
-                ax.text(b, a, f"{d[a, b]:.2f}", ha="center", va="center", fontsize=8,
-                        color="w" if d[a, b] < 0.6 * (off.max() if len(off) else 1) else "k")
+                ax.text(
+                    b,
+                    a,
+                    f"{d[a, b]:.2f}",
+                    ha="center",
+                    va="center",
+                    fontsize=8,
+                    color="w" if d[a, b] < 0.6 * (off.max() if len(off) else 1) else "k",
+                )
     ax.set_xticks(range(n), labels, fontsize=8, rotation=90 if n > 6 else 0)
     ax.set_yticks(range(n), labels, fontsize=8)
     fig.colorbar(im, ax=ax, shrink=0.8, label="1 − IoU")
-    ax.set_title(f"G-Div = mean above the diagonal = {off.mean():.3f}" if len(off) else "one shape: no pairs",
-                 fontsize=9)
+    ax.set_title(
+        f"G-Div = mean above the diagonal = {off.mean():.3f}" if len(off) else "one shape: no pairs", fontsize=9
+    )
     return fig
 
 
@@ -107,8 +116,9 @@ def plot_patch_matches(matches: dict, slices: Sequence[int] | None = None) -> Fi
             show_image(ax, _patch_strip(cube, slices), cmap="Greys", vmin=0, vmax=1)
             ax.set_xticks([])
             ax.set_yticks([])
-            ax.set_title(f"IoU {matches['iou'][k]:.2f} · F {matches['fscore'][k]:.2f}" if row == 0 else label,
-                         fontsize=8)
+            ax.set_title(
+                f"IoU {matches['iou'][k]:.2f} · F {matches['fscore'][k]:.2f}" if row == 0 else label, fontsize=8
+            )
         if k == 0:
             panels[0, 0].set_ylabel("generated", fontsize=8)
             panels[1, 0].set_ylabel("input", fontsize=8)
@@ -126,8 +136,12 @@ def plot_patch_matches(matches: dict, slices: Sequence[int] | None = None) -> Fi
     return fig
 
 
-def plot_render_pairs(views_a: Sequence[np.ndarray], views_b: Sequence[np.ndarray],
-                      labels: Sequence[str] = ("sample 0", "sample 1"), views: Sequence[int] | None = None) -> Figure:
+def plot_render_pairs(
+    views_a: Sequence[np.ndarray],
+    views_b: Sequence[np.ndarray],
+    labels: Sequence[str] = ("sample 0", "sample 1"),
+    views: Sequence[int] | None = None,
+) -> Figure:
     """What the render diversity compares: the same view of two shapes, and where their colours differ.
 
     Rows: shape a, shape b, ``|a − b|`` (mean over RGB, 0–1) on the pixels where
@@ -148,8 +162,9 @@ def plot_render_pairs(views_a: Sequence[np.ndarray], views_b: Sequence[np.ndarra
         panels[0, c].imshow(a)
         panels[1, c].imshow(b)
         im = panels[2, c].imshow(diff, cmap="magma", vmin=0, vmax=0.5)
-        panels[0, c].set_title(f"azimuth {360 * k / len(views_a):.0f}°: distance "
-                               f"{colour_distance(views_a[k], views_b[k]):.3f}", fontsize=8)
+        panels[0, c].set_title(
+            f"azimuth {360 * k / len(views_a):.0f}°: distance {colour_distance(views_a[k], views_b[k]):.3f}", fontsize=8
+        )
         for ax in panels[:, c]:
             ax.set_xticks([])
             ax.set_yticks([])

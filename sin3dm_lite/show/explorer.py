@@ -6,6 +6,7 @@ and shows the figure it returns. A failing render prints its traceback into the
 panel (widget callbacks would otherwise swallow it) and keeps it in
 ``last_error``.
 """
+
 from __future__ import annotations
 
 import traceback

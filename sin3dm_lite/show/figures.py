@@ -6,6 +6,7 @@ second one runs up (``imshow(..., origin="lower")`` of the transposed array).
 A slice across z therefore shows x → and y ↑, the same view as the xy plane of
 a triplane.
 """
+
 from __future__ import annotations
 
 import matplotlib.pyplot as plt
@@ -96,8 +97,9 @@ def color_slice_image(grid: ShapeGrid, axis: int | str, index: int | None = None
     return np.where(band[..., None], rgb, NEUTRAL)
 
 
-def draw_slice(ax, grid: ShapeGrid, axis: int, index: int, kind: str, threshold_lines: bool = True,
-                up: int | str | None = None):
+def draw_slice(
+    ax, grid: ShapeGrid, axis: int, index: int, kind: str, threshold_lines: bool = True, up: int | str | None = None
+):
     u, v = plane_axes(axis, up)
     swap = u > v  # the slice array keeps the remaining axes in order; put `up` vertical
     ext = plane_extent(grid, axis, up)
@@ -126,5 +128,12 @@ def draw_contours(ax, grid: ShapeGrid, uv: tuple[int, int], sdf: np.ndarray, thr
         t = 0.98 * grid.threshold  # the band's edge (the sdf is flat at ±threshold beyond it)
         levels = [lv for lv in (-t, t) if sdf.min() < lv < sdf.max()]
         if levels:
-            ax.contour(grid.axis_coords(u), grid.axis_coords(v), sdf.T, levels=levels,
-                       colors="0.3", linewidths=0.6, linestyles="--")
+            ax.contour(
+                grid.axis_coords(u),
+                grid.axis_coords(v),
+                sdf.T,
+                levels=levels,
+                colors="0.3",
+                linewidths=0.6,
+                linestyles="--",
+            )

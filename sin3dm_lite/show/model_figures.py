@@ -1,4 +1,5 @@
 """Figures of the Model stage: the three triplane feature maps, how a plane sees the volume, one TriplaneConv, the U-Net's receptive field."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -96,10 +97,22 @@ def plot_plane_axes(shape=None, up: str = "y", n_points: int = 4000, azim: float
     gs = fig.add_gridspec(1, 2, width_ratios=[1.5, 1.0])
     ax = fig.add_subplot(gs[0, 0], projection="3d")
     if points is not None:  # the shape, shaded by height
-        ax.scatter(*points.T, s=1.5, c=points[:, ui], cmap="Greys", vmin=lo[ui] - 0.6 * ext[ui], vmax=hi[ui],
-                   alpha=0.7, depthshade=False)
-    corners = np.array([[lo[0] if i & 1 == 0 else hi[0], lo[1] if i & 2 == 0 else hi[1], lo[2] if i & 4 == 0 else hi[2]]
-                        for i in range(8)])
+        ax.scatter(
+            *points.T,
+            s=1.5,
+            c=points[:, ui],
+            cmap="Greys",
+            vmin=lo[ui] - 0.6 * ext[ui],
+            vmax=hi[ui],
+            alpha=0.7,
+            depthshade=False,
+        )
+    corners = np.array(
+        [
+            [lo[0] if i & 1 == 0 else hi[0], lo[1] if i & 2 == 0 else hi[1], lo[2] if i & 4 == 0 else hi[2]]
+            for i in range(8)
+        ]
+    )
     for i in range(8):
         for bit in (1, 2, 4):
             if not i & bit:
@@ -128,7 +141,9 @@ def _box_and_points(shape, n_points: int):
     elif isinstance(shape, ShapeGrid):
         lo, hi = np.asarray(shape.aabb[:3], float), np.asarray(shape.aabb[3:], float)
         pts = np.asarray(shape.points, float).reshape(-1, 3)
-        points = pts[np.random.default_rng(0).choice(len(pts), min(len(pts), n_points), replace=False)] if len(pts) else None
+        points = (
+            pts[np.random.default_rng(0).choice(len(pts), min(len(pts), n_points), replace=False)] if len(pts) else None
+        )
     elif hasattr(shape, "vertices") and hasattr(shape, "faces"):
         v, f = np.asarray(shape.vertices, float), np.asarray(shape.faces)
         lo, hi = v.min(0), v.max(0)
@@ -160,15 +175,25 @@ def _draw_planes(ax, lo, hi, ext, ui: int) -> None:
             quad[k, u] = (lo[u], hi[u])[a]
             quad[k, v] = (lo[v], hi[v])[b]
             quad[k, m] = lo[m]
-        ax.add_collection3d(Poly3DCollection([quad], facecolor=colors[name], edgecolor=colors[name], alpha=0.25, lw=1.5))
+        ax.add_collection3d(
+            Poly3DCollection([quad], facecolor=colors[name], edgecolor=colors[name], alpha=0.25, lw=1.5)
+        )
         spot = quad.mean(0)  # the label sits just outside the box, next to its wall
         if m == ui:  # the floor: in front of its front edge
             front = [k for k in range(3) if k not in (u, v, ui)] or [v]
             spot[front[0]] = hi[front[0]] + 0.25 * ext.max()
         elif ui in (u, v):  # a wall: above its top edge
             spot[ui] = hi[ui] + 0.12 * ext.max()
-        ax.text(*spot, f"{name} plane\n(mean over {AXES[m]})", color=colors[name], fontsize=10, ha="center",
-                va="center", fontweight="bold", zorder=10)
+        ax.text(
+            *spot,
+            f"{name} plane\n(mean over {AXES[m]})",
+            color=colors[name],
+            fontsize=10,
+            ha="center",
+            va="center",
+            fontweight="bold",
+            zorder=10,
+        )
 
 
 def _draw_axes_triad(ax, lo, hi, ext, ui: int) -> None:
@@ -182,8 +207,9 @@ def _draw_axes_triad(ax, lo, hi, ext, ui: int) -> None:
         start[third] = hi[third] + 0.15 * ext.max()
         start[0] -= 0.15 * ext.max()
         ax.quiver(*start, *d, color="crimson", lw=1.5, arrow_length_ratio=0.2)
-        ax.text(*(start + 1.18 * d), AXES[k] + (" (up)" if k == ui else ""), color="crimson", fontsize=11,
-                fontweight="bold")
+        ax.text(
+            *(start + 1.18 * d), AXES[k] + (" (up)" if k == ui else ""), color="crimson", fontsize=11, fontweight="bold"
+        )
 
 
 def _describe_views(fig, gs, ui: int) -> None:
@@ -225,19 +251,40 @@ def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0, channel: 
     gs = fig.add_gridspec(3, 3, height_ratios=[1.0, 0.55, 1.0])
     own = as_numpy(part["plane"][batch])
     mean, basis = pca_basis(own)
-    _conv_panel(fig.add_subplot(gs[0, 0]), _conv_colours(own, mean, basis, own, channel),
-                f"{plane}: this plane, C = {own.shape[0]}" + ("" if channel is None else f", channel {channel}"), (u, v))
+    _conv_panel(
+        fig.add_subplot(gs[0, 0]),
+        _conv_colours(own, mean, basis, own, channel),
+        f"{plane}: this plane, C = {own.shape[0]}" + ("" if channel is None else f", channel {channel}"),
+        (u, v),
+    )
     note = fig.add_subplot(gs[1, 0])
     note.set_axis_off()
-    note.text(0.5, 0.5, f"{plane} is kept as it is;\nthe other two planes are\naveraged over {lacking},\n"
-              f"the axis {plane} lacks", ha="center", va="center", fontsize=9, transform=note.transAxes)
+    note.text(
+        0.5,
+        0.5,
+        f"{plane} is kept as it is;\nthe other two planes are\naveraged over {lacking},\nthe axis {plane} lacks",
+        ha="center",
+        va="center",
+        fontsize=9,
+        transform=note.transAxes,
+    )
     _conv_concatenation(fig.add_subplot(gs[2, 0]), as_numpy(part["input"][batch]), plane, channel, n_channels)
     for c, (other, pooled, expanded) in enumerate(zip(part["sources"], part["pooled"], part["expanded"]), start=1):
         src = as_numpy(parts[other]["plane"][batch])
-        _conv_source_column(fig, [gs[r, c] for r in range(3)], (plane, other, lacking), src,
-                            as_numpy(pooled[batch]), as_numpy(expanded[batch]), channel)
-    fig.suptitle(f"TriplaneConv on {plane}: Conv2d(concat[{plane}, mean_{lacking}({part['sources'][0]}), "
-                 f"mean_{lacking}({part['sources'][1]})])", fontsize=10)
+        _conv_source_column(
+            fig,
+            [gs[r, c] for r in range(3)],
+            (plane, other, lacking),
+            src,
+            as_numpy(pooled[batch]),
+            as_numpy(expanded[batch]),
+            channel,
+        )
+    fig.suptitle(
+        f"TriplaneConv on {plane}: Conv2d(concat[{plane}, mean_{lacking}({part['sources'][0]}), "
+        f"mean_{lacking}({part['sources'][1]})])",
+        fontsize=10,
+    )
     return fig
 
 
@@ -267,19 +314,34 @@ def _conv_concatenation(ax, cat: np.ndarray, plane: str, channel: int | None, n_
         lo, hi = picked.min(axis=(1, 2), keepdims=True), picked.max(axis=(1, 2), keepdims=True)
         cat_img = np.moveaxis((picked - lo) / (hi - lo + 1e-8), 0, -1)
         cat_note = f"\nchannels {channel}, {n_channels + channel}, {2 * n_channels + channel} as RGB"
-    _conv_panel(ax, cat_img, f"concatenated: {cat.shape[0]} = 3C channels\n→ the Conv2d of {plane}" + cat_note,
-                PLANE_AXES[plane])
+    _conv_panel(
+        ax,
+        cat_img,
+        f"concatenated: {cat.shape[0]} = 3C channels\n→ the Conv2d of {plane}" + cat_note,
+        PLANE_AXES[plane],
+    )
 
 
-def _conv_source_column(fig: Figure, cells, names: tuple[str, str, str], src: np.ndarray, vec: np.ndarray,
-                        expanded: np.ndarray, channel: int | None) -> None:
+def _conv_source_column(
+    fig: Figure,
+    cells,
+    names: tuple[str, str, str],
+    src: np.ndarray,
+    vec: np.ndarray,
+    expanded: np.ndarray,
+    channel: int | None,
+) -> None:
     """One of the other planes (``names``: this plane, the other, the axis this one lacks) in the three ``cells``:
     itself, its mean over the lacking axis (``vec``: ``[C, A, 1]`` or ``[C, 1, B']``), that expanded to this plane."""
     plane, other, lacking = names
     u, v = PLANE_AXES[plane]
     m_, b_ = pca_basis(src)
-    _conv_panel(fig.add_subplot(cells[0]), _conv_colours(src, m_, b_, src, channel),
-                f"{other}: averaged over {lacking} ↓", PLANE_AXES[other])
+    _conv_panel(
+        fig.add_subplot(cells[0]),
+        _conv_colours(src, m_, b_, src, channel),
+        f"{other}: averaged over {lacking} ↓",
+        PLANE_AXES[other],
+    )
     along = u if vec.shape[2] == 1 else v
     ax = fig.add_subplot(cells[1])
     show_image(ax, _conv_colours(vec, m_, b_, src, channel), aspect="auto")
@@ -292,8 +354,12 @@ def _conv_source_column(fig: Figure, cells, names: tuple[str, str, str], src: np
         ax.set_xticks([])
     ax.tick_params(labelsize=7)
     across = v if along == u else u
-    _conv_panel(fig.add_subplot(cells[2]), _conv_colours(expanded, m_, b_, src, channel),
-                f"expanded along {AXES[across]} to {plane}'s size", (u, v))
+    _conv_panel(
+        fig.add_subplot(cells[2]),
+        _conv_colours(expanded, m_, b_, src, channel),
+        f"expanded along {AXES[across]} to {plane}'s size",
+        (u, v),
+    )
 
 
 # --------------------------------------------------------------------------- receptive field
@@ -303,8 +369,13 @@ def _rf_draw(ax, rf_map: np.ndarray, analytic_width: float | None, vmin: float, 
     ca, cb = (a // 2, b // 2) if center is None else center
     cmap = plt.get_cmap("magma")
     cmap = cmap.with_extremes(bad=cmap(0.0))  # exact zeros (no influence at all) in the darkest colour
-    im = show_image(ax, np.where(rf > 0, rf, np.nan), cmap=cmap, norm=LogNorm(vmin=vmin, vmax=1.0),
-               extent=(-0.5, a - 0.5, -0.5, b - 0.5))
+    im = show_image(
+        ax,
+        np.where(rf > 0, rf, np.nan),
+        cmap=cmap,
+        norm=LogNorm(vmin=vmin, vmax=1.0),
+        extent=(-0.5, a - 0.5, -0.5, b - 0.5),
+    )
     ax.plot([ca], [cb], marker="+", color="cyan", ms=10, mew=1.5)
     if analytic_width:
         w = float(analytic_width)

@@ -8,6 +8,7 @@ a browser without WebGL shows a message instead of a blank page.
 such a page (for tests and checks); :func:`index_page` lists samples with
 their viewer pages and mesh downloads.
 """
+
 from __future__ import annotations
 
 import base64
@@ -25,28 +26,34 @@ from ..files import atomic_write
 from .camera import fit_camera
 
 #: shown instead of a blank page by a browser without WebGL (:func:`save_html`)
-NO_WEBGL = ("This page needs WebGL to show the 3D view, and this browser has it turned off or cannot use it. "
-            "Turn on hardware acceleration (or try another browser), or open the mesh files (mesh.obj, mesh.glb) "
-            "in Blender or any 3D viewer.")
+NO_WEBGL = (
+    "This page needs WebGL to show the 3D view, and this browser has it turned off or cannot use it. "
+    "Turn on hardware acceleration (or try another browser), or open the mesh files (mesh.obj, mesh.glb) "
+    "in Blender or any 3D viewer."
+)
 
 
 def with_webgl_message(page: str) -> str:
     """A k3d page with a message that shows when the browser has no WebGL (or no JavaScript) instead of a blank page."""
-    box = "position:relative;z-index:10;max-width:40em;margin:3em auto;padding:1em 1.5em;font:16px sans-serif;" \
-          "background:#fff3cd;border:1px solid #d4a017;border-radius:4px"
+    box = (
+        "position:relative;z-index:10;max-width:40em;margin:3em auto;padding:1em 1.5em;font:16px sans-serif;"
+        "background:#fff3cd;border:1px solid #d4a017;border-radius:4px"
+    )
     note = html.escape(NO_WEBGL)
-    extra = (f'<div id="sin3dm-no-webgl" style="display:none;{box}">{note}</div>\n'
-             f'<noscript><div style="{box}">{note} (It also needs JavaScript.)</div></noscript>\n'
-             "<script>(function () {\n"
-             "  var gl = null, c = document.createElement('canvas');\n"
-             "  try { gl = c.getContext('webgl2') || c.getContext('webgl') || c.getContext('experimental-webgl'); }"
-             " catch (e) {}\n"
-             "  if (!gl) { document.getElementById('sin3dm-no-webgl').style.display = 'block'; }\n"
-             "})();</script>\n")
+    extra = (
+        f'<div id="sin3dm-no-webgl" style="display:none;{box}">{note}</div>\n'
+        f'<noscript><div style="{box}">{note} (It also needs JavaScript.)</div></noscript>\n'
+        "<script>(function () {\n"
+        "  var gl = null, c = document.createElement('canvas');\n"
+        "  try { gl = c.getContext('webgl2') || c.getContext('webgl') || c.getContext('experimental-webgl'); }"
+        " catch (e) {}\n"
+        "  if (!gl) { document.getElementById('sin3dm-no-webgl').style.display = 'block'; }\n"
+        "})();</script>\n"
+    )
     m = re.search(r"<body[^>]*>\s*", page)
     if m is None:
         raise ValueError("no <body> in this page")
-    return page[:m.end()] + extra + page[m.end():]
+    return page[: m.end()] + extra + page[m.end() :]
 
 
 def save_html(plot: k3d.Plot, path, fit: bool = True, **camera) -> Path:
@@ -137,25 +144,30 @@ def index_page(entries: Sequence[dict], path, title: str = "sin3dm-lite samples"
         for key, label in (("obj_path", "OBJ"), ("glb_path", "GLB")):
             if e.get(key):
                 links.append(f'<a href="{rel(e[key])}" download>{label}</a>')
-        thumb = (f'<a href="{rel(viewer)}"><img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160"></a>'
-                 if e.get("thumbnail") and viewer is not None
-                 else f'<img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160">' if e.get("thumbnail")
-                 else "")
+        thumb = (
+            f'<a href="{rel(viewer)}"><img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160"></a>'
+            if e.get("thumbnail") and viewer is not None
+            else f'<img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160">'
+            if e.get("thumbnail")
+            else ""
+        )
         rows.append(f"<tr><td>{thumb}</td><td>{html.escape(name)}</td><td>{' · '.join(links)}</td></tr>")
-    page = "\n".join([
-        "<!doctype html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        f"<title>{html.escape(title)}</title>",
-        "<style>body{font-family:sans-serif;margin:2em}td{padding:.4em 1em;vertical-align:middle}"
-        "table{border-collapse:collapse}tr:nth-child(even){background:#f4f4f4}</style>",
-        "</head><body>",
-        f"<h1>{html.escape(title)}</h1>",
-        "<table>",
-        "<tr><th></th><th>sample</th><th>open / download</th></tr>",
-        *rows,
-        "</table>",
-        "</body></html>",
-        "",
-    ])
+    page = "\n".join(
+        [
+            "<!doctype html>",
+            '<html lang="en"><head><meta charset="utf-8">',
+            f"<title>{html.escape(title)}</title>",
+            "<style>body{font-family:sans-serif;margin:2em}td{padding:.4em 1em;vertical-align:middle}"
+            "table{border-collapse:collapse}tr:nth-child(even){background:#f4f4f4}</style>",
+            "</head><body>",
+            f"<h1>{html.escape(title)}</h1>",
+            "<table>",
+            "<tr><th></th><th>sample</th><th>open / download</th></tr>",
+            *rows,
+            "</table>",
+            "</body></html>",
+            "",
+        ]
+    )
     atomic_write(path, page)
     return path

@@ -1,4 +1,5 @@
 """Figures of the Generate stage: slices of samples, the diversity curve, a control plan, projections and rendered pictures of meshes."""
+
 from __future__ import annotations
 
 import weakref
@@ -67,13 +68,17 @@ def plot_diversity_curve(values: Sequence[float], rows: Sequence[dict], goals: d
     and any of ``iou_to_input``, ``lp_iou``, ``lp_fscore`` (against the input).
     ``goals`` (same keys) draws dashed lines at target values.
     """
-    labels = {"g_div": "G-Div (diversity)", "iou_to_input": "IoU to the input", "lp_iou": "LP-IoU (fidelity)",
-              "lp_fscore": "LP-F (fidelity)"}
+    labels = {
+        "g_div": "G-Div (diversity)",
+        "iou_to_input": "IoU to the input",
+        "lp_iou": "LP-IoU (fidelity)",
+        "lp_fscore": "LP-F (fidelity)",
+    }
     fig = new_figure(5.5, 3.4)
     ax = fig.add_subplot(1, 1, 1)
     for key, label in labels.items():
         if all(key in r for r in rows):
-            line, = ax.plot(values, [r[key] for r in rows], "o-", label=label)
+            (line,) = ax.plot(values, [r[key] for r in rows], "o-", label=label)
             if goals and key in goals:
                 ax.axhline(goals[key], ls="--", lw=0.8, color=line.get_color())
     ax.set_xlabel("diversity (0 = the input, 1 = from pure noise)")
@@ -116,8 +121,14 @@ def plot_plan(plan, samples=None, batch: int = 0, title: str | None = None) -> F
                     tint[..., 0], tint[..., 3] = 1.0, 0.6 * free
                     show_image(ax, tint)
                 elif 0 < free.max():
-                    ax.contour(np.arange(free.shape[0]), np.arange(free.shape[1]), free.T, levels=[0.5],
-                               colors="r", linewidths=1.0)
+                    ax.contour(
+                        np.arange(free.shape[0]),
+                        np.arange(free.shape[1]),
+                        free.T,
+                        levels=[0.5],
+                        colors="r",
+                        linewidths=1.0,
+                    )
             u, v = PLANE_AXES[name]
             ax.set_title(f"{label}: {name}", fontsize=9)
             ax.set_xlabel(AXES[u], fontsize=8)
@@ -194,21 +205,29 @@ def plot_meshes(meshes, labels: Sequence[str] | None = None, size: int = 256, co
         if isinstance(m, TexturedMesh):
             return m
         v, f = m if isinstance(m, tuple) else (m.vertices, m.faces)
-        return TexturedMesh(np.asarray(v, np.float64), np.asarray(f, np.int64), np.zeros(len(f), np.int64),
-                            [Material(base_color=np.float32([0.55, 0.55, 0.55, 1.0]))])
+        return TexturedMesh(
+            np.asarray(v, np.float64),
+            np.asarray(f, np.int64),
+            np.zeros(len(f), np.int64),
+            [Material(base_color=np.float32([0.55, 0.55, 0.55, 1.0]))],
+        )
 
     if isinstance(meshes, TexturedMesh) or hasattr(meshes, "faces"):
         meshes = [meshes]
     meshes = [textured(m) for m in meshes]
     if not meshes or (labels is not None and len(labels) != len(meshes)):
-        raise Sin3DMInputError(f"plot_meshes needs at least one mesh and one label per mesh, got {len(meshes)} "
-                               f"meshes and {'no' if labels is None else len(labels)} labels")
+        raise Sin3DMInputError(
+            f"plot_meshes needs at least one mesh and one label per mesh, got {len(meshes)} "
+            f"meshes and {'no' if labels is None else len(labels)} labels"
+        )
     if not 16 <= int(size) <= 1024:
         raise Sin3DMInputError(f"size must be from 16 to 1024 pixels, got {size}")
     corners = np.concatenate([np.asarray(m.vertices, np.float64).reshape(-1, 3) for m in meshes])
     box = np.stack([corners.min(0), corners.max(0)]) if len(corners) else None
     try:
-        sheet = render.contact_sheet([render.render_hero(m, size=int(size), box=box) for m in meshes], labels, columns=columns)
+        sheet = render.contact_sheet(
+            [render.render_hero(m, size=int(size), box=box) for m in meshes], labels, columns=columns
+        )
     except Sin3DMInputError as e:  # no OpenGL context here, or a mesh with nothing to draw
         fig = new_figure(9.0, 0.5)
         fig.text(0.01, 0.5, f"no static picture: {e}", fontsize=8, va="center", wrap=True)

@@ -7,6 +7,7 @@ dragging and at full quality on a button. Each is an
 :class:`~sin3dm_lite.show.explorer.Explorer`; all are importable from
 :mod:`sin3dm_lite.show.widgets` (``from sin3dm_lite import widgets``).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -30,8 +31,12 @@ def denoising_explorer(intermediates: Sequence[dict], plane: str = "xy", channel
     steps = list(intermediates)
     if not steps:
         raise ValueError("intermediates is empty: ask the sampler to record its steps")
-    step_c = widgets.SelectionSlider(options=[(f"t={int(e['t'])}", k) for k, e in enumerate(steps)], value=0,
-                                     description="step", continuous_update=False)
+    step_c = widgets.SelectionSlider(
+        options=[(f"t={int(e['t'])}", k) for k, e in enumerate(steps)],
+        value=0,
+        description="step",
+        continuous_update=False,
+    )
     plane_c = widgets.Dropdown(options=list(PLANES), value=plane, description="plane", layout={"width": "140px"})
 
     def render(step, plane):
@@ -55,17 +60,26 @@ def control_panel(model, n_samples: int = 2, resolution: int | None = None, **sa
     from ..errors import Sin3DMInputError
 
     def rng(lo, hi, name):
-        return widgets.FloatRangeSlider(value=(lo, hi), min=0, max=1, step=0.05, description=name,
-                                        continuous_update=False, readout_format=".2f")
+        return widgets.FloatRangeSlider(
+            value=(lo, hi), min=0, max=1, step=0.05, description=name, continuous_update=False, readout_format=".2f"
+        )
 
     def at(v, name):
-        return widgets.FloatSlider(value=v, min=0, max=1, step=0.05, description=name, continuous_update=False,
-                                   readout_format=".2f")
+        return widgets.FloatSlider(
+            value=v, min=0, max=1, step=0.05, description=name, continuous_update=False, readout_format=".2f"
+        )
 
-    controls = {"op": widgets.Dropdown(options=["regenerate", "duplicate"], value="regenerate", description="edit",
-                                       layout={"width": "190px"}),
-                "x": rng(0.35, 0.65, "x"), "y": rng(0.0, 1.0, "y"), "z": rng(0.0, 1.0, "z"),
-                "tx": at(0.7, "copy to x"), "ty": at(0.0, "copy to y"), "tz": at(0.0, "copy to z")}
+    controls = {
+        "op": widgets.Dropdown(
+            options=["regenerate", "duplicate"], value="regenerate", description="edit", layout={"width": "190px"}
+        ),
+        "x": rng(0.35, 0.65, "x"),
+        "y": rng(0.0, 1.0, "y"),
+        "z": rng(0.0, 1.0, "z"),
+        "tx": at(0.7, "copy to x"),
+        "ty": at(0.0, "copy to y"),
+        "tz": at(0.0, "copy to z"),
+    }
 
     def plan_of(op, x, y, z, tx, ty, tz):
         box = ((x[0], y[0], z[0]), (x[1], y[1], z[1]))
@@ -93,8 +107,10 @@ def control_panel(model, n_samples: int = 2, resolution: int | None = None, **sa
         plan = plan_of(**panel.values())
         samples = model.sample(n_samples, plan=plan, seed=int(seed.value), progress=False, **sample_kwargs)
         panel.last_samples = samples
-        figs = [viz.plot_plan(plan, samples),
-                model.plot_beside_input(samples, res, [f"seed {seed.value}, {i}" for i in range(n_samples)])]
+        figs = [
+            viz.plot_plan(plan, samples),
+            model.plot_beside_input(samples, res, [f"seed {seed.value}, {i}" for i in range(n_samples)]),
+        ]
         with result:
             clear_output(wait=True)
             for f in figs:
@@ -119,8 +135,9 @@ def _show_in(output: widgets.Output, *items) -> None:
             display(item)
 
 
-def sampling_panel(model, n_samples: int = 2, preview: int = 32, steps: int | None = None, mesh: dict | None = None,
-                   k3d: bool = True) -> Explorer:
+def sampling_panel(
+    model, n_samples: int = 2, preview: int = 32, steps: int | None = None, mesh: dict | None = None, k3d: bool = True
+) -> Explorer:
     """Seed, DDIM steps, diversity and resize (x, y, z) → ``model.sample`` → a cheap preview; a button decodes meshes.
 
     Every change samples ``n_samples`` new triplanes and draws
@@ -141,16 +158,18 @@ def sampling_panel(model, n_samples: int = 2, preview: int = 32, steps: int | No
         return decode_grid(model.decoder, tp, aabb, res) < 0
 
     def render(seed, steps, diversity, sx, sy, sz):
-        samples = model.sample(n_samples, resize=(sx, sy, sz), steps=int(steps), seed=int(seed), diversity=diversity,
-                               progress=False)
+        samples = model.sample(
+            n_samples, resize=(sx, sy, sz), steps=int(steps), seed=int(seed), diversity=diversity, progress=False
+        )
         state["samples"] = samples
         if "input" not in state:
             state["input"] = occupancy(model.latent, model.aabb, preview)
         res = model.same_voxels(samples, preview)
         grids = [occupancy(samples.triplane[i], samples.aabb, res) for i in range(len(samples))]
         size = "" if np.allclose((sx, sy, sz), 1) else f", ×({sx:g}, {sy:g}, {sz:g})"
-        return viz.plot_projections([state["input"], *grids],
-                                    ["input", *(f"seed {seed} #{i}{size}" for i in range(len(grids)))])
+        return viz.plot_projections(
+            [state["input"], *grids], ["input", *(f"seed {seed} #{i}{size}" for i in range(len(grids)))]
+        )
 
     panel = Explorer(controls, render, title=f"sampling: preview on a {preview}-voxel grid")
     panel.state = state
@@ -170,15 +189,35 @@ def _sampling_controls(s, steps: int) -> dict[str, widgets.ValueWidget]:
     """:func:`sampling_panel`'s controls: seed, DDIM steps, diversity (from the sampling settings ``s``), resize."""
 
     def factor(name):
-        return widgets.FloatSlider(value=1.0, min=0.5, max=2.0, step=0.25, description=name, continuous_update=False,
-                                   readout_format=".2f", layout={"width": "230px"})
+        return widgets.FloatSlider(
+            value=1.0,
+            min=0.5,
+            max=2.0,
+            step=0.25,
+            description=name,
+            continuous_update=False,
+            readout_format=".2f",
+            layout={"width": "230px"},
+        )
 
-    return {"seed": _seed_box(),
-            "steps": widgets.IntSlider(value=steps, min=1, max=max(s.steps, steps), description="DDIM steps",
-                                       continuous_update=False),
-            "diversity": widgets.FloatSlider(value=float(s.diversity), min=0.0, max=1.0, step=0.1,
-                                             description="diversity", continuous_update=False, readout_format=".1f"),
-            "sx": factor("resize x"), "sy": factor("resize y"), "sz": factor("resize z")}
+    return {
+        "seed": _seed_box(),
+        "steps": widgets.IntSlider(
+            value=steps, min=1, max=max(s.steps, steps), description="DDIM steps", continuous_update=False
+        ),
+        "diversity": widgets.FloatSlider(
+            value=float(s.diversity),
+            min=0.0,
+            max=1.0,
+            step=0.1,
+            description="diversity",
+            continuous_update=False,
+            readout_format=".1f",
+        ),
+        "sx": factor("resize x"),
+        "sy": factor("resize y"),
+        "sz": factor("resize z"),
+    }
 
 
 def _full_quality(model, state: dict, mesh: dict | None, k3d: bool, result: widgets.Output) -> Figure:
@@ -198,8 +237,9 @@ def _full_quality(model, state: dict, mesh: dict | None, k3d: bool, result: widg
     return fig
 
 
-def denoising_slider(model, seed: int = 0, steps: int | None = None, record: int = 8, plane: str = "xz",
-                     preview: int = 32) -> Explorer:
+def denoising_slider(
+    model, seed: int = 0, steps: int | None = None, record: int = 8, plane: str = "xz", preview: int = 32
+) -> Explorer:
     """A freshly sampled trajectory (``model.sample(return_intermediates=record)``) and a slider over its steps.
 
     Shows ``x_t`` and the predicted ``x0`` of the chosen step on one plane
@@ -213,8 +253,9 @@ def denoising_slider(model, seed: int = 0, steps: int | None = None, record: int
     seed_c = _seed_box(seed)
 
     def draw_trajectory():
-        state["samples"] = model.sample(1, steps=steps, seed=int(seed_c.value), return_intermediates=record,
-                                        diversity=1.0, progress=False)
+        state["samples"] = model.sample(
+            1, steps=steps, seed=int(seed_c.value), return_intermediates=record, diversity=1.0, progress=False
+        )
         return [(f"t={int(e['t'])}", k) for k, e in enumerate(state["samples"].intermediates)]
 
     step_c = widgets.SelectionSlider(options=draw_trajectory(), value=0, description="step", continuous_update=False)

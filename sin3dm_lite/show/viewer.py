@@ -16,6 +16,7 @@ colours; a textured mesh gets ``color=0xffffff`` (the texture is multiplied by
 it), ``texture=<PNG bytes>``, ``texture_file_format="png"`` and one uv per
 vertex.
 """
+
 from __future__ import annotations
 
 import html
@@ -230,8 +231,16 @@ def gallery(
             mesh_plot(meshes[k], plot=plot, texture=texture, name=str(name), offset=o.astype(np.float32), up=up)
             if labels is not None:
                 at = label_position(lo, hi)
-                plot += k3d.text(html.escape(str(labels[k])), position=at, reference_point="ct", color=0x222222,
-                                 size=0.9, label_box=False, is_html=True, name=f"label {k}")
+                plot += k3d.text(
+                    html.escape(str(labels[k])),
+                    position=at,
+                    reference_point="ct",
+                    color=0x222222,
+                    size=0.9,
+                    label_box=False,
+                    is_html=True,
+                    name=f"label {k}",
+                )
                 low = min(low, screen_up @ at - 0.15 * row_height)  # room for the text hanging below
     return plot
 
@@ -279,8 +288,7 @@ def volume_plot(
     half = (hi - lo) / n / 2  # half a voxel: marching cubes puts samples on the box's corners
     if up == "y":  # (x, y, z) -> (x, -z, y): new axes are x, reversed z, y
         field = np.ascontiguousarray(field.transpose(0, 2, 1)[:, ::-1, :])
-        lo, hi, half = (np.array([lo[0], -hi[2], lo[1]]), np.array([hi[0], -lo[2], hi[1]]),
-                        half[[0, 2, 1]])
+        lo, hi, half = (np.array([lo[0], -hi[2], lo[1]]), np.array([hi[0], -lo[2], hi[1]]), half[[0, 2, 1]])
     elif up != "z":
         raise ValueError(f"up must be one of {UP_AXES}, got {up!r}")
     zyx = np.ascontiguousarray(field.transpose(2, 1, 0))  # k3d indexes volumes [z, y, x]
@@ -289,13 +297,19 @@ def volume_plot(
     if volume:
         t = float(np.abs(zyx).max()) or 1.0
         plot += k3d.volume(
-            zyx, bounds=box, color_range=[-t, t], color_map=k3d.colormaps.matplotlib_color_maps.RdBu,
-            opacity_function=[0.0, 0.5, 0.45, 0.35, 0.5, 0.0, 1.0, 0.0], alpha_coef=8.0, name="sdf volume",
+            zyx,
+            bounds=box,
+            color_range=[-t, t],
+            color_map=k3d.colormaps.matplotlib_color_maps.RdBu,
+            opacity_function=[0.0, 0.5, 0.45, 0.35, 0.5, 0.0, 1.0, 0.0],
+            alpha_coef=8.0,
+            name="sdf volume",
         )
     if isosurface:
         inner = [lo[0] + half[0], hi[0] - half[0], lo[1] + half[1], hi[1] - half[1], lo[2] + half[2], hi[2] - half[2]]
-        plot += k3d.marching_cubes(zyx, level=float(level), bounds=inner, color=int(color), flat_shading=False,
-                                   name=f"isosurface {level:g}")
+        plot += k3d.marching_cubes(
+            zyx, level=float(level), bounds=inner, color=int(color), flat_shading=False, name=f"isosurface {level:g}"
+        )
     return plot
 
 

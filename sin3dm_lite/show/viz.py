@@ -10,6 +10,7 @@ script saves it with ``fig.savefig(path)``. The widgets in
 ``figures`` (what they share), ``data_figures``, ``model_figures``, ``diffusion_figures``,
 ``sample_figures``, ``eval_figures``.
 """
+
 from __future__ import annotations
 
 from .data_figures import (  # noqa: F401

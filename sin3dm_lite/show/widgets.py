@@ -22,6 +22,7 @@ For tests and scripts: ``panel.controls`` maps parameter names to widgets,
 ``panel.figure()`` returns the figure for the current values, ``panel.refresh()``
 redraws the output (and returns the figure).
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -53,6 +54,7 @@ def _keep_index_in_range(grid: ShapeGrid, index_control: widgets.IntSlider):
             n = grid.shape[viz.AXES.index(value)]
             index_control.max = n - 1
             index_control.value = n // 2
+
     return on_change
 
 
@@ -72,14 +74,22 @@ def slice_explorer(grid: ShapeGrid, axis: str = "z", up: str | None = "y") -> Ex
 def truncation_explorer(grid: ShapeGrid, axis: str = "z") -> Explorer:
     """Threshold slider (voxels, up to the grid's own) → :func:`viz.plot_truncation` next to the grid's own."""
     own = grid.threshold / grid.voxel_size
-    thr_c = widgets.FloatSlider(value=min(1.0, own), min=min(0.25, own), max=own, step=0.25,
-                                description="threshold", continuous_update=False, readout_format=".2f")
+    thr_c = widgets.FloatSlider(
+        value=min(1.0, own),
+        min=min(0.25, own),
+        max=own,
+        step=0.25,
+        description="threshold",
+        continuous_update=False,
+        readout_format=".2f",
+    )
     axis_c = _axis_dropdown(axis)
     index_c = _index_slider(grid.shape[viz.AXES.index(axis)])
     return Explorer(
         {"threshold": thr_c, "axis": axis_c, "index": index_c},
         lambda threshold, axis, index: viz.plot_truncation(
-            grid, [threshold, own] if threshold < own - 1e-6 else [own], axis, index),
+            grid, [threshold, own] if threshold < own - 1e-6 else [own], axis, index
+        ),
         on_change=_keep_index_in_range(grid, index_c),
         title=f"truncation (voxels; the grid's own is {own:g})",
     )
@@ -89,8 +99,9 @@ def triplane_channel_explorer(tp: Triplane) -> Explorer:
     """PCA / single-channel toggle, channel slider and batch slider → :func:`viz.plot_triplane`."""
     mode_c = widgets.ToggleButtons(options=["pca", "channel"], value="pca", description="colour")
     channel_c = widgets.IntSlider(value=0, min=0, max=tp.channels - 1, description="channel", continuous_update=False)
-    batch_c = widgets.IntSlider(value=0, min=0, max=max(tp.batch - 1, 0), description="sample",
-                                continuous_update=False, disabled=tp.batch == 1)
+    batch_c = widgets.IntSlider(
+        value=0, min=0, max=max(tp.batch - 1, 0), description="sample", continuous_update=False, disabled=tp.batch == 1
+    )
 
     def render(mode, channel, batch):
         return viz.plot_triplane(tp, "pca" if mode == "pca" else int(channel), batch=int(batch))
@@ -104,8 +115,9 @@ def receptive_field_explorer(fn: Callable[[int], tuple], choices: Sequence[int] 
     ``fn`` (measuring a receptive field takes a backward pass) is called once per choice and cached.
     """
     cache: dict[int, tuple] = {}
-    blocks_c = widgets.Dropdown(options=list(choices), value=choices[len(choices) // 2], description="ResBlocks",
-                                layout={"width": "180px"})
+    blocks_c = widgets.Dropdown(
+        options=list(choices), value=choices[len(choices) // 2], description="ResBlocks", layout={"width": "180px"}
+    )
 
     def render(n_resblocks):
         if n_resblocks not in cache:
@@ -133,10 +145,12 @@ def texel_receptive_field(model, plane: str = "xy") -> Explorer:
 
     a, b = size(plane)
     plane_c = widgets.Dropdown(options=list(PLANES), value=plane, description="plane", layout={"width": "140px"})
-    i_c = widgets.IntSlider(value=a // 2, min=0, max=a - 1, description=viz.AXES[PLANE_AXES[plane][0]],
-                            continuous_update=False)
-    j_c = widgets.IntSlider(value=b // 2, min=0, max=b - 1, description=viz.AXES[PLANE_AXES[plane][1]],
-                            continuous_update=False)
+    i_c = widgets.IntSlider(
+        value=a // 2, min=0, max=a - 1, description=viz.AXES[PLANE_AXES[plane][0]], continuous_update=False
+    )
+    j_c = widgets.IntSlider(
+        value=b // 2, min=0, max=b - 1, description=viz.AXES[PLANE_AXES[plane][1]], continuous_update=False
+    )
     map_c = widgets.ToggleButtons(options=["local", "whole"], value="local", description="map")
     cache: dict = {}
 
@@ -150,16 +164,28 @@ def texel_receptive_field(model, plane: str = "xy") -> Explorer:
     def render(plane, i, j, map):
         key = (plane, int(i), int(j))
         if key not in cache:
-            cache[key] = receptive_field(model.denoiser, resolution=res, latent_channels=model.latent.channels,
-                                         plane=plane, texel=(int(i), int(j)))
+            cache[key] = receptive_field(
+                model.denoiser,
+                resolution=res,
+                latent_channels=model.latent.channels,
+                plane=plane,
+                texel=(int(i), int(j)),
+            )
         rf = cache[key]
         u, v = PLANE_AXES[plane]
-        return viz.plot_receptive_field(rf.local_map if map == "local" else rf.measured_map, rf.analytic,
-                                        title=f"{plane} texel ({viz.AXES[u]} {i}, {viz.AXES[v]} {j}), {map} map",
-                                        center=(int(i), int(j)))
+        return viz.plot_receptive_field(
+            rf.local_map if map == "local" else rf.measured_map,
+            rf.analytic,
+            title=f"{plane} texel ({viz.AXES[u]} {i}, {viz.AXES[v]} {j}), {map} map",
+            center=(int(i), int(j)),
+        )
 
-    panel = Explorer({"plane": plane_c, "i": i_c, "j": j_c, "map": map_c}, render, on_change=on_change,
-                     title="receptive field of one texel")
+    panel = Explorer(
+        {"plane": plane_c, "i": i_c, "j": j_c, "map": map_c},
+        render,
+        on_change=on_change,
+        title="receptive field of one texel",
+    )
     panel.cache = cache
     return panel
 

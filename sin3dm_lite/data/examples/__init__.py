@@ -13,6 +13,7 @@ Each shape has its module (``canyon``, ``wall``, ``colonnade``, ``tiles``);
 they are built from closed solids (``geometry``) and painted through one UV
 atlas (``texture``: how every face gets its chart and its texels).
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -34,7 +35,7 @@ EXAMPLES = {
     "wall": "a crenellated brick wall: protruding bricks of varied colour in grey mortar, merlons of varied width",
     "colonnade": "four turned columns with painted rings on a stepped base, carrying a beam with a triglyph frieze",
     "tiles": "a PBR tiled floor: brushed and hammered steel tiles and chipped painted tiles in rough grout "
-             "(metallic, roughness and normal maps)",
+    "(metallic, roughness and normal maps)",
 }
 
 #: The input the quickstart uses.

@@ -1,4 +1,5 @@
 """The canyon: a river cut into a block, terraced cliffs banded with rock strata (the quickstart's input)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -27,14 +28,24 @@ def build_canyon(rng: np.random.Generator) -> TexturedMesh:
         wander = 0.14 * (noise.fbm(x * 1.2, 5.0 * side) - 0.5)  # the cliff lines of one bank wander together
         for k in range(n_steps):
             edge = step_at[k] + wander + 0.06 * (noise.fbm(x * 2.0, 11.0 * k + 5.0 * side + 60, octaves=3) - 0.5)
-            rise = step_rise[k] * (0.55 + 0.9 * noise.fbm(x * 0.6 + 40.0 * k, 7.7 + 3.0 * side, octaves=2))  # varies along x
+            rise = step_rise[k] * (
+                0.55 + 0.9 * noise.fbm(x * 0.6 + 40.0 * k, 7.7 + 3.0 * side, octaves=2)
+            )  # varies along x
             h = h + rise * smooth((dist - edge) / 0.05 + 0.5)
         return h + 0.03 * (noise.fbm(x * 5, y * 5) - 0.5)
 
     # rock strata: layers of random thickness and colour, stacked from the bottom
     tops = np.cumsum(rng.uniform(0.025, 0.13, 80))
-    rock = [[0.72, 0.36, 0.22], [0.84, 0.56, 0.34], [0.92, 0.80, 0.60], [0.60, 0.27, 0.17],
-            [0.78, 0.46, 0.30], [0.56, 0.42, 0.34], [0.95, 0.88, 0.74], [0.68, 0.52, 0.40]]
+    rock = [
+        [0.72, 0.36, 0.22],
+        [0.84, 0.56, 0.34],
+        [0.92, 0.80, 0.60],
+        [0.60, 0.27, 0.17],
+        [0.78, 0.46, 0.30],
+        [0.56, 0.42, 0.34],
+        [0.95, 0.88, 0.74],
+        [0.68, 0.52, 0.40],
+    ]
     layer_color = palette(rng, rock, len(tops) + 1)
 
     def strata(z, p):

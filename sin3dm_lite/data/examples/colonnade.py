@@ -1,4 +1,5 @@
 """The colonnade: four turned columns with painted rings on a stepped base, carrying a beam with a triglyph frieze."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -42,8 +43,9 @@ class _Colonnade:
         for i in range(self.n_col):
             self.add_column(atlas, i)
         atlas.add_box_projected("beam", *box((-half + 0.15, -0.45, z_beam), (half - 0.15, 0.45, z_beam + self.beam_h)))
-        atlas.add_box_projected("cornice", *box((-half + 0.05, -0.55, z_cornice),
-                                                (half - 0.05, 0.55, z_cornice + self.cornice_h)))
+        atlas.add_box_projected(
+            "cornice", *box((-half + 0.05, -0.55, z_cornice), (half - 0.05, 0.55, z_cornice + self.cornice_h))
+        )
         self.triglyph = self.rng.uniform(0.25, 0.55, 3) * np.float32([0.4, 0.6, 1.0])  # frieze colours
         self.metope = palette(self.rng, PAINTS, 1)[0]
         return atlas.build("colonnade", self.paint, size=(1024, 1024), detail=self.detail)
@@ -55,8 +57,12 @@ class _Colonnade:
         z0 = self.z_base + self.plinth_h
         rings = np.sort(rng.choice(np.arange(0.2, 0.8, 0.12), rng.integers(1, 4), replace=False)) * shaft_h
         spec = dict(
-            rings=rings, ring_colors=palette(rng, PAINTS, len(rings)), flare=rng.uniform(0.30, 0.36),
-            flutes=int(rng.choice([12, 16, 20])), band=palette(rng, PAINTS, 2), z0=z0,
+            rings=rings,
+            ring_colors=palette(rng, PAINTS, len(rings)),
+            flare=rng.uniform(0.30, 0.36),
+            flutes=int(rng.choice([12, 16, 20])),
+            band=palette(rng, PAINTS, 2),
+            z0=z0,
         )
         self.columns.append(spec)
         t, r = self.profile(spec)

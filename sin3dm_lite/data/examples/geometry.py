@@ -3,6 +3,7 @@
 Every part is closed (each edge shared by exactly two triangles), so the
 grid's winding number tells inside from outside without guessing.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -45,8 +46,14 @@ def revolve(r: np.ndarray, z: np.ndarray, center, n_seg: int, r_ref: float):
     """
     k_n = len(r)
     th = 2 * np.pi * np.arange(n_seg + 1) / n_seg  # θ_j, with θ_n = 2π for the last segment
-    ring = np.stack([center[0] + r[:, None] * np.cos(th[:-1]), center[1] + r[:, None] * np.sin(th[:-1]),
-                     np.broadcast_to(z[:, None], (k_n, n_seg))], -1).reshape(-1, 3)
+    ring = np.stack(
+        [
+            center[0] + r[:, None] * np.cos(th[:-1]),
+            center[1] + r[:, None] * np.sin(th[:-1]),
+            np.broadcast_to(z[:, None], (k_n, n_seg)),
+        ],
+        -1,
+    ).reshape(-1, 3)
     poles = np.array([[center[0], center[1], z[0]], [center[0], center[1], z[-1]]])
     vertices = np.concatenate([ring, poles])
     bot, top = k_n * n_seg, k_n * n_seg + 1
@@ -60,8 +67,10 @@ def revolve(r: np.ndarray, z: np.ndarray, center, n_seg: int, r_ref: float):
     th_idx = [np.stack([j, j + 1, j + 1], 1), np.stack([j, j + 1, j], 1)]
     z_idx = [np.stack([k, k, k + 1], 1), np.stack([k, k + 1, k + 1], 1)]
     js = np.arange(n_seg)
-    faces += [np.stack([np.full(n_seg, bot), (js + 1) % n_seg, js], 1),
-              np.stack([np.full(n_seg, top), (k_n - 1) * n_seg + js, (k_n - 1) * n_seg + (js + 1) % n_seg], 1)]
+    faces += [
+        np.stack([np.full(n_seg, bot), (js + 1) % n_seg, js], 1),
+        np.stack([np.full(n_seg, top), (k_n - 1) * n_seg + js, (k_n - 1) * n_seg + (js + 1) % n_seg], 1),
+    ]
     th_idx += [np.stack([js + 0.5, js + 1, js], 1), np.stack([js + 0.5, js, js + 1], 1)]
     z_idx += [np.zeros((n_seg, 3), np.int64), np.full((n_seg, 3), k_n - 1)]
     faces = np.concatenate(faces)

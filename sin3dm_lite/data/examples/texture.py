@@ -8,6 +8,7 @@ rectangle by evaluating the procedural pattern at the world position of every
 texel, so the colour on the surface agrees with the geometry (a brick's colour
 sits on the brick's bump).
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -109,9 +110,15 @@ class AtlasBuilder:
         """A part whose faces all lie in one chart with the given per-corner (p, q)."""
         self._append(vertices, faces, [chart] * len(faces), pq)
 
-    def build(self, name: str, paint: Callable[[str, np.ndarray, np.ndarray], np.ndarray],
-              size: tuple[int, int] = (1024, 1024), pad: int = 4,
-              detail: Callable[[str], float] = lambda chart: 1.0, pbr: Callable | None = None) -> TexturedMesh:
+    def build(
+        self,
+        name: str,
+        paint: Callable[[str, np.ndarray, np.ndarray], np.ndarray],
+        size: tuple[int, int] = (1024, 1024),
+        pad: int = 4,
+        detail: Callable[[str], float] = lambda chart: 1.0,
+        pbr: Callable | None = None,
+    ) -> TexturedMesh:
         """Pack the charts into a ``size = (height, width)`` image, paint it, assign UVs.
 
         All charts share one texel size, divided by ``detail(chart)``: give
@@ -153,12 +160,12 @@ class AtlasBuilder:
             p = lo[0] - pad * ts + (np.arange(w) + 0.5) * ts
             q = hi[1] + pad * ts - (np.arange(h) + 0.5) * ts
             P, Q = np.meshgrid(p.astype(np.float32), q.astype(np.float32))
-            image[y0:y0 + h, x0:x0 + w] = np.clip(paint(c, P, Q), 0, 1)
+            image[y0 : y0 + h, x0 : x0 + w] = np.clip(paint(c, P, Q), 0, 1)
             if pbr is not None:
                 metal, rough, normal = pbr(c, P, Q)
-                mr_image[y0:y0 + h, x0:x0 + w, 1] = np.clip(rough, 0, 1)
-                mr_image[y0:y0 + h, x0:x0 + w, 2] = np.clip(metal, 0, 1)
-                normal_image[y0:y0 + h, x0:x0 + w] = np.clip(normal * 0.5 + 0.5, 0, 1)
+                mr_image[y0 : y0 + h, x0 : x0 + w, 1] = np.clip(rough, 0, 1)
+                mr_image[y0 : y0 + h, x0 : x0 + w, 2] = np.clip(metal, 0, 1)
+                normal_image[y0 : y0 + h, x0 : x0 + w] = np.clip(normal * 0.5 + 0.5, 0, 1)
             sel = charts == c
             uv[sel, :, 0] = (x0 + pad + (pq[sel, :, 0] - lo[0]) / ts) / width
             uv[sel, :, 1] = 1 - (y0 + pad + (hi[1] - pq[sel, :, 1]) / ts) / height

@@ -9,6 +9,7 @@ What each map shows, all varying with the tile pattern:
 * normal (tangent space): brushing grooves or hammer dimples on steel tiles, the raised edge of
   the paint around each chip. The tiles' bevels are geometry, not map.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,11 +36,16 @@ class _Tiles:
     def __init__(self, rng: np.random.Generator):
         self.noise = Noise(rng)
         nx, ny = self.nx, self.ny = int(round(self.size_x / self.tile)), int(round(self.size_y / self.tile))
-        self.kind = kind = rng.choice(3, size=(nx, ny), p=[0.3, 0.2, 0.5])  # 0 brushed steel, 1 hammered steel, 2 painted
+        self.kind = kind = rng.choice(
+            3, size=(nx, ny), p=[0.3, 0.2, 0.5]
+        )  # 0 brushed steel, 1 hammered steel, 2 painted
         self.raise_ = rng.uniform(0.03, 0.05, (nx, ny))
         self.paint_col = palette(rng, PAINTS, nx * ny, jitter=0.1).reshape(nx, ny, 3)
-        self.roughness = np.where(kind == 0, rng.uniform(0.2, 0.35, (nx, ny)),
-                                  np.where(kind == 1, rng.uniform(0.35, 0.5, (nx, ny)), rng.uniform(0.55, 0.75, (nx, ny))))
+        self.roughness = np.where(
+            kind == 0,
+            rng.uniform(0.2, 0.35, (nx, ny)),
+            np.where(kind == 1, rng.uniform(0.35, 0.5, (nx, ny)), rng.uniform(0.55, 0.75, (nx, ny))),
+        )
         self.brush_angle = rng.uniform(0, np.pi, (nx, ny))
 
     def build(self) -> TexturedMesh:
@@ -52,14 +58,25 @@ class _Tiles:
         axis[: 2 * (X.shape[0] - 1) * (X.shape[1] - 1)] = 2  # the tiled sheet (bevels too) projects along z
         atlas = AtlasBuilder()
         atlas.add_box_projected("floor", vertices, faces, axis=axis)
-        return atlas.build("tiles", self.paint, size=(1024, 1024), pbr=self.pbr,
-                           detail=lambda c: 1.0 if c.endswith("+z") else 0.15)
+        return atlas.build(
+            "tiles", self.paint, size=(1024, 1024), pbr=self.pbr, detail=lambda c: 1.0 if c.endswith("+z") else 0.15
+        )
 
     def nodes(self, n_tiles):
         """Grid lines dense at every grout joint and bevel, sparse across the tile."""
         tile, grout, bevel = self.tile, self.grout, self.bevel
-        inner = [0.0, grout / 2, grout / 2 + bevel / 2, grout / 2 + bevel, tile / 4, tile / 2, 3 * tile / 4,
-                 tile - grout / 2 - bevel, tile - grout / 2 - bevel / 2, tile - grout / 2]
+        inner = [
+            0.0,
+            grout / 2,
+            grout / 2 + bevel / 2,
+            grout / 2 + bevel,
+            tile / 4,
+            tile / 2,
+            3 * tile / 4,
+            tile - grout / 2 - bevel,
+            tile - grout / 2 - bevel / 2,
+            tile - grout / 2,
+        ]
         return np.array([k * tile + t for k in range(n_tiles) for t in inner] + [n_tiles * tile])
 
     def cell(self, x, y):
@@ -103,8 +120,9 @@ class _Tiles:
         i, j, dist = self.cell(p, q)
         left = np.where(kind[i, j] == 2, self.chips(p, q), 0.0)  # paint left
         metal = np.where(dist < 0, 0.0, 1 - left)
-        rough = np.where(dist < 0, 0.95, np.where(kind[i, j] == 2, left * roughness[i, j] + (1 - left) * 0.3,
-                                                  roughness[i, j]))
+        rough = np.where(
+            dist < 0, 0.95, np.where(kind[i, j] == 2, left * roughness[i, j] + (1 - left) * 0.3, roughness[i, j])
+        )
         h = np.where(dist < 0, 0.0, self.fine_height(p, q, i, j))
         dh_dq, dh_dp = np.gradient(h, q[:, 0], p[0, :])  # rows follow q, columns p
         normal = np.stack([-dh_dp, -dh_dq, np.ones_like(h)], -1)

@@ -1,4 +1,5 @@
 """The wall: a crenellated brick wall, protruding bricks of varied colour in grey mortar, merlons of varied width."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -7,8 +8,15 @@ from ..mesh import TexturedMesh
 from .geometry import grid_solid
 from .texture import AtlasBuilder, Noise, palette, smooth
 
-BRICKS = [[0.62, 0.25, 0.18], [0.70, 0.33, 0.22], [0.55, 0.22, 0.17], [0.76, 0.43, 0.30],
-          [0.46, 0.20, 0.16], [0.66, 0.37, 0.27], [0.58, 0.30, 0.25]]
+BRICKS = [
+    [0.62, 0.25, 0.18],
+    [0.70, 0.33, 0.22],
+    [0.55, 0.22, 0.17],
+    [0.76, 0.43, 0.30],
+    [0.46, 0.20, 0.16],
+    [0.66, 0.37, 0.27],
+    [0.58, 0.30, 0.25],
+]
 GREY = np.float32([0.66, 0.64, 0.60])
 
 
@@ -67,8 +75,16 @@ class _Wall:
     def z_nodes(self, z0, n_courses):
         """Rows of the surface grid: dense at every mortar joint and bevel, sparse across the brick face."""
         course, mortar, bevel = self.course, self.mortar, self.bevel
-        inner = [0.0, mortar / 2, mortar / 2 + bevel / 2, mortar / 2 + bevel, course / 2,
-                 course - mortar / 2 - bevel, course - mortar / 2 - bevel / 2, course - mortar / 2]
+        inner = [
+            0.0,
+            mortar / 2,
+            mortar / 2 + bevel / 2,
+            mortar / 2 + bevel,
+            course / 2,
+            course - mortar / 2 - bevel,
+            course - mortar / 2 - bevel / 2,
+            course - mortar / 2,
+        ]
         return np.array([z0 + k * course + t for k in range(n_courses) for t in inner] + [z0 + n_courses * course])
 
     def slab(self, x0, x1, z0, n_courses):

@@ -12,6 +12,7 @@ message names the problem and the fix (:func:`unreadable` for a file that is
 not what its extension says); a missing or unreadable texture is a
 ``UserWarning`` (:func:`warn`) and the material falls back to its plain colour.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -168,6 +169,12 @@ def assemble(parts: list[Part], materials: list[Material], name: str, source: st
     used_materials, face_material = np.unique(face_material, return_inverse=True)  # unused ones may hold big images
     if face_uvs is not None and not np.isfinite(face_uvs).any():
         face_uvs = None
-    return TexturedMesh(vertices=vertices, faces=faces, face_material=face_material,
-                        materials=[materials[i] for i in used_materials], face_uvs=face_uvs, vertex_colors=colors,
-                        name=name)
+    return TexturedMesh(
+        vertices=vertices,
+        faces=faces,
+        face_material=face_material,
+        materials=[materials[i] for i in used_materials],
+        face_uvs=face_uvs,
+        vertex_colors=colors,
+        name=name,
+    )

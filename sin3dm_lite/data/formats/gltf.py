@@ -7,6 +7,7 @@ must lie in the mesh's folder (:func:`check_gltf_files`), and every texture a
 material uses that is missing or undecodable becomes a warning
 (:func:`gltf_image_problems`).
 """
+
 from __future__ import annotations
 
 import base64
@@ -59,7 +60,7 @@ def gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
         if "uri" not in item:
             view = header["bufferViews"][item["bufferView"]]
             buf = header["buffers"][view["buffer"]]
-            return (binary if "uri" not in buf else blob(buf))[view.get("byteOffset", 0):][: view["byteLength"]]
+            return (binary if "uri" not in buf else blob(buf))[view.get("byteOffset", 0) :][: view["byteLength"]]
         if item["uri"].startswith("data:"):
             return base64.b64decode(item["uri"].split(",", 1)[1])
         if not (path.parent / unquote(item["uri"])).is_file():
@@ -70,9 +71,11 @@ def gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
         images, textures, users = header.get("images", []), header.get("textures", []), {}
         for mat in header.get("materials", []):
             pbr = mat.get("pbrMetallicRoughness", {})
-            for slot, info in (("baseColorTexture", pbr.get("baseColorTexture")),
-                               ("metallicRoughnessTexture", pbr.get("metallicRoughnessTexture")),
-                               ("normalTexture", mat.get("normalTexture"))):
+            for slot, info in (
+                ("baseColorTexture", pbr.get("baseColorTexture")),
+                ("metallicRoughnessTexture", pbr.get("metallicRoughnessTexture")),
+                ("normalTexture", mat.get("normalTexture")),
+            ):
                 if info and info.get("index") is not None and info["index"] < len(textures):
                     tex = textures[info["index"]]
                     exts = [e for e in (tex.get("extensions") or {}).values() if isinstance(e, dict) and "source" in e]
@@ -82,14 +85,20 @@ def gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
         problems = []
         for src, used_by in users.items():
             im = images[src]
-            label = f"'{unquote(im['uri'])}'" if "uri" in im and not im["uri"].startswith("data:") else f"#{src} (embedded)"
+            label = (
+                f"'{unquote(im['uri'])}'" if "uri" in im and not im["uri"].startswith("data:") else f"#{src} (embedded)"
+            )
             try:
                 with Image.open(io.BytesIO(blob(im))) as pil:
                     pil.verify()
             except Exception as exc:
-                reason = "not a readable image" if "cannot identify image" in str(exc) else f"{type(exc).__name__}: {exc}"
-                problems.append(f"texture image {label} in '{path.name}' ({', '.join(used_by)}) is missing or "
-                                f"unreadable ({reason}); using the material colour instead")
+                reason = (
+                    "not a readable image" if "cannot identify image" in str(exc) else f"{type(exc).__name__}: {exc}"
+                )
+                problems.append(
+                    f"texture image {label} in '{path.name}' ({', '.join(used_by)}) is missing or "
+                    f"unreadable ({reason}); using the material colour instead"
+                )
         return problems
     except Exception:
         return []

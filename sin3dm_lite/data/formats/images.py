@@ -5,6 +5,7 @@ Every reader turns its textures into ``(h, w, 3)`` float32 in [0, 1]
 8-bit pictures with :func:`array_to_pil` (and :func:`png_bytes` for PNG bytes
 in memory), so the rounding lives in one place.
 """
+
 from __future__ import annotations
 
 import io

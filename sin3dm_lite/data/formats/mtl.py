@@ -6,6 +6,7 @@ normal map ``map_Bump``/``bump``/``norm``. Textures are found beside the MTL
 file (:func:`~.common.resolve_asset`), decoded once each and shrunk to the
 loader's ``max_size``; a missing or unreadable one is a warning.
 """
+
 from __future__ import annotations
 
 from functools import partial
@@ -29,8 +30,11 @@ def read_libraries(entries: list[str], path: Path, used: set, scope: Scope, max_
     loaded_any = False
     for entry in (e.strip() for e in entries):
         # "mtllib a.mtl b.mtl", unless that is one file name with spaces
-        for name in (entry.split() if " " in entry and not resolve_asset(entry, path.parent, scope, "the material "
-                     "library") else [entry]):
+        for name in (
+            entry.split()
+            if " " in entry and not resolve_asset(entry, path.parent, scope, "the material library")
+            else [entry]
+        ):
             mtl = resolve_asset(name, path.parent, scope, "the material library")
             if mtl is None:
                 warn(
@@ -82,8 +86,12 @@ def parse_mtl(path, used: set, texture) -> dict[str, tuple[Material, tuple | Non
         if mname not in used:
             continue
         kd = np.clip((d.get("Kd", list(DEFAULT_COLOR)) + [1.0, 1.0, 1.0])[:3], 0, 1)
-        mat = Material(name=mname, base_color=np.array([*kd, d.get("d", 1.0)], np.float32),
-                       metallic=d.get("pm", 0.0), roughness=d.get("pr", 1.0))
+        mat = Material(
+            name=mname,
+            base_color=np.array([*kd, d.get("d", 1.0)], np.float32),
+            metallic=d.get("pm", 0.0),
+            roughness=d.get("pr", 1.0),
+        )
         uv_transform = None
         if "map_kd" in d:
             fname, opts = d["map_kd"]
@@ -113,8 +121,19 @@ def parse_mtl(path, used: set, texture) -> dict[str, tuple[Material, tuple | Non
 
 
 _TEX_OPTION_ARGS = {  # MTL texture options and how many arguments each takes (at most)
-    "-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1,
-    "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1, "-type": 1,
+    "-blendu": 1,
+    "-blendv": 1,
+    "-bm": 1,
+    "-boost": 1,
+    "-cc": 1,
+    "-clamp": 1,
+    "-imfchan": 1,
+    "-mm": 2,
+    "-o": 3,
+    "-s": 3,
+    "-t": 3,
+    "-texres": 1,
+    "-type": 1,
 }
 
 

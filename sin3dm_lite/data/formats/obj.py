@@ -7,6 +7,7 @@ keyword (``v``, ``vt``, ``f``, ``usemtl``, ``mtllib``) is found with one
 regular-expression scan of the whole text, much faster than a Python loop
 over lines; the material libraries are read by :mod:`.mtl`.
 """
+
 from __future__ import annotations
 
 import re
@@ -30,11 +31,15 @@ def load_obj(path, max_size, scope: Scope):
     vertices, colors = _obj_vertices(path, v_rows)
     uvs = np.nan_to_num(_obj_numbers(path, vt_rows, "vt", 1, width=2)[:, :2])
     if len(fv) and fv.max() >= len(vertices):
-        raise unreadable(path, OBJ, f"a face refers to vertex {fv.max() + 1} but the file "
-                         f"defines only {len(vertices)} vertices")
+        raise unreadable(
+            path, OBJ, f"a face refers to vertex {fv.max() + 1} but the file defines only {len(vertices)} vertices"
+        )
     if len(ft) and ft.max() >= len(uvs):
-        raise unreadable(path, OBJ, f"a face refers to texture coordinate {ft.max() + 1} but the "
-                         f"file defines only {len(uvs)} ('vt' lines)")
+        raise unreadable(
+            path,
+            OBJ,
+            f"a face refers to texture coordinate {ft.max() + 1} but the file defines only {len(uvs)} ('vt' lines)",
+        )
     library, loaded_any = read_libraries(_scan(text, "mtllib")[0], path, set(mat_names), scope, max_size)
     materials, uv_transforms, order = _obj_materials(path, mat_names, library, loaded_any, colors)
     face_material = np.argsort(order)[fm]
@@ -66,8 +71,15 @@ def _faces_by_material(path, text: str, v_pos: np.ndarray, vt_pos: np.ndarray):
     mat_names = [None, *dict.fromkeys(name.strip() for name in use_names)]
     slot_of = {name: slot for slot, name in enumerate(mat_names)}
     use_slot = np.array([0] + [slot_of[name.strip()] for name in use_names], np.int64)
-    info = np.stack([f_pos, use_slot[np.searchsorted(use_pos, f_pos)],
-                     np.searchsorted(v_pos, f_pos), np.searchsorted(vt_pos, f_pos)], axis=1)
+    info = np.stack(
+        [
+            f_pos,
+            use_slot[np.searchsorted(use_pos, f_pos)],
+            np.searchsorted(v_pos, f_pos),
+            np.searchsorted(vt_pos, f_pos),
+        ],
+        axis=1,
+    )
     fv, ft, fm = _obj_faces(path, f_rows, info, line_of=lambda pos: text.count("\n", 0, pos))
     used_slots, fm = np.unique(fm, return_inverse=True)  # keep only the material slots faces use
     return fv, ft, fm, [mat_names[i] for i in used_slots]
@@ -144,8 +156,10 @@ def _obj_faces(path, rows: list[str], info: np.ndarray, line_of):
     if bad.any():
         i = line[np.argmax(bad)]
         raise unreadable(
-            path, OBJ, f"line {line_of(info[i, 0])}: bad face 'f {rows[i].strip()[:80]}' (an index is "
-            "not a number, is 0, or points before the first vertex)"
+            path,
+            OBJ,
+            f"line {line_of(info[i, 0])}: bad face 'f {rows[i].strip()[:80]}' (an index is "
+            "not a number, is 0, or points before the first vertex)",
         )
     return vi, ti, info[line, 1]
 

@@ -8,6 +8,7 @@ factors and the normal map go to the material's PBR fields), vertex colours
 there are few), or the default colour. Files a glTF or PLY names are checked
 to lie in the mesh's folder before trimesh reads them (:mod:`.gltf`).
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -20,8 +21,13 @@ from .common import Part, Scope, resolve_asset, unreadable, warn
 from .gltf import check_gltf_files, gltf_image_problems, gltf_json
 from .images import image_to_array
 
-_FORMAT_NAMES = {".glb": "a binary glTF (GLB)", ".gltf": "a glTF", ".ply": "a PLY mesh", ".stl": "an STL mesh",
-                 ".off": "an OFF mesh"}
+_FORMAT_NAMES = {
+    ".glb": "a binary glTF (GLB)",
+    ".gltf": "a glTF",
+    ".ply": "a PLY mesh",
+    ".stl": "an STL mesh",
+    ".off": "an OFF mesh",
+}
 
 
 def load_scene(path, max_size, scope: Scope):
@@ -115,13 +121,18 @@ def _face_color_part(visual, vertices, faces, materials: _Materials) -> Part:
     fc = _color_array(visual.face_colors, n)
     uniq, inv = np.unique(np.round(fc * 255).astype(np.int64), axis=0, return_inverse=True)
     if len(uniq) <= 64:  # a few colours: one material each
-        mi = [materials.add(Material(name=f"face_color_{k}", base_color=np.array([*c / 255.0, 1.0], np.float32)),
-                            ("face", tuple(c))) for k, c in enumerate(uniq)]
+        mi = [
+            materials.add(
+                Material(name=f"face_color_{k}", base_color=np.array([*c / 255.0, 1.0], np.float32)), ("face", tuple(c))
+            )
+            for k, c in enumerate(uniq)
+        ]
         return Part(vertices, faces, np.asarray(mi)[inv.reshape(-1)])
     # many colours: give every face its own three vertices
     mi = materials.add(Material(name="vertex_colors", base_color=np.ones(4, np.float32)), "vertex_colors")
-    return Part(vertices[faces].reshape(-1, 3), np.arange(3 * n).reshape(-1, 3), np.full(n, mi), None,
-                np.repeat(fc, 3, axis=0))
+    return Part(
+        vertices[faces].reshape(-1, 3), np.arange(3 * n).reshape(-1, 3), np.full(n, mi), None, np.repeat(fc, 3, axis=0)
+    )
 
 
 def _unit(c) -> np.ndarray:
@@ -153,8 +164,10 @@ def _material_from_trimesh(tm, max_size, path, geom_name) -> Material:
         try:
             return None if pil is None else image_to_array(pil, max_size)
         except Exception as exc:
-            warn(f"the {what} texture of material '{name}' in '{path.name}' could not be decoded "
-                  f"({type(exc).__name__}: {exc}); continuing without it")
+            warn(
+                f"the {what} texture of material '{name}' in '{path.name}' could not be decoded "
+                f"({type(exc).__name__}: {exc}); continuing without it"
+            )
             return None
 
     if isinstance(tm, PBRMaterial):
@@ -180,8 +193,12 @@ def _material_from_trimesh(tm, max_size, path, geom_name) -> Material:
 def _is_trimesh_placeholder(pil) -> bool:
     """Is this trimesh's ``color_image()`` default: 2x2 RGBA, every pixel (100, 100, 100, 255)?"""
     try:
-        return (pil is not None and pil.size == (2, 2) and pil.mode == "RGBA"
-                and bool(np.all(np.asarray(pil) == (100, 100, 100, 255))))
+        return (
+            pil is not None
+            and pil.size == (2, 2)
+            and pil.mode == "RGBA"
+            and bool(np.all(np.asarray(pil) == (100, 100, 100, 255)))
+        )
     except Exception:
         return False
 
@@ -203,5 +220,5 @@ def _ply_texture_file(path: Path) -> str | None:
     for line in head.splitlines():
         at = line.lower().find("texturefile")
         if at >= 0:
-            return line[at + len("texturefile"):].strip() or None
+            return line[at + len("texturefile") :].strip() or None
     return None
