@@ -45,10 +45,12 @@ from sin3dm_lite import metrics  # noqa: E402
 from sin3dm_lite.data.config import parse_settings  # noqa: E402
 from sin3dm_lite.data.export import export_mesh  # noqa: E402
 from sin3dm_lite.data.presets import get_preset  # noqa: E402
+from sin3dm_lite.data.source import resolve_mesh  # noqa: E402
 from sin3dm_lite.device import get_device  # noqa: E402
+from sin3dm_lite.fitting import grid_for  # noqa: E402
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer  # noqa: E402
 from sin3dm_lite.model.diffusion import DiffusionTrainer  # noqa: E402
-from sin3dm_lite.pipeline import Sin3DM, _grid_for, resolve_mesh  # noqa: E402
+from sin3dm_lite.pipeline import Sin3DM  # noqa: E402
 
 SHORT_RUN_EMA = 0.999
 
@@ -109,7 +111,7 @@ def main() -> None:
     # ---- 1. timing at the preset's real size
     mesh = resolve_mesh(args.input)
     t = time.perf_counter()
-    grid = _grid_for(mesh, cfg, False)
+    grid = grid_for(mesh, cfg, False)
     res["grid_s"], res["grid_shape"] = time.perf_counter() - t, list(grid.shape)
     save("grid")
 

@@ -139,7 +139,7 @@ def test_old_records_still_load():
     """A record written before the ceiling (absolute goals, no near copy: the shipped wall's) loads, tells its story
     and keeps what the fit reads from it; a new record goes through its dict and back unchanged."""
     import sin3dm_lite
-    from sin3dm_lite.pipeline import keeps_goals_from_noise
+    from sin3dm_lite.fit_policy import keeps_goals_from_noise
 
     shipped = Path(sin3dm_lite.__file__).parent / "shipped" / "wall_small"
     record = json.loads((shipped / "report.json").read_text())["calibration"]
