@@ -1,4 +1,4 @@
-"""Write three meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
+"""Write four meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
 
     python benchmarks/make_test_meshes.py OUT_DIR
 
@@ -8,6 +8,8 @@
   tiles are red brick-like stripes and odd tiles blue checks, raised by different heights.
 * ``dunes.ply``  — vertex colours only (no UVs): a slab whose top is a field of crossing
   sand ridges, darker in the troughs (a smooth, organic surface; no thin parts).
+* ``ruin.obj``   — a ruined round tower (``sin3dm_lite.data.ruin``): walls 2.5 voxels thick at a
+  64-voxel training grid, a stepped broken top, a door and two windows (the paper's kind of demo shape).
 """
 
 from __future__ import annotations
@@ -18,6 +20,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 from PIL import Image
+
+from sin3dm_lite.data.export import save_obj
+from sin3dm_lite.data.ruin import build_ruin
 
 
 def rocks(seed: int = 1) -> trimesh.Trimesh:
@@ -122,7 +127,8 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     rocks().export(out / "rocks.stl")
     dunes().export(out / "dunes.ply")
-    print(f"wrote {out / 'rocks.stl'}, {tiles(out)} and {out / 'dunes.ply'}")
+    save_obj(build_ruin(0), out / "ruin.obj")
+    print(f"wrote {out / 'rocks.stl'}, {tiles(out)}, {out / 'dunes.ply'} and {out / 'ruin.obj'}")
 
 
 if __name__ == "__main__":
