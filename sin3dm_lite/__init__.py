@@ -12,7 +12,8 @@ table of levels and checks it, imports inside functions included)::
     3 generate  generate: control (what to sample: outpaint, ...) · extract (SDF → textured mesh)
     4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render · calibrate
     5 show      show: figures · data/model/diffusion/sample/eval_figures · viz (all figures) · viewer · widgets
-    5 teach     teach: lesson2d (the method on one 2D image) · exercises (``check_…`` a piece you wrote)
+    5 teach     teach: lesson2d (the method on one 2D image) · exercises, shape_exercises (``check_…`` a piece you
+                wrote) · checking (what the checks share)
     6 app       pipeline (Sin3DM: fit, sample, save, load) · runs · mass · cli · pretrained (models in shipped/)
 
 Everything a notebook or script needs is importable from here::
@@ -114,7 +115,7 @@ _API = {
     "calibrate_diversity": "evaluate.calibrate",
     "Calibration": "evaluate.calibrate",
     # exercises: write a piece of the method, check it against the library
-    "ExerciseError": "teach.exercises",
+    "ExerciseError": "teach.checking",
     "check_q_sample": "teach.exercises",
     "check_ddpm_posterior": "teach.exercises",
     "check_ddim_step": "teach.exercises",
@@ -122,6 +123,10 @@ _API = {
     "check_receptive_field": "teach.exercises",
     "check_rollout": "teach.exercises",
     "check_best_patch_iou": "teach.exercises",
+    "check_grid_box": "teach.shape_exercises",
+    "check_retarget": "teach.shape_exercises",
+    "check_regenerate_mask": "teach.shape_exercises",
+    "check_tangent_frames": "teach.shape_exercises",
 }
 
 #: module-valued public names (namespaces a notebook uses: ``viz.plot_slice``) → the module

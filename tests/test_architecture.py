@@ -46,7 +46,7 @@ LAYERS = {
     "show.diffusion_figures": SHOW, "show.sample_figures": SHOW, "show.eval_figures": SHOW, "show.viz": SHOW,
     "show.viewer": SHOW, "show.widgets": SHOW,
     # teach: the 2D lesson and the exercises' checks (they use the model and the metrics)
-    "teach": SHOW, "teach.lesson2d": SHOW, "teach.exercises": SHOW,
+    "teach": SHOW, "teach.lesson2d": SHOW, "teach.checking": SHOW, "teach.exercises": SHOW, "teach.shape_exercises": SHOW,
     # app: the facade, run folders, mass sampling, the CLI, shipped models, the public namespace
     "pipeline": APP, "runs": APP, "mass": APP, "cli": APP, "pretrained": APP, "__init__": APP,
     "notebook_run": APP,  # runs the notebooks at reading settings and records their outputs
