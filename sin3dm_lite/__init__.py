@@ -17,7 +17,8 @@ table of levels and checks it, imports inside functions included)::
                 calibration_record · calibrate · evaluation (samples against the input)
     5 show      show: figures · data/model/diffusion/sample/eval_figures · viz · camera · viewer · pages · explorer ·
                 sampling_widgets · widgets
-    5 teach     teach: lesson2d (the method on one 2D image) · exercises (``check_…`` a piece you wrote)
+    5 teach     teach: lesson2d (the method on one 2D image) · exercises, shape_exercises (``check_…`` a piece you
+                wrote) · checking (what the checks share)
     6 app       pipeline (Sin3DM: fit, sample, save, load, each a call into:) · fitting (the stages) · fit_policy
                 (what a fit decides) · run_folder · checkpoints · sampling · request (a sample run's settings) ·
                 runs · pretrained (models in shipped/) · mass · mass_folder · mass_workers ·
@@ -123,7 +124,7 @@ _API = {
     "calibrate_diversity": "evaluate.calibrate",
     "Calibration": "evaluate.calibration_record",
     # exercises: write a piece of the method, check it against the library
-    "ExerciseError": "teach.exercises",
+    "ExerciseError": "teach.checking",
     "check_q_sample": "teach.exercises",
     "check_ddpm_posterior": "teach.exercises",
     "check_ddim_step": "teach.exercises",
@@ -131,6 +132,10 @@ _API = {
     "check_receptive_field": "teach.exercises",
     "check_rollout": "teach.exercises",
     "check_best_patch_iou": "teach.exercises",
+    "check_grid_box": "teach.shape_exercises",
+    "check_retarget": "teach.shape_exercises",
+    "check_regenerate_mask": "teach.shape_exercises",
+    "check_tangent_frames": "teach.shape_exercises",
 }
 
 #: module-valued public names (namespaces a notebook uses: ``viz.plot_slice``) → the module

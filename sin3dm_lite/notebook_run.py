@@ -18,6 +18,7 @@ trying the tool, and marks the outputs as such so the test refuses them). Then:
 ``tests/test_notebook_outputs.py`` recomputes the digest and fails when a code
 cell changed after the outputs were made, naming this command.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -125,8 +126,13 @@ def run_notebook(path: str | Path, fast: bool = False, timeout: int = 1800, kern
         os.environ.pop("SIN3DM_FAST", None)
     start = time.perf_counter()
     try:
-        NotebookClient(nb, timeout=timeout, kernel_name=kernel, resources={"metadata": {"path": str(path.parent)}},
-                       record_timing=False).execute()  # widget state is kept while running (Output widgets need it), stripped below
+        NotebookClient(
+            nb,
+            timeout=timeout,
+            kernel_name=kernel,
+            resources={"metadata": {"path": str(path.parent)}},
+            record_timing=False,
+        ).execute()  # widget state is kept while running (Output widgets need it), stripped below
     finally:
         if saved is None:
             os.environ.pop("SIN3DM_FAST", None)
@@ -134,8 +140,13 @@ def run_notebook(path: str | Path, fast: bool = False, timeout: int = 1800, kern
             os.environ["SIN3DM_FAST"] = saved
     seconds = time.perf_counter() - start
     strip_widgets(nb)
-    meta = {"code_digest": code_digest(nb), "package_version": sin3dm_lite.__version__, "fast": bool(fast),
-            "run_seconds": round(seconds), "command": f"{COMMAND} {path.parent.name}/{path.name}"}
+    meta = {
+        "code_digest": code_digest(nb),
+        "package_version": sin3dm_lite.__version__,
+        "fast": bool(fast),
+        "run_seconds": round(seconds),
+        "command": f"{COMMAND} {path.parent.name}/{path.name}",
+    }
     nb.metadata[META_KEY] = meta
     nbformat.write(nb, path)
     return meta
@@ -157,7 +168,9 @@ def run_all(paths=(), fast: bool = False, check: bool = False, clear: bool = Fal
                 nbformat.write(nb, path)
                 print(f"{path}: outputs cleared")
                 continue
-            why = stale_reason(nb, f"notebooks/{path.name}") or (None if recorded(nb) else f"{path}: no outputs recorded")
+            why = stale_reason(nb, f"notebooks/{path.name}") or (
+                None if recorded(nb) else f"{path}: no outputs recorded"
+            )
             bad += why is not None
             print(why or f"{path}: up to date")
             continue
@@ -172,5 +185,3 @@ def run_all(paths=(), fast: bool = False, check: bool = False, clear: bool = Fal
     total = sum(p.stat().st_size for p in NOTEBOOKS.glob("*.ipynb"))
     print(f"all notebooks: {total / 1e6:.1f} MB (limit {MAX_TOTAL_BYTES / 1e6:.0f} MB)")
     return 1 if bad or total > MAX_TOTAL_BYTES else 0
-
-

@@ -54,7 +54,8 @@ LAYERS = {
     "show.camera": SHOW, "show.viewer": SHOW, "show.pages": SHOW, "show.explorer": SHOW,
     "show.sampling_widgets": SHOW, "show.widgets": SHOW,
     # teach: the 2D lesson and the exercises' checks (they use the model and the metrics)
-    "teach": SHOW, "teach.lesson2d": SHOW, "teach.exercises": SHOW,
+    "teach": SHOW, "teach.lesson2d": SHOW, "teach.checking": SHOW, "teach.exercises": SHOW,
+    "teach.shape_exercises": SHOW,
     # app: the facade, run folders, mass sampling (the run, its folder, ranks and workers), the CLI (main, parser,
     # commands by group), shipped models, the public namespace
     "pipeline": APP, "runs": APP, "mass": APP, "mass_folder": APP, "mass_workers": APP, "pretrained": APP,

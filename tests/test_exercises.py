@@ -9,6 +9,7 @@ import torch
 import torch.nn.functional as F
 
 from sin3dm_lite import exercises as ex
+from sin3dm_lite.teach import shape_exercises as sx
 
 SOLUTIONS = Path(__file__).parents[1] / "notebooks" / "solutions"
 
@@ -28,6 +29,10 @@ CHECKS = [
     (ex.check_receptive_field, "receptive_field", "receptive_field"),
     (ex.check_rollout, "rollout", "rollout_xy"),
     (ex.check_best_patch_iou, "lp_iou", "best_patch_iou"),
+    (sx.check_grid_box, "grid_box", "grid_box"),
+    (sx.check_retarget, "retarget", "retarget"),
+    (sx.check_regenerate_mask, "regenerate_mask", "regenerate_mask"),
+    (sx.check_tangent_frames, "tangent_frames", "tangent_frames"),
 ]
 
 
@@ -38,7 +43,7 @@ def test_the_solution_passes(check, module, name, capsys):
 
 
 def test_every_check_has_a_solution_and_a_notebook_uses_it():
-    checks = {n for n in ex.__all__ if n.startswith("check_")}
+    checks = {n for n in [*ex.__all__, *sx.__all__] if n.startswith("check_")}
     assert checks == {c[0].__name__ for c in CHECKS}
     assert {p.stem for p in SOLUTIONS.glob("*.py")} - {"__init__"} == {c[1] for c in CHECKS}
     cells = "".join(p.read_text(encoding="utf-8") for p in (SOLUTIONS.parent).glob("*.ipynb"))
@@ -156,3 +161,98 @@ def test_best_patch_iou_dice_or_mean():
     fails(ex.check_best_patch_iou, dice, "your mean best IoU", "F-score")
     fails(ex.check_best_patch_iou, mean_match, "BEST match")
     fails(ex.check_best_patch_iou, lambda gen, ref: np.zeros(len(ref)), "returned shape")
+
+
+# ----------------------------------------------------------------------------- the shape side
+def test_grid_box_rounded_wrongly_or_boxed_by_the_extent():
+    right = solution("grid_box", "grid_box")
+
+    def rounded(extent, res):
+        e = np.asarray(extent)
+        return tuple(int(max(8, np.ceil(round(res * v / e.max()) / 8) * 8)) for v in e), right(extent, res)[1]
+
+    def no_multiple(extent, res):
+        e = np.asarray(extent)
+        return tuple(int(v) for v in np.floor(res * e / e.max())), right(extent, res)[1]
+
+    def box_of_extent(extent, res):
+        e = np.asarray(extent) / max(extent)
+        return right(extent, res)[0], np.concatenate([-e, e])
+
+    fails(sx.check_grid_box, rounded, "your shape is", "rounds down")
+    fails(sx.check_grid_box, no_multiple, "your shape is", "UP to a multiple of 8")
+    fails(sx.check_grid_box, box_of_extent, "your box is", "follows the voxel counts")
+    fails(sx.check_grid_box, lambda e, r: right(e, r)[0], "two things")
+    fails(sx.check_grid_box, lambda e, r: ((64, 24.5, 32), right(e, r)[1]), "whole numbers")
+
+
+def test_retarget_scaled_by_the_factor_or_without_the_minimum():
+    right = solution("retarget", "retarget")
+
+    def by_factor(res, aabb, f):
+        new, _ = right(res, aabb, f)
+        return new, np.concatenate([aabb[:3] * np.array(f), aabb[3:] * np.array(f)])
+
+    def no_minimum(res, aabb, f):
+        new = np.round(np.array(res) * np.array(f))
+        return tuple(int(v) for v in new), np.concatenate([aabb[:3], aabb[3:]]) * np.tile(new / np.array(res), 2)
+
+    def floored(res, aabb, f):
+        new = np.maximum(4, np.floor(np.array(res) * np.array(f)))
+        return tuple(int(v) for v in new), right(res, aabb, f)[1]
+
+    fails(sx.check_retarget, by_factor, "your box is", "not by the factor")
+    fails(sx.check_retarget, no_minimum, "(0.1, 1.0, 1.0)", "at least 4 texels")
+    fails(sx.check_retarget, floored, "your latent is", "nearest whole texel")
+
+
+def test_regenerate_mask_that_frees_every_plane_or_is_inverted():
+    right = solution("regenerate_mask", "regenerate_mask")
+
+    def every_plane(res, box, border):  # the box's shadow freed on all three planes, spanned or not
+        profiles = []
+        for lo, hi, n in zip(*box, res):
+            a, b, c = round(lo * n), round(hi * n), np.arange(n) + 0.5
+            d = np.maximum(np.maximum(a - c, c - b), 0)
+            profiles.append((d == 0).astype(float) if border <= 0 else np.clip(1 - d / border, 0, 1))
+        return tuple(1 - np.outer(profiles[p], profiles[q]) for p, q in ((0, 1), (0, 2), (1, 2)))
+
+    def no_ramp(res, box, border):
+        return right(res, box, 0.0)
+
+    fails(sx.check_regenerate_mask, every_plane, "mask differs", "must be kept whole")
+    fails(sx.check_regenerate_mask, lambda r, b, w: tuple(1 - m for m in right(r, b, w)), "1 means keep")
+    fails(sx.check_regenerate_mask, no_ramp, "border 2", "the ramp lies outside the box")
+    fails(sx.check_regenerate_mask, lambda r, b, w: right(r, b, w)[:2], "three masks")
+
+
+def test_tangent_frames_with_the_usual_mistakes():
+    right = solution("tangent_frames", "tangent_frames")
+
+    def never_flipped(v, f, uv):
+        t, _, n = right(v, f, uv)
+        return t, np.cross(n, t), n
+
+    def solved_v(v, f, uv):
+        t, _, n = right(v, f, uv)
+        tri = v[f]
+        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+        d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+        det = (d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1])[:, None]
+        b = (e2 * d1[:, :1] - e1 * d2[:, :1]) / det
+        return t, b / np.linalg.norm(b, axis=1, keepdims=True), n
+
+    def clockwise(v, f, uv):
+        t, b, n = right(v, f, uv)
+        return t, b, -n
+
+    fails(sx.check_tangent_frames, never_flipped, "your B differs", "mirrored", "flip B")
+    fails(sx.check_tangent_frames, solved_v, "your B differs", "perpendicular to T")
+    fails(sx.check_tangent_frames, clockwise, "your N differs on 60 of 60 faces", "counter-clockwise")
+    fails(sx.check_tangent_frames, lambda v, f, uv: right(v, f, uv)[:2], "three arrays")
+
+
+def test_tangent_frames_with_t_and_b_swapped():
+    right = solution("tangent_frames", "tangent_frames")
+    fails(sx.check_tangent_frames, lambda v, f, uv: (lambda t, b, n: (b, t, n))(*right(v, f, uv)), "your T differs",
+          "swapped T and B")

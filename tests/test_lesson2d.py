@@ -3,7 +3,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from sin3dm_lite import lesson2d as L
-from sin3dm_lite.model.diffusion import NoiseSchedule
+from sin3dm_lite.model.schedule import NoiseSchedule
 
 
 def test_pebbles_is_a_deterministic_image_in_range():

@@ -18,9 +18,12 @@ check                                   you write                            the
 :func:`check_best_patch_iou`            ``best_patch_iou(gen, ref)``         ``metrics.lp_scores``
 ======================================  ===================================  ==========================
 
+The shape side (the grid's box, retargeting, an edit's masks, tangent frames) is in
+:mod:`~sin3dm_lite.teach.shape_exercises`, what the checks share in :mod:`~sin3dm_lite.teach.checking`.
 Solutions are in ``notebooks/solutions/``; ``tests/test_exercises.py`` runs
 every check against its solution and against wrong answers.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -28,43 +31,10 @@ import torch
 
 from ..data.config import DiffusionConfig
 from ..evaluate.metrics import extract_patches, lp_scores
-from ..model.diffusion import NoiseSchedule
+from ..model.schedule import NoiseSchedule
 from ..model.triplane import PLANES, Triplane
 from ..model.unet import TriplaneUNet, cross_plane_inputs, layer_walk, layers_receptive_field
-
-
-class ExerciseError(AssertionError):
-    """Your function disagrees with the library; the message says where and, when it can, why."""
-
-
-def _call(name: str, fn, *args, hint: str = ""):
-    """Run the student's function; an exception becomes an ExerciseError naming it (plus a hint)."""
-    try:
-        return fn(*args)
-    except Exception as e:  # the student's bug, reported in the exercise's terms
-        raise ExerciseError(f"your {name} raised {type(e).__name__}: {e}" + (f"\n  hint: {hint}" if hint else "")) from e
-
-
-def _as64(name: str, value, like: torch.Tensor) -> torch.Tensor:
-    """The student's answer as a float64 tensor of ``like``'s shape, or an ExerciseError saying what it is."""
-    if not isinstance(value, (torch.Tensor, np.ndarray)):
-        raise ExerciseError(f"your {name} returned a {type(value).__name__}, expected a tensor of shape {tuple(like.shape)}")
-    value = torch.as_tensor(value)
-    if tuple(value.shape) != tuple(like.shape):
-        raise ExerciseError(f"your {name} returned shape {tuple(value.shape)}, expected {tuple(like.shape)}")
-    return value.detach().cpu().double()
-
-
-def _hint(got: torch.Tensor, candidates: dict[str, torch.Tensor], tol: float) -> str:
-    """The hint of the first wrong answer the student's output matches."""
-    for text, wrong in candidates.items():
-        if wrong.shape == got.shape and float((got - wrong.double()).abs().max()) <= tol:
-            return f"\n  hint: {text}"
-    return ""
-
-
-def _ok(name: str, cases: int, err: float) -> None:
-    print(f"✓ your {name} matches the library on {cases} random cases (max error {err:.1e})")
+from .checking import ExerciseError, as64, call, matching_hint, passed
 
 
 # ----------------------------------------------------------------------------- the forward process
@@ -79,22 +49,38 @@ def check_q_sample(fn, seed: int = 0, tol: float = 1e-5) -> None:
     want = sch.q_sample(x0, t, noise)
     worst = 0.0
     for name, p, n, w in zip(PLANES, x0.planes, noise.planes, want.planes):
-        got = _as64("q_sample", _call("q_sample", fn, p.clone(), t.clone(), n.clone(), sch.alphas_cumprod.clone(),
-                                      hint="ᾱ_t is one number per sample: index it with t, reshape to [B, 1, 1, 1]"), w)
+        got = as64(
+            "q_sample",
+            call(
+                "q_sample",
+                fn,
+                p.clone(),
+                t.clone(),
+                n.clone(),
+                sch.alphas_cumprod.clone(),
+                hint="ᾱ_t is one number per sample: index it with t, reshape to [B, 1, 1, 1]",
+            ),
+            w,
+        )
         err = (got - w.double()).abs().amax((1, 2, 3))
         if float(err.max()) > tol:
             b = int(err.argmax())
             ab = sch.alphas_cumprod[t].reshape(-1, 1, 1, 1)
             shift = lambda d: sch.alphas_cumprod[(t + d).clamp(0, 999)].reshape(-1, 1, 1, 1)  # noqa: E731
-            hints = {"did you use √ᾱ_t and √(1-ᾱ_t)? You used ᾱ_t and 1-ᾱ_t.": ab * p + (1 - ab) * n,
-                     "the image gets √ᾱ_t and the noise √(1-ᾱ_t), not the other way round.":
-                         (1 - ab).sqrt() * p + ab.sqrt() * n,
-                     "off by one: ᾱ_t is alphas_cumprod[t] (t counts from 0).": shift(-1).sqrt() * p + (1 - shift(-1)).sqrt() * n,
-                     "off by one: ᾱ_t is alphas_cumprod[t], not [t+1].": shift(1).sqrt() * p + (1 - shift(1)).sqrt() * n}
-            raise ExerciseError(f"your q_sample differs at t={int(t[b])} on the {name} plane: max error "
-                                f"{float(err[b]):.3g}" + _hint(got, hints, 1e-4))
+            hints = {
+                "did you use √ᾱ_t and √(1-ᾱ_t)? You used ᾱ_t and 1-ᾱ_t.": ab * p + (1 - ab) * n,
+                "the image gets √ᾱ_t and the noise √(1-ᾱ_t), not the other way round.": (1 - ab).sqrt() * p
+                + ab.sqrt() * n,
+                "off by one: ᾱ_t is alphas_cumprod[t] (t counts from 0).": shift(-1).sqrt() * p
+                + (1 - shift(-1)).sqrt() * n,
+                "off by one: ᾱ_t is alphas_cumprod[t], not [t+1].": shift(1).sqrt() * p + (1 - shift(1)).sqrt() * n,
+            }
+            raise ExerciseError(
+                f"your q_sample differs at t={int(t[b])} on the {name} plane: max error "
+                f"{float(err[b]):.3g}" + matching_hint(got, hints, 1e-4)
+            )
         worst = max(worst, float(err.max()))
-    _ok("q_sample", len(t) * 3, worst)
+    passed("q_sample", len(t) * 3, worst)
 
 
 # ----------------------------------------------------------------------------- reverse steps
@@ -111,27 +97,42 @@ def check_ddpm_posterior(fn, seed: int = 0, tol: float = 1e-5) -> None:
     mean, var = sch.posterior(x0, x_t, t)
     worst = 0.0
     for name, a, b, w in zip(PLANES, x0.planes, x_t.planes, mean.planes):
-        out = _call("posterior", fn, a.clone(), b.clone(), t.clone(), sch.betas.clone(), sch.alphas_cumprod.clone(),
-                    hint="the tables are indexed per sample: reshape ᾱ_t, β_t, ... to [B, 1, 1, 1]")
+        out = call(
+            "posterior",
+            fn,
+            a.clone(),
+            b.clone(),
+            t.clone(),
+            sch.betas.clone(),
+            sch.alphas_cumprod.clone(),
+            hint="the tables are indexed per sample: reshape ᾱ_t, β_t, ... to [B, 1, 1, 1]",
+        )
         if not (isinstance(out, (tuple, list)) and len(out) == 2):
             raise ExerciseError("your posterior should return two things: (mean, variance)")
-        got_mean = _as64("posterior (mean)", out[0], w)
+        got_mean = as64("posterior (mean)", out[0], w)
         got_var = torch.as_tensor(out[1]).double()
         try:
             got_var = torch.broadcast_to(got_var, w.shape)
         except RuntimeError:
-            raise ExerciseError(f"your variance has shape {tuple(got_var.shape)}: give one value per sample, [B, 1, 1, 1]") from None
+            raise ExerciseError(
+                f"your variance has shape {tuple(got_var.shape)}: give one value per sample, [B, 1, 1, 1]"
+            ) from None
         for what, got, want in (("mean", got_mean, w.double()), ("variance", got_var, var.double().expand(w.shape))):
             err = (got - want).abs().amax((1, 2, 3))
             if float(err.max()) > tol:
                 i = int(err.argmax())
-                hint = ("\n  hint: at t = 0 there is no earlier step: ᾱ_{t-1} is 1 there (alphas_cumprod[-1] in Python"
-                        " is the LAST value, ᾱ_{T-1})" if int(t[i]) == 0 and float(err[t != 0].max()) <= tol
-                        else "")
-                raise ExerciseError(f"your posterior {what} differs at t={int(t[i])} on the {name} plane: max error "
-                                    f"{float(err[i]):.3g}" + hint)
+                hint = (
+                    "\n  hint: at t = 0 there is no earlier step: ᾱ_{t-1} is 1 there (alphas_cumprod[-1] in Python"
+                    " is the LAST value, ᾱ_{T-1})"
+                    if int(t[i]) == 0 and float(err[t != 0].max()) <= tol
+                    else ""
+                )
+                raise ExerciseError(
+                    f"your posterior {what} differs at t={int(t[i])} on the {name} plane: max error "
+                    f"{float(err[i]):.3g}" + hint
+                )
             worst = max(worst, float(err.max()))
-    _ok("posterior", len(t) * 3, worst)
+    passed("posterior", len(t) * 3, worst)
 
 
 def check_ddim_step(fn, seed: int = 0, tol: float = 1e-5) -> None:
@@ -148,21 +149,34 @@ def check_ddim_step(fn, seed: int = 0, tol: float = 1e-5) -> None:
         tt = torch.full((4,), t)
         want = sch.ddim_step(x0, x_t, tt, t_prev)
         for name, a, b, w in zip(PLANES, x_t.planes, x0.planes, want.planes):
-            got = _as64("ddim_step", _call("ddim_step", fn, a.clone(), b.clone(), tt.clone(), t_prev,
-                                           sch.alphas_cumprod.clone()), w)
+            got = as64(
+                "ddim_step",
+                call("ddim_step", fn, a.clone(), b.clone(), tt.clone(), t_prev, sch.alphas_cumprod.clone()),
+                w,
+            )
             err = float((got - w.double()).abs().max())
             if err > tol:
                 if t_prev < 0:  # every earlier step agreed: the last one is the special case
-                    hint = ("\n  hint: alphas_cumprod[-1] is ᾱ_{T-1} (Python counts from the end): at t_prev = -1 "
-                            "use ᾱ = 1, which returns x0.")
+                    hint = (
+                        "\n  hint: alphas_cumprod[-1] is ᾱ_{T-1} (Python counts from the end): at t_prev = -1 "
+                        "use ᾱ = 1, which returns x0."
+                    )
                 else:
                     ap = sch.alphas_cumprod[t_prev]
-                    hint = _hint(got, {"keep the noise direction: ε̂ = (x_t - √ᾱ_t·x0) / √(1-ᾱ_t), not x_t itself.":
-                                       ap.sqrt() * b + (1 - ap).sqrt() * a}, 1e-4)
-                raise ExerciseError(f"your ddim_step differs from t={t} to t_prev={t_prev} on the {name} plane: max error "
-                                    f"{err:.3g}" + hint)
+                    hint = matching_hint(
+                        got,
+                        {
+                            "keep the noise direction: ε̂ = (x_t - √ᾱ_t·x0) / √(1-ᾱ_t), not x_t itself.": ap.sqrt() * b
+                            + (1 - ap).sqrt() * a
+                        },
+                        1e-4,
+                    )
+                raise ExerciseError(
+                    f"your ddim_step differs from t={t} to t_prev={t_prev} on the {name} plane: max error "
+                    f"{err:.3g}" + hint
+                )
             worst, cases = max(worst, err), cases + 4
-    _ok("ddim_step", cases, worst)
+    passed("ddim_step", cases, worst)
 
 
 # ----------------------------------------------------------------------------- the triplane
@@ -179,21 +193,27 @@ def check_triplane_lookup(fn, seed: int = 0, tol: float = 1e-5) -> None:
     outside = torch.rand(2, 20, 3, generator=g) * 2.6 - 1.3
     points = torch.cat([inside, outside], 1)
     want = tp.lookup(points)  # [B, N, 3, C]
-    got = _as64("lookup", _call("lookup", fn, tp.xy.clone(), tp.xz.clone(), tp.yz.clone(), points.clone()), want)
+    got = as64("lookup", call("lookup", fn, tp.xy.clone(), tp.xz.clone(), tp.yz.clone(), points.clone()), want)
     err = (got - want.double()).abs().amax(-1)  # [B, N, 3]
     if float(err.max()) > tol:
         bad = [n for k, n in enumerate(PLANES) if float(err[..., k].max()) > tol]
         deep = (points.abs() < 0.6).all(-1)  # [B, N]: points well inside, away from the border texels
         if not float(err[deep].max()) > tol:
-            hint = ("only points near or outside the box's border differ: there, repeat the border texel "
-                    "(padding_mode='border'), do not blend with zeros")
+            hint = (
+                "only points near or outside the box's border differ: there, repeat the border texel "
+                "(padding_mode='border'), do not blend with zeros"
+            )
         else:
-            hint = ("F.grid_sample reads (x, y) = (column, row), so for xz pass (z, x); texel centres are at "
-                    "-1 + (2i+1)/n (align_corners=False)")
+            hint = (
+                "F.grid_sample reads (x, y) = (column, row), so for xz pass (z, x); texel centres are at "
+                "-1 + (2i+1)/n (align_corners=False)"
+            )
         b, n, k = np.unravel_index(int(err.argmax()), err.shape)
-        raise ExerciseError(f"your lookup differs on the {', '.join(bad)} plane(s): max error {float(err.max()):.3g} "
-                            f"at point {points[b, n].numpy().round(3).tolist()} on {PLANES[k]}\n  hint: {hint}")
-    _ok("lookup", points.shape[0] * points.shape[1], float(err.max()))
+        raise ExerciseError(
+            f"your lookup differs on the {', '.join(bad)} plane(s): max error {float(err.max()):.3g} "
+            f"at point {points[b, n].numpy().round(3).tolist()} on {PLANES[k]}\n  hint: {hint}"
+        )
+    passed("lookup", points.shape[0] * points.shape[1], float(err.max()))
 
 
 def check_rollout(fn, seed: int = 0, tol: float = 1e-6) -> None:
@@ -205,21 +225,38 @@ def check_rollout(fn, seed: int = 0, tol: float = 1e-6) -> None:
     g = torch.Generator().manual_seed(seed)
     tp = Triplane.randn(2, 3, (5, 6, 7), generator=g)
     want = cross_plane_inputs(tp).xy
-    got = _as64("rollout_xy", _call("rollout_xy", fn, tp.xy.clone(), tp.xz.clone(), tp.yz.clone(),
-                                    hint="xz is [B, C, X, Z] and yz [B, C, Y, Z]: average both over z, their last axis"),
-                want)
+    got = as64(
+        "rollout_xy",
+        call(
+            "rollout_xy",
+            fn,
+            tp.xy.clone(),
+            tp.xz.clone(),
+            tp.yz.clone(),
+            hint="xz is [B, C, X, Z] and yz [B, C, Y, Z]: average both over z, their last axis",
+        ),
+        want,
+    )
     c = tp.channels
     for k, part in enumerate(("the plane itself", "the mean of xz over z", "the mean of yz over z")):
-        err = float((got[:, k * c:(k + 1) * c] - want[:, k * c:(k + 1) * c].double()).abs().max())
+        err = float((got[:, k * c : (k + 1) * c] - want[:, k * c : (k + 1) * c].double()).abs().max())
         if err > tol:
             hint = ""
-            if k and float((got[:, k * c:(k + 1) * c] - want[:, (3 - k) * c:(4 - k) * c].double()).abs().max()) <= tol:
+            if (
+                k
+                and float((got[:, k * c : (k + 1) * c] - want[:, (3 - k) * c : (4 - k) * c].double()).abs().max())
+                <= tol
+            ):
                 hint = "\n  hint: the order is [xy, from xz, from yz]"
-            elif k and float((got[:, k * c:(k + 1) * c] - 7 * want[:, k * c:(k + 1) * c].double()).abs().max()) <= 1e-5:
+            elif (
+                k
+                and float((got[:, k * c : (k + 1) * c] - 7 * want[:, k * c : (k + 1) * c].double()).abs().max()) <= 1e-5
+            ):
                 hint = "\n  hint: average over z (mean), do not sum"
-            raise ExerciseError(f"your rollout_xy differs in channels {k * c}..{(k + 1) * c - 1} ({part}): "
-                                f"max error {err:.3g}" + hint)
-    _ok("rollout_xy", 2 * 3 * c * 5 * 6, float((got - want.double()).abs().max()))
+            raise ExerciseError(
+                f"your rollout_xy differs in channels {k * c}..{(k + 1) * c - 1} ({part}): max error {err:.3g}" + hint
+            )
+    passed("rollout_xy", 2 * 3 * c * 5 * 6, float((got - want.double()).abs().max()))
 
 
 # ----------------------------------------------------------------------------- the denoiser
@@ -229,9 +266,11 @@ def _random_chain(rng: np.random.Generator) -> list[tuple[str, int]]:
     for _ in range(int(rng.integers(3, 12))):
         r = rng.random()
         if r < 0.2 and depth < 2:
-            chain.append(("down", 2)); depth += 1  # noqa: E702
+            chain.append(("down", 2))
+            depth += 1  # noqa: E702
         elif r < 0.35 and depth > 0:
-            chain.append(("up", 2)); depth -= 1  # noqa: E702
+            chain.append(("up", 2))
+            depth -= 1  # noqa: E702
         else:
             chain.append(("conv", int(rng.choice([1, 3, 3, 5]))))
     return chain + [("up", 2)] * depth
@@ -253,14 +292,22 @@ def check_receptive_field(fn, seed: int = 0) -> None:
     chains += [_random_chain(rng) for _ in range(20)]
     for layers in chains:
         want = layers_receptive_field(layers)
-        got = _call("receptive_field", fn, list(layers))
+        got = call("receptive_field", fn, list(layers))
         if got != want:
             no_jump = 1 + sum(k - 1 if op == "conv" else 1 if op == "down" else 0 for op, k in layers)
-            hint = ("\n  hint: after a 2×2 pool, neighbouring texels are j = 2 input texels apart: a k×k conv there adds "
-                    "(k-1)·j, and the upsample adds the coarse j before halving it") if got == no_jump else ""
+            hint = (
+                (
+                    "\n  hint: after a 2×2 pool, neighbouring texels are j = 2 input texels apart: a k×k conv there adds "
+                    "(k-1)·j, and the upsample adds the coarse j before halving it"
+                )
+                if got == no_jump
+                else ""
+            )
             raise ExerciseError(f"for layers {layers} your receptive_field says {got}, the library {want}" + hint)
-    print(f"✓ your receptive_field matches the library on {len(chains)} layer chains "
-          f"(10 of them the denoiser's; the paper's n = 4 network: {layers_receptive_field(chains[5])} texels)")
+    print(
+        f"✓ your receptive_field matches the library on {len(chains)} layer chains "
+        f"(10 of them the denoiser's; the paper's n = 4 network: {layers_receptive_field(chains[5])} texels)"
+    )
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -286,27 +333,42 @@ def check_best_patch_iou(fn, seed: int = 0, patch: int = 7, stride: int = 3, thr
         ref_grid, gen_grid = _terrain(rng), _terrain(rng)
         ref, gen = extract_patches(ref_grid, patch, stride), extract_patches(gen_grid, patch, stride)
         want = lp_scores(ref_grid, gen_grid, patch, stride, max_patches=10**6, threshold=threshold)
-        best = _call("best_patch_iou", fn, gen.copy(), ref.copy())
+        best = call("best_patch_iou", fn, gen.copy(), ref.copy())
         best = np.asarray(best, np.float64)
         if best.shape != (len(gen),):
-            raise ExerciseError(f"your best_patch_iou returned shape {best.shape}, expected ({len(gen)},): one best "
-                                f"IoU per generated patch (the best over the {len(ref)} reference patches)")
+            raise ExerciseError(
+                f"your best_patch_iou returned shape {best.shape}, expected ({len(gen)},): one best "
+                f"IoU per generated patch (the best over the {len(ref)} reference patches)"
+            )
         got_mean, got_lp = float(best.mean()), float(np.mean(best > threshold))
         if abs(got_mean - want["lp_iou_mean_best"]) > 1e-6 or abs(got_lp - want["lp_iou"]) > 1e-9:
             g, r = gen.astype(np.float64), ref.astype(np.float64)
             inter = g @ r.T
             union = g.sum(1)[:, None] + r.sum(1)[None] - inter
-            hints = {"that is the F-score (Dice), 2|g∩r| / (|g|+|r|); IoU divides |g∩r| by the union |g|+|r|-|g∩r|":
-                     (2 * inter / (g.sum(1)[:, None] + r.sum(1)[None])).max(1),
-                     "take the BEST match (max over the reference patches), not the mean": (inter / union).mean(1)}
+            hints = {
+                "that is the F-score (Dice), 2|g∩r| / (|g|+|r|); IoU divides |g∩r| by the union |g|+|r|-|g∩r|": (
+                    2 * inter / (g.sum(1)[:, None] + r.sum(1)[None])
+                ).max(1),
+                "take the BEST match (max over the reference patches), not the mean": (inter / union).mean(1),
+            }
             hint = next((f"\n  hint: {h}" for h, v in hints.items() if np.allclose(best, v, atol=1e-6)), "")
-            raise ExerciseError(f"terrain {case}: your mean best IoU is {got_mean:.4f} (LP-IoU {got_lp:.3f}), the "
-                                f"library's {want['lp_iou_mean_best']:.4f} (LP-IoU {want['lp_iou']:.3f})" + hint)
-    print(f"✓ your best_patch_iou gives the library's LP-IoU on 3 random terrains (last: {want['lp_iou']:.3f}, "
-          f"mean best IoU {want['lp_iou_mean_best']:.3f})")
+            raise ExerciseError(
+                f"terrain {case}: your mean best IoU is {got_mean:.4f} (LP-IoU {got_lp:.3f}), the "
+                f"library's {want['lp_iou_mean_best']:.4f} (LP-IoU {want['lp_iou']:.3f})" + hint
+            )
+    print(
+        f"✓ your best_patch_iou gives the library's LP-IoU on 3 random terrains (last: {want['lp_iou']:.3f}, "
+        f"mean best IoU {want['lp_iou_mean_best']:.3f})"
+    )
 
 
 __all__ = [
-    "ExerciseError", "check_best_patch_iou", "check_ddim_step", "check_ddpm_posterior", "check_q_sample",
-    "check_receptive_field", "check_rollout", "check_triplane_lookup",
+    "ExerciseError",
+    "check_best_patch_iou",
+    "check_ddim_step",
+    "check_ddpm_posterior",
+    "check_q_sample",
+    "check_receptive_field",
+    "check_rollout",
+    "check_triplane_lookup",
 ]

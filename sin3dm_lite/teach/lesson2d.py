@@ -13,6 +13,7 @@ wide and hold zeros). With the cross-plane rollout switched off
 ``Conv2d``, so on ``xy`` the package's ``TriplaneUNet`` *is* a plain 2D U-Net,
 and the package's schedule, trainer and DDIM sampler run unchanged.
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -23,7 +24,8 @@ import torch
 from matplotlib.figure import Figure
 
 from ..data.config import DiffusionConfig
-from ..model.diffusion import NoiseSchedule, fit_diffusion, sample
+from ..model.diffusion import fit_diffusion, sample
+from ..model.schedule import NoiseSchedule
 from ..model.triplane import Triplane
 from ..model.unet import TriplaneUNet, analytic_receptive_field
 
@@ -89,14 +91,18 @@ def noised(image: np.ndarray, schedule: NoiseSchedule, ts, seed: int = 0) -> np.
 def signal_to_noise(schedule: NoiseSchedule, t: int) -> tuple[float, float]:
     """``(√ᾱ_t, √(1-ᾱ_t))``: how much of the image and how much noise ``x_t`` holds."""
     ab = float(schedule.alpha_bar(int(t)))
-    return ab ** 0.5, (1 - ab) ** 0.5
+    return ab**0.5, (1 - ab) ** 0.5
 
 
 # ----------------------------------------------------------------------------- the two denoisers
 def lesson_config(field: str, steps: int, channels: int = 32) -> DiffusionConfig:
     """The denoiser for ``field`` ("small" or "large", :data:`FIELDS`): no rollout, raw weights, a short run."""
-    return replace(DiffusionConfig(base_channels=channels, time_embed_dim=32, rollout=False, steps=steps,
-                                   batch_size=8, lr=2e-3, ema_decay=0.0), **FIELDS[field])
+    return replace(
+        DiffusionConfig(
+            base_channels=channels, time_embed_dim=32, rollout=False, steps=steps, batch_size=8, lr=2e-3, ema_decay=0.0
+        ),
+        **FIELDS[field],
+    )
 
 
 def receptive_field_width(cfg: DiffusionConfig) -> int:
@@ -176,7 +182,7 @@ def plot_noised(image: np.ndarray, schedule: NoiseSchedule, t: int, seed: int = 
     left.set_title(f"x_t at t = {t}", fontsize=9)
     right.bar(["√ᾱ_t (image)", "√(1-ᾱ_t) (noise)"], [signal, noise], color=["C2", "C1"])
     right.set_ylim(0, 1.05)
-    right.set_title(f"ᾱ_t = {signal ** 2:.3f}", fontsize=9)
+    right.set_title(f"ᾱ_t = {signal**2:.3f}", fontsize=9)
     return fig
 
 
@@ -196,7 +202,19 @@ def plot_patch_curve(patches, curves: dict[str, np.ndarray], fields: dict[str, i
 
 
 __all__ = [
-    "FIELDS", "fit_image", "image_to_triplane", "lesson_config", "nearest_patch_distance", "noised",
-    "patch_distance_curve", "pebbles", "plot_images", "plot_noised", "plot_patch_curve", "receptive_field_width",
-    "sample_images", "signal_to_noise", "triplane_to_images",
+    "FIELDS",
+    "fit_image",
+    "image_to_triplane",
+    "lesson_config",
+    "nearest_patch_distance",
+    "noised",
+    "patch_distance_curve",
+    "pebbles",
+    "plot_images",
+    "plot_noised",
+    "plot_patch_curve",
+    "receptive_field_width",
+    "sample_images",
+    "signal_to_noise",
+    "triplane_to_images",
 ]
