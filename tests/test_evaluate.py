@@ -1,5 +1,6 @@
-"""``sin3dm-lite evaluate`` and ``Sin3DM.evaluate`` on a tiny fitted run with two samples."""
+"""``sin3dm-lite evaluate`` and ``Sin3DM.evaluate`` on a micro fitted run with two samples."""
 import json
+import shutil
 
 import pytest
 
@@ -10,10 +11,10 @@ KEYS = {"g_div", "lp_iou", "lp_fscore", "iou_to_input", "ssfid", "patch_swd", "r
 
 
 @pytest.fixture(scope="module")
-def tiny_samples(tmp_path_factory):
-    """A ``tiny`` fit of the wall example and two samples of it, written by the CLI."""
+def tiny_samples(micro_fit, tmp_path_factory):
+    """A micro fit of the wall example (the session's, copied) and two samples of it, written by the CLI."""
     root = tmp_path_factory.mktemp("evaluate")
-    assert main(["fit", "wall", "--preset", "tiny", "--out", str(root / "run"), "--seed", "0"]) == 0
+    shutil.copytree(micro_fit[1], root / "run")
     assert main(["sample", str(root / "run"), "-n", "2", "--out", str(root / "samples"), "--steps", "5",
                  "--faces", "1500", "--texture-size", "128", "--no-pictures"]) == 0
     return root

@@ -10,7 +10,7 @@ from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.pipeline import Sin3DM, open_run
 from sin3dm_lite.pretrained import pretrained_path
 
-from .test_pipeline import micro_config
+from .conftest import micro_config
 
 pytestmark = pytest.mark.filterwarnings("ignore:low reconstruction quality")
 
