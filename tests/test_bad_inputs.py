@@ -343,22 +343,27 @@ def _cli(*argv, **kw):
                             stderr=subprocess.PIPE, text=True, **kw)
 
 
-def test_run_folder_lock_refuses_a_live_writer_and_takes_over_a_dead_ones_lock(work, micro_fit):
+def _main(capsys, *argv) -> tuple[int, str]:
+    """The CLI in this process (no interpreter and torch to start): exit code and stderr."""
+    capsys.readouterr()
+    code = main(list(argv))
+    return code, capsys.readouterr().err
+
+
+def test_run_folder_lock_refuses_a_live_writer_and_takes_over_a_dead_ones_lock(work, micro_fit, capsys):
     shutil.copytree(micro_fit[1], work / "r")  # a finished fit of the wall example (the session's)
     (work / "r" / "model.pt").unlink()  # as if interrupted before the end
     other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         (work / "r" / LOCK).write_text(json.dumps({"pid": other.pid, "host": os.uname().nodename, "since": "now"}))
-        p = _cli("fit", "wall", "--out", "r", "--resume", cwd=work)
-        _, err = p.communicate(timeout=120)
-        assert p.returncode == 2 and f"PID {other.pid}" in err and len(err.strip().splitlines()) == 1, err
+        code, err = _main(capsys, "fit", "wall", "--out", "r", "--resume")
+        assert code == 2 and f"PID {other.pid}" in err and len(err.strip().splitlines()) == 1, err
         assert not (work / "r" / "model.pt").exists()
     finally:
         other.kill()
         other.wait()
-    p = _cli("fit", "wall", "--out", "r", "--resume", cwd=work)
-    _, err = p.communicate(timeout=300)
-    assert p.returncode == 0, err
+    code, err = _main(capsys, "fit", "wall", "--out", "r", "--resume")
+    assert code == 0, err
     assert "no longer runs; taking it over" in err
     assert (work / "r" / "model.pt").is_file() and not (work / "r" / LOCK).exists()
 
@@ -379,14 +384,13 @@ def _stale(folder: Path) -> list[Path]:
 
 
 @pytest.mark.parametrize("delay", [0.0, random.Random(1).uniform(0.0, 1.0)])
-def test_killed_sample_leaves_nothing_stale_and_the_next_run_succeeds(work, delay):
+def test_killed_sample_leaves_nothing_stale_and_the_next_run_succeeds(work, delay, capsys):
     p = _cli("sample", "run", "--out", "out/s", "-n", "3", *SMALL, cwd=work)
     _kill_when(p, lambda: (work / "out").is_dir() and any((work / "out").iterdir()), delay)
     (work / "out").mkdir(exist_ok=True)
     (work / "out" / "beside.txt").write_text("keep")
-    p = _cli("sample", "run", "--out", "out/s", "-n", "3", "--overwrite", *SMALL, cwd=work)
-    _, err = p.communicate(timeout=300)
-    assert p.returncode == 0, (delay, err)
+    code, err = _main(capsys, "sample", "run", "--out", "out/s", "-n", "3", "--overwrite", *SMALL)
+    assert code == 0, (delay, err)
     assert _stale(work / "out") == [], delay
     s = work / "out" / "s"
     assert set(read_manifest(s)) == {p.relative_to(s).as_posix() for p in s.rglob("*") if p.is_file() and p.name != MANIFEST}
@@ -445,7 +449,7 @@ def test_a_kill_while_an_output_folder_is_replaced_leaves_its_files_ours(tmp_pat
 
 
 @pytest.mark.parametrize("stage, delay", [("start", 0.0), ("training", random.Random(2).uniform(0.0, 1.5))])
-def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay):
+def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay, capsys):
     run = work / "runs" / "r"
     p = _cli("fit", "wall", *LIGHT_FIT, "--out", "runs/r", cwd=work)
     ready = {"start": lambda: (work / "runs").is_dir() and any((work / "runs").iterdir()),
@@ -455,9 +459,8 @@ def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay):
         q.name.startswith(TEMP_PREFIX) for q in (work / "runs").iterdir())
     resume = ["--resume"] if run.is_dir() else []
     locked = (run / LOCK).exists()
-    p = _cli("fit", "wall", *LIGHT_FIT, "--out", "runs/r", *resume, cwd=work)
-    _, err = p.communicate(timeout=300)
-    assert p.returncode == 0, (stage, delay, err)
+    code, err = _main(capsys, "fit", "wall", *LIGHT_FIT, "--out", "runs/r", *resume)
+    assert code == 0, (stage, delay, err)
     assert ("no longer runs; taking it over" in err) == locked, err  # the killed run's lock is taken over
     assert [q.name for q in (work / "runs").iterdir()] == ["r"]  # the killed run's temporary folder is gone
     assert _stale(run) == []
