@@ -31,9 +31,9 @@ LATENT_RES = (8, 8, 8)  # the diffusion tests' latent
 def pytest_collection_modifyitems(session, config, items):
     """The notebooks (tens of seconds each) first, then the tests in their usual order.
 
-    pytest-xdist hands the items out in this order, a few at a time; with the notebooks last, one worker sat
-    idle while the other ran the last notebook. A stable sort: each group keeps its order, so the tests of a
-    module stay together (and share their module's fixtures on one worker).
+    pytest-xdist hands the items out in this order, in chunks; with the notebooks last, a run could end with one
+    worker idle while the other ran a notebook, with them first it ends on short tests. A stable sort: each group
+    keeps its order, so the tests of a module stay together (and share their module's fixtures on one worker).
     """
     items.sort(key=lambda item: not item.nodeid.startswith("notebooks/"))
 
@@ -163,7 +163,7 @@ def micro_config() -> Config:
 def micro_fit(tmp_path_factory):
     """The wall example fitted at :func:`micro_config` (seed 0), once per session: ``(model, run folder)``.
 
-    Shared by the tests that need *a* fitted model (pipeline, control, widgets, evaluate, render, the run-folder
+    Shared by the tests that need *a* fitted model (pipeline, control, widgets, render, runs, the run-folder
     lock); under pytest-xdist each worker fits its own. Both are read-only: a test that writes into a run folder
     copies it first, and a module that uses the model takes a :func:`micro_model` of its own (the model keeps
     caches, e.g. of the input's reconstruction, which one module's calls would fill for the next).

@@ -333,7 +333,8 @@ def test_failing_fresh_fit_leaves_no_run_folder(work, capsys):
     assert not (work / "runs" / "r").exists()
     assert not [p for p in (work / "runs").iterdir()]  # no temporary folder either
     two_steps = ["--set", "autoencoder.steps=2", "diffusion.steps=2"]  # a whole fit, every stage, in seconds
-    assert main(["fit", "box.obj", "--preset", "tiny", "--out", "runs/r", "--seed", "1", *two_steps]) == 0  # the next try works
+    # the next try works
+    assert main(["fit", "box.obj", "--preset", "tiny", "--out", "runs/r", "--seed", "1", *two_steps]) == 0
     assert (work / "runs" / "r" / "model.pt").is_file() and not (work / "runs" / "r" / LOCK).exists()
 
 
