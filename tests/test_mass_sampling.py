@@ -131,7 +131,7 @@ def test_a_killed_run_continues_and_ends_with_every_index_once(one_process, tmp_
     p.communicate()
     assert p.returncode == -signal.SIGKILL, "the run ended before it was killed; make it slower"
     (out / "000" / "mesh.glb").unlink(missing_ok=True)  # as if killed while that folder was written: redone
-    text = _ok(_cli(*argv))  # another process continues the killed one's folder
+    text = _run_ok(capsys, *argv)  # another process (this one) continues the killed one's folder
     assert "already" in text
     _check_folder(out, range(N))
     for i in range(N):
