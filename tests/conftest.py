@@ -17,14 +17,26 @@ import torch  # noqa: E402
 import trimesh  # noqa: E402
 from torch import nn  # noqa: E402
 
-from sin3dm_lite.data.config import AutoencoderConfig, DiffusionConfig  # noqa: E402
+from sin3dm_lite.data.config import AutoencoderConfig, Config, DiffusionConfig  # noqa: E402
 from sin3dm_lite.data.grid import ShapeGrid, mesh_to_grid  # noqa: E402
 from sin3dm_lite.data.mesh import Material, Normalization, TexturedMesh  # noqa: E402
+from sin3dm_lite.data.presets import get_preset  # noqa: E402
 from sin3dm_lite.model.triplane import Triplane  # noqa: E402
 
 # a non-cubic box, symmetric like ShapeGrid's (±n_axis / n_max): 24 × 32 × 20 voxels at resolution 32
 AABB = np.array([-0.75, -1.0, -0.625, 0.75, 1.0, 0.625])
 LATENT_RES = (8, 8, 8)  # the diffusion tests' latent
+
+
+# --------------------------------------------------------------------------- order
+def pytest_collection_modifyitems(session, config, items):
+    """The notebooks (tens of seconds each) first, then the tests in their usual order.
+
+    pytest-xdist hands the items out in this order, in chunks; with the notebooks last, a run could end with one
+    worker idle while the other ran a notebook, with them first it ends on short tests. A stable sort: each group
+    keeps its order, so the tests of a module stay together (and share their module's fixtures on one worker).
+    """
+    items.sort(key=lambda item: not item.nodeid.startswith("notebooks/"))
 
 
 # --------------------------------------------------------------------------- meshes and grids
@@ -129,6 +141,50 @@ def tiny_diffusion_cfg(**kw) -> DiffusionConfig:
     """A denoiser without down-sampling, 16 channels, 60 steps of batch 4, no EMA."""
     base = dict(base_channels=16, n_resblocks=2, downsample=False, steps=60, batch_size=4, lr=2e-3, ema_decay=0.0)
     return DiffusionConfig(**{**base, **kw})
+
+
+def micro_config() -> Config:
+    """``tiny`` made smaller still: 24 voxels, 30 autoencoder and 30 denoiser steps, a checkpoint every 10."""
+    return get_preset("tiny").updated(
+        **{
+            "grid.resolution": 24,
+            "grid.n_surface_points": 5000,
+            "autoencoder.steps": 30,
+            "autoencoder.points_per_step": 1024,
+            "diffusion.steps": 30,
+            "checkpoint_every": 10,
+            "sampling.mesh_resolution": 32,
+            "sampling.faces": 2000,
+            "sampling.texture_size": 128,
+        }
+    )
+
+
+@pytest.fixture(scope="session")
+def micro_fit(tmp_path_factory):
+    """The wall example fitted at :func:`micro_config` (seed 0), once per session: ``(model, run folder)``.
+
+    Shared by the tests that need *a* fitted model (pipeline, control, widgets, render, runs, the run-folder
+    lock); under pytest-xdist each worker fits its own. Both are read-only: a test that writes into a run folder
+    copies it first, and a module that uses the model takes a :func:`micro_model` of its own (the model keeps
+    caches, e.g. of the input's reconstruction, which one module's calls would fill for the next).
+    """
+    import warnings
+
+    from sin3dm_lite.pipeline import Sin3DM
+
+    run = tmp_path_factory.mktemp("micro") / "wall"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a micro fit reconstructs poorly
+        model = Sin3DM.fit("wall", preset=micro_config(), out=run, progress=False)
+    return model, run
+
+
+def micro_model(micro_fit):
+    """A copy of :func:`micro_fit`'s model, as ``Sin3DM.fit`` returned it, for one module."""
+    import copy
+
+    return copy.deepcopy(micro_fit[0])
 
 
 # --------------------------------------------------------------------------- receptive fields

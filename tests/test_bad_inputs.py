@@ -26,6 +26,10 @@ from sin3dm_lite.pretrained import pretrained_path, shipped_model
 SHIPPED = pretrained_path()
 UNSHIPPED = next((name for name in list_examples() if shipped_model(name) is None), None)
 SMALL = ["--steps", "3", "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64"]
+# `tiny` on a coarser grid with fewer points and 50 denoiser steps: still 150 autoencoder steps with a checkpoint
+# every 50, so that a kill 1.5 s after the first checkpoint lands in the training
+LIGHT_FIT = ["--preset", "tiny", "--set", "grid.resolution=24", "grid.n_surface_points=5000",
+             "autoencoder.points_per_step=1024", "diffusion.steps=50"]
 
 
 class RunsCode:
@@ -323,11 +327,14 @@ def test_grid_and_examples_overwrite_only_their_own(work, capsys):
     assert "wall.png" in capsys.readouterr().err
 
 
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
 def test_failing_fresh_fit_leaves_no_run_folder(work, capsys):
     assert main(["fit", "sheet.obj", "--preset", "tiny", "--out", "runs/r"]) == 2
     assert not (work / "runs" / "r").exists()
     assert not [p for p in (work / "runs").iterdir()]  # no temporary folder either
-    assert main(["fit", "box.obj", "--preset", "tiny", "--out", "runs/r", "--seed", "1"]) == 0  # the next try works
+    two_steps = ["--set", "autoencoder.steps=2", "diffusion.steps=2"]  # a whole fit, every stage, in seconds
+    # the next try works
+    assert main(["fit", "box.obj", "--preset", "tiny", "--out", "runs/r", "--seed", "1", *two_steps]) == 0
     assert (work / "runs" / "r" / "model.pt").is_file() and not (work / "runs" / "r" / LOCK).exists()
 
 
@@ -337,33 +344,40 @@ def _cli(*argv, **kw):
                             stderr=subprocess.PIPE, text=True, **kw)
 
 
-def test_run_folder_lock_refuses_a_live_writer_and_takes_over_a_dead_ones_lock(work):
-    assert main(["fit", "box.obj", "--preset", "tiny", "--out", "r"]) == 0
+def _main(capsys, *argv) -> tuple[int, str]:
+    """The CLI in this process (no interpreter and torch to start): exit code and stderr."""
+    capsys.readouterr()
+    code = main(list(argv))
+    return code, capsys.readouterr().err
+
+
+def test_run_folder_lock_refuses_a_live_writer_and_takes_over_a_dead_ones_lock(work, micro_fit, capsys):
+    shutil.copytree(micro_fit[1], work / "r")  # a finished fit of the wall example (the session's)
     (work / "r" / "model.pt").unlink()  # as if interrupted before the end
     other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         (work / "r" / LOCK).write_text(json.dumps({"pid": other.pid, "host": os.uname().nodename, "since": "now"}))
-        p = _cli("fit", "box.obj", "--out", "r", "--resume", cwd=work)
-        _, err = p.communicate(timeout=120)
-        assert p.returncode == 2 and f"PID {other.pid}" in err and len(err.strip().splitlines()) == 1, err
+        code, err = _main(capsys, "fit", "wall", "--out", "r", "--resume")
+        assert code == 2 and f"PID {other.pid}" in err and len(err.strip().splitlines()) == 1, err
         assert not (work / "r" / "model.pt").exists()
     finally:
         other.kill()
         other.wait()
-    p = _cli("fit", "box.obj", "--out", "r", "--resume", cwd=work)
-    _, err = p.communicate(timeout=300)
-    assert p.returncode == 0, err
+    code, err = _main(capsys, "fit", "wall", "--out", "r", "--resume")
+    assert code == 0, err
     assert "no longer runs; taking it over" in err
     assert (work / "r" / "model.pt").is_file() and not (work / "r" / LOCK).exists()
 
 
 def _kill_when(p: subprocess.Popen, ready, delay: float, timeout: float = 120) -> None:
+    """SIGKILL ``p`` ``delay`` seconds after ``ready()`` first holds (polled every 20 ms); it must still be running."""
     t0 = time.monotonic()
     while not ready() and p.poll() is None and time.monotonic() - t0 < timeout:
         time.sleep(0.02)
     time.sleep(delay)
     p.send_signal(signal.SIGKILL)
-    p.communicate()
+    _, err = p.communicate()
+    assert p.returncode == -signal.SIGKILL, f"the run ended before it was killed: {err[-2000:]}"
 
 
 def _stale(folder: Path) -> list[Path]:
@@ -371,14 +385,13 @@ def _stale(folder: Path) -> list[Path]:
 
 
 @pytest.mark.parametrize("delay", [0.0, random.Random(1).uniform(0.0, 1.0)])
-def test_killed_sample_leaves_nothing_stale_and_the_next_run_succeeds(work, delay):
+def test_killed_sample_leaves_nothing_stale_and_the_next_run_succeeds(work, delay, capsys):
     p = _cli("sample", "run", "--out", "out/s", "-n", "3", *SMALL, cwd=work)
     _kill_when(p, lambda: (work / "out").is_dir() and any((work / "out").iterdir()), delay)
     (work / "out").mkdir(exist_ok=True)
     (work / "out" / "beside.txt").write_text("keep")
-    p = _cli("sample", "run", "--out", "out/s", "-n", "3", "--overwrite", *SMALL, cwd=work)
-    _, err = p.communicate(timeout=300)
-    assert p.returncode == 0, (delay, err)
+    code, err = _main(capsys, "sample", "run", "--out", "out/s", "-n", "3", "--overwrite", *SMALL)
+    assert code == 0, (delay, err)
     assert _stale(work / "out") == [], delay
     s = work / "out" / "s"
     assert set(read_manifest(s)) == {p.relative_to(s).as_posix() for p in s.rglob("*") if p.is_file() and p.name != MANIFEST}
@@ -437,9 +450,9 @@ def test_a_kill_while_an_output_folder_is_replaced_leaves_its_files_ours(tmp_pat
 
 
 @pytest.mark.parametrize("stage, delay", [("start", 0.0), ("training", random.Random(2).uniform(0.0, 1.5))])
-def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay):
+def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay, capsys):
     run = work / "runs" / "r"
-    p = _cli("fit", "wall", "--preset", "tiny", "--out", "runs/r", cwd=work)
+    p = _cli("fit", "wall", *LIGHT_FIT, "--out", "runs/r", cwd=work)
     ready = {"start": lambda: (work / "runs").is_dir() and any((work / "runs").iterdir()),
              "training": lambda: (run / "autoencoder.pt").exists()}[stage]
     _kill_when(p, ready, delay)
@@ -447,9 +460,8 @@ def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay):
         q.name.startswith(TEMP_PREFIX) for q in (work / "runs").iterdir())
     resume = ["--resume"] if run.is_dir() else []
     locked = (run / LOCK).exists()
-    p = _cli("fit", "wall", "--preset", "tiny", "--out", "runs/r", *resume, cwd=work)
-    _, err = p.communicate(timeout=300)
-    assert p.returncode == 0, (stage, delay, err)
+    code, err = _main(capsys, "fit", "wall", *LIGHT_FIT, "--out", "runs/r", *resume)
+    assert code == 0, (stage, delay, err)
     assert ("no longer runs; taking it over" in err) == locked, err  # the killed run's lock is taken over
     assert [q.name for q in (work / "runs").iterdir()] == ["r"]  # the killed run's temporary folder is gone
     assert _stale(run) == []

@@ -1,5 +1,6 @@
 """Choosing the diversity knob per shape: the ladder, its smoothing, its scoring path, and what a fit and the CLI keep."""
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from sin3dm_lite.evaluate import calibrate as C
 from sin3dm_lite.evaluate.metrics import iou
 from sin3dm_lite.pipeline import Sin3DM
 
-from .test_pipeline import micro_config
+from .conftest import micro_config
 
 AABB = np.array([-1.0, -0.5, -0.75, 1.0, 0.5, 0.75], np.float32)
 
@@ -306,13 +307,41 @@ def test_the_rollout_hint_applies_only_to_a_plain_denoiser_calibrated_to_pure_no
     assert rollout_hint(small, None) is None  # no calibration
 
 
-def test_a_plain_fit_that_keeps_the_goals_from_pure_noise_says_the_hint(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(C, "GOALS", {"lp_iou": 0.0, "lp_fscore": 0.0})  # kept at every setting: calibrated to 1
-    cfg = micro_config().updated(**{"sampling.calibrate": True, "diffusion.rollout": False})
-    model = Sin3DM.fit("wall", preset=cfg, out=tmp_path / "w", progress=True)
+KEEP_EVERY_SETTING = {"lp_iou": 0.0, "lp_fscore": 0.0}  # goals kept at every setting: calibrated to 1
+PLAIN = {"sampling.calibrate": True, "diffusion.rollout": False}
+SWITCH = {"diffusion.rollout": True, "diffusion.steps": 20}
+
+
+def _fit_keeping_the_goals(folder, cfg):
+    """``Sin3DM.fit`` with progress under :data:`KEEP_EVERY_SETTING`: ``(model, run folder, what it printed)``."""
+    import contextlib
+    import io
+
+    run, printed = folder / "w", io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(printed), warnings.catch_warnings():
+        mp.setattr(C, "GOALS", KEEP_EVERY_SETTING)
+        warnings.simplefilter("ignore")  # a micro fit reconstructs poorly
+        model = Sin3DM.fit("wall", preset=cfg, out=run, progress=True)
+    return model, run, printed.getvalue()
+
+
+@pytest.fixture(scope="module")
+def plain_fit(tmp_path_factory):
+    """A plain denoiser (no rollout switch) whose calibration keeps the goals from pure noise."""
+    return _fit_keeping_the_goals(tmp_path_factory.mktemp("plain"), micro_config().updated(**PLAIN))
+
+
+@pytest.fixture(scope="module")
+def switched_fit(tmp_path_factory):
+    """The same with the rollout switch: trained again with the cross-plane rollout (20 steps)."""
+    return _fit_keeping_the_goals(tmp_path_factory.mktemp("switched"),
+                                  micro_config().updated(**PLAIN, rollout_switch=SWITCH))
+
+
+def test_a_plain_fit_that_keeps_the_goals_from_pure_noise_says_the_hint(plain_fit):
+    model, run, out = plain_fit
     assert model.config.sampling.diversity == 1.0 and not model.config.diffusion.rollout
-    out = capsys.readouterr().out
-    report = json.loads((tmp_path / "w" / "report.json").read_text())
+    report = json.loads((run / "report.json").read_text())
     assert report["rollout_hint"] in out and "--set diffusion.rollout=true" in report["rollout_hint"]
     assert ".updated(**{'diffusion.rollout': True})" in report["rollout_hint"]
 
@@ -321,19 +350,13 @@ def _has_rollout(denoiser) -> bool:
     return any(getattr(m, "rollout", False) for m in denoiser.modules())
 
 
-@pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
-def test_a_fit_that_keeps_the_goals_from_pure_noise_switches_to_the_rollout(tmp_path, monkeypatch, capsys):
+def test_a_fit_that_keeps_the_goals_from_pure_noise_switches_to_the_rollout(switched_fit, plain_fit):
     """With rollout_switch a plain fit calibrated to 1 trains its denoiser again with the rollout, says so, records
     the first calibration and its time, and its run folder loads as what it is: a rollout denoiser (the resume:
     the next test)."""
     from sin3dm_lite.data.config import Config
 
-    monkeypatch.setattr(C, "GOALS", {"lp_iou": 0.0, "lp_fscore": 0.0})  # kept at every setting: calibrated to 1
-    cfg = micro_config().updated(**{"sampling.calibrate": True, "diffusion.rollout": False,
-                                    "rollout_switch": {"diffusion.rollout": True, "diffusion.steps": 20}})
-    run = tmp_path / "w"
-    model = Sin3DM.fit("wall", preset=cfg, out=run, progress=True)
-    out = capsys.readouterr().out
+    model, run, out = switched_fit
     assert "trained again with the cross-plane rollout" in out and "--no-rollout-switch" in out
     assert "rollout_hint" not in model.report
     assert model.config.diffusion.rollout and model.config.diffusion.steps == 20 and not model.config.rollout_switch
@@ -351,13 +374,13 @@ def test_a_fit_that_keeps_the_goals_from_pure_noise_switches_to_the_rollout(tmp_
     losses = json.loads((run / "losses.json").read_text())
     assert len(losses["diffusion"]["loss"]) == 20  # the rollout denoiser's, not both
 
-    # --no-rollout-switch (rollout_switch={}) keeps the plain denoiser and only hints
-    plain = Sin3DM.fit("wall", preset=cfg.updated(rollout_switch={}), out=tmp_path / "p", progress=False)
+    # --no-rollout-switch (rollout_switch={}: the plain fit's settings) keeps the plain denoiser and only hints
+    plain = plain_fit[0]
     assert not plain.config.diffusion.rollout and plain.report["rollout_switch"] is None and "rollout_hint" in plain.report
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
-def test_a_fit_interrupted_in_its_rollout_denoiser_resumes_to_the_same_model(tmp_path, monkeypatch):
+def test_a_fit_interrupted_in_its_rollout_denoiser_resumes_to_the_same_model(switched_fit, tmp_path, monkeypatch):
     """Ctrl-C during the second training leaves a rollout config, a rollout checkpoint and the switch's record;
     --resume ends with the uninterrupted switched fit's model, bit for bit."""
     import os
@@ -367,10 +390,9 @@ def test_a_fit_interrupted_in_its_rollout_denoiser_resumes_to_the_same_model(tmp
 
     from sin3dm_lite.model import diffusion
 
-    monkeypatch.setattr(C, "GOALS", {"lp_iou": 0.0, "lp_fscore": 0.0})
-    cfg = micro_config().updated(**{"sampling.calibrate": True, "diffusion.rollout": False,
-                                    "rollout_switch": {"diffusion.rollout": True, "diffusion.steps": 20}})
-    Sin3DM.fit("wall", preset=cfg, out=tmp_path / "full", progress=False)
+    monkeypatch.setattr(C, "GOALS", KEEP_EVERY_SETTING)
+    cfg = micro_config().updated(**PLAIN, rollout_switch=SWITCH)
+    _, full, _ = switched_fit  # the uninterrupted fit
     real_step = diffusion.DiffusionTrainer.step
 
     def step_then_ctrl_c(self):
@@ -388,7 +410,7 @@ def test_a_fit_interrupted_in_its_rollout_denoiser_resumes_to_the_same_model(tmp
     assert json.loads((run / "report.json").read_text())["rollout_switch"]["plain_calibration"]["kept_goals"]
     monkeypatch.setattr(diffusion.DiffusionTrainer, "step", real_step)
     resumed = Sin3DM.fit("wall", out=run, resume=True, progress=False)
-    a = torch.load(tmp_path / "full" / "model.pt", weights_only=True)
+    a = torch.load(full / "model.pt", weights_only=True)
     b = torch.load(run / "model.pt", weights_only=True)
     for part in ("decoder", "denoiser", "latent"):
         for k in a[part]:

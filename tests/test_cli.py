@@ -193,11 +193,14 @@ def test_the_help_lists_exactly_the_formats_that_load(tmp_path, capsys):
         assert READABLE in _flat(capsys.readouterr().out), command
 
 
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
 def test_demo_example_with_train_fits_that_example(capsys, tmp_path, monkeypatch):
-    """`demo --example wall --train` fits the wall (the tiny preset here, to be quick) and writes its samples."""
-    from sin3dm_lite.cli import sample_cli as sampling
+    """`demo --example wall --train` fits the wall (the micro settings here, to be quick) and writes its samples."""
+    from sin3dm_lite.cli import sample_cli
 
-    monkeypatch.setattr(sampling, "DEMO_PRESET", "tiny")  # what cmd_demo fits with
+    from .conftest import micro_config
+
+    monkeypatch.setattr(sample_cli, "DEMO_PRESET", micro_config())
     out = tmp_path / "demo"
     code, text, err = run(capsys, "demo", "--example", "wall", "--train", "--out", str(out), "-n", "1", "--steps", "3",
                           "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64", "--no-pictures")

@@ -8,18 +8,17 @@ import torch
 from sin3dm_lite import cli
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.generate import control
-from sin3dm_lite.pipeline import Sin3DM
 from sin3dm_lite.pretrained import shipped_model
-
-from .test_pipeline import micro_config
 
 REGENERATE = ((0.25, 0.0, 0.0), (0.6, 1.0, 1.0))  # a slab across x: reaches the faces along y and z
 DUPLICATE = (((0.0, 0.0, 0.0), (0.3, 1.0, 1.0)), (0.6, 0.0, 0.0))
 
 
 @pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return Sin3DM.fit("wall", preset=micro_config(), out=tmp_path_factory.mktemp("run") / "wall", progress=False)
+def model(micro_fit):
+    from .conftest import micro_model
+
+    return micro_model(micro_fit)
 
 
 def _kept_mask(plan):

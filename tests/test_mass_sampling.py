@@ -38,6 +38,22 @@ def _ok(p: subprocess.Popen, timeout=600) -> str:
     return out
 
 
+def _run(capsys, *argv) -> tuple[int, str, str]:
+    """The CLI in this process (no interpreter and torch to start): exit code, stdout, stderr."""
+    from sin3dm_lite.cli import main
+
+    capsys.readouterr()
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _run_ok(capsys, *argv) -> str:
+    code, out, err = _run(capsys, *argv)
+    assert code == 0, err[-3000:]
+    return out
+
+
 def _latent(folder: Path, i: int) -> dict:
     return torch.load(folder / f"{i:03d}" / "latent.pt", weights_only=True)["triplane"]
 
@@ -60,9 +76,11 @@ def _check_folder(out: Path, indices) -> list[dict]:
 
 @pytest.fixture(scope="module")
 def one_process(tmp_path_factory):
-    """The reference: one process, batches of 3 (so batch composition differs from the two-process run)."""
+    """The reference: one process (this one), batches of 3 (so batch composition differs from the two-process run)."""
+    from sin3dm_lite.cli import main
+
     out = tmp_path_factory.mktemp("mass") / "one"
-    _ok(_cli("sample", RUN, "-n", str(N), "--out", str(out), "--batch", "3", *SMALL))
+    assert main(["sample", RUN, "-n", str(N), "--out", str(out), "--batch", "3", *SMALL]) == 0
     return out
 
 
@@ -92,14 +110,14 @@ def test_two_processes_with_gloo_give_the_same_samples(one_process, tmp_path):
         assert _same(_latent(out, i), _latent(one_process, i)), i
 
 
-def test_one_sample_drawn_again_alone_is_the_same(one_process, tmp_path):
+def test_one_sample_drawn_again_alone_is_the_same(one_process, tmp_path, capsys):
     out = tmp_path / "again"
-    _ok(_cli("sample", RUN, "--start", "2", "-n", "1", "--out", str(out), *SMALL))
+    _run_ok(capsys, "sample", RUN, "--start", "2", "-n", "1", "--out", str(out), *SMALL)
     _check_folder(out, [2])
     assert _same(_latent(out, 2), _latent(one_process, 2))
 
 
-def test_a_killed_run_continues_and_ends_with_every_index_once(one_process, tmp_path):
+def test_a_killed_run_continues_and_ends_with_every_index_once(one_process, tmp_path, capsys):
     out = tmp_path / "killed"
     argv = ["sample", RUN, "-n", str(N), "--out", str(out), "--batch", "1", "--workers", "0", *SMALL]
     p = _cli(*argv)
@@ -113,27 +131,26 @@ def test_a_killed_run_continues_and_ends_with_every_index_once(one_process, tmp_
     p.communicate()
     assert p.returncode == -signal.SIGKILL, "the run ended before it was killed; make it slower"
     (out / "000" / "mesh.glb").unlink(missing_ok=True)  # as if killed while that folder was written: redone
-    text = _ok(_cli(*argv))
+    text = _run_ok(capsys, *argv)  # another process (this one) continues the killed one's folder
     assert "already" in text
     _check_folder(out, range(N))
     for i in range(N):
         assert _same(_latent(out, i), _latent(one_process, i)), i
-    assert "0 new samples" in _ok(_cli(*argv))  # all there: nothing to do
-    more = _ok(_cli(*argv[:2], "-n", str(N + 1), *argv[4:]))  # -n grows: the folder grows
+    assert "0 new samples" in _run_ok(capsys, *argv)  # all there: nothing to do
+    more = _run_ok(capsys, *argv[:2], "-n", str(N + 1), *argv[4:])  # -n grows: the folder grows
     assert "1 new samples" in more
     _check_folder(out, range(N + 1))
 
 
-def test_other_settings_are_refused_and_overwrite_starts_over(one_process, tmp_path):
+def test_other_settings_are_refused_and_overwrite_starts_over(one_process, tmp_path, capsys):
     import shutil
 
     out = tmp_path / "copy"
     shutil.copytree(one_process, out)  # new times: the files are still ours by their content
-    p = _cli("sample", RUN, "-n", "2", "--out", str(out), *SMALL, "--steps", "4")
-    _, err = p.communicate(timeout=300)
-    assert p.returncode == 2 and "other settings (steps: 3 there, 4 now)" in err and len(err.strip().splitlines()) == 1
+    code, _, err = _run(capsys, "sample", RUN, "-n", "2", "--out", str(out), *SMALL, "--steps", "4")
+    assert code == 2 and "other settings (steps: 3 there, 4 now)" in err and len(err.strip().splitlines()) == 1
     (out / "theirs.txt").write_text("keep")
-    _ok(_cli("sample", RUN, "-n", "2", "--out", str(out), *SMALL, "--steps", "4", "--overwrite"))
+    _run_ok(capsys, "sample", RUN, "-n", "2", "--out", str(out), *SMALL, "--steps", "4", "--overwrite")
     assert (out / "theirs.txt").read_text() == "keep"
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["000", "001"]
     assert json.loads((out / "sampling.json").read_text())["settings"]["steps"] == 4

@@ -15,29 +15,12 @@ from sin3dm_lite.fit_policy import thin_parts_switch
 from sin3dm_lite.model import autoencoder
 from sin3dm_lite.pipeline import Sin3DM
 
-
-def micro_config():
-    cfg = get_preset("tiny")
-    return cfg.updated(
-        **{
-            "grid.resolution": 24,
-            "grid.n_surface_points": 5000,
-            "autoencoder.steps": 30,
-            "autoencoder.points_per_step": 1024,
-            "diffusion.steps": 30,
-            "checkpoint_every": 10,
-            "sampling.mesh_resolution": 32,
-            "sampling.faces": 2000,
-            "sampling.texture_size": 128,
-        }
-    )
+from .conftest import micro_config, micro_model
 
 
 @pytest.fixture(scope="module")
-def fitted(tmp_path_factory):
-    run = tmp_path_factory.mktemp("run") / "wall"
-    model = Sin3DM.fit("wall", preset=micro_config(), out=run, progress=False)
-    return model, run
+def fitted(micro_fit):
+    return micro_model(micro_fit), micro_fit[1]
 
 
 def test_run_folder_and_report(fitted):

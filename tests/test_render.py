@@ -178,13 +178,8 @@ def test_render_command_bad_views_exit_2_one_line(tmp_path, capsys):
     assert not (tmp_path / "v").exists()
 
 
-def test_sample_writes_previews_and_a_contact_sheet(tmp_path):
-    from sin3dm_lite.pipeline import Sin3DM
-
-    from .test_pipeline import micro_config
-
-    run = tmp_path / "run"
-    Sin3DM.fit("wall", preset=micro_config(), out=run, progress=False)
+def test_sample_writes_previews_and_a_contact_sheet(micro_fit, tmp_path):
+    _, run = micro_fit  # read only: the samples go to their own folders
     out = tmp_path / "out"
     assert main(["sample", str(run), "-n", "2", "--out", str(out)]) == 0
     sheet = np.asarray(Image.open(out / "contact_sheet.png").convert("RGB"))

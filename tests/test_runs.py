@@ -10,7 +10,7 @@ from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.pipeline import Sin3DM, open_run
 from sin3dm_lite.pretrained import pretrained_path
 
-from .test_pipeline import micro_config
+from .conftest import micro_config
 
 pytestmark = pytest.mark.filterwarnings("ignore:low reconstruction quality")
 
@@ -38,6 +38,7 @@ def test_same_input_and_config_is_fitted_once_then_loaded(tmp_path, fit_calls):
     first = open_run("wall", preset=cfg, cache=tmp_path, progress=False)
     assert fit_calls == [("wall", False)] and (first.run_dir / "model.pt").is_file()
     assert first.run_dir.parent == tmp_path and first.run_dir.name.startswith("wall-")
+    assert first.run_dir == runs.cached_run("wall", cfg, tmp_path)  # where the next test puts its copy
     again = Sin3DM.open("wall", preset=cfg, cache=tmp_path, progress=False)  # e.g. after a kernel restart
     assert fit_calls == [("wall", False)] and again.run_dir == first.run_dir
     assert again.report == first.report
@@ -46,10 +47,10 @@ def test_same_input_and_config_is_fitted_once_then_loaded(tmp_path, fit_calls):
     assert open_run(first.run_dir / "model.pt", progress=False).run_dir == first.run_dir
 
 
-def test_interrupted_fit_is_resumed(tmp_path, fit_calls):
+def test_interrupted_fit_is_resumed(tmp_path, fit_calls, micro_fit):
     cfg = micro_config()
     folder = runs.cached_run("wall", cfg, tmp_path)
-    open_run("wall", preset=cfg, cache=tmp_path, progress=False)
+    shutil.copytree(micro_fit[1], folder)  # what open_run fits there (this input, these settings): the session's fit
     (folder / "model.pt").unlink()  # as if killed before the end: config and checkpoints are there
     model = open_run("wall", preset=cfg, cache=tmp_path, progress=False)
     assert fit_calls[-1] == ("wall", True) and (folder / "model.pt").is_file() and model.run_dir == folder

@@ -106,16 +106,10 @@ def test_receptive_field_explorer_caches():
 
 # ----------------------------------------------------------------------------- live panels: they call the model
 @pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    import warnings
+def model(micro_fit):
+    from .conftest import micro_model
 
-    from sin3dm_lite.pipeline import Sin3DM
-
-    from .test_pipeline import micro_config
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # a micro fit reconstructs poorly
-        return Sin3DM.fit("wall", preset=micro_config(), out=tmp_path_factory.mktemp("run") / "wall", progress=False)
+    return micro_model(micro_fit)
 
 
 def spy(monkeypatch, obj, name):
