@@ -361,9 +361,8 @@ def _first_latent(
     start: Triplane | None,
 ) -> Triplane:
     """Where the walk starts: x_T from the samples' own noise, or, below full diversity, the start latent noised to t0."""
-    x = noise.draw(
-        Triplane.randn(n, channels, tuple(resolution), device="meta"), device
-    )  # x_T, shape from a meta tensor
+    # x_T; the shape from an empty meta tensor (a meta randn would import torch._dynamo, seconds per process)
+    x = noise.draw(Triplane.empty(n, channels, tuple(resolution), device="meta"), device)
     if t0 < schedule.timesteps - 1:  # x_t0 = the start latent noised to t0
         if start.resolution != tuple(resolution):
             raise Sin3DMInputError(f"start latent is {start.resolution}, the samples are {tuple(resolution)}")

@@ -144,6 +144,15 @@ class Triplane:
         shapes = [(batch, channels, x, y), (batch, channels, x, z), (batch, channels, y, z)]
         return Triplane(*(torch.randn(s, generator=generator, device=device) for s in shapes))
 
+    @staticmethod
+    def empty(
+        batch: int, channels: int, resolution: tuple[int, int, int], device: torch.device | str = "cpu"
+    ) -> Triplane:
+        """Planes of the right shapes with unset values (on the ``meta`` device: shapes only, no memory)."""
+        x, y, z = resolution
+        shapes = [(batch, channels, x, y), (batch, channels, x, z), (batch, channels, y, z)]
+        return Triplane(*(torch.empty(s, device=device) for s in shapes))
+
     # ----------------------------------------------------------- persistence
     def state_dict(self) -> dict[str, torch.Tensor]:
         return {name: p.detach().cpu() for name, p in zip(PLANES, self.planes)}
