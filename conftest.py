@@ -5,6 +5,7 @@
   2-core machine with anything else running, two spinning OpenMP threads made steps
   10-100x slower (measured: 0.02 s vs 2.3 s per tiny diffusion step).
 """
+
 import os
 
 os.environ.setdefault("SIN3DM_FAST", "1")

@@ -4,6 +4,7 @@ Fixtures are found by pytest; the plain helpers (classes subclassed at module
 level, functions called with other arguments) are imported with
 ``from .conftest import ...`` (``tests`` is a package for that).
 """
+
 import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -43,7 +44,12 @@ def pytest_collection_modifyitems(session, config, items):
 def textured(m: trimesh.Trimesh, name="m", **kw) -> TexturedMesh:
     """A trimesh as a one-material ``TexturedMesh`` (white base colour); ``kw`` e.g. ``vertex_colors``."""
     return TexturedMesh(
-        np.asarray(m.vertices, float), np.asarray(m.faces, np.int64), np.zeros(len(m.faces), np.int64), [Material()], name=name, **kw
+        np.asarray(m.vertices, float),
+        np.asarray(m.faces, np.int64),
+        np.zeros(len(m.faces), np.int64),
+        [Material()],
+        name=name,
+        **kw,
     )
 
 
@@ -83,7 +89,9 @@ def box_grid() -> ShapeGrid:
     m = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
     v = np.asarray(m.vertices, float)
     vc = ((v - v.min(0)) / np.ptp(v, 0)).astype(np.float32)  # colour varies with position
-    return mesh_to_grid(textured(m, vertex_colors=vc), 32, n_surface_points=20_000, near_surface_sigma=0.03, progress=False)
+    return mesh_to_grid(
+        textured(m, vertex_colors=vc), 32, n_surface_points=20_000, near_surface_sigma=0.03, progress=False
+    )
 
 
 # --------------------------------------------------------------------------- triplanes and decoders
@@ -193,7 +201,7 @@ def rf_square(n=33, width=9, zero_corner=True) -> np.ndarray:
     (and 0 in one corner with ``zero_corner``, as a measured map can have)."""
     c, h = n // 2, width // 2
     rf = np.full((n, n), 1e-3)
-    rf[c - h:c + h + 1, c - h:c + h + 1] = 0.1
+    rf[c - h : c + h + 1, c - h : c + h + 1] = 0.1
     rf[c, c] = 1.0
     if zero_corner:
         rf[0, 0] = 0.0

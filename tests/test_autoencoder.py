@@ -1,4 +1,5 @@
 """Triplane autoencoder: shapes, the loss, fitting, exact resume."""
+
 import dataclasses
 import io
 

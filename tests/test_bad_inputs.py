@@ -3,6 +3,7 @@
 Also: ``--overwrite`` keeps foreign files, the run-folder lock, and SIGKILLed
 ``sample``/``fit`` runs after which the next run succeeds with nothing stale left.
 """
+
 import json
 import os
 import random
@@ -28,8 +29,15 @@ UNSHIPPED = next((name for name in list_examples() if shipped_model(name) is Non
 SMALL = ["--steps", "3", "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64"]
 # `tiny` on a coarser grid with fewer points and 50 denoiser steps: still 150 autoencoder steps with a checkpoint
 # every 50, so that a kill 1.5 s after the first checkpoint lands in the training
-LIGHT_FIT = ["--preset", "tiny", "--set", "grid.resolution=24", "grid.n_surface_points=5000",
-             "autoencoder.points_per_step=1024", "diffusion.steps=50"]
+LIGHT_FIT = [
+    "--preset",
+    "tiny",
+    "--set",
+    "grid.resolution=24",
+    "grid.n_surface_points=5000",
+    "autoencoder.points_per_step=1024",
+    "diffusion.steps=50",
+]
 
 
 class RunsCode:
@@ -53,7 +61,11 @@ def template(tmp_path_factory):
     _obj(root / "sheet.obj", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(1, 2, 3), (1, 3, 4)])
     tet = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)]
     _obj(root / "huge.obj", tet[:3] + [(0, 0, 1e300)], [(1, 3, 2), (1, 2, 4), (2, 3, 4), (1, 4, 3)])
-    _obj(root / "overflow.obj", tet + [(-1e308, 0, 0), (1e308, 0, 0)], [(1, 3, 2), (1, 2, 4), (2, 3, 4), (1, 4, 3), (5, 6, 3)])
+    _obj(
+        root / "overflow.obj",
+        tet + [(-1e308, 0, 0), (1e308, 0, 0)],
+        [(1, 3, 2), (1, 2, 4), (2, 3, 4), (1, 4, 3), (5, 6, 3)],
+    )
     shutil.copytree(SHIPPED, root / "run")
     model = (root / "run" / "model.pt").read_bytes()
     bundle = torch.load(root / "run" / "model.pt", weights_only=True)
@@ -78,10 +90,26 @@ def template(tmp_path_factory):
     (root / "badresume" / "autoencoder.pt").write_bytes(bad["random"])
     # run folders with trainer checkpoints in the layouts of older versions (before the shared trainer format)
     old_layouts = {
-        "autoencoder": {"model": {}, "opt": {}, "sched": {}, "gen": torch.zeros(8, dtype=torch.uint8), "step": 3,
-                        "history": {"loss": torch.zeros(3, dtype=torch.float64)}},
-        "diffusion": {"model": {}, "ema": None, "optimizer": {}, "scheduler": {}, "generator": torch.zeros(8, dtype=torch.uint8),
-                      "step_count": 3, "history": [0.1, 0.1, 0.1], "config": {}, "seed": 0, "h0": {}},
+        "autoencoder": {
+            "model": {},
+            "opt": {},
+            "sched": {},
+            "gen": torch.zeros(8, dtype=torch.uint8),
+            "step": 3,
+            "history": {"loss": torch.zeros(3, dtype=torch.float64)},
+        },
+        "diffusion": {
+            "model": {},
+            "ema": None,
+            "optimizer": {},
+            "scheduler": {},
+            "generator": torch.zeros(8, dtype=torch.uint8),
+            "step_count": 3,
+            "history": [0.1, 0.1, 0.1],
+            "config": {},
+            "seed": 0,
+            "h0": {},
+        },
     }
     for kind, old in old_layouts.items():
         (root / f"old{kind}").mkdir()
@@ -94,8 +122,23 @@ def template(tmp_path_factory):
     (root / "grid.npz").write_bytes(b"someone else's grid")
     (root / "report.json").write_text("{}")  # someone else's report
     # a folder of samples (settings: 3 steps, no pictures) for "other settings" rows
-    assert main(["sample", str(root / "run"), "--out", str(root / "samples"), "-n", "1", "--workers", "0", "--no-pictures",
-                 *SMALL]) == 0
+    assert (
+        main(
+            [
+                "sample",
+                str(root / "run"),
+                "--out",
+                str(root / "samples"),
+                "-n",
+                "1",
+                "--workers",
+                "0",
+                "--no-pictures",
+                *SMALL,
+            ]
+        )
+        == 0
+    )
     (root / "badsamples" / "000").mkdir(parents=True)
     (root / "badsamples" / "000" / "mesh.obj").write_text("not a mesh\n")
     return root
@@ -111,8 +154,10 @@ def work(template, tmp_path, monkeypatch):
 
 def snapshot(root: Path) -> dict:
     """Every path under ``root``, with the size and modification time of files."""
-    return {p.relative_to(root).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else "folder"
-            for p in root.rglob("*")}
+    return {
+        p.relative_to(root).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else "folder"
+        for p in root.rglob("*")
+    }
 
 
 NOT_WRITABLE = "/proc/sin3dm-out"  # refused even for root
@@ -122,30 +167,46 @@ CASES = {
     "sample-device": (["sample", "run", "--out", "s", "--device", "gpu"], "device"),
     "sample-cuda-index": (["sample", "run", "--out", "s", "--device", "cuda:99"], "cuda"),
     "sample-huge-n": (["sample", "run", "--out", "s", "-n", "1000000000"], "at most"),
-    "sample-batch-beyond-memory": (["sample", "run", "--out", "s", "--batch", "9000", "--resize", "8", "8", "8"],
-                                   "fit in memory"),
+    "sample-batch-beyond-memory": (
+        ["sample", "run", "--out", "s", "--batch", "9000", "--resize", "8", "8", "8"],
+        "fit in memory",
+    ),
     "sample-start-beyond-limit": (["sample", "run", "--out", "s", "--start", "999999", "-n", "5"], "at most"),
     "sample-negative-start": (["sample", "run", "--out", "s", "--start", "-1"], "0 or more"),
     "sample-zero-batch": (["sample", "run", "--out", "s", "--batch", "0"], "positive"),
     "sample-negative-workers": (["sample", "run", "--out", "s", "--workers", "-2"], "0 or more"),
-    "sample-other-settings": (["sample", "run", "--out", "samples", "-n", "1", *SMALL, "--steps", "4", "--no-pictures"],
-                              "other settings (steps: 3 there, 4 now)"),
+    "sample-other-settings": (
+        ["sample", "run", "--out", "samples", "-n", "1", *SMALL, "--steps", "4", "--no-pictures"],
+        "other settings (steps: 3 there, 4 now)",
+    ),
     # issue 35: --texture-size 100000 ran 3 minutes into 11 GB, --mesh-resolution 100000 was an ArrayMemoryError
-    "sample-huge-texture": (["sample", "run", "--out", "s", "--texture-size", "100000"],
-                            "--texture-size 100000 is too large: at most"),
-    "sample-huge-mesh-resolution": (["sample", "run", "--out", "s", "--mesh-resolution", "100000"],
-                                    "--mesh-resolution 100000 is too large: at most"),
-    "sample-texture-too-small": (["sample", "run", "--out", "s", "--texture-size", "8"],
-                                 "--texture-size must be a whole number from 16 to"),
+    "sample-huge-texture": (
+        ["sample", "run", "--out", "s", "--texture-size", "100000"],
+        "--texture-size 100000 is too large: at most",
+    ),
+    "sample-huge-mesh-resolution": (
+        ["sample", "run", "--out", "s", "--mesh-resolution", "100000"],
+        "--mesh-resolution 100000 is too large: at most",
+    ),
+    "sample-texture-too-small": (
+        ["sample", "run", "--out", "s", "--texture-size", "8"],
+        "--texture-size must be a whole number from 16 to",
+    ),
     "sample-steps-beyond-schedule": (["sample", "run", "--out", "s", "--steps", "5000"], "1000 time steps"),
     "sample-too-few-faces": (["sample", "run", "--out", "s", "--faces", "2"], "--faces must be a whole number from 4"),
-    "demo-huge-texture-many-workers": (["demo", "--out", "s", "--texture-size", "16000", "--workers", "64"],
-                                       "64 exports at once (--workers)"),
+    "demo-huge-texture-many-workers": (
+        ["demo", "--out", "s", "--texture-size", "16000", "--workers", "64"],
+        "64 exports at once (--workers)",
+    ),
     # issue 35: the error spoke of resize factors
-    "sample-outpaint-negative": (["sample", "run", "--out", "s", "--outpaint", "-1", "1", "1"],
-                                 "outpaint factors must be from 1 to 8"),
-    "sample-outpaint-shrinks": (["sample", "run", "--out", "s", "--outpaint", "0.5", "1", "1"],
-                                "outpaint factors must be from 1 to 8"),
+    "sample-outpaint-negative": (
+        ["sample", "run", "--out", "s", "--outpaint", "-1", "1", "1"],
+        "outpaint factors must be from 1 to 8",
+    ),
+    "sample-outpaint-shrinks": (
+        ["sample", "run", "--out", "s", "--outpaint", "0.5", "1", "1"],
+        "outpaint factors must be from 1 to 8",
+    ),
     "sample-negative-seed": (["sample", "run", "--out", "s", "--seed", "-1"], "seed"),
     "sample-truncated": (["sample", "truncated", "--out", "s"], "not made by this version"),
     "sample-random-bytes": (["sample", "random", "--out", "s"], "not made by this version"),
@@ -180,28 +241,48 @@ CASES |= {
     "fit-overflowing-box": (["fit", "overflow.obj", "--preset", "tiny", "--out", "r"], "too large"),
     "fit-out-contains-mesh": (["fit", "box.obj", "--preset", "tiny", "--out", "."], "input mesh"),
     # a folder of the user's is no fit to resume: a new or empty one (issue 35: the message suggested --resume)
-    "fit-out-not-empty": (["fit", "box.obj", "--preset", "tiny", "--out", "full"],
-                          "--out 'full' is not empty and holds no fit of sin3dm-lite; choose a new or empty folder"),
-    "fit-out-is-a-run": (["fit", "box.obj", "--preset", "tiny", "--out", "run"], "holds a fit; continue it with --resume"),
+    "fit-out-not-empty": (
+        ["fit", "box.obj", "--preset", "tiny", "--out", "full"],
+        "--out 'full' is not empty and holds no fit of sin3dm-lite; choose a new or empty folder",
+    ),
+    "fit-out-is-a-run": (
+        ["fit", "box.obj", "--preset", "tiny", "--out", "run"],
+        "holds a fit; continue it with --resume",
+    ),
     "fit-resume-not-a-run": (["fit", "box.obj", "--out", "full", "--resume"], "'full' is not a fit's run folder"),
     # issue 35: resuming a canyon run with a cube said "fit done" and mixed the two
-    "fit-resume-other-mesh": (["fit", "box.obj", "--preset", "tiny", "--resume", "--out", "run"],
-                              "cannot resume: 'run' was fitted to 'canyon', not 'box.obj'; resume it with that input"),
-    "fit-resume-other-preset": (["fit", "canyon", "--preset", "tiny", "--resume", "--out", "run"],
-                                "other settings (preset 'small' there, 'tiny' now)"),
+    "fit-resume-other-mesh": (
+        ["fit", "box.obj", "--preset", "tiny", "--resume", "--out", "run"],
+        "cannot resume: 'run' was fitted to 'canyon', not 'box.obj'; resume it with that input",
+    ),
+    "fit-resume-other-preset": (
+        ["fit", "canyon", "--preset", "tiny", "--resume", "--out", "run"],
+        "other settings (preset 'small' there, 'tiny' now)",
+    ),
     "fit-out-under-file": (["fit", "box.obj", "--preset", "tiny", "--out", "blocker/r"], "is a file"),
     "fit-out-not-writable": (["fit", "box.obj", "--preset", "tiny", "--out", NOT_WRITABLE], "cannot write"),
-    "fit-set-negative-steps": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "autoencoder.steps=-5"],
-                               "'autoencoder.steps' must be a whole number from 1 to"),
-    "fit-set-zero-steps": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "diffusion.steps=0"],
-                           "'diffusion.steps' must be a whole number from 1 to"),
-    "fit-set-diversity": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "sampling.diversity=5"],
-                          "must be a number from 0 to 1"),
-    "fit-set-unknown-section": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "nosuch.key=1"],
-                                "unknown config setting 'nosuch.key'; settings are SECTION.NAME"),
+    "fit-set-negative-steps": (
+        ["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "autoencoder.steps=-5"],
+        "'autoencoder.steps' must be a whole number from 1 to",
+    ),
+    "fit-set-zero-steps": (
+        ["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "diffusion.steps=0"],
+        "'diffusion.steps' must be a whole number from 1 to",
+    ),
+    "fit-set-diversity": (
+        ["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "sampling.diversity=5"],
+        "must be a number from 0 to 1",
+    ),
+    "fit-set-unknown-section": (
+        ["fit", "box.obj", "--preset", "tiny", "--out", "r", "--set", "nosuch.key=1"],
+        "unknown config setting 'nosuch.key'; settings are SECTION.NAME",
+    ),
     "fit-resume-missing": (["fit", "box.obj", "--out", "nothing", "--resume"], "resume"),
     "fit-resume-bad-checkpoint": (["fit", "box.obj", "--out", "badresume", "--resume"], "not made by this version"),
-    "fit-resume-old-autoencoder-checkpoint": (["fit", "box.obj", "--out", "oldautoencoder", "--resume"], "older version"),
+    "fit-resume-old-autoencoder-checkpoint": (
+        ["fit", "box.obj", "--out", "oldautoencoder", "--resume"],
+        "older version",
+    ),
     "fit-resume-old-diffusion-checkpoint": (["fit", "box.obj", "--out", "olddiffusion", "--resume"], "older version"),
     # grid
     "grid-single-triangle": (["grid", "tri.obj", "--resolution", "32", "--out", "g.npz"], "no inside"),
@@ -209,8 +290,10 @@ CASES |= {
     "grid-huge-vertex": (["grid", "huge.obj", "--resolution", "32", "--out", "g.npz"], "too large"),
     "grid-overflowing-box": (["grid", "overflow.obj", "--resolution", "32", "--out", "g.npz"], "too large"),
     "grid-out-exists": (["grid", "box.obj", "--resolution", "32", "--out", "grid.npz"], "--overwrite"),
-    "grid-out-foreign-overwrite": (["grid", "box.obj", "--resolution", "32", "--out", "grid.npz", "--overwrite"],
-                                   "not written by sin3dm-lite"),
+    "grid-out-foreign-overwrite": (
+        ["grid", "box.obj", "--resolution", "32", "--out", "grid.npz", "--overwrite"],
+        "not written by sin3dm-lite",
+    ),
     "grid-out-under-file": (["grid", "box.obj", "--out", "blocker/g.npz"], "is a file"),
     "grid-out-not-writable": (["grid", "box.obj", "--out", NOT_WRITABLE + ".npz"], "cannot write"),
     # examples
@@ -230,7 +313,10 @@ CASES |= {
     "render-out-under-file": (["render", "box.obj", "--out", "blocker/v"], "is a file"),
     "render-out-not-writable": (["render", "box.obj", "--out", NOT_WRITABLE], "cannot write"),
     # calibrate (issue 35: a file that is no run folder was "not found")
-    "calibrate-file-not-a-run": (["calibrate", "box.obj"], "'box.obj' is a file, not a run folder: a run folder is what"),
+    "calibrate-file-not-a-run": (
+        ["calibrate", "box.obj"],
+        "'box.obj' is a file, not a run folder: a run folder is what",
+    ),
     "calibrate-unknown-run": (["calibrate", "nosuch"], "run folder 'nosuch' not found"),
     "sample-run-is-a-file": (["sample", "neighbour.txt", "--out", "s"], "is a file, not a run folder"),
     # evaluate
@@ -245,15 +331,23 @@ CASES |= {
     "evaluate-resolution": (["evaluate", "run", "badsamples", "--resolution", "1000"], "--resolution"),
     "evaluate-out-not-json": (["evaluate", "run", "badsamples", "--out", "e.txt"], ".json"),
     "evaluate-out-exists": (["evaluate", "run", "badsamples", "--out", "report.json"], "--overwrite"),
-    "evaluate-out-foreign-overwrite": (["evaluate", "run", "badsamples", "--out", "report.json", "--overwrite"],
-                                       "not written by sin3dm-lite"),
+    "evaluate-out-foreign-overwrite": (
+        ["evaluate", "run", "badsamples", "--out", "report.json", "--overwrite"],
+        "not written by sin3dm-lite",
+    ),
     "evaluate-out-inside-run": (["evaluate", "run", "badsamples", "--out", "run/e.json"], "inside the run folder"),
     "evaluate-out-under-file": (["evaluate", "run", "badsamples", "--out", "blocker/e.json"], "is a file"),
     "evaluate-out-not-writable": (["evaluate", "run", "badsamples", "--out", NOT_WRITABLE + ".json"], "cannot write"),
 }
 
 
-PARSER_CASES = ("seed", "negative-start", "zero-batch", "negative-workers", "outpaint")  # refused by argparse (SystemExit)
+PARSER_CASES = (
+    "seed",
+    "negative-start",
+    "zero-batch",
+    "negative-workers",
+    "outpaint",
+)  # refused by argparse (SystemExit)
 
 
 @pytest.mark.parametrize("case", list(CASES))
@@ -301,8 +395,11 @@ def test_sample_keeps_foreign_files_and_replaces_only_its_own(work, capsys):
     assert not (out / "001").exists() and (out / "000" / "mesh.obj").is_file()
     assert (out / "000" / "their_edit.blend").is_file() and (out / "theirs.txt").is_file()
     pictures = {"contact_sheet.png"} if (out / "contact_sheet.png").exists() else set()  # none without EGL
-    assert set(read_manifest(out)) == ({f"000/{p.name}" for p in (out / "000").iterdir() if p.name != "their_edit.blend"}
-                                       | {"index.html", "sampling.json", "samples.jsonl"} | pictures)
+    assert set(read_manifest(out)) == (
+        {f"000/{p.name}" for p in (out / "000").iterdir() if p.name != "their_edit.blend"}
+        | {"index.html", "sampling.json", "samples.jsonl"}
+        | pictures
+    )
     # a foreign file exactly where a new output goes is never replaced
     (out / "index.html").unlink()
     (out / "index.html").write_text("their page")
@@ -340,8 +437,14 @@ def test_failing_fresh_fit_leaves_no_run_folder(work, capsys):
 
 def _cli(*argv, **kw):
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    return subprocess.Popen([sys.executable, "-m", "sin3dm_lite.cli", *argv], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kw)
+    return subprocess.Popen(
+        [sys.executable, "-m", "sin3dm_lite.cli", *argv],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kw,
+    )
 
 
 def _main(capsys, *argv) -> tuple[int, str]:
@@ -394,7 +497,9 @@ def test_killed_sample_leaves_nothing_stale_and_the_next_run_succeeds(work, dela
     assert code == 0, (delay, err)
     assert _stale(work / "out") == [], delay
     s = work / "out" / "s"
-    assert set(read_manifest(s)) == {p.relative_to(s).as_posix() for p in s.rglob("*") if p.is_file() and p.name != MANIFEST}
+    assert set(read_manifest(s)) == {
+        p.relative_to(s).as_posix() for p in s.rglob("*") if p.is_file() and p.name != MANIFEST
+    }
     assert sorted(p.name for p in s.iterdir() if p.is_dir()) == ["000", "001", "002"]
     assert (work / "out" / "beside.txt").read_text() == "keep"
 
@@ -453,11 +558,14 @@ def test_a_kill_while_an_output_folder_is_replaced_leaves_its_files_ours(tmp_pat
 def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay, capsys):
     run = work / "runs" / "r"
     p = _cli("fit", "wall", *LIGHT_FIT, "--out", "runs/r", cwd=work)
-    ready = {"start": lambda: (work / "runs").is_dir() and any((work / "runs").iterdir()),
-             "training": lambda: (run / "autoencoder.pt").exists()}[stage]
+    ready = {
+        "start": lambda: (work / "runs").is_dir() and any((work / "runs").iterdir()),
+        "training": lambda: (run / "autoencoder.pt").exists(),
+    }[stage]
     _kill_when(p, ready, delay)
     assert [q.name for q in (work / "runs").iterdir()] in ([], ["r"]) or any(
-        q.name.startswith(TEMP_PREFIX) for q in (work / "runs").iterdir())
+        q.name.startswith(TEMP_PREFIX) for q in (work / "runs").iterdir()
+    )
     resume = ["--resume"] if run.is_dir() else []
     locked = (run / LOCK).exists()
     code, err = _main(capsys, "fit", "wall", *LIGHT_FIT, "--out", "runs/r", *resume)

@@ -1,4 +1,5 @@
 """Choosing the diversity knob per shape: the ladder, its smoothing, its scoring path, and what a fit and the CLI keep."""
+
 import json
 import warnings
 from pathlib import Path
@@ -108,12 +109,18 @@ def test_a_shape_whose_near_copy_misses_the_absolute_goals_gets_a_default_below_
     # between 0.4 (nothing kept) and 0.3 (the near copy's scores) both smoothed curves cross their goals at 0.315
     assert cal.kept_goals and 0.3 <= cal.diversity < 0.5 and cal.diversity == pytest.approx(0.315, abs=0.006)
     # read on the smoothed curve at the choice (rounded to 0.01): linear between 0.4 and 0.3; identical samples
-    assert cal.at_choice["lp_fscore"] == pytest.approx(0.4 * (0.4 - cal.diversity) / 0.1) and cal.at_choice["g_div"] == 0
+    assert (
+        cal.at_choice["lp_fscore"] == pytest.approx(0.4 * (0.4 - cal.diversity) / 0.1) and cal.at_choice["g_div"] == 0
+    )
     story = cal.story().splitlines()
-    assert story[0] == (f"LP-IoU: near copy 0.30; goal 0.26 (85% of the near copy; the absolute 0.55 is out of its "
-                        f"reach); chosen {cal.diversity:g}, smoothed {3 * (0.4 - cal.diversity):.2f} there")
-    assert story[1].startswith(f"LP-F: near copy 0.40; goal 0.34 (85% of the near copy; the absolute 0.70 is out of "
-                               f"its reach); chosen {cal.diversity:g}")
+    assert story[0] == (
+        f"LP-IoU: near copy 0.30; goal 0.26 (85% of the near copy; the absolute 0.55 is out of its "
+        f"reach); chosen {cal.diversity:g}, smoothed {3 * (0.4 - cal.diversity):.2f} there"
+    )
+    assert story[1].startswith(
+        f"LP-F: near copy 0.40; goal 0.34 (85% of the near copy; the absolute 0.70 is out of "
+        f"its reach); chosen {cal.diversity:g}"
+    )
     assert "below the diversity requirement 0.15" in story[2] and "at 24 voxels (the paper measures at 128)" in story[3]
     assert "LP-F: near copy 0.40; goal 0.34" in cal.summary()
 
@@ -121,8 +128,10 @@ def test_a_shape_whose_near_copy_misses_the_absolute_goals_gets_a_default_below_
 def test_the_near_copy_is_printed_with_its_goals(capsys):
     C.calibrate_diversity(_ThinKnob(0.3), _reference(), n=2, refine=0, progress=True)
     out = capsys.readouterr().out.splitlines()
-    assert out[0] == ("[calibrate] near copy (diversity 0.05): LP-IoU 0.300, goal 0.255; LP-F 0.400, goal 0.340 "
-                      "(85% of it, at most 0.55, 0.70)")
+    assert out[0] == (
+        "[calibrate] near copy (diversity 0.05): LP-IoU 0.300, goal 0.255; LP-F 0.400, goal 0.340 "
+        "(85% of it, at most 0.55, 0.70)"
+    )
 
 
 def test_a_near_copy_that_keeps_nothing_sets_no_ceiling():
@@ -132,8 +141,10 @@ def test_a_near_copy_that_keeps_nothing_sets_no_ceiling():
     cal = C.calibrate_diversity(knob, _reference(), n=2, refine=0, progress=False)
     assert cal.near_copy["lp_fscore"] == 0.0 < C.MIN_CEILING and cal.goals == C.GOALS
     assert cal.diversity == C.LOWEST and not cal.kept_goals
-    assert "LP-IoU: near copy 0.00; goal 0.55 (the absolute goal: a near copy of LP-F below 0.1 sets no ceiling)" \
+    assert (
+        "LP-IoU: near copy 0.00; goal 0.55 (the absolute goal: a near copy of LP-F below 0.1 sets no ceiling)"
         in cal.story()
+    )
 
 
 def test_old_records_still_load():
@@ -147,8 +158,9 @@ def test_old_records_still_load():
     assert "near_copy" not in record  # an old record
     old = C.Calibration.from_dict(record)
     assert old.diversity == 1.0 and old.kept_goals and old.near_copy is None and old.goals == C.GOALS
-    assert old.story() == ("absolute goals LP-IoU 0.55, LP-F 0.70 at 64 voxels (the paper measures at 128) "
-                           "(no near copy scored); chosen 1")
+    assert old.story() == (
+        "absolute goals LP-IoU 0.55, LP-F 0.70 at 64 voxels (the paper measures at 128) (no near copy scored); chosen 1"
+    )
     assert old.summary().splitlines()[-1] == "chosen: 1"
     config = Sin3DM.load(shipped).config
     assert config.sampling.diversity == 1.0 and keeps_goals_from_noise(config, record) is False  # rollout already
@@ -196,8 +208,11 @@ def test_the_walk_goes_on_down_when_the_lowered_curve_misses_where_it_stopped():
 
 
 def test_a_setting_drawn_twice_counts_by_its_samples():
-    tried = [{"diversity": 0.8, "n": 8, "lp_iou": 0.6}, {"diversity": 0.7, "n": 8, "lp_iou": 0.8},
-             {"diversity": 0.7, "n": 24, "lp_iou": 0.4}]
+    tried = [
+        {"diversity": 0.8, "n": 8, "lp_iou": 0.6},
+        {"diversity": 0.7, "n": 8, "lp_iou": 0.8},
+        {"diversity": 0.7, "n": 24, "lp_iou": 0.4},
+    ]
     # 0.7's 32 samples score 0.5, below 0.8's 8 samples (0.6) by chance: pooled by samples, (0.6·8 + 0.5·32) / 40
     levels, fitted, _ = C._curve(tried, "lp_iou")
     assert levels == [0.8, 0.7] and fitted == pytest.approx([0.52, 0.52])
@@ -207,16 +222,20 @@ def test_the_curve_is_read_standard_errors_below_its_scores():
     """Two settings of 8 samples with a spread of 0.2 each: standard error 0.2 / √8 on each smoothed score; read
     one standard error low, the curve crosses 0.6 nearer the setting that keeps it. Pooling settings (by chance, or
     by drawing one again) rests a score on more samples and narrows its error."""
-    tried = [{"diversity": 0.8, "n": 8, "lp_iou": 0.5, "lp_iou_sd": 0.2},
-             {"diversity": 0.7, "n": 8, "lp_iou": 0.7, "lp_iou_sd": 0.2}]
+    tried = [
+        {"diversity": 0.8, "n": 8, "lp_iou": 0.5, "lp_iou_sd": 0.2},
+        {"diversity": 0.7, "n": 8, "lp_iou": 0.7, "lp_iou_sd": 0.2},
+    ]
     levels, fitted, se = C._curve(tried, "lp_iou")
-    assert fitted == [0.5, 0.7] and se == pytest.approx([0.2 / 8 ** 0.5] * 2)
+    assert fitted == [0.5, 0.7] and se == pytest.approx([0.2 / 8**0.5] * 2)
     assert C._choice(tried, {"lp_iou": 0.6}, safety=0.0, caution=0.0) == pytest.approx(0.75)
-    assert C._choice(tried, {"lp_iou": 0.6}, safety=0.0, caution=1.0) == pytest.approx(0.7 + 0.1 * (0.7 - 0.2 / 8 ** 0.5 - 0.6) / 0.2)
+    assert C._choice(tried, {"lp_iou": 0.6}, safety=0.0, caution=1.0) == pytest.approx(
+        0.7 + 0.1 * (0.7 - 0.2 / 8**0.5 - 0.6) / 0.2
+    )
     tried.append({"diversity": 0.7, "n": 24, "lp_iou": 0.7, "lp_iou_sd": 0.2})
-    assert C._curve(tried, "lp_iou")[2] == pytest.approx([0.2 / 8 ** 0.5, 0.2 / 32 ** 0.5])
+    assert C._curve(tried, "lp_iou")[2] == pytest.approx([0.2 / 8**0.5, 0.2 / 32**0.5])
     tried[0]["lp_iou"] = 0.9  # rises above 0.7's by chance: one block of 40 samples
-    assert C._curve(tried, "lp_iou")[2] == pytest.approx([0.2 / 40 ** 0.5] * 2)
+    assert C._curve(tried, "lp_iou")[2] == pytest.approx([0.2 / 40**0.5] * 2)
 
 
 def test_scores_that_rise_with_the_knob_by_chance_are_pooled():
@@ -241,19 +260,22 @@ def test_goals_out_of_reach_give_the_lowest_setting_and_say_so(knob):
     assert [t["diversity"] for t in cal.tried] == [1.0, 0.8, 0.6, 0.4]
 
 
-@pytest.mark.parametrize("kw, match", [
-    ({"n": 1}, "at least 2 samples"),
-    ({"lowest": 1.0}, "lowest"),
-    ({"goals": {"g_div": 0.2}}, "unknown calibration goals"),
-    ({"goals": {"lp_iou": 55}}, "from 0 to 1"),
-    ({"step": 0.0}, "step"),
-    ({"step": 0.95}, "step"),  # above 1 - lowest (0.9)
-    ({"safety": 1.5}, "safety"),
-    ({"refine": -1}, "refine"),
-    ({"caution": -1.0}, "caution"),
-    ({"relative": 0.0}, "relative"),
-    ({"relative": 1.5}, "relative"),
-])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"n": 1}, "at least 2 samples"),
+        ({"lowest": 1.0}, "lowest"),
+        ({"goals": {"g_div": 0.2}}, "unknown calibration goals"),
+        ({"goals": {"lp_iou": 55}}, "from 0 to 1"),
+        ({"step": 0.0}, "step"),
+        ({"step": 0.95}, "step"),  # above 1 - lowest (0.9)
+        ({"safety": 1.5}, "safety"),
+        ({"refine": -1}, "refine"),
+        ({"caution": -1.0}, "caution"),
+        ({"relative": 0.0}, "relative"),
+        ({"relative": 1.5}, "relative"),
+    ],
+)
 def test_bad_options_are_named(kw, match):
     knob = _Knob(0.7)
     with pytest.raises(Sin3DMInputError, match=match):
@@ -283,11 +305,16 @@ def test_a_fit_saves_its_calibrated_diversity(calibrated):
     model, run = calibrated
     cal = model.report["calibration"]
     assert model.config.sampling.diversity == cal["diversity"]
-    assert C.LOWEST <= cal["diversity"] <= 1.0 and cal["tried"][0]["diversity"] == 1.0 and "lp_iou_fitted" in cal["tried"][0]
+    assert (
+        C.LOWEST <= cal["diversity"] <= 1.0
+        and cal["tried"][0]["diversity"] == 1.0
+        and "lp_iou_fitted" in cal["tried"][0]
+    )
     assert cal["near_copy"]["diversity"] == C.NEAR_COPY and cal["absolute_goals"] == C.GOALS
     ceiling = cal["near_copy"]["lp_fscore"] >= C.MIN_CEILING
-    assert cal["goals"] == {k: min(v, round(C.RELATIVE * cal["near_copy"][k], 4)) if ceiling else v
-                            for k, v in C.GOALS.items()}
+    assert cal["goals"] == {
+        k: min(v, round(C.RELATIVE * cal["near_copy"][k], 4)) if ceiling else v for k, v in C.GOALS.items()
+    }
     assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == cal["diversity"]
     report = json.loads((run / "report.json").read_text())
     assert report["calibration"] == cal and report["timings_s"]["calibrate_s"] > 0
@@ -300,7 +327,9 @@ def test_the_rollout_hint_applies_only_to_a_plain_denoiser_calibrated_to_pure_no
 
     small = get_preset("small")
     hint = rollout_hint(small, {"diversity": 1.0, "kept_goals": True})
-    assert "--set diffusion.rollout=true" in hint and "get_preset('small').updated(**{'diffusion.rollout': True})" in hint
+    assert (
+        "--set diffusion.rollout=true" in hint and "get_preset('small').updated(**{'diffusion.rollout': True})" in hint
+    )
     assert rollout_hint(small, {"diversity": 0.73, "kept_goals": True}) is None  # the canyon: its layout varies
     assert rollout_hint(small, {"diversity": 1.0, "kept_goals": False}) is None  # 1 only as the lowest drawn
     assert rollout_hint(small.updated(**{"diffusion.rollout": True}), {"diversity": 1.0, "kept_goals": True}) is None
@@ -334,8 +363,9 @@ def plain_fit(tmp_path_factory):
 @pytest.fixture(scope="module")
 def switched_fit(tmp_path_factory):
     """The same with the rollout switch: trained again with the cross-plane rollout (20 steps)."""
-    return _fit_keeping_the_goals(tmp_path_factory.mktemp("switched"),
-                                  micro_config().updated(**PLAIN, rollout_switch=SWITCH))
+    return _fit_keeping_the_goals(
+        tmp_path_factory.mktemp("switched"), micro_config().updated(**PLAIN, rollout_switch=SWITCH)
+    )
 
 
 def test_a_plain_fit_that_keeps_the_goals_from_pure_noise_says_the_hint(plain_fit):
@@ -376,7 +406,9 @@ def test_a_fit_that_keeps_the_goals_from_pure_noise_switches_to_the_rollout(swit
 
     # --no-rollout-switch (rollout_switch={}: the plain fit's settings) keeps the plain denoiser and only hints
     plain = plain_fit[0]
-    assert not plain.config.diffusion.rollout and plain.report["rollout_switch"] is None and "rollout_hint" in plain.report
+    assert (
+        not plain.config.diffusion.rollout and plain.report["rollout_switch"] is None and "rollout_hint" in plain.report
+    )
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
@@ -415,20 +447,31 @@ def test_a_fit_interrupted_in_its_rollout_denoiser_resumes_to_the_same_model(swi
     for part in ("decoder", "denoiser", "latent"):
         for k in a[part]:
             assert torch.equal(a[part][k], b[part][k]), (part, k)
-    assert resumed.report["diffusion_steps"] == 20 and resumed.report["rollout_switch"]["plain_calibration"]["kept_goals"]
+    assert (
+        resumed.report["diffusion_steps"] == 20 and resumed.report["rollout_switch"]["plain_calibration"]["kept_goals"]
+    )
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
 def test_a_switched_fit_whose_rollout_keeps_no_goal_warns_with_the_way_back(tmp_path, monkeypatch):
     """The switch's only risk, said plainly: the rollout denoiser kept no setting where the plain one did."""
+
     def fake(model, reference, progress=True, **options):  # model_sampler, below, hands it the model
-        kept = not model.config.diffusion.rollout  # the plain denoiser keeps the goals from pure noise, the rollout none
+        kept = (
+            not model.config.diffusion.rollout
+        )  # the plain denoiser keeps the goals from pure noise, the rollout none
         return C.Calibration(diversity=1.0 if kept else 0.5, goals={}, n=1, resolution=8, kept_goals=kept)
 
     monkeypatch.setattr(C, "calibrate_diversity", fake)
     monkeypatch.setattr(C, "model_sampler", lambda model, reference: model)
-    cfg = micro_config().updated(**{"sampling.calibrate": True, "diffusion.rollout": False, "diffusion.steps": 5,
-                                    "rollout_switch": {"diffusion.rollout": True, "diffusion.steps": 5}})
+    cfg = micro_config().updated(
+        **{
+            "sampling.calibrate": True,
+            "diffusion.rollout": False,
+            "diffusion.steps": 5,
+            "rollout_switch": {"diffusion.rollout": True, "diffusion.steps": 5},
+        }
+    )
     with pytest.warns(UserWarning, match="with the cross-plane rollout no diversity setting kept.*--no-rollout-switch"):
         model = Sin3DM.fit("wall", preset=cfg, out=tmp_path / "w", progress=False)
     assert model.config.diffusion.rollout and model.report["rollout_switch"]["plain_calibration"]["kept_goals"]
@@ -447,7 +490,7 @@ def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
     for i, (a, b) in enumerate(zip(fast, slow)):
         assert a.shape == b.shape and a.any()
         assert iou(a, b) > 0.9
-        assert np.array_equal(a, decode_grid(model.decoder, samples.triplane[i:i + 1], samples.aabb, res) < 0)
+        assert np.array_equal(a, decode_grid(model.decoder, samples.triplane[i : i + 1], samples.aabb, res) < 0)
 
 
 def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
@@ -463,7 +506,9 @@ def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
     assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == 0.1
     assert Sin3DM.load(run).config.sampling.diversity == 0.1
     report = json.loads((run / "report.json").read_text())
-    assert report["calibration"]["goals"] == report["calibration"]["absolute_goals"] == {"lp_iou": 0.3, "lp_fscore": 0.4}
+    assert (
+        report["calibration"]["goals"] == report["calibration"]["absolute_goals"] == {"lp_iou": 0.3, "lp_fscore": 0.4}
+    )
     assert report["calibration"]["kept_goals"] is False
 
 

@@ -1,4 +1,5 @@
 """The sin3dm-lite command: outputs and one-line errors with exit code 2."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -72,8 +73,22 @@ def test_bad_resize_is_rejected_by_the_parser(capsys, resize):
 
 def test_demo_with_the_shipped_model_writes_meshes_and_a_viewer_page(capsys, tmp_path):
     out = tmp_path / "demo"
-    code, text, _ = run(capsys, "demo", "--out", str(out), "-n", "2", "--steps", "5",
-                        "--mesh-resolution", "48", "--faces", "1500", "--texture-size", "128")
+    code, text, _ = run(
+        capsys,
+        "demo",
+        "--out",
+        str(out),
+        "-n",
+        "2",
+        "--steps",
+        "5",
+        "--mesh-resolution",
+        "48",
+        "--faces",
+        "1500",
+        "--texture-size",
+        "128",
+    )
     assert code == 0 and "index.html" in text
     for i in ("000", "001"):
         m = trimesh.load(out / i / "mesh.obj", force="mesh")
@@ -89,8 +104,23 @@ def test_sample_diversity_zero_gives_the_input_back(capsys, tmp_path):
     from sin3dm_lite.pretrained import pretrained_path
 
     out = tmp_path / "closest"
-    code, _, _ = run(capsys, "sample", str(pretrained_path()), "--out", str(out), "-n", "1", "--diversity", "0",
-                     "--mesh-resolution", "40", "--faces", "1500", "--texture-size", "64")
+    code, _, _ = run(
+        capsys,
+        "sample",
+        str(pretrained_path()),
+        "--out",
+        str(out),
+        "-n",
+        "1",
+        "--diversity",
+        "0",
+        "--mesh-resolution",
+        "40",
+        "--faces",
+        "1500",
+        "--texture-size",
+        "64",
+    )
     assert code == 0
     got = trimesh.load(out / "000" / "mesh.obj", force="mesh")
     model = Sin3DM.load(pretrained_path())
@@ -159,8 +189,11 @@ def test_every_command_has_a_description_and_every_option_its_default(capsys, co
     fmt = parser._get_formatter()
     groups = {id(a): g.title for g in parser._action_groups for a in g._group_actions}
     for action in parser._actions:
-        if not action.option_strings or isinstance(action, (argparse._HelpAction, argparse._StoreTrueAction)) \
-                or action.required:
+        if (
+            not action.option_strings
+            or isinstance(action, (argparse._HelpAction, argparse._StoreTrueAction))
+            or action.required
+        ):
             continue
         text = fmt._expand_help(action)
         if action.default is None and "default" in (groups.get(id(action)) or ""):
@@ -202,8 +235,26 @@ def test_demo_example_with_train_fits_that_example(capsys, tmp_path, monkeypatch
 
     monkeypatch.setattr(sample_cli, "DEMO_PRESET", micro_config())
     out = tmp_path / "demo"
-    code, text, err = run(capsys, "demo", "--example", "wall", "--train", "--out", str(out), "-n", "1", "--steps", "3",
-                          "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64", "--no-pictures")
+    code, text, err = run(
+        capsys,
+        "demo",
+        "--example",
+        "wall",
+        "--train",
+        "--out",
+        str(out),
+        "-n",
+        "1",
+        "--steps",
+        "3",
+        "--mesh-resolution",
+        "32",
+        "--faces",
+        "500",
+        "--texture-size",
+        "64",
+        "--no-pictures",
+    )
     assert code == 0, err
     assert (out / "000" / "mesh.obj").is_file() and (out / "index.html").is_file()
     assert "decode, texture, export" in err  # the progress bar over the per-mesh work
@@ -215,7 +266,9 @@ def test_demo_of_an_example_without_a_shipped_model_says_what_to_do(capsys, tmp_
     from sin3dm_lite import pretrained
 
     real = pretrained.shipped_model
-    monkeypatch.setattr(pretrained, "shipped_model", lambda name: None if name in ("wall", "wall_small") else real(name))
+    monkeypatch.setattr(
+        pretrained, "shipped_model", lambda name: None if name in ("wall", "wall_small") else real(name)
+    )
     code, out, err = run(capsys, "demo", "--example", "wall", "--out", str(tmp_path / "s"))
     assert code == 2 and "no shipped model of 'wall'" in err and "--train" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "s").exists()

@@ -1,4 +1,5 @@
 """Controlled generation: what is kept stays the input's, what is freed varies, sizes and errors are right."""
+
 import copy
 
 import numpy as np
@@ -29,8 +30,9 @@ def _free_mask(plan):
     return [(m[0, 0] <= 0.0) for m in plan.mask.planes]
 
 
-@pytest.mark.parametrize("kw", [{"regenerate": REGENERATE}, {"duplicate": DUPLICATE},
-                                {"outpaint": (1.5, 1.0, 1.0), "anchor": "x-"}])
+@pytest.mark.parametrize(
+    "kw", [{"regenerate": REGENERATE}, {"duplicate": DUPLICATE}, {"outpaint": (1.5, 1.0, 1.0), "anchor": "x-"}]
+)
 def test_kept_part_is_the_known_latent_at_every_step_and_exactly_at_the_end(model, kw):
     """Two denoisers, same seed: the kept texels are the same noised known latent after every step, the rest is not."""
     other = copy.deepcopy(model)
@@ -45,8 +47,11 @@ def test_kept_part_is_the_known_latent_at_every_step_and_exactly_at_the_end(mode
     for ea, eb in zip(a.intermediates[1:], b.intermediates[1:]):  # x_t of step i = the end of step i - 1
         for pa, pb, k in zip(ea["x_t"].planes, eb["x_t"].planes, kept):
             assert torch.equal(pa[:, :, k], pb[:, :, k])
-    assert any(not torch.equal(pa[:, :, f], pb[:, :, f]) for pa, pb, f in zip(a.triplane.planes, b.triplane.planes, free)
-               if f.any())
+    assert any(
+        not torch.equal(pa[:, :, f], pb[:, :, f])
+        for pa, pb, f in zip(a.triplane.planes, b.triplane.planes, free)
+        if f.any()
+    )
     for pa, kn, k in zip(a.triplane.planes, a.plan.known.planes, kept):  # the end: the known latent itself
         assert torch.equal(pa[:, :, k], kn.expand_as(pa)[:, :, k])
 
@@ -66,8 +71,11 @@ def test_regenerated_part_differs_between_seeds_and_the_rest_does_not(model):
     a = model.sample(1, seed=0, regenerate=REGENERATE, progress=False)
     b = model.sample(1, seed=1, regenerate=REGENERATE, progress=False)
     free, kept = _free_mask(a.plan), _kept_mask(a.plan)
-    diffs = [float((pa - pb)[:, :, f].abs().mean()) for pa, pb, f in zip(a.triplane.planes, b.triplane.planes, free)
-             if f.any()]
+    diffs = [
+        float((pa - pb)[:, :, f].abs().mean())
+        for pa, pb, f in zip(a.triplane.planes, b.triplane.planes, free)
+        if f.any()
+    ]
     assert diffs and max(diffs) > 1e-3  # (the micro model has trained 30 steps: its samples vary little)
     assert all(torch.equal(pa[:, :, k], pb[:, :, k]) for pa, pb, k in zip(a.triplane.planes, b.triplane.planes, kept))
 
@@ -80,9 +88,9 @@ def test_duplicate_copies_the_box(model, trim):
     d0 = control.texel_range(0.6, 0.9, n)[0]
     a0, d0 = a0 + trim, d0 + trim  # the box touches the x- face, the copy does not: its margin stays behind
     xy = plan.known.xy[0]
-    assert torch.equal(xy[:, d0:d0 + a1 - a0], model.latent.xy[0][:, a0:a1])
+    assert torch.equal(xy[:, d0 : d0 + a1 - a0], model.latent.xy[0][:, a0:a1])
     assert torch.equal(xy[:, :d0], model.latent.xy[0][:, :d0])  # nothing else changes
-    assert plan.kept()[d0:d0 + a1 - a0].any() and plan.kept()[a0:a1].any()
+    assert plan.kept()[d0 : d0 + a1 - a0].any() and plan.kept()[a0:a1].any()
     assert not plan.kept()[:trim].any()
 
 
@@ -103,20 +111,23 @@ def test_outpainted_and_retargeted_boxes_have_the_requested_size(model, anchor):
         assert face == pytest.approx((model.aabb[:3] if anchor[1] == "-" else model.aabb[3:])[axis])
 
 
-@pytest.mark.parametrize("kw, words", [
-    ({"regenerate": ((0.3, 0.3, 0.3), (0.6, 0.6, 0.6))}, "faces along at least one axis"),
-    ({"regenerate": ((0.5, 0, 0), (0.5, 1, 1))}, "empty along x"),
-    ({"regenerate": ((0, 0, 0), (1.2, 1, 1))}, "fractions of the model's box"),
-    ({"regenerate": ((0, 0), (1, 1))}, "two corners"),
-    ({"duplicate": (((0, 0, 0), (0.5, 1, 1)), (0.8, 0, 0))}, "does not fit"),
-    ({"duplicate": (((0, 0, 0), (0.5, 1, 1)), (0.2, 0, 0))}, "overlaps"),
-    ({"duplicate": ((0, 0, 0), (0.5, 1, 1))}, "two corners"),
-    ({"duplicate": (((0, 0, 0), (0.3, 1, 1)), (0.5, -1, 0))}, "copy to must be"),
-    ({"outpaint": (0.5, 1, 1)}, "at least 1"),
-    ({"outpaint": (2, 1, 1), "anchor": "left"}, "unknown anchor"),
-    ({"outpaint": (2, 1, 1), "resize": (2, 1, 1)}, "one control at a time"),
-    ({"resize": (0, 1, 1)}, "positive numbers up to 8"),
-])
+@pytest.mark.parametrize(
+    "kw, words",
+    [
+        ({"regenerate": ((0.3, 0.3, 0.3), (0.6, 0.6, 0.6))}, "faces along at least one axis"),
+        ({"regenerate": ((0.5, 0, 0), (0.5, 1, 1))}, "empty along x"),
+        ({"regenerate": ((0, 0, 0), (1.2, 1, 1))}, "fractions of the model's box"),
+        ({"regenerate": ((0, 0), (1, 1))}, "two corners"),
+        ({"duplicate": (((0, 0, 0), (0.5, 1, 1)), (0.8, 0, 0))}, "does not fit"),
+        ({"duplicate": (((0, 0, 0), (0.5, 1, 1)), (0.2, 0, 0))}, "overlaps"),
+        ({"duplicate": ((0, 0, 0), (0.5, 1, 1))}, "two corners"),
+        ({"duplicate": (((0, 0, 0), (0.3, 1, 1)), (0.5, -1, 0))}, "copy to must be"),
+        ({"outpaint": (0.5, 1, 1)}, "at least 1"),
+        ({"outpaint": (2, 1, 1), "anchor": "left"}, "unknown anchor"),
+        ({"outpaint": (2, 1, 1), "resize": (2, 1, 1)}, "one control at a time"),
+        ({"resize": (0, 1, 1)}, "positive numbers up to 8"),
+    ],
+)
 def test_bad_requests_give_one_clear_error(model, kw, words):
     with pytest.raises(Sin3DMInputError, match=words):
         model.sample(1, progress=False, **kw)
@@ -126,13 +137,19 @@ def test_cli_controls_write_meshes_and_refuse_bad_boxes(model, tmp_path, capsys)
     run = tmp_path / "run"
     model.save(run)
     out = tmp_path / "out"
-    assert cli.main(["sample", str(run), "-n", "1", "--outpaint", "1.5", "1", "1", "--anchor", "x+",
-                     "--out", str(out)]) == 0
+    assert (
+        cli.main(["sample", str(run), "-n", "1", "--outpaint", "1.5", "1", "1", "--anchor", "x+", "--out", str(out)])
+        == 0
+    )
     assert (out / "000" / "mesh.obj").is_file() and (out / "index.html").is_file()
     capsys.readouterr()
     bad = tmp_path / "bad"
-    assert cli.main(["sample", str(run), "-n", "1", "--regenerate", "0.3", "0.3", "0.3", "0.6", "0.6", "0.6",
-                     "--out", str(bad)]) == 2
+    assert (
+        cli.main(
+            ["sample", str(run), "-n", "1", "--regenerate", "0.3", "0.3", "0.3", "0.6", "0.6", "0.6", "--out", str(bad)]
+        )
+        == 2
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "faces along at least one axis" in err[0] and not bad.exists()
 

@@ -1,4 +1,5 @@
 """Device and precision helpers."""
+
 import pytest
 import torch
 

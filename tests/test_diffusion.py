@@ -1,4 +1,5 @@
 """Noise schedule, training (loss, exact resume, checkpoints), DDPM / DDIM sampling, masked sampling."""
+
 import io
 
 import numpy as np
@@ -92,8 +93,9 @@ def test_bf16_training_keeps_fp32_weights_and_compile_is_gpu_only(h0):
     """The paper preset's GPU settings: bf16 autocast trains (loss in fp32, weights and EMA in fp32), and
     ``compile=True`` on a CPU trains the module as it is (torch.compile pays off only on a GPU)."""
     fp32 = DiffusionTrainer(h0, tiny_diffusion_cfg(steps=30), device="cpu", seed=1)
-    bf16 = DiffusionTrainer(h0, tiny_diffusion_cfg(steps=30, precision="bf16", compile=True, ema_decay=0.9),
-                            device="cpu", seed=1)
+    bf16 = DiffusionTrainer(
+        h0, tiny_diffusion_cfg(steps=30, precision="bf16", compile=True, ema_decay=0.9), device="cpu", seed=1
+    )
     assert bf16.train_forward is bf16.model
     fp32.run(progress=False)
     bf16.run(progress=False)
@@ -276,8 +278,22 @@ def test_diversity_moves_samples_from_the_start_latent_to_noise(h0, method):
     start = h0.map(lambda p: p * 0 + 0.8)  # a constant latent, far from pure noise
     dist = []
     for d in (0.0, 0.05, 0.3, 0.6, 1.0):
-        out = sample(gaussian_oracle, s, LATENT_RES, n=8, latent_channels=4, method=method, steps=20, seed=0,
-                     clip=False, device="cpu", prediction="x0", start=start, diversity=d, progress=False)
+        out = sample(
+            gaussian_oracle,
+            s,
+            LATENT_RES,
+            n=8,
+            latent_channels=4,
+            method=method,
+            steps=20,
+            seed=0,
+            clip=False,
+            device="cpu",
+            prediction="x0",
+            start=start,
+            diversity=d,
+            progress=False,
+        )
         dist.append(float(sum(((p - q) ** 2).mean() for p, q in zip(out.planes, start.planes))))
     assert dist[0] == 0.0
     assert all(a < b for a, b in zip(dist, dist[1:])), dist
@@ -292,8 +308,11 @@ def test_random_crops_cut_one_box_out_of_all_three_planes():
     x, y, z = 10, 6, 8
     # planes whose values encode their coordinates: xy = 100·x + y, xz = 100·x + z, yz = 100·y + z
     ix, iy, iz = (torch.arange(n, dtype=torch.float32) for n in (x, y, z))
-    h = Triplane((100 * ix[:, None] + iy[None])[None, None], (100 * ix[:, None] + iz[None])[None, None],
-                 (100 * iy[:, None] + iz[None])[None, None])
+    h = Triplane(
+        (100 * ix[:, None] + iy[None])[None, None],
+        (100 * ix[:, None] + iz[None])[None, None],
+        (100 * iy[:, None] + iz[None])[None, None],
+    )
     crops = random_crops(h, 16, 4, torch.Generator().manual_seed(0))
     assert crops.resolution == (4, 4, 4) and crops.batch == 16
     for b in range(16):

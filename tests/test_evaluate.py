@@ -1,4 +1,5 @@
 """``sin3dm-lite evaluate`` and ``Sin3DM.evaluate`` on the shipped model of the wall with two samples."""
+
 import json
 
 import pytest
@@ -22,16 +23,47 @@ def tiny_samples(tmp_path_factory):
     model = Sin3DM.load(pretrained_path("wall_small"))
     model.config.sampling = get_preset("tiny").sampling
     model.save(root / "run")
-    assert main(["sample", str(root / "run"), "-n", "2", "--out", str(root / "samples"), "--steps", "5",
-                 "--faces", "1500", "--texture-size", "128", "--no-pictures"]) == 0
+    assert (
+        main(
+            [
+                "sample",
+                str(root / "run"),
+                "-n",
+                "2",
+                "--out",
+                str(root / "samples"),
+                "--steps",
+                "5",
+                "--faces",
+                "1500",
+                "--texture-size",
+                "128",
+                "--no-pictures",
+            ]
+        )
+        == 0
+    )
     return root
 
 
 def test_evaluate_writes_the_metrics_as_json(tiny_samples, capsys):
     out = tiny_samples / "report" / "evaluation.json"
     capsys.readouterr()
-    code = main(["evaluate", str(tiny_samples / "run"), str(tiny_samples / "samples"), "--out", str(out),
-                 "--views", "4", "--size", "96", "--resolution", "32"])
+    code = main(
+        [
+            "evaluate",
+            str(tiny_samples / "run"),
+            str(tiny_samples / "samples"),
+            "--out",
+            str(out),
+            "--views",
+            "4",
+            "--size",
+            "96",
+            "--resolution",
+            "32",
+        ]
+    )
     text = capsys.readouterr().out
     assert code == 0 and "G-Div" in text and "LP-IoU" in text and "ssfid" in text
     r = json.loads(out.read_text())
@@ -49,8 +81,19 @@ def test_evaluate_writes_the_metrics_as_json(tiny_samples, capsys):
         assert m["sifid"] is None and m["lpips"] is None and "--weights" in r["skipped"]["sifid"]
     assert "evaluation.json" in read_manifest(out.parent)
     # the file is ours: refused without --overwrite, replaced with it
-    argv = ["evaluate", str(tiny_samples / "run"), str(tiny_samples / "samples"), "--out", str(out), "--views", "2",
-            "--size", "64", "--resolution", "32"]
+    argv = [
+        "evaluate",
+        str(tiny_samples / "run"),
+        str(tiny_samples / "samples"),
+        "--out",
+        str(out),
+        "--views",
+        "2",
+        "--size",
+        "64",
+        "--resolution",
+        "32",
+    ]
     assert main(argv) == 2 and "--overwrite" in capsys.readouterr().err
     assert main(argv + ["--overwrite"]) == 0 and json.loads(out.read_text())["views"] == 2
 

@@ -1,4 +1,5 @@
 """The built-in example shapes: valid, textured, deterministic, the right size."""
+
 from functools import cache
 
 import numpy as np

@@ -1,4 +1,5 @@
 """Every exercise check passes on its solution (notebooks/solutions/) and fails, naming the difference, on wrong answers."""
+
 import importlib.util
 import math
 from pathlib import Path
@@ -71,10 +72,17 @@ def test_q_sample_without_square_roots():
 
 
 def test_q_sample_off_by_one_and_a_crash():
-    fails(ex.check_q_sample, lambda x0, t, n, ab: solution("q_sample", "q_sample")(x0, (t + 1).clamp(max=999), n, ab),
-          "off by one")
-    fails(ex.check_q_sample, lambda x0, t, n, ab: ab[t].sqrt() * x0 + (1 - ab[t]).sqrt() * n,
-          "your q_sample raised RuntimeError", "[B, 1, 1, 1]")
+    fails(
+        ex.check_q_sample,
+        lambda x0, t, n, ab: solution("q_sample", "q_sample")(x0, (t + 1).clamp(max=999), n, ab),
+        "off by one",
+    )
+    fails(
+        ex.check_q_sample,
+        lambda x0, t, n, ab: ab[t].sqrt() * x0 + (1 - ab[t]).sqrt() * n,
+        "your q_sample raised RuntimeError",
+        "[B, 1, 1, 1]",
+    )
     fails(ex.check_q_sample, lambda x0, t, n, ab: x0[0], "returned shape")
 
 
@@ -119,6 +127,7 @@ def test_lookup_with_swapped_axes_corners_or_zero_padding():
                 f = F.grid_sample(plane, grid, padding_mode=padding, align_corners=corners)
                 feats.append(f[:, :, 0].transpose(1, 2))
             return torch.stack(feats, 2)
+
         return fn
 
     ex.check_triplane_lookup(variant())  # the variant machinery itself is right
@@ -254,5 +263,9 @@ def test_tangent_frames_with_the_usual_mistakes():
 
 def test_tangent_frames_with_t_and_b_swapped():
     right = solution("tangent_frames", "tangent_frames")
-    fails(sx.check_tangent_frames, lambda v, f, uv: (lambda t, b, n: (b, t, n))(*right(v, f, uv)), "your T differs",
-          "swapped T and B")
+    fails(
+        sx.check_tangent_frames,
+        lambda v, f, uv: (lambda t, b, n: (b, t, n))(*right(v, f, uv)),
+        "your T differs",
+        "swapped T and B",
+    )

@@ -1,4 +1,5 @@
 """Extracted meshes written to OBJ+MTL+PNG and GLB, read back with trimesh; files.atomic_folder."""
+
 import os
 
 import numpy as np
@@ -18,8 +19,7 @@ from .conftest import AABB, SphereDecoder, zero_triplane
 def sphere_mesh():
     tp = zero_triplane()
     norm = Normalization(center=np.array([10.0, 0.0, -5.0]), scale=0.25)  # the input file's frame
-    return ex.extract_mesh(SphereDecoder(), tp, AABB, normalization=norm, resolution=32, faces=2000,
-                           texture_size=256)
+    return ex.extract_mesh(SphereDecoder(), tp, AABB, normalization=norm, resolution=32, faces=2000, texture_size=256)
 
 
 def _check_reloaded(loaded: trimesh.Trimesh):
@@ -67,9 +67,13 @@ def test_failed_export_leaves_no_output_folder(sphere_mesh, tmp_path, monkeypatc
 def test_pbr_maps_reach_the_glb(sphere_mesh, tmp_path):
     from dataclasses import replace
 
-    mat = replace(sphere_mesh.materials[0], metallic=1.0, roughness=1.0,
-                  metallic_roughness_image=np.full((32, 32, 3), [0.0, 0.8, 0.3], np.float32),
-                  normal_image=np.full((32, 32, 3), [0.5, 0.5, 1.0], np.float32))
+    mat = replace(
+        sphere_mesh.materials[0],
+        metallic=1.0,
+        roughness=1.0,
+        metallic_roughness_image=np.full((32, 32, 3), [0.0, 0.8, 0.3], np.float32),
+        normal_image=np.full((32, 32, 3), [0.5, 0.5, 1.0], np.float32),
+    )
     paths = export_mesh(replace(sphere_mesh, materials=[mat]), tmp_path / "pbr", formats=("glb",))
     loaded = trimesh.load(paths["glb"], force="mesh").visual.material
     assert loaded.metallicRoughnessTexture is not None and loaded.normalTexture is not None

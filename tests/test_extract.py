@@ -1,4 +1,5 @@
 """Triplane → textured mesh, checked with an analytic decoder whose exact answer is known."""
+
 import functools
 
 import numpy as np
@@ -170,8 +171,8 @@ def test_query_points_value_does_not_depend_on_its_batch():
     pts = np.random.default_rng(0).uniform(-1, 1, (3001, 3)).astype(np.float32)
     all_at_once, _ = dc.query_points(dec, prepared, pts, color=False)
     for start, size in [(0, 1), (5, 3), (17, 1001), (1000, 2001)]:
-        part, _ = dc.query_points(dec, prepared, pts[start:start + size], color=False)
-        np.testing.assert_array_equal(part, all_at_once[start:start + size])
+        part, _ = dc.query_points(dec, prepared, pts[start : start + size], color=False)
+        np.testing.assert_array_equal(part, all_at_once[start : start + size])
     chunked, _ = dc.query_points(dec, prepared, pts, chunk=999, color=False)
     np.testing.assert_array_equal(chunked, all_at_once)
 
@@ -287,8 +288,16 @@ def test_pad_gutter_fills_near_islands_and_rest_with_mean():
 
 def test_extract_mesh_textured_steps_and_colours():
     dec = SphereDecoder()
-    mesh, steps = ex.extract_mesh(dec, zero_triplane(), AABB, resolution=32, faces=1500, texture_size=256,
-                                  original_coords=False, return_steps=True)
+    mesh, steps = ex.extract_mesh(
+        dec,
+        zero_triplane(),
+        AABB,
+        resolution=32,
+        faces=1500,
+        texture_size=256,
+        original_coords=False,
+        return_steps=True,
+    )
     assert dec.prepare_calls == 1
     assert {"sdf", "raw", "simplified", "uv", "texture", "covered", "seconds"} <= set(steps)
     assert steps["sdf"].shape == (24, 32, 20) and len(mesh.faces) <= 1500
@@ -350,8 +359,9 @@ def test_extract_mesh_original_coordinates_and_vertex_colours():
 def test_retargeted_box_gives_a_correspondingly_scaled_shape():
     dec = SphereDecoder()
     wide = AABB * np.array([2, 1, 1, 2, 1, 1])  # the triplane was sampled twice as long along x
-    mesh = ex.extract_mesh(dec, zero_triplane(res=(24, 16, 10)), wide, resolution=32, faces=3000,
-                           texture_size=128, original_coords=False)
+    mesh = ex.extract_mesh(
+        dec, zero_triplane(res=(24, 16, 10)), wide, resolution=32, faces=3000, texture_size=128, original_coords=False
+    )
     lo, hi = mesh.bounds
     voxel = (wide[3] - wide[0]) / 32
     np.testing.assert_allclose(hi, [1.0, 0.5, 0.5], atol=voxel / 2)

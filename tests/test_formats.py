@@ -5,6 +5,7 @@ The texture used throughout has four coloured quadrants so that a lookup can
 be checked by eye: in UV space (v up) the top-left quadrant (u < .5, v > .5)
 is red, top-right green, bottom-left blue, bottom-right yellow.
 """
+
 from __future__ import annotations
 
 import json
@@ -200,7 +201,11 @@ def test_multi_material_obj_uses_every_texture(tmp_path):
 
     out = save_obj(mesh, tmp_path / "w" / "two_out.obj")
     assert sorted(p.name for p in out.parent.iterdir()) == [
-        "two_out.mtl", "two_out.obj", "two_out_0.png", "two_out_1.png"]
+        "two_out.mtl",
+        "two_out.obj",
+        "two_out_0.png",
+        "two_out_1.png",
+    ]
     again = load_mesh(out)
     np.testing.assert_array_equal(again.face_material, [0, 1, 0])
     bc = np.full((3, 3), 1 / 3)
@@ -286,8 +291,9 @@ def test_obj_faces_polygons_and_triangles_read_alike(tmp_path):
 def test_obj_uv_scale_option(tmp_path):
     save_png(tmp_path / "t.png", quadrant_image())
     (tmp_path / "s.mtl").write_text("newmtl m\nmap_Kd -s 0.5 0.5 t.png\n")
-    (tmp_path / "s.obj").write_text("mtllib s.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 1\nvt 0 0\nvt 1 0\nvt 0 1\n"
-                                    "usemtl m\nf 1/1 2/2 3/3\n")
+    (tmp_path / "s.obj").write_text(
+        "mtllib s.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 1\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\n"
+    )
     mesh = load_mesh(tmp_path / "s.obj")
     np.testing.assert_allclose(mesh.face_uvs[0], [[0, 0], [0.5, 0], [0, 0.5]])
 
@@ -304,12 +310,14 @@ def test_obj_reader_keeps_what_trimesh_loses(tmp_path):
     """
     save_png(tmp_path / "a.png", quadrant_image())
     save_png(tmp_path / "b.png", quadrant_image(CYAN, MAGENTA, MAGENTA, CYAN))
-    (tmp_path / "m.mtl").write_text("newmtl A\nmap_Kd a.png\nnewmtl B\nmap_Kd -s 0.5 0.5 b.png\n"
-                                    "newmtl C\nKd 0 1 0\nmap_Kd gone.png\n")
+    (tmp_path / "m.mtl").write_text(
+        "newmtl A\nmap_Kd a.png\nnewmtl B\nmap_Kd -s 0.5 0.5 b.png\nnewmtl C\nKd 0 1 0\nmap_Kd gone.png\n"
+    )
     (tmp_path / "m.obj").write_text(
         "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\n"
         "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
-        "usemtl A\nf 1/1 2/2 3/3\nusemtl B\nf 2/1 5/2 6/3\nusemtl A\nf 1/1 3/3 4/4\nusemtl C\nf 3 6 4\n")
+        "usemtl A\nf 1/1 2/2 3/3\nusemtl B\nf 2/1 5/2 6/3\nusemtl A\nf 1/1 3/3 4/4\nusemtl C\nf 3 6 4\n"
+    )
     with pytest.warns(UserWarning, match="gone.png"):  # (3)
         mesh = load_mesh(tmp_path / "m.obj")
     assert [m.name for m in mesh.materials] == ["A", "B", "C"]
@@ -319,7 +327,6 @@ def test_obj_reader_keeps_what_trimesh_loses(tmp_path):
     np.testing.assert_allclose(mesh.face_uvs[1], [[0, 0], [0.5, 0], [0.5, 0.5]])  # ... and so is its scale
     np.testing.assert_allclose(lookup(mesh, 1, (0.8, 0.1, 0.1)), MAGENTA, atol=1e-6)  # b.png at uv (0.1, 0.05)
     np.testing.assert_allclose(lookup(mesh, 3, (1 / 3, 1 / 3, 1 / 3)), (0, 1, 0))  # C falls back to its Kd
-
 
 
 def test_obj_writer_keeps_what_trimesh_loses(tmp_path):
@@ -337,9 +344,17 @@ def test_obj_writer_keeps_what_trimesh_loses(tmp_path):
         vertices=np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0]], float),
         faces=np.array([[0, 1, 2], [1, 4, 2], [0, 2, 3]]),
         face_material=np.array([0, 1, 0]),
-        materials=[Material(name="A", image=quadrant_image().astype(np.float32) / 255, metallic=1.0, roughness=1.0,
-                            metallic_roughness_image=mr, normal_image=normal),
-                   Material(name="B", base_color=np.array([0.2, 0.4, 0.6, 1], np.float32))],
+        materials=[
+            Material(
+                name="A",
+                image=quadrant_image().astype(np.float32) / 255,
+                metallic=1.0,
+                roughness=1.0,
+                metallic_roughness_image=mr,
+                normal_image=normal,
+            ),
+            Material(name="B", base_color=np.array([0.2, 0.4, 0.6, 1], np.float32)),
+        ],
         face_uvs=rng.random((3, 3, 2)).astype(np.float32),
     )
     (tmp_path / "t").mkdir()
@@ -358,8 +373,13 @@ def test_obj_writer_keeps_what_trimesh_loses(tmp_path):
 
 # ====================================================================== glTF
 def test_glb_base_color_texture_and_factor(tmp_path):
-    mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
-                      baseColorFactor=uint8(0.5, 1, 1, 1), metallicFactor=0.0, roughnessFactor=0.5)
+    mat = PBRMaterial(
+        name="quad",
+        baseColorTexture=Image.fromarray(quadrant_image()),
+        baseColorFactor=uint8(0.5, 1, 1, 1),
+        metallicFactor=0.0,
+        roughnessFactor=0.5,
+    )
     textured_square_trimesh(mat).export(tmp_path / "sq.glb")
     mesh = load_mesh(tmp_path / "sq.glb")
     assert mesh.name == "sq" and len(mesh.materials) == 1
@@ -389,9 +409,14 @@ def test_glb_keeps_pbr_maps(tmp_path):
     mr[..., 1], mr[..., 2] = 128, 255  # roughness .5, metallic 1
     normal = np.zeros((8, 8, 3), np.uint8)
     normal[:] = (128, 128, 255)
-    mat = PBRMaterial(name="pbr", baseColorTexture=Image.fromarray(quadrant_image()),
-                      metallicFactor=0.3, roughnessFactor=0.6,
-                      metallicRoughnessTexture=Image.fromarray(mr), normalTexture=Image.fromarray(normal))
+    mat = PBRMaterial(
+        name="pbr",
+        baseColorTexture=Image.fromarray(quadrant_image()),
+        metallicFactor=0.3,
+        roughnessFactor=0.6,
+        metallicRoughnessTexture=Image.fromarray(mr),
+        normalTexture=Image.fromarray(normal),
+    )
     textured_square_trimesh(mat).export(tmp_path / "pbr.glb")
     m = load_mesh(tmp_path / "pbr.glb").materials[0]
     assert m.metallic == pytest.approx(0.3) and m.roughness == pytest.approx(0.6)
@@ -423,8 +448,12 @@ def _two_object_scene():
     box.visual = trimesh.visual.TextureVisuals(material=red)
     scene = trimesh.Scene()
     scene.add_geometry(box, node_name="box", geom_name="box")
-    scene.add_geometry(textured_square_trimesh(quad), node_name="square", geom_name="square",
-                       transform=trimesh.transformations.translation_matrix((10, 0, 0)))
+    scene.add_geometry(
+        textured_square_trimesh(quad),
+        node_name="square",
+        geom_name="square",
+        transform=trimesh.transformations.translation_matrix((10, 0, 0)),
+    )
     return scene
 
 
@@ -457,7 +486,9 @@ def _glb_with_json(glb: bytes, edit) -> bytes:
     js = json.dumps(header).encode()
     js += b" " * (-len(js) % 4)
     rest = glb[20 + n :]
-    return struct.pack("<4sII", b"glTF", 2, 20 + len(js) + len(rest)) + struct.pack("<II", len(js), 0x4E4F534A) + js + rest
+    return (
+        struct.pack("<4sII", b"glTF", 2, 20 + len(js) + len(rest)) + struct.pack("<II", len(js), 0x4E4F534A) + js + rest
+    )
 
 
 def test_multi_primitive_mesh(tmp_path):
@@ -484,8 +515,9 @@ def test_multi_primitive_mesh(tmp_path):
 
 
 def test_gltf_missing_external_texture_warns(tmp_path):
-    mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
-                      baseColorFactor=uint8(0.2, 0.4, 0.6, 1))
+    mat = PBRMaterial(
+        name="quad", baseColorTexture=Image.fromarray(quadrant_image()), baseColorFactor=uint8(0.2, 0.4, 0.6, 1)
+    )
     files = trimesh.Scene(textured_square_trimesh(mat)).export(file_type="gltf")
     header = json.loads(files["model.gltf"])
     header["images"] = [{"uri": "gone.png"}]  # point the image at a file that does not exist
@@ -500,8 +532,9 @@ def test_gltf_missing_external_texture_warns(tmp_path):
 
 
 def test_glb_corrupt_embedded_texture_warns(tmp_path):
-    mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
-                      baseColorFactor=uint8(0.2, 0.4, 0.6, 1))
+    mat = PBRMaterial(
+        name="quad", baseColorTexture=Image.fromarray(quadrant_image()), baseColorFactor=uint8(0.2, 0.4, 0.6, 1)
+    )
     glb = bytearray(textured_square_trimesh(mat).export(file_type="glb"))
     n, _ = struct.unpack_from("<II", glb, 12)
     header = json.loads(glb[20 : 20 + n])
@@ -533,8 +566,10 @@ def test_glb_vertex_colors_and_save_glb_multi_material(tmp_path):
     rng = np.random.default_rng(2)
     fi, bc = rng.integers(0, len(sq.faces), 100), random_bary(100, rng)
     # faces may be reordered (one primitive per material): compare by face position
-    order = [np.flatnonzero(np.all(np.isclose(again.vertices[again.faces].mean(1), c), axis=1))[0]
-             for c in sq.vertices[sq.faces].mean(1)]
+    order = [
+        np.flatnonzero(np.all(np.isclose(again.vertices[again.faces].mean(1), c), axis=1))[0]
+        for c in sq.vertices[sq.faces].mean(1)
+    ]
     np.testing.assert_allclose(again.colors_at(np.asarray(order)[fi], bc), sq.colors_at(fi, bc), atol=1 / 255)
     assert len(trimesh.load(out, force="scene").geometry) == 2
 
@@ -734,7 +769,9 @@ def test_image_arrays_are_scaled_clipped_and_left_alone():
     np.testing.assert_array_equal(out, [[[0.0, 0.25, 0.0], [1.0, 1.0, 0.0]]])
     np.testing.assert_array_equal(floats, keep)  # the caller's array is not modified
     assert out.dtype == np.float32 and out.flags.c_contiguous
-    np.testing.assert_array_equal(image_to_array(np.array([[7, 255]], np.uint8)), [[[np.float32(7) / 255] * 3, [1.0] * 3]])
+    np.testing.assert_array_equal(
+        image_to_array(np.array([[7, 255]], np.uint8)), [[[np.float32(7) / 255] * 3, [1.0] * 3]]
+    )
     np.testing.assert_array_equal(image_to_array(np.array([[True, False]])), [[[1.0] * 3, [0.0] * 3]])
 
 
@@ -787,9 +824,17 @@ def test_save_obj_pbr_maps_round_trip(tmp_path):
         vertices=np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 0, 1]], float),
         faces=np.array([[0, 1, 2], [0, 1, 3]]),
         face_material=np.array([0, 0]),
-        materials=[Material(name="pbr", base_color=np.ones(4, np.float32), image=np.ones((8, 8, 3), np.float32),
-                            metallic=1.0, roughness=1.0, metallic_roughness_image=mr,
-                            normal_image=np.tile(np.array([0.5, 0.5, 1.0], np.float32), (8, 8, 1)))],
+        materials=[
+            Material(
+                name="pbr",
+                base_color=np.ones(4, np.float32),
+                image=np.ones((8, 8, 3), np.float32),
+                metallic=1.0,
+                roughness=1.0,
+                metallic_roughness_image=mr,
+                normal_image=np.tile(np.array([0.5, 0.5, 1.0], np.float32), (8, 8, 1)),
+            )
+        ],
         face_uvs=rng.random((2, 3, 2)).astype(np.float32),
     )
     out = save_obj(mesh, tmp_path / "p.obj")
@@ -804,8 +849,10 @@ def test_save_obj_pbr_maps_round_trip(tmp_path):
 def test_to_trimesh_scene_texture_and_materials(tmp_path):
     save_png(tmp_path / "t.png", quadrant_image())
     (tmp_path / "t.mtl").write_text("newmtl m\nmap_Kd t.png\n")
-    (tmp_path / "t.obj").write_text("mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
-                                    "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
+    (tmp_path / "t.obj").write_text(
+        "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+    )
     (tm,) = to_trimesh_scene(load_mesh(tmp_path / "t.obj")).geometry.values()
     assert isinstance(tm.visual, trimesh.visual.TextureVisuals)
     assert tm.visual.uv.shape == (4, 2) and tm.visual.material.baseColorTexture.size == (16, 16)
@@ -840,8 +887,12 @@ def test_sample_texture_is_bilinear_between_texel_centres():
 def test_normalized_box_and_inverse():
     box = trimesh.creation.box(extents=(4.0, 2.0, 1.0))
     box.apply_translation((10, -3, 7))
-    mesh = TexturedMesh(vertices=np.asarray(box.vertices, float), faces=np.asarray(box.faces),
-                        face_material=np.zeros(12, np.int64), materials=[Material()])
+    mesh = TexturedMesh(
+        vertices=np.asarray(box.vertices, float),
+        faces=np.asarray(box.faces),
+        face_material=np.zeros(12, np.int64),
+        materials=[Material()],
+    )
     n = mesh.normalized()
     lo, hi = n.bounds
     np.testing.assert_allclose((hi - lo).max() * BOX_MARGIN, 2.0)
@@ -872,8 +923,9 @@ def test_loaded_files_produce_no_stray_warnings(tmp_path):
 
 def test_gltf_with_embedded_buffers_loads_without_warnings(tmp_path):
     """Images in a buffer view of a data-URI buffer (``embed_buffers``) are found, not reported missing."""
-    mat = PBRMaterial(name="quad", baseColorTexture=Image.fromarray(quadrant_image()),
-                      baseColorFactor=uint8(1, 1, 1, 1))
+    mat = PBRMaterial(
+        name="quad", baseColorTexture=Image.fromarray(quadrant_image()), baseColorFactor=uint8(1, 1, 1, 1)
+    )
     files = trimesh.Scene(textured_square_trimesh(mat)).export(file_type="gltf", embed_buffers=True)
     (tmp_path / "emb.gltf").write_bytes(files["model.gltf"])
     with warnings.catch_warnings():
@@ -946,9 +998,11 @@ def test_gltf_buffers_and_images_outside_the_folder_are_refused(tmp_path):
 
 def test_a_ply_texture_file_outside_the_folder_is_refused(tmp_path):
     folder, _ = _outside(tmp_path)
-    (folder / "t.ply").write_text("ply\nformat ascii 1.0\ncomment TextureFile ../secret/tex.png\nelement vertex 3\n"
-                                  "property float x\nproperty float y\nproperty float z\nelement face 1\n"
-                                  "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    (folder / "t.ply").write_text(
+        "ply\nformat ascii 1.0\ncomment TextureFile ../secret/tex.png\nelement vertex 3\n"
+        "property float x\nproperty float y\nproperty float z\nelement face 1\n"
+        "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    )
     with pytest.raises(Sin3DMInputError, match=r"the texture file '\.\./secret/tex\.png' is '"):
         load_mesh(folder / "t.ply")
     assert len(load_mesh(folder / "t.ply", allow_outside_paths=True).faces) == 1

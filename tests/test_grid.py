@@ -1,4 +1,5 @@
 """mesh → TSDF + colour grid: signs and distances against independent computations."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -123,7 +124,9 @@ def test_inside_out_parts_are_turned_round_with_a_warning():
     sphere = trimesh.creation.icosphere(subdivisions=3)
     right = mesh_to_grid(textured(sphere), 32, n_surface_points=0, progress=False)
     with pytest.warns(UserWarning, match="'m' is inside out"):
-        inverted = mesh_to_grid(textured(trimesh.Trimesh(sphere.vertices, sphere.faces[:, ::-1])), 32, n_surface_points=0, progress=False)
+        inverted = mesh_to_grid(
+            textured(trimesh.Trimesh(sphere.vertices, sphere.faces[:, ::-1])), 32, n_surface_points=0, progress=False
+        )
     assert (right.sdf < 0).sum() > 1000
     np.testing.assert_array_equal(inverted.sdf, right.sdf)
     # several parts: only the closed, inside-out box is flipped; the others keep their inside
@@ -182,7 +185,13 @@ def test_colour_from_known_texture():
     tex[32:, :32] = [0, 0, 1]
     tex[32:, 32:] = [1, 1, 0]
     uv = (v[:, :2] + 1) / 2  # planar projection: u = x, v = y
-    mesh = TexturedMesh(v, f, np.zeros(len(f), np.int64), [Material(base_color=np.ones(4, np.float32), image=tex)], face_uvs=uv[f].astype(np.float32))
+    mesh = TexturedMesh(
+        v,
+        f,
+        np.zeros(len(f), np.int64),
+        [Material(base_color=np.ones(4, np.float32), image=tex)],
+        face_uvs=uv[f].astype(np.float32),
+    )
     g = mesh_to_grid(mesh, 32, n_surface_points=2000, progress=False)
     c = g.voxel_centers()
     top = np.argmin(np.abs(c[0, 0, :, 2] - 0.1 * g.normalization.scale))  # voxel layer at the top face
@@ -198,7 +207,13 @@ def test_colour_from_known_texture():
 
 
 def test_training_points_are_near_the_surface_with_exact_values():
-    g = mesh_to_grid(textured(trimesh.creation.icosphere(subdivisions=4)), 32, n_surface_points=5000, near_surface_sigma=0.01, progress=False)
+    g = mesh_to_grid(
+        textured(trimesh.creation.icosphere(subdivisions=4)),
+        32,
+        n_surface_points=5000,
+        near_surface_sigma=0.01,
+        progress=False,
+    )
     assert g.points.shape == (5000, 3) and g.point_sdf.shape == (5000,) and g.point_color.shape == (5000, 3)
     r = np.linalg.norm(g.points, axis=1) - 1 / 1.03
     assert np.abs(r).mean() < 0.02
@@ -229,8 +244,9 @@ def test_bad_resolution_is_a_clear_error(res):
 
 def test_thin_share_tells_thin_parts_from_solid_ones():
     """A row of slats 2 voxels thick (6 at 96 voxels) is all thin; one block is not; the slats are less thin on a finer grid."""
-    slats = trimesh.util.concatenate([trimesh.creation.box(extents=(0.1, 0.8, 0.8)).apply_translation((x, 0, 0))
-                                      for x in np.linspace(-0.8, 0.8, 6)])
+    slats = trimesh.util.concatenate(
+        [trimesh.creation.box(extents=(0.1, 0.8, 0.8)).apply_translation((x, 0, 0)) for x in np.linspace(-0.8, 0.8, 6)]
+    )
     block = trimesh.creation.box(extents=(1.0, 0.8, 0.8))
     thin32 = mesh_to_grid(textured(slats), 32, n_surface_points=0, progress=False).thin_share()
     thin96 = mesh_to_grid(textured(slats), 96, n_surface_points=0, progress=False).thin_share()
@@ -264,8 +280,10 @@ def test_an_open_mesh_or_a_triangle_soup_says_that_its_inside_is_approximate():
     tri = tri - 0.02 * (tri - tri.mean(1, keepdims=True))  # every triangle shrunk a little: none touches another
     soup = trimesh.Trimesh(tri.reshape(-1, 3), np.arange(tri.size // 3).reshape(-1, 3), process=False)
     notes = _grid_warnings(textured(soup))
-    assert len(notes) == 1 and notes[0].startswith("'m' is a triangle soup (no two faces share an edge): inside and "
-                                                   "outside come from the generalised winding number")
+    assert len(notes) == 1 and notes[0].startswith(
+        "'m' is a triangle soup (no two faces share an edge): inside and "
+        "outside come from the generalised winding number"
+    )
     cup = trimesh.Trimesh(sphere.vertices, sphere.faces[sphere.triangles_center[:, 2] < 0.9])
     notes = _grid_warnings(textured(cup))
     assert len(notes) == 1 and notes[0].startswith("'m' is not watertight (")

@@ -1,4 +1,5 @@
 """The 2D lesson's module: an image as a flat triplane, the forward process, the two denoisers, copy or recombine."""
+
 import numpy as np
 from matplotlib.figure import Figure
 

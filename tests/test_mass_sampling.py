@@ -1,4 +1,5 @@
 """Mass generation: per-sample seeds, two processes under torchrun, a killed run continued, one sample drawn again."""
+
 import json
 import os
 import signal
@@ -28,8 +29,14 @@ def _cli(*argv, torchrun: int = 0, **kw) -> subprocess.Popen:
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
         launcher = ["-m", "torch.distributed.run", f"--nproc_per_node={torchrun}", f"--master_port={port}"]
-    return subprocess.Popen([sys.executable, *launcher, "-m", "sin3dm_lite.cli", *argv], env=ENV,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+    return subprocess.Popen(
+        [sys.executable, *launcher, "-m", "sin3dm_lite.cli", *argv],
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kw,
+    )
 
 
 def _ok(p: subprocess.Popen, timeout=600) -> str:

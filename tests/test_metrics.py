@@ -1,4 +1,5 @@
 """Geometry metrics on shapes whose answers are known by construction."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -128,8 +129,9 @@ def test_voxelize_fills_nested_and_separate_shells():
     two = trimesh.util.concatenate([a, b])
     occ2 = M.voxelize(two, box, 64)
     assert occ2.shape == (64, 32, 32)
-    xs, ys, zs = np.meshgrid(*[box[i] + (np.arange(n) + 0.5) / n * (box[i + 3] - box[i])
-                               for i, n in enumerate(occ2.shape)], indexing="ij")
+    xs, ys, zs = np.meshgrid(
+        *[box[i] + (np.arange(n) + 0.5) / n * (box[i + 3] - box[i]) for i, n in enumerate(occ2.shape)], indexing="ij"
+    )
     truth = np.minimum((xs + 0.5) ** 2, (xs - 0.5) ** 2) + ys**2 + zs**2 < 0.3**2
     assert M.iou(occ2, truth) > 0.97
 

@@ -4,6 +4,7 @@ A notebook whose metadata records no digest yet is skipped (its outputs have
 not been made); one whose recorded digest no longer matches its code cells
 fails, naming the command that makes them again.
 """
+
 from pathlib import Path
 
 import nbformat
@@ -27,9 +28,16 @@ def test_outputs_match_the_code(path):
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
 def test_no_widget_state(path):
     nb = nbformat.read(path, as_version=4)
-    assert "widgets" not in nb.metadata, f"{path.name} holds widget state: run `{notebook_run.COMMAND} notebooks/{path.name}`"
-    views = [i for i, c in enumerate(nb.cells) if c.cell_type == "code"
-             for o in c.get("outputs", []) if notebook_run.WIDGET_MIME in o.get("data", {})]
+    assert "widgets" not in nb.metadata, (
+        f"{path.name} holds widget state: run `{notebook_run.COMMAND} notebooks/{path.name}`"
+    )
+    views = [
+        i
+        for i, c in enumerate(nb.cells)
+        if c.cell_type == "code"
+        for o in c.get("outputs", [])
+        if notebook_run.WIDGET_MIME in o.get("data", {})
+    ]
     assert not views, f"{path.name}: widget views in cells {views}"
 
 
@@ -71,10 +79,12 @@ def test_a_stale_digest_is_reported_with_the_command():
 
 def test_strip_widgets_keeps_the_static_picture():
     widget = {"model_id": "abc", "version_major": 2, "version_minor": 0}
-    outs = [nbformat.v4.new_output("display_data", data={notebook_run.WIDGET_MIME: widget, "text/plain": "Plot(...)"}),
-            nbformat.v4.new_output("display_data", data={notebook_run.WIDGET_MIME: widget, "image/png": "iVBOR"}),
-            nbformat.v4.new_output("display_data", data={"image/png": "iVBOR", "text/plain": "<Figure>"}),
-            nbformat.v4.new_output("stream", text="hello\n")]
+    outs = [
+        nbformat.v4.new_output("display_data", data={notebook_run.WIDGET_MIME: widget, "text/plain": "Plot(...)"}),
+        nbformat.v4.new_output("display_data", data={notebook_run.WIDGET_MIME: widget, "image/png": "iVBOR"}),
+        nbformat.v4.new_output("display_data", data={"image/png": "iVBOR", "text/plain": "<Figure>"}),
+        nbformat.v4.new_output("stream", text="hello\n"),
+    ]
     nb = _notebook(["show()"], outs)
     nb.metadata["widgets"] = {"application/vnd.jupyter.widget-state+json": {"state": {}}}
     assert notebook_run.strip_widgets(nb) == 1
@@ -86,8 +96,12 @@ def test_strip_widgets_keeps_the_static_picture():
 
 def test_the_tool_runs_a_notebook_and_records_it(tmp_path):
     path = tmp_path / "tiny.ipynb"
-    nb = _notebook(["import os, ipywidgets\nprint('fast' if os.environ.get('SIN3DM_FAST') else 'reading')",
-                    "ipywidgets.IntSlider(3)"])
+    nb = _notebook(
+        [
+            "import os, ipywidgets\nprint('fast' if os.environ.get('SIN3DM_FAST') else 'reading')",
+            "ipywidgets.IntSlider(3)",
+        ]
+    )
     nbformat.write(nb, path)
     meta = notebook_run.run_notebook(path, fast=True, timeout=120)
     done = nbformat.read(path, as_version=4)

@@ -1,4 +1,5 @@
 """notebooks/conftest.py: the notebook runner polls its kernel in short slices (the stall of issue 9)."""
+
 import asyncio
 import importlib.util
 from pathlib import Path

@@ -1,4 +1,5 @@
 """The notebooks read as lessons: short enough, a reading time at the top, exercises at the end."""
+
 import json
 import re
 from pathlib import Path
@@ -22,10 +23,12 @@ def test_a_lesson_not_a_log(path):
     cells = _cells(path)
     words = sum(len(re.findall(r"\w+", _markdown(c))) for c in cells)  # \w+: LaTeX and code count too
     assert words <= MAX_WORDS, f"{path.name} has {words} words of markdown (at most {MAX_WORDS}): move details to docs/"
-    assert re.search(r"\*Reading run: about \d+ minutes? on a 2-core CPU", _markdown(cells[0])), \
+    assert re.search(r"\*Reading run: about \d+ minutes? on a 2-core CPU", _markdown(cells[0])), (
         f"{path.name}: the first cell should say how long a reading run takes"
-    assert not re.search(r"\b20\d\d-\d\d-\d\d\b", "".join(_markdown(c) for c in cells)), \
+    )
+    assert not re.search(r"\b20\d\d-\d\d-\d\d\b", "".join(_markdown(c) for c in cells)), (
         f"{path.name} quotes a dated measurement: it belongs in docs/"
+    )
     control = [c for c in cells for ch in "".join(c["source"]) if ch in "\a\b\v\f"]
     assert not control, f"{path.name}: a control character in a cell (a LaTeX backslash lost to a Python string?)"
 

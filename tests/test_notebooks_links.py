@@ -6,6 +6,7 @@ not followed. A target ``file#anchor`` must name an existing file, and, for a
 Markdown file or a notebook, a heading whose GitHub anchor is ``anchor``; a bare
 ``#anchor`` refers to a heading of the same file.
 """
+
 import json
 import re
 from pathlib import Path
@@ -91,10 +92,17 @@ def test_the_notebooks_link_to_each_other():
 
 
 def test_the_parser_finds_links_and_skips_code():
-    text = ("see [03](03_diffusion_on_triplanes.ipynb), ![pic](docs/a%20b.png \"title\") and [web](https://x.org)\n"
-            "`[not](a_link.md)`\n```\n[nor](this.md)\n```\n[sec](#a-heading) [f(x)](docs/f(x).md)")
-    assert links(text) == ["03_diffusion_on_triplanes.ipynb", "docs/a%20b.png", "https://x.org", "#a-heading",
-                           "docs/f(x).md"]
+    text = (
+        'see [03](03_diffusion_on_triplanes.ipynb), ![pic](docs/a%20b.png "title") and [web](https://x.org)\n'
+        "`[not](a_link.md)`\n```\n[nor](this.md)\n```\n[sec](#a-heading) [f(x)](docs/f(x).md)"
+    )
+    assert links(text) == [
+        "03_diffusion_on_triplanes.ipynb",
+        "docs/a%20b.png",
+        "https://x.org",
+        "#a-heading",
+        "docs/f(x).md",
+    ]
     assert slug("1 · The input shape") == "1--the-input-shape"
     assert slug("Diversity ↔ fidelity") == "diversity--fidelity"
     assert slug("Measured (`bench.py`, 2 cores)") == "measured-benchpy-2-cores"
@@ -102,15 +110,35 @@ def test_the_parser_finds_links_and_skips_code():
 
 
 def test_a_dead_link_is_reported(tmp_path):
-    (tmp_path / "01_here.ipynb").write_text(json.dumps({"cells": [
-        {"cell_type": "markdown", "metadata": {}, "source": ["## 2 · A section\n"]}]}), encoding="utf-8")
+    (tmp_path / "01_here.ipynb").write_text(
+        json.dumps({"cells": [{"cell_type": "markdown", "metadata": {}, "source": ["## 2 · A section\n"]}]}),
+        encoding="utf-8",
+    )
     nb = tmp_path / "00_broken.ipynb"
-    nb.write_text(json.dumps({"cells": [
-        {"cell_type": "markdown", "metadata": {}, "source": [
-            "Go on to [the next one](01_here.ipynb), [its section](01_here.ipynb#2--a-section), ",
-            "[a lost one](02_missing.ipynb), [a lost heading](01_here.ipynb#3--nowhere) and [web](https://example.org)."]},
-        {"cell_type": "code", "metadata": {}, "source": ["# [ignored](nowhere.ipynb)"], "outputs": [],
-         "execution_count": None}]}), encoding="utf-8")
+    nb.write_text(
+        json.dumps(
+            {
+                "cells": [
+                    {
+                        "cell_type": "markdown",
+                        "metadata": {},
+                        "source": [
+                            "Go on to [the next one](01_here.ipynb), [its section](01_here.ipynb#2--a-section), ",
+                            "[a lost one](02_missing.ipynb), [a lost heading](01_here.ipynb#3--nowhere) and [web](https://example.org).",
+                        ],
+                    },
+                    {
+                        "cell_type": "code",
+                        "metadata": {},
+                        "source": ["# [ignored](nowhere.ipynb)"],
+                        "outputs": [],
+                        "execution_count": None,
+                    },
+                ]
+            }
+        ),
+        encoding="utf-8",
+    )
     bad = broken_links(nb)
     assert len(bad) == 2, bad
     assert bad[0].startswith("02_missing.ipynb") and "3--nowhere" in bad[1]

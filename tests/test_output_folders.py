@@ -1,5 +1,6 @@
 """Who may write where: one writer per folder, ``--overwrite`` of one command replaces only that command's
 files, nothing is written before every flag is checked, and a copied folder stays ours (issue 35)."""
+
 import fcntl
 import json
 import os
@@ -16,8 +17,19 @@ from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.files import LOCK, MANIFEST, read_manifest
 from sin3dm_lite.pretrained import pretrained_path
 
-CHEAP = ["--steps", "3", "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64", "--no-pictures",
-         "--workers", "0"]
+CHEAP = [
+    "--steps",
+    "3",
+    "--mesh-resolution",
+    "32",
+    "--faces",
+    "500",
+    "--texture-size",
+    "64",
+    "--no-pictures",
+    "--workers",
+    "0",
+]
 
 
 @pytest.fixture(scope="module")
@@ -38,8 +50,10 @@ def work(template, tmp_path, monkeypatch):
 
 
 def snapshot(root: Path) -> dict:
-    return {p.relative_to(root).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else "folder"
-            for p in root.rglob("*")}
+    return {
+        p.relative_to(root).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else "folder"
+        for p in root.rglob("*")
+    }
 
 
 def one_error_line(capsys) -> str:
@@ -145,8 +159,7 @@ def test_a_copied_samples_folder_continues_and_overwrites(work, capsys):
 def test_render_overwrite_into_a_samples_folder_keeps_the_samples(work, capsys):
     samples = work / "samples"
     before = {f: (samples / f).read_bytes() for f in read_manifest(samples)}
-    assert main(["render", "canyon", "--views", "2", "--size", "16", "--out", "samples",
-                 "--overwrite"]) == 0
+    assert main(["render", "canyon", "--views", "2", "--size", "16", "--out", "samples", "--overwrite"]) == 0
     assert {f: (samples / f).read_bytes() for f in before} == before  # meshes, latents, index, settings: all there
     ours = read_manifest(samples)
     assert set(before) | {"view_000.png", "view_001.png", "hero.png", "contact_sheet.png"} == set(ours)
@@ -205,10 +218,13 @@ def test_a_sample_run_that_fails_before_its_first_sample_leaves_nothing(work, ca
 def test_a_folder_whose_run_was_killed_before_its_first_sample_takes_other_settings(work, capsys):
     out = work / "killed"
     out.mkdir()
-    files.write_recorded(out / "sampling.json", json.dumps({"tool": "sin3dm-lite", "kind": "samples", "run": "run",
-                                                            "settings": {"steps": 1000}}))
+    files.write_recorded(
+        out / "sampling.json",
+        json.dumps({"tool": "sin3dm-lite", "kind": "samples", "run": "run", "settings": {"steps": 1000}}),
+    )
     (out / LOCK).write_text(json.dumps({"pid": dead_pid(), "host": os.uname().nodename, "since": "then"}))
     assert main(["sample", "run", "--out", "killed", "-n", "1", *CHEAP]) == 0
     assert json.loads((out / "sampling.json").read_text())["settings"]["steps"] == 3
-    assert set(read_manifest(out)) == {p.relative_to(out).as_posix() for p in out.rglob("*")
-                                       if p.is_file() and p.name != MANIFEST}
+    assert set(read_manifest(out)) == {
+        p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file() and p.name != MANIFEST
+    }

@@ -1,4 +1,5 @@
 """pyproject.toml and environment.yml list the same dependencies; README holds the CI command."""
+
 import re
 import subprocess
 from pathlib import Path
@@ -34,8 +35,15 @@ def test_readme_test_command_is_what_ci_runs():
     ci = (ROOT / ".ci" / "run").read_text()
     assert "test-command" in ci and "bash -eo pipefail -c" in ci
     cmd = subprocess.run(
-        ["bash", "-c", "sed -n '/<!-- test-command -->/,/<!-- \\/test-command -->/p' README.md | sed -n '/^```/,/^```/p' | sed '1d;$d'"],
-        cwd=ROOT, capture_output=True, text=True, check=True,
+        [
+            "bash",
+            "-c",
+            "sed -n '/<!-- test-command -->/,/<!-- \\/test-command -->/p' README.md | sed -n '/^```/,/^```/p' | sed '1d;$d'",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
     ).stdout.strip()
     assert cmd == block.group(1).strip()
     assert "pytest" in cmd and "torch==" in cmd

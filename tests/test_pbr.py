@@ -1,4 +1,5 @@
 """The PBR variant end to end: example maps → 8-channel grid → autoencoder with two more heads → baked maps → GLB."""
+
 import numpy as np
 import pytest
 import torch
@@ -31,8 +32,17 @@ def closest_points(points, mesh):
 
 def tiny_grid(mesh, **kw):
     g = TINY.grid
-    return mesh_to_grid(mesh, g.resolution, g.threshold_voxels, g.n_surface_points, g.near_surface_sigma, 0, False,
-                        margin_voxels=g.margin_voxels, **kw)
+    return mesh_to_grid(
+        mesh,
+        g.resolution,
+        g.threshold_voxels,
+        g.n_surface_points,
+        g.near_surface_sigma,
+        0,
+        False,
+        margin_voxels=g.margin_voxels,
+        **kw,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -56,8 +66,16 @@ def fitted(tiles_grid):
 def exported(fitted, tiles_grid, tmp_path_factory):
     model, h0, _ = fitted
     s = TINY.sampling
-    mesh, steps = extract_mesh(model.decoder, h0, tiles_grid.aabb, tiles_grid.normalization, resolution=s.mesh_resolution,
-                               faces=s.faces, texture_size=s.texture_size, return_steps=True)
+    mesh, steps = extract_mesh(
+        model.decoder,
+        h0,
+        tiles_grid.aabb,
+        tiles_grid.normalization,
+        resolution=s.mesh_resolution,
+        faces=s.faces,
+        texture_size=s.texture_size,
+        return_steps=True,
+    )
     paths = export_mesh(mesh, tmp_path_factory.mktemp("pbr"), "sample")
     return mesh, steps, paths
 
@@ -200,7 +218,12 @@ def test_input_without_pbr_is_unchanged(box_grid):
     assert tr.model.encoder.tex.in_channels == 4 and tr.model.decoder.tex_mlp.out.out_features == 3
     assert tr.loss_names == ("loss", "sdf", "color") and set(tr.history) == {"loss", "sdf", "color"}
     assert set(reconstruction_metrics(box_grid, box_grid)) == {
-        "sign_accuracy", "occupancy_iou", "occupancy_iou_quarter_voxel", "color_l1", "color_psnr"}
+        "sign_accuracy",
+        "occupancy_iou",
+        "occupancy_iou_quarter_voxel",
+        "color_l1",
+        "color_psnr",
+    }
 
 
 def test_plot_pbr_figures(tiles, tiles_grid):

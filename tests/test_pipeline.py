@@ -1,4 +1,5 @@
 """Sin3DM end to end on a very small setting: run folder, report, save/load, resume, sampling, meshes."""
+
 import json
 import os
 import signal
@@ -114,11 +115,13 @@ def test_resume_refuses_another_input_or_other_settings_and_writes_nothing(fitte
     shutil.copytree(full, run)
     assert json.loads((run / INPUT_FILE).read_text())["config"] == micro_config().to_dict()
     before = snapshot(run)
-    for kwargs, words in [({"source": "canyon"}, "was fitted to the example 'wall', not the example 'canyon'"),
-                          ({"preset": "tiny"}, "other settings (grid.resolution 24 there, 32 now;"),
-                          ({"preset": "small"}, "other settings (preset 'tiny' there, 'small' now;"),
-                          ({"seed": 3}, "other settings (seed 0 there, 3 now)"),
-                          ({"pbr": True}, "autoencoder.pbr False there, True now")]:
+    for kwargs, words in [
+        ({"source": "canyon"}, "was fitted to the example 'wall', not the example 'canyon'"),
+        ({"preset": "tiny"}, "other settings (grid.resolution 24 there, 32 now;"),
+        ({"preset": "small"}, "other settings (preset 'tiny' there, 'small' now;"),
+        ({"seed": 3}, "other settings (seed 0 there, 3 now)"),
+        ({"pbr": True}, "autoencoder.pbr False there, True now"),
+    ]:
         with pytest.raises(Sin3DMInputError, match=re.escape(words)):
             Sin3DM.fit(**{"source": "wall", **kwargs}, out=run, resume=True, progress=False)
         assert snapshot(run) == before, kwargs  # nothing written, no lock left
@@ -129,8 +132,11 @@ def test_resume_refuses_another_input_or_other_settings_and_writes_nothing(fitte
     cfg = micro_config().updated(**{"autoencoder.steps": 2, "diffusion.steps": 2})
     Sin3DM.fit(str(tmp_path / "box.obj"), preset=cfg, out=tmp_path / "box", progress=False)
     before = snapshot(tmp_path / "box")
-    with pytest.raises(Sin3DMInputError, match="was fitted to '.*box.obj', not '.*other.obj'; resume it with that "
-                                               "input, or fit '.*other.obj' into a new --out"):
+    with pytest.raises(
+        Sin3DMInputError,
+        match="was fitted to '.*box.obj', not '.*other.obj'; resume it with that "
+        "input, or fit '.*other.obj' into a new --out",
+    ):
         Sin3DM.fit(str(tmp_path / "other.obj"), preset=cfg, out=tmp_path / "box", resume=True, progress=False)
     assert snapshot(tmp_path / "box") == before
     resumed = Sin3DM.fit(str(tmp_path / "renamed.obj"), preset=cfg, out=tmp_path / "box", resume=True, progress=False)
@@ -289,8 +295,9 @@ def test_input_mesh_is_the_example_or_the_file_the_run_was_fitted_to(fitted, tmp
     model, run = fitted
     assert len(model.input_mesh().faces) == len(build_example("wall").faces)  # an example: built again
     mesh_file = write_example("wall", tmp_path / "mine")  # a file of the user's: read again from where it was
-    fitted_file = Sin3DM.fit(mesh_file, preset=micro_config().updated(**{"diffusion.steps": 2}), out=tmp_path / "run",
-                             progress=False)
+    fitted_file = Sin3DM.fit(
+        mesh_file, preset=micro_config().updated(**{"diffusion.steps": 2}), out=tmp_path / "run", progress=False
+    )
     reloaded = Sin3DM.load(tmp_path / "run")
     assert reloaded.report["input_path"] == str(mesh_file.resolve())
     assert len(reloaded.input_mesh().faces) == len(fitted_file.input_mesh().faces) > 0
@@ -306,8 +313,15 @@ def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, caps
     and records the settings it used, so that the run folder loads and resumes as what it is."""
     from sin3dm_lite.data.grid import load_grid
 
-    cfg = micro_config().updated(**{"name": "small", "grid.resolution": 32, "autoencoder.steps": 2, "diffusion.steps": 2,
-                                    "thin_parts": {"grid.resolution": 40, "diffusion.n_resblocks": 3}})
+    cfg = micro_config().updated(
+        **{
+            "name": "small",
+            "grid.resolution": 32,
+            "autoencoder.steps": 2,
+            "diffusion.steps": 2,
+            "thin_parts": {"grid.resolution": 40, "diffusion.n_resblocks": 3},
+        }
+    )
     model = Sin3DM.fit("tiles", preset=cfg, out=tmp_path / "tiles", progress=True)
     out = capsys.readouterr().out
     assert "lies in parts under ~5 voxels thick at 32 voxels" in out and "fitting at 40 voxels" in out
@@ -359,15 +373,31 @@ def test_settings_from_text_keep_their_kinds():
     from sin3dm_lite.data.config import parse_settings
     from sin3dm_lite.errors import Sin3DMInputError
 
-    changes = parse_settings(["diffusion.rollout=True", "diffusion.steps=1500", "sampling.diversity=0.5",
-                              "sampling.method=ddpm", "autoencoder.precision = fp32"])
-    assert changes == {"diffusion.rollout": True, "diffusion.steps": 1500, "sampling.diversity": 0.5,
-                       "sampling.method": "ddpm", "autoencoder.precision": "fp32"}
+    changes = parse_settings(
+        [
+            "diffusion.rollout=True",
+            "diffusion.steps=1500",
+            "sampling.diversity=0.5",
+            "sampling.method=ddpm",
+            "autoencoder.precision = fp32",
+        ]
+    )
+    assert changes == {
+        "diffusion.rollout": True,
+        "diffusion.steps": 1500,
+        "sampling.diversity": 0.5,
+        "sampling.method": "ddpm",
+        "autoencoder.precision": "fp32",
+    }
     assert parse_settings(["diffusion.rollout=false"]) == {"diffusion.rollout": False}
     cfg = get_preset("small").updated(**{**changes, "sampling.diversity": 1})  # an integer is a number too
     assert cfg.diffusion.rollout is True and cfg.diffusion.steps == 1500 and cfg.sampling.diversity == 1
-    for bad, words in [({"diffusion.steps": "many"}, "whole number"), ({"diffusion.rollout": 1}, "true or false"),
-                       ({"sampling.diversity": "high"}, "a number"), ({"diffusion.stepz": 3}, "unknown")]:
+    for bad, words in [
+        ({"diffusion.steps": "many"}, "whole number"),
+        ({"diffusion.rollout": 1}, "true or false"),
+        ({"sampling.diversity": "high"}, "a number"),
+        ({"diffusion.stepz": 3}, "unknown"),
+    ]:
         with pytest.raises(Sin3DMInputError, match=words):
             get_preset("small").updated(**bad)
     with pytest.raises(Sin3DMInputError, match="SETTING=VALUE"):
@@ -384,19 +414,21 @@ def test_every_setting_is_checked_against_its_range_where_a_config_is_made(tmp_p
     assert set(_settings(tiny.to_dict())) == set(LIMITS)  # every setting has a rule
     for name in ("tiny", "small", "quick", "detail", "paper"):
         get_preset(name).check()  # the presets keep their own rules
-    for bad, words in [({"autoencoder.steps": -5}, "'autoencoder.steps' must be a whole number from 1 to"),
-                       ({"diffusion.steps": 0}, "'diffusion.steps' must be a whole number from 1 to"),
-                       ({"sampling.diversity": 5}, "'sampling.diversity' must be a number from 0 to 1, not 5"),
-                       ({"sampling.diversity": float("nan")}, "from 0 to 1"),
-                       ({"sampling.method": "euler"}, "one of 'ddim', 'ddpm'"),
-                       ({"autoencoder.decoder_kernel": 4}, "one of 1, 3, 5"),
-                       ({"diffusion.beta_start": 0.5}, "below diffusion.beta_end"),
-                       ({"sampling.steps": 5000}, "diffusion.timesteps"),
-                       ({"thin_parts": {"grid.resolution": 8}}, r"thin_parts\['grid.resolution'\] must be"),
-                       ({"nosuch.key": 1}, "SECTION one of autoencoder, diffusion, grid, sampling"),
-                       ({"diffusion.stpes": 3}, "did you mean 'diffusion.steps'"),
-                       ({"diffusion.foo": 3}, "the diffusion settings are: base_channels"),
-                       ({"diffusion.steps.x": 3}, "unknown config setting")]:
+    for bad, words in [
+        ({"autoencoder.steps": -5}, "'autoencoder.steps' must be a whole number from 1 to"),
+        ({"diffusion.steps": 0}, "'diffusion.steps' must be a whole number from 1 to"),
+        ({"sampling.diversity": 5}, "'sampling.diversity' must be a number from 0 to 1, not 5"),
+        ({"sampling.diversity": float("nan")}, "from 0 to 1"),
+        ({"sampling.method": "euler"}, "one of 'ddim', 'ddpm'"),
+        ({"autoencoder.decoder_kernel": 4}, "one of 1, 3, 5"),
+        ({"diffusion.beta_start": 0.5}, "below diffusion.beta_end"),
+        ({"sampling.steps": 5000}, "diffusion.timesteps"),
+        ({"thin_parts": {"grid.resolution": 8}}, r"thin_parts\['grid.resolution'\] must be"),
+        ({"nosuch.key": 1}, "SECTION one of autoencoder, diffusion, grid, sampling"),
+        ({"diffusion.stpes": 3}, "did you mean 'diffusion.steps'"),
+        ({"diffusion.foo": 3}, "the diffusion settings are: base_channels"),
+        ({"diffusion.steps.x": 3}, "unknown config setting"),
+    ]:
         with pytest.raises(Sin3DMInputError, match=words):
             tiny.updated(**bad)
     with pytest.raises(Sin3DMInputError, match="'sampling.diversity' must be"):  # the Python API's own Config
@@ -439,7 +471,10 @@ def test_the_quick_preset_is_small_with_a_lighter_autoencoder():
     small, quick = get_preset("small"), get_preset("quick")
     assert quick.grid == small.grid and quick.sampling == small.sampling
     assert quick.autoencoder.mlp_hidden < small.autoencoder.mlp_hidden
-    assert quick.autoencoder.points_per_step * quick.autoencoder.steps < small.autoencoder.points_per_step * small.autoencoder.steps
+    assert (
+        quick.autoencoder.points_per_step * quick.autoencoder.steps
+        < small.autoencoder.points_per_step * small.autoencoder.steps
+    )
     assert replace(quick.diffusion, steps=small.diffusion.steps) == small.diffusion
 
 
@@ -450,8 +485,9 @@ def test_flip_augmentation_fits_with_a_mirror_decoder_and_refuses_without(tmp_pa
     with pytest.raises(Sin3DMInputError, match="autoencoder.mirror=true"):
         Sin3DM.fit("wall", preset=cfg, out=tmp_path / "plain", progress=False)
     with pytest.raises(Sin3DMInputError, match="PBR"):
-        Sin3DM.fit("wall", preset=cfg.updated(**{"autoencoder.mirror": True}), out=tmp_path / "pbr", pbr=True,
-                   progress=False)
+        Sin3DM.fit(
+            "wall", preset=cfg.updated(**{"autoencoder.mirror": True}), out=tmp_path / "pbr", pbr=True, progress=False
+        )
     assert not (tmp_path / "plain").exists() and not (tmp_path / "pbr").exists()  # refused before writing
     run = tmp_path / "mirror"
     Sin3DM.fit("wall", preset=cfg.updated(**{"autoencoder.mirror": True}), out=run, progress=False)
@@ -466,7 +502,9 @@ def test_plot_beside_input_draws_each_shape_at_the_inputs_voxel_size_decoded_for
     samples = model.sample(2, resize=(1.5, 1.0, 1.0), seed=0, progress=False)
     asked = []
     to_mesh = Sin3DM.to_mesh
-    monkeypatch.setattr(Sin3DM, "to_mesh", lambda self, s, i, **kw: asked.append(kw["resolution"]) or to_mesh(self, s, i, **kw))
+    monkeypatch.setattr(
+        Sin3DM, "to_mesh", lambda self, s, i, **kw: asked.append(kw["resolution"]) or to_mesh(self, s, i, **kw)
+    )
     fig = model.plot_beside_input(samples, 16, ["a", "b"])
     titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
     assert titles == ["input", "a", "b"]

@@ -1,4 +1,5 @@
 """Headless rendering: the paper's 8 views show the texture's colours where they should be."""
+
 import ctypes.util
 import sys
 
@@ -13,14 +14,19 @@ from sin3dm_lite.evaluate.render import contact_sheet, render_hero, render_views
 
 # Off-screen OpenGL needs Mesa's EGL on a Linux machine without a display (the CI image has it); elsewhere the
 # render command says how to install it (tested in test_bad_inputs' table only where rendering never starts)
-pytestmark = pytest.mark.skipif(sys.platform.startswith("linux") and ctypes.util.find_library("EGL") is None,
-                                reason="no libEGL on this machine: apt-get install libegl1 libgl1-mesa-dri")
+pytestmark = pytest.mark.skipif(
+    sys.platform.startswith("linux") and ctypes.util.find_library("EGL") is None,
+    reason="no libEGL on this machine: apt-get install libegl1 libgl1-mesa-dri",
+)
 
 #: the colour of each cube face in the texture, by outward normal
 FACE_COLORS = {
-    "+x": (1.0, 0.0, 0.0), "-x": (0.0, 1.0, 0.0),  # red, green
-    "+y": (0.0, 0.0, 1.0), "-y": (1.0, 1.0, 0.0),  # blue (top), yellow (bottom)
-    "+z": (1.0, 0.0, 1.0), "-z": (0.0, 1.0, 1.0),  # magenta (front), cyan (back)
+    "+x": (1.0, 0.0, 0.0),
+    "-x": (0.0, 1.0, 0.0),  # red, green
+    "+y": (0.0, 0.0, 1.0),
+    "-y": (1.0, 1.0, 0.0),  # blue (top), yellow (bottom)
+    "+z": (1.0, 0.0, 1.0),
+    "-z": (0.0, 1.0, 1.0),  # magenta (front), cyan (back)
 }
 NORMALS = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
 
@@ -40,7 +46,7 @@ def textured_cube() -> TexturedMesh:
     verts, faces, uvs = [], [], []
     for k, (name, color) in enumerate(FACE_COLORS.items()):
         r, c = divmod(k, 3)
-        image[r * tile:(r + 1) * tile, c * tile:(c + 1) * tile] = color
+        image[r * tile : (r + 1) * tile, c * tile : (c + 1) * tile] = color
         q = _quad(NORMALS[name])
         base = len(verts)
         verts += list(q)
@@ -50,9 +56,14 @@ def textured_cube() -> TexturedMesh:
         for tri in ([0, 1, 2], [0, 2, 3]):
             faces.append([base + i for i in tri])
             uvs.append([cu[i] for i in tri])
-    return TexturedMesh(vertices=np.array(verts), faces=np.array(faces), face_material=np.zeros(12, np.int64),
-                        materials=[Material(name="tiles", image=image)], face_uvs=np.array(uvs, np.float32),
-                        name="cube")
+    return TexturedMesh(
+        vertices=np.array(verts),
+        faces=np.array(faces),
+        face_material=np.zeros(12, np.int64),
+        materials=[Material(name="tiles", image=image)],
+        face_uvs=np.array(uvs, np.float32),
+        name="cube",
+    )
 
 
 def seen(image: np.ndarray) -> dict:
@@ -88,8 +99,16 @@ def test_eight_views_are_non_blank_pictures(views):
 def test_each_view_shows_the_texture_colours_of_the_faces_it_faces(views):
     # y is up: with the camera 45° above, the top (blue) is always in view and the bottom (yellow) never
     # azimuth 0 looks from +z (magenta), 90 from +x (red), 180 from -z (cyan), 270 from -x (green)
-    expect = {0: ["+z"], 90: ["+x"], 180: ["-z"], 270: ["-x"], 45: ["+z", "+x"], 135: ["+x", "-z"],
-              225: ["-z", "-x"], 315: ["-x", "+z"]}
+    expect = {
+        0: ["+z"],
+        90: ["+x"],
+        180: ["-z"],
+        270: ["-x"],
+        45: ["+z", "+x"],
+        135: ["+x", "-z"],
+        225: ["-z", "-x"],
+        315: ["-x", "+z"],
+    }
     for (az, _), img in zip(view_angles(), views):
         s = seen(img)
         visible = ["+y"] + expect[int(az)]
@@ -103,13 +122,22 @@ def test_each_view_shows_the_texture_colours_of_the_faces_it_faces(views):
 
 def test_vertex_colours_and_plain_materials_render():
     cube = textured_cube()
-    plain = TexturedMesh(vertices=cube.vertices, faces=cube.faces, face_material=cube.face_material,
-                         materials=[Material()], vertex_colors=np.tile(np.float32([0.1, 0.8, 0.2]), (24, 1)))
+    plain = TexturedMesh(
+        vertices=cube.vertices,
+        faces=cube.faces,
+        face_material=cube.face_material,
+        materials=[Material()],
+        vertex_colors=np.tile(np.float32([0.1, 0.8, 0.2]), (24, 1)),
+    )
     img = render_hero(plain, size=96)
     fg = img[img.min(2) < 250].astype(int)
     assert len(fg) > 500 and (fg[:, 1] > fg[:, 0] + 30).mean() > 0.95  # green-dominant
-    grey = TexturedMesh(vertices=cube.vertices, faces=cube.faces, face_material=cube.face_material,
-                        materials=[Material(base_color=np.float32([0.9, 0.1, 0.1, 1.0]))])
+    grey = TexturedMesh(
+        vertices=cube.vertices,
+        faces=cube.faces,
+        face_material=cube.face_material,
+        materials=[Material(base_color=np.float32([0.9, 0.1, 0.1, 1.0]))],
+    )
     fg = render_views(grey, n_views=1, size=64)[0]
     fg = fg[fg.min(2) < 250].astype(int)
     assert (fg[:, 0] > fg[:, 1] + 30).mean() > 0.95  # the material's red
@@ -123,8 +151,9 @@ def test_pbr_maps_shade_the_picture_and_factors_alone_do_not():
     from sin3dm_lite.data.examples import build_example
 
     tiles = build_example("tiles")
-    plain = replace(tiles, materials=[replace(m, metallic_roughness_image=None, normal_image=None)
-                                      for m in tiles.materials])
+    plain = replace(
+        tiles, materials=[replace(m, metallic_roughness_image=None, normal_image=None) for m in tiles.materials]
+    )
     pbr, flat = render_hero(tiles, size=128), render_hero(plain, size=128)
     assert np.abs(pbr.astype(int) - flat.astype(int)).mean() > 1.0
     factors = replace(plain, materials=[replace(m, metallic=1.0, roughness=0.1) for m in plain.materials])
@@ -139,8 +168,11 @@ def test_a_larger_box_frames_alike_and_shows_the_mesh_smaller(cube):
 
 def test_save_views_and_contact_sheet(cube, tmp_path):
     paths = save_views(cube, tmp_path / "v", n_views=4, size=48)
-    assert [p.name for p in paths] == view_names(4) == ["view_000.png", "view_001.png", "view_002.png",
-                                                         "view_003.png", "hero.png"]
+    assert (
+        [p.name for p in paths]
+        == view_names(4)
+        == ["view_000.png", "view_001.png", "view_002.png", "view_003.png", "hero.png"]
+    )
     imgs = [np.asarray(Image.open(p)) for p in paths]
     assert all(i.shape == (48, 48, 3) for i in imgs)
     sheet = contact_sheet(imgs, ["a", "b", "c", "d", "hero"], columns=3)
@@ -166,7 +198,12 @@ def test_render_command_writes_eight_pngs(cube, tmp_path, capsys):
     assert main(["render", str(src), "--size", "32", "--out", str(out)]) == 2
     assert "--overwrite" in capsys.readouterr().err
     assert main(["render", str(src), "--size", "32", "--views", "2", "--out", str(out), "--overwrite"]) == 0
-    assert sorted(p.name for p in out.glob("*.png")) == ["contact_sheet.png", "hero.png", "view_000.png", "view_001.png"]
+    assert sorted(p.name for p in out.glob("*.png")) == [
+        "contact_sheet.png",
+        "hero.png",
+        "view_000.png",
+        "view_001.png",
+    ]
 
 
 def test_render_command_bad_views_exit_2_one_line(tmp_path, capsys):

@@ -1,4 +1,5 @@
 """The ruin test shape: a closed surface, walls 2-3 voxels thick at the training grid, a door, windows, a stepped top."""
+
 import numpy as np
 import pytest
 
@@ -18,8 +19,9 @@ def ruin():
 @pytest.fixture(scope="module")
 def occupancy(ruin):
     """The ruin on the tiny preset's training grid (32 voxels, its margin), y up."""
-    grid = mesh_to_grid(ruin, resolution=TINY.resolution, margin_voxels=TINY.margin_voxels, n_surface_points=1000,
-                        progress=False)
+    grid = mesh_to_grid(
+        ruin, resolution=TINY.resolution, margin_voxels=TINY.margin_voxels, n_surface_points=1000, progress=False
+    )
     return grid.sdf < 0
 
 

@@ -1,4 +1,5 @@
 """``open_run`` / ``Sin3DM.open``: RUN names a shipped model, a run folder, or an input fitted once into a cache."""
+
 import shutil
 
 import pytest

@@ -1,4 +1,5 @@
 """Texture metrics on renders: weight-free ones on pictures with known answers, weight-based ones with random weights."""
+
 import ctypes.util
 import sys
 from dataclasses import replace
@@ -10,8 +11,10 @@ import torch
 from sin3dm_lite import metrics as M
 from sin3dm_lite.errors import Sin3DMInputError
 
-needs_egl = pytest.mark.skipif(sys.platform.startswith("linux") and ctypes.util.find_library("EGL") is None,
-                               reason="no libEGL on this machine: apt-get install libegl1 libgl1-mesa-dri")
+needs_egl = pytest.mark.skipif(
+    sys.platform.startswith("linux") and ctypes.util.find_library("EGL") is None,
+    reason="no libEGL on this machine: apt-get install libegl1 libgl1-mesa-dri",
+)
 
 
 def picture(size=96, seed=0) -> np.ndarray:
@@ -21,7 +24,7 @@ def picture(size=96, seed=0) -> np.ndarray:
     n = size // 2 // 8
     tiles = palette[rng.integers(0, 6, (n, n))]
     img = np.full((size, size, 3), 255, np.uint8)
-    img[size // 4:size // 4 + 8 * n, size // 4:size // 4 + 8 * n] = np.repeat(np.repeat(tiles, 8, 0), 8, 1)
+    img[size // 4 : size // 4 + 8 * n, size // 4 : size // 4 + 8 * n] = np.repeat(np.repeat(tiles, 8, 0), 8, 1)
     return img
 
 
@@ -112,13 +115,21 @@ def weights_dir(tmp_path_factory):
         if isinstance(m, torch.nn.BatchNorm2d):
             m.running_mean.uniform_(-0.1, 0.1)
             m.running_var.uniform_(0.5, 2.0)
-    torch.save({**stem.state_dict(), "fc.weight": torch.zeros(1000, 2048)},
-               folder / "pt_inception-2015-12-05-6726825d.pth")
+    torch.save(
+        {**stem.state_dict(), "fc.weight": torch.zeros(1000, 2048)}, folder / "pt_inception-2015-12-05-6726825d.pth"
+    )
     net = M.LPIPSAlex()
-    torch.save({**{f"features.{k}": v for k, v in net.features.state_dict().items()},
-                "classifier.1.weight": torch.zeros(4096, 9216)}, folder / "alexnet-owt-7be5be79.pth")
-    torch.save({f"lin{k}.model.1.weight": torch.rand(1, c, 1, 1) for k, c in enumerate(M.LPIPSAlex.CHANNELS)},
-               folder / "alex.pth")
+    torch.save(
+        {
+            **{f"features.{k}": v for k, v in net.features.state_dict().items()},
+            "classifier.1.weight": torch.zeros(4096, 9216),
+        },
+        folder / "alexnet-owt-7be5be79.pth",
+    )
+    torch.save(
+        {f"lin{k}.model.1.weight": torch.rand(1, c, 1, 1) for k, c in enumerate(M.LPIPSAlex.CHANNELS)},
+        folder / "alex.pth",
+    )
     return folder
 
 

@@ -1,4 +1,5 @@
 """The thread policy: one thread, idle threads sleep (so processes sharing the CPU don't stall), the user's choice wins."""
+
 import os
 import subprocess
 import sys
@@ -26,9 +27,17 @@ def test_the_users_settings_win():
     assert _probe(OMP_NUM_THREADS="2")[1] == 2
     assert _probe(SIN3DM_THREADS="2")[1] == 2
     # torch loaded first and set by the user: kept; loaded first at its default: one thread
-    assert _probe("import torch; torch.set_num_threads(3); import os, sin3dm_lite; "
-                  "print(os.environ.get('OMP_WAIT_POLICY'), torch.get_num_threads())")[1] == 3
-    assert _probe("import torch, os, sin3dm_lite; print(os.environ.get('OMP_WAIT_POLICY'), torch.get_num_threads())")[1] == 1
+    assert (
+        _probe(
+            "import torch; torch.set_num_threads(3); import os, sin3dm_lite; "
+            "print(os.environ.get('OMP_WAIT_POLICY'), torch.get_num_threads())"
+        )[1]
+        == 3
+    )
+    assert (
+        _probe("import torch, os, sin3dm_lite; print(os.environ.get('OMP_WAIT_POLICY'), torch.get_num_threads())")[1]
+        == 1
+    )
 
 
 def test_apply_policy_on_a_given_environment():

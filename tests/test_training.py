@@ -1,4 +1,5 @@
 """The two trainers have one shape: step/run, history, checkpoint layout, generator, exact resume."""
+
 import io
 
 import pytest
@@ -86,8 +87,14 @@ def test_checkpoints_of_another_trainer_or_layout_are_refused(box_grid, h0):
         ae.load_state_dict(dm.state_dict())
     with pytest.raises(Sin3DMInputError, match="'autoencoder' checkpoint, not a 'diffusion'"):
         dm.load_state_dict(ae.state_dict())
-    old_ae = {"model": ae.model.state_dict(), "opt": {}, "sched": {}, "gen": ae.generator.get_state(), "step": 0,
-              "history": {"loss": torch.zeros(0, dtype=torch.float64)}}  # the layout before TRAINER_FORMAT
+    old_ae = {
+        "model": ae.model.state_dict(),
+        "opt": {},
+        "sched": {},
+        "gen": ae.generator.get_state(),
+        "step": 0,
+        "history": {"loss": torch.zeros(0, dtype=torch.float64)},
+    }  # the layout before TRAINER_FORMAT
     with pytest.raises(Sin3DMInputError, match="older version"):
         ae.load_state_dict(old_ae)
     old_dm = {k: v for k, v in dm.state_dict().items() if k not in ("format", "kind", "step")} | {"step_count": 0}

@@ -1,4 +1,5 @@
 """Triplane lookups: which plane axis is which, texel centres, the border."""
+
 import torch
 
 from sin3dm_lite.model.triplane import Triplane

@@ -1,4 +1,5 @@
 """The k3d viewers of ``sin3dm_lite.show.viewer``: objects, dtypes, texture bytes and orientation, HTML pages."""
+
 import io
 
 import k3d
@@ -14,7 +15,7 @@ from sin3dm_lite.data.mesh import Material, TexturedMesh, sample_texture
 def red_top_blue_bottom(h=8, w=4) -> np.ndarray:
     img = np.zeros((h, w, 3), np.float32)
     img[: h // 2] = [1, 0, 0]
-    img[h // 2:] = [0, 0, 1]
+    img[h // 2 :] = [0, 0, 1]
     return img
 
 
@@ -22,8 +23,14 @@ def textured_quad() -> TexturedMesh:
     """A unit square in the xy plane (y up, facing +z); OBJ uvs = (x, y), so the texture's top is at y = 1."""
     v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float64)
     f = np.array([[0, 1, 2], [0, 2, 3]])
-    return TexturedMesh(v, f, np.zeros(2, np.int64), [Material("tex", base_color=np.ones(4, np.float32), image=red_top_blue_bottom())],
-                        face_uvs=v[f][..., :2].astype(np.float32), name="quad")
+    return TexturedMesh(
+        v,
+        f,
+        np.zeros(2, np.int64),
+        [Material("tex", base_color=np.ones(4, np.float32), image=red_top_blue_bottom())],
+        face_uvs=v[f][..., :2].astype(np.float32),
+        name="quad",
+    )
 
 
 def k3d_texel(png: bytes, uv: np.ndarray) -> np.ndarray:
@@ -109,8 +116,13 @@ def test_base_color_factor_baked_into_texture():
 def test_vertex_color_fallback():
     quad = textured_quad()
     colors = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], np.float32)
-    plain = TexturedMesh(quad.vertices, quad.faces, quad.face_material, [Material(base_color=np.ones(4, np.float32))],
-                         vertex_colors=colors)
+    plain = TexturedMesh(
+        quad.vertices,
+        quad.faces,
+        quad.face_material,
+        [Material(base_color=np.ones(4, np.float32))],
+        vertex_colors=colors,
+    )
     (m,) = meshes_of(viewer.mesh_plot(plain, up="z"))
     assert m.colors.dtype == np.uint32 and len(m.uvs) == 0 and m.texture is None
     np.testing.assert_array_equal(m.vertices, quad.vertices.astype(np.float32))  # up="z": unchanged
@@ -138,8 +150,12 @@ def test_trimesh_inputs():
     # a TextureVisuals trimesh keeps its texture; trimesh stores OBJ-convention per-vertex uvs
     quad = textured_quad()
     image = Image.fromarray((red_top_blue_bottom() * 255).astype(np.uint8))
-    tm = trimesh.Trimesh(quad.vertices, quad.faces, process=False,
-                         visual=trimesh.visual.TextureVisuals(uv=quad.vertices[:, :2], image=image))
+    tm = trimesh.Trimesh(
+        quad.vertices,
+        quad.faces,
+        process=False,
+        visual=trimesh.visual.TextureVisuals(uv=quad.vertices[:, :2], image=image),
+    )
     (m,) = meshes_of(viewer.mesh_plot(tm))
     assert m.texture is not None
     top = m.vertices[:, 2] > 0.5
@@ -327,8 +343,13 @@ def test_index_page(tmp_path):
     page = viewer.save_html(viewer.mesh_plot(textured_quad()), tmp_path / "s0" / "viewer.html")
     (tmp_path / "s0" / "mesh.obj").write_text("v 0 0 0\n")
     entries = [
-        {"title": "sample <0>", "html_path": page, "obj_path": tmp_path / "s0" / "mesh.obj",
-         "glb_path": tmp_path / "s0" / "mesh.glb", "thumbnail": tmp_path / "s0" / "thumb.png"},
+        {
+            "title": "sample <0>",
+            "html_path": page,
+            "obj_path": tmp_path / "s0" / "mesh.obj",
+            "glb_path": tmp_path / "s0" / "mesh.glb",
+            "thumbnail": tmp_path / "s0" / "thumb.png",
+        },
         {"title": "sample 1", "snapshot": viewer.points_plot(np.zeros((3, 3)))},
     ]
     index = viewer.index_page(entries, tmp_path / "index.html")

@@ -1,4 +1,5 @@
 """The matplotlib figures of ``sin3dm_lite.show.viz``: right panels, right data drawn."""
+
 import ctypes.util
 import io
 import sys
@@ -92,7 +93,9 @@ def test_plot_slice_kinds(sphere_grid):
     # y up (the default): z → and y ↑, extent and labels follow
     ax = viz.plot_slice(sphere_grid, "x", 5, kind="color").axes[0]
     np.testing.assert_allclose(np.asarray(ax.images[0].get_array()), viz.color_slice_image(sphere_grid, "x", 5))
-    assert ax.images[0].get_extent() == pytest.approx([sphere_grid.aabb[2], sphere_grid.aabb[5], sphere_grid.aabb[1], sphere_grid.aabb[4]])
+    assert ax.images[0].get_extent() == pytest.approx(
+        [sphere_grid.aabb[2], sphere_grid.aabb[5], sphere_grid.aabb[1], sphere_grid.aabb[4]]
+    )
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("z", "y")
     ax = viz.plot_slice(sphere_grid, "x", 5, kind="sdf", up="z").axes[0]  # a z-up mesh: y → and z ↑
     np.testing.assert_array_equal(np.asarray(ax.images[0].get_array()), sphere_grid.sdf[5].T)
@@ -102,7 +105,9 @@ def test_plot_slice_kinds(sphere_grid):
     assert img.shape == (20, 16, 3)
     np.testing.assert_allclose(img.swapaxes(0, 1), viz.color_slice_image(sphere_grid, "y", 6))
     # extent is in world coordinates: x then z
-    assert fig.axes[0].images[0].get_extent() == pytest.approx([sphere_grid.aabb[0], sphere_grid.aabb[3], sphere_grid.aabb[2], sphere_grid.aabb[5]])
+    assert fig.axes[0].images[0].get_extent() == pytest.approx(
+        [sphere_grid.aabb[0], sphere_grid.aabb[3], sphere_grid.aabb[2], sphere_grid.aabb[5]]
+    )
     with pytest.raises(ValueError):
         viz.plot_slice(sphere_grid, "z", 3, kind="normals")
 
@@ -117,9 +122,14 @@ def test_plot_truncation(sphere_grid):
     # the 1-voxel profile is the stored slice re-clipped at one voxel
     sdf = sphere_grid.sdf[:, :, 10]
     line = sdf.shape[1] // 2
-    np.testing.assert_allclose(profile.get_lines()[0].get_ydata(), np.clip(sdf[:, line], -sphere_grid.voxel_size, sphere_grid.voxel_size))
-    np.testing.assert_allclose(np.asarray(panels[0].images[0].get_array()),
-                               np.clip(sdf, -sphere_grid.voxel_size, sphere_grid.voxel_size).T, rtol=1e-6)
+    np.testing.assert_allclose(
+        profile.get_lines()[0].get_ydata(), np.clip(sdf[:, line], -sphere_grid.voxel_size, sphere_grid.voxel_size)
+    )
+    np.testing.assert_allclose(
+        np.asarray(panels[0].images[0].get_array()),
+        np.clip(sdf, -sphere_grid.voxel_size, sphere_grid.voxel_size).T,
+        rtol=1e-6,
+    )
     np.testing.assert_allclose(np.asarray(panels[2].images[0].get_array()), sdf.T)
     assert len(image_axes(viz.plot_truncation(sphere_grid))) == 3  # default 1, 2, own
     with pytest.raises(ValueError, match="exceed"):
@@ -132,8 +142,9 @@ def test_plot_truncation_of_untruncated_array():
     fig = viz.plot_truncation(field, thresholds=[1, 4], axis="x", index=5)
     panels = image_axes(fig)
     voxel = 2.0 / 10
-    np.testing.assert_allclose(np.asarray(panels[1].images[0].get_array()),
-                               np.clip(field[5], -4 * voxel, 4 * voxel).T, rtol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(panels[1].images[0].get_array()), np.clip(field[5], -4 * voxel, 4 * voxel).T, rtol=1e-6
+    )
     assert panels[1].images[0].get_clim() == pytest.approx((-4 * voxel, 4 * voxel))
 
 
@@ -155,16 +166,18 @@ def test_plot_triplane_pca_and_channels(tp):
     panels = image_axes(fig)
     assert len(panels) == 3
     for ax, plane in zip(panels, tp.planes):
-        np.testing.assert_allclose(np.asarray(ax.images[0].get_array()),
-                                   plane_to_image(plane[0], "pca").swapaxes(0, 1), atol=1e-6)
+        np.testing.assert_allclose(
+            np.asarray(ax.images[0].get_array()), plane_to_image(plane[0], "pca").swapaxes(0, 1), atol=1e-6
+        )
     # true relative sizes: xy is X wide, yz is Y wide
     w = [ax.get_position().width for ax in panels]
     assert w[0] / w[2] == pytest.approx(8 / 6, rel=0.05)
     fig = viz.plot_triplane(tp, channels=[0, 3], batch=1)
     panels = image_axes(fig)
     assert len(panels) == 6
-    np.testing.assert_allclose(np.asarray(panels[5].images[0].get_array()),
-                               plane_to_image(tp.yz[1], 3).swapaxes(0, 1), atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(panels[5].images[0].get_array()), plane_to_image(tp.yz[1], 3).swapaxes(0, 1), atol=1e-6
+    )
     assert "channel 3" in panels[5].get_title()
 
 
@@ -199,8 +212,11 @@ def test_plot_denoising(tp):
     panels = image_axes(fig)
     assert len(panels) == 6
     assert [ax.get_title() for ax in panels[:3]] == ["t = 999", "t = 500", "t = 0"]
-    np.testing.assert_allclose(np.asarray(panels[4].images[0].get_array()),  # x0 row, second column
-                               plane_to_image(steps[1]["x0"].xz[0], 2).swapaxes(0, 1), atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(panels[4].images[0].get_array()),  # x0 row, second column
+        plane_to_image(steps[1]["x0"].xz[0], 2).swapaxes(0, 1),
+        atol=1e-6,
+    )
     # PCA: one shared basis, so the same plane gives the same picture in every column
     same = [{"step": i, "t": i, "x_t": tp, "x0": tp} for i in range(2)]
     panels = image_axes(viz.plot_denoising(same))
@@ -211,8 +227,11 @@ def test_plot_denoising(tp):
     ref = Triplane.randn(2, 5, (8, 6, 10), generator=torch.Generator().manual_seed(7))  # other directions
     panels = image_axes(viz.plot_denoising(same, reference=ref))
     mean, basis = pca_basis(ref.xy[0].numpy())
-    np.testing.assert_allclose(np.asarray(panels[0].images[0].get_array()),
-                               pca_project(tp.xy[0].numpy(), mean, basis).swapaxes(0, 1), atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(panels[0].images[0].get_array()),
+        pca_project(tp.xy[0].numpy(), mean, basis).swapaxes(0, 1),
+        atol=1e-6,
+    )
     w, h = viz.plot_denoising(steps, plane="yz").get_size_inches()  # 6 × 10 planes: taller than wide panels
     assert h > 2 * (w / 3)
     with pytest.raises(ValueError):
@@ -308,8 +327,13 @@ def test_plot_uv_layout_per_vertex_and_per_corner():
 
 def test_every_figure_renders(sphere_grid, tp, tmp_path):
     """Drawing (not just building) each figure: catches errors that only appear at render time."""
-    figs = [viz.plot_grid_slices(sphere_grid), viz.plot_truncation(sphere_grid), viz.plot_points(sphere_grid), viz.plot_triplane(tp),
-            viz.plot_receptive_field(rf_square(), 9)]
+    figs = [
+        viz.plot_grid_slices(sphere_grid),
+        viz.plot_truncation(sphere_grid),
+        viz.plot_points(sphere_grid),
+        viz.plot_triplane(tp),
+        viz.plot_receptive_field(rf_square(), 9),
+    ]
     for k, fig in enumerate(figs):
         fig.savefig(tmp_path / f"{k}.png", dpi=40)
         assert (tmp_path / f"{k}.png").stat().st_size > 1000
@@ -329,8 +353,10 @@ def test_plot_diversity_curve_draws_each_score_and_its_goal():
 
 
 # plot_meshes renders off-screen: the render tests' skip rule where libEGL is missing
-needs_egl = pytest.mark.skipif(sys.platform.startswith("linux") and ctypes.util.find_library("EGL") is None,
-                               reason="no libEGL on this machine: apt-get install libegl1 libgl1-mesa-dri")
+needs_egl = pytest.mark.skipif(
+    sys.platform.startswith("linux") and ctypes.util.find_library("EGL") is None,
+    reason="no libEGL on this machine: apt-get install libegl1 libgl1-mesa-dri",
+)
 
 
 def sheet_of(fig):
@@ -359,10 +385,11 @@ def test_plot_meshes_puts_several_side_by_side_in_one_box():
 
     cube = textured_cube()
     half = trimesh.creation.box(extents=(0.5, 0.5, 0.5))  # plain geometry: drawn grey
-    sheet, _ = sheet_of(viz.plot_meshes([cube, half, (half.vertices, half.faces)], ["cube", "trimesh", "pair"],
-                                        size=48))
+    sheet, _ = sheet_of(
+        viz.plot_meshes([cube, half, (half.vertices, half.faces)], ["cube", "trimesh", "pair"], size=48)
+    )
     assert sheet.shape[1] >= 3 * 48 and 48 + 12 <= sheet.shape[0] < 2 * 48  # one row of three, labels below
-    tiles = [sheet[4:52, 4 + k * 52:4 + k * 52 + 48] for k in range(3)]
+    tiles = [sheet[4:52, 4 + k * 52 : 4 + k * 52 + 48] for k in range(3)]
     filled = [(t.min(2) < 250).sum() for t in tiles]
     assert all(f > 0 for f in filled)
     assert filled[1] < 0.5 * filled[0] and abs(filled[1] - filled[2]) < 0.1 * filled[1]  # one scale for all
@@ -406,7 +433,7 @@ def test_plot_layer_variation_draws_the_input_per_layer_and_g_div_per_layer():
     grids = [np.zeros((8, 6, 4), bool) for _ in range(3)]
     for k, g in enumerate(grids):
         g[:, :3] = True  # the same body
-        g[k:k + 2, 3:5] = True  # a block on top, elsewhere in each
+        g[k : k + 2, 3:5] = True  # a block on top, elsewhere in each
     fig = viz.plot_layer_variation(grids[0], grids, axis="y")
     left, right = fig.axes
     assert [b.get_width() for b in left.patches] == [32, 32, 32, 8, 8, 0]
@@ -453,13 +480,21 @@ def test_plot_picture_shows_the_image():
 
 
 def _text(fig):
-    return " ".join(t.get_text() for ax in fig.axes for t in ax.texts) + " " + (fig._suptitle.get_text() if fig._suptitle else "")
+    return (
+        " ".join(t.get_text() for ax in fig.axes for t in ax.texts)
+        + " "
+        + (fig._suptitle.get_text() if fig._suptitle else "")
+    )
 
 
 @pytest.mark.parametrize("shape", ["grid", "mesh", "box", None])
 def test_plot_plane_axes_labels_each_plane_on_its_wall(sphere_grid, shape, tmp_path):
-    obj = {"grid": sphere_grid, "mesh": trimesh.creation.box(extents=(2.0, 1.0, 0.5)),
-           "box": np.array([-1.0, -0.5, -0.25, 1.0, 0.5, 0.25]), None: None}[shape]
+    obj = {
+        "grid": sphere_grid,
+        "mesh": trimesh.creation.box(extents=(2.0, 1.0, 0.5)),
+        "box": np.array([-1.0, -0.5, -0.25, 1.0, 0.5, 0.25]),
+        None: None,
+    }[shape]
     fig = viz.plot_plane_axes(obj)
     ax3d = [ax for ax in fig.axes if ax.name == "3d"][0]
     text = _text(fig)
@@ -490,7 +525,9 @@ def test_plot_triplane_conv_shows_the_rollout_of_each_plane(tp, tmp_path):
         fig = viz.plot_triplane_conv(parts, plane)
         assert len(image_axes(fig)) == 8  # 3 planes, 2 pooled strips, 2 expanded, 1 concatenation
         titles = [ax.get_title() for ax in fig.axes]
-        assert f"{others[0]}: averaged over {lacking} ↓" in titles and f"{others[1]}: averaged over {lacking} ↓" in titles
+        assert (
+            f"{others[0]}: averaged over {lacking} ↓" in titles and f"{others[1]}: averaged over {lacking} ↓" in titles
+        )
         assert any(t.startswith(f"concatenated: {3 * tp.channels} = 3C") for t in titles)
         fig.savefig(tmp_path / f"{plane}.png", dpi=40)
     with pytest.raises(ValueError):

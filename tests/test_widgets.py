@@ -1,4 +1,5 @@
 """The ipywidgets panels of ``sin3dm_lite.show.widgets``: the right controls, and their callbacks draw."""
+
 import ipywidgets as widgets
 import numpy as np
 import pytest
@@ -130,12 +131,14 @@ def images(fig):
 
 def test_sampling_panel_samples_on_every_change_and_decodes_on_the_button(model, monkeypatch):
     calls = spy(monkeypatch, model, "sample")
-    panel = sw.sampling_panel(model, n_samples=2, preview=16, steps=3, mesh=dict(resolution=24, faces=500,
-                                                                                  texture_size=64), k3d=False)
+    panel = sw.sampling_panel(
+        model, n_samples=2, preview=16, steps=3, mesh=dict(resolution=24, faces=500, texture_size=64), k3d=False
+    )
     c = panel.controls
     assert set(c) == {"seed", "steps", "diversity", "sx", "sy", "sz"} and panel.last_error is None
-    assert calls == [dict(resize=(1.0, 1.0, 1.0), steps=3, seed=0, diversity=model.config.sampling.diversity,
-                          progress=False)]
+    assert calls == [
+        dict(resize=(1.0, 1.0, 1.0), steps=3, seed=0, diversity=model.config.sampling.diversity, progress=False)
+    ]
     before = images(panel.last_figure)
     assert len(before) == 2 * 3  # input + 2 samples, two views each
     c["seed"].value = 5

@@ -1,5 +1,6 @@
 """When the disk fills up or an export worker dies: one line that says what happened and what to do, exit code 2,
 finished samples kept, this run's temporary folders removed (issue 35, cases 6 and 7)."""
+
 import errno
 import os
 import shutil
@@ -69,6 +70,7 @@ def test_a_killed_export_worker_is_one_line_and_the_finished_samples_are_kept(tm
 
 def test_torch_save_on_a_full_disk_is_one_line_and_leaves_no_temporary_folder(tmp_path, monkeypatch, capsys):
     """torch's own error for a full disk is a RuntimeError about 'unexpected pos' (while the worker's model copy is written)."""
+
     def full(obj, f, *args, **kwargs):
         Path(f).write_bytes(b"half a file")
         raise RuntimeError(TORCH_DISK_FULL)
@@ -77,8 +79,9 @@ def test_torch_save_on_a_full_disk_is_one_line_and_leaves_no_temporary_folder(tm
     monkeypatch.setattr(shutil, "disk_usage", lambda p: namedtuple("usage", "total used free")(10, 10, 0))
     out = tmp_path / "s"
     assert main(["sample", RUN, "-n", "2", "--out", str(out), *CHEAP]) == 2  # --workers 1: the model is copied first
-    assert _error_line(capsys) == (f"no space left on device while writing 'model.pt' in '{out}'; free space or "
-                                   "choose another --out")
+    assert _error_line(capsys) == (
+        f"no space left on device while writing 'model.pt' in '{out}'; free space or choose another --out"
+    )
     _no_leftovers(out)
 
 
@@ -86,8 +89,9 @@ def test_a_full_disk_in_the_export_worker_is_one_line(tmp_path, monkeypatch, cap
     monkeypatch.setattr(mass_workers, "export_sample", export_no_space)
     out = tmp_path / "s"
     assert main(["sample", RUN, "-n", "2", "--out", str(out), "--workers", "1", *CHEAP]) == 2
-    assert _error_line(capsys) == (f"no space left on device while writing 'mesh.png' in '{out}'; free space or "
-                                   "choose another --out")
+    assert _error_line(capsys) == (
+        f"no space left on device while writing 'mesh.png' in '{out}'; free space or choose another --out"
+    )
     _no_leftovers(out)
     assert not finished(out)
 
@@ -113,10 +117,17 @@ def test_a_real_full_disk(tmp_path):
         pytest.skip("mounting a small tmpfs needs root and unshare")
     disk = tmp_path / "disk"
     disk.mkdir()
-    cmd = (f"mount -t tmpfs -o size=2m tmpfs {disk} || exit 99; {sys.executable} -m sin3dm_lite.cli sample {RUN} "
-           f"-n 2 --out {disk}/s {' '.join(CHEAP)}; echo rc=$?; ls -A {disk}/s")
-    r = subprocess.run(["unshare", "-m", "sh", "-c", cmd], capture_output=True, text=True, timeout=600,
-                       env={**os.environ, "OMP_NUM_THREADS": "1"})
+    cmd = (
+        f"mount -t tmpfs -o size=2m tmpfs {disk} || exit 99; {sys.executable} -m sin3dm_lite.cli sample {RUN} "
+        f"-n 2 --out {disk}/s {' '.join(CHEAP)}; echo rc=$?; ls -A {disk}/s"
+    )
+    r = subprocess.run(
+        ["unshare", "-m", "sh", "-c", cmd],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )
     if r.returncode == 99 or "rc=" not in r.stdout:
         pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()[-200:]}")
     assert "rc=2" in r.stdout and "Traceback" not in r.stderr, r.stderr[-2000:]
