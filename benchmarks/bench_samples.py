@@ -51,8 +51,9 @@ from sin3dm_lite.data.config import parse_settings
 from sin3dm_lite.data.export import export_mesh
 from sin3dm_lite.data.grid import load_grid
 from sin3dm_lite.data.presets import get_preset
+from sin3dm_lite.data.source import resolve_mesh
 from sin3dm_lite.generate.extract import marching_cubes
-from sin3dm_lite.pipeline import Sin3DM, resolve_mesh
+from sin3dm_lite.pipeline import Sin3DM
 
 GOALS = {"g_div": 0.20, "lp_f": 0.70, "lp_iou": 0.55, "recon_iou": 0.95, "fit_s": 300.0, "mesh_s": 15.0}
 

@@ -45,7 +45,7 @@ from .errors import Sin3DMInputError
 from .files import release_lock
 from .mass_folder import abandon, finish_folder, prepare_folder, remove_if_empty, sample_output_names, sample_settings
 from .mass_workers import Ranks, sample_many
-from .request import DEFAULT_BATCH, SampleRequest  # what a run asks for (defined beside its defaults; named here too)
+from .request import SampleRequest  # what a run asks for, and its defaults
 
 
 def check_request(model, req: SampleRequest) -> None:
@@ -125,4 +125,4 @@ def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", r
     return {"pending": len(pending), "total": total, **stats}
 
 
-__all__ = ["SampleRequest", "write_samples", "check_request", "check_sample_sizes", "DEFAULT_BATCH"]
+__all__ = ["SampleRequest", "write_samples", "check_request", "check_sample_sizes"]

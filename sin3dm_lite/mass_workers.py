@@ -99,7 +99,7 @@ def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: di
     """Decode one latent into a textured mesh in ``tmp`` (mesh.*, preview.png); returns ``{"faces", "no_pictures"}``."""
     from .data.export import export_mesh
     from .model.triplane import Triplane
-    from .pipeline import Samples
+    from .sampling import Samples
 
     model = model or _WORKER["model"]
     opts = opts or _WORKER["opts"]

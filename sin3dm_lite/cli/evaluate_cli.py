@@ -14,6 +14,7 @@ MAX_VIEWS = 360
 
 
 def cmd_render(a) -> None:
+    from ..data.source import resolve_mesh
     from ..evaluate.render import contact_sheet, render_hero, render_views, view_names
     from ..files import (
         check_not_overlapping,
@@ -23,7 +24,6 @@ def cmd_render(a) -> None:
         make_temp_dir,
         remove_stale_temps,
     )
-    from ..pipeline import resolve_mesh
     from ..show.viewer import png_bytes
 
     out = Path(a.out)
@@ -90,9 +90,10 @@ def cmd_evaluate(a) -> None:
     import json
 
     from ..data.load import load_any
+    from ..data.source import resolve_mesh
     from ..evaluate.metrics import load_feature_weights
     from ..files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
-    from ..pipeline import Sin3DM, resolve_mesh
+    from ..pipeline import Sin3DM
 
     if a.views > MAX_VIEWS:
         raise Sin3DMInputError(f"--views {a.views} is too many; ask for at most {MAX_VIEWS}")
@@ -156,9 +157,10 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     import json
 
     from ..data.grid import load_grid
+    from ..data.source import resolve_mesh
     from ..evaluate.calibrate import GOALS
     from ..files import atomic_write
-    from ..pipeline import Sin3DM, resolve_mesh
+    from ..pipeline import Sin3DM
 
     model = Sin3DM.load(run)
     # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, the mesh

@@ -49,8 +49,8 @@ def cmd_examples(a) -> None:
 
 def cmd_grid(a) -> None:
     from ..data.grid import mesh_to_grid, save_grid
+    from ..data.source import resolve_mesh
     from ..files import check_not_overlapping, check_writable, clash_error, is_ours, recorded_path, remove_stale_temps
-    from ..pipeline import resolve_mesh
 
     out = Path(a.out)
     if out.suffix != ".npz":
