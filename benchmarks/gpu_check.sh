@@ -2,6 +2,7 @@
 # The GPU check of issue 40 in one command (device time is minutes): the paper preset's step times and a
 # truncated fit (bench_gpu.py), then torchrun mass sampling of 16 canyon samples, killed and resumed.
 #   bash benchmarks/gpu_check.sh OUTDIR [PRESET] [BUDGET_S] [MASS_N]
+# SKIP_BENCH=1 runs only part 2.
 # Needs trimesh, point-cloud-utils, xatlas, fast-simplification importable (on the lent GPU machine they
 # travel as wheels in .whl/ and are installed into /tmp/site first when present).
 set -uo pipefail
@@ -18,12 +19,14 @@ py=python3
 command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$out/gpu.txt"
 $py -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"
 
+if [ -z "${SKIP_BENCH:-}" ]; then
 echo "== 1. bench_gpu.py, preset $preset, budget $budget s"
 t0=$(date +%s)
 timeout ${BENCH_TIMEOUT:-330} $py benchmarks/bench_gpu.py --input canyon --preset "$preset" --budget-s "$budget" \
   -n 8 --timed ${TIMED:-10} --out /tmp/gpubench ${BENCH_ARGS:-} 2>&1 | tail -n 40 | tee "$out/bench.log"
 echo "bench_gpu: exit ${PIPESTATUS[0]} in $(( $(date +%s) - t0 )) s"
 cp /tmp/gpubench/gpu.json /tmp/gpubench/projections.png "$out/" 2>/dev/null
+fi
 
 echo "== 2. torchrun mass sampling, $n samples of the shipped canyon"
 run() { $py -m torch.distributed.run --nproc_per_node=1 --master_port=29517 -m sin3dm_lite.cli sample canyon -n "$n" \

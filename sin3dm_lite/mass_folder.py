@@ -272,8 +272,8 @@ def write_contact_sheet(model, req, plan, previews: list[Path], labels: list[str
     """The input's reconstruction (rendered at the previews' scale) beside the samples' previews."""
     from PIL import Image
 
+    from .data.formats.images import png_bytes
     from .evaluate.render import contact_sheet, render_hero
-    from .show.viewer import png_bytes
 
     box_n = np.array([np.minimum(model.aabb[:3], plan.aabb[:3]), np.maximum(model.aabb[3:], plan.aabb[3:])])
     try:

@@ -110,8 +110,8 @@ def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: di
     export_mesh(mesh, Path(tmp), name="mesh")
     why = None
     if opts["pictures"] and not _WORKER.get("no_pictures"):
+        from .data.formats.images import png_bytes
         from .evaluate.render import render_hero
-        from .show.viewer import png_bytes
 
         try:
             (Path(tmp) / "preview.png").write_bytes(png_bytes(render_hero(mesh, size=384, box=opts["box"])))

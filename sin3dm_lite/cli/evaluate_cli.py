@@ -14,6 +14,7 @@ MAX_VIEWS = 360
 
 
 def cmd_render(a) -> None:
+    from ..data.formats.images import png_bytes
     from ..data.source import resolve_mesh
     from ..evaluate.render import contact_sheet, render_hero, render_views, view_names
     from ..files import (
@@ -24,7 +25,6 @@ def cmd_render(a) -> None:
         make_temp_dir,
         remove_stale_temps,
     )
-    from ..show.viewer import png_bytes
 
     out = Path(a.out)
     if a.views > MAX_VIEWS:
