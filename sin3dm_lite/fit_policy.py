@@ -1,6 +1,7 @@
 """What a fit decides about its input and settings, and what it says about them.
 
-* :func:`thin_parts_switch`: finer settings for a shape that is mostly thin parts;
+* :func:`thin_parts_switch`: finer settings for a shape that is mostly thin parts (:func:`thin_parts_hint`
+  where the config has no such switch);
 * :func:`keeps_goals_from_noise` / :func:`rollout_hint`: the cross-plane rollout for a shape whose layout
   varies little whatever the diversity knob;
 * :func:`quick_hint`: the ``quick`` preset where the autoencoder would be slow (no native bf16);
@@ -20,7 +21,7 @@ import torch
 from .data.config import Config
 from .data.grid import THIN_SHARE_HINT, ShapeGrid
 from .data.mesh import TexturedMesh
-from .data.presets import PRESETS
+from .data.presets import DETAIL_CHANGES, PRESETS
 from .device import bf16_is_fast
 from .errors import Sin3DMInputError
 from .model.diffusion import check_flips as check_flip_axes
@@ -59,6 +60,31 @@ def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -
         f"instead (its thin-part settings; small's are the 'detail' "
         f"preset's, about the same fit time; the run's config is named '{new.name}'). To keep {cfg.grid.resolution} voxels: CLI "
         "--no-thin-switch, Python preset=get_preset(...).updated(thin_parts={})."
+    )
+
+
+def thin_parts_hint(cfg: Config, grid: ShapeGrid, thin: float) -> str | None:
+    """What a fit says when ``grid`` is mostly thin parts but ``cfg`` has no thin-part switch (``quick``), else None.
+
+    ``quick`` keeps its 64-voxel grid on such a shape because the finer
+    settings cost about 5x its fit where the CPU has no native bf16: on the
+    test ruin (walls 2-3 voxels thick, 98 % thin) ``quick`` took about 27 min
+    with them instead of about 5, and its near copies scored LP-F 0.90 instead
+    of 0.51 against the input at 128 voxels (docs/thin-parts.md). The hint
+    names the switch; only configs between 64 and 96 voxels get it (``tiny``'s
+    32 voxels are for tests, finer grids hold such parts already).
+    """
+    finer = DETAIL_CHANGES["grid.resolution"]
+    if cfg.thin_parts or thin <= THIN_SHARE_HINT or not 64 <= cfg.grid.resolution < finer:
+        return None
+    return (
+        f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels; the "
+        f"{cfg.name} config keeps {cfg.grid.resolution} voxels, so its samples may thicken or break walls and "
+        f"columns. The thin-part settings ({finer} voxels, a {DETAIL_CHANGES['diffusion.n_resblocks']}-ResBlock "
+        "denoiser whose planes see each other) keep them, at about 5x the fit time on a CPU without native bf16 "
+        "(about 25 minutes on 2 cores): CLI --thin-switch; Python "
+        f"{preset_expr(cfg).replace('your Config', 'preset=your_config')}.updated(thin_parts=get_preset('small')"
+        ".thin_parts)."
     )
 
 

@@ -38,6 +38,7 @@ from .fit_policy import (
     quick_hint,
     rollout_hint,
     rollout_message,
+    thin_parts_hint,
     thin_parts_message,
     thin_parts_switch,
 )
@@ -206,6 +207,8 @@ class FitRun:
                     atomic_write(run / "report.json", json.dumps({"thin_parts_switch": thin_parts}, indent=2))
                 grid = grid_for(mesh, cfg, self.progress)  # the coarse grid served only to measure (~1 s at 64 voxels)
                 thin = grid.thin_share()
+            elif (hint := thin_parts_hint(cfg, grid, thin)) is not None:
+                say("[fit] " + hint)
             if run is not None:
                 save_grid(grid, run / "grid.npz")
         self.timings["grid_s"] = time.perf_counter() - t0

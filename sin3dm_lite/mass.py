@@ -71,7 +71,7 @@ def check_sample_sizes(model, plan, req: SampleRequest) -> None:
         r.mesh_resolution,
         r.texture_size,
         plan.aabb,
-        parallel=max(1, req.workers),
+        parallel=max(1, req.export_workers()),
         names=("--mesh-resolution", "--texture-size"),
     )
 

@@ -281,8 +281,9 @@ def sample_many(model, out: Path, req, ranks: Ranks, plan, pending: list[int], l
     mine = pending[ranks.rank :: ranks.world]
     run = RankExport(model, out, req, ranks, export_options(model, req, plan), len(mine), label)
     try:
-        if req.workers > 0 and len(mine) > 1:
-            run.start_pool(req.workers)
+        workers = req.export_workers()
+        if workers > 0 and len(mine) > 1:
+            run.start_pool(min(workers, len(mine)))
         batch = max(1, req.batch)
         for k in range(0, len(mine), batch):
             run.sample_batch(plan, mine[k : k + batch])

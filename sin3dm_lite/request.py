@@ -49,8 +49,14 @@ class SampleRequest:
     no_pictures: bool = False
     overwrite: bool = False
     batch: int | None = None
-    workers: int = 1
+    workers: int | None = None  # export processes (None: threads.export_workers(), one per core up to 4)
     control: dict = field(default_factory=lambda: {"resize": (1.0, 1.0, 1.0)})  # Sin3DM.plan's arguments
+
+    def export_workers(self) -> int:
+        """``workers``, or where it is None the machine's default (:func:`sin3dm_lite.threads.export_workers`)."""
+        from .threads import export_workers
+
+        return export_workers() if self.workers is None else self.workers
 
     def resolve(self, sampling: SamplingConfig, controlled: bool = False) -> Resolved:
         """The settings this request gets from a model with ``sampling``; ``controlled``: the plan keeps part of a

@@ -304,6 +304,23 @@ def test_fit_passes_the_thin_part_switch_choice(tmp_path, monkeypatch, flag, swi
     assert cfg.grid.resolution == 64
 
 
+@pytest.mark.parametrize("flag", [[], ["--thin-switch"], ["--no-thin-switch"]])
+def test_quick_gets_the_thin_part_switch_only_when_asked(tmp_path, monkeypatch, flag):
+    """quick has no thin-part switch (5x its fit without bf16); --thin-switch gives it small's thin-part settings,
+    leaving a setting the user names to the user."""
+    from sin3dm_lite.data.presets import DETAIL_CHANGES, get_preset
+
+    cfg = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--preset", "quick", *flag)
+    assert cfg.name == "quick" and cfg.thin_parts == (DETAIL_CHANGES if flag == ["--thin-switch"] else {})
+    assert cfg.for_thin_parts().grid.resolution == (96 if flag == ["--thin-switch"] else 64)
+    cfg = _preset_fit_gets(
+        tmp_path, monkeypatch, "wall", "--preset", "quick", "--thin-switch", "--set", "diffusion.steps=900"
+    )
+    assert cfg.for_thin_parts().diffusion.steps == 900 and cfg.for_thin_parts().diffusion.rollout is True
+    small = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--thin-switch")  # small's own switch, unchanged
+    assert small.thin_parts == get_preset("small").thin_parts
+
+
 @pytest.mark.parametrize("flag, switches", [([], True), (["--no-rollout-switch"], False)])
 def test_fit_passes_the_rollout_switch_choice(tmp_path, monkeypatch, flag, switches):
     """`fit` hands small with its rollout switch on; --no-rollout-switch turns it off and keeps the rest."""

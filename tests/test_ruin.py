@@ -84,3 +84,31 @@ def test_the_top_breaks_in_steps_and_the_windows_are_open(occupancy):
 def test_bad_sizes_are_named(kw, match):
     with pytest.raises(Sin3DMInputError, match=match):
         build_ruin(**kw)
+
+
+def test_quick_names_the_thin_part_switch_on_the_ruin_and_small_takes_it():
+    """The ruin is mostly thin walls at 64 voxels: small switches to its thin-part settings by itself; quick, which
+    has no switch (5x its fit without bf16), says so and names --thin-switch."""
+    from sin3dm_lite.fit_policy import thin_parts_hint, thin_parts_switch
+
+    quick = get_preset("quick")
+    grid = mesh_to_grid(
+        build_ruin(0, resolution=64),
+        resolution=quick.grid.resolution,
+        margin_voxels=quick.grid.margin_voxels,
+        n_surface_points=1000,
+        progress=False,
+    )
+    thin = grid.thin_share()
+    assert thin > 0.5
+    hint = thin_parts_hint(quick, grid, thin)
+    assert hint is not None and f"{thin:.0%}" in hint and "--thin-switch" in hint and "96 voxels" in hint
+    assert "get_preset('quick').updated(thin_parts=get_preset('small').thin_parts)" in hint
+    assert thin_parts_switch(quick, grid, thin) is None
+    small = get_preset("small")
+    assert thin_parts_hint(small, grid, thin) is None and thin_parts_switch(small, grid, thin).grid.resolution == 96
+    assert thin_parts_hint(quick, grid, 0.1) is None  # few thin parts: nothing to say
+    assert thin_parts_hint(get_preset("tiny"), grid, thin) is None  # tests' 32 voxels
+    # the settings the hint names do what it says
+    asked = quick.updated(thin_parts=small.thin_parts).for_thin_parts()
+    assert asked.grid.resolution == 96 and asked.diffusion.rollout and asked.autoencoder.mlp_hidden == 128

@@ -46,3 +46,19 @@ def test_apply_policy_on_a_given_environment():
     env = {"KMP_BLOCKTIME": "0", "MKL_NUM_THREADS": "4"}
     assert apply_policy(env) == {} and "OMP_WAIT_POLICY" not in env and "OMP_NUM_THREADS" not in env
     assert chosen_threads({"SIN3DM_THREADS": "3"}) == 3 and chosen_threads({"SIN3DM_THREADS": "x"}) == 1
+
+
+def test_export_workers_one_per_core_shared_among_ranks_at_most_four(monkeypatch):
+    """`sample` without --workers exports in one process per usable core, split among the torchrun ranks of this
+    machine, 1 to 4; an explicit --workers (0 too) is kept."""
+    from sin3dm_lite import threads
+    from sin3dm_lite.request import SampleRequest
+
+    for cores, local, want in [(1, "1", 1), (2, "1", 2), (2, "2", 1), (16, "1", 4), (16, "8", 2), (8, "x", 4)]:
+        monkeypatch.setattr(threads, "usable_cores", lambda c=cores: c)
+        assert threads.export_workers({"LOCAL_WORLD_SIZE": local}) == want, (cores, local)
+    monkeypatch.setattr(threads, "usable_cores", lambda: 2)
+    monkeypatch.delenv("LOCAL_WORLD_SIZE", raising=False)
+    assert SampleRequest().export_workers() == 2
+    assert SampleRequest(workers=0).export_workers() == 0 and SampleRequest(workers=3).export_workers() == 3
+    assert threads.usable_cores() >= 1

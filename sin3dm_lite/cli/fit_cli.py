@@ -79,15 +79,18 @@ def cmd_grid(a) -> None:
 
 def cmd_fit(a) -> None:
     from ..data.config import parse_settings
-    from ..data.presets import get_preset
+    from ..data.presets import DETAIL_CHANGES, get_preset
     from ..pipeline import Sin3DM
 
     if a.resume and not Path(a.out).is_dir():
         raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")
     t0 = time.perf_counter()
     changes = parse_settings(a.set)
-    if not a.thin_switch:
+    if a.thin_switch is False:
         changes["thin_parts"] = {}
+    elif a.thin_switch and "thin_parts" not in changes and not get_preset(a.preset or "small").thin_parts:
+        # quick's switch is off for its cost: asked for here (settings the user sets stay theirs)
+        changes["thin_parts"] = {k: v for k, v in DETAIL_CHANGES.items() if k not in changes}
     if not a.rollout_switch:
         changes["rollout_switch"] = {}
     name = a.preset or (None if a.resume else "small")  # None: the run's own (Sin3DM.fit)

@@ -18,7 +18,9 @@
   only, most laptops), where ``small``'s paper-width autoencoder alone takes
   about 20 minutes on 2 cores: the whole fit in about 5 minutes there, samples
   of the same shape and variation, but blurrier texture (a brick wall loses its
-  vertical mortar joints). ``Sin3DM.fit`` suggests it on such a CPU.
+  vertical mortar joints). ``Sin3DM.fit`` suggests it on such a CPU. It has no
+  thin-part switch (the finer settings take about 5x its fit there): on a shape
+  of thin parts the fit says so and names ``--thin-switch``, which asks for them.
 * ``detail`` – ``small`` at 96 voxels (a 48-texel latent) with 4 ResBlocks (a
   17-texel field, about the same share of the latent) and the paper's
   cross-plane rollout (the three planes agree where a column stands), sampled
@@ -117,7 +119,8 @@ def _quick() -> Config:
     """``small`` with a light autoencoder and 1,500 denoiser steps: about 4x faster where bf16 is not native."""
     # The autoencoder's MLPs are most of a fit, and without native bf16 they run in fp32: 128-wide MLPs on 4,096
     # points for 1,000 steps. Geometry and variation hold; colour loses some detail (the step count, not the width
-    # or the points). No thin-part or rollout switch: their extra denoiser would double the fit on such a CPU.
+    # or the points). No rollout switch (a second denoiser would double the fit on such a CPU) and no thin-part
+    # switch (its 96-voxel settings take about 5x the fit there: fit_policy.thin_parts_hint names them instead).
     # Measured in docs/presets.md.
     return _small().updated(
         **{
