@@ -78,7 +78,7 @@ def test_torch_save_on_a_full_disk_is_one_line_and_leaves_no_temporary_folder(tm
     monkeypatch.setattr(torch, "save", full)
     monkeypatch.setattr(shutil, "disk_usage", lambda p: namedtuple("usage", "total used free")(10, 10, 0))
     out = tmp_path / "s"
-    assert main(["sample", RUN, "-n", "2", "--out", str(out), *CHEAP]) == 2  # export workers (the default): the model is copied first
+    assert main(["sample", RUN, "-n", "2", "--out", str(out), *CHEAP]) == 2  # default workers: model copied first
     assert _error_line(capsys) == (
         f"no space left on device while writing 'model.pt' in '{out}'; free space or choose another --out"
     )
