@@ -78,12 +78,16 @@ def usable_cores() -> int:
 def export_workers(environ=os.environ) -> int:
     """How many processes decode, texture and export samples when ``--workers`` is not given.
 
-    One per usable core, shared among the sampling ranks on this machine (torchrun's
+    ``SIN3DM_WORKERS=N`` sets it (the test suite sets 1: its two processes share two cores).
+    Else one per usable core, shared among the sampling ranks on this machine (torchrun's
     ``LOCAL_WORLD_SIZE``), at least 1 and at most :data:`MAX_EXPORT_WORKERS`. Each worker
     runs one thread (the policy above), and the denoiser's share of a sample is small
     beside its decode, texture and export, so on a 2-core CPU two workers export about
     twice as many meshes a minute as one (docs/performance.md, "Many shapes").
     """
+    chosen = environ.get("SIN3DM_WORKERS", "")
+    if chosen.isdigit():
+        return int(chosen)
     local = environ.get("LOCAL_WORLD_SIZE", "1")
     ranks = int(local) if local.isdigit() and int(local) > 0 else 1
     return max(1, min(MAX_EXPORT_WORKERS, usable_cores() // ranks))

@@ -57,8 +57,10 @@ def test_export_workers_one_per_core_shared_among_ranks_at_most_four(monkeypatch
     for cores, local, want in [(1, "1", 1), (2, "1", 2), (2, "2", 1), (16, "1", 4), (16, "8", 2), (8, "x", 4)]:
         monkeypatch.setattr(threads, "usable_cores", lambda c=cores: c)
         assert threads.export_workers({"LOCAL_WORLD_SIZE": local}) == want, (cores, local)
+    assert threads.export_workers({"SIN3DM_WORKERS": "3", "LOCAL_WORLD_SIZE": "2"}) == 3  # the user's number wins
     monkeypatch.setattr(threads, "usable_cores", lambda: 2)
     monkeypatch.delenv("LOCAL_WORLD_SIZE", raising=False)
+    monkeypatch.delenv("SIN3DM_WORKERS", raising=False)  # the suite's own setting (conftest)
     assert SampleRequest().export_workers() == 2
     assert SampleRequest(workers=0).export_workers() == 0 and SampleRequest(workers=3).export_workers() == 3
     assert threads.usable_cores() >= 1

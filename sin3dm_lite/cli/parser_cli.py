@@ -370,7 +370,7 @@ def _run_args(s: argparse.ArgumentParser, n_default: int) -> None:
         type=_whole,
         default=None,
         help="processes that decode, texture and export meshes while the next batch is sampled "
-        "(default: one per CPU core, at most 4, shared among torchrun ranks; 0: in the sampling process)",
+        "(default: one per CPU core, at most 4, shared among torchrun ranks, or SIN3DM_WORKERS; 0: in the sampling process)",
     )
 
 
