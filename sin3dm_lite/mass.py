@@ -63,17 +63,31 @@ def check_request(model, req: SampleRequest) -> None:
 
 def check_sample_sizes(model, plan, req: SampleRequest) -> None:
     """``--faces``, ``--mesh-resolution`` and ``--texture-size`` against their ranges and the memory
-    (``--workers`` exports at once), before any folder is made."""
+    (``--workers`` exports at once), before any folder is made. Without ``--workers`` the default (one
+    per core) is lowered to as many exports as memory holds, at least one, and kept in ``req.workers``."""
     r = req.resolve(model.config.sampling)  # --steps: mass.check_request
     if req.faces is not None:
         check_setting("sampling.faces", req.faces, option="--faces")
-    model.check_mesh_sizes(
-        r.mesh_resolution,
-        r.texture_size,
-        plan.aabb,
-        parallel=max(1, req.export_workers()),
-        names=("--mesh-resolution", "--texture-size"),
-    )
+
+    def check(parallel: int) -> None:
+        model.check_mesh_sizes(
+            r.mesh_resolution,
+            r.texture_size,
+            plan.aabb,
+            parallel=parallel,
+            names=("--mesh-resolution", "--texture-size"),
+        )
+
+    workers = req.export_workers()
+    if req.workers is None:  # the default: not a reason to refuse, so fewer workers where memory is short
+        while workers > 1:
+            try:
+                check(workers)
+                break
+            except Sin3DMInputError:
+                workers -= 1
+        req.workers = workers
+    check(max(1, workers))
 
 
 def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", ranks=None, run: str = "") -> dict:

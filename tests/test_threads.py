@@ -64,3 +64,26 @@ def test_export_workers_one_per_core_shared_among_ranks_at_most_four(monkeypatch
     assert SampleRequest().export_workers() == 2
     assert SampleRequest(workers=0).export_workers() == 0 and SampleRequest(workers=3).export_workers() == 3
     assert threads.usable_cores() >= 1
+
+
+def test_the_default_workers_drop_to_what_memory_holds(monkeypatch):
+    """Without --workers, sample lowers its one-per-core default where the exports would not fit in memory,
+    instead of refusing; an explicit --workers that does not fit is refused (tests/test_bad_inputs.py)."""
+    from sin3dm_lite import device, mass, threads
+    from sin3dm_lite.pipeline import Sin3DM
+    from sin3dm_lite.request import SampleRequest
+    from sin3dm_lite.sampling import EXPORT_BYTES_PER_TEXEL, EXPORT_BYTES_PER_VOXEL
+
+    monkeypatch.delenv("SIN3DM_WORKERS", raising=False)
+    monkeypatch.setattr(threads, "usable_cores", lambda: 4)
+    model = Sin3DM.open("canyon")
+    plan = model.plan()
+    one_export = 4096**2 * EXPORT_BYTES_PER_TEXEL + 128**3 * EXPORT_BYTES_PER_VOXEL  # at most, any box
+    monkeypatch.setattr(device, "memory_available", lambda kind="cpu": 4.4 * one_export)  # half of it: 2.2 exports
+    req = SampleRequest(texture_size=4096, mesh_resolution=128)
+    mass.check_sample_sizes(model, plan, req)
+    assert req.workers == 2
+    monkeypatch.setattr(device, "memory_available", lambda kind="cpu": 1e15)
+    req = SampleRequest()
+    mass.check_sample_sizes(model, plan, req)
+    assert req.workers == 4
