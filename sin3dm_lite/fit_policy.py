@@ -77,14 +77,14 @@ def thin_parts_hint(cfg: Config, grid: ShapeGrid, thin: float) -> str | None:
     finer = DETAIL_CHANGES["grid.resolution"]
     if cfg.thin_parts or thin <= THIN_SHARE_HINT or not 64 <= cfg.grid.resolution < finer:
         return None
+    python = preset_expr(cfg) if cfg.name.split("+")[0] in PRESETS else "preset=your_config"
     return (
         f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels; the "
         f"{cfg.name} config keeps {cfg.grid.resolution} voxels, so its samples may thicken or break walls and "
         f"columns. The thin-part settings ({finer} voxels, a {DETAIL_CHANGES['diffusion.n_resblocks']}-ResBlock "
         "denoiser whose planes see each other) keep them, at about 5x the fit time on a CPU without native bf16 "
-        "(about 25 minutes on 2 cores): CLI --thin-switch; Python "
-        f"{preset_expr(cfg).replace('your Config', 'preset=your_config')}.updated(thin_parts=get_preset('small')"
-        ".thin_parts)."
+        f"(about 25 minutes on 2 cores): CLI --thin-switch; Python {python}.updated(thin_parts="
+        "get_preset('small').thin_parts)."
     )
 
 

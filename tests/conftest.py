@@ -26,6 +26,8 @@ from sin3dm_lite.model.triplane import Triplane  # noqa: E402
 
 # a non-cubic box, symmetric like ShapeGrid's (±n_axis / n_max): 24 × 32 × 20 voxels at resolution 32
 AABB = np.array([-0.75, -1.0, -0.625, 0.75, 1.0, 0.625])
+#: `sample` flags for tests that need *a* mesh, not a good one: 3 DDIM steps, a 32-voxel decode, small files
+CHEAP_SAMPLE = ["--steps", "3", "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64", "--no-pictures"]
 LATENT_RES = (8, 8, 8)  # the diffusion tests' latent
 
 

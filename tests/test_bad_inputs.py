@@ -24,9 +24,11 @@ from sin3dm_lite.data.examples import list_examples
 from sin3dm_lite.files import LOCK, MANIFEST, TEMP_PREFIX, read_manifest
 from sin3dm_lite.pretrained import pretrained_path, shipped_model
 
+from .conftest import CHEAP_SAMPLE
+
 SHIPPED = pretrained_path()
 UNSHIPPED = next((name for name in list_examples() if shipped_model(name) is None), None)
-SMALL = ["--steps", "3", "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64"]
+SMALL = CHEAP_SAMPLE[:-1]  # with pictures (the tests that need none say --no-pictures)
 # `tiny` on a coarser grid with fewer points and 50 denoiser steps: still 150 autoencoder steps with a checkpoint
 # every 50, so that a kill 1.5 s after the first checkpoint lands in the training
 LIGHT_FIT = [

@@ -7,6 +7,8 @@ import trimesh
 from sin3dm_lite.cli import main
 from sin3dm_lite.data.examples import list_examples
 
+from .conftest import CHEAP_SAMPLE
+
 
 def run(capsys, *argv):
     code = main(list(argv))
@@ -245,15 +247,7 @@ def test_demo_example_with_train_fits_that_example(capsys, tmp_path, monkeypatch
         str(out),
         "-n",
         "1",
-        "--steps",
-        "3",
-        "--mesh-resolution",
-        "32",
-        "--faces",
-        "500",
-        "--texture-size",
-        "64",
-        "--no-pictures",
+        *CHEAP_SAMPLE,
     )
     assert code == 0, err
     assert (out / "000" / "mesh.obj").is_file() and (out / "index.html").is_file()

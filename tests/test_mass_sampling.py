@@ -16,8 +16,10 @@ from sin3dm_lite.files import LOCK, MANIFEST, TEMP_PREFIX, manifest_parts, read_
 from sin3dm_lite.pipeline import Sin3DM
 from sin3dm_lite.pretrained import pretrained_path
 
+from .conftest import CHEAP_SAMPLE
+
 RUN = str(pretrained_path())
-SMALL = ["--steps", "3", "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64", "--no-pictures"]
+SMALL = CHEAP_SAMPLE
 N = 4
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 

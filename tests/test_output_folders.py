@@ -17,19 +17,9 @@ from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.files import LOCK, MANIFEST, read_manifest
 from sin3dm_lite.pretrained import pretrained_path
 
-CHEAP = [
-    "--steps",
-    "3",
-    "--mesh-resolution",
-    "32",
-    "--faces",
-    "500",
-    "--texture-size",
-    "64",
-    "--no-pictures",
-    "--workers",
-    "0",
-]
+from .conftest import CHEAP_SAMPLE
+
+CHEAP = [*CHEAP_SAMPLE, "--workers", "0"]
 
 
 @pytest.fixture(scope="module")

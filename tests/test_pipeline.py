@@ -308,9 +308,10 @@ def test_input_mesh_is_the_example_or_the_file_the_run_was_fitted_to(fitted, tmp
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
-def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, capsys):
+def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, capsys, monkeypatch):
     """A preset with thin_parts refits the grid at the finer settings when the shape is mostly thin parts, says so,
     and records the settings it used, so that the run folder loads and resumes as what it is."""
+    from sin3dm_lite import fitting
     from sin3dm_lite.data.grid import load_grid
 
     cfg = micro_config().updated(
@@ -338,9 +339,12 @@ def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, caps
     assert resumed.report["thin_parts_switch"] == switch and resumed.config.name == "small+thin"
     assert json.loads((tmp_path / "tiles" / "report.json").read_text())["thin_parts_switch"] == switch
 
-    # the same settings without thin_parts, or on a shape with few thin parts, keep the preset's grid
+    # the same settings without thin_parts, or on a shape with few thin parts, keep the preset's grid; a fit
+    # without the switch says what fit_policy.thin_parts_hint says (quick's hint; None at these 32 voxels)
+    monkeypatch.setattr(fitting, "thin_parts_hint", lambda c, g, thin: f"HINT {c.name} {thin:.2f}")
     model = Sin3DM.fit("tiles", preset=cfg.updated(thin_parts={}), out=tmp_path / "kept", progress=True)
-    assert "fitting at" not in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "fitting at" not in out and f"[fit] HINT small {model.report['thin_share']:.2f}" in out
     assert model.config.name == "small" and model.report["thin_parts_switch"] is None
     assert max(load_grid(tmp_path / "kept" / "grid.npz").shape) == 32
     grid = load_grid(tmp_path / "kept" / "grid.npz")

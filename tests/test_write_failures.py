@@ -21,8 +21,10 @@ from sin3dm_lite.mass_workers import export_sample as real_export_sample
 from sin3dm_lite.pipeline import Sin3DM
 from sin3dm_lite.pretrained import pretrained_path
 
+from .conftest import CHEAP_SAMPLE
+
 RUN = str(pretrained_path())
-CHEAP = ["--steps", "3", "--mesh-resolution", "32", "--faces", "500", "--texture-size", "64", "--no-pictures"]
+CHEAP = CHEAP_SAMPLE
 TORCH_DISK_FULL = "[enforce fail at inline_container.cc:672] . unexpected pos 1846784 vs 1846672"
 
 _calls: list[str] = []

@@ -86,15 +86,16 @@ def cmd_fit(a) -> None:
         raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")
     t0 = time.perf_counter()
     changes = parse_settings(a.set)
+    name = a.preset or (None if a.resume else "small")  # None: the run's own (Sin3DM.fit)
+    base = get_preset(name or "small")
     if a.thin_switch is False:
         changes["thin_parts"] = {}
-    elif a.thin_switch and "thin_parts" not in changes and not get_preset(a.preset or "small").thin_parts:
+    elif a.thin_switch and "thin_parts" not in changes and not base.thin_parts:
         # quick's switch is off for its cost: asked for here (settings the user sets stay theirs)
         changes["thin_parts"] = {k: v for k, v in DETAIL_CHANGES.items() if k not in changes}
     if not a.rollout_switch:
         changes["rollout_switch"] = {}
-    name = a.preset or (None if a.resume else "small")  # None: the run's own (Sin3DM.fit)
-    preset = get_preset(name or "small").updated(**changes) if changes else name
+    preset = base.updated(**changes) if changes else name
     model = Sin3DM.fit(
         a.mesh,
         preset=preset,
