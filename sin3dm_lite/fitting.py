@@ -45,6 +45,7 @@ from .fit_policy import (
 from .model.autoencoder import AutoencoderTrainer
 from .model.decode import reconstructed_grid
 from .run_folder import check_run_folder, prepare_run, read_report, remove_failed_run
+from .threads import threads_hint
 
 
 def fit(
@@ -125,9 +126,9 @@ class FitRun:
         """All stages, saved into the run folder at the end; the fitted model."""
         cfg, mesh = self.settings(source, preset, seed, pbr, allow_outside_paths)
         grid, thin, cfg, thin_parts = self.grid(cfg, mesh)
-        hint = quick_hint(cfg, self.dev)
-        if hint:
-            self.say("[fit] " + hint)
+        for hint in (quick_hint(cfg, self.dev), threads_hint() if self.dev.type == "cpu" else None):
+            if hint:
+                self.say("[fit] " + hint)
         ae, h0, metrics = self.autoencoder(cfg, grid)
         base = {
             "preset": cfg.name,

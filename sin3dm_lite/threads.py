@@ -13,10 +13,17 @@ The policy, applied when ``sin3dm_lite`` is imported (before torch where it can 
 * one thread per process (``OMP_NUM_THREADS=1``): on 2-core CPUs, with and without
   AVX-512, every training step of the CPU presets measured faster on one thread
   than on two, and two processes then share two cores instead of stalling;
-* idle OpenMP threads sleep at once (``OMP_WAIT_POLICY=PASSIVE``), for anyone who
-  asks for more threads;
-* ``SIN3DM_THREADS=N`` asks for N threads (a machine with many cores and a large
-  preset may gain from them).
+* idle OpenMP threads sleep at once (``OMP_WAIT_POLICY=PASSIVE``), so an OpenMP pool that
+  something else starts does not spin on the cores;
+* ``SIN3DM_THREADS=N`` asks for N threads, and for N > 1 idle threads spin a little
+  before they sleep (``GOMP_SPINCOUNT=10000``) instead: a thread that sleeps at once
+  pays a wake-up at every parallel loop, and two sleeping threads ran a ``quick``
+  training step *slower* than one. With the short spin, a process **alone** on a
+  2-core CPU trains ``quick`` about 1.2-1.4x faster on two threads than on one; beside
+  another busy process it runs about 2x slower, so it stays an opt-in
+  (:func:`threads_hint` says so where it pays). Results differ in the last bits from
+  a one-thread run (sums are split differently), so a fit reproduces bit for bit only
+  at the same thread count.
 
 A user's own settings always win: with ``OMP_NUM_THREADS`` (or ``MKL_NUM_THREADS``) in
 the environment the thread count is not touched, with ``OMP_WAIT_POLICY`` /
@@ -36,6 +43,11 @@ USER_WAIT_SETTINGS = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "KMP_BLOCKTIME")
 USER_THREAD_SETTINGS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
 #: threads per process unless ``SIN3DM_THREADS`` or the user's settings say otherwise
 DEFAULT_THREADS = 1
+#: how long an idle OpenMP thread spins before it sleeps when ``SIN3DM_THREADS`` asks for more than one (libgomp's
+#: ``GOMP_SPINCOUNT``): 10,000 kept the second thread's gain on a ``quick`` step, 300-3,000 lost it (docs/performance.md)
+SPIN_COUNT = "10000"
+#: what :func:`apply_policy` set in this process's environment (empty where the user's settings won)
+APPLIED: dict[str, str] = {}
 
 
 def chosen_threads(environ=os.environ) -> int:
@@ -51,16 +63,35 @@ def apply_policy(environ=os.environ) -> dict[str, str]:
     process it starts (export workers, notebook kernels). Where torch is already loaded
     with its default thread count, that count is set too.
     """
-    changed = {}
+    changed: dict[str, str] = {}
     if not any(k in environ for k in USER_WAIT_SETTINGS):
-        changed["OMP_WAIT_POLICY"] = "PASSIVE"
+        if chosen_threads(environ) > 1 and not any(k in environ for k in USER_THREAD_SETTINGS):
+            changed["GOMP_SPINCOUNT"] = SPIN_COUNT  # more threads asked for: spin briefly, then sleep
+        else:
+            changed["OMP_WAIT_POLICY"] = "PASSIVE"
     if not any(k in environ for k in USER_THREAD_SETTINGS):
         changed["OMP_NUM_THREADS"] = str(chosen_threads(environ))
     environ.update(changed)
+    if environ is os.environ:
+        APPLIED.update(changed)
     torch = sys.modules.get("torch")
     if "OMP_NUM_THREADS" in changed and torch is not None and torch.get_num_threads() == (os.cpu_count() or 1):
         torch.set_num_threads(int(changed["OMP_NUM_THREADS"]))  # loaded before us, still at its default
     return changed
+
+
+def threads_hint(applied: dict | None = None, cores: int | None = None) -> str | None:
+    """What a CPU fit says when the policy gave it one thread (``applied``: what :func:`apply_policy` set, default
+    this process's) on a machine with more cores, else None."""
+    cores = usable_cores() if cores is None else cores
+    applied = APPLIED if applied is None else applied
+    if cores < 2 or applied.get("OMP_NUM_THREADS") != "1":
+        return None
+    return (
+        f"one CPU thread (so that jobs sharing the CPU do not stall each other); with nothing else running, "
+        f"SIN3DM_THREADS=2 makes a fit about 1.2-1.4x faster on this {cores}-core machine (set it before starting "
+        "Python or the command), and about 2x slower beside another busy job"
+    )
 
 
 #: the most export workers :func:`export_workers` picks by itself (each holds a CPU copy of the model and a decode grid)

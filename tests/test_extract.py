@@ -165,6 +165,23 @@ def test_coarse_to_fine_real_decoder_gives_the_same_mesh(truncation):
     assert stats["decoded"] < 0.6 * full.size
 
 
+@pytest.mark.parametrize("truncation", [None, 0.375])
+def test_the_mesh_path_decodes_only_what_marching_cubes_reads(truncation):
+    """``extract_mesh`` decodes with ``exact_band=0``: fewer points, the mesh of the full decode bit for bit."""
+    dec, prepared = sdf_like_triplane_decoder(truncation)
+    full = dc.decode_grid(dec, prepared, AABB, 32, coarse=None)
+    stats, banded = {}, {}
+    fast = dc.decode_grid(dec, prepared, AABB, 32, exact_band=0.0, stats=stats)
+    np.testing.assert_array_equal(np.sign(fast), np.sign(full))
+    for a, b in zip(ex.marching_cubes(fast, AABB), ex.marching_cubes(full, AABB)):
+        np.testing.assert_array_equal(a, b)
+    dc.decode_grid(dec, prepared, AABB, 32, stats=banded)
+    assert stats["decoded"] < 0.85 * banded["decoded"]
+    _, steps = ex.extract_mesh(dec, prepared, AABB, resolution=32, faces=None, vertex_colors=True, return_steps=True)
+    assert steps["decode_stats"]["decoded"] == stats["decoded"]
+    np.testing.assert_array_equal(steps["raw"][1], ex.marching_cubes(full, AABB)[1])
+
+
 def test_query_points_value_does_not_depend_on_its_batch():
     """Matrix kernels round the leftover rows of a batch differently; the row padding hides that."""
     dec, prepared = random_triplane_decoder()

@@ -471,9 +471,13 @@ def test_a_slow_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, ca
 
 
 def test_the_quick_preset_is_small_with_a_lighter_autoencoder():
-    """`quick` changes only the autoencoder's cost and the denoiser's steps: same grid, latent and denoiser field."""
+    """`quick` changes only the autoencoder's cost, the denoiser's steps and the texture's size: same grid, latent,
+    denoiser field and sampling otherwise."""
     small, quick = get_preset("small"), get_preset("quick")
-    assert quick.grid == small.grid and quick.sampling == small.sampling
+    assert (
+        quick.grid == small.grid and replace(quick.sampling, texture_size=small.sampling.texture_size) == small.sampling
+    )
+    assert quick.sampling.texture_size == small.sampling.texture_size // 2  # a quarter of the texels to bake
     assert quick.autoencoder.mlp_hidden < small.autoencoder.mlp_hidden
     assert (
         quick.autoencoder.points_per_step * quick.autoencoder.steps

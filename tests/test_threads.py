@@ -4,7 +4,7 @@ import os
 import subprocess
 import sys
 
-from sin3dm_lite.threads import apply_policy, chosen_threads
+from sin3dm_lite.threads import SPIN_COUNT, apply_policy, chosen_threads, threads_hint
 
 PROBE = "import os, sin3dm_lite, torch; print(os.environ.get('OMP_WAIT_POLICY'), torch.get_num_threads())"
 OURS = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "KMP_BLOCKTIME", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "SIN3DM_THREADS")
@@ -25,7 +25,8 @@ def test_the_users_settings_win():
     assert _probe(OMP_WAIT_POLICY="ACTIVE")[0] == "ACTIVE"
     assert _probe(GOMP_SPINCOUNT="300000")[0] == "None"
     assert _probe(OMP_NUM_THREADS="2")[1] == 2
-    assert _probe(SIN3DM_THREADS="2")[1] == 2
+    spin = "import os, sin3dm_lite, torch; print(os.environ.get('GOMP_SPINCOUNT'), torch.get_num_threads())"
+    assert _probe(spin, SIN3DM_THREADS="2") == (SPIN_COUNT, 2)  # asked-for threads spin briefly
     # torch loaded first and set by the user: kept; loaded first at its default: one thread
     assert (
         _probe(
@@ -46,6 +47,25 @@ def test_apply_policy_on_a_given_environment():
     env = {"KMP_BLOCKTIME": "0", "MKL_NUM_THREADS": "4"}
     assert apply_policy(env) == {} and "OMP_WAIT_POLICY" not in env and "OMP_NUM_THREADS" not in env
     assert chosen_threads({"SIN3DM_THREADS": "3"}) == 3 and chosen_threads({"SIN3DM_THREADS": "x"}) == 1
+
+
+def test_more_threads_asked_for_spin_briefly_instead_of_sleeping():
+    # two threads that sleep at once ran a quick training step slower than one: asked-for threads spin a little
+    env = {"SIN3DM_THREADS": "2"}
+    assert apply_policy(env) == {"GOMP_SPINCOUNT": SPIN_COUNT, "OMP_NUM_THREADS": "2"}
+    assert "OMP_WAIT_POLICY" not in env
+    # the user's wait policy or thread count still wins
+    env = {"SIN3DM_THREADS": "2", "OMP_WAIT_POLICY": "PASSIVE"}
+    assert apply_policy(env) == {"OMP_NUM_THREADS": "2"}
+    assert apply_policy({"SIN3DM_THREADS": "2", "OMP_NUM_THREADS": "1"}) == {"OMP_WAIT_POLICY": "PASSIVE"}
+
+
+def test_the_threads_hint_only_where_the_policy_chose_one_thread_of_several_cores():
+    hint = threads_hint({"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"}, cores=2)
+    assert "SIN3DM_THREADS=2" in hint and "2-core" in hint and "slower beside another" in hint
+    assert threads_hint({"OMP_NUM_THREADS": "1"}, cores=1) is None  # one core: nothing to gain
+    assert threads_hint({}, cores=4) is None  # the user's OMP_NUM_THREADS won
+    assert threads_hint({"GOMP_SPINCOUNT": SPIN_COUNT, "OMP_NUM_THREADS": "2"}, cores=2) is None  # asked for 2
 
 
 def test_export_workers_one_per_core_shared_among_ranks_at_most_four(monkeypatch):

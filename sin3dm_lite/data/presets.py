@@ -18,7 +18,7 @@
   only, most laptops), where ``small``'s paper-width autoencoder alone takes
   about 20 minutes on 2 cores: the whole fit in about 5 minutes there, samples
   of the same shape and variation, but blurrier texture (a brick wall loses its
-  vertical mortar joints). ``Sin3DM.fit`` suggests it on such a CPU. It has no
+  vertical mortar joints), baked into 512² textures. ``Sin3DM.fit`` suggests it on such a CPU. It has no
   thin-part switch (the finer settings take about 5x its fit there): on a shape
   of thin parts the fit says so and names ``--thin-switch``, which asks for them.
 * ``detail`` – ``small`` at 96 voxels (a 48-texel latent) with 4 ResBlocks (a
@@ -121,7 +121,8 @@ def _quick() -> Config:
     # points for 1,000 steps. Geometry and variation hold; colour loses some detail (the step count, not the width
     # or the points). No rollout switch (a second denoiser would double the fit on such a CPU) and no thin-part
     # switch (its 96-voxel settings take about 5x the fit there: fit_policy.thin_parts_hint names them instead).
-    # Measured in docs/presets.md.
+    # Textures of 512² (not 1,024²): its decoder's colour is blurrier than small's anyway, and baking a quarter of
+    # the texels takes a sample from about 12 to 8 s on one AVX2 core. Measured in docs/presets.md.
     return _small().updated(
         **{
             "name": "quick",
@@ -129,6 +130,7 @@ def _quick() -> Config:
             "autoencoder.points_per_step": 4096,
             "autoencoder.steps": 1000,
             "diffusion.steps": 1500,
+            "sampling.texture_size": 512,
             "thin_parts": {},
             "rollout_switch": {},
         }
