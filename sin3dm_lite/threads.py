@@ -10,9 +10,10 @@ kernel, a test suite beside its notebooks, a sampler beside its export worker.
 
 The policy, applied when ``sin3dm_lite`` is imported (before torch where it can be):
 
-* one thread per process (``OMP_NUM_THREADS=1``): on 2-core CPUs, with and without
-  AVX-512, every training step of the CPU presets measured faster on one thread
-  than on two, and two processes then share two cores instead of stalling;
+* one thread per process (``OMP_NUM_THREADS=1``): two processes then share two cores
+  instead of stalling each other (on 2-core CPUs, with and without AVX-512, every
+  training step of the CPU presets also measured faster on one thread than on two
+  sleeping ones);
 * idle OpenMP threads sleep at once (``OMP_WAIT_POLICY=PASSIVE``), so an OpenMP pool that
   something else starts does not spin on the cores;
 * ``SIN3DM_THREADS=N`` asks for N threads, and for N > 1 idle threads spin a little

@@ -461,11 +461,16 @@ def test_a_slow_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, ca
     assert "--preset quick" in fit_policy.quick_hint(get_preset("small").for_thin_parts(), "cpu")
     for cfg in (get_preset("quick"), get_preset("tiny"), get_preset("small").updated(**{"autoencoder.steps": 500})):
         assert fit_policy.quick_hint(cfg, "cpu") is None, cfg.name
-    # the fit prints it (a micro fit priced like small's)
+    # the fit prints it (a micro fit priced like small's), and the two-thread opt-in where the policy chose one
+    from sin3dm_lite import threads
+
     monkeypatch.setattr(fit_policy, "fp32_autoencoder_minutes", lambda cfg: 20.0)
+    monkeypatch.setattr(threads, "APPLIED", {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"})
+    monkeypatch.setattr(threads, "usable_cores", lambda: 2)
     cfg = micro_config().updated(**{"name": "small", "autoencoder.steps": 2, "diffusion.steps": 2})
     Sin3DM.fit("canyon", preset=cfg, out=tmp_path / "fp32", device="cpu", progress=True)
-    assert "--preset quick" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "--preset quick" in out and "[fit] one CPU thread" in out and "SIN3DM_THREADS=2" in out
     monkeypatch.setattr(fit_policy, "bf16_is_fast", lambda device: True)
     assert fit_policy.quick_hint(get_preset("small"), "cpu") is None  # native bf16: small is fast enough
 
