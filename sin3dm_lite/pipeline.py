@@ -179,6 +179,7 @@ class Sin3DM:
         regenerate=None,
         duplicate=None,
         plan=None,
+        snap: float = 0.0,
     ) -> Samples:
         """Draw ``n`` new triplanes from noise, optionally controlled (the paper's Sec. 4.4, see :mod:`.control`).
 
@@ -203,6 +204,11 @@ class Sin3DM:
         layout stays and only what the noise erased is regenerated; 0 gives
         the input (or the known latent) back. The result's ``plan`` says what was sampled.
 
+        ``snap`` (0-1, default 0: the paper's sampler) pulls every step's predicted clean latent towards the
+        input's 3×3 latent patches (:func:`~sin3dm_lite.model.diffusion.snap_to_patches`): thin walls and
+        broken tops keep their shape at a higher diversity (docs/thin-parts.md). Not calibrated: pick the
+        diversity yourself (on the thin-walled ruin with ``quick``, ``snap=1`` at 0.35-0.4).
+
         Sample ``i`` comes from the seed ``seed + i`` alone (or ``seed[i]`` for a
         list): ``sample(4, seed=0)``'s third is ``sample(1, seed=2)``, whatever
         the batch or the device, so any sample of a large run can be drawn again on its own.
@@ -210,7 +216,9 @@ class Sin3DM:
         if n < 1:
             raise Sin3DMInputError(f"number of samples must be at least 1, got {n}")
         plan = self.plan(resize, outpaint, anchor, regenerate, duplicate, plan)
-        return sampling.draw(self, n, plan, steps, method, seed, return_intermediates, known, mask, progress, diversity)
+        return sampling.draw(
+            self, n, plan, steps, method, seed, return_intermediates, known, mask, progress, diversity, snap
+        )
 
     def plan(
         self, resize=(1.0, 1.0, 1.0), outpaint=None, anchor: str = "center", regenerate=None, duplicate=None, plan=None

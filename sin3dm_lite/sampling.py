@@ -104,6 +104,7 @@ def draw(
     mask=None,
     progress: bool = True,
     diversity=None,
+    snap: float = 0.0,
 ) -> Samples:
     """``model.sample`` (its docstring says what each argument does): ``n`` (≥ 1) new triplanes for ``plan``
     (:func:`plan_for`), at most as many as fit in memory at once (:func:`max_samples`)."""
@@ -142,6 +143,8 @@ def draw(
         prediction=model.config.diffusion.prediction,
         start=plan.start if t0 < model.schedule.timesteps - 1 else None,
         diversity=r.diversity,
+        snap=snap,
+        snap_to=model.latent if snap > 0 else None,
     )
     tp, inter = out if return_intermediates is not None else (out, None)
     return Samples(tp, plan.aabb, inter, plan)

@@ -13,6 +13,7 @@ from sin3dm_lite.model.diffusion import (
     fit_diffusion,
     predict_clean,
     sample,
+    snap_to_patches,
     soft_mask,
 )
 from sin3dm_lite.model.schedule import NoiseSchedule, ddim_timesteps, sampling_timesteps, start_step
@@ -191,6 +192,46 @@ def test_sampling_shapes_range_and_determinism(trained, method):
     assert all(torch.equal(p, q) for p, q in zip(a.planes, b.planes))
     assert not torch.equal(a.xy, c.xy)
     assert not torch.equal(a.xy[0], a.xy[1])
+
+
+def _nearest_window_distance(x: Triplane, ref: Triplane) -> float:
+    """Mean distance of x's 3×3 windows to their nearest window of ref (the same plane)."""
+    total = 0.0
+    for p, r in zip(x.planes, ref.planes):
+        ours = torch.nn.functional.unfold(p, 3).transpose(1, 2)  # [B, hw, c·9]
+        theirs = torch.nn.functional.unfold(r, 3)[0].T  # [hw', c·9]
+        total += torch.cdist(ours, theirs[None].expand(len(ours), -1, -1)).min(-1).values.mean().item()
+    return total
+
+
+def test_snap_rebuilds_each_plane_from_the_inputs_patches(h0):
+    noise = Triplane.randn_like(h0.repeat(2), generator=torch.Generator().manual_seed(0))
+    one = snap_to_patches(noise, h0, patch=1)  # 1×1 windows: every texel becomes one of the input's texels
+    for p, r in zip(one.planes, h0.planes):
+        texels = r[0].flatten(1).T  # [hw, c]
+        got = p.permute(0, 2, 3, 1).reshape(-1, p.shape[1])
+        assert (got[:, None] - texels[None]).abs().sum(-1).min(-1).values.max() < 1e-6
+    # a latent made of the input's patches stays as it is; another one moves towards them
+    same = snap_to_patches(h0, h0)
+    assert all(torch.allclose(p, q, atol=1e-6) for p, q in zip(same.planes, h0.planes))
+    assert _nearest_window_distance(snap_to_patches(noise, h0), h0) < 0.75 * _nearest_window_distance(noise, h0)
+    with pytest.raises(Sin3DMInputError, match="odd"):
+        snap_to_patches(noise, h0, patch=2)
+    with pytest.raises(Sin3DMInputError, match="one reference latent"):
+        snap_to_patches(noise, h0.repeat(2))
+
+
+def test_sampling_with_snap(trained, h0):
+    model, sched = trained.model_for_sampling, trained.schedule
+    args = dict(n=2, steps=8, seed=5, progress=False)
+    plain = sample(model, sched, LATENT_RES, **args)
+    off = sample(model, sched, LATENT_RES, snap=0.0, snap_to=h0, **args)
+    assert all(torch.equal(p, q) for p, q in zip(plain.planes, off.planes))  # 0 is the paper's sampler
+    snapped = sample(model, sched, LATENT_RES, snap=1.0, snap_to=h0, **args)
+    assert _nearest_window_distance(snapped, h0) < _nearest_window_distance(plain, h0)
+    for bad in (dict(snap=1.5, snap_to=h0), dict(snap=0.5)):
+        with pytest.raises(Sin3DMInputError, match="snap is a share"):
+            sample(model, sched, LATENT_RES, **args, **bad)
 
 
 def test_intermediates(trained):

@@ -238,6 +238,20 @@ def test_diversity_knob_runs_from_the_input_to_pure_noise(fitted):
         torch.testing.assert_close(p, q)
 
 
+def test_snap_pulls_samples_towards_the_inputs_patches_of_any_size(fitted):
+    """``sample(snap=...)``: 0 is the plain sampler; 1 rebuilds each step's clean latent from the input's patches,
+    also for a retargeted sample; a share outside [0, 1] is a clear error."""
+    model, _ = fitted
+    plain, off = (model.sample(2, seed=4, progress=False, **k) for k in ({}, {"snap": 0.0}))
+    assert all(torch.equal(p, q) for p, q in zip(plain.triplane.planes, off.triplane.planes))
+    snapped = model.sample(2, seed=4, progress=False, snap=1.0)
+    assert not torch.equal(plain.triplane.xy, snapped.triplane.xy)
+    wide = model.sample(1, seed=4, progress=False, snap=1.0, resize=(1.5, 1.0, 1.0))
+    assert wide.triplane.resolution[0] == round(1.5 * model.latent.resolution[0])
+    with pytest.raises(Sin3DMInputError, match="snap is a share"):
+        model.sample(1, snap=2.0, progress=False)
+
+
 def test_diversity_with_resize_starts_from_the_stretched_input(fitted):
     model, _ = fitted
     s = model.sample(1, resize=(1.5, 1.0, 1.0), diversity=0.0, progress=False)
