@@ -43,6 +43,7 @@ class SampleRequest:
     steps: int | None = None
     method: str | None = None  # "ddpm" or "ddim" (None: the model's; the CLI's --ddpm asks for "ddpm")
     diversity: float | None = None
+    snap: float = 0.0  # Sin3DM.sample's snap: 0 is the paper's sampler
     faces: int | None = None
     mesh_resolution: int | None = None
     texture_size: int | None = None

@@ -1,5 +1,7 @@
 """The sin3dm-lite command: outputs and one-line errors with exit code 2."""
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -131,13 +133,25 @@ def test_sample_diversity_zero_gives_the_input_back(capsys, tmp_path):
     np.testing.assert_allclose(unique(got.vertices), unique(ref.vertices), atol=2e-4)
 
 
+@pytest.mark.parametrize("flag", ["--diversity", "--snap"])
 @pytest.mark.parametrize("value", ["-0.1", "1.5", "much"])
-def test_bad_diversity_is_rejected_by_the_parser(capsys, value):
+def test_bad_diversity_is_rejected_by_the_parser(capsys, value, flag):
     with pytest.raises(SystemExit) as e:
-        main(["sample", "run", "--out", "s", "--diversity", value])
+        main(["sample", "run", "--out", "s", flag, value])
     assert e.value.code == 2
     err = capsys.readouterr().err
-    assert "--diversity" in err and len(err.strip().splitlines()) == 1
+    assert flag in err and len(err.strip().splitlines()) == 1
+
+
+def test_sample_snap_is_a_setting_of_the_folder(capsys, tmp_path):
+    """`--snap 1` samples with the snapped sampler and the folder records it, so a run without it does not mix in."""
+    out = tmp_path / "snapped"
+    args = ["sample", "wall", "--out", str(out), "-n", "1", "--workers", "0", *CHEAP_SAMPLE]
+    assert run(capsys, *args, "--snap", "1")[0] == 0
+    assert json.loads((out / "sampling.json").read_text())["settings"]["snap"] == 1.0
+    assert (out / "000" / "mesh.obj").is_file()
+    code, _, err = run(capsys, *args)  # the plain sampler into the same folder: other settings
+    assert code != 0 and "settings" in err
 
 
 # ----------------------------------------------------------------------------- help, version, formats

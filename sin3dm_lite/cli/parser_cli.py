@@ -57,7 +57,7 @@ def _unit_float(text: str) -> float:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number from 0 to 1, got '{text}'") from None
     if not (0 <= v <= 1):
-        raise argparse.ArgumentTypeError(f"diversity must be from 0 (the input) to 1 (pure noise), got {v}")
+        raise argparse.ArgumentTypeError(f"expected a share from 0 to 1, got {v}")
     return v
 
 
@@ -428,6 +428,13 @@ def _sampler_args(s: argparse.ArgumentParser) -> None:
         default=None,
         help="0 = the input, 1 = from pure noise (the paper; default: the run's setting); "
         "lower values keep more of the input's layout",
+    )
+    s.add_argument(
+        "--snap",
+        type=_unit_float,
+        default=0.0,
+        help="pull each step towards the input's latent patches (0 = the paper's sampler, 1 = all the way): thin "
+        "walls and broken tops keep their shape at a higher --diversity (docs/thin-parts.md)",
     )
     s.add_argument("--steps", type=_positive_int, default=None, help="DDIM steps (default: the preset's)")
     s.add_argument("--ddpm", action="store_true", help="use full DDPM sampling (all timesteps) instead of DDIM")

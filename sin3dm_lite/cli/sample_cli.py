@@ -43,6 +43,7 @@ def sample_request(a):
         "seed",
         "steps",
         "diversity",
+        "snap",
         "faces",
         "mesh_resolution",
         "texture_size",
