@@ -204,8 +204,11 @@ def _nearest_window_distance(x: Triplane, ref: Triplane) -> float:
     return total
 
 
-def test_snap_rebuilds_each_plane_from_the_inputs_patches(h0):
+def test_snap_rebuilds_each_plane_from_the_inputs_patches(h0, monkeypatch):
     noise = Triplane.randn_like(h0.repeat(2), generator=torch.Generator().manual_seed(0))
+    whole = snap_to_patches(noise, h0)
+    monkeypatch.setattr("sin3dm_lite.model.diffusion.SNAP_DISTANCES", 10)  # the search in slices of a few rows
+    assert all(torch.equal(p, q) for p, q in zip(snap_to_patches(noise, h0).planes, whole.planes))
     one = snap_to_patches(noise, h0, patch=1)  # 1×1 windows: every texel becomes one of the input's texels
     for p, r in zip(one.planes, h0.planes):
         texels = r[0].flatten(1).T  # [hw, c]

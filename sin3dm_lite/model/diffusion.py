@@ -253,6 +253,11 @@ class SampleNoise:
         return self.draw(tp, tp.device).to(dtype=tp.xy.dtype)
 
 
+#: distances :func:`snap_to_patches` holds at once per sample (2^22 floats, 16 MB): a 128-texel plane has 16,384
+#: windows, whose whole distance matrix would take 1 GB
+SNAP_DISTANCES = 2**22
+
+
 def snap_to_patches(x: Triplane, reference: Triplane, patch: int = 3) -> Triplane:
     """Each plane of ``x`` rebuilt from ``reference``'s patches: every ``patch``×``patch`` window of ``x`` (all
     channels) is replaced by its nearest (L2) window of the same plane of ``reference`` (batch 1, any size), and
@@ -272,8 +277,10 @@ def snap_to_patches(x: Triplane, reference: Triplane, patch: int = 3) -> Triplan
         b, _, h, w = p.shape
         windows = lambda t: F.unfold(F.pad(t, (pad,) * 4, mode="replicate") if pad else t, patch)  # noqa: E731
         ours, theirs = windows(p).transpose(1, 2), windows(ref.to(p))[0]  # [B, hw, cK²], [cK², hw']
-        dist = (theirs**2).sum(0) - 2 * ours @ theirs  # + |ours|², the same for every candidate
-        chosen = theirs[:, dist.argmin(-1)].permute(1, 0, 2)  # [B, cK², hw]
+        norms, rows = (theirs**2).sum(0), max(1, SNAP_DISTANCES // theirs.shape[1])  # rows of distances at once
+        # |ours - theirs|² less |ours|², the same for every candidate; in slices so memory stays bounded
+        nearest = torch.cat([(norms - 2 * o @ theirs).argmin(-1) for o in ours.split(rows, dim=1)], dim=1)
+        chosen = theirs[:, nearest].permute(1, 0, 2)  # [B, cK², hw]
         size = (h + 2 * pad, w + 2 * pad)
         votes = F.fold(chosen, size, patch) / F.fold(torch.ones_like(chosen), size, patch)
         return votes[:, :, pad : pad + h, pad : pad + w]
