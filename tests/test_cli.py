@@ -150,6 +150,17 @@ def test_sample_snap_is_a_setting_of_the_folder(capsys, tmp_path):
     assert run(capsys, *args, "--snap", "1")[0] == 0
     assert json.loads((out / "sampling.json").read_text())["settings"]["snap"] == 1.0
     assert (out / "000" / "mesh.obj").is_file()
+    # the latent written is the snapped sampler's, not the plain one's
+    import torch
+
+    from sin3dm_lite.pipeline import Sin3DM
+    from sin3dm_lite.pretrained import pretrained_path
+
+    got = torch.load(out / "000" / "latent.pt", weights_only=True)["triplane"]
+    model = Sin3DM.load(pretrained_path("wall_small"))
+    snapped, plain = (model.sample(1, seed=0, steps=3, snap=s, progress=False).triplane for s in (1.0, 0.0))
+    torch.testing.assert_close(got["xy"], snapped.xy[0:1], atol=1e-5, rtol=0)
+    assert not torch.allclose(got["xy"], plain.xy[0:1], atol=1e-3)
     code, _, err = run(capsys, *args)  # the plain sampler into the same folder: other settings
     assert code != 0 and "settings" in err
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import copy
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -264,40 +264,50 @@ def snap_to_patches(x: Triplane, reference: Triplane, patch: int = 3) -> Triplan
     the overlapping windows are averaged back into texels (borders replicated). The layout stays ``x``'s, each
     neighbourhood becomes one the input has: patch-nearest-neighbour generation (GPNN, Granot et al. 2022)
     applied to the denoiser's estimate of the clean latent (:func:`sample`'s ``snap``)."""
-    if reference.batch != 1 or reference.channels != x.channels:
-        raise Sin3DMInputError(
-            f"snap needs one reference latent with the samples' {x.channels} channels, got a batch of "
-            f"{reference.batch} with {reference.channels}"
-        )
+    return patch_snapper(1.0, reference, patch)(x)
+
+
+def patch_snapper(snap: float, reference: Triplane | None, patch: int = 3) -> Callable[[Triplane], Triplane]:
+    """Snapping: ``x0 ↦ lerp(x0, snap_to_patches(x0, reference), snap)``. :func:`sample` calls it on the predicted
+    x0 at every step, so with ``snap`` in (0, 1] each 3×3 neighbourhood of the latent moves towards one the input
+    (``reference``, usually its latent) has while the layout stays the sample's; on thin walls it keeps the
+    input's patches at more variation (docs/thin-parts.md). ``snap=0`` is the identity: the paper's sampler.
+    ``reference``'s windows are cut once here, not at every step."""
+    if not 0.0 <= float(snap) <= 1.0 or (snap > 0 and reference is None):
+        raise Sin3DMInputError(f"snap is a share in [0, 1] and needs snap_to (the input's latent); got {snap}")
+    if snap == 0:
+        return lambda x0: x0
+    if reference is None or reference.batch != 1:
+        raise Sin3DMInputError(f"snap needs one reference latent, got a batch of {reference and reference.batch}")
     if patch < 1 or patch % 2 == 0:
         raise Sin3DMInputError(f"the snap patch must be an odd number of texels (1, 3, 5, ...), got {patch}")
     pad = patch // 2
 
-    def plane(p: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
-        b, _, h, w = p.shape
-        windows = lambda t: F.unfold(F.pad(t, (pad,) * 4, mode="replicate") if pad else t, patch)  # noqa: E731
-        ours, theirs = windows(p).transpose(1, 2), windows(ref.to(p))[0]  # [B, hw, cK²], [cK², hw']
-        norms, rows = (theirs**2).sum(0), max(1, SNAP_DISTANCES // theirs.shape[1])  # rows of distances at once
+    def windows(t: torch.Tensor) -> torch.Tensor:  # [B, c·K², h·w]
+        return F.unfold(F.pad(t, (pad,) * 4, mode="replicate") if pad else t, patch)
+
+    theirs = [windows(r)[0] for r in reference.planes]  # [c·K², h'·w'] per plane, cut once
+    norms = [(t**2).sum(0) for t in theirs]
+
+    def plane(p: torch.Tensor, k: int) -> torch.Tensor:
+        ref, (h, w) = theirs[k].to(p), p.shape[-2:]
+        if ref.shape[0] != p.shape[1] * patch * patch:
+            raise Sin3DMInputError(f"snap's reference has other channels than the samples' {p.shape[1]}")
+        rows = max(1, SNAP_DISTANCES // ref.shape[1])  # rows of distances at once
         # |ours - theirs|² less |ours|², the same for every candidate; in slices so memory stays bounded
-        nearest = torch.cat([(norms - 2 * o @ theirs).argmin(-1) for o in ours.split(rows, dim=1)], dim=1)
-        chosen = theirs[:, nearest].permute(1, 0, 2)  # [B, cK², hw]
+        nearest = torch.cat(
+            [(norms[k].to(p) - 2 * o @ ref).argmin(-1) for o in windows(p).transpose(1, 2).split(rows, dim=1)], dim=1
+        )
+        chosen = ref[:, nearest].permute(1, 0, 2)  # [B, c·K², h·w]
         size = (h + 2 * pad, w + 2 * pad)
         votes = F.fold(chosen, size, patch) / F.fold(torch.ones_like(chosen), size, patch)
         return votes[:, :, pad : pad + h, pad : pad + w]
 
-    return Triplane(*(plane(p, r) for p, r in zip(x.planes, reference.planes)))
+    def snapped(x0: Triplane) -> Triplane:
+        pulled = Triplane(*(plane(p, k) for k, p in enumerate(x0.planes)))
+        return x0.zip_map(pulled, lambda a, b: torch.lerp(a, b, float(snap)))
 
-
-def _snapped(x0: Triplane | None, snap: float, snap_to: Triplane | None) -> Triplane | None:
-    """Snapping (``snap`` in [0, 1], with ``snap_to``, usually the input's latent): at every step the predicted
-    x0 moves that share of the way to :func:`snap_to_patches` of itself, so each 3×3 neighbourhood of the
-    latent becomes one the input has while the layout stays the sample's. 0 is the paper's sampler. On thin
-    walls it keeps the input's patches at more variation (docs/thin-parts.md). ``x0=None`` only checks."""
-    if not 0.0 <= float(snap) <= 1.0 or (snap > 0 and snap_to is None):
-        raise Sin3DMInputError(f"snap is a share in [0, 1] and needs snap_to (the input's latent); got {snap}")
-    if x0 is None or snap == 0:
-        return x0
-    return x0.zip_map(snap_to_patches(x0, snap_to), lambda a, b: torch.lerp(a, b, float(snap)))
+    return snapped
 
 
 def sample(
@@ -338,7 +348,7 @@ def sample(
     step ``t0 = diversity · (T-1)`` (:func:`start_step`) from ``q_sample(start, t0)``, the start latent noised
     to that step, instead of from pure noise at T-1. Low values keep the input's layout and regenerate only
     fine detail, 1 is the paper's unconditional sampling; 0 returns ``start`` itself. ``snap`` (0 = the
-    paper's sampler) and ``snap_to``: see :func:`_snapped`.
+    paper's sampler) and ``snap_to``: see :func:`patch_snapper`.
 
     Seeds: sample ``i`` draws all its noise (the start, DDPM's per-step noise,
     the noised known latent) from its own generator seeded ``seed + i`` (or
@@ -358,7 +368,7 @@ def sample(
     prediction = prediction or getattr(getattr(model, "cfg", None), "prediction", "x0")
     channels, noise = latent_channels or model.latent_channels, SampleNoise(seed, n)
     t0 = start_step(schedule, diversity)
-    _snapped(None, snap, snap_to)  # checks the values
+    snapper = patch_snapper(snap, snap_to)
     if t0 < schedule.timesteps - 1 and start is None:
         raise Sin3DMInputError("diversity below 1 starts from a noised latent: pass `start` (e.g. the input's latent)")
     if t0 < 0:  # diversity 0: nothing is regenerated
@@ -371,7 +381,7 @@ def sample(
         x = _blend(mask, schedule.q_sample(known, ts[0], noise.like(x)), x)
     for i, t in enumerate(tqdm(ts, disable=not progress, desc=method)):
         tt = torch.full((n,), t, dtype=torch.long, device=device)
-        x0 = _snapped(predict_clean(model, schedule, x, tt, prediction, clip), snap, snap_to)
+        x0 = snapper(predict_clean(model, schedule, x, tt, prediction, clip))
         if i in record:
             intermediates.append({"step": i, "t": t, "x_t": x.cpu(), "x0": x0.cpu()})
         t_prev = ts[i + 1] if i + 1 < len(ts) else -1
