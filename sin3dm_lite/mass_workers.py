@@ -87,10 +87,31 @@ def stop_ranks(ranks: Ranks) -> None:
 _WORKER: dict = {}
 
 
+def exit_with_parent() -> None:
+    """End this worker process as soon as the process that started it ends (a thread waits on the parent's sentinel).
+
+    A worker waiting for its next job never learns otherwise that ``sample`` was killed (``kill -9``, the OOM
+    killer): it would wait forever, holding a CPU copy of the model and the terminal's output.
+    """
+    import multiprocessing.connection
+    import threading
+
+    parent = multiprocessing.parent_process()
+    if parent is None:  # not started by multiprocessing
+        return
+
+    def wait_then_exit() -> None:
+        multiprocessing.connection.wait([parent.sentinel])
+        os._exit(1)
+
+    threading.Thread(target=wait_then_exit, name="sin3dm-parent-watch", daemon=True).start()
+
+
 def _worker_init(model_path: str, opts: dict) -> None:
-    """A decode/export process: its own CPU copy of the model, one thread."""
+    """A decode/export process: its own CPU copy of the model, one thread; it ends with its parent."""
     from .pipeline import Sin3DM
 
+    exit_with_parent()
     torch.set_num_threads(1)
     _WORKER.update(model=Sin3DM.load(model_path, device="cpu"), opts=opts)
 

@@ -481,7 +481,7 @@ def _kill_when(p: subprocess.Popen, ready, delay: float, timeout: float = 120) -
         time.sleep(0.02)
     time.sleep(delay)
     p.send_signal(signal.SIGKILL)
-    _, err = p.communicate()
+    _, err = p.communicate(timeout=120)  # a process it started that outlives it would hold the pipes: fails here
     assert p.returncode == -signal.SIGKILL, f"the run ended before it was killed: {err[-2000:]}"
 
 

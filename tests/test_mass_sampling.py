@@ -137,7 +137,7 @@ def test_a_killed_run_continues_and_ends_with_every_index_once(one_process, tmp_
             break
         time.sleep(0.02)
     p.send_signal(signal.SIGKILL)
-    p.communicate()
+    p.communicate(timeout=120)
     assert p.returncode == -signal.SIGKILL, "the run ended before it was killed; make it slower"
     (out / "000" / "mesh.glb").unlink(missing_ok=True)  # as if killed while that folder was written: redone
     text = _run_ok(capsys, *argv)  # another process (this one) continues the killed one's folder
@@ -163,3 +163,42 @@ def test_other_settings_are_refused_and_overwrite_starts_over(one_process, tmp_p
     assert (out / "theirs.txt").read_text() == "keep"
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["000", "001"]
     assert json.loads((out / "sampling.json").read_text())["settings"]["steps"] == 4
+
+
+PARENT = """
+import multiprocessing, os, time
+from concurrent.futures import ProcessPoolExecutor
+from sin3dm_lite.mass_workers import exit_with_parent
+pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=exit_with_parent)
+print(pool.submit(os.getpid).result(), flush=True)
+time.sleep(600)
+"""
+
+
+def test_an_export_worker_ends_with_its_killed_parent():
+    # `sample` killed with SIGKILL (or by the OOM killer) while its export worker waited for work: the worker, holding
+    # a CPU copy of the model and the terminal's (or a test's) output pipes, used to wait for the next job forever
+    p = subprocess.Popen(
+        [sys.executable, "-c", PARENT], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    worker = int(p.stdout.readline())  # the worker is idle now, waiting for the next job
+    try:
+        p.send_signal(signal.SIGKILL)
+        p.communicate(timeout=60)  # EOF on the pipes: the worker, which holds them too, has ended
+    finally:
+        try:
+            os.kill(worker, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    assert p.returncode == -signal.SIGKILL
+
+
+def test_the_export_workers_watch_their_parent(monkeypatch, tmp_path):
+    from sin3dm_lite import mass_workers
+
+    calls = []
+    monkeypatch.setattr(mass_workers, "exit_with_parent", lambda: calls.append("watch"))
+    monkeypatch.setattr(Sin3DM, "load", staticmethod(lambda path, device: calls.append(("load", path, device))))
+    monkeypatch.setattr(mass_workers, "_WORKER", {})
+    mass_workers._worker_init(str(tmp_path / "model.pt"), {})
+    assert calls == ["watch", ("load", str(tmp_path / "model.pt"), "cpu")]
