@@ -8,6 +8,7 @@ import torch
 
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model.diffusion import (
+    SNAP_LAST,
     DiffusionTrainer,
     diffusion_loss,
     fit_diffusion,
@@ -232,6 +233,13 @@ def test_sampling_with_snap(trained, h0):
     assert all(torch.equal(p, q) for p, q in zip(plain.planes, off.planes))  # 0 is the paper's sampler
     snapped = sample(model, sched, LATENT_RES, snap=1.0, snap_to=h0, **args)
     assert _nearest_window_distance(snapped, h0) < _nearest_window_distance(plain, h0)
+    # only the last tenth of the schedule snaps: the steps before it are the paper's sampler's, bit for bit
+    _, theirs = sample(model, sched, LATENT_RES, return_intermediates=8, **args)
+    _, ours = sample(model, sched, LATENT_RES, snap=1.0, snap_to=h0, return_intermediates=8, **args)
+    late = [a["t"] <= SNAP_LAST * sched.timesteps for a in ours]
+    assert late == [False] * 7 + [True]  # 8 DDIM steps of T = 200: t = 199, 171, ..., 28, 0
+    for a, b, snaps in zip(theirs, ours, late):
+        assert all(torch.equal(p, q) for p, q in zip(a["x0"].planes, b["x0"].planes)) != snaps, a["t"]
     for bad in (dict(snap=1.5, snap_to=h0), dict(snap=0.5)):
         with pytest.raises(Sin3DMInputError, match="snap is a share"):
             sample(model, sched, LATENT_RES, **args, **bad)
