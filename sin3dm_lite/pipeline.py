@@ -204,7 +204,7 @@ class Sin3DM:
         layout stays and only what the noise erased is regenerated; 0 gives
         the input (or the known latent) back. The result's ``plan`` says what was sampled.
 
-        ``snap`` (0-1, default 0: the paper's sampler) pulls every step's predicted clean latent towards the
+        ``snap`` (0-1, default 0: the paper's sampler) pulls the last steps' predicted clean latent towards the
         input's 3×3 latent patches (:func:`~sin3dm_lite.model.diffusion.snap_to_patches`): thin walls and
         broken tops keep their shape at a higher diversity (docs/thin-parts.md). Not calibrated: pick the
         diversity yourself (on the thin-walled ruin with ``quick``, ``snap=1`` at 0.35-0.4).

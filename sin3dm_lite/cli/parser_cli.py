@@ -433,7 +433,7 @@ def _sampler_args(s: argparse.ArgumentParser) -> None:
         "--snap",
         type=_unit_float,
         default=0.0,
-        help="pull each step towards the input's latent patches (0 = the paper's sampler, 1 = all the way): thin "
+        help="pull the last steps towards the input's latent patches (0 = the paper's sampler, 1 = all the way): thin "
         "walls and broken tops keep their shape at a higher --diversity (docs/thin-parts.md)",
     )
     s.add_argument("--steps", type=_positive_int, default=None, help="DDIM steps (default: the preset's)")
