@@ -73,7 +73,7 @@ def sample_settings(model, plan, req, control: dict) -> dict:
                 "method": r.method,
                 "steps": r.steps,
                 "diversity": r.diversity,
-                **({"snap": req.snap} if req.snap else {}),  # absent at 0, so older folders continue
+                **({"snap": r.snap} if r.snap else {}),  # absent at 0, so older folders continue
                 "seed": req.seed,
                 "mesh_resolution": r.mesh_resolution,
                 "faces": r.faces,

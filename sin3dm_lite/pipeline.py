@@ -179,7 +179,7 @@ class Sin3DM:
         regenerate=None,
         duplicate=None,
         plan=None,
-        snap: float = 0.0,
+        snap: float | None = None,
     ) -> Samples:
         """Draw ``n`` new triplanes from noise, optionally controlled (the paper's Sec. 4.4, see :mod:`.control`).
 
@@ -204,10 +204,11 @@ class Sin3DM:
         layout stays and only what the noise erased is regenerated; 0 gives
         the input (or the known latent) back. The result's ``plan`` says what was sampled.
 
-        ``snap`` (0-1, default 0: the paper's sampler) pulls the last steps' predicted clean latent towards the
-        input's 3×3 latent patches (:func:`~sin3dm_lite.model.diffusion.snap_to_patches`): thin walls and
-        broken tops keep their shape at a higher diversity (docs/thin-parts.md). Not calibrated: pick the
-        diversity yourself (on the thin-walled ruin with ``quick``, ``snap=1`` at 0.35-0.4).
+        ``snap`` (0-1; default the config's ``sampling.snap``, 0 in every preset: the paper's sampler) pulls the
+        last steps' predicted clean latent towards the input's 3×3 latent patches
+        (:func:`~sin3dm_lite.model.diffusion.snap_to_patches`): thin walls and broken tops keep their shape at a
+        higher diversity (docs/thin-parts.md). The calibration samples with the config's ``sampling.snap``, so
+        fit with it set (CLI ``--set sampling.snap=1``) to have the diversity chosen for the snapped sampler.
 
         Sample ``i`` comes from the seed ``seed + i`` alone (or ``seed[i]`` for a
         list): ``sample(4, seed=0)``'s third is ``sample(1, seed=2)``, whatever

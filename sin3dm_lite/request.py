@@ -24,6 +24,7 @@ class Resolved:
     method: str
     steps: int
     diversity: float
+    snap: float
     mesh_resolution: int
     faces: int
     texture_size: int
@@ -43,7 +44,7 @@ class SampleRequest:
     steps: int | None = None
     method: str | None = None  # "ddpm" or "ddim" (None: the model's; the CLI's --ddpm asks for "ddpm")
     diversity: float | None = None
-    snap: float = 0.0  # Sin3DM.sample's snap: 0 is the paper's sampler
+    snap: float | None = None  # Sin3DM.sample's snap (None: the model's sampling.snap; 0 is the paper's sampler)
     faces: int | None = None
     mesh_resolution: int | None = None
     texture_size: int | None = None
@@ -69,6 +70,7 @@ class SampleRequest:
             method=self.method or s.method,
             steps=self.steps or s.steps,
             diversity=diversity,
+            snap=s.snap if self.snap is None else self.snap,
             mesh_resolution=self.mesh_resolution or s.mesh_resolution,
             faces=self.faces or s.faces,
             texture_size=self.texture_size or s.texture_size,

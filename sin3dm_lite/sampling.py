@@ -104,7 +104,7 @@ def draw(
     mask=None,
     progress: bool = True,
     diversity=None,
-    snap: float = 0.0,
+    snap: float | None = None,
 ) -> Samples:
     """``model.sample`` (its docstring says what each argument does): ``n`` (≥ 1) new triplanes for ``plan``
     (:func:`plan_for`), at most as many as fit in memory at once (:func:`max_samples`)."""
@@ -122,7 +122,7 @@ def draw(
             "this model and size); draw them in several calls with other seeds"
         )
     # the run's settings; controlled generation regenerates from pure noise as in the paper
-    r = SampleRequest(steps=steps, method=method, diversity=diversity).resolve(
+    r = SampleRequest(steps=steps, method=method, diversity=diversity, snap=snap).resolve(
         model.config.sampling, controlled=plan.known is not None
     )
     t0 = start_step(model.schedule, r.diversity)  # checks the value
@@ -143,8 +143,8 @@ def draw(
         prediction=model.config.diffusion.prediction,
         start=plan.start if t0 < model.schedule.timesteps - 1 else None,
         diversity=r.diversity,
-        snap=snap,
-        snap_to=model.latent if snap > 0 else None,
+        snap=r.snap,
+        snap_to=model.latent if r.snap > 0 else None,
     )
     tp, inter = out if return_intermediates is not None else (out, None)
     return Samples(tp, plan.aabb, inter, plan)

@@ -165,6 +165,21 @@ def test_sample_snap_is_a_setting_of_the_folder(capsys, tmp_path):
     assert code != 0 and "settings" in err
 
 
+def test_sample_takes_snap_from_a_run_fitted_with_it(capsys, tmp_path):
+    """A run whose config has ``sampling.snap`` samples snapped without --snap (recorded as such); --snap 0 wins."""
+    from sin3dm_lite.pipeline import Sin3DM
+    from sin3dm_lite.pretrained import pretrained_path
+
+    model = Sin3DM.load(pretrained_path("wall_small"))
+    model.config = model.config.updated(**{"sampling.snap": 1.0})
+    model.save(tmp_path / "run")
+    for flags, snap in (([], 1.0), (["--snap", "0"], None)):
+        out = tmp_path / f"out{len(flags)}"
+        args = ["sample", str(tmp_path / "run"), "--out", str(out), "-n", "1", "--workers", "0", *CHEAP_SAMPLE]
+        assert run(capsys, *args, *flags)[0] == 0
+        assert json.loads((out / "sampling.json").read_text())["settings"].get("snap") == snap
+
+
 # ----------------------------------------------------------------------------- help, version, formats
 def _flat(text: str) -> str:
     return " ".join(text.split())

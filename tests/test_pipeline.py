@@ -252,6 +252,26 @@ def test_snap_pulls_samples_towards_the_inputs_patches_of_any_size(fitted):
         model.sample(1, snap=2.0, progress=False)
 
 
+def test_sampling_snap_in_the_config_is_what_sample_and_the_calibration_use(fitted, monkeypatch):
+    """A run fitted with ``sampling.snap`` samples snapped by default, the calibration's samples too (so its
+    diversity is chosen for the snapped sampler); an explicit ``snap`` wins; the setting is a share."""
+    import sin3dm_lite.model.diffusion as diffusion
+    from sin3dm_lite.evaluate.calibrate import sample_occupancy
+
+    model, _ = fitted
+    plain, explicit = (model.sample(2, seed=4, progress=False, snap=s) for s in (0.0, 1.0))
+    monkeypatch.setattr(model, "config", model.config.updated(**{"sampling.snap": 1.0}))
+    by_config, off = (model.sample(2, seed=4, progress=False, **k) for k in ({}, {"snap": 0.0}))
+    assert all(torch.equal(p, q) for p, q in zip(explicit.triplane.planes, by_config.triplane.planes))
+    assert all(torch.equal(p, q) for p, q in zip(plain.triplane.planes, off.triplane.planes))
+    seen, real = [], diffusion.sample
+    monkeypatch.setattr(diffusion, "sample", lambda *a, **k: seen.append(k["snap"]) or real(*a, **k))
+    sample_occupancy(model, 0.5, 2, 0, 16)  # what the calibration draws at each setting
+    assert seen == [1.0]
+    with pytest.raises(Sin3DMInputError, match="sampling.snap"):
+        model.config.updated(**{"sampling.snap": 1.5})
+
+
 def test_diversity_with_resize_starts_from_the_stretched_input(fitted):
     model, _ = fitted
     s = model.sample(1, resize=(1.5, 1.0, 1.0), diversity=0.0, progress=False)

@@ -432,9 +432,10 @@ def _sampler_args(s: argparse.ArgumentParser) -> None:
     s.add_argument(
         "--snap",
         type=_unit_float,
-        default=0.0,
-        help="pull the last steps towards the input's latent patches (0 = the paper's sampler, 1 = all the way): thin "
-        "walls and broken tops keep their shape at a higher --diversity (docs/thin-parts.md)",
+        default=None,
+        help="pull the last steps towards the input's latent patches (0 = the paper's sampler, 1 = all the way; "
+        "default: the run's sampling.snap, 0 unless fitted with --set sampling.snap=1): thin walls and broken tops "
+        "keep their shape at a higher --diversity (docs/thin-parts.md)",
     )
     s.add_argument("--steps", type=_positive_int, default=None, help="DDIM steps (default: the preset's)")
     s.add_argument("--ddpm", action="store_true", help="use full DDPM sampling (all timesteps) instead of DDIM")

@@ -98,6 +98,9 @@ class SamplingConfig:
     mesh_resolution: int = 256  # decode grid along the longest side
     faces: int = 30_000  # face budget after simplification
     texture_size: int = 2048
+    # pull the last denoising steps' clean-latent estimate towards the input's 3×3 latent patches (0: the paper's
+    # sampler; :func:`sin3dm_lite.model.diffusion.patch_snapper`); the calibration samples with it too
+    snap: float = 0.0
     # choose ``diversity`` for each shape at the end of a fit: the most varied setting whose samples still keep the
     # input's patches (LP-IoU / LP-F goals; :func:`sin3dm_lite.calibrate.calibrate_diversity`), saved in the run's config
     calibrate: bool = False
@@ -242,6 +245,7 @@ LIMITS: dict[str, Any] = {
     "sampling.method": ["ddim", "ddpm"],
     "sampling.steps": (1, 100_000),
     "sampling.diversity": (0.0, 1.0),
+    "sampling.snap": (0.0, 1.0),
     "sampling.mesh_resolution": (16, 2048),
     "sampling.faces": (4, 100_000_000),
     "sampling.texture_size": (16, 16384),
