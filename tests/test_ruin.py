@@ -112,3 +112,6 @@ def test_quick_names_the_thin_part_switch_on_the_ruin_and_small_takes_it():
     # the settings the hint names do what it says
     asked = quick.updated(thin_parts=small.thin_parts).for_thin_parts()
     assert asked.grid.resolution == 96 and asked.diffusion.rollout and asked.autoencoder.mlp_hidden == 128
+    # and the cheap one: snapped sampling, which the calibration then uses too (tests/test_pipeline.py)
+    assert "--set sampling.snap=1" in hint and "get_preset('quick').updated(**{'sampling.snap': 1.0})" in hint
+    assert quick.updated(**{"sampling.snap": 1.0}).sampling.snap == 1.0
