@@ -354,12 +354,10 @@ def sample(
     fine detail, 1 is the paper's unconditional sampling; 0 returns ``start`` itself. ``snap`` (0 = the
     paper's sampler) and ``snap_to``: see :func:`patch_snapper`; the steps with t ≤ :data:`SNAP_LAST`·T snap.
 
-    Seeds: sample ``i`` draws all its noise (the start, DDPM's per-step noise,
-    the noised known latent) from its own generator seeded ``seed + i`` (or
-    ``seed[i]`` for a list of seeds), on the CPU, so it depends on its seed and
-    the settings only: not on the batch it is drawn in, nor on the device
-    (``sample(n=4, seed=0)[2]`` equals ``sample(n=1, seed=2)``, up to float
-    rounding). A ``torch.Generator`` instead draws the whole batch from that one generator.
+    Seeds: sample ``i`` draws all its noise (the start, DDPM's per-step noise, the noised known latent) from its
+    own generator seeded ``seed + i`` (or ``seed[i]`` for a list of seeds), on the CPU, so it depends on its seed
+    and the settings only: not on the batch it is drawn in, nor on the device (``sample(n=4, seed=0)[2]`` equals
+    ``sample(n=1, seed=2)``, up to float rounding). A ``torch.Generator`` draws the whole batch from that one.
 
     ``return_intermediates``: an int k (k evenly spaced steps, first and last
     included) or step indices; then returns ``(latents, [{"step", "t", "x_t",
@@ -386,8 +384,7 @@ def sample(
     for i, t in enumerate(tqdm(ts, disable=not progress, desc=method)):
         tt = torch.full((n,), t, dtype=torch.long, device=device)
         x0 = predict_clean(model, schedule, x, tt, prediction, clip)
-        if t <= snap_below:
-            x0 = snapper(x0)
+        x0 = snapper(x0) if t <= snap_below else x0  # the last steps only (SNAP_LAST)
         if i in record:
             intermediates.append({"step": i, "t": t, "x_t": x.cpu(), "x0": x0.cpu()})
         t_prev = ts[i + 1] if i + 1 < len(ts) else -1
