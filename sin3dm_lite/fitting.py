@@ -202,12 +202,13 @@ class FitRun:
             if switched is not None:  # too coarse for this shape's thin parts: the finer settings, recorded first
                 say("[fit] " + thin_parts_message(cfg, switched, grid, thin))
                 thin_parts = {"from": cfg.name, "resolution": max(grid.shape), "thin_share": thin}
-                cfg = switched
+                cfg, grid_cfg = switched, cfg.grid
                 if run is not None:  # a resumed run still knows it switched (its report is completed at the end)
                     atomic_write(run / "config.json", cfg.to_json())
                     atomic_write(run / "report.json", json.dumps({"thin_parts_switch": thin_parts}, indent=2))
-                grid = grid_for(mesh, cfg, self.progress)  # the coarse grid served only to measure (~1 s at 64 voxels)
-                thin = grid.thin_share()
+                if switched.grid != grid_cfg:  # the coarse grid served only to measure (~1 s at 64 voxels)
+                    grid = grid_for(mesh, cfg, self.progress)
+                    thin = grid.thin_share()
             elif (hint := thin_parts_hint(cfg, grid, thin)) is not None:
                 say("[fit] " + hint)
             if run is not None:

@@ -339,13 +339,14 @@ def test_fit_passes_the_thin_part_switch_choice(tmp_path, monkeypatch, flag, swi
 
 
 @pytest.mark.parametrize("flag", [[], ["--thin-switch"], ["--no-thin-switch"]])
-def test_quick_gets_the_thin_part_switch_only_when_asked(tmp_path, monkeypatch, flag):
-    """quick has no thin-part switch (5x its fit without bf16); --thin-switch gives it small's thin-part settings,
-    leaving a setting the user names to the user."""
-    from sin3dm_lite.data.presets import DETAIL_CHANGES, get_preset
+def test_quick_gets_the_finer_thin_part_settings_only_when_asked(tmp_path, monkeypatch, flag):
+    """quick's own switch snaps the samples (its finer settings take 5x its fit without bf16); --thin-switch adds
+    small's thin-part settings, leaving a setting the user names to the user; --no-thin-switch turns it off."""
+    from sin3dm_lite.data.presets import DETAIL_CHANGES, QUICK_THIN_CHANGES, get_preset
 
     cfg = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--preset", "quick", *flag)
-    assert cfg.name == "quick" and cfg.thin_parts == (DETAIL_CHANGES if flag == ["--thin-switch"] else {})
+    expected = {(): QUICK_THIN_CHANGES, ("--thin-switch",): {**QUICK_THIN_CHANGES, **DETAIL_CHANGES}}
+    assert cfg.name == "quick" and cfg.thin_parts == expected.get(tuple(flag), {})
     assert cfg.for_thin_parts().grid.resolution == (96 if flag == ["--thin-switch"] else 64)
     cfg = _preset_fit_gets(
         tmp_path, monkeypatch, "wall", "--preset", "quick", "--thin-switch", "--set", "diffusion.steps=900"

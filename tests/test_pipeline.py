@@ -386,13 +386,40 @@ def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, caps
     assert thin_parts_switch(cfg, grid, thin=0.5).grid.resolution == 40
 
 
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
+def test_a_switch_that_keeps_the_grid_snaps_the_samples_without_a_second_grid(tmp_path, capsys, monkeypatch):
+    """quick's kind of switch (sampling.snap only): the same grid, built once; the run samples snapped."""
+    from sin3dm_lite import fitting
+
+    built = []
+    real = fitting.grid_for
+    monkeypatch.setattr(fitting, "grid_for", lambda *a, **k: built.append(1) or real(*a, **k))
+    cfg = micro_config().updated(
+        **{
+            "name": "quick",
+            "grid.resolution": 32,
+            "autoencoder.steps": 2,
+            "diffusion.steps": 2,
+            "thin_parts": {"sampling.snap": 1.0},
+        }
+    )
+    model = Sin3DM.fit("tiles", preset=cfg, out=tmp_path / "tiles", progress=True)
+    out = capsys.readouterr().out
+    assert "snapped to the input's latent patches instead" in out and "--thin-switch" in out
+    assert built == [1] and model.config.grid == cfg.grid and model.config.name == "quick+thin"
+    assert Sin3DM.load(tmp_path / "tiles").config.sampling.snap == 1.0
+    assert model.report["thin_parts_switch"]["from"] == "quick"
+
+
 def test_small_switches_to_exactly_the_detail_settings():
     """The 'detail' preset is what small switches to (one source of truth), and it does not switch again."""
     small, detail = get_preset("small"), get_preset("detail")
     switched = small.for_thin_parts()
     assert switched.updated(name="detail") == detail and switched.name == "small+thin"
     assert detail.thin_parts == {} and detail.for_thin_parts() == detail
-    assert get_preset("quick").thin_parts == {}  # the light preset for CPUs without bf16 never switches
+    # the light preset for CPUs without bf16 switches to snapped samples only: the same grid and networks
+    quick = get_preset("quick")
+    assert quick.for_thin_parts() == quick.updated(**{"sampling.snap": 1.0}, name="quick+thin", thin_parts={})
     # the rollout switch: small has it, what already has the rollout (detail, paper) or a light CPU (quick) does not
     assert small.rollout_switch and not detail.rollout_switch and not get_preset("quick").rollout_switch
     rolled = small.for_rollout()

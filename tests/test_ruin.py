@@ -86,10 +86,11 @@ def test_bad_sizes_are_named(kw, match):
         build_ruin(**kw)
 
 
-def test_quick_names_the_thin_part_switch_on_the_ruin_and_small_takes_it():
-    """The ruin is mostly thin walls at 64 voxels: small switches to its thin-part settings by itself; quick, which
-    has no switch (5x its fit without bf16), says so and names --thin-switch."""
-    from sin3dm_lite.fit_policy import thin_parts_hint, thin_parts_switch
+def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
+    """The ruin is mostly thin walls at 64 voxels: small switches to its finer thin-part settings; quick (whose
+    finer settings take 5x its fit without bf16) switches to snapped samples on the same fit and names
+    --thin-switch; quick without its switch gives the hint, which names both."""
+    from sin3dm_lite.fit_policy import thin_parts_hint, thin_parts_message, thin_parts_switch
 
     quick = get_preset("quick")
     grid = mesh_to_grid(
@@ -101,17 +102,21 @@ def test_quick_names_the_thin_part_switch_on_the_ruin_and_small_takes_it():
     )
     thin = grid.thin_share()
     assert thin > 0.5
-    hint = thin_parts_hint(quick, grid, thin)
+    switched = thin_parts_switch(quick, grid, thin)
+    assert switched.grid == quick.grid and switched.sampling.snap == 1.0 and switched.name == "quick+thin"
+    said = thin_parts_message(quick, switched, grid, thin)
+    assert f"{thin:.0%}" in said and "snapped" in said and "--thin-switch" in said and "96 voxels" in said
+    assert thin_parts_hint(quick, grid, thin) is None  # it switched: the message says it all
+    plain = quick.updated(thin_parts={})  # --no-thin-switch
+    hint = thin_parts_hint(plain, grid, thin)
     assert hint is not None and f"{thin:.0%}" in hint and "--thin-switch" in hint and "96 voxels" in hint
-    assert "get_preset('quick').updated(thin_parts=get_preset('small').thin_parts)" in hint
-    assert thin_parts_switch(quick, grid, thin) is None
+    assert "--set sampling.snap=1" in hint and "updated(**{'sampling.snap': 1.0})" in hint
+    assert thin_parts_switch(plain, grid, thin) is None
     small = get_preset("small")
     assert thin_parts_hint(small, grid, thin) is None and thin_parts_switch(small, grid, thin).grid.resolution == 96
-    assert thin_parts_hint(quick, grid, 0.1) is None  # few thin parts: nothing to say
+    assert thin_parts_hint(plain, grid, 0.1) is None and thin_parts_switch(quick, grid, 0.1) is None  # few thin parts
     assert thin_parts_hint(get_preset("tiny"), grid, thin) is None  # tests' 32 voxels
-    # the settings the hint names do what it says
-    asked = quick.updated(thin_parts=small.thin_parts).for_thin_parts()
+    # the finer settings the message names do what it says
+    asked = quick.updated(thin_parts={**quick.thin_parts, **small.thin_parts}).for_thin_parts()
     assert asked.grid.resolution == 96 and asked.diffusion.rollout and asked.autoencoder.mlp_hidden == 128
-    # and the cheap one: snapped sampling, which the calibration then uses too (tests/test_pipeline.py)
-    assert "--set sampling.snap=1" in hint and "get_preset('quick').updated(**{'sampling.snap': 1.0})" in hint
-    assert quick.updated(**{"sampling.snap": 1.0}).sampling.snap == 1.0
+    assert asked.sampling.snap == 1.0

@@ -90,9 +90,10 @@ def cmd_fit(a) -> None:
     base = get_preset(name or "small")
     if a.thin_switch is False:
         changes["thin_parts"] = {}
-    elif a.thin_switch and "thin_parts" not in changes and not base.thin_parts:
-        # quick's switch is off for its cost: asked for here (settings the user sets stay theirs)
-        changes["thin_parts"] = {k: v for k, v in DETAIL_CHANGES.items() if k not in changes}
+    elif a.thin_switch and "thin_parts" not in changes and "grid.resolution" not in base.thin_parts:
+        # quick's switch keeps its grid for the cost: the finer settings asked for here, beside its own switch
+        # (settings the user sets stay theirs)
+        changes["thin_parts"] = {**base.thin_parts, **{k: v for k, v in DETAIL_CHANGES.items() if k not in changes}}
     if not a.rollout_switch:
         changes["rollout_switch"] = {}
     preset = base.updated(**changes) if changes else name

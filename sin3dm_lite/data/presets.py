@@ -18,9 +18,10 @@
   only, most laptops), where ``small``'s paper-width autoencoder alone takes
   about 20 minutes on 2 cores: the whole fit in about 5 minutes there, samples
   of the same shape and variation, but blurrier texture (a brick wall loses its
-  vertical mortar joints), baked into 512² textures. ``Sin3DM.fit`` suggests it on such a CPU. It has no
-  thin-part switch (the finer settings take about 5x its fit there): on a shape
-  of thin parts the fit says so and names ``--thin-switch``, which asks for them.
+  vertical mortar joints), baked into 512² textures. ``Sin3DM.fit`` suggests it on such a CPU. Its
+  thin-part switch keeps the grid (the finer settings take about 5x its fit there)
+  and snaps the samples to the input's latent patches (``sampling.snap``); the fit
+  names ``--thin-switch``, which asks for the finer settings too.
 * ``detail`` – ``small`` at 96 voxels (a 48-texel latent) with 4 ResBlocks (a
   17-texel field, about the same share of the latent) and the paper's
   cross-plane rollout (the three planes agree where a column stands), sampled
@@ -55,6 +56,11 @@ def _tiny() -> Config:
 
 
 #: what ``detail`` changes in ``small``; ``small`` switches to it by itself on shapes with many thin parts
+#: ``quick``'s thin-part switch: the same fit, its samples snapped to the input's latent patches (the calibration
+#: then picks the diversity for the snapped sampler). On the thin-walled ruin and the colonnade it gives more
+#: variation and more of the input's patches at 128 voxels (docs/thin-parts.md); no extra fit time.
+QUICK_THIN_CHANGES = {"sampling.snap": 1.0}
+
 DETAIL_CHANGES = {
     "grid.resolution": 96,
     "diffusion.n_resblocks": 4,
@@ -119,8 +125,8 @@ def _quick() -> Config:
     """``small`` with a light autoencoder and 1,500 denoiser steps: about 4x faster where bf16 is not native."""
     # The autoencoder's MLPs are most of a fit, and without native bf16 they run in fp32: 128-wide MLPs on 4,096
     # points for 1,000 steps. Geometry and variation hold; colour loses some detail (the step count, not the width
-    # or the points). No rollout switch (a second denoiser would double the fit on such a CPU) and no thin-part
-    # switch (its 96-voxel settings take about 5x the fit there: fit_policy.thin_parts_hint names them instead).
+    # or the points). No rollout switch (a second denoiser would double the fit on such a CPU); its thin-part switch
+    # snaps the samples instead of refitting at 96 voxels (about 5x the fit there; --thin-switch asks for it).
     # Textures of 512² (not 1,024²): its decoder's colour is blurrier than small's anyway, and baking a quarter of
     # the texels takes a sample from about 12 to 8 s on one AVX2 core. Measured in docs/presets.md.
     return _small().updated(
@@ -131,7 +137,7 @@ def _quick() -> Config:
             "autoencoder.steps": 1000,
             "diffusion.steps": 1500,
             "sampling.texture_size": 512,
-            "thin_parts": {},
+            "thin_parts": dict(QUICK_THIN_CHANGES),
             "rollout_switch": {},
         }
     )
