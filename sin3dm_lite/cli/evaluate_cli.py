@@ -163,6 +163,9 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     from ..pipeline import Sin3DM
 
     model = Sin3DM.load(run)
+    if a.snap is not None:  # the sampler to calibrate for, kept in the run's config
+        model.config = model.config.updated(**{"sampling.snap": a.snap})
+    snapped = f" --snap {model.config.sampling.snap:g}" if model.config.sampling.snap else ""
     # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, the mesh
     reference = load_grid(run / "grid.npz").sdf < 0 if (run / "grid.npz").is_file() and a.input is None else None
     goals = {
@@ -180,7 +183,7 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     if shipped:
         print(
             f"{a.run}: diversity {cal.diversity:g} would keep the goals ({took:.0f} s); a shipped model is not "
-            f"changed: sample it with --diversity {cal.diversity:g}"
+            f"changed: sample it with --diversity {cal.diversity:g}{snapped}"
         )
         return
     model.save(run)
@@ -189,6 +192,6 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
         report["calibration"] = cal.to_dict()
         atomic_write(run / "report.json", json.dumps(report, indent=2))
     print(
-        f"{run}: diversity {before:g} → {cal.diversity:g} ({took:.0f} s), saved in its config.json; "
-        f"`sin3dm-lite sample {run}` uses it, --diversity overrides it"
+        f"{run}: diversity {before:g} → {cal.diversity:g}{' for snapped samples' if snapped else ''} ({took:.0f} s), "
+        f"saved in its config.json; `sin3dm-lite sample {run}` uses it, --diversity overrides it"
     )
