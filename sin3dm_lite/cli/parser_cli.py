@@ -313,13 +313,8 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         default=None,
         help="LP-F the samples must keep, at most (default: 0.70, lowered to 85%% of what a near copy of the input keeps)",
     )
-    c.add_argument(
-        "--snap",
-        type=_unit_float,
-        default=None,
-        help="calibrate for samples snapped to the input's latent patches this much (0-1) and keep it as the run's "
-        "sampling.snap, no refit (default: the run's own; docs/thin-parts.md)",
-    )
+    snap = "calibrate for samples snapped to the input's latent patches (0-1), kept as the run's sampling.snap"
+    c.add_argument("--snap", type=_unit_float, default=None, help=snap + " (no refit; default: the run's own)")
     _outside_paths_arg(c)
 
 
