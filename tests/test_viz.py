@@ -214,7 +214,7 @@ def test_plot_snapping_shows_x0_snapped_and_the_input_on_the_inputs_basis(tp):
     panels = image_axes(viz.plot_snapping(x0, ref, plane="xz"))
     assert [ax.get_title() for ax in panels] == [
         "predicted x0",
-        "snapped to the input's 3×3 windows",
+        "snapped to the input's 5×5 windows",
         "the input's latent",
     ]
     mean, basis = pca_basis(ref.xz[0].numpy())
