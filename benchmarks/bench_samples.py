@@ -73,7 +73,7 @@ def sample_grids(
     diversity: float | None = None,
     export: int = 0,
     export_dir: Path | None = None,
-    snap: float = 0.0,
+    snap: float | None = None,
 ) -> dict:
     """Occupancy grids of n samples at each resolution, and the time per textured, exported mesh."""
     t = time.perf_counter()
@@ -239,7 +239,9 @@ def main() -> None:
         help="sample seeds: n samples from each (8 samples' figures move by a few hundredths with the seed; "
         "several seeds print their mean and range)",
     )
-    ap.add_argument("--snap", type=float, default=0.0, help="Sin3DM.sample's snap (0: the paper's sampler)")
+    ap.add_argument(
+        "--snap", type=float, default=None, help="Sin3DM.sample's snap (0: the paper's sampler; default: the run's own)"
+    )
     ap.add_argument(
         "--set",
         nargs="+",
@@ -248,7 +250,8 @@ def main() -> None:
         help="dotted settings changed from the preset, e.g. grid.resolution=96 (run folders get a suffix)",
     )
     a = ap.parse_args()
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, preset {a.preset}, n={a.n}, snap {a.snap:g}")
+    snap = "the run's" if a.snap is None else f"{a.snap:g}"
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, preset {a.preset}, n={a.n}, snap {snap}")
     rows = []
     for source in a.inputs:
         name = Path(source).stem
