@@ -51,18 +51,25 @@ def thin_parts_switch(cfg: Config, grid: ShapeGrid, thin: float | None = None) -
     return cfg.for_thin_parts() if thin > THIN_SHARE_HINT else None
 
 
+def _finer_settings() -> str:
+    """The finer thin-part settings (``detail``'s) in words, as the switch message and the hint name them."""
+    return (
+        f"({DETAIL_CHANGES['grid.resolution']} voxels, a {DETAIL_CHANGES['diffusion.n_resblocks']}-ResBlock denoiser "
+        "whose planes see each other)"
+    )
+
+
 def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -> str:
     """What the fit says when it switches from ``cfg`` to ``new`` (:func:`thin_parts_switch`)."""
     if new.grid == cfg.grid:  # quick's switch: the same fit, snapped samples
-        finer = DETAIL_CHANGES["grid.resolution"]
         return (
             f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
             f"the {cfg.name} preset's samples would thicken or break: its samples are snapped to the input's latent "
             f"patches instead (sampling.snap={new.sampling.snap:g}, and the calibration picks the diversity for "
             f"that; no extra fit time; the run's config is named '{new.name}'). The finer thin-part settings "
-            f"({finer} voxels, a {DETAIL_CHANGES['diffusion.n_resblocks']}-ResBlock denoiser whose planes see each "
-            "other) keep them better at about 5x the fit time without native bf16: CLI --thin-switch. To keep "
-            "the plain sampler: CLI --no-thin-switch, Python preset=get_preset(...).updated(thin_parts={})."
+            f"{_finer_settings()} keep them better at about 5x the fit time without native bf16: CLI "
+            "--thin-switch. To keep the plain sampler: CLI --no-thin-switch, Python "
+            "preset=get_preset(...).updated(thin_parts={})."
         )
     return (
         f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
@@ -95,8 +102,8 @@ def thin_parts_hint(cfg: Config, grid: ShapeGrid, thin: float) -> str | None:
     return (
         f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels; the "
         f"{cfg.name} config keeps {cfg.grid.resolution} voxels, so its samples may thicken or break walls and "
-        f"columns. The thin-part settings ({finer} voxels, a {DETAIL_CHANGES['diffusion.n_resblocks']}-ResBlock "
-        "denoiser whose planes see each other) keep them, at about 5x the fit time on a CPU without native bf16 "
+        f"columns. The thin-part settings {_finer_settings()} keep them, at about 5x the fit time on a CPU without "
+        "native bf16 "
         f"(about 25 minutes on 2 cores): CLI --thin-switch; Python {python}.updated(thin_parts="
         "get_preset('small').thin_parts). At no extra fit time, samples snapped to the input's latent patches keep "
         "more of them at more variation (the calibration then picks the diversity for that sampler): CLI --set "

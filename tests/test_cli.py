@@ -173,11 +173,19 @@ def test_sample_takes_snap_from_a_run_fitted_with_it(capsys, tmp_path):
     model = Sin3DM.load(pretrained_path("wall_small"))
     model.config = model.config.updated(**{"sampling.snap": 1.0})
     model.save(tmp_path / "run")
-    for flags, snap in (([], 1.0), (["--snap", "0"], None)):
+    import torch
+
+    for flags, snap in (([], 1.0), (["--snap", "0"], 0.0)):
         out = tmp_path / f"out{len(flags)}"
         args = ["sample", str(tmp_path / "run"), "--out", str(out), "-n", "1", "--workers", "0", *CHEAP_SAMPLE]
         assert run(capsys, *args, *flags)[0] == 0
-        assert json.loads((out / "sampling.json").read_text())["settings"].get("snap") == snap
+        assert json.loads((out / "sampling.json").read_text())["settings"].get("snap") == (snap or None)
+        # the latent written is that sampler's (not only the recorded setting)
+        got = torch.load(out / "000" / "latent.pt", weights_only=True)["triplane"]
+        want = model.sample(1, seed=0, steps=3, snap=snap, progress=False).triplane
+        other = model.sample(1, seed=0, steps=3, snap=1.0 - snap, progress=False).triplane
+        torch.testing.assert_close(got["xy"], want.xy[0:1], atol=1e-5, rtol=0)
+        assert not torch.allclose(got["xy"], other.xy[0:1], atol=1e-3)
 
 
 # ----------------------------------------------------------------------------- help, version, formats

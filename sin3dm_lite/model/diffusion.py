@@ -257,7 +257,7 @@ class SampleNoise:
 #: windows, whose whole distance matrix would take 1 GB
 SNAP_DISTANCES = 2**22
 #: :func:`sample` snaps the estimates of the last tenth of the noise schedule only (t ≤ 0.1·T): on the ruin and
-#: the canyon the same G-Div / LP-IoU / LP-F as snapping every step (within 0.01), at 2-5 searches a sample
+#: the canyon the same G-Div / LP-IoU / LP-F as snapping every step (within 0.03), at 2-5 searches a sample
 #: instead of 20-50 (docs/thin-parts.md); earlier estimates are blurry, their nearest windows change nothing
 SNAP_LAST = 0.1
 #: the windows snapping compares (texels a side): 5×5 kept more of the input's patches than 3×3 at the same G-Div on the
@@ -276,9 +276,9 @@ def snap_to_patches(x: Triplane, reference: Triplane, patch: int = SNAP_PATCH) -
 
 def patch_snapper(snap: float, reference: Triplane | None, patch: int = SNAP_PATCH) -> Callable[[Triplane], Triplane]:
     """Snapping: ``x0 ↦ lerp(x0, snap_to_patches(x0, reference), snap)``. :func:`sample` calls it on the predicted
-    x0 of its last steps (t ≤ :data:`SNAP_LAST`·T), so with ``snap`` in (0, 1] each ``patch``×``patch`` neighbourhood of the latent moves towards one the input
-    (``reference``, usually its latent) has while the layout stays the sample's; on thin walls it keeps the
-    input's patches at more variation (docs/thin-parts.md). ``snap=0`` is the identity: the paper's sampler.
+    x0 of its last steps (t ≤ :data:`SNAP_LAST`·T), so with ``snap`` in (0, 1] each ``patch``×``patch``
+    neighbourhood of the latent moves towards one the input (``reference``, usually its latent) has while the
+    layout stays the sample's; on thin walls it keeps the input's patches at more variation (docs/thin-parts.md). ``snap=0`` is the identity: the paper's sampler.
     ``reference``'s windows are cut once here, not at every step."""
     if not 0.0 <= float(snap) <= 1.0 or (snap > 0 and reference is None):
         raise Sin3DMInputError(f"snap is a share in [0, 1] and needs snap_to (the input's latent); got {snap}")
