@@ -34,6 +34,27 @@ def test_encoder_planes_have_half_resolution_and_tanh_range():
     torch.testing.assert_close(tp.xy, TriplaneEncoder.squash(vol.mean(4)))
 
 
+@pytest.mark.parametrize("shape", [(1, 4, 16, 8, 24), (2, 4, 13, 10, 7), (1, 9, 6, 6, 6)])
+def test_encoder_planes_are_the_volume_averaged_along_each_axis_with_the_same_gradients(shape):
+    """forward computes each plane as a 2D convolution of the grid's averages, never building the volume: the
+    planes and the weights' gradients must be those of the 3D convolution averaged (odd sizes and PBR's 9
+    channels too)."""
+    torch.manual_seed(0)
+    enc = TriplaneEncoder(AutoencoderConfig(pbr=shape[1] == 9), color_channels=shape[1] - 1)
+    x = torch.randn(*shape)
+    vol = enc.volume(x)
+    want = [TriplaneEncoder.squash(vol.mean(axis)) for axis in (4, 3, 2)]
+    got = enc(x).planes
+    for a, b in zip(got, want):
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+    grads = [
+        torch.autograd.grad(sum((p * w).sum() for p, w in zip(planes, (1, 2, 3))), list(enc.parameters()))
+        for planes in (got, want)
+    ]
+    for a, b in zip(*grads):
+        torch.testing.assert_close(a, b, atol=1e-4, rtol=1e-4)
+
+
 def test_decoder_blocks_start_as_their_shortcut_and_query_shapes():
     cfg = AutoencoderConfig(decoder_channels=16, mlp_hidden=32)
     dec = TriplaneDecoder(cfg, threshold=0.1)

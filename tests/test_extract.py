@@ -194,6 +194,16 @@ def test_query_points_value_does_not_depend_on_its_batch():
     np.testing.assert_array_equal(chunked, all_at_once)
 
 
+def test_points_are_decoded_in_cache_sized_batches_on_a_cpu_and_big_ones_on_a_gpu():
+    assert dc.default_chunk("cpu") == dc.CHUNK["cpu"] < dc.default_chunk("cuda") == dc.CHUNK["cuda"]
+    dec, prepared = random_triplane_decoder()
+    pts = np.random.default_rng(1).uniform(-1, 1, (dc.CHUNK["cpu"] * 2 + 5, 3)).astype(np.float32)
+    default, col = dc.query_points(dec, prepared, pts)  # three CPU batches
+    one_batch, col1 = dc.query_points(dec, prepared, pts, chunk=len(pts))
+    np.testing.assert_array_equal(default, one_batch)
+    np.testing.assert_array_equal(col, col1)
+
+
 def test_mc_support_marks_cubes_that_cross_the_level_and_the_boundary():
     sdf = np.ones((6, 6, 6), np.float32)
     sdf[3, 3, 3] = -1

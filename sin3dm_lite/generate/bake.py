@@ -110,7 +110,7 @@ def bake_texture(
     faces_uv: np.ndarray,
     uvs: np.ndarray,
     size: int,
-    chunk: int = 2**16,
+    chunk: int | None = None,
 ):
     """Bake the decoder's colour into a texture image.
 

@@ -158,7 +158,7 @@ def simplify(verts: np.ndarray, faces: np.ndarray, target_faces: int | None):
 
 # ----------------------------------------------------------------------------- 5. UV atlas
 #: no UV chart may cover more than this share of the surface (xatlas ``max_chart_area``); see :func:`uv_atlas`
-MAX_CHART_SHARE = 1 / 7
+MAX_CHART_SHARE = 1 / 15
 
 
 def uv_atlas(
@@ -177,12 +177,13 @@ def uv_atlas(
             bilinear filtering and mipmaps do not mix neighbouring charts).
         max_chart_share: no chart grows beyond this share of the surface area
             (0: no limit). xatlas grows charts without a limit by default, and
-            on bricky, many-faceted surfaces that takes long: charting a
-            20,000-face sample of the wall took 9-11 s without a cap, of the
-            tiles 16 s; with 1/7 3.7 and 5.4 s, the atlas as full (0.84-0.86 used).
-            Smooth shapes barely change (canyon 2.4 → 2.1 s, colonnade 2.8 s).
-            A flat region stays one chart whatever its size (xatlas makes
-            planar charts first).
+            on bricky, many-faceted surfaces that takes long (charting a
+            20,000-face sample of the wall took 9-11 s without a cap). Growing
+            is most of xatlas's time, and the big charts cost the most: with
+            1/15 a 20,000-face sample takes about half as long as with 1/7 and
+            gets about as many charts, the atlas nearly as full
+            (docs/performance.md "UV charts"). A flat region stays one chart
+            whatever its size (xatlas makes planar charts first).
 
     Returns:
         ``vmapping (V',)``: the original vertex of each atlas vertex (seams
@@ -224,7 +225,7 @@ def extract_mesh(
     min_component_faces: int = 0,
     vertex_colors: bool = False,
     original_coords: bool = True,
-    chunk: int = 2**16,
+    chunk: int | None = None,
     coarse: int | None = 4,
     return_steps: bool = False,
 ):
@@ -293,7 +294,7 @@ def _surface(
     prepared: PreparedTriplane,
     box: np.ndarray,
     resolution: int,
-    chunk: int,
+    chunk: int | None,
     coarse: int | None,
     components: tuple[str, int],
     faces: int | None,
@@ -332,7 +333,9 @@ def _place(mesh: TexturedMesh, normalization: Normalization | None, original_coo
     return norm
 
 
-def _vertex_coloured_mesh(decoder, prepared: PreparedTriplane, box: np.ndarray, v, f, chunk: int) -> TexturedMesh:
+def _vertex_coloured_mesh(
+    decoder, prepared: PreparedTriplane, box: np.ndarray, v, f, chunk: int | None
+) -> TexturedMesh:
     """The quick look: the decoder's colour at each vertex, no atlas."""
     _, col = query_points(decoder, prepared, to_box(v, box), chunk=chunk, sdf=False)
     material = Material(name="vertex_colors", base_color=np.ones(4, np.float32))
@@ -348,7 +351,7 @@ def _baked_mesh(
     v,
     f,
     texture_size: int,
-    chunk: int,
+    chunk: int | None,
     steps: dict,
     lap: _Stopwatch,
 ) -> TexturedMesh:

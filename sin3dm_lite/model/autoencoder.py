@@ -61,8 +61,37 @@ class TriplaneEncoder(nn.Module):
         return torch.tanh(0.5 * F.instance_norm(plane))
 
     def forward(self, grid: torch.Tensor) -> Triplane:
-        vol = self.volume(grid)  # [B, 12, X', Y', Z']
-        return Triplane(self.squash(vol.mean(4)), self.squash(vol.mean(3)), self.squash(vol.mean(2)))
+        """The three planes: :meth:`volume` averaged along each axis, computed without the volume.
+
+        A plane is the mean of a convolution along one axis, and the mean of a
+        convolution is a convolution of means: average the padded grid along
+        that axis at each of the kernel's 4 offsets (every second voxel), stack
+        the 4 averages as channels, and convolve in 2D with the kernel's matching
+        slices. Same planes (to rounding), a fraction of the work: the 3D
+        convolution and its gradient were a seventh of an autoencoder step.
+        """
+        k, s, p = self.tex.kernel_size[0], self.tex.stride[0], self.tex.padding[0]  # 4, 2, 1 (geo's too)
+        padded = F.pad(grid, (p,) * 6, mode="replicate")
+        planes = []
+        for axis in (4, 3, 2):  # xy: mean over z, xz: over y, yz: over x
+            x = padded.movedim(axis, -1)  # [B, C, a, b, n + 2p]: the averaged axis last
+            n_out = (x.shape[-1] - k) // s + 1
+            taps = torch.stack([x[..., d : d + s * (n_out - 1) + 1 : s].mean(-1) for d in range(k)], dim=2)
+            # taps [B, C, k, a, b]: the padded grid averaged along the axis, starting at each kernel offset
+            f = [_tap_conv(self.geo, taps[:, :1], axis), _tap_conv(self.tex, taps, axis)]
+            planes.append(self.squash(torch.cat(f, dim=1)))
+        return Triplane(*planes)
+
+
+def _tap_conv(conv: nn.Conv3d, taps: torch.Tensor, axis: int) -> torch.Tensor:
+    """``conv``'s output averaged along ``axis``, from the input's averages ``taps`` ``[B, C, k, a, b]``: a 2D
+    convolution whose input channels are (channel, offset) pairs and whose kernel is ``conv``'s, the averaged axis
+    moved next to the channels."""
+    b, c, k = taps.shape[:3]
+    weight = conv.weight.movedim(axis, 2)  # [O, C, k (the averaged axis), k, k]
+    return F.conv2d(
+        taps.reshape(b, c * k, *taps.shape[3:]), weight.reshape(len(weight), c * k, k, k), conv.bias, conv.stride[0]
+    )
 
 
 # --------------------------------------------------------------------------- decoder

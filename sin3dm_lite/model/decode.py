@@ -79,16 +79,27 @@ def prepare(decoder, triplane: Triplane | PreparedTriplane) -> PreparedTriplane:
 #: query batches are padded to a multiple of this many points (see :func:`query_points`)
 ROW_TILE = 64
 
+#: points per decoder batch by device type. On a CPU a batch's ``[chunk, 128]`` activations should fit the
+#: cache: the MLP's ReLUs, bias copies and concatenations are memory-bound above it (docs/performance.md
+#: "Decoder batches"); a GPU wants big batches.
+CHUNK = {"cpu": 2**13, "cuda": 2**16}
+
+
+def default_chunk(device: torch.device | str) -> int:
+    """The points per decoder batch on ``device`` (:data:`CHUNK`; unknown device types get the GPU's)."""
+    return CHUNK.get(torch.device(device).type, CHUNK["cuda"])
+
 
 def query_points(
     decoder,
     prepared: PreparedTriplane,
     points_box: np.ndarray,
-    chunk: int = 2**16,
+    chunk: int | None = None,
     sdf: bool = True,
     color: bool = True,
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """Decode ``(N, 3)`` box-coordinate points in chunks → ``sdf (N,)`` and ``color (N, K)``.
+    """Decode ``(N, 3)`` box-coordinate points in chunks of ``chunk`` (default: :func:`default_chunk`) →
+    ``sdf (N,)`` and ``color (N, K)``.
 
     Pass ``sdf=False`` or ``color=False`` to get ``None`` for that output; a
     decoder that has ``query_sdf`` / ``query_color`` then skips the head that
@@ -103,6 +114,7 @@ def query_points(
     full decode.
     """
     points_box = np.asarray(points_box, np.float32).reshape(-1, 3)
+    chunk = chunk or default_chunk(prepared.device)
     only_sdf = getattr(decoder, "query_sdf", None) if not color else None
     only_color = getattr(decoder, "query_color", None) if not sdf else None
     parts: tuple[list, list] = ([], [])
@@ -134,7 +146,7 @@ def decode_grid(
     triplane: Triplane | PreparedTriplane,
     aabb,
     resolution: int,
-    chunk: int = 2**16,
+    chunk: int | None = None,
     with_color: bool = False,
     coarse: int | None = 4,
     exact_band: float = 2.0,
@@ -146,7 +158,7 @@ def decode_grid(
     The grid has ``resolution`` voxels along the box's longest side (see
     :func:`grid_shape`); voxel ``k`` of an axis with ``n`` voxels has its
     centre at ``lo + (k + 0.5) / n * (hi - lo)``. Points are decoded in chunks
-    of ``chunk`` so memory stays bounded, while the decoder's conv blocks run
+    of ``chunk`` (default: :func:`default_chunk`) so memory stays bounded, while the decoder's conv blocks run
     only once (:func:`prepare`).
 
     **Coarse to fine** (default ``coarse=4``): most of the grid is far from the
@@ -184,6 +196,7 @@ def decode_grid(
         ``sdf (X, Y, Z)`` float32, or ``(sdf, color (X, Y, Z, K))`` when ``with_color``.
     """
     prepared = prepare(decoder, triplane)
+    chunk = chunk or default_chunk(prepared.device)
     box = as_aabb(aabb)
     shape = grid_shape(box, resolution)
     if coarse is None or int(coarse) <= 1:

@@ -253,9 +253,9 @@ class SampleNoise:
         return self.draw(tp, tp.device).to(dtype=tp.xy.dtype)
 
 
-#: distances :func:`snap_to_patches` holds at once per sample (2^22 floats, 16 MB): a 128-texel plane has 16,384
-#: windows, whose whole distance matrix would take 1 GB
-SNAP_DISTANCES = 2**22
+#: distances :func:`snap_to_patches` holds at once (2^20 floats, 4 MB, a slice that stays in the cache; a 128-texel
+#: plane has 16,384 windows, whose whole distance matrix would take 1 GB per sample)
+SNAP_DISTANCES = 2**20
 #: :func:`sample` snaps the estimates of the last tenth of the noise schedule only (t ≤ 0.1·T): on the ruin and
 #: the canyon the same G-Div / LP-IoU / LP-F as snapping every step (within 0.03), at 2-5 searches a sample
 #: instead of 20-50 (docs/thin-parts.md); earlier estimates are blurry, their nearest windows change nothing
@@ -300,11 +300,11 @@ def patch_snapper(snap: float, reference: Triplane | None, patch: int = SNAP_PAT
         ref, (h, w) = theirs[k].to(p), p.shape[-2:]
         if ref.shape[0] != p.shape[1] * patch * patch:
             raise Sin3DMInputError(f"snap's reference has other channels than the samples' {p.shape[1]}")
+        ours = windows(p).transpose(1, 2).reshape(-1, ref.shape[0])  # [B·h·w, c·K²]: every sample's windows
         rows = max(1, SNAP_DISTANCES // ref.shape[1])  # rows of distances at once
         # |ours - theirs|² less |ours|², the same for every candidate; in slices so memory stays bounded
-        nearest = torch.cat(
-            [(norms[k].to(p) - 2 * o @ ref).argmin(-1) for o in windows(p).transpose(1, 2).split(rows, dim=1)], dim=1
-        )
+        dist = (torch.addmm(norms[k].to(p), o, ref, alpha=-2) for o in ours.split(rows))
+        nearest = torch.cat([d.argmin(-1) for d in dist]).view(len(p), h * w)
         chosen = ref[:, nearest].permute(1, 0, 2)  # [B, c·K², h·w]
         size = (h + 2 * pad, w + 2 * pad)
         votes = F.fold(chosen, size, patch) / F.fold(torch.ones_like(chosen), size, patch)
