@@ -205,7 +205,7 @@ class Sin3DM:
         the input (or the known latent) back. The result's ``plan`` says what was sampled.
 
         ``snap`` (0-1; default the config's ``sampling.snap``, 0 in every preset: the paper's sampler) pulls the
-        last steps' predicted clean latent towards the input's 5×5 latent patches
+        last steps' predicted clean latent towards the input's 7×7 latent patches
         (:func:`~sin3dm_lite.model.diffusion.snap_to_patches`): thin walls and broken tops keep their shape at a
         higher diversity (docs/thin-parts.md). The calibration samples with the config's ``sampling.snap``, so
         fit with it set (CLI ``--set sampling.snap=1``) to have the diversity chosen for the snapped sampler.

@@ -208,13 +208,14 @@ def test_plot_schedule_accepts_tensors():
 
 def test_plot_snapping_shows_x0_snapped_and_the_input_on_the_inputs_basis(tp):
     from sin3dm_lite import snap_to_patches
+    from sin3dm_lite.model.diffusion import SNAP_PATCH
 
     ref = tp[0:1]
     x0 = Triplane.randn(1, 5, (8, 6, 10), generator=torch.Generator().manual_seed(3))
     panels = image_axes(viz.plot_snapping(x0, ref, plane="xz"))
     assert [ax.get_title() for ax in panels] == [
         "predicted x0",
-        "snapped to the input's 5×5 windows",
+        f"snapped to the input's {SNAP_PATCH}×{SNAP_PATCH} windows",
         "the input's latent",
     ]
     mean, basis = pca_basis(ref.xz[0].numpy())

@@ -261,8 +261,9 @@ SNAP_DISTANCES = 2**20
 #: instead of 20-50 (docs/thin-parts.md); earlier estimates are blurry, their nearest windows change nothing
 SNAP_LAST = 0.1
 #: the windows snapping compares (texels a side): 5×5 kept more of the input's patches than 3×3 at the same G-Div on the
-#: ruin and the colonnade (calibrated: 0.190 / 0.369 / 0.460 against 0.162 / 0.351 / 0.464; docs/thin-parts.md)
-SNAP_PATCH = 5
+#: ruin and the colonnade, 7×7 more than 5×5 on the ruin (about 0.03 LP-IoU and LP-F at 128 voxels) and as many on
+#: the colonnade, for about 0.15 s more a sample (docs/thin-parts.md)
+SNAP_PATCH = 7
 
 
 def snap_to_patches(x: Triplane, reference: Triplane, patch: int = SNAP_PATCH) -> Triplane:
