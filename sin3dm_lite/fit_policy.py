@@ -90,9 +90,9 @@ def thin_parts_hint(cfg: Config, grid: ShapeGrid, thin: float) -> str | None:
     with them instead of about 5, and its near copies scored LP-F 0.90 instead
     of 0.51 against the input at 128 voxels (docs/thin-parts.md). The hint
     names the switch, and snapped sampling (``sampling.snap``), which costs no fit
-    time: calibrated with it, the ruin's default went from 0.15 to 0.41, G-Div
-    from 0.07 to 0.19 and LP-IoU / LP-F from 0.27 / 0.43 to 0.37 / 0.46 at 128
-    voxels (``quick`` switches to it by itself). Only configs between 64 and 96 voxels get it (``tiny``'s
+    time: calibrated with it (7×7 windows), the ruin's ``quick`` default went from
+    0.15 to 0.45, G-Div from 0.07 to 0.20 and LP-IoU / LP-F from 0.27 / 0.43 to
+    0.40 / 0.49 at 128 voxels (``quick`` switches to it by itself). Only configs between 64 and 96 voxels get it (``tiny``'s
     32 voxels are for tests, finer grids hold such parts already).
     """
     finer = DETAIL_CHANGES["grid.resolution"]

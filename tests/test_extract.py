@@ -198,7 +198,11 @@ def test_points_are_decoded_in_cache_sized_batches_on_a_cpu_and_big_ones_on_a_gp
     assert dc.default_chunk("cpu") == dc.CHUNK["cpu"] < dc.default_chunk("cuda") == dc.CHUNK["cuda"]
     dec, prepared = random_triplane_decoder()
     pts = np.random.default_rng(1).uniform(-1, 1, (dc.CHUNK["cpu"] * 2 + 5, 3)).astype(np.float32)
-    default, col = dc.query_points(dec, prepared, pts)  # three CPU batches
+    batches = []
+    query = dec.query
+    dec.query = lambda features, p: batches.append(p.shape[1]) or query(features, p)
+    default, col = dc.query_points(dec, prepared, pts)
+    assert batches == [dc.CHUNK["cpu"], dc.CHUNK["cpu"], 64]  # the last one padded to a ROW_TILE multiple
     one_batch, col1 = dc.query_points(dec, prepared, pts, chunk=len(pts))
     np.testing.assert_array_equal(default, one_batch)
     np.testing.assert_array_equal(col, col1)

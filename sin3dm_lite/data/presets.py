@@ -55,12 +55,12 @@ def _tiny() -> Config:
     )
 
 
-#: what ``detail`` changes in ``small``; ``small`` switches to it by itself on shapes with many thin parts
 #: ``quick``'s thin-part switch: the same fit, its samples snapped to the input's latent patches (the calibration
 #: then picks the diversity for the snapped sampler). On the thin-walled ruin and the colonnade it gives more
 #: variation and more of the input's patches at 128 voxels (docs/thin-parts.md); no extra fit time.
 QUICK_THIN_CHANGES = {"sampling.snap": 1.0}
 
+#: what ``detail`` changes in ``small``; ``small`` switches to it by itself on shapes with many thin parts
 DETAIL_CHANGES = {
     "grid.resolution": 96,
     "diffusion.n_resblocks": 4,
