@@ -139,7 +139,7 @@ class Sin3DM:
         :meth:`input_mesh`, voxelised at the fit's grid resolution).
         The choice and what was tried land in ``report["calibration"]``;
         ``options`` go to ``calibrate_diversity`` (``goals``, ``n``, ``seed``,
-        ``lowest``, ``step``, ``margin``, ``refine``, ``caution``, ``safety``, ``relative``). :meth:`save` (or
+        ``lowest``, ``step``, ``margin``, ``refine``, ``caution``, ``safety``, ``relative``, ``far``). :meth:`save` (or
         ``sin3dm-lite calibrate``) keeps it.
         """
         from .evaluate.calibrate import calibrate_diversity, model_sampler

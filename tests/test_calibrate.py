@@ -49,7 +49,8 @@ def knob():
 
 
 def test_the_ladder_walks_down_to_the_first_setting_that_keeps_the_goals(knob):
-    cal = C.calibrate_diversity(knob, _reference(), n=3, seed=5, refine=0, safety=0.02, progress=False)
+    # every rung drawn (far=0); the default skips rungs far below the goals (next test)
+    cal = C.calibrate_diversity(knob, _reference(), n=3, seed=5, refine=0, safety=0.02, far=0, progress=False)
     assert [t["diversity"] for t in cal.tried] == [1.0, 0.9, 0.8, 0.7]  # 0.7 keeps both goals by the margin: stop
     assert [t["kept"] for t in cal.tried] == [False, False, False, True]
     assert knob.drawn[0] == (C.NEAR_COPY, 3, 5 + C.NEAR_COPY_SEEDS)  # the near copy first, with seeds of its own
@@ -60,7 +61,28 @@ def test_the_ladder_walks_down_to_the_first_setting_that_keeps_the_goals(knob):
     assert cal.diversity == 0.73 and cal.kept_goals
     text = cal.summary().splitlines()  # what notebook 04 prints: a line per setting drawn, why, then the choice
     assert text[0].startswith("diversity 1.00: LP-IoU 0.000") and text[-1] == "chosen: 0.73"
-    assert C.calibrate_diversity(knob, _reference(), n=3, refine=0, safety=0.2, progress=False).diversity == 0.71
+    assert C.calibrate_diversity(knob, _reference(), n=3, refine=0, safety=0.2, far=0, progress=False).diversity == 0.71
+
+
+@pytest.mark.parametrize("thin", [False, True], ids=["edge-0.7", "thin-edge-0.3"])
+def test_rungs_far_below_the_goals_are_skipped_for_the_same_choice_in_fewer_draws(thin):
+    """A rung whose samples keep less than half a goal (``far``) skips the next rung, which then misses too; when
+    the rung after a skip keeps the goals, the skipped one is drawn after all, so the two rungs around the answer
+    are both drawn and the refinement works as on the full ladder: the same choice, fewer settings drawn."""
+    knob, n = (_ThinKnob(0.3), 2) if thin else (_Knob(0.7), 3)
+    every = C.calibrate_diversity(type(knob)(knob.edge), _reference(), n=n, far=0, progress=False)
+    cal = C.calibrate_diversity(knob, _reference(), n=n, progress=False)
+    ladder = [t["diversity"] for t in cal.tried[: len(cal.tried) - C.REFINE]]
+    if knob.edge == 0.7:  # 1 and 0.8 keep nothing: skip 0.9 and 0.7; 0.6 keeps, so 0.7 is drawn after all
+        assert ladder == [1.0, 0.8, 0.6, 0.7] and [t["diversity"] for t in every.tried][:4] == [1.0, 0.9, 0.8, 0.7]
+    else:  # down to 0.2, which keeps: then the skipped 0.3
+        assert ladder == [1.0, 0.8, 0.6, 0.4, 0.2, 0.3]
+    assert cal.diversity == every.diversity and cal.kept_goals
+    # the thin shape's long far stretch saves two settings; on the edge at 0.7 skipping 0.9 pays for drawing 0.6
+    assert len(cal.tried) == len(every.tried) - (2 if thin else 0)
+    assert len(knob.drawn) == len(cal.tried) + 1  # and the near copy
+    with pytest.raises(Sin3DMInputError, match="far is a share of a goal"):
+        C.calibrate_diversity(knob, _reference(), n=n, far=1.0, progress=False)
 
 
 def test_a_shape_whose_near_copy_keeps_the_input_is_calibrated_as_before(knob):
@@ -99,13 +121,15 @@ def test_a_shape_whose_near_copy_misses_the_absolute_goals_gets_a_default_below_
     near = lp_scores(_reference(), [_thin_copy()])
     assert near["lp_iou"] == pytest.approx(0.3) and near["lp_fscore"] == pytest.approx(0.4)
     absolute = C.calibrate_diversity(_ThinKnob(0.3), _reference(), n=2, refine=0, relative=None, progress=False)
-    assert absolute.diversity == C.LOWEST and not absolute.kept_goals and len(absolute.tried) == 10
+    assert absolute.diversity == C.LOWEST and not absolute.kept_goals
+    assert [t["diversity"] for t in absolute.tried] == [1.0, 0.8, 0.6, 0.4, 0.2, 0.1]  # far rungs skipped; the floor
 
     knob = _ThinKnob(0.3)
     cal = C.calibrate_diversity(knob, _reference(), n=2, refine=0, progress=False)
     assert cal.goals == pytest.approx({"lp_iou": 0.85 * 0.3, "lp_fscore": 0.85 * 0.4})
     assert cal.absolute_goals == C.GOALS and cal.relative == C.RELATIVE
-    assert [t["diversity"] for t in cal.tried] == [1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3]
+    # 1 … 0.4 keep nothing (far: every other rung skipped); 0.2 keeps the goals, so the skipped 0.3 is drawn
+    assert [t["diversity"] for t in cal.tried] == [1.0, 0.8, 0.6, 0.4, 0.2, 0.3]
     # between 0.4 (nothing kept) and 0.3 (the near copy's scores) both smoothed curves cross their goals at 0.315
     assert cal.kept_goals and 0.3 <= cal.diversity < 0.5 and cal.diversity == pytest.approx(0.315, abs=0.006)
     # read on the smoothed curve at the choice (rounded to 0.01): linear between 0.4 and 0.3; identical samples
@@ -174,7 +198,7 @@ def test_refinement_draws_where_the_answer_lies_and_pools_repeated_settings(knob
     """The ladder brackets the edge between 0.8 and 0.7; refinement draws at the half-step point nearest the answer
     (0.75, which misses), narrowing the answer to between 0.75 and 0.7, then at 0.7 again, whose 6 samples are
     pooled with the ladder's 3 there."""
-    cal = C.calibrate_diversity(knob, _reference(), n=3, seed=5, refine=2, safety=0.02, progress=False)
+    cal = C.calibrate_diversity(knob, _reference(), n=3, seed=5, refine=2, safety=0.02, far=0, progress=False)
     assert [t["diversity"] for t in cal.tried] == [1.0, 0.9, 0.8, 0.7, 0.75, 0.7]
     assert [seed for _, _, seed in knob.drawn[1:]] == [5, 1005, 2005, 3005, 4005, 5005]
     assert cal.diversity == 0.71 and cal.kept_goals  # 0.7 + 0.05 · (1 - 0.72): the edge is at 0.7
@@ -257,7 +281,7 @@ def test_goals_out_of_reach_give_the_lowest_setting_and_say_so(knob):
     knob.edge = 0.1
     cal = C.calibrate_diversity(knob, _reference(), lowest=0.4, step=0.2, progress=False)
     assert cal.diversity == 0.4 and not cal.kept_goals and "no setting kept the goals" in cal.summary()
-    assert [t["diversity"] for t in cal.tried] == [1.0, 0.8, 0.6, 0.4]
+    assert [t["diversity"] for t in cal.tried] == [1.0, 0.6, 0.4]  # 1 keeps nothing: 0.8 skipped; the floor drawn
 
 
 @pytest.mark.parametrize(

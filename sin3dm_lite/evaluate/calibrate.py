@@ -90,6 +90,9 @@ LOWEST = 0.1
 
 #: extra settings drawn near the answer once the ladder has bracketed it (:func:`calibrate_diversity`)
 REFINE = 4
+#: a rung whose samples keep less than this share of a goal is far from the answer: the ladder skips the next rung
+#: (on the thin-walled ruin 1.0-0.6 all keep LP-F 0.22-0.30 against a goal of 0.70; docs/calibration.md)
+FAR = 0.5
 #: how the smoothed curve is read: lowered by CAUTION standard errors, SAFETY (a share of patches) above each goal
 SAFETY, CAUTION = 0.0, 1.5
 
@@ -238,6 +241,7 @@ def calibrate_diversity(
     refine: int = REFINE,
     caution: float = CAUTION,
     relative: float | None = RELATIVE,
+    far: float = FAR,
     progress: bool = True,
 ) -> Calibration:
     """The highest diversity in ``[lowest, 1]`` whose samples keep the goals against ``reference``.
@@ -253,7 +257,10 @@ def calibrate_diversity(
     ``n`` samples at each with **seeds of its own** (``seed + 1000·k`` for the
     k-th setting drawn), and stops at the first setting whose samples keep
     every goal by ``margin`` (lower settings only keep more; a goal lowered to its
-    ceiling lowers its margin in proportion). The patch scores
+    ceiling lowers its margin in proportion). A rung whose samples keep less
+    than ``far`` × a goal is far above the answer, so the next rung is skipped;
+    should the rung after it end the walk, the skipped one is drawn after all,
+    so the two rungs around the answer are always drawn. The patch scores
     of all settings drawn are made non-increasing in the knob (pooling
     neighbours that disagree by chance, weighted by their samples). Then,
     ``refine`` times, it draws ``n`` more samples at the point of a half-step
@@ -283,9 +290,10 @@ def calibrate_diversity(
         refine: how many more settings to draw near the answer once the ladder has bracketed it.
         caution: how many standard errors the smoothed curve is lowered before it is read.
         relative: each goal is at most this share of the near copy's score (None: absolute goals).
+        far: a rung keeping less than this share of a goal skips the next rung (0: every rung is drawn).
     """
     absolute = dict(GOALS if goals is None else goals)
-    _check_options(absolute, n, refine, lowest, step, caution, safety, margin, relative)
+    _check_options(absolute, n, refine, lowest, step, caution, safety, margin, relative, far)
     reference = np.asarray(reference, bool)
 
     def draw(d: float, k: int) -> dict:
@@ -298,7 +306,7 @@ def calibrate_diversity(
         _set_ceiling(result, draw(NEAR_COPY, NEAR_COPY_SEEDS // 1000), relative, progress)
     # a goal lowered to its ceiling lowers its margin alike: a near copy keeps only 1/RELATIVE of its goal
     margins = {k: margin * (v / absolute[k] if absolute[k] > 0 else 1.0) for k, v in result.goals.items()}
-    _walk(result, draw, lowest, step, margins, safety, refine, caution, progress)
+    _walk(result, draw, lowest, step, margins, safety, refine, caution, progress, far)
     result.at_choice = _at_choice(result)
     return result
 
@@ -321,7 +329,7 @@ def _set_ceiling(result: Calibration, near: dict, relative: float, progress: boo
         )
 
 
-def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin, relative) -> None:
+def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin, relative, far=0.0) -> None:
     """:func:`calibrate_diversity`'s options, each refused in one line naming it."""
     unknown = set(goals) - set(GOALS)
     if unknown:
@@ -340,6 +348,8 @@ def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin
         raise Sin3DMInputError(
             f"margin and safety are shares of patches from 0 to below 1, got {margin!r} and {safety!r}"
         )
+    if not 0.0 <= far < 1.0:
+        raise Sin3DMInputError(f"far is a share of a goal from 0 (draw every rung) to below 1, got {far!r}")
     if relative is not None and not 0.0 < relative <= 1.0:
         raise Sin3DMInputError(
             f"relative is a share of the near copy's scores, above 0 and at most 1, got {relative!r}"
@@ -374,11 +384,12 @@ def _walk(
     refine: int,
     caution: float,
     progress: bool,
+    far: float = 0.0,
 ) -> None:
     """The ladder, then the refinement, with ``draw(diversity, k) -> {"lp_iou", "lp_fscore", "g_div"}`` scoring
     ``result.n`` samples with the k-th seeds. Fills ``result`` (kept apart from the sampling so that
     ``benchmarks/bench_calibration.py`` can replay it on stored scores). ``margin``: one for every goal, or one
-    per goal."""
+    per goal. ``far``: a rung keeping less than this share of a goal skips the next one."""
     goals = result.goals
     margins = margin if isinstance(margin, dict) else dict.fromkeys(goals, margin)
 
@@ -396,11 +407,17 @@ def _walk(
         return row
 
     levels = [round(1.0 - k * step, 4) for k in range(int(np.floor((1.0 - lowest) / step + 1e-9)) + 1)]
-    below = iter(levels)  # the ladder's settings not drawn yet
-    for d in below:
-        row = add(d)
+    k, last = 0, -1
+    while k < len(levels):
+        row = add(levels[k])
         if all(row[key] >= v + margins[key] for key, v in goals.items()):
+            if k - last == 2:  # the rung just above was skipped: the answer lies between, so draw it
+                add(levels[k - 1])
             break
+        # far below a goal: the next rung misses it too, so skip it (never the floor)
+        far_off = any(row[key] < far * v for key, v in goals.items())
+        last, k = k, k + (2 if far_off and k + 2 < len(levels) else 1)
+    below = iter(levels[k + 1 :])  # the ladder's settings below the last drawn
 
     def read() -> float | None:
         # the lowered curve can miss a goal where the walk stopped (few samples, wide error): walk on down
