@@ -29,8 +29,9 @@ own ceiling.
 
 Then it walks down the knob from 1 (pure noise, the paper's sampling) in steps
 of 0.1, down to 0.1 (:data:`LOWEST`) if the shape needs it, draws a few samples
-at each setting, stops at the first setting that keeps the goals with room to
-spare, smooths the scores into a curve that falls with the knob, draws a few
+at each setting (skipping the next one where a setting keeps less than half a
+goal, :data:`FAR`: it is far above the answer), stops at the first setting
+that keeps the goals with room to spare, smooths the scores into a curve that falls with the knob, draws a few
 more settings where that curve crosses the goals, and returns the crossing of
 the curve lowered by 1.5 standard errors (for the noise of a few samples). Each
 setting gets its own sample seeds, so no single lucky or unlucky set of samples
@@ -257,10 +258,9 @@ def calibrate_diversity(
     ``n`` samples at each with **seeds of its own** (``seed + 1000·k`` for the
     k-th setting drawn), and stops at the first setting whose samples keep
     every goal by ``margin`` (lower settings only keep more; a goal lowered to its
-    ceiling lowers its margin in proportion). A rung whose samples keep less
-    than ``far`` × a goal is far above the answer, so the next rung is skipped;
-    should the rung after it end the walk, the skipped one is drawn after all,
-    so the two rungs around the answer are always drawn. The patch scores
+    ceiling lowers its margin in proportion). A rung keeping less than ``far`` ×
+    a goal skips the next rung, drawn after all if the rung after it ends the
+    walk (the two rungs around the answer are always drawn). The patch scores
     of all settings drawn are made non-increasing in the knob (pooling
     neighbours that disagree by chance, weighted by their samples). Then,
     ``refine`` times, it draws ``n`` more samples at the point of a half-step
@@ -441,6 +441,7 @@ def _walk(
 
 __all__ = [
     "GOALS",
+    "FAR",
     "G_DIV_GOAL",
     "LOWEST",
     "MIN_CEILING",
