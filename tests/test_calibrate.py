@@ -65,7 +65,7 @@ def test_the_ladder_walks_down_to_the_first_setting_that_keeps_the_goals(knob):
 
 
 @pytest.mark.parametrize("thin", [False, True], ids=["edge-0.7", "thin-edge-0.3"])
-def test_rungs_far_below_the_goals_are_skipped_for_the_same_choice_in_fewer_draws(thin):
+def test_rungs_far_below_the_goals_are_skipped_for_the_same_choice_in_fewer_draws(thin, capsys):
     """A rung whose samples keep less than half a goal (``far``) skips the next rung, which then misses too; when
     the rung after a skip keeps the goals, the skipped one is drawn after all, so the two rungs around the answer
     are both drawn and the refinement works as on the full ladder: the same choice, fewer settings drawn."""
@@ -81,6 +81,13 @@ def test_rungs_far_below_the_goals_are_skipped_for_the_same_choice_in_fewer_draw
     # the thin shape's long far stretch saves two settings; on the edge at 0.7 skipping 0.9 pays for drawing 0.6
     assert len(cal.tried) == len(every.tried) - (2 if thin else 0)
     assert len(knob.drawn) == len(cal.tried) + 1  # and the near copy
+    if not thin:  # what the walk prints: why a rung is missing, and the skipped one drawn back
+        out = capsys.readouterr().out
+        C.calibrate_diversity(_Knob(0.7), _reference(), n=n, refine=0, progress=True)
+        lines = [line for line in capsys.readouterr().out.splitlines() if "skipped" in line or "skipped rung" in line]
+        assert lines[0] == "[calibrate] 1 keeps less than 50% of a goal: 0.9 skipped"
+        assert lines[-1].startswith("[calibrate] the skipped rung above: diversity 0.7: LP-IoU 1.000")
+        assert len(lines) == 3 and out == ""  # 0.9 and 0.7 skipped, 0.7 drawn back
     with pytest.raises(Sin3DMInputError, match="far is a share of a goal"):
         C.calibrate_diversity(knob, _reference(), n=n, far=1.0, progress=False)
 

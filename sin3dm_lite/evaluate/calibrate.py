@@ -412,11 +412,15 @@ def _walk(
         row = add(levels[k])
         if all(row[key] >= v + margins[key] for key, v in goals.items()):
             if k - last == 2:  # the rung just above was skipped: the answer lies between, so draw it
-                add(levels[k - 1])
+                add(levels[k - 1], "the skipped rung above: ")
             break
         # far below a goal: the next rung misses it too, so skip it (never the floor)
-        far_off = any(row[key] < far * v for key, v in goals.items())
-        last, k = k, k + (2 if far_off and k + 2 < len(levels) else 1)
+        far_off = any(row[key] < far * v for key, v in goals.items()) and k + 2 < len(levels)
+        if far_off and progress:
+            print(
+                f"[calibrate] {levels[k]:g} keeps less than {far:.0%} of a goal: {levels[k + 1]:g} skipped", flush=True
+            )
+        last, k = k, k + (2 if far_off else 1)
     below = iter(levels[k + 1 :])  # the ladder's settings below the last drawn
 
     def read() -> float | None:
