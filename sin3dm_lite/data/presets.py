@@ -129,7 +129,7 @@ def _quick() -> Config:
     # snaps the samples instead of refitting at 96 voxels (about 5x the fit there; --thin-switch asks for it).
     # Textures of 512² (not 1,024²): its decoder's colour is blurrier than small's anyway, and baking a quarter of
     # the texels takes a sample from about 12 to 8 s on one AVX2 core. 1,000 denoiser steps (1,500 before): once
-    # calibrated, the same figures within a few hundredths on five shapes, 34-74 s less. Measured in docs/presets.md.
+    # calibrated, the same figures within a few hundredths on five shapes, 26-80 s less. Measured in docs/presets.md.
     return _small().updated(
         **{
             "name": "quick",

@@ -31,8 +31,8 @@ Then it walks down the knob from 1 (pure noise, the paper's sampling) in steps
 of 0.1, down to 0.1 (:data:`LOWEST`) if the shape needs it, draws a few samples
 at each setting (skipping the next one where a setting keeps less than half a
 goal, :data:`FAR`: it is far above the answer), stops at the first setting
-that keeps the goals with room to spare, smooths the scores into a curve that falls with the knob, draws a few
-more settings where that curve crosses the goals, and returns the crossing of
+that keeps the goals with room to spare, smooths the scores into a curve that
+falls with the knob, draws a few more settings where that curve crosses the goals, and returns the crossing of
 the curve lowered by 1.5 standard errors (for the noise of a few samples). Each
 setting gets its own sample seeds, so no single lucky or unlucky set of samples
 decides. The samples' G-Div at the choice is recorded against the diversity
@@ -444,8 +444,8 @@ def _walk(
 
 
 __all__ = [
-    "GOALS",
     "FAR",
+    "GOALS",
     "G_DIV_GOAL",
     "LOWEST",
     "MIN_CEILING",
