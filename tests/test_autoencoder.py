@@ -2,6 +2,7 @@
 
 import dataclasses
 import io
+import pickle
 
 import numpy as np
 import pytest
@@ -53,6 +54,25 @@ def test_encoder_planes_are_the_volume_averaged_along_each_axis_with_the_same_gr
     ]
     for a, b in zip(*grads):
         torch.testing.assert_close(a, b, atol=1e-4, rtol=1e-4)
+
+
+def test_the_grids_averages_are_computed_once_per_grid_and_again_when_it_changes():
+    """A fit feeds the encoder the same grid at every step, so the grid's averages (the encoder's input taps) are
+    kept: the same tensors on a second call, the same planes; a grid changed in place, or another grid, gets new
+    ones (what the planes then are checked against the 3D convolution); a pickled encoder leaves them behind."""
+    torch.manual_seed(0)
+    enc = TriplaneEncoder(AutoencoderConfig())
+    x = torch.randn(1, 4, 10, 6, 8)
+    first = enc(x).planes
+    taps = enc.taps(x)
+    assert all(a is b for a, b in zip(taps, enc.taps(x)))  # kept
+    assert all(torch.equal(a, b) for a, b in zip(first, enc(x).planes))
+    for changed in (x.mul_(2), torch.randn(1, 4, 10, 6, 8)):  # in place (version counter), and a new tensor
+        want = [TriplaneEncoder.squash(enc.volume(changed).mean(axis)) for axis in (4, 3, 2)]
+        assert not any(a is b for a, b in zip(taps, enc.taps(changed)))
+        for a, b in zip(enc(changed).planes, want):
+            torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+    assert "_taps" not in pickle.loads(pickle.dumps(enc)).__dict__
 
 
 def test_decoder_blocks_start_as_their_shortcut_and_query_shapes():

@@ -26,6 +26,7 @@ the material.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import torch
@@ -70,17 +71,33 @@ class TriplaneEncoder(nn.Module):
         slices. Same planes (to rounding), a fraction of the work: the 3D
         convolution and its gradient were a seventh of an autoencoder step.
         """
-        k, s, p = self.tex.kernel_size[0], self.tex.stride[0], self.tex.padding[0]  # 4, 2, 1 (geo's too)
-        padded = F.pad(grid, (p,) * 6, mode="replicate")
         planes = []
-        for axis in (4, 3, 2):  # xy: mean over z, xz: over y, yz: over x
-            x = padded.movedim(axis, -1)  # [B, C, a, b, n + 2p]: the averaged axis last
-            n_out = (x.shape[-1] - k) // s + 1
-            taps = torch.stack([x[..., d : d + s * (n_out - 1) + 1 : s].mean(-1) for d in range(k)], dim=2)
-            # taps [B, C, k, a, b]: the padded grid averaged along the axis, starting at each kernel offset
+        for axis, taps in zip((4, 3, 2), self.taps(grid)):  # xy: mean over z, xz: over y, yz: over x
             f = [_tap_conv(self.geo, taps[:, :1], axis), _tap_conv(self.tex, taps, axis)]
             planes.append(self.squash(torch.cat(f, dim=1)))
         return Triplane(*planes)
+
+    def taps(self, grid: torch.Tensor) -> list[torch.Tensor]:
+        """Per plane (xy, xz, yz), the padded grid averaged along its axis at each of the kernel's offsets,
+        ``[B, C, k, a, b]``. They depend on the grid alone, which a fit feeds unchanged at every step, so the last
+        grid's are kept (the same tensor, unchanged since: checked by identity and version counter)."""
+        cached = getattr(self, "_taps", None)
+        if cached is not None and cached[0]() is grid and cached[1] == grid._version and not grid.requires_grad:
+            return cached[2]
+        k, s, p = self.tex.kernel_size[0], self.tex.stride[0], self.tex.padding[0]  # 4, 2, 1 (geo's too)
+        padded = F.pad(grid, (p,) * 6, mode="replicate")
+        out = []
+        for axis in (4, 3, 2):
+            x = padded.movedim(axis, -1)  # [B, C, a, b, n + 2p]: the averaged axis last
+            n_out = (x.shape[-1] - k) // s + 1
+            out.append(torch.stack([x[..., d : d + s * (n_out - 1) + 1 : s].mean(-1) for d in range(k)], dim=2))
+        self._taps = (weakref.ref(grid), grid._version, out)
+        return out
+
+    def __getstate__(self) -> dict:  # pickled (a worker, torch.save of the module) without the cache
+        state = self.__dict__.copy()
+        state.pop("_taps", None)
+        return state
 
 
 def _tap_conv(conv: nn.Conv3d, taps: torch.Tensor, axis: int) -> torch.Tensor:
