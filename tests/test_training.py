@@ -6,9 +6,10 @@ import pytest
 import torch
 
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.model import training
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer, TriplaneAutoencoder
 from sin3dm_lite.model.diffusion import DiffusionTrainer
-from sin3dm_lite.model.training import TRAINER_FORMAT, Trainer
+from sin3dm_lite.model.training import FUSED_CPU_ADAMW, TRAINER_FORMAT, Trainer
 from sin3dm_lite.model.unet import TriplaneUNet
 
 from .conftest import tiny_ae_cfg, tiny_diffusion_cfg
@@ -27,6 +28,21 @@ def reloaded(sd: dict) -> dict:
     torch.save(sd, buf)
     buf.seek(0)
     return torch.load(buf, weights_only=True)
+
+
+@pytest.mark.parametrize("kind", ["autoencoder", "diffusion"])
+def test_a_cpu_trainer_takes_the_fused_adamw_step_which_is_adamw(kind, box_grid, h0, monkeypatch):
+    """On a CPU the trainers use PyTorch's fused AdamW (one pass over all parameters) where the installed PyTorch
+    has it; its step is AdamW's: the same weights after a few steps as the per-tensor loop, to rounding."""
+    fused = make(kind, box_grid, h0)
+    assert fused.optimizer.defaults["fused"] is (True if FUSED_CPU_ADAMW else None)
+    monkeypatch.setattr(training, "FUSED_CPU_ADAMW", False)
+    plain = make(kind, box_grid, h0)
+    assert plain.optimizer.defaults["fused"] is None
+    for tr in (fused, plain):
+        tr.run(until_step=3, progress=False)
+    for a, b in zip(fused.model.parameters(), plain.model.parameters()):  # a step moves a weight by about lr (1e-3)
+        torch.testing.assert_close(a, b, atol=1e-4, rtol=1e-3)
 
 
 @pytest.mark.parametrize("kind", ["autoencoder", "diffusion"])

@@ -377,7 +377,7 @@ class AutoencoderTrainer(Trainer):
         self.grid_t = grid_tensor(grid, self.device) if cfg.use_encoder else None  # the auto-decoder never reads it
         self.sampler = PointSampler(grid, self.device)
         geo, tex = self.model.param_groups()
-        self.optimizer = torch.optim.AdamW([{"params": geo, "lr": cfg.lr_geo}, {"params": tex, "lr": cfg.lr_tex}])
+        self.optimizer = self.adamw([{"params": geo, "lr": cfg.lr_geo}, {"params": tex, "lr": cfg.lr_tex}])
         gamma = cfg.lr_final_factor ** (1.0 / max(1, cfg.steps))
         self.scheduler = torch.optim.lr_scheduler.ExponentialLR(self.optimizer, gamma)
 

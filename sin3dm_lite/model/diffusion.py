@@ -126,7 +126,7 @@ class DiffusionTrainer(Trainer):
         # the training forward: compiled on a GPU when asked (the same module and weights; sampling uses it uncompiled)
         self.train_forward = torch.compile(self.model) if cfg.compile and self.device.type == "cuda" else self.model
         self._compile_checked = False  # True once a compiled step ran (later errors are the training's own)
-        self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr)
+        self.optimizer = self.adamw(self.model.parameters(), lr=cfg.lr)
         steps = max(cfg.steps, 1)
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: max(0.0, 1.0 - s / steps))
 

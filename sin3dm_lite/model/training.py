@@ -69,6 +69,14 @@ def checkpoint_problem(sd: dict, kind: str) -> str | None:
     return None
 
 
+#: PyTorch has a fused AdamW kernel for the CPU from 2.4 on: one loop over all parameters instead of a dozen small
+#: ops per tensor (the `quick` autoencoder's optimizer step 6.5-7.8 -> 1.1-1.5 ms on one AVX2 core; docs/levers.md)
+FUSED_CPU_ADAMW = tuple(int("".join(c for c in x if c.isdigit()) or 0) for x in torch.__version__.split(".")[:2]) >= (
+    2,
+    4,
+)
+
+
 class Trainer:
     """Base of the two trainers: subclasses set ``kind`` and ``loss_names``, build their parts and define
     :meth:`losses` (and, if they have any, :meth:`after_step`, :meth:`extra_state`, :meth:`load_extra_state`)."""
@@ -93,6 +101,12 @@ class Trainer:
             torch.manual_seed(self.seed)
             model = build()
         return model.to(self.device)
+
+    def adamw(self, params, **options) -> torch.optim.AdamW:
+        """AdamW over ``params``, with PyTorch's fused kernel on a CPU where it has one (the same update, in one
+        pass; the last bits of a fit differ from the per-tensor loop's)."""
+        fused = True if self.device.type == "cpu" and FUSED_CPU_ADAMW else None
+        return torch.optim.AdamW(params, fused=fused, **options)
 
     # ------------------------------------------------------------------ training
     def losses(self) -> dict[str, torch.Tensor]:
@@ -178,4 +192,4 @@ class Trainer:
         self.history = {k: [float(x) for x in v.tolist()] for k, v in sd["history"].items()}
 
 
-__all__ = ["TRAINER_FORMAT", "Trainer", "checkpoint_problem", "cpu_copy"]
+__all__ = ["FUSED_CPU_ADAMW", "TRAINER_FORMAT", "Trainer", "checkpoint_problem", "cpu_copy"]
