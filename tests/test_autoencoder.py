@@ -72,6 +72,9 @@ def test_the_grids_averages_are_computed_once_per_grid_and_again_when_it_changes
         assert not any(a is b for a, b in zip(taps, enc.taps(changed)))
         for a, b in zip(enc(changed).planes, want):
             torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+    needs_grad = torch.randn(1, 4, 10, 6, 8, requires_grad=True)  # not a constant: not kept (nor its graph)
+    enc.taps(needs_grad)
+    assert enc._taps[0]() is not needs_grad
     assert "_taps" not in pickle.loads(pickle.dumps(enc)).__dict__
 
 

@@ -329,7 +329,7 @@ def _set_ceiling(result: Calibration, near: dict, relative: float, progress: boo
         )
 
 
-def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin, relative, far=0.0) -> None:
+def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin, relative, far) -> None:
     """:func:`calibrate_diversity`'s options, each refused in one line naming it."""
     unknown = set(goals) - set(GOALS)
     if unknown:
@@ -384,7 +384,7 @@ def _walk(
     refine: int,
     caution: float,
     progress: bool,
-    far: float = 0.0,
+    far: float = FAR,
 ) -> None:
     """The ladder, then the refinement, with ``draw(diversity, k) -> {"lp_iou", "lp_fscore", "g_div"}`` scoring
     ``result.n`` samples with the k-th seeds. Fills ``result`` (kept apart from the sampling so that

@@ -82,7 +82,7 @@ class TriplaneEncoder(nn.Module):
         ``[B, C, k, a, b]``. They depend on the grid alone, which a fit feeds unchanged at every step, so the last
         grid's are kept (the same tensor, unchanged since: checked by identity and version counter)."""
         cached = getattr(self, "_taps", None)
-        if cached is not None and cached[0]() is grid and cached[1] == grid._version and not grid.requires_grad:
+        if cached is not None and cached[0]() is grid and cached[1] == grid._version:
             return cached[2]
         k, s, p = self.tex.kernel_size[0], self.tex.stride[0], self.tex.padding[0]  # 4, 2, 1 (geo's too)
         padded = F.pad(grid, (p,) * 6, mode="replicate")
@@ -91,7 +91,8 @@ class TriplaneEncoder(nn.Module):
             x = padded.movedim(axis, -1)  # [B, C, a, b, n + 2p]: the averaged axis last
             n_out = (x.shape[-1] - k) // s + 1
             out.append(torch.stack([x[..., d : d + s * (n_out - 1) + 1 : s].mean(-1) for d in range(k)], dim=2))
-        self._taps = (weakref.ref(grid), grid._version, out)
+        if not grid.requires_grad:  # a constant: keep it (a grid that needs gradients would keep its graph alive)
+            self._taps = (weakref.ref(grid), grid._version, out)
         return out
 
     def __getstate__(self) -> dict:  # pickled (a worker, torch.save of the module) without the cache

@@ -71,10 +71,7 @@ def checkpoint_problem(sd: dict, kind: str) -> str | None:
 
 #: PyTorch has a fused AdamW kernel for the CPU from 2.4 on: one loop over all parameters instead of a dozen small
 #: ops per tensor (the `quick` autoencoder's optimizer step 6.5-7.8 -> 1.1-1.5 ms on one AVX2 core; docs/levers.md)
-FUSED_CPU_ADAMW = tuple(int("".join(c for c in x if c.isdigit()) or 0) for x in torch.__version__.split(".")[:2]) >= (
-    2,
-    4,
-)
+FUSED_CPU_ADAMW = torch.__version__ >= (2, 4)
 
 
 class Trainer:
