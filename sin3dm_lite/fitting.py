@@ -220,6 +220,12 @@ class FitRun:
         """Stage 2: the trained autoencoder, the input's latent and its reconstruction metrics."""
         t0 = time.perf_counter()
         ae = AutoencoderTrainer(grid, cfg.autoencoder, self.dev, cfg.seed)
+        if ae.single_color is not None:
+            rgb = ", ".join(f"{c:.2f}" for c in ae.single_color)
+            self.say(
+                f"[fit] '{grid.name}' has one colour ({rgb}; a mesh without colour gets this grey): the autoencoder "
+                "learns its geometry only, about half the work a step, and every sample keeps that colour"
+            )
         train(ae, self.run / "autoencoder.pt" if self.run else None, cfg.checkpoint_every, self.progress, self.say)
         h0 = ae.latent()
         metrics = reconstruction_metrics(reconstructed_grid(ae.model.decoder, h0, grid), grid)
@@ -247,6 +253,7 @@ class FitRun:
             "autoencoder_steps": ae.step_count,
             "diffusion_steps": dm.step_count,
             "reconstruction": metrics,
+            **({"single_color": ae.single_color.tolist()} if ae.single_color is not None else {}),
             "final_loss": {"autoencoder": ae.history["loss"][-1], "diffusion": dm.history["loss"][-1]},
             "timings_s": self.timings,
             "device": str(self.dev),

@@ -195,3 +195,33 @@ def test_a_mirror_decoder_decodes_a_flipped_latent_to_the_mirrored_shape(axis, d
     plain = TriplaneDecoder(AutoencoderConfig(mirror=False), threshold=0.1).state_dict()
     sym = TriplaneDecoder(AutoencoderConfig(mirror=True), threshold=0.1).state_dict()
     assert {k: v.shape for k, v in plain.items()} == {k: v.shape for k, v in sym.items()}
+
+
+@pytest.mark.parametrize("use_encoder", [True, False])
+def test_a_shape_of_one_colour_trains_its_geometry_only_and_decodes_its_colour_exactly(box_grid, use_encoder):
+    """A mesh without colour (the default grey) or of one plain colour: the texture half is not trained (about
+    half an autoencoder step), decodes that colour at every point, and the latent's texture channels are zero; the
+    geometry trains as before. A grid of varied colour (``box_grid``) trains both halves."""
+    grey = dataclasses.replace(box_grid)
+    band = np.abs(grey.sdf) < grey.threshold
+    grey.color = np.where(band[..., None], np.float32([0.2, 0.5, 0.7]), np.float32(0)).astype(np.float32)
+    grey.point_color = np.broadcast_to(np.float32([0.2, 0.5, 0.7]), grey.point_color.shape).copy()
+    np.testing.assert_allclose(grey.single_color(), [0.2, 0.5, 0.7], atol=1e-6)
+    assert box_grid.single_color() is None
+    cfg = tiny_ae_cfg(use_encoder=use_encoder, steps=150)
+    tr = AutoencoderTrainer(grey, cfg, seed=0)
+    held = [p for p in tr.model.param_groups()[1]]
+    before = [p.detach().clone() for p in held]
+    tr.run(progress=False)
+    assert all(torch.equal(a, b) for a, b in zip(before, held)) and not any(p.requires_grad for p in held)
+    assert set(tr.history["color"]) == {0.0}
+    h = tr.latent()
+    assert all(torch.equal(p[:, 4:], torch.zeros_like(p[:, 4:])) for p in h.planes)
+    rec = reconstructed_grid(tr.model.decoder, h, grey)
+    m = reconstruction_metrics(rec, grey)
+    assert m["occupancy_iou"] > 0.8 and m["color_l1"] < 1e-4
+    points = torch.rand(1, 500, 3) * 2 - 1
+    rgb = tr.model.decoder.query_color(tr.model.decoder.prepare(h), points)
+    torch.testing.assert_close(rgb, torch.tensor([0.2, 0.5, 0.7]).expand_as(rgb), atol=1e-5, rtol=0)
+    varied = AutoencoderTrainer(box_grid, cfg, seed=0)
+    assert varied.single_color is None and all(p.requires_grad for p in varied.model.param_groups()[1])

@@ -381,3 +381,26 @@ def test_fit_set_changes_the_preset_and_names_a_bad_setting(capsys, tmp_path, mo
     code, _, err = run(capsys, "fit", "wall", "--out", str(tmp_path / "bad"), "--set", "diffusion.rolout=true")
     assert code == 2 and "unknown config setting 'diffusion.rolout'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps
+def test_a_mesh_without_colour_fits_its_geometry_only_and_its_samples_keep_the_grey(capsys, tmp_path):
+    """An STL has no colour: the fit says the autoencoder learns the geometry alone, reports the colour as kept
+    (not a PSNR), records it in the report, and its meshes are the default grey."""
+    from sin3dm_lite.data.mesh import DEFAULT_COLOR
+    from sin3dm_lite.pipeline import Sin3DM
+
+    trimesh.creation.box(extents=(1.0, 0.6, 0.4)).export(tmp_path / "box.stl")
+    settings = ["autoencoder.steps=80", "diffusion.steps=2", "sampling.steps=2", "sampling.mesh_resolution=24"]
+    code, out, _ = run(
+        capsys, "fit", str(tmp_path / "box.stl"), "--preset", "tiny", "--out", str(tmp_path / "r"), "--set", *settings
+    )
+    assert code == 0
+    assert "[fit] 'box' has one colour (0.70, 0.70, 0.70; a mesh without colour gets this grey)" in out
+    assert "one colour, kept" in out and "colour PSNR" not in out
+    model = Sin3DM.load(tmp_path / "r")
+    np.testing.assert_allclose(model.report["single_color"], DEFAULT_COLOR, atol=1e-6)
+    mesh = model.to_mesh(model.input_sample(), 0)  # the input's latent (a 2-step denoiser's samples are noise)
+    colors = mesh.vertex_colors if mesh.vertex_colors is not None else mesh.materials[0].image
+    rgb = colors.reshape(-1, colors.shape[-1])[:, :3]
+    np.testing.assert_allclose(rgb, np.broadcast_to(DEFAULT_COLOR, rgb.shape), atol=2 / 255)

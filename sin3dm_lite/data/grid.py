@@ -89,6 +89,17 @@ class ShapeGrid:
             return np.where(band[..., None], self.color[..., 5:8] * 2 - 1, 0.0).astype(np.float32)
         return self.color[..., PBR_CHANNELS.index(name)]
 
+    def single_color(self, tolerance: float = 0.5 / 255) -> np.ndarray | None:
+        """The shape's colour ``(K,)`` if its whole surface has one (a mesh without colour: the default grey, or one
+        plain material), else None. Checked on the voxels of the truncation band and the near-surface points."""
+        band = np.abs(self.sdf) < self.threshold
+        if not band.any():
+            return None
+        colors = np.concatenate([self.color[band], self.point_color.reshape(-1, self.color.shape[-1])])
+        if np.ptp(colors, axis=0).max() > tolerance:
+            return None
+        return colors.mean(0, dtype=np.float64).astype(np.float32)
+
     @property
     def voxel_size(self) -> float:
         """Edge length of one (cubic) voxel in normalised units."""

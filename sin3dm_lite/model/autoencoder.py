@@ -29,6 +29,7 @@ from __future__ import annotations
 import weakref
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
@@ -175,7 +176,7 @@ class PreparedPlanes:
     """Decoder features of one batch of triplanes: 64-channel geometry and texture planes."""
 
     geo: Triplane
-    tex: Triplane
+    tex: Triplane | None
 
 
 #: texture channels of the PBR variant and the heads that predict them: colour (3), metallic-roughness (2), normal (3)
@@ -225,11 +226,12 @@ class TriplaneDecoder(nn.Module):
             self.heads = [self.tex_mlp]
         self.register_buffer("threshold", torch.tensor(float(threshold)))
 
-    def prepare(self, tp: Triplane) -> PreparedPlanes:
+    def prepare(self, tp: Triplane, texture: bool = True) -> PreparedPlanes:
+        """The plane convolutions of ``tp`` (``texture=False``: the geometry's only; ``query_color`` then fails)."""
         g = self.geo_channels
         geo = [blk(p[:, :g]) for blk, p in zip(self.geo_blocks, tp.planes)]
-        tex = [blk(p[:, g:]) for blk, p in zip(self.tex_blocks, tp.planes)]
-        return PreparedPlanes(Triplane(*geo), Triplane(*tex))
+        tex = [blk(p[:, g:]) for blk, p in zip(self.tex_blocks, tp.planes)] if texture else None
+        return PreparedPlanes(Triplane(*geo), Triplane(*tex) if texture else None)
 
     def query_sdf(self, prep: PreparedPlanes, points: torch.Tensor) -> torch.Tensor:
         """SDF in normalised units (negative inside), ``[B, N]``."""
@@ -288,6 +290,25 @@ class TriplaneAutoencoder(nn.Module):
             return self.encoder(grid_t)
         sq = TriplaneEncoder.squash
         return Triplane(*(sq(torch.cat([self.raw_geo[n], self.raw_tex[n]], 1)) for n in ("xy", "xz", "yz")))
+
+    def hold_color(self, color: np.ndarray) -> None:
+        """Make the texture half decode ``color`` everywhere and stay fixed: for a shape of one colour.
+
+        Its colour needs no learning, and the texture half (three plane convolutions and an MLP on every point in
+        the band) is about half of an autoencoder step: the fit spends its steps on the geometry alone. The
+        texture channels of the latent become zero (a zero convolution, normalised, is zero), and the colour head
+        outputs its bias, the colour's logit, whatever the features; no texture parameter needs a gradient."""
+        if self.cfg.pbr:
+            raise ValueError("hold_color is for RGB shapes: a PBR shape's normals vary over its surface")
+        head = self.decoder.tex_mlp.out
+        latent = self.encoder.tex.parameters() if self.cfg.use_encoder else self.raw_tex.parameters()
+        with torch.no_grad():
+            for p in self.param_groups()[1]:
+                p.requires_grad_(False)
+            for p in (*latent, head.weight):
+                p.zero_()
+            c = torch.as_tensor(np.clip(color, 1e-4, 1 - 1e-4), dtype=head.bias.dtype)
+            head.bias.copy_(torch.log(c / (1 - c)))
 
     def param_groups(self) -> tuple[list[nn.Parameter], list[nn.Parameter]]:
         """Geometry and texture parameters (they get different learning rates)."""
@@ -377,7 +398,11 @@ class AutoencoderTrainer(Trainer):
         self.model = self.init_model(lambda: TriplaneAutoencoder(cfg, grid.shape, grid.threshold, grid.color.shape[-1]))
         self.grid_t = grid_tensor(grid, self.device) if cfg.use_encoder else None  # the auto-decoder never reads it
         self.sampler = PointSampler(grid, self.device)
-        geo, tex = self.model.param_groups()
+        #: the shape's one colour (RGB shapes only), which the texture half then decodes without training
+        self.single_color = None if cfg.pbr else grid.single_color()
+        if self.single_color is not None:
+            self.model.hold_color(self.single_color)
+        geo, tex = self.model.param_groups()  # held parameters stay in their group: without a gradient, never moved
         self.optimizer = self.adamw([{"params": geo, "lr": cfg.lr_geo}, {"params": tex, "lr": cfg.lr_tex}])
         gamma = cfg.lr_final_factor ** (1.0 / max(1, cfg.steps))
         self.scheduler = torch.optim.lr_scheduler.ExponentialLR(self.optimizer, gamma)
@@ -397,13 +422,16 @@ class AutoencoderTrainer(Trainer):
         cfg = self.cfg
         p, s_gt, c_gt = self.sampler(cfg.points_per_step, cfg.grid_fraction, self.generator)
         band = s_gt.abs() < self.grid.threshold  # colour is only defined near the surface
+        held = self.single_color is not None
         with autocast(self.device, cfg.precision):  # the network in bf16 where that is fast; losses in fp32
             h = self.model.encode(self.grid_t)
-            prep = self.model.decoder.prepare(h)
+            prep = self.model.decoder.prepare(h, texture=not held)
             s = self.model.decoder.query_sdf(prep, p[None])[0].float()
-            out = self.model.decoder.query_color(prep, p[band][None], logits=cfg.pbr)[0].float()
+            out = None if held else self.model.decoder.query_color(prep, p[band][None], logits=cfg.pbr)[0].float()
         l_sdf = sdf_loss(s, s_gt, self.grid.threshold, cfg.near_weight, cfg.far_weight)
         zero = torch.zeros((), device=self.device)
+        if held:  # one colour, decoded exactly: nothing to learn
+            return {"loss": l_sdf, "sdf": l_sdf, "color": zero}
         if not cfg.pbr:  # out is the colour
             l_col = (out - c_gt[band]).abs().mean() if band.any() else zero
             return {"loss": l_sdf + l_col, "sdf": l_sdf, "color": l_col}
