@@ -94,7 +94,10 @@ class Sin3DM:
         has a metallic-roughness or normal map (a one-line message says so);
         ``pbr=True`` on a mesh without maps learns its constant factors and
         its geometric normals, ``pbr=False`` learns colour only. A resumed run
-        keeps the choice in its ``config.json``.
+        keeps the choice in its ``config.json``. A mesh of one colour (without
+        colour: the default grey) trains the autoencoder's geometry alone, its
+        colour decoded as it is (``report["single_color"]``): about half the
+        autoencoder's time.
 
         A preset with thin-part settings (``small``) fits a shape that is
         mostly thin parts with those instead (:func:`fit_policy.thin_parts_switch`: the

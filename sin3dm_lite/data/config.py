@@ -43,6 +43,7 @@ class AutoencoderConfig:
     steps: int = 25_000
     points_per_step: int = 65_536
     grid_fraction: float = 0.1  # share of grid points in a batch; the rest are near the surface
+    color_points: int = 0  # the colour loss on at most this many of a batch's points in the band (0: all of them)
     lr_geo: float = 1e-3
     lr_tex: float = 5e-3
     lr_final_factor: float = 0.1  # exponential decay to this factor of the start lr over the run
@@ -217,6 +218,7 @@ LIMITS: dict[str, Any] = {
     "autoencoder.steps": (1, 10**8),
     "autoencoder.points_per_step": (1, 2**24),
     "autoencoder.grid_fraction": (0.0, 1.0),
+    "autoencoder.color_points": (0, 2**24),
     "autoencoder.lr_geo": (1e-12, 1.0),
     "autoencoder.lr_tex": (1e-12, 1.0),
     "autoencoder.lr_final_factor": (1e-12, 1.0),

@@ -422,6 +422,8 @@ class AutoencoderTrainer(Trainer):
         cfg = self.cfg
         p, s_gt, c_gt = self.sampler(cfg.points_per_step, cfg.grid_fraction, self.generator)
         band = s_gt.abs() < self.grid.threshold  # colour is only defined near the surface
+        if cfg.color_points:  # the first of them (the points come in random order): a random subset
+            band &= band.cumsum(0) <= cfg.color_points
         held = self.single_color is not None
         with autocast(self.device, cfg.precision):  # the network in bf16 where that is fast; losses in fp32
             h = self.model.encode(self.grid_t)
