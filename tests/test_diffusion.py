@@ -9,6 +9,7 @@ import torch
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model.diffusion import (
     SNAP_LAST,
+    SNAP_PATCH,
     DiffusionTrainer,
     diffusion_loss,
     fit_diffusion,
@@ -223,6 +224,24 @@ def test_snap_rebuilds_each_plane_from_the_inputs_patches(h0, monkeypatch):
         snap_to_patches(noise, h0, patch=2)
     with pytest.raises(Sin3DMInputError, match="one reference latent"):
         snap_to_patches(noise, h0.repeat(2))
+
+
+def test_snap_searches_without_the_channels_that_are_zero_all_over_the_input(h0, monkeypatch):
+    """A shape of one colour has a latent whose texture channels are zero everywhere; they add the same distance to
+    every candidate window, so the search leaves them out and finds the same windows (checked against the full
+    search, forced by a value too small to change a distance), and the snapped samples take their zeros."""
+    grey = h0.map(lambda p: torch.cat([p[:, :2], torch.zeros_like(p[:, 2:])], 1))
+    full = grey.map(lambda p: torch.cat([p[:, :2], torch.full_like(p[:, 2:], 1e-30)], 1))  # not zero: every channel
+    noise = Triplane.randn_like(h0.repeat(3), generator=torch.Generator().manual_seed(1))
+    got, want = snap_to_patches(noise, grey), snap_to_patches(noise, full)
+    for p, q in zip(got.planes, want.planes):
+        torch.testing.assert_close(p[:, :2], q[:, :2], atol=1e-6, rtol=0)
+        assert torch.equal(p[:, 2:], torch.zeros_like(p[:, 2:]))
+    searched = []  # the windows the search compares: 2 channels of K × K texels, not 4
+    real = torch.addmm
+    monkeypatch.setattr(torch, "addmm", lambda a, b, c, **k: searched.append(c.shape[0]) or real(a, b, c, **k))
+    snap_to_patches(noise, grey)
+    assert set(searched) == {2 * SNAP_PATCH**2}
 
 
 def test_sampling_with_snap(trained, h0):

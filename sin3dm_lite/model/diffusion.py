@@ -295,16 +295,22 @@ def patch_snapper(snap: float, reference: Triplane | None, patch: int = SNAP_PAT
         return F.unfold(F.pad(t, (pad,) * 4, mode="replicate") if pad else t, patch)
 
     theirs = [windows(r)[0] for r in reference.planes]  # [c·K², h'·w'] per plane, cut once
-    norms = [(t**2).sum(0) for t in theirs]
+    # channels that are zero all over the input (a shape of one colour: its 8 texture channels) add the same
+    # |ours|² to every candidate's distance, so the search leaves them out: the same windows, found faster
+    live = torch.stack([r[0].flatten(1).abs().amax(1) for r in reference.planes]).amax(0) > 0
+    live = live if live.any() else torch.ones_like(live)
+    search = [windows(r[:, live])[0] for r in reference.planes] if not live.all() else theirs
+    norms = [(t**2).sum(0) for t in search]
 
     def plane(p: torch.Tensor, k: int) -> torch.Tensor:
         ref, (h, w) = theirs[k].to(p), p.shape[-2:]
         if ref.shape[0] != p.shape[1] * patch * patch:
             raise Sin3DMInputError(f"snap's reference has other channels than the samples' {p.shape[1]}")
-        ours = windows(p).transpose(1, 2).reshape(-1, ref.shape[0])  # [B·h·w, c·K²]: every sample's windows
-        rows = max(1, SNAP_DISTANCES // ref.shape[1])  # rows of distances at once
+        among = search[k].to(p)
+        ours = windows(p[:, live.to(p.device)]).transpose(1, 2).reshape(-1, among.shape[0])  # [B·h·w, c·K²]
+        rows = max(1, SNAP_DISTANCES // among.shape[1])  # rows of distances at once
         # |ours - theirs|² less |ours|², the same for every candidate; in slices so memory stays bounded
-        dist = (torch.addmm(norms[k].to(p), o, ref, alpha=-2) for o in ours.split(rows))
+        dist = (torch.addmm(norms[k].to(p), o, among, alpha=-2) for o in ours.split(rows))
         nearest = torch.cat([d.argmin(-1) for d in dist]).view(len(p), h * w)
         chosen = ref[:, nearest].permute(1, 0, 2)  # [B, c·K², h·w]
         size = (h + 2 * pad, w + 2 * pad)
