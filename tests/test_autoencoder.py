@@ -225,3 +225,18 @@ def test_a_shape_of_one_colour_trains_its_geometry_only_and_decodes_its_colour_e
     torch.testing.assert_close(rgb, torch.tensor([0.2, 0.5, 0.7]).expand_as(rgb), atol=1e-5, rtol=0)
     varied = AutoencoderTrainer(box_grid, cfg, seed=0)
     assert varied.single_color is None and all(p.requires_grad for p in varied.model.param_groups()[1])
+
+
+def test_the_colour_loss_takes_at_most_color_points_of_the_band(box_grid, monkeypatch):
+    """``color_points`` caps the points the colour head sees in a step (the SDF still sees all of them); 0 takes
+    every point in the band."""
+    seen = []
+    real = TriplaneDecoder.query_color
+    monkeypatch.setattr(
+        TriplaneDecoder, "query_color", lambda self, prep, p, **k: seen.append(p.shape[1]) or real(self, prep, p, **k)
+    )
+    for cap in (0, 300):
+        tr = AutoencoderTrainer(box_grid, tiny_ae_cfg(points_per_step=2048, color_points=cap), seed=0)
+        seen.clear()
+        tr.run(until_step=3, progress=False)
+        assert len(seen) == 3 and (set(seen) == {300} if cap else min(seen) > 1000), (cap, seen)

@@ -545,6 +545,7 @@ def test_the_quick_preset_is_small_with_a_lighter_autoencoder():
     )
     assert quick.sampling.texture_size == small.sampling.texture_size // 2  # a quarter of the texels to bake
     assert quick.autoencoder.mlp_hidden < small.autoencoder.mlp_hidden
+    assert 0 < quick.autoencoder.color_points < quick.autoencoder.points_per_step  # colour on a share of the points
     assert (
         quick.autoencoder.points_per_step * quick.autoencoder.steps
         < small.autoencoder.points_per_step * small.autoencoder.steps
