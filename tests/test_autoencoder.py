@@ -197,15 +197,21 @@ def test_a_mirror_decoder_decodes_a_flipped_latent_to_the_mirrored_shape(axis, d
     assert {k: v.shape for k, v in plain.items()} == {k: v.shape for k, v in sym.items()}
 
 
+def one_colour(grid, rgb=(0.2, 0.5, 0.7)):
+    """``grid`` painted one colour: every band voxel and training point ``rgb``."""
+    out = dataclasses.replace(grid)
+    band = np.abs(out.sdf) < out.threshold
+    out.color = np.where(band[..., None], np.float32(rgb), np.float32(0)).astype(np.float32)
+    out.point_color = np.broadcast_to(np.float32(rgb), out.point_color.shape).copy()
+    return out
+
+
 @pytest.mark.parametrize("use_encoder", [True, False])
 def test_a_shape_of_one_colour_trains_its_geometry_only_and_decodes_its_colour_exactly(box_grid, use_encoder):
     """A mesh without colour (the default grey) or of one plain colour: the texture half is not trained (about
     half an autoencoder step), decodes that colour at every point, and the latent's texture channels are zero; the
     geometry trains as before. A grid of varied colour (``box_grid``) trains both halves."""
-    grey = dataclasses.replace(box_grid)
-    band = np.abs(grey.sdf) < grey.threshold
-    grey.color = np.where(band[..., None], np.float32([0.2, 0.5, 0.7]), np.float32(0)).astype(np.float32)
-    grey.point_color = np.broadcast_to(np.float32([0.2, 0.5, 0.7]), grey.point_color.shape).copy()
+    grey = one_colour(box_grid)
     np.testing.assert_allclose(grey.single_color(), [0.2, 0.5, 0.7], atol=1e-6)
     assert box_grid.single_color() is None
     cfg = tiny_ae_cfg(use_encoder=use_encoder, steps=150)
@@ -240,3 +246,21 @@ def test_the_colour_loss_takes_at_most_color_points_of_the_band(box_grid, monkey
         seen.clear()
         tr.run(until_step=3, progress=False)
         assert len(seen) == 3 and (set(seen) == {300} if cap else min(seen) > 1000), (cap, seen)
+
+
+def test_a_held_colour_fit_resumes_bit_for_bit(box_grid):
+    """A shape of one colour resumed from a checkpoint: the same weights and history as the fit run through."""
+    grey, cfg = one_colour(box_grid), tiny_ae_cfg(steps=12)
+    full = AutoencoderTrainer(grey, cfg, seed=3)
+    full.run(progress=False)
+    part = AutoencoderTrainer(grey, cfg, seed=3)
+    part.run(until_step=5, progress=False)
+    buf = io.BytesIO()
+    torch.save(part.state_dict(), buf)
+    buf.seek(0)
+    resumed = AutoencoderTrainer(grey, cfg, seed=3)
+    resumed.load_state_dict(torch.load(buf, weights_only=True))
+    resumed.run(progress=False)
+    assert resumed.single_color is not None and full.history == resumed.history
+    for a, b in zip(full.model.state_dict().values(), resumed.model.state_dict().values()):
+        assert torch.equal(a, b)
