@@ -62,11 +62,15 @@ def _finer_settings() -> str:
 def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -> str:
     """What the fit says when it switches from ``cfg`` to ``new`` (:func:`thin_parts_switch`)."""
     if new.grid == cfg.grid:  # quick's switch: the same fit, snapped samples
+        b0, b1 = cfg.diffusion.batch_size, new.diffusion.batch_size
+        batch = (
+            f", its denoiser on batches of {b1} instead of {b0}, which snapped samples need no more" if b0 != b1 else ""
+        )
         return (
             f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
             f"the {cfg.name} preset's samples would thicken or break: its samples are snapped to the input's latent "
             f"patches instead (sampling.snap={new.sampling.snap:g}, and the calibration picks the diversity for "
-            f"that; no extra fit time; the run's config is named '{new.name}'). The finer thin-part settings "
+            f"that; no extra fit time{batch}; the run's config is named '{new.name}'). The finer thin-part settings "
             f"{_finer_settings()} keep them better at about 5x the fit time without native bf16: CLI "
             "--thin-switch. To keep the plain sampler: CLI --no-thin-switch, Python "
             "preset=get_preset(...).updated(thin_parts={})."

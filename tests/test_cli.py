@@ -356,6 +356,7 @@ def test_quick_gets_the_finer_thin_part_settings_only_when_asked(tmp_path, monke
     expected = {(): QUICK_THIN_CHANGES, ("--thin-switch",): {**QUICK_THIN_CHANGES, **DETAIL_CHANGES}}
     assert cfg.name == "quick" and cfg.thin_parts == expected.get(tuple(flag), {})
     assert cfg.for_thin_parts().grid.resolution == (96 if flag == ["--thin-switch"] else 64)
+    assert cfg.for_thin_parts().diffusion.batch_size == (6 if flag == [] else 8)  # snapped: batches of 6
     cfg = _preset_fit_gets(
         tmp_path, monkeypatch, "wall", "--preset", "quick", "--thin-switch", "--set", "diffusion.steps=900"
     )

@@ -417,9 +417,11 @@ def test_small_switches_to_exactly_the_detail_settings():
     switched = small.for_thin_parts()
     assert switched.updated(name="detail") == detail and switched.name == "small+thin"
     assert detail.thin_parts == {} and detail.for_thin_parts() == detail
-    # the light preset for CPUs without bf16 switches to snapped samples only: the same grid and networks
+    # the light preset for CPUs without bf16 switches to snapped samples (and their denoiser batch of 6): the same
+    # grid and networks
     quick = get_preset("quick")
-    assert quick.for_thin_parts() == quick.updated(**{"sampling.snap": 1.0}, name="quick+thin", thin_parts={})
+    snapped = quick.updated(**{"sampling.snap": 1.0, "diffusion.batch_size": 6}, name="quick+thin", thin_parts={})
+    assert quick.for_thin_parts() == snapped
     # the rollout switch: small has it, what already has the rollout (detail, paper) or a light CPU (quick) does not
     assert small.rollout_switch and not detail.rollout_switch and not get_preset("quick").rollout_switch
     rolled = small.for_rollout()
