@@ -230,8 +230,8 @@ class TriplaneDecoder(nn.Module):
         """The plane convolutions of ``tp`` (``texture=False``: the geometry's only; ``query_color`` then fails)."""
         g = self.geo_channels
         geo = [blk(p[:, :g]) for blk, p in zip(self.geo_blocks, tp.planes)]
-        tex = [blk(p[:, g:]) for blk, p in zip(self.tex_blocks, tp.planes)] if texture else None
-        return PreparedPlanes(Triplane(*geo), Triplane(*tex) if texture else None)
+        tex = Triplane(*(blk(p[:, g:]) for blk, p in zip(self.tex_blocks, tp.planes))) if texture else None
+        return PreparedPlanes(Triplane(*geo), tex)
 
     def query_sdf(self, prep: PreparedPlanes, points: torch.Tensor) -> torch.Tensor:
         """SDF in normalised units (negative inside), ``[B, N]``."""
@@ -307,8 +307,7 @@ class TriplaneAutoencoder(nn.Module):
                 p.requires_grad_(False)
             for p in (*latent, head.weight):
                 p.zero_()
-            c = torch.as_tensor(np.clip(color, 1e-4, 1 - 1e-4), dtype=head.bias.dtype)
-            head.bias.copy_(torch.log(c / (1 - c)))
+            head.bias.copy_(torch.logit(torch.as_tensor(color, dtype=head.bias.dtype), eps=1e-4))
 
     def param_groups(self) -> tuple[list[nn.Parameter], list[nn.Parameter]]:
         """Geometry and texture parameters (they get different learning rates)."""
@@ -421,19 +420,19 @@ class AutoencoderTrainer(Trainer):
         """
         cfg = self.cfg
         p, s_gt, c_gt = self.sampler(cfg.points_per_step, cfg.grid_fraction, self.generator)
+        held = self.single_color is not None  # one colour, decoded exactly: nothing for the texture half to learn
+        with autocast(self.device, cfg.precision):  # the network in bf16 where that is fast; losses in fp32
+            prep = self.model.decoder.prepare(self.model.encode(self.grid_t), texture=not held)
+            s = self.model.decoder.query_sdf(prep, p[None])[0].float()
+        l_sdf = sdf_loss(s, s_gt, self.grid.threshold, cfg.near_weight, cfg.far_weight)
+        zero = torch.zeros((), device=self.device)
+        if held:
+            return {"loss": l_sdf, "sdf": l_sdf, "color": zero}
         band = s_gt.abs() < self.grid.threshold  # colour is only defined near the surface
         if cfg.color_points:  # the first of them (the points come in random order): a random subset
             band &= band.cumsum(0) <= cfg.color_points
-        held = self.single_color is not None
-        with autocast(self.device, cfg.precision):  # the network in bf16 where that is fast; losses in fp32
-            h = self.model.encode(self.grid_t)
-            prep = self.model.decoder.prepare(h, texture=not held)
-            s = self.model.decoder.query_sdf(prep, p[None])[0].float()
-            out = None if held else self.model.decoder.query_color(prep, p[band][None], logits=cfg.pbr)[0].float()
-        l_sdf = sdf_loss(s, s_gt, self.grid.threshold, cfg.near_weight, cfg.far_weight)
-        zero = torch.zeros((), device=self.device)
-        if held:  # one colour, decoded exactly: nothing to learn
-            return {"loss": l_sdf, "sdf": l_sdf, "color": zero}
+        with autocast(self.device, cfg.precision):
+            out = self.model.decoder.query_color(prep, p[band][None], logits=cfg.pbr)[0].float()
         if not cfg.pbr:  # out is the colour
             l_col = (out - c_gt[band]).abs().mean() if band.any() else zero
             return {"loss": l_sdf + l_col, "sdf": l_sdf, "color": l_col}

@@ -298,8 +298,8 @@ def patch_snapper(snap: float, reference: Triplane | None, patch: int = SNAP_PAT
     # channels that are zero all over the input (a shape of one colour: its 8 texture channels) add the same
     # |ours|² to every candidate's distance, so the search leaves them out: the same windows, found faster
     live = torch.stack([r[0].flatten(1).abs().amax(1) for r in reference.planes]).amax(0) > 0
-    live = live if live.any() else torch.ones_like(live)
-    search = [windows(r[:, live])[0] for r in reference.planes] if not live.all() else theirs
+    keep = bool(live.any()) and not bool(live.all())  # leave channels out (never all of them)
+    search = [windows(r[:, live])[0] for r in reference.planes] if keep else theirs
     norms = [(t**2).sum(0) for t in search]
 
     def plane(p: torch.Tensor, k: int) -> torch.Tensor:
@@ -307,7 +307,7 @@ def patch_snapper(snap: float, reference: Triplane | None, patch: int = SNAP_PAT
         if ref.shape[0] != p.shape[1] * patch * patch:
             raise Sin3DMInputError(f"snap's reference has other channels than the samples' {p.shape[1]}")
         among = search[k].to(p)
-        ours = windows(p[:, live.to(p.device)]).transpose(1, 2).reshape(-1, among.shape[0])  # [B·h·w, c·K²]
+        ours = windows(p[:, live.to(p.device)] if keep else p).transpose(1, 2).reshape(-1, among.shape[0])
         rows = max(1, SNAP_DISTANCES // among.shape[1])  # rows of distances at once
         # |ours - theirs|² less |ours|², the same for every candidate; in slices so memory stays bounded
         dist = (torch.addmm(norms[k].to(p), o, among, alpha=-2) for o in ours.split(rows))
