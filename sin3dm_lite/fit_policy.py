@@ -116,7 +116,7 @@ def thin_parts_hint(cfg: Config, grid: ShapeGrid, thin: float) -> str | None:
 
 
 # --------------------------------------------------------------------------- time
-def fp32_autoencoder_minutes(cfg: Config) -> float:
+def fp32_autoencoder_minutes(cfg: Config, one_color: bool = False) -> float:
     """About how long ``cfg``'s autoencoder trains in fp32 on 2 CPU cores (AVX2), in minutes.
 
     Fitted to two measured steps on a 2-core AMD EPYC without AVX512-BF16:
@@ -124,14 +124,19 @@ def fp32_autoencoder_minutes(cfg: Config) -> float:
     (128 wide, 4,096 points) 0.18 s: a part that grows with the planes' area
     (their encoder and decoder) plus one that grows with points × width².
     ``detail``'s step (96 voxels) is 1.4x ``small``'s in fp32 here; the
-    formula gives 1.25x.
+    formula gives 1.25x. Half of each part is the colour's: its planes, and its
+    head on ``color_points`` of the points (``quick``'s 2,048: 0.165 s, measured
+    0.15-0.18); a shape of ``one_color`` trains none of it (``quick`` 0.09 s).
     """
     a = cfg.autoencoder
-    step_s = 0.119 * (cfg.grid.resolution / 64) ** 2 + 0.491 * (a.points_per_step / 8192) * (a.mlp_hidden / 256) ** 2
+    planes = 0.119 * (cfg.grid.resolution / 64) ** 2
+    mlps = 0.491 * (a.points_per_step / 8192) * (a.mlp_hidden / 256) ** 2
+    colored = 0.0 if one_color else min(a.color_points or a.points_per_step, a.points_per_step) / a.points_per_step
+    step_s = planes * (0.5 + 0.5 * (not one_color)) + mlps * (0.5 + 0.5 * colored)
     return a.steps * step_s / 60
 
 
-def quick_hint(cfg: Config, device) -> str | None:
+def quick_hint(cfg: Config, device, one_color: bool = False) -> str | None:
     """What :meth:`Sin3DM.fit` says when its autoencoder would be slow on a CPU without native bf16, else None.
 
     ``small``'s paper-width autoencoder (its MLPs are most of a fit) runs in
@@ -139,12 +144,13 @@ def quick_hint(cfg: Config, device) -> str | None:
     20 minutes on 2 AVX2 cores (:func:`fp32_autoencoder_minutes`). The ``quick``
     preset's light autoencoder fits in about 5 minutes there, with blurrier
     texture (docs/presets.md). Any config whose autoencoder would take over
-    :data:`QUICK_HINT_MINUTES` gets the hint, not only ``small``.
+    :data:`QUICK_HINT_MINUTES` gets the hint, not only ``small``; a shape of
+    ``one_color`` trains half an autoencoder (``ShapeGrid.single_color``).
     """
     dev = torch.device(device)
     if dev.type != "cpu" or bf16_is_fast(dev):
         return None
-    minutes = fp32_autoencoder_minutes(cfg)
+    minutes = fp32_autoencoder_minutes(cfg, one_color)
     if minutes <= QUICK_HINT_MINUTES:
         return None
     return (

@@ -126,7 +126,8 @@ class FitRun:
         """All stages, saved into the run folder at the end; the fitted model."""
         cfg, mesh = self.settings(source, preset, seed, pbr, allow_outside_paths)
         grid, thin, cfg, thin_parts = self.grid(cfg, mesh)
-        for hint in (quick_hint(cfg, self.dev), threads_hint() if self.dev.type == "cpu" else None):
+        one_color = not cfg.autoencoder.pbr and grid.single_color() is not None  # half an autoencoder to train
+        for hint in (quick_hint(cfg, self.dev, one_color), threads_hint() if self.dev.type == "cpu" else None):
             if hint:
                 self.say("[fit] " + hint)
         ae, h0, metrics = self.autoencoder(cfg, grid)

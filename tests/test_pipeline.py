@@ -521,13 +521,20 @@ def test_a_slow_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, ca
     for name in ("small", "detail", "paper"):
         assert "--preset quick" in fit_policy.quick_hint(get_preset(name), "cpu"), name
     assert "about 20 minutes" in fit_policy.quick_hint(get_preset("small"), "cpu")  # 2,000 steps of 0.61 s
+    # a shape of one colour trains half an autoencoder; quick's colour head sees 2,048 of its 4,096 points
+    assert "about 10 minutes" in fit_policy.quick_hint(get_preset("small"), "cpu", one_color=True)
+    quick = fit_policy.fp32_autoencoder_minutes(get_preset("quick"))
+    assert quick == pytest.approx(1000 * 0.165 / 60, rel=0.02)
+    assert fit_policy.fp32_autoencoder_minutes(get_preset("quick"), one_color=True) == pytest.approx(
+        quick * 0.55, rel=0.02
+    )
     assert "--preset quick" in fit_policy.quick_hint(get_preset("small").for_thin_parts(), "cpu")
     for cfg in (get_preset("quick"), get_preset("tiny"), get_preset("small").updated(**{"autoencoder.steps": 500})):
         assert fit_policy.quick_hint(cfg, "cpu") is None, cfg.name
     # the fit prints it (a micro fit priced like small's), and the two-thread opt-in where the policy chose one
     from sin3dm_lite import threads
 
-    monkeypatch.setattr(fit_policy, "fp32_autoencoder_minutes", lambda cfg: 20.0)
+    monkeypatch.setattr(fit_policy, "fp32_autoencoder_minutes", lambda cfg, one_color=False: 20.0)
     monkeypatch.setattr(threads, "APPLIED", {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"})
     monkeypatch.setattr(threads, "usable_cores", lambda: 2)
     cfg = micro_config().updated(**{"name": "small", "autoencoder.steps": 2, "diffusion.steps": 2})
