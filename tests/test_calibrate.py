@@ -534,7 +534,7 @@ def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
     (run / "config.json").write_text(json.dumps(cfg))
     code = main(["calibrate", str(run), "-n", "2", "--lp-iou", "0.3", "--lp-f", "0.4"])
     out = capsys.readouterr().out
-    assert code == 0 and "→ 0.1 " in out and "saved" in out and "sets no ceiling" in out
+    assert code == 0 and "→ 0.1, judged at 24 voxels" in out and "saved" in out and "sets no ceiling" in out
     assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == 0.1
     assert Sin3DM.load(run).config.sampling.diversity == 0.1
     report = json.loads((run / "report.json").read_text())
@@ -576,6 +576,32 @@ def test_cli_calibrate_without_the_grid_uses_the_input_mesh(calibrated, capsys, 
     assert cal["resolution"] == max(json.loads((bare / "report.json").read_text())["grid_shape"])
     assert main(["calibrate", str(bare), "-n", "2", "--input", str(tmp_path / "gone.obj")]) == 2
     assert "gone.obj" in capsys.readouterr().err
+
+
+def test_cli_calibrate_resolution_judges_against_the_input_mesh_on_that_grid(calibrated, capsys, tmp_path):
+    """`calibrate RUN --resolution N` voxelises the input mesh at N voxels on the model's box (not the 24-voxel
+    training grid), decodes the samples there, says so and records it; out of range: one line, nothing rewritten."""
+    import shutil
+
+    model, run = calibrated
+    copy = tmp_path / "at40"
+    shutil.copytree(run, copy)
+    seen, real = [], C.sample_occupancy
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(C, "sample_occupancy", lambda *a: seen.append(a[-1]) or real(*a))
+        assert main(["calibrate", str(copy), "-n", "2", "--resolution", "40"]) == 0
+    assert seen and set(seen) == {40}
+    assert "judged at 40 voxels" in capsys.readouterr().out
+    cal = json.loads((copy / "report.json").read_text())["calibration"]
+    assert cal["resolution"] == 40 and max(model.report["grid_shape"]) == 24
+    assert cal["near_copy"]["n"] == 2 and "at 40 voxels" in C.Calibration.from_dict(cal).story()
+    before = (copy / "report.json").read_text()
+    assert main(["calibrate", str(copy), "-n", "2", "--resolution", "600"]) == 2
+    err = capsys.readouterr().err
+    assert "16 to 512" in err and len(err.strip().splitlines()) == 1
+    assert (copy / "report.json").read_text() == before
+    with pytest.raises(Sin3DMInputError, match="does not match the reference grid"):
+        model.calibrate(np.zeros((24, 24, 24), bool), resolution=40, progress=False)
 
 
 def test_cli_calibrate_errors_in_one_line(capsys, tmp_path):

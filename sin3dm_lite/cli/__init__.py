@@ -8,7 +8,7 @@
     sin3dm-lite demo [--example NAME] [--out DIR] [--train]   the whole method on a built-in example
     sin3dm-lite render MESH --views 8 --size 512 --out DIR   PNG views (no display or GPU needed)
     sin3dm-lite evaluate RUN SAMPLES_DIR [--out report.json] [--weights DIR]   the paper's metrics
-    sin3dm-lite calibrate RUN_DIR [-n 8]                choose the run's diversity for its shape (fit does it too)
+    sin3dm-lite calibrate RUN_DIR [--resolution 128]    choose the run's diversity for its shape (fit does it too)
     sin3dm-lite --version                               the installed version
 
 With no arguments it prints the help; every option's help shows its default.

@@ -166,8 +166,11 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     if a.snap is not None:  # the sampler to calibrate for, kept in the run's config
         model.config = model.config.updated(**{"sampling.snap": a.snap})
     snapped = f" --snap {model.config.sampling.snap:g}" if model.config.sampling.snap else ""
-    # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, the mesh
-    reference = load_grid(run / "grid.npz").sdf < 0 if (run / "grid.npz").is_file() and a.input is None else None
+    # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, or at
+    # another resolution (--resolution 128 judges as the paper measures), the input mesh voxelised there
+    grid_res = max(model.report.get("grid_shape") or [model.config.grid.resolution])
+    on_grid = a.resolution in (None, grid_res) and a.input is None and (run / "grid.npz").is_file()
+    reference = load_grid(run / "grid.npz").sdf < 0 if on_grid else None
     goals = {
         "lp_iou": GOALS["lp_iou"] if a.lp_iou is None else a.lp_iou,
         "lp_fscore": GOALS["lp_fscore"] if a.lp_f is None else a.lp_f,
@@ -178,7 +181,9 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     if reference is None:  # the input mesh is read here, with --allow-outside-paths if given
         allow = a.allow_outside_paths
         input_mesh = model.input_mesh(allow) if a.input is None else resolve_mesh(a.input, allow_outside_paths=allow)
-    cal = model.calibrate(reference, input_mesh=input_mesh, goals=goals, n=a.n, seed=a.seed)
+    cal = model.calibrate(
+        reference, input_mesh=input_mesh, resolution=None if on_grid else a.resolution, goals=goals, n=a.n, seed=a.seed
+    )
     took = time.perf_counter() - t0
     if shipped:
         print(
@@ -192,6 +197,7 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
         report["calibration"] = cal.to_dict()
         atomic_write(run / "report.json", json.dumps(report, indent=2))
     print(
-        f"{run}: diversity {before:g} → {cal.diversity:g}{' for snapped samples' if snapped else ''} ({took:.0f} s), "
+        f"{run}: diversity {before:g} → {cal.diversity:g}{' for snapped samples' if snapped else ''}, judged at "
+        f"{cal.resolution} voxels ({took:.0f} s), "
         f"saved in its config.json; `sin3dm-lite sample {run}` uses it, --diversity overrides it"
     )
