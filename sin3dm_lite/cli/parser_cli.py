@@ -301,24 +301,15 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         default=10_000,
         help="first sample seed (the k-th setting drawn takes seeds from seed + 1000·k)",
     )
-    c.add_argument(
-        "--lp-iou",
-        type=_unit_score,
-        default=None,
-        help="LP-IoU the samples must keep, at most (default: 0.55, lowered to 85%% of what a near copy of the input keeps)",
-    )
-    c.add_argument(
-        "--lp-f",
-        type=_unit_score,
-        default=None,
-        help="LP-F the samples must keep, at most (default: 0.70, lowered to 85%% of what a near copy of the input keeps)",
-    )
+    for flag, name, goal in (("--lp-iou", "LP-IoU", "0.55"), ("--lp-f", "LP-F", "0.70")):
+        keep = f"{name} the samples must keep, at most (default: {goal}, lowered to 85%% of what a near copy keeps)"
+        c.add_argument(flag, type=_unit_score, default=None, help=keep)
     c.add_argument(
         "--resolution",
         type=_int_at_least(16, "16-512 voxels"),
         default=None,
-        help="voxels along the longest side where the samples are judged against the input mesh (default: the "
-        "fit's grid, fast); 128 judges as the paper measures, where thin walls keep more patches, about 3x the time",
+        help="voxels along the longest side where the samples are judged (default: the fit's grid, against the "
+        "training grid: fast); 128 judges against the input mesh as the paper measures, in about 3x the time",
     )
     snap = "calibrate for samples snapped to the input's latent patches (0-1), kept as the run's sampling.snap"
     c.add_argument("--snap", type=_unit_float, default=None, help=snap + " (no refit; default: the run's own)")

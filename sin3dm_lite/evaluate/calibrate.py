@@ -56,8 +56,11 @@ the curve is flat.
 **Grid.** Everything is measured on the grid of the reference given, for a fit
 its training grid (64 voxels along the longest side for ``small`` and
 ``quick``), which is fast; the paper measures at 128 voxels, where thin parts
-score higher (``sin3dm-lite evaluate --resolution 128`` measures there, and
-``benchmarks/bench_samples.py`` reports both grids). The record keeps its
+score differently (``sin3dm-lite evaluate --resolution 128`` measures there, and
+``benchmarks/bench_samples.py`` reports both grids). ``sin3dm-lite calibrate
+RUN --resolution 128`` judges there, against the input mesh, in about three
+times the time: a thin ruin's default then keeps its top and varies little,
+a canyon's varies more (docs/calibration.md). The record keeps its
 resolution and the story names it.
 
 ``Sin3DM.fit`` runs it at the end of a fit when the preset's
