@@ -20,6 +20,7 @@ interrupted run and ends exactly where an uninterrupted one would.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -347,7 +348,7 @@ class Sin3DM:
         self,
         samples,
         input_mesh=None,
-        resolution: int = 64,
+        resolution: int | Sequence[int] = 64,
         views: int = 8,
         size: int = 256,
         weights=None,
@@ -364,7 +365,9 @@ class Sin3DM:
         Geometry (:func:`metrics.geometry_scores`): G-Div, LP-IoU, LP-F and the
         IoU to the input on occupancy grids of ``resolution`` voxels along the
         longest side of the model's box (a box covering larger, retargeted
-        samples keeps that voxel size). Texture (:func:`metrics.texture_scores`)
+        samples keeps that voxel size); with several resolutions, e.g. ``(128, 64)``
+        (the paper's grid and the training grid), the first gets every metric and the
+        others the geometry's, in ``geometry_at["64"]``. Texture (:func:`metrics.texture_scores`)
         on ``views`` renders of ``size`` pixels at elevation 45°, input and
         samples framed by the same box: ``patch_swd`` and ``render_div`` always,
         ``sifid`` and ``lpips`` with ``weights``. Without an off-screen renderer
@@ -372,7 +375,7 @@ class Sin3DM:
         G-Qual (SSFID) is never computed (``skipped["ssfid"]``).
 
         Returns ``{"samples", "resolution", "views", "size", "metrics": {name: value or None},
-        "skipped": {name: reason}, "timings_s": {...}}`` (the time it takes: :func:`evaluation.evaluate`).
+        "skipped": {name: reason}, "timings_s": {...}}`` (and ``"geometry_at": {"64": {"voxels", "metrics"}}``) (the time it takes: :func:`evaluation.evaluate`).
         """
         nets = evaluation.feature_nets(weights)
         ref = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)

@@ -98,6 +98,27 @@ def test_evaluate_writes_the_metrics_as_json(tiny_samples, capsys):
     assert main(argv + ["--overwrite"]) == 0 and json.loads(out.read_text())["views"] == 2
 
 
+def test_evaluate_reports_the_papers_grid_and_the_fits_own_by_default(tiny_samples, capsys):
+    """Without --resolution: every metric at the paper's 128 voxels, the geometry again on the fit's 64-voxel grid,
+    as a second column and in ``geometry_at``, the same numbers an evaluation at 64 alone gives."""
+    run, samples, out = str(tiny_samples / "run"), str(tiny_samples / "samples"), tiny_samples / "both"
+    small = ["--views", "2", "--size", "48"]
+    capsys.readouterr()
+    assert main(["evaluate", run, samples, "--out", str(out / "both.json"), *small]) == 0
+    header = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("metric"))
+    assert header.split()[1:5] == ["128", "voxels", "64", "voxels"]
+    r = json.loads((out / "both.json").read_text())
+    assert r["resolution"] == 128 and set(r["geometry_at"]) == {"64"} and r["geometry_at"]["64"]["voxels"] == 64
+    at64 = r["geometry_at"]["64"]["metrics"]
+    assert set(at64) == {"g_div", "lp_iou", "lp_fscore", "iou_to_input"} and all(0 <= v <= 1 for v in at64.values())
+    assert main(["evaluate", run, samples, "--out", str(out / "64.json"), "--resolution", "64", *small]) == 0
+    alone = json.loads((out / "64.json").read_text())
+    assert "geometry_at" not in alone and {k: alone["metrics"][k] for k in at64} == at64
+    assert main(["evaluate", run, samples, "--resolution", "32", "600"]) == 2
+    err = capsys.readouterr().err
+    assert "600" in err and len(err.strip().splitlines()) == 1
+
+
 def test_the_facade_evaluates_samples_it_just_drew(tiny_samples):
     from sin3dm_lite import Sin3DM
 

@@ -279,8 +279,10 @@ def _evaluate_args(v: argparse.ArgumentParser) -> None:
     v.add_argument(
         "--resolution",
         type=_positive_int,
-        default=64,
-        help="voxels along the longest side for the geometry metrics, 16-512; the paper uses 128",
+        nargs="+",
+        default=None,
+        help="voxels along the longest side for the geometry metrics, 16-512, one grid or several (the first gets "
+        "every metric); default: 128, the paper's, and the fit's own grid beside it",
     )
     _outside_paths_arg(v)
 
