@@ -100,7 +100,7 @@ _API = {
     "DiffusionTrainer": "model.diffusion",
     "sample": "model.diffusion",
     "predict_clean": "model.diffusion",
-    "snap_to_patches": "model.diffusion",
+    "snap_to_patches": "model.snap",
     "diffusion_loss": "model.diffusion",
     "triplane_mse": "model.diffusion",
     # generate

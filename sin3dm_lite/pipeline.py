@@ -225,7 +225,7 @@ class Sin3DM:
         ``snap`` (0-1; default the config's ``sampling.snap``: 0, the paper's sampler, in every preset, 1 where
         ``quick``'s thin-part switch took over) pulls the last steps' predicted clean latent towards the input's
         7×7 latent patches
-        (:func:`~sin3dm_lite.model.diffusion.snap_to_patches`): thin walls and broken tops keep their shape at a
+        (:func:`~sin3dm_lite.model.snap.snap_to_patches`): thin walls and broken tops keep their shape at a
         higher diversity (docs/thin-parts.md). The calibration samples with the config's ``sampling.snap``, so
         fit with it set (CLI ``--set sampling.snap=1``) to have the diversity chosen for the snapped sampler.
 

@@ -73,6 +73,7 @@ LAYERS = {
     "model.unet": MODEL,
     "model.schedule": MODEL,
     "model.diffusion": MODEL,
+    "model.snap": MODEL,
     # generate: what to sample (control), texture baking and the SDF → textured mesh step
     "generate": GENERATE,
     "generate.control": GENERATE,

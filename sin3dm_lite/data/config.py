@@ -100,7 +100,7 @@ class SamplingConfig:
     faces: int = 30_000  # face budget after simplification
     texture_size: int = 2048
     # pull the last denoising steps' clean-latent estimate towards the input's 7×7 latent patches (0: the paper's
-    # sampler; :func:`sin3dm_lite.model.diffusion.patch_snapper`); the calibration samples with it too
+    # sampler; :func:`sin3dm_lite.model.snap.patch_snapper`); the calibration samples with it too
     snap: float = 0.0
     # choose ``diversity`` for each shape at the end of a fit: the most varied setting whose samples still keep the
     # input's patches (LP-IoU / LP-F goals; :func:`sin3dm_lite.calibrate.calibrate_diversity`), saved in the run's config

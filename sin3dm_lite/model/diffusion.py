@@ -10,13 +10,14 @@ within each plane and summed over the three planes. Because the network is
 fully convolutional, sampling noise of another size gives a retargeted shape,
 and pasting a noised known latent into part of ``x_t`` at every step gives
 outpainting, patch duplication and local editing without touching the sampler.
+The sampler's last steps can snap its estimate to the input's patches (:mod:`.snap`).
 """
 
 from __future__ import annotations
 
 import copy
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -27,6 +28,7 @@ from ..data.config import DiffusionConfig
 from ..device import PRECISIONS, autocast
 from ..errors import Sin3DMInputError
 from .schedule import NoiseSchedule, sampling_timesteps, start_step
+from .snap import SNAP_LAST, patch_snapper
 from .training import Trainer, checkpoint_problem
 from .triplane import PLANE_AXES, Triplane
 from .unet import TriplaneUNet
@@ -251,77 +253,6 @@ class SampleNoise:
 
     def like(self, tp: Triplane) -> Triplane:
         return self.draw(tp, tp.device).to(dtype=tp.xy.dtype)
-
-
-#: distances :func:`snap_to_patches` holds at once (2^20 floats, 4 MB, a slice that stays in the cache; a 128-texel
-#: plane has 16,384 windows, whose whole distance matrix would take 1 GB per sample)
-SNAP_DISTANCES = 2**20
-#: :func:`sample` snaps the estimates of the last tenth of the noise schedule only (t ≤ 0.1·T): on the ruin and
-#: the canyon the same G-Div / LP-IoU / LP-F as snapping every step (within 0.03), at 2-5 searches a sample
-#: instead of 20-50 (docs/thin-parts.md); earlier estimates are blurry, their nearest windows change nothing
-SNAP_LAST = 0.1
-#: the windows snapping compares (texels a side): 5×5 kept more of the input's patches than 3×3 at the same G-Div on the
-#: ruin and the colonnade, 7×7 more than 5×5 on the ruin (about 0.03 LP-IoU and LP-F at 128 voxels) and as many on
-#: the colonnade, for about 0.15 s more a sample (docs/thin-parts.md)
-SNAP_PATCH = 7
-
-
-def snap_to_patches(x: Triplane, reference: Triplane, patch: int = SNAP_PATCH) -> Triplane:
-    """Each plane of ``x`` rebuilt from ``reference``'s patches: every ``patch``×``patch`` window of ``x`` (all
-    channels) is replaced by its nearest (L2) window of the same plane of ``reference`` (batch 1, any size), and
-    the overlapping windows are averaged back into texels (borders replicated). The layout stays ``x``'s, each
-    neighbourhood becomes one the input has: patch-nearest-neighbour generation (GPNN, Granot et al. 2022)
-    applied to the denoiser's estimate of the clean latent (:func:`sample`'s ``snap``)."""
-    return patch_snapper(1.0, reference, patch)(x)
-
-
-def patch_snapper(snap: float, reference: Triplane | None, patch: int = SNAP_PATCH) -> Callable[[Triplane], Triplane]:
-    """Snapping: ``x0 ↦ lerp(x0, snap_to_patches(x0, reference), snap)``. :func:`sample` calls it on the predicted
-    x0 of its last steps (t ≤ :data:`SNAP_LAST`·T), so with ``snap`` in (0, 1] each ``patch``×``patch``
-    neighbourhood of the latent moves towards one the input (``reference``, usually its latent) has while the
-    layout stays the sample's; on thin walls it keeps the input's patches at more variation (docs/thin-parts.md). ``snap=0`` is the identity: the paper's sampler.
-    ``reference``'s windows are cut once here, not at every step."""
-    if not 0.0 <= float(snap) <= 1.0 or (snap > 0 and reference is None):
-        raise Sin3DMInputError(f"snap is a share in [0, 1] and needs snap_to (the input's latent); got {snap}")
-    if snap == 0:
-        return lambda x0: x0
-    if reference is None or reference.batch != 1:
-        raise Sin3DMInputError(f"snap needs one reference latent, got a batch of {reference and reference.batch}")
-    if patch < 1 or patch % 2 == 0:
-        raise Sin3DMInputError(f"the snap patch must be an odd number of texels (1, 3, 5, ...), got {patch}")
-    pad = patch // 2
-
-    def windows(t: torch.Tensor) -> torch.Tensor:  # [B, c·K², h·w]
-        return F.unfold(F.pad(t, (pad,) * 4, mode="replicate") if pad else t, patch)
-
-    theirs = [windows(r)[0] for r in reference.planes]  # [c·K², h'·w'] per plane, cut once
-    # channels that are zero all over the input (a shape of one colour: its 8 texture channels) add the same
-    # |ours|² to every candidate's distance, so the search leaves them out: the same windows, found faster
-    live = torch.stack([r[0].flatten(1).abs().amax(1) for r in reference.planes]).amax(0) > 0
-    keep = bool(live.any()) and not bool(live.all())  # leave channels out (never all of them)
-    search = [windows(r[:, live])[0] for r in reference.planes] if keep else theirs
-    norms = [(t**2).sum(0) for t in search]
-
-    def plane(p: torch.Tensor, k: int) -> torch.Tensor:
-        ref, (h, w) = theirs[k].to(p), p.shape[-2:]
-        if ref.shape[0] != p.shape[1] * patch * patch:
-            raise Sin3DMInputError(f"snap's reference has other channels than the samples' {p.shape[1]}")
-        among = search[k].to(p)
-        ours = windows(p[:, live.to(p.device)] if keep else p).transpose(1, 2).reshape(-1, among.shape[0])
-        rows = max(1, SNAP_DISTANCES // among.shape[1])  # rows of distances at once
-        # |ours - theirs|² less |ours|², the same for every candidate; in slices so memory stays bounded
-        dist = (torch.addmm(norms[k].to(p), o, among, alpha=-2) for o in ours.split(rows))
-        nearest = torch.cat([d.argmin(-1) for d in dist]).view(len(p), h * w)
-        chosen = ref[:, nearest].permute(1, 0, 2)  # [B, c·K², h·w]
-        size = (h + 2 * pad, w + 2 * pad)
-        votes = F.fold(chosen, size, patch) / F.fold(torch.ones_like(chosen), size, patch)
-        return votes[:, :, pad : pad + h, pad : pad + w]
-
-    def snapped(x0: Triplane) -> Triplane:
-        pulled = Triplane(*(plane(p, k) for k, p in enumerate(x0.planes)))
-        return x0.zip_map(pulled, lambda a, b: torch.lerp(a, b, float(snap)))
-
-    return snapped
 
 
 def sample(
