@@ -594,7 +594,11 @@ def test_cli_calibrate_resolution_judges_against_the_input_mesh_on_that_grid(cal
     assert "judged at 40 voxels" in capsys.readouterr().out
     cal = json.loads((copy / "report.json").read_text())["calibration"]
     assert cal["resolution"] == 40 and max(model.report["grid_shape"]) == 24
-    assert cal["near_copy"]["n"] == 2 and "at 40 voxels" in C.Calibration.from_dict(cal).story()
+    assert (
+        cal["near_copy"]["n"] == 2
+        and "at 40 voxels (the paper measures at 128)" in C.Calibration.from_dict(cal).story()
+    )
+    assert "at 128 voxels (as the paper measures)" in C.Calibration.from_dict({**cal, "resolution": 128}).story()
     before = (copy / "report.json").read_text()
     assert main(["calibrate", str(copy), "-n", "2", "--resolution", "600"]) == 2
     err = capsys.readouterr().err

@@ -58,7 +58,8 @@ class Calibration:
 
     def story(self) -> str:
         """Why this setting, a line per goal: the near copy's score (the ceiling), the goal, the choice."""
-        grid = f"at {self.resolution} voxels (the paper measures at 128)"
+        paper = "as the paper measures" if self.resolution == 128 else "the paper measures at 128"
+        grid = f"at {self.resolution} voxels ({paper})"
         chosen = f"chosen {self.diversity:g}" + (
             "" if self.kept_goals else " (the lowest drawn: no setting kept the goals)"
         )
