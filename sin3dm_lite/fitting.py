@@ -32,6 +32,7 @@ from .errors import Sin3DMInputError
 from .evaluate.metrics import reconstruction_metrics
 from .files import atomic_write, holds_lock, release_lock
 from .fit_policy import (
+    calibration_grid_hint,
     choose_pbr,
     keeps_goals_from_noise,
     no_rollout_switch,
@@ -154,6 +155,8 @@ class FitRun:
         hint = None if cfg.rollout_switch else rollout_hint(cfg, calibration)
         if hint is not None:
             model.report["rollout_hint"] = hint
+            self.say(hint)
+        if (hint := calibration_grid_hint(thin_parts, model.report.get("calibration"), self.run)) is not None:
             self.say(hint)
         if self.run is not None:
             model.save(self.run)

@@ -353,6 +353,19 @@ def test_a_fit_saves_its_calibrated_diversity(calibrated):
     assert Sin3DM.load(run).config.sampling.diversity == cal["diversity"]  # what `sample` uses by default
 
 
+def test_a_thin_fit_calibrated_on_its_grid_names_the_calibration_at_128():
+    from sin3dm_lite.fit_policy import calibration_grid_hint
+
+    switch = {"from": "quick", "resolution": 64, "thin_share": 0.5}
+    hint = calibration_grid_hint(switch, {"resolution": 64}, Path("runs/ruin"))
+    assert "64-voxel training grid" in hint and hint.endswith("sin3dm-lite calibrate runs/ruin --resolution 128")
+    assert calibration_grid_hint(switch, {"resolution": 48}).endswith("model.calibrate(resolution=128)")
+    assert calibration_grid_hint(None, {"resolution": 64}) is None  # no thin-part switch
+    assert calibration_grid_hint(switch, {"resolution": 128}) is None  # judged there already
+    assert calibration_grid_hint(switch, {"resolution": 96}) is None  # a finer grid: not what was measured
+    assert calibration_grid_hint(switch, None) is None  # not calibrated
+
+
 def test_the_rollout_hint_applies_only_to_a_plain_denoiser_calibrated_to_pure_noise():
     from sin3dm_lite.data.presets import get_preset
     from sin3dm_lite.fit_policy import rollout_hint

@@ -379,6 +379,7 @@ def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, caps
     model = Sin3DM.fit("tiles", preset=cfg.updated(thin_parts={}), out=tmp_path / "kept", progress=True)
     out = capsys.readouterr().out
     assert "fitting at" not in out and f"[fit] HINT small {model.report['thin_share']:.2f}" in out
+    assert "GRIDHINT" not in out  # no switch, no hint
     assert model.config.name == "small" and model.report["thin_parts_switch"] is None
     assert max(load_grid(tmp_path / "kept" / "grid.npz").shape) == 32
     grid = load_grid(tmp_path / "kept" / "grid.npz")
