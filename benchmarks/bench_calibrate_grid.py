@@ -24,7 +24,7 @@ from sin3dm_lite.data.grid import load_grid
 
 def calibrate_at(model: Sin3DM, run, resolution: int):
     """The calibration of ``model`` judged at ``resolution`` voxels, and its time in seconds."""
-    grid = max(model.report.get("grid_shape") or [model.config.grid.resolution])
+    grid = model.grid_resolution
     reference = load_grid(run / "grid.npz").sdf < 0 if resolution == grid else None
     t0 = time.perf_counter()
     cal = model.calibrate(reference, resolution=None if resolution == grid else resolution, progress=False)

@@ -146,9 +146,9 @@ class Sin3DM:
         against ``reference``, the input's occupancy on this model's box
         (default: ``input_mesh``, a mesh, path or example name, or else
         :meth:`input_mesh`, voxelised at ``resolution`` voxels along the longest
-        side: by default the fit's grid resolution, which is fast; 128 judges as
-        the paper measures, where thin walls keep more of their patches, at
-        about three times the time).
+        side: by default the fit's grid (:attr:`grid_resolution`), which is fast;
+        128 judges as the paper measures, in about three times the time, and
+        gives a thin-walled shape a more faithful default, docs/calibration.md).
         The choice and what was tried land in ``report["calibration"]``;
         ``options`` go to ``calibrate_diversity`` (``goals``, ``n``, ``seed``,
         ``lowest``, ``step``, ``margin``, ``refine``, ``caution``, ``safety``, ``relative``, ``far``). :meth:`save` (or
@@ -158,7 +158,7 @@ class Sin3DM:
 
         if reference is None:
             mesh = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
-            resolution = resolution or max(self.report.get("grid_shape") or [self.config.grid.resolution])
+            resolution = resolution or self.grid_resolution
             if not 16 <= resolution <= 512:
                 raise Sin3DMInputError(f"the calibration's resolution must be from 16 to 512 voxels, got {resolution}")
             reference = self.input_occupancy(mesh, resolution)
@@ -339,6 +339,11 @@ class Sin3DM:
         normalised coordinates): the metrics' reference."""
         return evaluation.input_occupancy(mesh, self.normalization, self.aabb if aabb is None else aabb, resolution)
 
+    @property
+    def grid_resolution(self) -> int:
+        """Voxels along the longest side of the grid this model was fitted on (where its calibration judges)."""
+        return max(self.report.get("grid_shape") or [self.config.grid.resolution])
+
     def input_mesh(self, allow_outside_paths: bool = False) -> TexturedMesh:
         """The mesh this model was fitted to: the mesh file the run's report names, if it is still there, or the
         built-in example of that name (``allow_outside_paths``: see :func:`mesh_io.load_mesh`)."""
@@ -375,7 +380,8 @@ class Sin3DM:
         G-Qual (SSFID) is never computed (``skipped["ssfid"]``).
 
         Returns ``{"samples", "resolution", "views", "size", "metrics": {name: value or None},
-        "skipped": {name: reason}, "timings_s": {...}}`` (and ``"geometry_at": {"64": {"voxels", "metrics"}}``) (the time it takes: :func:`evaluation.evaluate`).
+        "skipped": {name: reason}, "timings_s": {...}}``, with several resolutions also
+        ``"geometry_at": {"64": {"voxels", "metrics"}}`` (the time it takes: :func:`evaluation.evaluate`).
         """
         nets = evaluation.feature_nets(weights)
         ref = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)

@@ -134,8 +134,7 @@ def cmd_evaluate(a) -> None:
             raise Sin3DMInputError(f"cannot read sample mesh '{f}': {e}") from None
     t0 = time.perf_counter()
     # the paper's 128 voxels, and the fit's own grid beside it (where the calibration judged)
-    grid = max(model.report.get("grid_shape") or [model.config.grid.resolution])
-    grids = a.resolution or list(dict.fromkeys([128, grid]))
+    grids = a.resolution or [128, model.grid_resolution]
     result = model.evaluate(meshes, reference, resolution=grids, views=a.views, size=a.size, weights=nets)
     result.update(run=str(run), samples_folder=str(a.samples), files=[str(f) for f in files])
     print_evaluation(result)
@@ -176,8 +175,7 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     snapped = f" --snap {model.config.sampling.snap:g}" if model.config.sampling.snap else ""
     # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, or at
     # another resolution (--resolution 128 judges as the paper measures), the input mesh voxelised there
-    grid_res = max(model.report.get("grid_shape") or [model.config.grid.resolution])
-    on_grid = a.resolution in (None, grid_res) and a.input is None and (run / "grid.npz").is_file()
+    on_grid = a.resolution in (None, model.grid_resolution) and a.input is None and (run / "grid.npz").is_file()
     reference = load_grid(run / "grid.npz").sdf < 0 if on_grid else None
     goals = {
         "lp_iou": GOALS["lp_iou"] if a.lp_iou is None else a.lp_iou,

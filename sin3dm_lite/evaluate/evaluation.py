@@ -98,7 +98,7 @@ def evaluate(
     lo = np.minimum(aabb[:3], np.min([m.vertices.min(0) for m in normed], axis=0))
     hi = np.maximum(aabb[3:], np.max([m.vertices.max(0) for m in normed], axis=0))
     box = np.concatenate([lo, hi])
-    first, *others = [int(r) for r in np.atleast_1d(resolution)]
+    first, *others = dict.fromkeys(int(r) for r in np.atleast_1d(resolution))  # each grid once, in order
     scale = (hi - lo).max() / (aabb[3:] - aabb[:3]).max()
 
     def geometry(resolution: int) -> tuple[int, dict]:  # at the model's voxel size for ``resolution``
