@@ -22,7 +22,7 @@ table of levels and checks it, imports inside functions included)::
     6 app       pipeline (Sin3DM: fit, sample, save, load, each a call into:) · fitting (the stages) · fit_policy
                 (what a fit decides) · run_folder · checkpoints · sampling · request (a sample run's settings) ·
                 runs · pretrained (models in shipped/) · mass · mass_folder · mass_workers ·
-                cli: parser_cli · fit_cli · sample_cli · evaluate_cli
+                cli: parser_cli · values_cli · fit_cli · sample_cli · evaluate_cli
 
 Everything a notebook or script needs is importable from here::
 

@@ -121,6 +121,7 @@ LAYERS = {
     "cli": APP,
     "cli.__main__": APP,
     "cli.parser_cli": APP,
+    "cli.values_cli": APP,
     "cli.fit_cli": APP,
     "cli.sample_cli": APP,
     "cli.evaluate_cli": APP,

@@ -10,55 +10,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-
-def _int_at_least(low: int, what: str):
-    """An argparse type: a whole number ≥ ``low``; ``what`` names the range in the error."""
-
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-        if v < low:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {v}")
-        return v
-
-    return parse
-
-
-_positive_int = _int_at_least(1, "a positive number")
-_whole = _int_at_least(0, "0 or more")
-
-
-def _factor(what: str, low: float, low_included: bool):
-    """An argparse type: a size factor up to 8 above ``low``; ``what`` names the flag in the error."""
-
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-        if not ((low <= v if low_included else low < v) and v <= 8):
-            raise argparse.ArgumentTypeError(f"{what}, got {v:g}")
-        return v
-
-    return parse
-
-
-_resize_factor = _factor("resize factors must be in (0, 8]", 0.0, False)
-_outpaint_factor = _factor(
-    "outpaint factors must be from 1 to 8 (outpainting grows the box; --resize shrinks it)", 1.0, True
+from .values_cli import (
+    finite_float,
+    int_at_least,
+    outpaint_factor,
+    positive_int,
+    resize_factor,
+    seed_int,
+    unit_float,
+    unit_score,
+    whole,
 )
-
-
-def _unit_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number from 0 to 1, got '{text}'") from None
-    if not (0 <= v <= 1):
-        raise argparse.ArgumentTypeError(f"expected a share from 0 to 1, got {v}")
-    return v
 
 
 class _Formatter(argparse.HelpFormatter):
@@ -155,7 +117,7 @@ def _mesh_help() -> str:
 def _examples_args(e: argparse.ArgumentParser) -> None:
     e.add_argument("--write", metavar="NAME", help="example to write (default: list them)")
     e.add_argument("--out", default=".", help="folder for --write (default: current folder)")
-    e.add_argument("--seed", type=_seed, default=0, help="variant of the example")
+    e.add_argument("--seed", type=seed_int, default=0, help="variant of the example")
     e.add_argument(
         "--overwrite", action="store_true", help="replace files of the example that sin3dm-lite wrote before"
     )
@@ -188,7 +150,7 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         help="learn metallic, roughness and normals too (default: when the mesh has PBR maps; "
         "--pbr on a mesh without maps learns its constant factors and geometric normals)",
     )
-    f.add_argument("--seed", type=_seed, default=None, help="random seed (default: the preset's)")
+    f.add_argument("--seed", type=seed_int, default=None, help="random seed (default: the preset's)")
     f.add_argument(
         "--thin-switch",
         action=argparse.BooleanOptionalAction,
@@ -249,9 +211,9 @@ def _demo_args(d: argparse.ArgumentParser) -> None:
 
 def _render_args(r: argparse.ArgumentParser) -> None:
     r.add_argument("mesh", help=_mesh_help())
-    r.add_argument("--views", type=_positive_int, default=8, help="views around the shape, azimuth every 360/N degrees")
-    r.add_argument("--size", type=_positive_int, default=512, help="image width and height in pixels, 16-4096")
-    r.add_argument("--elevation", type=_float, default=45.0, help="camera elevation in degrees, -89 to 89")
+    r.add_argument("--views", type=positive_int, default=8, help="views around the shape, azimuth every 360/N degrees")
+    r.add_argument("--size", type=positive_int, default=512, help="image width and height in pixels, 16-4096")
+    r.add_argument("--elevation", type=finite_float, default=45.0, help="camera elevation in degrees, -89 to 89")
     r.add_argument("--out", required=True, help="output folder (new or empty; see --overwrite)")
     r.add_argument(
         "--overwrite",
@@ -274,11 +236,11 @@ def _evaluate_args(v: argparse.ArgumentParser) -> None:
         help="folder with InceptionV3 / AlexNet / LPIPS weights for SIFID and LPIPS, never downloaded "
         "(default: none; weight-free stand-ins instead)",
     )
-    v.add_argument("--views", type=_positive_int, default=8, help="views per mesh, azimuth every 360/N degrees")
-    v.add_argument("--size", type=_positive_int, default=256, help="render size in pixels, 16-4096; the paper uses 512")
+    v.add_argument("--views", type=positive_int, default=8, help="views per mesh, azimuth every 360/N degrees")
+    v.add_argument("--size", type=positive_int, default=256, help="render size in pixels, 16-4096; the paper uses 512")
     v.add_argument(
         "--resolution",
-        type=_positive_int,
+        type=positive_int,
         nargs="+",
         default=None,
         help="voxels along the longest side for the geometry metrics, 16-512, one grid or several (the first gets "
@@ -295,26 +257,26 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         help="the mesh the run was fitted to, when the run has no grid.npz (default: the run's grid)",
     )
     c.add_argument(
-        "-n", type=_int_at_least(2, "at least 2 (G-Div compares them)"), default=8, help="samples per setting tried"
+        "-n", type=int_at_least(2, "at least 2 (G-Div compares them)"), default=8, help="samples per setting tried"
     )
     c.add_argument(
         "--seed",
-        type=_seed,
+        type=seed_int,
         default=10_000,
         help="first sample seed (the k-th setting drawn takes seeds from seed + 1000·k)",
     )
     for flag, name, goal in (("--lp-iou", "LP-IoU", "0.55"), ("--lp-f", "LP-F", "0.70")):
         keep = f"{name} the samples must keep, at most (default: {goal}, lowered to 85%% of what a near copy keeps)"
-        c.add_argument(flag, type=_unit_score, default=None, help=keep)
+        c.add_argument(flag, type=unit_score, default=None, help=keep)
     c.add_argument(
         "--resolution",
-        type=_int_at_least(16, "16-512 voxels"),
+        type=int_at_least(16, "16-512 voxels"),
         default=None,
         help="voxels along the longest side where the samples are judged (default: the fit's grid, against the "
         "training grid: fast); 128 judges against the input mesh as the paper measures, in about 3x the time",
     )
     snap = "calibrate for samples snapped to the input's latent patches (0-1), kept as the run's sampling.snap"
-    c.add_argument("--snap", type=_unit_float, default=None, help=snap + " (no refit; default: the run's own)")
+    c.add_argument("--snap", type=unit_float, default=None, help=snap + " (no refit; default: the run's own)")
     _outside_paths_arg(c)
 
 
@@ -351,25 +313,25 @@ def _run_args(s: argparse.ArgumentParser, n_default: int) -> None:
     """How many samples, from which index, in batches of how many, exported by how many workers."""
     s.add_argument(
         "-n",
-        type=_positive_int,
+        type=positive_int,
         default=n_default,
         help="number of samples; each lands in --out as it finishes, and the same command again continues",
     )
     s.add_argument(
         "--start",
-        type=_whole,
+        type=whole,
         default=0,
         help="index of the first sample (sample i comes from seed + i: `--start 7 -n 1` draws sample 7 again)",
     )
     s.add_argument(
         "--batch",
-        type=_positive_int,
+        type=positive_int,
         default=None,
         help="samples per denoiser call (default: 8, fewer if memory is short)",
     )
     s.add_argument(
         "--workers",
-        type=_whole,
+        type=whole,
         default=None,
         help="processes that decode, texture and export meshes while the next batch is sampled "
         "(default: one per CPU core, at most 4, shared among torchrun ranks, or SIN3DM_WORKERS; 0: in the sampling process)",
@@ -385,7 +347,7 @@ def _control_args(s: argparse.ArgumentParser) -> None:
     ctl.add_argument(
         "--resize",
         nargs=3,
-        type=_resize_factor,
+        type=resize_factor,
         metavar=("SX", "SY", "SZ"),
         default=None,
         help="retarget: scale factors of the x, y, z size",
@@ -393,7 +355,7 @@ def _control_args(s: argparse.ArgumentParser) -> None:
     ctl.add_argument(
         "--outpaint",
         nargs=3,
-        type=_outpaint_factor,
+        type=outpaint_factor,
         metavar=("SX", "SY", "SZ"),
         default=None,
         help="grow the box by these factors (each >= 1), keep the input, generate the rest",
@@ -401,7 +363,7 @@ def _control_args(s: argparse.ArgumentParser) -> None:
     ctl.add_argument(
         "--regenerate",
         nargs=6,
-        type=_float,
+        type=finite_float,
         metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
         default=None,
         help="resample this box, keep everything else (the box must reach the faces along one axis)",
@@ -409,7 +371,7 @@ def _control_args(s: argparse.ArgumentParser) -> None:
     ctl.add_argument(
         "--duplicate",
         nargs=9,
-        type=_float,
+        type=finite_float,
         metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1", "TX", "TY", "TZ"),
         default=None,
         help="copy this box so its low corner lands at TX TY TZ; generate around both copies",
@@ -426,33 +388,33 @@ def _sampler_args(s: argparse.ArgumentParser) -> None:
     """The sampler: diversity, DDIM steps or DDPM, seed."""
     s.add_argument(
         "--diversity",
-        type=_unit_float,
+        type=unit_float,
         default=None,
         help="0 = the input, 1 = from pure noise (the paper; default: the run's setting); "
         "lower values keep more of the input's layout",
     )
     s.add_argument(
         "--snap",
-        type=_unit_float,
+        type=unit_float,
         default=None,
         help="pull the last steps towards the input's latent patches (0 = the paper's sampler, 1 = all the way; "
         "default: the run's sampling.snap, 0 unless fitted with --set sampling.snap=1): thin walls and broken tops "
         "keep their shape at a higher --diversity (docs/thin-parts.md)",
     )
-    s.add_argument("--steps", type=_positive_int, default=None, help="DDIM steps (default: the preset's)")
+    s.add_argument("--steps", type=positive_int, default=None, help="DDIM steps (default: the preset's)")
     s.add_argument("--ddpm", action="store_true", help="use full DDPM sampling (all timesteps) instead of DDIM")
-    s.add_argument("--seed", type=_seed, default=0, help="random seed; the same seed gives the same samples")
+    s.add_argument("--seed", type=seed_int, default=0, help="random seed; the same seed gives the same samples")
 
 
 def _output_args(s: argparse.ArgumentParser) -> None:
     """The meshes (faces, texture, decode grid), the device, and what happens to --out."""
-    s.add_argument("--faces", type=_positive_int, default=None, help="face budget per mesh (default: the preset's)")
+    s.add_argument("--faces", type=positive_int, default=None, help="face budget per mesh (default: the preset's)")
     s.add_argument(
-        "--texture-size", type=_positive_int, default=None, help="texture image size in pixels (default: the preset's)"
+        "--texture-size", type=positive_int, default=None, help="texture image size in pixels (default: the preset's)"
     )
     s.add_argument(
         "--mesh-resolution",
-        type=_positive_int,
+        type=positive_int,
         default=None,
         help="decode grid along the longest side (default: the preset's)",
     )
@@ -468,30 +430,3 @@ def _output_args(s: argparse.ArgumentParser) -> None:
         action="store_true",
         help="skip NNN/preview.png and contact_sheet.png (rendered off-screen; they need Mesa's EGL on Linux)",
     )
-
-
-def _unit_score(text: str) -> float:
-    v = _float(text)
-    if not 0 <= v <= 1:
-        raise argparse.ArgumentTypeError(f"a patch score is from 0 to 1, got {v}")
-    return v
-
-
-def _float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if v != v or v in (float("inf"), float("-inf")):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
-    return v
-
-
-def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if not 0 <= v < 2**32:
-        raise argparse.ArgumentTypeError(f"seeds run from 0 to {2**32 - 1}, got {v}")
-    return v
