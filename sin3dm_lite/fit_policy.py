@@ -255,16 +255,17 @@ def rollout_hint(cfg: Config, calibration: dict | None) -> str | None:
 
 def calibration_grid_hint(thin_parts: dict | None, calibration: dict | None, run=None) -> str | None:
     """What a fit says after it switched to its thin-part settings and calibrated on a 64-voxel grid or coarser
-    (``quick``'s; None otherwise): how to judge at the paper's 128 voxels, where thin walls keep fewer of the
-    input's patches and the calibration picks a more faithful default (measured on the ruin, docs/calibration.md)."""
+    (``quick``'s; None otherwise): how to judge at the paper's 128 voxels against the input mesh, where thin parts
+    score differently and the choice moves, either way (docs/calibration.md)."""
     resolution = (calibration or {}).get("resolution", 128)
     if thin_parts is None or resolution > 64:
         return None
     how = f"sin3dm-lite calibrate {run} --resolution 128" if run is not None else "model.calibrate(resolution=128)"
     return (
         f"[fit] the calibration judged this thin-walled shape on its {resolution}-voxel training grid; judged at "
-        "the paper's 128 voxels against the input mesh it picks a more faithful, less varied default (a ruined "
-        f"tower: 0.33 instead of 0.42, G-Div 0.07 instead of 0.20), in about three times the time: {how}"
+        "the paper's 128 voxels against the input mesh the choice can move either way (a ruined tower: 0.33 "
+        "instead of 0.42, more faithful; a colonnade: 1 instead of 0.73, more varied), in up to three times the "
+        f"time: {how}"
     )
 
 
