@@ -147,8 +147,8 @@ class Sin3DM:
         (default: ``input_mesh``, a mesh, path or example name, or else
         :meth:`input_mesh`, voxelised at ``resolution`` voxels along the longest
         side: by default the fit's grid (:attr:`grid_resolution`), which is fast;
-        128 judges as the paper measures, in about three times the time, and
-        gives a thin-walled shape a more faithful default, docs/calibration.md).
+        128 judges as the paper measures, in up to three times the time: a thin-walled
+        ruin then gets a more faithful default, a colonnade a more varied one, docs/calibration.md).
         The choice and what was tried land in ``report["calibration"]``;
         ``options`` go to ``calibrate_diversity`` (``goals``, ``n``, ``seed``,
         ``lowest``, ``step``, ``margin``, ``refine``, ``caution``, ``safety``, ``relative``, ``far``). :meth:`save` (or
