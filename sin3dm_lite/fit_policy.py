@@ -132,7 +132,7 @@ def fp32_autoencoder_minutes(cfg: Config, one_color: bool = False) -> float:
     planes = 0.119 * (cfg.grid.resolution / 64) ** 2
     mlps = 0.491 * (a.points_per_step / 8192) * (a.mlp_hidden / 256) ** 2
     colored = 0.0 if one_color else min(a.color_points or a.points_per_step, a.points_per_step) / a.points_per_step
-    step_s = planes * (0.5 + 0.5 * (not one_color)) + mlps * (0.5 + 0.5 * colored)
+    step_s = planes * (0.5 if one_color else 1.0) + mlps * (0.5 + 0.5 * colored)
     return a.steps * step_s / 60
 
 

@@ -127,10 +127,6 @@ class FitRun:
         """All stages, saved into the run folder at the end; the fitted model."""
         cfg, mesh = self.settings(source, preset, seed, pbr, allow_outside_paths)
         grid, thin, cfg, thin_parts = self.grid(cfg, mesh)
-        one_color = not cfg.autoencoder.pbr and grid.single_color() is not None  # half an autoencoder to train
-        for hint in (quick_hint(cfg, self.dev, one_color), threads_hint() if self.dev.type == "cpu" else None):
-            if hint:
-                self.say("[fit] " + hint)
         ae, h0, metrics = self.autoencoder(cfg, grid)
         base = {
             "preset": cfg.name,
@@ -224,6 +220,13 @@ class FitRun:
         """Stage 2: the trained autoencoder, the input's latent and its reconstruction metrics."""
         t0 = time.perf_counter()
         ae = AutoencoderTrainer(grid, cfg.autoencoder, self.dev, cfg.seed)
+        # a shape of one colour (the trainer found it) trains half an autoencoder: the time hint knows
+        for hint in (
+            quick_hint(cfg, self.dev, ae.single_color is not None),
+            threads_hint() if self.dev.type == "cpu" else None,
+        ):
+            if hint:
+                self.say("[fit] " + hint)
         if ae.single_color is not None:
             rgb = ", ".join(f"{c:.2f}" for c in ae.single_color)
             self.say(

@@ -385,18 +385,21 @@ def test_fit_set_changes_the_preset_and_names_a_bad_setting(capsys, tmp_path, mo
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps
-def test_a_mesh_without_colour_fits_its_geometry_only_and_its_samples_keep_the_grey(capsys, tmp_path):
-    """An STL has no colour: the fit says the autoencoder learns the geometry alone, reports the colour as kept
-    (not a PSNR), records it in the report, and its meshes are the default grey."""
+def test_a_mesh_without_colour_fits_its_geometry_only_and_its_samples_keep_the_grey(capsys, tmp_path, monkeypatch):
+    """An STL has no colour: the fit says the autoencoder learns the geometry alone (and prices its time so),
+    reports the colour as kept (not a PSNR), records it in the report, and its meshes are the default grey."""
+    from sin3dm_lite import fit_policy
     from sin3dm_lite.data.mesh import DEFAULT_COLOR
     from sin3dm_lite.pipeline import Sin3DM
 
+    priced, real = [], fit_policy.quick_hint
+    monkeypatch.setattr("sin3dm_lite.fitting.quick_hint", lambda *a: priced.append(a[2]) or real(*a))
     trimesh.creation.box(extents=(1.0, 0.6, 0.4)).export(tmp_path / "box.stl")
     settings = ["autoencoder.steps=80", "diffusion.steps=2", "sampling.steps=2", "sampling.mesh_resolution=24"]
     code, out, _ = run(
         capsys, "fit", str(tmp_path / "box.stl"), "--preset", "tiny", "--out", str(tmp_path / "r"), "--set", *settings
     )
-    assert code == 0
+    assert code == 0 and priced == [True]  # the time hint is told the shape has one colour
     assert "[fit] 'box' has one colour (0.70, 0.70, 0.70; a mesh without colour gets this grey)" in out
     assert "one colour, kept" in out and "colour PSNR" not in out
     model = Sin3DM.load(tmp_path / "r")

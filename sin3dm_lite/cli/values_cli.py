@@ -9,14 +9,19 @@ from __future__ import annotations
 import argparse
 
 
+def number(text: str, kind: type, what: str):
+    """``text`` read as ``kind`` (int or float), or the one-line error "expected ``what``, got 'text'"."""
+    try:
+        return kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got '{text}'") from None
+
+
 def int_at_least(low: int, what: str):
     """An argparse type: a whole number ≥ ``low``; ``what`` names the range in the error."""
 
     def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+        v = number(text, int, "a whole number")
         if v < low:
             raise argparse.ArgumentTypeError(f"expected {what}, got {v}")
         return v
@@ -32,10 +37,7 @@ def factor(what: str, low: float, low_included: bool):
     """An argparse type: a size factor up to 8 above ``low``; ``what`` names the flag in the error."""
 
     def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+        v = number(text, float, "a number")
         if not ((low <= v if low_included else low < v) and v <= 8):
             raise argparse.ArgumentTypeError(f"{what}, got {v:g}")
         return v
@@ -50,10 +52,7 @@ outpaint_factor = factor(
 
 
 def unit_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number from 0 to 1, got '{text}'") from None
+    v = number(text, float, "a number from 0 to 1")
     if not (0 <= v <= 1):
         raise argparse.ArgumentTypeError(f"expected a share from 0 to 1, got {v}")
     return v
@@ -67,20 +66,14 @@ def unit_score(text: str) -> float:
 
 
 def finite_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    v = number(text, float, "a number")
     if v != v or v in (float("inf"), float("-inf")):
         raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
     return v
 
 
 def seed_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    v = number(text, int, "a whole number")
     if not 0 <= v < 2**32:
         raise argparse.ArgumentTypeError(f"seeds run from 0 to {2**32 - 1}, got {v}")
     return v

@@ -58,9 +58,9 @@ its training grid (64 voxels along the longest side for ``small`` and
 ``quick``), which is fast; the paper measures at 128 voxels, where thin parts
 score differently (``sin3dm-lite evaluate --resolution 128`` measures there, and
 ``benchmarks/bench_samples.py`` reports both grids). ``sin3dm-lite calibrate
-RUN --resolution 128`` judges there, against the input mesh, in about three
+RUN --resolution 128`` judges there, against the input mesh, in up to three
 times the time: a thin ruin's default then keeps its top and varies little,
-a canyon's varies more (docs/calibration.md). The record keeps its
+a canyon's or a colonnade's varies more (docs/calibration.md). The record keeps its
 resolution and the story names it.
 
 ``Sin3DM.fit`` runs it at the end of a fit when the preset's
