@@ -367,8 +367,9 @@ class Sin3DM:
         folder with the pre-trained weights of SIFID and LPIPS
         (:func:`metrics.load_feature_weights`), or a loaded ``FeatureNets``.
 
-        Geometry (:func:`metrics.geometry_scores`): G-Div, LP-IoU, LP-F and the
-        IoU to the input on occupancy grids of ``resolution`` voxels along the
+        Geometry (:func:`metrics.geometry_scores`): G-Div, LP-IoU, LP-F, the labelled variant that is not the
+        paper's (``lp_iou_any_offset``, ``lp_fscore_any_offset``: the input's patches at every voxel, so a
+        piece moved by a voxel still counts) and the IoU to the input on occupancy grids of ``resolution`` voxels along the
         longest side of the model's box (a box covering larger, retargeted
         samples keeps that voxel size); with several resolutions, e.g. ``(128, 64)``
         (the paper's grid and the training grid), the first gets every metric and the

@@ -82,6 +82,7 @@ LAYERS = {
     # evaluate: metrics and their networks, headless rendering, the diversity calibration
     "evaluate": EVALUATE,
     "evaluate.geometry": EVALUATE,
+    "evaluate.patches": EVALUATE,
     "evaluate.features": EVALUATE,
     "evaluate.texture": EVALUATE,
     "evaluate.metrics": EVALUATE,

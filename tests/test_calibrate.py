@@ -124,7 +124,7 @@ def test_a_shape_whose_near_copy_misses_the_absolute_goals_gets_a_default_below_
     """No setting, not even the near copy, reaches LP-IoU 0.55 / LP-F 0.70: with absolute goals the walk ends at its
     floor, the most varied setting tried. Against 85 % of the near copy's scores it finds the shape's edge, 0.3,
     below the old floor of 0.5, and says so: near copy, goal and choice for each goal."""
-    from sin3dm_lite.evaluate.geometry import lp_scores
+    from sin3dm_lite.evaluate.patches import lp_scores
 
     near = lp_scores(_reference(), [_thin_copy()])
     assert near["lp_iou"] == pytest.approx(0.3) and near["lp_fscore"] == pytest.approx(0.4)

@@ -7,7 +7,7 @@ import trimesh
 from sin3dm_lite import extract as ex
 from sin3dm_lite import metrics as M
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.evaluate import geometry
+from sin3dm_lite.evaluate import patches
 
 BOX = np.array([-1.0, -1, -1, 1, 1, 1])
 
@@ -67,6 +67,47 @@ def test_shifted_periodic_pattern_is_locally_perfect_but_diverse():
     assert scores["lp_iou"] == 1.0 and scores["lp_fscore"] == 1.0
 
 
+def thin_slab_with_steps(n=40):
+    """A wall two voxels thick with a stepped top: the kind of shape the stride-5 lattice is hard on."""
+    g = np.zeros((n, n, n), bool)
+    g[8:30, 8:10, 8:30] = True
+    for k, top in enumerate((30, 27, 24, 28)):
+        g[8 + 5 * k : 13 + 5 * k, 8:10, top:32] = False
+    return g
+
+
+def test_any_offset_lp_forgives_a_whole_voxel_move_the_paper_lp_does_not():
+    ref = thin_slab_with_steps()
+    moved = np.roll(ref, 1, axis=0)  # a perfect copy, one voxel off the input's lattice
+    paper, any_offset = M.lp_scores(ref, [moved]), M.lp_scores_any_offset(ref, [moved])
+    assert paper["lp_iou"] < 0.5  # measured: 0.38
+    assert any_offset["lp_iou_any_offset"] == 1.0 and any_offset["lp_fscore_any_offset"] == 1.0
+    aligned = M.lp_scores_any_offset(ref, [np.roll(ref, 5, axis=0)])  # on the lattice: both metrics agree
+    assert aligned["lp_iou_any_offset"] == 1.0 == M.lp_scores(ref, [np.roll(ref, 5, axis=0)])["lp_iou"]
+
+
+def test_any_offset_lp_is_the_exact_search_over_every_input_patch():
+    """The pruned search (distinct patches, count windows) gives what comparing with every patch gives."""
+    rng = np.random.default_rng(3)
+    x, y, z = centres(36)
+    ref = (np.sin(5 * x) + np.cos(4 * y) + np.sin(3 * z)) > 0.3
+    noisy = ref ^ (rng.random(ref.shape) < 0.004)  # a few flipped voxels: some patches stay above 0.95
+    for threshold in (0.8, 0.95):
+        got = M.lp_scores_any_offset(ref, [noisy, np.roll(ref, 2, axis=1)], threshold=threshold)
+        want_iou, want_f = [], []
+        every = M.extract_patches(ref, stride=1)
+        for grid in (noisy, np.roll(ref, 2, axis=1)):
+            best_iou, best_f = patches._best_matches(M.extract_patches(grid)[:1000], every)
+            want_iou.append(np.mean(best_iou > threshold))
+            want_f.append(np.mean(best_f > threshold))
+        assert got["per_shape_iou"] == pytest.approx(want_iou) and got["per_shape_fscore"] == pytest.approx(want_f)
+        assert 0 < got["per_shape_iou"][0] < 1  # the noisy copy: a case where the pruning has to decide
+    with pytest.raises(Sin3DMInputError, match="threshold"):
+        M.lp_scores_any_offset(ref, [ref], threshold=1.0)
+    with pytest.raises(Sin3DMInputError, match="no surface patches"):
+        M.lp_scores_any_offset(np.zeros_like(ref), [ref])
+
+
 def test_unrelated_shape_scores_low():
     ref = lattice()
     x, y, z = centres(60)
@@ -80,7 +121,7 @@ def test_patch_fscore_is_dice_of_occupied_voxels():
     r = np.zeros((1, 1331), bool)
     g[0, :10] = True
     r[0, :20] = True
-    best_iou, best_f = geometry._best_matches(g, r)
+    best_iou, best_f = patches._best_matches(g, r)
     assert best_iou[0] == pytest.approx(0.5) and best_f[0] == pytest.approx(2 / 3)
 
 
@@ -198,6 +239,8 @@ def test_results_table_lines_up_columns_and_marks_missing_values():
     g = next(line for line in lines if line.startswith("g_div"))
     assert "0.210" in g and "0.300" in g and "G-Div" in g
     assert next(line for line in lines if line.startswith("lp_iou")).split()[1:3] == ["0.500", "-"]
+    end = lines[0].index("diversity 1.0") + len("diversity 1.0")  # each row's values end under their labels
+    assert all(line[:end].endswith(("0.300", "-")) for line in lines[1:]), text
     with pytest.raises(Sin3DMInputError):
         M.results_table({})
 

@@ -10,10 +10,9 @@ voxels along the longest side of a box, the paper uses 128).
   G-Div = mean pairwise ``1 − IoU`` among generated shapes. Whole-shape
   comparisons need every grid to have the same shape, so retargeted samples
   (another box) cannot enter G-Div with the others.
-* :func:`lp_iou`, :func:`lp_fscore` (:func:`lp_scores` computes both) — local
-  patch quality: does every small piece of a generated shape look like *some*
-  piece of the reference? These only compare 11³ patches, so they work for
-  shapes of any grid size as long as the voxel size is the same.
+* :func:`geometry_scores` — G-Div, IoU to the input and the local-patch scores
+  of :mod:`~sin3dm_lite.evaluate.patches` (LP-IoU / LP-F: does every small
+  piece of a generated shape look like *some* piece of the input?) at once.
 
 """
 
@@ -26,6 +25,7 @@ import numpy as np
 from ..data.box import as_aabb, axis_centres, grid_shape, to_index
 from ..errors import Sin3DMInputError
 from ..generate.bake import rasterize_triangles
+from .patches import ANY_OFFSET_MAX_VOXELS, lp_scores, lp_scores_any_offset
 
 #: Tiny shift (in voxels) of the mesh against the ray grid: marching-cubes vertices of the same grid lie
 #: exactly on the rays, and a ray through an edge would be counted twice.
@@ -233,192 +233,30 @@ def reconstruction_iou(mesh_a, mesh_b, aabb, resolution: int = 128) -> float:
     return iou(voxelize(mesh_a, aabb, resolution), voxelize(mesh_b, aabb, resolution))
 
 
-# ----------------------------------------------------------------------------- local patches
-def extract_patches(grid: np.ndarray, patch: int = 11, stride: int = 5, center: int = 3) -> np.ndarray:
-    """Surface patches of an occupancy grid → bool ``(n, patch**3)``.
-
-    The grid is zero-padded by ``patch // 2`` on every side, so patches are
-    centred on voxels ``0, stride, 2·stride, ...`` of each axis. A patch is
-    kept when its central ``center³`` block holds both occupied and empty
-    voxels, i.e. it straddles the surface.
-    """
-    g = np.pad(np.asarray(grid, bool), patch // 2)
-    windows = np.lib.stride_tricks.sliding_window_view(g, (patch,) * 3)[::stride, ::stride, ::stride]
-    c0 = (patch - center) // 2
-    count = windows[..., c0 : c0 + center, c0 : c0 + center, c0 : c0 + center].sum(axis=(-3, -2, -1))
-    valid = (count > 0) & (count < center**3)
-    return windows[valid].reshape(-1, patch**3)
-
-
-def _best_matches(
-    gen: np.ndarray, ref: np.ndarray, max_entries: int = 2**23, return_index: bool = False
-) -> tuple[np.ndarray, ...]:
-    """For every generated patch, the best IoU and the best F-score against all reference patches
-    (and, with ``return_index``, the index of the reference patch with the best IoU)."""
-    g, r = gen.astype(np.float32), ref.astype(np.float32)
-    gs, rs = g.sum(1), r.sum(1)
-    best_iou = np.zeros(len(g), np.float64)
-    best_f = np.zeros(len(g), np.float64)
-    best_at = np.zeros(len(g), np.int64)
-    rows = max(1, max_entries // max(len(r), 1))
-    for s in range(0, len(g), rows):
-        inter = g[s : s + rows] @ r.T  # (m, n_ref) overlap counts, exact in float32
-        size_sum = gs[s : s + rows, None] + rs[None, :]
-        ious = inter / (size_sum - inter)
-        best_at[s : s + rows] = ious.argmax(axis=1)
-        best_iou[s : s + rows] = ious.max(axis=1)
-        best_f[s : s + rows] = (2 * inter / size_sum).max(axis=1)
-    return (best_iou, best_f, best_at) if return_index else (best_iou, best_f)
-
-
-def lp_scores(
-    reference: np.ndarray,
-    generated,
-    patch: int = 11,
-    stride: int = 5,
-    center: int = 3,
-    max_patches: int = 1000,
-    threshold: float = 0.95,
-    seed: int = 0,
-) -> dict:
-    """LP-IoU and LP-F-score (docs/paper-notes.md "Evaluation", from the SSG / Sin3DM evaluation).
-
-    For each generated shape: take its surface patches (:func:`extract_patches`),
-    keep at most ``max_patches`` of them chosen at random (``seed``), and find
-    for each the best match among *all* reference patches:
-
-    * IoU of two patches ``g`` and ``r`` (sets of occupied voxels):
-      ``|g ∩ r| / |g ∪ r|``;
-    * F-score: precision ``P = |g ∩ r| / |g|`` (how much of the generated
-      patch's occupied voxels the reference has), recall ``R = |g ∩ r| / |r|``,
-      ``F = 2PR / (P + R) = 2|g ∩ r| / (|g| + |r|)``.
-
-    The shape's score is the fraction of its patches whose best match is above
-    ``threshold`` (strictly); the metric is the mean over generated shapes.
-    A generated shape without surface patches scores 0.
-
-    Returns:
-        dict with ``lp_iou``, ``lp_fscore`` (the metrics), ``lp_iou_mean_best``,
-        ``lp_fscore_mean_best`` (mean best match, a softer number) and the
-        per-shape lists ``per_shape_iou``, ``per_shape_fscore``.
-    """
-    if isinstance(generated, np.ndarray) and generated.ndim == 3:
-        generated = [generated]
-    ref = extract_patches(reference, patch, stride, center)
-    if len(ref) == 0:
-        raise Sin3DMInputError("the reference occupancy grid has no surface patches (is it empty or full?)")
-    rng = np.random.default_rng(seed)
-    per_iou, per_f, mean_iou, mean_f = [], [], [], []
-    for grid in generated:
-        gen = extract_patches(grid, patch, stride, center)
-        if len(gen) > max_patches:
-            gen = gen[rng.choice(len(gen), max_patches, replace=False)]
-        if len(gen) == 0:
-            best_iou = best_f = np.zeros(1)
-        else:
-            best_iou, best_f = _best_matches(gen, ref)
-        per_iou.append(float(np.mean(best_iou > threshold)))
-        per_f.append(float(np.mean(best_f > threshold)))
-        mean_iou.append(float(best_iou.mean()))
-        mean_f.append(float(best_f.mean()))
-    return {
-        "lp_iou": float(np.mean(per_iou)),
-        "lp_fscore": float(np.mean(per_f)),
-        "lp_iou_mean_best": float(np.mean(mean_iou)),
-        "lp_fscore_mean_best": float(np.mean(mean_f)),
-        "per_shape_iou": per_iou,
-        "per_shape_fscore": per_f,
-    }
-
-
-def lp_iou(
-    reference: np.ndarray,
-    generated,
-    patch: int = 11,
-    stride: int = 5,
-    center: int = 3,
-    max_patches: int = 1000,
-    threshold: float = 0.95,
-    seed: int = 0,
-) -> float:
-    """LP-IoU: mean fraction of generated patches whose best reference IoU exceeds ``threshold``.
-
-    See :func:`lp_scores`, which computes LP-IoU and LP-F-score in one pass.
-    """
-    return lp_scores(reference, generated, patch, stride, center, max_patches, threshold, seed)["lp_iou"]
-
-
-def lp_fscore(
-    reference: np.ndarray,
-    generated,
-    patch: int = 11,
-    stride: int = 5,
-    center: int = 3,
-    max_patches: int = 1000,
-    threshold: float = 0.95,
-    seed: int = 0,
-) -> float:
-    """LP-F-score: as :func:`lp_iou` with the patch F-score (Dice) instead of IoU; see :func:`lp_scores`."""
-    return lp_scores(reference, generated, patch, stride, center, max_patches, threshold, seed)["lp_fscore"]
-
-
-def patch_matches(
-    reference: np.ndarray,
-    generated: np.ndarray,
-    n: int = 4,
-    patch: int = 11,
-    stride: int = 5,
-    center: int = 3,
-    max_patches: int = 1000,
-    seed: int = 0,
-) -> dict:
-    """What LP-IoU compares, for a picture: ``n`` surface patches of one generated grid and their best input patch.
-
-    The patches are those :func:`lp_scores` takes (same ``patch``, ``stride``,
-    ``center``, ``max_patches`` and ``seed``); the ``n`` shown are spread evenly
-    over the range of best IoU, from the worst-matched patch to the best one.
-
-    Returns ``generated`` and ``matched`` (``(n, patch, patch, patch)`` bool: the
-    generated patches and, for each, the input patch with the highest IoU),
-    their ``iou`` and ``fscore`` (``(n,)``), ``best_iou`` (every compared patch's
-    best IoU: LP-IoU is the share of these above the threshold) and ``threshold``.
-    """
-    ref = extract_patches(reference, patch, stride, center)
-    gen = extract_patches(generated, patch, stride, center)
-    if len(ref) == 0 or len(gen) == 0:
-        raise Sin3DMInputError("both occupancy grids need surface patches (is one of them empty or full?)")
-    if len(gen) > max_patches:  # the same subset lp_scores draws for a first (or only) shape
-        gen = gen[np.random.default_rng(seed).choice(len(gen), max_patches, replace=False)]
-    best_iou, _, best_at = _best_matches(gen, ref, return_index=True)
-    order = np.argsort(best_iou, kind="stable")
-    pick = order[np.unique(np.round(np.linspace(0, len(order) - 1, min(n, len(order)))).astype(int))]
-    g, r = gen[pick].astype(np.float64), ref[best_at[pick]].astype(np.float64)
-    inter = (g * r).sum(1)
-    cube = (len(pick), patch, patch, patch)
-    return {
-        "generated": gen[pick].reshape(cube),
-        "matched": ref[best_at[pick]].reshape(cube),
-        "iou": best_iou[pick],
-        "fscore": 2 * inter / (g.sum(1) + r.sum(1)),
-        "best_iou": best_iou,
-        "threshold": 0.95,
-    }
-
-
 # ----------------------------------------------------------------------------- geometry, all at once
-def geometry_scores(reference: np.ndarray, samples) -> dict:
+def geometry_scores(reference: np.ndarray, samples, any_offset: bool = True) -> dict:
     """The paper's weight-free geometry metrics of generated shapes against the input (occupancy grids, one box).
 
     * ``g_div`` — G-Div: mean pairwise ``1 − IoU`` among the samples (higher = more diverse; None for one sample);
     * ``lp_iou``, ``lp_fscore`` — LP-IoU / LP-F: share of the samples' local 11³ patches that have a near-exact
-      match (> 0.95) somewhere in the input (higher = locally more plausible), see :func:`lp_scores`;
-    * ``iou_to_input`` — mean IoU of each sample with the input (near 1 = copies of the input).
+      match (> 0.95) among the input's patches on the same stride-5 lattice (higher = locally more like the
+      input), see :func:`~sin3dm_lite.evaluate.patches.lp_scores`;
+    * ``iou_to_input`` — mean IoU of each sample with the input (near 1 = copies of the input);
+    * with ``any_offset``, ``lp_iou_any_offset``, ``lp_fscore_any_offset`` — **not in the paper**: the same
+      patches matched against the input's patches at every voxel, so a piece of the input moved by a few
+      voxels counts (:func:`~sin3dm_lite.evaluate.patches.lp_scores_any_offset`; about 1 s a sample at 128;
+      None above 192 voxels a side).
     """
     samples = list(samples)
     lp, var = lp_scores(reference, samples), variation_scores(reference, samples)
-    return {
+    out = {
         "g_div": var["g_div"],
         "lp_iou": lp["lp_iou"],
         "lp_fscore": lp["lp_fscore"],
         "iou_to_input": var["iou_to_input"],
     }
+    if any_offset and max(np.shape(reference)) <= ANY_OFFSET_MAX_VOXELS:  # beyond: None, a '-' in the tables
+        out.update({k: v for k, v in lp_scores_any_offset(reference, samples).items() if not k.startswith("per_")})
+    else:
+        out.update(lp_iou_any_offset=None, lp_fscore_any_offset=None)
+    return out

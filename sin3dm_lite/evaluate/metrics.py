@@ -26,21 +26,24 @@ from .features import (  # noqa: F401
 )
 from .geometry import (  # noqa: F401
     check_same_grid,
-    extract_patches,
     g_div,
     g_div_by_layer,
     geometry_scores,
     input_occupancy,
     iou,
-    lp_fscore,
-    lp_iou,
-    lp_scores,
     pairwise_iou,
-    patch_matches,
     reconstruction_iou,
     reconstruction_metrics,
     variation_scores,
     voxelize,
+)
+from .patches import (  # noqa: F401
+    extract_patches,
+    lp_fscore,
+    lp_iou,
+    lp_scores,
+    lp_scores_any_offset,
+    patch_matches,
 )
 from .texture import (  # noqa: F401
     BACKGROUND,
@@ -58,6 +61,12 @@ METRICS = (
     ("g_div", "G-Div", "higher = more diverse shapes"),
     ("lp_iou", "LP-IoU", "higher = local geometry like the input's"),
     ("lp_fscore", "LP-F", "higher = local geometry like the input's"),
+    ("lp_iou_any_offset", "not in the paper", "LP-IoU against the input's patches at every voxel (moved pieces count)"),
+    (
+        "lp_fscore_any_offset",
+        "not in the paper",
+        "LP-F against the input's patches at every voxel (moved pieces count)",
+    ),
     ("iou_to_input", "not in the paper", "near 1 = copies of the input"),
     ("ssfid", "G-Qual (SSFID)", "lower = better"),
     ("patch_swd", "T-Qual stand-in", "lower = texture patches like the input's (weight-free, not SIFID)"),
@@ -77,10 +86,11 @@ def results_table(columns: dict, digits: int = 3) -> str:
         raise Sin3DMInputError("results_table needs at least one column")
     values = {label: r.get("metrics", r) for label, r in columns.items()}
     width = max(10, digits + 4, *(len(label) for label in values))
-    lines = [f"{'metric':14s} " + " ".join(f"{label:>{width}s}" for label in values) + "  paper's name: meaning"]
+    keys = max(len(key) for key, _, _ in METRICS)
+    lines = [f"{'metric':{keys}s} " + " ".join(f"{label:>{width}s}" for label in values) + "  paper's name: meaning"]
     for key, paper, meaning in METRICS:
         cells = ["-" if m.get(key) is None else f"{m[key]:.{digits}f}" for m in values.values()]
-        lines.append(f"{key:14s} " + " ".join(f"{c:>{width}s}" for c in cells) + f"  {paper}: {meaning}")
+        lines.append(f"{key:{keys}s} " + " ".join(f"{c:>{width}s}" for c in cells) + f"  {paper}: {meaning}")
     return "\n".join(lines)
 
 
@@ -126,6 +136,7 @@ __all__ = [
     "lp_fscore",
     "lp_iou",
     "lp_scores",
+    "lp_scores_any_offset",
     "pairwise_iou",
     "patch_matches",
     "reconstruction_metrics",
