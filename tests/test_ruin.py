@@ -106,6 +106,15 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     assert switched.grid == quick.grid and switched.sampling.snap == 1.0 and switched.name == "quick+thin"
     said = thin_parts_message(quick, switched, grid, thin)
     assert f"{thin:.0%}" in said and "snapped" in said and "--thin-switch" in said and "96 voxels" in said
+    # almost all thin walls: the message also names the wider denoiser that keeps the stepped top ...
+    assert "--set diffusion.n_resblocks=4" in said and "updated(**{'diffusion.n_resblocks': 4})" in said
+    # ... but not for a shape of fewer thin parts (the colonnade's 0.24), nor when the fit already has it
+    assert "n_resblocks" not in thin_parts_message(quick, switched, grid, 0.3)
+    wide = quick.updated(**{"diffusion.n_resblocks": 4})
+    wide_switched = thin_parts_switch(wide, grid, thin)
+    assert wide_switched.diffusion.n_resblocks == 4 and "n_resblocks" not in thin_parts_message(
+        wide, wide_switched, grid, thin
+    )
     assert thin_parts_hint(quick, grid, thin) is None  # it switched: the message says it all
     plain = quick.updated(thin_parts={})  # --no-thin-switch
     hint = thin_parts_hint(plain, grid, thin)
