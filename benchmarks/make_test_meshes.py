@@ -1,4 +1,4 @@
-"""Write four meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
+"""Write five meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
 
     python benchmarks/make_test_meshes.py OUT_DIR
 
@@ -10,6 +10,8 @@
   sand ridges, darker in the troughs (a smooth, organic surface; no thin parts).
 * ``ruin.obj``   — a ruined round tower (``sin3dm_lite.data.ruin``): walls 2.5 voxels thick at a
   64-voxel training grid, a stepped broken top, a door and two windows (the paper's kind of demo shape).
+* ``keep.obj``   — the same ruin with a square plan (``build_ruin(square=True)``): straight thin walls,
+  the stepped top, a door and two windows (a second thin-walled shape, of another plan).
 """
 
 from __future__ import annotations
@@ -128,7 +130,8 @@ def main() -> None:
     rocks().export(out / "rocks.stl")
     dunes().export(out / "dunes.ply")
     save_obj(build_ruin(0), out / "ruin.obj")
-    print(f"wrote {out / 'rocks.stl'}, {tiles(out)}, {out / 'dunes.ply'} and {out / 'ruin.obj'}")
+    save_obj(build_ruin(0, square=True), out / "keep.obj")
+    print(f"wrote {out / 'rocks.stl'}, {tiles(out)}, {out / 'dunes.ply'}, {out / 'ruin.obj'} and {out / 'keep.obj'}")
 
 
 if __name__ == "__main__":

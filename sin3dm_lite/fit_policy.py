@@ -96,17 +96,19 @@ def thin_walls_advice(cfg: Config, new: Config, thin: float) -> str:
 
     A 2-ResBlock denoiser sees 9 latent texels, less than a ruin's stepped top spans: its samples keep thin
     walls but round the staircase into a ragged, slanted rim. 4 ResBlocks (17 texels) keep the treads and
-    risers at the same G-Div, for about 1.6x the denoiser's time; on a shape of repeated parts they copy
-    the input's arrangement instead (the colonnade: G-Div 0.12 at most instead of 0.21). So it is named,
-    not switched on (docs/thin-parts.md "A wider field for thin walls").
+    risers at the same G-Div, for about 1.6x the denoiser's time; but on a square keep of the same walls
+    they only copy it (G-Div 0.01 even from pure noise), and on a shape of repeated parts they copy the
+    input's arrangement (the colonnade: G-Div 0.12 at most instead of 0.21). So it is named, not switched
+    on (docs/thin-parts.md "A wider field for thin walls").
     """
     if thin <= THIN_WALLS_SHARE or new.diffusion.n_resblocks >= THIN_WALLS_RESBLOCKS:
         return ""
     n = THIN_WALLS_RESBLOCKS
     return (
         f" Almost all of it is thin walls: a denoiser of {n} ResBlocks instead of {new.diffusion.n_resblocks} "
-        "keeps a ruined tower's stepped top and its door, about 1.6x the denoiser's time; on a shape of "
-        f"repeated parts (a colonnade) it varies less: CLI --set diffusion.n_resblocks={n}, Python "
+        "kept a ruined round tower's stepped top and its door at the same variation, for about 1.6x the "
+        "denoiser's time, but made only copies of a square keep (and varied a colonnade less); to try it, and "
+        f"read the calibration's G-Div: CLI --set diffusion.n_resblocks={n}, Python "
         f"{preset_expr(cfg)}.updated(**{{'diffusion.n_resblocks': {n}}})."
     )
 

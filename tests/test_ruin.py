@@ -80,6 +80,27 @@ def test_the_top_breaks_in_steps_and_the_windows_are_open(occupancy):
     assert len(windows) >= 2
 
 
+def test_a_square_keep_has_straight_thin_walls_a_stepped_top_and_a_door():
+    """``square=True``: the same ruin with a square plan: along x through the axis two straight walls 2-3
+    voxels thick (one at the door's height), and the top around the walls at many heights."""
+    keep = build_ruin(0, resolution=TINY.resolution, square=True)
+    o = mesh_to_grid(
+        keep, resolution=TINY.resolution, margin_voxels=TINY.margin_voxels, n_surface_points=1000, progress=False
+    )
+    assert o.thin_share() > 0.6  # almost all thin walls, as the round tower
+    o = o.sdf < 0
+    ys = np.flatnonzero(o.any((0, 2)))
+    height, centre = ys[-1] - ys[0] + 1, o.shape[2] // 2
+    door = ys[0] + 3 + int(0.15 * height)  # the slab, then half the door's height
+    assert [2 <= r <= 3 for r in _runs(o[o.shape[0] // 2, door, :])] == [True, True]  # along z: both walls
+    assert [2 <= r <= 3 for r in _runs(o[:, door, centre])] == [True]  # along x at the door: the +x wall only
+    # straight walls: at one height the walls across z lie in the same rows all along x's middle
+    band = o[o.shape[0] // 2 - 3 : o.shape[0] // 2 + 4, door, :]
+    assert (band == band[:1]).all()
+    top = np.where(o.any(1), o.shape[1] - 1 - np.argmax(o[:, ::-1, :], axis=1), -1)
+    assert len(np.unique(top[top > ys[0] + 3])) >= 6
+
+
 @pytest.mark.parametrize("kw, match", [({"resolution": 8}, "resolution"), ({"wall_voxels": 0.5}, "wall_voxels")])
 def test_bad_sizes_are_named(kw, match):
     with pytest.raises(Sin3DMInputError, match=match):

@@ -8,7 +8,7 @@ exactly by the grid, so even a near copy keeps few of its patches). This module
 builds one, sized in **voxels of the training grid** it is meant for, so that
 its walls are ``wall_voxels`` thick there whatever the resolution:
 
-* a round tower on a square ground slab (3 voxels thick);
+* a round tower on a square ground slab (3 voxels thick), or with ``square=True`` a square keep;
 * its wall ``wall_voxels`` thick (2.5 by default: 2-3 voxels at the grid);
 * a broken top that falls in steps, 3-5 voxels each, from the full height to
   about half of it on one side and rises again (12 steps around);
@@ -41,17 +41,21 @@ DESCRIPTION = (
 )
 
 
-def ruin_tower(rng: np.random.Generator, resolution: int = 64, wall_voxels: float = 2.5) -> TexturedMesh:
+def ruin_tower(
+    rng: np.random.Generator, resolution: int = 64, wall_voxels: float = 2.5, square: bool = False
+) -> TexturedMesh:
     """The ruin, z-up, for a training grid of ``resolution`` voxels along its longest side (its height).
 
     ``rng`` varies the broken top (where it is lowest, each step's height) and
     with it the windows' places (on the high side), and the stones' colours; the door faces -x.
+    ``square``: a square keep instead of a round tower (straight walls along x and y, the same broken
+    top by angle, the windows on the +x and +y faces): a second thin-walled shape of another plan.
     """
     if not 16 <= resolution <= 512:
         raise Sin3DMInputError(f"resolution must be from 16 to 512 voxels, got {resolution!r}")
     if not 1.0 <= wall_voxels <= 8.0:
         raise Sin3DMInputError(f"wall_voxels must be from 1 to 8, got {wall_voxels!r}")
-    plan = _plan(rng, resolution, wall_voxels)
+    plan = _plan(rng, resolution, wall_voxels, square)
     vertices, faces = _surface(plan)
     colors = _colors(rng, vertices, plan)
     return TexturedMesh(
@@ -64,18 +68,18 @@ def ruin_tower(rng: np.random.Generator, resolution: int = 64, wall_voxels: floa
     )
 
 
-def build_ruin(seed: int = 0, resolution: int = 64, wall_voxels: float = 2.5) -> TexturedMesh:
+def build_ruin(seed: int = 0, resolution: int = 64, wall_voxels: float = 2.5, square: bool = False) -> TexturedMesh:
     """:func:`ruin_tower` for ``seed``, turned y-up like the built-in examples (same seed, same mesh)."""
-    mesh = ruin_tower(np.random.default_rng(seed), resolution, wall_voxels)
+    mesh = ruin_tower(np.random.default_rng(seed), resolution, wall_voxels, square)
     mesh.vertices = np.stack([mesh.vertices[:, 0], mesh.vertices[:, 2], -mesh.vertices[:, 1]], axis=1)
     return mesh
 
 
-def _plan(rng: np.random.Generator, resolution: int, wall: float) -> dict:
+def _plan(rng: np.random.Generator, resolution: int, wall: float, square: bool = False) -> dict:
     """The tower's measures, in voxels of the training grid (the height is the longest side)."""
     # the presets keep a margin of empty voxels to the box: the shape's longest side spans resolution - 2·margin
     height = resolution - 2 * get_preset("quick").grid.margin_voxels
-    radius = 0.38 * height  # outer
+    radius = (0.32 if square else 0.38) * height  # outer (a square's half side)
     low = int(rng.integers(STEPS))  # the sector where the top is lowest
     away = np.abs(np.arange(STEPS) - low)
     away = np.minimum(away, STEPS - away)  # sectors from the lowest, 0 … STEPS / 2 (the full height)
@@ -85,6 +89,8 @@ def _plan(rng: np.random.Generator, resolution: int, wall: float) -> dict:
     door = {"angle": np.pi, "width": 0.16 * height, "bottom": slab, "top": slab + 0.3 * height}
     # the windows on the high side, two sectors either side of the highest, where the wall stands above them
     window_angles = -np.pi + (low + STEPS // 2 + np.array([-2, 2]) + 0.5) * 2 * np.pi / STEPS
+    if square:  # through the middle of two faces (an opening at a corner's angle would miss the wall)
+        window_angles = np.array([0.0, np.pi / 2])
     windows = [
         {"angle": a, "width": 0.07 * height, "bottom": b * height, "top": (b + 0.12) * height}
         for a, b in zip(window_angles, (0.42, 0.5))
@@ -99,7 +105,13 @@ def _plan(rng: np.random.Generator, resolution: int, wall: float) -> dict:
         "door": door,
         "windows": windows,
         "resolution": resolution,
+        "square": square,
     }
+
+
+def _across(plan: dict, x, y) -> np.ndarray:
+    """Distance from the tower's axis: round (Euclidean) or square (the larger of |x|, |y|)."""
+    return np.maximum(np.abs(x), np.abs(y)) if plan.get("square") else np.hypot(x, y)
 
 
 def _opening(x, y, z, radius: float, wall: float, o: dict) -> np.ndarray:
@@ -119,7 +131,7 @@ def _opening(x, y, z, radius: float, wall: float, o: dict) -> np.ndarray:
 
 def _sdf(plan: dict, x, y, z) -> np.ndarray:
     """The ruin's signed distance (negative inside; exact enough near its surface for marching cubes)."""
-    r, wall = np.hypot(x, y), plan["wall"]
+    r, wall = _across(plan, x, y), plan["wall"]
     sector = np.floor((np.arctan2(y, x) + np.pi) / (2 * np.pi) * STEPS).astype(int) % STEPS
     ring = np.abs(r - (plan["radius"] - wall / 2)) - wall / 2
     tower = np.maximum.reduce([ring, z - plan["tops"][sector], -z])
@@ -160,7 +172,7 @@ def _colors(rng: np.random.Generator, vertices: np.ndarray, plan: dict) -> np.nd
     joint = (z % course < 0.25) | ((arc / 3.0 + 0.5 * (row % 2)) % 1.0 < 0.08)
     stone[joint] *= 0.6
     earth = np.array([0.45, 0.38, 0.28])
-    colors = np.where(((z < plan["slab"] + 1e-6) & (np.hypot(x, y) > plan["radius"] + 0.5))[:, None], earth, stone)
+    colors = np.where(((z < plan["slab"] + 1e-6) & (_across(plan, x, y) > plan["radius"] + 0.5))[:, None], earth, stone)
     return np.clip(colors, 0.0, 1.0).astype(np.float32)
 
 
