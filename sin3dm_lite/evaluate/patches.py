@@ -24,12 +24,20 @@ def extract_patches(grid: np.ndarray, patch: int = 11, stride: int = 5, center: 
     kept when its central ``center³`` block holds both occupied and empty
     voxels, i.e. it straddles the surface.
     """
+    return _surface_rows(_windows(grid, patch)[::stride, ::stride, ::stride], patch, center)
+
+
+def _windows(grid: np.ndarray, patch: int) -> np.ndarray:
+    """Every ``patch³`` window of the zero-padded grid, window ``(i, j, k)`` centred on voxel ``(i, j, k)`` (a view)."""
     g = np.pad(np.asarray(grid, bool), patch // 2)
-    windows = np.lib.stride_tricks.sliding_window_view(g, (patch,) * 3)[::stride, ::stride, ::stride]
+    return np.lib.stride_tricks.sliding_window_view(g, (patch,) * 3)
+
+
+def _surface_rows(windows: np.ndarray, patch: int, center: int) -> np.ndarray:
+    """The windows whose central ``center³`` block holds both occupied and empty voxels, one per row."""
     c0 = (patch - center) // 2
     count = windows[..., c0 : c0 + center, c0 : c0 + center, c0 : c0 + center].sum(axis=(-3, -2, -1))
-    valid = (count > 0) & (count < center**3)
-    return windows[valid].reshape(-1, patch**3)
+    return windows[(count > 0) & (count < center**3)].reshape(-1, patch**3)
 
 
 def _best_matches(
@@ -205,14 +213,10 @@ def _distinct_patches_at_every_voxel(grid: np.ndarray, patch: int, center: int) 
 
     Taken a slab of 8 voxels at a time and kept bit-packed until the end, so memory grows with the number
     of distinct patches, not with all of them (the ruined tower at 128 voxels: 152k patches, 33k distinct)."""
-    g = np.pad(np.asarray(grid, bool), patch // 2)
-    windows = np.lib.stride_tricks.sliding_window_view(g, (patch,) * 3)
-    c0 = (patch - center) // 2
+    windows = _windows(grid, patch)
     packed = []
-    for x in range(0, windows.shape[0], 8):
-        w = windows[x : x + 8]
-        count = w[..., c0 : c0 + center, c0 : c0 + center, c0 : c0 + center].sum(axis=(-3, -2, -1))
-        rows = np.packbits(w[(count > 0) & (count < center**3)].reshape(-1, patch**3), axis=1)
+    for x in range(0, windows.shape[0], 8):  # the same surface test as extract_patches, so stride 5 ⊂ stride 1
+        rows = np.packbits(_surface_rows(windows[x : x + 8], patch, center), axis=1)
         _, first = np.unique(rows.view(np.dtype((np.void, rows.shape[1]))).ravel(), return_index=True)
         packed.append(rows[first])
     packed = np.ascontiguousarray(np.concatenate(packed))
