@@ -33,10 +33,16 @@ MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 
 QUICK_HINT_MINUTES = 8.0
 
 
-#: above this share of thin parts a shape is almost all thin walls (the ruined tower 0.98; the colonnade 0.24)
+#: above this share of thin parts a shape is almost all thin walls (the ruined tower 0.98, the square keep 1.0; the
+#: colonnade 0.24): ``quick`` then tries a wider denoiser field too (:attr:`Config.thin_walls`)
 THIN_WALLS_SHARE = 0.6
-#: the denoiser depth that keeps such a shape's stepped top and openings (a 17-texel field instead of 9)
-THIN_WALLS_RESBLOCKS = 4
+#: the wider field's trial: after this many denoiser steps (of ``quick``'s 1,000) ...
+WIDE_FIELD_CHECK_STEP = 150
+#: ... this many samples from pure noise, decoded at the training grid, ...
+WIDE_FIELD_CHECK_SAMPLES = 4
+#: ... whose G-Div is below this are copies: the field holds the shape's whole layout (the keep: 0.01-0.03 at step
+#: 150 and after; the ruin, which varies: 0.65 at step 150, 0.36 at the end)
+WIDE_FIELD_COPIES = 0.1
 
 
 # --------------------------------------------------------------------------- thin parts
@@ -50,11 +56,15 @@ def thin_parts_switch(cfg: Config, grid: ShapeGrid, thin: float | None = None) -
     field swell or break such parts (columns, small boxes, slats) in every
     sample, the finer grid keeps them in about the same fit time
     (docs/thin-parts.md). ``thin`` is the share, if already measured.
+
+    ``quick``'s config also has :attr:`Config.thin_walls`, which it adds on a
+    shape that is almost all thin walls (share above :data:`THIN_WALLS_SHARE`):
+    a wider denoiser field, on trial (:func:`wide_field_copies`).
     """
     if not cfg.thin_parts:
         return None
     thin = grid.thin_share() if thin is None else thin
-    return cfg.for_thin_parts() if thin > THIN_SHARE_HINT else None
+    return cfg.for_thin_parts(walls=thin > THIN_WALLS_SHARE) if thin > THIN_SHARE_HINT else None
 
 
 def _finer_settings() -> str:
@@ -79,7 +89,7 @@ def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -
             f"that; no extra fit time{batch}; the run's config is named '{new.name}'). The finer thin-part settings "
             f"{_finer_settings()} keep them better at about 5x the fit time without native bf16: CLI "
             "--thin-switch. To keep the plain sampler: CLI --no-thin-switch, Python "
-            "preset=get_preset(...).updated(thin_parts={})." + thin_walls_advice(cfg, new, thin)
+            "preset=get_preset(...).updated(thin_parts={})." + thin_walls_message(cfg, new)
         )
     return (
         f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
@@ -91,25 +101,68 @@ def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -
     )
 
 
-def thin_walls_advice(cfg: Config, new: Config, thin: float) -> str:
-    """One more sentence for ``quick``'s switch (``cfg`` → ``new``) on a shape that is almost all thin walls, else "".
+def field_width(n_resblocks: int) -> int:
+    """Latent texels one output texel of the package's one-level denoiser sees: two 3×3 convolutions a ResBlock."""
+    return 1 + 4 * n_resblocks
+
+
+def thin_walls_message(cfg: Config, new: Config) -> str:
+    """One more sentence for ``quick``'s switch (``cfg`` → ``new``) when it adds :attr:`Config.thin_walls`, else "".
 
     A 2-ResBlock denoiser sees 9 latent texels, less than a ruin's stepped top spans: its samples keep thin
     walls but round the staircase into a ragged, slanted rim. 4 ResBlocks (17 texels) keep the treads and
-    risers at the same G-Div, for about 1.6x the denoiser's time; but on a square keep of the same walls
-    they only copy it (G-Div 0.01 even from pure noise), and on a shape of repeated parts they copy the
-    input's arrangement (the colonnade: G-Div 0.12 at most instead of 0.21). So it is named, not switched
-    on (docs/thin-parts.md "A wider field for thin walls").
+    risers at the same G-Div; 16 channels instead of 32, trained 1,500 steps instead of 1,000, keep most of
+    that at about 1.3x the denoiser's time instead of 1.75x. But on a square keep of the same walls a 17-texel field holds the whole plan and makes
+    only copies, so the field is on trial: :func:`wide_field_copies` (docs/thin-parts.md "A wider field for
+    thin walls").
     """
-    if thin <= THIN_WALLS_SHARE or new.diffusion.n_resblocks >= THIN_WALLS_RESBLOCKS:
+    if not cfg.thin_walls or new.name.split("+")[-1] != "walls":
         return ""
-    n = THIN_WALLS_RESBLOCKS
+    d0, d1 = cfg.diffusion, new.diffusion
+    steps = f"for {d1.steps:,} steps " if d1.steps != d0.steps else ""
     return (
-        f" Almost all of it is thin walls: a denoiser of {n} ResBlocks instead of {new.diffusion.n_resblocks} "
-        "kept a ruined round tower's stepped top and its door at the same variation, for about 1.6x the "
-        "denoiser's time, but made only copies of a square keep (and varied a colonnade less); to try it, and "
-        f"read the calibration's G-Div: CLI --set diffusion.n_resblocks={n}, Python "
-        f"{preset_expr(cfg)}.updated(**{{'diffusion.n_resblocks': {n}}})."
+        f" Almost all of it is thin walls: its denoiser has {d1.n_resblocks} ResBlocks of {d1.base_channels} channels "
+        f"{steps}instead of {d0.n_resblocks} of {d0.base_channels}, a field of {field_width(d1.n_resblocks)} latent texels "
+        f"instead of {field_width(d0.n_resblocks)}, which keeps a stepped top that the narrower field rounds into a "
+        "slanted rim (about 1.3x the denoiser's time). A field that wide can hold a small shape's whole plan: after "
+        f"{WIDE_FIELD_CHECK_STEP} steps the fit draws {WIDE_FIELD_CHECK_SAMPLES} samples from pure noise and, if "
+        f"they are copies, trains the narrower denoiser instead. To keep the narrower one: CLI --set "
+        f"thin_walls={{}}, Python {preset_expr(cfg)}.updated(thin_walls={{}})."
+    )
+
+
+def wide_field_undo(before: Config) -> dict:
+    """The dotted settings that take the wider denoiser back to ``before``'s (what :attr:`Config.thin_walls` changes)."""
+    old = before.settings()
+    return {k: old[k] for k in before.thin_walls}
+
+
+def wide_field_check_step(cfg: Config) -> int:
+    """The denoiser step at which the wider field's trial looks at its samples (at most the last step)."""
+    return min(WIDE_FIELD_CHECK_STEP, cfg.diffusion.steps)
+
+
+def wide_field_copies(g_div: float) -> bool:
+    """Whether the samples from pure noise of a denoiser with :attr:`Config.thin_walls`' wider field are copies.
+
+    The paper's ablation (its Fig. on receptive fields): too small a field loses the global structure, too large
+    a one "overfits to the input example and is unable to produce variations". Which is too large depends on
+    the shape: on the ruined tower (round, every stretch of wall like the next) a 17-texel field varies where
+    the steps fall; on a square keep of the same walls, whose corners fix every texel's place, it makes only
+    copies, even from pure noise, and it does so from the first hundred steps on (G-Div of 4 samples at the
+    training grid: the keep 0.03 plain, 0.01 snapped after 150 steps; the ruin 0.65). So the trial is cheap.
+    """
+    return g_div < WIDE_FIELD_COPIES
+
+
+def wide_field_message(cfg: Config, g_div: float, undo: dict) -> str:
+    """What the fit says when the wider field copies the shape and it trains the narrower denoiser instead."""
+    changes = ", ".join(f"{k}={v}" for k, v in undo.items())
+    return (
+        f"after {WIDE_FIELD_CHECK_STEP} steps the wider denoiser's {WIDE_FIELD_CHECK_SAMPLES} samples from pure "
+        f"noise are copies of the input (G-Div {g_div:.3f} at the training grid, under {WIDE_FIELD_COPIES}): its "
+        f"{field_width(cfg.diffusion.n_resblocks)}-texel field holds this shape's whole layout, so the denoiser is "
+        f"trained again with the narrower field ({changes}), which varies it"
     )
 
 

@@ -2,7 +2,8 @@
 
     1. grid         the input's TSDF + colour grid (switching to finer settings for thin parts: fit_policy)
     2. autoencoder  the triplane latent of the input and the decoder, with reconstruction metrics
-    3. diffusion    the denoiser trained on that one latent
+    3. diffusion    the denoiser trained on that one latent (a wider field on trial for a shape of thin walls:
+                    it goes back to the narrower one if its first samples are copies)
     4. calibrate    the most varied diversity setting that keeps the input's patches (where the config asks;
                     a shape that keeps them even from pure noise trains its denoiser again with the rollout)
 
@@ -42,6 +43,10 @@ from .fit_policy import (
     thin_parts_hint,
     thin_parts_message,
     thin_parts_switch,
+    wide_field_check_step,
+    wide_field_copies,
+    wide_field_message,
+    wide_field_undo,
 )
 from .model.autoencoder import AutoencoderTrainer
 from .model.decode import reconstructed_grid
@@ -142,6 +147,7 @@ class FitRun:
         # rollout_switch: {plain_calibration, plain_s} when a plain denoiser was trained again with the rollout
         rollout = self.recorded("rollout_switch")
         model, history = self.denoise(cfg, grid, h0, ae, metrics, {**base, "rollout_switch": rollout})
+        cfg = model.config  # the narrower denoiser's, where the wider field copied the shape
         calibration = model.report.get("calibration")
         if rollout is None and cfg.rollout_switch and keeps_goals_from_noise(cfg, calibration):
             # the shape's layout varies little whatever the knob: the rollout costs it no variation (rollout_hint)
@@ -202,6 +208,8 @@ class FitRun:
             if switched is not None:  # too coarse for this shape's thin parts: the finer settings, recorded first
                 say("[fit] " + thin_parts_message(cfg, switched, grid, thin))
                 thin_parts = {"from": cfg.name, "resolution": max(grid.shape), "thin_share": thin}
+                if switched.name.endswith("+walls"):  # the wider field on trial: what undoes it (FitStages.denoise)
+                    thin_parts["wide_field"] = {"undo": wide_field_undo(cfg)}
                 cfg, grid_cfg = switched, cfg.grid
                 if run is not None:  # a resumed run still knows it switched (its report is completed at the end)
                     atomic_write(run / "config.json", cfg.to_json())
@@ -246,12 +254,17 @@ class FitRun:
         from .model.diffusion import DiffusionTrainer
 
         t0 = time.perf_counter()
+        ckpt = self.run / "diffusion.pt" if self.run else None
         dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
         if dm.train_forward is not dm.model:
             self.say(
                 "[fit] diffusion: the first step compiles the denoiser for this GPU (torch.compile, about a minute)"
             )
-        train(dm, self.run / "diffusion.pt" if self.run else None, cfg.checkpoint_every, self.progress, self.say)
+        wide = (report_base.get("thin_parts_switch") or {}).get("wide_field")
+        if wide is not None and "check" not in wide:  # the wider field of Config.thin_walls, on trial
+            train(dm, ckpt, cfg.checkpoint_every, self.progress, self.say, until_step=wide_field_check_step(cfg))
+            cfg, dm = self.wide_field_check(cfg, grid, h0, ae, dm, report_base["thin_parts_switch"])
+        train(dm, ckpt, cfg.checkpoint_every, self.progress, self.say)
         self.timings["diffusion_s"] = time.perf_counter() - t0
 
         report = {
@@ -279,6 +292,39 @@ class FitRun:
             model.calibrate(reference=grid.sdf < 0, progress=self.progress)
             self.timings["calibrate_s"] = time.perf_counter() - t0
         return model, dm.history
+
+    def wide_field_check(self, cfg, grid, h0, ae, dm, thin_parts):
+        """The wider field's trial (:attr:`Config.thin_walls`): a few samples from pure noise of the denoiser as
+        trained so far; if they are copies (:func:`wide_field_copies`), the narrower denoiser's config and a fresh
+        trainer for it, else ``cfg`` and ``dm`` as they are. The outcome is recorded in ``thin_parts``."""
+        from .evaluate.calibrate import sample_occupancy
+        from .evaluate.metrics import g_div
+        from .fit_policy import WIDE_FIELD_CHECK_SAMPLES
+        from .model.diffusion import DiffusionTrainer
+
+        t0 = time.perf_counter()
+        probe = self.build(
+            cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, {}, self.dev
+        )
+        spread = g_div(sample_occupancy(probe, 1.0, WIDE_FIELD_CHECK_SAMPLES, cfg.seed, max(grid.shape)))
+        wide = thin_parts["wide_field"]
+        wide["check"] = {"step": dm.step_count, "g_div": spread, "copies": wide_field_copies(spread)}
+        if wide["check"]["copies"]:
+            self.say("[fit] " + wide_field_message(cfg, spread, wide["undo"]))
+            cfg = cfg.updated(**wide["undo"], name=cfg.name.replace("+walls", "+thin"))
+            dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
+            if self.run is not None:  # the wider checkpoint goes first: the narrower config never meets it
+                (self.run / "diffusion.pt").unlink(missing_ok=True)
+                atomic_write(self.run / "config.json", cfg.to_json())
+        else:
+            self.say(
+                f"[fit] after {dm.step_count} steps the wider denoiser's samples from pure noise vary (G-Div "
+                f"{spread:.2f} at the training grid): it keeps its field"
+            )
+        if self.run is not None:  # a resumed fit does not check again
+            atomic_write(self.run / "report.json", json.dumps({"thin_parts_switch": thin_parts}, indent=2))
+        self.timings["wide_field_check_s"] = time.perf_counter() - t0
+        return cfg, dm
 
     def switch_to_rollout(self, cfg, grid, h0, ae, metrics, base, calibration):
         """Stages 3 and 4 again with the cross-plane rollout (:attr:`Config.rollout_switch`); the new config, model,
@@ -310,8 +356,9 @@ class FitRun:
         return cfg, model, history, rollout
 
 
-def train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:
-    """Run a trainer (:class:`~sin3dm_lite.training.Trainer`) to its end, checkpointing every ``every`` steps.
+def train(trainer, ckpt: Path | None, every: int, progress: bool, say, until_step: int | None = None) -> None:
+    """Run a trainer (:class:`~sin3dm_lite.training.Trainer`) to its end (or ``until_step``), checkpointing every
+    ``every`` steps; a fresh trainer resumes from ``ckpt`` where it exists.
 
     Ctrl-C (SIGINT) is honoured only *between* steps, after a checkpoint of the
     last finished step has been written, so a resumed run loses no work and
@@ -319,7 +366,7 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:
     """
     label = trainer.kind
     saved = {"step": None}  # the step the checkpoint file holds
-    if ckpt is not None and ckpt.exists():
+    if ckpt is not None and ckpt.exists() and trainer.step_count == 0:
         resume_trainer(trainer, ckpt)
         saved["step"] = trainer.step_count
         say(f"[fit] {label}: resumed at step {trainer.step_count}")
@@ -343,7 +390,7 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:
     main = threading.current_thread() is threading.main_thread()
     old = signal.signal(signal.SIGINT, on_sigint) if main else None
     try:
-        trainer.run(progress=progress, callback=checkpoint)
+        trainer.run(until_step, progress=progress, callback=checkpoint)
     finally:
         if main:
             signal.signal(signal.SIGINT, old)

@@ -109,7 +109,12 @@ class Sin3DM:
         patches even from pure noise is trained again with the cross-plane
         rollout and calibrated again (:func:`fit_policy.keeps_goals_from_noise`; the report
         keeps the first calibration as ``rollout_switch``);
-        ``.updated(rollout_switch={})`` keeps the plain one.
+        ``.updated(rollout_switch={})`` keeps the plain one. With
+        :attr:`Config.thin_walls` (``quick``), a shape that is almost all thin
+        walls gets a wider denoiser field too, which goes back to the narrower
+        one if its samples from pure noise copy the shape after a few steps
+        (:func:`fit_policy.wide_field_copies`; the report's ``thin_parts_switch``
+        records the check); ``.updated(thin_walls={})`` keeps the narrower one.
 
         ``preset`` is a preset's name or a :class:`Config` (default: ``small``).
 

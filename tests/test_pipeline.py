@@ -412,6 +412,53 @@ def test_a_switch_that_keeps_the_grid_snaps_the_samples_without_a_second_grid(tm
     assert model.report["thin_parts_switch"]["from"] == "quick"
 
 
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps
+@pytest.mark.parametrize("copies", [True, False])
+def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(tmp_path, capsys, monkeypatch, copies):
+    """quick's thin-walls switch (Config.thin_walls): the wider denoiser trains to the check step, its samples from
+    pure noise are looked at; copies send the fit back to the narrower denoiser, trained from its first step, and
+    the run folder holds that one; varied samples keep the wider one. The outcome is recorded, and a resumed fit
+    does not check again."""
+    from sin3dm_lite import fit_policy, fitting
+
+    monkeypatch.setattr(fit_policy, "THIN_WALLS_SHARE", 0.0)  # the tiles at 24 voxels count as thin walls here
+    monkeypatch.setattr(fit_policy, "WIDE_FIELD_CHECK_STEP", 3)
+    spreads = []
+    monkeypatch.setattr(fitting, "wide_field_copies", lambda g: spreads.append(g) or copies)
+    cfg = micro_config().updated(
+        **{
+            "name": "quick",
+            "autoencoder.steps": 2,
+            "diffusion.steps": 6,
+            "thin_parts": {"sampling.snap": 1.0},
+            "thin_walls": {"diffusion.n_resblocks": 3, "diffusion.base_channels": 8},
+        }
+    )
+    run = tmp_path / "tiles"
+    model = Sin3DM.fit("tiles", preset=cfg, out=run, progress=True)
+    out = capsys.readouterr().out
+    assert "a field of 13 latent texels instead of 9" in out and "after 3 steps" in out
+    assert len(spreads) == 1 and 0.0 <= spreads[0] <= 1.0  # one look, a G-Div
+    check = model.report["thin_parts_switch"]["wide_field"]
+    assert check["undo"] == {"diffusion.n_resblocks": 2, "diffusion.base_channels": 16}
+    assert check["check"] == {"step": 3, "g_div": spreads[0], "copies": copies}
+    saved = Config.from_dict(json.loads((run / "config.json").read_text()))
+    if copies:
+        assert "are copies of the input" in out and "trained again with the narrower field" in out
+        assert saved.name == "quick+thin" and (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (2, 16)
+    else:
+        assert "it keeps its field" in out
+        assert saved.name == "quick+walls" and (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (3, 8)
+    assert model.config == saved and saved.sampling.snap == 1.0
+    losses = json.loads((run / "losses.json").read_text())["diffusion"]["loss"]
+    assert len(losses) == 6  # the kept denoiser's, all its steps
+    loaded = Sin3DM.load(run)
+    assert loaded.config == saved and loaded.sample(1, seed=0, progress=False).triplane.planes[0].shape[0] == 1
+    monkeypatch.setattr(fitting, "wide_field_copies", lambda g: pytest.fail("a resumed fit checked again"))
+    resumed = Sin3DM.fit("tiles", out=run, resume=True, progress=False)
+    assert resumed.config == saved and resumed.report["thin_parts_switch"]["wide_field"] == check
+
+
 def test_small_switches_to_exactly_the_detail_settings():
     """The 'detail' preset is what small switches to (one source of truth), and it does not switch again."""
     small, detail = get_preset("small"), get_preset("detail")
@@ -421,8 +468,15 @@ def test_small_switches_to_exactly_the_detail_settings():
     # the light preset for CPUs without bf16 switches to snapped samples (and their denoiser batch of 6): the same
     # grid and networks
     quick = get_preset("quick")
-    snapped = quick.updated(**{"sampling.snap": 1.0, "diffusion.batch_size": 6}, name="quick+thin", thin_parts={})
+    snapped = quick.updated(
+        **{"sampling.snap": 1.0, "diffusion.batch_size": 6}, name="quick+thin", thin_parts={}, thin_walls={}
+    )
     assert quick.for_thin_parts() == snapped
+    # ... and on a shape of thin walls only, a wider denoiser field too (on trial: fitting.FitStages.denoise)
+    walls = snapped.updated(
+        **{"diffusion.n_resblocks": 4, "diffusion.base_channels": 16, "diffusion.steps": 1500}, name="quick+walls"
+    )
+    assert quick.for_thin_parts(walls=True) == walls and small.for_thin_parts(walls=True) == switched
     # the rollout switch: small has it, what already has the rollout (detail, paper) or a light CPU (quick) does not
     assert small.rollout_switch and not detail.rollout_switch and not get_preset("quick").rollout_switch
     rolled = small.for_rollout()

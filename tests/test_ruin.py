@@ -124,18 +124,24 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     thin = grid.thin_share()
     assert thin > 0.5
     switched = thin_parts_switch(quick, grid, thin)
-    assert switched.grid == quick.grid and switched.sampling.snap == 1.0 and switched.name == "quick+thin"
+    # almost all thin walls: snapped samples and, on trial, the wider denoiser field (4 ResBlocks of 16 channels)
+    assert switched.grid == quick.grid and switched.sampling.snap == 1.0 and switched.name == "quick+walls"
+    d = switched.diffusion
+    assert (d.n_resblocks, d.base_channels, d.steps) == (4, 16, 1500)
+    assert switched.thin_walls == {} and switched.thin_parts == {}
     said = thin_parts_message(quick, switched, grid, thin)
     assert f"{thin:.0%}" in said and "snapped" in said and "--thin-switch" in said and "96 voxels" in said
-    # almost all thin walls: the message also names the wider denoiser that keeps the stepped top ...
-    assert "--set diffusion.n_resblocks=4" in said and "updated(**{'diffusion.n_resblocks': 4})" in said
-    # ... but not for a shape of fewer thin parts (the colonnade's 0.24), nor when the fit already has it
-    assert "n_resblocks" not in thin_parts_message(quick, switched, grid, 0.3)
-    wide = quick.updated(**{"diffusion.n_resblocks": 4})
-    wide_switched = thin_parts_switch(wide, grid, thin)
-    assert wide_switched.diffusion.n_resblocks == 4 and "n_resblocks" not in thin_parts_message(
-        wide, wide_switched, grid, thin
-    )
+    assert "4 ResBlocks of 16 channels for 1,500 steps instead of 2 of 32" in said
+    assert "a field of 17 latent texels instead of 9" in said and "after 150 steps" in said
+    assert "--set thin_walls={}" in said and "updated(thin_walls={})" in said
+    # a shape of fewer thin parts (the colonnade's 0.24) gets the snapped samples only, and so does a fit whose
+    # denoiser the user chose (a setting thin_walls names) or without the trial
+    fewer = thin_parts_switch(quick, grid, 0.3)
+    assert fewer.name == "quick+thin" and fewer.diffusion == quick.updated(**{"diffusion.batch_size": 6}).diffusion
+    assert "ResBlocks" not in thin_parts_message(quick, fewer, grid, 0.3)
+    wide = quick.updated(**{"diffusion.n_resblocks": 3})
+    assert wide.thin_walls == {} and thin_parts_switch(wide, grid, thin).diffusion.n_resblocks == 3
+    assert thin_parts_switch(quick.updated(thin_walls={}), grid, thin).name == "quick+thin"
     assert thin_parts_hint(quick, grid, thin) is None  # it switched: the message says it all
     plain = quick.updated(thin_parts={})  # --no-thin-switch
     hint = thin_parts_hint(plain, grid, thin)
@@ -147,6 +153,8 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     assert thin_parts_hint(plain, grid, 0.1) is None and thin_parts_switch(quick, grid, 0.1) is None  # few thin parts
     assert thin_parts_hint(get_preset("tiny"), grid, thin) is None  # tests' 32 voxels
     # the finer settings the message names do what it says
-    asked = quick.updated(thin_parts={**quick.thin_parts, **small.thin_parts}).for_thin_parts()
-    assert asked.grid.resolution == 96 and asked.diffusion.rollout and asked.autoencoder.mlp_hidden == 128
-    assert asked.sampling.snap == 1.0
+    asked = quick.updated(thin_parts={**quick.thin_parts, **small.thin_parts})
+    for walls in (False, True):  # the finer settings' own 4-ResBlock field, not the trial's narrower channels
+        finer = asked.for_thin_parts(walls=walls)
+        assert finer.grid.resolution == 96 and finer.diffusion.rollout and finer.autoencoder.mlp_hidden == 128
+        assert finer.sampling.snap == 1.0 and finer.diffusion.base_channels == 32 and finer.name == "quick+thin"

@@ -94,6 +94,7 @@ def cmd_fit(a) -> None:
         # quick's switch keeps its grid for the cost: the finer settings asked for here, beside its own switch
         # (settings the user sets stay theirs)
         changes["thin_parts"] = {**base.thin_parts, **{k: v for k, v in DETAIL_CHANGES.items() if k not in changes}}
+        changes.setdefault("thin_walls", {})  # the finer settings bring their own 4-ResBlock field
     if not a.rollout_switch:
         changes["rollout_switch"] = {}
     preset = base.updated(**changes) if changes else name

@@ -126,6 +126,11 @@ class Config:
     # wall's brick body, dunes): Sin3DM.fit then trains the denoiser again with them, and the planes agree on fine
     # detail at no cost in variation. {} never switches.
     rollout_switch: dict = field(default_factory=dict)
+    # Dotted settings added to thin_parts' when a shape is almost all thin walls (ShapeGrid.thin_share above
+    # fit_policy.THIN_WALLS_SHARE): a wider denoiser field, on trial. Sin3DM.fit checks early in the denoiser's
+    # training whether that field copies the shape (fit_policy.wide_field_copies) and trains it again without them
+    # if so. {} never switches.
+    thin_walls: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         check_config(self)  # a setting out of range fails where it is made, before any work
@@ -135,16 +140,23 @@ class Config:
         check_config(self)
         return self
 
-    def for_thin_parts(self) -> Config:
-        """These settings with :attr:`thin_parts` applied, nothing left to switch, named ``<name>+thin``.
+    def for_thin_parts(self, walls: bool = False) -> Config:
+        """These settings with :attr:`thin_parts` applied, nothing left to switch, named ``<name>+thin``; with
+        ``walls``, :attr:`thin_walls` too, named ``<name>+walls``.
 
         A grid too coarse for a shape's thin parts (columns 2-3 voxels thick)
         swells or breaks them in every sample; the finer grid needs a wider
         denoiser field too, so that the field keeps its share of the latent.
+        A shape of thin walls only (a ruined tower) needs a field wide enough
+        to hold its stepped top.
         """
-        if not self.thin_parts:
+        # thin_parts that set the denoiser themselves (the finer settings of --thin-switch) leave nothing to try
+        walls = walls and bool(self.thin_walls) and not set(self.thin_walls) & set(self.thin_parts)
+        if not self.thin_parts and not walls:
             return self
-        return self.updated(**self.thin_parts, name=f"{self.name}+thin", thin_parts={})
+        changes = {**self.thin_parts, **(self.thin_walls if walls else {})}
+        suffix = "walls" if walls else "thin"
+        return self.updated(**changes, name=f"{self.name}+{suffix}", thin_parts={}, thin_walls={})
 
     def for_rollout(self) -> Config:
         """These settings with :attr:`rollout_switch` applied (the cross-plane rollout on), nothing left to switch."""
@@ -173,7 +185,8 @@ class Config:
         the thin-part switch never undoes it (``small`` with 6 ResBlocks keeps
         6 on the colonnade), unless the same call sets ``thin_parts`` itself;
         it likewise leaves :attr:`rollout_switch`, and setting ``diffusion.rollout``
-        turns that switch off.
+        turns that switch off; changing a setting :attr:`thin_walls` names
+        turns that one off.
         """
         d = self.to_dict()
         for key, value in changes.items():
@@ -191,6 +204,8 @@ class Config:
         if "rollout_switch" not in changes:
             kept = {k: v for k, v in d["rollout_switch"].items() if k not in changes}
             d["rollout_switch"] = kept if "diffusion.rollout" in kept else {}  # the rollout chosen: nothing to switch
+        if "thin_walls" not in changes and any(k in changes for k in d["thin_walls"]):
+            d["thin_walls"] = {}  # the denoiser chosen: nothing to try
         return Config.from_dict(d)
 
 
@@ -204,6 +219,7 @@ LIMITS: dict[str, Any] = {
     "checkpoint_every": (1, 10**9),
     "thin_parts": dict,
     "rollout_switch": dict,
+    "thin_walls": dict,
     "grid.resolution": (16, 512),
     "grid.threshold_voxels": (0.5, 32.0),
     "grid.n_surface_points": (1_000, 50_000_000),
@@ -341,7 +357,7 @@ def check_config(cfg: Config) -> None:
         if key not in LIMITS:
             raise unknown_setting(key)
         check_setting(key, value)
-    for switch in ("thin_parts", "rollout_switch"):
+    for switch in ("thin_parts", "rollout_switch", "thin_walls"):
         for key, value in flat[switch].items():
             if key not in LIMITS or LIMITS[key] is dict:
                 raise Sin3DMInputError(
