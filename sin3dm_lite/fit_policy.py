@@ -112,9 +112,9 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
     A 2-ResBlock denoiser sees 9 latent texels, less than a ruin's stepped top spans: its samples keep thin
     walls but round the staircase into a ragged, slanted rim. 4 ResBlocks (17 texels) keep the treads and
     risers at the same G-Div; 16 channels instead of 32, trained 1,500 steps instead of 1,000, keep most of
-    that at about 1.3x the denoiser's time instead of 1.75x. But on a square keep of the same walls a 17-texel field holds the whole plan and makes
-    only copies, so the field is on trial: :func:`wide_field_copies` (docs/thin-parts.md "A wider field for
-    thin walls").
+    that at about 1.2-1.3x the denoiser's time instead of 1.75x. But on a square keep of the same walls a
+    17-texel field holds the whole plan and makes only copies, so the field is on trial:
+    :func:`wide_field_copies` (docs/thin-parts.md "`quick`'s thin-walls switch: the wider field, on trial").
     """
     if not cfg.thin_walls or new.name.split("+")[-1] != "walls":
         return ""
@@ -124,7 +124,7 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
         f" Almost all of it is thin walls: its denoiser has {d1.n_resblocks} ResBlocks of {d1.base_channels} channels "
         f"{steps}instead of {d0.n_resblocks} of {d0.base_channels}, a field of {field_width(d1.n_resblocks)} latent texels "
         f"instead of {field_width(d0.n_resblocks)}, which keeps a stepped top that the narrower field rounds into a "
-        "slanted rim (about 1.3x the denoiser's time). A field that wide can hold a small shape's whole plan: after "
+        "slanted rim (about 1.2-1.3x the denoiser's time). A field that wide can hold a small shape's whole plan: after "
         f"{WIDE_FIELD_CHECK_STEP} steps the fit draws {WIDE_FIELD_CHECK_SAMPLES} samples from pure noise and, if "
         f"they are copies, trains the narrower denoiser instead. To keep the narrower one: CLI --set "
         f"thin_walls={{}}, Python {preset_expr(cfg)}.updated(thin_walls={{}})."
