@@ -348,13 +348,17 @@ def test_fit_passes_the_thin_part_switch_choice(tmp_path, monkeypatch, flag, swi
 
 @pytest.mark.parametrize("flag", [[], ["--thin-switch"], ["--no-thin-switch"]])
 def test_quick_gets_the_finer_thin_part_settings_only_when_asked(tmp_path, monkeypatch, flag):
-    """quick's own switch snaps the samples (its finer settings take 5x its fit without bf16); --thin-switch adds
-    small's thin-part settings, leaving a setting the user names to the user; --no-thin-switch turns it off."""
-    from sin3dm_lite.data.presets import DETAIL_CHANGES, QUICK_THIN_CHANGES, get_preset
+    """quick's own switch snaps the samples (its finer settings take 5x its fit without bf16) and tries a wider
+    denoiser field on thin walls; --thin-switch adds small's thin-part settings instead of that field, leaving a
+    setting the user names to the user; --no-thin-switch turns both off, --set thin_walls={} the field alone."""
+    from sin3dm_lite.data.presets import DETAIL_CHANGES, QUICK_THIN_CHANGES, QUICK_WALLS_CHANGES, get_preset
 
     cfg = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--preset", "quick", *flag)
     expected = {(): QUICK_THIN_CHANGES, ("--thin-switch",): {**QUICK_THIN_CHANGES, **DETAIL_CHANGES}}
     assert cfg.name == "quick" and cfg.thin_parts == expected.get(tuple(flag), {})
+    assert cfg.thin_walls == (QUICK_WALLS_CHANGES if flag == [] else {})
+    walls = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--preset", "quick", "--set", "thin_walls={}")
+    assert walls.thin_walls == {} and walls.thin_parts == QUICK_THIN_CHANGES
     assert cfg.for_thin_parts().grid.resolution == (96 if flag == ["--thin-switch"] else 64)
     assert cfg.for_thin_parts().diffusion.batch_size == (6 if flag == [] else 8)  # snapped: batches of 6
     cfg = _preset_fit_gets(

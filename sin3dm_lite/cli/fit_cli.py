@@ -90,6 +90,7 @@ def cmd_fit(a) -> None:
     base = get_preset(name or "small")
     if a.thin_switch is False:
         changes["thin_parts"] = {}
+        changes.setdefault("thin_walls", {})
     elif a.thin_switch and "thin_parts" not in changes and "grid.resolution" not in base.thin_parts:
         # quick's switch keeps its grid for the cost: the finer settings asked for here, beside its own switch
         # (settings the user sets stay theirs)

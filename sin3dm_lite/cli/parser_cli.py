@@ -157,7 +157,8 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         default=None,
         help="on a shape with many thin parts, fit at the 'detail' settings (96 voxels, wider denoiser field): "
         "small does by itself; --thin-switch asks quick too (about 5x its fit time without native bf16); "
-        "--no-thin-switch keeps the preset's grid (default: the preset's choice)",
+        "--no-thin-switch keeps the preset's settings whatever the shape (quick: no snapped samples and, on thin "
+        "walls, no wider denoiser field on trial; --set thin_walls={} drops only that) (default: the preset's choice)",
     )
     f.add_argument(
         "--rollout-switch",
