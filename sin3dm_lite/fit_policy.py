@@ -1,7 +1,8 @@
 """What a fit decides about its input and settings, and what it says about them.
 
 * :func:`thin_parts_switch`: finer settings for a shape that is mostly thin parts (:func:`thin_parts_hint`
-  where the config has no such switch);
+  where the config has no such switch), and for one of thin walls only a wider denoiser field on trial
+  (:func:`wide_field_copies`: the trial's verdict);
 * :func:`keeps_goals_from_noise` / :func:`rollout_hint`: the cross-plane rollout for a shape whose layout
   varies little whatever the diversity knob;
 * :func:`quick_hint`: the ``quick`` preset where the autoencoder would be slow (no native bf16);
