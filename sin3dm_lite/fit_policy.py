@@ -7,7 +7,8 @@
   varies little whatever the diversity knob;
 * :func:`quick_hint`: the ``quick`` preset where the autoencoder would be slow (no native bf16);
 * :func:`choose_pbr`, :func:`check_flips`: which variant to fit, and settings that do not go together;
-* :func:`warn_if_poor`: a reconstruction too poor for useful samples, with the setting to fit again with.
+* :func:`warn_if_poor`: a reconstruction too poor for useful samples, with the setting to fit again with;
+* :func:`from_noise_distance` / :func:`copies_warning`: a fit whose samples from pure noise are the input.
 
 :mod:`sin3dm_lite.fitting` runs the stages and asks these functions; each one is a plain function of the
 config (and the grid or the calibration), so a test or a notebook can ask it too.
@@ -285,6 +286,47 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
             f"{refit_advice(cfg, 'autoencoder.steps', steps * 2**doublings)}",
             stacklevel=3,
         )
+
+
+# --------------------------------------------------------------------------- copies from pure noise
+#: samples from pure noise whose latents lie closer to the input's than this (mean squared difference over the
+#: input latent's variance, :func:`from_noise_distance`) are copies: the square keep with ``small``'s 96-voxel
+#: 4-ResBlock denoiser 0.005; every fit that varies 0.108 or more (the shipped four 0.108-0.167, the ruin 0.109)
+COPIES_DISTANCE = 0.03
+
+
+def from_noise_distance(model, n: int = 4, seed: int = 0) -> float:
+    """How far ``n`` samples from pure noise (diversity 1) lie from the input's latent: their mean squared
+    difference over the input latent's variance, all channels (0: copies; a shape whose samples move its parts
+    0.1 or more). Colour counts: a tiled slab whose samples keep its geometry but reshuffle the tiles' colours
+    is no copy (geometry channels alone 0.005, all 0.108)."""
+    planes = model.sample(n, seed=seed, diversity=1.0, progress=False).triplane.planes
+    ref = model.latent.planes
+    diff = sum(float(((p - r.to(p)) ** 2).mean()) for p, r in zip(planes, ref))
+    spread = sum(float(((r - r.mean()) ** 2).mean()) for r in ref)
+    return diff / max(spread, 1e-12)
+
+
+def copies_warning(cfg: Config, distance: float, thin_parts: dict | None = None) -> str | None:
+    """What a fit warns when its samples from pure noise are copies of the input (:data:`COPIES_DISTANCE`), else
+    None: the denoiser's field holds the shape's whole layout, the paper's "too large a receptive field overfits";
+    no diversity setting varies it. The advice: the fit's thin-part switch off where it brought the wider field
+    (``small`` on a square keep), else fewer ResBlocks."""
+    if distance >= COPIES_DISTANCE:
+        return None
+    d = cfg.diffusion
+    if thin_parts:
+        fix = f"without the thin-part switch (CLI --no-thin-switch; Python {preset_expr(cfg)}.updated(thin_parts={{}}))"
+    elif d.n_resblocks > 1:
+        fix = refit_advice(cfg, "diffusion.n_resblocks", max(1, d.n_resblocks // 2))
+    else:
+        fix = "a smaller field, or another shape"
+    return (
+        f"even from pure noise this fit's samples are copies of the input (their latents differ from the input's by "
+        f"{distance:.1%} of its variance): its denoiser's {field_width(d.n_resblocks)}-texel field holds the whole "
+        "layout of this shape, so no diversity setting varies it; a narrower field varies it, and may break its "
+        f"structure (docs/thin-parts.md): fit again {fix}"
+    )
 
 
 # --------------------------------------------------------------------------- the rollout switch

@@ -35,6 +35,8 @@ from .files import atomic_write, holds_lock, release_lock
 from .fit_policy import (
     calibration_grid_hint,
     choose_pbr,
+    copies_warning,
+    from_noise_distance,
     keeps_goals_from_noise,
     no_rollout_switch,
     quick_hint,
@@ -160,6 +162,13 @@ class FitRun:
             self.say(hint)
         if (hint := calibration_grid_hint(thin_parts, model.report.get("calibration"), self.run)) is not None:
             self.say(hint)
+        if cfg.sampling.calibrate:  # a calibrated fit: do its samples vary at all? (a few samples, about a second)
+            model.report["from_noise_distance"] = distance = from_noise_distance(model, seed=cfg.seed)
+            if (warning := copies_warning(cfg, distance, thin_parts)) is not None:
+                import warnings
+
+                # stacklevel: this method, fitting.fit, Sin3DM.fit, and the code that called it
+                warnings.warn(warning, stacklevel=4)
         if self.run is not None:
             model.save(self.run)
             atomic_write(self.run / "losses.json", json.dumps({"autoencoder": ae.history, "diffusion": history}))

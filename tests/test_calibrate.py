@@ -628,3 +628,47 @@ def test_cli_calibrate_errors_in_one_line(capsys, tmp_path):
     with pytest.raises(SystemExit) as e:
         main(["calibrate", "run", "-n", "1"])
     assert e.value.code == 2 and "at least 2" in capsys.readouterr().err
+
+
+def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower_field(plain_fit, tmp_path):
+    """A calibrated fit measures how far its samples from pure noise lie from the input's latent (recorded in the
+    report); below fit_policy.COPIES_DISTANCE it warns that no diversity setting varies the shape and names the
+    narrower field: the thin-part switch off where it brought the wider one, else half the ResBlocks."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from sin3dm_lite import fitting
+    from sin3dm_lite.data.presets import get_preset
+    from sin3dm_lite.fit_policy import COPIES_DISTANCE, copies_warning, from_noise_distance
+
+    model, run, _ = plain_fit
+    recorded = json.loads((run / "report.json").read_text())["from_noise_distance"]
+    assert recorded == model.report["from_noise_distance"] and recorded >= 0.0
+
+    # the measure: 0 for samples that are the input's latent, the share of its variance otherwise
+    latent = model.latent
+    copies = SimpleNamespace(latent=latent, sample=lambda n, **kw: SimpleNamespace(triplane=latent.repeat(n)))
+    assert from_noise_distance(copies) == 0.0
+    moved = latent.zip_map(latent, lambda a, _: torch.roll(a, 3, dims=-1))
+    shifted = SimpleNamespace(latent=latent, sample=lambda n, **kw: SimpleNamespace(triplane=moved.repeat(n)))
+    assert from_noise_distance(shifted) > COPIES_DISTANCE
+
+    small, quick = get_preset("small"), get_preset("quick")
+    assert copies_warning(small, COPIES_DISTANCE) is None and copies_warning(small, 0.2) is None
+    switched = copies_warning(small.for_thin_parts(), 0.005, {"from": "small"})
+    assert "copies of the input" in switched and "0.5% of its variance" in switched and "17-texel field" in switched
+    assert "--no-thin-switch" in switched and "updated(thin_parts={})" in switched
+    wide = copies_warning(quick.updated(**{"diffusion.n_resblocks": 4}), 0.0)
+    assert "--set diffusion.n_resblocks=2" in wide and "9-texel" not in wide
+
+    # in a fit: the warning (not for the plain fit above, whose samples vary), and the report keeps the distance
+    assert recorded >= COPIES_DISTANCE
+    with pytest.MonkeyPatch.context() as mp, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        mp.setattr(C, "GOALS", KEEP_EVERY_SETTING)
+        mp.setattr(fitting, "from_noise_distance", lambda m, seed=0: 0.001)
+        Sin3DM.fit("wall", preset=micro_config().updated(**PLAIN), out=tmp_path / "w", progress=False)
+    said = [str(w.message) for w in caught if "even from pure noise" in str(w.message)]
+    assert len(said) == 1 and "0.1% of its variance" in said[0] and "diffusion.n_resblocks=1" in said[0]
+    assert json.loads((tmp_path / "w" / "report.json").read_text())["from_noise_distance"] == 0.001
