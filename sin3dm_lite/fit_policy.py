@@ -2,7 +2,7 @@
 
 * :func:`thin_parts_switch`: finer settings for a shape that is mostly thin parts (:func:`thin_parts_hint`
   where the config has no such switch), and for one of thin walls only a wider denoiser field on trial
-  (:func:`wide_field_copies`: the trial's verdict);
+  (:func:`are_copies` on :func:`from_noise_distance`: the trial's verdict);
 * :func:`keeps_goals_from_noise` / :func:`rollout_hint`: the cross-plane rollout for a shape whose layout
   varies little whatever the diversity knob;
 * :func:`quick_hint`: the ``quick`` preset where the autoencoder would be slow (no native bf16);
@@ -38,13 +38,9 @@ QUICK_HINT_MINUTES = 8.0
 #: above this share of thin parts a shape is almost all thin walls (the ruined tower 0.98, the square keep 1.0; the
 #: colonnade 0.24): ``quick`` then tries a wider denoiser field too (:attr:`Config.thin_walls`)
 THIN_WALLS_SHARE = 0.6
-#: the wider field's trial: after this many denoiser steps (of ``quick``'s 1,000) ...
+#: the wider field's trial looks at 4 samples from pure noise after this many denoiser steps (of 1,500):
+#: :func:`are_copies`
 WIDE_FIELD_CHECK_STEP = 150
-#: ... this many samples from pure noise, decoded at the training grid, ...
-WIDE_FIELD_CHECK_SAMPLES = 4
-#: ... whose G-Div is below this are copies: the field holds the shape's whole layout (the keep: 0.01-0.03 at step
-#: 150 and after; the ruin, which varies: 0.65 at step 150, 0.36 at the end)
-WIDE_FIELD_COPIES = 0.1
 
 
 # --------------------------------------------------------------------------- thin parts
@@ -61,7 +57,7 @@ def thin_parts_switch(cfg: Config, grid: ShapeGrid, thin: float | None = None) -
 
     ``quick``'s config also has :attr:`Config.thin_walls`, which it adds on a
     shape that is almost all thin walls (share above :data:`THIN_WALLS_SHARE`):
-    a wider denoiser field, on trial (:func:`wide_field_copies`).
+    a wider denoiser field, on trial (:func:`are_copies`).
     """
     if not cfg.thin_parts:
         return None
@@ -116,9 +112,9 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
     risers at the same G-Div; 16 channels instead of 32, trained 1,500 steps instead of 1,000, keep most of
     that at about 1.2-1.3x the denoiser's time instead of 1.75x. But on a square keep of the same walls a
     17-texel field holds the whole plan and makes only copies, so the field is on trial:
-    :func:`wide_field_copies` (docs/thin-parts.md "`quick`'s thin-walls switch: the wider field, on trial").
+    :func:`are_copies` (docs/thin-parts.md "`quick`'s thin-walls switch: the wider field, on trial").
     """
-    if not cfg.thin_walls or new.name.split("+")[-1] != "walls":
+    if not cfg.thin_walls or not new.name.endswith("+walls"):
         return ""
     d0, d1 = cfg.diffusion, new.diffusion
     steps = f"for {d1.steps:,} steps " if d1.steps != d0.steps else ""
@@ -127,7 +123,7 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
         f"{steps}instead of {d0.n_resblocks} of {d0.base_channels}, a field of {field_width(d1.n_resblocks)} latent texels "
         f"instead of {field_width(d0.n_resblocks)}, which keeps a stepped top that the narrower field rounds into a "
         "slanted rim (about 1.2-1.3x the denoiser's time). A field that wide can hold a small shape's whole plan: after "
-        f"{WIDE_FIELD_CHECK_STEP} steps the fit draws {WIDE_FIELD_CHECK_SAMPLES} samples from pure noise and, if "
+        f"{WIDE_FIELD_CHECK_STEP} steps the fit draws 4 samples from pure noise and, if "
         f"they are copies, trains the narrower denoiser instead. To keep the narrower one: CLI --set "
         f"thin_walls={{}}, Python {preset_expr(cfg)}.updated(thin_walls={{}})."
     )
@@ -144,25 +140,12 @@ def wide_field_check_step(cfg: Config) -> int:
     return min(WIDE_FIELD_CHECK_STEP, cfg.diffusion.steps)
 
 
-def wide_field_copies(g_div: float) -> bool:
-    """Whether the samples from pure noise of a denoiser with :attr:`Config.thin_walls`' wider field are copies.
-
-    The paper's ablation (its Fig. on receptive fields): too small a field loses the global structure, too large
-    a one "overfits to the input example and is unable to produce variations". Which is too large depends on
-    the shape: on the ruined tower (round, every stretch of wall like the next) a 17-texel field varies where
-    the steps fall; on a square keep of the same walls, whose corners fix every texel's place, it makes only
-    copies, even from pure noise, and it does so from the first hundred steps on (G-Div of 4 samples at the
-    training grid: the keep 0.03 plain, 0.01 snapped after 150 steps; the ruin 0.65). So the trial is cheap.
-    """
-    return g_div < WIDE_FIELD_COPIES
-
-
-def wide_field_message(cfg: Config, g_div: float, undo: dict) -> str:
+def wide_field_message(cfg: Config, distance: float, undo: dict) -> str:
     """What the fit says when the wider field copies the shape and it trains the narrower denoiser instead."""
     changes = ", ".join(f"{k}={v}" for k, v in undo.items())
     return (
-        f"after {WIDE_FIELD_CHECK_STEP} steps the wider denoiser's {WIDE_FIELD_CHECK_SAMPLES} samples from pure "
-        f"noise are copies of the input (G-Div {g_div:.3f} at the training grid, under {WIDE_FIELD_COPIES}): its "
+        f"after {WIDE_FIELD_CHECK_STEP} steps the wider denoiser's samples from pure noise are copies of the input "
+        f"(their latents differ from the input's by {distance:.1%} of its variance): its "
         f"{field_width(cfg.diffusion.n_resblocks)}-texel field holds this shape's whole layout, so the denoiser is "
         f"trained again with the narrower field ({changes}), which varies it"
     )
@@ -290,9 +273,24 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
 
 # --------------------------------------------------------------------------- copies from pure noise
 #: samples from pure noise whose latents lie closer to the input's than this (mean squared difference over the
-#: input latent's variance, :func:`from_noise_distance`) are copies: the square keep with ``small``'s 96-voxel
-#: 4-ResBlock denoiser 0.005; every fit that varies 0.108 or more (the shipped four 0.108-0.167, the ruin 0.109)
+#: input latent's variance, :func:`from_noise_distance`) are copies. After the fit: the square keep with
+#: ``small``'s 96-voxel 4-ResBlock denoiser 0.005; every fit that varies 0.108 or more (the shipped four
+#: 0.108-0.167, the ruin 0.109). After 150 steps of ``quick``'s wider field (its trial): the keep 0.004, the grey
+#: and the coloured ruin 0.32 and 0.40.
 COPIES_DISTANCE = 0.03
+
+
+def are_copies(distance: float) -> bool:
+    """Whether samples at :func:`from_noise_distance` ``distance`` from the input are copies of it.
+
+    The paper's ablation (its Fig. on receptive fields): too small a field loses the global structure, too large
+    a one "overfits to the input example and is unable to produce variations". Which is too large depends on
+    the shape: on the ruined tower (round, every stretch of wall like the next) a 17-texel field varies where
+    the steps fall; on a square keep of the same walls, whose corners fix every texel's place, it makes only
+    copies, even from pure noise, and from the first hundred training steps on, so the wider field's trial
+    (after :data:`WIDE_FIELD_CHECK_STEP` steps) is cheap; the same test after a fit is :func:`copies_warning`'s.
+    """
+    return distance < COPIES_DISTANCE
 
 
 def from_noise_distance(model, n: int = 4, seed: int = 0) -> float:
@@ -312,7 +310,7 @@ def copies_warning(cfg: Config, distance: float, thin_parts: dict | None = None)
     None: the denoiser's field holds the shape's whole layout, the paper's "too large a receptive field overfits";
     no diversity setting varies it. The advice: the fit's thin-part switch off where it brought the wider field
     (``small`` on a square keep), else fewer ResBlocks."""
-    if distance >= COPIES_DISTANCE:
+    if not are_copies(distance):
         return None
     d = cfg.diffusion
     if thin_parts:

@@ -33,6 +33,7 @@ from .errors import Sin3DMInputError
 from .evaluate.metrics import reconstruction_metrics
 from .files import atomic_write, holds_lock, release_lock
 from .fit_policy import (
+    are_copies,
     calibration_grid_hint,
     choose_pbr,
     copies_warning,
@@ -46,7 +47,6 @@ from .fit_policy import (
     thin_parts_message,
     thin_parts_switch,
     wide_field_check_step,
-    wide_field_copies,
     wide_field_message,
     wide_field_undo,
 )
@@ -304,22 +304,20 @@ class FitRun:
 
     def wide_field_check(self, cfg, grid, h0, ae, dm, thin_parts):
         """The wider field's trial (:attr:`Config.thin_walls`): a few samples from pure noise of the denoiser as
-        trained so far; if they are copies (:func:`wide_field_copies`), the narrower denoiser's config and a fresh
-        trainer for it, else ``cfg`` and ``dm`` as they are. The outcome is recorded in ``thin_parts``."""
-        from .evaluate.calibrate import sample_occupancy
-        from .evaluate.metrics import g_div
-        from .fit_policy import WIDE_FIELD_CHECK_SAMPLES
+        trained so far; if they are copies (:func:`are_copies` of :func:`from_noise_distance`: latents, nothing
+        decoded), the narrower denoiser's config and a fresh trainer for it, else ``cfg`` and ``dm`` as they are.
+        The outcome is recorded in ``thin_parts``."""
         from .model.diffusion import DiffusionTrainer
 
         t0 = time.perf_counter()
         probe = self.build(
             cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, {}, self.dev
         )
-        spread = g_div(sample_occupancy(probe, 1.0, WIDE_FIELD_CHECK_SAMPLES, cfg.seed, max(grid.shape)))
+        distance = from_noise_distance(probe, seed=cfg.seed)
         wide = thin_parts["wide_field"]
-        wide["check"] = {"step": dm.step_count, "g_div": spread, "copies": wide_field_copies(spread)}
+        wide["check"] = {"step": dm.step_count, "distance": distance, "copies": are_copies(distance)}
         if wide["check"]["copies"]:
-            self.say("[fit] " + wide_field_message(cfg, spread, wide["undo"]))
+            self.say("[fit] " + wide_field_message(cfg, distance, wide["undo"]))
             cfg = cfg.updated(**wide["undo"], name=cfg.name.replace("+walls", "+thin"))
             dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
             if self.run is not None:  # the wider checkpoint goes first: the narrower config never meets it
@@ -327,8 +325,8 @@ class FitRun:
                 atomic_write(self.run / "config.json", cfg.to_json())
         else:
             self.say(
-                f"[fit] after {dm.step_count} steps the wider denoiser's samples from pure noise vary (G-Div "
-                f"{spread:.2f} at the training grid): it keeps its field"
+                f"[fit] after {dm.step_count} steps the wider denoiser's samples from pure noise vary (their latents "
+                f"differ from the input's by {distance:.0%} of its variance): it keeps its field"
             )
         if self.run is not None:  # a resumed fit does not check again
             atomic_write(self.run / "report.json", json.dumps({"thin_parts_switch": thin_parts}, indent=2))

@@ -128,7 +128,7 @@ class Config:
     rollout_switch: dict = field(default_factory=dict)
     # Dotted settings added to thin_parts' when a shape is almost all thin walls (ShapeGrid.thin_share above
     # fit_policy.THIN_WALLS_SHARE): a wider denoiser field, on trial. Sin3DM.fit checks early in the denoiser's
-    # training whether that field copies the shape (fit_policy.wide_field_copies) and trains it again without them
+    # training whether that field copies the shape (fit_policy.are_copies) and trains it again without them
     # if so. {} never switches.
     thin_walls: dict = field(default_factory=dict)
 

@@ -65,7 +65,7 @@ QUICK_THIN_CHANGES = {"sampling.snap": 1.0, "diffusion.batch_size": 6}
 #: tower): 4 ResBlocks of 16 channels for 1,500 steps, a 17-texel field instead of 9, which keeps a stepped top that
 #: 9 texels round into a slanted rim, at about 1.2-1.3x the denoiser's time (a step of 4 × 16 costs less than one of
 #: 2 × 32; 4 × 32 would cost 1.75x). On trial: a shape whose layout that field holds whole (a square keep) makes
-#: only copies with it, which the fit sees after 150 steps and undoes (fit_policy.wide_field_copies;
+#: only copies with it, which the fit sees after 150 steps and undoes (fit_policy.are_copies;
 #: docs/thin-parts.md).
 QUICK_WALLS_CHANGES = {"diffusion.n_resblocks": 4, "diffusion.base_channels": 16, "diffusion.steps": 1500}
 
