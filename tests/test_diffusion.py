@@ -16,7 +16,7 @@ from sin3dm_lite.model.diffusion import (
     soft_mask,
 )
 from sin3dm_lite.model.schedule import NoiseSchedule, ddim_timesteps, sampling_timesteps, start_step
-from sin3dm_lite.model.snap import SNAP_LAST, SNAP_PATCH, snap_to_patches
+from sin3dm_lite.model.snap import SNAP_LAST, SNAP_PATCH, SNAP_STRIDE, snap_to_patches
 from sin3dm_lite.model.triplane import Triplane
 
 from .conftest import LATENT_RES, tiny_diffusion_cfg
@@ -222,6 +222,26 @@ def test_snap_rebuilds_each_plane_from_the_inputs_patches(h0, monkeypatch):
         snap_to_patches(noise, h0, patch=2)
     with pytest.raises(Sin3DMInputError, match="one reference latent"):
         snap_to_patches(noise, h0.repeat(2))
+
+
+def test_snap_with_windows_a_stride_apart_covers_every_texel(h0):
+    """The search starts a window every SNAP_STRIDE texels (a quarter of the searches at 2); every texel of a
+    plane of any size is still rebuilt from the input's windows, and the input itself stays as it is."""
+    assert SNAP_STRIDE == 2
+    g, c = torch.Generator().manual_seed(3), h0.channels
+    odd = Triplane(*(torch.randn(2, c, a, b, generator=g) for a, b in ((7, 5), (7, 9), (5, 9))))  # x 7, y 5, z 9
+    for patch in (1, 3, 5, 7):
+        for stride in (1, 2, 4):
+            out = snap_to_patches(odd, h0, patch=patch, stride=stride)
+            assert all(p.shape == q.shape and torch.isfinite(p).all() for p, q in zip(out.planes, odd.planes))
+            same = snap_to_patches(h0, h0, patch=patch, stride=stride)
+            assert all(torch.allclose(p, q, atol=1e-6) for p, q in zip(same.planes, h0.planes))
+    # stride 1 searches for every window, the default for every second one along each axis
+    strided, every = snap_to_patches(odd, h0), snap_to_patches(odd, h0, stride=1)
+    assert not all(torch.equal(p, q) for p, q in zip(strided.planes, every.planes))
+    assert _nearest_window_distance(strided, h0) < 0.75 * _nearest_window_distance(odd, h0)
+    with pytest.raises(Sin3DMInputError, match="stride"):
+        snap_to_patches(odd, h0, stride=0)
 
 
 def test_snap_searches_without_the_channels_that_are_zero_all_over_the_input(h0, monkeypatch):
