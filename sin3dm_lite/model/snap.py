@@ -71,8 +71,8 @@ def patch_snapper(
     if stride < 1:
         raise Sin3DMInputError(f"the snap stride is a whole number of texels, at least 1; got {stride}")
 
-    def windows(t: torch.Tensor) -> torch.Tensor:  # [B, c·K², h·w]
-        return F.unfold(F.pad(t, (pad,) * 4, mode="replicate") if pad else t, patch)
+    def windows(t: torch.Tensor, step: int = 1) -> torch.Tensor:  # [B, c·K², windows], one every `step` texels
+        return F.unfold(F.pad(t, (pad,) * 4, mode="replicate") if pad else t, patch, stride=step)
 
     theirs = [windows(r)[0] for r in reference.planes]  # [c·K², h'·w'] per plane, cut once
     # channels that are zero all over the input (a shape of one colour: its 8 texture channels) add the same
@@ -87,8 +87,7 @@ def patch_snapper(
         if ref.shape[0] != p.shape[1] * patch * patch:
             raise Sin3DMInputError(f"snap's reference has other channels than the samples' {p.shape[1]}")
         among = search[k].to(p)
-        q = p[:, live.to(p.device)] if keep else p
-        ours = F.unfold(F.pad(q, (pad,) * 4, mode="replicate") if pad else q, patch, stride=stride)
+        ours = windows(p[:, live.to(p.device)] if keep else p, stride)  # [B, c·K², windows]
         n_win = ours.shape[-1]
         ours = ours.transpose(1, 2).reshape(-1, among.shape[0])
         rows = max(1, SNAP_DISTANCES // among.shape[1])  # rows of distances at once
