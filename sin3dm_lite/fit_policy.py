@@ -109,8 +109,9 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
 
     A 2-ResBlock denoiser sees 9 latent texels, less than a ruin's stepped top spans: its samples keep thin
     walls but round the staircase into a ragged, slanted rim. 4 ResBlocks (17 texels) keep the treads and
-    risers at the same G-Div; 16 channels instead of 32, trained 1,500 steps instead of 1,000, keep most of
-    that at about 1.2-1.3x the denoiser's time instead of 1.75x. But on a square keep of the same walls a
+    risers at the same G-Div; 16 channels instead of 32, trained 1,500 steps instead of 1,000 on batches of 4
+    instead of 6, keep most of that in about the narrower denoiser's time (a step 35.6 against 55.7 ms on one
+    thread, 45.9 against 86.1 with AVX2 instructions) instead of 1.75x. But on a square keep of the same walls a
     17-texel field holds the whole plan and makes only copies, so the field is on trial:
     :func:`are_copies` (docs/thin-parts.md "`quick`'s thin-walls switch: the wider field, on trial").
     """
@@ -118,11 +119,12 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
         return ""
     d0, d1 = cfg.diffusion, new.diffusion
     steps = f"for {d1.steps:,} steps " if d1.steps != d0.steps else ""
+    steps += f"on batches of {d1.batch_size} " if d1.batch_size != d0.batch_size else ""
     return (
         f" Almost all of it is thin walls: its denoiser has {d1.n_resblocks} ResBlocks of {d1.base_channels} channels "
         f"{steps}instead of {d0.n_resblocks} of {d0.base_channels}, a field of {field_width(d1.n_resblocks)} latent texels "
         f"instead of {field_width(d0.n_resblocks)}, which keeps a stepped top that the narrower field rounds into a "
-        "slanted rim (about 1.2-1.3x the denoiser's time). A field that wide can hold a small shape's whole plan: after "
+        "slanted rim (in about the narrower denoiser's time, 0.8-1.0x). A field that wide can hold a small shape's whole plan: after "
         f"{WIDE_FIELD_CHECK_STEP} steps the fit draws 4 samples from pure noise and, if "
         f"they are copies, trains the narrower denoiser instead. To keep the narrower one: CLI --set "
         f"thin_walls={{}}, Python {preset_expr(cfg)}.updated(thin_walls={{}})."
@@ -130,8 +132,10 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
 
 
 def wide_field_undo(before: Config) -> dict:
-    """The dotted settings that take the wider denoiser back to ``before``'s (what :attr:`Config.thin_walls` changes)."""
-    old = before.settings()
+    """The dotted settings that take the wider denoiser back to the narrower one of ``before``'s thin-part switch
+    (what :attr:`Config.thin_walls` changes, as :meth:`Config.for_thin_parts` without ``walls`` sets them: for
+    ``quick`` 2 ResBlocks of 32 channels, 1,000 steps, the snapped fits' batches of 6)."""
+    old = before.for_thin_parts().settings()
     return {k: old[k] for k in before.thin_walls}
 
 

@@ -430,8 +430,8 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
             "name": "quick",
             "autoencoder.steps": 2,
             "diffusion.steps": 6,
-            "thin_parts": {"sampling.snap": 1.0},
-            "thin_walls": {"diffusion.n_resblocks": 3, "diffusion.base_channels": 8},
+            "thin_parts": {"sampling.snap": 1.0, "diffusion.batch_size": 3},
+            "thin_walls": {"diffusion.n_resblocks": 3, "diffusion.base_channels": 8, "diffusion.batch_size": 2},
         }
     )
     run = tmp_path / "tiles"
@@ -440,15 +440,18 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
     assert "a field of 13 latent texels instead of 9" in out and "after 3 steps" in out
     assert len(spreads) == 1 and spreads[0] > 0.0  # one look: the samples' distance from the input (untrained: far)
     check = model.report["thin_parts_switch"]["wide_field"]
-    assert check["undo"] == {"diffusion.n_resblocks": 2, "diffusion.base_channels": 16}
+    # back to the thin-part switch's narrower denoiser: the preset's blocks, the switch's batches (not the preset's)
+    assert check["undo"] == {"diffusion.n_resblocks": 2, "diffusion.base_channels": 16, "diffusion.batch_size": 3}
     assert check["check"] == {"step": 3, "distance": spreads[0], "copies": copies}
     saved = Config.from_dict(json.loads((run / "config.json").read_text()))
     if copies:
         assert "are copies of the input" in out and "trained again with the narrower field" in out
         assert saved.name == "quick+thin" and (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (2, 16)
+        assert saved.diffusion.batch_size == 3
     else:
         assert "it keeps its field" in out
         assert saved.name == "quick+walls" and (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (3, 8)
+        assert saved.diffusion.batch_size == 2
     assert model.config == saved and saved.sampling.snap == 1.0
     losses = json.loads((run / "losses.json").read_text())["diffusion"]["loss"]
     assert len(losses) == 6  # the kept denoiser's, all its steps
@@ -474,7 +477,13 @@ def test_small_switches_to_exactly_the_detail_settings():
     assert quick.for_thin_parts() == snapped
     # ... and on a shape of thin walls only, a wider denoiser field too (on trial: fitting.FitStages.denoise)
     walls = snapped.updated(
-        **{"diffusion.n_resblocks": 4, "diffusion.base_channels": 16, "diffusion.steps": 1500}, name="quick+walls"
+        **{
+            "diffusion.n_resblocks": 4,
+            "diffusion.base_channels": 16,
+            "diffusion.steps": 1500,
+            "diffusion.batch_size": 4,
+        },
+        name="quick+walls",
     )
     assert quick.for_thin_parts(walls=True) == walls and small.for_thin_parts(walls=True) == switched
     # the rollout switch: small has it, what already has the rollout (detail, paper) or a light CPU (quick) does not

@@ -127,11 +127,11 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     # almost all thin walls: snapped samples and, on trial, the wider denoiser field (4 ResBlocks of 16 channels)
     assert switched.grid == quick.grid and switched.sampling.snap == 1.0 and switched.name == "quick+walls"
     d = switched.diffusion
-    assert (d.n_resblocks, d.base_channels, d.steps) == (4, 16, 1500)
+    assert (d.n_resblocks, d.base_channels, d.steps, d.batch_size) == (4, 16, 1500, 4)
     assert switched.thin_walls == {} and switched.thin_parts == {}
     said = thin_parts_message(quick, switched, grid, thin)
     assert f"{thin:.0%}" in said and "snapped" in said and "--thin-switch" in said and "96 voxels" in said
-    assert "4 ResBlocks of 16 channels for 1,500 steps instead of 2 of 32" in said
+    assert "4 ResBlocks of 16 channels for 1,500 steps on batches of 4 instead of 2 of 32" in said
     assert "a field of 17 latent texels instead of 9" in said and "after 150 steps" in said
     assert "--set thin_walls={}" in said and "updated(thin_walls={})" in said
     # a shape of fewer thin parts (the colonnade's 0.24) gets the snapped samples only, and so does a fit whose

@@ -150,8 +150,10 @@ class Config:
         A shape of thin walls only (a ruined tower) needs a field wide enough
         to hold its stepped top.
         """
-        # thin_parts that set the denoiser themselves (the finer settings of --thin-switch) leave nothing to try
-        walls = walls and bool(self.thin_walls) and not set(self.thin_walls) & set(self.thin_parts)
+        # thin_parts that choose the denoiser's blocks themselves (the finer settings of --thin-switch) leave nothing
+        # to try; its batches and steps the wider field sets over theirs
+        blocks = {"diffusion.n_resblocks", "diffusion.base_channels"}
+        walls = walls and bool(self.thin_walls) and not blocks & set(self.thin_parts)
         if not self.thin_parts and not walls:
             return self
         changes = {**self.thin_parts, **(self.thin_walls if walls else {})}

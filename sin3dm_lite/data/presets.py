@@ -62,12 +62,18 @@ def _tiny() -> Config:
 #: figures on the ruin, the colonnade and tiles.obj: a fifth less denoiser time (docs/presets.md).
 QUICK_THIN_CHANGES = {"sampling.snap": 1.0, "diffusion.batch_size": 6}
 #: ``quick``'s thin-walls switch, on top of its thin-part switch, for a shape that is almost all thin walls (a ruined
-#: tower): 4 ResBlocks of 16 channels for 1,500 steps, a 17-texel field instead of 9, which keeps a stepped top that
-#: 9 texels round into a slanted rim, at about 1.2-1.3x the denoiser's time (a step of 4 × 16 costs less than one of
-#: 2 × 32; 4 × 32 would cost 1.75x). On trial: a shape whose layout that field holds whole (a square keep) makes
-#: only copies with it, which the fit sees after 150 steps and undoes (fit_policy.are_copies;
+#: tower): 4 ResBlocks of 16 channels for 1,500 steps on batches of 4, a 17-texel field instead of 9, which keeps a
+#: stepped top that 9 texels round into a slanted rim, in about the narrower denoiser's time (a step of 4 × 16 on 4
+#: costs two thirds of one of 2 × 32 on 6; 4 × 32 would cost 1.75x; batches of 4 instead of 6 scored the same on
+#: both test ruins, docs/thin-parts.md). On trial: a shape whose layout that field holds whole (a square keep)
+#: makes only copies with it, which the fit sees after 150 steps and undoes (fit_policy.are_copies;
 #: docs/thin-parts.md).
-QUICK_WALLS_CHANGES = {"diffusion.n_resblocks": 4, "diffusion.base_channels": 16, "diffusion.steps": 1500}
+QUICK_WALLS_CHANGES = {
+    "diffusion.n_resblocks": 4,
+    "diffusion.base_channels": 16,
+    "diffusion.steps": 1500,
+    "diffusion.batch_size": 4,
+}
 
 #: what ``detail`` changes in ``small``; ``small`` switches to it by itself on shapes with many thin parts
 DETAIL_CHANGES = {
