@@ -18,6 +18,7 @@ import json
 import signal
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -165,8 +166,6 @@ class FitRun:
         if cfg.sampling.calibrate:  # a calibrated fit: do its samples vary at all? (a few samples, about a second)
             model.report["from_noise_distance"] = distance = from_noise_distance(model, seed=cfg.seed)
             if (warning := copies_warning(cfg, distance, thin_parts)) is not None:
-                import warnings
-
                 # stacklevel: this method, fitting.fit, Sin3DM.fit, and the code that called it
                 warnings.warn(warning, stacklevel=4)
         if self.run is not None:
@@ -352,8 +351,6 @@ class FitRun:
             )
         model, history = self.denoise(cfg, grid, h0, ae, metrics, {**base, "rollout_switch": rollout})
         if not (model.report.get("calibration") or {}).get("kept_goals"):
-            import warnings
-
             # stacklevel: this method, stages, fitting.fit, Sin3DM.fit, and the code that called it
             warnings.warn(
                 "with the cross-plane rollout no diversity setting kept the input's patches, which "

@@ -113,7 +113,7 @@ class Sin3DM:
         :attr:`Config.thin_walls` (``quick``), a shape that is almost all thin
         walls gets a wider denoiser field too, which goes back to the narrower
         one if its samples from pure noise copy the shape after a few steps
-        (:func:`fit_policy.wide_field_copies`; the report's ``thin_parts_switch``
+        (:func:`fit_policy.are_copies`; the report's ``thin_parts_switch``
         records the check); ``.updated(thin_walls={})`` keeps the narrower one.
 
         ``preset`` is a preset's name or a :class:`Config` (default: ``small``).

@@ -96,7 +96,8 @@ def patch_snapper(
         nearest = torch.cat([d.argmin(-1) for d in dist]).view(len(p), n_win)
         chosen = ref[:, nearest].permute(1, 0, 2)  # [B, c·K², windows]
         size = (h + 2 * pad, w + 2 * pad)
-        votes = F.fold(chosen, size, patch, stride=stride) / F.fold(torch.ones_like(chosen), size, patch, stride=stride)
+        covers = F.fold(chosen.new_ones(1, patch * patch, n_win), size, patch, stride=stride)  # windows per texel
+        votes = F.fold(chosen, size, patch, stride=stride) / covers
         return votes[:, :, pad : pad + h, pad : pad + w]
 
     def snapped(x0: Triplane) -> Triplane:
