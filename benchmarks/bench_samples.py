@@ -12,7 +12,8 @@ over n DDIM samples, each labelled by what it is compared with:
 * IoU→input   mean IoU of each sample with the input (≈ 1 = copies);
 * LP-IoU/LP-F share of the samples' 11³ surface patches whose best match among the
               **input mesh's** patches has IoU / F-score > 0.95 (the paper's metrics;
-              the input voxelised at the same resolution by its winding number);
+              the input voxelised at the same resolution by its winding number; --voxels paper:
+              as the paper's evaluation code does, solid where any of a voxel's 2³ sub-voxels is inside);
 * ceiling     the same LP metrics for the training grid itself (its marching-cubes
               mesh) against the input: what a perfect model of the grid could score.
               Where the input's detail is finer than the grid, the goal is 90 % of it;
@@ -55,6 +56,10 @@ from sin3dm_lite.data.source import resolve_mesh
 from sin3dm_lite.generate.extract import marching_cubes
 from sin3dm_lite.pipeline import Sin3DM
 
+#: points sampled per voxel when a mesh becomes voxels: 1, the voxel centres (the figures in docs/ before
+#: 2026-11-28), or 2, the paper's evaluation code (solid where any of 2³ sub-voxels is inside); --voxels sets it
+SUPERSAMPLE = {"supersample": 1}
+
 GOALS = {"g_div": 0.20, "lp_f": 0.70, "lp_iou": 0.55, "recon_iou": 0.95, "fit_s": 300.0, "mesh_s": 15.0}
 
 
@@ -85,7 +90,7 @@ def sample_grids(
         mesh = model.to_mesh(samples, i)
         export_mesh(mesh, (export_dir or Path("/tmp/bench_samples_export")) / f"{i:03d}")
         mesh_s.append(time.perf_counter() - t)
-    occ = model.occupancy(samples, list(resolutions))  # the same meshes, without the texture
+    occ = model.occupancy(samples, list(resolutions), **SUPERSAMPLE)  # the same meshes, without the texture
     return {"occ": occ, "sample_s": sample_s, "mesh_s": sample_s + float(np.mean(mesh_s)) if mesh_s else None}
 
 
@@ -94,11 +99,11 @@ def references(model: Sin3DM, source: str, run: Path, resolutions) -> dict:
     mesh = resolve_mesh(source)
     grid = load_grid(run / "grid.npz")
     data_mesh = marching_cubes(grid.sdf, grid.aabb)
-    recs = model.occupancy(model.input_sample(), list(resolutions))
+    recs = model.occupancy(model.input_sample(), list(resolutions), **SUPERSAMPLE)
     out = {}
     for r in resolutions:
-        inp = model.input_occupancy(mesh, r)
-        data = metrics.voxelize(data_mesh, model.aabb, r)
+        inp = model.input_occupancy(mesh, r, **SUPERSAMPLE)
+        data = metrics.voxelize(data_mesh, model.aabb, r, **SUPERSAMPLE)
         rec = recs[r][0]
         ceiling, ae = metrics.lp_scores(inp, [data]), metrics.lp_scores(inp, [rec])
         moved = metrics.lp_scores(inp, [_moved_input(model, mesh, r, axis) for axis in range(3)])
@@ -127,7 +132,7 @@ def family(model: Sin3DM, source: str, refs: dict, n: int = 8) -> dict | None:
     meshes = [build_example(source, seed) for seed in range(1, n + 1)]
     out = {}
     for r, ref in refs.items():
-        occ = [model.input_occupancy(m, r) for m in meshes]
+        occ = [model.input_occupancy(m, r, **SUPERSAMPLE) for m in meshes]
         var, lp = metrics.variation_scores(ref["input"], occ), metrics.lp_scores(ref["input"], occ)
         out[r] = {
             "g_div": var["g_div"],
@@ -144,7 +149,7 @@ def _moved_input(model: Sin3DM, mesh, resolution: int, axis: int, voxels: float 
     Moving the box the other way is the same thing, so the input's own voxelisation does the work."""
     box = np.array(model.aabb, np.float64)
     box[[axis, axis + 3]] -= voxels * (box[3] - box[0]) / grid_shape(box, resolution)[0]
-    return model.input_occupancy(mesh, resolution, aabb=box)
+    return model.input_occupancy(mesh, resolution, aabb=box, **SUPERSAMPLE)
 
 
 def scores(refs: dict, occ: dict) -> dict:
@@ -249,9 +254,20 @@ def main() -> None:
         metavar="SETTING",
         help="dotted settings changed from the preset, e.g. grid.resolution=96 (run folders get a suffix)",
     )
+    ap.add_argument(
+        "--voxels",
+        choices=("centres", "paper"),
+        default="centres",
+        help="meshes to voxels: the voxel centres (default; the figures in docs/ before 2026-11-28) or the paper's "
+        "evaluation code's way (solid where any of 2x2x2 sub-voxels is inside)",
+    )
     a = ap.parse_args()
+    SUPERSAMPLE["supersample"] = {"centres": 1, "paper": metrics.PAPER_SUPERSAMPLE}[a.voxels]
     snap = "the run's" if a.snap is None else f"{a.snap:g}"
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, preset {a.preset}, n={a.n}, snap {snap}")
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, preset {a.preset}, n={a.n}, snap {snap}, "
+        f"voxels: {a.voxels}"
+    )
     rows = []
     for source in a.inputs:
         name = Path(source).stem

@@ -324,7 +324,7 @@ class Sin3DM:
 
         return plot_beside_input(self, samples, resolution, labels)
 
-    def occupancy(self, samples: Samples, resolution=128, mesh_resolution: int | None = None):
+    def occupancy(self, samples: Samples, resolution=128, mesh_resolution: int | None = None, supersample: int = 1):
         """Each sample's mesh as an occupancy grid over its box, ``resolution`` voxels along the longest side.
 
         What the paper's geometry metrics take (:mod:`sin3dm_lite.metrics`): the
@@ -332,17 +332,20 @@ class Sin3DM:
         With a list of resolutions, returns ``{resolution: [grids]}`` and decodes each sample once.
         A sample with no surface (a diverged one: all empty, or the box all inside) counts as an
         empty or a full grid, so it lowers the scores instead of stopping the evaluation.
+        ``supersample=2`` voxelises as the paper does (a voxel is solid when any of its 2³ sub-voxels is inside,
+        :func:`metrics.voxelize`); the default 1 samples the voxel centres.
         """
 
         def to_mesh(i: int) -> TexturedMesh:
             return self.to_mesh(samples, i, resolution=mesh_resolution, original_coords=False, vertex_colors=True)
 
-        return evaluation.occupancy(to_mesh, len(samples), samples.aabb, resolution)
+        return evaluation.occupancy(to_mesh, len(samples), samples.aabb, resolution, supersample)
 
-    def input_occupancy(self, mesh: TexturedMesh, resolution: int = 128, aabb=None) -> np.ndarray:
+    def input_occupancy(self, mesh: TexturedMesh, resolution: int = 128, aabb=None, supersample: int = 1) -> np.ndarray:
         """The input mesh (in its file's coordinates) as an occupancy grid over this model's box (or ``aabb``,
-        normalised coordinates): the metrics' reference."""
-        return evaluation.input_occupancy(mesh, self.normalization, self.aabb if aabb is None else aabb, resolution)
+        normalised coordinates): the metrics' reference (``supersample``: as for :meth:`occupancy`)."""
+        box = self.aabb if aabb is None else aabb
+        return evaluation.input_occupancy(mesh, self.normalization, box, resolution, supersample)
 
     @property
     def grid_resolution(self) -> int:
@@ -363,6 +366,7 @@ class Sin3DM:
         size: int = 256,
         weights=None,
         progress: bool = True,
+        supersample: int = evaluation.PAPER_SUPERSAMPLE,
     ) -> dict:
         """The paper's metrics of generated shapes against the input mesh (docs/paper-notes.md "Evaluation").
 
@@ -376,7 +380,9 @@ class Sin3DM:
         paper's (``lp_iou_any_offset``, ``lp_fscore_any_offset``: the input's patches at every voxel, so a
         piece moved by a voxel still counts) and the IoU to the input on occupancy grids of ``resolution`` voxels along the
         longest side of the model's box (a box covering larger, retargeted
-        samples keeps that voxel size); with several resolutions, e.g. ``(128, 64)``
+        samples keeps that voxel size), input and samples voxelised as the paper's evaluation code does
+        (``supersample=2``: a voxel is solid when any of its 2³ sub-voxels is inside; 1 samples the voxel
+        centres alone, stricter on walls a voxel or two thick); with several resolutions, e.g. ``(128, 64)``
         (the paper's grid and the training grid), the first gets every metric and the
         others the geometry's, in ``geometry_at["64"]``. Texture (:func:`metrics.texture_scores`)
         on ``views`` renders of ``size`` pixels at elevation 45°, input and
@@ -393,7 +399,7 @@ class Sin3DM:
         ref = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
         to_meshes = self.to_mesh if isinstance(samples, Samples) else list
         return evaluation.evaluate(
-            samples, to_meshes, ref, self.normalization, self.aabb, resolution, views, size, nets, progress
+            samples, to_meshes, ref, self.normalization, self.aabb, resolution, views, size, nets, progress, supersample
         )
 
     # ------------------------------------------------------------ save/load

@@ -177,6 +177,36 @@ def test_voxelize_fills_nested_and_separate_shells():
     assert M.iou(occ2, truth) > 0.97
 
 
+def test_the_papers_voxels_are_solid_where_any_sub_voxel_is_inside():
+    """The paper's evaluation voxelises at twice the resolution and pools (any of 2³ inside): a wall thinner than
+    a voxel, lying between two layers of voxel centres, is lost by the centres and kept by the paper's voxels."""
+    fine = np.zeros((8, 6, 4), bool)
+    fine[3, 0, 1] = True  # one fine voxel: the coarse voxel (1, 0, 0) holds it
+    pooled = M.any_inside(fine, 2)
+    assert pooled.shape == (4, 3, 2) and pooled.sum() == 1 and pooled[1, 0, 0]
+    np.testing.assert_array_equal(M.any_inside(fine, 1), fine)
+    with pytest.raises(Sin3DMInputError, match="pool 2x"):
+        M.any_inside(np.zeros((5, 4, 4), bool), 2)
+    # a slab 0.8 voxel thick at 16 voxels, centred on the border of voxels 7 and 8 along x (x = 0): it misses their
+    # centres (half a voxel away) and holds a sub-voxel centre of each (a quarter voxel away)
+    slab = trimesh.creation.box(extents=(0.8 * 2 / 16, 1.5, 1.5))
+    centres_only = M.voxelize(slab, BOX, 16)
+    paper = M.voxelize(slab, BOX, 16, supersample=M.PAPER_SUPERSAMPLE)
+    assert centres_only.sum() == 0
+    assert paper.shape == (16, 16, 16)
+    assert paper.any(axis=(1, 2)).tolist() == [i in (7, 8) for i in range(16)]  # both voxels hold a sub-centre in it
+    # the input's voxels (winding numbers, open meshes too) are pooled the same way
+    np.testing.assert_array_equal(M.input_occupancy(slab, BOX, 16, supersample=2), paper)
+    assert M.input_occupancy(slab, BOX, 16).sum() == 0
+    # a ball: the paper's voxels hold the centres' and a thin shell more
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.6)
+    a, b = M.voxelize(ball, BOX, 32), M.voxelize(ball, BOX, 32, supersample=2)
+    assert (a & ~b).sum() == 0 and 0 < (b & ~a).sum() < 0.25 * a.sum()
+    for bad in (0, 1.5, True, "2"):
+        with pytest.raises(Sin3DMInputError, match="supersample must be"):
+            M.voxelize(ball, BOX, 32, supersample=bad)
+
+
 def test_reconstruction_iou_of_a_mesh_with_itself():
     m = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
     assert M.reconstruction_iou(m, m, BOX, 32) == 1.0

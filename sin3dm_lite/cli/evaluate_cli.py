@@ -82,7 +82,8 @@ def print_evaluation(result: dict) -> None:
 
     others = result.get("geometry_at", {})
     voxels = ", ".join(map(str, [result["resolution"], *(g["voxels"] for g in others.values())]))
-    print(f"{result['samples']} samples, {voxels} voxels, {result['views']} views of {result['size']}²")
+    how = {1: "voxel centres", 2: "the paper's voxels"}.get(result.get("supersample", 1), "supersampled voxels")
+    print(f"{result['samples']} samples, {voxels} voxels ({how}), {result['views']} views of {result['size']}²")
     columns = {f"{result['resolution']} voxels" if others else "value": result}
     columns.update({f"{g['voxels']} voxels": g for g in others.values()})  # the geometry alone: the rest '-'
     print(results_table(columns, digits=4))
@@ -95,6 +96,7 @@ def cmd_evaluate(a) -> None:
 
     from ..data.load import load_any
     from ..data.source import resolve_mesh
+    from ..evaluate.geometry import PAPER_SUPERSAMPLE
     from ..evaluate.metrics import load_feature_weights
     from ..files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
     from ..pipeline import Sin3DM
@@ -135,7 +137,10 @@ def cmd_evaluate(a) -> None:
     t0 = time.perf_counter()
     # the paper's 128 voxels, and the fit's own grid beside it (where the calibration judged)
     grids = a.resolution or [128, model.grid_resolution]
-    result = model.evaluate(meshes, reference, resolution=grids, views=a.views, size=a.size, weights=nets)
+    supersample = {"paper": PAPER_SUPERSAMPLE, "centres": 1}[a.voxels]
+    result = model.evaluate(
+        meshes, reference, resolution=grids, views=a.views, size=a.size, weights=nets, supersample=supersample
+    )
     result.update(run=str(run), samples_folder=str(a.samples), files=[str(f) for f in files])
     print_evaluation(result)
     if out is not None:

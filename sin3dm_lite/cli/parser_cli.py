@@ -247,6 +247,13 @@ def _evaluate_args(v: argparse.ArgumentParser) -> None:
         help="voxels along the longest side for the geometry metrics, 16-512, one grid or several (the first gets "
         "every metric); default: 128, the paper's, and the fit's own grid beside it",
     )
+    v.add_argument(
+        "--voxels",
+        choices=("paper", "centres"),
+        default="paper",
+        help="how meshes become voxels: 'paper' (default; the paper's evaluation code: a voxel is solid when any of "
+        "its 2x2x2 sub-voxels is inside) or 'centres' (the voxel centre alone: stricter on walls 1-2 voxels thick)",
+    )
     _outside_paths_arg(v)
 
 

@@ -25,6 +25,8 @@ from .features import (  # noqa: F401
     sifid,
 )
 from .geometry import (  # noqa: F401
+    PAPER_SUPERSAMPLE,
+    any_inside,
     check_same_grid,
     g_div,
     g_div_by_layer,
@@ -144,4 +146,6 @@ __all__ = [
     "results_table",
     "variation_scores",
     "voxelize",
+    "any_inside",
+    "PAPER_SUPERSAMPLE",
 ]
