@@ -431,7 +431,12 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
             "autoencoder.steps": 2,
             "diffusion.steps": 6,
             "thin_parts": {"sampling.snap": 1.0, "diffusion.batch_size": 3},
-            "thin_walls": {"diffusion.n_resblocks": 3, "diffusion.base_channels": 8, "diffusion.batch_size": 2},
+            "thin_walls": {
+                "diffusion.n_resblocks": 3,
+                "diffusion.base_channels": 8,
+                "diffusion.batch_size": 2,
+                "autoencoder.decoder_kernel": 3,
+            },
         }
     )
     run = tmp_path / "tiles"
@@ -441,9 +446,12 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
     assert len(spreads) == 1 and spreads[0] > 0.0  # one look: the samples' distance from the input (untrained: far)
     check = model.report["thin_parts_switch"]["wide_field"]
     # back to the thin-part switch's narrower denoiser: the preset's blocks, the switch's batches (not the preset's)
+    # ... the denoiser's settings only: the autoencoder, 3×3 plane convolutions, is trained by then and stays
     assert check["undo"] == {"diffusion.n_resblocks": 2, "diffusion.base_channels": 16, "diffusion.batch_size": 3}
     assert check["check"] == {"step": 3, "distance": spreads[0], "copies": copies}
+    assert "plane convolutions are 3x3 instead of 5x5" in out
     saved = Config.from_dict(json.loads((run / "config.json").read_text()))
+    assert saved.autoencoder.decoder_kernel == 3
     if copies:
         assert "are copies of the input" in out and "trained again with the narrower field" in out
         assert saved.name == "quick+thin" and (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (2, 16)
@@ -482,6 +490,7 @@ def test_small_switches_to_exactly_the_detail_settings():
             "diffusion.base_channels": 16,
             "diffusion.steps": 1500,
             "diffusion.batch_size": 4,
+            "autoencoder.decoder_kernel": 3,
         },
         name="quick+walls",
     )

@@ -134,10 +134,18 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     assert "4 ResBlocks of 16 channels for 1,500 steps on batches of 4 instead of 2 of 32" in said
     assert "a field of 17 latent texels instead of 9" in said and "after 150 steps" in said
     assert "--set thin_walls={}" in said and "updated(thin_walls={})" in said
+    # and 3×3 plane convolutions in the autoencoder, said so; a kernel the user sets stays theirs, the field tried
+    assert switched.autoencoder.decoder_kernel == 3 and quick.autoencoder.decoder_kernel == 5
+    assert "plane convolutions are 3x3 instead of 5x5" in said
+    own = quick.updated(**{"autoencoder.decoder_kernel": 5})
+    mine = thin_parts_switch(own, grid, thin)
+    assert mine.name == "quick+walls" and mine.autoencoder.decoder_kernel == 5 and mine.diffusion.n_resblocks == 4
+    assert "plane convolutions" not in thin_parts_message(own, mine, grid, thin)
     # a shape of fewer thin parts (the colonnade's 0.24) gets the snapped samples only, and so does a fit whose
     # denoiser the user chose (a setting thin_walls names) or without the trial
     fewer = thin_parts_switch(quick, grid, 0.3)
     assert fewer.name == "quick+thin" and fewer.diffusion == quick.updated(**{"diffusion.batch_size": 6}).diffusion
+    assert fewer.autoencoder == quick.autoencoder  # the paper's 5×5 plane convolutions
     assert "ResBlocks" not in thin_parts_message(quick, fewer, grid, 0.3)
     wide = quick.updated(**{"diffusion.n_resblocks": 3})
     assert wide.thin_walls == {} and thin_parts_switch(wide, grid, thin).diffusion.n_resblocks == 3

@@ -187,8 +187,8 @@ class Config:
         the thin-part switch never undoes it (``small`` with 6 ResBlocks keeps
         6 on the colonnade), unless the same call sets ``thin_parts`` itself;
         it likewise leaves :attr:`rollout_switch`, and setting ``diffusion.rollout``
-        turns that switch off; changing a setting :attr:`thin_walls` names
-        turns that one off.
+        turns that switch off; changing a denoiser setting :attr:`thin_walls` names
+        turns that one off (another setting it names only leaves it).
         """
         d = self.to_dict()
         for key, value in changes.items():
@@ -206,8 +206,11 @@ class Config:
         if "rollout_switch" not in changes:
             kept = {k: v for k, v in d["rollout_switch"].items() if k not in changes}
             d["rollout_switch"] = kept if "diffusion.rollout" in kept else {}  # the rollout chosen: nothing to switch
-        if "thin_walls" not in changes and any(k in changes for k in d["thin_walls"]):
+        chosen = [k for k in d["thin_walls"] if k in changes]
+        if "thin_walls" not in changes and any(k.startswith("diffusion.") for k in chosen):
             d["thin_walls"] = {}  # the denoiser chosen: nothing to try
+        elif "thin_walls" not in changes and chosen:  # another of its settings chosen: that one stays the user's
+            d["thin_walls"] = {k: v for k, v in d["thin_walls"].items() if k not in changes}
         return Config.from_dict(d)
 
 
