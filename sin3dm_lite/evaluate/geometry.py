@@ -6,6 +6,9 @@ voxels along the longest side of a box, the paper uses 128).
 
 * :func:`voxelize` — mesh → occupancy grid; :func:`input_occupancy` — the
   same for the input mesh (open meshes too), the reference of the LP metrics.
+  Either samples the voxel centres, or with ``supersample=2`` voxelises as the
+  paper's evaluation code does (:data:`PAPER_SUPERSAMPLE`: solid where any of a
+  voxel's 8 sub-voxels is inside), which ``Sin3DM.evaluate`` uses.
 * :func:`iou`, :func:`g_div` — whole-shape overlap and the diversity score
   G-Div = mean pairwise ``1 − IoU`` among generated shapes. Whole-shape
   comparisons need every grid to have the same shape, so retargeted samples
