@@ -120,6 +120,11 @@ def test_evaluate_reports_the_papers_grid_and_the_fits_own_by_default(tiny_sampl
     assert main(["evaluate", run, samples, "--resolution", "32", "600"]) == 2
     err = capsys.readouterr().err
     assert "600" in err and len(err.strip().splitlines()) == 1
+    # the paper's voxels sample twice as fine: 300 voxels would be 600 sub-voxels a side, refused before any work
+    assert main(["evaluate", run, samples, "--resolution", "300", "--out", str(out / "300.json")]) == 2
+    err = capsys.readouterr().err
+    assert "600 a side" in err and "--voxels centres" in err and len(err.strip().splitlines()) == 1
+    assert not (out / "300.json").exists()
 
 
 def test_the_facade_evaluates_samples_it_just_drew(tiny_samples):

@@ -96,6 +96,7 @@ def cmd_evaluate(a) -> None:
 
     from ..data.load import load_any
     from ..data.source import resolve_mesh
+    from ..evaluate.evaluation import check_fine_grid
     from ..evaluate.geometry import PAPER_SUPERSAMPLE
     from ..evaluate.metrics import load_feature_weights
     from ..files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
@@ -108,6 +109,8 @@ def cmd_evaluate(a) -> None:
     bad = [r for r in a.resolution or () if not 16 <= r <= 512]
     if bad:
         raise Sin3DMInputError(f"--resolution must be from 16 to 512 voxels, got {bad[0]}")
+    supersample = {"paper": PAPER_SUPERSAMPLE, "centres": 1}[a.voxels]
+    check_fine_grid(a.resolution or [128], supersample)
     run = find_run(a.run)
     files = sample_mesh_files(Path(a.samples))
     out = Path(a.out) if a.out else None
@@ -137,7 +140,6 @@ def cmd_evaluate(a) -> None:
     t0 = time.perf_counter()
     # the paper's 128 voxels, and the fit's own grid beside it (where the calibration judged)
     grids = a.resolution or [128, model.grid_resolution]
-    supersample = {"paper": PAPER_SUPERSAMPLE, "centres": 1}[a.voxels]
     result = model.evaluate(
         meshes, reference, resolution=grids, views=a.views, size=a.size, weights=nets, supersample=supersample
     )

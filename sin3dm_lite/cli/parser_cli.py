@@ -252,7 +252,8 @@ def _evaluate_args(v: argparse.ArgumentParser) -> None:
         choices=("paper", "centres"),
         default="paper",
         help="how meshes become voxels: 'paper' (default; the paper's evaluation code: a voxel is solid when any of "
-        "its 2x2x2 sub-voxels is inside) or 'centres' (the voxel centre alone: stricter on walls 1-2 voxels thick)",
+        "its 2x2x2 sub-voxels is inside; --resolution up to 256) or 'centres' (the voxel centre alone: stricter on "
+        "walls 1-2 voxels thick; up to 512)",
     )
     _outside_paths_arg(v)
 
