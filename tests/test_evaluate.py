@@ -182,3 +182,20 @@ def test_evaluate_voxelises_as_the_paper_unless_told_the_centres(tiny_samples, c
         got = results[how]["metrics"]
         assert {key: got[key] for key in GEOMETRY} == pytest.approx(want)
     assert results["paper"]["metrics"] != results["centres"]["metrics"]
+
+
+def test_samples_larger_than_the_input_cannot_grow_the_grid_past_what_fits(tiny_samples):
+    """Retargeted samples grow the evaluation box at the input's voxel size; with the paper's voxels a grid whose
+    sub-voxels would pass 512 a side is refused in one clear error instead of filling the memory."""
+    from dataclasses import replace
+
+    from sin3dm_lite.cli.evaluate_cli import sample_mesh_files
+    from sin3dm_lite.data.load import load_any
+    from sin3dm_lite.errors import Sin3DMInputError
+
+    model = Sin3DM.load(tiny_samples / "run")
+    meshes = [load_any(f) for f in sample_mesh_files(tiny_samples / "samples")]
+    centre = model.normalization.to_original(model.aabb.reshape(2, 3)).mean(axis=0)
+    bigger = [replace(m, vertices=(m.vertices - centre) * 2.5 + centre) for m in meshes]  # a box 2.5x as wide
+    with pytest.raises(Sin3DMInputError, match=r"a side, more than 512.*--voxels centres"):
+        model.evaluate(bigger, resolution=128, views=1, size=16, progress=False)

@@ -126,6 +126,7 @@ def evaluate(
 
     def geometry(resolution: int) -> tuple[int, dict]:  # at the model's voxel size for ``resolution``
         res = int(round(resolution * scale))
+        check_fine_grid(res, supersample)  # larger (retargeted) samples grow the grid
         ref_grid = input_occupancy(reference, normalization, box, res, supersample)
         return res, geometry_scores(ref_grid, [voxelize(m, box, res, supersample) for m in normed])
 
