@@ -60,6 +60,8 @@ def input_occupancy(mesh, normalization, box, resolution: int = 128, supersample
     return occupancy_of_input(m, box, resolution, supersample)
 
 
+#: how ``evaluate`` names its voxels in what it prints
+VOXELS_SAID = {1: "the voxel centres", PAPER_SUPERSAMPLE: "the paper's voxels (any of 2³ points inside)"}
 #: the finest grid the geometry metrics sample a mesh on, voxels a side (resolution × supersample): a 512³ grid of
 #: sub-voxels takes about 14 s and 2 GB a sample; 1024³ would take 8x that
 MAX_FINE_VOXELS = 512
@@ -104,10 +106,8 @@ def evaluate(
     shipped ``canyon_small`` with 4 samples of 20k faces took 1.1 s for the
     geometry at 64 voxels, 7.4-8.1 s to render 5 meshes × 8 views and 2.5 s for the
     weight-free texture metrics (+2.9 s for SIFID and LPIPS): about 2.5 s
-    per sample plus the input's renders. The geometry at 128 and 64 voxels, the
-    same 4 samples, one thread: 35 s with the paper's voxels (most of it the
-    input's winding numbers at 256 sub-voxels a side, about 11 s, and the
-    any-offset variant), 6.7 s with the voxel centres.
+    per sample plus the input's renders. At 128 and 64 voxels, one thread, the geometry took 35 s with the
+    paper's voxels (11 s of it the input's winding numbers at 256 a side), 6.7 s with the voxel centres.
     """
     say = print if progress else (lambda *a, **k: None)
     check_fine_grid(resolution, supersample)  # before any decoding
@@ -137,11 +137,7 @@ def evaluate(
         geometry_at[str(r)] = {"voxels": voxels, "metrics": scores}
     timings = {"geometry_s": time.perf_counter() - t0}
     grids = ", ".join(map(str, [res, *(g["voxels"] for g in geometry_at.values())]))
-    how = (
-        "the paper's voxels (any of 2³ points inside)"
-        if supersample == PAPER_SUPERSAMPLE
-        else f"{supersample}³ points a voxel"
-    )
+    how = VOXELS_SAID.get(supersample, f"{supersample}³ points a voxel")
     say(f"[evaluate] geometry of {len(meshes)} samples at {grids} voxels, {how}: {timings['geometry_s']:.1f} s")
     skipped = {"ssfid": SSFID_UNAVAILABLE}
     metrics["ssfid"] = None
