@@ -78,11 +78,12 @@ def sample_mesh_files(folder: Path) -> list[Path]:
 
 def print_evaluation(result: dict) -> None:
     """The metrics as a table: our name, the value, the paper's name and which way is better; then what was skipped."""
+    from ..evaluate.evaluation import VOXELS_SAID
     from ..evaluate.metrics import results_table
 
     others = result.get("geometry_at", {})
     voxels = ", ".join(map(str, [result["resolution"], *(g["voxels"] for g in others.values())]))
-    how = {1: "voxel centres", 2: "the paper's voxels"}.get(result.get("supersample", 1), "supersampled voxels")
+    how = VOXELS_SAID.get(result.get("supersample", 1), "supersampled voxels")
     print(f"{result['samples']} samples, {voxels} voxels ({how}), {result['views']} views of {result['size']}²")
     columns = {f"{result['resolution']} voxels" if others else "value": result}
     columns.update({f"{g['voxels']} voxels": g for g in others.values()})  # the geometry alone: the rest '-'

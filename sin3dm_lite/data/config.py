@@ -207,10 +207,9 @@ class Config:
             kept = {k: v for k, v in d["rollout_switch"].items() if k not in changes}
             d["rollout_switch"] = kept if "diffusion.rollout" in kept else {}  # the rollout chosen: nothing to switch
         chosen = [k for k in d["thin_walls"] if k in changes]
-        if "thin_walls" not in changes and any(k.startswith("diffusion.") for k in chosen):
-            d["thin_walls"] = {}  # the denoiser chosen: nothing to try
-        elif "thin_walls" not in changes and chosen:  # another of its settings chosen: that one stays the user's
-            d["thin_walls"] = {k: v for k, v in d["thin_walls"].items() if k not in changes}
+        if chosen and "thin_walls" not in changes:  # the denoiser chosen: nothing to try; another setting: the user's
+            denoiser = any(k.startswith("diffusion.") for k in chosen)
+            d["thin_walls"] = {} if denoiser else {k: v for k, v in d["thin_walls"].items() if k not in changes}
         return Config.from_dict(d)
 
 

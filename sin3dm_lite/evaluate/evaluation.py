@@ -61,7 +61,7 @@ def input_occupancy(mesh, normalization, box, resolution: int = 128, supersample
 
 
 #: how ``evaluate`` names its voxels in what it prints
-VOXELS_SAID = {1: "the voxel centres", PAPER_SUPERSAMPLE: "the paper's voxels (any of 2³ points inside)"}
+VOXELS_SAID = {1: "the voxel centres", PAPER_SUPERSAMPLE: "the paper's voxels: any of 2³ points inside"}
 #: the finest grid the geometry metrics sample a mesh on, voxels a side (resolution × supersample): a 512³ grid of
 #: sub-voxels takes about 14 s and 2 GB a sample; 1024³ would take 8x that
 MAX_FINE_VOXELS = 512
@@ -106,8 +106,8 @@ def evaluate(
     shipped ``canyon_small`` with 4 samples of 20k faces took 1.1 s for the
     geometry at 64 voxels, 7.4-8.1 s to render 5 meshes × 8 views and 2.5 s for the
     weight-free texture metrics (+2.9 s for SIFID and LPIPS): about 2.5 s
-    per sample plus the input's renders. At 128 and 64 voxels, one thread, the geometry took 35 s with the
-    paper's voxels (11 s of it the input's winding numbers at 256 a side), 6.7 s with the voxel centres.
+    per sample plus the input's renders. At 128 and 64 voxels, one thread, the geometry took 32-35 s with the
+    paper's voxels (nearly all of it the input's winding numbers at 256 a side), 6.1 s with the voxel centres.
     """
     say = print if progress else (lambda *a, **k: None)
     check_fine_grid(resolution, supersample)  # before any decoding

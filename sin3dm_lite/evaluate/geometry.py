@@ -21,6 +21,7 @@ voxels along the longest side of a box, the paper uses 128).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -104,7 +105,10 @@ def any_inside(fine: np.ndarray, factor: int) -> np.ndarray:
     x, y, z = (n // factor for n in fine.shape)
     if min(x, y, z) < 1 or fine.shape != (x * factor, y * factor, z * factor):
         raise Sin3DMInputError(f"a grid of shape {fine.shape} does not pool {factor}x (each side a multiple of it)")
-    return fine.reshape(x, factor, y, factor, z, factor).any(axis=(1, 3, 5))
+    for axis in range(3):  # one axis at a time, strided slices: about 30x faster than any() over a 6-d reshape
+        head = (slice(None),) * axis
+        fine = functools.reduce(np.logical_or, (fine[(*head, slice(i, None, factor))] for i in range(factor)))
+    return fine
 
 
 def _check_supersample(supersample) -> int:
@@ -156,7 +160,7 @@ def _voxel_centres_inside(mesh, aabb, shape) -> np.ndarray:
     acc = np.bincount((x * ny + y) * (nz + 1) + m, weights=sign, minlength=nx * ny * (nz + 1))
     acc = acc.reshape(nx, ny, nz + 1)
     winding = np.cumsum(acc[..., ::-1], axis=-1)[..., ::-1]  # winding[k] = sum of acc[m] for m >= k
-    return np.abs(np.rint(winding[..., 1:])) > 0
+    return np.abs(winding[..., 1:]) > 0.5  # a whole number of crossings, up to rounding: not zero
 
 
 def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> np.ndarray:
