@@ -5,7 +5,8 @@ distances (with the closest face and its barycentrics, where the grid reads
 the surface colour) and the generalised winding number, which tells inside
 from outside even for open or multi-part meshes. Closed parts that are
 inside out are turned round first (:func:`_orient_outward`).
-:func:`inside` is the same test for any point set (the metrics use it).
+The metrics ask it of the input mesh at every sub-voxel of an open mesh
+(:func:`sin3dm_lite.evaluate.geometry.input_occupancy`).
 """
 
 from __future__ import annotations
@@ -87,15 +88,3 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
     flip = closed & (volume < 0)
     faces = np.where(flip[part][:, None], faces[:, ::-1], faces)
     return np.ascontiguousarray(faces), not open_part.any(), int(flip.sum()), int(closed.sum())
-
-
-def inside(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Which points lie inside the mesh ``(vertices, faces)``: generalised winding number above ½.
-
-    The same inside test the grid uses, so it works for open and multi-part
-    meshes and turns inside-out closed parts round first.
-    """
-    from types import SimpleNamespace
-
-    dist = Distance(SimpleNamespace(vertices=vertices, faces=faces))
-    return dist.winding(np.asarray(points, np.float64).reshape(-1, 3)) > 0.5

@@ -111,7 +111,8 @@ def any_inside(fine: np.ndarray, factor: int) -> np.ndarray:
     return fine
 
 
-def _check_supersample(supersample) -> int:
+def check_supersample(supersample) -> int:
+    """``supersample`` as an int, or one clear error when it is not a whole number ≥ 1."""
     if not isinstance(supersample, (int, np.integer)) or isinstance(supersample, bool) or supersample < 1:
         raise Sin3DMInputError(
             f"supersample must be a whole number ≥ 1 (1: voxel centres; 2: the paper's), got {supersample!r}"
@@ -138,13 +139,14 @@ def voxelize(mesh, aabb, resolution: int = 128, supersample: int = 1) -> np.ndar
         supersample: sample ``supersample³`` sub-voxel centres per voxel, solid when any is inside
             (:data:`PAPER_SUPERSAMPLE` is the paper's way; 1, the default here, the voxel centres alone).
     """
-    factor = _check_supersample(supersample)
+    factor = check_supersample(supersample)
     shape = tuple(factor * n for n in grid_shape(as_aabb(aabb), resolution))
     return any_inside(_voxel_centres_inside(mesh, aabb, shape), factor)
 
 
-def _voxel_centres_inside(mesh, aabb, shape) -> np.ndarray:
-    """:func:`voxelize` on a grid of ``shape`` voxels over ``aabb``."""
+def _voxel_centres_inside(mesh, aabb, shape, outward: bool = False) -> np.ndarray:
+    """:func:`voxelize` on a grid of ``shape`` voxels over ``aabb`` (``outward``: the faces are known to wind
+    outwards, so inside is a winding number above ½, as :func:`~sin3dm_lite.data.distance.inside` says)."""
     verts, faces = _verts_faces(mesh)
     box = as_aabb(aabb)
     nx, ny, nz = shape
@@ -159,26 +161,38 @@ def _voxel_centres_inside(mesh, aabb, shape) -> np.ndarray:
     m = np.clip(np.ceil(z_hit), 0, nz).astype(np.int64)  # the hit lies above voxels k < m
     acc = np.bincount((x * ny + y) * (nz + 1) + m, weights=sign, minlength=nx * ny * (nz + 1))
     acc = acc.reshape(nx, ny, nz + 1)
-    winding = np.cumsum(acc[..., ::-1], axis=-1)[..., ::-1]  # winding[k] = sum of acc[m] for m >= k
-    return np.abs(winding[..., 1:]) > 0.5  # a whole number of crossings, up to rounding: not zero
+    winding = np.cumsum(acc[..., ::-1], axis=-1)[..., ::-1][..., 1:]  # winding[k] = sum of acc[m] for m > k
+    return winding > 0.5 if outward else np.abs(winding) > 0.5  # a whole number of crossings, up to rounding
 
 
 def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> np.ndarray:
     """The *input* mesh as an occupancy grid: inside (winding number > ½) at every voxel centre.
 
     This is the reference the paper's LP-IoU / LP-F compare against. Unlike
-    :func:`voxelize` it needs no closed mesh (a user's open scan works). The
-    mesh (a ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)``) must be in the same (normalised) coordinates as ``aabb``, e.g.
-    ``mesh.normalized()`` for the box a fit used. ``supersample``: as for :func:`voxelize`.
+    :func:`voxelize` it needs no closed mesh (a user's open scan works: its
+    generalised winding number decides). On a closed mesh (every edge shared
+    by two faces, as the built-ins and most game assets are) the winding
+    number is a whole number that only changes across the surface, so the ray
+    cast of :func:`voxelize` counts it exactly: the same grid, 100-300x faster
+    (the canyon at 256 sub-voxels a side: 0.06 s against 19 s). The mesh (a
+    ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)``) must be in the
+    same (normalised) coordinates as ``aabb``, e.g. ``mesh.normalized()`` for
+    the box a fit used. ``supersample``: as for :func:`voxelize`.
     """
-    from ..data.distance import inside
+    from types import SimpleNamespace
 
-    factor = _check_supersample(supersample)
+    from ..data.distance import Distance
+
+    factor = check_supersample(supersample)
     box = as_aabb(aabb)
     shape = tuple(factor * n for n in grid_shape(box, resolution))
+    verts, faces = _verts_faces(mesh)
+    dist = Distance(SimpleNamespace(vertices=verts, faces=faces))  # closed parts turned outwards
+    if dist.closed:
+        return any_inside(_voxel_centres_inside((dist.v, dist.f), box, shape, outward=True), factor)
     axes = [axis_centres(box, shape, a) for a in range(3)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    return any_inside(inside(*_verts_faces(mesh), centres).reshape(shape), factor)
+    return any_inside((dist.winding(centres) > 0.5).reshape(shape), factor)
 
 
 # ----------------------------------------------------------------------------- whole-shape overlap
