@@ -142,6 +142,7 @@ class Sin3DM:
         input_mesh=None,
         progress: bool = True,
         resolution: int | None = None,
+        supersample: int | None = None,
         **options,
     ) -> Calibration:
         """Set ``config.sampling.diversity`` to the most varied setting whose samples keep the input's patches.
@@ -152,26 +153,38 @@ class Sin3DM:
         (default: ``input_mesh``, a mesh, path or example name, or else
         :meth:`input_mesh`, voxelised at ``resolution`` voxels along the longest
         side: by default the fit's grid (:attr:`grid_resolution`), which is fast;
-        128 judges as the paper measures, in up to three times the time: a thin-walled
-        ruin then gets a more faithful default, a colonnade a more varied one, docs/calibration.md).
+        128 judges as the paper measures, in about four times the time: the canyon and the colonnade
+        then get 1, a thin-walled ruin a more varied default that flattens its top in some samples,
+        docs/calibration.md).
+        ``supersample``: the voxels judged, 1 the voxel centres (the default on the fit's grid, whose
+        training grid is the centres' signs), 2 the paper's (the default at another ``resolution``:
+        :meth:`evaluate`'s voxels, so the judge sees what it reports).
         The choice and what was tried land in ``report["calibration"]``;
         ``options`` go to ``calibrate_diversity`` (``goals``, ``n``, ``seed``,
         ``lowest``, ``step``, ``margin``, ``refine``, ``caution``, ``safety``, ``relative``, ``far``). :meth:`save` (or
         ``sin3dm-lite calibrate``) keeps it.
         """
         from .evaluate.calibrate import calibrate_diversity, model_sampler
+        from .evaluate.geometry import PAPER_SUPERSAMPLE
 
         if reference is None:
             mesh = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
+            on_grid = resolution in (None, self.grid_resolution)
             resolution = resolution or self.grid_resolution
             if not 16 <= resolution <= 512:
                 raise Sin3DMInputError(f"the calibration's resolution must be from 16 to 512 voxels, got {resolution}")
-            reference = self.input_occupancy(mesh, resolution)
+            if supersample is None:
+                supersample = 1 if on_grid else PAPER_SUPERSAMPLE
+            evaluation.check_fine_grid(resolution, supersample)
+            reference = self.input_occupancy(mesh, resolution, supersample=supersample)
         elif resolution is not None and resolution != max(np.shape(reference)):
             raise Sin3DMInputError(
                 f"resolution {resolution} does not match the reference grid {np.shape(reference)}; give one of them"
             )
-        cal = calibrate_diversity(model_sampler(self, reference), reference, progress=progress, **options)
+        supersample = 1 if supersample is None else supersample
+        sampler = model_sampler(self, reference, supersample=supersample)
+        cal = calibrate_diversity(sampler, reference, progress=progress, **options)
+        cal.supersample = supersample
         self.config = self.config.updated(**{"sampling.diversity": cal.diversity})
         self.report["calibration"] = cal.to_dict()
         if progress:

@@ -508,7 +508,7 @@ def test_a_switched_fit_whose_rollout_keeps_no_goal_warns_with_the_way_back(tmp_
         return C.Calibration(diversity=1.0 if kept else 0.5, goals={}, n=1, resolution=8, kept_goals=kept)
 
     monkeypatch.setattr(C, "calibrate_diversity", fake)
-    monkeypatch.setattr(C, "model_sampler", lambda model, reference: model)
+    monkeypatch.setattr(C, "model_sampler", lambda model, reference, supersample=1: model)
     cfg = micro_config().updated(
         **{
             "sampling.calibrate": True,
@@ -587,31 +587,48 @@ def test_cli_calibrate_without_the_grid_uses_the_input_mesh(calibrated, capsys, 
     assert main(["calibrate", str(bare), "-n", "2", "--input", "wall"]) == 0
     cal = json.loads((bare / "report.json").read_text())["calibration"]
     assert cal["resolution"] == max(json.loads((bare / "report.json").read_text())["grid_shape"])
+    assert cal["supersample"] == 1  # on the fit's grid: the voxel centres, as the training grid holds them
     assert main(["calibrate", str(bare), "-n", "2", "--input", str(tmp_path / "gone.obj")]) == 2
     assert "gone.obj" in capsys.readouterr().err
 
 
 def test_cli_calibrate_resolution_judges_against_the_input_mesh_on_that_grid(calibrated, capsys, tmp_path):
     """`calibrate RUN --resolution N` voxelises the input mesh at N voxels on the model's box (not the 24-voxel
-    training grid), decodes the samples there, says so and records it; out of range: one line, nothing rewritten."""
+    training grid) the paper's way (any of 2³ sub-voxels inside, as `evaluate` does), voxelises the samples there
+    alike, says so and records it; `--voxels centres` the voxel centres; out of range: one line, nothing
+    rewritten."""
     import shutil
 
     model, run = calibrated
     copy = tmp_path / "at40"
     shutil.copytree(run, copy)
     seen, real = [], C.sample_occupancy
+    refs, real_ref = [], type(model).input_occupancy
+
+    def reference(self, mesh, resolution=128, aabb=None, supersample=1):
+        refs.append((resolution, supersample))
+        return real_ref(self, mesh, resolution, aabb, supersample)
+
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(C, "sample_occupancy", lambda *a: seen.append(a[-1]) or real(*a))
+        mp.setattr(C, "sample_occupancy", lambda *a: seen.append(a[-2:]) or real(*a))
+        mp.setattr(type(model), "input_occupancy", reference)
         assert main(["calibrate", str(copy), "-n", "2", "--resolution", "40"]) == 0
-    assert seen and set(seen) == {40}
-    assert "judged at 40 voxels" in capsys.readouterr().out
-    cal = json.loads((copy / "report.json").read_text())["calibration"]
-    assert cal["resolution"] == 40 and max(model.report["grid_shape"]) == 24
+        assert seen and set(seen) == {(40, 2)} and refs == [(40, 2)]
+        assert "judged at 40 voxels (the paper's voxels" in capsys.readouterr().out
+        cal = json.loads((copy / "report.json").read_text())["calibration"]
+        assert cal["resolution"] == 40 and cal["supersample"] == 2 and max(model.report["grid_shape"]) == 24
+        seen.clear(), refs.clear()
+        assert main(["calibrate", str(copy), "-n", "2", "--resolution", "40", "--voxels", "centres"]) == 0
+        assert set(seen) == {(40, 1)} and refs == [(40, 1)]
+        assert "judged at 40 voxels (the voxel centres" in capsys.readouterr().out
+    assert json.loads((copy / "report.json").read_text())["calibration"]["supersample"] == 1
     assert (
         cal["near_copy"]["n"] == 2
         and "at 40 voxels (the paper measures at 128)" in C.Calibration.from_dict(cal).story()
     )
     assert "at 128 voxels (as the paper measures)" in C.Calibration.from_dict({**cal, "resolution": 128}).story()
+    at128_centres = C.Calibration.from_dict({**cal, "resolution": 128, "supersample": 1}).story()
+    assert "at 128 voxels (voxel centres" in at128_centres
     before = (copy / "report.json").read_text()
     assert main(["calibrate", str(copy), "-n", "2", "--resolution", "600"]) == 2
     err = capsys.readouterr().err
@@ -619,6 +636,10 @@ def test_cli_calibrate_resolution_judges_against_the_input_mesh_on_that_grid(cal
     assert (copy / "report.json").read_text() == before
     with pytest.raises(Sin3DMInputError, match="does not match the reference grid"):
         model.calibrate(np.zeros((24, 24, 24), bool), resolution=40, progress=False)
+    with pytest.raises(Sin3DMInputError, match="supersample must be a whole number"):
+        model.calibrate(resolution=40, supersample=0, progress=False)
+    with pytest.raises(Sin3DMInputError, match="voxels centres"):
+        model.calibrate(resolution=300, progress=False)  # 600 sub-voxels a side: refused before any work
 
 
 def test_cli_calibrate_errors_in_one_line(capsys, tmp_path):

@@ -98,7 +98,6 @@ def cmd_evaluate(a) -> None:
     from ..data.load import load_any
     from ..data.source import resolve_mesh
     from ..evaluate.evaluation import check_fine_grid
-    from ..evaluate.geometry import PAPER_SUPERSAMPLE
     from ..evaluate.metrics import load_feature_weights
     from ..files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
     from ..pipeline import Sin3DM
@@ -110,7 +109,7 @@ def cmd_evaluate(a) -> None:
     bad = [r for r in a.resolution or () if not 16 <= r <= 512]
     if bad:
         raise Sin3DMInputError(f"--resolution must be from 16 to 512 voxels, got {bad[0]}")
-    supersample = {"paper": PAPER_SUPERSAMPLE, "centres": 1}[a.voxels]
+    supersample = _supersample(a.voxels)
     check_fine_grid(a.resolution or [128], supersample)
     run = find_run(a.run)
     files = sample_mesh_files(Path(a.samples))
@@ -168,12 +167,20 @@ def cmd_calibrate(a) -> None:
             release_lock(run)
 
 
+def _supersample(voxels: str) -> int:
+    """``--voxels``' sub-voxels a side: the paper's 2, the centres' 1."""
+    from ..evaluate.geometry import PAPER_SUPERSAMPLE
+
+    return {"paper": PAPER_SUPERSAMPLE, "centres": 1}[voxels]
+
+
 def _calibrate(a, run: Path, shipped: bool) -> None:
     import json
 
     from ..data.grid import load_grid
     from ..data.source import resolve_mesh
     from ..evaluate.calibrate import GOALS
+    from ..evaluate.evaluation import VOXELS_SAID
     from ..files import atomic_write
     from ..pipeline import Sin3DM
 
@@ -184,6 +191,7 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, or at
     # another resolution (--resolution 128 judges as the paper measures), the input mesh voxelised there
     on_grid = a.resolution in (None, model.grid_resolution) and a.input is None and (run / "grid.npz").is_file()
+    on_grid = on_grid and a.voxels != "paper"  # the training grid holds the voxel centres' signs
     reference = load_grid(run / "grid.npz").sdf < 0 if on_grid else None
     goals = {
         "lp_iou": GOALS["lp_iou"] if a.lp_iou is None else a.lp_iou,
@@ -195,8 +203,15 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     if reference is None:  # the input mesh is read here, with --allow-outside-paths if given
         allow = a.allow_outside_paths
         input_mesh = model.input_mesh(allow) if a.input is None else resolve_mesh(a.input, allow_outside_paths=allow)
+    supersample = None if a.voxels is None else _supersample(a.voxels)
     cal = model.calibrate(
-        reference, input_mesh=input_mesh, resolution=None if on_grid else a.resolution, goals=goals, n=a.n, seed=a.seed
+        reference,
+        input_mesh=input_mesh,
+        resolution=None if on_grid else a.resolution or model.grid_resolution,
+        supersample=None if on_grid else supersample,
+        goals=goals,
+        n=a.n,
+        seed=a.seed,
     )
     took = time.perf_counter() - t0
     if shipped:
@@ -212,6 +227,6 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
         atomic_write(run / "report.json", json.dumps(report, indent=2))
     print(
         f"{run}: diversity {before:g} → {cal.diversity:g}{' for snapped samples' if snapped else ''}, judged at "
-        f"{cal.resolution} voxels ({took:.0f} s), "
+        f"{cal.resolution} voxels ({VOXELS_SAID[cal.supersample]}, {took:.0f} s), "
         f"saved in its config.json; `sin3dm-lite sample {run}` uses it, --diversity overrides it"
     )

@@ -46,6 +46,7 @@ class Calibration:
         None  # {"lp_iou", "lp_fscore", "g_div"} at the chosen setting (smoothed; G-Div between draws)
     )
     g_div_goal: float | None = None  # the diversity requirement the choice is reported against
+    supersample: int = 1  # sub-voxels a side per voxel judged (1: the voxel centres; 2: the paper's voxels)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -58,7 +59,12 @@ class Calibration:
 
     def story(self) -> str:
         """Why this setting, a line per goal: the near copy's score (the ceiling), the goal, the choice."""
-        paper = "as the paper measures" if self.resolution == 128 else "the paper measures at 128"
+        if self.resolution != 128:
+            paper = "the paper measures at 128"
+        elif self.supersample == 2:
+            paper = "as the paper measures"
+        else:
+            paper = "voxel centres; the paper's voxels pool 2x2x2 sub-voxels"
         grid = f"at {self.resolution} voxels ({paper})"
         chosen = f"chosen {self.diversity:g}" + (
             "" if self.kept_goals else " (the lowest drawn: no setting kept the goals)"
