@@ -174,7 +174,11 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     by two faces, as the built-ins and most game assets are) the winding
     number is a whole number that only changes across the surface, so the ray
     cast of :func:`voxelize` counts it exactly: the same grid, 100-300x faster
-    (the canyon at 256 sub-voxels a side: 0.06 s against 19 s). The mesh (a
+    (the canyon at 256 sub-voxels a side: 0.06 s against 19 s). On an open mesh
+    with ``supersample`` > 1 only the voxels the surface passes near (or whose
+    centre's answer differs from a neighbour's) get a winding number per
+    sub-voxel; the others take their centre's (the same grids on five shapes
+    with holes cut; at 128 about twice as fast, the canyon 9 s against 20 s). The mesh (a
     ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)``) must be in the
     same (normalised) coordinates as ``aabb``, e.g. ``mesh.normalized()`` for
     the box a fit used. ``supersample``: as for :func:`voxelize`.
@@ -190,9 +194,66 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     dist = Distance(SimpleNamespace(vertices=verts, faces=faces))  # closed parts turned outwards
     if dist.closed:
         return any_inside(_voxel_centres_inside((dist.v, dist.f), box, shape, outward=True), factor)
+    coarse = tuple(n // factor for n in shape)
+    side = (dist.winding(_centres(box, coarse)) > 0.5).reshape(coarse)  # the voxel centres' answer
+    if factor == 1:
+        return side
+    # a voxel's sub-voxels can differ from its centre only where the surface passes near it, or where the
+    # winding number crosses ½ between centres (across a hole): there each sub-voxel gets its own winding number
+    todo = np.argwhere(_dilate(_surface_cells(dist.v, dist.f, box, coarse)) | _sign_changes(side))
+    offsets = np.stack(np.meshgrid(*(np.arange(factor),) * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    sub = (todo[:, None, :] * factor + offsets[None]).reshape(-1, 3)
     axes = [axis_centres(box, shape, a) for a in range(3)]
-    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    return any_inside((dist.winding(centres) > 0.5).reshape(shape), factor)
+    fine = np.repeat(np.repeat(np.repeat(side, factor, 0), factor, 1), factor, 2)
+    fine[tuple(sub.T)] = dist.winding(np.stack([axes[a][sub[:, a]] for a in range(3)], axis=-1)) > 0.5
+    return any_inside(fine, factor)
+
+
+def _centres(box, shape) -> np.ndarray:
+    """The voxel centres of a grid of ``shape`` over ``box``, ``(N, 3)`` in x-major order."""
+    axes = [axis_centres(box, shape, a) for a in range(3)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def _surface_cells(verts, faces, box, shape) -> np.ndarray:
+    """Voxels that each triangle's bounding box touches (so every voxel the surface passes through)."""
+    cell = to_index(verts, box, shape) + 0.5  # voxel k spans [k, k + 1)
+    top = np.array(shape) - 1
+    tri = cell[faces]
+    lo = np.clip(np.floor(tri.min(1)).astype(np.int64), 0, top)
+    hi = np.clip(np.floor(tri.max(1)).astype(np.int64), 0, top)
+    cells = np.zeros(shape, bool)
+    small = (hi - lo <= 1).all(axis=1)  # most triangles: at most 2 voxels along each axis
+    for o in np.stack(np.meshgrid(*(np.arange(2),) * 3, indexing="ij"), axis=-1).reshape(-1, 3):
+        cells[tuple(np.minimum(lo[small] + o, hi[small]).T)] = True
+    for a, b in zip(lo[~small], hi[~small]):
+        cells[a[0] : b[0] + 1, a[1] : b[1] + 1, a[2] : b[2] + 1] = True
+    return cells
+
+
+def _dilate(grid: np.ndarray) -> np.ndarray:
+    """``grid`` grown by one voxel along each axis and diagonal (a 3 × 3 × 3 neighbourhood): a voxel centre
+    within 0.87 voxels of a point lies in that point's voxel or a neighbour."""
+    for axis in range(3):
+        grown = grid.copy()
+        lo, hi = [slice(None)] * 3, [slice(None)] * 3
+        lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+        grown[tuple(lo)] |= grid[tuple(hi)]
+        grown[tuple(hi)] |= grid[tuple(lo)]
+        grid = grown
+    return grid
+
+
+def _sign_changes(side: np.ndarray) -> np.ndarray:
+    """Voxels whose answer differs from a face neighbour's."""
+    out = np.zeros(side.shape, bool)
+    for axis in range(3):
+        change = np.diff(side, axis=axis)
+        lo, hi = [slice(None)] * 3, [slice(None)] * 3
+        lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+        out[tuple(lo)] |= change
+        out[tuple(hi)] |= change
+    return out
 
 
 # ----------------------------------------------------------------------------- whole-shape overlap
