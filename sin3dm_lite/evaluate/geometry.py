@@ -146,7 +146,7 @@ def voxelize(mesh, aabb, resolution: int = 128, supersample: int = 1) -> np.ndar
 
 def _voxel_centres_inside(mesh, aabb, shape, outward: bool = False) -> np.ndarray:
     """:func:`voxelize` on a grid of ``shape`` voxels over ``aabb`` (``outward``: the faces are known to wind
-    outwards, so inside is a winding number above ½, as :func:`~sin3dm_lite.data.distance.inside` says)."""
+    outwards, so inside is a winding number above ½, as for the generalised winding number)."""
     verts, faces = _verts_faces(mesh)
     box = as_aabb(aabb)
     nx, ny, nz = shape
@@ -189,12 +189,12 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
 
     factor = check_supersample(supersample)
     box = as_aabb(aabb)
-    shape = tuple(factor * n for n in grid_shape(box, resolution))
+    coarse = tuple(grid_shape(box, resolution))
+    shape = tuple(factor * n for n in coarse)
     verts, faces = _verts_faces(mesh)
     dist = Distance(SimpleNamespace(vertices=verts, faces=faces))  # closed parts turned outwards
     if dist.closed:
         return any_inside(_voxel_centres_inside((dist.v, dist.f), box, shape, outward=True), factor)
-    coarse = tuple(n // factor for n in shape)
     side = (dist.winding(_centres(box, coarse)) > 0.5).reshape(coarse)  # the voxel centres' answer
     if factor == 1:
         return side
