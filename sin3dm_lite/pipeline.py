@@ -165,7 +165,6 @@ class Sin3DM:
         ``sin3dm-lite calibrate``) keeps it.
         """
         from .evaluate.calibrate import calibrate_diversity, model_sampler
-        from .evaluate.geometry import PAPER_SUPERSAMPLE
 
         if reference is None:
             mesh = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
@@ -174,7 +173,7 @@ class Sin3DM:
             if not 16 <= resolution <= 512:
                 raise Sin3DMInputError(f"the calibration's resolution must be from 16 to 512 voxels, got {resolution}")
             if supersample is None:
-                supersample = 1 if on_grid else PAPER_SUPERSAMPLE
+                supersample = 1 if on_grid else evaluation.PAPER_SUPERSAMPLE
             evaluation.check_fine_grid(resolution, supersample)
             reference = self.input_occupancy(mesh, resolution, supersample=supersample)
         elif resolution is not None and resolution != max(np.shape(reference)):

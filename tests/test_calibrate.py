@@ -536,6 +536,13 @@ def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
         assert a.shape == b.shape and a.any()
         assert iou(a, b) > 0.9
         assert np.array_equal(a, decode_grid(model.decoder, samples.triplane[i : i + 1], samples.aabb, res) < 0)
+    # the paper's voxels (calibrate --resolution N): the same samples' meshes, a voxel solid where any of 2³ points is
+    centres = model.occupancy(samples, res, supersample=1)
+    for paper, meshes, c in zip(
+        C.sample_occupancy(model, 1.0, 2, 3, res, 2), model.occupancy(samples, res, supersample=2), centres
+    ):
+        np.testing.assert_array_equal(paper, meshes)
+        assert (c & ~paper).sum() == 0 and paper.sum() > c.sum()  # the centres' voxels and a shell more
 
 
 def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):

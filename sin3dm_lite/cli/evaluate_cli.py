@@ -78,12 +78,12 @@ def sample_mesh_files(folder: Path) -> list[Path]:
 
 def print_evaluation(result: dict) -> None:
     """The metrics as a table: our name, the value, the paper's name and which way is better; then what was skipped."""
-    from ..evaluate.evaluation import VOXELS_SAID
+    from ..evaluate.evaluation import voxels_said
     from ..evaluate.metrics import results_table
 
     others = result.get("geometry_at", {})
     voxels = ", ".join(map(str, [result["resolution"], *(g["voxels"] for g in others.values())]))
-    how = VOXELS_SAID.get(result.get("supersample", 1), "supersampled voxels")
+    how = voxels_said(result.get("supersample", 1))
     print(f"{result['samples']} samples, {voxels} voxels ({how}), {result['views']} views of {result['size']}²")
     columns = {f"{result['resolution']} voxels" if others else "value": result}
     columns.update({f"{g['voxels']} voxels": g for g in others.values()})  # the geometry alone: the rest '-'
@@ -180,7 +180,7 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     from ..data.grid import load_grid
     from ..data.source import resolve_mesh
     from ..evaluate.calibrate import GOALS
-    from ..evaluate.evaluation import VOXELS_SAID
+    from ..evaluate.evaluation import voxels_said
     from ..files import atomic_write
     from ..pipeline import Sin3DM
 
@@ -227,6 +227,6 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
         atomic_write(run / "report.json", json.dumps(report, indent=2))
     print(
         f"{run}: diversity {before:g} → {cal.diversity:g}{' for snapped samples' if snapped else ''}, judged at "
-        f"{cal.resolution} voxels ({VOXELS_SAID[cal.supersample]}, {took:.0f} s), "
+        f"{cal.resolution} voxels ({voxels_said(cal.supersample)}, {took:.0f} s), "
         f"saved in its config.json; `sin3dm-lite sample {run}` uses it, --diversity overrides it"
     )

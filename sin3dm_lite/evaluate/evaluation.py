@@ -60,8 +60,15 @@ def input_occupancy(mesh, normalization, box, resolution: int = 128, supersample
     return occupancy_of_input(m, box, resolution, supersample)
 
 
-#: how ``evaluate`` names its voxels in what it prints
+#: how ``evaluate`` and ``calibrate`` name their voxels in what they print
 VOXELS_SAID = {1: "the voxel centres", PAPER_SUPERSAMPLE: "the paper's voxels: any of 2³ points inside"}
+
+
+def voxels_said(supersample: int) -> str:
+    """What a grid of ``supersample``³ points a voxel is called in what ``evaluate`` and ``calibrate`` print."""
+    return VOXELS_SAID.get(supersample, f"{supersample}³ points a voxel")
+
+
 #: the finest grid the geometry metrics sample a mesh on, voxels a side (resolution × supersample): a 512³ grid of
 #: sub-voxels takes about 14 s and 2 GB a sample; 1024³ would take 8x that
 MAX_FINE_VOXELS = 512
@@ -139,7 +146,7 @@ def evaluate(
         geometry_at[str(r)] = {"voxels": voxels, "metrics": scores}
     timings = {"geometry_s": time.perf_counter() - t0}
     grids = ", ".join(map(str, [res, *(g["voxels"] for g in geometry_at.values())]))
-    how = VOXELS_SAID.get(supersample, f"{supersample}³ points a voxel")
+    how = voxels_said(supersample)
     say(f"[evaluate] geometry of {len(meshes)} samples at {grids} voxels, {how}: {timings['geometry_s']:.1f} s")
     skipped = {"ssfid": SSFID_UNAVAILABLE}
     metrics["ssfid"] = None
