@@ -122,11 +122,16 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
     steps += f"on batches of {d1.batch_size} " if d1.batch_size != d0.batch_size else ""
     k0, k1 = cfg.autoencoder.decoder_kernel, new.autoencoder.decoder_kernel
     kernel = (
-        f" Its autoencoder's plane convolutions are {k1}x{k1} instead of {k0}x{k0} (about a fifth less of its time, "
-        "the same samples on thin walls)."
+        f" Its autoencoder's plane convolutions are {k1}x{k1} instead of {k0}x{k0} (about a fifth less of its time; "
+        "a thin wall's windows close)."
         if k0 != k1
         else ""
     )
+    if new.autoencoder.residual_planes and not cfg.autoencoder.residual_planes:
+        kernel += (
+            " Its autoencoder adds free planes to the encoder's, in which a window in a thin wall shows (the "
+            "encoder's averages mix the wall with the one behind it)."
+        )
     return (
         f" Almost all of it is thin walls: its denoiser has {d1.n_resblocks} ResBlocks of {d1.base_channels} channels "
         f"{steps}instead of {d0.n_resblocks} of {d0.base_channels}, a field of {field_width(d1.n_resblocks)} latent texels "
@@ -142,7 +147,7 @@ def wide_field_undo(before: Config) -> dict:
     """The dotted settings that take the wider denoiser back to the narrower one of ``before``'s thin-part switch
     (what :attr:`Config.thin_walls` changes, as :meth:`Config.for_thin_parts` without ``walls`` sets them: for
     ``quick`` 2 ResBlocks of 32 channels, 1,000 steps, the snapped fits' batches of 6). The denoiser's alone: the
-    autoencoder (its 3×3 plane convolutions) is trained by the time the trial looks."""
+    autoencoder (whatever :attr:`Config.thin_walls` set in it) is trained by the time the trial looks."""
     old = before.for_thin_parts().settings()
     return {k: old[k] for k in before.thin_walls if k.startswith("diffusion.")}
 

@@ -436,6 +436,7 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
                 "diffusion.base_channels": 8,
                 "diffusion.batch_size": 2,
                 "autoencoder.decoder_kernel": 3,
+                "autoencoder.residual_planes": True,
             },
         }
     )
@@ -451,7 +452,7 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
     assert check["check"] == {"step": 3, "distance": spreads[0], "copies": copies}
     assert "plane convolutions are 3x3 instead of 5x5" in out
     saved = Config.from_dict(json.loads((run / "config.json").read_text()))
-    assert saved.autoencoder.decoder_kernel == 3
+    assert saved.autoencoder.decoder_kernel == 3 and saved.autoencoder.residual_planes
     if copies:
         assert "are copies of the input" in out and "trained again with the narrower field" in out
         assert saved.name == "quick+thin" and (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (2, 16)
@@ -490,7 +491,7 @@ def test_small_switches_to_exactly_the_detail_settings():
             "diffusion.base_channels": 16,
             "diffusion.steps": 1500,
             "diffusion.batch_size": 4,
-            "autoencoder.decoder_kernel": 3,
+            "autoencoder.residual_planes": True,
         },
         name="quick+walls",
     )

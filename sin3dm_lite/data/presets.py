@@ -22,8 +22,7 @@
   thin-part switch keeps the grid (the finer settings take about 5x its fit there)
   and snaps the samples to the input's latent patches (``sampling.snap``); the fit
   names ``--thin-switch``, which asks for the finer settings too. On a shape that is almost
-  all thin walls it also tries a wider denoiser field and gives the decoder 3×3
-  plane convolutions (``Config.thin_walls``).
+  all thin walls it also tries a wider denoiser field (``Config.thin_walls``).
 * ``detail`` – ``small`` at 96 voxels (a 48-texel latent) with 4 ResBlocks (a
   17-texel field, about the same share of the latent) and the paper's
   cross-plane rollout (the three planes agree where a column stands), sampled
@@ -69,16 +68,16 @@ QUICK_THIN_CHANGES = {"sampling.snap": 1.0, "diffusion.batch_size": 6}
 #: costs two thirds of one of 2 × 32 on 6; 4 × 32 would cost 1.75x; batches of 4 instead of 6 scored the same on
 #: both test ruins, docs/thin-parts.md). On trial: a shape whose layout that field holds whole (a square keep)
 #: makes only copies with it, which the fit sees after 150 steps and undoes (fit_policy.are_copies;
-#: docs/thin-parts.md). Its autoencoder's plane convolutions are 3×3 instead of the paper's 5×5 (a decoder field of 5
-#: latent texels instead of 9): about a fifth less autoencoder time without AVX-512, the same samples on both ruins and
-#: the keep; the trial does not undo it (the autoencoder is trained by then). Not for other shapes: the colonnade's
-#: samples keep 0.04-0.05 less of the input's patches at equal G-Div, the canyon's near copy a tenth less (docs/presets.md).
+#: docs/thin-parts.md). Its autoencoder adds free geometry planes to the encoder's (``autoencoder.residual_planes``):
+#: the ruin's reconstruction keeps its windows (260-266 of the input's 277 window cells at 128 voxels against 0-149)
+#: and its stepped top's risers; with the paper's 5×5 plane convolutions its samples keep some of the windows too,
+#: with 3×3 ones (a fifth less autoencoder time without AVX-512) none (docs/thin-parts.md "Where the windows go").
 QUICK_WALLS_CHANGES = {
     "diffusion.n_resblocks": 4,
     "diffusion.base_channels": 16,
     "diffusion.steps": 1500,
     "diffusion.batch_size": 4,
-    "autoencoder.decoder_kernel": 3,
+    "autoencoder.residual_planes": True,
 }
 
 #: what ``detail`` changes in ``small``; ``small`` switches to it by itself on shapes with many thin parts
