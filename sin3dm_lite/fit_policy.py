@@ -130,7 +130,13 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
     if new.autoencoder.residual_planes and not cfg.autoencoder.residual_planes:
         kernel += (
             " Its autoencoder adds free planes to the encoder's, in which a window in a thin wall shows (the "
-            "encoder's averages mix the wall with the one behind it)."
+            "encoder's averages mix the wall with the one behind it)"
+            + (
+                ", and its snapped samples prefer the input's patch from the same place, which brings the windows back"
+                if new.sampling.snap_place and not cfg.sampling.snap_place
+                else ""
+            )
+            + "."
         )
     return (
         f" Almost all of it is thin walls: its denoiser has {d1.n_resblocks} ResBlocks of {d1.base_channels} channels "

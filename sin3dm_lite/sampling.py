@@ -145,6 +145,8 @@ def draw(
         diversity=r.diversity,
         snap=r.snap,
         snap_to=model.latent if r.snap > 0 else None,
+        # the input's places mean something for a sample of its size, not for a controlled one
+        snap_place=model.config.sampling.snap_place if plan.known is None and known is None else 0.0,
     )
     tp, inter = out if return_intermediates is not None else (out, None)
     return Samples(tp, plan.aabb, inter, plan)

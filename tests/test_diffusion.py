@@ -244,6 +244,26 @@ def test_snap_with_windows_a_stride_apart_covers_every_texel(h0):
         snap_to_patches(odd, h0, stride=0)
 
 
+def test_snap_place_brings_a_rare_window_back_where_it_was():
+    """``place``: a rare neighbourhood (one bump in a flat plane) that the estimate lost comes back at its own
+    place, where without ``place`` every window of the estimate has an exact match elsewhere (flat) and the bump
+    stays lost; the window from the same place must beat flat ones at least 4 texels away (7×7 windows). A plane
+    of another size than the input's has no same place: ``place`` changes nothing there."""
+    ref = Triplane(*(torch.zeros(1, 2, 16, 16) for _ in range(3)))
+    for p in ref.planes:
+        p[0, :, 8, 8] = 0.5  # bump² = 0.25 per channel, against 16 × place for the nearest flat window
+    lost = Triplane(*(torch.zeros(3, 2, 16, 16) for _ in range(3)))
+    assert float(snap_to_patches(lost, ref).xy.abs().max()) == 0  # any place alike: flat everywhere
+    back = snap_to_patches(lost, ref, place=1.0)
+    for p in back.planes:
+        torch.testing.assert_close(p, ref.planes[0].expand(3, -1, -1, -1))  # the bump again, nothing else
+    wide = Triplane(*(torch.zeros(1, 2, a, b) for a, b in ((20, 16), (20, 16), (16, 16))))
+    snapped = snap_to_patches(wide, ref, place=1.0)
+    assert float(snapped.xy.abs().max()) == 0 and float(snapped.yz[0, :, 8, 8].min()) == 0.5  # only yz is ref's size
+    with pytest.raises(Sin3DMInputError, match="snap_place"):
+        snap_to_patches(lost, ref, place=-1.0)
+
+
 def test_snap_searches_without_the_channels_that_are_zero_all_over_the_input(h0, monkeypatch):
     """A shape of one colour has a latent whose texture channels are zero everywhere; they add the same distance to
     every candidate window, so the search leaves them out and finds the same windows (checked against the full

@@ -265,9 +265,15 @@ def test_sampling_snap_in_the_config_is_what_sample_and_the_calibration_use(fitt
     assert all(torch.equal(p, q) for p, q in zip(explicit.triplane.planes, by_config.triplane.planes))
     assert all(torch.equal(p, q) for p, q in zip(plain.triplane.planes, off.triplane.planes))
     seen, real = [], diffusion.sample
-    monkeypatch.setattr(diffusion, "sample", lambda *a, **k: seen.append(k["snap"]) or real(*a, **k))
+    monkeypatch.setattr(diffusion, "sample", lambda *a, **k: seen.append((k["snap"], k["snap_place"])) or real(*a, **k))
     sample_occupancy(model, 0.5, 2, 0, 16)  # what the calibration draws at each setting
-    assert seen == [1.0]
+    assert seen == [(1.0, 0.0)]
+    # sampling.snap_place (quick's thin-walls switch): the samples and the calibration's, not controlled ones
+    monkeypatch.setattr(model, "config", model.config.updated(**{"sampling.snap_place": 0.3}))
+    sample_occupancy(model, 0.5, 2, 0, 16)
+    model.sample(1, seed=4, progress=False)
+    model.sample(1, seed=4, progress=False, outpaint=(1.5, 1.0, 1.0))
+    assert seen[1:] == [(1.0, 0.3), (1.0, 0.3), (1.0, 0.0)]
     with pytest.raises(Sin3DMInputError, match="sampling.snap"):
         model.config.updated(**{"sampling.snap": 1.5})
 
@@ -492,6 +498,7 @@ def test_small_switches_to_exactly_the_detail_settings():
             "diffusion.steps": 1500,
             "diffusion.batch_size": 4,
             "autoencoder.residual_planes": True,
+            "sampling.snap_place": 0.3,
         },
         name="quick+walls",
     )

@@ -106,6 +106,11 @@ class SamplingConfig:
     # pull the last denoising steps' clean-latent estimate towards the input's 7×7 latent patches (0: the paper's
     # sampler; :func:`sin3dm_lite.model.snap.patch_snapper`); the calibration samples with it too
     snap: float = 0.0
+    # how much snapping prefers the input's window from the sample's own place: added to each candidate's distance,
+    # per texel² between the two windows' centres (0: any place alike; only for samples of the input's size, not
+    # controlled ones); a rare neighbourhood of the input (a window in a thin wall) then comes back where it was
+    # instead of the common one nearly as near (plain wall) from elsewhere (docs/thin-parts.md)
+    snap_place: float = 0.0
     # choose ``diversity`` for each shape at the end of a fit: the most varied setting whose samples still keep the
     # input's patches (LP-IoU / LP-F goals; :func:`sin3dm_lite.calibrate.calibrate_diversity`), saved in the run's config
     calibrate: bool = False
@@ -273,6 +278,7 @@ LIMITS: dict[str, Any] = {
     "sampling.steps": (1, 100_000),
     "sampling.diversity": (0.0, 1.0),
     "sampling.snap": (0.0, 1.0),
+    "sampling.snap_place": (0.0, 100.0),
     "sampling.mesh_resolution": (16, 2048),
     "sampling.faces": (4, 100_000_000),
     "sampling.texture_size": (16, 16384),

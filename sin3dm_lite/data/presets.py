@@ -71,13 +71,17 @@ QUICK_THIN_CHANGES = {"sampling.snap": 1.0, "diffusion.batch_size": 6}
 #: docs/thin-parts.md). Its autoencoder adds free geometry planes to the encoder's (``autoencoder.residual_planes``):
 #: the ruin's reconstruction keeps its windows (260-266 of the input's 277 window cells at 128 voxels against 0-149)
 #: and its stepped top's risers; with the paper's 5×5 plane convolutions its samples keep some of the windows too,
-#: with 3×3 ones (a fifth less autoencoder time without AVX-512) none (docs/thin-parts.md "Where the windows go").
+#: with 3×3 ones (a fifth less autoencoder time without AVX-512) none. The denoiser then returns plain wall where a
+#: window was (a rare patch); snapping that prefers the input's window from the same place (``sampling.snap_place``,
+#: 0.3 per texel²) brings it back: 8 of 8 samples with windows at the same G-Div and LP (docs/thin-parts.md "Where
+#: the windows go").
 QUICK_WALLS_CHANGES = {
     "diffusion.n_resblocks": 4,
     "diffusion.base_channels": 16,
     "diffusion.steps": 1500,
     "diffusion.batch_size": 4,
     "autoencoder.residual_planes": True,
+    "sampling.snap_place": 0.3,
 }
 
 #: what ``detail`` changes in ``small``; ``small`` switches to it by itself on shapes with many thin parts

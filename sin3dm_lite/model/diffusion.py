@@ -275,6 +275,7 @@ def sample(
     diversity: float = 1.0,
     snap: float = 0.0,
     snap_to: Triplane | None = None,
+    snap_place: float = 0.0,
 ) -> Triplane | tuple[Triplane, list[dict]]:
     """Draw ``n`` latents of spatial size ``resolution = (X, Y, Z)`` from noise.
 
@@ -293,7 +294,8 @@ def sample(
     step ``t0 = diversity · (T-1)`` (:func:`start_step`) from ``q_sample(start, t0)``, the start latent noised
     to that step, instead of from pure noise at T-1. Low values keep the input's layout and regenerate only
     fine detail, 1 is the paper's unconditional sampling; 0 returns ``start`` itself. ``snap`` (0 = the
-    paper's sampler) and ``snap_to``: see :func:`patch_snapper`; the steps with t ≤ :data:`SNAP_LAST`·T snap.
+    paper's sampler), ``snap_to`` and ``snap_place``: see :func:`patch_snapper` (its ``place``); the steps with
+    t ≤ :data:`SNAP_LAST`·T snap.
 
     Seeds: sample ``i`` draws all its noise (the start, DDPM's per-step noise, the noised known latent) from its
     own generator seeded ``seed + i`` (or ``seed[i]`` for a list of seeds), on the CPU, so it depends on its seed
@@ -311,7 +313,7 @@ def sample(
     prediction = prediction or getattr(getattr(model, "cfg", None), "prediction", "x0")
     channels, noise = latent_channels or model.latent_channels, SampleNoise(seed, n)
     t0 = start_step(schedule, diversity)
-    snapper, snap_below = patch_snapper(snap, snap_to), SNAP_LAST * schedule.timesteps
+    snapper, snap_below = patch_snapper(snap, snap_to, place=snap_place), SNAP_LAST * schedule.timesteps
     if t0 < schedule.timesteps - 1 and start is None:
         raise Sin3DMInputError("diversity below 1 starts from a noised latent: pass `start` (e.g. the input's latent)")
     if t0 < 0:  # diversity 0: nothing is regenerated

@@ -40,18 +40,22 @@ SNAP_PATCH = 7
 SNAP_STRIDE = 2
 
 
-def snap_to_patches(x: Triplane, reference: Triplane, patch: int = SNAP_PATCH, stride: int | None = None) -> Triplane:
+def snap_to_patches(
+    x: Triplane, reference: Triplane, patch: int = SNAP_PATCH, stride: int | None = None, place: float = 0.0
+) -> Triplane:
     """Each plane of ``x`` rebuilt from ``reference``'s patches: every ``patch``×``patch`` window of ``x`` (all
     channels; windows ``stride`` texels apart, :data:`SNAP_STRIDE` by default) is replaced by its nearest (L2)
     window of the same plane of ``reference`` (batch 1, any size, every window a candidate), and the overlapping
     windows are averaged back into texels (borders replicated). The layout stays ``x``'s, each
     neighbourhood becomes one the input has: patch-nearest-neighbour generation (GPNN, Granot et al. 2022)
-    applied to the denoiser's estimate of the clean latent (:func:`sample`'s ``snap``)."""
-    return patch_snapper(1.0, reference, patch, stride)(x)
+    applied to the denoiser's estimate of the clean latent (:func:`sample`'s ``snap``). ``place`` > 0 (on a plane of
+    ``reference``'s size) adds ``place`` × the squared distance in texels between a window's centre and a candidate's
+    to that candidate's distance: among windows nearly as near, the one from the same place wins."""
+    return patch_snapper(1.0, reference, patch, stride, place)(x)
 
 
 def patch_snapper(
-    snap: float, reference: Triplane | None, patch: int = SNAP_PATCH, stride: int | None = None
+    snap: float, reference: Triplane | None, patch: int = SNAP_PATCH, stride: int | None = None, place: float = 0.0
 ) -> Callable[[Triplane], Triplane]:
     """Snapping: ``x0 ↦ lerp(x0, snap_to_patches(x0, reference), snap)``. :func:`sample` calls it on the predicted
     x0 of its last steps (t ≤ :data:`SNAP_LAST`·T), so with ``snap`` in (0, 1] each ``patch``×``patch``
@@ -70,6 +74,8 @@ def patch_snapper(
     stride = min(SNAP_STRIDE if stride is None else stride, pad + 1)  # wider steps would leave texels uncovered
     if stride < 1:
         raise Sin3DMInputError(f"the snap stride is a whole number of texels, at least 1; got {stride}")
+    if not float(place) >= 0:
+        raise Sin3DMInputError(f"snap_place weighs a distance in texels: 0 or more, got {place}")
 
     def windows(t: torch.Tensor, step: int = 1) -> torch.Tensor:  # [B, c·K², windows], one every `step` texels
         return F.unfold(F.pad(t, (pad,) * 4, mode="replicate") if pad else t, patch, stride=step)
@@ -92,7 +98,13 @@ def patch_snapper(
         ours = ours.transpose(1, 2).reshape(-1, among.shape[0])
         rows = max(1, SNAP_DISTANCES // among.shape[1])  # rows of distances at once
         # |ours - theirs|² less |ours|², the same for every candidate; in slices so memory stays bounded
-        dist = (torch.addmm(norms[k].to(p), o, among, alpha=-2) for o in ours.split(rows))
+        near = place > 0 and (h, w) == tuple(reference.planes[k].shape[-2:])  # the same place means something
+        dist = (
+            torch.addmm(
+                norms[k].to(p) + (_apart(i, len(o), h, w, stride, p) * place if near else 0), o, among, alpha=-2
+            )
+            for i, o in zip(range(0, len(ours), rows), ours.split(rows))
+        )
         nearest = torch.cat([d.argmin(-1) for d in dist]).view(len(p), n_win)
         chosen = ref[:, nearest].permute(1, 0, 2)  # [B, c·K², windows]
         size = (h + 2 * pad, w + 2 * pad)
@@ -105,6 +117,18 @@ def patch_snapper(
         return x0.zip_map(pulled, lambda a, b: torch.lerp(a, b, float(snap)))
 
     return snapped
+
+
+def _apart(first: int, n: int, h: int, w: int, stride: int, like: torch.Tensor) -> torch.Tensor:
+    """Squared distances in texels ``[n, h·w]`` between the centres of the windows ``first`` … ``first + n - 1``
+    of a batch of ``h``×``w`` planes (windows ``stride`` texels apart, row by row, plane after plane) and every
+    window of a reference plane of the same size (one a texel, row by row)."""
+    across = len(range(0, w, stride))
+    index = torch.arange(first, first + n, device=like.device) % (len(range(0, h, stride)) * across)
+    y, x = (index // across * stride).to(like.dtype), (index % across * stride).to(like.dtype)
+    ry = torch.arange(h, device=like.device, dtype=like.dtype).repeat_interleave(w)
+    rx = torch.arange(w, device=like.device, dtype=like.dtype).repeat(h)
+    return (y[:, None] - ry) ** 2 + (x[:, None] - rx) ** 2
 
 
 __all__ = ["SNAP_DISTANCES", "SNAP_LAST", "SNAP_PATCH", "SNAP_STRIDE", "patch_snapper", "snap_to_patches"]
