@@ -294,8 +294,7 @@ def sample(
     step ``t0 = diversity · (T-1)`` (:func:`start_step`) from ``q_sample(start, t0)``, the start latent noised
     to that step, instead of from pure noise at T-1. Low values keep the input's layout and regenerate only
     fine detail, 1 is the paper's unconditional sampling; 0 returns ``start`` itself. ``snap`` (0 = the
-    paper's sampler), ``snap_to`` and ``snap_place``: see :func:`patch_snapper` (its ``place``); the steps with
-    t ≤ :data:`SNAP_LAST`·T snap.
+    paper's sampler), ``snap_to``, ``snap_place`` (its ``place``): :func:`patch_snapper`; t ≤ :data:`SNAP_LAST`·T snap.
 
     Seeds: sample ``i`` draws all its noise (the start, DDPM's per-step noise, the noised known latent) from its
     own generator seeded ``seed + i`` (or ``seed[i]`` for a list of seeds), on the CPU, so it depends on its seed
