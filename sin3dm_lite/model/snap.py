@@ -9,7 +9,9 @@ windows back into texels: the layout stays the sample's, each neighbourhood
 becomes one the input has. :func:`sample <sin3dm_lite.model.diffusion.sample>`
 does it on the last tenth of the noise schedule when ``snap`` > 0
 (``sampling.snap``; ``quick`` turns it on by itself for a shape of thin parts).
-Why these numbers: docs/thin-parts.md.
+With ``place`` (``sampling.snap_place``, ``quick`` on thin walls) the search prefers the input's window from
+the sample's own place, so that a rare neighbourhood (a window in a wall) comes back where it was rather than
+the common one (plain wall) from elsewhere. Why these numbers: docs/thin-parts.md.
 """
 
 from __future__ import annotations
