@@ -145,7 +145,9 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
         "slanted rim (in about the narrower denoiser's time, 0.8-1.0x). A field that wide can hold a small shape's whole plan: after "
         f"{WIDE_FIELD_CHECK_STEP} steps the fit draws 4 samples from pure noise and, if "
         f"they are copies, trains the narrower denoiser instead. To keep the narrower one: CLI --set "
-        f"thin_walls={{}}, Python {preset_expr(cfg)}.updated(thin_walls={{}})." + kernel
+        f"thin_walls={{}}, Python {preset_expr(cfg)}.updated(thin_walls={{}})"
+        + (" (which drops what follows too)." if kernel else ".")
+        + kernel
     )
 
 

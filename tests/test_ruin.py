@@ -141,6 +141,7 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     assert "plane convolutions" not in said and "free planes" in said
     # ... and snapping that prefers the input's patch from the same place (a window comes back where it was)
     assert switched.sampling.snap_place == 0.3 and quick.sampling.snap_place == 0 and "same place" in said
+    assert "updated(thin_walls={}) (which drops what follows too)" in said  # thin_walls={} drops them too
     own = quick.updated(**{"autoencoder.decoder_kernel": 3})
     mine = thin_parts_switch(own, grid, thin)
     assert mine.name == "quick+walls" and mine.autoencoder.decoder_kernel == 3 and mine.diffusion.n_resblocks == 4
