@@ -121,14 +121,14 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
     steps = f"for {d1.steps:,} steps " if d1.steps != d0.steps else ""
     steps += f"on batches of {d1.batch_size} " if d1.batch_size != d0.batch_size else ""
     k0, k1 = cfg.autoencoder.decoder_kernel, new.autoencoder.decoder_kernel
-    kernel = (
+    extra = (  # what the switch changes beside the denoiser
         f" Its autoencoder's plane convolutions are {k1}x{k1} instead of {k0}x{k0} (about a fifth less of its time; "
         "a thin wall's windows close)."
         if k0 != k1
         else ""
     )
     if new.autoencoder.residual_planes and not cfg.autoencoder.residual_planes:
-        kernel += (
+        extra += (
             " Its autoencoder adds free planes to the encoder's, in which a window in a thin wall shows (the "
             "encoder's averages mix the wall with the one behind it)"
             + (
@@ -146,8 +146,8 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
         f"{WIDE_FIELD_CHECK_STEP} steps the fit draws 4 samples from pure noise and, if "
         f"they are copies, trains the narrower denoiser instead. To keep the narrower one: CLI --set "
         f"thin_walls={{}}, Python {preset_expr(cfg)}.updated(thin_walls={{}})"
-        + (" (which drops what follows too)." if kernel else ".")
-        + kernel
+        + (" (which drops what follows too)." if extra else ".")
+        + extra
     )
 
 

@@ -290,6 +290,10 @@ def test_sampling_with_snap(trained, h0):
     assert all(torch.equal(p, q) for p, q in zip(plain.planes, off.planes))  # 0 is the paper's sampler
     snapped = sample(model, sched, LATENT_RES, snap=1.0, snap_to=h0, **args)
     assert _nearest_window_distance(snapped, h0) < _nearest_window_distance(plain, h0)
+    # snap_place reaches the snapper: windows from the sample's own place, so texel for texel nearer the input
+    placed = sample(model, sched, LATENT_RES, snap=1.0, snap_to=h0, snap_place=5.0, **args)
+    gap = [sum(float((p - q).abs().mean()) for p, q in zip(x.planes, h0.planes)) for x in (snapped, placed)]
+    assert gap[1] < 0.5 * gap[0], gap
     # only the last tenth of the schedule snaps: the steps before it are the paper's sampler's, bit for bit
     _, theirs = sample(model, sched, LATENT_RES, return_intermediates=8, **args)
     _, ours = sample(model, sched, LATENT_RES, snap=1.0, snap_to=h0, return_intermediates=8, **args)

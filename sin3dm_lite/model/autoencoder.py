@@ -74,9 +74,9 @@ class TriplaneEncoder(nn.Module):
         convolution and its gradient were a seventh of an autoencoder step.
         """
         planes = []
-        for axis, taps in zip((4, 3, 2), self.taps(grid)):  # xy: mean over z, xz: over y, yz: over x
+        for k, (axis, taps) in enumerate(zip((4, 3, 2), self.taps(grid))):  # xy: mean over z, xz: over y, yz: over x
             geo = _tap_conv(self.geo, taps[:, :1], axis)
-            f = [geo if residual is None else geo + residual[len(planes)], _tap_conv(self.tex, taps, axis)]
+            f = [geo if residual is None else geo + residual[k], _tap_conv(self.tex, taps, axis)]
             planes.append(self.squash(torch.cat(f, dim=1)))
         return Triplane(*planes)
 
