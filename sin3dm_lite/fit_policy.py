@@ -138,15 +138,21 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
             )
             + "."
         )
+    drop = f"CLI --set thin_walls={{}}, Python {preset_expr(cfg)}.updated(thin_walls={{}})"
+    if not wide_field_undo(cfg):  # the user chose the denoiser: no wider field on trial, the rest stays
+        return f" Almost all of it is thin walls.{extra} To fit without them: {drop}." if extra else ""
     return (
         f" Almost all of it is thin walls: its denoiser has {d1.n_resblocks} ResBlocks of {d1.base_channels} channels "
         f"{steps}instead of {d0.n_resblocks} of {d0.base_channels}, a field of {field_width(d1.n_resblocks)} latent texels "
         f"instead of {field_width(d0.n_resblocks)}, which keeps a stepped top that the narrower field rounds into a "
         "slanted rim (in about the narrower denoiser's time, 0.8-1.0x). A field that wide can hold a small shape's whole plan: after "
         f"{WIDE_FIELD_CHECK_STEP} steps the fit draws 4 samples from pure noise and, if "
-        f"they are copies, trains the narrower denoiser instead. To keep the narrower one: CLI --set "
-        f"thin_walls={{}}, Python {preset_expr(cfg)}.updated(thin_walls={{}})"
-        + (" (which drops what follows too)." if extra else ".")
+        f"they are copies, trains the narrower denoiser instead. To keep the narrower one: {drop}"
+        + (
+            " (which drops what follows too; setting a denoiser setting yourself drops the wider field alone)."
+            if extra
+            else "."
+        )
         + extra
     )
 

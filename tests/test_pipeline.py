@@ -477,6 +477,31 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
     assert resumed.config == saved and resumed.report["thin_parts_switch"]["wide_field"] == check
 
 
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps
+def test_a_denoiser_the_user_chose_keeps_the_thin_walls_free_planes_without_a_trial(tmp_path, capsys, monkeypatch):
+    """A denoiser setting the user sets drops Config.thin_walls' wider field (nothing to try: the fit never looks
+    at samples from pure noise) but not what keeps a thin wall's windows: the free planes are trained and saved."""
+    from sin3dm_lite import fit_policy, fitting
+
+    monkeypatch.setattr(fit_policy, "THIN_WALLS_SHARE", 0.0)  # the tiles at 24 voxels count as thin walls here
+    monkeypatch.setattr(fitting, "are_copies", lambda d: pytest.fail("no wider field to try"))
+    walls = {"diffusion.n_resblocks": 3, "diffusion.base_channels": 8, "autoencoder.residual_planes": True}
+    cfg = micro_config().updated(
+        **{"name": "quick", "autoencoder.steps": 2, "diffusion.steps": 4, "thin_parts": {"sampling.snap": 1.0}},
+        thin_walls=walls,
+    )
+    cfg = cfg.updated(**{"diffusion.n_resblocks": 1})  # the user's denoiser
+    assert cfg.thin_walls == {"autoencoder.residual_planes": True}
+    model = Sin3DM.fit("tiles", preset=cfg, out=tmp_path / "tiles", progress=True)
+    out = capsys.readouterr().out
+    assert "free planes" in out and "a field of" not in out
+    assert "wide_field" not in model.report["thin_parts_switch"]
+    saved = Sin3DM.load(tmp_path / "tiles").config
+    assert saved.name == "quick+walls" and saved.autoencoder.residual_planes and saved.sampling.snap == 1.0
+    assert (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (1, cfg.diffusion.base_channels)
+    assert model.report["diffusion_steps"] == 4
+
+
 def test_small_switches_to_exactly_the_detail_settings():
     """The 'detail' preset is what small switches to (one source of truth), and it does not switch again."""
     small, detail = get_preset("small"), get_preset("detail")

@@ -141,7 +141,7 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     assert "plane convolutions" not in said and "free planes" in said
     # ... and snapping that prefers the input's patch from the same place (a window comes back where it was)
     assert switched.sampling.snap_place == 0.3 and quick.sampling.snap_place == 0 and "same place" in said
-    assert "updated(thin_walls={}) (which drops what follows too)" in said  # thin_walls={} drops them too
+    assert "updated(thin_walls={}) (which drops what follows too; setting a denoiser setting" in said
     own = quick.updated(**{"autoencoder.decoder_kernel": 3})
     mine = thin_parts_switch(own, grid, thin)
     assert mine.name == "quick+walls" and mine.autoencoder.decoder_kernel == 3 and mine.diffusion.n_resblocks == 4
@@ -152,7 +152,13 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     assert fewer.autoencoder == quick.autoencoder  # the paper's 5×5 plane convolutions
     assert "ResBlocks" not in thin_parts_message(quick, fewer, grid, 0.3)
     wide = quick.updated(**{"diffusion.n_resblocks": 3})
-    assert wide.thin_walls == {} and thin_parts_switch(wide, grid, thin).diffusion.n_resblocks == 3
+    # ... which drops the wider field alone: the free planes and the same-place snapping stay, said so
+    assert wide.thin_walls == {"autoencoder.residual_planes": True, "sampling.snap_place": 0.3}
+    chose = thin_parts_switch(wide, grid, thin)
+    assert chose.name == "quick+walls" and chose.diffusion == wide.updated(**{"diffusion.batch_size": 6}).diffusion
+    assert chose.autoencoder.residual_planes and chose.sampling.snap_place == 0.3
+    said = thin_parts_message(wide, chose, grid, thin)
+    assert "free planes" in said and "same place" in said and "ResBlocks" not in said and "--set thin_walls={}" in said
     assert thin_parts_switch(quick.updated(thin_walls={}), grid, thin).name == "quick+thin"
     assert thin_parts_hint(quick, grid, thin) is None  # it switched: the message says it all
     plain = quick.updated(thin_parts={})  # --no-thin-switch

@@ -158,7 +158,8 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         help="on a shape with many thin parts, fit at the 'detail' settings (96 voxels, wider denoiser field): "
         "small does by itself; --thin-switch asks quick too (about 5x its fit time without native bf16); "
         "--no-thin-switch keeps the preset's settings whatever the shape (quick: no snapped samples and, on thin "
-        "walls, no wider denoiser field on trial; --set thin_walls={} drops only that) (default: the preset's choice)",
+        "walls, no wider denoiser field on trial nor free planes; --set thin_walls={} drops only those; a denoiser "
+        "setting you --set drops the field alone) (default: the preset's choice)",
     )
     f.add_argument(
         "--rollout-switch",

@@ -136,9 +136,9 @@ class Config:
     # detail at no cost in variation. {} never switches.
     rollout_switch: dict = field(default_factory=dict)
     # Dotted settings added to thin_parts' when a shape is almost all thin walls (ShapeGrid.thin_share above
-    # fit_policy.THIN_WALLS_SHARE): a wider denoiser field, on trial. Sin3DM.fit checks early in the denoiser's
-    # training whether that field copies the shape (fit_policy.are_copies) and trains it again without them
-    # if so. {} never switches.
+    # fit_policy.THIN_WALLS_SHARE): a wider denoiser field, on trial, and what keeps a thin wall's windows (free
+    # planes, same-place snapping). Sin3DM.fit checks early in the denoiser's training whether that field copies
+    # the shape (fit_policy.are_copies) and trains it again with the narrower one if so. {} never switches.
     thin_walls: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -197,7 +197,8 @@ class Config:
         6 on the colonnade), unless the same call sets ``thin_parts`` itself;
         it likewise leaves :attr:`rollout_switch`, and setting ``diffusion.rollout``
         turns that switch off; changing a denoiser setting :attr:`thin_walls` names
-        turns that one off (another setting it names only leaves it).
+        drops its wider denoiser field (nothing left to try) but keeps the rest
+        (the free planes, the same-place snapping).
         """
         d = self.to_dict()
         for key, value in changes.items():
@@ -216,9 +217,15 @@ class Config:
             kept = {k: v for k, v in d["rollout_switch"].items() if k not in changes}
             d["rollout_switch"] = kept if "diffusion.rollout" in kept else {}  # the rollout chosen: nothing to switch
         chosen = [k for k in d["thin_walls"] if k in changes]
-        if chosen and "thin_walls" not in changes:  # the denoiser chosen: nothing to try; another setting: the user's
+        if (
+            chosen and "thin_walls" not in changes
+        ):  # the denoiser chosen: no wider field to try; any setting: the user's
             denoiser = any(k.startswith("diffusion.") for k in chosen)
-            d["thin_walls"] = {} if denoiser else {k: v for k, v in d["thin_walls"].items() if k not in changes}
+            d["thin_walls"] = {
+                k: v
+                for k, v in d["thin_walls"].items()
+                if k not in changes and not (denoiser and k.startswith("diffusion."))
+            }
         return Config.from_dict(d)
 
 
