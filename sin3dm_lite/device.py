@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
 from functools import cache
 from pathlib import Path
 
@@ -41,6 +42,11 @@ def count_parameters(module: torch.nn.Module, trainable_only: bool = False) -> i
     return sum(p.numel() for p in module.parameters() if p.requires_grad or not trainable_only)
 
 
+#: bf16 counts as fast on a CPU when it does the autoencoder's kind of work in at most this share of fp32's time
+#: (an AMD EPYC with AVX512-BF16: about 0.4; an Intel Xeon with AVX512-BF16 but no AMX: 1.3, slower; docs/performance.md)
+BF16_FAST_SHARE = 0.8
+
+
 @cache
 def _cpu_has_bf16() -> bool:
     try:  # Linux; elsewhere we do not know, so stay in fp32
@@ -50,12 +56,41 @@ def _cpu_has_bf16() -> bool:
     return "avx512_bf16" in flags or "amx_bf16" in flags
 
 
+@cache
+def cpu_bf16_share() -> float | None:
+    """bf16's time over fp32's for a step of MLPs like the autoencoder's on this CPU (4,096 points, 256 wide,
+    forward and backward, the current threads), or None where the CPU has neither AVX512-BF16 nor AMX (there
+    bf16 is emulated, many times slower, and nothing is timed). Measured once a process, about half a second:
+    the flag alone does not say it (a Xeon with AVX512-BF16 ran it 1.3x slower than fp32)."""
+    if not _cpu_has_bf16():
+        return None
+    gen = torch.Generator().manual_seed(0)
+    x = torch.randn(4096, 64, generator=gen)
+    mlp = torch.nn.Sequential(
+        torch.nn.Linear(64, 256), torch.nn.ReLU(), torch.nn.Linear(256, 256), torch.nn.ReLU(), torch.nn.Linear(256, 4)
+    )
+
+    def best(bf16: bool) -> float:
+        times = []
+        for _ in range(5):  # the first two warm up
+            t0 = time.perf_counter()
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+                y = mlp(x).float().square().mean()
+            y.backward()
+            times.append(time.perf_counter() - t0)
+        return min(times[2:])
+
+    return best(True) / best(False)
+
+
 def bf16_is_fast(device: str | torch.device) -> bool:
-    """Whether bfloat16 matrix products run natively here (a CUDA GPU with bf16, a CPU with AVX512-BF16 or AMX)."""
+    """Whether bfloat16 matrix products run faster than float32 here: a CUDA GPU with bf16; a CPU with
+    AVX512-BF16 or AMX where they also measure faster (:func:`cpu_bf16_share` under :data:`BF16_FAST_SHARE`)."""
     dev = torch.device(device)
     if dev.type == "cuda":
         return torch.cuda.is_bf16_supported()
-    return dev.type == "cpu" and _cpu_has_bf16()
+    share = cpu_bf16_share() if dev.type == "cpu" else None
+    return share is not None and share <= BF16_FAST_SHARE
 
 
 def autocast(device: str | torch.device, precision: str = "auto"):

@@ -24,7 +24,7 @@ from .data.config import Config
 from .data.grid import THIN_SHARE_HINT, ShapeGrid
 from .data.mesh import TexturedMesh
 from .data.presets import DETAIL_CHANGES, PRESETS
-from .device import bf16_is_fast
+from .device import bf16_is_fast, cpu_bf16_share
 from .errors import Sin3DMInputError
 from .model.diffusion import check_flips as check_flip_axes
 
@@ -237,7 +237,8 @@ def quick_hint(cfg: Config, device, one_color: bool = False) -> str | None:
     """What :meth:`Sin3DM.fit` says when its autoencoder would be slow on a CPU without native bf16, else None.
 
     ``small``'s paper-width autoencoder (its MLPs are most of a fit) runs in
-    bf16 where the CPU has AVX512-BF16 or AMX; elsewhere it runs in fp32, about
+    bf16 where the CPU has AVX512-BF16 or AMX and runs it faster (measured:
+    :func:`~sin3dm_lite.device.bf16_is_fast`); elsewhere it runs in fp32, about
     20 minutes on 2 AVX2 cores (:func:`fp32_autoencoder_minutes`). The ``quick``
     preset's light autoencoder fits in about 5 minutes there, with blurrier
     texture (docs/presets.md). Any config whose autoencoder would take over
@@ -251,12 +252,20 @@ def quick_hint(cfg: Config, device, one_color: bool = False) -> str | None:
     if minutes <= QUICK_HINT_MINUTES:
         return None
     return (
-        f"this CPU has no native bf16, so the {cfg.name} config's autoencoder ({cfg.autoencoder.steps:,} steps of "
+        f"this CPU {_no_fast_bf16()}, so the {cfg.name} config's autoencoder ({cfg.autoencoder.steps:,} steps of "
         f"{cfg.autoencoder.points_per_step:,} points, {cfg.autoencoder.mlp_hidden}-wide MLPs) is slow here: about "
         f"{minutes:.0f} minutes on 2 cores in fp32 (longer in emulated bf16). The 'quick' preset (a lighter "
         "autoencoder) fits in about 5 minutes, with the same shapes but blurrier texture: preset='quick' "
         "(CLI: --preset quick)."
     )
+
+
+def _no_fast_bf16() -> str:
+    """Why bf16 is not fast on this CPU, in words: no native bf16, or native bf16 that measured slow."""
+    share = cpu_bf16_share()
+    if share is None:
+        return "has no native bf16"
+    return f"runs bf16 no faster than fp32 (AVX512-BF16, but measured at {share:.1f}x fp32's time here)"
 
 
 # --------------------------------------------------------------------------- advice

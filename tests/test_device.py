@@ -17,3 +17,32 @@ def test_autocast_precisions():
         assert (a @ b).dtype == (torch.bfloat16 if bf16_is_fast("cpu") else torch.float32)
     with pytest.raises(Sin3DMInputError, match="precision"):
         autocast("cpu", "fp8")
+
+
+def test_auto_precision_picks_bf16_only_where_it_measures_faster(monkeypatch):
+    """The CPU's flag alone does not make bf16 fast (a Xeon with AVX512-BF16 ran the autoencoder's MLPs 1.3-1.6x
+    slower in bf16): where the flag is present the speed is measured once, and 'auto' follows the measurement; where
+    it is absent nothing is timed (emulated bf16 is many times slower). The fit's hint says which it was."""
+    from sin3dm_lite import device, fit_policy
+    from sin3dm_lite.data.presets import get_preset
+
+    device.cpu_bf16_share.cache_clear()
+    monkeypatch.setattr(device, "_cpu_has_bf16", lambda: False)
+    assert device.cpu_bf16_share() is None and not device.bf16_is_fast("cpu")
+    assert "has no native bf16" in fit_policy.quick_hint(get_preset("small"), "cpu")
+    device.cpu_bf16_share.cache_clear()
+    monkeypatch.setattr(device, "_cpu_has_bf16", lambda: True)
+    share = device.cpu_bf16_share()  # timed here, whatever this CPU is
+    assert share > 0 and device.cpu_bf16_share() == share  # once a process
+    assert device.bf16_is_fast("cpu") == (share <= device.BF16_FAST_SHARE)
+    device.cpu_bf16_share.cache_clear()
+    for measured, fast in ((0.4, True), (0.8, True), (1.3, False)):
+        monkeypatch.setattr(device, "cpu_bf16_share", lambda m=measured: m)
+        assert device.bf16_is_fast("cpu") is fast
+        with autocast("cpu", "auto"):
+            assert (torch.randn(4, 4) @ torch.randn(4, 4)).dtype == (torch.bfloat16 if fast else torch.float32)
+    monkeypatch.setattr(fit_policy, "cpu_bf16_share", lambda: 1.3)
+    monkeypatch.setattr(fit_policy, "bf16_is_fast", lambda dev: False)
+    assert "no faster than fp32 (AVX512-BF16, but measured at 1.3x fp32's time here)" in fit_policy.quick_hint(
+        get_preset("small"), "cpu"
+    )
