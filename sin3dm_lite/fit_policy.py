@@ -80,14 +80,20 @@ def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -
         batch = (
             f", its denoiser on batches of {b1} instead of {b0}, which snapped samples need no more" if b0 != b1 else ""
         )
+        finer = (
+            f"Its finer thin-part settings {_finer_settings()} copy a shape of thin walls and close its windows: "
+            "CLI --thin-switch asks for them anyway."
+            if cfg.thin_parts.get("grid.resolution", new.grid.resolution) != new.grid.resolution  # small's
+            else f"The finer thin-part settings {_finer_settings()} keep them better at about 5x the fit time "
+            "without native bf16: CLI --thin-switch."
+        )
         return (
             f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
             f"the {cfg.name} preset's samples would thicken or break: its samples are snapped to the input's latent "
             f"patches instead (sampling.snap={new.sampling.snap:g}, and the calibration picks the diversity for "
-            f"that; no extra fit time{batch}; the run's config is named '{new.name}'). The finer thin-part settings "
-            f"{_finer_settings()} keep them better at about 5x the fit time without native bf16: CLI "
-            "--thin-switch. To keep the plain sampler: CLI --no-thin-switch, Python "
-            "preset=get_preset(...).updated(thin_parts={})." + thin_walls_message(cfg, new)
+            f"that; no extra fit time{batch}; the run's config is named '{new.name}'). {finer} To keep the plain "
+            "sampler: CLI --no-thin-switch, Python preset=get_preset(...).updated(thin_parts={})."
+            + thin_walls_message(cfg, new)
         )
     return (
         f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
@@ -162,7 +168,8 @@ def wide_field_undo(before: Config) -> dict:
     (what :attr:`Config.thin_walls` changes, as :meth:`Config.for_thin_parts` without ``walls`` sets them: for
     ``quick`` 2 ResBlocks of 32 channels, 1,000 steps, the snapped fits' batches of 6). The denoiser's alone: the
     autoencoder (whatever :attr:`Config.thin_walls` set in it) is trained by the time the trial looks."""
-    old = before.for_thin_parts().settings()
+    narrow = before.for_thin_parts()  # small's are another grid's: there the preset's own denoiser
+    old = (narrow if narrow.grid == before.grid else before).settings()
     return {k: old[k] for k in before.thin_walls if k.startswith("diffusion.")}
 
 

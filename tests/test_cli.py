@@ -338,12 +338,14 @@ def _preset_fit_gets(tmp_path, monkeypatch, *argv):
     return seen["preset"] if isinstance(seen["preset"], Config) else get_preset(seen["preset"])
 
 
-@pytest.mark.parametrize("flag, switches", [([], True), (["--no-thin-switch"], False)])
+@pytest.mark.parametrize("flag, switches", [([], True), (["--no-thin-switch"], False), (["--thin-switch"], True)])
 def test_fit_passes_the_thin_part_switch_choice(tmp_path, monkeypatch, flag, switches):
-    """`fit` hands small (with its thin-part settings) to Sin3DM.fit; --no-thin-switch hands small without them."""
+    """`fit` hands small (with its thin-part settings, and its own for thin walls) to Sin3DM.fit; --no-thin-switch
+    hands small without them; --thin-switch asks for the finer settings on thin walls too."""
     cfg = _preset_fit_gets(tmp_path, monkeypatch, "colonnade", *flag)
-    assert cfg.name == "small" and bool(cfg.thin_parts) is switches
+    assert cfg.name == "small" and bool(cfg.thin_parts) is switches and bool(cfg.thin_walls) is (flag == [])
     assert cfg.grid.resolution == 64
+    assert cfg.for_thin_parts(walls=True).grid.resolution == {(): 64, ("--thin-switch",): 96}.get(tuple(flag), 64)
 
 
 @pytest.mark.parametrize("flag", [[], ["--thin-switch"], ["--no-thin-switch"]])

@@ -111,7 +111,7 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     """The ruin is mostly thin walls at 64 voxels: small switches to its finer thin-part settings; quick (whose
     finer settings take 5x its fit without bf16) switches to snapped samples on the same fit and names
     --thin-switch; quick without its switch gives the hint, which names both."""
-    from sin3dm_lite.fit_policy import thin_parts_hint, thin_parts_message, thin_parts_switch
+    from sin3dm_lite.fit_policy import thin_parts_hint, thin_parts_message, thin_parts_switch, wide_field_undo
 
     quick = get_preset("quick")
     grid = mesh_to_grid(
@@ -167,7 +167,23 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     assert "--set sampling.snap=1" in hint and "updated(**{'sampling.snap': 1.0})" in hint
     assert thin_parts_switch(plain, grid, thin) is None
     small = get_preset("small")
-    assert thin_parts_hint(small, grid, thin) is None and thin_parts_switch(small, grid, thin).grid.resolution == 96
+    # small: a shape of thin walls gets quick's thin-walls switch on small's grid and autoencoder, said so; a shape of
+    # fewer thin parts detail's settings
+    assert thin_parts_hint(small, grid, thin) is None
+    own = thin_parts_switch(small, grid, thin)
+    assert own.name == "small+walls" and own.grid == small.grid and own.autoencoder.steps == small.autoencoder.steps
+    assert own.sampling.snap_place == 0.3 and own.diffusion.n_resblocks == 4 and not own.diffusion.rollout
+    said = thin_parts_message(small, own, grid, thin)
+    assert "copy a shape of thin walls and close its windows: CLI --thin-switch asks for them anyway" in said
+    assert "free planes" in said and "a field of 17 latent texels instead of 9" in said
+    assert thin_parts_switch(small, grid, 0.3).grid.resolution == 96
+    assert wide_field_undo(small) == {  # the trial's fallback: small's own denoiser (its thin-part one is 96 voxels')
+        "diffusion.n_resblocks": 2,
+        "diffusion.base_channels": 32,
+        "diffusion.steps": 2000,
+        "diffusion.batch_size": 8,
+        "diffusion.rollout": False,
+    }
     assert thin_parts_hint(plain, grid, 0.1) is None and thin_parts_switch(quick, grid, 0.1) is None  # few thin parts
     assert thin_parts_hint(get_preset("tiny"), grid, thin) is None  # tests' 32 voxels
     # the finer settings the message names do what it says

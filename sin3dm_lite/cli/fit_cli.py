@@ -91,11 +91,12 @@ def cmd_fit(a) -> None:
     if a.thin_switch is False:
         changes["thin_parts"] = {}
         changes.setdefault("thin_walls", {})
-    elif a.thin_switch and "thin_parts" not in changes and "grid.resolution" not in base.thin_parts:
-        # quick's switch keeps its grid for the cost: the finer settings asked for here, beside its own switch
-        # (settings the user sets stay theirs)
-        changes["thin_parts"] = {**base.thin_parts, **{k: v for k, v in DETAIL_CHANGES.items() if k not in changes}}
-        changes.setdefault("thin_walls", {})  # the finer settings bring their own 4-ResBlock field
+    elif a.thin_switch:
+        changes.setdefault("thin_walls", {})  # the finer settings bring their own 4-ResBlock field, on thin walls too
+        if "thin_parts" not in changes and "grid.resolution" not in base.thin_parts:
+            # quick's switch keeps its grid for the cost: the finer settings asked for here, beside its own switch
+            # (settings the user sets stay theirs)
+            changes["thin_parts"] = {**base.thin_parts, **{k: v for k, v in DETAIL_CHANGES.items() if k not in changes}}
     if not a.rollout_switch:
         changes["rollout_switch"] = {}
     preset = base.updated(**changes) if changes else name

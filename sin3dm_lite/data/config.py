@@ -162,12 +162,17 @@ class Config:
         # thin_parts that choose the denoiser's blocks themselves (the finer settings of --thin-switch) leave nothing
         # to try; its batches and steps the wider field sets over theirs
         blocks = {"diffusion.n_resblocks", "diffusion.base_channels"}
-        walls = walls and bool(self.thin_walls) and not blocks & set(self.thin_parts)
+        walls = walls and bool(self.thin_walls) and (self._walls_replace() or not blocks & set(self.thin_parts))
         if not self.thin_parts and not walls:
             return self
         changes = {**self.thin_parts, **(self.thin_walls if walls else {})}
         suffix = "walls" if walls else "thin"
         return self.updated(**changes, name=f"{self.name}+{suffix}", thin_parts={}, thin_walls={})
+
+    def _walls_replace(self) -> bool:
+        """Whether :attr:`thin_walls` sets every setting :attr:`thin_parts` does (``small``'s: its own grid, not
+        ``detail``'s): then it replaces the thin-part settings rather than adding to them."""
+        return bool(self.thin_parts) and set(self.thin_parts) <= set(self.thin_walls)
 
     def for_rollout(self) -> Config:
         """These settings with :attr:`rollout_switch` applied (the cross-plane rollout on), nothing left to switch."""
@@ -198,9 +203,10 @@ class Config:
         it likewise leaves :attr:`rollout_switch`, and setting ``diffusion.rollout``
         turns that switch off; changing a denoiser setting :attr:`thin_walls` names
         drops its wider denoiser field (nothing left to try) but keeps the rest
-        (the free planes, the same-place snapping).
+        (the free planes, the same-place snapping), or all of it where it
+        replaces the thin-part settings (``small``'s).
         """
-        d = self.to_dict()
+        d, replace = self.to_dict(), self._walls_replace()
         for key, value in changes.items():
             if key not in LIMITS:
                 raise unknown_setting(key)
@@ -226,6 +232,8 @@ class Config:
                 for k, v in d["thin_walls"].items()
                 if k not in changes and not (denoiser and k.startswith("diffusion."))
             }
+            if denoiser and replace:  # small's: the thin-walls settings were a whole denoiser of their own
+                d["thin_walls"] = {}
         return Config.from_dict(d)
 
 

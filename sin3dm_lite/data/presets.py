@@ -113,7 +113,7 @@ def _small() -> Config:
     # * thin_parts: shapes with many thin parts get the 'detail' settings (see _detail) in about the same time;
     # * rollout_switch: a shape whose calibration keeps the goals from pure noise gets its denoiser trained again
     #   with the rollout (Sin3DM.fit), which keeps regular patterns (bricks) whole.
-    return Config(
+    small = Config(
         name="small",
         grid=GridConfig(resolution=64, n_surface_points=300_000, margin_voxels=3.25),
         autoencoder=AutoencoderConfig(steps=2000, points_per_step=8192),
@@ -134,6 +134,17 @@ def _small() -> Config:
         thin_parts=dict(DETAIL_CHANGES),
         rollout_switch=dict(ROLLOUT_CHANGES),
     )
+    # * thin_walls: a shape of thin walls only (a ruined tower) gets quick's thin-walls settings on small's own grid
+    #   and autoencoder instead of detail's, which copy such a shape and lose its windows (docs/thin-parts.md)
+    return small.updated(thin_walls=small_walls_changes(small))
+
+
+def small_walls_changes(small: Config) -> dict:
+    """``small``'s thin-walls switch: every setting ``detail`` changes back to ``small``'s own (64 voxels, no rollout),
+    then ``quick``'s thin-part and thin-walls switches (snapped samples, the wider field on trial, the free planes,
+    the same-place preference). It replaces the thin-part settings rather than adding to them."""
+    own = small.settings()
+    return {**{k: own[k] for k in DETAIL_CHANGES}, **QUICK_THIN_CHANGES, **QUICK_WALLS_CHANGES}
 
 
 def _detail() -> Config:
