@@ -261,7 +261,7 @@ def quick_hint(cfg: Config, device, one_color: bool = False) -> str | None:
     return (
         f"this CPU {_no_fast_bf16()}, so the {cfg.name} config's autoencoder ({cfg.autoencoder.steps:,} steps of "
         f"{cfg.autoencoder.points_per_step:,} points, {cfg.autoencoder.mlp_hidden}-wide MLPs) is slow here: about "
-        f"{minutes:.0f} minutes on 2 cores in fp32 (longer in emulated bf16). The 'quick' preset (a lighter "
+        f"{minutes:.0f} minutes on 2 cores in fp32. The 'quick' preset (a lighter "
         "autoencoder) fits in about 5 minutes, with the same shapes but blurrier texture: preset='quick' "
         "(CLI: --preset quick)."
     )
@@ -271,7 +271,7 @@ def _no_fast_bf16() -> str:
     """Why bf16 is not fast on this CPU, in words: no native bf16, or native bf16 that measured slow."""
     share = cpu_bf16_share()
     if share is None:
-        return "has no native bf16"
+        return "has no native bf16 (emulated, it is slower still)"
     return f"runs bf16 no faster than fp32 (AVX512-BF16, but measured at {share:.1f}x fp32's time here)"
 
 

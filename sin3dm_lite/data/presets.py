@@ -12,7 +12,9 @@
   On a shape with many thin parts (columns, slats: :meth:`ShapeGrid.thin_share`)
   the fit switches by itself to ``detail``'s settings (``Config.thin_parts``),
   which keep them in about the same time; the run's config is then named
-  ``small+thin``.
+  ``small+thin``. A shape that is almost all thin walls (a ruined tower) gets
+  ``quick``'s thin-walls settings on ``small``'s own grid and autoencoder
+  instead (``small+walls``): ``detail``'s copy such a shape and close its windows.
 * ``quick`` – ``small`` with a light autoencoder (MLP heads 128 wide, 4,096 points,
   the colour loss on 2,048 of them, 1,000 steps) and 1,000 denoiser steps, for CPUs without native bf16 (AVX2
   only, most laptops), where ``small``'s paper-width autoencoder alone takes
