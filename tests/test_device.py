@@ -32,7 +32,11 @@ def test_auto_precision_picks_bf16_only_where_it_measures_faster(monkeypatch):
     assert "has no native bf16" in fit_policy.quick_hint(get_preset("small"), "cpu")
     device.cpu_bf16_share.cache_clear()
     monkeypatch.setattr(device, "_cpu_has_bf16", lambda: True)
+    torch.manual_seed(3)
     share = device.cpu_bf16_share()  # timed here, whatever this CPU is
+    drawn = torch.rand(3)
+    torch.manual_seed(3)
+    assert torch.equal(torch.rand(3), drawn)  # a seeded fit draws the same numbers whether or when it ran
     assert share > 0 and device.cpu_bf16_share() == share  # once a process
     assert device.bf16_is_fast("cpu") == (share <= device.BF16_FAST_SHARE)
     device.cpu_bf16_share.cache_clear()

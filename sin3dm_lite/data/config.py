@@ -206,7 +206,7 @@ class Config:
         (the free planes, the same-place snapping), or all of it where it
         replaces the thin-part settings (``small``'s).
         """
-        d, replace = self.to_dict(), self._walls_replace()
+        d, walls_replace = self.to_dict(), self._walls_replace()
         for key, value in changes.items():
             if key not in LIMITS:
                 raise unknown_setting(key)
@@ -223,16 +223,15 @@ class Config:
             kept = {k: v for k, v in d["rollout_switch"].items() if k not in changes}
             d["rollout_switch"] = kept if "diffusion.rollout" in kept else {}  # the rollout chosen: nothing to switch
         chosen = [k for k in d["thin_walls"] if k in changes]
-        if (
-            chosen and "thin_walls" not in changes
-        ):  # the denoiser chosen: no wider field to try; any setting: the user's
+        # the denoiser chosen: no wider field to try; any setting it names: the user's
+        if chosen and "thin_walls" not in changes:
             denoiser = any(k.startswith("diffusion.") for k in chosen)
             d["thin_walls"] = {
                 k: v
                 for k, v in d["thin_walls"].items()
                 if k not in changes and not (denoiser and k.startswith("diffusion."))
             }
-            if denoiser and replace:  # small's: the thin-walls settings were a whole denoiser of their own
+            if denoiser and walls_replace:  # small's: the thin-walls settings were a whole denoiser of their own
                 d["thin_walls"] = {}
         return Config.from_dict(d)
 
