@@ -53,7 +53,9 @@ class AutoencoderConfig:
     lr_final_factor: float = 0.1  # exponential decay to this factor of the start lr over the run
     near_weight: float = 1.5  # SDF L1 weight where the error points towards / across the surface
     far_weight: float = 0.5  # ... and where it points away from it
-    precision: str = "auto"  # "bf16" (mixed precision), "fp32", or "auto": bf16 where the hardware runs it natively
+    precision: str = (
+        "auto"  # "bf16" (mixed precision), "fp32", or "auto": bf16 where it measures faster (device.bf16_is_fast)
+    )
     pbr: bool = False  # PBR variant: 8 texture channels in, two more decoder heads (metallic-roughness, normal)
     # decoder convolutions symmetric along x and z, so a latent flipped along x or z decodes to the mirrored shape
     # exactly (what lets the denoiser learn from mirrored copies of the latent: diffusion.flips)
@@ -85,9 +87,7 @@ class DiffusionConfig:
     # flipped): four times the patches to learn from; needs autoencoder.mirror, or a flipped latent decodes to garbage
     flips: str = ""
     crop: int = 0  # train on random crops of this many latent texels per axis (0: the whole latent, the paper)
-    precision: str = (
-        "fp32"  # the training forward: "fp32", "bf16" (autocast) or "auto" (bf16 where the hardware runs it natively)
-    )
+    precision: str = "fp32"  # the training forward: "fp32", "bf16" (autocast) or "auto" (bf16 where it measures faster)
     compile: bool = False  # torch.compile the denoiser's training forward on a CUDA GPU (a CPU trains it as it is)
 
 
