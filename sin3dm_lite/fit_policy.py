@@ -83,7 +83,7 @@ def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -
         finer = (
             f"Its finer thin-part settings {_finer_settings()} copy a shape of thin walls and close its windows: "
             "CLI --thin-switch asks for them anyway."
-            if cfg.thin_parts.get("grid.resolution", new.grid.resolution) != new.grid.resolution  # small's
+            if cfg.walls_replace_thin_parts()  # small's: its thin-part settings are another grid's
             else f"The finer thin-part settings {_finer_settings()} keep them better at about 5x the fit time "
             "without native bf16: CLI --thin-switch."
         )
@@ -168,8 +168,8 @@ def wide_field_undo(before: Config) -> dict:
     (what :attr:`Config.thin_walls` changes, as :meth:`Config.for_thin_parts` without ``walls`` sets them: for
     ``quick`` 2 ResBlocks of 32 channels, 1,000 steps, the snapped fits' batches of 6). The denoiser's alone: the
     autoencoder (whatever :attr:`Config.thin_walls` set in it) is trained by the time the trial looks."""
-    narrow = before.for_thin_parts()  # small's are another grid's: there the preset's own denoiser
-    old = (narrow if narrow.grid == before.grid else before).settings()
+    # small's thin-part settings are another grid's (its thin-walls settings replace them): the preset's own denoiser
+    old = (before if before.walls_replace_thin_parts() else before.for_thin_parts()).settings()
     return {k: old[k] for k in before.thin_walls if k.startswith("diffusion.")}
 
 

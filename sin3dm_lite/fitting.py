@@ -216,8 +216,8 @@ class FitRun:
             if switched is not None:  # too coarse for this shape's thin parts: the finer settings, recorded first
                 say("[fit] " + thin_parts_message(cfg, switched, grid, thin))
                 thin_parts = {"from": cfg.name, "resolution": max(grid.shape), "thin_share": thin}
-                if switched.name.endswith("+walls") and wide_field_undo(cfg):  # the wider field on trial: what
-                    thin_parts["wide_field"] = {"undo": wide_field_undo(cfg)}  # undoes it (FitStages.denoise)
+                if switched.name.endswith("+walls") and (undo := wide_field_undo(cfg)):  # the wider field on
+                    thin_parts["wide_field"] = {"undo": undo}  # trial: what undoes it (FitStages.denoise)
                 cfg, grid_cfg = switched, cfg.grid
                 if run is not None:  # a resumed run still knows it switched (its report is completed at the end)
                     atomic_write(run / "config.json", cfg.to_json())

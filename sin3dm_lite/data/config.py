@@ -53,9 +53,7 @@ class AutoencoderConfig:
     lr_final_factor: float = 0.1  # exponential decay to this factor of the start lr over the run
     near_weight: float = 1.5  # SDF L1 weight where the error points towards / across the surface
     far_weight: float = 0.5  # ... and where it points away from it
-    precision: str = (
-        "auto"  # "bf16" (mixed precision), "fp32", or "auto": bf16 where it measures faster (device.bf16_is_fast)
-    )
+    precision: str = "auto"  # "bf16" (mixed precision), "fp32", or "auto": bf16 where it measures faster
     pbr: bool = False  # PBR variant: 8 texture channels in, two more decoder heads (metallic-roughness, normal)
     # decoder convolutions symmetric along x and z, so a latent flipped along x or z decodes to the mirrored shape
     # exactly (what lets the denoiser learn from mirrored copies of the latent: diffusion.flips)
@@ -162,14 +160,16 @@ class Config:
         # thin_parts that choose the denoiser's blocks themselves (the finer settings of --thin-switch) leave nothing
         # to try; its batches and steps the wider field sets over theirs
         blocks = {"diffusion.n_resblocks", "diffusion.base_channels"}
-        walls = walls and bool(self.thin_walls) and (self._walls_replace() or not blocks & set(self.thin_parts))
+        walls = (
+            walls and bool(self.thin_walls) and (self.walls_replace_thin_parts() or not blocks & set(self.thin_parts))
+        )
         if not self.thin_parts and not walls:
             return self
         changes = {**self.thin_parts, **(self.thin_walls if walls else {})}
         suffix = "walls" if walls else "thin"
         return self.updated(**changes, name=f"{self.name}+{suffix}", thin_parts={}, thin_walls={})
 
-    def _walls_replace(self) -> bool:
+    def walls_replace_thin_parts(self) -> bool:
         """Whether :attr:`thin_walls` sets every setting :attr:`thin_parts` does (``small``'s: its own grid, not
         ``detail``'s): then it replaces the thin-part settings rather than adding to them."""
         return bool(self.thin_parts) and set(self.thin_parts) <= set(self.thin_walls)
@@ -206,7 +206,7 @@ class Config:
         (the free planes, the same-place snapping), or all of it where it
         replaces the thin-part settings (``small``'s).
         """
-        d, walls_replace = self.to_dict(), self._walls_replace()
+        d, walls_replace = self.to_dict(), self.walls_replace_thin_parts()
         for key, value in changes.items():
             if key not in LIMITS:
                 raise unknown_setting(key)
@@ -223,16 +223,13 @@ class Config:
             kept = {k: v for k, v in d["rollout_switch"].items() if k not in changes}
             d["rollout_switch"] = kept if "diffusion.rollout" in kept else {}  # the rollout chosen: nothing to switch
         chosen = [k for k in d["thin_walls"] if k in changes]
-        # the denoiser chosen: no wider field to try; any setting it names: the user's
-        if chosen and "thin_walls" not in changes:
+        if chosen and "thin_walls" not in changes:  # any setting it names: the user's
+            # the denoiser chosen: the wider field goes (nothing left to try); where the thin-walls settings replace
+            # the thin-part ones (small's, a whole denoiser of their own) all of them go
             denoiser = any(k.startswith("diffusion.") for k in chosen)
-            d["thin_walls"] = {
-                k: v
-                for k, v in d["thin_walls"].items()
-                if k not in changes and not (denoiser and k.startswith("diffusion."))
-            }
-            if denoiser and walls_replace:  # small's: the thin-walls settings were a whole denoiser of their own
-                d["thin_walls"] = {}
+            kept = {k: v for k, v in d["thin_walls"].items() if k not in changes}
+            kept = {k: v for k, v in kept.items() if not (denoiser and k.startswith("diffusion."))}
+            d["thin_walls"] = {} if denoiser and walls_replace else kept
         return Config.from_dict(d)
 
 

@@ -327,9 +327,8 @@ class TriplaneAutoencoder(nn.Module):
         """Geometry and texture parameters (they get different learning rates)."""
         geo, tex = self.decoder.param_groups()
         if self.cfg.use_encoder:
-            geo += list(self.encoder.geo.parameters()) + list(
-                self.residual.parameters() if self.residual is not None else []
-            )
+            geo += list(self.encoder.geo.parameters())
+            geo += list(self.residual.parameters()) if self.residual is not None else []
             tex += list(self.encoder.tex.parameters())
         else:
             geo += list(self.raw_geo.parameters())
