@@ -321,10 +321,11 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
 # --------------------------------------------------------------------------- copies from pure noise
 #: samples from pure noise whose latents lie closer to the input's than this (mean squared difference over the
 #: input latent's variance, :func:`from_noise_distance`) are copies. After the fit: the square keep with
-#: ``small``'s 96-voxel 4-ResBlock denoiser 0.005; every fit that varies 0.108 or more (the shipped four
-#: 0.108-0.167, the ruin 0.109). After 150 steps of ``quick``'s wider field (its trial): the keep 0.004, the grey
-#: and the coloured ruin 0.32 and 0.40.
-COPIES_DISTANCE = 0.03
+#: ``small``'s 96-voxel 4-ResBlock denoiser 0.005, with ``quick``'s wider field 0.037 (its samples at diversity 1:
+#: G-Div 0.012); every fit that varies 0.108 or more (the shipped four 0.108-0.167, the ruins 0.109-0.168). After
+#: 150 steps of ``quick``'s wider field (its trial): the keep 0.004 in one fit, 0.039 in another, the grey and the
+#: coloured ruin 0.32-0.40. So the line sits between 0.04 and 0.11, about 1.5x from each (docs/thin-parts.md).
+COPIES_DISTANCE = 0.07
 
 
 def are_copies(distance: float) -> bool:

@@ -152,20 +152,26 @@ class FitRun:
         model, history = self.denoise(cfg, grid, h0, ae, metrics, {**base, "rollout_switch": rollout})
         cfg = model.config  # the narrower denoiser's, where the wider field copied the shape
         calibration = model.report.get("calibration")
-        if rollout is None and cfg.rollout_switch and keeps_goals_from_noise(cfg, calibration):
+        # a calibrated fit: do its samples vary at all? (a few samples, about a second). Samples that copy the
+        # input keep its patches from pure noise too, but the rollout would only hold the layout tighter
+        distance = from_noise_distance(model, seed=cfg.seed) if cfg.sampling.calibrate else None
+        warning = None if distance is None else copies_warning(cfg, distance, thin_parts)
+        if warning is None and rollout is None and cfg.rollout_switch and keeps_goals_from_noise(cfg, calibration):
             # the shape's layout varies little whatever the knob: the rollout costs it no variation (rollout_hint)
             cfg, model, history, rollout = self.switch_to_rollout(cfg, grid, h0, ae, metrics, base, calibration)
+            distance = from_noise_distance(model, seed=cfg.seed)
+            warning = copies_warning(cfg, distance, thin_parts)
         if rollout is not None:
             self.timings["rollout_switch_s"] = rollout["plain_s"]
-        hint = None if cfg.rollout_switch else rollout_hint(cfg, calibration)
+        hint = None if cfg.rollout_switch or warning else rollout_hint(cfg, calibration)
         if hint is not None:
             model.report["rollout_hint"] = hint
             self.say(hint)
         if (hint := calibration_grid_hint(thin_parts, model.report.get("calibration"), self.run)) is not None:
             self.say(hint)
-        if cfg.sampling.calibrate:  # a calibrated fit: do its samples vary at all? (a few samples, about a second)
-            model.report["from_noise_distance"] = distance = from_noise_distance(model, seed=cfg.seed)
-            if (warning := copies_warning(cfg, distance, thin_parts)) is not None:
+        if distance is not None:
+            model.report["from_noise_distance"] = distance
+            if warning is not None:
                 # stacklevel: this method, fitting.fit, Sin3DM.fit, and the code that called it
                 warnings.warn(warning, stacklevel=4)
         if self.run is not None:

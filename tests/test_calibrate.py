@@ -699,4 +699,12 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
         Sin3DM.fit("wall", preset=micro_config().updated(**PLAIN), out=tmp_path / "w", progress=False)
     said = [str(w.message) for w in caught if "even from pure noise" in str(w.message)]
     assert len(said) == 1 and "0.1% of its variance" in said[0] and "diffusion.n_resblocks=1" in said[0]
-    assert json.loads((tmp_path / "w" / "report.json").read_text())["from_noise_distance"] == 0.001
+    report = json.loads((tmp_path / "w" / "report.json").read_text())
+    assert report["from_noise_distance"] == 0.001
+    # calibrated to 1 (every setting keeps the goals), yet no rollout hint: copies keep the input's patches from
+    # pure noise because they are the input, and the rollout would only hold the layout tighter
+    assert report["calibration"]["diversity"] == 1.0 and "rollout_hint" not in report
+
+    # the line: the square keep's wider field, whose samples at diversity 1 had G-Div 0.012, measured 0.037-0.039
+    # (copies); the least varied fit that varies 0.108 (tiles, whose samples reshuffle the colours)
+    assert copies_warning(small, 0.039) is not None and copies_warning(small, 0.108) is None
