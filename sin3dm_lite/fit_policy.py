@@ -73,12 +73,16 @@ def _finer_settings() -> str:
     )
 
 
+#: how the fit's switch messages start each change on a line of its own, under the message's first line
+ITEM = "\n    - "
+
+
 def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -> str:
     """What the fit says when it switches from ``cfg`` to ``new`` (:func:`thin_parts_switch`)."""
-    if new.grid == cfg.grid:  # quick's switch: the same fit, snapped samples
+    if new.grid == cfg.grid:  # quick's switch: the same fit, snapped samples; one line per change, then the choices
         b0, b1 = cfg.diffusion.batch_size, new.diffusion.batch_size
         batch = (
-            f", its denoiser on batches of {b1} instead of {b0}, which snapped samples need no more" if b0 != b1 else ""
+            f"; its denoiser on batches of {b1} instead of {b0}, which snapped samples need no more" if b0 != b1 else ""
         )
         finer = (
             f"Its finer thin-part settings {_finer_settings()} copy a shape of thin walls and close its windows: "
@@ -87,13 +91,18 @@ def thin_parts_message(cfg: Config, new: Config, grid: ShapeGrid, thin: float) -
             else f"The finer thin-part settings {_finer_settings()} keep them better at about 5x the fit time "
             "without native bf16: CLI --thin-switch."
         )
+        walls = thin_walls_message(cfg, new)
+        batch = batch if "batches of" not in walls else ""  # said there
         return (
             f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
-            f"the {cfg.name} preset's samples would thicken or break: its samples are snapped to the input's latent "
-            f"patches instead (sampling.snap={new.sampling.snap:g}, and the calibration picks the diversity for "
-            f"that; no extra fit time{batch}; the run's config is named '{new.name}'). {finer} To keep the plain "
-            "sampler: CLI --no-thin-switch, Python preset=get_preset(...).updated(thin_parts={})."
-            + thin_walls_message(cfg, new)
+            f"the {cfg.name} preset's samples would thicken or break; the fit changes, no extra fit time (the run's "
+            f"config is named '{new.name}'):"
+            f"{ITEM}Its samples are snapped to the input's latent patches instead (sampling.snap={new.sampling.snap:g}, "
+            f"and the calibration picks the diversity for that){batch}."
+            + walls
+            + f"{ITEM}To keep the plain sampler: CLI --no-thin-switch, Python preset=get_preset(...).updated(thin_parts={{}})."
+            + ITEM
+            + finer
         )
     return (
         f"{thin:.0%} of '{grid.name}' lies in parts under ~5 voxels thick at {max(grid.shape)} voxels, which "
@@ -128,14 +137,14 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
     steps += f"on batches of {d1.batch_size} " if d1.batch_size != d0.batch_size else ""
     k0, k1 = cfg.autoencoder.decoder_kernel, new.autoencoder.decoder_kernel
     extra = (  # what the switch changes beside the denoiser
-        f" Its autoencoder's plane convolutions are {k1}x{k1} instead of {k0}x{k0} (about a fifth less of its time; "
-        "a thin wall's windows close)."
+        f"{ITEM}Its autoencoder's plane convolutions are {k1}x{k1} instead of {k0}x{k0} (about a fifth less of its "
+        "time; a thin wall's windows close)."
         if k0 != k1
         else ""
     )
     if new.autoencoder.residual_planes and not cfg.autoencoder.residual_planes:
         extra += (
-            " Its autoencoder adds free planes to the encoder's, in which a window in a thin wall shows (the "
+            f"{ITEM}Its autoencoder adds free planes to the encoder's, in which a window in a thin wall shows (the "
             "encoder's averages mix the wall with the one behind it)"
             + (
                 ", and its snapped samples prefer the input's patch from the same place, which brings the windows back"
@@ -146,20 +155,21 @@ def thin_walls_message(cfg: Config, new: Config) -> str:
         )
     drop = f"CLI --set thin_walls={{}}, Python {preset_expr(cfg)}.updated(thin_walls={{}})"
     if not wide_field_undo(cfg):  # the user chose the denoiser: no wider field on trial, the rest stays
-        return f" Almost all of it is thin walls.{extra} To fit without them: {drop}." if extra else ""
+        return f"{ITEM}Almost all of it is thin walls.{extra}{ITEM}To fit without them: {drop}." if extra else ""
     return (
-        f" Almost all of it is thin walls: its denoiser has {d1.n_resblocks} ResBlocks of {d1.base_channels} channels "
-        f"{steps}instead of {d0.n_resblocks} of {d0.base_channels}, a field of {field_width(d1.n_resblocks)} latent texels "
-        f"instead of {field_width(d0.n_resblocks)}, which keeps a stepped top that the narrower field rounds into a "
-        "slanted rim (in about the narrower denoiser's time, 0.8-1.0x). A field that wide can hold a small shape's whole plan: after "
-        f"{WIDE_FIELD_CHECK_STEP} steps the fit draws 4 samples from pure noise and, if "
-        f"they are copies, trains the narrower denoiser instead. To keep the narrower one: {drop}"
+        f"{ITEM}Almost all of it is thin walls: its denoiser has {d1.n_resblocks} ResBlocks of {d1.base_channels} "
+        f"channels {steps}instead of {d0.n_resblocks} of {d0.base_channels}, a field of "
+        f"{field_width(d1.n_resblocks)} latent texels instead of {field_width(d0.n_resblocks)}, which keeps a stepped "
+        "top that the narrower field rounds into a slanted rim (in about the narrower denoiser's time, 0.8-1.0x). A "
+        f"field that wide can hold a small shape's whole plan: after {WIDE_FIELD_CHECK_STEP} steps the fit draws 4 "
+        "samples from pure noise and, if they are copies, trains the narrower denoiser instead."
+        + extra
+        + f"{ITEM}To keep the narrower denoiser: {drop}"
         + (
-            " (which drops what follows too; setting a denoiser setting yourself drops the wider field alone)."
+            " (which drops the line above too; setting a denoiser setting yourself drops the wider field alone)."
             if extra
             else "."
         )
-        + extra
     )
 
 

@@ -141,7 +141,11 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     assert "plane convolutions" not in said and "free planes" in said
     # ... and snapping that prefers the input's patch from the same place (a window comes back where it was)
     assert switched.sampling.snap_place == 0.3 and quick.sampling.snap_place == 0 and "same place" in said
-    assert "updated(thin_walls={}) (which drops what follows too; setting a denoiser setting" in said
+    assert "updated(thin_walls={}) (which drops the line above too; setting a denoiser setting" in said
+    # one line per change under the first: snapped samples, the wider field, the free planes, then three choices
+    head, *items = said.split("\n")
+    assert head.endswith("(the run's config is named 'quick+walls'):") and len(items) == 6
+    assert all(i.startswith("    - ") for i in items) and said.count("batches of 4") == 1
     own = quick.updated(**{"autoencoder.decoder_kernel": 3})
     mine = thin_parts_switch(own, grid, thin)
     assert mine.name == "quick+walls" and mine.autoencoder.decoder_kernel == 3 and mine.diffusion.n_resblocks == 4
