@@ -106,14 +106,22 @@ def autocast(device: str | torch.device, precision: str = "auto"):
     ``"auto"`` picks bf16 where the hardware has it and it measures faster (:func:`bf16_is_fast`):
     the autoencoder's MLPs, most of a fit's time, then run 2-3x faster.
     """
+    dev = torch.device(device)
+    if resolved_precision(dev, precision) == "fp32":
+        return contextlib.nullcontext()
+    return torch.autocast(dev.type, dtype=torch.bfloat16)
+
+
+def resolved_precision(device: str | torch.device, precision: str = "auto") -> str:
+    """``"bf16"`` or ``"fp32"``: what a training step under ``precision`` runs in on ``device`` (``"auto"``: bf16
+    where :func:`bf16_is_fast`). A fit's report keeps it, so that its times can be read."""
     if precision not in PRECISIONS:
         from .errors import Sin3DMInputError
 
         raise Sin3DMInputError(f"unknown precision '{precision}'; use one of {', '.join(PRECISIONS)}")
-    dev = torch.device(device)
-    if precision == "fp32" or (precision == "auto" and not bf16_is_fast(dev)):
-        return contextlib.nullcontext()
-    return torch.autocast(dev.type, dtype=torch.bfloat16)
+    if precision == "auto":
+        return "bf16" if bf16_is_fast(torch.device(device)) else "fp32"
+    return precision
 
 
 def memory_available(device: str | torch.device) -> int:

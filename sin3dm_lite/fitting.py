@@ -29,7 +29,7 @@ from .data.grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
 from .data.mesh import TexturedMesh
 from .data.presets import get_preset
 from .data.source import input_name, input_stem, resolve_mesh
-from .device import get_device
+from .device import cpu_bf16_share, get_device, resolved_precision
 from .errors import Sin3DMInputError
 from .evaluate.metrics import reconstruction_metrics
 from .files import atomic_write, holds_lock, release_lock
@@ -291,6 +291,7 @@ class FitRun:
             "final_loss": {"autoencoder": ae.history["loss"][-1], "diffusion": dm.history["loss"][-1]},
             "timings_s": self.timings,
             "device": str(self.dev),
+            "precision": training_precision(cfg, self.dev),
         }
         model = self.build(
             cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, report, self.dev
@@ -405,3 +406,13 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say, until_ste
         if main:
             signal.signal(signal.SIGINT, old)
     save(trainer)  # the last step, unless the callback just wrote it
+
+
+def training_precision(cfg: Config, device) -> dict:
+    """What the fit's networks trained in (``"bf16"`` / ``"fp32"``: their ``precision`` setting resolved on
+    ``device``) and, on a CPU with native bf16, bf16's measured share of fp32's time, which ``"auto"`` followed."""
+    settings = {net: getattr(cfg, net).precision for net in ("autoencoder", "diffusion")}
+    out = {net: resolved_precision(device, p) for net, p in settings.items()}
+    auto_on_cpu = device.type == "cpu" and "auto" in settings.values()
+    share = cpu_bf16_share() if auto_on_cpu else None  # measured once a process: by now, by the training
+    return {**out, **({"cpu_bf16_share": round(share, 3)} if share is not None else {})}

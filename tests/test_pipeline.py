@@ -11,6 +11,7 @@ import torch
 
 from sin3dm_lite.data.config import Config
 from sin3dm_lite.data.presets import get_preset
+from sin3dm_lite.device import cpu_bf16_share, resolved_precision
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.fit_policy import thin_parts_switch
 from sin3dm_lite.model import autoencoder
@@ -36,6 +37,25 @@ def test_run_folder_and_report(fitted):
     losses = json.loads((run / "losses.json").read_text())
     assert len(losses["autoencoder"]["loss"]) == 30 and len(losses["diffusion"]["loss"]) == 30
     torch.load(run / "model.pt", weights_only=True)  # loads without unpickling code
+    # what the networks trained in, so that the fit's times can be read: the settings resolved on this machine
+    cfg = model.config
+    expected = {net: resolved_precision("cpu", getattr(cfg, net).precision) for net in ("autoencoder", "diffusion")}
+    assert {k: report["precision"][k] for k in expected} == expected and set(expected.values()) <= {"bf16", "fp32"}
+    assert ("cpu_bf16_share" in report["precision"]) == (
+        cpu_bf16_share() is not None and "auto" in (cfg.autoencoder.precision, cfg.diffusion.precision)
+    )
+
+
+def test_auto_precision_resolves_to_what_the_step_runs_in(monkeypatch):
+    """'auto' is bf16 exactly where bf16 measures faster; 'fp32' and 'bf16' are themselves; anything else is refused."""
+    from sin3dm_lite import device
+
+    for fast in (True, False):
+        monkeypatch.setattr(device, "bf16_is_fast", lambda dev, f=fast: f)
+        assert resolved_precision("cpu", "auto") == ("bf16" if fast else "fp32")
+        assert resolved_precision("cpu", "fp32") == "fp32" and resolved_precision("cpu", "bf16") == "bf16"
+    with pytest.raises(Sin3DMInputError, match="unknown precision 'half'"):
+        resolved_precision("cpu", "half")
 
 
 def test_load_round_trip_gives_the_same_samples(fitted):

@@ -113,8 +113,10 @@ def cmd_fit(a) -> None:
     r = model.report["reconstruction"]
     snapped = ", snapped to the input's latent patches (sampling.snap)" if model.config.sampling.snap else ""
     colour = "one colour, kept" if "single_color" in model.report else f"colour PSNR {r['color_psnr']:.1f} dB"
+    ae_precision = model.report.get("precision", {}).get("autoencoder")  # a resumed old run may not say
     print(
-        f"fit done in {time.perf_counter() - t0:.0f} s: occupancy IoU {r['occupancy_iou']:.3f}, "
+        f"fit done in {time.perf_counter() - t0:.0f} s{f' (autoencoder in {ae_precision})' if ae_precision else ''}: "
+        f"occupancy IoU {r['occupancy_iou']:.3f}, "
         f"sign accuracy {r['sign_accuracy']:.3f}, {colour}; samples default to diversity "
         f"{model.config.sampling.diversity:g}{' (calibrated for this shape)' if 'calibration' in model.report else ''}"
         f"{snapped}\n"
