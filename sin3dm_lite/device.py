@@ -60,7 +60,7 @@ def _cpu_has_bf16() -> bool:
 def cpu_bf16_share() -> float | None:
     """bf16's time over fp32's for a step of MLPs like the autoencoder's on this CPU (4,096 points, 256 wide,
     forward and backward, the current threads), or None where the CPU has neither AVX512-BF16 nor AMX (there
-    bf16 is emulated, many times slower, and nothing is timed). Measured once a process, about 0.3 s:
+    bf16 is emulated, many times slower, and nothing is timed). Measured once a process, about 0.4 s:
     the flag alone does not say it (a Xeon with AVX512-BF16 ran it 1.3x slower than fp32)."""
     if not _cpu_has_bf16():
         return None
@@ -75,17 +75,17 @@ def cpu_bf16_share() -> float | None:
             torch.nn.Linear(256, 4),
         )
 
-    def best(bf16: bool) -> float:
-        times = []
-        for _ in range(5):  # the first two warm up
-            t0 = time.perf_counter()
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-                y = mlp(x).float().square().mean()
-            y.backward()
-            times.append(time.perf_counter() - t0)
-        return min(times[2:])
+    def step(bf16: bool) -> float:
+        t0 = time.perf_counter()
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            y = mlp(x).float().square().mean()
+        y.backward()
+        return time.perf_counter() - t0
 
-    return best(True) / best(False)
+    # the two precisions take turns, so that another job starting or stopping meanwhile slows both alike; the
+    # first two rounds warm up, the fastest of the rest counts
+    rounds = [(step(True), step(False)) for _ in range(7)][2:]
+    return min(b for b, _ in rounds) / min(f for _, f in rounds)
 
 
 def bf16_is_fast(device: str | torch.device) -> bool:

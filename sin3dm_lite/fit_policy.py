@@ -330,12 +330,17 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
 
 # --------------------------------------------------------------------------- copies from pure noise
 #: samples from pure noise whose latents lie closer to the input's than this (mean squared difference over the
-#: input latent's variance, :func:`from_noise_distance`) are copies. After the fit: the square keep with
-#: ``small``'s 96-voxel 4-ResBlock denoiser 0.005, with ``quick``'s wider field 0.037 (its samples at diversity 1:
-#: G-Div 0.012); every fit that varies 0.108 or more (the shipped four 0.108-0.167, the ruins 0.109-0.168). After
-#: 150 steps of ``quick``'s wider field (its trial): the keep 0.004 in one fit, 0.039 in another, the grey and the
-#: coloured ruin 0.32-0.40. So the line sits between 0.04 and 0.11, about 1.5x from each (docs/thin-parts.md).
+#: input latent's variance, :func:`from_noise_distance`) may be copies. After 150 steps of ``quick``'s wider field
+#: (its trial, which has nothing else to go by): the square keep 0.004 in one fit, 0.039 in another, tiles.obj 0.127,
+#: the grey and the coloured ruin 0.32-0.40. After a fit the latents alone do not separate copies from samples
+#: that vary: the keep's copies 0.037, but dunes.ply 0.032, rocks.stl 0.062 and tiles.obj 0.066 vary (G-Div at
+#: diversity 1: 0.084, 0.197, 0.057), so there the calibration's samples decide too (:data:`COPIES_G_DIV`).
 COPIES_DISTANCE = 0.07
+#: a fit's samples at diversity 1 whose G-Div on the training grid (the calibration's first rung) is under this
+#: are copies: the keep's copies 0.012; the fits that vary 0.057 (tiles.obj) or more (dunes 0.084, wall 0.129,
+#: rocks 0.197, the ruin 0.446; docs/thin-parts.md). A shape whose samples reshuffle colours alone (the built-in
+#: tiles: geometry G-Div near 0) keeps its latents far apart (0.108), so both must say copies.
+COPIES_G_DIV = 0.03
 
 
 def are_copies(distance: float) -> bool:
@@ -363,12 +368,21 @@ def from_noise_distance(model, n: int = 4, seed: int = 0) -> float:
     return diff / max(spread, 1e-12)
 
 
-def copies_warning(cfg: Config, distance: float, thin_parts: dict | None = None) -> str | None:
-    """What a fit warns when its samples from pure noise are copies of the input (:data:`COPIES_DISTANCE`), else
-    None: the denoiser's field holds the shape's whole layout, the paper's "too large a receptive field overfits";
-    no diversity setting varies it. The advice: the fit's thin-part switch off where it brought the wider field
-    (``small`` on a square keep), else fewer ResBlocks."""
-    if not are_copies(distance):
+def g_div_at_one(calibration: dict | None) -> float | None:
+    """The mean G-Div of a calibration's samples at diversity 1 (on the grid it judged; None if it drew none)."""
+    rows = [t["g_div"] for t in (calibration or {}).get("tried", []) if t.get("diversity") == 1.0 and "g_div" in t]
+    return float(sum(rows) / len(rows)) if rows else None
+
+
+def copies_warning(
+    cfg: Config, distance: float, thin_parts: dict | None = None, g_div: float | None = None
+) -> str | None:
+    """What a fit warns when its samples from pure noise are copies of the input, else None: their latents near the
+    input's (:data:`COPIES_DISTANCE`) and, where the calibration drew samples at diversity 1, their G-Div under
+    :data:`COPIES_G_DIV`. The denoiser's field then holds the shape's whole layout, the paper's "too large a
+    receptive field overfits"; no diversity setting varies it. The advice: the fit's thin-part switch off where
+    it brought the wider field (``small`` on a square keep), else fewer ResBlocks."""
+    if not are_copies(distance) or (g_div is not None and g_div >= COPIES_G_DIV):
         return None
     d = cfg.diffusion
     if thin_parts:
@@ -379,7 +393,7 @@ def copies_warning(cfg: Config, distance: float, thin_parts: dict | None = None)
         fix = "a smaller field, or another shape"
     return (
         f"even from pure noise this fit's samples are copies of the input (their latents differ from the input's by "
-        f"{distance:.1%} of its variance): its denoiser's {field_width(d.n_resblocks)}-texel field holds the whole "
+        f"{distance:.1%} of its variance{'' if g_div is None else f'; G-Div {g_div:.3f} among them'}): its denoiser's {field_width(d.n_resblocks)}-texel field holds the whole "
         "layout of this shape, so no diversity setting varies it; a narrower field varies it, and may break its "
         f"structure (docs/thin-parts.md): fit again {fix}"
     )

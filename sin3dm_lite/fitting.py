@@ -39,6 +39,7 @@ from .fit_policy import (
     choose_pbr,
     copies_warning,
     from_noise_distance,
+    g_div_at_one,
     keeps_goals_from_noise,
     no_rollout_switch,
     quick_hint,
@@ -155,12 +156,13 @@ class FitRun:
         # a calibrated fit: do its samples vary at all? (a few samples, about a second). Samples that copy the
         # input keep its patches from pure noise too, but the rollout would only hold the layout tighter
         distance = from_noise_distance(model, seed=cfg.seed) if cfg.sampling.calibrate else None
-        warning = None if distance is None else copies_warning(cfg, distance, thin_parts)
+        warning = None if distance is None else copies_warning(cfg, distance, thin_parts, g_div_at_one(calibration))
         if warning is None and rollout is None and cfg.rollout_switch and keeps_goals_from_noise(cfg, calibration):
             # the shape's layout varies little whatever the knob: the rollout costs it no variation (rollout_hint)
             cfg, model, history, rollout = self.switch_to_rollout(cfg, grid, h0, ae, metrics, base, calibration)
             distance = from_noise_distance(model, seed=cfg.seed)
-            warning = copies_warning(cfg, distance, thin_parts)
+            at_one = g_div_at_one(model.report.get("calibration"))
+            warning = copies_warning(cfg, distance, thin_parts, at_one)
         if rollout is not None:
             self.timings["rollout_switch_s"] = rollout["plain_s"]
         hint = None if cfg.rollout_switch or warning else rollout_hint(cfg, calibration)

@@ -668,7 +668,7 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
 
     from sin3dm_lite import fitting
     from sin3dm_lite.data.presets import get_preset
-    from sin3dm_lite.fit_policy import COPIES_DISTANCE, copies_warning, from_noise_distance
+    from sin3dm_lite.fit_policy import COPIES_DISTANCE, copies_warning, from_noise_distance, g_div_at_one
 
     model, run, _ = plain_fit
     recorded = json.loads((run / "report.json").read_text())["from_noise_distance"]
@@ -696,6 +696,7 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
         warnings.simplefilter("always")
         mp.setattr(C, "GOALS", KEEP_EVERY_SETTING)
         mp.setattr(fitting, "from_noise_distance", lambda m, seed=0: 0.001)
+        mp.setattr(fitting, "g_div_at_one", lambda calibration: 0.01)  # the micro fit's samples are far from copies
         Sin3DM.fit("wall", preset=micro_config().updated(**PLAIN), out=tmp_path / "w", progress=False)
     said = [str(w.message) for w in caught if "even from pure noise" in str(w.message)]
     assert len(said) == 1 and "0.1% of its variance" in said[0] and "diffusion.n_resblocks=1" in said[0]
@@ -705,6 +706,23 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
     # pure noise because they are the input, and the rollout would only hold the layout tighter
     assert report["calibration"]["diversity"] == 1.0 and "rollout_hint" not in report
 
-    # the line: the square keep's wider field, whose samples at diversity 1 had G-Div 0.012, measured 0.037-0.039
-    # (copies); the least varied fit that varies 0.108 (tiles, whose samples reshuffle the colours)
+    # the lines: the square keep's wider field measured 0.037-0.039 with G-Div 0.012 at diversity 1 (copies); the
+    # built-in tiles 0.108 (its samples reshuffle the colours); dunes.ply 0.032 and rocks.stl 0.062 with G-Div 0.084
+    # and 0.197 at diversity 1: their latents lie near the input's, but their samples vary
     assert copies_warning(small, 0.039) is not None and copies_warning(small, 0.108) is None
+    assert copies_warning(small, 0.037, g_div=0.012) is not None and "G-Div 0.012" in copies_warning(
+        small, 0.037, g_div=0.012
+    )
+    assert copies_warning(small, 0.032, g_div=0.084) is None and copies_warning(small, 0.062, g_div=0.197) is None
+    tried = [{"diversity": 1.0, "g_div": 0.01}, {"diversity": 0.9, "g_div": 0.5}, {"diversity": 1.0, "g_div": 0.03}]
+    assert g_div_at_one({"tried": tried}) == pytest.approx(0.02) and g_div_at_one({"tried": tried[1:2]}) is None
+    assert g_div_at_one(None) is None
+
+    # a fit whose latents lie near the input's but whose calibration's samples at diversity 1 vary: no warning
+    with pytest.MonkeyPatch.context() as mp, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        mp.setattr(C, "GOALS", KEEP_EVERY_SETTING)
+        mp.setattr(fitting, "from_noise_distance", lambda m, seed=0: 0.001)
+        mp.setattr(fitting, "g_div_at_one", lambda calibration: 0.084)
+        Sin3DM.fit("wall", preset=micro_config().updated(**PLAIN), out=tmp_path / "v", progress=False)
+    assert not [w for w in caught if "even from pure noise" in str(w.message)]
