@@ -391,9 +391,10 @@ def copies_warning(
         fix = refit_advice(cfg, "diffusion.n_resblocks", max(1, d.n_resblocks // 2))
     else:
         fix = "a smaller field, or another shape"
+    among = "" if g_div is None else f"; G-Div {g_div:.3f} among the calibration's samples at diversity 1"
     return (
         f"even from pure noise this fit's samples are copies of the input (their latents differ from the input's by "
-        f"{distance:.1%} of its variance{'' if g_div is None else f'; G-Div {g_div:.3f} among them'}): its denoiser's {field_width(d.n_resblocks)}-texel field holds the whole "
+        f"{distance:.1%} of its variance{among}): its denoiser's {field_width(d.n_resblocks)}-texel field holds the whole "
         "layout of this shape, so no diversity setting varies it; a narrower field varies it, and may break its "
         f"structure (docs/thin-parts.md): fit again {fix}"
     )
