@@ -20,7 +20,7 @@ The policy, applied when ``sin3dm_lite`` is imported (before torch where it can 
   before they sleep (``GOMP_SPINCOUNT=10000``) instead: a thread that sleeps at once
   pays a wake-up at every parallel loop, and two sleeping threads ran a ``quick``
   training step *slower* than one. With the short spin, a process **alone** on a
-  2-core CPU trains ``quick`` about 1.2-1.4x faster on two threads than on one; beside
+  2-core CPU trains ``quick`` about 1.2-1.4x (``small`` with bf16 1.5x) faster on two threads than on one; beside
   another busy process it runs about 2x slower, so it stays an opt-in
   (:func:`threads_hint` says so where it pays). Results differ in the last bits from
   a one-thread run (sums are split differently), so a fit reproduces bit for bit only
@@ -90,7 +90,7 @@ def threads_hint(applied: dict | None = None, cores: int | None = None) -> str |
         return None
     return (
         f"one CPU thread (so that jobs sharing the CPU do not stall each other); with nothing else running, "
-        f"SIN3DM_THREADS=2 makes a fit about 1.2-1.4x faster on this {cores}-core machine (set it before starting "
+        f"SIN3DM_THREADS=2 makes a fit about 1.2-1.5x faster on this {cores}-core machine (set it before starting "
         "Python or the command), and about 2x slower beside another busy job"
     )
 
