@@ -121,7 +121,7 @@ def main() -> None:
     if a.run and not a.mesh:
         ap.error("--run needs --mesh (the input mesh its samples are scored against)")
     torch.set_num_threads(1)
-    supersample = 2 if a.voxels == "paper" else 1
+    supersample = metrics.PAPER_SUPERSAMPLE if a.voxels == "paper" else 1
     print(
         f"at {RESOLUTION} voxels ({a.voxels}); the paper's LP, then the variant not in the paper (input patches at every voxel)"
     )

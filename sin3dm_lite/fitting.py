@@ -155,14 +155,11 @@ class FitRun:
         calibration = model.report.get("calibration")
         # a calibrated fit: do its samples vary at all? (a few samples, about a second). Samples that copy the
         # input keep its patches from pure noise too, but the rollout would only hold the layout tighter
-        distance = from_noise_distance(model, seed=cfg.seed) if cfg.sampling.calibrate else None
-        warning = None if distance is None else copies_warning(cfg, distance, thin_parts, g_div_at_one(calibration))
+        distance, warning = copies_check(model, thin_parts) if cfg.sampling.calibrate else (None, None)
         if warning is None and rollout is None and cfg.rollout_switch and keeps_goals_from_noise(cfg, calibration):
             # the shape's layout varies little whatever the knob: the rollout costs it no variation (rollout_hint)
             cfg, model, history, rollout = self.switch_to_rollout(cfg, grid, h0, ae, metrics, base, calibration)
-            distance = from_noise_distance(model, seed=cfg.seed)
-            at_one = g_div_at_one(model.report.get("calibration"))
-            warning = copies_warning(cfg, distance, thin_parts, at_one)
+            distance, warning = copies_check(model, thin_parts)  # the new denoiser's
         if rollout is not None:
             self.timings["rollout_switch_s"] = rollout["plain_s"]
         hint = None if cfg.rollout_switch or warning else rollout_hint(cfg, calibration)
@@ -408,6 +405,15 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say, until_ste
         if main:
             signal.signal(signal.SIGINT, old)
     save(trainer)  # the last step, unless the callback just wrote it
+
+
+def copies_check(model, thin_parts: dict | None) -> tuple[float, str | None]:
+    """A calibrated fit's last look: how far its samples from pure noise lie from the input's latent
+    (:func:`from_noise_distance`) and, with the G-Div of its calibration's samples at diversity 1, the warning
+    :func:`copies_warning` gives (None where they vary)."""
+    cfg = model.config
+    distance = from_noise_distance(model, seed=cfg.seed)
+    return distance, copies_warning(cfg, distance, thin_parts, g_div_at_one(model.report.get("calibration")))
 
 
 def training_precision(cfg: Config, device) -> dict:

@@ -409,6 +409,8 @@ def test_a_mesh_without_colour_fits_its_geometry_only_and_its_samples_keep_the_g
     assert "[fit] 'box' has one colour (0.70, 0.70, 0.70; a mesh without colour gets this grey)" in out
     assert "one colour, kept" in out and "colour PSNR" not in out
     model = Sin3DM.load(tmp_path / "r")
+    # the last line names what the autoencoder trained in, as the report records it
+    assert f"(autoencoder in {model.report['precision']['autoencoder']}):" in out
     np.testing.assert_allclose(model.report["single_color"], DEFAULT_COLOR, atol=1e-6)
     mesh = model.to_mesh(model.input_sample(), 0)  # the input's latent (a 2-step denoiser's samples are noise)
     colors = mesh.vertex_colors if mesh.vertex_colors is not None else mesh.materials[0].image

@@ -57,6 +57,21 @@ def test_auto_precision_resolves_to_what_the_step_runs_in(monkeypatch):
     with pytest.raises(Sin3DMInputError, match="unknown precision 'half'"):
         resolved_precision("cpu", "half")
 
+    # the fit's record: each network's setting resolved, and bf16's measured share where 'auto' asked for it
+    from sin3dm_lite import fitting
+
+    cfg = micro_config().updated(**{"autoencoder.precision": "auto", "diffusion.precision": "fp32"})
+    dev = torch.device("cpu")
+    monkeypatch.setattr(device, "bf16_is_fast", lambda d: True)
+    monkeypatch.setattr(fitting, "cpu_bf16_share", lambda: 0.4912)
+    assert fitting.training_precision(cfg, dev) == {"autoencoder": "bf16", "diffusion": "fp32", "cpu_bf16_share": 0.491}
+    monkeypatch.setattr(device, "bf16_is_fast", lambda d: False)
+    monkeypatch.setattr(fitting, "cpu_bf16_share", lambda: None)  # no native bf16: nothing measured, nothing said
+    assert fitting.training_precision(cfg, dev) == {"autoencoder": "fp32", "diffusion": "fp32"}
+    fixed = cfg.updated(**{"autoencoder.precision": "fp32"})
+    monkeypatch.setattr(fitting, "cpu_bf16_share", lambda: pytest.fail("measured for fixed precisions"))
+    assert fitting.training_precision(fixed, dev) == {"autoencoder": "fp32", "diffusion": "fp32"}
+
 
 def test_load_round_trip_gives_the_same_samples(fitted):
     model, run = fitted
