@@ -340,3 +340,29 @@ def test_the_inputs_voxels_of_a_closed_mesh_are_its_winding_numbers():
     open_slab = (slab.vertices, slab.faces[~side])  # one end open: its centres are all outside, as closed
     assert M.input_occupancy(open_slab, BOX, 16).sum() == 0
     np.testing.assert_array_equal(M.input_occupancy(open_slab, BOX, 16, 2), M.voxelize(slab, BOX, 16, 2))
+
+
+def hollow_tower(n=48, wall=3, top=40):
+    """A square tower of ``wall``-voxel walls on a slab, open at the top, along y (up)."""
+    g = np.zeros((n, n, n), bool)
+    g[8:40, 4:top, 8:40] = True
+    g[8 + wall : 40 - wall, 7:top, 8 + wall : 40 - wall] = False
+    g[4:44, 2:5, 4:44] = True
+    return g
+
+
+def test_lp_misses_by_band_finds_where_a_variant_lost_its_patches():
+    ref = hollow_tower()
+    same = M.lp_misses_by_band(ref, [ref, ref])
+    assert same["lp_iou"] == 1.0 and same["missed"] == [0.0] * 5
+    assert sum(same["share"]) == pytest.approx(1.0) and all(s > 0 for s in same["share"])
+    new_top = ref.copy()
+    new_top[8:24, 34:40, 8:40] = False  # another broken top: half the tower lower
+    top = M.lp_misses_by_band(ref, new_top)
+    assert top["missed"][:3] == [0.0] * 3 and min(top["missed"][3:]) > 0.1  # measured: 0.27, 0.15
+    moved = np.zeros_like(ref)
+    moved[:, 5:] = ref[:, 5:]
+    moved[1:, 5:] = ref[:-1, 5:]  # the walls one voxel sideways, the slab in place
+    walls = M.lp_misses_by_band(ref, moved)
+    assert min(walls["missed"]) > 0.4 and walls["lp_iou"] < top["lp_iou"]  # measured: 0.5-1 in every slab
+    assert walls["lp_iou"] == pytest.approx(M.lp_scores(ref, [moved], max_patches=10**6)["lp_iou"])

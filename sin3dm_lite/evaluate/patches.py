@@ -204,6 +204,50 @@ def patch_matches(
     }
 
 
+def lp_misses_by_band(
+    reference: np.ndarray,
+    generated,
+    bands: int = 5,
+    axis: int = 1,
+    patch: int = 11,
+    stride: int = 5,
+    center: int = 3,
+    threshold: float = 0.95,
+) -> dict:
+    """Where LP-IoU's misses are: the generated surface patches in ``bands`` slabs along ``axis`` (1: up), and the
+    share of each slab's patches whose best IoU against the input's is not above ``threshold``.
+
+    The slabs split the reference's occupied extent along ``axis`` evenly (patches beyond it join the end slabs).
+    A variant of a tower that changes only its broken top misses patches in the top slabs alone; samples whose
+    walls moved miss them all the way down (docs/thin-parts.md, "Where the samples lose patches").
+    Every surface patch counts (no subset drawn, unlike :func:`lp_scores`). Returns ``share`` (of all patches, per
+    slab, bottom first), ``missed`` (per slab) and ``lp_iou`` (1 - the overall share missed).
+    """
+    ref = _reference_patches(reference, patch, stride, center)
+    solid = np.flatnonzero(np.asarray(reference, bool).any(axis=tuple(a for a in range(3) if a != axis)))
+    lo, hi = solid.min(), solid.max()
+    grids = [generated] if isinstance(generated, np.ndarray) and generated.ndim == 3 else list(generated)
+    count, missed = np.zeros(bands), np.zeros(bands)
+    c0 = (patch - center) // 2
+    for grid in grids:
+        win = _windows(grid, patch)[::stride, ::stride, ::stride]
+        core = win[..., c0 : c0 + center, c0 : c0 + center, c0 : c0 + center].sum(axis=(-3, -2, -1))
+        surface = (core > 0) & (core < center**3)
+        if not surface.any():
+            continue
+        best_iou, _ = _best_matches(win[surface].reshape(-1, patch**3), ref)
+        at = np.argwhere(surface)[:, axis] * stride
+        band = np.clip(((at - lo) / max(hi - lo + 1, 1) * bands).astype(int), 0, bands - 1)
+        count += np.bincount(band, minlength=bands)
+        missed += np.bincount(band, weights=best_iou <= threshold, minlength=bands)
+    total = max(count.sum(), 1.0)
+    return {
+        "share": (count / total).tolist(),
+        "missed": (missed / np.maximum(count, 1)).tolist(),
+        "lp_iou": float(1 - missed.sum() / total),
+    }
+
+
 #: the largest grid side :func:`lp_scores_any_offset` takes (the paper's 128, and retargeted boxes up to 1.5×)
 ANY_OFFSET_MAX_VOXELS = 192
 
