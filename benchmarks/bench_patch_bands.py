@@ -64,7 +64,7 @@ def main() -> None:
     ap.add_argument("--diversity", type=float, nargs="+", default=[0.05, 0.5])
     a = ap.parse_args()
     torch.set_num_threads(1)
-    model = Sin3DM.load(a.run)
+    model = Sin3DM.open(a.run)
     ss = metrics.PAPER_SUPERSAMPLE
     reference = model.input_occupancy(resolve_mesh(a.mesh), RESOLUTION, supersample=ss)
     masked = {"known": model.latent, "mask": keep_mask(model.latent, a.keep)} if a.keep else {}

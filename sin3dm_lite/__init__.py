@@ -151,6 +151,7 @@ _MODULES = {
         ("examples", "data.examples"),
         ("box", "data.box"),
         ("extract", "generate.extract"),
+        ("control", "generate.control"),
         ("export", "data.export"),
         ("mesh_io", "data.load"),
         ("lesson2d", "teach.lesson2d"),

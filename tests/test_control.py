@@ -172,3 +172,22 @@ def test_control_panel_redraws_the_mask_explains_refusals_and_samples(model):
     figs = panel.run()
     assert len(panel.last_samples) == 1 and panel.last_samples.plan.kind == "regenerate"
     assert len(figs[0].axes) == 6 and len(figs[1].axes) == 4  # request + sample; input + sample, two views each
+
+
+def test_keep_planes_keeps_whole_planes_exactly_and_samples_the_others(model):
+    import sin3dm_lite
+
+    assert sin3dm_lite.control.keep_planes is control.keep_planes  # the public namespace notebook 06 uses
+    for keep in (["xz"], ["xy", "yz"]):
+        plan = control.keep_planes(model.latent, model.aabb, keep)
+        assert plan.kind == "keep planes" and plan.request == {"planes": keep}
+        s = model.sample(2, plan=plan, seed=0, progress=False)
+        assert s.triplane.resolution == model.latent.resolution and not plan.kept().any()  # no voxel keeps all three
+        for name, got, given in zip(("xy", "xz", "yz"), s.triplane.planes, model.latent.planes):
+            if name in keep:
+                assert torch.equal(got, given.expand_as(got))
+            else:  # generated: neither the input's nor the same for two seeds
+                assert not torch.allclose(got[0], given[0]) and not torch.allclose(got[0], got[1])
+    for bad in ("ab", [], ["xz", "zx"]):
+        with pytest.raises(Sin3DMInputError, match="xy, xz, yz"):
+            control.keep_planes(model.latent, model.aabb, bad)

@@ -24,7 +24,9 @@ margin of the ``small`` preset). Each function returns a :class:`Plan` that
 * :func:`regenerate` — local editing: a box that reaches the model's faces
   along at least one axis resampled, everything else kept;
 * :func:`duplicate` — a part of the input copied to another place, kept there
-  and at its source, everything else generated around the two copies.
+  and at its source, everything else generated around the two copies;
+* :func:`keep_planes` — whole planes of the input's latent kept, the others
+  generated (not in the paper: it shows which plane holds the variation).
 
 A triplane mask is three 2D masks, the box's shadow on each plane, so a
 point outside a 3D box but inside its shadow on one plane has that plane's
@@ -262,6 +264,24 @@ def regenerate(latent: Triplane, aabb, box, border: float = BORDER) -> Plan:
         planes.append(torch.from_numpy(1 - free).float()[None, None])
     request = {"box": [list(map(float, c)) for c in box]}
     return Plan("regenerate", res, np.asarray(aabb, np.float32).copy(), latent, latent, Triplane(*planes), request)
+
+
+def keep_planes(latent: Triplane, aabb, planes) -> Plan:
+    """Keep whole planes of the input's latent (``"xz"``, or several: ``["xy", "yz"]``) and sample the others.
+
+    Not one of the paper's operations: a way to see which plane holds a shape's variation. A plane's texel
+    is shared by the whole line of points across it, so the ground plan (``xz``, y up) decides what lies where
+    in every horizontal slice at once: kept, the samples keep the input's layout (the canyon's river, a tower's
+    walls) and vary little; the two elevations kept, they vary about as much as free samples
+    (docs/thin-parts.md, "Where the samples lose patches").
+    """
+    names = [planes] if isinstance(planes, str) else list(planes)
+    unknown = [p for p in names if p not in PLANES]
+    if unknown or not names:
+        raise Sin3DMInputError(f"planes to keep: one or more of {', '.join(PLANES)} (got {names!r})")
+    mask = Triplane(*[torch.full((1, 1, *p.shape[-2:]), float(n in names)) for n, p in zip(PLANES, latent.planes)])
+    request = {"planes": [p for p in PLANES if p in names]}
+    return Plan("keep planes", latent.resolution, np.asarray(aabb, np.float32).copy(), latent, latent, mask, request)
 
 
 def duplicate(latent: Triplane, aabb, box, to, border: float = BORDER, trim: int = 0) -> Plan:
