@@ -33,11 +33,16 @@ def _windows(grid: np.ndarray, patch: int) -> np.ndarray:
     return np.lib.stride_tricks.sliding_window_view(g, (patch,) * 3)
 
 
-def _surface_rows(windows: np.ndarray, patch: int, center: int) -> np.ndarray:
-    """The windows whose central ``center³`` block holds both occupied and empty voxels, one per row."""
+def _surface(windows: np.ndarray, patch: int, center: int) -> np.ndarray:
+    """Which windows straddle the surface: their central ``center³`` block holds both occupied and empty voxels."""
     c0 = (patch - center) // 2
     count = windows[..., c0 : c0 + center, c0 : c0 + center, c0 : c0 + center].sum(axis=(-3, -2, -1))
-    return windows[(count > 0) & (count < center**3)].reshape(-1, patch**3)
+    return (count > 0) & (count < center**3)
+
+
+def _surface_rows(windows: np.ndarray, patch: int, center: int) -> np.ndarray:
+    """The windows that straddle the surface (:func:`_surface`), one per row."""
+    return windows[_surface(windows, patch, center)].reshape(-1, patch**3)
 
 
 def _best_matches(
@@ -228,11 +233,9 @@ def lp_misses_by_band(
     lo, hi = solid.min(), solid.max()
     grids = [generated] if isinstance(generated, np.ndarray) and generated.ndim == 3 else list(generated)
     count, missed = np.zeros(bands), np.zeros(bands)
-    c0 = (patch - center) // 2
     for grid in grids:
         win = _windows(grid, patch)[::stride, ::stride, ::stride]
-        core = win[..., c0 : c0 + center, c0 : c0 + center, c0 : c0 + center].sum(axis=(-3, -2, -1))
-        surface = (core > 0) & (core < center**3)
+        surface = _surface(win, patch, center)
         if not surface.any():
             continue
         best_iou, _ = _best_matches(win[surface].reshape(-1, patch**3), ref)
