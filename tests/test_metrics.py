@@ -366,3 +366,4 @@ def test_lp_misses_by_band_finds_where_a_variant_lost_its_patches():
     walls = M.lp_misses_by_band(ref, moved)
     assert min(walls["missed"]) > 0.4 and walls["lp_iou"] < top["lp_iou"]  # measured: 0.5-1 in every slab
     assert walls["lp_iou"] == pytest.approx(M.lp_scores(ref, [moved], max_patches=10**6)["lp_iou"])
+    assert np.isnan(M.lp_misses_by_band(ref, np.zeros_like(ref))["lp_iou"])  # an empty sample is not a perfect one

@@ -226,7 +226,8 @@ def lp_misses_by_band(
     A variant of a tower that changes only its broken top misses patches in the top slabs alone; samples whose
     walls moved miss them all the way down (docs/thin-parts.md, "Where the samples lose patches").
     Every surface patch counts (no subset drawn, unlike :func:`lp_scores`). Returns ``share`` (of all patches, per
-    slab, bottom first), ``missed`` (per slab) and ``lp_iou`` (1 - the overall share missed).
+    slab, bottom first), ``missed`` (per slab) and ``lp_iou`` (1 - the overall share missed, pooled over the grids;
+    NaN when no grid has a surface patch).
     """
     ref = _reference_patches(reference, patch, stride, center)
     solid = np.flatnonzero(np.asarray(reference, bool).any(axis=tuple(a for a in range(3) if a != axis)))
@@ -243,11 +244,11 @@ def lp_misses_by_band(
         band = np.clip(((at - lo) / max(hi - lo + 1, 1) * bands).astype(int), 0, bands - 1)
         count += np.bincount(band, minlength=bands)
         missed += np.bincount(band, weights=best_iou <= threshold, minlength=bands)
-    total = max(count.sum(), 1.0)
+    total = count.sum()  # no surface patch in any grid: nothing to place, and no score (lp_scores gives such a grid 0)
     return {
-        "share": (count / total).tolist(),
+        "share": (count / max(total, 1.0)).tolist(),
         "missed": (missed / np.maximum(count, 1)).tolist(),
-        "lp_iou": float(1 - missed.sum() / total),
+        "lp_iou": float(1 - missed.sum() / total) if total else float("nan"),
     }
 
 
