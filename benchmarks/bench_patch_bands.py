@@ -8,10 +8,10 @@ and the share of surface patches missed in five slabs from the bottom up
 shape's own variants (the generator's seeds 1-8: other broken tops over the
 same walls) as the row to compare with.
 
-``--keep PLANE[:C+C]`` samples with part of the input's latent kept (the
-masked sampler of outpainting): a whole plane (``xz``: the ground plan, whose
-features every point of a vertical column shares) or some of its channels.
-It shows which plane carries the variation: on a tower, the ground plan.
+``--keep PLANE ...`` samples with whole planes of the input's latent kept
+(``control.keep_planes``, the masked sampler of outpainting): ``xz`` is the
+ground plan, whose features every point of a vertical column shares. It shows
+which plane carries the variation: on a tower, the ground plan.
 
 Run it on a quiet machine; docs/thin-parts.md "Where the samples lose patches" keeps the figures.
 
@@ -26,24 +26,12 @@ import argparse
 import numpy as np
 import torch
 
-from sin3dm_lite import Sin3DM, metrics
+from sin3dm_lite import Sin3DM, control, metrics
 from sin3dm_lite.data.ruin import build_ruin
 from sin3dm_lite.data.source import resolve_mesh
-from sin3dm_lite.model.triplane import PLANES, Triplane
+from sin3dm_lite.model.triplane import PLANES
 
 RESOLUTION, SEEDS, N = 128, (0, 100), 8
-
-
-def keep_mask(latent: Triplane, keep) -> Triplane:
-    """1 on the planes (or their channels) named ``PLANE`` or ``PLANE:C+C``, 0 elsewhere."""
-    planes = [torch.zeros_like(p) for p in latent.planes]
-    for spec in keep:
-        name, _, channels = spec.partition(":")
-        if name not in PLANES:
-            raise SystemExit(f"--keep takes a plane of {PLANES}, optionally with channels (xz:0+1); got {spec!r}")
-        chosen = [int(c) for c in channels.split("+")] if channels else slice(None)
-        planes[PLANES.index(name)][:, chosen] = 1.0
-    return Triplane(*planes)
 
 
 def row(label: str, reference: np.ndarray, grids: list, g_div: float, near=None) -> tuple[float, float]:
@@ -60,14 +48,14 @@ def main() -> None:
     ap.add_argument("--run", required=True, help="a fitted run folder")
     ap.add_argument("--mesh", required=True, help="the run's input mesh file or built-in example name")
     ap.add_argument("--family", choices=["ruin", "keep"], help="score the generator's seeds 1-8 too")
-    ap.add_argument("--keep", nargs="*", default=[], help="planes (xz) or their channels (xz:0+1) kept")
+    ap.add_argument("--keep", nargs="*", default=[], choices=PLANES, help="whole planes of the input's latent kept")
     ap.add_argument("--diversity", type=float, nargs="+", default=[0.05, 0.5])
     a = ap.parse_args()
     torch.set_num_threads(1)
     model = Sin3DM.open(a.run)
     ss = metrics.PAPER_SUPERSAMPLE
     reference = model.input_occupancy(resolve_mesh(a.mesh), RESOLUTION, supersample=ss)
-    masked = {"known": model.latent, "mask": keep_mask(model.latent, a.keep)} if a.keep else {}
+    plan = control.keep_planes(model.latent, model.aabb, a.keep) if a.keep else None
     print(f"at {RESOLUTION} voxels, the paper's; {len(SEEDS) * N} samples (seeds {SEEDS}); kept: {a.keep or 'nothing'}")
     print("| what | G-Div | LP-IoU / LP-F (of the near copy) | missed, bottom to top slab |")
     print("|---|---|---|---|")
@@ -81,7 +69,7 @@ def main() -> None:
     for d in a.diversity:
         grids, g_divs = [], []
         for seed in SEEDS:
-            samples = model.sample(N, seed=seed, diversity=d, progress=False, **masked)
+            samples = model.sample(N, seed=seed, diversity=d, progress=False, plan=plan)
             occ = model.occupancy(samples, [RESOLUTION], supersample=ss)[RESOLUTION]
             grids += occ
             g_divs.append(metrics.g_div(occ))
