@@ -13,20 +13,28 @@ same walls) as the row to compare with.
 ground plan, whose features every point of a vertical column shares. It shows
 which plane carries the variation: on a tower, the ground plan.
 
+``--set diffusion.n_resblocks=3 ...`` first retrains the run's denoiser with
+other settings on its latent (``bench_levers.retrain``; the run is not changed).
+
 Run it on a quiet machine; docs/thin-parts.md "Where the samples lose patches" keeps the figures.
 
     python benchmarks/bench_patch_bands.py --run RUN --mesh ruin.obj --family ruin --diversity 0.05 0.5 0.52
     python benchmarks/bench_patch_bands.py --run RUN --mesh ruin.obj --keep xz --diversity 0.05 0.5 0.6
+    python benchmarks/bench_patch_bands.py --run RUN --mesh keep.obj --set diffusion.n_resblocks=3 \
+        diffusion.base_channels=16 diffusion.steps=1500 diffusion.batch_size=4 --diversity 0.05 0.7 1
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 import torch
+from bench_levers import retrain
 
 from sin3dm_lite import Sin3DM, control, metrics
+from sin3dm_lite.data.config import parse_settings
 from sin3dm_lite.data.ruin import build_ruin
 from sin3dm_lite.data.source import resolve_mesh
 from sin3dm_lite.model.triplane import PLANES
@@ -50,9 +58,15 @@ def main() -> None:
     ap.add_argument("--family", choices=["ruin", "keep"], help="score the generator's seeds 1-8 too")
     ap.add_argument("--keep", nargs="*", default=[], choices=PLANES, help="whole planes of the input's latent kept")
     ap.add_argument("--diversity", type=float, nargs="+", default=[0.05, 0.5])
+    ap.add_argument(
+        "--set", nargs="*", default=[], help="denoiser settings to retrain with first, e.g. diffusion.n_resblocks=3"
+    )
     a = ap.parse_args()
     torch.set_num_threads(1)
     model = Sin3DM.open(a.run)
+    if a.set:
+        fig = retrain(model, Path(a.run), model.config.updated(**parse_settings(a.set)))
+        print(f"denoiser retrained with {' '.join(a.set)} in {fig['diffusion_s']:.0f} s", flush=True)
     ss = metrics.PAPER_SUPERSAMPLE
     reference = model.input_occupancy(resolve_mesh(a.mesh), RESOLUTION, supersample=ss)
     plan = control.keep_planes(model.latent, model.aabb, a.keep) if a.keep else None
