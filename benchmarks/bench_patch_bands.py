@@ -62,6 +62,8 @@ def main() -> None:
         "--set", nargs="*", default=[], help="denoiser settings to retrain with first, e.g. diffusion.n_resblocks=3"
     )
     a = ap.parse_args()
+    if any(not k.startswith("diffusion.") for k in a.set):  # retrain() keeps the run's latent and decoder
+        ap.error("--set takes denoiser settings only (diffusion.*): the run's autoencoder and latent are kept")
     torch.set_num_threads(1)
     model = Sin3DM.open(a.run)
     if a.set:

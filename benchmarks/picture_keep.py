@@ -9,7 +9,7 @@ broken tops over the same walls, what one would like the samples to be); then fo
 trained on the run's latent: 4 ResBlocks (a 17-texel field, the thin-walls switch's wide field) from pure noise;
 3 ResBlocks trained 800 steps (13 texels) from pure noise; and the run's own denoiser (for the keep the fit's
 fallback, 2 ResBlocks, 9 texels) at its calibrated diversity. The first copies the keep; the last tears its walls.
-About 3 minutes on 2 cores (two denoisers retrained).
+About a minute on 2 cores (two denoisers retrained).
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import argparse
 import copy
 from pathlib import Path
 
+import numpy as np
 import torch
 from bench_levers import retrain
 from PIL import Image
@@ -35,7 +36,7 @@ ROWS = (
 )
 
 
-def door_view(mesh, size: int) -> object:
+def door_view(mesh, size: int) -> np.ndarray:
     """The view at azimuth 270° (the keep's door), 30° up."""
     return render_views(mesh, n_views=4, size=size, elevation=30.0)[3]
 

@@ -73,12 +73,15 @@ def _reference_patches(reference: np.ndarray, patch: int, stride: int, center: i
     return ref
 
 
+def _grids(generated) -> list:
+    """The generated shapes as a list of grids (one 3D grid, or any sequence of them)."""
+    return [generated] if isinstance(generated, np.ndarray) and generated.ndim == 3 else list(generated)
+
+
 def _drawn_patches(generated, patch: int, stride: int, center: int, max_patches: int, seed: int):
     """Per generated shape (one grid or a list), its surface patches, at most ``max_patches`` drawn at random."""
-    if isinstance(generated, np.ndarray) and generated.ndim == 3:
-        generated = [generated]
     rng = np.random.default_rng(seed)
-    for grid in generated:
+    for grid in _grids(generated):
         gen = extract_patches(grid, patch, stride, center)
         yield gen[rng.choice(len(gen), max_patches, replace=False)] if len(gen) > max_patches else gen
 
@@ -232,9 +235,8 @@ def lp_misses_by_band(
     ref = _reference_patches(reference, patch, stride, center)
     solid = np.flatnonzero(np.asarray(reference, bool).any(axis=tuple(a for a in range(3) if a != axis)))
     lo, hi = solid.min(), solid.max()
-    grids = [generated] if isinstance(generated, np.ndarray) and generated.ndim == 3 else list(generated)
     count, missed = np.zeros(bands), np.zeros(bands)
-    for grid in grids:
+    for grid in _grids(generated):
         win = _windows(grid, patch)[::stride, ::stride, ::stride]
         surface = _surface(win, patch, center)
         if not surface.any():
