@@ -18,7 +18,7 @@ import torch
 from .data.config import Config
 from .data.mesh import Normalization
 from .errors import Sin3DMInputError
-from .files import atomic_path, atomic_write, save_torch
+from .files import atomic_path, atomic_paths, save_torch, write_data
 from .model.autoencoder import TriplaneDecoder
 from .model.training import checkpoint_problem
 from .model.triplane import Triplane
@@ -100,11 +100,15 @@ def save_trainer(trainer, path: Path) -> None:
     atomic_torch_save(trainer.state_dict(), path)
 
 
-def write_model(model, run: Path) -> Path:
-    """Write ``model.pt`` (:func:`model_bundle`) and ``config.json`` into the folder ``run``; returns ``model.pt``."""
+def write_model(model, run: Path, also: dict[str, str] | None = None) -> Path:
+    """Write ``model.pt`` (:func:`model_bundle`), ``config.json`` and the text files ``also`` (``{name: text}``)
+    into the folder ``run``, all or none (:func:`files.atomic_paths`); returns ``model.pt``."""
     run.mkdir(parents=True, exist_ok=True)
-    atomic_torch_save(model_bundle(model), run / MODEL_FILE)
-    atomic_write(run / "config.json", model.config.to_json())
+    texts = {"config.json": model.config.to_json(), **(also or {})}
+    with atomic_paths(run, [MODEL_FILE, *texts]) as tmp:
+        save_torch(model_bundle(model), tmp[MODEL_FILE])
+        for name, text in texts.items():
+            write_data(tmp[name], text)
     return run / MODEL_FILE
 
 

@@ -24,6 +24,7 @@ from .files import (
     check_output_folder,
     check_writable,
     clash_error,
+    confined,
     file_record,
     foreign_files,
     is_ours,
@@ -32,6 +33,7 @@ from .files import (
     present,
     read_manifest,
     read_manifest_parts,
+    refuse_links,
     release_lock,
     remove_files,
     replacing,
@@ -125,6 +127,7 @@ def check_folder(out: Path, req, settings: dict, names_for) -> bool:
     """
     if out.exists() and not out.is_dir():
         raise Sin3DMInputError(f"--out '{out}' is a file; give a folder to write into")
+    refuse_links(out)  # a sample folder linked elsewhere is never written, replaced or emptied
     old = read_settings(out) if out.is_dir() else None
     if old is not None and not req.overwrite:
         content = [p.name for p in present(out) if p.name != MANIFEST and p not in manifest_parts(out)]
@@ -260,7 +263,7 @@ def finish_folder(model, out: Path, req, plan, label: str = "sample") -> dict[in
         m = {f: st for f, st in m.items() if is_ours(out, f, m)}
         write_manifest(out, {**m, **replacing(out, m, new)})  # first: nothing of ours unrecorded, old or new
         for n in names:
-            os.replace(tmp / n, out / n)
+            os.replace(tmp / n, confined(out, out / n))
         write_manifest(out, {**m, **new})
         for part in manifest_parts(out):  # merged into samples.jsonl and the manifest
             part.unlink(missing_ok=True)

@@ -23,7 +23,16 @@ import numpy as np
 import torch
 
 from .errors import Sin3DMInputError
-from .files import append_manifest_part, file_record, is_ours, make_temp_dir, read_manifest, replacing, save_torch
+from .files import (
+    append_manifest_part,
+    confined,
+    file_record,
+    is_ours,
+    make_temp_dir,
+    read_manifest,
+    replacing,
+    save_torch,
+)
 from .mass_folder import WRITER, finished, folder_name
 
 
@@ -146,7 +155,9 @@ def install_sample(tmp: Path, dst: Path, out: Path, ours: dict | None) -> None:
 
     ``ours``: ``out``'s manifest as it was before this sample's record was
     appended (what an existing ``dst`` holds of ours, e.g. a half-written earlier try).
+    Nothing goes through a link (``dst`` linked elsewhere meanwhile is refused, :func:`files.confined`).
     """
+    confined(out, dst)
     if not dst.exists():
         os.rename(tmp, dst)
         return
@@ -157,7 +168,7 @@ def install_sample(tmp: Path, dst: Path, out: Path, ours: dict | None) -> None:
                 f"'{dst / item.name}' was not written by `sin3dm-lite sample` and would be "
                 "replaced; move it away and run again"
             )
-        os.replace(item, dst / item.name)
+        os.replace(item, confined(out, dst / item.name))
     shutil.rmtree(tmp, ignore_errors=True)
 
 
@@ -246,6 +257,7 @@ class RankExport:
         from tqdm.auto import tqdm
 
         out, name = self.out, folder_name(i)
+        confined(out, out / name)  # before its record: a folder linked elsewhere meanwhile is refused
         ours = read_manifest(out) if (out / name).exists() else None  # before this record joins it
         files = {f"{name}/{k}": v for k, v in file_record(tmp, sorted(p.name for p in tmp.iterdir()), WRITER).items()}
         if ours is not None:  # files of an earlier, killed try stay ours until this one replaces them

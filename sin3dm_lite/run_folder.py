@@ -188,14 +188,23 @@ def read_report(run: Path) -> dict:
 
 
 def remove_failed_run(run: Path, existed: bool) -> None:
-    """Remove what a failed fresh fit wrote into ``run`` (and the folder, if the fit made it and it is empty)."""
+    """Remove what a failed fresh fit wrote into ``run`` (and the folder, if the fit made it and it is empty).
+
+    Called while the fit's own error unwinds: a file that cannot be removed (the folder made read-only)
+    stays, and that error, not this cleanup's, is the one the user reads.
+    """
     import re
 
-    for name in RUN_FILES:
-        (run / name).unlink(missing_ok=True)
-    for p in run.iterdir():  # temporaries of atomic writes
-        if re.match(r"^\..*\.sin3dm-\d+-[^.]*\.tmp", p.name):
+    names = [run / name for name in RUN_FILES]
+    try:  # temporaries of atomic writes
+        names += [p for p in run.iterdir() if re.match(r"^\..*\.sin3dm-\d+-[^.]*\.tmp", p.name)]
+    except OSError:
+        pass
+    for p in names:
+        try:
             p.unlink(missing_ok=True)
+        except OSError:
+            pass
     release_lock(run)
     if not existed:
         try:

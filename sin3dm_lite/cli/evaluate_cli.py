@@ -174,16 +174,39 @@ def _supersample(voxels: str) -> int:
     return {"paper": PAPER_SUPERSAMPLE, "centres": 1}[voxels]
 
 
+def run_report(run: Path) -> dict | None:
+    """The run's ``report.json`` (None without one), read and checked before a command changes the run: a damaged
+    one refuses here, before the long work and before any file of the run is replaced."""
+    import json
+
+    path = run / "report.json"
+    if not path.exists() and not path.is_symlink():
+        return None
+    try:
+        report = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        why = e.strerror if isinstance(e, OSError) else f"not JSON: {e}"
+        report = why
+    if not isinstance(report, dict):
+        why = report if isinstance(report, str) else f"a {type(report).__name__}, not a record"
+        raise Sin3DMInputError(
+            f"'{path}' is damaged ({why}); nothing in '{run}' was changed: restore that file from a copy, or "
+            "delete it (a record only: the run samples without it) and calibrate again"
+        )
+    return report
+
+
 def _calibrate(a, run: Path, shipped: bool) -> None:
     import json
 
+    from ..checkpoints import write_model
     from ..data.grid import load_grid
     from ..data.source import resolve_mesh
     from ..evaluate.calibrate import GOALS
     from ..evaluate.evaluation import voxels_said
-    from ..files import atomic_write
     from ..pipeline import Sin3DM
 
+    report = None if shipped else run_report(run)  # everything read and checked before the work
     model = Sin3DM.load(run)
     if a.snap is not None:  # the sampler to calibrate for, kept in the run's config
         model.config = model.config.updated(**{"sampling.snap": a.snap})
@@ -220,11 +243,8 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
             f"changed: sample it with --diversity {cal.diversity:g}{snapped}"
         )
         return
-    model.save(run)
-    if (run / "report.json").is_file():
-        report = json.loads((run / "report.json").read_text())
-        report["calibration"] = cal.to_dict()
-        atomic_write(run / "report.json", json.dumps(report, indent=2))
+    also = {} if report is None else {"report.json": json.dumps({**report, "calibration": cal.to_dict()}, indent=2)}
+    write_model(model, run, also)  # model.pt, config.json and report.json: all or none
     print(
         f"{run}: diversity {before:g} → {cal.diversity:g}{' for snapped samples' if snapped else ''}, judged at "
         f"{cal.resolution} voxels ({voxels_said(cal.supersample)}, {took:.0f} s), "

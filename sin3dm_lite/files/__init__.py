@@ -15,6 +15,8 @@
   until the writer merges them into it at the end (:func:`append_manifest_part`).
 * A folder is locked while one process writes it: an OS lock held on ``.sin3dm-lock`` (which
   names the PID) for the writer's life, see :func:`acquire_lock` (``locks``).
+* Nothing is written, replaced or deleted through a symbolic link or outside the output folder
+  (:func:`refuse_links` before the work, :func:`confined` at each write; ``confined``).
 * Output folders are checked before the long work and filled without touching
   what is not ours (:func:`check_output_folder`, :func:`install_output`; ``outputs``).
 """
@@ -26,6 +28,7 @@ from .atomic import (
     TEMP_PREFIX,
     atomic_folder,
     atomic_path,
+    atomic_paths,
     atomic_write,
     is_temporary,
     make_temp_dir,
@@ -38,6 +41,7 @@ from .atomic import (
     write_data,
     write_failed,
 )
+from .confined import confined, link_error, refuse_links
 from .locks import LOCK, acquire_lock, create_locked_folder, holds_lock, locked, release_lock
 from .manifest import (
     MANIFEST,
@@ -73,7 +77,11 @@ __all__ = [
     "TEMP_PREFIX",
     "atomic_folder",
     "atomic_path",
+    "atomic_paths",
     "atomic_write",
+    "confined",
+    "link_error",
+    "refuse_links",
     "is_temporary",
     "make_temp_dir",
     "named",

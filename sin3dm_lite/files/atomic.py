@@ -50,6 +50,37 @@ def atomic_path(path: str | Path, before_move=None):
             os.remove(tmp)
 
 
+@contextmanager
+def atomic_paths(folder: str | Path, names):
+    """Yield ``{name: temporary path}`` beside each ``folder/name``; when the block succeeds, move them all onto
+    their names, one after the other, only once every one is written.
+
+    A run folder updated by one command (``calibrate``: ``model.pt``, ``config.json``, ``report.json``) is
+    then all or nothing: a failure while writing (a full disk, a damaged file met late) changes none of them.
+    On an exception the temporaries are removed.
+    """
+    folder = Path(folder)
+    tmps: dict[str, Path] = {}
+    try:
+        for n in names:
+            fd, t = tempfile.mkstemp(
+                prefix=f".{Path(n).stem}.sin3dm-{os.getpid()}-", suffix=f".tmp{Path(n).suffix}", dir=folder
+            )
+            os.close(fd)
+            tmps[n] = Path(t)
+        yield dict(tmps)
+        for t in tmps.values():
+            os.chmod(t, 0o644)
+        for n, t in tmps.items():
+            os.replace(t, folder / n)
+    except OSError as e:
+        raise named(e, folder) from None
+    finally:
+        for t in tmps.values():
+            if os.path.exists(t):
+                os.remove(t)
+
+
 def atomic_write(path: str | Path, data: bytes | str) -> Path:
     """Write ``data`` (text as UTF-8) to ``path`` atomically."""
     with atomic_path(path) as tmp:

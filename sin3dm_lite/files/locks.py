@@ -13,6 +13,7 @@ import json
 import os
 import shutil
 import socket
+import sys
 import time
 import warnings
 from contextlib import contextmanager
@@ -20,6 +21,7 @@ from pathlib import Path
 
 from ..errors import Sin3DMInputError
 from .atomic import make_temp_dir, pid_alive, remove_stale_temps, resolved_path
+from .confined import link_error
 
 LOCK = ".sin3dm-lock"
 
@@ -116,8 +118,10 @@ def acquire_lock(folder: Path, what: str = "folder") -> None:
         raise Sin3DMInputError(f"{what} '{folder}' is already being written by this process; wait for that to finish")
     me = _lock_info()
     for _ in range(3):
+        if lock.is_symlink():  # the lock file is written: never through a link
+            raise link_error(lock)
         try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
         except OSError as e:
             raise Sin3DMInputError(f"cannot lock {what} '{folder}' ({e.strerror}); check its permissions") from None
         if not _try_lock(fd):
@@ -181,17 +185,29 @@ def holds_lock(folder: Path) -> bool:
 
 
 def release_lock(folder: Path) -> None:
-    """Remove ``folder``'s lock if this process holds it (the file first, so no one locks a removed file)."""
+    """Remove ``folder``'s lock if this process holds it (the file first, so no one locks a removed file).
+
+    A lock file that cannot be removed (the folder made read-only meanwhile) is left for the next writer,
+    which takes a lock no process holds over: never an error of its own. Called while another error
+    unwinds (a ``finally``), it says nothing, so that error is the one the user reads; else one warning.
+    """
     fd = _held.pop(resolved_path(folder), None)
     if fd is None:
         return
+    unwinding = sys.exc_info()[1] is not None
+    lock = Path(folder) / LOCK
     try:
-        (Path(folder) / LOCK).unlink()
-    except FileNotFoundError:
-        pass
-    except PermissionError:  # Windows removes no open file
-        os.close(fd)
+        lock.unlink(missing_ok=True)
+    except OSError:
+        os.close(fd)  # Windows removes no open file: close it and try once more
         fd = None
-        (Path(folder) / LOCK).unlink(missing_ok=True)
+        try:
+            lock.unlink(missing_ok=True)
+        except OSError as e:
+            if not unwinding:
+                warnings.warn(
+                    f"could not remove the lock '{lock}' ({e.strerror}); the next sin3dm-lite command takes it over",
+                    stacklevel=2,
+                )
     if fd is not None:
         os.close(fd)

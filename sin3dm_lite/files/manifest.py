@@ -104,7 +104,8 @@ def append_manifest_part(folder: Path, name: str, record: dict) -> None:
     Call it *before* moving those files into place (a move keeps size and
     time): a kill then leaves no file of ours unrecorded.
     """
-    with open(Path(folder) / MANIFEST_PART.format(name), "a", encoding="utf-8") as f:
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)  # never appended through a link
+    with os.fdopen(os.open(Path(folder) / MANIFEST_PART.format(name), flags, 0o644), "a", encoding="utf-8") as f:
         f.write(json.dumps(record) + "\n")
         f.flush()
         os.fsync(f.fileno())

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from ..errors import Sin3DMInputError
 from .atomic import is_temporary, resolved_path
+from .confined import confined, refuse_links
 from .locks import LOCK, locked
 from .manifest import file_record, is_ours, read_manifest, replacing, write_manifest, writer
 
@@ -105,6 +106,7 @@ def check_output_folder(out: Path, overwrite: bool, names=(), option: str = "--o
         raise Sin3DMInputError(f"{option} '{out}' is a file; give a folder to write into")
     if not out.is_dir() or not present(out):
         return
+    refuse_links(out, option)
     if not overwrite:
         raise Sin3DMInputError(
             f"output folder '{out}' is not empty; pass --overwrite to replace what sin3dm-lite wrote there before "
@@ -128,7 +130,7 @@ def merge_output(tmp: Path, out: Path, by: str | None = None) -> None:
         old = read_manifest(out)
         write_manifest(out, {**old, **replacing(out, old, new)})  # first: a kill leaves no file of ours unrecorded
         for n in names:
-            os.replace(Path(tmp) / n, Path(out) / n)
+            os.replace(Path(tmp) / n, confined(out, Path(out) / n))
         write_manifest(out, {**old, **new})
 
 
@@ -154,6 +156,8 @@ def install_output(tmp: Path, out: Path, by: str | None = None) -> list[str]:
 
 def _install_into(tmp: Path, out: Path, new: dict, by: str | None) -> list[str]:
     old = read_manifest(out)
+    for f in new:
+        confined(out, out / f)  # no new file lands through a link (the folder may have changed since the checks)
     kept = {f: e for f, e in old.items() if is_ours(out, f, old)}
     clash = [f for f in new if ((out / f).exists() or (out / f).is_symlink()) and not is_ours(out, f, old, by)]
     if clash:
@@ -164,9 +168,9 @@ def _install_into(tmp: Path, out: Path, new: dict, by: str | None) -> list[str]:
     write_manifest(out, {**kept, **replacing(out, kept, new)})
     remove_files(out, mine)
     for f in new:
-        dst = out / f
+        dst = confined(out, out / f)
         dst.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(tmp / f, dst)
+        os.replace(tmp / f, confined(out, dst))  # checked again: mkdir may have met a link made meanwhile
     write_manifest(out, {**others, **new})
     shutil.rmtree(tmp, ignore_errors=True)
     return sorted(new)
@@ -176,9 +180,9 @@ def remove_files(out: Path, rels) -> None:
     """Delete the files ``rels`` (relative to ``out``; the caller has checked that they are ours), deepest
     first, then the folders they leave empty; a folder that still holds anything stays."""
     for f in sorted(rels, key=lambda f: -len(Path(f).parts)):
-        (Path(out) / f).unlink(missing_ok=True)
+        confined(out, Path(out) / f).unlink(missing_ok=True)  # never through a link, never outside ``out``
         for d in list(Path(f).parents)[:-1]:  # folders of ours left empty
             try:
-                (Path(out) / d).rmdir()
+                confined(out, Path(out) / d).rmdir()
             except OSError:
                 break
