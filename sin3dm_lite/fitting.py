@@ -30,7 +30,7 @@ from .data.mesh import TexturedMesh
 from .data.presets import get_preset
 from .data.source import input_name, input_stem, resolve_mesh
 from .device import cpu_bf16_share, get_device, resolved_precision
-from .errors import Sin3DMInputError
+from .errors import Sin3DMInputError, Terminated
 from .evaluate.metrics import reconstruction_metrics
 from .files import atomic_write, holds_lock, release_lock
 from .fit_policy import (
@@ -392,18 +392,19 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say, until_ste
             save(tr)
         if stop["asked"]:
             say(f"\n[fit] {label}: interrupted at step {tr.step_count}; checkpoint saved, continue with --resume")
-            raise KeyboardInterrupt
+            raise Terminated if stop.get("signal") == signal.SIGTERM else KeyboardInterrupt
 
-    def on_sigint(signum, frame) -> None:
+    def on_sigint(signum, frame) -> None:  # Ctrl-C or SIGTERM: stop after this step, with its checkpoint
         stop["asked"] = True
+        stop["signal"] = signum
 
     main = threading.current_thread() is threading.main_thread()
-    old = signal.signal(signal.SIGINT, on_sigint) if main else None
+    old = {s: signal.signal(s, on_sigint) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
     try:
         trainer.run(until_step, progress=progress, callback=checkpoint)
     finally:
-        if main:
-            signal.signal(signal.SIGINT, old)
+        for s, handler in old.items():
+            signal.signal(s, handler)
     save(trainer)  # the last step, unless the callback just wrote it
 
 

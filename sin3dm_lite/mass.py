@@ -43,7 +43,15 @@ from pathlib import Path
 from .data.config import check_setting
 from .errors import Sin3DMInputError
 from .files import release_lock
-from .mass_folder import abandon, finish_folder, prepare_folder, remove_if_empty, sample_output_names, sample_settings
+from .mass_folder import (
+    abandon,
+    finish_folder,
+    finished,
+    prepare_folder,
+    remove_if_empty,
+    sample_output_names,
+    sample_settings,
+)
 from .mass_workers import Ranks, sample_many
 from .request import SampleRequest  # what a run asks for, and its defaults
 
@@ -128,15 +136,25 @@ def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", r
         stats = sample_many(model, out, req, ranks, plan, pending, label)
         ranks.barrier()
         total = len(finish_folder(model, out, req, plan, label)) if ranks.rank == 0 else None
-    except BaseException:
+    except BaseException as e:
         if ranks.rank == 0 and ranks.world == 1 and abandon(out):  # nothing finished: leave nothing that blocks a rerun
             release_lock(out)
             remove_if_empty(out, created)  # files not ours, or temporaries of a killed worker: kept
+        if isinstance(e, KeyboardInterrupt) and ranks.rank == 0:  # Ctrl-C or SIGTERM: say what stays, and how on
+            raise type(e)(interrupted(out)) from None
         raise
     finally:
         if ranks.rank == 0:
             release_lock(out)
     return {"pending": len(pending), "total": total, **stats}
+
+
+def interrupted(out: Path) -> str:
+    """What an interrupted sample run leaves, in one line: the finished samples stay, the same command continues."""
+    kept = len(finished(out)) if out.is_dir() else 0
+    if not kept:
+        return f"no sample was finished, nothing of this run is left in '{out}'"
+    return f"the {kept} finished samples in '{out}' are kept; run the same command again to continue"
 
 
 __all__ = ["SampleRequest", "write_samples", "check_request", "check_sample_sizes"]

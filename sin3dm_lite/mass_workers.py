@@ -29,6 +29,7 @@ from .files import (
     file_record,
     is_ours,
     make_temp_dir,
+    pid_alive,
     read_manifest,
     replacing,
     save_torch,
@@ -172,6 +173,44 @@ def install_sample(tmp: Path, dst: Path, out: Path, ours: dict | None) -> None:
     shutil.rmtree(tmp, ignore_errors=True)
 
 
+MP_PREFIX = "sin3dm-mp-"  # multiprocessing's temporaries of a sample run: sin3dm-mp-<pid>-<random> in the temp folder
+
+
+def own_mp_temps() -> Path:
+    """A temporary folder for multiprocessing (the pool's sockets), named with this process's PID, made its
+    temporary folder; folders of this kind whose process died (``kill -9``) are removed first. Multiprocessing's
+    own ``pymp-*`` folder is removed only at a clean exit, so every kill left one behind.
+    (multiprocessing reads the setting from its process's private ``_config``; there is no public one. The
+    folder stays in the system's temporary folder: a Unix socket's path may not be longer than about 100 bytes.)"""
+    import multiprocessing.process
+    import re
+    import tempfile
+
+    base = Path(tempfile.gettempdir())
+    for old in base.glob(f"{MP_PREFIX}*"):
+        m = re.match(rf"^{MP_PREFIX}(\d+)-", old.name)
+        if m and not pid_alive(int(m.group(1))) and old.is_dir() and not old.is_symlink():
+            shutil.rmtree(old, ignore_errors=True)
+    folder = Path(tempfile.mkdtemp(prefix=f"{MP_PREFIX}{os.getpid()}-"))
+    multiprocessing.process.current_process()._config["tempdir"] = str(folder)
+    return folder
+
+
+def drop_mp_temps(folder: Path | None) -> None:
+    """After the pool is shut down: stop the sharer whose socket lies in ``folder``, remove it, and let
+    multiprocessing make its own folder again if it needs one."""
+    import multiprocessing.process
+    from multiprocessing import resource_sharer
+
+    if folder is None:
+        return
+    resource_sharer.stop()  # its socket: torch passes the latents' storage to the workers through it
+    config = multiprocessing.process.current_process()._config
+    if config.get("tempdir") == str(folder):
+        config.pop("tempdir")
+    shutil.rmtree(folder, ignore_errors=True)
+
+
 # --------------------------------------------------------------------------- this rank's share of the run
 def export_options(model, req, plan) -> dict:
     """What every export of the run shares: the mesh settings and one scale for every preview."""
@@ -195,7 +234,7 @@ class RankExport:
 
         self.model, self.out, self.req, self.ranks, self.opts, self.total = model, out, req, ranks, opts, total
         self.tag = f"[{label}]" if ranks.world == 1 else f"[{label} rank {ranks.rank}]"
-        self.pool, self.workers = None, 0
+        self.pool, self.workers, self.mp_temps = None, 0, None
         self.temps: set[Path] = set()  # this run's temporary folders not moved into place: removed at the end
         self.futures: dict = {}  # export in a worker → (index, temporary folder, when its batch started)
         self.said: list[str] = []
@@ -209,6 +248,7 @@ class RankExport:
         model_tmp = make_temp_dir(self.out)
         self.temps.add(model_tmp)
         self.model.save(model_tmp)
+        self.mp_temps = own_mp_temps()
         self.pool = ProcessPoolExecutor(
             workers,
             mp_context=multiprocessing.get_context("spawn"),
@@ -306,6 +346,7 @@ class RankExport:
         self.bar.close()
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)
+            drop_mp_temps(self.mp_temps)
         for tmp in self.temps:
             shutil.rmtree(tmp, ignore_errors=True)
 

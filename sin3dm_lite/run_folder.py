@@ -49,13 +49,14 @@ RUN_FILES = (
 def check_run_folder(run: Path, source, resume: bool) -> None:
     """Refuse a run folder the fit cannot write (a file, the input's own folder, read-only) or, for a resume,
     damaged checkpoints: before any stage writes."""
-    from .files import check_not_overlapping, check_writable
+    from .files import check_not_overlapping, check_writable, refuse_links
 
     if isinstance(source, (str, Path)) and Path(source).exists():
         check_not_overlapping(run, {"input mesh": Path(source)})
     if run.exists() and not run.is_dir():
         raise Sin3DMInputError(f"run folder '{run}' is a file; choose a folder for out (CLI: --out)")
     check_writable(run)
+    refuse_links(run)  # a fit writes and (when it fails) removes files in it: never through a link
     if resume:  # a damaged checkpoint fails now, before any stage writes
         for kind in ("autoencoder", "diffusion"):
             if (run / f"{kind}.pt").exists():

@@ -167,3 +167,13 @@ def test_a_manifest_part_that_is_a_link_is_never_appended_to(tmp_path):
     with pytest.raises(OSError):
         files.append_manifest_part(out, "rank0", {"index": 0, "files": {}})
     assert victim.read_text() == "keep me"
+
+
+def test_fit_refuses_a_run_folder_holding_a_link(tmp_path, capsys):
+    run, victim = tmp_path / "run", tmp_path / "victim.json"
+    run.mkdir()
+    victim.write_text("{}")
+    os.symlink(victim, run / "config.json")
+    assert main(["fit", "wall", "--preset", "tiny", "--out", str(run)]) == 2
+    assert "config.json" in one_line(capsys)
+    assert victim.read_text() == "{}"

@@ -202,3 +202,57 @@ def test_the_export_workers_watch_their_parent(monkeypatch, tmp_path):
     monkeypatch.setattr(mass_workers, "_WORKER", {})
     mass_workers._worker_init(str(tmp_path / "model.pt"), {})
     assert calls == ["watch", ("load", str(tmp_path / "model.pt"), "cpu")]
+
+
+def test_sigterm_ends_like_ctrl_c_and_leaves_nothing_outside_out(tmp_path):
+    """`kill PID` during a run with export workers: one line (what was kept, how to continue), exit 143, no
+    multiprocessing leftovers (no `pymp-*` in the temporary folder, no leaked-semaphore warning), and the same
+    command continues."""
+    import tempfile
+
+    out = tmp_path / "termed"
+    tmp = Path(tempfile.mkdtemp(prefix="t", dir="/tmp" if os.path.isdir("/tmp") else None))  # a socket's path is short
+    argv = ["sample", RUN, "-n", "6", "--out", str(out), "--batch", "1", "--workers", "1", *SMALL]
+    p = subprocess.Popen(
+        [sys.executable, "-m", "sin3dm_lite.cli", *argv],
+        env={**ENV, "TMPDIR": str(tmp)},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    t0 = time.monotonic()
+    while p.poll() is None and time.monotonic() - t0 < 300 and not (out / "000").is_dir():
+        time.sleep(0.02)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 143, err
+    lines = [line for line in err.strip().splitlines() if "it/s]" not in line and "mesh/s]" not in line]
+    assert "Traceback" not in err and "leaked" not in err, err
+    assert "terminated: the" in lines[-1] and "finished samples" in lines[-1] and "same command again" in lines[-1]
+    assert list(tmp.iterdir()) == []
+    tmp.rmdir()
+    assert not [p for p in out.iterdir() if p.name.startswith(".sin3dm-tmp-")]
+    assert (
+        subprocess.run([sys.executable, "-m", "sin3dm_lite.cli", *argv], env=ENV, capture_output=True).returncode == 0
+    )
+    _check_folder(out, range(6))
+
+
+def test_multiprocessing_temporaries_of_a_killed_run_are_removed_by_the_next(tmp_path, monkeypatch):
+    """`kill -9` leaves the pool's temporary folder; the next run removes it (a live process's stays)."""
+    import tempfile
+
+    from sin3dm_lite import mass_workers
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale, live = tmp_path / f"sin3dm-mp-{dead.pid}-x", tmp_path / f"sin3dm-mp-{os.getppid()}-y"
+    stale.mkdir()
+    live.mkdir()
+    mine = mass_workers.own_mp_temps()
+    try:
+        assert not stale.exists() and live.is_dir() and mine.parent == tmp_path
+    finally:
+        mass_workers.drop_mp_temps(mine)
+    assert not mine.exists()

@@ -34,10 +34,13 @@ calibrate); ``main`` here runs one and turns user errors into one line.
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 import warnings
+from contextlib import contextmanager
 
-from ..errors import Sin3DMInputError
+from ..errors import Sin3DMInputError, Terminated
 from .evaluate_cli import cmd_calibrate, cmd_evaluate, cmd_render
 from .fit_cli import cmd_examples, cmd_fit, cmd_grid
 from .parser_cli import COMMANDS, build_parser, package_version
@@ -69,6 +72,24 @@ def cmd_notebooks(a) -> None:
         raise SystemExit(code)
 
 
+@contextmanager
+def sigterm_as_interrupt():
+    """While a command runs, SIGTERM raises :class:`errors.Terminated` (a ``KeyboardInterrupt``): the command
+    stops as after Ctrl-C, keeping what finished and removing its temporaries, instead of dying where it stands."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def terminate(signum, frame):
+        raise Terminated
+
+    old = signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -83,29 +104,35 @@ def main(argv: list[str] | None = None) -> int:
 
     warnings.showwarning = one_line
     try:
-        {
-            "examples": cmd_examples,
-            "grid": cmd_grid,
-            "fit": cmd_fit,
-            "sample": cmd_sample,
-            "demo": cmd_demo,
-            "render": cmd_render,
-            "evaluate": cmd_evaluate,
-            "calibrate": cmd_calibrate,
-            "notebooks": cmd_notebooks,
-        }[a.command](a)
+        with sigterm_as_interrupt():
+            run_command(a)
     except Sin3DMInputError as e:
         print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # the disk, not the code: a full disk, a folder made read-only meanwhile
         print(f"sin3dm-lite {a.command}: error: {disk_error(e, getattr(a, 'out', None))}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        how = "terminated" if isinstance(e, Terminated) else "interrupted"
+        print(f"sin3dm-lite {a.command}: {how}{': ' + str(e) if str(e) else ''}", file=sys.stderr)
+        return 143 if isinstance(e, Terminated) else 130
     finally:
         warnings.showwarning = show
     return 0
+
+
+def run_command(a) -> None:
+    {
+        "examples": cmd_examples,
+        "grid": cmd_grid,
+        "fit": cmd_fit,
+        "sample": cmd_sample,
+        "demo": cmd_demo,
+        "render": cmd_render,
+        "evaluate": cmd_evaluate,
+        "calibrate": cmd_calibrate,
+        "notebooks": cmd_notebooks,
+    }[a.command](a)
 
 
 __all__ = ["main", "build_parser", "COMMANDS", "package_version", "sample_request", "disk_error"]
