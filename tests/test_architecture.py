@@ -34,6 +34,7 @@ LAYERS = {
     "threads": BASE,
     "files": BASE,
     "files.atomic": BASE,
+    "files.confined": BASE,
     "files.locks": BASE,
     "files.manifest": BASE,
     "files.outputs": BASE,
