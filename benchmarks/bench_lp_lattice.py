@@ -15,7 +15,7 @@ stride-5 lattice in both shapes. This prints, at 128 voxels:
   diversities, G-Div and both LPs against the input mesh at 128 voxels (each
   sample's mesh decoded at 128, as ``calibrate --resolution 128`` does).
 
-Run it on a quiet machine; docs/thin-parts.md "What LP-IoU measures" keeps the figures.
+Run it on a quiet machine; docs/judging-samples.md "What LP-IoU measures" keeps the figures.
 
     python benchmarks/bench_lp_lattice.py --shapes ruin canyon wall colonnade tiles
     python benchmarks/bench_lp_lattice.py --shapes --run runs/ruin --mesh ruin.stl --diversity 0.05 0.25 0.31 0.36

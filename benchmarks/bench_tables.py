@@ -37,12 +37,14 @@ import time
 from pathlib import Path
 
 import torch
-from bench_levers import retrain
 from bench_samples import fit_or_load, references, sample_grids, scores
 
+from sin3dm_lite import AutoencoderTrainer, reconstructed_grid, reconstruction_metrics
 from sin3dm_lite.data.export import export_mesh
+from sin3dm_lite.data.grid import load_grid
 from sin3dm_lite.data.load import load_mesh
 from sin3dm_lite.generate.extract import NoSurfaceError
+from sin3dm_lite.model.diffusion import DiffusionTrainer
 from sin3dm_lite.pipeline import Sin3DM
 
 VARIANTS = {
@@ -53,6 +55,30 @@ VARIANTS = {
     "6 ResBlocks": {"diffusion.n_resblocks": 6},
     "w/o encoder": {"autoencoder.use_encoder": False},
 }
+
+
+def retrain(model: Sin3DM, run: Path, cfg, seed: int = 0, autoencoder: bool = False) -> dict:
+    """Retrain ``model``'s denoiser with ``cfg`` in place (first its autoencoder on RUN's grid if ``autoencoder``).
+
+    Returns the stage times (s), the final diffusion loss and, after an autoencoder, its reconstruction figures.
+    """
+    fig = {}
+    if autoencoder:  # a new latent: retrain the autoencoder on RUN's grid
+        grid = load_grid(run / "grid.npz")
+        t = time.perf_counter()
+        ae = AutoencoderTrainer(grid, cfg.autoencoder, seed=seed)
+        ae.run(progress=False)
+        fig["autoencoder_s"] = time.perf_counter() - t
+        h0 = ae.latent()
+        rec = reconstruction_metrics(reconstructed_grid(ae.model.decoder, h0, grid), grid)
+        fig.update(recon_iou=rec["occupancy_iou"], color_psnr=rec["color_psnr"])
+        model.decoder, model.latent = ae.model.decoder.eval(), h0
+    t = time.perf_counter()
+    trainer = DiffusionTrainer(model.latent, cfg.diffusion, seed=seed)
+    trainer.run(progress=False)
+    fig.update(diffusion_s=time.perf_counter() - t, final_loss=trainer.history["loss"][-1])
+    model.config, model.denoiser = cfg, trainer.model_for_sampling
+    return fig
 
 
 def variant_changes(variant: str, cfg) -> tuple[str, dict]:

@@ -1,6 +1,10 @@
 """Seconds per training step, ours vs straightforward implementations of the paper's layers.
 
     python benchmarks/bench_training.py [--presets tiny small detail paper] [--steps 5] [--threads 2] [--compile]
+    python benchmarks/bench_training.py --grid [--resolutions 128 256] [--faces 77000]   # the grid stage
+
+Per stage of a fit: ``--grid`` times the first stage, mesh -> grid, on a bumpy textured sphere (77k faces, open);
+without it, one training step of each network:
 
 Autoencoder step (one batch of points, forward + backward + AdamW):
   * ours        – the decoder's per-plane ResNet blocks run once per step, then all points are looked up (fp32);
@@ -23,14 +27,16 @@ from __future__ import annotations
 
 import argparse
 import time
+import tracemalloc
 from dataclasses import replace
 
 import numpy as np
 import torch
 import torch.nn.functional as F
+import trimesh
 
-from sin3dm_lite.data.grid import ShapeGrid
-from sin3dm_lite.data.mesh import Normalization
+from sin3dm_lite.data.grid import ShapeGrid, mesh_to_grid
+from sin3dm_lite.data.mesh import Material, Normalization, TexturedMesh
 from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.device import bf16_is_fast
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer, sdf_loss
@@ -107,6 +113,43 @@ def swap_convs(module: torch.nn.Module) -> None:
             swap_convs(child)
 
 
+def bumpy_textured_sphere(target_faces: int) -> TexturedMesh:
+    """An icosphere with bumps, cut to ~target_faces (open; all 81,920 = closed), with a striped UV texture."""
+    m = trimesh.creation.icosphere(subdivisions=6)  # 81,920 faces
+    m = trimesh.Trimesh(m.vertices, m.faces[:target_faces], process=False)  # an open mesh, as assets often are
+    v = np.asarray(m.vertices)
+    v = v * (1 + 0.08 * np.sin(7 * v[:, :1]) * np.cos(5 * v[:, 1:2]))
+    f = np.asarray(m.faces, np.int64)
+    uv = np.stack([np.arctan2(v[:, 1], v[:, 0]) / (2 * np.pi) + 0.5, v[:, 2] / 2 + 0.5], 1)
+    yy, xx = np.mgrid[0:512, 0:512] / 512
+    tex = np.stack([0.5 + 0.5 * np.sin(40 * yy), 0.5 + 0.5 * np.sin(25 * xx), 0.5 + 0 * xx], -1).astype(np.float32)
+    return TexturedMesh(
+        v,
+        f,
+        np.zeros(len(f), np.int64),
+        [Material(base_color=np.ones(4, np.float32), image=tex)],
+        face_uvs=uv[f].astype(np.float32),
+        name="bumpy_sphere",
+    )
+
+
+def grid_times(resolutions: list[int], faces: int, points: int) -> None:
+    """Mesh -> grid at each resolution, without and with the near-surface training points, and peak numpy memory."""
+    mesh = bumpy_textured_sphere(faces)
+    print(f"mesh: {len(mesh.faces):,} faces, textured, {'closed' if len(mesh.faces) == 81_920 else 'open'}")
+    mesh_to_grid(mesh, 32, n_surface_points=0, progress=False)  # warm-up (imports, first-call costs)
+    for res in resolutions:
+        for n in (0, points):
+            tracemalloc.start()
+            t = time.perf_counter()
+            g = mesh_to_grid(mesh, res, n_surface_points=n, progress=False)
+            dt = time.perf_counter() - t
+            peak = tracemalloc.get_traced_memory()[1] / 2**20
+            tracemalloc.stop()
+            what = "grid only" if n == 0 else f"+ {n:,} training points"
+            print(f"grid {res:4d}: {g.shape} in {dt:6.2f} s  {what:28s} (peak numpy memory {peak:,.0f} MiB)")
+
+
 def timed(fn, steps: int, warmup: int = 2) -> float:
     for _ in range(warmup):
         fn()
@@ -122,9 +165,16 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--compile", action="store_true", help="also time the denoiser step after torch.compile")
+    ap.add_argument("--grid", action="store_true", help="time the grid stage (mesh -> grid) instead")
+    ap.add_argument("--resolutions", type=int, nargs="+", default=[128, 256], help="with --grid")
+    ap.add_argument("--faces", type=int, default=77_000, help="with --grid: faces kept of 81,920 (81920: closed)")
+    ap.add_argument("--points", type=int, default=300_000, help="with --grid: near-surface training samples")
     a = ap.parse_args()
     if a.threads:
         torch.set_num_threads(a.threads)
+    if a.grid:
+        grid_times(a.resolutions, a.faces, a.points)
+        return
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device cpu")
     for name in a.presets:
         cfg = get_preset(name)

@@ -12,7 +12,7 @@ request sits in the client until ``poll`` gives up at the cell timeout and
 re-reads the socket's state: then the message goes out, the kernel runs the
 cell in milliseconds, and the test passes, after waiting the whole timeout
 (nbmake's default was 600 s: hence the 612 s idle, with the kernel idle in its
-event loop all along). ``benchmarks/repro_kernel_hang.py --busy 2`` shows it:
+event loop all along). A reproduction script (``benchmarks/repro_kernel_hang.py``, now in git history) showed it:
 with both cores busy, one run of 150 cells took 364 s (six stalls of exactly
 the 60 s timeout); with the slices below, 5 runs took 4-8 s, the longest stall 1 s.
 (ipykernel 7.0-7.3 had the same lost wake-up on the kernel's side of the socket,

@@ -303,7 +303,7 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
     """Warn when the autoencoder's reconstruction is too poor for useful samples, with the likely cause and the
     setting of the run's ``cfg`` to fit again with.
 
-    Colour: more autoencoder steps, about 1.3 dB per doubling (docs/levers.md; a finer grid is not the fix
+    Colour: more autoencoder steps, about 1.3 dB per doubling (docs/lab-notes.md; a finer grid is not the fix
     there). Occupancy: more steps or a finer grid.
     """
     import warnings
@@ -413,7 +413,7 @@ def keeps_goals_from_noise(cfg: Config, calibration: dict | None) -> bool:
     Such a shape's layout varies little whatever the knob (a wall's brick body, dunes), so the rollout
     costs it no variation and makes the three planes agree on the detail: on the wall a colour per brick
     and its vertical joints, which the plain denoiser smears; on the dunes smoother crests and better
-    patches (docs/levers.md, "The rollout switch"). The canyon, whose calibration stops below 1, copies
+    patches (docs/lab-notes.md, "The rollout switch"). The canyon, whose calibration stops below 1, copies
     its input with the rollout, so only a calibration that reaches 1 calls for it.
     """
     return bool(

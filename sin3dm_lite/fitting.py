@@ -423,5 +423,5 @@ def training_precision(cfg: Config, device) -> dict:
     settings = {net: getattr(cfg, net).precision for net in ("autoencoder", "diffusion")}
     out = {net: resolved_precision(device, p) for net, p in settings.items()}
     auto_on_cpu = device.type == "cpu" and "auto" in settings.values()
-    share = cpu_bf16_share() if auto_on_cpu else None  # measured once a process: by now, by the training
+    share = cpu_bf16_share() if auto_on_cpu else None  # timed once a process: by now, by the training
     return {**out, **({"cpu_bf16_share": round(share, 3)} if share is not None else {})}

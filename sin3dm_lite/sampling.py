@@ -18,8 +18,8 @@ from .model.triplane import Triplane
 from .request import SampleRequest
 
 MAX_SAMPLES = 10_000  # per call, whatever the memory
-# what one mesh export holds at its peak (to_mesh: SDF grid, marching cubes, atlas, baked maps), measured on the shipped
-# canyon model: 467 MiB at 256 voxels (256 x 128 x 160), 1,008 MiB at 2,048 texels; rounded up
+# what one mesh export holds at its peak (to_mesh: SDF grid, marching cubes, atlas, baked maps), per voxel and per
+# texel, rounded up from the shipped canyon model's (docs/performance.md, "The smaller stages")
 EXPORT_BYTES_PER_VOXEL = 96
 EXPORT_BYTES_PER_TEXEL = 256
 

@@ -30,7 +30,7 @@ A user's own settings always win: with ``OMP_NUM_THREADS`` (or ``MKL_NUM_THREADS
 the environment the thread count is not touched, with ``OMP_WAIT_POLICY`` /
 ``GOMP_SPINCOUNT`` / ``KMP_BLOCKTIME`` the wait policy is not, and a
 ``torch.set_num_threads`` made before importing the package is kept. The measurements
-are in docs/performance.md ("Threads"); ``benchmarks/bench_contention.py`` prints them again.
+are in docs/performance.md ("Threads").
 """
 
 from __future__ import annotations

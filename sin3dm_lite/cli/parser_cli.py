@@ -175,7 +175,7 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         default=[],
         metavar="SETTING=VALUE",
         help="change settings of the preset, e.g. --set diffusion.rollout=true (crisper brick-like "
-        "textures, docs/levers.md) diffusion.steps=3000; names as in the run's config.json",
+        "textures, docs/lab-notes.md) diffusion.steps=3000; names as in the run's config.json",
     )
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     _outside_paths_arg(f)

@@ -31,7 +31,7 @@ from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, unique_rows
 from .tsdf import PBR_CHANNELS, point_tsdf, tsdf_grid
 
 #: :meth:`Sin3DM.fit` with the ``small`` preset switches to ``detail``'s settings when more of the solid than this is thin
-#: (:meth:`ShapeGrid.thin_share`): measured on five shapes, ``detail`` helped the three above it, not the two below.
+#: (:meth:`ShapeGrid.thin_share`): on five test shapes, ``detail`` helped the three above it, not the two below.
 THIN_SHARE_HINT = 0.2
 
 

@@ -103,7 +103,7 @@ ROLLOUT_CHANGES = {"diffusion.rollout": True, "diffusion.steps": 1250}
 
 
 def _small() -> Config:
-    # Why these numbers (measured, dated, in docs/presets.md, docs/calibration.md and docs/thin-parts.md):
+    # Why these numbers (the evidence: docs/presets.md, docs/calibration.md, docs/thin-parts.md, docs/lab-notes.md):
     # * grid: the paper's σ 0.005 (a wider band erodes the surface); a margin of 3.25 voxels so that the shape's
     #   sides stay out of the latent's clamped outer texel, and not a whole number, which would put the faces of
     #   simply proportioned shapes exactly on voxel centres, where inside/outside is a coin toss;

@@ -93,7 +93,7 @@ def reconstruction_metrics(reconstruction, grid) -> dict[str, float]:
 #: the paper's voxelisation (the SSG / Sin3DM evaluation code): a voxel of the 128 grid is solid when *any* of its
 #: 2 × 2 × 2 sub-voxels at twice the resolution is inside (generated shapes: the decoded SDF at 256 voxels, < 0,
 #: max-pooled to 128; the input: its 256-voxel SDF grid min-pooled to 128). ``supersample=1`` samples the voxel
-#: centres alone, which is stricter on walls one or two voxels thick (docs/thin-parts.md).
+#: centres alone, which is stricter on walls one or two voxels thick (docs/judging-samples.md).
 PAPER_SUPERSAMPLE = 2
 
 

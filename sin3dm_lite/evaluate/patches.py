@@ -292,7 +292,7 @@ def lp_scores_any_offset(
     both shapes on the same stride-5 lattice, so it asks whether a generated
     patch appears in the input *at the input's lattice phase*: the ruined tower
     moved by one whole voxel, a perfect copy, keeps only 15-18 % of its
-    patches, and 100 % again when moved by 5 (docs/thin-parts.md "What LP-IoU
+    patches, and 100 % again when moved by 5 (docs/judging-samples.md "What LP-IoU
     measures"). Here the generated patches are the same ones :func:`lp_scores`
     draws (same ``stride``, ``max_patches`` and ``seed``), but each is matched
     against the input's surface patches centred on every voxel (stride 1), so a

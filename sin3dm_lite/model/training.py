@@ -70,7 +70,7 @@ def checkpoint_problem(sd: dict, kind: str) -> str | None:
 
 
 #: PyTorch has a fused AdamW kernel for the CPU from 2.4 on: one loop over all parameters instead of a dozen small
-#: ops per tensor (the `quick` autoencoder's optimizer step 6.5-7.8 -> 1.1-1.5 ms on one AVX2 core; docs/levers.md)
+#: ops per tensor (the `quick` autoencoder's optimizer step several times shorter; docs/lab-notes.md)
 FUSED_CPU_ADAMW = torch.__version__ >= (2, 4)
 
 
