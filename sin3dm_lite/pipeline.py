@@ -188,7 +188,7 @@ class Sin3DM:
         self.report["calibration"] = cal.to_dict()
         if progress:
             print(
-                f"[calibrate] {'chose' if cal.kept_goals else 'no setting kept the goals; the lowest tried,'} "
+                f"[calibrate] {'chose' if cal.kept_goals else 'no setting kept the goals; chose'} "
                 f"diversity {cal.diversity:g}",
                 flush=True,
             )

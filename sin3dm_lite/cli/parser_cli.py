@@ -275,8 +275,10 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         default=10_000,
         help="first sample seed (the k-th setting drawn takes seeds from seed + 1000·k)",
     )
-    for flag, name, goal in (("--lp-iou", "LP-IoU", "0.55"), ("--lp-f", "LP-F", "0.70")):
-        keep = f"{name} the samples must keep, at most (default: {goal}, lowered to 85%% of what a near copy keeps)"
+    for flag, name, goal, share in (("--lp-iou", "LP-IoU", "0.55", "65"), ("--lp-f", "LP-F", "0.70", "85")):
+        keep = (
+            f"{name} the samples must keep, at most (default: {goal}, lowered to {share}%% of what a near copy keeps)"
+        )
         c.add_argument(flag, type=unit_score, default=None, help=keep)
     c.add_argument(
         "--resolution",
