@@ -139,7 +139,8 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         "--preset",
         choices=list(PRESETS),
         default=None,
-        help="training sizes and steps (default: small; with --resume, the run's own)",
+        help="training sizes and steps (default: this machine's: paper on a CUDA GPU, small on a CPU with fast "
+        "bf16, quick on any other; the fit's first lines say which, why and how long; with --resume, the run's own)",
     )
     f.add_argument("--out", required=True, help="run folder (new, or existing with --resume)")
     f.add_argument("--resume", action="store_true", help="continue an interrupted fit from its checkpoints")
