@@ -417,6 +417,7 @@ def keeps_goals_from_noise(cfg: Config, calibration: dict | None) -> bool:
         and calibration
         and calibration.get("kept_goals")
         and calibration.get("diversity") == 1
+        and not calibration.get("note")  # 1 because nearer settings were copies: not a layout that keeps its patches
     )
 
 

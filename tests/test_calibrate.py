@@ -465,6 +465,8 @@ def test_the_rollout_hint_applies_only_to_a_plain_denoiser_calibrated_to_pure_no
     assert rollout_hint(small, {"diversity": 1.0, "kept_goals": False}) is None  # 1 only as the lowest drawn
     assert rollout_hint(small.updated(**{"diffusion.rollout": True}), {"diversity": 1.0, "kept_goals": True}) is None
     assert rollout_hint(small, None) is None  # no calibration
+    # 1 only because the settings that keep the LP-IoU floor too are copies: LP-F alone keeps it, no rollout
+    assert rollout_hint(small, {"diversity": 1.0, "kept_goals": True, "note": "... the LP-IoU floor gives way"}) is None
 
 
 KEEP_EVERY_SETTING = {"lp_iou": 0.0, "lp_fscore": 0.0}  # goals kept at every setting: calibrated to 1
