@@ -100,9 +100,8 @@ class Calibration:
             else:
                 why = f"{share:.0%} of the near copy; the absolute {absolute:.2f} is out of its reach"
             there = f", smoothed {at[key]:.2f} there" if key in at else ""
-            name = SCORE_NAMES.get(key, key) + (
-                " (a floor)" if isinstance(self.relative, dict) and key == "lp_iou" else ""
-            )
+            # since the copy line (issue 61) LP-IoU is a floor, which gives way to LP-F where it would choose copies
+            name = SCORE_NAMES.get(key, key) + (" (a floor)" if self.copy_line is not None and key == "lp_iou" else "")
             lines.append(f"{name}: near copy {self.near_copy[key]:.2f}; goal {goal:.2f} ({why}); {chosen}{there}")
         if self.g_div_goal is not None and np.isfinite(at.get("g_div", np.nan)):
             met = "meets" if at["g_div"] >= self.g_div_goal else "is below"
