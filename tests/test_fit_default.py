@@ -103,3 +103,25 @@ def test_a_missing_input_fails_before_the_timing(monkeypatch, tmp_path, capsys):
     assert main(["fit", str(tmp_path / "gone.obj"), "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert "gone.obj" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "r").exists()
+
+
+def test_the_python_fit_without_a_preset_takes_the_machines_and_says_so(monkeypatch, capsys):
+    """`Sin3DM.fit(mesh)` without ``preset``: the same default, said first (after the input is read)."""
+    from sin3dm_lite import fitting
+    from sin3dm_lite.pipeline import Sin3DM
+
+    seen = {}
+
+    def prepare_run(run, preset, *args):
+        seen["preset"] = preset
+        raise _FitCalled
+
+    said = fit_default.DefaultPreset("quick", "a CPU without fast bf16 (test)")
+    monkeypatch.setattr(fitting, "default_preset", lambda device=None, timed=True: said)
+    monkeypatch.setattr(fitting, "prepare_run", prepare_run)
+    with pytest.raises(_FitCalled):
+        Sin3DM.fit("wall", progress=True)
+    assert seen["preset"] == "quick" and capsys.readouterr().out.startswith(said.lines()[0])
+    with pytest.raises(_FitCalled):
+        Sin3DM.fit("wall", preset="tiny", progress=True)
+    assert seen["preset"] == "tiny" and "no preset named" not in capsys.readouterr().out
