@@ -26,6 +26,7 @@ from .data.mesh import TexturedMesh
 from .data.presets import DETAIL_CHANGES, PRESETS
 from .device import bf16_is_fast, cpu_bf16_share
 from .errors import Sin3DMInputError
+from .evaluate.calibration_record import COPIES_G_DIV
 from .model.diffusion import check_flips as check_flip_axes
 
 MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
@@ -336,11 +337,6 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
 #: that vary: the keep's copies 0.037, but dunes.ply 0.032, rocks.stl 0.062 and tiles.obj 0.066 vary (G-Div at
 #: diversity 1: 0.084, 0.197, 0.057), so there the calibration's samples decide too (:data:`COPIES_G_DIV`).
 COPIES_DISTANCE = 0.07
-#: a fit's samples at diversity 1 whose G-Div on the training grid (the calibration's first rung) is under this
-#: are copies: the keep's copies 0.012; the fits that vary 0.057 (tiles.obj) or more (dunes 0.084, wall 0.129,
-#: rocks 0.197, the ruin 0.446; docs/thin-parts.md). A shape whose samples reshuffle colours alone (the built-in
-#: tiles: geometry G-Div near 0) keeps its latents far apart (0.108), so both must say copies.
-COPIES_G_DIV = 0.03
 
 
 def are_copies(distance: float) -> bool:
@@ -421,6 +417,7 @@ def keeps_goals_from_noise(cfg: Config, calibration: dict | None) -> bool:
         and calibration
         and calibration.get("kept_goals")
         and calibration.get("diversity") == 1
+        and not calibration.get("note")  # 1 because nearer settings were copies: not a layout that keeps its patches
     )
 
 

@@ -33,6 +33,7 @@ from .device import cpu_bf16_share, get_device, resolved_precision
 from .errors import Sin3DMInputError, Terminated
 from .evaluate.metrics import reconstruction_metrics
 from .files import atomic_write, holds_lock, release_lock
+from .fit_default import default_preset
 from .fit_policy import (
     are_copies,
     calibration_grid_hint,
@@ -189,8 +190,11 @@ class FitRun:
             None if have_grid else resolve_mesh(source, allow_outside_paths=allow_outside_paths)
         )  # bad input fails before any folder is written
         resuming = resume and run is not None and (run / "config.json").exists()
-        if preset is None and not resuming:
-            preset = "small"
+        if preset is None and not resuming:  # the preset this machine runs well, said first with why and how long
+            chosen = default_preset(self.dev, timed=self.progress)
+            for line in chosen.lines():
+                self.say(line)
+            preset = chosen.name
         if mesh is not None and not resuming:
             pbr = choose_pbr(mesh, pbr, preset, self.say)
             base = preset if isinstance(preset, Config) else get_preset(preset)

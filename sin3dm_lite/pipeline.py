@@ -116,7 +116,7 @@ class Sin3DM:
         (:func:`fit_policy.are_copies`; the report's ``thin_parts_switch``
         records the check); ``.updated(thin_walls={})`` keeps the narrower one.
 
-        ``preset`` is a preset's name or a :class:`Config` (default: ``small``).
+        ``preset`` is a preset's name or a :class:`Config` (default: this machine's, :mod:`sin3dm_lite.fit_default`).
 
         With ``out`` a run folder is written (:mod:`sin3dm_lite.run_folder`); with
         ``resume=True`` an existing run folder is continued from its last
@@ -188,7 +188,7 @@ class Sin3DM:
         self.report["calibration"] = cal.to_dict()
         if progress:
             print(
-                f"[calibrate] {'chose' if cal.kept_goals else 'no setting kept the goals; the lowest tried,'} "
+                f"[calibrate] {'chose' if cal.kept_goals else 'no setting kept the goals; chose'} "
                 f"diversity {cal.diversity:g}",
                 flush=True,
             )

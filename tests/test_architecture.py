@@ -132,6 +132,7 @@ LAYERS = {
     # a sample run's settings and their defaults)
     "fitting": APP,
     "fit_policy": APP,
+    "fit_default": APP,
     "run_folder": APP,
     "checkpoints": APP,
     "sampling": APP,

@@ -122,8 +122,9 @@ class _ThinKnob(_Knob):
 
 def test_a_shape_whose_near_copy_misses_the_absolute_goals_gets_a_default_below_the_old_floor():
     """No setting, not even the near copy, reaches LP-IoU 0.55 / LP-F 0.70: with absolute goals the walk ends at its
-    floor, the most varied setting tried. Against 85 % of the near copy's scores it finds the shape's edge, 0.3,
-    below the old floor of 0.5, and says so: near copy, goal and choice for each goal."""
+    floor (every setting's samples are identical, copies: the lowest drawn). Against the near copy's scores (LP-F
+    85 %, LP-IoU 65 %: a floor) it finds the shape's edge, 0.3, below the old floor of 0.5, and says so: near copy,
+    goal and choice for each goal."""
     from sin3dm_lite.evaluate.patches import lp_scores
 
     near = lp_scores(_reference(), [_thin_copy()])
@@ -134,11 +135,11 @@ def test_a_shape_whose_near_copy_misses_the_absolute_goals_gets_a_default_below_
 
     knob = _ThinKnob(0.3)
     cal = C.calibrate_diversity(knob, _reference(), n=2, refine=0, progress=False)
-    assert cal.goals == pytest.approx({"lp_iou": 0.85 * 0.3, "lp_fscore": 0.85 * 0.4})
+    assert cal.goals == pytest.approx({"lp_iou": 0.65 * 0.3, "lp_fscore": 0.85 * 0.4})
     assert cal.absolute_goals == C.GOALS and cal.relative == C.RELATIVE
     # 1 … 0.4 keep nothing (far: every other rung skipped); 0.2 keeps the goals, so the skipped 0.3 is drawn
     assert [t["diversity"] for t in cal.tried] == [1.0, 0.8, 0.6, 0.4, 0.2, 0.3]
-    # between 0.4 (nothing kept) and 0.3 (the near copy's scores) both smoothed curves cross their goals at 0.315
+    # between 0.4 (nothing kept) and 0.3 (the near copy's scores) LP-F crosses its goal at 0.315, LP-IoU at 0.335
     assert cal.kept_goals and 0.3 <= cal.diversity < 0.5 and cal.diversity == pytest.approx(0.315, abs=0.006)
     # read on the smoothed curve at the choice (rounded to 0.01): linear between 0.4 and 0.3; identical samples
     assert (
@@ -146,7 +147,7 @@ def test_a_shape_whose_near_copy_misses_the_absolute_goals_gets_a_default_below_
     )
     story = cal.story().splitlines()
     assert story[0] == (
-        f"LP-IoU: near copy 0.30; goal 0.26 (85% of the near copy; the absolute 0.55 is out of its "
+        f"LP-IoU (a floor): near copy 0.30; goal 0.20 (65% of the near copy; the absolute 0.55 is out of its "
         f"reach); chosen {cal.diversity:g}, smoothed {3 * (0.4 - cal.diversity):.2f} there"
     )
     assert story[1].startswith(
@@ -157,12 +158,97 @@ def test_a_shape_whose_near_copy_misses_the_absolute_goals_gets_a_default_below_
     assert "LP-F: near copy 0.40; goal 0.34" in cal.summary()
 
 
+def _scored_by(table):
+    """``score_setting`` replaced by a score table: ``table(diversity) -> (LP-IoU, LP-F, G-Div)``, every sample alike."""
+
+    def score(sample_fn, reference, diversity, n, seed):
+        lp_iou, lp_f, g = table(diversity)
+        return {"lp_iou": lp_iou, "lp_fscore": lp_f, "g_div": g, "lp_iou_sd": 0.0, "lp_fscore_sd": 0.0}
+
+    return score
+
+
+def _tower(g_div_at_one: float):
+    """A thin-walled tower's scores as the issue measured its kind (near copy LP-IoU 0.26, LP-F 0.72, G-Div 0.05):
+    LP-IoU falls steeply with the knob (the 5-voxel lattice loses every moved patch), LP-F stays near the near
+    copy's up to pure noise, G-Div rises from the near copy's to ``g_div_at_one``."""
+
+    def table(d):
+        if d == C.NEAR_COPY:
+            return 0.26, 0.72, 0.05
+        return 0.26 - 0.16 * (d - 0.1) / 0.9, 0.72 - 0.06 * d, 0.05 + (g_div_at_one - 0.05) * (d - 0.1) / 0.9
+
+    return table
+
+
+def test_the_varied_setting_that_keeps_lp_f_wins_over_copies_that_keep_lp_iou(monkeypatch):
+    """The issue's tower: only near copies keep 85 % of the near copy's LP-IoU (the old rule: 0.32, G-Div 0.07, copies
+    by the pictures). Now LP-F decides (85 %), LP-IoU is a floor (65 %: crossed at 0.61), and at 0.61 the samples are
+    still copies (G-Div 0.09, under twice the near copy's): the floor gives way to the most varied setting that
+    keeps LP-F, pure noise (1.0, the paper's sampling), and the record says why."""
+    monkeypatch.setattr(C, "score_setting", _scored_by(_tower(g_div_at_one=0.12)))
+    with monkeypatch.context() as old_rule:  # 85 % of both scores, no copy line
+        old_rule.setattr(C, "copy_line", lambda near_g_div: 0.0)
+        old = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, relative=0.85, progress=False)
+    assert old.goals["lp_iou"] == pytest.approx(0.221) and old.diversity == pytest.approx(0.32, abs=0.011)
+
+    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    assert cal.goals == pytest.approx({"lp_iou": 0.65 * 0.26, "lp_fscore": 0.85 * 0.72}) and cal.copy_line == 0.1
+    assert cal.diversity == 1.0 and cal.kept_goals and cal.at_choice["g_div"] == pytest.approx(0.12)
+    assert cal.note.startswith("at 0.61, where LP-IoU keeps its floor too, the samples are copies (G-Div 0.09")
+    assert "the LP-IoU floor gives way to 1.00, the most varied setting that keeps LP-F" in cal.note
+    story = cal.story()
+    assert cal.note in story and "LP-IoU (a floor): near copy 0.26; goal 0.17 (65% of the near copy" in story
+    assert "copies below 0.100" in story
+    assert C.Calibration.from_dict(json.loads(json.dumps(cal.to_dict()))) == cal
+
+
+def test_lp_iou_stays_a_floor_where_its_crossing_varies(monkeypatch):
+    """The same tower whose samples vary sooner (G-Div 0.13 at 0.61): the LP-IoU floor holds the choice there."""
+    monkeypatch.setattr(C, "score_setting", _scored_by(_tower(g_div_at_one=0.2)))
+    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    assert cal.diversity == pytest.approx(0.61, abs=0.011) and cal.kept_goals and cal.note is None
+    assert cal.at_choice["lp_iou"] >= cal.goals["lp_iou"] and cal.at_choice["g_div"] > cal.copy_line
+
+
+def test_the_copy_line_is_the_fits_or_twice_the_near_copys_g_div(monkeypatch):
+    assert C.copy_line(0.01) == C.COPIES_G_DIV == 0.03 and C.copy_line(0.08) == pytest.approx(0.16)
+    assert C.copy_line(None) == C.copy_line(float("nan")) == 0.03
+    # LP-F falls through its goal (85 % of 0.8) at 0.6; samples there vary more than twice the near copy (0.08)
+    table = {C.NEAR_COPY: (0.5, 0.8, 0.08)}
+    monkeypatch.setattr(C, "score_setting", _scored_by(lambda d: table.get(d, (0.5 - 0.1 * d, 0.8 - 0.2 * d, 0.3 * d))))
+    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    assert cal.copy_line == pytest.approx(0.16) and cal.diversity == pytest.approx(0.6) and cal.note is None
+
+
+@pytest.mark.parametrize("varies", [True, False], ids=["varied-samples", "copies-everywhere"])
+def test_when_no_setting_keeps_lp_f_the_least_varied_non_copy_is_chosen_and_said(monkeypatch, capsys, varies):
+    """No setting keeps LP-F ≥ 85 % of the near copy's: not the lowest setting (copies) but the most faithful setting
+    whose samples vary (G-Div 0.05 ≥ 0.03 at 0.2), said in one line; where every setting's samples are copies, the
+    lowest drawn, and the line says the fit does not vary this shape."""
+    table = {C.NEAR_COPY: (0.5, 0.8, 0.0)}
+    g = 0.25 if varies else 0.0
+    monkeypatch.setattr(C, "score_setting", _scored_by(lambda d: table.get(d, (0.4, 0.5, g * d))))
+    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    assert [t["diversity"] for t in cal.tried] == [round(1.0 - 0.1 * k, 4) for k in range(10)] and not cal.kept_goals
+    if varies:
+        assert cal.diversity == 0.2 and cal.note == (
+            "no setting drawn kept LP-F 0.68: chose 0.2, the least varied setting whose samples are not copies "
+            "(G-Div 0.050 ≥ 0.030); a finer preset may keep more of the input"
+        )
+    else:
+        assert cal.diversity == C.LOWEST and cal.note.endswith(
+            "the lowest drawn, 0.1; this fit does not vary this shape"
+        )
+    assert cal.note in cal.story() and "(no setting kept the goals)" in cal.story()
+
+
 def test_the_near_copy_is_printed_with_its_goals(capsys):
     C.calibrate_diversity(_ThinKnob(0.3), _reference(), n=2, refine=0, progress=True)
     out = capsys.readouterr().out.splitlines()
     assert out[0] == (
-        "[calibrate] near copy (diversity 0.05): LP-IoU 0.300, goal 0.255; LP-F 0.400, goal 0.340 "
-        "(85% of it, at most 0.55, 0.70)"
+        "[calibrate] near copy (diversity 0.05): LP-IoU 0.300, goal 0.195 (65%, at most 0.55); LP-F 0.400, goal "
+        "0.340 (85%, at most 0.70); G-Div 0.000: samples under G-Div 0.030 are copies"
     )
 
 
@@ -174,7 +260,7 @@ def test_a_near_copy_that_keeps_nothing_sets_no_ceiling():
     assert cal.near_copy["lp_fscore"] == 0.0 < C.MIN_CEILING and cal.goals == C.GOALS
     assert cal.diversity == C.LOWEST and not cal.kept_goals
     assert (
-        "LP-IoU: near copy 0.00; goal 0.55 (the absolute goal: a near copy of LP-F below 0.1 sets no ceiling)"
+        "LP-IoU (a floor): near copy 0.00; goal 0.55 (the absolute goal: a near copy of LP-F below 0.1 sets no ceiling)"
         in cal.story()
     )
 
@@ -379,6 +465,8 @@ def test_the_rollout_hint_applies_only_to_a_plain_denoiser_calibrated_to_pure_no
     assert rollout_hint(small, {"diversity": 1.0, "kept_goals": False}) is None  # 1 only as the lowest drawn
     assert rollout_hint(small.updated(**{"diffusion.rollout": True}), {"diversity": 1.0, "kept_goals": True}) is None
     assert rollout_hint(small, None) is None  # no calibration
+    # 1 only because the settings that keep the LP-IoU floor too are copies: LP-F alone keeps it, no rollout
+    assert rollout_hint(small, {"diversity": 1.0, "kept_goals": True, "note": "... the LP-IoU floor gives way"}) is None
 
 
 KEEP_EVERY_SETTING = {"lp_iou": 0.0, "lp_fscore": 0.0}  # goals kept at every setting: calibrated to 1

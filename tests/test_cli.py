@@ -320,12 +320,15 @@ class _FitCalled(Exception):
     pass
 
 
-def _preset_fit_gets(tmp_path, monkeypatch, *argv):
-    """Run `sin3dm-lite fit ...` up to Sin3DM.fit and return the preset (a Config) it would fit with."""
+def _preset_fit_gets(tmp_path, monkeypatch, *argv, machine: str = "small"):
+    """Run `sin3dm-lite fit ...` up to Sin3DM.fit and return the preset (a Config) it would fit with; without
+    --preset the machine's default is pinned to ``machine`` (no timing: tests/test_fit_default.py tests the choice)."""
+    from sin3dm_lite import fit_default
     from sin3dm_lite.data.config import Config
     from sin3dm_lite.data.presets import get_preset
     from sin3dm_lite.pipeline import Sin3DM
 
+    monkeypatch.setattr(fit_default, "default_preset", lambda device=None: fit_default.DefaultPreset(machine, "pinned"))
     seen = {}
 
     def fake_fit(mesh, preset, **kw):

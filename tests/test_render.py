@@ -1,6 +1,7 @@
 """Headless rendering: the paper's 8 views show the texture's colours where they should be."""
 
 import ctypes.util
+import math
 import sys
 
 import numpy as np
@@ -10,7 +11,15 @@ from PIL import Image
 from sin3dm_lite.cli import main
 from sin3dm_lite.data.export import export_mesh
 from sin3dm_lite.data.mesh import Material, TexturedMesh
-from sin3dm_lite.evaluate.render import contact_sheet, render_hero, render_views, save_views, view_angles, view_names
+from sin3dm_lite.evaluate.render import (
+    contact_sheet,
+    render_hero,
+    render_views,
+    save_views,
+    sheet_columns,
+    view_angles,
+    view_names,
+)
 
 # Off-screen OpenGL needs Mesa's EGL on a Linux machine without a display (the CI image has it); elsewhere the
 # render command says how to install it (tested in test_bad_inputs' table only where rendering never starts)
@@ -179,6 +188,22 @@ def test_save_views_and_contact_sheet(cube, tmp_path):
     assert sheet.dtype == np.uint8 and sheet.shape[1] > 3 * 48 and sheet.shape[0] > 2 * 48
     with pytest.raises(ValueError, match="one label per image"):
         contact_sheet(imgs, ["a"])
+
+
+@pytest.mark.parametrize("n, columns, rows", [(1, 1, 1), (3, 3, 1), (5, 5, 1), (9, 3, 3), (17, 6, 3), (12, 4, 3)])
+def test_the_contact_sheet_fills_its_grid(n, columns, rows):
+    """N samples and the input fill the sheet's grid: 4 and the input in one row of 5 (a 4-column grid left 3 of
+    its 8 cells white), 8 and the input 3 x 3; a prime count leaves the fewest cells empty, never a column of one."""
+    assert sheet_columns(n) == columns and -(-n // columns) == rows
+    for k in range(1, 40):  # as wide as tall, at most twice the square's width: none of those leaves fewer empty
+        c, square = sheet_columns(k), math.ceil(math.sqrt(k))
+        wide = [d for d in range(1, min(k, 2 * square) + 1) if -(-k // d) <= d]
+        assert c in wide and all(-(-k // c) * c <= -(-k // d) * d for d in wide)
+    tile = np.zeros((10, 20, 3), np.uint8)
+    sheet = contact_sheet([tile] * 5, pad=0)
+    assert sheet.shape == (10, 100, 3) and not (sheet == 255).all(-1).any()  # one full row, no white cell
+    with pytest.raises(ValueError, match="at least one panel"):
+        sheet_columns(0)
 
 
 def test_render_command_writes_eight_pngs(cube, tmp_path, capsys):

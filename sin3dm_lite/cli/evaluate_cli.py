@@ -239,7 +239,9 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     took = time.perf_counter() - t0
     if shipped:
         print(
-            f"{a.run}: diversity {cal.diversity:g} would keep the goals ({took:.0f} s); a shipped model is not "
+            f"{a.run}: diversity {cal.diversity:g} "
+            f"{'would keep the goals' if cal.kept_goals else 'is the fallback (no setting kept the goals)'} "
+            f"({took:.0f} s); a shipped model is not "
             f"changed: sample it with --diversity {cal.diversity:g}{snapped}"
         )
         return

@@ -86,7 +86,7 @@ def cmd_fit(a) -> None:
         raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")
     t0 = time.perf_counter()
     changes = parse_settings(a.set)
-    name = a.preset or (None if a.resume else "small")  # None: the run's own (Sin3DM.fit)
+    name = a.preset or (None if a.resume else default_for_this_machine(a))  # None: the run's own (Sin3DM.fit)
     base = get_preset(name or "small")
     if a.thin_switch is False:
         changes["thin_parts"] = {}
@@ -122,3 +122,18 @@ def cmd_fit(a) -> None:
         f"{snapped}\n"
         f"next: sin3dm-lite sample {a.out} -n 4 --out {Path(a.out).with_name(Path(a.out).name + '-samples')}"
     )
+
+
+def default_for_this_machine(a) -> str:
+    """The preset ``fit`` takes without ``--preset`` (:func:`~sin3dm_lite.fit_default.default_preset`), said first:
+    which, why, and about how long. A missing input or an unwritable ``--out`` fails before the timing."""
+    from ..data.source import is_example, resolve_mesh
+    from ..fit_default import default_preset
+    from ..run_folder import check_run_folder
+
+    check_run_folder(Path(a.out), a.mesh, False)
+    if not is_example(a.mesh) and not Path(a.mesh).is_file():
+        resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)  # its one line: no such file, no example
+    chosen = default_preset(a.device)
+    print("\n".join(chosen.lines()), flush=True)
+    return chosen.name

@@ -139,7 +139,8 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         "--preset",
         choices=list(PRESETS),
         default=None,
-        help="training sizes and steps (default: small; with --resume, the run's own)",
+        help="training sizes and steps (default: this machine's: paper on a CUDA GPU, small on a CPU with fast "
+        "bf16, quick on any other; the fit's first lines say which, why and how long; with --resume, the run's own)",
     )
     f.add_argument("--out", required=True, help="run folder (new, or existing with --resume)")
     f.add_argument("--resume", action="store_true", help="continue an interrupted fit from its checkpoints")
@@ -275,8 +276,10 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         default=10_000,
         help="first sample seed (the k-th setting drawn takes seeds from seed + 1000·k)",
     )
-    for flag, name, goal in (("--lp-iou", "LP-IoU", "0.55"), ("--lp-f", "LP-F", "0.70")):
-        keep = f"{name} the samples must keep, at most (default: {goal}, lowered to 85%% of what a near copy keeps)"
+    for flag, name, goal, share in (("--lp-iou", "LP-IoU", "0.55", "65"), ("--lp-f", "LP-F", "0.70", "85")):
+        keep = (
+            f"{name} the samples must keep, at most (default: {goal}, lowered to {share}%% of what a near copy keeps)"
+        )
         c.add_argument(flag, type=unit_score, default=None, help=keep)
     c.add_argument(
         "--resolution",

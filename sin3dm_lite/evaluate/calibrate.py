@@ -1,75 +1,38 @@
 """Choosing the diversity knob for one shape: the most varied samples that still keep the input's patches.
 
-The paper names the trade-off between diversity and fidelity as its main
-limitation, and the knob (``Sin3DM.sample(diversity=...)``: start the reverse
-process at step ``d · 999`` from the input's latent, noised) turns it. Its
-curve differs from shape to shape, and it is steep: on a tiled slab the
-samples' LP-IoU against the input falls fast as the knob opens, while a rock
-field keeps its patches at 1.0 (docs/calibration.md). So no fixed default
-suits every mesh.
+The paper names the trade-off between diversity and fidelity as its main limitation, and the knob
+(``Sin3DM.sample(diversity=...)``: start the reverse process at step ``d · 999`` from the input's latent, noised)
+turns it. Its curve differs from shape to shape and is steep, so no fixed default suits every mesh:
+:func:`calibrate_diversity` measures it. It takes a *sampling function* ``sample_fn(diversity, n, seed) ->
+[occupancy grid, ...]`` (:func:`model_sampler` makes one for a fitted model: samples decoded to occupancy on the
+fit's grid, no meshes) and scores what it returns against the input with the paper's LP-IoU / LP-F
+(:func:`metrics.lp_scores`) and G-Div.
 
-:func:`calibrate_diversity` measures the curve instead. It takes a *sampling
-function* ``sample_fn(diversity, n, seed) -> [occupancy grid, ...]`` (for a
-fitted model, :func:`model_sampler` makes one: a few samples decoded to their
-occupancy at the fit's grid resolution, no meshes) and scores what it returns
-against the input's occupancy with the paper's LP-IoU / LP-F
-(:func:`metrics.lp_scores`: the share of the samples' surface patches that have
-a near-exact match among the input's).
+**The rule** (docs/calibration.md):
 
-First it scores the shape's own **near copy** (diversity 0.05, :data:`NEAR_COPY`):
-what this fit keeps of the input at this grid at all, its ceiling. A wall two
-voxels thick cannot be held exactly by the grid, so even a near copy of a thin
-ruin keeps few patches; goals it cannot reach would send the walk to its floor,
-the most varied setting. So each goal is the smaller of the absolute goal
-(:data:`GOALS`) and 85 % of the near copy's score (:data:`RELATIVE`); a near
-copy whose LP-F is below 0.1 (:data:`MIN_CEILING`) sets no ceiling, since a fit
-that cannot even copy its input is not to be judged against nothing. Shapes
-whose near copy keeps the input are judged as before, thin ones against their
-own ceiling.
+1. the shape's own **near copy** (diversity :data:`NEAR_COPY`) is scored first: what this fit keeps of the input
+   at this grid at all. The goals are relative to it (:data:`RELATIVE`), capped by the absolute :data:`GOALS`:
+   **LP-F ≥ 85 %** of the near copy's, the goal that decides, and **LP-IoU ≥ 65 %**, a softer floor. LP-F counts
+   a patch kept when it is within a small distance of the input's; the paper's LP-IoU compares patches on a
+   5-voxel lattice, so a sub-voxel move of a thin wall loses its patch and only copies keep 85 % of it;
+2. a ladder from 1 (pure noise, the paper's sampling) down in steps of 0.1, a few samples per setting with seeds
+   of their own, smoothed into curves that fall with the knob and refined near the answer; the choice is the
+   most varied setting whose curves, lowered by 1.5 standard errors, keep both goals;
+3. **never copies when a more varied setting keeps LP-F**: where the samples at that choice are copies (their
+   G-Div under :func:`copy_line`: the fit's own copy line, or twice the near copy's G-Div), the LP-IoU floor
+   gives way and the most varied setting keeping the LP-F goal is chosen;
+4. where no setting keeps the LP-F goal, the least varied setting drawn whose samples are not copies, and the
+   record says so (:attr:`Calibration.note`); where every one is a copy, the lowest drawn.
 
-Then it walks down the knob from 1 (pure noise, the paper's sampling) in steps
-of 0.1, down to 0.1 (:data:`LOWEST`) if the shape needs it, draws a few samples
-at each setting (skipping the next one where a setting keeps less than half a
-goal, :data:`FAR`: it is far above the answer), stops at the first setting
-that keeps the goals with room to spare, smooths the scores into a curve that
-falls with the knob, draws a few more settings where that curve crosses the goals, and returns the crossing of
-the curve lowered by 1.5 standard errors (for the noise of a few samples). Each
-setting gets its own sample seeds, so no single lucky or unlucky set of samples
-decides. The samples' G-Div at the choice is recorded against the diversity
-requirement (:data:`G_DIV_GOAL`); it does not move the choice, which fidelity
-decides. The record (:class:`Calibration`, in :mod:`.calibration_record`)
-tells it with :meth:`Calibration.story`: per goal, the near copy's score, the
-goal and the choice.
+**Why so** (``benchmarks/bench_calibration.py`` replays the walk 400 times on stored samples): seeds of their
+own per setting (one set reused everywhere is lucky or unlucky everywhere); the refinement removes most of the
+error where the curve bends between two rungs; 1.5 standard errors keep the choice off the goals' edge where
+the curve is flat. A rung keeping less than half a goal skips the next (:data:`FAR`).
 
-**Why so** (``benchmarks/bench_calibration.py`` replays the calibration 400
-times on 48 stored samples per setting; docs/calibration.md): independent seeds
-per setting matter, since one set of samples reused at every setting is lucky
-or unlucky at all of them at once (a bisection on one seed set chose anything
-from 0.59 to 0.88 on a tiled slab). Read at the goals themselves, 8 samples per
-setting land above the true crossing about half the time. A fixed 0.02 above
-them (the first rule) was too little where the curve is steep and bends between
-two settings and too much where it is flat. The refinement removes most of the
-bend's error and the standard error shrinks as samples pool near the answer;
-1.5 standard errors rather than one keep the choice off the goals' edge where
-the curve is flat.
-
-**Grid.** Everything is measured on the grid of the reference given, for a fit
-its training grid (64 voxels along the longest side for ``small`` and
-``quick``), which is fast; the paper measures at 128 voxels, where thin parts
-score differently (``sin3dm-lite evaluate --resolution 128`` measures there, and
-``benchmarks/bench_samples.py`` reports both grids). ``sin3dm-lite calibrate
-RUN --resolution 128`` judges there, against the input mesh, with the paper's
-voxels (``evaluate``'s: a voxel is solid when any of its 2³ sub-voxels is
-inside), in about four times the time: a canyon's and a colonnade's default
-is then 1, a thin ruin's so varied that some samples flatten its stepped
-top (docs/calibration.md). The record keeps its resolution and voxels, and
-the story names them.
-
-``Sin3DM.fit`` runs it at the end of a fit when the preset's
-``sampling.calibrate`` is on (``small``, ``detail``, ``quick``) and saves the chosen value as the
-run's ``sampling.diversity``; ``sin3dm-lite calibrate RUN`` runs it on a
-fitted run. It costs a few seconds per setting drawn: a handful of samples
-decoded on the training grid, no meshes.
+**Grid.** Measured on the reference's grid, for a fit its training grid (fast). ``sin3dm-lite calibrate RUN
+--resolution 128`` judges as the paper measures (against the input mesh, any of 2³ sub-voxels inside) in about
+four times the time. ``Sin3DM.fit`` runs it at the end of a fit when ``sampling.calibrate`` is on and saves the
+choice as the run's ``sampling.diversity``.
 """
 
 from __future__ import annotations
@@ -79,14 +42,15 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ..errors import Sin3DMInputError
-from .calibration_record import MIN_CEILING, SCORE_NAMES, Calibration
+from .calibration_record import COPIES_G_DIV, COPY_RATIO, MIN_CEILING, SCORE_NAMES, Calibration, copy_line
 
 #: what the samples must keep against the input at most: the paper's averages are LP-F 0.699 at G-Div 0.224, and
 #: the project's goals LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter by a few
 #: hundredths around the figures of many (docs/calibration.md), so the choice does too
 GOALS = {"lp_iou": 0.55, "lp_fscore": 0.70}
-#: the goals relative to the ceiling: each goal is at most this share of the shape's near-copy score
-RELATIVE = 0.85
+#: the goals relative to the ceiling: each goal is at most this share of the shape's near-copy score. LP-F decides;
+#: LP-IoU is a floor, softer because its 5-voxel lattice counts a sub-voxel move as a lost patch (docs/calibration.md)
+RELATIVE = {"lp_iou": 0.65, "lp_fscore": 0.85}
 #: the setting whose samples stand for the near copy (the ceiling), and where its seeds start (after ``seed``)
 NEAR_COPY, NEAR_COPY_SEEDS = 0.05, 100_000
 #: the diversity requirement: the samples' G-Div at the choice (the issue's goal; recorded, not a goal of the walk)
@@ -110,16 +74,10 @@ def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int
     """``n`` samples at ``diversity`` (seeds ``seed`` …), each as occupancy on the model's box at ``resolution``
     voxels along its longest side.
 
-    With the voxel centres (``supersample=1``) that is the sign of the decoder,
-    no mesh. Only the sign is needed, so the coarse-to-fine decode queries the
-    decoder only where its bound cannot prove the sign (``exact_band=0``; a
-    mesh needs exact values two voxels around the surface): the same
-    occupancy, voxel for voxel, on 12 samples of the canyon, the tiles and the
-    rocks, in 0.18-0.37 s per sample instead of 0.43-0.62 at 64-96 voxels.
-    With the paper's voxels (``supersample=2``) each sample is decoded to its
-    mesh and voxelised as ``evaluate`` does (:meth:`Sin3DM.occupancy`): what
-    the judge sees is what ``sin3dm-lite evaluate`` reports, about twice the
-    time (the coloured ruin at 128: 1.5 s a sample against 0.8).
+    With the voxel centres (``supersample=1``) the decoder's sign, no mesh, queried only where its bound cannot
+    prove the sign (``exact_band=0``: the same occupancy voxel for voxel, in a fraction of the time); with the
+    paper's voxels (``supersample=2``) each sample's mesh voxelised as ``evaluate`` does
+    (:meth:`Sin3DM.occupancy`), about twice the time (docs/calibration.md).
     """
     from ..model.decode import decode_grid
 
@@ -254,59 +212,53 @@ def calibrate_diversity(
     safety: float = SAFETY,
     refine: int = REFINE,
     caution: float = CAUTION,
-    relative: float | None = RELATIVE,
+    relative: float | dict | None = RELATIVE,
     far: float = FAR,
     progress: bool = True,
 ) -> Calibration:
-    """The highest diversity in ``[lowest, 1]`` whose samples keep the goals against ``reference``.
+    """The most varied diversity in ``[lowest, 1]`` whose samples keep the goals against ``reference`` (the rule:
+    the module's docstring).
 
     First the near copy: ``n`` samples at diversity :data:`NEAR_COPY` (seeds
-    from ``seed + NEAR_COPY_SEEDS``), scored against ``reference`` on its grid:
-    the ceiling of this fit at this grid. Each goal is the smaller of
-    ``goals[key]`` and ``relative`` × the near copy's score; a near copy whose
-    LP-F is below :data:`MIN_CEILING` sets none (``relative=None``: the goals as
-    given, no near copy drawn).
+    from ``seed + NEAR_COPY_SEEDS``): the ceiling of this fit at this grid. Each
+    goal is the smaller of ``goals[key]`` and ``relative[key]`` × the near
+    copy's score; a near copy whose LP-F is below :data:`MIN_CEILING` sets none.
+    Its G-Div sets the copy line (:func:`copy_line`).
 
-    Then it walks down a ladder of settings, 1, 1 - ``step``, ... ``lowest``, drawing
+    Then it walks down a ladder of settings, 1, 1 - ``step``, ... ``lowest``,
     ``n`` samples at each with **seeds of its own** (``seed + 1000·k`` for the
-    k-th setting drawn), and stops at the first setting whose samples keep
-    every goal by ``margin`` (lower settings only keep more; a goal lowered to its
-    ceiling lowers its margin in proportion). A rung keeping less than ``far`` ×
-    a goal skips the next rung, drawn after all if the rung after it ends the
-    walk (the two rungs around the answer are always drawn). The patch scores
-    of all settings drawn are made non-increasing in the knob (pooling
-    neighbours that disagree by chance, weighted by their samples). Then,
-    ``refine`` times, it draws ``n`` more samples at the point of a half-step
-    grid (0.05 apart) nearest the current answer, so the samples go where the
-    answer is decided. The answer is where the smoothed curve, lowered by
-    ``caution`` standard errors (the samples' spread over the root of the
-    samples each smoothed score rests on) and read ``safety`` above each goal,
-    crosses it, linearly between the two settings around the crossing; the
-    lower crossing of the two goals wins. The near copy's samples set the
-    goals and do not enter the curve, so a shape whose near copy keeps the
-    absolute goals is calibrated as it was before the ceiling.
-
-    Why so: the module's docstring (the replays are in docs/calibration.md).
+    k-th setting drawn), and stops at the first setting that keeps every goal
+    by ``margin`` (a goal lowered to its ceiling lowers its margin alike). A
+    rung keeping less than ``far`` × a goal skips the next rung, drawn after
+    all if the rung after it ends the walk. The patch scores are made
+    non-increasing in the knob (pooling neighbours that disagree by chance,
+    weighted by their samples); ``refine`` times, ``n`` more samples are drawn at
+    the point of a half-step grid nearest the current answer. The answer is
+    where the smoothed curves, lowered by ``caution`` standard errors and read
+    ``safety`` above each goal, cross them (the lower crossing wins), unless
+    the samples there are copies and a more varied setting keeps LP-F (then
+    LP-F's crossing); where none keeps LP-F, the fallback of the module's rule.
 
     Args:
         sample_fn: ``sample_fn(diversity, n, seed)`` returns ``n`` samples' occupancy grids (seeds ``seed`` …)
             on ``reference``'s grid; :func:`model_sampler` makes one for a fitted model.
-        reference: the input's occupancy (for a fit, the training grid's ``sdf < 0``: the calibration
-            measures on its grid, the training grid, not the paper's 128 voxels).
+        reference: the input's occupancy (for a fit, the training grid's ``sdf < 0``).
         goals: the most ``lp_iou`` and ``lp_fscore`` asked for (default :data:`GOALS`).
         n: samples per setting (at least 2, for G-Div).
         seed: the first sample seed.
-        lowest: the lowest setting drawn, and the answer when even it misses the goals.
+        lowest: the lowest setting drawn.
         step: the ladder's spacing.
         margin: how far above every goal a setting must score to end the walk early.
         safety: how far above each goal (a share of patches) the smoothed curve is read.
         refine: how many more settings to draw near the answer once the ladder has bracketed it.
         caution: how many standard errors the smoothed curve is lowered before it is read.
-        relative: each goal is at most this share of the near copy's score (None: absolute goals).
+        relative: each goal is at most this share of the near copy's score: one share for both, or one per goal
+            (default :data:`RELATIVE`); None draws no near copy (absolute goals).
         far: a rung keeping less than this share of a goal skips the next rung (0: every rung is drawn).
     """
     absolute = dict(GOALS if goals is None else goals)
-    _check_options(absolute, n, refine, lowest, step, caution, safety, margin, relative, far)
+    shares = _shares(relative, absolute)
+    _check_options(absolute, n, refine, lowest, step, caution, safety, margin, shares, far)
     reference = np.asarray(reference, bool)
 
     def draw(d: float, k: int) -> dict:
@@ -315,8 +267,9 @@ def calibrate_diversity(
     result = Calibration(
         diversity=lowest, goals=absolute, n=int(n), resolution=max(reference.shape), g_div_goal=G_DIV_GOAL
     )
-    if relative is not None:
-        _set_ceiling(result, draw(NEAR_COPY, NEAR_COPY_SEEDS // 1000), relative, progress)
+    result.copy_line = COPIES_G_DIV
+    if shares is not None:
+        _set_ceiling(result, draw(NEAR_COPY, NEAR_COPY_SEEDS // 1000), shares, progress)
     # a goal lowered to its ceiling lowers its margin alike: a near copy keeps only 1/RELATIVE of its goal
     margins = {k: margin * (v / absolute[k] if absolute[k] > 0 else 1.0) for k, v in result.goals.items()}
     _walk(result, draw, lowest, step, margins, safety, refine, caution, progress, far)
@@ -324,20 +277,33 @@ def calibrate_diversity(
     return result
 
 
-def _set_ceiling(result: Calibration, near: dict, relative: float, progress: bool) -> None:
-    """Record the near copy's row ``near`` and lower ``result.goals`` (the absolute ones) to ``relative`` × its
-    scores, unless its LP-F is below :data:`MIN_CEILING`."""
+def _shares(relative, goals: dict) -> dict | None:
+    """``relative`` as one share per goal (one number for every goal, or a dict; None: no near copy)."""
+    if relative is None:
+        return None
+    if isinstance(relative, dict):
+        return {k: relative.get(k, RELATIVE.get(k, 1.0)) for k in goals}
+    return dict.fromkeys(goals, relative)
+
+
+def _set_ceiling(result: Calibration, near: dict, shares: dict, progress: bool) -> None:
+    """Record the near copy's row ``near``; unless its LP-F is below :data:`MIN_CEILING`, lower ``result.goals``
+    (the absolute ones) to ``shares`` × its scores and set the copy line from its G-Div."""
     absolute = result.goals
     near.pop("per_sample", None)
     result.near_copy = {"diversity": NEAR_COPY, "n": result.n, **near}
-    if near["lp_fscore"] >= MIN_CEILING:
-        result.goals = {k: min(v, round(relative * near[k], 4)) for k, v in absolute.items()}
-    result.absolute_goals, result.relative = absolute, float(relative)
+    if near["lp_fscore"] >= MIN_CEILING:  # a near copy that keeps nothing is no copy: its G-Div says nothing either
+        result.goals = {k: min(v, round(shares[k] * near[k], 4)) for k, v in absolute.items()}
+        result.copy_line = copy_line(near.get("g_div"))
+    result.absolute_goals, result.relative = absolute, shares
     if progress:
         print(
             f"[calibrate] near copy (diversity {NEAR_COPY:g}): "
-            + "; ".join(f"{SCORE_NAMES[k]} {near[k]:.3f}, goal {result.goals[k]:.3f}" for k in absolute)
-            + f" ({relative:.0%} of it, at most {', '.join(f'{v:.2f}' for v in absolute.values())})",
+            + "; ".join(
+                f"{SCORE_NAMES[k]} {near[k]:.3f}, goal {result.goals[k]:.3f} ({shares[k]:.0%}, at most {v:.2f})"
+                for k, v in absolute.items()
+            )
+            + f"; G-Div {near.get('g_div', np.nan):.3f}: samples under G-Div {result.copy_line:.3f} are copies",
             flush=True,
         )
 
@@ -363,7 +329,7 @@ def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin
         )
     if not 0.0 <= far < 1.0:
         raise Sin3DMInputError(f"far is a share of a goal from 0 (draw every rung) to below 1, got {far!r}")
-    if relative is not None and not 0.0 < relative <= 1.0:
+    if relative is not None and not all(0.0 < v <= 1.0 for v in relative.values()):
         raise Sin3DMInputError(
             f"relative is a share of the near copy's scores, above 0 and at most 1, got {relative!r}"
         )
@@ -379,12 +345,61 @@ def _at_choice(result: Calibration) -> dict:
     for key in result.goals:
         levels, fitted, _ = _curve(result.tried, key)
         out[key] = float(np.interp(result.diversity, levels[::-1], fitted[::-1]))
-    by_setting: dict[float, list[float]] = {}
-    for t in result.tried:
-        by_setting.setdefault(t["diversity"], []).extend([t.get("g_div", np.nan)] * t["n"])
-    levels = sorted(by_setting)
-    out["g_div"] = float(np.interp(result.diversity, levels, [np.mean(by_setting[d]) for d in levels]))
+    out["g_div"] = _g_div_at(result.tried, result.diversity)
     return out
+
+
+def _g_div_by_setting(tried: list[dict]) -> dict[float, float]:
+    """Each setting drawn and its samples' G-Div (a setting drawn twice: the mean over its samples)."""
+    by_setting: dict[float, list[float]] = {}
+    for t in tried:
+        by_setting.setdefault(t["diversity"], []).extend([t.get("g_div", np.nan)] * t["n"])
+    return {d: float(np.mean(v)) for d, v in sorted(by_setting.items())}
+
+
+def _g_div_at(tried: list[dict], diversity: float) -> float:
+    """The samples' G-Div at ``diversity``: linear between the settings drawn around it."""
+    by_setting = _g_div_by_setting(tried)
+    return float(np.interp(diversity, list(by_setting), list(by_setting.values())))
+
+
+def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line: float) -> tuple[float | None, str]:
+    """The choice on the smoothed curves (:func:`_choice`) and why, if not the plain reading: where the samples at the
+    crossing of every goal are copies (G-Div under ``line``) and LP-F's own crossing is more varied, that one."""
+    chosen = _choice(tried, goals, safety, caution)
+    varied = chosen is not None and not _g_div_at(tried, chosen) < line  # NaN (G-Div unknown): not copies
+    if varied or "lp_fscore" not in goals:
+        return chosen, ""
+    alone = _choice(tried, {"lp_fscore": goals["lp_fscore"]}, safety, caution)
+    if alone is None or (chosen is not None and alone <= chosen):
+        return chosen, ""
+    if chosen is None:
+        return alone, f"LP-IoU misses its floor at every setting drawn; {alone:.2f} keeps LP-F (the goal that decides)"
+    return alone, (
+        f"at {chosen:.2f}, where LP-IoU keeps its floor too, the samples are copies (G-Div "
+        f"{_g_div_at(tried, chosen):.3f} < {line:.3f}); the LP-IoU floor gives way to {alone:.2f}, the most varied "
+        "setting that keeps LP-F"
+    )
+
+
+def _fallback(result: Calibration) -> None:
+    """No setting keeps the LP-F goal: the least varied setting drawn whose samples are not copies (the most
+    faithful of those that vary), else the lowest drawn; :attr:`Calibration.note` says which and why."""
+    by_setting = _g_div_by_setting(result.tried)
+    varied = [d for d, g in by_setting.items() if not g < result.copy_line]
+    missed = f"no setting drawn kept LP-F {result.goals.get('lp_fscore', np.nan):.2f}"
+    if varied:
+        result.diversity = min(varied)
+        result.note = (
+            f"{missed}: chose {result.diversity:g}, the least varied setting whose samples are not copies (G-Div "
+            f"{by_setting[result.diversity]:.3f} ≥ {result.copy_line:.3f}); a finer preset may keep more of the input"
+        )
+    else:
+        result.diversity = min(by_setting) if by_setting else result.diversity
+        result.note = (
+            f"{missed}, and the samples at every setting drawn are copies (G-Div under {result.copy_line:.3f}): "
+            f"chose the lowest drawn, {result.diversity:g}; this fit does not vary this shape"
+        )
 
 
 def _walk(
@@ -436,24 +451,28 @@ def _walk(
         last, k = k, k + (2 if far_off else 1)
     below = iter(levels[k + 1 :])  # the ladder's settings below the last drawn
 
-    def read() -> float | None:
+    line = result.copy_line or 0.0
+
+    def read() -> tuple[float | None, str]:
         # the lowered curve can miss a goal where the walk stopped (few samples, wide error): walk on down
-        chosen = _choice(result.tried, goals, safety, caution)
+        chosen, why = _decide(result.tried, goals, safety, caution, line)
         while chosen is None and (d := next(below, None)) is not None:
             add(d)
-            chosen = _choice(result.tried, goals, safety, caution)
-        return chosen
+            chosen, why = _decide(result.tried, goals, safety, caution, line)
+        return chosen, why
 
-    chosen = read()
+    chosen, why = read()
     half = step / 2
     for _ in range(refine):
         if chosen is None or chosen >= 1.0:  # nothing to refine: out of reach, or pure noise keeps the goals
             break
         add(round(min(max(lowest + round((chosen - lowest) / half) * half, lowest), 1.0), 4), "near the answer: ")
-        chosen = read()
+        chosen, why = read()
     if chosen is not None:
-        result.diversity = round(chosen, 2)
+        result.diversity, result.note = round(chosen, 2), why or None
         result.kept_goals = True
+    else:
+        _fallback(result)
 
 
 __all__ = [
@@ -464,9 +483,12 @@ __all__ = [
     "MIN_CEILING",
     "NEAR_COPY",
     "RELATIVE",
+    "COPIES_G_DIV",
+    "COPY_RATIO",
     "Calibration",
     "SampleFn",
     "calibrate_diversity",
+    "copy_line",
     "model_sampler",
     "sample_occupancy",
     "score_setting",

@@ -15,8 +15,22 @@ import numpy as np
 #: trained one keeps no patch) and the goals stay absolute. LP-F, the lenient score: a faithful near copy of walls
 #: 2-3 voxels thick on a 32-voxel grid (reconstruction IoU 0.94) keeps LP-IoU 0.02 but LP-F 0.15
 MIN_CEILING = 0.1
+#: samples whose G-Div on the fit's grid is under this are copies: a square keep's copies fall under it, every fit
+#: whose samples vary lies above (docs/thin-parts.md). A shape whose samples reshuffle colours alone has a geometry
+#: G-Div near 0, so the fit's warning after a fit asks the latents too (fit_policy.copies_warning)
+COPIES_G_DIV = 0.03
+#: samples count as copies, too, when they vary less than this many times the near copy's G-Div (:func:`copy_line`)
+COPY_RATIO = 2.0
 #: how the record names the patch scores
 SCORE_NAMES = {"lp_iou": "LP-IoU", "lp_fscore": "LP-F"}
+
+
+def copy_line(near_g_div: float | None) -> float:
+    """The G-Div under which samples are copies: the fit's copy line (:data:`COPIES_G_DIV`), or :data:`COPY_RATIO`
+    times the near copy's G-Div where that is higher (what a near copy varies is the decoder's and the noise's
+    jitter, not variation)."""
+    near = near_g_div if near_g_div is not None and np.isfinite(near_g_div) else 0.0
+    return float(max(COPIES_G_DIV, COPY_RATIO * near))
 
 
 @dataclass
@@ -41,12 +55,14 @@ class Calibration:
     kept_goals: bool = False  # False when even the lowest setting drawn missed the goals (then it is the answer)
     near_copy: dict | None = None  # {"diversity", "n", "lp_iou", "lp_fscore", "g_div", "*_sd"}: the ceiling
     absolute_goals: dict | None = None  # the caps (GOALS or the caller's); None: the goals were absolute
-    relative: float | None = None  # the share of the near copy's scores
+    relative: float | dict | None = None  # the share of the near copy's scores, one per goal (one for all: older)
     at_choice: dict | None = (
         None  # {"lp_iou", "lp_fscore", "g_div"} at the chosen setting (smoothed; G-Div between draws)
     )
     g_div_goal: float | None = None  # the diversity requirement the choice is reported against
     supersample: int = 1  # sub-voxels a side per voxel judged (1: the voxel centres; 2: the paper's voxels)
+    copy_line: float | None = None  # samples whose G-Div is under this are copies (copy_line); None: older record
+    note: str | None = None  # why the choice is not the plain crossing of every goal (copies, or no setting kept LP-F)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -66,33 +82,36 @@ class Calibration:
         else:
             paper = "voxel centres; the paper's voxels pool 2x2x2 sub-voxels"
         grid = f"at {self.resolution} voxels ({paper})"
-        chosen = f"chosen {self.diversity:g}" + (
-            "" if self.kept_goals else " (the lowest drawn: no setting kept the goals)"
-        )
+        chosen = f"chosen {self.diversity:g}" + ("" if self.kept_goals else " (no setting kept the goals)")
         at = self.at_choice or {}
         if self.near_copy is None:
             goals = ", ".join(f"{SCORE_NAMES.get(k, k)} {v:.2f}" for k, v in self.goals.items())
-            return f"absolute goals {goals} {grid} (no near copy scored); {chosen}"
+            return f"absolute goals {goals} {grid} (no near copy scored); {chosen}" + (
+                f"\n{self.note}" if self.note else ""
+            )
         lines = []
         for key, goal in self.goals.items():
             absolute = (self.absolute_goals or {}).get(key, goal)
+            share = self.relative.get(key, 1.0) if isinstance(self.relative, dict) else self.relative
             if self.near_copy["lp_fscore"] < MIN_CEILING:
                 why = f"the absolute goal: a near copy of LP-F below {MIN_CEILING:g} sets no ceiling"
             elif goal >= absolute:
-                why = f"the absolute goal; {self.relative:.0%} of the near copy is above it"
+                why = f"the absolute goal; {share:.0%} of the near copy is above it"
             else:
-                why = f"{self.relative:.0%} of the near copy; the absolute {absolute:.2f} is out of its reach"
+                why = f"{share:.0%} of the near copy; the absolute {absolute:.2f} is out of its reach"
             there = f", smoothed {at[key]:.2f} there" if key in at else ""
-            lines.append(
-                f"{SCORE_NAMES.get(key, key)}: near copy {self.near_copy[key]:.2f}; goal {goal:.2f} ({why}); "
-                f"{chosen}{there}"
-            )
+            # since the copy line (issue 61) LP-IoU is a floor, which gives way to LP-F where it would choose copies
+            name = SCORE_NAMES.get(key, key) + (" (a floor)" if self.copy_line is not None and key == "lp_iou" else "")
+            lines.append(f"{name}: near copy {self.near_copy[key]:.2f}; goal {goal:.2f} ({why}); {chosen}{there}")
         if self.g_div_goal is not None and np.isfinite(at.get("g_div", np.nan)):
             met = "meets" if at["g_div"] >= self.g_div_goal else "is below"
+            copies = "" if self.copy_line is None else f"; copies below {self.copy_line:.3f}"
             lines.append(
                 f"G-Div at {self.diversity:g}: {at['g_div']:.2f}, which {met} the diversity requirement "
-                f"{self.g_div_goal:.2f} (near copy {self.near_copy['g_div']:.2f})"
+                f"{self.g_div_goal:.2f} (near copy {self.near_copy['g_div']:.2f}{copies})"
             )
+        if self.note:
+            lines.append(self.note)
         lines.append(f"measured {grid}; near copy = diversity {self.near_copy['diversity']:g}")
         return "\n".join(lines)
 
@@ -105,11 +124,10 @@ class Calibration:
         ]
         if self.near_copy is not None:
             lines.extend(self.story().splitlines())
-        lines.append(
-            f"chosen: {self.diversity:g}"
-            + ("" if self.kept_goals else " (the lowest drawn: no setting kept the goals)")
-        )
+        if self.near_copy is None and self.note:  # the story above says it where a near copy was drawn
+            lines.append(self.note)
+        lines.append(f"chosen: {self.diversity:g}" + ("" if self.kept_goals else " (no setting kept the goals)"))
         return "\n".join(lines)
 
 
-__all__ = ["MIN_CEILING", "SCORE_NAMES", "Calibration"]
+__all__ = ["COPIES_G_DIV", "COPY_RATIO", "MIN_CEILING", "SCORE_NAMES", "Calibration", "copy_line"]

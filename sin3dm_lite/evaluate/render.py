@@ -37,6 +37,7 @@ pyglet window.
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from collections.abc import Sequence
@@ -290,10 +291,29 @@ def save_views(
     return [atomic_write(folder / name, png_bytes(img)) for name, img in zip(view_names(int(n_views), hero), images)]
 
 
+def sheet_columns(n: int) -> int:
+    """How many columns a contact sheet of ``n`` panels gets: the grid with the fewest empty cells in its last row,
+    as square as that allows (ties: the wider), no narrower than square and at most twice as wide.
+
+    4 samples and the input (5 panels) fill one row of 5 rather than a row of 4 and one of 1; 8 and the input fill
+    3 × 3; 16 and the input (17, a prime) take 6 columns, one cell empty.
+    """
+    if n < 1:
+        raise Sin3DMInputError(f"a contact sheet needs at least one panel, got {n}")
+    square = math.isqrt(n - 1) + 1  # the smallest c with c * c >= n
+
+    def badness(c: int) -> tuple[int, int, int]:
+        rows = -(-n // c)
+        return rows * c - n, abs(c - rows), -c
+
+    return min(range(square, min(n, 2 * square) + 1), key=badness)
+
+
 def contact_sheet(
-    images: Sequence[np.ndarray], labels: Sequence[str] | None = None, columns: int = 4, pad: int = 4
+    images: Sequence[np.ndarray], labels: Sequence[str] | None = None, columns: int | None = None, pad: int = 4
 ) -> np.ndarray:
-    """Images in a grid of ``columns``, each with its label underneath; ``(H, W, 3)`` uint8 on white.
+    """Images in a grid of ``columns`` (default :func:`sheet_columns`: as full as the count allows), each with its
+    label underneath; ``(H, W, 3)`` uint8 on white.
 
     Tiles are the size of the largest image (smaller ones are centred).
     """
@@ -310,7 +330,7 @@ def contact_sheet(
     tw = max(im.shape[1] for im in imgs)
     font = ImageFont.load_default()
     label_h = 14 if labels is not None else 0
-    cols = max(1, min(int(columns), len(imgs)))
+    cols = sheet_columns(len(imgs)) if columns is None else max(1, min(int(columns), len(imgs)))
     rows = -(-len(imgs) // cols)
     sheet = Image.new("RGB", (cols * (tw + pad) + pad, rows * (th + label_h + pad) + pad), (255, 255, 255))
     draw = ImageDraw.Draw(sheet)

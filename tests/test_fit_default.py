@@ -1,0 +1,127 @@
+"""The preset a fit takes when none is named: this machine's, said first with why and about how long."""
+
+import pytest
+import torch
+
+from sin3dm_lite import fit_default
+from sin3dm_lite.cli import main
+from sin3dm_lite.data.presets import get_preset
+
+
+@pytest.mark.parametrize(
+    "cuda, share, fast, preset, why",
+    [
+        (True, None, True, "paper", "a CUDA GPU, NVIDIA H200: the paper's settings"),
+        (False, 0.4, True, "small", "a CPU whose bf16 runs in 0.4x fp32's time: small's paper-width autoencoder"),
+        (False, 1.6, False, "quick", "a CPU without fast bf16 (native bf16, but at 1.6x fp32's time here)"),
+        (False, None, False, "quick", "a CPU without fast bf16 (no native bf16): quick's light autoencoder in fp32"),
+    ],
+    ids=["gpu", "cpu-fast-bf16", "cpu-slow-bf16", "cpu-avx2"],
+)
+def test_the_default_preset_follows_the_machine(monkeypatch, cuda, share, fast, preset, why):
+    dev = torch.device("cuda" if cuda else "cpu")
+    monkeypatch.setattr(fit_default, "get_device", lambda device=None: dev)
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda d=None: "NVIDIA H200")
+    monkeypatch.setattr(fit_default, "cpu_bf16_share", lambda: share)
+    monkeypatch.setattr(fit_default, "bf16_is_fast", lambda d: fast)
+    name, said = fit_default.choose_preset()
+    assert name == preset and said.startswith(why)
+    chosen = fit_default.default_preset(timed=False)
+    assert chosen.name == preset and chosen.lines() == [
+        f"[fit] no preset named: '{preset}' for this machine ({said}); name one to choose another (CLI --preset NAME)"
+    ]
+
+
+def test_the_estimate_times_a_few_steps_of_each_network_and_scales_them_by_the_steps():
+    """A few real steps of tiny's autoencoder and denoiser; the estimate grows with the steps, the grid and the
+    calibration add their share, and the random state is left as it was."""
+    torch.manual_seed(3)
+    before = torch.rand(4)
+    torch.manual_seed(3)
+    tiny = get_preset("tiny")
+    est = fit_default.estimate_fit(tiny)
+    assert torch.equal(torch.rand(4), before)
+    assert est["autoencoder"] > 0 and est["denoiser"] > 0
+    assert est["other"] == pytest.approx(fit_default.OTHER_SHARE * (est["autoencoder"] + est["denoiser"]))
+    assert est["total"] == pytest.approx(est["autoencoder"] + est["denoiser"] + est["other"])
+    longer = fit_default.estimate_fit(tiny.updated(**{"autoencoder.steps": 100 * tiny.autoencoder.steps}))
+    assert longer["autoencoder"] > 10 * est["autoencoder"]  # 100x the steps (timing noise aside)
+    line = fit_default.DefaultPreset("tiny", "why", {"autoencoder": 60, "denoiser": 120, "other": 27, "total": 207})
+    assert line.lines()[1] == (
+        "[fit] it should take about 3 min here (autoencoder 1.0 + denoiser 2.0 + grid and calibration 0.5 min, from "
+        "3 steps of each timed just now)"
+    )
+
+
+class _FitCalled(Exception):
+    pass
+
+
+def _fit_cli(monkeypatch, tmp_path, capsys, *argv):
+    """`sin3dm-lite fit wall ...` up to Sin3DM.fit: (the preset it was handed, what was printed before)."""
+    from sin3dm_lite.pipeline import Sin3DM
+
+    seen = {}
+
+    def fake_fit(mesh, preset, **kw):
+        seen["preset"], seen["printed"] = preset, capsys.readouterr().out
+        raise _FitCalled
+
+    monkeypatch.setattr(Sin3DM, "fit", staticmethod(fake_fit))
+    monkeypatch.setattr(fit_default, "choose_preset", lambda device=None: ("quick", "a CPU without fast bf16 (test)"))
+    monkeypatch.setattr(
+        fit_default,
+        "estimate_fit",
+        lambda cfg, device=None: {"autoencoder": 120, "denoiser": 60, "other": 27, "total": 207},
+    )
+    with pytest.raises(_FitCalled):
+        main(["fit", "wall", "--out", str(tmp_path / "run"), *argv])
+    return seen["preset"], seen["printed"]
+
+
+def test_fit_without_a_preset_says_first_what_it_picked_why_and_how_long(monkeypatch, tmp_path, capsys):
+    preset, printed = _fit_cli(monkeypatch, tmp_path, capsys)
+    assert preset == "quick"
+    assert printed.splitlines()[:2] == [
+        "[fit] no preset named: 'quick' for this machine (a CPU without fast bf16 (test)); name one to choose "
+        "another (CLI --preset NAME)",
+        "[fit] it should take about 3 min here (autoencoder 2.0 + denoiser 1.0 + grid and calibration 0.5 min, from "
+        "3 steps of each timed just now)",
+    ]
+    preset, _ = _fit_cli(monkeypatch, tmp_path, capsys, "--set", "diffusion.steps=5")  # settings on the default
+    assert preset.name == "quick" and preset.diffusion.steps == 5
+
+
+def test_an_explicit_preset_always_wins_and_is_not_timed(monkeypatch, tmp_path, capsys):
+    monkeypatch.setattr(fit_default, "estimate_fit", lambda *a, **k: pytest.fail("timed a preset the user named"))
+    preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, "--preset", "small")
+    assert preset == "small" and "no preset named" not in printed
+
+
+def test_a_missing_input_fails_before_the_timing(monkeypatch, tmp_path, capsys):
+    monkeypatch.setattr(fit_default, "estimate_fit", lambda *a, **k: pytest.fail("timed before checking the input"))
+    assert main(["fit", str(tmp_path / "gone.obj"), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert "gone.obj" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "r").exists()
+
+
+def test_the_python_fit_without_a_preset_takes_the_machines_and_says_so(monkeypatch, capsys):
+    """`Sin3DM.fit(mesh)` without ``preset``: the same default, said first (after the input is read)."""
+    from sin3dm_lite import fitting
+    from sin3dm_lite.pipeline import Sin3DM
+
+    seen = {}
+
+    def prepare_run(run, preset, *args):
+        seen["preset"] = preset
+        raise _FitCalled
+
+    said = fit_default.DefaultPreset("quick", "a CPU without fast bf16 (test)")
+    monkeypatch.setattr(fitting, "default_preset", lambda device=None, timed=True: said)
+    monkeypatch.setattr(fitting, "prepare_run", prepare_run)
+    with pytest.raises(_FitCalled):
+        Sin3DM.fit("wall", progress=True)
+    assert seen["preset"] == "quick" and capsys.readouterr().out.startswith(said.lines()[0])
+    with pytest.raises(_FitCalled):
+        Sin3DM.fit("wall", preset="tiny", progress=True)
+    assert seen["preset"] == "tiny" and "no preset named" not in capsys.readouterr().out
