@@ -198,11 +198,19 @@ def test_mesh_sizes_beyond_memory_are_refused_with_the_largest_that_fits(fitted,
 
 
 def test_checkpoints_are_written_once_per_step(tmp_path, monkeypatch):
+    import re
+    from pathlib import Path
+
     from sin3dm_lite import checkpoints
 
     writes = []
-    real = checkpoints.atomic_torch_save
-    monkeypatch.setattr(checkpoints, "atomic_torch_save", lambda obj, path: (writes.append(path.name), real(obj, path)))
+    real = checkpoints.save_torch  # every torch file: checkpoints (atomic_torch_save) and model.pt (write_model)
+
+    def counted(obj, path):
+        writes.append(re.sub(r"^\.(.*)\.sin3dm-\d+-[^.]*\.tmp(.*)$", r"\1\2", Path(path).name))  # the temporary's name
+        return real(obj, path)
+
+    monkeypatch.setattr(checkpoints, "save_torch", counted)
     cfg = micro_config().updated(checkpoint_every=20)  # 30 steps: at step 20, then the last one
     Sin3DM.fit("wall", preset=cfg, out=tmp_path / "run", progress=False)
     assert writes == ["autoencoder.pt"] * 2 + ["diffusion.pt"] * 2 + ["model.pt"]
