@@ -109,6 +109,7 @@ LAYERS = {
     # teach: the 2D lesson and the exercises' checks (they use the model and the metrics)
     "teach": SHOW,
     "teach.lesson2d": SHOW,
+    "teach.receptive_field": SHOW,
     "teach.checking": SHOW,
     "teach.exercises": SHOW,
     "teach.shape_exercises": SHOW,

@@ -10,13 +10,12 @@ from sin3dm_lite.model.unet import (
     TriplaneConv,
     TriplaneResBlock,
     TriplaneUNet,
-    analytic_receptive_field,
     block_layout,
     cross_plane_inputs,
     num_groups,
-    receptive_field,
     rollout_parts,
 )
+from sin3dm_lite.teach.receptive_field import analytic_receptive_field, receptive_field
 
 RESOLUTIONS = [(13, 7, 10), (16, 12, 8)]
 

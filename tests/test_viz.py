@@ -278,7 +278,7 @@ def test_plot_receptive_field():
     assert list(marker.get_xdata()) == [16] and list(marker.get_ydata()) == [16]
     assert viz.measured_width(rf) == 9
     assert "4 ResBlocks" in ax.get_title() and "analytic 9" in ax.get_title() and "measured (≥0.01) 9" in ax.get_title()
-    # a faint texel further out counts only when the cut is lower (unet.receptive_field cuts at 1e-3)
+    # a faint texel further out counts only when the cut is lower (receptive_field.receptive_field cuts at 1e-3)
     faint = rf.copy()
     faint[16, 16 + 7] = 5e-3
     assert viz.measured_width(faint) == 9 and viz.measured_width(faint, level=2e-3) == 15

@@ -174,7 +174,7 @@ def test_denoising_slider_samples_a_trajectory_and_resamples(model, monkeypatch)
 
 
 def test_texel_receptive_field_follows_the_texel(model, monkeypatch):
-    from sin3dm_lite.model import unet
+    from sin3dm_lite.teach import receptive_field as rfield
 
     calls = spy(monkeypatch, sw, "receptive_field")
     panel = sw.texel_receptive_field(model, plane="xy")
@@ -196,7 +196,9 @@ def test_texel_receptive_field_follows_the_texel(model, monkeypatch):
     assert (c["i"].max, c["j"].max) == (y - 1, z - 1) and calls[-1]["texel"] == (y // 2, z // 2)
     assert len(calls) == n + 1 and calls[-1]["plane"] == "yz"
     with pytest.raises(ValueError, match="outside"):
-        unet.receptive_field(model.denoiser, resolution=(x, y, z), latent_channels=model.latent.channels, texel=(x, 0))
+        rfield.receptive_field(
+            model.denoiser, resolution=(x, y, z), latent_channels=model.latent.channels, texel=(x, 0)
+        )
 
 
 def test_triplane_conv_explorer_takes_the_latent_apart(model, monkeypatch):

@@ -391,7 +391,7 @@ def measured_width(rf_map: np.ndarray, level: float = RF_LEVEL, center=None) -> 
 
     The default level, 1e-2 of the peak, stays above the plane-wide coupling
     (GroupNorm, cross-plane means) that reaches ~1e-2 on a 32-texel map, so it
-    also works on the whole-network map. ``unet.receptive_field`` measures its
+    also works on the whole-network map. ``receptive_field.receptive_field`` measures its
     ``measured_width`` on the convolution-only map as the bounding box of the
     texels above 1e-3; for the centred, symmetric fields it measures,
     ``level=rf.threshold`` here gives the same width.

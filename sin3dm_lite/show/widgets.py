@@ -32,7 +32,8 @@ import torch
 
 from ..data.grid import ShapeGrid
 from ..model.triplane import PLANE_AXES, PLANES, Triplane
-from ..model.unet import receptive_field, rollout_parts
+from ..model.unet import rollout_parts
+from ..teach.receptive_field import receptive_field
 from . import viz
 from .explorer import Explorer
 from .sampling_widgets import control_panel, denoising_explorer, denoising_slider, sampling_panel
@@ -131,7 +132,7 @@ def receptive_field_explorer(fn: Callable[[int], tuple], choices: Sequence[int] 
 def texel_receptive_field(model, plane: str = "xy") -> Explorer:
     """Pick an output texel (sliders along the plane's two axes): its measured receptive field in the model's denoiser.
 
-    Calls :func:`unet.receptive_field` on ``model.denoiser`` at the latent's
+    Calls :func:`receptive_field.receptive_field` on ``model.denoiser`` at the latent's
     size with ``texel=(i, j)`` and draws :func:`viz.plot_receptive_field`
     centred on it: ``map="local"`` through the convolutions only,
     ``"whole"`` the whole network (GroupNorm and cross-plane means couple every

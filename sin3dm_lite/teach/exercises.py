@@ -13,7 +13,7 @@ check                                   you write                            the
 :func:`check_ddpm_posterior`            ``posterior(x0, x_t, t, betas, ab)``  ``NoiseSchedule.posterior``
 :func:`check_ddim_step`                 ``ddim_step(x_t, x0, t, t_prev, ab)``  ``NoiseSchedule.ddim_step``
 :func:`check_triplane_lookup`           ``lookup(xy, xz, yz, points)``       ``Triplane.lookup``
-:func:`check_receptive_field`           ``receptive_field(layers)``          ``unet.layers_receptive_field``
+:func:`check_receptive_field`           ``receptive_field(layers)``          ``receptive_field.layers_receptive_field``
 :func:`check_rollout`                   ``rollout_xy(xy, xz, yz)``           ``unet.cross_plane_inputs``
 :func:`check_best_patch_iou`            ``best_patch_iou(gen, ref)``         ``metrics.lp_scores``
 ======================================  ===================================  ==========================
@@ -33,8 +33,9 @@ from ..data.config import DiffusionConfig
 from ..evaluate.metrics import extract_patches, lp_scores
 from ..model.schedule import NoiseSchedule
 from ..model.triplane import PLANES, Triplane
-from ..model.unet import TriplaneUNet, cross_plane_inputs, layer_walk, layers_receptive_field
+from ..model.unet import TriplaneUNet, cross_plane_inputs
 from .checking import ExerciseError, as64, call, matching_hint, passed
+from .receptive_field import layer_walk, layers_receptive_field
 
 
 # ----------------------------------------------------------------------------- the forward process
@@ -280,7 +281,7 @@ def check_receptive_field(fn, seed: int = 0) -> None:
     """``fn(layers) -> int``: the receptive-field width (input texels) of a chain of layers.
 
     ``layers`` is a list of ``("conv", k)`` (k×k, stride 1), ``("down", 2)`` (2×2 average pool) and
-    ``("up", 2)`` (bilinear ×2), as :func:`~sin3dm_lite.unet.layer_walk` lists the denoiser's. Keep the
+    ``("up", 2)`` (bilinear ×2), as :func:`~sin3dm_lite.receptive_field.layer_walk` lists the denoiser's. Keep the
     width ``r`` and the jump ``j`` (input texels between neighbouring texels of the current layer).
     """
     chains = []

@@ -27,7 +27,8 @@ from ..data.config import DiffusionConfig
 from ..model.diffusion import fit_diffusion, sample
 from ..model.schedule import NoiseSchedule
 from ..model.triplane import Triplane
-from ..model.unet import TriplaneUNet, analytic_receptive_field
+from ..model.unet import TriplaneUNet
+from .receptive_field import analytic_receptive_field
 
 #: the two denoisers of the lesson (training length and width are set by :func:`lesson_config`)
 FIELDS = {
@@ -106,7 +107,7 @@ def lesson_config(field: str, steps: int, channels: int = 32) -> DiffusionConfig
 
 
 def receptive_field_width(cfg: DiffusionConfig) -> int:
-    """Pixels one output pixel sees, from the layers (:func:`~sin3dm_lite.unet.analytic_receptive_field`)."""
+    """Pixels one output pixel sees, from the layers (:func:`~sin3dm_lite.receptive_field.analytic_receptive_field`)."""
     return analytic_receptive_field(TriplaneUNet(3, cfg))
 
 
