@@ -110,6 +110,7 @@ def draw(
     (:func:`plan_for`), at most as many as fit in memory at once (:func:`max_samples`)."""
     from .model.diffusion import sample as diffusion_sample
     from .model.schedule import start_step
+    from .model.snap import snap_hook
 
     if plan.known is not None and known is not None:
         raise Sin3DMInputError(f"{plan.kind} chooses what to keep itself; do not pass known/mask with it")
@@ -143,10 +144,12 @@ def draw(
         prediction=model.config.diffusion.prediction,
         start=plan.start if t0 < model.schedule.timesteps - 1 else None,
         diversity=r.diversity,
-        snap=r.snap,
-        snap_to=model.latent if r.snap > 0 else None,
-        # the input's places mean something for a sample of its size, not for a controlled one
-        snap_place=model.config.sampling.snap_place if plan.known is None and known is None else 0.0,
+        denoised_fn=snap_hook(  # the input's places mean something for a sample of its size, not a controlled one
+            r.snap,
+            model.latent if r.snap > 0 else None,
+            model.schedule.timesteps,
+            place=model.config.sampling.snap_place if plan.known is None and known is None else 0.0,
+        ),
     )
     tp, inter = out if return_intermediates is not None else (out, None)
     return Samples(tp, plan.aabb, inter, plan)

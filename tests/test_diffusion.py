@@ -16,7 +16,7 @@ from sin3dm_lite.model.diffusion import (
     soft_mask,
 )
 from sin3dm_lite.model.schedule import NoiseSchedule, ddim_timesteps, sampling_timesteps, start_step
-from sin3dm_lite.model.snap import SNAP_LAST, SNAP_PATCH, SNAP_STRIDE, snap_to_patches
+from sin3dm_lite.model.snap import SNAP_LAST, SNAP_PATCH, SNAP_STRIDE, snap_hook, snap_to_patches
 from sin3dm_lite.model.triplane import Triplane
 
 from .conftest import LATENT_RES, tiny_diffusion_cfg
@@ -283,27 +283,28 @@ def test_snap_searches_without_the_channels_that_are_zero_all_over_the_input(h0,
 
 
 def test_sampling_with_snap(trained, h0):
+    """Snapping reaches the sampler as its ``denoised_fn`` hook (:func:`snap_hook`)."""
     model, sched = trained.model_for_sampling, trained.schedule
     args = dict(n=2, steps=8, seed=5, progress=False)
+    hook = lambda snap, place=0.0: snap_hook(snap, h0, sched.timesteps, place)  # noqa: E731
     plain = sample(model, sched, LATENT_RES, **args)
-    off = sample(model, sched, LATENT_RES, snap=0.0, snap_to=h0, **args)
-    assert all(torch.equal(p, q) for p, q in zip(plain.planes, off.planes))  # 0 is the paper's sampler
-    snapped = sample(model, sched, LATENT_RES, snap=1.0, snap_to=h0, **args)
+    assert hook(0.0) is None  # 0 is the paper's sampler
+    snapped = sample(model, sched, LATENT_RES, denoised_fn=hook(1.0), **args)
     assert _nearest_window_distance(snapped, h0) < _nearest_window_distance(plain, h0)
     # snap_place reaches the snapper: windows from the sample's own place, so texel for texel nearer the input
-    placed = sample(model, sched, LATENT_RES, snap=1.0, snap_to=h0, snap_place=5.0, **args)
+    placed = sample(model, sched, LATENT_RES, denoised_fn=hook(1.0, 5.0), **args)
     gap = [sum(float((p - q).abs().mean()) for p, q in zip(x.planes, h0.planes)) for x in (snapped, placed)]
     assert gap[1] < 0.5 * gap[0], gap
     # only the last tenth of the schedule snaps: the steps before it are the paper's sampler's, bit for bit
     _, theirs = sample(model, sched, LATENT_RES, return_intermediates=8, **args)
-    _, ours = sample(model, sched, LATENT_RES, snap=1.0, snap_to=h0, return_intermediates=8, **args)
+    _, ours = sample(model, sched, LATENT_RES, denoised_fn=hook(1.0), return_intermediates=8, **args)
     late = [a["t"] <= SNAP_LAST * sched.timesteps for a in ours]
     assert late == [False] * 7 + [True]  # 8 DDIM steps of T = 200: t = 199, 171, ..., 28, 0
     for a, b, snaps in zip(theirs, ours, late):
         assert all(torch.equal(p, q) for p, q in zip(a["x0"].planes, b["x0"].planes)) != snaps, a["t"]
-    for bad in (dict(snap=1.5, snap_to=h0), dict(snap=0.5)):
+    for bad in ((1.5, h0), (0.5, None)):
         with pytest.raises(Sin3DMInputError, match="snap is a share"):
-            sample(model, sched, LATENT_RES, **args, **bad)
+            snap_hook(*bad, sched.timesteps)
 
 
 def test_intermediates(trained):

@@ -298,7 +298,7 @@ def test_snap_pulls_samples_towards_the_inputs_patches_of_any_size(fitted):
 def test_sampling_snap_in_the_config_is_what_sample_and_the_calibration_use(fitted, monkeypatch):
     """A run fitted with ``sampling.snap`` samples snapped by default, the calibration's samples too (so its
     diversity is chosen for the snapped sampler); an explicit ``snap`` wins; the setting is a share."""
-    import sin3dm_lite.model.diffusion as diffusion
+    import sin3dm_lite.model.snap as snap
     from sin3dm_lite.evaluate.calibrate import sample_occupancy
 
     model, _ = fitted
@@ -307,8 +307,13 @@ def test_sampling_snap_in_the_config_is_what_sample_and_the_calibration_use(fitt
     by_config, off = (model.sample(2, seed=4, progress=False, **k) for k in ({}, {"snap": 0.0}))
     assert all(torch.equal(p, q) for p, q in zip(explicit.triplane.planes, by_config.triplane.planes))
     assert all(torch.equal(p, q) for p, q in zip(plain.triplane.planes, off.triplane.planes))
-    seen, real = [], diffusion.sample
-    monkeypatch.setattr(diffusion, "sample", lambda *a, **k: seen.append((k["snap"], k["snap_place"])) or real(*a, **k))
+    seen, real = [], snap.snap_hook  # the sampler's denoised_fn hook, made per call
+
+    def spy(amount, reference, timesteps, place=0.0):
+        seen.append((amount, place))
+        return real(amount, reference, timesteps, place)
+
+    monkeypatch.setattr(snap, "snap_hook", spy)
     sample_occupancy(model, 0.5, 2, 0, 16)  # what the calibration draws at each setting
     assert seen == [(1.0, 0.0)]
     # sampling.snap_place (quick's thin-walls switch): the samples and the calibration's, not controlled ones

@@ -10,14 +10,15 @@ within each plane and summed over the three planes. Because the network is
 fully convolutional, sampling noise of another size gives a retargeted shape,
 and pasting a noised known latent into part of ``x_t`` at every step gives
 outpainting, patch duplication and local editing without touching the sampler.
-The sampler's last steps can snap its estimate to the input's patches (:mod:`.snap`).
+Each step's estimate of the clean latent can be changed before the step uses it (``denoised_fn``, as in
+improved-diffusion): the application's snapping (:mod:`sin3dm_lite.model.snap`) is such a hook.
 """
 
 from __future__ import annotations
 
 import copy
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -28,7 +29,6 @@ from ..data.config import DiffusionConfig
 from ..device import PRECISIONS, autocast
 from ..errors import Sin3DMInputError
 from .schedule import NoiseSchedule, sampling_timesteps, start_step
-from .snap import SNAP_LAST, patch_snapper
 from .training import Trainer, checkpoint_problem
 from .triplane import PLANE_AXES, Triplane
 from .unet import TriplaneUNet
@@ -273,9 +273,7 @@ def sample(
     prediction: str | None = None,
     start: Triplane | None = None,
     diversity: float = 1.0,
-    snap: float = 0.0,
-    snap_to: Triplane | None = None,
-    snap_place: float = 0.0,
+    denoised_fn: Callable[[Triplane, int], Triplane] | None = None,
 ) -> Triplane | tuple[Triplane, list[dict]]:
     """Draw ``n`` latents of spatial size ``resolution = (X, Y, Z)`` from noise.
 
@@ -293,8 +291,10 @@ def sample(
     this size, usually the input's) and ``diversity < 1`` the walk begins at
     step ``t0 = diversity · (T-1)`` (:func:`start_step`) from ``q_sample(start, t0)``, the start latent noised
     to that step, instead of from pure noise at T-1. Low values keep the input's layout and regenerate only
-    fine detail, 1 is the paper's unconditional sampling; 0 returns ``start`` itself. ``snap`` (0 = the
-    paper's sampler), ``snap_to``, ``snap_place`` (its ``place``): :func:`patch_snapper`; t ≤ :data:`SNAP_LAST`·T snap.
+    fine detail, 1 is the paper's unconditional sampling; 0 returns ``start`` itself.
+
+    ``denoised_fn(x0, t)`` (improved-diffusion's hook; None: the paper's sampler) may change each step's
+    estimate of the clean latent before the step uses it (and before it is recorded as an intermediate).
 
     Seeds: sample ``i`` draws all its noise (the start, DDPM's per-step noise, the noised known latent) from its
     own generator seeded ``seed + i`` (or ``seed[i]`` for a list of seeds), on the CPU, so it depends on its seed
@@ -312,7 +312,6 @@ def sample(
     prediction = prediction or getattr(getattr(model, "cfg", None), "prediction", "x0")
     channels, noise = latent_channels or model.latent_channels, SampleNoise(seed, n)
     t0 = start_step(schedule, diversity)
-    snapper, snap_below = patch_snapper(snap, snap_to, place=snap_place), SNAP_LAST * schedule.timesteps
     if t0 < schedule.timesteps - 1 and start is None:
         raise Sin3DMInputError("diversity below 1 starts from a noised latent: pass `start` (e.g. the input's latent)")
     if t0 < 0:  # diversity 0: nothing is regenerated
@@ -326,7 +325,8 @@ def sample(
     for i, t in enumerate(tqdm(ts, disable=not progress, desc=method)):
         tt = torch.full((n,), t, dtype=torch.long, device=device)
         x0 = predict_clean(model, schedule, x, tt, prediction, clip)
-        x0 = snapper(x0) if t <= snap_below else x0  # the last steps only (SNAP_LAST)
+        if denoised_fn is not None:
+            x0 = denoised_fn(x0, t)
         if i in record:
             intermediates.append({"step": i, "t": t, "x_t": x.cpu(), "x0": x0.cpu()})
         t_prev = ts[i + 1] if i + 1 < len(ts) else -1

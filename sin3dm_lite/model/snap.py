@@ -6,8 +6,8 @@ walls thicken or break once decoded. Snapping replaces each 7×7 window of the
 estimate by its nearest window of the input's latent (patch-nearest-neighbour
 generation, as in GPNN, Granot et al. 2022) and averages the overlapping
 windows back into texels: the layout stays the sample's, each neighbourhood
-becomes one the input has. :func:`sample <sin3dm_lite.model.diffusion.sample>`
-does it on the last tenth of the noise schedule when ``snap`` > 0
+becomes one the input has. :func:`snap_hook` makes it the sampler's ``denoised_fn``, on the last tenth
+of the noise schedule when ``snap`` > 0
 (``sampling.snap``; ``quick`` turns it on by itself for a shape of thin parts).
 With ``place`` (``sampling.snap_place``, ``quick`` on thin walls) the search prefers the input's window from
 the sample's own place, so that a rare neighbourhood (a window in a wall) comes back where it was rather than
@@ -40,6 +40,19 @@ SNAP_PATCH = 7
 #: G-Div, LP-IoU and LP-F at 128 voxels as searching for every window (within 0.02), in a quarter of the searches
 #: (8 snapped samples of the coloured ruin 2.6 s -> 1.0 s; docs/thin-parts.md). At most ``patch // 2 + 1``.
 SNAP_STRIDE = 2
+
+
+def snap_hook(
+    snap: float, reference: Triplane | None, timesteps: int, place: float = 0.0
+) -> Callable[[Triplane, int], Triplane] | None:
+    """Snapping as the sampler's ``denoised_fn(x0, t)`` hook (:func:`sin3dm_lite.model.diffusion.sample`): the
+    estimates of the last steps (t ≤ :data:`SNAP_LAST` · ``timesteps``) snapped by :func:`patch_snapper`, the others
+    as they are; None (the paper's sampler) for ``snap`` 0. The arguments are checked here, once."""
+    snapper = patch_snapper(snap, reference, place=place)
+    if snap == 0:
+        return None
+    below = SNAP_LAST * timesteps
+    return lambda x0, t: snapper(x0) if t <= below else x0
 
 
 def snap_to_patches(
