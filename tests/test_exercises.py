@@ -112,7 +112,7 @@ def test_ddim_step_wrong_last_step_and_wrong_noise():
         ap = float(ab[max(t_prev, 0)])
         return math.sqrt(ap) * x0 + math.sqrt(1 - ap) * x_t
 
-    fails(ex.check_ddim_step, no_eps, "from t=999 to t_prev=979", "keep the noise direction")
+    fails(ex.check_ddim_step, no_eps, "999→979", "keep the noise direction")
 
 
 def test_lookup_with_swapped_axes_corners_or_zero_padding():
@@ -269,3 +269,108 @@ def test_tangent_frames_with_t_and_b_swapped():
         "your T differs",
         "swapped T and B",
     )
+
+
+# ----------------------------------------------------------------------------- float32 answers, named mistakes
+def as_float32(fn):
+    """The solution computed in float32: every float table and input cast before the first operation."""
+
+    def cast(v):
+        if isinstance(v, torch.Tensor) and v.is_floating_point():
+            return v.float()
+        if isinstance(v, np.ndarray) and v.dtype.kind == "f":
+            return v.astype(np.float32)
+        return v
+
+    def wrapped(*args):
+        out = fn(*(cast(a) for a in args))
+        return tuple(cast(o) for o in out) if isinstance(out, tuple) else cast(out)
+
+    return wrapped
+
+
+@pytest.mark.parametrize("check,module,name", CHECKS, ids=[c[1] for c in CHECKS])
+def test_a_float32_solution_passes(check, module, name, capsys):
+    check(as_float32(solution(module, name)))
+    assert capsys.readouterr().out.startswith("✓ your")
+
+
+def test_a_float32_ddim_step_that_casts_the_tables_first_passes(capsys):
+    def ddim32(x_t, x0, t, t_prev, ab):
+        ab = ab.float()
+        a = ab[t].reshape(-1, 1, 1, 1)
+        eps = (x_t - a.sqrt() * x0) / (1 - a).sqrt()
+        ap = ab[t_prev] if t_prev >= 0 else torch.tensor(1.0)
+        return ap.sqrt() * x0 + (1 - ap).sqrt() * eps
+
+    ex.check_ddim_step(ddim32)
+    assert capsys.readouterr().out.startswith("✓ your ddim_step")
+
+
+def test_half_precision_is_refused_by_name():
+    fails(ex.check_q_sample, lambda *a: solution("q_sample", "q_sample")(*a).half(), "float32 or float64")
+
+
+def test_q_sample_with_t_minus_one():
+    def t_minus_one(x0, t, noise, ab):
+        a = ab[t - 1].reshape(-1, 1, 1, 1).float()  # at t = 0 this reads ab[-1]
+        return a.sqrt() * x0 + (1 - a).sqrt() * noise
+
+    fails(ex.check_q_sample, t_minus_one, "not [t-1]")
+
+
+def test_ddim_step_without_the_square_root_on_the_noise_term():
+    def no_sqrt(x_t, x0, t, t_prev, ab):
+        a = ab[t].reshape(-1, 1, 1, 1).float()
+        eps = (x_t - a.sqrt() * x0) / (1 - a).sqrt()
+        ap = float(ab[t_prev]) if t_prev >= 0 else 1.0
+        return math.sqrt(ap) * x0 + (1 - ap) * eps
+
+    msg = fails(ex.check_ddim_step, no_sqrt, "√(1-ᾱ_prev)·ε̂", "left out the square root", "20→0")
+    assert "max error 0.000" not in msg  # the worst step is reported, not the first (t = 999, where it is tiny)
+
+
+def test_posterior_with_the_papers_variance_is_named_and_accepted_when_asked(capsys):
+    right = solution("ddpm_posterior", "posterior")
+
+    def beta_var(x0, x_t, t, betas, ab):
+        return right(x0, x_t, t, betas, ab)[0], betas[t].reshape(-1, 1, 1, 1).float()
+
+    fails(ex.check_ddpm_posterior, beta_var, "posterior variance differs", "β_t, the paper's", "variance='beta'")
+    ex.check_ddpm_posterior(beta_var, variance="beta")
+    assert capsys.readouterr().out.startswith("✓ your posterior")
+    fails(lambda fn: ex.check_ddpm_posterior(fn, variance="beta"), right, "you asked for the paper's β_t")
+
+
+def test_lookup_that_swaps_yz_and_xz_names_them():
+    right = solution("triplane_lookup", "lookup")
+    msg = fails(
+        ex.check_triplane_lookup, lambda xy, xz, yz, p: right(xy, xz, yz, p)[:, :, [0, 2, 1]], "xz, yz plane(s)"
+    )
+    assert "your xz features are the library's yz" in msg and "your yz features are the library's xz" in msg
+
+    def yz_transposed(xy, xz, yz, p):
+        out = right(xy, xz, yz, p).clone()
+        grid = torch.stack([p[..., 1], p[..., 2]], -1)[:, None]  # (y, z) as (x, y): rows and columns swapped
+        out[:, :, 2] = F.grid_sample(yz, grid, padding_mode="border", align_corners=False)[:, :, 0].transpose(1, 2)
+        return out
+
+    msg = fails(
+        ex.check_triplane_lookup, yz_transposed, "on the yz plane(s)", "on yz you read at (y, z)", "pass (z, y)"
+    )
+    assert "xz" not in msg.split("hint")[1]
+
+
+def test_grid_box_without_the_minimum_of_eight():
+    def no_minimum(extent, res):
+        e = np.asarray(extent, np.float64)
+        shape = tuple(int(np.ceil(np.floor(res * v / e.max()) / 8) * 8) for v in e)
+        half = np.array(shape) / max(shape)
+        return shape, np.concatenate([-half, half])
+
+    fails(sx.check_grid_box, no_minimum, "your shape is", "at least 8 voxels")
+
+
+def test_best_patch_iou_sorted_has_the_right_values_for_the_wrong_patches():
+    right = solution("lp_iou", "best_patch_iou")
+    fails(ex.check_best_patch_iou, lambda g, r: np.sort(right(g, r)), "generated patches", "do not sort")
