@@ -122,6 +122,8 @@ _API = {
     "load_feature_weights": "evaluate.metrics",
     "sifid": "evaluate.metrics",
     "lpips": "evaluate.metrics",
+    "ssfid": "evaluate.ssfid",
+    "load_ssfid_classifier": "evaluate.ssfid",
     "calibrate_diversity": "evaluate.calibrate",
     "Calibration": "evaluate.calibration_record",
     # exercises: write a piece of the method, check it against the library

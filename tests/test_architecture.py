@@ -84,6 +84,7 @@ LAYERS = {
     "evaluate.geometry": EVALUATE,
     "evaluate.patches": EVALUATE,
     "evaluate.features": EVALUATE,
+    "evaluate.ssfid": EVALUATE,
     "evaluate.texture": EVALUATE,
     "evaluate.metrics": EVALUATE,
     "evaluate.render": EVALUATE,
