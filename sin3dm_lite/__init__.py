@@ -139,6 +139,9 @@ _API = {
     "check_retarget": "teach.shape_exercises",
     "check_regenerate_mask": "teach.shape_exercises",
     "check_tangent_frames": "teach.shape_exercises",
+    "check_training_step": "teach.loop_exercises",
+    "check_ddim_loop": "teach.loop_exercises",
+    "check_masked_step": "teach.loop_exercises",
 }
 
 #: module-valued public names (namespaces a notebook uses: ``viz.plot_slice``) → the module

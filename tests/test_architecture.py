@@ -112,6 +112,7 @@ LAYERS = {
     "teach.checking": SHOW,
     "teach.exercises": SHOW,
     "teach.shape_exercises": SHOW,
+    "teach.loop_exercises": SHOW,
     # app: the facade, run folders, mass sampling (the run, its folder, ranks and workers), the CLI (main, parser,
     # commands by group), shipped models, the public namespace
     "pipeline": APP,

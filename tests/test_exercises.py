@@ -10,6 +10,7 @@ import torch
 import torch.nn.functional as F
 
 from sin3dm_lite import exercises as ex
+from sin3dm_lite.teach import loop_exercises as lx
 from sin3dm_lite.teach import shape_exercises as sx
 
 SOLUTIONS = Path(__file__).parents[1] / "notebooks" / "solutions"
@@ -34,6 +35,9 @@ CHECKS = [
     (sx.check_retarget, "retarget", "retarget"),
     (sx.check_regenerate_mask, "regenerate_mask", "regenerate_mask"),
     (sx.check_tangent_frames, "tangent_frames", "tangent_frames"),
+    (lx.check_training_step, "training_step", "training_step"),
+    (lx.check_ddim_loop, "ddim_loop", "ddim_sample"),
+    (lx.check_masked_step, "masked_step", "masked_step"),
 ]
 
 
@@ -44,7 +48,7 @@ def test_the_solution_passes(check, module, name, capsys):
 
 
 def test_every_check_has_a_solution_and_a_notebook_uses_it():
-    checks = {n for n in [*ex.__all__, *sx.__all__] if n.startswith("check_")}
+    checks = {n for n in [*ex.__all__, *sx.__all__, *lx.__all__] if n.startswith("check_")}
     assert checks == {c[0].__name__ for c in CHECKS}
     assert {p.stem for p in SOLUTIONS.glob("*.py")} - {"__init__"} == {c[1] for c in CHECKS}
     cells = "".join(p.read_text(encoding="utf-8") for p in (SOLUTIONS.parent).glob("*.ipynb"))
@@ -374,3 +378,63 @@ def test_grid_box_without_the_minimum_of_eight():
 def test_best_patch_iou_sorted_has_the_right_values_for_the_wrong_patches():
     right = solution("lp_iou", "best_patch_iou")
     fails(ex.check_best_patch_iou, lambda g, r: np.sort(right(g, r)), "generated patches", "do not sort")
+
+
+# ----------------------------------------------------------------------------- the loops
+def test_training_step_with_the_usual_mistakes():
+    def step(target="x0", zero_grad=True, update=True, noise_first=False):
+        def fn(denoise, opt, x0, ab, g):
+            if noise_first:
+                noise = torch.randn(x0.shape, generator=g)
+                t = torch.randint(0, len(ab), (x0.shape[0],), generator=g)
+            else:
+                t = torch.randint(0, len(ab), (x0.shape[0],), generator=g)
+                noise = torch.randn(x0.shape, generator=g)
+            a = ab[t].reshape(-1, 1, 1, 1).float()
+            loss = F.mse_loss(denoise(a.sqrt() * x0 + (1 - a).sqrt() * noise, t), x0 if target == "x0" else noise)
+            if zero_grad:
+                opt.zero_grad()
+            if update:
+                loss.backward()
+                opt.step()
+            return loss.item()
+
+        return fn
+
+    lx.check_training_step(step())  # the variant machinery itself is right
+    fails(lx.check_training_step, step(target="eps"), "your loss is", "not the noise")
+    fails(lx.check_training_step, step(zero_grad=False), "step 2", "zero_grad")
+    fails(lx.check_training_step, step(update=False), "did not move")
+    fails(lx.check_training_step, step(noise_first=True), "your loss is", "draw t first")
+    fails(lx.check_training_step, lambda *a: None, "return the loss as a number")
+
+
+def test_ddim_loop_without_clipping_or_the_last_step():
+    def loop(clip=True, last=True):
+        def fn(denoise, x, ts, ab):
+            targets = list(ts[1:]) + ([-1] if last else [])
+            for t, t_prev in zip(ts, targets):
+                x0 = denoise(x, torch.full((x.shape[0],), t))
+                x0 = x0.clamp(-1, 1) if clip else x0
+                a, ap = float(ab[t]), float(ab[t_prev]) if t_prev >= 0 else 1.0
+                x = ap**0.5 * x0 + (1 - ap) ** 0.5 * (x - a**0.5 * x0) / (1 - a) ** 0.5
+            return x
+
+        return fn
+
+    with torch.no_grad():
+        lx.check_ddim_loop(loop())  # the variant machinery itself is right
+        fails(lx.check_ddim_loop, loop(clip=False), "your ddim_sample differs", "clip")
+        fails(lx.check_ddim_loop, loop(last=False), "your ddim_sample differs", "t_prev = -1")
+
+
+def test_masked_step_with_the_usual_mistakes():
+    right = solution("masked_step", "masked_step")
+    fails(lx.check_masked_step, lambda x, k, m, tp, ab, n: right(x, k, 1 - m, tp, ab, n), "1 means keep")
+    fails(lx.check_masked_step, lambda x, k, m, tp, ab, n: m * k + (1 - m) * x, "t_prev=979", "noise the known")
+
+    def last_wrong(x, k, m, tp, ab, n):
+        a = float(ab[tp])
+        return m * (a**0.5 * k + (1 - a) ** 0.5 * n) + (1 - m) * x
+
+    fails(lx.check_masked_step, last_wrong, "t_prev=-1", "paste known itself")
