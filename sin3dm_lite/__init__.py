@@ -97,6 +97,7 @@ _API = {
     "layer_walk": "model.unet",
     "layers_receptive_field": "model.unet",
     "NoiseSchedule": "model.schedule",
+    "ddim_timesteps": "model.schedule",
     "DiffusionTrainer": "model.diffusion",
     "sample": "model.diffusion",
     "predict_clean": "model.diffusion",
@@ -142,6 +143,7 @@ _API = {
     "check_training_step": "teach.loop_exercises",
     "check_ddim_loop": "teach.loop_exercises",
     "check_masked_step": "teach.loop_exercises",
+    "image_denoiser": "teach.loop_exercises",
 }
 
 #: module-valued public names (namespaces a notebook uses: ``viz.plot_slice``) → the module
