@@ -19,7 +19,10 @@ check                                   you write                            the
 ======================================  ===================================  ==========================
 
 The shape side (the grid's box, retargeting, an edit's masks, tangent frames) is in
-:mod:`~sin3dm_lite.teach.shape_exercises`, what the checks share in :mod:`~sin3dm_lite.teach.checking`.
+:mod:`~sin3dm_lite.teach.shape_exercises`, the loops (the training step, the DDIM loop, the masked step) in
+:mod:`~sin3dm_lite.teach.loop_exercises`, what the checks share in :mod:`~sin3dm_lite.teach.checking`.
+A float32 answer is compared with float32's tolerance; a wrong one gets the hint of the usual mistake it
+matches on every element where it is wrong.
 Solutions are in ``notebooks/solutions/``; ``tests/test_exercises.py`` runs
 every check against its solution and against wrong answers.
 """
