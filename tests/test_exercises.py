@@ -345,6 +345,14 @@ def test_posterior_with_the_papers_variance_is_named_and_accepted_when_asked(cap
     assert capsys.readouterr().out.startswith("✓ your posterior")
     fails(lambda fn: ex.check_ddpm_posterior(fn, variance="beta"), right, "you asked for the paper's β_t")
 
+    def fixed_large(x0, x_t, t, betas, ab):  # guided-diffusion's: β_t, and β̃_1 at t = 0
+        mean, _ = right(x0, x_t, t, betas, ab)
+        beta_tilde_1 = betas[1] * (1 - ab[0]) / (1 - ab[1])
+        return mean, torch.where(t == 0, beta_tilde_1, betas[t]).reshape(-1, 1, 1, 1)
+
+    ex.check_ddpm_posterior(fixed_large, variance="beta")
+    assert capsys.readouterr().out.startswith("✓ your posterior")
+
 
 def test_lookup_that_swaps_yz_and_xz_names_them():
     right = solution("triplane_lookup", "lookup")
