@@ -97,6 +97,7 @@ _API = {
     "layer_walk": "teach.receptive_field",
     "layers_receptive_field": "teach.receptive_field",
     "NoiseSchedule": "model.schedule",
+    "ddim_timesteps": "model.schedule",
     "DiffusionTrainer": "model.diffusion",
     "sample": "model.diffusion",
     "predict_clean": "model.diffusion",
@@ -122,6 +123,8 @@ _API = {
     "load_feature_weights": "evaluate.metrics",
     "sifid": "evaluate.metrics",
     "lpips": "evaluate.metrics",
+    "ssfid": "evaluate.ssfid",
+    "load_ssfid_classifier": "evaluate.ssfid",
     "calibrate_diversity": "evaluate.calibrate",
     "Calibration": "evaluate.calibration_record",
     # exercises: write a piece of the method, check it against the library
@@ -137,6 +140,10 @@ _API = {
     "check_retarget": "teach.shape_exercises",
     "check_regenerate_mask": "teach.shape_exercises",
     "check_tangent_frames": "teach.shape_exercises",
+    "check_training_step": "teach.loop_exercises",
+    "check_ddim_loop": "teach.loop_exercises",
+    "check_masked_step": "teach.loop_exercises",
+    "image_denoiser": "teach.loop_exercises",
 }
 
 #: module-valued public names (namespaces a notebook uses: ``viz.plot_slice``) → the module

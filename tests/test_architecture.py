@@ -85,6 +85,7 @@ LAYERS = {
     "evaluate.geometry": EVALUATE,
     "evaluate.patches": EVALUATE,
     "evaluate.features": EVALUATE,
+    "evaluate.ssfid": EVALUATE,
     "evaluate.texture": EVALUATE,
     "evaluate.metrics": EVALUATE,
     "evaluate.render": EVALUATE,
@@ -113,6 +114,7 @@ LAYERS = {
     "teach.checking": SHOW,
     "teach.exercises": SHOW,
     "teach.shape_exercises": SHOW,
+    "teach.loop_exercises": SHOW,
     # app: the facade, run folders, mass sampling (the run, its folder, ranks and workers), the CLI (main, parser,
     # commands by group), shipped models, the public namespace
     "pipeline": APP,

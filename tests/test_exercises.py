@@ -10,6 +10,7 @@ import torch
 import torch.nn.functional as F
 
 from sin3dm_lite import exercises as ex
+from sin3dm_lite.teach import loop_exercises as lx
 from sin3dm_lite.teach import shape_exercises as sx
 
 SOLUTIONS = Path(__file__).parents[1] / "notebooks" / "solutions"
@@ -34,6 +35,9 @@ CHECKS = [
     (sx.check_retarget, "retarget", "retarget"),
     (sx.check_regenerate_mask, "regenerate_mask", "regenerate_mask"),
     (sx.check_tangent_frames, "tangent_frames", "tangent_frames"),
+    (lx.check_training_step, "training_step", "training_step"),
+    (lx.check_ddim_loop, "ddim_loop", "ddim_sample"),
+    (lx.check_masked_step, "masked_step", "masked_step"),
 ]
 
 
@@ -44,7 +48,7 @@ def test_the_solution_passes(check, module, name, capsys):
 
 
 def test_every_check_has_a_solution_and_a_notebook_uses_it():
-    checks = {n for n in [*ex.__all__, *sx.__all__] if n.startswith("check_")}
+    checks = {n for n in [*ex.__all__, *sx.__all__, *lx.__all__] if n.startswith("check_")}
     assert checks == {c[0].__name__ for c in CHECKS}
     assert {p.stem for p in SOLUTIONS.glob("*.py")} - {"__init__"} == {c[1] for c in CHECKS}
     cells = "".join(p.read_text(encoding="utf-8") for p in (SOLUTIONS.parent).glob("*.ipynb"))
@@ -112,7 +116,7 @@ def test_ddim_step_wrong_last_step_and_wrong_noise():
         ap = float(ab[max(t_prev, 0)])
         return math.sqrt(ap) * x0 + math.sqrt(1 - ap) * x_t
 
-    fails(ex.check_ddim_step, no_eps, "from t=999 to t_prev=979", "keep the noise direction")
+    fails(ex.check_ddim_step, no_eps, "999→979", "keep the noise direction")
 
 
 def test_lookup_with_swapped_axes_corners_or_zero_padding():
@@ -269,3 +273,176 @@ def test_tangent_frames_with_t_and_b_swapped():
         "your T differs",
         "swapped T and B",
     )
+
+
+# ----------------------------------------------------------------------------- float32 answers, named mistakes
+def as_float32(fn):
+    """The solution computed in float32: every float table and input cast before the first operation."""
+
+    def cast(v):
+        if isinstance(v, torch.Tensor) and v.is_floating_point():
+            return v.float()
+        if isinstance(v, np.ndarray) and v.dtype.kind == "f":
+            return v.astype(np.float32)
+        return v
+
+    def wrapped(*args):
+        out = fn(*(cast(a) for a in args))
+        return tuple(cast(o) for o in out) if isinstance(out, tuple) else cast(out)
+
+    return wrapped
+
+
+@pytest.mark.parametrize("check,module,name", CHECKS, ids=[c[1] for c in CHECKS])
+def test_a_float32_solution_passes(check, module, name, capsys):
+    check(as_float32(solution(module, name)))
+    assert capsys.readouterr().out.startswith("✓ your")
+
+
+def test_a_float32_ddim_step_that_casts_the_tables_first_passes(capsys):
+    def ddim32(x_t, x0, t, t_prev, ab):
+        ab = ab.float()
+        a = ab[t].reshape(-1, 1, 1, 1)
+        eps = (x_t - a.sqrt() * x0) / (1 - a).sqrt()
+        ap = ab[t_prev] if t_prev >= 0 else torch.tensor(1.0)
+        return ap.sqrt() * x0 + (1 - ap).sqrt() * eps
+
+    ex.check_ddim_step(ddim32)
+    assert capsys.readouterr().out.startswith("✓ your ddim_step")
+
+
+def test_half_precision_is_refused_by_name():
+    fails(ex.check_q_sample, lambda *a: solution("q_sample", "q_sample")(*a).half(), "float32 or float64")
+
+
+def test_q_sample_with_t_minus_one():
+    def t_minus_one(x0, t, noise, ab):
+        a = ab[t - 1].reshape(-1, 1, 1, 1).float()  # at t = 0 this reads ab[-1]
+        return a.sqrt() * x0 + (1 - a).sqrt() * noise
+
+    fails(ex.check_q_sample, t_minus_one, "not [t-1]")
+
+
+def test_ddim_step_without_the_square_root_on_the_noise_term():
+    def no_sqrt(x_t, x0, t, t_prev, ab):
+        a = ab[t].reshape(-1, 1, 1, 1).float()
+        eps = (x_t - a.sqrt() * x0) / (1 - a).sqrt()
+        ap = float(ab[t_prev]) if t_prev >= 0 else 1.0
+        return math.sqrt(ap) * x0 + (1 - ap) * eps
+
+    msg = fails(ex.check_ddim_step, no_sqrt, "√(1-ᾱ_prev)·ε̂", "left out the square root", "20→0")
+    assert "max error 0.000" not in msg  # the worst step is reported, not the first (t = 999, where it is tiny)
+
+
+def test_posterior_with_the_papers_variance_is_named_and_accepted_when_asked(capsys):
+    right = solution("ddpm_posterior", "posterior")
+
+    def beta_var(x0, x_t, t, betas, ab):
+        return right(x0, x_t, t, betas, ab)[0], betas[t].reshape(-1, 1, 1, 1).float()
+
+    fails(ex.check_ddpm_posterior, beta_var, "posterior variance differs", "β_t, the paper's", "variance='beta'")
+    ex.check_ddpm_posterior(beta_var, variance="beta")
+    assert capsys.readouterr().out.startswith("✓ your posterior")
+    fails(lambda fn: ex.check_ddpm_posterior(fn, variance="beta"), right, "you asked for the paper's β_t")
+
+    def fixed_large(x0, x_t, t, betas, ab):  # guided-diffusion's: β_t, and β̃_1 at t = 0
+        mean, _ = right(x0, x_t, t, betas, ab)
+        beta_tilde_1 = betas[1] * (1 - ab[0]) / (1 - ab[1])
+        return mean, torch.where(t == 0, beta_tilde_1, betas[t]).reshape(-1, 1, 1, 1)
+
+    ex.check_ddpm_posterior(fixed_large, variance="beta")
+    assert capsys.readouterr().out.startswith("✓ your posterior")
+
+
+def test_lookup_that_swaps_yz_and_xz_names_them():
+    right = solution("triplane_lookup", "lookup")
+    msg = fails(
+        ex.check_triplane_lookup, lambda xy, xz, yz, p: right(xy, xz, yz, p)[:, :, [0, 2, 1]], "xz, yz plane(s)"
+    )
+    assert "your xz features are the library's yz" in msg and "your yz features are the library's xz" in msg
+
+    def yz_transposed(xy, xz, yz, p):
+        out = right(xy, xz, yz, p).clone()
+        grid = torch.stack([p[..., 1], p[..., 2]], -1)[:, None]  # (y, z) as (x, y): rows and columns swapped
+        out[:, :, 2] = F.grid_sample(yz, grid, padding_mode="border", align_corners=False)[:, :, 0].transpose(1, 2)
+        return out
+
+    msg = fails(
+        ex.check_triplane_lookup, yz_transposed, "on the yz plane(s)", "on yz you read at (y, z)", "pass (z, y)"
+    )
+    assert "xz" not in msg.split("hint")[1]
+
+
+def test_grid_box_without_the_minimum_of_eight():
+    def no_minimum(extent, res):
+        e = np.asarray(extent, np.float64)
+        shape = tuple(int(np.ceil(np.floor(res * v / e.max()) / 8) * 8) for v in e)
+        half = np.array(shape) / max(shape)
+        return shape, np.concatenate([-half, half])
+
+    fails(sx.check_grid_box, no_minimum, "your shape is", "at least 8 voxels")
+
+
+def test_best_patch_iou_sorted_has_the_right_values_for_the_wrong_patches():
+    right = solution("lp_iou", "best_patch_iou")
+    fails(ex.check_best_patch_iou, lambda g, r: np.sort(right(g, r)), "generated patches", "do not sort")
+
+
+# ----------------------------------------------------------------------------- the loops
+def test_training_step_with_the_usual_mistakes():
+    def step(target="x0", zero_grad=True, update=True, noise_first=False):
+        def fn(denoise, opt, x0, ab, g):
+            if noise_first:
+                noise = torch.randn(x0.shape, generator=g)
+                t = torch.randint(0, len(ab), (x0.shape[0],), generator=g)
+            else:
+                t = torch.randint(0, len(ab), (x0.shape[0],), generator=g)
+                noise = torch.randn(x0.shape, generator=g)
+            a = ab[t].reshape(-1, 1, 1, 1).float()
+            loss = F.mse_loss(denoise(a.sqrt() * x0 + (1 - a).sqrt() * noise, t), x0 if target == "x0" else noise)
+            if zero_grad:
+                opt.zero_grad()
+            if update:
+                loss.backward()
+                opt.step()
+            return loss.item()
+
+        return fn
+
+    lx.check_training_step(step())  # the variant machinery itself is right
+    fails(lx.check_training_step, step(target="eps"), "your loss is", "not the noise")
+    fails(lx.check_training_step, step(zero_grad=False), "step 2", "zero_grad")
+    fails(lx.check_training_step, step(update=False), "did not move")
+    fails(lx.check_training_step, step(noise_first=True), "your loss is", "draw t first")
+    fails(lx.check_training_step, lambda *a: None, "return the loss as a number")
+
+
+def test_ddim_loop_without_clipping_or_the_last_step():
+    def loop(clip=True, last=True):
+        def fn(denoise, x, ts, ab):
+            targets = list(ts[1:]) + ([-1] if last else [])
+            for t, t_prev in zip(ts, targets):
+                x0 = denoise(x, torch.full((x.shape[0],), t))
+                x0 = x0.clamp(-1, 1) if clip else x0
+                a, ap = float(ab[t]), float(ab[t_prev]) if t_prev >= 0 else 1.0
+                x = ap**0.5 * x0 + (1 - ap) ** 0.5 * (x - a**0.5 * x0) / (1 - a) ** 0.5
+            return x
+
+        return fn
+
+    with torch.no_grad():
+        lx.check_ddim_loop(loop())  # the variant machinery itself is right
+        fails(lx.check_ddim_loop, loop(clip=False), "your ddim_sample differs", "clip")
+        fails(lx.check_ddim_loop, loop(last=False), "your ddim_sample differs", "t_prev = -1")
+
+
+def test_masked_step_with_the_usual_mistakes():
+    right = solution("masked_step", "masked_step")
+    fails(lx.check_masked_step, lambda x, k, m, tp, ab, n: right(x, k, 1 - m, tp, ab, n), "1 means keep")
+    fails(lx.check_masked_step, lambda x, k, m, tp, ab, n: m * k + (1 - m) * x, "t_prev=979", "noise the known")
+
+    def last_wrong(x, k, m, tp, ab, n):
+        a = float(ab[tp])
+        return m * (a**0.5 * k + (1 - a) ** 0.5 * n) + (1 - m) * x
+
+    fails(lx.check_masked_step, last_wrong, "t_prev=-1", "paste known itself")

@@ -1,4 +1,5 @@
 """Exercise (notebook 05): one deterministic DDIM step (η = 0)."""
+
 import math
 
 

@@ -1,4 +1,5 @@
 """Exercise (notebook 05): one DDPM reverse step, the posterior q(x_{t-1} | x_t, x0)."""
+
 import torch
 
 

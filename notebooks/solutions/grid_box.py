@@ -1,4 +1,5 @@
 """Exercise (notebook 01): the voxel counts and the box of a shape's grid."""
+
 import numpy as np
 
 

@@ -1,4 +1,5 @@
 """Exercise (notebook 07): LP-IoU's patch match, each generated patch's best IoU among the input's patches."""
+
 import numpy as np
 
 

@@ -1,4 +1,5 @@
 """Exercise (notebook 00b): the forward process q(x_t | x_0) in one go."""
+
 import torch
 
 

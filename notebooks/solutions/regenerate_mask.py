@@ -1,4 +1,5 @@
 """Exercise (notebook 06): the three keep masks of a local edit."""
+
 import numpy as np
 
 

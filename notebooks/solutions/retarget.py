@@ -1,4 +1,5 @@
 """Exercise (notebook 00): the latent and the box of a resized sample."""
+
 import numpy as np
 
 

@@ -1,4 +1,5 @@
 """Exercise (notebook 03): what a TriplaneConv feeds the xy plane's Conv2d (the paper's rollout, Fig. 3b)."""
+
 import torch
 
 

@@ -1,4 +1,5 @@
 """Exercise (notebook 08): each face's tangent frame (T, B, N) for tangent-space normal maps."""
+
 import numpy as np
 
 

@@ -1,4 +1,5 @@
 """Exercise (notebook 02): a point's features on the three planes, by bilinear interpolation."""
+
 import torch
 import torch.nn.functional as F
 

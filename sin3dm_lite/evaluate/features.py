@@ -7,9 +7,8 @@ of the two pictures' local features), LPIPS between samples' renders for
 diversity (T-Div). The networks are small re-implementations that read the
 original weight files.
 
-G-Qual = SSFID needs SSG's 3D voxel encoder pre-trained on ShapeNet, whose
-weights are not published in a loadable form: it is not here (see
-:data:`SSFID_UNAVAILABLE`).
+G-Qual = SSFID (DECOR-GAN's 3D classifier, the authors' ``Clsshapenet_128.pth`` by path) is in
+:mod:`~sin3dm_lite.evaluate.ssfid`; ``Sin3DM.evaluate`` does not compute it (:data:`SSFID_UNAVAILABLE`).
 """
 
 from __future__ import annotations
@@ -39,8 +38,8 @@ INCEPTION_FILES = {
 ALEXNET_FILE = ("alexnet-owt-7be5be79.pth", "https://download.pytorch.org/models/alexnet-owt-7be5be79.pth")
 LPIPS_FILE = ("alex.pth", "https://github.com/richzhang/PerceptualSimilarity/raw/master/lpips/weights/v0.1/alex.pth")
 SSFID_UNAVAILABLE = (
-    "not implemented: G-Qual (SSFID) needs SSG's 3D CNN pre-trained on ShapeNet voxels "
-    "(Wu & Zheng 2022), a network and weights this package does not have"
+    "not computed here: G-Qual (SSFID) needs DECOR-GAN's classifier weights (Clsshapenet_128.pth); "
+    "with them, sin3dm_lite.ssfid(reference, sample, load_ssfid_classifier(path))"
 )
 
 

@@ -19,7 +19,10 @@ check                                   you write                            the
 ======================================  ===================================  ==========================
 
 The shape side (the grid's box, retargeting, an edit's masks, tangent frames) is in
-:mod:`~sin3dm_lite.teach.shape_exercises`, what the checks share in :mod:`~sin3dm_lite.teach.checking`.
+:mod:`~sin3dm_lite.teach.shape_exercises`, the loops (the training step, the DDIM loop, the masked step) in
+:mod:`~sin3dm_lite.teach.loop_exercises`, what the checks share in :mod:`~sin3dm_lite.teach.checking`.
+A float32 answer is compared with float32's tolerance; a wrong one gets the hint of the usual mistake it
+matches on every element where it is wrong.
 Solutions are in ``notebooks/solutions/``; ``tests/test_exercises.py`` runs
 every check against its solution and against wrong answers.
 """
@@ -28,74 +31,106 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from ..data.config import DiffusionConfig
 from ..evaluate.metrics import extract_patches, lp_scores
+from ..evaluate.patches import patch_matches
 from ..model.schedule import NoiseSchedule
-from ..model.triplane import PLANES, Triplane
+from ..model.triplane import PLANE_AXES, PLANES, Triplane
 from ..model.unet import TriplaneUNet, cross_plane_inputs
-from .checking import ExerciseError, as64, call, matching_hint, passed
+from .checking import ExerciseError, as64, call, matching_hint, passed, tolerance
 from .receptive_field import layer_walk, layers_receptive_field
 
 
 # ----------------------------------------------------------------------------- the forward process
+def _per_sample(v: torch.Tensor) -> torch.Tensor:
+    return v.reshape(-1, 1, 1, 1)
+
+
+def _fail(what: str, err: torch.Tensor, t, name: str, hint: str) -> ExerciseError:
+    """The error for the worst sample of ``err [B]`` (max errors per sample), with the step it was at."""
+    b = int(err.argmax())
+    return ExerciseError(
+        f"your {what} differs at t={int(t[b])} on the {name} plane: max error {float(err[b]):.3g}" + hint
+    )
+
+
 def check_q_sample(fn, seed: int = 0, tol: float = 1e-5) -> None:
     """``fn(x0, t, noise, alphas_cumprod) -> x_t``: noise ``x0 [B,C,H,W]`` to step ``t [B]`` in one go.
 
     ``x_t = √ᾱ_t · x0 + √(1-ᾱ_t) · noise``, with ``ᾱ_t = alphas_cumprod[t]`` (float64, ``t`` from 0 to T-1).
+    A float32 answer is compared with float32's tolerance (:func:`~sin3dm_lite.teach.checking.tolerance`).
     """
     sch, g = NoiseSchedule(), torch.Generator().manual_seed(seed)
     t = torch.cat([torch.tensor([0, 999, 731]), torch.randint(0, 1000, (5,), generator=g)])
     x0, noise = Triplane.randn(8, 3, (5, 6, 7), generator=g), Triplane.randn(8, 3, (5, 6, 7), generator=g)
     want = sch.q_sample(x0, t, noise)
+    ab = sch.alphas_cumprod
     worst = 0.0
     for name, p, n, w in zip(PLANES, x0.planes, noise.planes, want.planes):
-        got = as64(
+        raw = call(
             "q_sample",
-            call(
-                "q_sample",
-                fn,
-                p.clone(),
-                t.clone(),
-                n.clone(),
-                sch.alphas_cumprod.clone(),
-                hint="ᾱ_t is one number per sample: index it with t, reshape to [B, 1, 1, 1]",
-            ),
-            w,
+            fn,
+            p.clone(),
+            t.clone(),
+            n.clone(),
+            ab.clone(),
+            hint="ᾱ_t is one number per sample: index it with t, reshape to [B, 1, 1, 1]",
         )
-        err = (got - w.double()).abs().amax((1, 2, 3))
-        if float(err.max()) > tol:
-            b = int(err.argmax())
-            ab = sch.alphas_cumprod[t].reshape(-1, 1, 1, 1)
-            shift = lambda d: sch.alphas_cumprod[(t + d).clamp(0, 999)].reshape(-1, 1, 1, 1)  # noqa: E731
+        got, w = as64("q_sample", raw, w), w.double()
+        p, n, tol_ = p.double(), n.double(), tolerance(raw, tol, float(w.abs().max()))
+        err = (got - w).abs().amax((1, 2, 3))
+        if float(err.max()) > tol_:
+            a, up, down = (_per_sample(ab[k]) for k in (t, (t + 1).clamp(max=999), t - 1))  # t - 1 wraps at 0
             hints = {
-                "did you use √ᾱ_t and √(1-ᾱ_t)? You used ᾱ_t and 1-ᾱ_t.": ab * p + (1 - ab) * n,
-                "the image gets √ᾱ_t and the noise √(1-ᾱ_t), not the other way round.": (1 - ab).sqrt() * p
-                + ab.sqrt() * n,
-                "off by one: ᾱ_t is alphas_cumprod[t] (t counts from 0).": shift(-1).sqrt() * p
-                + (1 - shift(-1)).sqrt() * n,
-                "off by one: ᾱ_t is alphas_cumprod[t], not [t+1].": shift(1).sqrt() * p + (1 - shift(1)).sqrt() * n,
+                "did you use √ᾱ_t and √(1-ᾱ_t)? You used ᾱ_t and 1-ᾱ_t.": a * p + (1 - a) * n,
+                "the image gets √ᾱ_t and the noise √(1-ᾱ_t), not the other way round.": (1 - a).sqrt() * p
+                + a.sqrt() * n,
+                "off by one: ᾱ_t is alphas_cumprod[t], not [t+1].": up.sqrt() * p + (1 - up).sqrt() * n,
+                "off by one: ᾱ_t is alphas_cumprod[t], not [t-1] (t counts from 0; at t = 0, [t-1] is the LAST "
+                "value).": down.sqrt() * p + (1 - down).sqrt() * n,
             }
-            raise ExerciseError(
-                f"your q_sample differs at t={int(t[b])} on the {name} plane: max error "
-                f"{float(err[b]):.3g}" + matching_hint(got, hints, 1e-4)
-            )
+            raise _fail("q_sample", err, t, name, matching_hint(got, hints, tol_, w))
         worst = max(worst, float(err.max()))
     passed("q_sample", len(t) * 3, worst)
 
 
 # ----------------------------------------------------------------------------- reverse steps
-def check_ddpm_posterior(fn, seed: int = 0, tol: float = 1e-5) -> None:
+def _posterior_wrong(sch: NoiseSchedule, t: torch.Tensor, x0: torch.Tensor, x_t: torch.Tensor) -> dict:
+    """The usual mistakes in the posterior's mean, each as the mean it gives."""
+    at = lambda v: _per_sample(v[t])  # noqa: E731
+    ab, ab_prev, beta = at(sch.alphas_cumprod), _per_sample(sch.alphas_cumprod[t - 1]), at(sch.betas)
+    right_prev = at(sch.alphas_cumprod_prev)
+    c0 = lambda p: beta * p.sqrt() / (1 - ab)  # noqa: E731
+    ct = lambda p, a: (1 - p) * a / (1 - ab)  # noqa: E731
+    return {
+        "at t = 0 there is no earlier step: ᾱ_{t-1} is 1 there (alphas_cumprod[t-1] at t = 0 is alphas_cumprod[-1], "
+        "the LAST value, ᾱ_{T-1})": c0(ab_prev) * x0 + ct(ab_prev, (1 - beta).sqrt()) * x_t,
+        "x_t's coefficient holds √α_t = √(1-β_t), not α_t": c0(right_prev) * x0 + ct(right_prev, 1 - beta) * x_t,
+        "x0's coefficient holds √ᾱ_{t-1}, not ᾱ_{t-1}": beta * right_prev / (1 - ab) * x0
+        + ct(right_prev, (1 - beta).sqrt()) * x_t,
+    }
+
+
+def check_ddpm_posterior(fn, seed: int = 0, tol: float = 1e-5, variance: str = "posterior") -> None:
     """``fn(x0, x_t, t, betas, alphas_cumprod) -> (mean, variance)``: one DDPM reverse step, q(x_{t-1} | x_t, x0).
 
-    ``mean = β_t √ᾱ_{t-1} / (1-ᾱ_t) · x0 + (1-ᾱ_{t-1}) √α_t / (1-ᾱ_t) · x_t``,
-    ``variance = β_t (1-ᾱ_{t-1}) / (1-ᾱ_t)``, with ``α_t = 1-β_t`` and ``ᾱ_{-1} = 1``.
-    The variance may be ``[B, 1, 1, 1]`` or the mean's shape.
+    ``mean = β_t √ᾱ_{t-1} / (1-ᾱ_t) · x0 + (1-ᾱ_{t-1}) √α_t / (1-ᾱ_t) · x_t``, with ``α_t = 1-β_t`` and
+    ``ᾱ_{-1} = 1``. ``variance="posterior"`` (this library's sampler) checks the posterior's own
+    ``β̃_t = β_t (1-ᾱ_{t-1}) / (1-ᾱ_t)``; ``variance="beta"`` the paper's σ_t² = β_t (the authors' code too:
+    guided-diffusion's fixed large variance, which at t = 0 takes β̃_1; either is accepted there).
+    The variance may be ``[B, 1, 1, 1]`` or the mean's shape; it is compared relative to its size.
     """
+    if variance not in ("posterior", "beta"):
+        raise ExerciseError(f"variance is 'posterior' (β̃_t) or 'beta' (β_t), not {variance!r}")
     sch, g = NoiseSchedule(), torch.Generator().manual_seed(seed)
     t = torch.cat([torch.tensor([0, 1, 999, 500]), torch.randint(0, 1000, (4,), generator=g)])
     x0, x_t = Triplane.randn(8, 3, (5, 6, 7), generator=g), Triplane.randn(8, 3, (5, 6, 7), generator=g)
     mean, var = sch.posterior(x0, x_t, t)
+    beta_t, post = _per_sample(sch.betas[t]), var.double()
+    want_var = post if variance == "posterior" else beta_t
+    fixed_large = torch.where(_per_sample(t) == 0, sch.posterior_variance[1], beta_t)  # guided-diffusion's β
     worst = 0.0
     for name, a, b, w in zip(PLANES, x0.planes, x_t.planes, mean.planes):
         out = call(
@@ -110,30 +145,57 @@ def check_ddpm_posterior(fn, seed: int = 0, tol: float = 1e-5) -> None:
         )
         if not (isinstance(out, (tuple, list)) and len(out) == 2):
             raise ExerciseError("your posterior should return two things: (mean, variance)")
-        got_mean = as64("posterior (mean)", out[0], w)
+        got, w = as64("posterior (mean)", out[0], w), w.double()
+        tol_ = tolerance(out[0], tol, float(w.abs().max()))
+        err = (got - w).abs().amax((1, 2, 3))
+        if float(err.max()) > tol_:
+            hint = matching_hint(got, _posterior_wrong(sch, t, a.double(), b.double()), tol_, w)
+            raise _fail("posterior mean", err, t, name, hint)
         got_var = torch.as_tensor(out[1]).double()
         try:
-            got_var = torch.broadcast_to(got_var, w.shape)
+            got_var = torch.broadcast_to(got_var, w.shape).amax((1, 2, 3)) if got_var.dim() else got_var.expand(len(t))
         except RuntimeError:
             raise ExerciseError(
                 f"your variance has shape {tuple(got_var.shape)}: give one value per sample, [B, 1, 1, 1]"
             ) from None
-        for what, got, want in (("mean", got_mean, w.double()), ("variance", got_var, var.double().expand(w.shape))):
-            err = (got - want).abs().amax((1, 2, 3))
-            if float(err.max()) > tol:
-                i = int(err.argmax())
-                hint = (
-                    "\n  hint: at t = 0 there is no earlier step: ᾱ_{t-1} is 1 there (alphas_cumprod[-1] in Python"
-                    " is the LAST value, ᾱ_{T-1})"
-                    if int(t[i]) == 0 and float(err[t != 0].max()) <= tol
-                    else ""
-                )
-                raise ExerciseError(
-                    f"your posterior {what} differs at t={int(t[i])} on the {name} plane: max error "
-                    f"{float(err[i]):.3g}" + hint
-                )
-            worst = max(worst, float(err.max()))
+        rel = lambda ref, v=got_var: (v - ref.reshape(-1)).abs() / ref.reshape(-1).clamp(min=1e-8)  # noqa: E731
+        vtol = tolerance(out[1] if isinstance(out[1], torch.Tensor) else got_var, tol)  # relative to the variance
+        ok = rel(want_var) <= vtol
+        if variance == "beta":  # at t = 0 the authors' code takes β̃_1: accepted too
+            ok = ok | (rel(fixed_large) <= vtol)
+        if not bool(ok.all()):
+            err = torch.where(ok, 0.0, rel(want_var))
+            hints = {
+                "that is β_t, the paper's σ_t² (the authors' code uses it too); this library's sampler uses the "
+                "posterior's own variance β̃_t. To check the paper's choice: check_ddpm_posterior(posterior, "
+                "variance='beta')": beta_t,
+                "that is β̃_t, the posterior's variance; you asked for the paper's β_t": post,
+                "at t = 0 there is no earlier step: ᾱ_{t-1} is 1 there (alphas_cumprod[-1] in Python is the LAST "
+                "value, ᾱ_{T-1})": _per_sample(
+                    sch.betas[t] * (1 - sch.alphas_cumprod[t - 1]) / (1 - sch.alphas_cumprod[t])
+                ),
+            }
+            hint = next((f"\n  hint: {h}" for h, v in hints.items() if bool((rel(v)[~ok] <= vtol).all())), "")
+            raise _fail("posterior variance", err, t, name, hint)
+        worst = max(worst, float(err.max()))
     passed("posterior", len(t) * 3, worst)
+
+
+def _ddim_wrong(ab: torch.Tensor, t: int, t_prev: int, x_t: torch.Tensor, x0: torch.Tensor) -> dict:
+    """The usual mistakes in one DDIM step, each as the step it gives."""
+    a, ap = float(ab[t]), float(ab[t_prev]) if t_prev >= 0 else 1.0
+    eps = (x_t - a**0.5 * x0) / (1 - a) ** 0.5
+    return {
+        "keep the noise direction: ε̂ = (x_t - √ᾱ_t·x0) / √(1-ᾱ_t), not x_t itself.": ap**0.5 * x0
+        + (1 - ap) ** 0.5 * x_t,
+        "the noise term is √(1-ᾱ_prev)·ε̂: you left out the square root.": ap**0.5 * x0 + (1 - ap) * eps,
+        "ε̂ divides by √(1-ᾱ_t), not by 1-ᾱ_t: you left out the square root.": ap**0.5 * x0
+        + (1 - ap) ** 0.5 * (x_t - a**0.5 * x0) / (1 - a),
+        "the clean term is √ᾱ_prev·x0: you left out the square root.": ap * x0 + (1 - ap) ** 0.5 * eps,
+        "alphas_cumprod[-1] is ᾱ_{T-1} (Python counts from the end): at t_prev = -1 use ᾱ = 1, which returns x0.": (
+            float(ab[t_prev]) ** 0.5 * x0 + (1 - float(ab[t_prev])) ** 0.5 * eps
+        ),
+    }
 
 
 def check_ddim_step(fn, seed: int = 0, tol: float = 1e-5) -> None:
@@ -141,52 +203,77 @@ def check_ddim_step(fn, seed: int = 0, tol: float = 1e-5) -> None:
 
     The noise that ``x_t`` and the predicted ``x0`` imply, ``ε̂ = (x_t - √ᾱ_t·x0) / √(1-ᾱ_t)``, is kept and
     the blend moves to ``ᾱ_{t_prev}``: ``√ᾱ_prev·x0 + √(1-ᾱ_prev)·ε̂``. ``t [B]`` is a tensor, ``t_prev`` an
-    int; ``t_prev = -1`` is the last step, to the clean latent (ᾱ = 1).
+    int; ``t_prev = -1`` is the last step, to the clean latent (ᾱ = 1). Every step is checked before the
+    worst one is reported, so a mistake that is small at t = 999 is caught where it is large.
     """
     sch, g = NoiseSchedule(), torch.Generator().manual_seed(seed)
-    worst, cases = 0.0, 0
+    ab, results, worst, cases = sch.alphas_cumprod, [], 0.0, 0
     for t, t_prev in ((999, 979), (731, 711), (500, 250), (20, 0), (0, -1)):
         x_t, x0 = Triplane.randn(4, 3, (5, 6, 7), generator=g), Triplane.randn(4, 3, (5, 6, 7), generator=g)
         tt = torch.full((4,), t)
         want = sch.ddim_step(x0, x_t, tt, t_prev)
         for name, a, b, w in zip(PLANES, x_t.planes, x0.planes, want.planes):
-            got = as64(
-                "ddim_step",
-                call("ddim_step", fn, a.clone(), b.clone(), tt.clone(), t_prev, sch.alphas_cumprod.clone()),
-                w,
+            raw = call("ddim_step", fn, a.clone(), b.clone(), tt.clone(), t_prev, ab.clone())
+            got, w = as64("ddim_step", raw, w), w.double()
+            tol_ = tolerance(raw, tol, float(w.abs().max()))
+            err = float((got - w).abs().max())
+            results.append(
+                (err / tol_, err, t, t_prev, name, got, w, _ddim_wrong(ab, t, t_prev, a.double(), b.double()), tol_)
             )
-            err = float((got - w.double()).abs().max())
-            if err > tol:
-                if t_prev < 0:  # every earlier step agreed: the last one is the special case
-                    hint = (
-                        "\n  hint: alphas_cumprod[-1] is ᾱ_{T-1} (Python counts from the end): at t_prev = -1 "
-                        "use ᾱ = 1, which returns x0."
-                    )
-                else:
-                    ap = sch.alphas_cumprod[t_prev]
-                    hint = matching_hint(
-                        got,
-                        {
-                            "keep the noise direction: ε̂ = (x_t - √ᾱ_t·x0) / √(1-ᾱ_t), not x_t itself.": ap.sqrt() * b
-                            + (1 - ap).sqrt() * a
-                        },
-                        1e-4,
-                    )
-                raise ExerciseError(
-                    f"your ddim_step differs from t={t} to t_prev={t_prev} on the {name} plane: max error "
-                    f"{err:.3g}" + hint
-                )
             worst, cases = max(worst, err), cases + 4
+    bad = [r for r in results if r[0] > 1]
+    if bad:
+        _, err, t, t_prev, name, *_ = max(bad, key=lambda r: r[0])
+        explains = {  # how many wrong steps each usual mistake explains
+            text: sum(bool(matching_hint(r[5], {text: r[7][text]}, r[8], r[6], rtol=1e-2)) for r in bad)
+            for text in bad[0][7]
+        }
+        text = max(explains, key=explains.get)
+        hint = f"\n  hint: {text}" if explains[text] else ""
+        steps = ", ".join(dict.fromkeys(f"{r[2]}→{r[3]}" for r in bad))
+        raise ExerciseError(
+            f"your ddim_step differs from t={t} to t_prev={t_prev} on the {name} plane: max error {err:.3g} "
+            f"(wrong steps: {steps})" + hint
+        )
     passed("ddim_step", cases, worst)
 
 
 # ----------------------------------------------------------------------------- the triplane
+def _lookup_hints(tp: Triplane, points: torch.Tensor, got: torch.Tensor, want: torch.Tensor, k: int, tol: float) -> str:
+    """Why plane ``k`` of the student's lookup is wrong: another plane's features, (row, col) swapped, corners."""
+    plane, (row, col) = PLANES[k], PLANE_AXES[PLANES[k]]
+    axis = "xyz"
+
+    def read(rc, corners=False, padding="border"):
+        grid = torch.stack([points[..., rc[1]], points[..., rc[0]]], -1)[:, None]
+        f = F.grid_sample(tp.planes[k], grid, padding_mode=padding, align_corners=corners)
+        return f[:, :, 0].transpose(1, 2)  # [B, N, C]
+
+    hints = {
+        f"your {plane} features are the library's {other}: the output order is xy, xz, yz ([B, N, 3, C], "
+        f"plane {k} is {plane})": want[:, :, j]
+        for j, other in enumerate(PLANES)
+        if j != k
+    }
+    hints[
+        f"on {plane} you read at ({axis[row]}, {axis[col]}) as (x, y) for grid_sample, which reads (x, y) = "
+        f"(column, row): pass ({axis[col]}, {axis[row]})"
+    ] = read((col, row))
+    hints["texel centres are at -1 + (2i+1)/n: use align_corners=False"] = read((row, col), corners=True)
+    hints[
+        "only points near or outside the box's border differ: there, repeat the border texel "
+        "(padding_mode='border'), do not blend with zeros"
+    ] = read((row, col), padding="zeros")
+    return matching_hint(got[:, :, k], hints, tol, want[:, :, k])
+
+
 def check_triplane_lookup(fn, seed: int = 0, tol: float = 1e-5) -> None:
     """``fn(xy, xz, yz, points) -> [B, N, 3, C]``: each point's bilinear feature on the three planes.
 
     Planes ``xy [B,C,X,Y]``, ``xz [B,C,X,Z]``, ``yz [B,C,Y,Z]``; points ``[B, N, 3]`` in box coordinates [-1, 1].
     A point's feature on ``xz`` is read at ``(x, z)``, row = x, column = z. Texel ``i`` of ``n`` sits at
     ``-1 + (2i+1)/n``; points outside the box read the border texel. Output order: xy, xz, yz.
+    Each plane that differs gets its own hint (another plane's features, row and column swapped, ...).
     """
     g = torch.Generator().manual_seed(seed)
     tp = Triplane.randn(2, 4, (5, 7, 6), generator=g)
@@ -194,25 +281,17 @@ def check_triplane_lookup(fn, seed: int = 0, tol: float = 1e-5) -> None:
     outside = torch.rand(2, 20, 3, generator=g) * 2.6 - 1.3
     points = torch.cat([inside, outside], 1)
     want = tp.lookup(points)  # [B, N, 3, C]
-    got = as64("lookup", call("lookup", fn, tp.xy.clone(), tp.xz.clone(), tp.yz.clone(), points.clone()), want)
+    raw = call("lookup", fn, tp.xy.clone(), tp.xz.clone(), tp.yz.clone(), points.clone())
+    got, tol_ = as64("lookup", raw, want), tolerance(raw, tol, float(want.abs().max()))
     err = (got - want.double()).abs().amax(-1)  # [B, N, 3]
-    if float(err.max()) > tol:
-        bad = [n for k, n in enumerate(PLANES) if float(err[..., k].max()) > tol]
-        deep = (points.abs() < 0.6).all(-1)  # [B, N]: points well inside, away from the border texels
-        if not float(err[deep].max()) > tol:
-            hint = (
-                "only points near or outside the box's border differ: there, repeat the border texel "
-                "(padding_mode='border'), do not blend with zeros"
-            )
-        else:
-            hint = (
-                "F.grid_sample reads (x, y) = (column, row), so for xz pass (z, x); texel centres are at "
-                "-1 + (2i+1)/n (align_corners=False)"
-            )
+    if float(err.max()) > tol_:
+        bad = [k for k in range(3) if float(err[..., k].max()) > tol_]
+        hints = "".join(dict.fromkeys(_lookup_hints(tp, points, got, want.double(), k, tol_) for k in bad))
         b, n, k = np.unravel_index(int(err.argmax()), err.shape)
         raise ExerciseError(
-            f"your lookup differs on the {', '.join(bad)} plane(s): max error {float(err.max()):.3g} "
-            f"at point {points[b, n].numpy().round(3).tolist()} on {PLANES[k]}\n  hint: {hint}"
+            f"your lookup differs on the {', '.join(PLANES[k] for k in bad)} plane(s): max error "
+            f"{float(err.max()):.3g} at point {points[b, n].numpy().round(3).tolist()} on {PLANES[k]}"
+            + (hints or "\n  hint: F.grid_sample reads (x, y) = (column, row); texel centres are at -1 + (2i+1)/n")
         )
     passed("lookup", points.shape[0] * points.shape[1], float(err.max()))
 
@@ -342,7 +421,9 @@ def check_best_patch_iou(fn, seed: int = 0, patch: int = 7, stride: int = 3, thr
                 f"IoU per generated patch (the best over the {len(ref)} reference patches)"
             )
         got_mean, got_lp = float(best.mean()), float(np.mean(best > threshold))
-        if abs(got_mean - want["lp_iou_mean_best"]) > 1e-6 or abs(got_lp - want["lp_iou"]) > 1e-9:
+        per_patch = patch_matches(ref_grid, gen_grid, 1, patch, stride, max_patches=10**6)["best_iou"]
+        wrong = np.abs(best - per_patch) > 1e-6
+        if wrong.any():
             g, r = gen.astype(np.float64), ref.astype(np.float64)
             inter = g @ r.T
             union = g.sum(1)[:, None] + r.sum(1)[None] - inter
@@ -351,11 +432,20 @@ def check_best_patch_iou(fn, seed: int = 0, patch: int = 7, stride: int = 3, thr
                     2 * inter / (g.sum(1)[:, None] + r.sum(1)[None])
                 ).max(1),
                 "take the BEST match (max over the reference patches), not the mean": (inter / union).mean(1),
+                "the right values in another order: keep one value per generated patch, in the order of gen's rows "
+                "(do not sort them)": np.sort(per_patch),
+                "that is each REFERENCE patch's best match (max over gen); LP-IoU asks, for each generated patch, "
+                "for its best match among the input's": (inter / union).max(0)[: len(gen)]
+                if len(ref) >= len(gen)
+                else per_patch + 1,
             }
-            hint = next((f"\n  hint: {h}" for h, v in hints.items() if np.allclose(best, v, atol=1e-6)), "")
+            hint = matching_hint(best, hints, 1e-6, per_patch)
+            i = int(np.flatnonzero(wrong)[0])
             raise ExerciseError(
-                f"terrain {case}: your mean best IoU is {got_mean:.4f} (LP-IoU {got_lp:.3f}), the "
-                f"library's {want['lp_iou_mean_best']:.4f} (LP-IoU {want['lp_iou']:.3f})" + hint
+                f"terrain {case}: your best IoU differs on {int(wrong.sum())} of {len(gen)} generated patches; "
+                f"patch {i}: yours {best[i]:.4f}, the library's {per_patch[i]:.4f} (your mean best IoU "
+                f"{got_mean:.4f}, LP-IoU {got_lp:.3f}; the library's {want['lp_iou_mean_best']:.4f}, "
+                f"{want['lp_iou']:.3f})" + hint
             )
     print(
         f"✓ your best_patch_iou gives the library's LP-IoU on 3 random terrains (last: {want['lp_iou']:.3f}, "
