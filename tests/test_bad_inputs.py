@@ -166,6 +166,7 @@ NOT_WRITABLE = "/proc/sin3dm-out"  # refused even for root
 
 CASES = {
     # sample
+    "sample-anchor-alone": (["sample", "run", "--out", "s", "--anchor", "x-"], "needs --outpaint"),
     "sample-device": (["sample", "run", "--out", "s", "--device", "gpu"], "device"),
     "sample-cuda-index": (["sample", "run", "--out", "s", "--device", "cuda:99"], "cuda"),
     "sample-huge-n": (["sample", "run", "--out", "s", "-n", "1000000000"], "at most"),

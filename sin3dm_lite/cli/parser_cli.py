@@ -398,9 +398,9 @@ def _control_args(s: argparse.ArgumentParser) -> None:
     )
     s.add_argument(
         "--anchor",
-        default="center",
+        default=None,
         choices=["center", "x-", "x+", "y-", "y+", "z-", "z+"],
-        help="with --outpaint: where the input stays, the centre or the face it sticks to",
+        help="with --outpaint: where the input stays, the centre or the face it sticks to (default: center)",
     )
 
 

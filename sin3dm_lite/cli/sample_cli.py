@@ -62,7 +62,12 @@ def sample_request(a):
 def control_args(a) -> dict:
     """The ``Sin3DM.plan`` arguments of the controlled-generation flags."""
     if a.outpaint:
-        return {"outpaint": tuple(a.outpaint), "anchor": a.anchor}
+        return {"outpaint": tuple(a.outpaint), "anchor": a.anchor or "center"}
+    if getattr(a, "anchor", None) is not None:
+        raise Sin3DMInputError(
+            f"--anchor {a.anchor} says where the input stays when outpainting, and needs --outpaint SX SY SZ; "
+            "add --outpaint, or leave --anchor out"
+        )
     if a.regenerate:
         return {"regenerate": (tuple(a.regenerate[:3]), tuple(a.regenerate[3:]))}
     if a.duplicate:
