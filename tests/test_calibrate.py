@@ -656,14 +656,14 @@ def test_cli_calibrate_snap_calibrates_for_snapped_samples_and_keeps_the_setting
     """`calibrate RUN --snap 1`: the calibration's samples are snapped, and the run keeps sampling.snap (no refit)."""
     import shutil
 
-    import sin3dm_lite.model.diffusion as diffusion
+    import sin3dm_lite.model.snap as snap
 
     _, run = calibrated
     copy = tmp_path / "snapped"
     shutil.copytree(run, copy)
-    seen, real = [], diffusion.sample
+    seen, real = [], snap.snap_hook  # the sampler's denoised_fn, made per call with the share asked for
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(diffusion, "sample", lambda *a, **k: seen.append(k["snap"]) or real(*a, **k))
+        mp.setattr(snap, "snap_hook", lambda amount, *a, **k: seen.append(amount) or real(amount, *a, **k))
         assert main(["calibrate", str(copy), "-n", "2", "--snap", "1"]) == 0
     assert seen and set(seen) == {1.0}
     assert "for snapped samples" in capsys.readouterr().out
