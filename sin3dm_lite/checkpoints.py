@@ -32,7 +32,7 @@ def atomic_torch_save(obj, path: Path) -> None:
 
 
 def not_ours(path: Path, what: str, why: str) -> Sin3DMInputError:
-    """The error for a file ``path`` (a ``what``: "model", a trainer's kind, "config") this version cannot read."""
+    """The error for a file ``path`` (a ``what``: "model" or a trainer's kind) this version cannot read."""
     return Sin3DMInputError(
         f"'{path}' was not made by this version of sin3dm-lite ({why}); "
         + (

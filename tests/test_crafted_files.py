@@ -241,3 +241,73 @@ def test_fifo_as_model_pt_is_refused(tmp_path, unblock):
     _fifo(run / "model.pt")
     with pytest.raises(Sin3DMInputError, match="model.pt' is a named pipe"):
         _within(20, lambda: Sin3DM.load(run))
+
+
+# --------------------------------------------------------------------------- a resume's config
+def _edit(path: Path, **changes) -> None:
+    d = json.loads(path.read_text())
+    for key, value in changes.items():
+        node = d
+        *parents, leaf = key.split("/")
+        for p in parents:
+            node = node[p]
+        node[leaf] = value
+    path.write_text(json.dumps(d))
+
+
+def _snapshot(root: Path) -> dict:
+    return {p.name: (p.stat().st_size, p.stat().st_mtime_ns) for p in root.iterdir()}
+
+
+#: name → (what is done to the copied run folder, words of the one line)
+RESUMES = {
+    "config-emptied": (lambda r: (r / "config.json").write_text("{}"), "'r/config.json' is damaged (it is an empty"),
+    "config-a-list": (lambda r: (r / "config.json").write_text("[1, 2, 3]"), "(it is not a JSON object)"),
+    "config-truncated": (
+        lambda r: (r / "config.json").write_text((r / "config.json").read_text()[:100]),
+        "cannot be read as JSON",
+    ),
+    "config-without-grid": (
+        lambda r: _edit(r / "config.json", grid={}),
+        "it lacks the setting 'grid.resolution'",
+    ),
+    "config-other-steps": (
+        lambda r: _edit(r / "config.json", **{"autoencoder/steps": 500}),
+        "no longer holds the settings the fit recorded in input.json (autoencoder.steps 500 there, 30 recorded)",
+    ),
+    "config-other-grid": (
+        lambda r: _edit(r / "config.json", **{"grid/resolution": 32}),
+        "(grid.resolution 32 there, 24 recorded)",
+    ),
+    "config-and-record-other-grid": (
+        lambda r: (
+            _edit(r / "config.json", **{"grid/resolution": 32}),
+            _edit(r / "input.json", **{"config/grid/resolution": 32}),
+        ),
+        "asks for grid.resolution 32, but the run's grid.npz has 24 voxels",
+    ),
+    "record-damaged": (lambda r: (r / "input.json").write_text("{"), "'r/input.json' is damaged"),
+    "record-emptied": (lambda r: (r / "input.json").write_text("{}"), "'r/input.json' is damaged"),
+}
+
+
+@pytest.mark.parametrize("case", list(RESUMES))
+def test_resume_with_a_damaged_or_edited_config_is_refused(micro_fit, tmp_path, monkeypatch, capsys, case):
+    damage, words = RESUMES[case]
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(micro_fit[1], tmp_path / "r")
+    damage(tmp_path / "r")
+    before = _snapshot(tmp_path / "r")
+    line = _one_line(capsys, main(["fit", "wall", "--out", "r", "--resume"]))
+    assert words in line, line
+    assert "delete it to restart" not in line
+    assert _snapshot(tmp_path / "r") == before
+
+
+@pytest.mark.filterwarnings("ignore:low reconstruction")
+def test_resume_with_other_sampling_defaults_goes_on(micro_fit, tmp_path, monkeypatch, capsys):
+    """Sampling's defaults shape no checkpoint: a config.json edited there still resumes."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(micro_fit[1], tmp_path / "r")
+    _edit(tmp_path / "r" / "config.json", **{"sampling/mesh_resolution": 40})
+    assert main(["fit", "wall", "--out", "r", "--resume"]) == 0, capsys.readouterr().err
