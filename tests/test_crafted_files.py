@@ -311,3 +311,27 @@ def test_resume_with_other_sampling_defaults_goes_on(micro_fit, tmp_path, monkey
     shutil.copytree(micro_fit[1], tmp_path / "r")
     _edit(tmp_path / "r" / "config.json", **{"sampling/mesh_resolution": 40})
     assert main(["fit", "wall", "--out", "r", "--resume"]) == 0, capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- small ones
+def test_grid_does_not_call_a_fits_own_grid_foreign(micro_fit, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(micro_fit[1], tmp_path / "r")
+    trimesh.creation.box().export(tmp_path / "box.obj")
+    before = _snapshot(tmp_path / "r")
+    line = _one_line(capsys, main(["grid", "box.obj", "--resolution", "32", "--out", "r/grid.npz", "--overwrite"]))
+    assert "'r/grid.npz' is the grid of the fit in 'r'" in line and "not written by sin3dm-lite" not in line, line
+    assert _snapshot(tmp_path / "r") == before
+
+
+def test_a_size_from_the_models_config_is_named_as_such(tmp_path, monkeypatch, capsys):
+    """A mesh resolution too large for memory that came from the model's config, not the command line, is named
+    as the config's setting (the old message spoke of a --mesh-resolution the user never gave)."""
+    from sin3dm_lite import device
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(device, "memory_available", lambda _device: 2 << 30)
+    run = _run(tmp_path, "run", {**BUNDLE, "config": _config(**{"sampling.mesh_resolution": 2048})})
+    line = _one_line(capsys, main(["sample", run, "--out", "s", "-n", "1", "--workers", "0", "--steps", "3"]))
+    assert "sampling.mesh_resolution of the model's config (used without --mesh-resolution) 2048 is too large" in line
+    assert not (tmp_path / "s").exists()
