@@ -102,12 +102,35 @@ def resume_trainer(trainer, path: Path) -> None:
     """Load the checkpoint ``path`` into ``trainer`` (one of its kind; a mismatch names the file)."""
     label = trainer.kind
     state = load_trainer_checkpoint(path, label)
+    check_trainer_state(path, label, trainer.cfg, state)
     try:
         trainer.load_state_dict(state)
     except KeyError as e:
         raise not_ours(path, label, f"the entry {e} is missing") from None
     except (RuntimeError, ValueError, TypeError, AttributeError, IndexError) as e:
         raise not_ours(path, label, f"its contents do not match ({type(e).__name__})") from None
+
+
+def check_trainer_state(path: Path, label: str, cfg, state: dict) -> None:
+    """Refuse a trainer checkpoint whose step is not from 0 to the config's steps, or that was trained with other
+    settings than the run's config.json now holds (the precision and compilation aside): resuming it would
+    train on with settings it was not made with."""
+    from dataclasses import asdict
+
+    steps = cfg.steps  # the config's section of the trainer ``label``
+    step = state.get("step")
+    if not isinstance(step, int) or isinstance(step, bool) or not 0 <= step <= steps:
+        raise not_ours(path, label, f"its step {step!r} is not a whole number from 0 to the config's {steps:,}")
+    stored, now = state.get("config"), asdict(cfg)
+    if not isinstance(stored, dict):
+        raise not_ours(path, label, "it records no settings")
+    differ = [k for k in now if k in stored and k not in ("precision", "compile") and stored[k] != now[k]]
+    if differ:
+        shown = "; ".join(f"{label}.{k} {stored[k]!r} there, {now[k]!r} in config.json" for k in differ[:3])
+        raise Sin3DMInputError(
+            f"cannot resume: '{path}' was trained with other settings than the run's config.json ({shown}); put "
+            f"back the settings it was trained with, or delete it to train the {label} again from its first step"
+        )
 
 
 def save_trainer(trainer, path: Path) -> None:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .checkpoints import MODEL_FILE, load_trainer_checkpoint
+from .checkpoints import MODEL_FILE, check_trainer_state, load_trainer_checkpoint
 from .data.config import Config
 from .data.grid import load_grid
 from .data.presets import get_preset
@@ -211,8 +211,8 @@ def fit_configs(asked: Config) -> list[Config]:
 
 def check_config_matches_run(run: Path, cfg: Config) -> None:
     """Refuse to resume ``run`` when its config.json ``cfg`` is not what the fit recorded (input.json, with the
-    switches a fit makes) or does not match its grid.npz: the grid and checkpoints would be trained on with
-    settings they were not made with."""
+    switches a fit makes), not what its trainer checkpoints were trained with, or does not match its grid.npz: the
+    grid and checkpoints would be trained on with settings they were not made with."""
     rec = read_input(run)
     if rec is not None and isinstance(rec.get("config"), dict):
         have = trained_settings(cfg)
@@ -226,6 +226,11 @@ def check_config_matches_run(run: Path, cfg: Config) -> None:
                 f"cannot resume: '{run / 'config.json'}' no longer holds the settings the fit recorded in {INPUT_FILE} "
                 f"({shown}{more}); its grid and checkpoints were made with those: put them back, or fit with the new "
                 "settings into a new --out"
+            )
+    for kind in ("autoencoder", "diffusion"):  # checked now, before the autoencoder stage trains on or writes
+        if (run / f"{kind}.pt").exists():
+            check_trainer_state(
+                run / f"{kind}.pt", kind, getattr(cfg, kind), load_trainer_checkpoint(run / f"{kind}.pt", kind)
             )
     grid = run / "grid.npz"
     if grid.is_file():
