@@ -286,8 +286,8 @@ def check_same_request(run: Path, asked: dict, asked_cfg: Config | None, pbr: bo
 def read_report(run: Path) -> dict:
     """The run folder's report.json, or {} when it is missing or unreadable (it is only a record)."""
     try:
-        report = json.loads((run / "report.json").read_text())
-    except (OSError, ValueError):
+        report = read_json(run / "report.json", "a run's report")
+    except (OSError, ValueError):  # a FIFO or a device is refused (Sin3DMInputError is a ValueError) unread
         return {}
     return report if isinstance(report, dict) else {}
 

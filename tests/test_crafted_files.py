@@ -13,6 +13,7 @@ import shutil
 import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import trimesh
@@ -255,6 +256,27 @@ def _edit(path: Path, **changes) -> None:
     path.write_text(json.dumps(d))
 
 
+def _grid_with(path: Path, **arrays) -> None:
+    """Rewrite the grid file ``path`` with ``arrays`` replaced; ``sdf=None``: an sdf whose header declares 10^15
+    values (a few bytes follow it: a reader that trusts the header allocates petabytes)."""
+    import zipfile
+
+    with np.load(path) as z:
+        entries = {k: z[k] for k in z.files}
+    entries.update(arrays)
+    entries = {k: v for k, v in entries.items() if v is not None}
+    np.savez(path.with_suffix(".tmp.npz"), **entries)
+    path.with_suffix(".tmp.npz").replace(path)
+    if "sdf" in arrays and arrays["sdf"] is None:
+        header = {"descr": "<f4", "fortran_order": False, "shape": (10**5, 10**5, 10**5)}
+        with zipfile.ZipFile(path, "a") as zf:
+            import io
+
+            buf = io.BytesIO()
+            np.lib.format.write_array_header_2_0(buf, header)
+            zf.writestr("sdf.npy", buf.getvalue() + b"\0" * 64)
+
+
 def _snapshot(root: Path) -> dict:
     return {p.name: (p.stat().st_size, p.stat().st_mtime_ns) for p in root.iterdir()}
 
@@ -299,6 +321,14 @@ RESUMES = {
             {**torch.load(r / "diffusion.pt", weights_only=True), "step": -(10**9)}, r / "diffusion.pt"
         ),
         "'r/diffusion.pt' was not made by this version of sin3dm-lite (its step -1000000000 is not a whole number",
+    ),
+    "grid-nan-box": (
+        lambda r: _grid_with(r / "grid.npz", aabb=np.full(6, np.nan, np.float32)),
+        "'r/grid.npz' was not made by this version of sin3dm-lite (its box (aabb) is not six finite numbers",
+    ),
+    "grid-declares-petabytes": (
+        lambda r: _grid_with(r / "grid.npz", sdf=None),
+        "its array 'sdf.npy' declares 1,000,000,000,000,000 values",
     ),
     "record-damaged": (lambda r: (r / "input.json").write_text("{"), "'r/input.json' is damaged"),
     "record-emptied": (lambda r: (r / "input.json").write_text("{}"), "'r/input.json' is damaged"),
