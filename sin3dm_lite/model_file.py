@@ -50,6 +50,8 @@ def model_parts(path: Path, b: dict) -> tuple:
     aabb = stored_box(path, b["aabb"])
     norm = stored_normalization(path, b["center"], b["scale"])
     report = json_dict(path, "report", b["report"])
+    if (why := report_problem(report)) is not None:
+        raise bad(path, why)
     color = b["color_channels"]
     want = sum(PBR_HEADS.values()) if cfg.autoencoder.pbr else 3
     if not isinstance(color, int) or isinstance(color, bool) or color != want:
@@ -78,6 +80,27 @@ def json_dict(path: Path, field: str, text) -> dict:
     if not isinstance(value, dict):
         raise bad(path, f"its {field} is not a JSON object")
     return value
+
+
+def report_problem(report: dict) -> str | None:
+    """What is wrong with the fields of a model's report that sampling and evaluation read (None: nothing)."""
+    shape = report.get("grid_shape")
+    if shape is not None and not (
+        isinstance(shape, list)
+        and len(shape) == 3
+        and all(isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 1024 for n in shape)
+    ):
+        return f"its report's grid_shape {shape!r} is not three whole numbers from 1 to 1024"
+    for key in ("input", "input_path", "preset"):
+        if report.get(key) is not None and not isinstance(report[key], str):
+            return f"its report's {key} is not a string"
+    for key in ("reconstruction", "calibration", "precision"):
+        if report.get(key) is not None and not isinstance(report[key], dict):
+            return f"its report's {key} is not a JSON object"
+    diversity = (report.get("calibration") or {}).get("diversity")
+    if diversity is not None and not (isinstance(diversity, (int, float)) and 0 <= diversity <= 1):
+        return f"its report's calibrated diversity {diversity!r} is not a number from 0 to 1"
+    return None
 
 
 def stored_config(path: Path, text) -> Config:

@@ -88,6 +88,10 @@ MODELS = {
     ),
     "latent-missing-plane": ({**BUNDLE, "latent": {"xy": BUNDLE["latent"]["xy"]}}, "three planes"),
     "report-a-list": ({**BUNDLE, "report": "[1, 2]"}, "its report is not a JSON object"),
+    "report-grid-shape": (
+        {**BUNDLE, "report": json.dumps({"grid_shape": [10**9, 1, 1]})},
+        "its report's grid_shape [1000000000, 1, 1] is not three whole numbers",
+    ),
     "decoder-not-tensors": ({**BUNDLE, "decoder": {"threshold": 0.1}}, "its decoder is not a dictionary of tensors"),
     "denoiser-extra-weight": (
         {**BUNDLE, "denoiser": {**BUNDLE["denoiser"], "extra.weight": torch.zeros(1)}},
@@ -329,6 +333,10 @@ RESUMES = {
     "grid-declares-petabytes": (
         lambda r: _grid_with(r / "grid.npz", sdf=None),
         "its array 'sdf.npy' declares 1,000,000,000,000,000 values",
+    ),
+    "report-switch-damaged": (
+        lambda r: (r / "report.json").write_text(json.dumps({"thin_parts_switch": "yes"})),
+        "'r/report.json' is damaged (its thin_parts_switch is not the record of a switch",
     ),
     "record-damaged": (lambda r: (r / "input.json").write_text("{"), "'r/input.json' is damaged"),
     "record-emptied": (lambda r: (r / "input.json").write_text("{}"), "'r/input.json' is damaged"),
