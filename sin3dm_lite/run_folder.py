@@ -15,7 +15,9 @@ an uninterrupted one would::
     RUN/report.json        reconstruction metrics, timings, step counts (while a switched fit runs:
                            only the records of its thin-part and rollout switches, kept for --resume)
     RUN/input.json         what the fit was asked for: the input's name and digest (runs.input_digest) and the
-                           settings before any switch; --resume refuses another input or other settings
+                           settings before any switch; --resume refuses another input or other settings, and
+                           a config.json emptied, damaged or edited away from it (the fit's own switches aside),
+                           from grid.npz's resolution or from what the checkpoints were trained with
 
 The torch files in it are read and written by :mod:`sin3dm_lite.checkpoints`.
 """
