@@ -219,7 +219,7 @@ def built(path: Path, name: str, make, weights: dict, cfg: Config) -> torch.nn.M
 
     try:
         with torch.device("meta"):
-            layout = make().state_dict()
+            layout = make().state_dict()  # shapes only: nothing is allocated
     except (ValueError, RuntimeError, TypeError) as e:
         raise bad(path, f"its config makes no {name} ({e})") from None
     need = sum(t.numel() * t.element_size() for t in layout.values())
@@ -244,6 +244,38 @@ def built(path: Path, name: str, make, weights: dict, cfg: Config) -> torch.nn.M
     net = make()
     net.load_state_dict(weights)
     return net
+
+
+def layout_bytes(make) -> int:
+    """The bytes of the weights of the network ``make()`` builds, laid out on the meta device (nothing allocated)."""
+    with torch.device("meta"):
+        return sum(t.numel() * t.element_size() for t in make().state_dict().values())
+
+
+#: a network in training holds its weights, their gradients, Adam's two moments and (the denoiser) an EMA copy
+TRAINING_COPIES = 5
+
+
+def check_network_sizes(cfg: Config) -> None:
+    """Refuse a config whose networks would not fit in memory in training, before anything is built or written
+    (a config edited by hand, or a run folder from a stranger, can ask for hundreds of GiB)."""
+    from .device import memory_available
+    from .model.unet import TriplaneUNet
+
+    a = cfg.autoencoder
+    color = sum(PBR_HEADS.values()) if a.pbr else 3
+    nets = {
+        "decoder": lambda: TriplaneDecoder(a, 1.0, color),
+        "denoiser": lambda: TriplaneUNet(a.latent_channels, cfg.diffusion),
+    }
+    have = memory_available("cpu")
+    for name, make in nets.items():
+        need = TRAINING_COPIES * layout_bytes(make)
+        if need > have // 2:
+            raise Sin3DMInputError(
+                f"the config's {name} ({size_settings(cfg, name)}) needs about {need / 2**30:,.1f} GiB to train, "
+                f"more than half the {have / 2**30:,.1f} GiB of memory available; choose smaller settings"
+            )
 
 
 def size_settings(cfg: Config, name: str) -> str:

@@ -35,7 +35,7 @@ from .errors import Sin3DMInputError
 from .files import acquire_lock, create_locked_folder, release_lock
 from .fit_policy import check_flips
 from .input_files import read_json
-from .model_file import missing_settings
+from .model_file import check_network_sizes, missing_settings
 
 INPUT_FILE = "input.json"
 RUN_FILES = (
@@ -78,6 +78,8 @@ def prepare_run(
         check_flips(cfg)
         if seed is not None:
             cfg = cfg.updated(seed=seed)
+    if cfg is not None:
+        check_network_sizes(cfg)  # before any folder is made
     if run is None:
         if resume:
             raise Sin3DMInputError("resume needs a run folder; pass out=RUN_DIR (CLI: --out RUN_DIR)")
@@ -115,6 +117,7 @@ def _resumed_config(
         )
     cfg = read_run_config(cfg_file)
     check_config_matches_run(run, cfg)
+    check_network_sizes(cfg)
     if asked is not None:  # another mesh or other settings would train on top of this run's checkpoints
         if asked_cfg is None and (seed is not None or pbr is not None):  # the run's own, with these changed
             asked_cfg = recorded_config(run, cfg).updated(**({} if seed is None else {"seed": seed}))

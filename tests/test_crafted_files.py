@@ -388,3 +388,16 @@ def test_a_size_from_the_models_config_is_named_as_such(tmp_path, monkeypatch, c
     line = _one_line(capsys, main(["sample", run, "--out", "s", "-n", "1", "--workers", "0", "--steps", "3"]))
     assert "sampling.mesh_resolution of the model's config (used without --mesh-resolution) 2048 is too large" in line
     assert not (tmp_path / "s").exists()
+
+
+def test_fit_with_a_network_beyond_memory_is_refused_before_any_work(
+    tmp_path, monkeypatch, capsys, real_nets_stay_small
+):
+    """The same estimate for a fit: --set (or a config.json and input.json edited together) that asks for a denoiser
+    of terabytes is refused before the grid is made, and no run folder is left."""
+    monkeypatch.chdir(tmp_path)
+    argv = ["fit", "wall", "--preset", "tiny", "--out", "r", "--set", "grid.resolution=24", "autoencoder.steps=2"]
+    argv += ["diffusion.base_channels=4096", "diffusion.n_resblocks=64"]
+    line = _one_line(capsys, main(argv))
+    assert "the config's denoiser (diffusion.base_channels 4096, n_resblocks 64" in line and "GiB to train" in line
+    assert list(tmp_path.iterdir()) == []
