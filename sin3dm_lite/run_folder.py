@@ -135,6 +135,8 @@ def read_input(run: Path) -> dict | None:
     why = None
     try:
         rec = read_json(path, "a run's record")
+    except Sin3DMInputError:  # not a regular file: said as it is
+        raise
     except (OSError, ValueError) as e:
         rec, why = None, f"it cannot be read as JSON ({type(e).__name__})"
     if why is None and not (isinstance(rec, dict) and isinstance(rec.get("digest"), str)):
@@ -169,6 +171,8 @@ def read_run_config(cfg_file: Path) -> Config:
     why = None
     try:
         d = read_json(cfg_file, "a run's config")
+    except Sin3DMInputError:  # not a regular file: said as it is
+        raise
     except (OSError, ValueError) as e:
         d, why = None, f"it cannot be read as JSON ({type(e).__name__}; truncated?)"
     if why is None and (gaps := missing_settings(d)):

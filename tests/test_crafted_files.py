@@ -338,19 +338,23 @@ RESUMES = {
         lambda r: (r / "report.json").write_text(json.dumps({"thin_parts_switch": "yes"})),
         "'r/report.json' is damaged (its thin_parts_switch is not the record of a switch",
     ),
+    "config-a-fifo": (
+        lambda r: ((r / "config.json").unlink(), os.mkfifo(r / "config.json")),
+        "'r/config.json' is a named pipe (FIFO), not a regular file",
+    ),
     "record-damaged": (lambda r: (r / "input.json").write_text("{"), "'r/input.json' is damaged"),
     "record-emptied": (lambda r: (r / "input.json").write_text("{}"), "'r/input.json' is damaged"),
 }
 
 
 @pytest.mark.parametrize("case", list(RESUMES))
-def test_resume_with_a_damaged_or_edited_config_is_refused(micro_fit, tmp_path, monkeypatch, capsys, case):
+def test_resume_with_a_damaged_or_edited_config_is_refused(micro_fit, tmp_path, monkeypatch, capsys, unblock, case):
     damage, words = RESUMES[case]
     monkeypatch.chdir(tmp_path)
     shutil.copytree(micro_fit[1], tmp_path / "r")
     damage(tmp_path / "r")
     before = _snapshot(tmp_path / "r")
-    line = _one_line(capsys, main(["fit", "wall", "--out", "r", "--resume"]))
+    line = _one_line(capsys, _within(60, lambda: main(["fit", "wall", "--out", "r", "--resume"])))
     assert words in line, line
     if not case.startswith("checkpoint"):  # the right advice for a trainer checkpoint, not for the config
         assert "delete it to restart" not in line
