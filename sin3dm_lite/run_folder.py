@@ -64,8 +64,8 @@ def check_run_folder(run: Path, source, resume: bool) -> None:
         for kind in ("autoencoder", "diffusion"):
             if (run / f"{kind}.pt").exists():
                 load_trainer_checkpoint(run / f"{kind}.pt", kind)
-        if (run / "grid.npz").exists():
-            load_grid(run / "grid.npz")
+        if (run / "grid.npz").exists() or (run / "grid.npz").is_symlink():
+            load_grid(run / "grid.npz", fix="delete it: the resumed fit makes it again from the mesh")
 
 
 def prepare_run(
@@ -181,9 +181,9 @@ def read_run_config(cfg_file: Path) -> Config:
             if gaps == ["(all)"]
             else "it is an empty JSON object"
             if d == {}
-            else f"it lacks the setting '{gaps[0]}'"
+            else f"it lacks the setting '{gaps[0]}'" + (f" and {len(gaps) - 1} more" if len(gaps) > 1 else "")
         )
-        why = what + (f" and {len(gaps) - 1} more" if len(gaps) > 1 else "")
+        why = what
     if why is None:
         try:
             return Config.from_dict(d)

@@ -287,7 +287,7 @@ def _snapshot(root: Path) -> dict:
 
 #: name → (what is done to the copied run folder, words of the one line)
 RESUMES = {
-    "config-emptied": (lambda r: (r / "config.json").write_text("{}"), "'r/config.json' is damaged (it is an empty"),
+    "config-emptied": (lambda r: (r / "config.json").write_text("{}"), "'r/config.json' is damaged (it is an empty JSON object); it holds"),
     "config-a-list": (lambda r: (r / "config.json").write_text("[1, 2, 3]"), "(it is not a JSON object)"),
     "config-truncated": (
         lambda r: (r / "config.json").write_text((r / "config.json").read_text()[:100]),
@@ -328,7 +328,7 @@ RESUMES = {
     ),
     "grid-nan-box": (
         lambda r: _grid_with(r / "grid.npz", aabb=np.full(6, np.nan, np.float32)),
-        "'r/grid.npz' was not made by this version of sin3dm-lite (its box (aabb) is not six finite numbers",
+        "(its box (aabb) is not six finite numbers of a box inside [-1, 1]); delete it: the resumed fit makes it again",
     ),
     "grid-declares-petabytes": (
         lambda r: _grid_with(r / "grid.npz", sdf=None),

@@ -357,9 +357,10 @@ def save_grid(grid: ShapeGrid, path: str | Path) -> Path:
     return path
 
 
-def load_grid(path: str | Path) -> ShapeGrid:
+def load_grid(path: str | Path, fix: str | None = None) -> ShapeGrid:
     """Read a grid written by :func:`save_grid`: the sizes its arrays declare checked before any is read (a crafted
-    header could ask for any amount of memory), their shapes and values after (one line naming the file)."""
+    header could ask for any amount of memory), their shapes and values after (one line naming the file and, with
+    ``fix``, what to do; by default: write it again with ``sin3dm-lite grid``)."""
     from ..input_files import check_regular
 
     path = Path(path)
@@ -389,8 +390,8 @@ def load_grid(path: str | Path) -> ShapeGrid:
         why = f"the entry {e} is missing" if isinstance(e, KeyError) else "it is truncated or not a grid file"
     if why is not None:
         raise Sin3DMInputError(
-            f"'{path}' was not made by this version of sin3dm-lite ({why}); write it again with "
-            f"`sin3dm-lite grid MESH --out {path.name}`"
+            f"'{path}' was not made by this version of sin3dm-lite ({why}); "
+            + (fix or f"write it again with `sin3dm-lite grid MESH --out {path.name}`")
         )
     return grid
 
