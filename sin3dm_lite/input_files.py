@@ -58,7 +58,7 @@ def what_text_is(head: bytes) -> str | None:
     text = head.lstrip(b"\xef\xbb\xbf \t\r\n").lower()
     if text.startswith(b"version https://git-lfs"):
         return "a Git LFS pointer, not the file itself; run `git lfs pull` in the repository it came from"
-    if text.startswith((b"<!doctype html", b"<html", b"<head", b"<?xml")) or b"<html" in text[:512]:
+    if text.startswith((b"<!doctype html", b"<html", b"<head")) or b"<html" in text[:512]:
         return "an HTML page, not a checkpoint; download the file itself (the site's raw or download link)"
     return None
 
