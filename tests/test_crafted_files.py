@@ -287,7 +287,10 @@ def _snapshot(root: Path) -> dict:
 
 #: name → (what is done to the copied run folder, words of the one line)
 RESUMES = {
-    "config-emptied": (lambda r: (r / "config.json").write_text("{}"), "'r/config.json' is damaged (it is an empty JSON object); it holds"),
+    "config-emptied": (
+        lambda r: (r / "config.json").write_text("{}"),
+        "'r/config.json' is damaged (it is an empty JSON object); it holds",
+    ),
     "config-a-list": (lambda r: (r / "config.json").write_text("[1, 2, 3]"), "(it is not a JSON object)"),
     "config-truncated": (
         lambda r: (r / "config.json").write_text((r / "config.json").read_text()[:100]),
