@@ -15,13 +15,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .data.config import Config
-from .data.mesh import Normalization
 from .errors import Sin3DMInputError
 from .files import atomic_path, atomic_paths, save_torch, write_data
-from .model.autoencoder import TriplaneDecoder
+from .input_files import check_regular, what_text_is
 from .model.training import checkpoint_problem
-from .model.triplane import Triplane
+from .model_file import model_parts
 
 MODEL_FILE = "model.pt"
 MODEL_FORMAT = "sin3dm-lite/1"
@@ -34,7 +32,7 @@ def atomic_torch_save(obj, path: Path) -> None:
 
 
 def not_ours(path: Path, what: str, why: str) -> Sin3DMInputError:
-    """The error for a file ``path`` (a ``what``: "model", a trainer's kind, "config") this version cannot read."""
+    """The error for a file ``path`` (a ``what``: "model" or a trainer's kind) this version cannot read."""
     return Sin3DMInputError(
         f"'{path}' was not made by this version of sin3dm-lite ({why}); "
         + (
@@ -48,18 +46,30 @@ def not_ours(path: Path, what: str, why: str) -> Sin3DMInputError:
 def load_checkpoint(path: Path, what: str = "checkpoint") -> dict:
     """``torch.load`` with ``weights_only=True``: checkpoints hold tensors and plain containers only.
 
-    A file that is truncated, not a checkpoint, holds code (a pickle of
-    arbitrary objects) or is not a dictionary gives a :class:`Sin3DMInputError`
-    naming the file; it is never unpickled with code.
+    A file that is not regular (a FIFO, a device: refused before it is opened), truncated, not a checkpoint (text:
+    a Git LFS pointer or an HTML page is named as such), holds code (a pickle of arbitrary objects) or is not a
+    dictionary gives a :class:`Sin3DMInputError` naming the file; it is never unpickled with code.
     """
     import pickle
-    import zipfile
 
+    check_regular(path, "a checkpoint")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1024)
+    except OSError as e:
+        raise not_ours(path, what, f"it cannot be read: {e.strerror or e}") from None
+    if (text := what_text_is(head)) is not None:
+        raise Sin3DMInputError(f"'{path}' is {text}")
+    if not head.startswith((b"PK\x03\x04", b"\x80")):  # torch's zip format, or its older pickle format
+        why = "it is empty" if not head else "it is text" if _is_text(head) else "it is not a PyTorch checkpoint"
+        raise not_ours(path, what, why)
     try:
         b = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:  # weights_only refused an object: the file holds more than tensors
         raise not_ours(path, what, "it holds Python objects other than tensors, which are not loaded") from None
-    except (RuntimeError, EOFError, ValueError, zipfile.BadZipFile, OSError, UnicodeDecodeError, AttributeError) as e:
+    except MemoryError:
+        raise not_ours(path, what, "it declares more data than fits in memory") from None
+    except Exception as e:  # noqa: BLE001 - truncated, damaged or crafted: torch fails in many ways
         raise not_ours(
             path,
             what,
@@ -69,6 +79,11 @@ def load_checkpoint(path: Path, what: str = "checkpoint") -> dict:
     if not isinstance(b, dict):
         raise not_ours(path, what, f"it holds a {type(b).__name__}, not a dictionary")
     return b
+
+
+def _is_text(head: bytes) -> bool:
+    """Whether ``head`` (a file's first bytes) looks like text: no control characters but tabs and line ends."""
+    return not any(c < 32 and c not in b"\t\r\n" or c == 127 for c in head)
 
 
 def load_trainer_checkpoint(path: Path, kind: str) -> dict:
@@ -87,12 +102,35 @@ def resume_trainer(trainer, path: Path) -> None:
     """Load the checkpoint ``path`` into ``trainer`` (one of its kind; a mismatch names the file)."""
     label = trainer.kind
     state = load_trainer_checkpoint(path, label)
+    check_trainer_state(path, label, trainer.cfg, state)
     try:
         trainer.load_state_dict(state)
     except KeyError as e:
         raise not_ours(path, label, f"the entry {e} is missing") from None
     except (RuntimeError, ValueError, TypeError, AttributeError, IndexError) as e:
         raise not_ours(path, label, f"its contents do not match ({type(e).__name__})") from None
+
+
+def check_trainer_state(path: Path, label: str, cfg, state: dict) -> None:
+    """Refuse a trainer checkpoint whose step is not from 0 to the config's steps, or that was trained with other
+    settings than the run's config.json now holds (the precision and compilation aside): resuming it would
+    train on with settings it was not made with."""
+    from dataclasses import asdict
+
+    steps = cfg.steps  # the config's section of the trainer ``label``
+    step = state.get("step")
+    if not isinstance(step, int) or isinstance(step, bool) or not 0 <= step <= steps:
+        raise not_ours(path, label, f"its step {step!r} is not a whole number from 0 to the config's {steps:,}")
+    stored, now = state.get("config"), asdict(cfg)
+    if not isinstance(stored, dict):
+        raise not_ours(path, label, "it records no settings")
+    differ = [k for k in now if k in stored and k not in ("precision", "compile") and stored[k] != now[k]]
+    if differ:
+        shown = "; ".join(f"{label}.{k} {stored[k]!r} there, {now[k]!r} in config.json" for k in differ[:3])
+        raise Sin3DMInputError(
+            f"cannot resume: '{path}' was trained with other settings than the run's config.json ({shown}); put "
+            f"back the settings it was trained with, or delete it to train the {label} again from its first step"
+        )
 
 
 def save_trainer(trainer, path: Path) -> None:
@@ -131,24 +169,10 @@ def model_bundle(model) -> dict:
 
 def read_model(path: Path) -> tuple:
     """The parts of the model ``model.pt`` at ``path`` holds, in the order ``Sin3DM(...)`` takes them:
-    ``(config, decoder, latent, denoiser, aabb, normalization, report)``."""
-    from .model.unet import TriplaneUNet
-
+    ``(config, decoder, latent, denoiser, aabb, normalization, report)``; every field checked first
+    (:func:`~sin3dm_lite.model_file.model_parts`: nothing is built that the file's weights do not fill)."""
     b = load_checkpoint(path, "model")
     fmt = b.get("format")
     if fmt != MODEL_FORMAT:
         raise not_ours(path, "model", f"its format is {fmt!r}, not '{MODEL_FORMAT}'" if fmt else "it has no format tag")
-    try:
-        cfg = Config.from_dict(json.loads(b["config"]))
-        latent = Triplane.from_state_dict(b["latent"])
-        decoder = TriplaneDecoder(cfg.autoencoder, float(b["decoder"]["threshold"]), int(b["color_channels"]))
-        decoder.load_state_dict(b["decoder"])
-        denoiser = TriplaneUNet(latent.channels, cfg.diffusion)
-        denoiser.load_state_dict(b["denoiser"])
-        norm = Normalization(center=b["center"].numpy(), scale=float(b["scale"]))
-        aabb, report = b["aabb"].numpy(), json.loads(b["report"])
-    except KeyError as e:
-        raise not_ours(path, "model", f"the entry {e} is missing") from None
-    except Exception as e:  # noqa: BLE001 - wrong shapes, types or JSON: one clear message
-        raise not_ours(path, "model", f"its contents do not match ({type(e).__name__})") from None
-    return cfg, decoder, latent, denoiser, aabb, norm, report
+    return model_parts(path, b)

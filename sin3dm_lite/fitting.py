@@ -131,7 +131,13 @@ class FitRun:
 
     def recorded(self, switch: str):
         """What a resumed run's report recorded of a switch it made before it stopped (None: fresh, or no switch)."""
-        return read_report(self.run).get(switch) if self.resume and self.run is not None else None
+        record = read_report(self.run).get(switch) if self.resume and self.run is not None else None
+        if record is not None and not switch_record_ok(switch, record):
+            raise Sin3DMInputError(
+                f"cannot resume: '{self.run / 'report.json'}' is damaged (its {switch} is not the record of a "
+                "switch this fit made); put back the original, or fit again into a new --out"
+            )
+        return record
 
     def stages(self, source, preset, seed, pbr, allow_outside_paths):
         """All stages, saved into the run folder at the end; the fitted model."""
@@ -410,6 +416,20 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say, until_ste
         for s, handler in old.items():
             signal.signal(s, handler)
     save(trainer)  # the last step, unless the callback just wrote it
+
+
+def switch_record_ok(switch: str, record) -> bool:
+    """Whether ``record`` is what :meth:`FitRun.grid` (``thin_parts_switch``) or :meth:`FitRun.switch_to_rollout`
+    (``rollout_switch``) writes into report.json: a resumed fit reads its fields."""
+    if not isinstance(record, dict):
+        return False
+    if switch == "rollout_switch":
+        plain = record.get("plain_calibration")
+        return isinstance(plain, dict) and isinstance(record.get("plain_s"), (int, float))
+    wide = record.get("wide_field")
+    return isinstance(record.get("from"), str) and (
+        wide is None or (isinstance(wide, dict) and isinstance(wide.get("undo"), dict))
+    )
 
 
 def copies_check(model, thin_parts: dict | None) -> tuple[float, str | None]:

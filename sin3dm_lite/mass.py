@@ -83,7 +83,13 @@ def check_sample_sizes(model, plan, req: SampleRequest) -> None:
             r.texture_size,
             plan.aabb,
             parallel=parallel,
-            names=("--mesh-resolution", "--texture-size"),
+            names=tuple(  # a value from the model's config is named as such (issue 60)
+                f"--{flag}" if given is not None else f"sampling.{key} of the model's config (used without --{flag})"
+                for flag, key, given in (
+                    ("mesh-resolution", "mesh_resolution", req.mesh_resolution),
+                    ("texture-size", "texture_size", req.texture_size),
+                )
+            ),
         )
 
     workers = req.export_workers()

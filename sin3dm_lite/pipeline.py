@@ -37,6 +37,7 @@ from .device import get_device
 from .errors import Sin3DMInputError
 from .evaluate import evaluation
 from .fit_policy import warn_if_poor
+from .input_files import check_regular
 from .model.autoencoder import TriplaneDecoder
 from .model.triplane import Triplane
 from .sampling import Samples
@@ -446,7 +447,7 @@ class Sin3DM:
     def load(cls, run_dir: str | Path, device=None) -> Sin3DM:
         """Load a fitted model from a run folder (or a ``model.pt`` file)."""
         path = Path(run_dir)
-        path = path / MODEL_FILE if path.is_dir() else path
+        path = check_regular(path / MODEL_FILE if path.is_dir() else path, "a model")  # a FIFO would block
         if not path.is_file():
             raise Sin3DMInputError(
                 f"no fitted model at '{run_dir}' (expected {MODEL_FILE}); fit one with `sin3dm-lite fit MESH --out DIR`"

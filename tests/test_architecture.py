@@ -38,6 +38,7 @@ LAYERS = {
     "files.locks": BASE,
     "files.manifest": BASE,
     "files.outputs": BASE,
+    "input_files": BASE,  # the one check of every path a user hands over (regular files only; text named)
     # data: settings, geometry of the box, meshes and their files, built-in shapes, mesh → TSDF grid (tsdf computes it)
     "data": DATA,
     "data.config": DATA,
@@ -138,6 +139,7 @@ LAYERS = {
     "fit_default": APP,
     "run_folder": APP,
     "checkpoints": APP,
+    "model_file": APP,  # every field of a model.pt checked before anything is built
     "sampling": APP,
     "request": APP,
     "notebook_run": APP,  # runs the notebooks at reading settings and records their outputs

@@ -177,13 +177,13 @@ def _supersample(voxels: str) -> int:
 def run_report(run: Path) -> dict | None:
     """The run's ``report.json`` (None without one), read and checked before a command changes the run: a damaged
     one refuses here, before the long work and before any file of the run is replaced."""
-    import json
+    from ..input_files import read_json
 
     path = run / "report.json"
     if not path.exists() and not path.is_symlink():
         return None
     try:
-        report = json.loads(path.read_text(encoding="utf-8"))
+        report = read_json(path, "a run's report")  # a FIFO or a device is refused, not read
     except (OSError, ValueError) as e:
         why = e.strerror if isinstance(e, OSError) else f"not JSON: {e}"
         report = why

@@ -66,6 +66,11 @@ def cmd_grid(a) -> None:
         raise Sin3DMInputError(
             f"'{out}' exists; pass --overwrite to replace it (only if sin3dm-lite wrote it) or choose another --out"
         )
+    if out.name == "grid.npz" and (out.parent / "config.json").is_file():  # a fit's own grid, not a foreign file
+        raise Sin3DMInputError(
+            f"'{out}' is the grid of the fit in '{out.parent}' (written by `sin3dm-lite fit`, which trains on it and "
+            "resumes from it); `grid` does not replace it: choose another --out"
+        )
     if out.exists() and not is_ours(out.parent, out.name, by="grid"):
         raise clash_error(out.parent, out.name, by="grid")
     check_writable(out)

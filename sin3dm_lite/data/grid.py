@@ -357,16 +357,22 @@ def save_grid(grid: ShapeGrid, path: str | Path) -> Path:
     return path
 
 
-def load_grid(path: str | Path) -> ShapeGrid:
-    """Read a grid written by :func:`save_grid`."""
+def load_grid(path: str | Path, fix: str | None = None) -> ShapeGrid:
+    """Read a grid written by :func:`save_grid`: the sizes its arrays declare checked before any is read (a crafted
+    header could ask for any amount of memory), their shapes and values after (one line naming the file and, with
+    ``fix``, what to do; by default: write it again with ``sin3dm-lite grid``)."""
+    from ..input_files import check_regular
+
     path = Path(path)
+    check_regular(path, "a grid")
     if not path.is_file():
         raise Sin3DMInputError(
             f"grid file '{path}' not found; create one with `sin3dm-lite grid MESH --out {path.name}`"
         )
     try:
+        _check_declared_sizes(path)
         with np.load(path) as z:
-            return ShapeGrid(
+            grid = ShapeGrid(
                 sdf=z["sdf"],
                 color=z["color"],
                 aabb=z["aabb"],
@@ -377,8 +383,67 @@ def load_grid(path: str | Path) -> ShapeGrid:
                 point_color=z["point_color"],
                 name=str(z["name"]),
             )
+        why = _grid_problem(grid)
+    except _Damaged as e:
+        why = str(e)
     except Exception as e:  # noqa: BLE001 - truncated, foreign, pickled objects: one clear message
         why = f"the entry {e} is missing" if isinstance(e, KeyError) else "it is truncated or not a grid file"
+    if why is not None:
         raise Sin3DMInputError(
-            f"'{path}' was not made by this version of sin3dm-lite ({why}); write it again with `sin3dm-lite grid MESH --out {path.name}`"
-        ) from None
+            f"'{path}' was not made by this version of sin3dm-lite ({why}); "
+            + (fix or f"write it again with `sin3dm-lite grid MESH --out {path.name}`")
+        )
+    return grid
+
+
+class _Damaged(Exception):
+    """What is wrong with a grid file, said before its arrays are read."""
+
+
+#: a grid file's arrays: at most this many voxels along a side (grid.resolution's limit, margins and rounding added)
+MAX_GRID_SIDE = 1024
+
+
+def _check_declared_sizes(path: Path) -> None:
+    """The ``.npy`` headers of the grid file ``path``: no array larger than a grid of :data:`MAX_GRID_SIDE` voxels a
+    side could be, and all of them together within half the memory available."""
+    import zipfile
+
+    from ..device import memory_available
+
+    total = 0
+    with zipfile.ZipFile(path) as zf:
+        for info in zf.infolist():
+            with zf.open(info) as f:
+                version = np.lib.format.read_magic(f)
+                read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+                shape, _, dtype = read(f)
+            n = int(np.prod(shape, dtype=object))
+            if n > MAX_GRID_SIDE**3 * 8:  # the largest: the colours of a PBR grid
+                raise _Damaged(f"its array '{info.filename}' declares {n:,} values, more than any grid holds")
+            total += n * dtype.itemsize
+    if total > memory_available("cpu") // 2:
+        raise _Damaged(f"its arrays declare {total / 2**30:,.1f} GiB, more than half the memory available")
+
+
+def _grid_problem(g: ShapeGrid) -> str | None:
+    """What is wrong with a grid read from a file (None: nothing): shapes that disagree, values that are not finite,
+    a box or truncation out of range."""
+    a, n = np.asarray(g.aabb, np.float64), len(g.points)
+    if g.sdf.ndim != 3 or g.color.shape[:3] != g.sdf.shape or g.color.ndim != 4 or g.color.shape[3] not in (3, 8):
+        return f"its sdf {g.sdf.shape} and color {g.color.shape} are not one grid of 3 or 8 colour channels"
+    if max(g.sdf.shape) > MAX_GRID_SIDE or min(g.sdf.shape) < 1:
+        return f"its grid {g.sdf.shape} is not from 1 to {MAX_GRID_SIDE} voxels a side"
+    if g.points.shape != (n, 3) or g.point_sdf.shape != (n,) or g.point_color.shape != (n, g.color.shape[3]):
+        return "its training points, their SDF and their colours do not agree in number"
+    if a.shape != (6,) or not np.isfinite(a).all() or not ((a[3:] - a[:3] > 0).all() and np.abs(a).max() <= 1.0001):
+        return "its box (aabb) is not six finite numbers of a box inside [-1, 1]"
+    if not (np.isfinite(g.threshold) and 0 < g.threshold <= 8):
+        return f"its truncation {g.threshold!r} is not a number above 0 and at most 8"
+    c, scale = np.asarray(g.normalization.center, np.float64), g.normalization.scale
+    if c.shape != (3,) or not np.isfinite(c).all() or not (np.isfinite(scale) and scale > 0):
+        return "its normalisation (center, scale) is not finite"
+    arrays = (g.sdf, g.color, g.points, g.point_sdf, g.point_color)
+    if not all(np.issubdtype(x.dtype, np.floating) and np.isfinite(x).all() for x in arrays):
+        return "its arrays hold NaN, infinite or non-number values"
+    return None

@@ -28,6 +28,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import Sin3DMInputError
+from ..input_files import check_regular
 from .formats.common import Scope, assemble
 from .formats.images import array_to_pil, image_to_array  # noqa: F401
 from .formats.obj import load_obj
@@ -132,6 +133,7 @@ def check_input_path(path) -> Path:
         )
     if path.is_dir():
         raise Sin3DMInputError(f"'{path}' is a directory; give the path of a mesh file inside it")
+    check_regular(path, "a mesh")  # a FIFO or a device would block the reader forever
     if path.suffix.lower() not in SUPPORTED_EXTENSIONS:
         raise Sin3DMInputError(
             f"'{path.name}' has an unsupported extension '{path.suffix or '(none)'}'; supported mesh "

@@ -131,6 +131,9 @@ class FeatureNets:
 
 
 def _read_weights(path: Path, url: str) -> dict:
+    from ..input_files import check_regular
+
+    check_regular(path, "weights")  # a FIFO or a device would block torch.load forever
     try:
         sd = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - truncated, not a checkpoint, holds code: one clear message

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import Sin3DMInputError
+from ...input_files import check_regular, not_regular
 from ..mesh import MAX_COORDINATE, Material, TexturedMesh, face_areas, unique_rows
 
 #: the modules whose frames :func:`warn` skips: the readers and their entry points (``data/load.py``)
@@ -75,7 +76,8 @@ def resolve_asset(ref: str, base: Path, scope: Scope, what: str, cwd: bool = Tru
     then by its base name (also ignoring case) in ``base``; None if there is none.
 
     Files outside the mesh's folder are skipped (``scope``); if only such files exist, the reference is
-    refused (:class:`Sin3DMInputError` naming ``what``, the reference and the file).
+    refused (:class:`Sin3DMInputError` naming ``what``, the reference and the file). A candidate that is not a
+    regular file (a FIFO, a device) is refused too (:func:`~sin3dm_lite.input_files.check_regular`).
     """
     name = Path(ref.strip().strip('"').replace("\\", "/"))
 
@@ -88,6 +90,8 @@ def resolve_asset(ref: str, base: Path, scope: Scope, what: str, cwd: bool = Tru
 
     outside = None
     for candidate in candidates():
+        if not_regular(candidate) not in (None, "a folder"):  # a FIFO or a device would block the reader forever
+            check_regular(candidate, what)
         if candidate.is_file():
             if scope.allows(candidate):
                 return candidate
