@@ -50,15 +50,12 @@ from .request import SampleRequest  # what a run asks for, and its defaults
 
 def check_request(model, req: SampleRequest) -> None:
     """Refuse what sampling would refuse about the flags (``--steps`` out of range, ...) before the folder is touched."""
-    from .model.schedule import sampling_timesteps
+    from .sampling import check_sample_args
 
-    r = req.resolve(model.config.sampling)
-    steps, top = r.steps, model.schedule.timesteps
-    if r.method == "ddim" and not 1 <= steps <= top:
-        raise Sin3DMInputError(
-            f"--steps {steps} is more than this model's {top} time steps; ask for 1 to {top} DDIM steps"
-        )
-    sampling_timesteps(model.schedule, r.method, steps)
+    names = {"n": "-n", "steps": "--steps", "method": "the method", "seed": "--seed", "diversity": "--diversity"}
+    check_sample_args(
+        model, req.n, req.steps, req.method, req.seed, req.diversity, req.snap, names | {"snap": "--snap"}
+    )
 
 
 def check_sample_sizes(model, plan, req: SampleRequest) -> None:

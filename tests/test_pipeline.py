@@ -186,14 +186,14 @@ def test_mesh_sizes_beyond_memory_are_refused_with_the_largest_that_fits(fitted,
 
     model, _ = fitted
     s = model.input_sample()
-    with pytest.raises(Sin3DMInputError, match="mesh resolution 100000 is too large: at most [0-9]+ here"):
+    with pytest.raises(Sin3DMInputError, match="resolution 100000 is too large: at most [0-9]+ here"):
         model.to_mesh(s, 0, resolution=100000)
     monkeypatch.setattr(device, "memory_available", lambda dev: 1 << 30)  # 1 GiB free: half of it for one export
-    with pytest.raises(Sin3DMInputError, match="texture size 4096 is too large: at most ([0-9]+) here") as e:
+    with pytest.raises(Sin3DMInputError, match="texture_size 4096 is too large: at most ([0-9]+) here") as e:
         model.to_mesh(s, 0, resolution=32, texture_size=4096)
     told = int(str(e.value).split("at most ")[1].split()[0])
     assert 1024 < told < ((1 << 29) // EXPORT_BYTES_PER_TEXEL) ** 0.5  # the grid's share comes off the texture's
-    with pytest.raises(Sin3DMInputError, match="texture size must be a whole number from 16 to"):
+    with pytest.raises(Sin3DMInputError, match="texture_size must be a whole number of at least 16, got 8"):
         model.to_mesh(s, 0, resolution=32, texture_size=8)
 
 

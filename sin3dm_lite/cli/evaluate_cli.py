@@ -152,14 +152,14 @@ def cmd_evaluate(a) -> None:
 
 def cmd_calibrate(a) -> None:
     from ..files import acquire_lock, check_writable, release_lock
+    from ..pretrained import is_shipped
 
     run = find_run(a.run)
-    shipped = not Path(a.run).exists()  # a shipped model's folder is part of the installed package: print only
+    shipped = is_shipped(run)  # a shipped model's folder is part of the installed package: print only
     if not shipped:
-        check_writable(run)
-        acquire_lock(
-            run, "run folder"
-        )  # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile
+        check_writable(run, option="run folder")
+        # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile
+        acquire_lock(run, "run folder", option=None)
     try:
         _calibrate(a, run, shipped)
     finally:

@@ -71,12 +71,15 @@ def control_args(a) -> dict:
 
 
 def find_run(name: str) -> Path:
-    """A run folder, or the shipped model called ``name``; one-line error if neither."""
-    from ..pretrained import shipped_model, shipped_names
+    """A run folder, or the shipped model called ``name`` (the rule when both could be meant:
+    :func:`runs.shipped_or_folder`, as ``Sin3DM.open``'s); one-line error if neither."""
+    from ..pretrained import shipped_names
+    from ..runs import shipped_or_folder
 
+    found = shipped_or_folder(name)
+    if found is not None:
+        return found[1]
     run = Path(name)
-    if run.is_file() and run.name == "model.pt":  # the run folder's model, as Sin3DM.load takes it
-        run = run.parent
     if run.exists() and not run.is_dir():
         raise Sin3DMInputError(
             f"'{name}' is a file, not a run folder: a run folder is what `sin3dm-lite fit MESH --out "
@@ -84,13 +87,11 @@ def find_run(name: str) -> Path:
             f"model's name ({', '.join(shipped_names())})"
         )
     if not run.is_dir():
-        run = shipped_model(name)
-        if run is None:
-            raise Sin3DMInputError(
-                f"run folder '{name}' not found; fit one first with `sin3dm-lite fit MESH --out "
-                f"{name}`, or name a shipped model ({', '.join(shipped_names())})"
-            )
-    return run
+        raise Sin3DMInputError(
+            f"run folder '{name}' not found; fit one first with `sin3dm-lite fit MESH --out "
+            f"{name}`, or name a shipped model ({', '.join(shipped_names())})"
+        )
+    return run  # a folder without model.pt: Sin3DM.load says so
 
 
 def cmd_sample(a) -> None:
