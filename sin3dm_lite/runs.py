@@ -23,6 +23,7 @@ Anything else is refused with one line that says what ``RUN`` may be.
 from __future__ import annotations
 
 import hashlib
+import shlex
 import warnings
 from pathlib import Path
 
@@ -151,7 +152,7 @@ def resolve_run(run, preset, cache) -> tuple[str, Path]:
     if path.is_dir():
         raise Sin3DMInputError(
             f"RUN '{run}' is a folder without {MODEL_FILE}: an unfinished fit; continue it with "
-            f"`sin3dm-lite fit MESH --out {run} --resume`, or set RUN to the mesh to fit it into the cache"
+            f"`sin3dm-lite fit MESH --out {shlex.quote(str(run))} --resume`, or set RUN to the mesh to fit it into the cache"
         )
     if path.is_file() or (isinstance(run, str) and name in examples.list_examples()):
         return "fit", cached_run(run, preset, cache)

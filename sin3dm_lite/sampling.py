@@ -179,6 +179,14 @@ def check_steps(model, method: str, steps: int, name: str = "steps") -> None:
     sampling_timesteps(model.schedule, method, steps)
 
 
+def export_bytes(resolution: int, texture_size: int, box) -> float:
+    """What one export over ``box`` holds at its peak: its decode grid and its texture (the rates above)."""
+    from .data.box import grid_shape
+
+    voxels = float(np.prod(grid_shape(np.asarray(box, np.float64), resolution)))
+    return voxels * EXPORT_BYTES_PER_VOXEL + float(texture_size) ** 2 * EXPORT_BYTES_PER_TEXEL
+
+
 def check_mesh_sizes(
     resolution: int,
     texture_size: int,

@@ -3,6 +3,7 @@ samples, and the diversity a run keeps its input's patches at."""
 
 from __future__ import annotations
 
+import shlex
 import shutil
 import time
 from pathlib import Path
@@ -228,5 +229,5 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     print(
         f"{run}: diversity {before:g} → {cal.diversity:g}{' for snapped samples' if snapped else ''}, judged at "
         f"{cal.resolution} voxels ({voxels_said(cal.supersample)}, {took:.0f} s), "
-        f"saved in its config.json; `sin3dm-lite sample {run}` uses it, --diversity overrides it"
+        f"saved in its config.json; `sin3dm-lite sample {shlex.quote(str(run))}` uses it, --diversity overrides it"
     )

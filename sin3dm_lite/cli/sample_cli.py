@@ -6,6 +6,7 @@ takes no argparse object. :func:`find_run` names a run folder or a shipped model
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 from ..errors import Sin3DMInputError
@@ -89,7 +90,7 @@ def find_run(name: str) -> Path:
     if not run.is_dir():
         raise Sin3DMInputError(
             f"run folder '{name}' not found; fit one first with `sin3dm-lite fit MESH --out "
-            f"{name}`, or name a shipped model ({', '.join(shipped_names())})"
+            f"{shlex.quote(name)}`, or name a shipped model ({', '.join(shipped_names())})"
         )
     return run  # a folder without model.pt: Sin3DM.load says so
 
