@@ -21,6 +21,8 @@ from .errors import Sin3DMInputError
 
 #: seeds: a whole number that ``torch.Generator.manual_seed`` takes on every platform (the config's ``seed`` range)
 SEED_RANGE = (0, 2**32 - 1)
+#: one sample's own seed in a list of seeds (a run's ``seed + i``): what ``torch.Generator.manual_seed`` takes
+SAMPLE_SEED_MAX = 2**63 - 1
 #: a resize or outpaint factor is at most this (a latent 8 times the input's along each axis)
 MAX_FACTOR = 8.0
 
@@ -82,7 +84,8 @@ def seeds(value, n: int, name: str = "seed"):
     if isinstance(value, (list, tuple, np.ndarray)):
         if len(value) != n:
             raise Sin3DMInputError(f"{len(value)} seeds for {n} samples; give one seed per sample, or one seed")
-        return [seed(v, f"each of the seeds ({name})") for v in value]
+        # each sample's own seed (``seed + i`` of a run: past SEED_RANGE for a run's last samples), as torch takes it
+        return [whole(v, f"each of the seeds ({name})", 0, SAMPLE_SEED_MAX) for v in value]
     return seed(value, name)
 
 
@@ -152,6 +155,7 @@ def index(value, count: int, name: str = "index") -> int:
 
 __all__ = [
     "MAX_FACTOR",
+    "SAMPLE_SEED_MAX",
     "SEED_RANGE",
     "factors",
     "finite",

@@ -63,6 +63,7 @@ API_ONLY = {
     "n-bool": ("sample", {"n": True}, "n must be a positive whole number, got True"),
     "seed-float": ("sample", {"seed": 1.5}, "seed must be a whole number from 0"),
     "seeds-too-many": ("sample", {"seed": [1, 2]}, "2 seeds for 1 samples"),
+    "seeds-huge": ("sample", {"seed": [2**70]}, "each of the seeds (seed) must be a whole number from 0 to"),
     "resize-two": ("sample", {"resize": (2, 1)}, "resize takes one number or three (x, y, z)"),
     "resize-text": ("sample", {"resize": "big"}, "resize takes one number or three"),
     "resize-nan": ("sample", {"resize": float("nan")}, "resize takes one number or three"),
@@ -131,6 +132,9 @@ def test_good_values_of_every_python_kind_are_taken(shipped):
     model, samples = shipped
     assert len(model.sample(np.int64(1), seed=2**32 - 1, steps=2, progress=False)) == 1  # the last seed; numpy's int
     assert len(model.sample(1, resize=1.5, steps=2, progress=False)) == 1  # one factor for x, y and z
+    # the last seed with more samples (seeds 2**32 - 1 and 2**32), and a run's own seeds past it (`sample --seed`)
+    assert len(model.sample(2, seed=2**32 - 1, steps=2, progress=False)) == 2
+    assert len(model.sample(1, seed=[2**32], steps=2, progress=False)) == 1
     mesh = model.to_mesh(samples, np.int64(0), resolution=32, faces=500, texture_size=64)
     assert len(mesh.faces) > 0
 

@@ -283,7 +283,7 @@ def test_snap_pulls_samples_towards_the_inputs_patches_of_any_size(fitted):
     assert not torch.equal(plain.triplane.xy, snapped.triplane.xy)
     wide = model.sample(1, seed=4, progress=False, snap=1.0, resize=(1.5, 1.0, 1.0))
     assert wide.triplane.resolution[0] == round(1.5 * model.latent.resolution[0])
-    with pytest.raises(Sin3DMInputError, match="snap is a share"):
+    with pytest.raises(Sin3DMInputError, match="snap must be a number from 0 to 1, got 2.0"):
         model.sample(1, snap=2.0, progress=False)
 
 
