@@ -7,7 +7,9 @@
 
 What ``RUN`` may be, checked in this order:
 
-1. the name of a shipped model (``canyon`` or ``canyon_small``, :func:`pretrained.shipped_names`);
+1. the name of a shipped model (``canyon`` or ``canyon_small``, :func:`pretrained.shipped_names`), even where a
+   local folder has that name (a warning says so; ``./canyon`` names the local one: :func:`shipped_or_folder`,
+   the rule the CLI's commands follow too);
 2. an existing run folder with ``model.pt`` (or a ``model.pt`` file);
 3. a mesh file or the name of a built-in example: fitted with ``preset`` into
    ``cache/<stem>-<hash12>``, where the hash covers the input (what is read from the file, its MTL and

@@ -17,10 +17,11 @@ import numbers
 
 import numpy as np
 
+from .data.config import LIMITS
 from .errors import Sin3DMInputError
 
-#: seeds: a whole number that ``torch.Generator.manual_seed`` takes on every platform (the config's ``seed`` range)
-SEED_RANGE = (0, 2**32 - 1)
+#: seeds: the config's ``seed`` range (a fit's seed), which ``torch.Generator.manual_seed`` takes on every platform
+SEED_RANGE = LIMITS["seed"]
 #: one sample's own seed in a list of seeds (a run's ``seed + i``): what ``torch.Generator.manual_seed`` takes
 SAMPLE_SEED_MAX = 2**63 - 1
 #: a resize or outpaint factor is at most this (a latent 8 times the input's along each axis)

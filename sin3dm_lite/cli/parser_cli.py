@@ -184,7 +184,11 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
 
 def _sample_command_args(s: argparse.ArgumentParser) -> None:
     _sample_args(s)
-    s.add_argument("run", help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon)")
+    s.add_argument(
+        "run",
+        help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon; ./canyon: a local "
+        "folder of that name)",
+    )
     s.add_argument(
         "--out",
         required=True,
