@@ -195,7 +195,10 @@ CASES = {
         "argument --texture-size: expected a whole number of at least 16, got 8",
     ),
     "sample-steps-beyond-schedule": (["sample", "run", "--out", "s", "--steps", "5000"], "1000 time steps"),
-    "sample-too-few-faces": (["sample", "run", "--out", "s", "--faces", "2"], "argument --faces: expected a whole number from 4 to"),
+    "sample-too-few-faces": (
+        ["sample", "run", "--out", "s", "--faces", "2"],
+        "argument --faces: expected a whole number from 4 to",
+    ),
     "demo-huge-texture-many-workers": (
         ["demo", "--out", "s", "--texture-size", "16000", "--workers", "64"],
         "64 exports at once (--workers)",
