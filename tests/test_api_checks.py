@@ -161,6 +161,9 @@ def test_a_shipped_name_means_the_shipped_model_to_the_cli_and_the_api_alike(tmp
         by_api = resolve_run("canyon", None, tmp_path / "cache")
     assert by_cli == by_api[1] == SHIPPED and by_api[0] == "shipped"
     assert ("run folder" if run else "not the folder") in str(said[0].message)
+    if not run:  # ./canyon: the local folder, which holds no model; the message names the shipped one
+        with pytest.raises(Sin3DMInputError, match=r"'\./canyon' is a folder without model.pt.*write canyon for"):
+            find_run("./canyon")
     if run:  # ./canyon: the local one, for both
         with warnings.catch_warnings():
             warnings.simplefilter("error")
@@ -275,14 +278,15 @@ def test_sin3dm_workers_that_is_no_count_is_said(capsys, monkeypatch):
 
 # --------------------------------------------------------------------------- memory and disk, estimated first
 def _worker_rss(model_path: str, latent, aabb, tmp: str) -> int:
-    """In a started export worker: its resident memory after one small export."""
+    """In a started export worker: its peak resident memory over one small export (the peak: pages the kernel
+    swapped out of a busy machine meanwhile still count)."""
     from sin3dm_lite import mass_workers
 
     opts = {"mesh_resolution": 32, "faces": 500, "texture_size": 64, "pictures": False, "box": None}
     mass_workers._worker_init(model_path, opts)
     mass_workers.export_sample(tmp, latent, aabb)
     with open("/proc/self/status") as f:
-        return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmRSS:"))
+        return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmHWM:"))
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/status")

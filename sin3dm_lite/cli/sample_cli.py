@@ -92,7 +92,14 @@ def find_run(name: str) -> Path:
             f"run folder '{name}' not found; fit one first with `sin3dm-lite fit MESH --out "
             f"{shlex.quote(name)}`, or name a shipped model ({', '.join(shipped_names())})"
         )
-    return run  # a folder without model.pt: Sin3DM.load says so
+    from ..pretrained import shipped_model
+
+    shipped = shipped_model(run.name)
+    other = f", or write {run.name} for the shipped model {shipped.name}" if shipped is not None else ""
+    raise Sin3DMInputError(
+        f"'{name}' is a folder without model.pt, not a finished run folder: finish its fit with "
+        f"`sin3dm-lite fit MESH --out {shlex.quote(name)} --resume`{other}"
+    )
 
 
 def cmd_sample(a) -> None:
