@@ -11,12 +11,11 @@ from pathlib import Path
 from ..errors import Sin3DMInputError
 from .sample_cli import find_run
 
-MAX_VIEWS = 360
-
 
 def cmd_render(a) -> None:
     from ..data.formats.images import png_bytes
     from ..data.source import resolve_mesh
+    from ..evaluate.evaluation import check_views
     from ..evaluate.render import contact_sheet, render_hero, render_views, view_names
     from ..files import (
         check_not_overlapping,
@@ -28,10 +27,7 @@ def cmd_render(a) -> None:
     )
 
     out = Path(a.out)
-    if a.views > MAX_VIEWS:
-        raise Sin3DMInputError(f"--views {a.views} is too many; ask for at most {MAX_VIEWS}")
-    if not 16 <= a.size <= 4096:
-        raise Sin3DMInputError(f"--size must be from 16 to 4096 pixels, got {a.size}")
+    check_views(a.views, a.size, ("--views", "--size"))  # what Sin3DM.evaluate's views and size are checked by
     if not -89 <= a.elevation <= 89:
         raise Sin3DMInputError(f"--elevation must be from -89 to 89 degrees, got {a.elevation}")
     names = view_names(a.views) + ["contact_sheet.png"]
@@ -98,18 +94,14 @@ def cmd_evaluate(a) -> None:
 
     from ..data.load import load_any
     from ..data.source import resolve_mesh
-    from ..evaluate.evaluation import check_fine_grid
+    from ..evaluate.evaluation import check_fine_grid, check_resolutions, check_views
     from ..evaluate.metrics import load_feature_weights
     from ..files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
     from ..pipeline import Sin3DM
 
-    if a.views > MAX_VIEWS:
-        raise Sin3DMInputError(f"--views {a.views} is too many; ask for at most {MAX_VIEWS}")
-    if not 16 <= a.size <= 4096:
-        raise Sin3DMInputError(f"--size must be from 16 to 4096 pixels, got {a.size}")
-    bad = [r for r in a.resolution or () if not 16 <= r <= 512]
-    if bad:
-        raise Sin3DMInputError(f"--resolution must be from 16 to 512 voxels, got {bad[0]}")
+    check_views(a.views, a.size, ("--views", "--size"))  # the checks Sin3DM.evaluate's arguments get
+    if a.resolution:
+        check_resolutions(a.resolution, "--resolution")
     supersample = _supersample(a.voxels)
     check_fine_grid(a.resolution or [128], supersample)
     run = find_run(a.run)
