@@ -17,6 +17,7 @@ config (and the grid or the calibration), so a test or a notebook can ask it too
 from __future__ import annotations
 
 import math
+from shlex import quote
 
 import torch
 
@@ -452,7 +453,7 @@ def calibration_grid_hint(thin_parts: dict | None, calibration: dict | None, run
     resolution = (calibration or {}).get("resolution", 128)
     if thin_parts is None or resolution > 64:
         return None
-    how = f"sin3dm-lite calibrate {run} --resolution 128" if run is not None else "model.calibrate(resolution=128)"
+    how = f"sin3dm-lite calibrate {quote(str(run))} --resolution 128" if run else "model.calibrate(resolution=128)"
     return (
         f"[fit] the calibration judged this thin-walled shape on its {resolution}-voxel training grid; judged as "
         "the paper measures (128 voxels against the input mesh), thin walls keep more of the input's patches and "

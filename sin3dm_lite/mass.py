@@ -58,15 +58,12 @@ from .request import SampleRequest  # what a run asks for, and its defaults
 
 def check_request(model, req: SampleRequest) -> None:
     """Refuse what sampling would refuse about the flags (``--steps`` out of range, ...) before the folder is touched."""
-    from .model.schedule import sampling_timesteps
+    from .sampling import check_sample_args
 
-    r = req.resolve(model.config.sampling)
-    steps, top = r.steps, model.schedule.timesteps
-    if r.method == "ddim" and not 1 <= steps <= top:
-        raise Sin3DMInputError(
-            f"--steps {steps} is more than this model's {top} time steps; ask for 1 to {top} DDIM steps"
-        )
-    sampling_timesteps(model.schedule, r.method, steps)
+    names = {"n": "-n", "steps": "--steps", "method": "the method", "seed": "--seed", "diversity": "--diversity"}
+    check_sample_args(
+        model, req.n, req.steps, req.method, req.seed, req.diversity, req.snap, names | {"snap": "--snap"}
+    )
 
 
 def check_sample_sizes(model, plan, req: SampleRequest) -> None:
@@ -92,7 +89,7 @@ def check_sample_sizes(model, plan, req: SampleRequest) -> None:
             ),
         )
 
-    workers = req.export_workers()
+    workers = cap_workers(model, plan, req, r)
     if req.workers is None:  # the default: not a reason to refuse, so fewer workers where memory is short
         while workers > 1:
             try:
@@ -102,6 +99,101 @@ def check_sample_sizes(model, plan, req: SampleRequest) -> None:
                 workers -= 1
         req.workers = workers
     check(max(1, workers))
+
+
+def cap_workers(model, plan, req: SampleRequest, r) -> int:
+    """The export workers asked for (``--workers``, ``SIN3DM_WORKERS`` or the default), at most as many as the
+    memory holds with each worker's own process (:func:`mass_workers.workers_memory_holds`); a number the user
+    chose that is lowered is said in one line (a warning). Where not even one fits, the exports' own check
+    refuses (:func:`check_sample_sizes`)."""
+    import os
+    import warnings
+
+    from .mass_workers import worker_bytes, workers_memory_holds
+    from .sampling import export_bytes
+
+    workers = req.export_workers()
+    one = export_bytes(r.mesh_resolution, r.texture_size, plan.aabb)
+    held = workers_memory_holds(model, one)
+    if workers <= 1 or workers <= held or held < 1:
+        return workers
+    if req.workers is not None or os.environ.get("SIN3DM_WORKERS"):
+        asked = f"--workers {req.workers}" if req.workers is not None else f"SIN3DM_WORKERS={workers}"
+        warnings.warn(
+            f"{asked}: memory holds {held} export workers (each about {worker_bytes(model) / 2**20:.0f} MB of its "
+            f"own and {one / 2**20:.0f} MB for its export); using {held}",
+            UserWarning,
+            stacklevel=2,
+        )
+    if req.workers is not None:
+        req.workers = held
+    return held
+
+
+#: what a sample's files take on disk, estimated from its settings: per face of the budget (OBJ text and GLB
+#: buffers), per texel of each texture map (a PNG beside the OBJ and one in the GLB), and its preview picture
+SAMPLE_BYTES_PER_FACE = 100
+SAMPLE_BYTES_PER_TEXEL = 0.75
+PREVIEW_BYTES = 100_000
+
+
+def sample_bytes(model, plan, req: SampleRequest) -> float:
+    """About how many bytes one sample folder takes: mesh (``faces``), textures (``texture_size``; the PBR
+    variant's three more maps, its two grey ones at a third), latent (``latent.pt``) and preview."""
+    r = req.resolve(model.config.sampling)
+    maps = 1 + (1 + 2 / 3) * bool(model.config.autoencoder.pbr)
+    texels = 2 * maps * float(r.texture_size) ** 2
+    latent = model.latent.planes[0].element_size() * sum(
+        p.shape[1] * a * b for p, (a, b) in zip(model.latent.planes, plane_sizes(plan.resolution))
+    )
+    pictures = 0 if req.no_pictures else PREVIEW_BYTES
+    return r.faces * SAMPLE_BYTES_PER_FACE + texels * SAMPLE_BYTES_PER_TEXEL + latent + pictures
+
+
+def plane_sizes(resolution) -> list[tuple[int, int]]:
+    """The (rows, columns) of the three planes of a latent of ``resolution`` (x, y, z) texels."""
+    from .model.triplane import PLANE_AXES
+
+    return [(resolution[a], resolution[b]) for a, b in PLANE_AXES.values()]
+
+
+def shown_bytes(n: float) -> str:
+    """``2.8 MB``, ``364 KB``, ``72 GB``."""
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("KB", 1e3)):
+        if n >= size:
+            return f"{n / size:.3g} {unit}"
+    return f"{n:.0f} bytes"
+
+
+def check_disk(model, out: Path, req: SampleRequest, plan, label: str = "sample") -> str:
+    """Refuse ``-n`` samples that cannot fit on the disk of ``--out`` (its nearest existing folder), naming the
+    largest ``-n`` that fits; else returns the line that says the estimate. Samples already in a folder that is
+    continued need no new space."""
+    import shutil
+
+    from .mass_folder import folder_name, read_settings
+
+    base = out
+    while not base.exists() and base.parent != base:
+        base = base.parent
+    free = shutil.disk_usage(base if base.is_dir() else base.parent).free
+    per = sample_bytes(model, plan, req)
+    indices = range(req.start, req.start + req.n)
+    continued = out.is_dir() and not req.overwrite and read_settings(out) is not None
+    there = sum((out / folder_name(i)).is_dir() for i in indices) if continued else 0
+    need = (req.n - there) * per
+    if need > free:
+        most = int(free // per) + there
+        fix = f"at most -n {most} fits there" if most else "not one sample fits there"
+        raise Sin3DMInputError(
+            f"-n {req.n} needs about {shown_bytes(need)} on disk ({shown_bytes(per)} a sample with these "
+            f"settings) but '{base}' has {shown_bytes(free)} free: {fix}; free space, ask for fewer, or choose "
+            "another --out"
+        )
+    return (
+        f"[{label}] about {shown_bytes(per)} a sample on disk, {shown_bytes(need)} for the {req.n - there} to "
+        f"write ({shown_bytes(free)} free)"
+    )
 
 
 def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", ranks=None, run: str = "") -> dict:
@@ -121,10 +213,11 @@ def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", r
     check_request(model, req)  # every flag checked before the folder is touched
     check_sample_sizes(model, plan, req)
     settings = sample_settings(model, plan, req, req.control)
-    why, pending = None, None
+    why, pending, disk = None, None, None
     created = not out.exists()
     if ranks.rank == 0:
         try:
+            disk = check_disk(model, out, req, plan, label)  # before the folder is touched
             pending = prepare_folder(out, req, settings, run, lambda o: sample_output_names(o, req))
         except Sin3DMInputError as e:
             why = str(e)
@@ -134,6 +227,8 @@ def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", r
             raise Sin3DMInputError(why)
         raise SystemExit(2)  # rank 0 says why
     try:
+        if ranks.rank == 0:
+            print(disk, flush=True)
         if ranks.rank == 0 and len(pending) < req.n:
             print(
                 f"[{label}] {out}: {req.n - len(pending)} of the {req.n} samples are there already; "

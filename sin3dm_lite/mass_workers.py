@@ -95,6 +95,24 @@ def stop_ranks(ranks: Ranks) -> None:
 
 # --------------------------------------------------------------------------- one sample: decode, texture, export
 _WORKER: dict = {}
+#: what a started export worker holds of its own beside its model copy and its export's arrays (the Python
+#: interpreter, torch, the mesh and image libraries): the resident memory of a worker after a small export, rounded up
+WORKER_BYTES = 384 << 20
+
+
+def worker_bytes(model) -> int:
+    """The memory one export worker takes before its export's arrays: :data:`WORKER_BYTES` and its CPU copy of
+    the model (the weights and the latent)."""
+    tensors = [*model.decoder.state_dict().values(), *model.denoiser.state_dict().values(), *model.latent.planes]
+    return WORKER_BYTES + sum(t.numel() * t.element_size() for t in tensors)
+
+
+def workers_memory_holds(model, one_export: float) -> int:
+    """How many export workers half the free RAM holds (as for the exports' check): each its own
+    :func:`worker_bytes` and one export of ``one_export`` bytes (``sampling.export_bytes``)."""
+    from .device import memory_available
+
+    return int(0.5 * memory_available("cpu") // (worker_bytes(model) + one_export))
 
 
 def exit_with_parent() -> None:

@@ -34,6 +34,37 @@ COMMAND = "sin3dm-lite notebooks"
 MAX_TOTAL_BYTES = 20 * 1024 * 1024  # all notebooks together, outputs included
 
 
+def read_notebook(path: Path):
+    """The notebook at ``path`` (nbformat 4), or one line saying why it is none: a missing file, another kind of
+    file, a ``.ipynb`` that is not JSON or not a notebook's structure (``nbformat.validate``)."""
+    import nbformat
+
+    from .errors import Sin3DMInputError
+
+    path = Path(path)
+    if not path.is_file():
+        what = "is a folder" if path.is_dir() else "not found"
+        raise Sin3DMInputError(f"notebook '{path}' {what}; give .ipynb files, or none for every notebooks/*.ipynb")
+    if path.suffix != ".ipynb":
+        raise Sin3DMInputError(f"'{path}' is not a notebook (.ipynb); give .ipynb files, or none for all of them")
+    try:
+        nb = nbformat.read(path, as_version=4)
+        nbformat.validate(nb)
+    except (
+        ValueError,
+        TypeError,
+        KeyError,
+        AttributeError,
+        nbformat.ValidationError,
+    ) as e:  # NotJSONError: a ValueError
+        reason = "not JSON" if isinstance(e, nbformat.reader.NotJSONError) else "not a notebook's structure"
+        raise Sin3DMInputError(
+            f"'{path}' is not a readable Jupyter notebook ({reason}); open it in Jupyter and save it again, "
+            "or restore it from git"
+        ) from None
+    return nb
+
+
 def code_digest(nb) -> str:
     """SHA-256 of the notebook's code cells' source, in order (markdown and outputs do not count)."""
     h = hashlib.sha256()
@@ -116,7 +147,7 @@ def run_notebook(path: str | Path, fast: bool = False, timeout: int = 1800, kern
     import sin3dm_lite
 
     path = Path(path)
-    nb = nbformat.read(path, as_version=4)
+    nb = read_notebook(path)
     clear_outputs(nb)
     _slice_kernel_polls()
     saved = os.environ.get("SIN3DM_FAST")
@@ -159,10 +190,11 @@ def run_all(paths=(), fast: bool = False, check: bool = False, clear: bool = Fal
     import nbformat
 
     paths = list(paths) or sorted(NOTEBOOKS.glob("*.ipynb"))
+    read = {path: read_notebook(path) for path in paths}  # every file checked before any is run or changed
     bad = 0
     for path in paths:
         if check or clear:
-            nb = nbformat.read(path, as_version=4)
+            nb = read[path]
             if clear:
                 clear_outputs(nb)
                 nbformat.write(nb, path)

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from . import sampling
+from . import sampling, values
 from .checkpoints import MODEL_FILE, read_model, write_model
 from .data.config import Config, DiffusionConfig
 from .data.mesh import Normalization, TexturedMesh
@@ -251,8 +251,7 @@ class Sin3DM:
         list): ``sample(4, seed=0)``'s third is ``sample(1, seed=2)``, whatever
         the batch or the device, so any sample of a large run can be drawn again on its own.
         """
-        if n < 1:
-            raise Sin3DMInputError(f"number of samples must be at least 1, got {n}")
+        values.whole(n, "n")  # every argument: sampling.check_sample_args, the checks the CLI's flags call too
         plan = self.plan(resize, outpaint, anchor, regenerate, duplicate, plan)
         return sampling.draw(
             self, n, plan, steps, method, seed, return_intermediates, known, mask, progress, diversity, snap

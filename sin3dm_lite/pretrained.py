@@ -46,3 +46,8 @@ def shipped_model(name: str) -> Path | None:
         if "/" not in candidate and (DATA / candidate / "model.pt").is_file():
             return DATA / candidate
     return None
+
+
+def is_shipped(folder: Path) -> bool:
+    """Whether ``folder`` is one of the shipped run folders (part of the installed package: never written)."""
+    return Path(folder).resolve().parent == DATA.resolve()

@@ -66,14 +66,18 @@ class SampleRequest:
         noise, as in the paper) instead of the model's."""
         s = sampling
         diversity = self.diversity if self.diversity is not None else (1.0 if controlled else s.diversity)
+
+        def own(value, default):  # None: the model's; 0 is a value (refused by the checks), not "the default"
+            return default if value is None else value
+
         return Resolved(
-            method=self.method or s.method,
-            steps=self.steps or s.steps,
+            method=own(self.method, s.method),
+            steps=own(self.steps, s.steps),
             diversity=diversity,
-            snap=s.snap if self.snap is None else self.snap,
-            mesh_resolution=self.mesh_resolution or s.mesh_resolution,
-            faces=self.faces or s.faces,
-            texture_size=self.texture_size or s.texture_size,
+            snap=own(self.snap, s.snap),
+            mesh_resolution=own(self.mesh_resolution, s.mesh_resolution),
+            faces=own(self.faces, s.faces),
+            texture_size=own(self.texture_size, s.texture_size),
         )
 
     def batch_size(self, limit: int) -> int:
@@ -84,4 +88,4 @@ class SampleRequest:
                 f"--batch {self.batch} is more samples than fit in memory at once here (at most "
                 f"{limit} with this model and size); ask for a smaller --batch"
             )
-        return self.batch or min(DEFAULT_BATCH, self.n, limit)
+        return self.batch if self.batch is not None else min(DEFAULT_BATCH, self.n, limit)

@@ -7,7 +7,9 @@
 
 What ``RUN`` may be, checked in this order:
 
-1. the name of a shipped model (``canyon`` or ``canyon_small``, :func:`pretrained.shipped_names`);
+1. the name of a shipped model (``canyon`` or ``canyon_small``, :func:`pretrained.shipped_names`), even where a
+   local folder has that name (a warning says so; ``./canyon`` names the local one: :func:`shipped_or_folder`,
+   the rule the CLI's commands follow too);
 2. an existing run folder with ``model.pt`` (or a ``model.pt`` file);
 3. a mesh file or the name of a built-in example: fitted with ``preset`` into
    ``cache/<stem>-<hash12>``, where the hash covers the input (what is read from the file, its MTL and
@@ -23,6 +25,8 @@ Anything else is refused with one line that says what ``RUN`` may be.
 from __future__ import annotations
 
 import hashlib
+import shlex
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -103,27 +107,55 @@ def cached_run(source, preset=None, cache: str | Path = CACHE) -> Path:
     return Path(cache) / run_key(source, preset)
 
 
+def shipped_or_folder(run, stacklevel: int = 3) -> tuple[str, Path] | None:
+    """The one rule for a name that both a shipped model and a local path may mean (``Sin3DM.open`` and the
+    commands that take a RUN ask it): a bare name of a shipped model (``canyon``, ``canyon_small``, as a ``str``)
+    is the shipped model; a path (``./canyon``, ``runs/canyon``, a ``Path``) is the local one. Where a local
+    ``canyon`` exists beside the shipped name, a warning says which was taken and how to name the other.
+
+    Returns ``("shipped", its folder)``, ``("folder", the run folder)`` for a folder holding ``model.pt`` (or that
+    file), or None (neither: the caller says what else RUN may be). ``stacklevel``: the warning's, as
+    ``warnings.warn`` takes it (3: the caller's caller).
+    """
+    from .pretrained import shipped_model
+
+    name = str(run)
+    shipped = shipped_model(name) if isinstance(run, str) else None
+    path = Path(run).expanduser()
+    if shipped is not None:
+        if path.exists():
+            what = "run folder" if (path / MODEL_FILE).is_file() else "folder" if path.is_dir() else "file"
+            warnings.warn(
+                f"'{name}' is the shipped model {shipped.name}, not the {what} '{name}' here; "
+                f"for that {what}, write ./{name}",
+                UserWarning,
+                stacklevel=stacklevel,
+            )
+        return "shipped", shipped
+    if path.is_dir() and (path / MODEL_FILE).is_file():
+        return "folder", path
+    if path.is_file() and path.name == MODEL_FILE:
+        return "folder", path.parent
+    return None
+
+
 def resolve_run(run, preset, cache) -> tuple[str, Path]:
     """What ``run`` names: ``("shipped" | "folder", the folder to load)`` or ``("fit", the cache folder to fit into)``."""
     from .data import examples
-    from .pretrained import shipped_examples, shipped_model
+    from .pretrained import shipped_examples
 
     if not isinstance(run, (str, Path)) or not str(run).strip():
         raise Sin3DMInputError(f"RUN must be a name or a path, got {run!r}")
     name = str(run)
-    shipped = shipped_model(name) if isinstance(run, str) else None
-    if shipped is not None:
-        return "shipped", shipped
+    found = shipped_or_folder(run, stacklevel=5)  # the warning names the line that called Sin3DM.open
+    if found is not None:
+        return found
     path = Path(run).expanduser()
     if path.is_dir():
-        if (path / MODEL_FILE).is_file():
-            return "folder", path
         raise Sin3DMInputError(
             f"RUN '{run}' is a folder without {MODEL_FILE}: an unfinished fit; continue it with "
-            f"`sin3dm-lite fit MESH --out {run} --resume`, or set RUN to the mesh to fit it into the cache"
+            f"`sin3dm-lite fit MESH --out {shlex.quote(str(run))} --resume`, or set RUN to the mesh to fit it into the cache"
         )
-    if path.is_file() and path.name == MODEL_FILE:
-        return "folder", path.parent
     if path.is_file() or (isinstance(run, str) and name in examples.list_examples()):
         return "fit", cached_run(run, preset, cache)
     raise Sin3DMInputError(
@@ -132,4 +164,4 @@ def resolve_run(run, preset, cache) -> tuple[str, Path]:
     )
 
 
-__all__ = ["CACHE", "cached_run", "fit_preset", "input_digest", "resolve_run", "run_key"]
+__all__ = ["CACHE", "cached_run", "fit_preset", "input_digest", "resolve_run", "run_key", "shipped_or_folder"]

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from . import values
 from .errors import Sin3DMInputError
 from .model.triplane import Triplane
 from .request import SampleRequest
@@ -48,7 +49,7 @@ def plan_for(
     """The :class:`control.Plan` that ``model.sample`` carries out for these arguments (checked: one clear error)."""
     from .generate import control
 
-    resized = np.any(np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,)) != 1.0)
+    resized = np.any(np.array(values.factors(resize, "resize")) != 1.0)
     asked = [
         k
         for k, v in (
@@ -85,7 +86,7 @@ def max_samples(model, resize=(1.0, 1.0, 1.0)) -> int:
     widest layer per sample, and half the free memory of the device may go to them (at most :data:`MAX_SAMPLES`)."""
     from .device import memory_available
 
-    factors = np.broadcast_to(np.asarray(resize, dtype=np.float64), (3,))
+    factors = np.array(values.factors(resize, "resize"))
     x, y, z = np.maximum(4, np.round(np.array(model.latent.resolution) * factors))
     width = max(int(model.config.diffusion.base_channels), int(model.latent.channels)) * 2
     per_sample = 16 * (x * y + x * z + y * z) * width * 4
@@ -112,6 +113,7 @@ def draw(
     from .model.schedule import start_step
     from .model.snap import snap_hook
 
+    seed = check_sample_args(model, n, steps, method, seed, diversity, snap)
     if plan.known is not None and known is not None:
         raise Sin3DMInputError(f"{plan.kind} chooses what to keep itself; do not pass known/mask with it")
     known, mask = (plan.known, plan.mask) if plan.known is not None else (known, mask)
@@ -153,6 +155,39 @@ def draw(
     )
     tp, inter = out if return_intermediates is not None else (out, None)
     return Samples(tp, plan.aabb, inter, plan)
+
+
+def check_sample_args(model, n, steps, method, seed, diversity, snap, names=None):
+    """Refuse what ``model.sample`` cannot take (the checks the CLI's flags call: :mod:`sin3dm_lite.values`);
+    returns the seed. ``names``: what the messages call ``n``, ``steps``, ... (default: the argument names)."""
+    name = {"n": "n", "steps": "steps", "method": "method", "seed": "seed", "diversity": "diversity", "snap": "snap"}
+    name |= names or {}
+    values.whole(n, name["n"])
+    for key, value in (("steps", steps), ("method", method), ("diversity", diversity), ("snap", snap)):
+        values.setting(f"sampling.{key}", value, name[key])
+    r = SampleRequest(steps=steps, method=method).resolve(model.config.sampling)
+    check_steps(model, r.method, r.steps, name["steps"])
+    return values.seeds(seed, n, name["seed"])
+
+
+def check_steps(model, method: str, steps: int, name: str = "steps") -> None:
+    """DDIM takes 1 to the model's time steps (DDPM takes them all, whatever ``steps``)."""
+    from .model.schedule import sampling_timesteps
+
+    top = model.schedule.timesteps
+    if method == "ddim" and not 1 <= steps <= top:
+        raise Sin3DMInputError(
+            f"{name} {steps} is more than this model's {top} time steps; ask for 1 to {top} DDIM steps"
+        )
+    sampling_timesteps(model.schedule, method, steps)
+
+
+def export_bytes(resolution: int, texture_size: int, box) -> float:
+    """What one export over ``box`` holds at its peak: its decode grid and its texture (the rates above)."""
+    from .data.box import grid_shape
+
+    voxels = float(np.prod(grid_shape(np.asarray(box, np.float64), resolution)))
+    return voxels * EXPORT_BYTES_PER_VOXEL + float(texture_size) ** 2 * EXPORT_BYTES_PER_TEXEL
 
 
 def check_mesh_sizes(
@@ -215,8 +250,20 @@ def decode(
     """``model.to_mesh``: the samples (or the one at ``index``) as textured meshes."""
     from .generate.extract import extract_mesh
 
+    if not isinstance(samples, Samples):
+        raise Sin3DMInputError(
+            f"to_mesh takes the Samples that sample() returns (e.g. model.to_mesh(model.sample(2))), got {samples!r:.80}"
+        )
+    index = None if index is None else values.index(index, len(samples))
+    for key, value, name in (
+        ("mesh_resolution", resolution, "resolution"),
+        ("faces", faces, "faces"),
+        ("texture_size", texture_size, "texture_size"),
+    ):
+        values.setting(f"sampling.{key}", value, name, high=key == "faces")  # the sizes' top: check_mesh_sizes
+    values.flag(vertex_colors, "vertex_colors"), values.flag(original_coords, "original_coords")
     r = SampleRequest(mesh_resolution=resolution, faces=faces, texture_size=texture_size).resolve(model.config.sampling)
-    model.check_mesh_sizes(r.mesh_resolution, r.texture_size, samples.aabb)
+    model.check_mesh_sizes(r.mesh_resolution, r.texture_size, samples.aabb, names=("resolution", "texture_size"))
     items = range(len(samples)) if index is None else [index]
     meshes = []
     for i in items:

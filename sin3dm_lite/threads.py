@@ -51,10 +51,38 @@ SPIN_COUNT = "10000"
 APPLIED: dict[str, str] = {}
 
 
+def env_count(environ, name: str, low: int, default: int, high: int | None = None, why_high: str = "") -> int:
+    """The whole number the environment variable ``name`` sets (unset or empty: ``default``).
+
+    One that is no whole number or is below ``low`` gives ``default``, one above ``high`` gives ``high``
+    (``why_high``: what that limit is); either is said in one line on stderr, and ``environ`` then holds the
+    value used, so that the processes started from here (export workers, notebook kernels) use it without
+    saying it again.
+    """
+    raw = environ.get(name, "").strip()
+    if not raw:
+        return default
+    try:
+        value = int(raw)
+    except ValueError:
+        value = None
+    if value is None or value < low:
+        used, why = default, f"is not a whole number of at least {low}"
+    elif high is not None and value > high:
+        used, why = high, f"is more than {why_high} ({high})"
+    else:
+        return value
+    print(f"sin3dm-lite: {name}={environ.get(name)!r} {why}; using {used}", file=sys.stderr, flush=True)
+    environ[name] = str(used)
+    return used
+
+
 def chosen_threads(environ=os.environ) -> int:
-    """The thread count the policy asks for: ``SIN3DM_THREADS`` if it is a positive whole number, else 1."""
-    value = environ.get("SIN3DM_THREADS", "")
-    return int(value) if value.isdigit() and int(value) > 0 else DEFAULT_THREADS
+    """The thread count the policy asks for: ``SIN3DM_THREADS``, a whole number from 1 to the usable cores (another
+    value is said on stderr, :func:`env_count`), else 1."""
+    return env_count(
+        environ, "SIN3DM_THREADS", 1, DEFAULT_THREADS, usable_cores(), "the CPU cores this process may use"
+    )
 
 
 def apply_policy(environ=os.environ) -> dict[str, str]:
@@ -110,16 +138,14 @@ def usable_cores() -> int:
 def export_workers(environ=os.environ) -> int:
     """How many processes decode, texture and export samples when ``--workers`` is not given.
 
-    ``SIN3DM_WORKERS=N`` sets it (the test suite sets 1: its two processes share two cores).
+    ``SIN3DM_WORKERS=N`` sets it (the test suite sets 1: its two processes share two cores; a value that is no
+    count is said on stderr and the default used; memory caps it later, ``mass.check_sample_sizes``).
     Else one per usable core, shared among the sampling ranks on this machine (torchrun's
     ``LOCAL_WORLD_SIZE``), at least 1 and at most :data:`MAX_EXPORT_WORKERS`. Each worker
     runs one thread (the policy above), and the denoiser's share of a sample is small
     beside its decode, texture and export, so on a 2-core CPU two workers export about
     twice as many meshes a minute as one (docs/performance.md, "Many shapes").
     """
-    chosen = environ.get("SIN3DM_WORKERS", "")
-    if chosen.isdigit():
-        return int(chosen)
     local = environ.get("LOCAL_WORLD_SIZE", "1")
     ranks = int(local) if local.isdigit() and int(local) > 0 else 1
-    return max(1, min(MAX_EXPORT_WORKERS, usable_cores() // ranks))
+    return env_count(environ, "SIN3DM_WORKERS", 0, max(1, min(MAX_EXPORT_WORKERS, usable_cores() // ranks)))

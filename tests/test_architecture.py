@@ -66,6 +66,7 @@ LAYERS = {
     "data.tsdf": DATA,
     "data.grid": DATA,
     "data.source": DATA,
+    "values": DATA,  # what a value a user passes may be: the checks the CLI and the Python API share
     # model: triplane, autoencoder, decoding, U-Net, the noise schedule, diffusion, the trainers
     "model": MODEL,
     "model.triplane": MODEL,

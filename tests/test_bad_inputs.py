@@ -193,10 +193,13 @@ CASES = {
     ),
     "sample-texture-too-small": (
         ["sample", "run", "--out", "s", "--texture-size", "8"],
-        "--texture-size must be a whole number from 16 to",
+        "argument --texture-size: expected a whole number of at least 16, got 8",
     ),
     "sample-steps-beyond-schedule": (["sample", "run", "--out", "s", "--steps", "5000"], "1000 time steps"),
-    "sample-too-few-faces": (["sample", "run", "--out", "s", "--faces", "2"], "--faces must be a whole number from 4"),
+    "sample-too-few-faces": (
+        ["sample", "run", "--out", "s", "--faces", "2"],
+        "argument --faces: expected a whole number from 4 to",
+    ),
     "demo-huge-texture-many-workers": (
         ["demo", "--out", "s", "--texture-size", "16000", "--workers", "64"],
         "64 exports at once (--workers)",
@@ -350,6 +353,8 @@ PARSER_CASES = (
     "zero-batch",
     "negative-workers",
     "outpaint",
+    "texture-too-small",
+    "too-few-faces",
 )  # refused by argparse (SystemExit)
 
 

@@ -122,10 +122,10 @@ def test_outpainted_and_retargeted_boxes_have_the_requested_size(model, anchor):
         ({"duplicate": (((0, 0, 0), (0.5, 1, 1)), (0.2, 0, 0))}, "overlaps"),
         ({"duplicate": ((0, 0, 0), (0.5, 1, 1))}, "two corners"),
         ({"duplicate": (((0, 0, 0), (0.3, 1, 1)), (0.5, -1, 0))}, "copy to must be"),
-        ({"outpaint": (0.5, 1, 1)}, "at least 1"),
+        ({"outpaint": (0.5, 1, 1)}, "outpaint factors must be from 1 to 8"),
         ({"outpaint": (2, 1, 1), "anchor": "left"}, "unknown anchor"),
         ({"outpaint": (2, 1, 1), "resize": (2, 1, 1)}, "one control at a time"),
-        ({"resize": (0, 1, 1)}, "positive numbers up to 8"),
+        ({"resize": (0, 1, 1)}, r"resize factors must be in \(0, 8\]"),
     ],
 )
 def test_bad_requests_give_one_clear_error(model, kw, words):

@@ -186,14 +186,14 @@ def test_mesh_sizes_beyond_memory_are_refused_with_the_largest_that_fits(fitted,
 
     model, _ = fitted
     s = model.input_sample()
-    with pytest.raises(Sin3DMInputError, match="mesh resolution 100000 is too large: at most [0-9]+ here"):
+    with pytest.raises(Sin3DMInputError, match="resolution 100000 is too large: at most [0-9]+ here"):
         model.to_mesh(s, 0, resolution=100000)
     monkeypatch.setattr(device, "memory_available", lambda dev: 1 << 30)  # 1 GiB free: half of it for one export
-    with pytest.raises(Sin3DMInputError, match="texture size 4096 is too large: at most ([0-9]+) here") as e:
+    with pytest.raises(Sin3DMInputError, match="texture_size 4096 is too large: at most ([0-9]+) here") as e:
         model.to_mesh(s, 0, resolution=32, texture_size=4096)
     told = int(str(e.value).split("at most ")[1].split()[0])
     assert 1024 < told < ((1 << 29) // EXPORT_BYTES_PER_TEXEL) ** 0.5  # the grid's share comes off the texture's
-    with pytest.raises(Sin3DMInputError, match="texture size must be a whole number from 16 to"):
+    with pytest.raises(Sin3DMInputError, match="texture_size must be a whole number of at least 16, got 8"):
         model.to_mesh(s, 0, resolution=32, texture_size=8)
 
 
@@ -291,7 +291,7 @@ def test_snap_pulls_samples_towards_the_inputs_patches_of_any_size(fitted):
     assert not torch.equal(plain.triplane.xy, snapped.triplane.xy)
     wide = model.sample(1, seed=4, progress=False, snap=1.0, resize=(1.5, 1.0, 1.0))
     assert wide.triplane.resolution[0] == round(1.5 * model.latent.resolution[0])
-    with pytest.raises(Sin3DMInputError, match="snap is a share"):
+    with pytest.raises(Sin3DMInputError, match="snap must be a number from 0 to 1, got 2.0"):
         model.sample(1, snap=2.0, progress=False)
 
 

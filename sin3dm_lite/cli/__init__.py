@@ -47,10 +47,11 @@ from .parser_cli import COMMANDS, build_parser, package_version
 from .sample_cli import cmd_demo, cmd_sample, sample_request
 
 
-def disk_error(e: OSError, out: str | None = None) -> str:
+def disk_error(e: OSError, out: str | None = None, has_out: bool = True) -> str:
     """One line for a failed write or read (in this process or in an export worker): what, where and the fix.
 
-    ``out``: the command's ``--out``, named when the error names no file (a ``write`` on a full disk).
+    ``out``: the command's ``--out``, named when the error names no file (a ``write`` on a full disk);
+    ``has_out``: whether the command has an ``--out`` to suggest (``notebooks`` and ``calibrate`` have none).
     """
     import errno
 
@@ -60,8 +61,8 @@ def disk_error(e: OSError, out: str | None = None) -> str:
     if e.errno in (errno.ENOSPC, errno.EDQUOT):
         what = "no space left on device" if e.errno == errno.ENOSPC else "disk quota exceeded"
         where = where or (f" into '{out}'" if out else " the output")
-        return f"{what} while writing{where}; free space or choose another --out"
-    return f"{e.strerror or e}{where}; check that path (permissions, free space) or choose another --out"
+        return f"{what} while writing{where}; free space{' or choose another --out' if has_out else ''}"
+    return f"{e.strerror or e}{where}; check that path (permissions, free space){' or choose another --out' * has_out}"
 
 
 def cmd_notebooks(a) -> None:
@@ -110,7 +111,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # the disk, not the code: a full disk, a folder made read-only meanwhile
-        print(f"sin3dm-lite {a.command}: error: {disk_error(e, getattr(a, 'out', None))}", file=sys.stderr)
+        print(
+            f"sin3dm-lite {a.command}: error: {disk_error(e, getattr(a, 'out', None), hasattr(a, 'out'))}",
+            file=sys.stderr,
+        )
         return 2
     except KeyboardInterrupt as e:
         how = "terminated" if isinstance(e, Terminated) else "interrupted"

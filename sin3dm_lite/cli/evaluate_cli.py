@@ -3,6 +3,7 @@ samples, and the diversity a run keeps its input's patches at."""
 
 from __future__ import annotations
 
+import shlex
 import shutil
 import time
 from pathlib import Path
@@ -10,12 +11,11 @@ from pathlib import Path
 from ..errors import Sin3DMInputError
 from .sample_cli import find_run
 
-MAX_VIEWS = 360
-
 
 def cmd_render(a) -> None:
     from ..data.formats.images import png_bytes
     from ..data.source import resolve_mesh
+    from ..evaluate.evaluation import check_views
     from ..evaluate.render import contact_sheet, render_hero, render_views, view_names
     from ..files import (
         check_not_overlapping,
@@ -27,10 +27,7 @@ def cmd_render(a) -> None:
     )
 
     out = Path(a.out)
-    if a.views > MAX_VIEWS:
-        raise Sin3DMInputError(f"--views {a.views} is too many; ask for at most {MAX_VIEWS}")
-    if not 16 <= a.size <= 4096:
-        raise Sin3DMInputError(f"--size must be from 16 to 4096 pixels, got {a.size}")
+    check_views(a.views, a.size, ("--views", "--size"))  # what Sin3DM.evaluate's views and size are checked by
     if not -89 <= a.elevation <= 89:
         raise Sin3DMInputError(f"--elevation must be from -89 to 89 degrees, got {a.elevation}")
     names = view_names(a.views) + ["contact_sheet.png"]
@@ -97,18 +94,14 @@ def cmd_evaluate(a) -> None:
 
     from ..data.load import load_any
     from ..data.source import resolve_mesh
-    from ..evaluate.evaluation import check_fine_grid
+    from ..evaluate.evaluation import check_fine_grid, check_resolutions, check_views
     from ..evaluate.metrics import load_feature_weights
     from ..files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
     from ..pipeline import Sin3DM
 
-    if a.views > MAX_VIEWS:
-        raise Sin3DMInputError(f"--views {a.views} is too many; ask for at most {MAX_VIEWS}")
-    if not 16 <= a.size <= 4096:
-        raise Sin3DMInputError(f"--size must be from 16 to 4096 pixels, got {a.size}")
-    bad = [r for r in a.resolution or () if not 16 <= r <= 512]
-    if bad:
-        raise Sin3DMInputError(f"--resolution must be from 16 to 512 voxels, got {bad[0]}")
+    check_views(a.views, a.size, ("--views", "--size"))  # the checks Sin3DM.evaluate's arguments get
+    if a.resolution:
+        check_resolutions(a.resolution, "--resolution")
     supersample = _supersample(a.voxels)
     check_fine_grid(a.resolution or [128], supersample)
     run = find_run(a.run)
@@ -152,14 +145,14 @@ def cmd_evaluate(a) -> None:
 
 def cmd_calibrate(a) -> None:
     from ..files import acquire_lock, check_writable, release_lock
+    from ..pretrained import is_shipped
 
     run = find_run(a.run)
-    shipped = not Path(a.run).exists()  # a shipped model's folder is part of the installed package: print only
+    shipped = is_shipped(run)  # a shipped model's folder is part of the installed package: print only
     if not shipped:
-        check_writable(run)
-        acquire_lock(
-            run, "run folder"
-        )  # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile
+        check_writable(run, option="run folder")
+        # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile
+        acquire_lock(run, "run folder", option=None)
     try:
         _calibrate(a, run, shipped)
     finally:
@@ -250,5 +243,5 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     print(
         f"{run}: diversity {before:g} → {cal.diversity:g}{' for snapped samples' if snapped else ''}, judged at "
         f"{cal.resolution} voxels ({voxels_said(cal.supersample)}, {took:.0f} s), "
-        f"saved in its config.json; `sin3dm-lite sample {run}` uses it, --diversity overrides it"
+        f"saved in its config.json; `sin3dm-lite sample {shlex.quote(str(run))}` uses it, --diversity overrides it"
     )

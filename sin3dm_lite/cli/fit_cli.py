@@ -5,6 +5,7 @@ from __future__ import annotations
 import shutil
 import time
 from pathlib import Path
+from shlex import quote
 
 from ..errors import Sin3DMInputError
 
@@ -119,13 +120,14 @@ def cmd_fit(a) -> None:
     snapped = ", snapped to the input's latent patches (sampling.snap)" if model.config.sampling.snap else ""
     colour = "one colour, kept" if "single_color" in model.report else f"colour PSNR {r['color_psnr']:.1f} dB"
     ae_precision = model.report.get("precision", {}).get("autoencoder")  # a resumed old run may not say
+    samples = Path(a.out).with_name(Path(a.out).name + "-samples")
     print(
         f"fit done in {time.perf_counter() - t0:.0f} s{f' (autoencoder in {ae_precision})' if ae_precision else ''}: "
         f"occupancy IoU {r['occupancy_iou']:.3f}, "
         f"sign accuracy {r['sign_accuracy']:.3f}, {colour}; samples default to diversity "
         f"{model.config.sampling.diversity:g}{' (calibrated for this shape)' if 'calibration' in model.report else ''}"
         f"{snapped}\n"
-        f"next: sin3dm-lite sample {a.out} -n 4 --out {Path(a.out).with_name(Path(a.out).name + '-samples')}"
+        f"next: sin3dm-lite sample {quote(a.out)} -n 4 --out {quote(str(samples))}"
     )
 
 

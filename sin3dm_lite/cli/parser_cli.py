@@ -16,6 +16,7 @@ from .values_cli import (
     outpaint_factor,
     positive_int,
     resize_factor,
+    sampling_setting,
     seed_int,
     unit_float,
     unit_score,
@@ -184,7 +185,11 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
 
 def _sample_command_args(s: argparse.ArgumentParser) -> None:
     _sample_args(s)
-    s.add_argument("run", help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon)")
+    s.add_argument(
+        "run",
+        help="run folder written by `sin3dm-lite fit`, or a shipped model's name (e.g. canyon; ./canyon: a local "
+        "folder of that name)",
+    )
     s.add_argument(
         "--out",
         required=True,
@@ -268,7 +273,7 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         help="the mesh the run was fitted to, when the run has no grid.npz (default: the run's grid)",
     )
     c.add_argument(
-        "-n", type=int_at_least(2, "at least 2 (G-Div compares them)"), default=8, help="samples per setting tried"
+        "-n", type=int_at_least(2), default=8, help="samples per setting tried (at least 2: G-Div compares them)"
     )
     c.add_argument(
         "--seed",
@@ -283,7 +288,7 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         c.add_argument(flag, type=unit_score, default=None, help=keep)
     c.add_argument(
         "--resolution",
-        type=int_at_least(16, "16-512 voxels"),
+        type=int_at_least(16),
         default=None,
         help="voxels along the longest side where the samples are judged (default: the fit's grid, against the "
         "training grid: fast); 128 judges against the input mesh as the paper measures, in about 4x the time",
@@ -421,20 +426,30 @@ def _sampler_args(s: argparse.ArgumentParser) -> None:
         "default: the run's sampling.snap, 0 unless fitted with --set sampling.snap=1): thin walls and broken tops "
         "keep their shape at a higher --diversity (docs/thin-parts.md)",
     )
-    s.add_argument("--steps", type=positive_int, default=None, help="DDIM steps (default: the preset's)")
+    s.add_argument(
+        "--steps", type=sampling_setting("sampling.steps"), default=None, help="DDIM steps (default: the preset's)"
+    )
     s.add_argument("--ddpm", action="store_true", help="use full DDPM sampling (all timesteps) instead of DDIM")
     s.add_argument("--seed", type=seed_int, default=0, help="random seed; the same seed gives the same samples")
 
 
 def _output_args(s: argparse.ArgumentParser) -> None:
     """The meshes (faces, texture, decode grid), the device, and what happens to --out."""
-    s.add_argument("--faces", type=positive_int, default=None, help="face budget per mesh (default: the preset's)")
     s.add_argument(
-        "--texture-size", type=positive_int, default=None, help="texture image size in pixels (default: the preset's)"
+        "--faces",
+        type=sampling_setting("sampling.faces"),
+        default=None,
+        help="face budget per mesh (default: the preset's)",
+    )
+    s.add_argument(
+        "--texture-size",
+        type=sampling_setting("sampling.texture_size", False),
+        default=None,
+        help="texture image size in pixels (default: the preset's)",
     )
     s.add_argument(
         "--mesh-resolution",
-        type=positive_int,
+        type=sampling_setting("sampling.mesh_resolution", False),
         default=None,
         help="decode grid along the longest side (default: the preset's)",
     )

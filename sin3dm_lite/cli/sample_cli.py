@@ -6,6 +6,7 @@ takes no argparse object. :func:`find_run` names a run folder or a shipped model
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 from ..errors import Sin3DMInputError
@@ -76,12 +77,15 @@ def control_args(a) -> dict:
 
 
 def find_run(name: str) -> Path:
-    """A run folder, or the shipped model called ``name``; one-line error if neither."""
-    from ..pretrained import shipped_model, shipped_names
+    """A run folder, or the shipped model called ``name`` (the rule when both could be meant:
+    :func:`runs.shipped_or_folder`, as ``Sin3DM.open``'s); one-line error if neither."""
+    from ..pretrained import shipped_names
+    from ..runs import shipped_or_folder
 
+    found = shipped_or_folder(name)
+    if found is not None:
+        return found[1]
     run = Path(name)
-    if run.is_file() and run.name == "model.pt":  # the run folder's model, as Sin3DM.load takes it
-        run = run.parent
     if run.exists() and not run.is_dir():
         raise Sin3DMInputError(
             f"'{name}' is a file, not a run folder: a run folder is what `sin3dm-lite fit MESH --out "
@@ -89,13 +93,18 @@ def find_run(name: str) -> Path:
             f"model's name ({', '.join(shipped_names())})"
         )
     if not run.is_dir():
-        run = shipped_model(name)
-        if run is None:
-            raise Sin3DMInputError(
-                f"run folder '{name}' not found; fit one first with `sin3dm-lite fit MESH --out "
-                f"{name}`, or name a shipped model ({', '.join(shipped_names())})"
-            )
-    return run
+        raise Sin3DMInputError(
+            f"run folder '{name}' not found; fit one first with `sin3dm-lite fit MESH --out "
+            f"{shlex.quote(name)}`, or name a shipped model ({', '.join(shipped_names())})"
+        )
+    from ..pretrained import shipped_model
+
+    shipped = shipped_model(run.name)
+    other = f", or write {run.name} for the shipped model {shipped.name}" if shipped is not None else ""
+    raise Sin3DMInputError(
+        f"'{name}' is a folder without model.pt, not a finished run folder: finish its fit with "
+        f"`sin3dm-lite fit MESH --out {shlex.quote(name)} --resume`{other}"
+    )
 
 
 def cmd_sample(a) -> None:

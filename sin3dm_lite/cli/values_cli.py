@@ -1,12 +1,16 @@
 """What each option's value may be: the argparse types of the ``sin3dm-lite`` command.
 
-Each parses one word of the command line and refuses a bad one with a line that names the range
-(``expected a share from 0 to 1, got 1.5``), which the parser prints as its one-line error.
+Each reads one word of the command line as a number and hands it to the check the Python API calls too
+(:mod:`sin3dm_lite.values`: one owner, so the two cannot drift); a bad one becomes the parser's one-line error
+(``argument --diversity: expected a number from 0 to 1, got 1.5``).
 """
 
 from __future__ import annotations
 
 import argparse
+
+from .. import values
+from ..errors import Sin3DMInputError
 
 
 def number(text: str, kind: type, what: str):
@@ -17,63 +21,40 @@ def number(text: str, kind: type, what: str):
         raise argparse.ArgumentTypeError(f"expected {what}, got '{text}'") from None
 
 
-def int_at_least(low: int, what: str):
-    """An argparse type: a whole number ≥ ``low``; ``what`` names the range in the error."""
+def checked(kind: type, what: str, check):
+    """An argparse type: the word read as ``kind`` (``what`` names it when it is no number), then ``check``."""
 
-    def parse(text: str) -> int:
-        v = number(text, int, "a whole number")
-        if v < low:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {v}")
-        return v
-
-    return parse
-
-
-positive_int = int_at_least(1, "a positive number")
-whole = int_at_least(0, "0 or more")
-
-
-def factor(what: str, low: float, low_included: bool):
-    """An argparse type: a size factor up to 8 above ``low``; ``what`` names the flag in the error."""
-
-    def parse(text: str) -> float:
-        v = number(text, float, "a number")
-        if not ((low <= v if low_included else low < v) and v <= 8):
-            raise argparse.ArgumentTypeError(f"{what}, got {v:g}")
-        return v
+    def parse(text: str):
+        try:
+            return check(number(text, kind, what))
+        except Sin3DMInputError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
 
     return parse
 
 
-resize_factor = factor("resize factors must be in (0, 8]", 0.0, False)
-outpaint_factor = factor(
-    "outpaint factors must be from 1 to 8 (outpainting grows the box; --resize shrinks it)", 1.0, True
-)
+def int_at_least(low: int):
+    """An argparse type: a whole number ≥ ``low`` (:func:`values.whole`)."""
+    return checked(int, "a whole number", lambda v: values.whole(v, None, low))
 
 
-def unit_float(text: str) -> float:
-    v = number(text, float, "a number from 0 to 1")
-    if not (0 <= v <= 1):
-        raise argparse.ArgumentTypeError(f"expected a share from 0 to 1, got {v}")
-    return v
+positive_int = int_at_least(1)
+whole = int_at_least(0)
+resize_factor = checked(float, "a number", lambda v: values.factors(v, "resize")[0])
+outpaint_factor = checked(float, "a number", lambda v: values.factors(v, "outpaint", 1.0, True)[0])
+unit_float = checked(float, "a number from 0 to 1", values.share)
+finite_float = checked(float, "a number", values.finite)
+seed_int = checked(int, "a whole number", lambda v: values.seed(v, None))
+
+
+def sampling_setting(key: str, high: bool = True):
+    """An argparse type: a value of the sampling setting ``key`` (:func:`values.setting`, as ``Sin3DM.sample`` and
+    ``to_mesh`` check their arguments; ``high=False``: the top is checked against the memory later)."""
+    return checked(int, "a whole number", lambda v: values.setting(key, v, None, high))
 
 
 def unit_score(text: str) -> float:
     v = finite_float(text)
     if not 0 <= v <= 1:
         raise argparse.ArgumentTypeError(f"a patch score is from 0 to 1, got {v}")
-    return v
-
-
-def finite_float(text: str) -> float:
-    v = number(text, float, "a number")
-    if v != v or v in (float("inf"), float("-inf")):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got '{text}'")
-    return v
-
-
-def seed_int(text: str) -> int:
-    v = number(text, int, "a whole number")
-    if not 0 <= v < 2**32:
-        raise argparse.ArgumentTypeError(f"seeds run from 0 to {2**32 - 1}, got {v}")
     return v

@@ -13,6 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .. import values
 from ..data.box import grid_shape
 from ..errors import Sin3DMInputError
 from .features import SSFID_UNAVAILABLE, FeatureNets, load_feature_weights
@@ -74,6 +75,25 @@ def voxels_said(supersample: int) -> str:
 MAX_FINE_VOXELS = 512
 
 
+#: the most views of a mesh one render or evaluation takes (one a degree)
+MAX_VIEWS = 360
+
+
+def check_views(views, size, names: tuple[str, str] = ("views", "size")) -> None:
+    """Views around a mesh (1 to :data:`MAX_VIEWS`) and their size in pixels (16 to 4096), checked alike for the
+    CLI's ``--views`` / ``--size`` and :meth:`Sin3DM.evaluate`'s arguments (``names``: what the message calls them)."""
+    values.whole(views, names[0], 1, MAX_VIEWS)
+    values.whole(size, names[1], 16, 4096)
+
+
+def check_resolutions(resolution, name: str = "resolution") -> list[int]:
+    """One grid's voxels or several, each 16 to 512 (the CLI's ``--resolution`` and ``Sin3DM.evaluate``'s)."""
+    many = resolution if isinstance(resolution, (list, tuple, np.ndarray)) else [resolution]
+    if len(many) == 0:
+        raise Sin3DMInputError(f"{name} must be one grid's voxels or several, got none")
+    return [values.whole(r, name, 16, 512) for r in many]
+
+
 def check_fine_grid(resolution, supersample: int) -> None:
     """Refuse grids whose sub-voxels (``resolution × supersample`` a side) would not fit in memory, in one clear error."""
     supersample = check_supersample(supersample)
@@ -119,6 +139,8 @@ def evaluate(
     one pays for winding numbers near its surface, about 9 s for the canyon with holes cut).
     """
     say = print if progress else (lambda *a, **k: None)
+    check_views(views, size)
+    check_resolutions(resolution)
     check_fine_grid(resolution, supersample)  # before any decoding
     t0 = time.perf_counter()
     meshes = to_meshes(samples)

@@ -102,14 +102,15 @@ def create_locked_folder(folder: Path, files: dict[str, str], option: str = "--o
     _held[resolved_path(folder)] = fd
 
 
-def acquire_lock(folder: Path, what: str = "folder") -> None:
+def acquire_lock(folder: Path, what: str = "folder", option: str | None = "--out") -> None:
     """Lock ``folder`` for this process (an OS lock on ``folder/.sin3dm-lock``, which names the PID).
 
     A lock another process holds refuses, even one whose file is still empty
     (that writer is just starting). A lock file nobody holds is stale and
     taken over (with a warning when it names a process), unless it names a
     process that still runs here, or one on another machine: then it refuses
-    too, since nothing proves that process gone. ``what`` names the folder in messages.
+    too, since nothing proves that process gone. ``what`` names the folder in messages, ``option`` the flag that
+    chooses another (None: a command without one, e.g. ``calibrate RUN``).
     """
     folder = Path(folder)
     lock = folder / LOCK
@@ -134,7 +135,7 @@ def acquire_lock(folder: Path, what: str = "folder") -> None:
             )
             raise Sin3DMInputError(
                 f"{what} '{folder}' is being written by another sin3dm-lite process ({who}); "
-                "wait for it to finish, or choose another --out"
+                f"wait for it to finish{f', or choose another {option}' if option else ''}"
             ) from None
         try:
             same = os.path.samestat(os.fstat(fd), os.stat(lock))

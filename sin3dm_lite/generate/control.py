@@ -87,15 +87,10 @@ def _fmt(v) -> str:
 
 
 def _factors(factors, what: str, at_least: float = 0.0) -> np.ndarray:
-    f = np.broadcast_to(np.asarray(factors, dtype=np.float64), (3,)).copy()
-    if not np.all(np.isfinite(f)) or np.any(f <= 0) or np.any(f > 8):
-        raise Sin3DMInputError(f"{what} factors must be positive numbers up to 8, got {_fmt(f)}")
-    if np.any(f < at_least):
-        raise Sin3DMInputError(
-            f"{what} factors must be at least {at_least:g} (outpainting grows the box; use "
-            f"--resize to shrink), got {_fmt(f)}"
-        )
-    return f
+    """The size factors ``what`` (resize, outpaint) checked by :func:`values.factors` (what the CLI's flags call)."""
+    from ..values import factors as checked
+
+    return np.array(checked(factors, what, at_least, at_least > 0), np.float64)
 
 
 def texel_range(lo: float, hi: float, n: int) -> tuple[int, int]:

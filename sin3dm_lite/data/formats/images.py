@@ -13,6 +13,46 @@ import io
 import numpy as np
 
 
+class named_image_warnings:  # noqa: N801 (used as a function: ``with named_image_warnings(what):``)
+    """Say PIL's ``DecompressionBombWarning`` (an image of more pixels than PIL trusts, read anyway) with the file
+    it came from: ``what`` names it (``texture file 'a.png' (diffuse of material 'm' in 'x.mtl')``), once per
+    image. Other warnings raised inside pass on as they were."""
+
+    def __init__(self, what: str):
+        import warnings
+
+        self.what, self.catch = what, warnings.catch_warnings(record=True)
+
+    def __enter__(self):
+        import warnings
+
+        from PIL import Image
+
+        self.caught = self.catch.__enter__()
+        warnings.simplefilter("always", Image.DecompressionBombWarning)
+        return self
+
+    def __exit__(self, *exc):
+        import warnings
+
+        from PIL import Image
+
+        from .common import warn
+
+        self.catch.__exit__(*exc)
+        said = set()
+        for w in self.caught:
+            if not issubclass(w.category, Image.DecompressionBombWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+            elif str(w.message) not in said:  # the same image opened twice (checked, then read): said once
+                said.add(str(w.message))
+                warn(
+                    f"{self.what} is a very large image ({w.message}); it is read and shrunk to the texture size: "
+                    "if it is not meant to be this large, re-save it smaller"
+                )
+        return False
+
+
 def image_to_array(image, max_size: int | None = None) -> np.ndarray:
     """A PIL image or array as ``(h, w, 3)`` float32 RGB in [0, 1].
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..mesh import DEFAULT_COLOR, Material
 from .common import Scope, resolve_asset, warn
-from .images import array_to_pil, image_to_array
+from .images import array_to_pil, image_to_array, named_image_warnings
 
 
 def read_libraries(entries: list[str], path: Path, used: set, scope: Scope, max_size):
@@ -178,7 +178,7 @@ def load_texture(ref: str, what: str, mname: str, mtl: Path, *, max_size, cache:
     key = path.resolve()
     if key not in cache:
         try:
-            with Image.open(path) as img:
+            with named_image_warnings(f"texture file '{path.name}' ({owner})"), Image.open(path) as img:
                 cache[key] = image_to_array(img, max_size)
         except Exception as exc:  # corrupt / unsupported image: warn and fall back
             cache[key] = None

@@ -19,7 +19,7 @@ import numpy as np
 from ..mesh import Material, default_rgba
 from .common import Part, Scope, resolve_asset, unreadable, warn
 from .gltf import check_gltf_files, gltf_image_problems, gltf_json
-from .images import image_to_array
+from .images import image_to_array, named_image_warnings
 
 _FORMAT_NAMES = {
     ".glb": "a binary glTF (GLB)",
@@ -37,11 +37,12 @@ def load_scene(path, max_size, scope: Scope):
     fmt = _FORMAT_NAMES[path.suffix.lower()]
     if path.stat().st_size == 0:
         raise unreadable(path, fmt, "the file is empty")
-    image_problems = _check_named_files(path, fmt, scope)
-    try:
-        scene = trimesh.load(str(path), force="scene", process=False, resolver=_resolver(path, scope))
-    except Exception as exc:
-        raise unreadable(path, fmt, exc) from None
+    with named_image_warnings(f"a texture of '{path.name}'"):
+        image_problems = _check_named_files(path, fmt, scope)
+        try:
+            scene = trimesh.load(str(path), force="scene", process=False, resolver=_resolver(path, scope))
+        except Exception as exc:
+            raise unreadable(path, fmt, exc) from None
     for problem in image_problems:
         warn(problem)
 
