@@ -19,8 +19,8 @@ from pathlib import Path
 
 import torch
 
+from sin3dm_lite.app.pretrained import shipped_model
 from sin3dm_lite.pipeline import Sin3DM
-from sin3dm_lite.pretrained import shipped_model
 
 REQUESTS = {
     "resize 1.5×x": dict(resize=(1.5, 1.0, 1.0)),

@@ -42,12 +42,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_training import timed  # noqa: E402  (a step ends in a device sync: the .tolist() of its losses)
 
 from sin3dm_lite import metrics  # noqa: E402
+from sin3dm_lite.app.device import get_device  # noqa: E402
+from sin3dm_lite.app.fitting import grid_for  # noqa: E402
 from sin3dm_lite.data.config import parse_settings  # noqa: E402
-from sin3dm_lite.data.export import export_mesh  # noqa: E402
 from sin3dm_lite.data.presets import get_preset  # noqa: E402
 from sin3dm_lite.data.source import resolve_mesh  # noqa: E402
-from sin3dm_lite.device import get_device  # noqa: E402
-from sin3dm_lite.fitting import grid_for  # noqa: E402
+from sin3dm_lite.formats.export import export_mesh  # noqa: E402
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer  # noqa: E402
 from sin3dm_lite.model.diffusion import DiffusionTrainer  # noqa: E402
 from sin3dm_lite.pipeline import Sin3DM  # noqa: E402

@@ -30,8 +30,8 @@ import numpy as np
 import torch
 
 from sin3dm_lite import metrics
-from sin3dm_lite.data.examples import build_example
-from sin3dm_lite.data.ruin import build_ruin
+from sin3dm_lite.examples import build_example
+from sin3dm_lite.examples.ruin import build_ruin
 
 RESOLUTION = 128
 

@@ -49,10 +49,10 @@ import torch
 from sin3dm_lite import metrics
 from sin3dm_lite.data.box import grid_shape
 from sin3dm_lite.data.config import parse_settings
-from sin3dm_lite.data.export import export_mesh
 from sin3dm_lite.data.grid import load_grid
 from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.data.source import resolve_mesh
+from sin3dm_lite.formats.export import export_mesh
 from sin3dm_lite.generate.extract import marching_cubes
 from sin3dm_lite.pipeline import Sin3DM
 
@@ -125,7 +125,7 @@ def references(model: Sin3DM, source: str, run: Path, resolutions) -> dict:
 def family(model: Sin3DM, source: str, refs: dict, n: int = 8) -> dict | None:
     """Per resolution of ``refs`` (:func:`references`): G-Div, IoU→input and LP against the input of the example's
     own variants (seeds 1..n)."""
-    from sin3dm_lite.data.examples import build_example, list_examples
+    from sin3dm_lite.examples import build_example, list_examples
 
     if source not in list_examples():
         return None

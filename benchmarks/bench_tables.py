@@ -40,9 +40,9 @@ import torch
 from bench_samples import fit_or_load, references, sample_grids, scores
 
 from sin3dm_lite import AutoencoderTrainer, reconstructed_grid, reconstruction_metrics
-from sin3dm_lite.data.export import export_mesh
 from sin3dm_lite.data.grid import load_grid
-from sin3dm_lite.data.load import load_mesh
+from sin3dm_lite.formats.export import export_mesh
+from sin3dm_lite.formats.load import load_mesh
 from sin3dm_lite.generate.extract import NoSurfaceError
 from sin3dm_lite.model.diffusion import DiffusionTrainer
 from sin3dm_lite.pipeline import Sin3DM

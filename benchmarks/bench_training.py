@@ -35,10 +35,10 @@ import torch
 import torch.nn.functional as F
 import trimesh
 
+from sin3dm_lite.app.device import bf16_is_fast
 from sin3dm_lite.data.grid import ShapeGrid, mesh_to_grid
 from sin3dm_lite.data.mesh import Material, Normalization, TexturedMesh
 from sin3dm_lite.data.presets import get_preset
-from sin3dm_lite.device import bf16_is_fast
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer, sdf_loss
 from sin3dm_lite.model.diffusion import DiffusionTrainer
 from sin3dm_lite.model.triplane import Triplane

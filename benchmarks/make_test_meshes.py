@@ -8,7 +8,7 @@
   tiles are red brick-like stripes and odd tiles blue checks, raised by different heights.
 * ``dunes.ply``  — vertex colours only (no UVs): a slab whose top is a field of crossing
   sand ridges, darker in the troughs (a smooth, organic surface; no thin parts).
-* ``ruin.obj``   — a ruined round tower (``sin3dm_lite.data.ruin``): walls 2.5 voxels thick at a
+* ``ruin.obj``   — a ruined round tower (``sin3dm_lite.examples.ruin``): walls 2.5 voxels thick at a
   64-voxel training grid, a stepped broken top, a door and two windows (the paper's kind of demo shape).
 * ``keep.obj``   — the same ruin with a square plan (``build_ruin(square=True)``): straight thin walls,
   the stepped top, a door and two windows (a second thin-walled shape, of another plan).
@@ -23,8 +23,8 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from sin3dm_lite.data.export import save_obj
-from sin3dm_lite.data.ruin import build_ruin
+from sin3dm_lite.examples.ruin import build_ruin
+from sin3dm_lite.formats.export import save_obj
 
 
 def rocks(seed: int = 1) -> trimesh.Trimesh:

@@ -6,23 +6,22 @@ meshes. One sub-package per stage, in the order data flows; a module imports
 only from its own level or a lower one (``tests/test_architecture.py`` holds the
 table of levels and checks it, imports inside functions included)::
 
-    0 base      errors · device · threads (how CPU threads wait) · files: atomic · locks · manifest · outputs
-    1 data      data: config · presets · box · mesh (the mesh type) · formats (file readers, images) · load (read
-                a mesh) · source (a fit's input by name) · export (OBJ / GLB writers) · examples · ruin · distance ·
-                tsdf (truncated SDF on a grid and at points) · grid (mesh → TSDF)
+    0 base      errors · files: atomic · confined · locks · manifest · outputs · inputs · app.device · app.threads
+    1 data      data: config · presets · box · mesh (the mesh type) · distance · tsdf (truncated SDF on a grid and at
+                points) · grid (mesh → TSDF) · source (a fit's input by name) · formats: the file readers and
+                writers (load, export, obj, mtl, gltf, scene, images) · examples: the built-in shapes and the ruin
     2 model     model: triplane · training · autoencoder · decode · unet · schedule (noise, the steps visited) ·
                 diffusion (training, sampling)
     3 generate  generate: control (what to sample: outpaint, ...) · bake (textures) · extract (SDF → textured mesh)
-    4 evaluate  evaluate: geometry · texture · features (SIFID/LPIPS networks) · metrics (all of them) · render ·
+    4 evaluate  evaluate: geometry · patches · texture · features · ssfid · metrics (all of them) · render ·
                 calibration_record · calibrate · evaluation (samples against the input)
     5 show      show: figures · data/model/diffusion/sample/eval_figures · viz · camera · viewer · pages · explorer ·
                 sampling_widgets · widgets
-    5 teach     teach: lesson2d (the method on one 2D image) · exercises, shape_exercises (``check_…`` a piece you
-                wrote) · checking (what the checks share)
-    6 app       pipeline (Sin3DM: fit, sample, save, load, each a call into:) · fitting (the stages) · fit_policy
-                (what a fit decides) · run_folder · checkpoints · sampling · request (a sample run's settings) ·
-                runs · pretrained (models in shipped/) · mass · mass_folder · mass_workers ·
-                cli: parser_cli · values_cli · fit_cli · sample_cli · evaluate_cli
+    5 teach     teach: lesson2d · receptive_field · exercises, shape_exercises, loop_exercises · checking
+    6 app       pipeline (Sin3DM: fit, sample, save, load, each a call into:) · app: fitting · sampling ·
+                run_folder · checkpoints · model_file · runs · pretrained · request · mass · mass_folder ·
+                mass_workers · values · notebook_run · auto: fit_default · fit_policy · snap (what a fit decides,
+                beyond the paper) · cli: parser_cli · values_cli · fit_cli · sample_cli · evaluate_cli
 
 Everything a notebook or script needs is importable from here::
 
@@ -37,7 +36,7 @@ from __future__ import annotations
 
 import importlib
 
-from .threads import apply_policy as _apply_thread_policy
+from .app.threads import apply_policy as _apply_thread_policy
 
 _apply_thread_policy()  # before torch loads: one CPU thread, idle threads sleep (threads.py says why)
 
@@ -47,29 +46,29 @@ __version__ = "0.1.0"
 _API = {
     # facade and settings
     "Sin3DM": "pipeline",
-    "Samples": "sampling",
+    "Samples": "app.sampling",
     "resolve_mesh": "data.source",
     "Config": "data.config",
     "get_preset": "data.presets",
     "notebook_preset": "data.presets",
     "fast_mode": "data.presets",
-    "pretrained_path": "pretrained",
-    "shipped_names": "pretrained",
-    "shipped_examples": "pretrained",
+    "pretrained_path": "app.pretrained",
+    "shipped_names": "app.pretrained",
+    "shipped_examples": "app.pretrained",
     "open_run": "pipeline",
     "Sin3DMInputError": "errors",
-    "get_device": "device",
-    "count_parameters": "device",
+    "get_device": "app.device",
+    "count_parameters": "app.device",
     # data
-    "DEFAULT_EXAMPLE": "data.examples",
-    "build_example": "data.examples",
-    "list_examples": "data.examples",
-    "write_example": "data.examples",
+    "DEFAULT_EXAMPLE": "examples",
+    "build_example": "examples",
+    "list_examples": "examples",
+    "write_example": "examples",
     "TexturedMesh": "data.mesh",
     "Material": "data.mesh",
     "Normalization": "data.mesh",
-    "load_mesh": "data.load",
-    "load_any": "data.load",
+    "load_mesh": "formats.load",
+    "load_any": "formats.load",
     "tangent_frames": "data.mesh",
     "grid_shape": "data.box",
     "margin_scale": "data.box",
@@ -101,14 +100,14 @@ _API = {
     "DiffusionTrainer": "model.diffusion",
     "sample": "model.diffusion",
     "predict_clean": "model.diffusion",
-    "snap_to_patches": "model.snap",
+    "snap_to_patches": "auto.snap",
     "diffusion_loss": "model.diffusion",
     "triplane_mse": "model.diffusion",
     # generate
     "extract_mesh": "generate.extract",
     "marching_cubes": "generate.extract",
     "pbr_maps": "generate.bake",
-    "export_mesh": "data.export",
+    "export_mesh": "formats.export",
     # eval
     "reconstruction_metrics": "evaluate.metrics",
     "voxelize": "evaluate.metrics",
@@ -155,12 +154,12 @@ _MODULES = {
         ("viewer", "show.viewer"),
         ("metrics", "evaluate.metrics"),
         ("render", "evaluate.render"),
-        ("examples", "data.examples"),
+        ("examples", "examples"),
         ("box", "data.box"),
         ("extract", "generate.extract"),
         ("control", "generate.control"),
-        ("export", "data.export"),
-        ("mesh_io", "data.load"),
+        ("export", "formats.export"),
+        ("mesh_io", "formats.load"),
         ("lesson2d", "teach.lesson2d"),
         ("exercises", "teach.exercises"),
     )

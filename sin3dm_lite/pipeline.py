@@ -14,7 +14,7 @@ Each method is a call into the stage that does the work, so a reader follows one
     occupancy, evaluate, ...  evaluate.evaluation (samples against the input)
     plot_beside_input         show.sample_figures
 
-A fit writes a *run folder* (its files: :mod:`sin3dm_lite.run_folder`); ``fit(..., resume=True)`` continues an
+A fit writes a *run folder* (its files: :mod:`sin3dm_lite.app.run_folder`); ``fit(..., resume=True)`` continues an
 interrupted run and ends exactly where an uninterrupted one would.
 """
 
@@ -28,19 +28,19 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from . import sampling, values
-from .checkpoints import MODEL_FILE, read_model, write_model
+from .app import sampling, values
+from .app.checkpoints import MODEL_FILE, read_model, write_model
+from .app.device import get_device
+from .app.sampling import Samples
+from .auto.fit_policy import warn_if_poor
 from .data.config import Config, DiffusionConfig
 from .data.mesh import Normalization, TexturedMesh
 from .data.source import recorded_input, resolve_mesh
-from .device import get_device
 from .errors import Sin3DMInputError
 from .evaluate import evaluation
-from .fit_policy import warn_if_poor
-from .input_files import check_regular
+from .files.inputs import check_regular
 from .model.autoencoder import TriplaneDecoder
 from .model.triplane import Triplane
-from .sampling import Samples
 
 if TYPE_CHECKING:
     from .evaluate.calibration_record import Calibration
@@ -117,9 +117,9 @@ class Sin3DM:
         (:func:`fit_policy.are_copies`; the report's ``thin_parts_switch``
         records the check); ``.updated(thin_walls={})`` keeps the narrower one.
 
-        ``preset`` is a preset's name or a :class:`Config` (default: this machine's, :mod:`sin3dm_lite.fit_default`).
+        ``preset`` is a preset's name or a :class:`Config` (default: this machine's, :mod:`sin3dm_lite.auto.fit_default`).
 
-        With ``out`` a run folder is written (:mod:`sin3dm_lite.run_folder`); with
+        With ``out`` a run folder is written (:mod:`sin3dm_lite.app.run_folder`); with
         ``resume=True`` an existing run folder is continued from its last
         checkpoint, with its own settings (``preset=None``): another input
         (``runs.input_digest``: the mesh's contents, textures included, or the
@@ -131,7 +131,7 @@ class Sin3DM:
         Ctrl-C, keeps its checkpoints for ``resume=True``). A reconstruction
         below :data:`fit_policy.MIN_IOU` / :data:`~fit_policy.MIN_PSNR` gives a warning.
         """
-        from .fitting import fit
+        from .app.fitting import fit
 
         model = fit(cls, source, preset, out, resume, seed, device, progress, pbr, allow_outside_paths)
         warn_if_poor(model.report.get("reconstruction", {}), model.config)
@@ -243,7 +243,7 @@ class Sin3DM:
         ``snap`` (0-1; default the config's ``sampling.snap``: 0, the paper's sampler, in every preset, 1 where
         ``quick``'s thin-part switch took over) pulls the last steps' predicted clean latent towards the input's
         7×7 latent patches
-        (:func:`~sin3dm_lite.model.snap.snap_to_patches`): thin walls and broken tops keep their shape at a
+        (:func:`~sin3dm_lite.auto.snap.snap_to_patches`): thin walls and broken tops keep their shape at a
         higher diversity (docs/thin-parts.md). The calibration samples with the config's ``sampling.snap``, so
         fit with it set (CLI ``--set sampling.snap=1``) to have the diversity chosen for the snapped sampler.
 
@@ -422,12 +422,12 @@ class Sin3DM:
     @classmethod
     def open(cls, run, preset=None, cache="runs/cache", device=None, progress: bool = True) -> Sin3DM:
         """The model ``run`` names: a shipped model, a run folder, or a mesh / example fitted once into ``cache``
-        and reused after (the rules: :mod:`sin3dm_lite.runs`).
+        and reused after (the rules: :mod:`sin3dm_lite.app.runs`).
 
         ``preset`` (default: :func:`presets.notebook_preset`, ``tiny`` under ``SIN3DM_FAST=1``, else ``small``) is
         used only when ``run`` has to be fitted. The model's ``run_dir`` attribute is the folder it was loaded from.
         """
-        from .runs import fit_preset, resolve_run
+        from .app.runs import fit_preset, resolve_run
 
         kind, folder = resolve_run(run, preset, cache)
         say = print if progress else (lambda *a, **k: None)

@@ -19,10 +19,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sin3dm_lite import cli, threads
+from sin3dm_lite import cli
+from sin3dm_lite.app import threads
+from sin3dm_lite.app.pretrained import pretrained_path
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.pipeline import Sin3DM
-from sin3dm_lite.pretrained import pretrained_path
 
 from .conftest import CHEAP_SAMPLE
 
@@ -179,8 +180,8 @@ def _folders(tmp_path, monkeypatch, run: bool) -> None:
 
 @pytest.mark.parametrize("run", [False, True], ids=["mesh-folder", "run-folder"])
 def test_a_shipped_name_means_the_shipped_model_to_the_cli_and_the_api_alike(tmp_path, monkeypatch, run):
+    from sin3dm_lite.app.runs import resolve_run
     from sin3dm_lite.cli.sample_cli import find_run
-    from sin3dm_lite.runs import resolve_run
 
     _folders(tmp_path, monkeypatch, run)
     with pytest.warns(UserWarning, match=r"'canyon' is the shipped model canyon_small.*write \./canyon") as said:
@@ -257,7 +258,7 @@ def test_notebooks_refuses_what_is_no_notebook_before_touching_any(
 
 
 def test_a_disk_error_names_no_out_in_commands_without_one(monkeypatch, capsys):
-    from sin3dm_lite import notebook_run
+    from sin3dm_lite.app import notebook_run
 
     def fail(*args, **kwargs):
         raise PermissionError(13, "Permission denied", "notebooks/01.ipynb")
@@ -324,7 +325,7 @@ def test_a_started_export_worker_takes_no_more_than_its_estimate(shipped, tmp_pa
 
     import torch
 
-    from sin3dm_lite.mass_workers import worker_bytes
+    from sin3dm_lite.app.mass_workers import worker_bytes
 
     model, samples = shipped
     latent = {"triplane": samples.triplane[0].clone().state_dict(), "aabb": torch.from_numpy(samples.aabb)}
@@ -339,10 +340,10 @@ def test_a_started_export_worker_takes_no_more_than_its_estimate(shipped, tmp_pa
 
 @pytest.mark.parametrize("asked", ["--workers", "SIN3DM_WORKERS"])
 def test_workers_beyond_what_memory_holds_are_capped_in_one_line(shipped, monkeypatch, asked):
-    from sin3dm_lite import device, mass
-    from sin3dm_lite.mass_workers import worker_bytes
-    from sin3dm_lite.request import SampleRequest
-    from sin3dm_lite.sampling import export_bytes
+    from sin3dm_lite.app import device, mass
+    from sin3dm_lite.app.mass_workers import worker_bytes
+    from sin3dm_lite.app.request import SampleRequest
+    from sin3dm_lite.app.sampling import export_bytes
 
     model, _ = shipped
     plan = model.plan()
@@ -360,8 +361,8 @@ def test_workers_beyond_what_memory_holds_are_capped_in_one_line(shipped, monkey
 
 
 def test_sample_says_its_disk_estimate_first_and_it_is_near_what_is_written(tmp_path, capsys):
-    from sin3dm_lite.mass import sample_bytes
-    from sin3dm_lite.request import SampleRequest
+    from sin3dm_lite.app.mass import sample_bytes
+    from sin3dm_lite.app.request import SampleRequest
 
     out = tmp_path / "s"
     assert cli.main(["sample", "canyon", "--out", str(out), "-n", "2", *CHEAP_SAMPLE]) == 0
@@ -399,7 +400,7 @@ def test_the_next_command_after_a_fit_is_shell_quoted(tmp_path, monkeypatch, cap
 def test_a_decompression_bomb_warning_names_the_texture(tmp_path, monkeypatch):
     from PIL import Image
 
-    from sin3dm_lite.data.load import load_mesh
+    from sin3dm_lite.formats.load import load_mesh
 
     (tmp_path / "m.obj").write_text(
         "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl a\n"

@@ -30,43 +30,45 @@ BASE, DATA, MODEL, GENERATE, EVALUATE, SHOW, APP = range(7)
 LAYERS = {
     # base: used everywhere (errors, the device and thread policy, atomic files, locks, the manifest, output folders)
     "errors": BASE,
-    "device": BASE,
-    "threads": BASE,
+    "app.device": BASE,
+    "app.threads": BASE,
     "files": BASE,
     "files.atomic": BASE,
     "files.confined": BASE,
+    "app": BASE,
+    "auto": APP,
     "files.locks": BASE,
     "files.manifest": BASE,
     "files.outputs": BASE,
-    "input_files": BASE,  # the one check of every path a user hands over (regular files only; text named)
+    "files.inputs": BASE,  # the one check of every path a user hands over (regular files only; text named)
     # data: settings, geometry of the box, meshes and their files, built-in shapes, mesh → TSDF grid (tsdf computes it)
     "data": DATA,
     "data.config": DATA,
     "data.presets": DATA,
     "data.box": DATA,
     "data.mesh": DATA,
-    "data.load": DATA,
-    "data.export": DATA,
-    "data.formats": DATA,
-    "data.formats.common": DATA,
-    "data.formats.images": DATA,
-    "data.formats.obj": DATA,
-    "data.formats.mtl": DATA,
-    "data.formats.gltf": DATA,
-    "data.formats.scene": DATA,
-    "data.examples": DATA,
-    "data.examples.geometry": DATA,
-    "data.examples.texture": DATA,
-    "data.examples.canyon": DATA,
-    "data.examples.wall": DATA,
-    "data.examples.colonnade": DATA,
-    "data.examples.tiles": DATA,
-    "data.ruin": DATA,
+    "formats.load": DATA,
+    "formats.export": DATA,
+    "formats": DATA,
+    "formats.common": DATA,
+    "formats.images": DATA,
+    "formats.obj": DATA,
+    "formats.mtl": DATA,
+    "formats.gltf": DATA,
+    "formats.scene": DATA,
+    "examples": DATA,
+    "examples.geometry": DATA,
+    "examples.texture": DATA,
+    "examples.canyon": DATA,
+    "examples.wall": DATA,
+    "examples.colonnade": DATA,
+    "examples.tiles": DATA,
+    "examples.ruin": DATA,
     "data.distance": DATA,
     "data.tsdf": DATA,
     "data.grid": DATA,
     "data.source": DATA,
-    "values": DATA,  # what a value a user passes may be: the checks the CLI and the Python API share
+    "app.values": DATA,  # what a value a user passes may be: the checks the CLI and the Python API share
     # model: triplane, autoencoder, decoding, U-Net, the noise schedule, diffusion, the trainers
     "model": MODEL,
     "model.triplane": MODEL,
@@ -76,7 +78,7 @@ LAYERS = {
     "model.unet": MODEL,
     "model.schedule": MODEL,
     "model.diffusion": MODEL,
-    "model.snap": MODEL,
+    "auto.snap": MODEL,
     # generate: what to sample (control), texture baking and the SDF → textured mesh step
     "generate": GENERATE,
     "generate.control": GENERATE,
@@ -120,11 +122,11 @@ LAYERS = {
     # app: the facade, run folders, mass sampling (the run, its folder, ranks and workers), the CLI (main, parser,
     # commands by group), shipped models, the public namespace
     "pipeline": APP,
-    "runs": APP,
-    "mass": APP,
-    "mass_folder": APP,
-    "mass_workers": APP,
-    "pretrained": APP,
+    "app.runs": APP,
+    "app.mass": APP,
+    "app.mass_folder": APP,
+    "app.mass_workers": APP,
+    "app.pretrained": APP,
     "cli": APP,
     "cli.__main__": APP,
     "cli.parser_cli": APP,
@@ -135,15 +137,15 @@ LAYERS = {
     "__init__": APP,
     # the facade's stages: fitting (fit_policy decides, run_folder and checkpoints keep the files), sampling (request:
     # a sample run's settings and their defaults)
-    "fitting": APP,
-    "fit_policy": APP,
-    "fit_default": APP,
-    "run_folder": APP,
-    "checkpoints": APP,
-    "model_file": APP,  # every field of a model.pt checked before anything is built
-    "sampling": APP,
-    "request": APP,
-    "notebook_run": APP,  # runs the notebooks at reading settings and records their outputs
+    "app.fitting": APP,
+    "auto.fit_policy": APP,
+    "auto.fit_default": APP,
+    "app.run_folder": APP,
+    "app.checkpoints": APP,
+    "app.model_file": APP,  # every field of a model.pt checked before anything is built
+    "app.sampling": APP,
+    "app.request": APP,
+    "app.notebook_run": APP,  # runs the notebooks at reading settings and records their outputs
 }
 
 MAX_LINES, MAX_FUNCTION_LINES = 500, 80
@@ -260,8 +262,8 @@ def test_no_import_cycles():
 
 
 def test_the_cycle_checker_finds_a_cycle():
-    graph = {"pipeline": {"runs"}, "runs": {"pipeline", "files"}, "files": set()}  # the cycle phase 2 broke
-    assert _cycles(graph) == [{"pipeline", "runs"}]
+    graph = {"pipeline": {"app.runs"}, "app.runs": {"pipeline", "files"}, "files": set()}  # the cycle phase 2 broke
+    assert _cycles(graph) == [{"pipeline", "app.runs"}]
 
 
 def _long_functions(path: Path):

@@ -19,10 +19,10 @@ import pytest
 import torch
 import trimesh
 
+from sin3dm_lite.app.pretrained import pretrained_path, shipped_model
 from sin3dm_lite.cli import main
-from sin3dm_lite.data.examples import list_examples
+from sin3dm_lite.examples import list_examples
 from sin3dm_lite.files import LOCK, MANIFEST, TEMP_PREFIX, read_manifest
-from sin3dm_lite.pretrained import pretrained_path, shipped_model
 
 from .conftest import CHEAP_SAMPLE
 
@@ -586,8 +586,8 @@ def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay, capsys)
 
 
 def test_poor_reconstruction_is_a_warning_with_the_likely_cause():
+    from sin3dm_lite.auto.fit_policy import MIN_IOU, MIN_PSNR, warn_if_poor
     from sin3dm_lite.data.presets import get_preset
-    from sin3dm_lite.fit_policy import MIN_IOU, MIN_PSNR, warn_if_poor
 
     # the fix is a setting of the run's config with its value, as the CLI and Python take it
     switched = get_preset("small").for_thin_parts()  # 1,000 autoencoder steps at 96 voxels

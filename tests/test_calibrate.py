@@ -269,7 +269,7 @@ def test_old_records_still_load():
     """A record written before the ceiling (absolute goals, no near copy: the shipped wall's) loads, tells its story
     and keeps what the fit reads from it; a new record goes through its dict and back unchanged."""
     import sin3dm_lite
-    from sin3dm_lite.fit_policy import keeps_goals_from_noise
+    from sin3dm_lite.auto.fit_policy import keeps_goals_from_noise
 
     shipped = Path(sin3dm_lite.__file__).parent / "shipped" / "wall_small"
     record = json.loads((shipped / "report.json").read_text())["calibration"]
@@ -440,7 +440,7 @@ def test_a_fit_saves_its_calibrated_diversity(calibrated):
 
 
 def test_a_thin_fit_calibrated_on_its_grid_names_the_calibration_at_128():
-    from sin3dm_lite.fit_policy import calibration_grid_hint
+    from sin3dm_lite.auto.fit_policy import calibration_grid_hint
 
     switch = {"from": "quick", "resolution": 64, "thin_share": 0.5}
     hint = calibration_grid_hint(switch, {"resolution": 64}, Path("runs/ruin"))
@@ -453,8 +453,8 @@ def test_a_thin_fit_calibrated_on_its_grid_names_the_calibration_at_128():
 
 
 def test_the_rollout_hint_applies_only_to_a_plain_denoiser_calibrated_to_pure_noise():
+    from sin3dm_lite.auto.fit_policy import rollout_hint
     from sin3dm_lite.data.presets import get_preset
-    from sin3dm_lite.fit_policy import rollout_hint
 
     small = get_preset("small")
     hint = rollout_hint(small, {"diversity": 1.0, "kept_goals": True})
@@ -656,7 +656,7 @@ def test_cli_calibrate_snap_calibrates_for_snapped_samples_and_keeps_the_setting
     """`calibrate RUN --snap 1`: the calibration's samples are snapped, and the run keeps sampling.snap (no refit)."""
     import shutil
 
-    import sin3dm_lite.model.snap as snap
+    import sin3dm_lite.auto.snap as snap
 
     _, run = calibrated
     copy = tmp_path / "snapped"
@@ -754,9 +754,9 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
 
     import torch
 
-    from sin3dm_lite import fitting
+    from sin3dm_lite.app import fitting
+    from sin3dm_lite.auto.fit_policy import COPIES_DISTANCE, copies_warning, from_noise_distance, g_div_at_one
     from sin3dm_lite.data.presets import get_preset
-    from sin3dm_lite.fit_policy import COPIES_DISTANCE, copies_warning, from_noise_distance, g_div_at_one
 
     model, run, _ = plain_fit
     recorded = json.loads((run / "report.json").read_text())["from_noise_distance"]

@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from sin3dm_lite.cli import main
-from sin3dm_lite.data.examples import list_examples
+from sin3dm_lite.examples import list_examples
 
 from .conftest import CHEAP_SAMPLE
 
@@ -104,8 +104,8 @@ def test_demo_with_the_shipped_model_writes_meshes_and_a_viewer_page(capsys, tmp
 
 def test_sample_diversity_zero_gives_the_input_back(capsys, tmp_path):
     """`--diversity 0` regenerates nothing: the mesh is the shipped model's reconstruction of its input."""
+    from sin3dm_lite.app.pretrained import pretrained_path
     from sin3dm_lite.pipeline import Sin3DM
-    from sin3dm_lite.pretrained import pretrained_path
 
     out = tmp_path / "closest"
     code, _, _ = run(
@@ -153,8 +153,8 @@ def test_sample_snap_is_a_setting_of_the_folder(capsys, tmp_path):
     # the latent written is the snapped sampler's, not the plain one's
     import torch
 
+    from sin3dm_lite.app.pretrained import pretrained_path
     from sin3dm_lite.pipeline import Sin3DM
-    from sin3dm_lite.pretrained import pretrained_path
 
     got = torch.load(out / "000" / "latent.pt", weights_only=True)["triplane"]
     model = Sin3DM.load(pretrained_path("wall_small"))
@@ -167,8 +167,8 @@ def test_sample_snap_is_a_setting_of_the_folder(capsys, tmp_path):
 
 def test_sample_takes_snap_from_a_run_fitted_with_it(capsys, tmp_path):
     """A run whose config has ``sampling.snap`` samples snapped without --snap (recorded as such); --snap 0 wins."""
+    from sin3dm_lite.app.pretrained import pretrained_path
     from sin3dm_lite.pipeline import Sin3DM
-    from sin3dm_lite.pretrained import pretrained_path
 
     model = Sin3DM.load(pretrained_path("wall_small"))
     model.config = model.config.updated(**{"sampling.snap": 1.0})
@@ -255,7 +255,7 @@ def test_the_help_lists_exactly_the_formats_that_load(tmp_path, capsys):
     """``READABLE`` names every suffix the loader takes and no other; one tiny mesh of each loads."""
     import re
 
-    from sin3dm_lite.data.load import READABLE, SUPPORTED_EXTENSIONS, load_mesh
+    from sin3dm_lite.formats.load import READABLE, SUPPORTED_EXTENSIONS, load_mesh
 
     words = {w.lower() for w in re.findall(r"[A-Za-z]+", READABLE)} - {"mtl"}
     assert words == {ext[1:] for ext in SUPPORTED_EXTENSIONS}
@@ -305,7 +305,7 @@ def test_demo_example_with_train_fits_that_example(capsys, tmp_path, monkeypatch
 
 def test_demo_of_an_example_without_a_shipped_model_says_what_to_do(capsys, tmp_path, monkeypatch):
     """Every built-in example may have a shipped model; hide the wall's to see the message for one that has none."""
-    from sin3dm_lite import pretrained
+    from sin3dm_lite.app import pretrained
 
     real = pretrained.shipped_model
     monkeypatch.setattr(
@@ -323,7 +323,7 @@ class _FitCalled(Exception):
 def _preset_fit_gets(tmp_path, monkeypatch, *argv, machine: str = "small"):
     """Run `sin3dm-lite fit ...` up to Sin3DM.fit and return the preset (a Config) it would fit with; without
     --preset the machine's default is pinned to ``machine`` (no timing: tests/test_fit_default.py tests the choice)."""
-    from sin3dm_lite import fit_default
+    from sin3dm_lite.auto import fit_default
     from sin3dm_lite.data.config import Config
     from sin3dm_lite.data.presets import get_preset
     from sin3dm_lite.pipeline import Sin3DM
@@ -397,12 +397,12 @@ def test_fit_set_changes_the_preset_and_names_a_bad_setting(capsys, tmp_path, mo
 def test_a_mesh_without_colour_fits_its_geometry_only_and_its_samples_keep_the_grey(capsys, tmp_path, monkeypatch):
     """An STL has no colour: the fit says the autoencoder learns the geometry alone (and prices its time so),
     reports the colour as kept (not a PSNR), records it in the report, and its meshes are the default grey."""
-    from sin3dm_lite import fit_policy
+    from sin3dm_lite.auto import fit_policy
     from sin3dm_lite.data.mesh import DEFAULT_COLOR
     from sin3dm_lite.pipeline import Sin3DM
 
     priced, real = [], fit_policy.quick_hint
-    monkeypatch.setattr("sin3dm_lite.fitting.quick_hint", lambda *a: priced.append(a[2]) or real(*a))
+    monkeypatch.setattr("sin3dm_lite.app.fitting.quick_hint", lambda *a: priced.append(a[2]) or real(*a))
     trimesh.creation.box(extents=(1.0, 0.6, 0.4)).export(tmp_path / "box.stl")
     settings = ["autoencoder.steps=80", "diffusion.steps=2", "sampling.steps=2", "sampling.mesh_resolution=24"]
     code, out, _ = run(

@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from sin3dm_lite import cli
+from sin3dm_lite.app.pretrained import shipped_model
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.generate import control
-from sin3dm_lite.pretrained import shipped_model
 
 REGENERATE = ((0.25, 0.0, 0.0), (0.6, 1.0, 1.0))  # a slab across x: reaches the faces along y and z
 DUPLICATE = (((0.0, 0.0, 0.0), (0.3, 1.0, 1.0)), (0.6, 0.0, 0.0))

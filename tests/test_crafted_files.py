@@ -18,10 +18,10 @@ import pytest
 import torch
 import trimesh
 
+from sin3dm_lite.app.pretrained import pretrained_path
 from sin3dm_lite.cli import main
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.pipeline import Sin3DM
-from sin3dm_lite.pretrained import pretrained_path
 
 from .conftest import CHEAP_SAMPLE
 
@@ -208,7 +208,7 @@ def test_fifo_as_mesh_is_refused_at_once(tmp_path, monkeypatch, capsys, unblock,
 
 
 def test_device_as_mesh_is_refused(tmp_path):
-    from sin3dm_lite.data.load import load_mesh
+    from sin3dm_lite.formats.load import load_mesh
 
     (tmp_path / "zero.obj").symlink_to("/dev/zero")
     with pytest.raises(Sin3DMInputError, match=r"is a character device \(a link to '/dev/zero'\), not a regular"):
@@ -216,7 +216,7 @@ def test_device_as_mesh_is_refused(tmp_path):
 
 
 def test_fifo_as_texture_mtl_or_gltf_buffer_is_refused(tmp_path, unblock):
-    from sin3dm_lite.data.load import load_mesh
+    from sin3dm_lite.formats.load import load_mesh
 
     box = trimesh.creation.box()
     lines = [f"v {x} {y} {z}" for x, y, z in box.vertices] + ["vt 0 0", "vt 1 0", "vt 0 1"]
@@ -387,7 +387,7 @@ def test_grid_does_not_call_a_fits_own_grid_foreign(micro_fit, tmp_path, monkeyp
 def test_a_size_from_the_models_config_is_named_as_such(tmp_path, monkeypatch, capsys):
     """A mesh resolution too large for memory that came from the model's config, not the command line, is named
     as the config's setting (the old message spoke of a --mesh-resolution the user never gave)."""
-    from sin3dm_lite import device
+    from sin3dm_lite.app import device
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(device, "memory_available", lambda _device: 2 << 30)

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from sin3dm_lite.device import autocast, bf16_is_fast
+from sin3dm_lite.app.device import autocast, bf16_is_fast
 from sin3dm_lite.errors import Sin3DMInputError
 
 
@@ -23,7 +23,8 @@ def test_auto_precision_picks_bf16_only_where_it_measures_faster(monkeypatch):
     """The CPU's flag alone does not make bf16 fast (a Xeon with AVX512-BF16 ran the autoencoder's MLPs 1.3-1.6x
     slower in bf16): where the flag is present the speed is measured once, and 'auto' follows the measurement; where
     it is absent nothing is timed (emulated bf16 is many times slower). The fit's hint says which it was."""
-    from sin3dm_lite import device, fit_policy
+    from sin3dm_lite.app import device
+    from sin3dm_lite.auto import fit_policy
     from sin3dm_lite.data.presets import get_preset
 
     device.cpu_bf16_share.cache_clear()

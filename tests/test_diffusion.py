@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from sin3dm_lite.auto.snap import SNAP_LAST, SNAP_PATCH, SNAP_STRIDE, snap_hook, snap_to_patches
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model.diffusion import (
     DiffusionTrainer,
@@ -16,7 +17,6 @@ from sin3dm_lite.model.diffusion import (
     soft_mask,
 )
 from sin3dm_lite.model.schedule import NoiseSchedule, ddim_timesteps, sampling_timesteps, start_step
-from sin3dm_lite.model.snap import SNAP_LAST, SNAP_PATCH, SNAP_STRIDE, snap_hook, snap_to_patches
 from sin3dm_lite.model.triplane import Triplane
 
 from .conftest import LATENT_RES, tiny_diffusion_cfg
@@ -207,7 +207,7 @@ def _nearest_window_distance(x: Triplane, ref: Triplane) -> float:
 def test_snap_rebuilds_each_plane_from_the_inputs_patches(h0, monkeypatch):
     noise = Triplane.randn_like(h0.repeat(2), generator=torch.Generator().manual_seed(0))
     whole = snap_to_patches(noise, h0)
-    monkeypatch.setattr("sin3dm_lite.model.snap.SNAP_DISTANCES", 10)  # the search in slices of a few rows
+    monkeypatch.setattr("sin3dm_lite.auto.snap.SNAP_DISTANCES", 10)  # the search in slices of a few rows
     assert all(torch.equal(p, q) for p, q in zip(snap_to_patches(noise, h0).planes, whole.planes))
     one = snap_to_patches(noise, h0, patch=1)  # 1×1 windows: every texel becomes one of the input's texels
     for p, r in zip(one.planes, h0.planes):

@@ -165,7 +165,7 @@ def test_evaluate_voxelises_as_the_paper_unless_told_the_centres(tiny_samples, c
     import sin3dm_lite.evaluate.render
     from sin3dm_lite import metrics
     from sin3dm_lite.cli.evaluate_cli import sample_mesh_files
-    from sin3dm_lite.data.load import load_any
+    from sin3dm_lite.formats.load import load_any
 
     monkeypatch.setattr(sin3dm_lite.evaluate.render, "renderer_problem", lambda: "no EGL here (test)")
     run, samples, out = tiny_samples / "run", tiny_samples / "samples", tiny_samples / "voxels"
@@ -199,8 +199,8 @@ def test_samples_larger_than_the_input_cannot_grow_the_grid_past_what_fits(tiny_
     from dataclasses import replace
 
     from sin3dm_lite.cli.evaluate_cli import sample_mesh_files
-    from sin3dm_lite.data.load import load_any
     from sin3dm_lite.errors import Sin3DMInputError
+    from sin3dm_lite.formats.load import load_any
 
     model = Sin3DM.load(tiny_samples / "run")
     meshes = [load_any(f) for f in sample_mesh_files(tiny_samples / "samples")]

@@ -5,8 +5,8 @@ from functools import cache
 import numpy as np
 import pytest
 
-from sin3dm_lite.data.examples import DEFAULT_EXAMPLE, EXAMPLES, build_example, list_examples, write_example
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.examples import DEFAULT_EXAMPLE, EXAMPLES, build_example, list_examples, write_example
 
 NAMES = list_examples()
 
@@ -105,7 +105,7 @@ def test_unknown_name():
 
 
 def test_write_example_round_trip(tmp_path):
-    from sin3dm_lite.data.load import load_mesh
+    from sin3dm_lite.formats.load import load_mesh
 
     path = write_example("colonnade", tmp_path)
     assert path == tmp_path / "colonnade.obj"

@@ -8,9 +8,9 @@ import trimesh
 
 from sin3dm_lite import export
 from sin3dm_lite import extract as ex
-from sin3dm_lite.data.export import export_mesh
 from sin3dm_lite.data.mesh import Normalization
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.formats.export import export_mesh
 
 from .conftest import AABB, SphereDecoder, zero_triplane
 

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from sin3dm_lite import fit_default
+from sin3dm_lite.auto import fit_default
 from sin3dm_lite.cli import main
 from sin3dm_lite.data.presets import get_preset
 
@@ -107,7 +107,7 @@ def test_a_missing_input_fails_before_the_timing(monkeypatch, tmp_path, capsys):
 
 def test_the_python_fit_without_a_preset_takes_the_machines_and_says_so(monkeypatch, capsys):
     """`Sin3DM.fit(mesh)` without ``preset``: the same default, said first (after the input is read)."""
-    from sin3dm_lite import fitting
+    from sin3dm_lite.app import fitting
     from sin3dm_lite.pipeline import Sin3DM
 
     seen = {}

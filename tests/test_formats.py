@@ -1,4 +1,4 @@
-"""Tests of the mesh readers: sin3dm_lite.data.load and data/formats/ (loaders, bad input, normalisation) and round trips through export's writers.
+"""Tests of the mesh readers: sin3dm_lite.formats.load and data/formats/ (loaders, bad input, normalisation) and round trips through export's writers.
 
 Every input is written on the fly into ``tmp_path`` (no binary fixtures).
 The texture used throughout has four coloured quadrants so that a lookup can
@@ -20,11 +20,11 @@ from PIL import Image
 from trimesh.visual.material import PBRMaterial
 
 from sin3dm_lite import export
-from sin3dm_lite.data.export import save_glb, save_obj, to_trimesh_scene
-from sin3dm_lite.data.formats.images import image_to_array
-from sin3dm_lite.data.load import load_any, load_mesh
 from sin3dm_lite.data.mesh import BOX_MARGIN, DEFAULT_COLOR, Material, TexturedMesh, sample_texture
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.formats.export import save_glb, save_obj, to_trimesh_scene
+from sin3dm_lite.formats.images import image_to_array
+from sin3dm_lite.formats.load import load_any, load_mesh
 
 RED, GREEN, BLUE, YELLOW = (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)
 CYAN, MAGENTA = (0, 1, 1), (1, 0, 1)

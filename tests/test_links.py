@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 
 from sin3dm_lite import files
+from sin3dm_lite.app.pretrained import pretrained_path
 from sin3dm_lite.cli import main
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.files import MANIFEST
-from sin3dm_lite.pretrained import pretrained_path
 
 from .conftest import CHEAP_SAMPLE
 

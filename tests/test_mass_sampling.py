@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 import torch
 
+from sin3dm_lite.app.pretrained import pretrained_path
 from sin3dm_lite.files import LOCK, MANIFEST, TEMP_PREFIX, manifest_parts, read_manifest
 from sin3dm_lite.pipeline import Sin3DM
-from sin3dm_lite.pretrained import pretrained_path
 
 from .conftest import CHEAP_SAMPLE
 
@@ -168,7 +168,7 @@ def test_other_settings_are_refused_and_overwrite_starts_over(one_process, tmp_p
 PARENT = """
 import multiprocessing, os, time
 from concurrent.futures import ProcessPoolExecutor
-from sin3dm_lite.mass_workers import exit_with_parent
+from sin3dm_lite.app.mass_workers import exit_with_parent
 pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=exit_with_parent)
 print(pool.submit(os.getpid).result(), flush=True)
 time.sleep(600)
@@ -194,7 +194,7 @@ def test_an_export_worker_ends_with_its_killed_parent():
 
 
 def test_the_export_workers_watch_their_parent(monkeypatch, tmp_path):
-    from sin3dm_lite import mass_workers
+    from sin3dm_lite.app import mass_workers
 
     calls = []
     monkeypatch.setattr(mass_workers, "exit_with_parent", lambda: calls.append("watch"))
@@ -242,7 +242,7 @@ def test_multiprocessing_temporaries_of_a_killed_run_are_removed_by_the_next(tmp
     """`kill -9` leaves the pool's temporary folder; the next run removes it (a live process's stays)."""
     import tempfile
 
-    from sin3dm_lite import mass_workers
+    from sin3dm_lite.app import mass_workers
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     dead = subprocess.Popen([sys.executable, "-c", "pass"])

@@ -10,7 +10,7 @@ from pathlib import Path
 import nbformat
 import pytest
 
-from sin3dm_lite import notebook_run
+from sin3dm_lite.app import notebook_run
 
 ROOT = Path(__file__).parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))

@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 
 from sin3dm_lite import files
+from sin3dm_lite.app.pretrained import pretrained_path
 from sin3dm_lite.cli import main
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.files import LOCK, MANIFEST, read_manifest
-from sin3dm_lite.pretrained import pretrained_path
 
 from .conftest import CHEAP_SAMPLE
 
@@ -191,7 +191,7 @@ def test_steps_beyond_the_schedule_write_nothing_and_the_corrected_command_works
 
 
 def test_a_sample_run_that_fails_before_its_first_sample_leaves_nothing(work, capsys, monkeypatch):
-    from sin3dm_lite import mass
+    from sin3dm_lite.app import mass
 
     def fails(*args, **kwargs):
         raise Sin3DMInputError("the decoder ran out of memory (stands for any failure)")

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
+from sin3dm_lite.app.device import cpu_bf16_share, resolved_precision
+from sin3dm_lite.auto.fit_policy import thin_parts_switch
 from sin3dm_lite.data.config import Config
 from sin3dm_lite.data.presets import get_preset
-from sin3dm_lite.device import cpu_bf16_share, resolved_precision
 from sin3dm_lite.errors import Sin3DMInputError
-from sin3dm_lite.fit_policy import thin_parts_switch
 from sin3dm_lite.model import autoencoder
 from sin3dm_lite.pipeline import Sin3DM
 
@@ -48,7 +48,7 @@ def test_run_folder_and_report(fitted):
 
 def test_auto_precision_resolves_to_what_the_step_runs_in(monkeypatch):
     """'auto' is bf16 exactly where bf16 measures faster; 'fp32' and 'bf16' are themselves; anything else is refused."""
-    from sin3dm_lite import device
+    from sin3dm_lite.app import device
 
     for fast in (True, False):
         monkeypatch.setattr(device, "bf16_is_fast", lambda dev, f=fast: f)
@@ -58,7 +58,7 @@ def test_auto_precision_resolves_to_what_the_step_runs_in(monkeypatch):
         resolved_precision("cpu", "half")
 
     # the fit's record: each network's setting resolved, and bf16's measured share where 'auto' asked for it
-    from sin3dm_lite import fitting
+    from sin3dm_lite.app import fitting
 
     cfg = micro_config().updated(**{"autoencoder.precision": "auto", "diffusion.precision": "fp32"})
     dev = torch.device("cpu")
@@ -140,7 +140,7 @@ def test_resume_refuses_another_input_or_other_settings_and_writes_nothing(fitte
 
     import trimesh
 
-    from sin3dm_lite.run_folder import INPUT_FILE
+    from sin3dm_lite.app.run_folder import INPUT_FILE
 
     def snapshot(folder):
         return {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
@@ -181,8 +181,8 @@ def test_resume_refuses_another_input_or_other_settings_and_writes_nothing(fitte
 def test_mesh_sizes_beyond_memory_are_refused_with_the_largest_that_fits(fitted, monkeypatch):
     """Issue 35: a huge texture or mesh resolution ran for minutes into gigabytes or an ArrayMemoryError; to_mesh
     (and `sample` before it makes a folder) refuses it at once, naming the most the free memory holds."""
-    from sin3dm_lite import device
-    from sin3dm_lite.sampling import EXPORT_BYTES_PER_TEXEL
+    from sin3dm_lite.app import device
+    from sin3dm_lite.app.sampling import EXPORT_BYTES_PER_TEXEL
 
     model, _ = fitted
     s = model.input_sample()
@@ -201,7 +201,7 @@ def test_checkpoints_are_written_once_per_step(tmp_path, monkeypatch):
     import re
     from pathlib import Path
 
-    from sin3dm_lite import checkpoints
+    from sin3dm_lite.app import checkpoints
 
     writes = []
     real = checkpoints.save_torch  # every torch file: checkpoints (atomic_torch_save) and model.pt (write_model)
@@ -298,7 +298,7 @@ def test_snap_pulls_samples_towards_the_inputs_patches_of_any_size(fitted):
 def test_sampling_snap_in_the_config_is_what_sample_and_the_calibration_use(fitted, monkeypatch):
     """A run fitted with ``sampling.snap`` samples snapped by default, the calibration's samples too (so its
     diversity is chosen for the snapped sampler); an explicit ``snap`` wins; the setting is a share."""
-    import sin3dm_lite.model.snap as snap
+    import sin3dm_lite.auto.snap as snap
     from sin3dm_lite.evaluate.calibrate import sample_occupancy
 
     model, _ = fitted
@@ -343,7 +343,7 @@ def test_bad_diversity_is_a_clear_error(fitted, diversity):
 
 def test_sample_refuses_more_samples_than_fit_in_memory(fitted, monkeypatch):
     model, _ = fitted
-    monkeypatch.setattr("sin3dm_lite.device.memory_available", lambda device: 64 << 20)  # 64 MiB free
+    monkeypatch.setattr("sin3dm_lite.app.device.memory_available", lambda device: 64 << 20)  # 64 MiB free
     limit = model.max_samples()
     assert 1 <= limit < 10_000
     assert model.max_samples((2.0, 2.0, 2.0)) < limit  # bigger latents, fewer at once
@@ -378,7 +378,7 @@ def test_occupancy_of_a_sample_without_surface_is_empty_or_full(fitted, monkeypa
 
 
 def test_input_mesh_is_the_example_or_the_file_the_run_was_fitted_to(fitted, tmp_path):
-    from sin3dm_lite.data.examples import build_example, write_example
+    from sin3dm_lite.examples import build_example, write_example
 
     model, run = fitted
     assert len(model.input_mesh().faces) == len(build_example("wall").faces)  # an example: built again
@@ -399,7 +399,7 @@ def test_input_mesh_is_the_example_or_the_file_the_run_was_fitted_to(fitted, tmp
 def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, capsys, monkeypatch):
     """A preset with thin_parts refits the grid at the finer settings when the shape is mostly thin parts, says so,
     and records the settings it used, so that the run folder loads and resumes as what it is."""
-    from sin3dm_lite import fitting
+    from sin3dm_lite.app import fitting
     from sin3dm_lite.data.grid import load_grid
 
     cfg = micro_config().updated(
@@ -444,7 +444,7 @@ def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, caps
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
 def test_a_switch_that_keeps_the_grid_snaps_the_samples_without_a_second_grid(tmp_path, capsys, monkeypatch):
     """quick's kind of switch (sampling.snap only): the same grid, built once; the run samples snapped."""
-    from sin3dm_lite import fitting
+    from sin3dm_lite.app import fitting
 
     built = []
     real = fitting.grid_for
@@ -473,7 +473,8 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
     pure noise are looked at; copies send the fit back to the narrower denoiser, trained from its first step, and
     the run folder holds that one; varied samples keep the wider one. The outcome is recorded, and a resumed fit
     does not check again."""
-    from sin3dm_lite import fit_policy, fitting
+    from sin3dm_lite.app import fitting
+    from sin3dm_lite.auto import fit_policy
 
     monkeypatch.setattr(fit_policy, "THIN_WALLS_SHARE", 0.0)  # the tiles at 24 voxels count as thin walls here
     monkeypatch.setattr(fit_policy, "WIDE_FIELD_CHECK_STEP", 3)
@@ -529,7 +530,8 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
 def test_a_denoiser_the_user_chose_keeps_the_thin_walls_free_planes_without_a_trial(tmp_path, capsys, monkeypatch):
     """A denoiser setting the user sets drops Config.thin_walls' wider field (nothing to try: the fit never looks
     at samples from pure noise) but not what keeps a thin wall's windows: the free planes are trained and saved."""
-    from sin3dm_lite import fit_policy, fitting
+    from sin3dm_lite.app import fitting
+    from sin3dm_lite.auto import fit_policy
 
     monkeypatch.setattr(fit_policy, "THIN_WALLS_SHARE", 0.0)  # the tiles at 24 voxels count as thin walls here
     monkeypatch.setattr(fitting, "are_copies", lambda d: pytest.fail("no wider field to try"))
@@ -678,7 +680,7 @@ def test_a_slow_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, ca
 
     The hint follows the autoencoder's cost, not the preset's name: small, its thin-part switch and detail get it,
     quick, tiny and a small with a short autoencoder do not, and nobody gets it where bf16 is native."""
-    from sin3dm_lite import fit_policy
+    from sin3dm_lite.auto import fit_policy
 
     monkeypatch.setattr(fit_policy, "bf16_is_fast", lambda device: False)
     for name in ("small", "detail", "paper"):
@@ -695,7 +697,7 @@ def test_a_slow_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, ca
     for cfg in (get_preset("quick"), get_preset("tiny"), get_preset("small").updated(**{"autoencoder.steps": 500})):
         assert fit_policy.quick_hint(cfg, "cpu") is None, cfg.name
     # the fit prints it (a micro fit priced like small's), and the two-thread opt-in where the policy chose one
-    from sin3dm_lite import threads
+    from sin3dm_lite.app import threads
 
     monkeypatch.setattr(fit_policy, "fp32_autoencoder_minutes", lambda cfg, one_color=False: 20.0)
     monkeypatch.setattr(threads, "APPLIED", {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"})

@@ -9,7 +9,6 @@ import pytest
 from PIL import Image
 
 from sin3dm_lite.cli import main
-from sin3dm_lite.data.export import export_mesh
 from sin3dm_lite.data.mesh import Material, TexturedMesh
 from sin3dm_lite.evaluate.render import (
     contact_sheet,
@@ -20,6 +19,7 @@ from sin3dm_lite.evaluate.render import (
     view_angles,
     view_names,
 )
+from sin3dm_lite.formats.export import export_mesh
 
 # Off-screen OpenGL needs Mesa's EGL on a Linux machine without a display (the CI image has it); elsewhere the
 # render command says how to install it (tested in test_bad_inputs' table only where rendering never starts)
@@ -157,7 +157,7 @@ def test_pbr_maps_shade_the_picture_and_factors_alone_do_not():
     no maps) do not turn a plain texture into metal."""
     from dataclasses import replace
 
-    from sin3dm_lite.data.examples import build_example
+    from sin3dm_lite.examples import build_example
 
     tiles = build_example("tiles")
     plain = replace(

@@ -5,8 +5,8 @@ import pytest
 
 from sin3dm_lite.data.grid import mesh_to_grid
 from sin3dm_lite.data.presets import get_preset
-from sin3dm_lite.data.ruin import build_ruin, ruin_tower
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.examples.ruin import build_ruin, ruin_tower
 
 TINY = get_preset("tiny").grid
 
@@ -111,7 +111,7 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     """The ruin is mostly thin walls at 64 voxels: small switches to its finer thin-part settings; quick (whose
     finer settings take 5x its fit without bf16) switches to snapped samples on the same fit and names
     --thin-switch; quick without its switch gives the hint, which names both."""
-    from sin3dm_lite.fit_policy import thin_parts_hint, thin_parts_message, thin_parts_switch, wide_field_undo
+    from sin3dm_lite.auto.fit_policy import thin_parts_hint, thin_parts_message, thin_parts_switch, wide_field_undo
 
     quick = get_preset("quick")
     grid = mesh_to_grid(

@@ -6,10 +6,10 @@ import shutil
 
 import pytest
 
-from sin3dm_lite import checkpoints
+from sin3dm_lite.app import checkpoints
+from sin3dm_lite.app.pretrained import pretrained_path
 from sin3dm_lite.cli import main
 from sin3dm_lite.pipeline import Sin3DM
-from sin3dm_lite.pretrained import pretrained_path
 
 
 @pytest.fixture
@@ -55,7 +55,7 @@ def test_a_failed_checkpoint_write_is_the_error_reported_not_the_cleanups(tmp_pa
     import pathlib
     import warnings
 
-    from sin3dm_lite import fitting
+    from sin3dm_lite.app import fitting
 
     from .conftest import micro_config
 

@@ -5,11 +5,11 @@ import shutil
 import pytest
 from PIL import Image
 
-from sin3dm_lite import runs
-from sin3dm_lite.data.examples import write_example
+from sin3dm_lite.app import runs
+from sin3dm_lite.app.pretrained import pretrained_path
 from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.examples import write_example
 from sin3dm_lite.pipeline import Sin3DM, open_run
-from sin3dm_lite.pretrained import pretrained_path
 
 from .conftest import micro_config
 
@@ -19,7 +19,7 @@ pytestmark = pytest.mark.filterwarnings("ignore:low reconstruction quality")
 @pytest.fixture
 def fit_calls(monkeypatch):
     """Record every ``Sin3DM.fit`` (and still run it); the wall example counts as not shipped."""
-    from sin3dm_lite import pretrained
+    from sin3dm_lite.app import pretrained
 
     shipped = pretrained.shipped_model
     monkeypatch.setattr(pretrained, "shipped_model", lambda name: None if name.startswith("wall") else shipped(name))
@@ -84,7 +84,7 @@ def test_shipped_names_load_the_shipped_folder(tmp_path, fit_calls):
 
 
 def test_shipped_examples_default_first():
-    from sin3dm_lite.pretrained import shipped_examples, shipped_names
+    from sin3dm_lite.app.pretrained import shipped_examples, shipped_names
 
     assert shipped_examples()[0] == "canyon" and len(shipped_examples()) == len(shipped_names())
 

@@ -4,7 +4,7 @@ import os
 import subprocess
 import sys
 
-from sin3dm_lite.threads import SPIN_COUNT, apply_policy, chosen_threads, threads_hint
+from sin3dm_lite.app.threads import SPIN_COUNT, apply_policy, chosen_threads, threads_hint
 
 PROBE = "import os, sin3dm_lite, torch; print(os.environ.get('OMP_WAIT_POLICY'), torch.get_num_threads())"
 OURS = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "KMP_BLOCKTIME", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "SIN3DM_THREADS")
@@ -42,7 +42,7 @@ def test_the_users_settings_win():
 
 
 def test_apply_policy_on_a_given_environment(monkeypatch):
-    from sin3dm_lite import threads
+    from sin3dm_lite.app import threads
 
     monkeypatch.setattr(threads, "usable_cores", lambda: 4)  # SIN3DM_THREADS is capped at the cores
     env = {}
@@ -74,8 +74,8 @@ def test_the_threads_hint_only_where_the_policy_chose_one_thread_of_several_core
 def test_export_workers_one_per_core_shared_among_ranks_at_most_four(monkeypatch):
     """`sample` without --workers exports in one process per usable core, split among the torchrun ranks of this
     machine, 1 to 4; an explicit --workers (0 too) is kept."""
-    from sin3dm_lite import threads
-    from sin3dm_lite.request import SampleRequest
+    from sin3dm_lite.app import threads
+    from sin3dm_lite.app.request import SampleRequest
 
     for cores, local, want in [(1, "1", 1), (2, "1", 2), (2, "2", 1), (16, "1", 4), (16, "8", 2), (8, "x", 4)]:
         monkeypatch.setattr(threads, "usable_cores", lambda c=cores: c)
@@ -92,10 +92,10 @@ def test_export_workers_one_per_core_shared_among_ranks_at_most_four(monkeypatch
 def test_the_default_workers_drop_to_what_memory_holds(monkeypatch):
     """Without --workers, sample lowers its one-per-core default where the exports would not fit in memory,
     instead of refusing; an explicit --workers that does not fit is refused (tests/test_bad_inputs.py)."""
-    from sin3dm_lite import device, mass, threads
+    from sin3dm_lite.app import device, mass, threads
+    from sin3dm_lite.app.request import SampleRequest
+    from sin3dm_lite.app.sampling import EXPORT_BYTES_PER_TEXEL, EXPORT_BYTES_PER_VOXEL
     from sin3dm_lite.pipeline import Sin3DM
-    from sin3dm_lite.request import SampleRequest
-    from sin3dm_lite.sampling import EXPORT_BYTES_PER_TEXEL, EXPORT_BYTES_PER_VOXEL
 
     monkeypatch.delenv("SIN3DM_WORKERS", raising=False)
     monkeypatch.setattr(threads, "usable_cores", lambda: 4)

@@ -3,8 +3,8 @@
 import pytest
 import torch
 
+from sin3dm_lite.app.device import count_parameters
 from sin3dm_lite.data.config import DiffusionConfig
-from sin3dm_lite.device import count_parameters
 from sin3dm_lite.model.triplane import Triplane
 from sin3dm_lite.model.unet import (
     TriplaneConv,

@@ -208,7 +208,7 @@ def test_plot_schedule_accepts_tensors():
 
 def test_plot_snapping_shows_x0_snapped_and_the_input_on_the_inputs_basis(tp):
     from sin3dm_lite import snap_to_patches
-    from sin3dm_lite.model.snap import SNAP_PATCH
+    from sin3dm_lite.auto.snap import SNAP_PATCH
 
     ref = tp[0:1]
     x0 = Triplane.randn(1, 5, (8, 6, 10), generator=torch.Generator().manual_seed(3))

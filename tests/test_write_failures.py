@@ -13,13 +13,13 @@ from pathlib import Path
 import pytest
 import torch
 
-from sin3dm_lite import mass_workers
+from sin3dm_lite.app import mass_workers
+from sin3dm_lite.app.mass_folder import finished
+from sin3dm_lite.app.mass_workers import export_sample as real_export_sample
+from sin3dm_lite.app.pretrained import pretrained_path
 from sin3dm_lite.cli import main
 from sin3dm_lite.files import LOCK, TEMP_PREFIX, save_torch, shown_path
-from sin3dm_lite.mass_folder import finished
-from sin3dm_lite.mass_workers import export_sample as real_export_sample
 from sin3dm_lite.pipeline import Sin3DM
-from sin3dm_lite.pretrained import pretrained_path
 
 from .conftest import CHEAP_SAMPLE
 

@@ -25,7 +25,7 @@ folder or the input) before the long work starts; results are written into a
 temporary folder beside the target (``.sin3dm-tmp-<pid>-*``, removed by the
 next run if the process was killed) and moved into place at the end.
 ``sample`` and ``demo`` move each sample folder into place as it finishes and
-continue a folder of samples with the same settings (:mod:`sin3dm_lite.mass`).
+continue a folder of samples with the same settings (:mod:`sin3dm_lite.app.mass`).
 
 The parser is in ``parser`` (argparse stays inside this package); the commands in ``fitting``
 (examples, grid, fit), ``sampling`` (sample, demo) and ``evaluation`` (render, evaluate,
@@ -66,7 +66,7 @@ def disk_error(e: OSError, out: str | None = None, has_out: bool = True) -> str:
 
 
 def cmd_notebooks(a) -> None:
-    from ..notebook_run import run_all
+    from ..app.notebook_run import run_all
 
     code = run_all(a.notebooks, fast=a.fast, check=a.check, clear=a.clear, timeout=a.timeout)
     if code:

@@ -13,7 +13,6 @@ from .sample_cli import find_run
 
 
 def cmd_render(a) -> None:
-    from ..data.formats.images import png_bytes
     from ..data.source import resolve_mesh
     from ..evaluate.evaluation import check_views
     from ..evaluate.render import contact_sheet, render_hero, render_views, view_names
@@ -25,6 +24,7 @@ def cmd_render(a) -> None:
         make_temp_dir,
         remove_stale_temps,
     )
+    from ..formats.images import png_bytes
 
     out = Path(a.out)
     check_views(a.views, a.size, ("--views", "--size"))  # what Sin3DM.evaluate's views and size are checked by
@@ -92,11 +92,11 @@ def print_evaluation(result: dict) -> None:
 def cmd_evaluate(a) -> None:
     import json
 
-    from ..data.load import load_any
     from ..data.source import resolve_mesh
     from ..evaluate.evaluation import check_fine_grid, check_resolutions, check_views
     from ..evaluate.metrics import load_feature_weights
     from ..files import check_not_overlapping, check_writable, clash_error, is_ours, write_recorded
+    from ..formats.load import load_any
     from ..pipeline import Sin3DM
 
     check_views(a.views, a.size, ("--views", "--size"))  # the checks Sin3DM.evaluate's arguments get
@@ -144,8 +144,8 @@ def cmd_evaluate(a) -> None:
 
 
 def cmd_calibrate(a) -> None:
+    from ..app.pretrained import is_shipped
     from ..files import acquire_lock, check_writable, release_lock
-    from ..pretrained import is_shipped
 
     run = find_run(a.run)
     shipped = is_shipped(run)  # a shipped model's folder is part of the installed package: print only
@@ -170,7 +170,7 @@ def _supersample(voxels: str) -> int:
 def run_report(run: Path) -> dict | None:
     """The run's ``report.json`` (None without one), read and checked before a command changes the run: a damaged
     one refuses here, before the long work and before any file of the run is replaced."""
-    from ..input_files import read_json
+    from ..files.inputs import read_json
 
     path = run / "report.json"
     if not path.exists() and not path.is_symlink():
@@ -192,7 +192,7 @@ def run_report(run: Path) -> dict | None:
 def _calibrate(a, run: Path, shipped: bool) -> None:
     import json
 
-    from ..checkpoints import write_model
+    from ..app.checkpoints import write_model
     from ..data.grid import load_grid
     from ..data.source import resolve_mesh
     from ..evaluate.calibrate import GOALS

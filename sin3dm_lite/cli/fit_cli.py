@@ -11,7 +11,7 @@ from ..errors import Sin3DMInputError
 
 
 def cmd_examples(a) -> None:
-    from ..data import examples
+    from .. import examples
 
     if a.write:
         from ..files import check_writable, clash_error, foreign_files, make_temp_dir, merge_output, remove_stale_temps
@@ -132,11 +132,11 @@ def cmd_fit(a) -> None:
 
 
 def default_for_this_machine(a) -> str:
-    """The preset ``fit`` takes without ``--preset`` (:func:`~sin3dm_lite.fit_default.default_preset`), said first:
+    """The preset ``fit`` takes without ``--preset`` (:func:`~sin3dm_lite.auto.fit_default.default_preset`), said first:
     which, why, and about how long. A missing input or an unwritable ``--out`` fails before the timing."""
+    from ..app.run_folder import check_run_folder
+    from ..auto.fit_default import default_preset
     from ..data.source import is_example, resolve_mesh
-    from ..fit_default import default_preset
-    from ..run_folder import check_run_folder
 
     check_run_folder(Path(a.out), a.mesh, False)
     if not is_example(a.mesh) and not Path(a.mesh).is_file():

@@ -83,7 +83,7 @@ COMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..data.load import READABLE
+    from ..formats.load import READABLE
 
     p = _Parser(
         prog="sin3dm-lite",
@@ -110,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _mesh_help() -> str:
-    from ..data.load import READABLE
+    from ..formats.load import READABLE
 
     return f"mesh file ({READABLE}) or built-in example name"
 
@@ -198,7 +198,7 @@ def _sample_command_args(s: argparse.ArgumentParser) -> None:
 
 
 def _demo_args(d: argparse.ArgumentParser) -> None:
-    from ..data import examples
+    from .. import examples
     from .sample_cli import DEMO_PRESET
 
     _sample_args(d, n_default=4)

@@ -1,4 +1,4 @@
-"""``sin3dm-lite sample`` and ``sin3dm-lite demo``: many samples into a folder (:mod:`sin3dm_lite.mass`).
+"""``sin3dm-lite sample`` and ``sin3dm-lite demo``: many samples into a folder (:mod:`sin3dm_lite.app.mass`).
 
 Their flags become a :class:`mass.SampleRequest` here (:func:`sample_request`): the library
 takes no argparse object. :func:`find_run` names a run folder or a shipped model.
@@ -20,8 +20,8 @@ def check_sample_output(out: Path, a, protected: dict) -> None:
     A folder holding a sample run of ours (``sampling.json``) passes here; its
     settings are compared once the model is loaded (:func:`mass_folder.check_folder`).
     """
+    from ..app.mass_folder import MAX_RUN_SAMPLES, WRITER, read_settings, sample_output_names
     from ..files import check_not_overlapping, check_output_folder, check_writable
-    from ..mass_folder import MAX_RUN_SAMPLES, WRITER, read_settings, sample_output_names
 
     if a.start + a.n > MAX_RUN_SAMPLES:
         raise Sin3DMInputError(
@@ -36,7 +36,7 @@ def check_sample_output(out: Path, a, protected: dict) -> None:
 
 def sample_request(a):
     """The sampling flags of ``sample`` / ``demo`` as a :class:`request.SampleRequest` (the library takes no argparse)."""
-    from ..request import SampleRequest
+    from ..app.request import SampleRequest
 
     keys = (
         "n",
@@ -79,8 +79,8 @@ def control_args(a) -> dict:
 def find_run(name: str) -> Path:
     """A run folder, or the shipped model called ``name`` (the rule when both could be meant:
     :func:`runs.shipped_or_folder`, as ``Sin3DM.open``'s); one-line error if neither."""
-    from ..pretrained import shipped_names
-    from ..runs import shipped_or_folder
+    from ..app.pretrained import shipped_names
+    from ..app.runs import shipped_or_folder
 
     found = shipped_or_folder(name)
     if found is not None:
@@ -97,7 +97,7 @@ def find_run(name: str) -> Path:
             f"run folder '{name}' not found; fit one first with `sin3dm-lite fit MESH --out "
             f"{shlex.quote(name)}`, or name a shipped model ({', '.join(shipped_names())})"
         )
-    from ..pretrained import shipped_model
+    from ..app.pretrained import shipped_model
 
     shipped = shipped_model(run.name)
     other = f", or write {run.name} for the shipped model {shipped.name}" if shipped is not None else ""
@@ -108,9 +108,9 @@ def find_run(name: str) -> Path:
 
 
 def cmd_sample(a) -> None:
-    from ..device import get_device
-    from ..mass import write_samples
-    from ..mass_workers import start_ranks, stop_ranks
+    from ..app.device import get_device
+    from ..app.mass import write_samples
+    from ..app.mass_workers import start_ranks, stop_ranks
     from ..pipeline import Sin3DM
 
     run = find_run(a.run)
@@ -132,11 +132,11 @@ def cmd_sample(a) -> None:
 
 
 def cmd_demo(a) -> None:
-    from ..data import examples
-    from ..device import get_device
-    from ..mass import write_samples
+    from .. import examples
+    from ..app.device import get_device
+    from ..app.mass import write_samples
+    from ..app.pretrained import shipped_model
     from ..pipeline import Sin3DM
-    from ..pretrained import shipped_model
 
     if a.example not in examples.list_examples():
         raise Sin3DMInputError(f"unknown example '{a.example}'; choose one of: {', '.join(examples.list_examples())}")

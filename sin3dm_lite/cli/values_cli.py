@@ -1,7 +1,7 @@
 """What each option's value may be: the argparse types of the ``sin3dm-lite`` command.
 
 Each reads one word of the command line as a number and hands it to the check the Python API calls too
-(:mod:`sin3dm_lite.values`: one owner, so the two cannot drift); a bad one becomes the parser's one-line error
+(:mod:`sin3dm_lite.app.values`: one owner, so the two cannot drift); a bad one becomes the parser's one-line error
 (``argument --diversity: expected a number from 0 to 1, got 1.5``).
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from .. import values
+from ..app import values
 from ..errors import Sin3DMInputError
 
 

@@ -102,7 +102,7 @@ class SamplingConfig:
     faces: int = 30_000  # face budget after simplification
     texture_size: int = 2048
     # pull the last denoising steps' clean-latent estimate towards the input's 7×7 latent patches (0: the paper's
-    # sampler; :func:`sin3dm_lite.model.snap.patch_snapper`); the calibration samples with it too
+    # sampler; :func:`sin3dm_lite.auto.snap.patch_snapper`); the calibration samples with it too
     snap: float = 0.0
     # how much snapping prefers the input's window from the sample's own place: added to each candidate's distance,
     # per texel² between the two windows' centres (0: any place alike; only for samples of the input's size, not

@@ -129,7 +129,7 @@ class ShapeGrid:
         small boxes 0.44 and one of tiles with one-voxel gaps 1.0 (at 96
         voxels: 0.05, 0.05, 0.11, 0.07, 0.58). Above :data:`THIN_SHARE_HINT` a
         ``small`` fit switches to the ``detail`` preset's settings
-        (:func:`sin3dm_lite.fit_policy.thin_parts_switch`).
+        (:func:`sin3dm_lite.auto.fit_policy.thin_parts_switch`).
         """
         from scipy import ndimage
 
@@ -361,7 +361,7 @@ def load_grid(path: str | Path, fix: str | None = None) -> ShapeGrid:
     """Read a grid written by :func:`save_grid`: the sizes its arrays declare checked before any is read (a crafted
     header could ask for any amount of memory), their shapes and values after (one line naming the file and, with
     ``fix``, what to do; by default: write it again with ``sin3dm-lite grid``)."""
-    from ..input_files import check_regular
+    from ..files.inputs import check_regular
 
     path = Path(path)
     check_regular(path, "a grid")
@@ -409,7 +409,7 @@ def _check_declared_sizes(path: Path) -> None:
     side could be, and all of them together within half the memory available."""
     import zipfile
 
-    from ..device import memory_available
+    from ..app.device import memory_available
 
     total = 0
     with zipfile.ZipFile(path) as zf:

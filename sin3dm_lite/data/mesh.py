@@ -1,8 +1,8 @@
 """The textured mesh every stage shares, and what can be asked of its surface.
 
 Sin3DM learns from *one* textured shape. Whatever the file format (the
-readers are in :mod:`sin3dm_lite.data.formats`, their entry points in
-:mod:`sin3dm_lite.data.load`), it becomes a :class:`TexturedMesh`: triangle
+readers are in :mod:`sin3dm_lite.formats`, their entry points in
+:mod:`sin3dm_lite.formats.load`), it becomes a :class:`TexturedMesh`: triangle
 geometry plus everything needed to ask "what colour is the surface at this
 point?" (per-face UVs into one or more material textures, vertex colours, or a
 plain material colour). Keeping the materials separate (instead of packing

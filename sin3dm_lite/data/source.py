@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .. import examples
 from ..errors import Sin3DMInputError
-from . import examples
-from .load import load_any
+from ..formats.load import load_any
 from .mesh import TexturedMesh
 
 

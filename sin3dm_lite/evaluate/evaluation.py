@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .. import values
+from ..app import values
 from ..data.box import grid_shape
 from ..errors import Sin3DMInputError
 from .features import SSFID_UNAVAILABLE, FeatureNets, load_feature_weights

@@ -131,7 +131,7 @@ class FeatureNets:
 
 
 def _read_weights(path: Path, url: str) -> dict:
-    from ..input_files import check_regular
+    from ..files.inputs import check_regular
 
     check_regular(path, "weights")  # a FIFO or a device would block torch.load forever
     try:

@@ -45,11 +45,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.export import baked_image
-from ..data.formats.images import png_bytes
 from ..data.mesh import TexturedMesh
 from ..errors import Sin3DMInputError
 from ..files import atomic_write
+from ..formats.export import baked_image
+from ..formats.images import png_bytes
 
 #: vertical field of view of the camera, degrees
 FOV = 40.0

@@ -88,7 +88,7 @@ def _fmt(v) -> str:
 
 def _factors(factors, what: str, at_least: float = 0.0) -> np.ndarray:
     """The size factors ``what`` (resize, outpaint) checked by :func:`values.factors` (what the CLI's flags call)."""
-    from ..values import factors as checked
+    from ..app.values import factors as checked
 
     return np.array(checked(factors, what, at_least, at_least > 0), np.float64)
 

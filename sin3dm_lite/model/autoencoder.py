@@ -34,9 +34,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..app.device import autocast
 from ..data.config import AutoencoderConfig
 from ..data.grid import ShapeGrid
-from ..device import autocast
 from .training import Trainer
 from .triplane import PLANES, Triplane
 

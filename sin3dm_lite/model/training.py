@@ -40,7 +40,7 @@ import torch
 import torch.nn as nn
 from tqdm.auto import tqdm
 
-from ..device import get_device
+from ..app.device import get_device
 from ..errors import Sin3DMInputError
 
 TRAINER_FORMAT = "sin3dm-lite-trainer/2"

@@ -60,11 +60,11 @@ def plot_snapping(
     x0: Triplane, reference: Triplane, plane: str = "xz", batch: int = 0, patch: int | None = None
 ) -> Figure:
     """Snapping seen on one plane: a predicted ``x0``, the same rebuilt from ``reference``'s patches
-    (:func:`~sin3dm_lite.model.snap.snap_to_patches`: each ``patch``×``patch`` window replaced by its
+    (:func:`~sin3dm_lite.auto.snap.snap_to_patches`: each ``patch``×``patch`` window replaced by its
     nearest window of ``reference``, overlaps averaged) and ``reference`` itself (the input's latent), all
     projected on one PCA basis fitted on ``reference``'s plane, so a colour means the same feature in each.
-    ``patch``: default the sampler's (:data:`~sin3dm_lite.model.snap.SNAP_PATCH`)."""
-    from ..model.snap import SNAP_PATCH, snap_to_patches
+    ``patch``: default the sampler's (:data:`~sin3dm_lite.auto.snap.SNAP_PATCH`)."""
+    from ..auto.snap import SNAP_PATCH, snap_to_patches
 
     patch = SNAP_PATCH if patch is None else patch
     if plane not in PLANES:

@@ -25,9 +25,9 @@ from collections.abc import Sequence
 import k3d
 import numpy as np
 
-from ..data.export import baked_image, split_corners
-from ..data.formats.images import png_bytes
 from ..data.mesh import TexturedMesh, unique_rows
+from ..formats.export import baked_image, split_corners
+from ..formats.images import png_bytes
 from .camera import UP_AXES, VIEW, fit_camera, screen_up_vector, to_view, view_camera  # noqa: F401 (namespace)
 from .pages import (  # noqa: F401 (the viewer namespace: viewer.save_html in the notebooks)
     NO_WEBGL,

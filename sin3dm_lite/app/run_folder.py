@@ -1,0 +1,328 @@
+"""A fit's run folder: made in one rename, checked before a resume, cleaned up after a failed fresh fit.
+
+Every stage of a fit saves its result here, and training checkpoints are
+written atomically every ``config.checkpoint_every`` steps, so
+``fit(..., resume=True)`` continues an interrupted run and ends exactly where
+an uninterrupted one would::
+
+    RUN/config.json        the full configuration
+    RUN/grid.npz           the input's TSDF + colour grid (stage 1)
+    RUN/autoencoder.pt     autoencoder trainer state (stage 2, checkpoint)
+    RUN/diffusion.pt       diffusion trainer state (stage 3, checkpoint)
+    RUN/model.pt           what sampling needs: decoder, latent, denoiser (written last)
+    RUN/losses.json        loss histories of both stages: {"autoencoder": {"loss", "sdf", "color"},
+                           "diffusion": {"loss"}}, each a list with one value per step
+    RUN/report.json        reconstruction metrics, timings, step counts (while a switched fit runs:
+                           only the records of its thin-part and rollout switches, kept for --resume)
+    RUN/input.json         what the fit was asked for: the input's name and digest (runs.input_digest) and the
+                           settings before any switch; --resume refuses another input or other settings, and
+                           a config.json emptied, damaged or edited away from it (the fit's own switches aside),
+                           from grid.npz's resolution or from what the checkpoints were trained with
+
+The torch files in it are read and written by :mod:`sin3dm_lite.app.checkpoints`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..auto.fit_policy import check_flips
+from ..data.config import Config
+from ..data.grid import load_grid
+from ..data.presets import get_preset
+from ..errors import Sin3DMInputError
+from ..files import acquire_lock, create_locked_folder, release_lock
+from ..files.inputs import read_json
+from .checkpoints import MODEL_FILE, check_trainer_state, load_trainer_checkpoint
+from .model_file import check_network_sizes, missing_settings
+
+INPUT_FILE = "input.json"
+RUN_FILES = (
+    "config.json",
+    INPUT_FILE,
+    "grid.npz",
+    "autoencoder.pt",
+    "diffusion.pt",
+    MODEL_FILE,
+    "losses.json",
+    "report.json",
+)
+
+
+def check_run_folder(run: Path, source, resume: bool) -> None:
+    """Refuse a run folder the fit cannot write (a file, the input's own folder, read-only) or, for a resume,
+    damaged checkpoints: before any stage writes."""
+    from ..files import check_not_overlapping, check_writable, refuse_links
+
+    if isinstance(source, (str, Path)) and Path(source).exists():
+        check_not_overlapping(run, {"input mesh": Path(source)})
+    if run.exists() and not run.is_dir():
+        raise Sin3DMInputError(f"run folder '{run}' is a file; choose a folder for out (CLI: --out)")
+    check_writable(run)
+    refuse_links(run)  # a fit writes and (when it fails) removes files in it: never through a link
+    if resume:  # a damaged checkpoint fails now, before any stage writes
+        for kind in ("autoencoder", "diffusion"):
+            if (run / f"{kind}.pt").exists():
+                load_trainer_checkpoint(run / f"{kind}.pt", kind)
+        if (run / "grid.npz").exists() or (run / "grid.npz").is_symlink():
+            load_grid(run / "grid.npz", fix="delete it: the resumed fit makes it again from the mesh")
+
+
+def prepare_run(
+    run: Path | None, preset, resume: bool, seed: int | None, asked: dict | None = None, pbr: bool | None = None
+) -> Config:
+    """Resolve the config and check the run folder (new, or resumable with the same input and settings)."""
+    cfg = None
+    if preset is not None:
+        cfg = preset if isinstance(preset, Config) else get_preset(preset)
+        check_flips(cfg)
+        if seed is not None:
+            cfg = cfg.updated(seed=seed)
+    if cfg is not None:
+        check_network_sizes(cfg)  # before any folder is made
+    if run is None:
+        if resume:
+            raise Sin3DMInputError("resume needs a run folder; pass out=RUN_DIR (CLI: --out RUN_DIR)")
+        return cfg
+    if resume:
+        return _resumed_config(run, cfg, seed, asked, pbr)
+    if run.exists() and any(run.iterdir()):
+        if (run / "config.json").is_file():
+            raise Sin3DMInputError(
+                f"run folder '{run}' is not empty: it holds a fit; continue it with --resume, or "
+                "choose a new or empty --out"
+            )
+        raise Sin3DMInputError(
+            f"--out '{run}' is not empty and holds no fit of sin3dm-lite; choose a new or empty "
+            "folder for --out (nothing in it is touched)"
+        )
+    # the new run folder appears with its config and lock in one rename: a kill leaves a resumable
+    # folder or only a temporary one (removed by the next run), never a folder that blocks the next try
+    files = {"config.json": cfg.to_json()}
+    if asked is not None:
+        files[INPUT_FILE] = json.dumps({**asked, "config": cfg.to_dict()}, indent=2)
+    create_locked_folder(run, files, option="--out")
+    return cfg
+
+
+def _resumed_config(
+    run: Path, asked_cfg: Config | None, seed: int | None, asked: dict | None, pbr: bool | None
+) -> Config:
+    """The config of the run folder ``run`` to resume (checked against what is asked now), with its lock taken."""
+    cfg_file = run / "config.json"
+    if not cfg_file.exists():
+        raise Sin3DMInputError(
+            f"cannot resume: '{run}' is not a fit's run folder (it has no config.json, which a "
+            "fit writes first); start a new fit into a new or empty folder (CLI: --out)"
+        )
+    cfg = read_run_config(cfg_file)
+    check_config_matches_run(run, cfg)
+    check_network_sizes(cfg)
+    if asked is not None:  # another mesh or other settings would train on top of this run's checkpoints
+        if asked_cfg is None and (seed is not None or pbr is not None):  # the run's own, with these changed
+            asked_cfg = recorded_config(run, cfg).updated(**({} if seed is None else {"seed": seed}))
+        check_same_request(run, asked, asked_cfg, pbr, cfg)
+    acquire_lock(run)
+    return cfg
+
+
+def read_input(run: Path) -> dict | None:
+    """The run folder's input.json (what it was fitted to), or None when it has none (an older version's run); one
+    that is there but damaged (not JSON, no digest, a config that is no whole configuration) is refused."""
+    path = run / INPUT_FILE
+    if not path.exists() and not path.is_symlink():
+        return None
+    why = None
+    try:
+        rec = read_json(path, "a run's record")
+    except Sin3DMInputError:  # not a regular file: said as it is
+        raise
+    except (OSError, ValueError) as e:
+        rec, why = None, f"it cannot be read as JSON ({type(e).__name__})"
+    if why is None and not (isinstance(rec, dict) and isinstance(rec.get("digest"), str)):
+        why = "it is not a JSON object with the input's digest"
+    elif why is None and "config" in rec and (gaps := missing_settings(rec["config"])):
+        why = f"its config lacks the setting '{gaps[0]}'"
+    if why is not None:
+        raise Sin3DMInputError(
+            f"cannot resume: '{path}' is damaged ({why}); it records what the fit was asked for, which a resume "
+            "checks: put back the original, or fit again into a new --out"
+        )
+    return rec
+
+
+def recorded_config(run: Path, cfg: Config) -> Config:
+    """The settings a run was asked for (its input.json), else its config.json's ``cfg``."""
+    rec = read_input(run)
+    if not (rec and isinstance(rec.get("config"), dict)):
+        return cfg
+    try:
+        return Config.from_dict(rec["config"])
+    except (Sin3DMInputError, TypeError, ValueError, AttributeError) as e:
+        raise Sin3DMInputError(
+            f"cannot resume: '{run / INPUT_FILE}' records settings that are not a configuration ({e}); put back the "
+            "original, or fit again into a new --out"
+        ) from None
+
+
+def read_run_config(cfg_file: Path) -> Config:
+    """A run's config.json, whole: JSON, every setting that shapes the grid and the networks present (an emptied
+    file would otherwise resume with the defaults), each within LIMITS."""
+    why = None
+    try:
+        d = read_json(cfg_file, "a run's config")
+    except Sin3DMInputError:  # not a regular file: said as it is
+        raise
+    except (OSError, ValueError) as e:
+        d, why = None, f"it cannot be read as JSON ({type(e).__name__}; truncated?)"
+    if why is None and (gaps := missing_settings(d)):
+        what = (
+            "it is not a JSON object"
+            if gaps == ["(all)"]
+            else "it is an empty JSON object"
+            if d == {}
+            else f"it lacks the setting '{gaps[0]}'" + (f" and {len(gaps) - 1} more" if len(gaps) > 1 else "")
+        )
+        why = what
+    if why is None:
+        try:
+            return Config.from_dict(d)
+        except Sin3DMInputError as e:  # a setting out of range
+            raise Sin3DMInputError(f"cannot resume: '{cfg_file}': {e}") from None
+        except (TypeError, ValueError, AttributeError) as e:
+            why = f"it is not a configuration ({type(e).__name__})"
+    raise Sin3DMInputError(
+        f"cannot resume: '{cfg_file}' is damaged ({why}); it holds the settings this run's grid and checkpoints were "
+        f"made with: put back the original ({INPUT_FILE} beside it records what the fit was asked for), or fit "
+        "again into a new --out"
+    )
+
+
+#: the sections of a config that the grid and the trainers' checkpoints were made with (sampling's settings and
+#: checkpoint_every may change between runs without harm)
+TRAINED = ("seed", "grid.", "autoencoder.", "diffusion.")
+
+
+def trained_settings(cfg: Config) -> dict:
+    return {k: v for k, v in cfg.settings().items() if k.startswith(TRAINED)}
+
+
+def fit_configs(asked: Config) -> list[Config]:
+    """Every config a fit asked for ``asked`` may have written into its config.json: ``asked`` itself, switched to
+    its thin-part or thin-wall settings, the wider field taken back, each with or without the rollout switch."""
+    from ..auto.fit_policy import wide_field_undo
+
+    walls = asked.for_thin_parts(walls=True)
+    undo = wide_field_undo(asked)
+    configs = [asked, asked.for_thin_parts(), walls] + ([walls.updated(**undo)] if undo else [])
+    return configs + [c.for_rollout() for c in configs]
+
+
+def check_config_matches_run(run: Path, cfg: Config) -> None:
+    """Refuse to resume ``run`` when its config.json ``cfg`` is not what the fit recorded (input.json, with the
+    switches a fit makes), not what its trainer checkpoints were trained with, or does not match its grid.npz: the
+    grid and checkpoints would be trained on with settings they were not made with."""
+    rec = read_input(run)
+    if rec is not None and isinstance(rec.get("config"), dict):
+        have = trained_settings(cfg)
+        candidates = [trained_settings(c) for c in fit_configs(recorded_config(run, cfg))]
+        differ = min(([k for k in c if c[k] != have.get(k)] for c in candidates), key=len)
+        if differ:
+            near = min(candidates, key=lambda c: sum(c[k] != have.get(k) for k in c))
+            shown = "; ".join(f"{k} {have.get(k)!r} there, {near[k]!r} recorded" for k in differ[:3])
+            more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
+            raise Sin3DMInputError(
+                f"cannot resume: '{run / 'config.json'}' no longer holds the settings the fit recorded in {INPUT_FILE} "
+                f"({shown}{more}); its grid and checkpoints were made with those: put them back, or fit with the new "
+                "settings into a new --out"
+            )
+    for kind in ("autoencoder", "diffusion"):  # checked now, before the autoencoder stage trains on or writes
+        if (run / f"{kind}.pt").exists():
+            check_trainer_state(
+                run / f"{kind}.pt", kind, getattr(cfg, kind), load_trainer_checkpoint(run / f"{kind}.pt", kind)
+            )
+    grid = run / "grid.npz"
+    if grid.is_file():
+        from ..data.box import grid_shape
+
+        shape = load_grid(grid).shape
+        want = max(grid_shape((2.0, 2.0, 2.0), cfg.grid.resolution, multiple=8))
+        if max(shape) != want:
+            raise Sin3DMInputError(
+                f"cannot resume: '{run / 'config.json'}' asks for grid.resolution {cfg.grid.resolution}, but the run's "
+                f"grid.npz has {max(shape)} voxels along its longest side; put back the resolution it was made with, "
+                "or fit into a new --out"
+            )
+
+
+def check_same_request(run: Path, asked: dict, asked_cfg: Config | None, pbr: bool | None, cfg: Config) -> None:
+    """Refuse to resume ``run`` with another input than it was fitted to, or other settings (one line: what differs)."""
+    rec = read_input(run)
+    if rec is not None:
+        other_input = rec["digest"] != asked["digest"]
+        was = rec.get("input", "another mesh")
+    else:  # a run of an older version: its report names the input, if it got that far
+        name = read_report(run).get("input")
+        other_input = isinstance(name, str) and name != asked["name"]
+        was = f"'{name}'"
+    if other_input:
+        raise Sin3DMInputError(
+            f"cannot resume: '{run}' was fitted to {was}, not {asked['input']}; resume it with that input, or fit "
+            f"{asked['input']} into a new --out"
+        )
+    if asked_cfg is None:
+        return
+    want, have = asked_cfg.to_dict(), recorded_config(run, cfg).to_dict()
+    if pbr is not None:
+        want["autoencoder"]["pbr"] = bool(pbr)
+    elif not want["autoencoder"]["pbr"]:  # chosen from the mesh, which is the same
+        want["autoencoder"]["pbr"] = have["autoencoder"]["pbr"]
+    want, have = Config.from_dict(want).settings(), Config.from_dict(have).settings()
+    if rec is None:  # an older run records only its config.json, which its switches and calibration changed
+        have.update(name=have["name"].split("+")[0])
+        differ = [k for k in ("name",) if want[k] != have[k]]
+    else:
+        differ = [k for k in want if want[k] != have.get(k)]
+    if differ:
+        shown = [f"{'preset' if k == 'name' else k} {have.get(k)!r} there, {want[k]!r} now" for k in differ[:3]]
+        more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
+        raise Sin3DMInputError(
+            f"cannot resume: '{run}' was fitted with other settings ({'; '.join(shown)}{more}); resume it with its "
+            "own (leave out --preset, --set, --seed and --pbr; Python: preset=None), or fit into a new --out"
+        )
+
+
+def read_report(run: Path) -> dict:
+    """The run folder's report.json, or {} when it is missing or unreadable (it is only a record)."""
+    try:
+        report = read_json(run / "report.json", "a run's report")
+    except (OSError, ValueError):  # a FIFO or a device is refused (Sin3DMInputError is a ValueError) unread
+        return {}
+    return report if isinstance(report, dict) else {}
+
+
+def remove_failed_run(run: Path, existed: bool) -> None:
+    """Remove what a failed fresh fit wrote into ``run`` (and the folder, if the fit made it and it is empty).
+
+    Called while the fit's own error unwinds: a file that cannot be removed (the folder made read-only)
+    stays, and that error, not this cleanup's, is the one the user reads.
+    """
+    import re
+
+    names = [run / name for name in RUN_FILES]
+    try:  # temporaries of atomic writes
+        names += [p for p in run.iterdir() if re.match(r"^\..*\.sin3dm-\d+-[^.]*\.tmp", p.name)]
+    except OSError:
+        pass
+    for p in names:
+        try:
+            p.unlink(missing_ok=True)
+        except OSError:
+            pass
+    release_lock(run)
+    if not existed:
+        try:
+            run.rmdir()
+        except OSError:
+            pass  # someone put a file there meanwhile: leave it

@@ -1,0 +1,7 @@
+"""What a fit decides for the user, beyond the paper: one opt-in layer around the plain method.
+
+``fit_default`` (the preset for this machine, said with the time it should take), ``fit_policy`` (the
+thin-part and rollout switches, the copies check and the hints a fit prints), ``snap`` (snapping: the
+sampler's estimate pulled to the input's latent patches, a ``denoised_fn`` hook). The CLI uses them;
+from Python, ``Sin3DM.fit`` applies the preset's switches and the calibration (``sampling.calibrate``).
+"""

@@ -1,0 +1,184 @@
+"""What every mesh reader shares: the folder a mesh file may read from, errors and warnings, assembly.
+
+A reader (:mod:`.obj` for OBJ + MTL, :mod:`.scene` for the formats trimesh
+reads) returns a list of :class:`Part` and the materials they index;
+:func:`assemble` joins them into one :class:`~sin3dm_lite.data.mesh.TexturedMesh`
+and refuses what Sin3DM cannot learn from. A file the mesh names (a material
+library, a texture, a glTF buffer) is found with :func:`resolve_asset`, inside
+the mesh's own folder only unless :class:`Scope` allows anywhere.
+
+Bad input raises one :class:`~sin3dm_lite.errors.Sin3DMInputError` whose
+message names the problem and the fix (:func:`unreadable` for a file that is
+not what its extension says); a missing or unreadable texture is a
+``UserWarning`` (:func:`warn`) and the material falls back to its plain colour.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..data.mesh import MAX_COORDINATE, Material, TexturedMesh, face_areas, unique_rows
+from ..errors import Sin3DMInputError
+from ..files.inputs import check_regular, not_regular
+
+#: the modules whose frames :func:`warn` skips: the readers and their entry points (``data/load.py``)
+_READERS = (__package__, __package__.rpartition(".")[0] + ".load")
+
+
+@dataclass(frozen=True)
+class Scope:
+    """Where a mesh file may make the loader read: its own folder (symbolic links resolved), or anywhere if allowed."""
+
+    mesh: Path
+    anywhere: bool = False
+
+    def allows(self, p: Path) -> bool:
+        return self.anywhere or p.resolve().is_relative_to(self.mesh.parent.resolve())
+
+    def refuse(self, ref: str, what: str, found: Path) -> Sin3DMInputError:
+        link = ", through a symbolic link" if found.is_symlink() else ""
+        return Sin3DMInputError(
+            f"'{self.mesh.name}' names a file outside its folder: {what} '{ref}' is '{found.resolve()}'{link}; a mesh "
+            f"file may only make sin3dm-lite read files in its own folder '{self.mesh.parent.resolve()}': copy the "
+            "file there, or pass --allow-outside-paths (Python: allow_outside_paths=True) if you trust this mesh"
+        )
+
+
+def unreadable(path, what: str, exc: BaseException | str) -> Sin3DMInputError:
+    """The error for a file that cannot be read as ``what`` (``"a Wavefront OBJ"``), ``exc`` saying why."""
+    detail = exc if isinstance(exc, str) else f"{type(exc).__name__}: {exc}"
+    return Sin3DMInputError(
+        f"could not read '{path.name}' as {what} ({detail}); the file may be corrupt, truncated or "
+        "not what its extension says; re-export it from the program that made it"
+    )
+
+
+def warn(message: str) -> None:
+    """``warnings.warn`` attributed to the first caller outside the readers (the user's line)."""
+    import sys
+    import warnings
+
+    level, frame = 2, sys._getframe(1)  # stacklevel 2 = the caller of warn
+    while frame is not None and _is_reader(frame.f_globals.get("__name__", "")):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, UserWarning, stacklevel=level)
+
+
+def _is_reader(module: str) -> bool:
+    return module in _READERS or module.startswith(_READERS[0] + ".")
+
+
+def resolve_asset(ref: str, base: Path, scope: Scope, what: str, cwd: bool = True) -> Path | None:
+    """Find a file a mesh file names: as written (relative to ``base``, else to the working directory if ``cwd``),
+    then by its base name (also ignoring case) in ``base``; None if there is none.
+
+    Files outside the mesh's folder are skipped (``scope``); if only such files exist, the reference is
+    refused (:class:`Sin3DMInputError` naming ``what``, the reference and the file). A candidate that is not a
+    regular file (a FIFO, a device) is refused too (:func:`~sin3dm_lite.files.inputs.check_regular`).
+    """
+    name = Path(ref.strip().strip('"').replace("\\", "/"))
+
+    def candidates():
+        yield from (base / name, name, base / name.name) if cwd else (base / name, base / name.name)
+        try:  # base / an absolute path = the path
+            yield from (c for c in base.iterdir() if c.name.lower() == name.name.lower())
+        except OSError:
+            return
+
+    outside = None
+    for candidate in candidates():
+        if not_regular(candidate) not in (None, "a folder"):  # a FIFO or a device would block the reader forever
+            check_regular(candidate, what)
+        if candidate.is_file():
+            if scope.allows(candidate):
+                return candidate
+            outside = outside or candidate
+    if outside is not None:
+        raise scope.refuse(ref.strip(), what, outside)
+    return None
+
+
+@dataclass
+class Part:
+    """A piece of a mesh as read from a file, before concatenation."""
+
+    vertices: np.ndarray  # (V, 3) float64
+    faces: np.ndarray  # (F, 3) int64, into this part's vertices
+    face_material: np.ndarray  # (F,) int64, into the shared material list
+    face_uvs: np.ndarray | None = None  # (F, 3, 2)
+    vertex_colors: np.ndarray | None = None  # (V, 3) float32
+
+
+def assemble(parts: list[Part], materials: list[Material], name: str, source: str) -> TexturedMesh:
+    """Concatenate parts, validate, drop unreferenced vertices, weld duplicates."""
+    parts = [p for p in parts if len(p.faces)]
+    if not parts:
+        raise Sin3DMInputError(
+            f"'{source}' contains no triangle faces (an empty file, or a point cloud / lines only); "
+            "Sin3DM needs a surface mesh: export the faces, or reconstruct a surface from the points first"
+        )
+    offsets = np.cumsum([0] + [len(p.vertices) for p in parts])
+    vertices = np.concatenate([p.vertices for p in parts]).astype(np.float64)
+    faces = np.concatenate([p.faces + o for p, o in zip(parts, offsets)]).astype(np.int64)
+    face_material = np.concatenate([p.face_material for p in parts]).astype(np.int64)
+    face_uvs = None
+    if any(p.face_uvs is not None for p in parts):
+        face_uvs = np.concatenate(
+            [p.face_uvs if p.face_uvs is not None else np.full((len(p.faces), 3, 2), np.nan) for p in parts]
+        ).astype(np.float32)
+    colors = None
+    if any(p.vertex_colors is not None for p in parts):
+        colors = np.concatenate(
+            [p.vertex_colors if p.vertex_colors is not None else np.ones((len(p.vertices), 3)) for p in parts]
+        ).astype(np.float32)
+
+    # keep only referenced vertices: stray points must not enlarge the bounding box
+    used = np.zeros(len(vertices), bool)
+    used[faces] = True
+    vertices, faces = vertices[used], (np.cumsum(used) - 1)[faces]
+    colors = colors[used] if colors is not None else None
+
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        raise Sin3DMInputError(
+            f"'{source}' has {int(bad.sum())} vertices with NaN or infinite coordinates (the first is "
+            f"vertex {int(np.argmax(bad))}); repair or delete them in a mesh editor and export again"
+        )
+    # weld vertices with exactly equal position (and colour), in first-occurrence order
+    keep, inverse = unique_rows(vertices if colors is None else np.hstack([vertices, colors.astype(np.float64)]))
+    vertices, faces, colors = vertices[keep], inverse[faces], (colors[keep] if colors is not None else None)
+
+    extent = vertices.max(0) - vertices.min(0)
+    if extent.max() <= 0:
+        raise Sin3DMInputError(
+            f"'{source}' has a zero-size bounding box (all its vertices are at the same point); "
+            "Sin3DM needs faces that span some volume"
+        )
+    big = float(np.abs(vertices).max())
+    if big > MAX_COORDINATE:  # the box, the areas and the normalisation would overflow or lose all precision
+        raise Sin3DMInputError(
+            f"'{source}' has a vertex coordinate of {big:.3g}, too large for its bounding box (the limit is "
+            f"{MAX_COORDINATE:.0e}); remove the stray vertex or scale the mesh down in a mesh editor"
+        )
+    area = face_areas(vertices, faces)
+    if not area.sum() > 0:
+        raise Sin3DMInputError(
+            f"'{source}' has zero surface area (every triangle is degenerate: collinear or repeated "
+            "vertices); Sin3DM needs a surface mesh"
+        )
+
+    used_materials, face_material = np.unique(face_material, return_inverse=True)  # unused ones may hold big images
+    if face_uvs is not None and not np.isfinite(face_uvs).any():
+        face_uvs = None
+    return TexturedMesh(
+        vertices=vertices,
+        faces=faces,
+        face_material=face_material,
+        materials=[materials[i] for i in used_materials],
+        face_uvs=face_uvs,
+        vertex_colors=colors,
+        name=name,
+    )
