@@ -308,7 +308,7 @@ def test_sin3dm_workers_that_is_no_count_is_said(capsys, monkeypatch):
 # --------------------------------------------------------------------------- memory and disk, estimated first
 WORKER_PROBE = """
 import sys, numpy as np, torch
-from sin3dm_lite import mass_workers
+from sin3dm_lite.app import mass_workers
 saved = torch.load(sys.argv[2], weights_only=True)
 opts = {"mesh_resolution": 32, "faces": 500, "texture_size": 64, "pictures": False, "box": None}
 mass_workers._worker_init(sys.argv[1], opts)

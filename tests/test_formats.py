@@ -1,4 +1,4 @@
-"""Tests of the mesh readers: sin3dm_lite.formats.load and data/formats/ (loaders, bad input, normalisation) and round trips through export's writers.
+"""Tests of the mesh readers: sin3dm_lite.formats.load and formats/ (loaders, bad input, normalisation) and round trips through export's writers.
 
 Every input is written on the fly into ``tmp_path`` (no binary fixtures).
 The texture used throughout has four coloured quadrants so that a lookup can

@@ -73,12 +73,16 @@ def test_a_killed_export_worker_is_one_line_and_the_finished_samples_are_kept(tm
 def test_torch_save_on_a_full_disk_is_one_line_and_leaves_no_temporary_folder(tmp_path, monkeypatch, capsys):
     """torch's own error for a full disk is a RuntimeError about 'unexpected pos' (while the worker's model copy is written)."""
 
+    filled = []  # the disk fills while the model copy is written (the run's disk estimate saw room before)
+
     def full(obj, f, *args, **kwargs):
         Path(f).write_bytes(b"half a file")
+        filled.append(f)
         raise RuntimeError(TORCH_DISK_FULL)
 
+    usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(torch, "save", full)
-    monkeypatch.setattr(shutil, "disk_usage", lambda p: namedtuple("usage", "total used free")(10, 10, 0))
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10, 10, 0) if filled else usage(1 << 40, 0, 1 << 40))
     out = tmp_path / "s"
     assert main(["sample", RUN, "-n", "2", "--out", str(out), *CHEAP]) == 2  # default workers: model copied first
     assert _error_line(capsys) == (

@@ -24,8 +24,8 @@ from ..data.mesh import MAX_COORDINATE, Material, TexturedMesh, face_areas, uniq
 from ..errors import Sin3DMInputError
 from ..files.inputs import check_regular, not_regular
 
-#: the modules whose frames :func:`warn` skips: the readers and their entry points (``data/load.py``)
-_READERS = (__package__, __package__.rpartition(".")[0] + ".load")
+#: the modules whose frames :func:`warn` skips: the readers and their entry points (``formats/load.py``)
+_READERS = (__package__,)  # formats/load.py is in the same package
 
 
 @dataclass(frozen=True)

@@ -1,2 +1,2 @@
 """Generate: what to sample in the input's coordinates (``control``) and SDF → textured mesh (``extract``, with
-its texture baking in ``bake``); the mesh writers are ``data.export``."""
+its texture baking in ``bake``); the mesh writers are ``formats.export``."""
