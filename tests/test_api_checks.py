@@ -386,6 +386,40 @@ def test_sample_refuses_what_cannot_fit_on_the_disk_naming_the_largest_n(tmp_pat
     assert 1 <= most < 20 and not out.exists()
 
 
+def test_overwrite_counts_the_space_its_own_old_samples_free(tmp_path, monkeypatch, capsys):
+    """`--overwrite` first removes the samples an earlier run wrote: their space counts as free."""
+    out = tmp_path / "s"
+    assert cli.main(["sample", "canyon", "--out", str(out), "-n", "4", *CHEAP_SAMPLE]) == 0
+    ours = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10**9, 10**9, ours // 8))  # half a sample free
+    capsys.readouterr()
+    assert (
+        cli.main(["sample", "canyon", "--out", str(out), "-n", "2", "--seed", "7", "--overwrite", *CHEAP_SAMPLE]) == 0
+    )
+    assert cli.main(["sample", "canyon", "--out", str(tmp_path / "t"), "-n", "2", *CHEAP_SAMPLE]) == 2  # no room
+
+
+def test_calibration_options_and_occupancy_resolutions_are_checked_in_one_line():
+    from sin3dm_lite.evaluate.calibrate import calibrate_diversity
+
+    grid = np.zeros((8, 8, 8), bool)
+    for bad, words in (
+        ({"n": 10**9}, "2 to 64 samples"),
+        ({"seed": -1}, "seed"),
+        ({"seed": 2**40}, "seed"),
+        ({"lowest": "0.1"}, "lowest"),
+        ({"step": float("nan")}, "step"),
+    ):
+        with pytest.raises(Sin3DMInputError, match=words):
+            calibrate_diversity(lambda d, n, s: [grid] * n, grid, progress=False, **bad)
+    model = Sin3DM.load(SHIPPED)
+    samples = model.input_sample()
+    for bad in (2.5, 10**6, [], "64"):
+        with pytest.raises(Sin3DMInputError, match="resolution"):
+            model.occupancy(samples, resolution=bad)
+
+
 # --------------------------------------------------------------------------- small ones
 def test_the_next_command_after_a_fit_is_shell_quoted(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)

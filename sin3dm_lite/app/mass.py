@@ -165,6 +165,21 @@ def shown_bytes(n: float) -> str:
     return f"{n:.0f} bytes"
 
 
+def replaced_bytes(out: Path, req: SampleRequest) -> int:
+    """What ``--overwrite`` frees before sampling: the files an earlier ``sample`` wrote into ``out``, unchanged."""
+    from ..files import read_manifest, writer
+    from .mass_folder import WRITER, sample_file
+
+    if not (req.overwrite and out.is_dir()):
+        return 0
+    m, freed = read_manifest(out), 0
+    for f in m:
+        w = writer(out, f, m)
+        if w == WRITER or w == "" and sample_file(f):
+            freed += (out / f).stat().st_size
+    return freed
+
+
 def check_disk(model, out: Path, req: SampleRequest, plan, label: str = "sample") -> str:
     """Refuse ``-n`` samples that cannot fit on the disk of ``--out`` (its nearest existing folder), naming the
     largest ``-n`` that fits; else returns the line that says the estimate. Samples already in a folder that is
@@ -176,7 +191,7 @@ def check_disk(model, out: Path, req: SampleRequest, plan, label: str = "sample"
     base = out
     while not base.exists() and base.parent != base:
         base = base.parent
-    free = shutil.disk_usage(base if base.is_dir() else base.parent).free
+    free = shutil.disk_usage(base if base.is_dir() else base.parent).free + replaced_bytes(out, req)
     per = sample_bytes(model, plan, req)
     indices = range(req.start, req.start + req.n)
     continued = out.is_dir() and not req.overwrite and read_settings(out) is not None

@@ -219,25 +219,14 @@ def calibrate_diversity(
     """The most varied diversity in ``[lowest, 1]`` whose samples keep the goals against ``reference`` (the rule:
     the module's docstring).
 
-    First the near copy: ``n`` samples at diversity :data:`NEAR_COPY` (seeds
-    from ``seed + NEAR_COPY_SEEDS``): the ceiling of this fit at this grid. Each
-    goal is the smaller of ``goals[key]`` and ``relative[key]`` × the near
-    copy's score; a near copy whose LP-F is below :data:`MIN_CEILING` sets none.
-    Its G-Div sets the copy line (:func:`copy_line`).
-
-    Then it walks down a ladder of settings, 1, 1 - ``step``, ... ``lowest``,
-    ``n`` samples at each with **seeds of its own** (``seed + 1000·k`` for the
-    k-th setting drawn), and stops at the first setting that keeps every goal
-    by ``margin`` (a goal lowered to its ceiling lowers its margin alike). A
-    rung keeping less than ``far`` × a goal skips the next rung, drawn after
-    all if the rung after it ends the walk. The patch scores are made
-    non-increasing in the knob (pooling neighbours that disagree by chance,
-    weighted by their samples); ``refine`` times, ``n`` more samples are drawn at
-    the point of a half-step grid nearest the current answer. The answer is
-    where the smoothed curves, lowered by ``caution`` standard errors and read
-    ``safety`` above each goal, cross them (the lower crossing wins), unless
-    the samples there are copies and a more varied setting keeps LP-F (then
-    LP-F's crossing); where none keeps LP-F, the fallback of the module's rule.
+    First the near copy (diversity :data:`NEAR_COPY`, seeds from ``seed + NEAR_COPY_SEEDS``): each goal is the
+    smaller of ``goals[key]`` and ``relative[key]`` × its score (none below :data:`MIN_CEILING` of LP-F); its
+    G-Div sets the copy line (:func:`copy_line`). Then a ladder 1, 1 - ``step``, ... ``lowest``, ``n`` samples a
+    rung with seeds of its own (``seed + 1000·k``), stopping at the first rung keeping every goal by ``margin``
+    (a rung under ``far`` × a goal skips the next). The scores are made non-increasing in the knob; ``refine``
+    more rungs are drawn near the answer. The answer is where the curves, lowered by ``caution`` standard errors
+    and read ``safety`` above each goal, cross them (the lower crossing), unless its samples are copies and a
+    more varied setting keeps LP-F (then LP-F's crossing); where none keeps LP-F, the module's fallback.
 
     Args:
         sample_fn: ``sample_fn(diversity, n, seed)`` returns ``n`` samples' occupancy grids (seeds ``seed`` …)
@@ -256,9 +245,14 @@ def calibrate_diversity(
             (default :data:`RELATIVE`); None draws no near copy (absolute goals).
         far: a rung keeping less than this share of a goal skips the next rung (0: every rung is drawn).
     """
+    from ..app import values
+
     absolute = dict(GOALS if goals is None else goals)
     shares = _shares(relative, absolute)
     _check_options(absolute, n, refine, lowest, step, caution, safety, margin, shares, far)
+    seed = values.seed(seed)
+    if seed + NEAR_COPY_SEEDS + 1000 * 100 >= 2**32:  # every setting's seeds stay seeds
+        raise Sin3DMInputError(f"the calibration's seed must be below {2**32 - NEAR_COPY_SEEDS - 100_000}, got {seed}")
     reference = np.asarray(reference, bool)
 
     def draw(d: float, k: int) -> dict:
@@ -308,13 +302,22 @@ def _set_ceiling(result: Calibration, near: dict, shares: dict, progress: bool) 
         )
 
 
+#: the most samples per setting a calibration draws (its work grows with it: about a dozen settings of n each)
+MAX_N = 64
+
+
 def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin, relative, far) -> None:
     """:func:`calibrate_diversity`'s options, each refused in one line naming it."""
+    from ..app import values
+
     unknown = set(goals) - set(GOALS)
     if unknown:
         raise Sin3DMInputError(f"unknown calibration goals {sorted(unknown)}; use {sorted(GOALS)}")
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
-        raise Sin3DMInputError(f"calibration needs at least 2 samples per setting (G-Div compares them), got {n!r}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 2 <= n <= MAX_N:
+        raise Sin3DMInputError(f"calibration draws 2 to {MAX_N} samples per setting (G-Div compares them), got {n!r}")
+    for name, v in (("lowest", lowest), ("step", step), ("caution", caution), ("safety", safety), ("margin", margin)):
+        values.finite(v, name)
+    values.finite(far, "far")
     if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
         raise Sin3DMInputError(f"refine is a number of extra settings, 0 or more, got {refine!r}")
     if not 0.0 <= lowest < 1.0:

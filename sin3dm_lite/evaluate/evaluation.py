@@ -38,7 +38,8 @@ def occupancy(to_mesh, count: int, box, resolution=128, supersample: int = 1):
     from ..generate.extract import NoSurfaceError
 
     several = not isinstance(resolution, (int, np.integer))
-    res = list(resolution) if several else [resolution]
+    res = check_resolutions(resolution)  # 2.5 or 10**6: one line, not a numpy error or a grid beyond memory
+    check_fine_grid(res, supersample)
     grids: dict[int, list[np.ndarray]] = {r: [] for r in res}
     for i in range(count):
         try:
