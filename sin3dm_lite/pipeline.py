@@ -6,11 +6,11 @@
 
 Each method is a call into the stage that does the work, so a reader follows one of them to one module:
 
-    fit                       fitting (the stages; run_folder: the run folder; fit_policy: what the fit decides)
-    sample, plan, to_mesh     sampling (settings left at None: request.SampleRequest.resolve)
-    save, load                checkpoints (model.pt)
-    open                      runs (what RUN names), then fit or load
-    calibrate                 evaluate.calibrate (the diversity knob)
+    fit                       app.fitting (the stages; app.run_folder: the run folder; auto: what a fit decides)
+    sample, plan, to_mesh     app.sampling (settings left at None: app.request.SampleRequest.resolve)
+    save, load                app.checkpoints (model.pt)
+    open                      app.runs (what RUN names), then fit or load
+    calibrate                 auto.calibration (the diversity knob; not in the paper)
     occupancy, evaluate, ...  evaluate.evaluation (samples against the input)
     plot_beside_input         show.sample_figures
 
@@ -86,50 +86,16 @@ class Sin3DM:
         pbr: bool | None = None,
         allow_outside_paths: bool = False,
     ) -> Sin3DM:
-        """Fit the whole model to one textured mesh (a path, a ``TexturedMesh`` or an example name).
+        """Fit Sin3DM to one textured mesh (a path, a ``TexturedMesh`` or an example name): mesh → TSDF + colour
+        grid → triplane autoencoder (the input's latent) → diffusion model on that latent (the paper's Sec. 4).
 
-        ``allow_outside_paths``: let the mesh file name textures and libraries outside its folder
-        (:func:`~sin3dm_lite.mesh_io.load_mesh`; CLI: ``--allow-outside-paths``).
-
-        ``pbr`` (the PBR variant: metallic, roughness and normals learned and
-        generated beside the colour) is on by default exactly when the mesh
-        has a metallic-roughness or normal map (a one-line message says so);
-        ``pbr=True`` on a mesh without maps learns its constant factors and
-        its geometric normals, ``pbr=False`` learns colour only. A resumed run
-        keeps the choice in its ``config.json``. A mesh of one colour (without
-        colour: the default grey) trains the autoencoder's geometry alone, its
-        colour decoded as it is (``report["single_color"]``): about half the
-        autoencoder's time.
-
-        A preset with thin-part settings (``small``) fits a shape that is
-        mostly thin parts with those instead (:func:`fit_policy.thin_parts_switch`: the
-        ``detail`` settings, 96 voxels), says so and saves them as the run's
-        config; ``preset=get_preset("small").updated(thin_parts={})`` keeps
-        64 voxels whatever the shape. With :attr:`Config.rollout_switch`
-        (``small``), a plain denoiser whose calibration keeps the input's
-        patches even from pure noise is trained again with the cross-plane
-        rollout and calibrated again (:func:`fit_policy.keeps_goals_from_noise`; the report
-        keeps the first calibration as ``rollout_switch``);
-        ``.updated(rollout_switch={})`` keeps the plain one. With
-        :attr:`Config.thin_walls` (``quick``), a shape that is almost all thin
-        walls gets a wider denoiser field too, which goes back to the narrower
-        one if its samples from pure noise copy the shape after a few steps
-        (:func:`fit_policy.are_copies`; the report's ``thin_parts_switch``
-        records the check); ``.updated(thin_walls={})`` keeps the narrower one.
-
-        ``preset`` is a preset's name or a :class:`Config` (default: this machine's, :mod:`sin3dm_lite.auto.fit_default`).
-
-        With ``out`` a run folder is written (:mod:`sin3dm_lite.app.run_folder`); with
-        ``resume=True`` an existing run folder is continued from its last
-        checkpoint, with its own settings (``preset=None``): another input
-        (``runs.input_digest``: the mesh's contents, textures included, or the
-        example's name) or other settings (``preset``, ``seed``, ``pbr``) are
-        refused, naming what differs. The run folder is locked (``.sin3dm-lock``) while the fit
-        writes it. Every argument is checked before anything is written; a new
-        run folder appears with its ``config.json`` in one rename, and a fresh
-        fit that fails with an error removes what it wrote (an interrupted one,
-        Ctrl-C, keeps its checkpoints for ``resume=True``). A reconstruction
-        below :data:`fit_policy.MIN_IOU` / :data:`~fit_policy.MIN_PSNR` gives a warning.
+        ``preset``: a preset's name or a :class:`Config` (default: this machine's, :mod:`sin3dm_lite.auto`).
+        ``pbr``: learn metallic, roughness and normals too (default: when the mesh has such maps).
+        ``allow_outside_paths``: let the mesh name textures outside its folder. With ``out`` a run folder is
+        written, checkpointed and locked (:mod:`sin3dm_lite.app.run_folder`); ``resume=True`` continues it from
+        its last checkpoint with its own settings, and ends where an uninterrupted fit would. What a preset's
+        switches decide beyond the paper (thin parts, the rollout, the calibrated diversity):
+        :mod:`sin3dm_lite.auto.fit_policy` and docs/fit-your-shape.md.
         """
         from .app.fitting import fit
 
@@ -146,55 +112,12 @@ class Sin3DM:
         supersample: int | None = None,
         **options,
     ) -> Calibration:
-        """Set ``config.sampling.diversity`` to the most varied setting whose samples keep the input's patches.
+        """Set ``config.sampling.diversity`` to the most varied setting whose samples keep the input's patches
+        (not in the paper, which samples from pure noise; the rule and its arguments:
+        :func:`sin3dm_lite.auto.calibration.calibrate_model`). :meth:`save` keeps the choice."""
+        from .auto.calibration import calibrate_model
 
-        :func:`sin3dm_lite.calibrate.calibrate_diversity` draws a few samples
-        at a handful of settings and scores them with the paper's LP-IoU / LP-F
-        against ``reference``, the input's occupancy on this model's box
-        (default: ``input_mesh``, a mesh, path or example name, or else
-        :meth:`input_mesh`, voxelised at ``resolution`` voxels along the longest
-        side: by default the fit's grid (:attr:`grid_resolution`), which is fast;
-        128 judges as the paper measures, in about four times the time: the canyon and the colonnade
-        then get 1, a thin-walled ruin a more varied default that flattens its top in some samples,
-        docs/calibration.md).
-        ``supersample``: the voxels judged, 1 the voxel centres (the default on the fit's grid, whose
-        training grid is the centres' signs), 2 the paper's (the default at another ``resolution``:
-        :meth:`evaluate`'s voxels, so the judge sees what it reports).
-        The choice and what was tried land in ``report["calibration"]``;
-        ``options`` go to ``calibrate_diversity`` (``goals``, ``n``, ``seed``,
-        ``lowest``, ``step``, ``margin``, ``refine``, ``caution``, ``safety``, ``relative``, ``far``). :meth:`save` (or
-        ``sin3dm-lite calibrate``) keeps it.
-        """
-        from .evaluate.calibrate import calibrate_diversity, model_sampler
-
-        if reference is None:
-            mesh = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
-            on_grid = resolution in (None, self.grid_resolution)
-            resolution = resolution or self.grid_resolution
-            if not 16 <= resolution <= 512:
-                raise Sin3DMInputError(f"the calibration's resolution must be from 16 to 512 voxels, got {resolution}")
-            if supersample is None:
-                supersample = 1 if on_grid else evaluation.PAPER_SUPERSAMPLE
-            evaluation.check_fine_grid(resolution, supersample)
-            reference = self.input_occupancy(mesh, resolution, supersample=supersample)
-        elif resolution is not None and resolution != max(np.shape(reference)):
-            raise Sin3DMInputError(
-                f"resolution {resolution} does not match the reference grid {np.shape(reference)}; give one of them"
-            )
-        supersample = 1 if supersample is None else supersample
-        sampler = model_sampler(self, reference, supersample=supersample)
-        cal = calibrate_diversity(sampler, reference, progress=progress, **options)
-        cal.supersample = supersample
-        self.config = self.config.updated(**{"sampling.diversity": cal.diversity})
-        self.report["calibration"] = cal.to_dict()
-        if progress:
-            print(
-                f"[calibrate] {'chose' if cal.kept_goals else 'no setting kept the goals; chose'} "
-                f"diversity {cal.diversity:g}",
-                flush=True,
-            )
-            print("\n".join(f"[calibrate] {line}" for line in cal.story().splitlines()), flush=True)
-        return cal
+        return calibrate_model(self, reference, input_mesh, progress, resolution, supersample, **options)
 
     # --------------------------------------------------------------- sample
     @torch.no_grad()
@@ -217,39 +140,17 @@ class Sin3DM:
         plan=None,
         snap: float | None = None,
     ) -> Samples:
-        """Draw ``n`` new triplanes from noise, optionally controlled (the paper's Sec. 4.4, see :mod:`.control`).
+        """Draw ``n`` new triplanes from noise, optionally controlled (the paper's Sec. 4.4, :mod:`.control`).
 
-        * ``resize`` scales the latent per axis (retargeting: the denoiser is
-          fully convolutional, so noise of another size gives a shape of another size);
-        * ``outpaint=(sx, sy, sz)`` (each ≥ 1) grows the box and keeps the input
-          in it (``anchor``: ``"center"`` or the face it sticks to, e.g. ``"x-"``);
-        * ``regenerate=((x0, y0, z0), (x1, y1, z1))`` resamples that box and keeps the rest;
-        * ``duplicate=(((x0, y0, z0), (x1, y1, z1)), (tx, ty, tz))`` copies the
-          box so its low corner lands at ``(tx, ty, tz)`` and generates around both copies.
-
-        Boxes are fractions [0, 1] of the model's box along x, y, z. One of
-        these at a time; ``plan`` takes a :class:`control.Plan` made by hand.
-        ``known``/``mask`` fix part of the latent directly (same size as the samples).
-
-        ``diversity`` (default: the config's for plain and resized samples, 1 for
-        outpainting, editing and duplication) trades variation for
-        fidelity, the limitation the paper names: 1 samples from pure noise;
-        below 1 sampling starts from the input's latent with that share of
-        noise (a resized sample starts from the input's latent stretched to
-        its size, an outpainted or edited one from the known latent), so the
-        layout stays and only what the noise erased is regenerated; 0 gives
-        the input (or the known latent) back. The result's ``plan`` says what was sampled.
-
-        ``snap`` (0-1; default the config's ``sampling.snap``: 0, the paper's sampler, in every preset, 1 where
-        ``quick``'s thin-part switch took over) pulls the last steps' predicted clean latent towards the input's
-        7×7 latent patches
-        (:func:`~sin3dm_lite.auto.snap.snap_to_patches`): thin walls and broken tops keep their shape at a
-        higher diversity (docs/thin-parts.md). The calibration samples with the config's ``sampling.snap``, so
-        fit with it set (CLI ``--set sampling.snap=1``) to have the diversity chosen for the snapped sampler.
-
-        Sample ``i`` comes from the seed ``seed + i`` alone (or ``seed[i]`` for a
-        list): ``sample(4, seed=0)``'s third is ``sample(1, seed=2)``, whatever
-        the batch or the device, so any sample of a large run can be drawn again on its own.
+        ``resize`` (retargeting: noise of another size), ``outpaint=(sx, sy, sz)`` with ``anchor`` (grow the box,
+        keep the input), ``regenerate=(lo, hi)`` (resample a box, keep the rest), ``duplicate=((lo, hi), to)``
+        (copy a box, generate around both): boxes are fractions of the model's box, one control at a time;
+        ``plan`` a :class:`control.Plan` made by hand; ``known``/``mask`` fix part of the latent directly.
+        ``diversity`` (default: the config's; 1 for outpainting, editing and duplication) trades variation for
+        fidelity, the limitation the paper names: 1 samples from pure noise, below 1 from the input's latent
+        with that share of noise, 0 gives it back. ``snap`` (default the config's ``sampling.snap``, 0: the
+        paper's sampler) pulls the last steps' estimates to the input's patches (:mod:`sin3dm_lite.auto.snap`).
+        Sample ``i`` comes from the seed ``seed + i`` alone (or ``seed[i]``), whatever the batch or the device.
         """
         values.whole(n, "n")  # every argument: sampling.check_sample_args, the checks the CLI's flags call too
         plan = self.plan(resize, outpaint, anchor, regenerate, duplicate, plan)
@@ -268,31 +169,9 @@ class Sin3DM:
         widest layer per sample, and half the free memory of the device may go to them (at most 10,000)."""
         return sampling.max_samples(self, resize)
 
-    def check_mesh_sizes(
-        self,
-        resolution: int,
-        texture_size: int,
-        aabb=None,
-        parallel: int = 1,
-        names: tuple[str, str] = ("mesh resolution", "texture size"),
-    ) -> None:
-        """Refuse a mesh resolution or texture size out of range (:data:`config.LIMITS`) or beyond memory.
-
-        One export holds about :data:`sampling.EXPORT_BYTES_PER_VOXEL` per voxel of the decode grid over ``aabb``
-        (default: the model's box) and :data:`~sampling.EXPORT_BYTES_PER_TEXEL` per texel; ``parallel`` exports at once
-        (``--workers``) may use half the free RAM between them, as :meth:`max_samples` does. ``names``: what the
-        message calls the two (CLI flags). The message gives the largest value that fits.
-        """
-        box = self.aabb if aabb is None else aabb
-        sampling.check_mesh_sizes(resolution, texture_size, box, parallel, names)
-
     def with_denoiser(self, denoiser: torch.nn.Module, diffusion: DiffusionConfig) -> Sin3DM:
-        """The same input (decoder, latent, box) with another denoiser, e.g. one retrained for an ablation.
-
-        ``diffusion`` is the config that denoiser was trained with (its
-        ``prediction`` and schedule decide how it is sampled). Decoder and
-        latent are shared with this model, not copied.
-        """
+        """The same input (decoder, latent, box, shared) with another denoiser, e.g. one retrained for an ablation,
+        and ``diffusion``, the config it was trained with (its ``prediction`` and schedule decide its sampling)."""
         shared = (self.decoder, self.latent, denoiser, self.aabb, self.normalization, dict(self.report), self.device)
         return Sin3DM(replace(self.config, diffusion=diffusion), *shared)
 
@@ -316,37 +195,21 @@ class Sin3DM:
 
     # ------------------------------------------------------- against the input
     def same_voxels(self, samples: Samples, resolution: int) -> int:
-        """Voxels along the longest side of ``samples``' box that give the voxel size the input's box has at ``resolution``.
-
-        A retargeted or outpainted sample is larger than the input; voxelised
-        with this, it can be compared with the input voxel for voxel (and its
-        pictures keep their relative sizes).
-        """
+        """Voxels along the longest side of ``samples``' box with the voxel size the input's box has at
+        ``resolution``: a retargeted or outpainted sample compared with the input voxel for voxel."""
         return evaluation.same_voxels(samples.aabb, self.aabb, resolution)
 
     def plot_beside_input(self, samples: Samples, resolution: int = 64, labels=None):
-        """Front and top views (:func:`viz.plot_projections`) of the samples beside the input's reconstruction.
-
-        All at the voxel size the input's box has at ``resolution`` (larger
-        samples look larger). The reconstruction's grid is computed once per
-        resolution and kept. Each shape is decoded at twice the picture's
-        voxels (not the export's mesh resolution): a picture needs no more.
-        """
+        """Front and top views (:func:`viz.plot_projections`) of the samples beside the input's reconstruction,
+        all at the voxel size the input's box has at ``resolution`` (larger samples look larger)."""
         from .show.sample_figures import plot_beside_input
 
         return plot_beside_input(self, samples, resolution, labels)
 
     def occupancy(self, samples: Samples, resolution=128, mesh_resolution: int | None = None, supersample: int = 1):
-        """Each sample's mesh as an occupancy grid over its box, ``resolution`` voxels along the longest side.
-
-        What the paper's geometry metrics take (:mod:`sin3dm_lite.metrics`): the
-        sample is decoded to a mesh as for export (no texture) and voxelised.
-        With a list of resolutions, returns ``{resolution: [grids]}`` and decodes each sample once.
-        A sample with no surface (a diverged one: all empty, or the box all inside) counts as an
-        empty or a full grid, so it lowers the scores instead of stopping the evaluation.
-        ``supersample=2`` voxelises as the paper does (a voxel is solid when any of its 2³ sub-voxels is inside,
-        :func:`metrics.voxelize`); the default 1 samples the voxel centres.
-        """
+        """Each sample's mesh as an occupancy grid over its box, ``resolution`` voxels along the longest side (a
+        list: ``{resolution: [grids]}``), what the paper's geometry metrics take; a sample with no surface counts as
+        an empty or full grid; ``supersample=2`` voxelises as the paper does (:func:`evaluation.occupancy`)."""
 
         def to_mesh(i: int) -> TexturedMesh:
             return self.to_mesh(samples, i, resolution=mesh_resolution, original_coords=False, vertex_colors=True)
@@ -380,33 +243,12 @@ class Sin3DM:
         progress: bool = True,
         supersample: int = evaluation.PAPER_SUPERSAMPLE,
     ) -> dict:
-        """The paper's metrics of generated shapes against the input mesh (docs/paper-notes.md "Evaluation").
-
-        ``samples``: a :class:`Samples` (decoded here) or meshes in the input
-        file's coordinates (what ``sample`` exports). ``input_mesh``: a mesh,
-        path or example name (default: :meth:`input_mesh`). ``weights``: a
-        folder with the pre-trained weights of SIFID and LPIPS
-        (:func:`metrics.load_feature_weights`), or a loaded ``FeatureNets``.
-
-        Geometry (:func:`metrics.geometry_scores`): G-Div, LP-IoU, LP-F, the labelled variant that is not the
-        paper's (``lp_iou_any_offset``, ``lp_fscore_any_offset``: the input's patches at every voxel, so a
-        piece moved by a voxel still counts) and the IoU to the input on occupancy grids of ``resolution`` voxels along the
-        longest side of the model's box (a box covering larger, retargeted
-        samples keeps that voxel size), input and samples voxelised as the paper's evaluation code does
-        (``supersample=2``: a voxel is solid when any of its 2³ sub-voxels is inside; 1 samples the voxel
-        centres alone, stricter on walls a voxel or two thick); with several resolutions, e.g. ``(128, 64)``
-        (the paper's grid and the training grid), the first gets every metric and the
-        others the geometry's, in ``geometry_at["64"]``. Texture (:func:`metrics.texture_scores`)
-        on ``views`` renders of ``size`` pixels at elevation 45°, input and
-        samples framed by the same box: ``patch_swd`` and ``render_div`` always,
-        ``sifid`` and ``lpips`` with ``weights``. Without an off-screen renderer
-        the texture metrics are None and ``skipped["texture"]`` says why.
-        G-Qual (SSFID) is never computed (``skipped["ssfid"]``).
-
-        Returns ``{"samples", "resolution", "views", "size", "metrics": {name: value or None},
-        "skipped": {name: reason}, "timings_s": {...}}``, with several resolutions also
-        ``"geometry_at": {"64": {"voxels", "metrics"}}`` (the time it takes: :func:`evaluation.evaluate`).
-        """
+        """The paper's metrics of generated shapes (a :class:`Samples`, or meshes in the input file's coordinates)
+        against the input mesh (default: :meth:`input_mesh`): G-Div, LP-IoU, LP-F and the IoU on ``resolution``
+        voxels (the paper's 128; several give ``geometry_at``), and on ``views`` renders of ``size`` pixels patch
+        SWD, render diversity, SIFID and LPIPS (those two with ``weights``); SSFID is
+        :func:`sin3dm_lite.evaluate.ssfid.ssfid` (:func:`~sin3dm_lite.evaluate.evaluation.evaluate` says what
+        each returns, docs/paper-notes.md how)."""
         nets = evaluation.feature_nets(weights)
         ref = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
         to_meshes = self.to_mesh if isinstance(samples, Samples) else list
@@ -422,11 +264,7 @@ class Sin3DM:
     @classmethod
     def open(cls, run, preset=None, cache="runs/cache", device=None, progress: bool = True) -> Sin3DM:
         """The model ``run`` names: a shipped model, a run folder, or a mesh / example fitted once into ``cache``
-        and reused after (the rules: :mod:`sin3dm_lite.app.runs`).
-
-        ``preset`` (default: :func:`presets.notebook_preset`, ``tiny`` under ``SIN3DM_FAST=1``, else ``small``) is
-        used only when ``run`` has to be fitted. The model's ``run_dir`` attribute is the folder it was loaded from.
-        """
+        with ``preset`` and reused after (:mod:`sin3dm_lite.app.runs`); its ``run_dir`` is the folder it came from."""
         from .app.runs import fit_preset, resolve_run
 
         kind, folder = resolve_run(run, preset, cache)

@@ -37,6 +37,7 @@ LAYERS = {
     "files.confined": BASE,
     "app": BASE,
     "auto": APP,
+    "auto.calibration": APP,
     "files.locks": BASE,
     "files.manifest": BASE,
     "files.outputs": BASE,

@@ -54,6 +54,7 @@ from .mass_folder import (
 )
 from .mass_workers import Ranks, sample_many
 from .request import SampleRequest  # what a run asks for, and its defaults
+from .sampling import check_mesh_sizes
 
 
 def check_request(model, req: SampleRequest) -> None:
@@ -75,7 +76,7 @@ def check_sample_sizes(model, plan, req: SampleRequest) -> None:
         check_setting("sampling.faces", req.faces, option="--faces")
 
     def check(parallel: int) -> None:
-        model.check_mesh_sizes(
+        check_mesh_sizes(
             r.mesh_resolution,
             r.texture_size,
             plan.aabb,

@@ -197,8 +197,11 @@ def check_mesh_sizes(
     parallel: int = 1,
     names: tuple[str, str] = ("mesh resolution", "texture size"),
 ) -> None:
-    """``model.check_mesh_sizes`` for an export over ``box``: refuse a mesh resolution or texture size out of range
-    (:data:`config.LIMITS`) or beyond memory (the rules: that method's docstring)."""
+    """Refuse a mesh resolution or texture size out of range (:data:`config.LIMITS`) or beyond memory, for an export
+    over ``box`` (normalised coordinates). One export holds about :data:`EXPORT_BYTES_PER_VOXEL` per voxel of the
+    decode grid and :data:`EXPORT_BYTES_PER_TEXEL` per texel; ``parallel`` exports at once (``--workers``) may use
+    half the free RAM between them, as :func:`max_samples` does. ``names``: what the message calls the two (CLI
+    flags); the message gives the largest value that fits."""
     from ..data.box import grid_shape
     from ..data.config import LIMITS, check_setting
     from .device import memory_available
@@ -263,7 +266,7 @@ def decode(
         values.setting(f"sampling.{key}", value, name, high=key == "faces")  # the sizes' top: check_mesh_sizes
     values.flag(vertex_colors, "vertex_colors"), values.flag(original_coords, "original_coords")
     r = SampleRequest(mesh_resolution=resolution, faces=faces, texture_size=texture_size).resolve(model.config.sampling)
-    model.check_mesh_sizes(r.mesh_resolution, r.texture_size, samples.aabb, names=("resolution", "texture_size"))
+    check_mesh_sizes(r.mesh_resolution, r.texture_size, samples.aabb, names=("resolution", "texture_size"))
     items = range(len(samples)) if index is None else [index]
     meshes = []
     for i in items:

@@ -125,8 +125,15 @@ def evaluate(
     progress: bool = True,
     supersample: int = PAPER_SUPERSAMPLE,
 ) -> dict:
-    """``Sin3DM.evaluate`` (the metrics and what they return: its docstring): ``to_meshes(samples)`` gives the
-    sample meshes in the input file's coordinates, ``reference`` is the input mesh, ``aabb`` the model's box.
+    """``Sin3DM.evaluate``: ``to_meshes(samples)`` gives the sample meshes in the input file's coordinates,
+    ``reference`` is the input mesh, ``aabb`` the model's box (a box covering larger, retargeted samples keeps its
+    voxel size). Geometry (:func:`metrics.geometry_scores`): G-Div, LP-IoU, LP-F, the labelled variant that is not
+    the paper's (``lp_iou_any_offset``, ``lp_fscore_any_offset``: the input's patches at every voxel) and the IoU
+    to the input. Texture (:func:`metrics.texture_scores`) on ``views`` renders of ``size`` pixels at elevation
+    45°, input and samples framed by the same box: ``patch_swd`` and ``render_div`` always, ``sifid`` and
+    ``lpips`` with ``nets``; without an off-screen renderer they are None and ``skipped["texture"]`` says why.
+    Returns ``{"samples", "resolution", "views", "size", "metrics": {name: value or None}, "skipped": {name:
+    reason}, "timings_s": {...}}``.
     With several resolutions the first gets every metric and each other one the geometry's
     (``geometry_at[str(resolution)]``). Input and samples are voxelised alike, ``supersample``³ points a voxel
     (:func:`~sin3dm_lite.evaluate.geometry.voxelize`; the paper's 2 by default).
