@@ -381,7 +381,7 @@ def test_goals_out_of_reach_give_the_lowest_setting_and_say_so(knob):
 @pytest.mark.parametrize(
     "kw, match",
     [
-        ({"n": 1}, "at least 2 samples"),
+        ({"n": 1}, "2 to 64 samples"),
         ({"lowest": 1.0}, "lowest"),
         ({"goals": {"g_div": 0.2}}, "unknown calibration goals"),
         ({"goals": {"lp_iou": 55}}, "from 0 to 1"),
