@@ -10,8 +10,8 @@ import numpy as np
 
 from ..data.source import resolve_mesh
 from ..errors import Sin3DMInputError
+from ..evaluate import calibrate as walk  # looked up at each call: a test or notebook may swap its parts
 from ..evaluate import evaluation
-from ..evaluate.calibrate import calibrate_diversity, model_sampler
 from ..evaluate.calibration_record import Calibration
 
 
@@ -26,7 +26,7 @@ def calibrate_model(
 ) -> Calibration:
     """Set ``model.config.sampling.diversity`` to the most varied setting whose samples keep the input's patches.
 
-    :func:`calibrate_diversity` draws a few samples at a handful of settings and scores them with the paper's
+    :func:`~sin3dm_lite.evaluate.calibrate.calibrate_diversity` draws a few samples at a handful of settings and scores them with the paper's
     LP-IoU / LP-F against ``reference``, the input's occupancy on the model's box (default: ``input_mesh``, a
     mesh, path or example name, or else the model's input, voxelised at ``resolution`` voxels along the longest
     side: by default the fit's grid, which is fast; 128 judges as the paper measures, in about four times the
@@ -51,8 +51,8 @@ def calibrate_model(
             f"resolution {resolution} does not match the reference grid {np.shape(reference)}; give one of them"
         )
     supersample = 1 if supersample is None else supersample
-    sampler = model_sampler(model, reference, supersample=supersample)
-    cal = calibrate_diversity(sampler, reference, progress=progress, **options)
+    sampler = walk.model_sampler(model, reference, supersample=supersample)
+    cal = walk.calibrate_diversity(sampler, reference, progress=progress, **options)
     cal.supersample = supersample
     model.config = model.config.updated(**{"sampling.diversity": cal.diversity})
     model.report["calibration"] = cal.to_dict()

@@ -133,18 +133,9 @@ def evaluate(
     45°, input and samples framed by the same box: ``patch_swd`` and ``render_div`` always, ``sifid`` and
     ``lpips`` with ``nets``; without an off-screen renderer they are None and ``skipped["texture"]`` says why.
     Returns ``{"samples", "resolution", "views", "size", "metrics": {name: value or None}, "skipped": {name:
-    reason}, "timings_s": {...}}``.
-    With several resolutions the first gets every metric and each other one the geometry's
+    reason}, "timings_s": {...}}``; with several resolutions the first gets every metric and each other one the geometry's
     (``geometry_at[str(resolution)]``). Input and samples are voxelised alike, ``supersample``³ points a voxel
     (:func:`~sin3dm_lite.evaluate.geometry.voxelize`; the paper's 2 by default).
-
-    Time (2-core CPU, ``OMP_NUM_THREADS=1``, other jobs running; defaults): the
-    shipped ``canyon_small`` with 4 samples of 20k faces took 1.1 s for the
-    geometry at 64 voxels, 7.4-8.1 s to render 5 meshes × 8 views and 2.5 s for the
-    weight-free texture metrics (+2.9 s for SIFID and LPIPS): about 2.5 s
-    per sample plus the input's renders. At 128 and 64 voxels, one thread, quiet, the whole evaluation took 12 s
-    with the paper's voxels and 11 s with the voxel centres (a closed input is voxelised by a ray cast; an open
-    one pays for winding numbers near its surface, about 9 s for the canyon with holes cut).
     """
     say = print if progress else (lambda *a, **k: None)
     check_views(views, size)
