@@ -45,12 +45,12 @@ from sin3dm_lite import metrics  # noqa: E402
 from sin3dm_lite.app.device import get_device  # noqa: E402
 from sin3dm_lite.app.fitting import grid_for  # noqa: E402
 from sin3dm_lite.data.config import parse_settings  # noqa: E402
-from sin3dm_lite.data.presets import get_preset  # noqa: E402
 from sin3dm_lite.data.source import resolve_mesh  # noqa: E402
 from sin3dm_lite.formats.export import export_mesh  # noqa: E402
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer  # noqa: E402
 from sin3dm_lite.model.diffusion import DiffusionTrainer  # noqa: E402
 from sin3dm_lite.pipeline import Sin3DM  # noqa: E402
+from sin3dm_lite.presets import get_preset  # noqa: E402
 
 SHORT_RUN_EMA = 0.999
 

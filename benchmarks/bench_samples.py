@@ -50,11 +50,11 @@ from sin3dm_lite import metrics
 from sin3dm_lite.data.box import grid_shape
 from sin3dm_lite.data.config import parse_settings
 from sin3dm_lite.data.grid import load_grid
-from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.data.source import resolve_mesh
 from sin3dm_lite.formats.export import export_mesh
 from sin3dm_lite.generate.extract import marching_cubes
 from sin3dm_lite.pipeline import Sin3DM
+from sin3dm_lite.presets import get_preset
 
 #: points sampled per voxel when a mesh becomes voxels: 1, the voxel centres (the figures in docs/ before
 #: 2026-11-28), or 2, the paper's evaluation code (solid where any of 2³ sub-voxels is inside); --voxels sets it

@@ -38,11 +38,11 @@ import trimesh
 from sin3dm_lite.app.device import bf16_is_fast
 from sin3dm_lite.data.grid import ShapeGrid, mesh_to_grid
 from sin3dm_lite.data.mesh import Material, Normalization, TexturedMesh
-from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer, sdf_loss
 from sin3dm_lite.model.diffusion import DiffusionTrainer
 from sin3dm_lite.model.triplane import Triplane
 from sin3dm_lite.model.unet import TriplaneConv, cross_plane_inputs
+from sin3dm_lite.presets import get_preset
 
 
 def synthetic_grid(dims, n_points: int) -> ShapeGrid:

@@ -21,8 +21,8 @@ from torch import nn  # noqa: E402
 from sin3dm_lite.data.config import AutoencoderConfig, Config, DiffusionConfig  # noqa: E402
 from sin3dm_lite.data.grid import ShapeGrid, mesh_to_grid  # noqa: E402
 from sin3dm_lite.data.mesh import Material, Normalization, TexturedMesh  # noqa: E402
-from sin3dm_lite.data.presets import get_preset  # noqa: E402
 from sin3dm_lite.model.triplane import Triplane  # noqa: E402
+from sin3dm_lite.presets import get_preset  # noqa: E402
 
 # a non-cubic box, symmetric like ShapeGrid's (±n_axis / n_max): 24 × 32 × 20 voxels at resolution 32
 AABB = np.array([-0.75, -1.0, -0.625, 0.75, 1.0, 0.625])

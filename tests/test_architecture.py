@@ -45,7 +45,7 @@ LAYERS = {
     # data: settings, geometry of the box, meshes and their files, built-in shapes, mesh → TSDF grid (tsdf computes it)
     "data": DATA,
     "data.config": DATA,
-    "data.presets": DATA,
+    "presets": DATA,
     "data.box": DATA,
     "data.mesh": DATA,
     "formats.load": DATA,

@@ -587,7 +587,7 @@ def test_killed_fit_resumes_and_leaves_nothing_stale(work, stage, delay, capsys)
 
 def test_poor_reconstruction_is_a_warning_with_the_likely_cause():
     from sin3dm_lite.auto.fit_policy import MIN_IOU, MIN_PSNR, warn_if_poor
-    from sin3dm_lite.data.presets import get_preset
+    from sin3dm_lite.presets import get_preset
 
     # the fix is a setting of the run's config with its value, as the CLI and Python take it
     switched = get_preset("small").for_thin_parts()  # 1,000 autoencoder steps at 96 voxels

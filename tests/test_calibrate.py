@@ -454,7 +454,7 @@ def test_a_thin_fit_calibrated_on_its_grid_names_the_calibration_at_128():
 
 def test_the_rollout_hint_applies_only_to_a_plain_denoiser_calibrated_to_pure_noise():
     from sin3dm_lite.auto.fit_policy import rollout_hint
-    from sin3dm_lite.data.presets import get_preset
+    from sin3dm_lite.presets import get_preset
 
     small = get_preset("small")
     hint = rollout_hint(small, {"diversity": 1.0, "kept_goals": True})
@@ -756,7 +756,7 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
 
     from sin3dm_lite.app import fitting
     from sin3dm_lite.auto.fit_policy import COPIES_DISTANCE, copies_warning, from_noise_distance, g_div_at_one
-    from sin3dm_lite.data.presets import get_preset
+    from sin3dm_lite.presets import get_preset
 
     model, run, _ = plain_fit
     recorded = json.loads((run / "report.json").read_text())["from_noise_distance"]

@@ -325,8 +325,8 @@ def _preset_fit_gets(tmp_path, monkeypatch, *argv, machine: str = "small"):
     --preset the machine's default is pinned to ``machine`` (no timing: tests/test_fit_default.py tests the choice)."""
     from sin3dm_lite.auto import fit_default
     from sin3dm_lite.data.config import Config
-    from sin3dm_lite.data.presets import get_preset
     from sin3dm_lite.pipeline import Sin3DM
+    from sin3dm_lite.presets import get_preset
 
     monkeypatch.setattr(fit_default, "default_preset", lambda device=None: fit_default.DefaultPreset(machine, "pinned"))
     seen = {}
@@ -356,7 +356,7 @@ def test_quick_gets_the_finer_thin_part_settings_only_when_asked(tmp_path, monke
     """quick's own switch snaps the samples (its finer settings take 5x its fit without bf16) and tries a wider
     denoiser field on thin walls; --thin-switch adds small's thin-part settings instead of that field, leaving a
     setting the user names to the user; --no-thin-switch turns both off, --set thin_walls={} the field alone."""
-    from sin3dm_lite.data.presets import DETAIL_CHANGES, QUICK_THIN_CHANGES, QUICK_WALLS_CHANGES, get_preset
+    from sin3dm_lite.presets import DETAIL_CHANGES, QUICK_THIN_CHANGES, QUICK_WALLS_CHANGES, get_preset
 
     cfg = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--preset", "quick", *flag)
     expected = {(): QUICK_THIN_CHANGES, ("--thin-switch",): {**QUICK_THIN_CHANGES, **DETAIL_CHANGES}}

@@ -25,7 +25,7 @@ def test_auto_precision_picks_bf16_only_where_it_measures_faster(monkeypatch):
     it is absent nothing is timed (emulated bf16 is many times slower). The fit's hint says which it was."""
     from sin3dm_lite.app import device
     from sin3dm_lite.auto import fit_policy
-    from sin3dm_lite.data.presets import get_preset
+    from sin3dm_lite.presets import get_preset
 
     device.cpu_bf16_share.cache_clear()
     monkeypatch.setattr(device, "_cpu_has_bf16", lambda: False)

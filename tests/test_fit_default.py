@@ -5,7 +5,7 @@ import torch
 
 from sin3dm_lite.auto import fit_default
 from sin3dm_lite.cli import main
-from sin3dm_lite.data.presets import get_preset
+from sin3dm_lite.presets import get_preset
 
 
 @pytest.mark.parametrize(

@@ -8,7 +8,6 @@ import trimesh
 from sin3dm_lite.data.config import replace
 from sin3dm_lite.data.grid import PBR_CHANNELS, mesh_to_grid
 from sin3dm_lite.data.mesh import tangent_frames
-from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.evaluate.metrics import iou, reconstruction_metrics
 from sin3dm_lite.examples import build_example
 from sin3dm_lite.formats.export import export_mesh
@@ -16,6 +15,7 @@ from sin3dm_lite.formats.load import load_mesh
 from sin3dm_lite.generate.extract import extract_mesh
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer, fit_autoencoder
 from sin3dm_lite.model.decode import reconstructed_grid
+from sin3dm_lite.presets import get_preset
 
 from .conftest import textured
 

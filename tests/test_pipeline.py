@@ -12,10 +12,10 @@ import torch
 from sin3dm_lite.app.device import cpu_bf16_share, resolved_precision
 from sin3dm_lite.auto.fit_policy import thin_parts_switch
 from sin3dm_lite.data.config import Config
-from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model import autoencoder
 from sin3dm_lite.pipeline import Sin3DM
+from sin3dm_lite.presets import get_preset
 
 from .conftest import micro_config, micro_model
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from sin3dm_lite.data.grid import mesh_to_grid
-from sin3dm_lite.data.presets import get_preset
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.examples.ruin import build_ruin, ruin_tower
+from sin3dm_lite.presets import get_preset
 
 TINY = get_preset("tiny").grid
 

@@ -193,7 +193,7 @@ def test_rollout_parts_are_the_pieces_of_the_conv_input():
 
 def test_the_presets_fields_are_a_share_of_their_latents():
     # docs/paper-notes.md, last section: the field must shrink with the latent, or every sample copies the input
-    from sin3dm_lite.data.presets import get_preset
+    from sin3dm_lite.presets import get_preset
 
     share = {}
     for name in ("small", "detail", "paper"):

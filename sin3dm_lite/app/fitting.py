@@ -46,13 +46,13 @@ from ..auto.fit_policy import (
 from ..data.config import Config
 from ..data.grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
 from ..data.mesh import TexturedMesh
-from ..data.presets import get_preset
 from ..data.source import input_name, input_stem, resolve_mesh
 from ..errors import Sin3DMInputError, Terminated
 from ..evaluate.metrics import reconstruction_metrics
 from ..files import atomic_write, holds_lock, release_lock
 from ..model.autoencoder import AutoencoderTrainer
 from ..model.decode import reconstructed_grid
+from ..presets import get_preset
 from .checkpoints import resume_trainer, save_trainer
 from .device import cpu_bf16_share, get_device, resolved_precision
 from .run_folder import check_run_folder, prepare_run, read_report, remove_failed_run

@@ -30,10 +30,10 @@ from pathlib import Path
 from ..auto.fit_policy import check_flips
 from ..data.config import Config
 from ..data.grid import load_grid
-from ..data.presets import get_preset
 from ..errors import Sin3DMInputError
 from ..files import acquire_lock, create_locked_folder, release_lock
 from ..files.inputs import read_json
+from ..presets import get_preset
 from .checkpoints import MODEL_FILE, check_trainer_state, load_trainer_checkpoint
 from .model_file import check_network_sizes, missing_settings
 

@@ -32,9 +32,9 @@ from pathlib import Path
 import numpy as np
 
 from ..data.config import Config
-from ..data.presets import get_preset, notebook_preset
 from ..errors import Sin3DMInputError
 from ..formats.load import load_mesh
+from ..presets import get_preset, notebook_preset
 
 CACHE = Path("runs/cache")  # relative to the working directory (a notebook's: notebooks/)
 EXAMPLE_SEED = 0  # the generator seed ``Sin3DM.fit`` builds an example with

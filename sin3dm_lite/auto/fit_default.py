@@ -21,7 +21,7 @@ import torch
 
 from ..app.device import bf16_is_fast, cpu_bf16_share, get_device
 from ..data.config import Config
-from ..data.presets import get_preset
+from ..presets import get_preset
 
 #: the grid and the calibration beside the two trainings: in the fits of docs/performance.md they took 5-20 % of
 #: the training's time

@@ -85,8 +85,8 @@ def cmd_grid(a) -> None:
 
 def cmd_fit(a) -> None:
     from ..data.config import parse_settings
-    from ..data.presets import DETAIL_CHANGES, get_preset
     from ..pipeline import Sin3DM
+    from ..presets import DETAIL_CHANGES, get_preset
 
     if a.resume and not Path(a.out).is_dir():
         raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")

@@ -133,7 +133,7 @@ def _grid_args(g: argparse.ArgumentParser) -> None:
 
 
 def _fit_args(f: argparse.ArgumentParser) -> None:
-    from ..data.presets import PRESETS
+    from ..presets import PRESETS
 
     f.add_argument("mesh", help=_mesh_help())
     f.add_argument(

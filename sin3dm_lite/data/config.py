@@ -3,7 +3,7 @@
 :class:`Config` holds a whole run (grid, autoencoder, diffusion, sampling,
 seed); :data:`LIMITS` says what every setting may be, checked whenever a
 ``Config`` is made or changed. The five named presets (``tiny``, ``small``,
-``quick``, ``detail``, ``paper``) are in :mod:`sin3dm_lite.data.presets`.
+``quick``, ``detail``, ``paper``) are in :mod:`sin3dm_lite.presets`.
 """
 
 from __future__ import annotations
@@ -126,7 +126,7 @@ class Config:
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     checkpoint_every: int = 500  # training steps between checkpoints in a run folder
     # Dotted settings that replace these ones when the input has many thin parts (ShapeGrid.thin_share above
-    # grid.THIN_SHARE_HINT on this grid): Sin3DM.fit switches to them after building the grid. {} never switches.
+    # fit_policy.THIN_SHARE_HINT on this grid): Sin3DM.fit switches to them after building the grid. {} never switches.
     thin_parts: dict = field(default_factory=dict)
     # Dotted settings (the rollout on) that replace these ones when the denoiser has no cross-plane rollout and the
     # calibration keeps the input's patches even from pure noise (diversity 1: the shape's layout varies little, a

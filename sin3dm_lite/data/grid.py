@@ -30,10 +30,6 @@ from .distance import Distance
 from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, unique_rows
 from .tsdf import PBR_CHANNELS, point_tsdf, tsdf_grid
 
-#: :meth:`Sin3DM.fit` with the ``small`` preset switches to ``detail``'s settings when more of the solid than this is thin
-#: (:meth:`ShapeGrid.thin_share`): on five test shapes, ``detail`` helped the three above it, not the two below.
-THIN_SHARE_HINT = 0.2
-
 
 @dataclass
 class ShapeGrid:
@@ -127,9 +123,8 @@ class ShapeGrid:
         first to swell, break or vanish in samples. At 64 voxels the built-in
         canyon and wall score 0.13 and 0.10, the colonnade 0.24, a slab of
         small boxes 0.44 and one of tiles with one-voxel gaps 1.0 (at 96
-        voxels: 0.05, 0.05, 0.11, 0.07, 0.58). Above :data:`THIN_SHARE_HINT` a
-        ``small`` fit switches to the ``detail`` preset's settings
-        (:func:`sin3dm_lite.auto.fit_policy.thin_parts_switch`).
+        voxels: 0.05, 0.05, 0.11, 0.07, 0.58). What a fit makes of it is the
+        application's (:mod:`sin3dm_lite.auto.fit_policy`).
         """
         from scipy import ndimage
 

@@ -28,8 +28,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..data.mesh import Material, TexturedMesh
-from ..data.presets import get_preset
 from ..errors import Sin3DMInputError
+from ..presets import get_preset
 
 #: samples of the signed distance per voxel of the training grid
 DETAIL = 2

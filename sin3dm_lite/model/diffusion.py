@@ -11,7 +11,7 @@ fully convolutional, sampling noise of another size gives a retargeted shape,
 and pasting a noised known latent into part of ``x_t`` at every step gives
 outpainting, patch duplication and local editing without touching the sampler.
 Each step's estimate of the clean latent can be changed before the step uses it (``denoised_fn``, as in
-improved-diffusion): the application's snapping (:mod:`sin3dm_lite.auto.snap`) is such a hook.
+improved-diffusion; not in the paper, whose sampler is the default).
 """
 
 from __future__ import annotations

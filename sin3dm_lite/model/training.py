@@ -158,7 +158,7 @@ class Trainer:
         """Restore what :meth:`extra_state` saved."""
 
     def state_dict(self) -> dict:
-        """A CPU snapshot of everything needed to resume exactly (plain tensors and containers only)."""
+        """A CPU copy of everything needed to resume exactly (plain tensors and containers only)."""
         return cpu_copy(
             {
                 "format": TRAINER_FORMAT,

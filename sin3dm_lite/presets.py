@@ -41,8 +41,8 @@
 
 from __future__ import annotations
 
-from ..errors import Sin3DMInputError
-from .config import AutoencoderConfig, Config, DiffusionConfig, GridConfig, SamplingConfig
+from .data.config import AutoencoderConfig, Config, DiffusionConfig, GridConfig, SamplingConfig
+from .errors import Sin3DMInputError
 
 
 def _tiny() -> Config:
