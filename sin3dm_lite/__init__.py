@@ -7,7 +7,7 @@ only from its own level or a lower one (``tests/test_architecture.py`` holds the
 table of levels and checks it, imports inside functions included)::
 
     0 base      errors · files: atomic · confined · locks · manifest · outputs · inputs · app.device · app.threads
-    1 data      data: config · presets · box · mesh (the mesh type) · distance · tsdf (truncated SDF on a grid and at
+    1 data      presets (top level) · data: config · box · mesh (the mesh type) · distance · tsdf (truncated SDF on a grid and at
                 points) · grid (mesh → TSDF) · source (a fit's input by name) · formats: the file readers and
                 writers (load, export, obj, mtl, gltf, scene, images) · examples: the built-in shapes and the ruin
     2 model     model: triplane · training · autoencoder · decode · unet · schedule (noise, the steps visited) ·
