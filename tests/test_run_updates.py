@@ -78,3 +78,15 @@ def test_a_failed_checkpoint_write_is_the_error_reported_not_the_cleanups(tmp_pa
         with pytest.raises(PermissionError) as e:
             Sin3DM.fit("wall", preset=micro_config(), out=run, progress=False)
     assert e.value.filename.endswith("autoencoder.pt")
+
+
+def test_calibrate_refuses_a_run_folder_holding_a_link(run, tmp_path, capsys):
+    import os
+
+    elsewhere = tmp_path / "kept_config.json"
+    (run / "config.json").rename(elsewhere)
+    os.symlink(elsewhere, run / "config.json")
+    before = elsewhere.read_bytes()
+    assert main(["calibrate", str(run), "-n", "2"]) == 2
+    assert "symbolic link" in capsys.readouterr().err
+    assert elsewhere.read_bytes() == before and (run / "config.json").is_symlink()

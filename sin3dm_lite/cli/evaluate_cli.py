@@ -145,12 +145,13 @@ def cmd_evaluate(a) -> None:
 
 def cmd_calibrate(a) -> None:
     from ..app.pretrained import is_shipped
-    from ..files import acquire_lock, check_writable, release_lock
+    from ..files import acquire_lock, check_writable, refuse_links, release_lock
 
     run = find_run(a.run)
     shipped = is_shipped(run)  # a shipped model's folder is part of the installed package: print only
     if not shipped:
         check_writable(run, option="run folder")
+        refuse_links(run, option="run folder")  # calibrate replaces files there: never through a link
         # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile
         acquire_lock(run, "run folder", option=None)
     try:
