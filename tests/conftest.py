@@ -208,3 +208,30 @@ def rf_square(n=33, width=9, zero_corner=True) -> np.ndarray:
     if zero_corner:
         rf[0, 0] = 0.0
     return rf
+
+
+# --------------------------------------------------------------------------- a folder of samples to write into
+@pytest.fixture(scope="module")
+def template(tmp_path_factory):
+    """The shipped model as a run folder, and one sample of it (cheap settings)."""
+    import shutil
+
+    from sin3dm_lite.app.pretrained import pretrained_path
+    from sin3dm_lite.cli import main
+
+    root = tmp_path_factory.mktemp("folders")
+    shutil.copytree(pretrained_path(), root / "run")
+    cheap = [*CHEAP_SAMPLE, "--workers", "0"]
+    assert main(["sample", str(root / "run"), "--out", str(root / "samples"), "-n", "1", *cheap]) == 0
+    return root
+
+
+@pytest.fixture
+def work(template, tmp_path, monkeypatch):
+    """A copy of :func:`template` (new times: the copied samples must stay ours), the working folder."""
+    import shutil
+
+    ws = tmp_path / "ws"
+    shutil.copytree(template, ws)
+    monkeypatch.chdir(ws)
+    return ws

@@ -12,41 +12,18 @@ from pathlib import Path
 import pytest
 
 from sin3dm_lite import files
-from sin3dm_lite.app.pretrained import pretrained_path
 from sin3dm_lite.cli import main
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.files import MANIFEST
 
 from .conftest import CHEAP_SAMPLE
+from .test_output_folders import one_error_line as one_line  # the same one-line check
 
 CHEAP = [*CHEAP_SAMPLE, "--workers", "0"]
 
 
-@pytest.fixture(scope="module")
-def template(tmp_path_factory):
-    root = tmp_path_factory.mktemp("links")
-    shutil.copytree(pretrained_path(), root / "run")
-    assert main(["sample", str(root / "run"), "--out", str(root / "samples"), "-n", "1", *CHEAP]) == 0
-    return root
-
-
-@pytest.fixture
-def work(template, tmp_path, monkeypatch):
-    ws = tmp_path / "ws"
-    shutil.copytree(template, ws)
-    monkeypatch.chdir(ws)
-    return ws
-
-
 def tree(root: Path) -> dict:
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
-def one_line(capsys) -> str:
-    err = capsys.readouterr().err
-    lines = [line for line in err.strip().splitlines() if ": warning: " not in line]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 def move_out_and_link_back(ws: Path) -> Path:

@@ -12,7 +12,6 @@ from pathlib import Path
 import pytest
 
 from sin3dm_lite import files
-from sin3dm_lite.app.pretrained import pretrained_path
 from sin3dm_lite.cli import main
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.files import LOCK, MANIFEST, read_manifest
@@ -20,23 +19,6 @@ from sin3dm_lite.files import LOCK, MANIFEST, read_manifest
 from .conftest import CHEAP_SAMPLE
 
 CHEAP = [*CHEAP_SAMPLE, "--workers", "0"]
-
-
-@pytest.fixture(scope="module")
-def template(tmp_path_factory):
-    """The shipped model as a run folder, and one sample of it (cheap settings)."""
-    root = tmp_path_factory.mktemp("folders")
-    shutil.copytree(pretrained_path(), root / "run")
-    assert main(["sample", str(root / "run"), "--out", str(root / "samples"), "-n", "1", *CHEAP]) == 0
-    return root
-
-
-@pytest.fixture
-def work(template, tmp_path, monkeypatch):
-    ws = tmp_path / "ws"
-    shutil.copytree(template, ws)  # new times: the copied samples must stay ours (case 10)
-    monkeypatch.chdir(ws)
-    return ws
 
 
 def snapshot(root: Path) -> dict:

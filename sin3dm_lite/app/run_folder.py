@@ -32,7 +32,7 @@ from ..data.config import Config
 from ..data.grid import load_grid
 from ..errors import Sin3DMInputError
 from ..files import acquire_lock, create_locked_folder, release_lock
-from ..files.inputs import read_json
+from ..files.inputs import json_or_why, read_json
 from ..presets import get_preset
 from .checkpoints import MODEL_FILE, check_trainer_state, load_trainer_checkpoint
 from .model_file import check_network_sizes, missing_settings
@@ -133,13 +133,7 @@ def read_input(run: Path) -> dict | None:
     path = run / INPUT_FILE
     if not path.exists() and not path.is_symlink():
         return None
-    why = None
-    try:
-        rec = read_json(path, "a run's record")
-    except Sin3DMInputError:  # not a regular file: said as it is
-        raise
-    except (OSError, ValueError) as e:
-        rec, why = None, f"it cannot be read as JSON ({type(e).__name__})"
+    rec, why = json_or_why(path, "a run's record")
     if why is None and not (isinstance(rec, dict) and isinstance(rec.get("digest"), str)):
         why = "it is not a JSON object with the input's digest"
     elif why is None and "config" in rec and (gaps := missing_settings(rec["config"])):
@@ -169,13 +163,7 @@ def recorded_config(run: Path, cfg: Config) -> Config:
 def read_run_config(cfg_file: Path) -> Config:
     """A run's config.json, whole: JSON, every setting that shapes the grid and the networks present (an emptied
     file would otherwise resume with the defaults), each within LIMITS."""
-    why = None
-    try:
-        d = read_json(cfg_file, "a run's config")
-    except Sin3DMInputError:  # not a regular file: said as it is
-        raise
-    except (OSError, ValueError) as e:
-        d, why = None, f"it cannot be read as JSON ({type(e).__name__}; truncated?)"
+    d, why = json_or_why(cfg_file, "a run's config")
     if why is None and (gaps := missing_settings(d)):
         what = (
             "it is not a JSON object"

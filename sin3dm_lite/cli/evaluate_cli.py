@@ -171,18 +171,15 @@ def _supersample(voxels: str) -> int:
 def run_report(run: Path) -> dict | None:
     """The run's ``report.json`` (None without one), read and checked before a command changes the run: a damaged
     one refuses here, before the long work and before any file of the run is replaced."""
-    from ..files.inputs import read_json
+    from ..files.inputs import json_or_why
 
     path = run / "report.json"
     if not path.exists() and not path.is_symlink():
         return None
-    try:
-        report = read_json(path, "a run's report")  # a FIFO or a device is refused, not read
-    except (OSError, ValueError) as e:
-        why = e.strerror if isinstance(e, OSError) else f"not JSON: {e}"
-        report = why
-    if not isinstance(report, dict):
-        why = report if isinstance(report, str) else f"a {type(report).__name__}, not a record"
+    report, why = json_or_why(path, "a run's report")  # a FIFO or a device is refused, not read
+    if why is None and not isinstance(report, dict):
+        why = f"it holds a JSON {type(report).__name__}, not a record"
+    if why is not None:
         raise Sin3DMInputError(
             f"'{path}' is damaged ({why}); nothing in '{run}' was changed: restore that file from a copy, or "
             "delete it (a record only: the run samples without it) and calibrate again"

@@ -70,4 +70,15 @@ def read_json(path, what: str):
     return json.loads(check_regular(path, what).read_text(encoding="utf-8"))
 
 
-__all__ = ["check_regular", "not_regular", "read_json", "what_text_is"]
+def json_or_why(path, what: str) -> tuple[object, str | None]:
+    """``(value, None)`` for the JSON in the regular file ``path``, ``(None, why)`` where it cannot be read as JSON
+    (truncated, not text); a file that is not regular is refused (:func:`check_regular`)."""
+    try:
+        return read_json(path, what), None
+    except Sin3DMInputError:  # not a regular file: said as it is
+        raise
+    except (OSError, ValueError) as e:
+        return None, f"it cannot be read as JSON ({type(e).__name__}; truncated?)"
+
+
+__all__ = ["check_regular", "json_or_why", "not_regular", "read_json", "what_text_is"]
