@@ -38,6 +38,7 @@ LAYERS = {
     "app": BASE,
     "auto": APP,
     "auto.calibration": APP,
+    "auto.review": APP,
     "files.locks": BASE,
     "files.manifest": BASE,
     "files.outputs": BASE,

@@ -754,7 +754,7 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
 
     import torch
 
-    from sin3dm_lite.app import fitting
+    from sin3dm_lite.auto import review
     from sin3dm_lite.auto.fit_policy import COPIES_DISTANCE, copies_warning, from_noise_distance, g_div_at_one
     from sin3dm_lite.presets import get_preset
 
@@ -783,8 +783,8 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
     with pytest.MonkeyPatch.context() as mp, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         mp.setattr(C, "GOALS", KEEP_EVERY_SETTING)
-        mp.setattr(fitting, "from_noise_distance", lambda m, seed=0: 0.001)
-        mp.setattr(fitting, "g_div_at_one", lambda calibration: 0.01)  # the micro fit's samples are far from copies
+        mp.setattr(review, "from_noise_distance", lambda m, seed=0: 0.001)  # the fit's last look (auto.review)
+        mp.setattr(review, "g_div_at_one", lambda calibration: 0.01)  # the micro fit's samples are far from copies
         Sin3DM.fit("wall", preset=micro_config().updated(**PLAIN), out=tmp_path / "w", progress=False)
     said = [str(w.message) for w in caught if "even from pure noise" in str(w.message)]
     assert len(said) == 1 and "0.1% of its variance" in said[0] and "diffusion.n_resblocks=1" in said[0]
@@ -810,7 +810,7 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
     with pytest.MonkeyPatch.context() as mp, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         mp.setattr(C, "GOALS", KEEP_EVERY_SETTING)
-        mp.setattr(fitting, "from_noise_distance", lambda m, seed=0: 0.001)
-        mp.setattr(fitting, "g_div_at_one", lambda calibration: 0.084)
+        mp.setattr(review, "from_noise_distance", lambda m, seed=0: 0.001)
+        mp.setattr(review, "g_div_at_one", lambda calibration: 0.084)
         Sin3DM.fit("wall", preset=micro_config().updated(**PLAIN), out=tmp_path / "v", progress=False)
     assert not [w for w in caught if "even from pure noise" in str(w.message)]

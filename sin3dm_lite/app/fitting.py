@@ -26,15 +26,10 @@ import numpy as np
 from ..auto.fit_default import default_preset
 from ..auto.fit_policy import (
     are_copies,
-    calibration_grid_hint,
     choose_pbr,
-    copies_warning,
     from_noise_distance,
-    g_div_at_one,
-    keeps_goals_from_noise,
     no_rollout_switch,
     quick_hint,
-    rollout_hint,
     rollout_message,
     thin_parts_hint,
     thin_parts_message,
@@ -43,6 +38,7 @@ from ..auto.fit_policy import (
     wide_field_message,
     wide_field_undo,
 )
+from ..auto.review import review_fit
 from ..data.config import Config
 from ..data.grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
 from ..data.mesh import TexturedMesh
@@ -158,28 +154,7 @@ class FitRun:
         # rollout_switch: {plain_calibration, plain_s} when a plain denoiser was trained again with the rollout
         rollout = self.recorded("rollout_switch")
         model, history = self.denoise(cfg, grid, h0, ae, metrics, {**base, "rollout_switch": rollout})
-        cfg = model.config  # the narrower denoiser's, where the wider field copied the shape
-        calibration = model.report.get("calibration")
-        # a calibrated fit: do its samples vary at all? (a few samples, about a second). Samples that copy the
-        # input keep its patches from pure noise too, but the rollout would only hold the layout tighter
-        distance, warning = copies_check(model, thin_parts) if cfg.sampling.calibrate else (None, None)
-        if warning is None and rollout is None and cfg.rollout_switch and keeps_goals_from_noise(cfg, calibration):
-            # the shape's layout varies little whatever the knob: the rollout costs it no variation (rollout_hint)
-            cfg, model, history, rollout = self.switch_to_rollout(cfg, grid, h0, ae, metrics, base, calibration)
-            distance, warning = copies_check(model, thin_parts)  # the new denoiser's
-        if rollout is not None:
-            self.timings["rollout_switch_s"] = rollout["plain_s"]
-        hint = None if cfg.rollout_switch or warning else rollout_hint(cfg, calibration)
-        if hint is not None:
-            model.report["rollout_hint"] = hint
-            self.say(hint)
-        if (hint := calibration_grid_hint(thin_parts, model.report.get("calibration"), self.run)) is not None:
-            self.say(hint)
-        if distance is not None:
-            model.report["from_noise_distance"] = distance
-            if warning is not None:
-                # stacklevel: this method, fitting.fit, Sin3DM.fit, and the code that called it
-                warnings.warn(warning, stacklevel=4)
+        model, history = review_fit(self, model, history, (grid, h0, ae, metrics, base), rollout, thin_parts)
         if self.run is not None:
             model.save(self.run)
             atomic_write(self.run / "losses.json", json.dumps({"autoencoder": ae.history, "diffusion": history}))
@@ -430,15 +405,6 @@ def switch_record_ok(switch: str, record) -> bool:
     return isinstance(record.get("from"), str) and (
         wide is None or (isinstance(wide, dict) and isinstance(wide.get("undo"), dict))
     )
-
-
-def copies_check(model, thin_parts: dict | None) -> tuple[float, str | None]:
-    """A calibrated fit's last look: how far its samples from pure noise lie from the input's latent
-    (:func:`from_noise_distance`) and, with the G-Div of its calibration's samples at diversity 1, the warning
-    :func:`copies_warning` gives (None where they vary)."""
-    cfg = model.config
-    distance = from_noise_distance(model, seed=cfg.seed)
-    return distance, copies_warning(cfg, distance, thin_parts, g_div_at_one(model.report.get("calibration")))
 
 
 def training_precision(cfg: Config, device) -> dict:
