@@ -7,8 +7,8 @@ only from its own level or a lower one (``tests/test_architecture.py`` holds the
 table of levels and checks it, imports inside functions included)::
 
     0 base      errors · files: atomic · confined · locks · manifest · outputs · inputs · app.device · app.threads
-    1 data      presets (top level) · data: config · box · mesh (the mesh type) · distance · tsdf (truncated SDF on a grid and at
-                points) · grid (mesh → TSDF) · source (a fit's input by name) · formats: the file readers and
+    1 data      presets (top level) · data: config · box · mesh (the mesh type) · distance · tsdf (truncated SDF
+                on a grid and at points) · grid (mesh → TSDF) · source (a fit's input by name) · formats: the file readers and
                 writers (load, export, obj, mtl, gltf, scene, images) · examples: the built-in shapes and the ruin
     2 model     model: triplane · training · autoencoder · decode · unet · schedule (noise, the steps visited) ·
                 diffusion (training, sampling)
@@ -20,8 +20,9 @@ table of levels and checks it, imports inside functions included)::
     5 teach     teach: lesson2d · receptive_field · exercises, shape_exercises, loop_exercises · checking
     6 app       pipeline (Sin3DM: fit, sample, save, load, each a call into:) · app: fitting · sampling ·
                 run_folder · checkpoints · model_file · runs · pretrained · request · mass · mass_folder ·
-                mass_workers · values · notebook_run · auto: fit_default · fit_policy · snap (what a fit decides,
-                beyond the paper) · cli: parser_cli · values_cli · fit_cli · sample_cli · evaluate_cli
+                mass_workers · values · notebook_run · auto (what a fit decides, beyond the paper): fit_default ·
+                fit_policy · review · calibration · snap · cli: parser_cli · values_cli · fit_cli · sample_cli ·
+                evaluate_cli
 
 Everything a notebook or script needs is importable from here::
 
