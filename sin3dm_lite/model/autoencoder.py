@@ -37,6 +37,7 @@ import torch.nn.functional as F
 from ..data.config import AutoencoderConfig
 from ..data.grid import ShapeGrid
 from ..device import autocast
+from .pointops import mlp_fast_ok, skip_mlp
 from .training import Trainer
 from .triplane import PLANES, Triplane
 
@@ -170,6 +171,8 @@ class SkipMLP(nn.Module):
         self.out = nn.Linear(hidden, c_out)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if mlp_fast_ok(x, self):  # the same layers, chunk by chunk (model/pointops.py)
+            return skip_mlp(x, self.a, self.b, self.out)
         return self.out(self.b(torch.cat([self.a(x), x], dim=-1)))
 
 
