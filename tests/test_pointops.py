@@ -96,3 +96,22 @@ def test_autoencoder_steps_are_the_same_with_and_without_the_fast_paths(box_grid
     for a, b in zip(fast_g, ref_g):
         # relative to the tensor's largest gradient; a bias before an InstanceNorm gets rounding noise only
         assert float((a - b).abs().max()) <= 1e-5 * float(b.abs().max()) + 1e-8
+
+
+def test_kept_buffers_are_reused_and_a_stale_graph_fails_loudly():
+    """Training mode keeps a backward's buffers for the next forward: the same values as a fresh forward, and a
+    graph whose buffers were reused cannot be run backward again (an error, not wrong gradients)."""
+    torch.manual_seed(4)
+    m = SkipMLP(8, 16, 1).train()
+    x = torch.randn(1500, 8, requires_grad=True)
+    y1 = m(x)
+    y1.sum().backward(retain_graph=True)
+    kept = [b.data_ptr() for b in m._workspace.free]
+    assert len(kept) == 5
+    y2 = m(x * 2)  # writes into the kept buffers
+    assert not m._workspace.free
+    _close(y2, _reference_mlp(m, x * 2))
+    with pytest.raises(RuntimeError, match="modified by an inplace operation"):
+        y1.sum().backward()
+    m.eval()
+    assert m._workspace is None

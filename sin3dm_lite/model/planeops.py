@@ -35,7 +35,8 @@ def conv_repeated(v: torch.Tensor, w: torch.Tensor, size) -> tuple[torch.Tensor,
 
 
 def add_repeated(base: torch.Tensor, parts: list[tuple[torch.Tensor, int | None]]) -> torch.Tensor:
-    """``base`` plus each of :func:`conv_repeated`'s outputs repeated to ``base``'s size, in one new tensor."""
+    """``base`` plus each of :func:`conv_repeated`'s outputs repeated to ``base``'s size, added in place: ``base``
+    must be a fresh result that nothing else reads (the plane's own convolution's output)."""
     full = [y for y, dim in parts if dim is None]
     short = [(y, dim) for y, dim in parts if dim is not None]
     for y in full:
@@ -54,15 +55,12 @@ class _AddRepeated(torch.autograd.Function):
     @staticmethod
     def forward(ctx, base, *pairs):
         ys, dims = pairs[0::2], pairs[1::2]
-        out = torch.empty_like(base, memory_format=torch.contiguous_format)
-        for i, (y, dim) in enumerate(zip(ys, dims)):
+        for y, dim in zip(ys, dims):
             for a, n, c, m in _regions(base.shape[dim], y.shape[dim]):
-                if i == 0:  # the first part writes base + its values; the others add theirs
-                    torch.add(base.narrow(dim, a, n), y.narrow(dim, c, m), out=out.narrow(dim, a, n))
-                else:
-                    out.narrow(dim, a, n).add_(y.narrow(dim, c, m))
+                base.narrow(dim, a, n).add_(y.narrow(dim, c, m))
+        ctx.mark_dirty(base)
         ctx.shapes = [(dim, y.shape[dim]) for y, dim in zip(ys, dims)]
-        return out
+        return base
 
     @staticmethod
     def backward(ctx, g):

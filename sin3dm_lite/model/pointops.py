@@ -43,36 +43,59 @@ def _layers(a: nn.Sequential, b: nn.Sequential, out: nn.Linear) -> list[nn.Linea
     return [a[0], a[2], a[4], b[0], b[2], out]
 
 
-def skip_mlp(x: torch.Tensor, a: nn.Sequential, b: nn.Sequential, out: nn.Linear) -> torch.Tensor:
-    """:class:`~sin3dm_lite.model.autoencoder.SkipMLP`'s forward, ``out(b(cat(a(x), x)))`` with ReLUs, chunked."""
+class Workspace:
+    """The activation buffers of one MLP's last backward, for its next forward: a step then writes into pages it
+    already has instead of fresh ones (the kernel zeroes every new page, a sixth of a 64 MiB buffer's first
+    write). A buffer is handed out again only after the backward that read it; a graph that is run backward
+    twice after another forward fails loudly (the saved buffer's version changed), never silently."""
+
+    def __init__(self) -> None:
+        self.free: list[torch.Tensor] = []
+
+    def take(self, rows: int, cols: int, like: torch.Tensor) -> torch.Tensor:
+        fits = [
+            i for i, b in enumerate(self.free) if b.shape[1] == cols and b.shape[0] >= rows and b.dtype == like.dtype
+        ]
+        if not fits:
+            return like.new_empty(rows, cols)
+        return self.free.pop(min(fits, key=lambda i: self.free[i].shape[0]))[:rows]
+
+    def give(self, bufs) -> None:
+        self.free = [b if b._base is None else b._base for b in bufs]
+
+
+def skip_mlp(
+    x: torch.Tensor, a: nn.Sequential, b: nn.Sequential, out: nn.Linear, workspace: Workspace | None = None
+) -> torch.Tensor:
+    """:class:`~sin3dm_lite.model.autoencoder.SkipMLP`'s forward, ``out(b(cat(a(x), x)))`` with ReLUs, chunked
+    (``workspace``: where the backward leaves its buffers for the next forward)."""
     layers = _layers(a, b, out)
     params = [t for lin in layers for t in (lin.weight, lin.bias)]
     flat = x.reshape(-1, x.shape[-1]).contiguous()
     if torch.is_grad_enabled() and (x.requires_grad or any(p.requires_grad for p in params)):
-        y = _SkipMLPFunction.apply(flat, *params)
+        y = _SkipMLPFunction.apply(flat, workspace, *params)
     else:
-        y = _forward(flat, [t.detach() for t in params], save=False)[0]
+        y = _forward(flat, [t.detach() for t in params], None)[0]
     return y.reshape(*x.shape[:-1], y.shape[-1])
 
 
-def _forward(x: torch.Tensor, params: list[torch.Tensor], save: bool) -> tuple[torch.Tensor, list[torch.Tensor]]:
-    """The forward chunk by chunk; with ``save`` the post-ReLU activations: ``y0, y1``, the skip buffer
-    ``z = [y2 | x]`` and ``y3, y4``."""
+def _forward(x: torch.Tensor, params: list[torch.Tensor], save: Workspace | bool | None):
+    """The forward chunk by chunk → the output and, with ``save`` (a :class:`Workspace` or True), the post-ReLU
+    activations: ``y0, y1``, the skip buffer ``z = [y2 | x]`` and ``y3, y4``."""
     w = params[0::2]
     bias = params[1::2]
     n, c_in = x.shape
     h = w[0].shape[0]
-    rows = n if save else min(n, CHUNK)  # without saving, one chunk's buffers are reused
-    acts = (
-        [x.new_empty(rows, h) for _ in range(2)]
-        + [x.new_empty(rows, h + c_in)]
-        + [x.new_empty(rows, h) for _ in range(2)]
-    )
+    save = save if isinstance(save, Workspace) else Workspace() if save else None
+    if save is None:  # without saving, one chunk's buffers are reused
+        acts = [x.new_empty(min(n, CHUNK), h + c_in if i == 2 else h) for i in range(5)]
+    else:
+        acts = [save.take(n, h + c_in if i == 2 else h, x) for i in range(5)]
     y = x.new_empty(n, w[5].shape[0])
     wt = [m.t() for m in w]
     for s in range(0, n, CHUNK):
         e = min(n, s + CHUNK)
-        r = slice(s, e) if save else slice(0, e - s)
+        r = slice(s, e) if save is not None else slice(0, e - s)
         xc = x[s:e]
         y0, y1, z, y3, y4 = (t[r] for t in acts)
         torch.addmm(bias[0], xc, wt[0], out=y0).relu_()
@@ -87,26 +110,30 @@ def _forward(x: torch.Tensor, params: list[torch.Tensor], save: bool) -> tuple[t
 
 class _SkipMLPFunction(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, x, *params):
-        y, acts = _forward(x, list(params), save=True)
+    def forward(ctx, x, workspace, *params):
+        y, acts = _forward(x, list(params), workspace or True)
         ctx.save_for_backward(x, *params[0::2], *acts)
+        ctx.workspace = workspace
         return y
 
     @staticmethod
     def backward(ctx, gy):
         x, *rest = ctx.saved_tensors
         w, (y0, y1, z, y3, y4) = rest[:6], rest[6:]
-        need_x, need = ctx.needs_input_grad[0], ctx.needs_input_grad[1:]
+        need_x, need = ctx.needs_input_grad[0], ctx.needs_input_grad[2:]
         gw = [torch.zeros_like(m) if need[2 * i] else None for i, m in enumerate(w)]
         gb = [w[i].new_zeros(w[i].shape[0]) if need[2 * i + 1] else None for i in range(6)]
         gx = torch.empty_like(x) if need_x else None
         h = w[0].shape[0]
         gy = gy.contiguous()
         ins = (None, y0, y1, z, y3, y4)  # each layer's input (layer 0's is x)
+        # each chunk's gradients go through three scratch buffers: layer 3's input gradient (its skip part is
+        # read at layer 0) and two that the other layers take turns on
+        scratch = [x.new_empty(min(len(x), CHUNK), h) for _ in range(2)]
+        zg = x.new_empty(min(len(x), CHUNK), z.shape[1])
         for s in range(0, len(x), CHUNK):
             e = min(len(x), s + CHUNK)
             g = gy[s:e]
-            skip = None
             for i in range(5, -1, -1):
                 a = x[s:e] if i == 0 else ins[i][s:e]
                 if gb[i] is not None:
@@ -115,14 +142,16 @@ class _SkipMLPFunction(torch.autograd.Function):
                     gw[i].addmm_(g.t(), a)
                 if i == 0:
                     if gx is not None:
-                        torch.addmm(skip, g, w[0], out=gx[s:e])
+                        torch.addmm(zg[: e - s, h:], g, w[0], out=gx[s:e])
                     break
-                g = g.mm(w[i])
-                if i == 3:  # the concatenation [y2 | x]: split the gradient
-                    g, skip = g[:, :h], g[:, h:]
-                g = torch.ops.aten.threshold_backward(g, a[:, :h] if i == 3 else a, 0)
+                g = torch.mm(g, w[i], out=zg[: e - s] if i == 3 else scratch[i % 2][: e - s])
+                if i == 3:  # the concatenation [y2 | x]: the gradient of y2 goes on, x's waits for layer 0
+                    g, a = g[:, :h], a[:, :h]
+                g = torch.ops.aten.threshold_backward.grad_input(g, a, 0, grad_input=g)  # the ReLU's, in place
+        if ctx.workspace is not None:
+            ctx.workspace.give([y0, y1, z, y3, y4])
         grads = [t for pair in zip(gw, gb) for t in pair]
-        return (gx, *grads)
+        return (gx, None, *grads)
 
 
 def lookup_fast_ok(planes: tuple[torch.Tensor, ...], points: torch.Tensor) -> bool:
@@ -173,12 +202,13 @@ class _GatherFunction(torch.autograd.Function):
     def forward(ctx, table, idx, wts):
         n = idx.shape[1]
         out = table.new_empty(n, table.shape[1])
+        rows = table.new_empty(min(n, CHUNK), table.shape[1])
         for s in range(0, n, CHUNK):
             e = min(n, s + CHUNK)
-            o = out[s:e]
-            torch.mul(table.index_select(0, idx[0, s:e]), wts[0, s:e, None], out=o)
+            o, r = out[s:e], rows[: e - s]
+            torch.mul(torch.index_select(table, 0, idx[0, s:e], out=r), wts[0, s:e, None], out=o)
             for k in range(1, 12):
-                o.addcmul_(table.index_select(0, idx[k, s:e]), wts[k, s:e, None])
+                o.addcmul_(torch.index_select(table, 0, idx[k, s:e], out=r), wts[k, s:e, None])
         ctx.save_for_backward(idx, wts)
         ctx.rows = table.shape[0]
         return out
@@ -187,9 +217,9 @@ class _GatherFunction(torch.autograd.Function):
     def backward(ctx, g):
         idx, wts = ctx.saved_tensors
         grad = g.new_zeros(ctx.rows, g.shape[1])
+        rows = g.new_empty(min(idx.shape[1], CHUNK), g.shape[1])
         for s in range(0, idx.shape[1], CHUNK):
             e = min(idx.shape[1], s + CHUNK)
-            gc = g[s:e]
             for k in range(12):
-                grad.index_add_(0, idx[k, s:e], gc * wts[k, s:e, None])
+                grad.index_add_(0, idx[k, s:e], torch.mul(g[s:e], wts[k, s:e, None], out=rows[: e - s]))
         return grad, None, None

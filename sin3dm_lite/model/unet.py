@@ -174,7 +174,7 @@ class TriplaneResBlock(nn.Module):
     def forward(self, x: Triplane, emb: torch.Tensor) -> Triplane:
         h = self.conv1(self.norm1(x).map(F.silu))  # [B, out, ., .]
         scale, shift = self.emb(emb)[:, :, None, None].chunk(2, dim=1)  # [B, out, 1, 1] each
-        h = self.norm2(h).map(lambda p: F.silu(p * (1 + scale) + shift))
+        h = self.norm2(h).map(lambda p: F.silu(torch.addcmul(shift, p, 1 + scale)))  # p·(1+scale)+shift
         return self.shortcut(x) + self.conv2(h)
 
 
