@@ -114,11 +114,10 @@ class TriplaneConv(nn.Module):
         for name, conv in zip(PLANES, self.convs):
             own, (v1, v2) = parts[name]["plane"], parts[name]["pooled"]
             c, size = own.shape[1], own.shape[-2:]
-            w = conv.weight  # [out, 3c, k, k]: the plane's channels, then the two means'
-            o = F.conv2d(own, w[:, :c], conv.bias, padding=conv.padding)
-            out.append(
-                add_repeated(o, [conv_repeated(v1, w[:, c : 2 * c], size), conv_repeated(v2, w[:, 2 * c :], size)])
-            )
+            # [out, 3c, k, k]: the plane's channels, then the two means' (split: its backward is one cat)
+            w, w1, w2 = conv.weight.split(c, dim=1)
+            o = F.conv2d(own, w, conv.bias, padding=conv.padding)
+            out.append(add_repeated(o, [conv_repeated(v1, w1, size), conv_repeated(v2, w2, size)]))
         return Triplane(*out)  # [B, out, ., .]
 
 
