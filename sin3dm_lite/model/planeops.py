@@ -27,9 +27,11 @@ def conv_repeated(v: torch.Tensor, w: torch.Tensor, size) -> tuple[torch.Tensor,
     dim = 3 if v.shape[3] == 1 else 2  # the axis v is repeated along
     if size[dim - 2] <= k:
         return F.conv2d(v.expand(-1, -1, *size), w, padding=p), None
-    j, t = torch.arange(k, device=w.device)[:, None], torch.arange(k, device=w.device)
-    inside = ((j + t >= p) & (j + t <= 3 * p)).to(w.dtype)  # [texel class j, kernel tap t]: tap t inside the plane
-    kern = (w.movedim(dim, -1) @ inside.t()).movedim(-1, 0).flatten(0, 1)  # [k·out, C, k]: the taps summed
+    if torch.is_autocast_enabled(v.device.type):  # bf16: the 2D convolution of a k-texel strip gives the same
+        strip = [k if d == dim else size[d - 2] for d in (2, 3)]
+        return F.conv2d(v.expand(-1, -1, *strip), w, padding=p), dim
+    # the summed kernel of each output class j: the taps t with p <= j + t <= 3p ([k·out, C, k])
+    kern = torch.cat([w.narrow(dim, max(0, p - j), k - abs(p - j)).sum(dim) for j in range(k)])
     y = F.conv1d(v.squeeze(dim), kern, padding=p)  # [B, k·out, m]
     return y.unflatten(1, (k, w.shape[0])).movedim(1, dim), dim  # [B, out, k, m] or [B, out, m, k]
 
@@ -39,9 +41,19 @@ def add_repeated(base: torch.Tensor, parts: list[tuple[torch.Tensor, int | None]
     must be a fresh result that nothing else reads (the plane's own convolution's output)."""
     full = [y for y, dim in parts if dim is None]
     short = [(y, dim) for y, dim in parts if dim is not None]
+    if torch.is_autocast_enabled(base.device.type):  # bf16: in-place broadcast adds are slow, build them full
+        full += [_repeated(y, dim, base.shape[dim]) for y, dim in short]
+        short = []
     for y in full:
         base = base + y
     return _AddRepeated.apply(base, *(t for y, dim in short for t in (y, dim))) if short else base
+
+
+def _repeated(y: torch.Tensor, dim: int, n: int) -> torch.Tensor:
+    """``y`` (``k`` texels along ``dim``) repeated to ``n`` texels there: the middle one fills the middle."""
+    p = y.shape[dim] // 2
+    mid = y.narrow(dim, p, 1).expand(*[n - 2 * p if d == dim else -1 for d in range(y.dim())])
+    return torch.cat([y.narrow(dim, 0, p), mid, y.narrow(dim, p + 1, p)], dim)
 
 
 def _regions(n: int, k: int) -> list[tuple[int, int, int, int]]:

@@ -28,8 +28,8 @@ CHUNK = 1024
 
 
 def mlp_fast_ok(x: torch.Tensor, module: nn.Module) -> bool:
-    """Whether the chunked path applies: fp32 on the CPU, no autocast, no gradient wanted for ``x`` itself
-    beyond what the function returns (it always returns one when ``x`` needs it)."""
+    """Whether the chunked path applies to ``module`` on ``x``: fp32 input and parameters on the CPU, no
+    autocast."""
     return (
         ENABLED
         and x.device.type == "cpu"
@@ -45,8 +45,7 @@ def _layers(a: nn.Sequential, b: nn.Sequential, out: nn.Linear) -> list[nn.Linea
 
 class Workspace:
     """The activation buffers of one MLP's last backward, for its next forward: a step then writes into pages it
-    already has instead of fresh ones (the kernel zeroes every new page, a sixth of a 64 MiB buffer's first
-    write). A buffer is handed out again only after the backward that read it; a graph that is run backward
+    already has instead of fresh ones (the kernel zeroes every new page on its first write). A buffer is handed out again only after the backward that read it; a graph that is run backward
     twice after another forward fails loudly (the saved buffer's version changed), never silently."""
 
     def __init__(self) -> None:

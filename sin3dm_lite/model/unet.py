@@ -58,8 +58,8 @@ def rollout_parts(tp: Triplane, detach_means: bool = False, concat: bool = True)
         pooled, expanded = [], []
         for other in others:
             axes = PLANE_AXES[other]
-            d = 2 + axes.index(lacking)  # the mean as a sum / n: its backward then expands a view, not a copy
-            v = sources[other].sum(d) / sources[other].shape[d]  # [B, C, n]: a feature per texel of the shared axis
+            d, src = 2 + axes.index(lacking), sources[other]  # fp32: the mean as a sum / n (its backward a view)
+            v = src.mean(d) if torch.is_autocast_enabled(src.device.type) else src.sum(d) / src.shape[d]  # [B, C, n]
             v = v[:, :, :, None] if (set(axes) - {lacking}) == {a} else v[:, :, None, :]  # [B,C,A,1] or [B,C,1,B']
             pooled.append(v)
             expanded.append(v.expand(-1, -1, *own.shape[-2:]))
