@@ -8,9 +8,9 @@ cache from one layer to the next; the activations a backward needs are written o
 The same matrix products, the same ReLUs, the same skip concatenation: the same network, computed in a
 different order (rounding in the last bits differs: ``tests/test_pointops.py`` pins it to the plain modules).
 
-The lookup adds the three planes' bilinear samples as one gather of 12 rows (4 corners × 3 planes) from the
-planes laid out channel-last in one table; its backward is 12 ``index_add_`` per chunk instead of
-``grid_sample``'s scatter over channel-first planes.
+The lookup keeps ``grid_sample``'s forward, but its backward treats the three planes' bilinear samples as one
+gather of 12 rows (4 corners × 3 planes) from the planes laid out channel-last in one table: 12 ``index_add_``
+per chunk instead of ``grid_sample``'s scatter over channel-first planes.
 
 Both are used on the CPU in fp32 only (a GPU wants big batches and ``index_add_`` there is not deterministic;
 under autocast the plain modules run): :func:`mlp_fast_ok` and :func:`lookup_fast_ok` say when.
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import torch
 import torch.nn as nn
+import torch.nn.functional as F
 
 #: the fast paths on or off (off: the plain modules everywhere; the tests and the benchmark compare the two)
 ENABLED = True
@@ -188,37 +189,45 @@ def corner_weights(planes, points: torch.Tensor, axes) -> tuple[torch.Tensor, to
 
 
 def lookup_sum(planes, points: torch.Tensor, axes) -> torch.Tensor:
-    """The three planes' bilinear features at ``points [B, N, 3]``, added → ``[B, N, C]`` (contiguous)."""
+    """The three planes' bilinear features at ``points [B, N, 3]``, added → ``[B, N, C]``: the values of
+    ``grid_sample`` (the fastest forward), the backward a gather's (:class:`_GatherFunction`)."""
+    if not (torch.is_grad_enabled() and any(p.requires_grad for p in planes)):
+        return _sampled_sum([p.detach() for p in planes], points, axes)
     bsz, n = points.shape[:2]
     c = planes[0].shape[1]
     table = torch.cat([p.flatten(2) for p in planes], dim=2).transpose(1, 2).reshape(-1, c)  # [B·rows, C]
     idx, wts = corner_weights(planes, points, axes)
-    return _GatherFunction.apply(table, idx, wts).reshape(bsz, n, c)
+    return _GatherFunction.apply(table, idx, wts, points, axes, *(p.detach() for p in planes))
+
+
+def _sampled_sum(planes, points: torch.Tensor, axes) -> torch.Tensor:
+    """``grid_sample`` on each plane at the points' projections, added (``Triplane.lookup``'s plain path)."""
+    out = None
+    for plane, (row, col) in zip(planes, axes):
+        grid = torch.stack([points[..., col], points[..., row]], dim=-1).unsqueeze(1).to(plane.dtype)
+        f = F.grid_sample(plane, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        out = f[:, :, 0].transpose(1, 2) if out is None else out + f[:, :, 0].transpose(1, 2)
+    return out
 
 
 class _GatherFunction(torch.autograd.Function):
+    """Forward: ``grid_sample``'s values; backward: the adjoint of the 12-corner gather from the channel-last
+    table, ``index_add_`` chunk by chunk (the plain backward scatters into channel-first planes)."""
+
     @staticmethod
-    def forward(ctx, table, idx, wts):
-        n = idx.shape[1]
-        out = table.new_empty(n, table.shape[1])
-        rows = table.new_empty(min(n, CHUNK), table.shape[1])
-        for s in range(0, n, CHUNK):
-            e = min(n, s + CHUNK)
-            o, r = out[s:e], rows[: e - s]
-            torch.mul(torch.index_select(table, 0, idx[0, s:e], out=r), wts[0, s:e, None], out=o)
-            for k in range(1, 12):
-                o.addcmul_(torch.index_select(table, 0, idx[k, s:e], out=r), wts[k, s:e, None])
+    def forward(ctx, table, idx, wts, points, axes, *planes):
         ctx.save_for_backward(idx, wts)
         ctx.rows = table.shape[0]
-        return out
+        return _sampled_sum(planes, points, axes)
 
     @staticmethod
     def backward(ctx, g):
         idx, wts = ctx.saved_tensors
+        g = g.reshape(-1, g.shape[-1])
         grad = g.new_zeros(ctx.rows, g.shape[1])
         rows = g.new_empty(min(idx.shape[1], CHUNK), g.shape[1])
         for s in range(0, idx.shape[1], CHUNK):
             e = min(idx.shape[1], s + CHUNK)
             for k in range(12):
                 grad.index_add_(0, idx[k, s:e], torch.mul(g[s:e], wts[k, s:e, None], out=rows[: e - s]))
-        return grad, None, None
+        return grad, None, None, None, None, None, None, None
