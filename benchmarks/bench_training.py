@@ -2,6 +2,7 @@
 
     python benchmarks/bench_training.py [--presets tiny small detail paper] [--steps 5] [--threads 2] [--compile]
     python benchmarks/bench_training.py --grid [--resolutions 128 256] [--faces 77000]   # the grid stage
+    python benchmarks/bench_training.py --flops [--threads 1] [--steps 3]   # FLOP/s per stage against the peak
 
 Per stage of a fit: ``--grid`` times the first stage, mesh -> grid, on a bumpy textured sphere (77k faces, open);
 without it, one training step of each network:
@@ -21,11 +22,25 @@ Diffusion step (a batch of noisy copies of the latent, forward + backward + Adam
   * compiled    – with --compile: ours after torch.compile of the U-Net's forward (the compile time is printed
                   apart; about 96 s for `detail` on 2 cores, for 9 % per step).
 The paper preset runs at its real size (256 grid / 128 latent, 65,536 points): slow on a CPU.
+
+``--flops``: the ``paper`` preset's networks on a 64 × 32 × 24 grid (latent 32 × 16 × 12; issue 63's setting),
+per stage (autoencoder step, denoiser step at batch 32, one DDIM sampling step of one sample, the full decode of
+a latent to the 64 × 32 × 24 grid with colour): seconds (the least of ``--steps`` runs, process CPU time, so a
+busy machine's waits do not count), the FLOPs, the achieved GFLOP/s and its share of the CPU's peak, in fp32,
+in fp32 with the decoder's fast paths off (``model/pointops.py``: the plain modules) and under bf16 autocast.
+FLOPs: the matrix products and convolutions of one forward pass as torch's FlopCounterMode counts them from
+their shapes (2 per multiply-add; elementwise work not counted); a training step counts 3 × its forward (the
+backward's two products per forward product), a sampling step and the decode their forward. The peak:
+:func:`cpu_peak` (cores used × clock × vector lanes × 2 FMA units × 2), beside a measured ceiling, the
+GFLOP/s of one [2048, 256] × [256, 256] product on this machine.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import re
 import time
 import tracemalloc
 from dataclasses import replace
@@ -34,12 +49,15 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 import trimesh
+from torch.utils.flop_counter import FlopCounterMode
 
 from sin3dm_lite.app.device import bf16_is_fast
 from sin3dm_lite.data.grid import ShapeGrid, mesh_to_grid
 from sin3dm_lite.data.mesh import Material, Normalization, TexturedMesh
+from sin3dm_lite.model import pointops
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer, sdf_loss
-from sin3dm_lite.model.diffusion import DiffusionTrainer
+from sin3dm_lite.model.decode import decode_grid
+from sin3dm_lite.model.diffusion import DiffusionTrainer, sample
 from sin3dm_lite.model.triplane import Triplane
 from sin3dm_lite.model.unet import TriplaneConv, cross_plane_inputs
 from sin3dm_lite.presets import get_preset
@@ -150,7 +168,109 @@ def grid_times(resolutions: list[int], faces: int, points: int) -> None:
             print(f"grid {res:4d}: {g.shape} in {dt:6.2f} s  {what:28s} (peak numpy memory {peak:,.0f} MiB)")
 
 
-def timed(fn, steps: int, warmup: int = 2) -> float:
+def cpu_peak(threads: int) -> tuple[float, str]:
+    """This CPU's fp32 peak in GFLOP/s and how it was derived: ``threads`` cores × the clock cpuinfo reports
+    (the nominal one; turbo can run above it) × fp32 lanes (16 with AVX-512, 8 with AVX2, 4 otherwise) × 2 FMA
+    units (assumed: server cores since Skylake-SP have two) × 2 flops per multiply-add."""
+    text = open("/proc/cpuinfo").read() if os.path.exists("/proc/cpuinfo") else ""
+    mhz = [float(m) for m in re.findall(r"^cpu MHz\s*:\s*([\d.]+)", text, re.M)]
+    name = re.search(r"^model name\s*:\s*(.+)$", text, re.M)
+    flags = set((re.search(r"^flags\s*:\s*(.+)$", text, re.M) or [None, ""])[1].split())
+    lanes, isa = (16, "AVX-512") if "avx512f" in flags else (8, "AVX2") if "avx2" in flags else (4, "SSE")
+    ghz = max(mhz) / 1000 if mhz else float("nan")
+    peak = threads * ghz * lanes * 2 * 2
+    how = (
+        f"{name[1].strip() if name else 'unknown CPU'}: {threads} core(s) x {ghz:.2f} GHz (cpuinfo) x {lanes} fp32 "
+        f"lanes ({isa}) x 2 FMA units (assumed) x 2 = {peak:.0f} GFLOP/s"
+        f"{'; AMX-BF16 present' if 'amx_bf16' in flags else ''}"
+    )
+    return peak, how
+
+
+def gemm_ceiling(repeats: int = 50) -> float:
+    """GFLOP/s of one [2048, 256] × [256, 256] fp32 product (the best of ``repeats``, CPU time): what this core
+    attains in one matrix product, turbo clock included."""
+    a, b = torch.randn(2048, 256), torch.randn(256, 256)
+    return 2 * 2048 * 256 * 256 / timed(lambda: a @ b, 1, warmup=2, repeats=repeats, cpu=True) / 1e9
+
+
+def forward_flops(fn) -> float:
+    """The matrix-product and convolution FLOPs of ``fn()`` (torch's FlopCounterMode, from the shapes)."""
+    with FlopCounterMode(display=False) as counter:
+        fn()
+    return float(counter.get_total_flops())
+
+
+def flops_stages(precision: str, steps: int, grid: ShapeGrid) -> list[tuple[str, float, float]]:
+    """``(stage, seconds, FLOPs)`` of each stage in ``precision`` ("fp32" or "bf16")."""
+    cfg = get_preset("paper")
+    torch.manual_seed(0)
+    ae = AutoencoderTrainer(grid, replace(cfg.autoencoder, precision=precision))
+    dm = DiffusionTrainer(ae.latent(), replace(cfg.diffusion, ema_decay=0.0, precision=precision, compile=False))
+    h0, model = dm.h0, dm.model
+    with torch.no_grad():
+        f_ae, f_dm = 3 * forward_flops(ae.losses), 3 * forward_flops(dm.losses)
+    n_sample = 5
+    ctx = (lambda: torch.autocast("cpu", torch.bfloat16)) if precision == "bf16" else contextlib.nullcontext
+
+    def sampling():
+        with ctx():
+            sample(model.eval(), dm.schedule, h0.resolution, steps=n_sample, progress=False)
+
+    def decoding():
+        with ctx():
+            decode_grid(ae.model.decoder, h0, grid.aabb, max(grid.shape), with_color=True, coarse=None)
+
+    f_sample, f_decode = forward_flops(sampling) / n_sample, forward_flops(decoding)
+    return [
+        ("autoencoder step", timed(ae.step, steps, cpu=True), f_ae),
+        ("denoiser step", timed(dm.step, steps, cpu=True), f_dm),
+        ("sampling step", timed(sampling, steps, cpu=True) / n_sample, f_sample),
+        ("decode to the grid", timed(decoding, steps, cpu=True), f_decode),
+    ]
+
+
+def flops_report(steps: int) -> None:
+    """The ``--flops`` table: per stage, seconds, FLOPs, GFLOP/s and % of the peak, fp32 / plain fp32 / bf16."""
+    threads = torch.get_num_threads()
+    peak, how = cpu_peak(threads)
+    print(f"torch {torch.__version__}, {threads} thread(s); peak: {how}")
+    ceiling = gemm_ceiling()
+    print(f"measured ceiling: one [2048, 256] x [256, 256] fp32 product at {ceiling:.0f} GFLOP/s")
+    grid = synthetic_grid((64, 32, 24), 100_000)
+    runs = {"fp32": flops_stages("fp32", steps, grid)}
+    pointops.ENABLED = False
+    try:
+        runs["fp32, plain decoder"] = flops_stages("fp32", steps, grid)
+    finally:
+        pointops.ENABLED = True
+    runs["bf16 autocast"] = flops_stages("bf16", steps, grid)
+    print("| stage | precision | seconds | GFLOP | GFLOP/s | % of peak | % of ceiling |")
+    print("|---|---|---|---|---|---|---|")
+    for i, stage in enumerate(runs["fp32"]):
+        for label, rows in runs.items():
+            sec, fl = rows[i][1], rows[i][2] / 1e9
+            rate = f"{fl / sec:.0f} | {100 * fl / sec / peak:.0f} | {100 * fl / sec / ceiling:.0f}"
+            print(f"| {stage[0]} | {label} | {sec:.3f} | {fl:.1f} | {rate} |")
+
+
+def timed(fn, steps: int, warmup: int = 2, repeats: int | None = None, cpu: bool = False) -> float:
+    """Seconds per call: the mean over ``steps`` calls, or with ``repeats`` (or ``cpu``) the least of ``repeats``
+    (default ``steps``) single calls; ``cpu`` measures the process's CPU time instead of the wall clock."""
+    clock = time.process_time if cpu else time.perf_counter
+    if repeats is not None or cpu:
+        for _ in range(warmup):
+            fn()
+        best = float("inf")
+        for _ in range(repeats or steps):
+            t = clock()
+            fn()
+            best = min(best, clock() - t)
+        return best
+    return _timed_mean(fn, steps, warmup)
+
+
+def _timed_mean(fn, steps: int, warmup: int = 2) -> float:
     for _ in range(warmup):
         fn()
     t = time.perf_counter()
@@ -166,6 +286,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--compile", action="store_true", help="also time the denoiser step after torch.compile")
     ap.add_argument("--grid", action="store_true", help="time the grid stage (mesh -> grid) instead")
+    ap.add_argument("--flops", action="store_true", help="FLOP/s per stage against the CPU's peak (issue 63)")
     ap.add_argument("--resolutions", type=int, nargs="+", default=[128, 256], help="with --grid")
     ap.add_argument("--faces", type=int, default=77_000, help="with --grid: faces kept of 81,920 (81920: closed)")
     ap.add_argument("--points", type=int, default=300_000, help="with --grid: near-surface training samples")
@@ -174,6 +295,9 @@ def main() -> None:
         torch.set_num_threads(a.threads)
     if a.grid:
         grid_times(a.resolutions, a.faces, a.points)
+        return
+    if a.flops:
+        flops_report(a.steps)
         return
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device cpu")
     for name in a.presets:

@@ -37,6 +37,7 @@ import torch.nn.functional as F
 from ..app.device import autocast
 from ..data.config import AutoencoderConfig
 from ..data.grid import ShapeGrid
+from .pointops import Workspace, mlp_fast_ok, skip_mlp
 from .training import Trainer
 from .triplane import PLANES, Triplane
 
@@ -170,7 +171,22 @@ class SkipMLP(nn.Module):
         self.out = nn.Linear(hidden, c_out)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if mlp_fast_ok(x, self):  # the same layers, chunk by chunk (model/pointops.py)
+            if getattr(self, "_workspace", None) is None:
+                self._workspace = Workspace()
+            return skip_mlp(x, self.a, self.b, self.out, self._workspace if self.training else None)
         return self.out(self.b(torch.cat([self.a(x), x], dim=-1)))
+
+    def train(self, mode: bool = True) -> SkipMLP:
+        """Also drops the fast path's kept buffers when leaving training (``eval()``): they are a step's size."""
+        if not mode:
+            self._workspace = None
+        return super().train(mode)
+
+    def __getstate__(self) -> dict:  # pickled and deep-copied without the kept buffers
+        state = self.__dict__.copy()
+        state.pop("_workspace", None)
+        return state
 
 
 @dataclass

@@ -26,6 +26,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .pointops import lookup_fast_ok, lookup_sum
+
 PLANES = ("xy", "xz", "yz")
 #: which point axes (0 = x, 1 = y, 2 = z) index each plane's rows and columns
 PLANE_AXES = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
@@ -173,6 +175,8 @@ class Triplane:
         """
         if points.dim() == 2:
             points = points.unsqueeze(0).expand(self.batch, -1, -1)
+        if reduce == "sum" and lookup_fast_ok(self.planes, points):  # the same sum, gathered (model/pointops.py)
+            return lookup_sum(self.planes, points, [PLANE_AXES[name] for name in PLANES])
         feats = [lookup_plane(p, points, PLANE_AXES[name]) for name, p in zip(PLANES, self.planes)]
         if reduce == "sum":
             return feats[0] + feats[1] + feats[2]

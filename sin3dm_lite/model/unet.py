@@ -21,6 +21,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..data.config import DiffusionConfig
+from .planeops import add_repeated, conv_repeated
 from .triplane import PLANE_AXES, PLANES, Triplane
 
 
@@ -54,7 +55,8 @@ def rollout_parts(tp: Triplane, detach_means: bool = False, concat: bool = True)
         pooled, expanded = [], []
         for other in others:
             axes = PLANE_AXES[other]
-            v = sources[other].mean(2 + axes.index(lacking))  # [B, C, n]: a feature per texel of the shared axis
+            d, src = 2 + axes.index(lacking), sources[other]  # fp32: the mean as a sum / n (its backward a view)
+            v = src.mean(d) if torch.is_autocast_enabled(src.device.type) else src.sum(d) / src.shape[d]  # [B, C, n]
             v = v[:, :, :, None] if (set(axes) - {lacking}) == {a} else v[:, :, None, :]  # [B,C,A,1] or [B,C,1,B']
             pooled.append(v)
             expanded.append(v.expand(-1, -1, *own.shape[-2:]))
@@ -101,35 +103,19 @@ class TriplaneConv(nn.Module):
             return Triplane(*(conv(p) for conv, p in zip(self.convs, tp.planes)))  # [B, out, ., .]
         # The same as conv(cross_plane_inputs(tp)), in about half the time: the convolution is linear, so
         # it splits into the plane's own channels and the two repeated means; a mean repeated along an axis
-        # gives the same output all along that axis but at its k//2 border texels (zero padding), so it is
-        # convolved on a strip of k texels and the middle column repeated (tests check it against the cat).
-        # This is about a third faster than the plain cat on CPU (docs/performance.md).
+        # gives the same output all along that axis but at its k//2 border texels (zero padding), so its k
+        # distinct values per texel are one 1D convolution, added repeated (model/planeops.py; tests check it
+        # against the cat).
         parts = rollout_parts(tp, self.local_only, concat=False)
         out = []
         for name, conv in zip(PLANES, self.convs):
             own, (v1, v2) = parts[name]["plane"], parts[name]["pooled"]
             c, size = own.shape[1], own.shape[-2:]
-            w = conv.weight  # [out, 3c, k, k]: the plane's channels, then the two means'
-            o = F.conv2d(own, w[:, :c], conv.bias, padding=conv.padding)
-            o = o + _conv_repeated(v1, w[:, c : 2 * c], size) + _conv_repeated(v2, w[:, 2 * c :], size)
-            out.append(o)
+            # [out, 3c, k, k]: the plane's channels, then the two means' (split: its backward is one cat)
+            w, w1, w2 = conv.weight.split(c, dim=1)
+            o = F.conv2d(own, w, conv.bias, padding=conv.padding)
+            out.append(add_repeated(o, [conv_repeated(v1, w1, size), conv_repeated(v2, w2, size)]))
         return Triplane(*out)  # [B, out, ., .]
-
-
-def _conv_repeated(v: torch.Tensor, w: torch.Tensor, size) -> torch.Tensor:
-    """``conv2d(v repeated to size, w, padding=k//2)`` for a pooled mean ``v`` ``[B,C,A,1]`` or ``[B,C,1,B']``.
-
-    Along the repeated axis the output only changes within ``k//2`` texels of the borders, so the convolution
-    runs on ``k`` texels of it and the middle one is repeated: exact, ``length / k`` times less work.
-    """
-    k, p = w.shape[-1], w.shape[-1] // 2
-    dim = 3 if v.shape[3] == 1 else 2  # the axis v is repeated along
-    n = size[dim - 2]
-    if n <= k:
-        return F.conv2d(v.expand(-1, -1, *size), w, padding=p)
-    o = F.conv2d(v.expand(-1, -1, *[k if d == dim else size[d - 2] for d in (2, 3)]), w, padding=p)
-    mid = o.narrow(dim, p, 1).expand(*[n - 2 * p if d == dim else -1 for d in range(4)])
-    return torch.cat([o.narrow(dim, 0, p), mid, o.narrow(dim, p + 1, p)], dim)
 
 
 def num_groups(ch: int, max_groups: int = 32) -> int:
@@ -184,7 +170,7 @@ class TriplaneResBlock(nn.Module):
     def forward(self, x: Triplane, emb: torch.Tensor) -> Triplane:
         h = self.conv1(self.norm1(x).map(F.silu))  # [B, out, ., .]
         scale, shift = self.emb(emb)[:, :, None, None].chunk(2, dim=1)  # [B, out, 1, 1] each
-        h = self.norm2(h).map(lambda p: F.silu(p * (1 + scale) + shift))
+        h = self.norm2(h).map(lambda p: F.silu(torch.addcmul(shift, p, 1 + scale)))  # p·(1+scale)+shift
         return self.shortcut(x) + self.conv2(h)
 
 

@@ -1,0 +1,117 @@
+"""The CPU fast paths of the decoder (model/pointops.py) against the plain modules: the same values and gradients."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from sin3dm_lite.model import pointops
+from sin3dm_lite.model.autoencoder import SkipMLP
+from sin3dm_lite.model.triplane import PLANE_AXES, PLANES, Triplane, lookup_plane
+
+
+def _close(a: torch.Tensor, b: torch.Tensor, rel: float = 1e-5) -> None:
+    scale = b.detach().abs().max().clamp_min(1e-12)
+    assert float((a - b).abs().max().detach() / scale) < rel
+
+
+def _reference_mlp(m: SkipMLP, x: torch.Tensor) -> torch.Tensor:
+    return m.out(m.b(torch.cat([m.a(x), x], dim=-1)))
+
+
+@pytest.mark.parametrize("n", [1, pointops.CHUNK, 2 * pointops.CHUNK + 37])
+def test_skip_mlp_fast_path_matches_the_modules(n):
+    torch.manual_seed(0)
+    m = SkipMLP(16, 32, 3)
+    for p in m.parameters():  # non-zero everywhere, so every gradient is checked
+        torch.nn.init.normal_(p, std=0.3)
+    x = torch.randn(1, n, 16, requires_grad=True)
+    assert pointops.mlp_fast_ok(x, m)
+    y = m(x)
+    ref = _reference_mlp(m, x)
+    _close(y, ref)
+    g = torch.randn_like(ref)
+    params = [x, *m.parameters()]
+    for a, b in zip(torch.autograd.grad(y, params, g), torch.autograd.grad(ref, params, g)):
+        assert a.shape == b.shape
+        _close(a, b)
+    with torch.no_grad():  # the forward-only path
+        _close(m(x), ref)
+
+
+def test_skip_mlp_fast_path_with_frozen_parameters():
+    """A held colour head (no parameter needs a gradient): only the input's gradient, the same as the modules'."""
+    torch.manual_seed(1)
+    m = SkipMLP(8, 16, 3).requires_grad_(False)
+    x = torch.randn(700, 8, requires_grad=True)
+    g = torch.randn(700, 3)
+    (a,) = torch.autograd.grad(m(x), x, g)
+    (b,) = torch.autograd.grad(_reference_mlp(m, x), x, g)
+    _close(a, b)
+
+
+def test_lookup_fast_path_matches_grid_sample():
+    torch.manual_seed(2)
+    tp = Triplane.randn(2, 5, (6, 4, 3)).map(lambda p: p.requires_grad_())
+    pts = torch.rand(2, 3000, 3) * 2.4 - 1.2  # some outside the box: the border rule too
+    pts[0, :4] = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [1 / 6, 0.25, -1 / 3]])
+    assert pointops.lookup_fast_ok(tp.planes, pts)
+    fast = tp.lookup(pts, reduce="sum")
+    ref = sum(lookup_plane(p, pts, PLANE_AXES[n]) for n, p in zip(PLANES, tp.planes))
+    _close(fast, ref)
+    g = torch.randn_like(ref)
+    for a, b in zip(torch.autograd.grad(fast, tp.planes, g), torch.autograd.grad(ref, tp.planes, g)):
+        _close(a, b)
+
+
+def test_lookup_with_point_gradients_keeps_grid_sample():
+    tp = Triplane.randn(1, 4, (4, 4, 4))
+    pts = torch.rand(1, 10, 3, requires_grad=True)
+    assert not pointops.lookup_fast_ok(tp.planes, pts)
+    (g,) = torch.autograd.grad(tp.lookup(pts, reduce="sum").sum(), pts)
+    assert g.abs().sum() > 0
+
+
+def test_autoencoder_steps_are_the_same_with_and_without_the_fast_paths(box_grid, monkeypatch):
+    """From the same seed (3,000 points: chunks and a remainder): the same losses over two steps, and the same
+    gradients of every parameter in the first."""
+    from sin3dm_lite.model.autoencoder import AutoencoderTrainer
+
+    from .conftest import tiny_ae_cfg
+
+    runs = []
+    for enabled in (False, True):
+        monkeypatch.setattr(pointops, "ENABLED", enabled)
+        tr = AutoencoderTrainer(box_grid, tiny_ae_cfg(points_per_step=3000, precision="fp32"), seed=3)
+        tr.model.train()
+        tr.losses()["loss"].backward()
+        grads = [p.grad.clone() for p in tr.model.parameters()]
+        tr.generator.manual_seed(3)  # the first step's points again
+        tr.step()
+        tr.step()
+        runs.append((tr.history, grads))
+    (ref_h, ref_g), (fast_h, fast_g) = runs
+    for k in ("loss", "sdf", "color"):
+        assert fast_h[k] == pytest.approx(ref_h[k], rel=1e-5)
+    for a, b in zip(fast_g, ref_g):
+        # relative to the tensor's largest gradient; a bias before an InstanceNorm gets rounding noise only
+        assert float((a - b).abs().max()) <= 1e-5 * float(b.abs().max()) + 1e-8
+
+
+def test_kept_buffers_are_reused_and_a_stale_graph_fails_loudly():
+    """Training mode keeps a backward's buffers for the next forward: the same values as a fresh forward, and a
+    graph whose buffers were reused cannot be run backward again (an error, not wrong gradients)."""
+    torch.manual_seed(4)
+    m = SkipMLP(8, 16, 1).train()
+    x = torch.randn(1500, 8, requires_grad=True)
+    y1 = m(x)
+    y1.sum().backward(retain_graph=True)
+    kept = [b.data_ptr() for b in m._workspace.free]
+    assert len(kept) == 5
+    y2 = m(x * 2)  # writes into the kept buffers
+    assert not m._workspace.free
+    _close(y2, _reference_mlp(m, x * 2))
+    with pytest.raises(RuntimeError, match="modified by an inplace operation"):
+        y1.sum().backward()
+    m.eval()
+    assert m._workspace is None
