@@ -54,7 +54,7 @@ from torch.utils.flop_counter import FlopCounterMode
 from sin3dm_lite.app.device import bf16_is_fast
 from sin3dm_lite.data.grid import ShapeGrid, mesh_to_grid
 from sin3dm_lite.data.mesh import Material, Normalization, TexturedMesh
-from sin3dm_lite.model import pointops
+from sin3dm_lite.kernels import pointops
 from sin3dm_lite.model.autoencoder import AutoencoderTrainer, sdf_loss
 from sin3dm_lite.model.decode import decode_grid
 from sin3dm_lite.model.diffusion import DiffusionTrainer, sample

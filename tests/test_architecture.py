@@ -74,8 +74,9 @@ LAYERS = {
     # model: triplane, autoencoder, decoding, U-Net, the noise schedule, diffusion, the trainers
     "model": MODEL,
     "model.triplane": MODEL,
-    "model.pointops": MODEL,
-    "model.planeops": MODEL,
+    "kernels": MODEL,
+    "kernels.pointops": MODEL,
+    "kernels.planeops": MODEL,
     "model.training": MODEL,
     "model.autoencoder": MODEL,
     "model.decode": MODEL,

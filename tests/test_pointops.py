@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from sin3dm_lite.model import pointops
+from sin3dm_lite.kernels import pointops
 from sin3dm_lite.model.autoencoder import SkipMLP
 from sin3dm_lite.model.triplane import PLANE_AXES, PLANES, Triplane, lookup_plane
 

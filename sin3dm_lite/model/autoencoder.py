@@ -37,7 +37,7 @@ import torch.nn.functional as F
 from ..app.device import autocast
 from ..data.config import AutoencoderConfig
 from ..data.grid import ShapeGrid
-from .pointops import Workspace, mlp_fast_ok, skip_mlp
+from ..kernels.pointops import Workspace, mlp_fast_ok, skip_mlp
 from .training import Trainer
 from .triplane import PLANES, Triplane
 

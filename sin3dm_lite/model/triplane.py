@@ -26,7 +26,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .pointops import lookup_fast_ok, lookup_sum
+from ..kernels.pointops import lookup_fast_ok, lookup_sum
 
 PLANES = ("xy", "xz", "yz")
 #: which point axes (0 = x, 1 = y, 2 = z) index each plane's rows and columns

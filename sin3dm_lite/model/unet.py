@@ -21,7 +21,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..data.config import DiffusionConfig
-from .planeops import add_repeated, conv_repeated
+from ..kernels.planeops import add_repeated, conv_repeated
 from .triplane import PLANE_AXES, PLANES, Triplane
 
 
