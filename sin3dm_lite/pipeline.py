@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from .app import sampling, values
+from .app import sampling
 from .app.checkpoints import MODEL_FILE, read_model, write_model
 from .app.device import get_device
 from .app.sampling import Samples
@@ -152,7 +152,6 @@ class Sin3DM:
         paper's sampler) pulls the last steps' estimates to the input's patches (:mod:`sin3dm_lite.auto.snap`).
         Sample ``i`` comes from the seed ``seed + i`` alone (or ``seed[i]``), whatever the batch or the device.
         """
-        values.whole(n, "n")  # every argument: sampling.check_sample_args, the checks the CLI's flags call too
         plan = self.plan(resize, outpaint, anchor, regenerate, duplicate, plan)
         return sampling.draw(
             self, n, plan, steps, method, seed, return_intermediates, known, mask, progress, diversity, snap

@@ -146,12 +146,7 @@ def template(tmp_path_factory):
     return root
 
 
-@pytest.fixture
-def work(template, tmp_path, monkeypatch):
-    ws = tmp_path / "ws"
-    shutil.copytree(template, ws)
-    monkeypatch.chdir(ws)
-    return ws
+# ``work``: tests/conftest.py's, a copy of this module's ``template`` as the working folder
 
 
 def snapshot(root: Path) -> dict:

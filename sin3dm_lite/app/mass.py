@@ -168,17 +168,13 @@ def shown_bytes(n: float) -> str:
 
 def replaced_bytes(out: Path, req: SampleRequest) -> int:
     """What ``--overwrite`` frees before sampling: the files an earlier ``sample`` wrote into ``out``, unchanged."""
-    from ..files import read_manifest, writer
-    from .mass_folder import WRITER, sample_file
+    from ..files import read_manifest
+    from .mass_folder import sample_run_files
 
     if not (req.overwrite and out.is_dir()):
         return 0
-    m, freed = read_manifest(out), 0
-    for f in m:
-        w = writer(out, f, m)
-        if w == WRITER or w == "" and sample_file(f):
-            freed += (out / f).stat().st_size
-    return freed
+    gone, _ = sample_run_files(out, read_manifest(out))
+    return sum((out / f).stat().st_size for f in gone)
 
 
 def check_disk(model, out: Path, req: SampleRequest, plan, label: str = "sample") -> str:

@@ -156,10 +156,9 @@ def sample_file(rel: str) -> bool:
     return len(parts) == 2 and parts[0].isdigit() and parts[1].startswith(SAMPLE_FILES)
 
 
-def remove_ours(out: Path) -> None:
-    """Remove every file of a sample run the manifest (and its parts) lists as ours and unchanged, and folders
-    left empty; files other commands wrote there (a ``render``'s pictures, an ``evaluate`` report) stay."""
-    m = read_manifest(out)
+def sample_run_files(out: Path, m: dict) -> tuple[list[str], dict]:
+    """Of ``out``'s manifest ``m``: the files a sample run wrote there, unchanged (what ``--overwrite`` removes),
+    and the entries of other commands' files, unchanged (what stays)."""
     gone, kept = [], {}
     for f in m:
         w = writer(out, f, m)
@@ -167,6 +166,13 @@ def remove_ours(out: Path) -> None:
             gone.append(f)
         elif w is not None:
             kept[f] = m[f]
+    return gone, kept
+
+
+def remove_ours(out: Path) -> None:
+    """Remove every file of a sample run the manifest (and its parts) lists as ours and unchanged, and folders
+    left empty; files other commands wrote there (a ``render``'s pictures, an ``evaluate`` report) stay."""
+    gone, kept = sample_run_files(out, read_manifest(out))
     remove_files(out, gone)
     write_manifest(out, kept)
     for part in manifest_parts(out):
