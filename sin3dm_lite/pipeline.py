@@ -85,21 +85,22 @@ class Sin3DM:
         progress: bool = True,
         pbr: bool | None = None,
         allow_outside_paths: bool = False,
+        calibrate: bool | None = None,
     ) -> Sin3DM:
         """Fit Sin3DM to one textured mesh (a path, a ``TexturedMesh`` or an example name): mesh → TSDF + colour
         grid → triplane autoencoder (the input's latent) → diffusion model on that latent (the paper's Sec. 4).
 
-        ``preset``: a preset's name or a :class:`Config` (default: this machine's, :mod:`sin3dm_lite.auto`).
-        ``pbr``: learn metallic, roughness and normals too (default: when the mesh has such maps).
-        ``allow_outside_paths``: let the mesh name textures outside its folder. With ``out`` a run folder is
-        written, checkpointed and locked (:mod:`sin3dm_lite.app.run_folder`); ``resume=True`` continues it from
-        its last checkpoint with its own settings, and ends where an uninterrupted fit would. What a preset's
-        switches decide beyond the paper (thin parts, the rollout, the calibrated diversity):
-        :mod:`sin3dm_lite.auto.fit_policy` and docs/fit-your-shape.md.
+        ``preset``: a preset's name or a :class:`Config` (default: the one for this machine and this shape,
+        :mod:`sin3dm_lite.auto.fit_default`). ``pbr``: learn metallic, roughness and normals too (default: when the
+        mesh has such maps). ``allow_outside_paths``: let the mesh name textures outside its folder. With ``out`` a
+        run folder is written, checkpointed and locked (:mod:`sin3dm_lite.app.run_folder`); ``resume=True``
+        continues it from its last checkpoint with its own settings, and ends where an uninterrupted fit would.
+        ``calibrate``: choose the run's diversity at the end (not in the paper; default: for the CPU presets,
+        :mod:`sin3dm_lite.auto.calibration`).
         """
         from .app.fitting import fit
 
-        model = fit(cls, source, preset, out, resume, seed, device, progress, pbr, allow_outside_paths)
+        model = fit(cls, source, preset, out, resume, seed, device, progress, pbr, allow_outside_paths, calibrate)
         warn_if_poor(model.report.get("reconstruction", {}), model.config)
         return model
 

@@ -585,13 +585,13 @@ def test_poor_reconstruction_is_a_warning_with_the_likely_cause():
     from sin3dm_lite.presets import get_preset
 
     # the fix is a setting of the run's config with its value, as the CLI and Python take it
-    switched = get_preset("small").for_thin_parts()  # 1,000 autoencoder steps at 96 voxels
+    switched = get_preset("detail")  # 1,000 autoencoder steps at 96 voxels
     with pytest.warns(UserWarning) as record:
         warn_if_poor({"occupancy_iou": MIN_IOU - 0.2, "color_psnr": 16.2}, switched)  # tiles.obj's: 4x the steps
     iou_text, psnr_text = [str(w.message) for w in record]
     assert "IoU" in iou_text and "PSNR" in psnr_text and "likely cause" in iou_text and "likely cause" in psnr_text
     assert "--set autoencoder.steps=4000" in psnr_text and "grid.resolution" not in psnr_text
-    assert "get_preset('small').updated(**{'autoencoder.steps': 4000})" in psnr_text
+    assert "get_preset('detail').updated(**{'autoencoder.steps': 4000})" in psnr_text
     assert "autoencoder.steps=2000 or grid.resolution=144" in iou_text
     with pytest.warns(UserWarning, match=r"steps=8000 .*your Config\.updated"):  # at most 8x the steps
         warn_if_poor({"color_psnr": MIN_PSNR - 5}, switched.updated(name="mine"))

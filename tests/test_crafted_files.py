@@ -337,10 +337,6 @@ RESUMES = {
         lambda r: _grid_with(r / "grid.npz", sdf=None),
         "its array 'sdf.npy' declares 1,000,000,000,000,000 values",
     ),
-    "report-switch-damaged": (
-        lambda r: (r / "report.json").write_text(json.dumps({"thin_parts_switch": "yes"})),
-        "'r/report.json' is damaged (its thin_parts_switch is not the record of a switch",
-    ),
     "config-a-fifo": (
         lambda r: ((r / "config.json").unlink(), os.mkfifo(r / "config.json")),
         "'r/config.json' is a named pipe (FIFO), not a regular file",

@@ -22,15 +22,14 @@ def test_autocast_precisions():
 def test_auto_precision_picks_bf16_only_where_it_measures_faster(monkeypatch):
     """The CPU's flag alone does not make bf16 fast (a Xeon with AVX512-BF16 ran the autoencoder's MLPs 1.3-1.6x
     slower in bf16): where the flag is present the speed is measured once, and 'auto' follows the measurement; where
-    it is absent nothing is timed (emulated bf16 is many times slower). The fit's hint says which it was."""
+    it is absent nothing is timed (emulated bf16 is many times slower). The default preset's reason says which."""
     from sin3dm_lite.app import device
-    from sin3dm_lite.auto import fit_policy
-    from sin3dm_lite.presets import get_preset
+    from sin3dm_lite.auto import fit_default
 
     device.cpu_bf16_share.cache_clear()
     monkeypatch.setattr(device, "_cpu_has_bf16", lambda: False)
     assert device.cpu_bf16_share() is None and not device.bf16_is_fast("cpu")
-    assert "has no native bf16" in fit_policy.quick_hint(get_preset("small"), "cpu")
+    assert fit_default.choose_preset("cpu")[0] == "quick" and "no native bf16" in fit_default.choose_preset("cpu")[1]
     device.cpu_bf16_share.cache_clear()
     monkeypatch.setattr(device, "_cpu_has_bf16", lambda: True)
     torch.manual_seed(3)
@@ -46,8 +45,6 @@ def test_auto_precision_picks_bf16_only_where_it_measures_faster(monkeypatch):
         assert device.bf16_is_fast("cpu") is fast
         with autocast("cpu", "auto"):
             assert (torch.randn(4, 4) @ torch.randn(4, 4)).dtype == (torch.bfloat16 if fast else torch.float32)
-    monkeypatch.setattr(fit_policy, "cpu_bf16_share", lambda: 1.3)
-    monkeypatch.setattr(fit_policy, "bf16_is_fast", lambda dev: False)
-    assert "no faster than fp32 (AVX512-BF16, but measured at 1.3x fp32's time here)" in fit_policy.quick_hint(
-        get_preset("small"), "cpu"
-    )
+    monkeypatch.setattr(fit_default, "cpu_bf16_share", lambda: 1.3)
+    monkeypatch.setattr(fit_default, "bf16_is_fast", lambda dev: False)
+    assert "native bf16, but at 1.3x fp32's time here" in fit_default.choose_preset("cpu")[1]

@@ -1,4 +1,4 @@
-"""The preset a fit takes when none is named: this machine's, said first with why and about how long."""
+"""The preset a fit takes when none is named: this machine's and this shape's, said first with why and how long."""
 
 import pytest
 import torch
@@ -11,10 +11,10 @@ from sin3dm_lite.presets import get_preset
 @pytest.mark.parametrize(
     "cuda, share, fast, preset, why",
     [
-        (True, None, True, "paper", "a CUDA GPU, NVIDIA H200: the paper's settings"),
-        (False, 0.4, True, "small", "a CPU whose bf16 runs in 0.4x fp32's time: small's paper-width autoencoder"),
-        (False, 1.6, False, "quick", "a CPU without fast bf16 (native bf16, but at 1.6x fp32's time here)"),
-        (False, None, False, "quick", "a CPU without fast bf16 (no native bf16): quick's light autoencoder in fp32"),
+        (True, None, True, "paper", "this machine (a CUDA GPU, NVIDIA H200: the paper's settings)"),
+        (False, 0.4, True, "small", "this machine (a CPU whose bf16 runs in 0.4x fp32's time: the autoencoder in"),
+        (False, 1.6, False, "quick", "this machine (a CPU without fast bf16, native bf16, but at 1.6x fp32's time"),
+        (False, None, False, "quick", "this machine (a CPU without fast bf16, no native bf16: a light autoencoder"),
     ],
     ids=["gpu", "cpu-fast-bf16", "cpu-slow-bf16", "cpu-avx2"],
 )
@@ -28,7 +28,7 @@ def test_the_default_preset_follows_the_machine(monkeypatch, cuda, share, fast, 
     assert name == preset and said.startswith(why)
     chosen = fit_default.default_preset(timed=False)
     assert chosen.name == preset and chosen.lines() == [
-        f"[fit] no preset named: '{preset}' for this machine ({said}); name one to choose another (CLI --preset NAME)"
+        f"[fit] no preset named: '{preset}' for {said}; name one to choose another (CLI --preset NAME)"
     ]
 
 
@@ -68,7 +68,7 @@ def _fit_cli(monkeypatch, tmp_path, capsys, *argv):
         raise _FitCalled
 
     monkeypatch.setattr(Sin3DM, "fit", staticmethod(fake_fit))
-    monkeypatch.setattr(fit_default, "choose_preset", lambda device=None: ("quick", "a CPU without fast bf16 (test)"))
+    monkeypatch.setattr(fit_default, "choose_preset", lambda device=None: ("quick", "this machine (test)"))
     monkeypatch.setattr(
         fit_default,
         "estimate_fit",
@@ -82,9 +82,12 @@ def _fit_cli(monkeypatch, tmp_path, capsys, *argv):
 def test_fit_without_a_preset_says_first_what_it_picked_why_and_how_long(monkeypatch, tmp_path, capsys):
     preset, printed = _fit_cli(monkeypatch, tmp_path, capsys)
     assert preset == "quick"
-    assert printed.splitlines()[:2] == [
-        "[fit] no preset named: 'quick' for this machine (a CPU without fast bf16 (test)); name one to choose "
-        "another (CLI --preset NAME)",
+    first = printed.splitlines()[0]
+    assert first.startswith("[fit] no preset named: 'quick' for this machine (test) and this shape (")
+    assert first.endswith(
+        "of it in thin parts: its 64-voxel grid holds it); name one to choose another (CLI --preset NAME)"
+    )
+    assert printed.splitlines()[1:2] == [
         "[fit] it should take about 3 min here (autoencoder 2.0 + denoiser 1.0 + grid and calibration 0.5 min, from "
         "3 steps of each timed just now)",
     ]
@@ -116,8 +119,8 @@ def test_the_python_fit_without_a_preset_takes_the_machines_and_says_so(monkeypa
         seen["preset"] = preset
         raise _FitCalled
 
-    said = fit_default.DefaultPreset("quick", "a CPU without fast bf16 (test)")
-    monkeypatch.setattr(fitting, "default_preset", lambda device=None, timed=True: said)
+    said = fit_default.DefaultPreset("quick", "this machine (test)")
+    monkeypatch.setattr(fitting, "default_preset", lambda device=None, mesh=None, timed=True: said)
     monkeypatch.setattr(fitting, "prepare_run", prepare_run)
     with pytest.raises(_FitCalled):
         Sin3DM.fit("wall", progress=True)
@@ -125,3 +128,30 @@ def test_the_python_fit_without_a_preset_takes_the_machines_and_says_so(monkeypa
     with pytest.raises(_FitCalled):
         Sin3DM.fit("wall", preset="tiny", progress=True)
     assert seen["preset"] == "tiny" and "no preset named" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "source, machine, chosen",
+    [
+        ("canyon", "small", "small"),  # terraces and strata: thick parts
+        ("colonnade", "small", "detail"),  # columns
+        ("ruin", "small", "detail"),  # a ruined tower: walls 2.5 voxels thick at 64
+        ("ruin", "quick", "fine"),  # the same on a CPU without fast bf16
+        ("ruin6", "small", "small"),  # the same tower with walls 6 voxels thick: 64 voxels hold them
+        ("ruin", "paper", "paper"),  # a GPU's 256 voxels hold any of them: not measured
+    ],
+)
+def test_a_shape_mostly_of_thin_parts_gets_the_finer_grid(source, machine, chosen):
+    """The shape rule: more than half of the solid in parts under 7 voxels thick at 64 → the finer preset."""
+    from sin3dm_lite.examples import build_example
+    from sin3dm_lite.examples.ruin import build_ruin
+
+    mesh = {"ruin": lambda: build_ruin(0), "ruin6": lambda: build_ruin(3, wall_voxels=6)}.get(
+        source, lambda: build_example(source)
+    )()
+    name, why, share = fit_default.for_shape(machine, mesh)
+    assert name == chosen
+    if machine == "paper":
+        assert why == "" and share is None
+    else:
+        assert (share > fit_default.MOSTLY_THIN) == (chosen != machine) and f"{share:.0%}" in why

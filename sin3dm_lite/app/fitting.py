@@ -1,15 +1,15 @@
 """``Sin3DM.fit``'s stages, in order: mesh → grid → autoencoder → denoiser → the diversity knob.
 
-    1. grid         the input's TSDF + colour grid (switching to finer settings for thin parts: fit_policy)
+    1. grid         the input's TSDF + colour grid
     2. autoencoder  the triplane latent of the input and the decoder, with reconstruction metrics
-    3. diffusion    the denoiser trained on that one latent (a wider field on trial for a shape of thin walls:
-                    it goes back to the narrower one if its first samples are copies)
-    4. calibrate    the most varied diversity setting that keeps the input's patches (where the config asks;
-                    a shape that keeps them even from pure noise trains its denoiser again with the rollout)
+    3. diffusion    the denoiser trained on that one latent
+    4. calibrate    the most varied diversity setting that keeps the input's patches (not in the paper; the CPU
+                    presets' default, :func:`sin3dm_lite.auto.calibration.calibrates`)
 
 With a run folder (:mod:`sin3dm_lite.app.run_folder`) every stage saves its result, the trainers checkpoint every
 ``config.checkpoint_every`` steps and stop cleanly on Ctrl-C (:func:`train`), and a resumed fit continues where
-the last one stopped. What the fit decides and says about its input lives in :mod:`sin3dm_lite.auto.fit_policy`.
+the last one stopped. What a fit decides for the user (the preset for this machine and shape, the calibration, the
+hints) lives in :mod:`sin3dm_lite.auto`.
 """
 
 from __future__ import annotations
@@ -18,26 +18,13 @@ import json
 import signal
 import threading
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
 
+from ..auto.calibration import calibrates
 from ..auto.fit_default import default_preset
-from ..auto.fit_policy import (
-    are_copies,
-    choose_pbr,
-    from_noise_distance,
-    no_rollout_switch,
-    quick_hint,
-    rollout_message,
-    thin_parts_hint,
-    thin_parts_message,
-    thin_parts_switch,
-    wide_field_check_step,
-    wide_field_message,
-    wide_field_undo,
-)
+from ..auto.fit_policy import choose_pbr
 from ..auto.review import review_fit
 from ..data.config import Config
 from ..data.grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
@@ -51,7 +38,7 @@ from ..model.decode import reconstructed_grid
 from ..presets import get_preset
 from .checkpoints import resume_trainer, save_trainer
 from .device import cpu_bf16_share, get_device, resolved_precision
-from .run_folder import check_run_folder, prepare_run, read_report, remove_failed_run
+from .run_folder import check_run_folder, prepare_run, remove_failed_run
 from .threads import threads_hint
 
 
@@ -66,6 +53,7 @@ def fit(
     progress: bool = True,
     pbr: bool | None = None,
     allow_outside_paths: bool = False,
+    calibrate: bool | None = None,
 ):
     """``Sin3DM.fit`` (its docstring says what each argument does); ``build`` makes the model from its parts
     (``build(config, decoder, latent, denoiser, aabb, normalization, report, device)``: the model class).
@@ -87,7 +75,8 @@ def fit(
         check_run_folder(run, source, resume)
     existed = run is not None and run.exists()
     try:
-        return FitRun(build, run, resume, device, progress).stages(source, preset, seed, pbr, allow_outside_paths)
+        fit_run = FitRun(build, run, resume, device, progress)
+        return fit_run.stages(source, preset, seed, pbr, allow_outside_paths, calibrate)
     except KeyboardInterrupt:
         raise  # the checkpoints stay: continue with resume=True
     except BaseException:
@@ -125,20 +114,10 @@ class FitRun:
         self.say = print if progress else (lambda *a, **k: None)
         self.timings: dict[str, float] = {}
 
-    def recorded(self, switch: str):
-        """What a resumed run's report recorded of a switch it made before it stopped (None: fresh, or no switch)."""
-        record = read_report(self.run).get(switch) if self.resume and self.run is not None else None
-        if record is not None and not switch_record_ok(switch, record):
-            raise Sin3DMInputError(
-                f"cannot resume: '{self.run / 'report.json'}' is damaged (its {switch} is not the record of a "
-                "switch this fit made); put back the original, or fit again into a new --out"
-            )
-        return record
-
-    def stages(self, source, preset, seed, pbr, allow_outside_paths):
+    def stages(self, source, preset, seed, pbr, allow_outside_paths, calibrate):
         """All stages, saved into the run folder at the end; the fitted model."""
         cfg, mesh = self.settings(source, preset, seed, pbr, allow_outside_paths)
-        grid, thin, cfg, thin_parts = self.grid(cfg, mesh)
+        grid = self.grid(cfg, mesh)
         ae, h0, metrics = self.autoencoder(cfg, grid)
         base = {
             "preset": cfg.name,
@@ -148,13 +127,10 @@ class FitRun:
             if isinstance(source, (str, Path)) and Path(source).is_file()
             else None,
             "grid_shape": list(grid.shape),
-            "thin_share": thin,  # ShapeGrid.thin_share of the training grid: share of the solid in parts under ~5 voxels thick
-            "thin_parts_switch": thin_parts,  # {from, resolution, thin_share} when small switched to finer settings
         }
-        # rollout_switch: {plain_calibration, plain_s} when a plain denoiser was trained again with the rollout
-        rollout = self.recorded("rollout_switch")
-        model, history = self.denoise(cfg, grid, h0, ae, metrics, {**base, "rollout_switch": rollout})
-        model, history = review_fit(self, model, history, (grid, h0, ae, metrics, base), rollout, thin_parts)
+        calibrate = calibrates(cfg) if calibrate is None else bool(calibrate)
+        model, history = self.denoise(cfg, grid, h0, ae, metrics, base, calibrate)
+        review_fit(model, calibrate)
         if self.run is not None:
             model.save(self.run)
             atomic_write(self.run / "losses.json", json.dumps({"autoencoder": ae.history, "diffusion": history}))
@@ -171,8 +147,8 @@ class FitRun:
             None if have_grid else resolve_mesh(source, allow_outside_paths=allow_outside_paths)
         )  # bad input fails before any folder is written
         resuming = resume and run is not None and (run / "config.json").exists()
-        if preset is None and not resuming:  # the preset this machine runs well, said first with why and how long
-            chosen = default_preset(self.dev, timed=self.progress)
+        if preset is None and not resuming:  # the preset for this machine and shape, said first with why and how long
+            chosen = default_preset(self.dev, mesh, timed=self.progress)
             for line in chosen.lines():
                 self.say(line)
             preset = chosen.name
@@ -188,51 +164,26 @@ class FitRun:
             asked = {"input": input_name(source), "name": input_stem(source), "digest": input_digest(source, mesh)}
         return prepare_run(run, preset, resume, seed, asked, pbr), mesh
 
-    def grid(self, cfg: Config, mesh: TexturedMesh | None) -> tuple[ShapeGrid, float, Config, dict | None]:
-        """Stage 1: the grid (loaded where a resumed run has it), its thin share, the config (switched to the thin-part
-        settings where :func:`thin_parts_switch` says so) and the record of that switch."""
-        run, say = self.run, self.say
-        # set when this fit switches to the preset's thin-part settings (resumed: when the run switched before it stopped)
-        thin_parts = self.recorded("thin_parts_switch")
+    def grid(self, cfg: Config, mesh: TexturedMesh | None) -> ShapeGrid:
+        """Stage 1: the grid (loaded where a resumed run has it)."""
         t0 = time.perf_counter()
         if mesh is None:
-            grid = load_grid(run / "grid.npz")
-            say(f"[fit] grid loaded from {run / 'grid.npz'}")
-            thin = grid.thin_share()
+            grid = load_grid(self.run / "grid.npz")
+            self.say(f"[fit] grid loaded from {self.run / 'grid.npz'}")
         else:
             grid = grid_for(mesh, cfg, self.progress)
-            thin = grid.thin_share()
-            switched = thin_parts_switch(cfg, grid, thin)
-            if switched is not None:  # too coarse for this shape's thin parts: the finer settings, recorded first
-                say("[fit] " + thin_parts_message(cfg, switched, grid, thin))
-                thin_parts = {"from": cfg.name, "resolution": max(grid.shape), "thin_share": thin}
-                if switched.name.endswith("+walls") and (undo := wide_field_undo(cfg)):  # the wider field on
-                    thin_parts["wide_field"] = {"undo": undo}  # trial: what undoes it (FitStages.denoise)
-                cfg, grid_cfg = switched, cfg.grid
-                if run is not None:  # a resumed run still knows it switched (its report is completed at the end)
-                    atomic_write(run / "config.json", cfg.to_json())
-                    atomic_write(run / "report.json", json.dumps({"thin_parts_switch": thin_parts}, indent=2))
-                if switched.grid != grid_cfg:  # the coarse grid served only to measure (~1 s at 64 voxels)
-                    grid = grid_for(mesh, cfg, self.progress)
-                    thin = grid.thin_share()
-            elif (hint := thin_parts_hint(cfg, grid, thin)) is not None:
-                say("[fit] " + hint)
-            if run is not None:
-                save_grid(grid, run / "grid.npz")
+            if self.run is not None:
+                save_grid(grid, self.run / "grid.npz")
         self.timings["grid_s"] = time.perf_counter() - t0
-        return grid, thin, cfg, thin_parts
+        return grid
 
     def autoencoder(self, cfg: Config, grid: ShapeGrid):
         """Stage 2: the trained autoencoder, the input's latent and its reconstruction metrics."""
         t0 = time.perf_counter()
         ae = AutoencoderTrainer(grid, cfg.autoencoder, self.dev, cfg.seed)
         # a shape of one colour (the trainer found it) trains half an autoencoder: the time hint knows
-        for hint in (
-            quick_hint(cfg, self.dev, ae.single_color is not None),
-            threads_hint() if self.dev.type == "cpu" else None,
-        ):
-            if hint:
-                self.say("[fit] " + hint)
+        if self.dev.type == "cpu" and (hint := threads_hint()):
+            self.say("[fit] " + hint)
         if ae.single_color is not None:
             rgb = ", ".join(f"{c:.2f}" for c in ae.single_color)
             self.say(
@@ -246,9 +197,9 @@ class FitRun:
         self.say("[fit] reconstruction: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
         return ae, h0, metrics
 
-    def denoise(self, cfg, grid, h0, ae, metrics, report_base):
-        """Stages 3 and 4: train the denoiser on the latent ``h0``, then calibrate the knob (where
-        ``cfg.sampling.calibrate``); the model, with its report, and the denoiser's loss history."""
+    def denoise(self, cfg, grid, h0, ae, metrics, report_base, calibrate: bool):
+        """Stages 3 and 4: train the denoiser on the latent ``h0``, then (``calibrate``) choose the knob; the model,
+        with its report, and the denoiser's loss history."""
         from ..model.diffusion import DiffusionTrainer
 
         t0 = time.perf_counter()
@@ -258,10 +209,6 @@ class FitRun:
             self.say(
                 "[fit] diffusion: the first step compiles the denoiser for this GPU (torch.compile, about a minute)"
             )
-        wide = (report_base.get("thin_parts_switch") or {}).get("wide_field")
-        if wide is not None and "check" not in wide:  # the wider field of Config.thin_walls, on trial
-            train(dm, ckpt, cfg.checkpoint_every, self.progress, self.say, until_step=wide_field_check_step(cfg))
-            cfg, dm = self.wide_field_check(cfg, grid, h0, ae, dm, report_base["thin_parts_switch"])
         train(dm, ckpt, cfg.checkpoint_every, self.progress, self.say)
         self.timings["diffusion_s"] = time.perf_counter() - t0
 
@@ -281,7 +228,7 @@ class FitRun:
             cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, report, self.dev
         )
         # stage 4: the diversity knob for this shape: the most varied samples that keep its patches
-        if cfg.sampling.calibrate:
+        if calibrate:
             self.say(
                 "[fit] calibrating the diversity knob for this shape: a few samples at a few settings, scored "
                 "against the input (LP-IoU / LP-F); the most varied setting that keeps the goals becomes the "
@@ -291,64 +238,6 @@ class FitRun:
             model.calibrate(reference=grid.sdf < 0, progress=self.progress)
             self.timings["calibrate_s"] = time.perf_counter() - t0
         return model, dm.history
-
-    def wide_field_check(self, cfg, grid, h0, ae, dm, thin_parts):
-        """The wider field's trial (:attr:`Config.thin_walls`): a few samples from pure noise of the denoiser as
-        trained so far; if they are copies (:func:`are_copies` of :func:`from_noise_distance`: latents, nothing
-        decoded), the narrower denoiser's config and a fresh trainer for it, else ``cfg`` and ``dm`` as they are.
-        The outcome is recorded in ``thin_parts``."""
-        from ..model.diffusion import DiffusionTrainer
-
-        t0 = time.perf_counter()
-        probe = self.build(
-            cfg, ae.model.decoder, h0, dm.model_for_sampling, grid.aabb, grid.normalization, {}, self.dev
-        )
-        distance = from_noise_distance(probe, seed=cfg.seed)
-        wide = thin_parts["wide_field"]
-        wide["check"] = {"step": dm.step_count, "distance": distance, "copies": are_copies(distance)}
-        if wide["check"]["copies"]:
-            self.say("[fit] " + wide_field_message(cfg, distance, wide["undo"]))
-            cfg = cfg.updated(**wide["undo"], name=cfg.name.replace("+walls", "+thin"))
-            dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
-            if self.run is not None:  # the wider checkpoint goes first: the narrower config never meets it
-                (self.run / "diffusion.pt").unlink(missing_ok=True)
-                atomic_write(self.run / "config.json", cfg.to_json())
-        else:
-            self.say(
-                f"[fit] after {dm.step_count} steps the wider denoiser's samples from pure noise vary (their latents "
-                f"differ from the input's by {distance:.0%} of its variance): it keeps its field"
-            )
-        if self.run is not None:  # a resumed fit does not check again
-            atomic_write(self.run / "report.json", json.dumps({"thin_parts_switch": thin_parts}, indent=2))
-        self.timings["wide_field_check_s"] = time.perf_counter() - t0
-        return cfg, dm
-
-    def switch_to_rollout(self, cfg, grid, h0, ae, metrics, base, calibration):
-        """Stages 3 and 4 again with the cross-plane rollout (:attr:`Config.rollout_switch`); the new config, model,
-        loss history and the record of the switch."""
-        run = self.run
-        self.say("[fit] " + rollout_message(cfg))
-        rollout = {
-            "plain_calibration": {k: calibration[k] for k in ("diversity", "kept_goals")},
-            "plain_s": self.timings.pop("diffusion_s") + self.timings.pop("calibrate_s", 0.0),
-        }
-        thin_parts = base["thin_parts_switch"]
-        cfg = cfg.for_rollout()
-        if run is not None:  # the plain checkpoint goes first: a config with the rollout never meets it
-            (run / "diffusion.pt").unlink(missing_ok=True)
-            atomic_write(run / "config.json", cfg.to_json())
-            atomic_write(
-                run / "report.json", json.dumps({"thin_parts_switch": thin_parts, "rollout_switch": rollout}, indent=2)
-            )
-        model, history = self.denoise(cfg, grid, h0, ae, metrics, {**base, "rollout_switch": rollout})
-        if not (model.report.get("calibration") or {}).get("kept_goals"):
-            # stacklevel: this method, stages, fitting.fit, Sin3DM.fit, and the code that called it
-            warnings.warn(
-                "with the cross-plane rollout no diversity setting kept the input's patches, which "
-                "the plain denoiser did from pure noise; fit again without the switch: " + no_rollout_switch(cfg),
-                stacklevel=5,
-            )
-        return cfg, model, history, rollout
 
 
 def train(trainer, ckpt: Path | None, every: int, progress: bool, say, until_step: int | None = None) -> None:
@@ -391,20 +280,6 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say, until_ste
         for s, handler in old.items():
             signal.signal(s, handler)
     save(trainer)  # the last step, unless the callback just wrote it
-
-
-def switch_record_ok(switch: str, record) -> bool:
-    """Whether ``record`` is what :meth:`FitRun.grid` (``thin_parts_switch``) or :meth:`FitRun.switch_to_rollout`
-    (``rollout_switch``) writes into report.json: a resumed fit reads its fields."""
-    if not isinstance(record, dict):
-        return False
-    if switch == "rollout_switch":
-        plain = record.get("plain_calibration")
-        return isinstance(plain, dict) and isinstance(record.get("plain_s"), (int, float))
-    wide = record.get("wide_field")
-    return isinstance(record.get("from"), str) and (
-        wide is None or (isinstance(wide, dict) and isinstance(wide.get("undo"), dict))
-    )
 
 
 def training_precision(cfg: Config, device) -> dict:

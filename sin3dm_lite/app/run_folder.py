@@ -196,28 +196,14 @@ def trained_settings(cfg: Config) -> dict:
     return {k: v for k, v in cfg.settings().items() if k.startswith(TRAINED)}
 
 
-def fit_configs(asked: Config) -> list[Config]:
-    """Every config a fit asked for ``asked`` may have written into its config.json: ``asked`` itself, switched to
-    its thin-part or thin-wall settings, the wider field taken back, each with or without the rollout switch."""
-    from ..auto.fit_policy import wide_field_undo
-
-    walls = asked.for_thin_parts(walls=True)
-    undo = wide_field_undo(asked)
-    configs = [asked, asked.for_thin_parts(), walls] + ([walls.updated(**undo)] if undo else [])
-    return configs + [c.for_rollout() for c in configs]
-
-
 def check_config_matches_run(run: Path, cfg: Config) -> None:
-    """Refuse to resume ``run`` when its config.json ``cfg`` is not what the fit recorded (input.json, with the
-    switches a fit makes), not what its trainer checkpoints were trained with, or does not match its grid.npz: the
+    """Refuse to resume ``run`` when its config.json ``cfg`` is not what the fit recorded (input.json), not what its trainer checkpoints were trained with, or does not match its grid.npz: the
     grid and checkpoints would be trained on with settings they were not made with."""
     rec = read_input(run)
     if rec is not None and isinstance(rec.get("config"), dict):
-        have = trained_settings(cfg)
-        candidates = [trained_settings(c) for c in fit_configs(recorded_config(run, cfg))]
-        differ = min(([k for k in c if c[k] != have.get(k)] for c in candidates), key=len)
+        have, near = trained_settings(cfg), trained_settings(recorded_config(run, cfg))
+        differ = [k for k in near if near[k] != have.get(k)]
         if differ:
-            near = min(candidates, key=lambda c: sum(c[k] != have.get(k) for k in c))
             shown = "; ".join(f"{k} {have.get(k)!r} there, {near[k]!r} recorded" for k in differ[:3])
             more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
             raise Sin3DMInputError(

@@ -1,7 +1,7 @@
 """Calibrating a fitted model's diversity knob: the choice :func:`~sin3dm_lite.evaluate.calibrate.calibrate_diversity`
-makes, on the input's occupancy, kept in the model's config and report (``Sin3DM.calibrate``; ``fit`` runs it when
-the preset's ``sampling.calibrate`` is on; ``sin3dm-lite calibrate RUN`` runs it on a fitted run). Not in the
-paper: the paper samples from pure noise, the knob's value 1.
+makes, on the input's occupancy, kept in the model's config and report (``Sin3DM.calibrate``; ``fit`` runs it for
+the CPU presets, :func:`calibrates`; ``sin3dm-lite calibrate RUN`` runs it on a fitted run). Not in the paper: the
+paper samples from pure noise, the knob's value 1.
 """
 
 from __future__ import annotations
@@ -13,6 +13,15 @@ from ..errors import Sin3DMInputError
 from ..evaluate import calibrate as walk  # looked up at each call: a test or notebook may swap its parts
 from ..evaluate import evaluation
 from ..evaluate.calibration_record import Calibration
+
+#: the presets whose fits choose their diversity by default: the CPU ones, whose short training leaves a knob curve
+#: that differs from shape to shape (``tiny`` is for tests; ``paper`` samples from pure noise, as the paper does)
+CALIBRATED = ("small", "quick", "detail", "fine")
+
+
+def calibrates(cfg) -> bool:
+    """Whether a fit of ``cfg`` calibrates its diversity when not told (``Sin3DM.fit(calibrate=None)``)."""
+    return cfg.name.split("+")[0] in CALIBRATED
 
 
 def calibrate_model(
@@ -65,4 +74,4 @@ def calibrate_model(
     return cal
 
 
-__all__ = ["calibrate_model"]
+__all__ = ["CALIBRATED", "calibrate_model", "calibrates"]

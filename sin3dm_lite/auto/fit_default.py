@@ -1,14 +1,24 @@
-"""The preset a fit takes when none is named: the one this machine runs well, said first with why and how long.
+"""The preset a fit takes when none is named: the one this machine and this shape need, said first with why and
+how long.
+
+The machine:
 
 * a CUDA GPU: ``paper`` (the paper's settings; its denoiser in bf16 and compiled);
 * a CPU where bf16 measures faster than fp32 (:func:`~sin3dm_lite.app.device.bf16_is_fast`): ``small``, whose
   paper-width autoencoder then runs in bf16;
 * any other CPU: ``quick``, a light autoencoder in fp32 (``small``'s takes about 4x as long there).
 
+The shape (on a CPU, where the grid is coarse): **a shape that is mostly thin parts gets the finer grid**
+(:data:`FINER`: ``detail`` for ``small``, ``fine`` for ``quick``). Thin means thinner than 7 voxels at 64, which is
+3.5 texels of the 32-texel latent: a morphological opening with a ball of :data:`THIN_RADIUS` voxels removes such
+parts (:meth:`ShapeGrid.thin_share`), and "mostly" is more than half of the solid (:data:`MOSTLY_THIN`). Walls and
+columns of that size lose their shape in ``small``'s latent; at 96 voxels they have half again as many texels, and
+``detail``'s wider field and cross-plane rollout keep them whole. The rule is measured on the shape, not tuned on
+one: docs/presets.md shows where it switches on a sweep of generated families and the built-ins.
+
 A preset named by the user always wins. The time is an estimate from a few training steps of the chosen preset
 timed here, on a synthetic shape at its grid (:func:`estimate_fit`), so it follows this machine, its threads
-and whatever else runs on it now; the grid and the calibration add a share of the training
-(:data:`OTHER_SHARE`, docs/presets.md). A shape of thin parts may switch settings, which can change the time.
+and whatever else runs on it now; the grid and the calibration add a share of the training (:data:`OTHER_SHARE`).
 """
 
 from __future__ import annotations
@@ -28,6 +38,12 @@ from ..presets import get_preset
 OTHER_SHARE = 0.15
 #: training steps timed per network (after one untimed step)
 TIMED_STEPS = 3
+#: the finer preset of each CPU preset, for a shape that is mostly thin parts
+FINER = {"small": "detail", "quick": "fine"}
+#: the opening's ball radius, in voxels of the 64-voxel grid: it removes parts thinner than about 7 voxels
+THIN_RADIUS = 3
+#: more than this share of the solid in thin parts: the finer grid
+MOSTLY_THIN = 0.5
 
 
 @dataclass
@@ -37,13 +53,11 @@ class DefaultPreset:
     name: str
     why: str
     seconds: dict | None = None  # {"autoencoder", "denoiser", "other", "total"}
+    thin_share: float | None = None  # the shape's share of thin parts (:func:`thin_share`), where measured
 
     def lines(self) -> list[str]:
         """What ``fit`` says first: the preset and why, then how long."""
-        said = [
-            f"[fit] no preset named: '{self.name}' for this machine ({self.why}); name one to choose another "
-            "(CLI --preset NAME)"
-        ]
+        said = [f"[fit] no preset named: '{self.name}' for {self.why}; name one to choose another (CLI --preset NAME)"]
         if self.seconds:
             s = {k: v / 60 for k, v in self.seconds.items()}
             said.append(
@@ -58,18 +72,49 @@ def choose_preset(device=None) -> tuple[str, str]:
     """``(preset name, why in words)`` for ``device`` (default: CUDA if present, else the CPU)."""
     dev = get_device(device)
     if dev.type == "cuda":
-        return "paper", f"a CUDA GPU, {torch.cuda.get_device_name(dev)}: the paper's settings"
+        return "paper", f"this machine (a CUDA GPU, {torch.cuda.get_device_name(dev)}: the paper's settings)"
     share = cpu_bf16_share()
     if bf16_is_fast(dev):
-        return "small", f"a CPU whose bf16 runs in {share:.1f}x fp32's time: small's paper-width autoencoder in bf16"
+        return "small", f"this machine (a CPU whose bf16 runs in {share:.1f}x fp32's time: the autoencoder in bf16)"
     why = "no native bf16" if share is None else f"native bf16, but at {share:.1f}x fp32's time here"
-    return "quick", f"a CPU without fast bf16 ({why}): quick's light autoencoder in fp32"
+    return "quick", f"this machine (a CPU without fast bf16, {why}: a light autoencoder in fp32)"
 
 
-def default_preset(device=None, timed: bool = True) -> DefaultPreset:
-    """The preset a fit without one takes on ``device``, and (``timed``) its estimated time (:func:`estimate_fit`)."""
+def thin_share(mesh, cfg: Config) -> float:
+    """The share of ``mesh``'s solid in parts thinner than about 7 voxels, on ``cfg``'s grid (a few seconds)."""
+    from ..data.grid import mesh_to_grid
+
+    g = cfg.grid
+    grid = mesh_to_grid(
+        mesh, g.resolution, g.threshold_voxels, 20_000, seed=0, progress=False, margin_voxels=g.margin_voxels
+    )
+    return grid.thin_share(THIN_RADIUS * g.resolution // 64)
+
+
+def for_shape(name: str, mesh) -> tuple[str, str, float | None]:
+    """``(preset name, why in words, thin share)`` for ``mesh`` after the machine chose ``name``: the finer preset
+    (:data:`FINER`) where the shape is mostly thin parts, else ``name``; shapes on a GPU are not measured."""
+    if mesh is None or name not in FINER:
+        return name, "", None
+    share = thin_share(mesh, get_preset(name))
+    if share > MOSTLY_THIN:
+        return (
+            FINER[name],
+            (
+                f" and this shape ({share:.0%} of it in parts under 7 voxels thick at 64 voxels: the finer grid, the "
+                "wider field and the cross-plane rollout keep them whole)"
+            ),
+            share,
+        )
+    return name, f" and this shape ({share:.0%} of it in thin parts: its 64-voxel grid holds it)", share
+
+
+def default_preset(device=None, mesh=None, timed: bool = True) -> DefaultPreset:
+    """The preset a fit of ``mesh`` (None: not measured) without one takes on ``device``, and (``timed``) its estimated
+    time (:func:`estimate_fit`)."""
     name, why = choose_preset(device)
-    return DefaultPreset(name, why, estimate_fit(get_preset(name), device) if timed else None)
+    name, shape, share = for_shape(name, mesh)
+    return DefaultPreset(name, why + shape, estimate_fit(get_preset(name), device) if timed else None, share)
 
 
 def timing_grid(resolution: int, n_points: int = 20_000):
@@ -127,4 +172,16 @@ def estimate_fit(cfg: Config, device=None) -> dict:
     return {"autoencoder": ae_s, "denoiser": dn_s, "other": other, "total": ae_s + dn_s + other}
 
 
-__all__ = ["OTHER_SHARE", "DefaultPreset", "choose_preset", "default_preset", "estimate_fit", "timing_grid"]
+__all__ = [
+    "FINER",
+    "MOSTLY_THIN",
+    "OTHER_SHARE",
+    "THIN_RADIUS",
+    "DefaultPreset",
+    "choose_preset",
+    "default_preset",
+    "estimate_fit",
+    "for_shape",
+    "thin_share",
+    "timing_grid",
+]

@@ -86,7 +86,7 @@ def cmd_grid(a) -> None:
 def cmd_fit(a) -> None:
     from ..data.config import parse_settings
     from ..pipeline import Sin3DM
-    from ..presets import DETAIL_CHANGES, get_preset
+    from ..presets import get_preset
 
     if a.resume and not Path(a.out).is_dir():
         raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")
@@ -94,17 +94,6 @@ def cmd_fit(a) -> None:
     changes = parse_settings(a.set)
     name = a.preset or (None if a.resume else default_for_this_machine(a))  # None: the run's own (Sin3DM.fit)
     base = get_preset(name or "small")
-    if a.thin_switch is False:
-        changes["thin_parts"] = {}
-        changes.setdefault("thin_walls", {})
-    elif a.thin_switch:
-        changes.setdefault("thin_walls", {})  # the finer settings bring their own 4-ResBlock field, on thin walls too
-        if "thin_parts" not in changes and "grid.resolution" not in base.thin_parts:
-            # quick's switch keeps its grid for the cost: the finer settings asked for here, beside its own switch
-            # (settings the user sets stay theirs)
-            changes["thin_parts"] = {**base.thin_parts, **{k: v for k, v in DETAIL_CHANGES.items() if k not in changes}}
-    if not a.rollout_switch:
-        changes["rollout_switch"] = {}
     preset = base.updated(**changes) if changes else name
     model = Sin3DM.fit(
         a.mesh,
@@ -115,9 +104,9 @@ def cmd_fit(a) -> None:
         device=a.device,
         pbr=a.pbr,
         allow_outside_paths=a.allow_outside_paths,
+        calibrate=a.calibrate,
     )
     r = model.report["reconstruction"]
-    snapped = ", snapped to the input's latent patches (sampling.snap)" if model.config.sampling.snap else ""
     colour = "one colour, kept" if "single_color" in model.report else f"colour PSNR {r['color_psnr']:.1f} dB"
     ae_precision = model.report.get("precision", {}).get("autoencoder")  # a resumed old run may not say
     samples = Path(a.out).with_name(Path(a.out).name + "-samples")
@@ -126,7 +115,7 @@ def cmd_fit(a) -> None:
         f"occupancy IoU {r['occupancy_iou']:.3f}, "
         f"sign accuracy {r['sign_accuracy']:.3f}, {colour}; samples default to diversity "
         f"{model.config.sampling.diversity:g}{' (calibrated for this shape)' if 'calibration' in model.report else ''}"
-        f"{snapped}\n"
+        "\n"
         f"next: sin3dm-lite sample {quote(a.out)} -n 4 --out {quote(str(samples))}"
     )
 
@@ -141,6 +130,7 @@ def default_for_this_machine(a) -> str:
     check_run_folder(Path(a.out), a.mesh, False)
     if not is_example(a.mesh) and not Path(a.mesh).is_file():
         resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)  # its one line: no such file, no example
-    chosen = default_preset(a.device)
+    mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
+    chosen = default_preset(a.device, mesh)
     print("\n".join(chosen.lines()), flush=True)
     return chosen.name

@@ -140,8 +140,9 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         "--preset",
         choices=list(PRESETS),
         default=None,
-        help="training sizes and steps (default: this machine's: paper on a CUDA GPU, small on a CPU with fast "
-        "bf16, quick on any other; the fit's first lines say which, why and how long; with --resume, the run's own)",
+        help="training sizes and steps (default: for this machine and shape: paper on a CUDA GPU; on a CPU small "
+        "where bf16 is fast, quick elsewhere, or their finer detail / fine for a shape mostly of thin parts; the "
+        "fit's first lines say which, why and how long; with --resume, the run's own)",
     )
     f.add_argument("--out", required=True, help="run folder (new, or existing with --resume)")
     f.add_argument("--resume", action="store_true", help="continue an interrupted fit from its checkpoints")
@@ -154,22 +155,11 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
     )
     f.add_argument("--seed", type=seed_int, default=None, help="random seed (default: the preset's)")
     f.add_argument(
-        "--thin-switch",
+        "--calibrate",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="on a shape with many thin parts, fit at the 'detail' settings (96 voxels, wider denoiser field): "
-        "small does by itself; --thin-switch asks quick too (about 5x its fit time without native bf16); "
-        "--no-thin-switch keeps the preset's settings whatever the shape (quick: no snapped samples and, on thin "
-        "walls, no wider denoiser field on trial nor free planes; --set thin_walls={} drops only those; a denoiser "
-        "setting you --set drops the field alone) (default: the preset's choice)",
-    )
-    f.add_argument(
-        "--rollout-switch",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="when the calibration keeps the input's patches even from pure noise (a wall, dunes), "
-        "train the denoiser again with the cross-plane rollout (crisper detail, ~45 s more on small); "
-        "--no-rollout-switch keeps the plain denoiser",
+        help="after training, choose the run's diversity: the most varied setting whose samples keep the input's "
+        "patches (default: on for the CPU presets small, quick, detail and fine)",
     )
     f.add_argument(
         "--set",

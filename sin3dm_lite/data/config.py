@@ -109,9 +109,6 @@ class SamplingConfig:
     # controlled ones); a rare neighbourhood of the input (a window in a thin wall) then comes back where it was
     # instead of the common one nearly as near (plain wall) from elsewhere (docs/thin-parts.md)
     snap_place: float = 0.0
-    # choose ``diversity`` for each shape at the end of a fit: the most varied setting whose samples still keep the
-    # input's patches (LP-IoU / LP-F goals; :func:`sin3dm_lite.calibrate.calibrate_diversity`), saved in the run's config
-    calibrate: bool = False
 
 
 @dataclass
@@ -125,19 +122,6 @@ class Config:
     diffusion: DiffusionConfig = field(default_factory=DiffusionConfig)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     checkpoint_every: int = 500  # training steps between checkpoints in a run folder
-    # Dotted settings that replace these ones when the input has many thin parts (ShapeGrid.thin_share above
-    # fit_policy.THIN_SHARE_HINT on this grid): Sin3DM.fit switches to them after building the grid. {} never switches.
-    thin_parts: dict = field(default_factory=dict)
-    # Dotted settings (the rollout on) that replace these ones when the denoiser has no cross-plane rollout and the
-    # calibration keeps the input's patches even from pure noise (diversity 1: the shape's layout varies little, a
-    # wall's brick body, dunes): Sin3DM.fit then trains the denoiser again with them, and the planes agree on fine
-    # detail at no cost in variation. {} never switches.
-    rollout_switch: dict = field(default_factory=dict)
-    # Dotted settings added to thin_parts' when a shape is almost all thin walls (ShapeGrid.thin_share above
-    # fit_policy.THIN_WALLS_SHARE): a wider denoiser field, on trial, and what keeps a thin wall's windows (free
-    # planes, same-place snapping). Sin3DM.fit checks early in the denoiser's training whether that field copies
-    # the shape (fit_policy.are_copies) and trains it again with the narrower one if so. {} never switches.
-    thin_walls: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         check_config(self)  # a setting out of range fails where it is made, before any work
@@ -146,39 +130,6 @@ class Config:
         """Check every setting (:data:`LIMITS`; e.g. after changing one in place); returns ``self``."""
         check_config(self)
         return self
-
-    def for_thin_parts(self, walls: bool = False) -> Config:
-        """These settings with :attr:`thin_parts` applied, nothing left to switch, named ``<name>+thin``; with
-        ``walls``, :attr:`thin_walls` too, named ``<name>+walls``.
-
-        A grid too coarse for a shape's thin parts (columns 2-3 voxels thick)
-        swells or breaks them in every sample; the finer grid needs a wider
-        denoiser field too, so that the field keeps its share of the latent.
-        A shape of thin walls only (a ruined tower) needs a field wide enough
-        to hold its stepped top.
-        """
-        # thin_parts that choose the denoiser's blocks themselves (the finer settings of --thin-switch) leave nothing
-        # to try; its batches and steps the wider field sets over theirs
-        blocks = {"diffusion.n_resblocks", "diffusion.base_channels"}
-        walls = (
-            walls and bool(self.thin_walls) and (self.walls_replace_thin_parts() or not blocks & set(self.thin_parts))
-        )
-        if not self.thin_parts and not walls:
-            return self
-        changes = {**self.thin_parts, **(self.thin_walls if walls else {})}
-        suffix = "walls" if walls else "thin"
-        return self.updated(**changes, name=f"{self.name}+{suffix}", thin_parts={}, thin_walls={})
-
-    def walls_replace_thin_parts(self) -> bool:
-        """Whether :attr:`thin_walls` sets every setting :attr:`thin_parts` does (``small``'s: its own grid, not
-        ``detail``'s): then it replaces the thin-part settings rather than adding to them."""
-        return bool(self.thin_parts) and set(self.thin_parts) <= set(self.thin_walls)
-
-    def for_rollout(self) -> Config:
-        """These settings with :attr:`rollout_switch` applied (the cross-plane rollout on), nothing left to switch."""
-        if not self.rollout_switch:
-            return self
-        return self.updated(**self.rollout_switch, rollout_switch={}, thin_parts=dict(self.thin_parts))
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -195,18 +146,8 @@ class Config:
         return _from_dict(cls, d)
 
     def updated(self, **changes: Any) -> Config:
-        """Copy with dotted-path changes, e.g. ``cfg.updated(**{"diffusion.steps": 100})``.
-
-        A setting you change is yours: it also leaves :attr:`thin_parts`, so
-        the thin-part switch never undoes it (``small`` with 6 ResBlocks keeps
-        6 on the colonnade), unless the same call sets ``thin_parts`` itself;
-        it likewise leaves :attr:`rollout_switch`, and setting ``diffusion.rollout``
-        turns that switch off; changing a denoiser setting :attr:`thin_walls` names
-        drops its wider denoiser field (nothing left to try) but keeps the rest
-        (the free planes, the same-place snapping), or all of it where it
-        replaces the thin-part settings (``small``'s).
-        """
-        d, walls_replace = self.to_dict(), self.walls_replace_thin_parts()
+        """Copy with dotted-path changes, e.g. ``cfg.updated(**{"diffusion.steps": 100})``."""
+        d = self.to_dict()
         for key, value in changes.items():
             if key not in LIMITS:
                 raise unknown_setting(key)
@@ -217,19 +158,6 @@ class Config:
             _check_type(key, node[leaf], value)
             check_setting(key, value)
             node[leaf] = value
-        if "thin_parts" not in changes:
-            d["thin_parts"] = {k: v for k, v in d["thin_parts"].items() if k not in changes}
-        if "rollout_switch" not in changes:
-            kept = {k: v for k, v in d["rollout_switch"].items() if k not in changes}
-            d["rollout_switch"] = kept if "diffusion.rollout" in kept else {}  # the rollout chosen: nothing to switch
-        chosen = [k for k in d["thin_walls"] if k in changes]
-        if chosen and "thin_walls" not in changes:  # any setting it names: the user's
-            # the denoiser chosen: the wider field goes (nothing left to try); where the thin-walls settings replace
-            # the thin-part ones (small's, a whole denoiser of their own) all of them go
-            denoiser = any(k.startswith("diffusion.") for k in chosen)
-            kept = {k: v for k, v in d["thin_walls"].items() if k not in changes}
-            kept = {k: v for k, v in kept.items() if not (denoiser and k.startswith("diffusion."))}
-            d["thin_walls"] = {} if denoiser and walls_replace else kept
         return Config.from_dict(d)
 
 
@@ -241,9 +169,6 @@ LIMITS: dict[str, Any] = {
     "name": str,
     "seed": (0, 2**32 - 1),
     "checkpoint_every": (1, 10**9),
-    "thin_parts": dict,
-    "rollout_switch": dict,
-    "thin_walls": dict,
     "grid.resolution": (16, 512),
     "grid.threshold_voxels": (0.5, 32.0),
     "grid.n_surface_points": (1_000, 50_000_000),
@@ -293,7 +218,6 @@ LIMITS: dict[str, Any] = {
     "sampling.mesh_resolution": (16, 2048),
     "sampling.faces": (4, 100_000_000),
     "sampling.texture_size": (16, 16384),
-    "sampling.calibrate": bool,
 }
 
 
@@ -383,14 +307,6 @@ def check_config(cfg: Config) -> None:
         if key not in LIMITS:
             raise unknown_setting(key)
         check_setting(key, value)
-    for switch in ("thin_parts", "rollout_switch", "thin_walls"):
-        for key, value in flat[switch].items():
-            if key not in LIMITS or LIMITS[key] is dict:
-                raise Sin3DMInputError(
-                    f"{switch} names '{key}', which is not a setting it can change; "
-                    f"{unknown_setting(key) if key not in LIMITS else 'give dotted settings'}"
-                )
-            check_setting(key, value, option=f"{switch}['{key}']")
     d, s = cfg.diffusion, cfg.sampling
     if not d.beta_start < d.beta_end:
         raise Sin3DMInputError(

@@ -116,15 +116,9 @@ class ShapeGrid:
     def thin_share(self, radius: int = 2) -> float:
         """Share of the solid (voxels with SDF < 0) in parts thinner than about ``2·radius + 1`` voxels.
 
-        A morphological opening with a ball of ``radius`` voxels keeps every
-        part the ball fits into and removes the rest: columns, slats, small
-        boxes, thin walls. The latent has half the grid's resolution, so a
-        part 5 voxels thick is drawn from about two texels; such parts are the
-        first to swell, break or vanish in samples. At 64 voxels the built-in
-        canyon and wall score 0.13 and 0.10, the colonnade 0.24, a slab of
-        small boxes 0.44 and one of tiles with one-voxel gaps 1.0 (at 96
-        voxels: 0.05, 0.05, 0.11, 0.07, 0.58). What a fit makes of it is the
-        application's (:mod:`sin3dm_lite.auto.fit_policy`).
+        A morphological opening with a ball of ``radius`` voxels keeps every part the ball fits into and removes the
+        rest: columns, slats, small boxes, thin walls. The latent has half the grid's resolution, so a part 5 voxels
+        thick is drawn from about two texels. What a fit makes of it: :mod:`sin3dm_lite.auto.fit_default`.
         """
         from scipy import ndimage
 

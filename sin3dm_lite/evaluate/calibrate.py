@@ -19,7 +19,7 @@ fit's grid, no meshes) and scores what it returns against the input with the pap
    of their own, smoothed into curves that fall with the knob and refined near the answer; the choice is the
    most varied setting whose curves, lowered by 1.5 standard errors, keep both goals;
 3. **never copies when a more varied setting keeps LP-F**: where the samples at that choice are copies (their
-   G-Div under :func:`copy_line`: the fit's own copy line, or twice the near copy's G-Div), the LP-IoU floor
+   G-Div under :func:`copy_line`: 0.10, or twice the near copy's G-Div), the LP-IoU floor
    gives way and the most varied setting keeping the LP-F goal is chosen;
 4. where no setting keeps the LP-F goal, the least varied setting drawn whose samples are not copies, and the
    record says so (:attr:`Calibration.note`); where every one is a copy, the lowest drawn.
@@ -31,7 +31,7 @@ the curve is flat. A rung keeping less than half a goal skips the next (:data:`F
 
 **Grid.** Measured on the reference's grid, for a fit its training grid (fast). ``sin3dm-lite calibrate RUN
 --resolution 128`` judges as the paper measures (against the input mesh, any of 2³ sub-voxels inside) in about
-four times the time. ``Sin3DM.fit`` runs it at the end of a fit when ``sampling.calibrate`` is on and saves the
+four times the time. ``Sin3DM.fit`` runs it at the end of a CPU preset's fit (:mod:`sin3dm_lite.auto.calibration`) and saves the
 choice as the run's ``sampling.diversity``.
 """
 
@@ -261,7 +261,7 @@ def calibrate_diversity(
     result = Calibration(
         diversity=lowest, goals=absolute, n=int(n), resolution=max(reference.shape), g_div_goal=G_DIV_GOAL
     )
-    result.copy_line = COPIES_G_DIV
+    result.copy_line = copy_line(None)
     if shares is not None:
         _set_ceiling(result, draw(NEAR_COPY, NEAR_COPY_SEEDS // 1000), shares, progress)
     # a goal lowered to its ceiling lowers its margin alike: a near copy keeps only 1/RELATIVE of its goal

@@ -19,6 +19,9 @@ MIN_CEILING = 0.1
 #: whose samples vary lies above (docs/thin-parts.md). A shape whose samples reshuffle colours alone has a geometry
 #: G-Div near 0, so the fit's warning after a fit asks the latents too (fit_policy.copies_warning)
 COPIES_G_DIV = 0.03
+#: samples that vary less than this are near copies when the calibration chooses (:func:`copy_line`): the diversity
+#: the project asks of a run's default samples at the paper's 128 voxels (G-Div ≥ 0.10)
+VARIED_G_DIV = 0.10
 #: samples count as copies, too, when they vary less than this many times the near copy's G-Div (:func:`copy_line`)
 COPY_RATIO = 2.0
 #: how the record names the patch scores
@@ -26,11 +29,11 @@ SCORE_NAMES = {"lp_iou": "LP-IoU", "lp_fscore": "LP-F"}
 
 
 def copy_line(near_g_div: float | None) -> float:
-    """The G-Div under which samples are copies: the fit's copy line (:data:`COPIES_G_DIV`), or :data:`COPY_RATIO`
-    times the near copy's G-Div where that is higher (what a near copy varies is the decoder's and the noise's
-    jitter, not variation)."""
+    """The G-Div under which the calibration counts samples as near copies: :data:`VARIED_G_DIV`, or
+    :data:`COPY_RATIO` times the near copy's G-Div where that is higher (what a near copy varies is the decoder's
+    and the noise's jitter, not variation)."""
     near = near_g_div if near_g_div is not None and np.isfinite(near_g_div) else 0.0
-    return float(max(COPIES_G_DIV, COPY_RATIO * near))
+    return float(max(VARIED_G_DIV, COPY_RATIO * near))
 
 
 @dataclass
@@ -130,4 +133,4 @@ class Calibration:
         return "\n".join(lines)
 
 
-__all__ = ["COPIES_G_DIV", "COPY_RATIO", "MIN_CEILING", "SCORE_NAMES", "Calibration", "copy_line"]
+__all__ = ["COPIES_G_DIV", "COPY_RATIO", "VARIED_G_DIV", "MIN_CEILING", "SCORE_NAMES", "Calibration", "copy_line"]
