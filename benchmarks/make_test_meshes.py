@@ -1,6 +1,12 @@
 """Write five meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
 
     python benchmarks/make_test_meshes.py OUT_DIR
+    python benchmarks/make_test_meshes.py OUT_DIR --sweep   # and the sweep of families: which preset the default takes
+
+``--sweep`` also writes ruins of every family (round and square plans, stepped and flat tops, walls 2 to 8 voxels
+thick at 64) as ``OUT_DIR/sweep/*.obj`` and prints, for them, the built-ins and the five meshes, the share of the
+solid in thin parts (``auto.fit_default.thin_share``) and the preset ``fit`` takes without ``--preset`` on a CPU
+with fast bf16 and on one without.
 
 * ``rocks.stl``  — untextured (STL has no colour): a slab with a random field of boxes and
   squashed spheres on it, some merged (a closed mesh of several parts).
@@ -124,14 +130,43 @@ def dunes(seed: int = 2, nx: int = 121, nz: int = 61) -> trimesh.Trimesh:
     return mesh
 
 
+def sweep(out: Path) -> None:
+    """The family sweep: each shape's thin share and the default's choice on both kinds of CPU."""
+    from sin3dm_lite.auto.fit_default import FINER, MOSTLY_THIN, thin_share
+    from sin3dm_lite.examples import build_example, list_examples
+    from sin3dm_lite.formats.load import load_mesh
+    from sin3dm_lite.presets import get_preset
+
+    (out / "sweep").mkdir(exist_ok=True)
+    shapes = {name: (lambda n=name: build_example(n)) for name in list_examples()}
+    shapes |= {
+        f.name: (lambda f=f: load_mesh(f)) for f in sorted(out.iterdir()) if f.suffix in (".obj", ".stl", ".ply")
+    }
+    for plan in ("round", "square"):
+        for top in ("stepped", "flat"):
+            for wall in (2, 3, 4, 5, 6, 8):
+                mesh = build_ruin(3, wall_voxels=wall, square=plan == "square", flat=top == "flat")
+                path = out / "sweep" / f"ruin_{plan}_{top}_{wall}.obj"
+                save_obj(mesh, path)
+                shapes[f"ruin, {plan}, {top} top, walls {wall} voxels"] = lambda p=path: load_mesh(p)
+    print("| shape | thin share (parts under 7 voxels at 64) | fast bf16 | no fast bf16 |\n|---|---|---|---|")
+    for name, make in shapes.items():
+        share = thin_share(make(), get_preset("small"))
+        pick = {m: FINER[m] if share > MOSTLY_THIN else m for m in ("small", "quick")}
+        print(f"| {name} | {share:.2f} | `{pick['small']}` | `{pick['quick']}` |", flush=True)
+
+
 def main() -> None:
-    out = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/meshes")
+    args = [a for a in sys.argv[1:] if a != "--sweep"]
+    out = Path(args[0] if args else "runs/meshes")
     out.mkdir(parents=True, exist_ok=True)
     rocks().export(out / "rocks.stl")
     dunes().export(out / "dunes.ply")
     save_obj(build_ruin(0), out / "ruin.obj")
     save_obj(build_ruin(0, square=True), out / "keep.obj")
     print(f"wrote {out / 'rocks.stl'}, {tiles(out)}, {out / 'dunes.ply'}, {out / 'ruin.obj'} and {out / 'keep.obj'}")
+    if "--sweep" in sys.argv[1:]:
+        sweep(out)
 
 
 if __name__ == "__main__":

@@ -53,7 +53,7 @@ class DefaultPreset:
     name: str
     why: str
     seconds: dict | None = None  # {"autoencoder", "denoiser", "other", "total"}
-    thin_share: float | None = None  # the shape's share of thin parts (:func:`thin_share`), where measured
+    thin_share: float | None = None  # the shape's share of thin parts (:func:`thin_share`) (None: not looked at)
 
     def lines(self) -> list[str]:
         """What ``fit`` says first: the preset and why, then how long."""

@@ -42,7 +42,7 @@ DESCRIPTION = (
 
 
 def ruin_tower(
-    rng: np.random.Generator, resolution: int = 64, wall_voxels: float = 2.5, square: bool = False
+    rng: np.random.Generator, resolution: int = 64, wall_voxels: float = 2.5, square: bool = False, flat: bool = False
 ) -> TexturedMesh:
     """The ruin, z-up, for a training grid of ``resolution`` voxels along its longest side (its height).
 
@@ -50,12 +50,13 @@ def ruin_tower(
     with it the windows' places (on the high side), and the stones' colours; the door faces -x.
     ``square``: a square keep instead of a round tower (straight walls along x and y, the same broken
     top by angle, the windows on the +x and +y faces): a second thin-walled shape of another plan.
+    ``flat``: a whole tower, its top level all round (no broken steps).
     """
     if not 16 <= resolution <= 512:
         raise Sin3DMInputError(f"resolution must be from 16 to 512 voxels, got {resolution!r}")
     if not 1.0 <= wall_voxels <= 8.0:
         raise Sin3DMInputError(f"wall_voxels must be from 1 to 8, got {wall_voxels!r}")
-    plan = _plan(rng, resolution, wall_voxels, square)
+    plan = _plan(rng, resolution, wall_voxels, square, flat)
     vertices, faces = _surface(plan)
     colors = _colors(rng, vertices, plan)
     return TexturedMesh(
@@ -68,14 +69,16 @@ def ruin_tower(
     )
 
 
-def build_ruin(seed: int = 0, resolution: int = 64, wall_voxels: float = 2.5, square: bool = False) -> TexturedMesh:
+def build_ruin(
+    seed: int = 0, resolution: int = 64, wall_voxels: float = 2.5, square: bool = False, flat: bool = False
+) -> TexturedMesh:
     """:func:`ruin_tower` for ``seed``, turned y-up like the built-in examples (same seed, same mesh)."""
-    mesh = ruin_tower(np.random.default_rng(seed), resolution, wall_voxels, square)
+    mesh = ruin_tower(np.random.default_rng(seed), resolution, wall_voxels, square, flat)
     mesh.vertices = np.stack([mesh.vertices[:, 0], mesh.vertices[:, 2], -mesh.vertices[:, 1]], axis=1)
     return mesh
 
 
-def _plan(rng: np.random.Generator, resolution: int, wall: float, square: bool = False) -> dict:
+def _plan(rng: np.random.Generator, resolution: int, wall: float, square: bool = False, flat: bool = False) -> dict:
     """The tower's measures, in voxels of the training grid (the height is the longest side)."""
     # the presets keep a margin of empty voxels to the box: the shape's longest side spans resolution - 2·margin
     height = resolution - 2 * get_preset("quick").grid.margin_voxels
@@ -85,6 +88,7 @@ def _plan(rng: np.random.Generator, resolution: int, wall: float, square: bool =
     away = np.minimum(away, STEPS - away)  # sectors from the lowest, 0 … STEPS / 2 (the full height)
     levels = height - np.concatenate([[0.0], np.cumsum(height * rng.uniform(0.06, 0.09, STEPS // 2))])  # 3-5 voxels
     tops = levels[STEPS // 2 - away] - np.where(away == STEPS // 2, 0.0, rng.uniform(0.0, 1.0, STEPS))
+    tops = np.full(STEPS, height) if flat else tops
     slab = 3.0
     door = {"angle": np.pi, "width": 0.16 * height, "bottom": slab, "top": slab + 0.3 * height}
     # the windows on the high side, two sectors either side of the highest, where the wall stands above them
