@@ -2,7 +2,6 @@
 
 ``fit_default`` (the preset for this machine, said with the time it should take), ``fit_policy`` (the
 thin-part switch, the wider field's trial, the messages and hints), ``review`` (the fit's last look: the
-copies check, the rollout switch), ``calibration`` (the diversity knob chosen per shape), ``snap`` (the
-sampler's estimate pulled to the input's latent patches, a ``denoised_fn`` hook). The CLI uses them;
+copies check, the rollout switch), ``calibration`` (the diversity knob chosen per shape). The CLI uses them;
 from Python, ``Sin3DM.fit`` applies the preset's switches and the calibration (``sampling.calibrate``).
 """

@@ -117,7 +117,6 @@ def cmd_fit(a) -> None:
         allow_outside_paths=a.allow_outside_paths,
     )
     r = model.report["reconstruction"]
-    snapped = ", snapped to the input's latent patches (sampling.snap)" if model.config.sampling.snap else ""
     colour = "one colour, kept" if "single_color" in model.report else f"colour PSNR {r['color_psnr']:.1f} dB"
     ae_precision = model.report.get("precision", {}).get("autoencoder")  # a resumed old run may not say
     samples = Path(a.out).with_name(Path(a.out).name + "-samples")
@@ -126,7 +125,7 @@ def cmd_fit(a) -> None:
         f"occupancy IoU {r['occupancy_iou']:.3f}, "
         f"sign accuracy {r['sign_accuracy']:.3f}, {colour}; samples default to diversity "
         f"{model.config.sampling.diversity:g}{' (calibrated for this shape)' if 'calibration' in model.report else ''}"
-        f"{snapped}\n"
+        "\n"
         f"next: sin3dm-lite sample {quote(a.out)} -n 4 --out {quote(str(samples))}"
     )
 

@@ -101,14 +101,6 @@ class SamplingConfig:
     mesh_resolution: int = 256  # decode grid along the longest side
     faces: int = 30_000  # face budget after simplification
     texture_size: int = 2048
-    # pull the last denoising steps' clean-latent estimate towards the input's 7×7 latent patches (0: the paper's
-    # sampler; :func:`sin3dm_lite.auto.snap.patch_snapper`); the calibration samples with it too
-    snap: float = 0.0
-    # how much snapping prefers the input's window from the sample's own place: added to each candidate's distance,
-    # per texel² between the two windows' centres (0: any place alike; only for samples of the input's size, not
-    # controlled ones); a rare neighbourhood of the input (a window in a thin wall) then comes back where it was
-    # instead of the common one nearly as near (plain wall) from elsewhere (docs/thin-parts.md)
-    snap_place: float = 0.0
     # choose ``diversity`` for each shape at the end of a fit: the most varied setting whose samples still keep the
     # input's patches (LP-IoU / LP-F goals; :func:`sin3dm_lite.calibrate.calibrate_diversity`), saved in the run's config
     calibrate: bool = False
@@ -288,8 +280,6 @@ LIMITS: dict[str, Any] = {
     "sampling.method": ["ddim", "ddpm"],
     "sampling.steps": (1, 100_000),
     "sampling.diversity": (0.0, 1.0),
-    "sampling.snap": (0.0, 1.0),
-    "sampling.snap_place": (0.0, 100.0),
     "sampling.mesh_resolution": (16, 2048),
     "sampling.faces": (4, 100_000_000),
     "sampling.texture_size": (16, 16384),
@@ -441,7 +431,17 @@ def parse_settings(items) -> dict:
     return changes
 
 
-def _from_dict(cls, d: dict):
+#: settings that earlier versions had and this one does not (git history says what each did): an older run's
+#: config.json, or a switch in it (``thin_parts``, ...), may still hold them, and loading it drops them silently
+RETIRED = {
+    "sampling.snap",  # snapping the last steps' estimate to the input's latent patches: not in the paper
+    "sampling.snap_place",
+}
+
+
+def _from_dict(cls, d: dict, prefix: str = ""):
+    """``cls`` from its dictionary (``prefix``: the dotted name of its section). A key that is no field is left out,
+    a :data:`RETIRED` one among them; a switch (a ``dict`` setting of dotted names) loses its :data:`RETIRED` names."""
     kwargs = {}
     for f in fields(cls):
         if f.name not in d:
@@ -449,7 +449,9 @@ def _from_dict(cls, d: dict):
         value = d[f.name]
         sub = f.default_factory() if f.default_factory is not MISSING else None  # type: ignore[misc]
         if is_dataclass(sub):
-            value = _from_dict(type(sub), value)
+            value = _from_dict(type(sub), value, f"{prefix}{f.name}.")
+        elif LIMITS.get(prefix + f.name) is dict and isinstance(value, dict):
+            value = {k: v for k, v in value.items() if k not in RETIRED}
         kwargs[f.name] = value
     return cls(**kwargs)
 
