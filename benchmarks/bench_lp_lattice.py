@@ -11,7 +11,7 @@ stride-5 lattice in both shapes. This prints, at 128 voxels:
 * **the family**: the same procedural shape with other seeds (other broken
   tops for the ruin; other terraces for the canyon, ...): what real variants
   score, G-Div beside both LPs;
-* with ``--run RUN --mesh MESH``: a fitted run's snapped samples at a few
+* with ``--run RUN --mesh MESH``: a fitted run's samples at a few
   diversities, G-Div and both LPs against the input mesh at 128 voxels (each
   sample's mesh decoded at 128, as ``calibrate --resolution 128`` does).
 

@@ -78,11 +78,10 @@ def sample_grids(
     diversity: float | None = None,
     export: int = 0,
     export_dir: Path | None = None,
-    snap: float | None = None,
 ) -> dict:
     """Occupancy grids of n samples at each resolution, and the time per textured, exported mesh."""
     t = time.perf_counter()
-    samples = model.sample(n, seed=seed, diversity=diversity, progress=False, snap=snap)
+    samples = model.sample(n, seed=seed, diversity=diversity, progress=False)
     sample_s = (time.perf_counter() - t) / n
     mesh_s = []
     for i in range(min(export, n)):  # the whole user path: decode, texture, export
@@ -245,9 +244,6 @@ def main() -> None:
         "several seeds print their mean and range)",
     )
     ap.add_argument(
-        "--snap", type=float, default=None, help="Sin3DM.sample's snap (0: the paper's sampler; default: the run's own)"
-    )
-    ap.add_argument(
         "--set",
         nargs="+",
         default=[],
@@ -263,10 +259,8 @@ def main() -> None:
     )
     a = ap.parse_args()
     SUPERSAMPLE["supersample"] = {"centres": 1, "paper": metrics.PAPER_SUPERSAMPLE}[a.voxels]
-    snap = "the run's" if a.snap is None else f"{a.snap:g}"
     print(
-        f"torch {torch.__version__}, {torch.get_num_threads()} threads, preset {a.preset}, n={a.n}, snap {snap}, "
-        f"voxels: {a.voxels}"
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, preset {a.preset}, n={a.n}, voxels: {a.voxels}"
     )
     rows = []
     for source in a.inputs:
@@ -304,7 +298,6 @@ def main() -> None:
                     diversity=d,
                     export=a.export if first else 0,
                     export_dir=run / "samples",
-                    snap=a.snap,
                 )
                 sc = scores(refs, s["occ"])
                 if s["mesh_s"] is not None:

@@ -21,7 +21,7 @@ table of levels and checks it, imports inside functions included)::
     6 app       pipeline (Sin3DM: fit, sample, save, load, each a call into:) · app: fitting · sampling ·
                 run_folder · checkpoints · model_file · runs · pretrained · request · mass · mass_folder ·
                 mass_workers · values · notebook_run · auto (what a fit decides, beyond the paper): fit_default ·
-                fit_policy · review · calibration · snap · cli: parser_cli · values_cli · fit_cli · sample_cli ·
+                fit_policy · review · calibration · cli: parser_cli · values_cli · fit_cli · sample_cli ·
                 evaluate_cli
 
 Everything a notebook or script needs is importable from here::
@@ -101,7 +101,6 @@ _API = {
     "DiffusionTrainer": "model.diffusion",
     "sample": "model.diffusion",
     "predict_clean": "model.diffusion",
-    "snap_to_patches": "auto.snap",
     "diffusion_loss": "model.diffusion",
     "triplane_mse": "model.diffusion",
     # generate

@@ -139,7 +139,6 @@ class Sin3DM:
         regenerate=None,
         duplicate=None,
         plan=None,
-        snap: float | None = None,
     ) -> Samples:
         """Draw ``n`` new triplanes from noise, optionally controlled (the paper's Sec. 4.4, :mod:`.control`).
 
@@ -149,14 +148,11 @@ class Sin3DM:
         ``plan`` a :class:`control.Plan` made by hand; ``known``/``mask`` fix part of the latent directly.
         ``diversity`` (default: the config's; 1 for outpainting, editing and duplication) trades variation for
         fidelity, the limitation the paper names: 1 samples from pure noise, below 1 from the input's latent
-        with that share of noise, 0 gives it back. ``snap`` (default the config's ``sampling.snap``, 0: the
-        paper's sampler) pulls the last steps' estimates to the input's patches (:mod:`sin3dm_lite.auto.snap`).
+        with that share of noise, 0 gives it back.
         Sample ``i`` comes from the seed ``seed + i`` alone (or ``seed[i]``), whatever the batch or the device.
         """
         plan = self.plan(resize, outpaint, anchor, regenerate, duplicate, plan)
-        return sampling.draw(
-            self, n, plan, steps, method, seed, return_intermediates, known, mask, progress, diversity, snap
-        )
+        return sampling.draw(self, n, plan, steps, method, seed, return_intermediates, known, mask, progress, diversity)
 
     def plan(
         self, resize=(1.0, 1.0, 1.0), outpaint=None, anchor: str = "center", regenerate=None, duplicate=None, plan=None

@@ -37,7 +37,6 @@ SHARED = {
     "steps-zero": (["--steps", "0"], ("sample", {"steps": 0}), "a whole number from 1 to 100,000, got 0"),
     "steps-beyond-schedule": (["--steps", "5000"], ("sample", {"steps": 5000}), "more than this model's 1000"),
     "diversity": (["--diversity", "1.5"], ("sample", {"diversity": 1.5}), "a number from 0 to 1, got 1.5"),
-    "snap": (["--snap", "-0.5"], ("sample", {"snap": -0.5}), "a number from 0 to 1, got -0.5"),
     "resize": (["--resize", "2", "1", "9"], ("sample", {"resize": (2, 1, 9)}), "resize factors must be in (0, 8]"),
     "outpaint": (
         ["--outpaint", "0.5", "1", "1"],

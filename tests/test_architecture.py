@@ -83,7 +83,6 @@ LAYERS = {
     "model.unet": MODEL,
     "model.schedule": MODEL,
     "model.diffusion": MODEL,
-    "auto.snap": MODEL,
     # generate: what to sample (control), texture baking and the SDF → textured mesh step
     "generate": GENERATE,
     "generate.control": GENERATE,

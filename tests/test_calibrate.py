@@ -652,25 +652,6 @@ def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
     assert report["calibration"]["kept_goals"] is False
 
 
-def test_cli_calibrate_snap_calibrates_for_snapped_samples_and_keeps_the_setting(calibrated, capsys, tmp_path):
-    """`calibrate RUN --snap 1`: the calibration's samples are snapped, and the run keeps sampling.snap (no refit)."""
-    import shutil
-
-    import sin3dm_lite.auto.snap as snap
-
-    _, run = calibrated
-    copy = tmp_path / "snapped"
-    shutil.copytree(run, copy)
-    seen, real = [], snap.snap_hook  # the sampler's denoised_fn, made per call with the share asked for
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(snap, "snap_hook", lambda amount, *a, **k: seen.append(amount) or real(amount, *a, **k))
-        assert main(["calibrate", str(copy), "-n", "2", "--snap", "1"]) == 0
-    assert seen and set(seen) == {1.0}
-    assert "for snapped samples" in capsys.readouterr().out
-    assert Sin3DM.load(copy).config.sampling.snap == 1.0
-    assert json.loads((copy / "config.json").read_text())["sampling"]["snap"] == 1.0
-
-
 def test_cli_calibrate_without_the_grid_uses_the_input_mesh(calibrated, capsys, tmp_path):
     """A run folder without grid.npz is calibrated against the mesh --input names, voxelised on the model's box."""
     import shutil

@@ -1,7 +1,5 @@
 """The sin3dm-lite command: outputs and one-line errors with exit code 2."""
 
-import json
-
 import numpy as np
 import pytest
 import trimesh
@@ -133,59 +131,14 @@ def test_sample_diversity_zero_gives_the_input_back(capsys, tmp_path):
     np.testing.assert_allclose(unique(got.vertices), unique(ref.vertices), atol=2e-4)
 
 
-@pytest.mark.parametrize("flag", ["--diversity", "--snap"])
 @pytest.mark.parametrize("value", ["-0.1", "1.5", "much"])
-def test_bad_diversity_is_rejected_by_the_parser(capsys, value, flag):
+def test_bad_diversity_is_rejected_by_the_parser(capsys, value):
+    flag = "--diversity"
     with pytest.raises(SystemExit) as e:
         main(["sample", "run", "--out", "s", flag, value])
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert flag in err and len(err.strip().splitlines()) == 1
-
-
-def test_sample_snap_is_a_setting_of_the_folder(capsys, tmp_path):
-    """`--snap 1` samples with the snapped sampler and the folder records it, so a run without it does not mix in."""
-    out = tmp_path / "snapped"
-    args = ["sample", "wall", "--out", str(out), "-n", "1", "--workers", "0", *CHEAP_SAMPLE]
-    assert run(capsys, *args, "--snap", "1")[0] == 0
-    assert json.loads((out / "sampling.json").read_text())["settings"]["snap"] == 1.0
-    assert (out / "000" / "mesh.obj").is_file()
-    # the latent written is the snapped sampler's, not the plain one's
-    import torch
-
-    from sin3dm_lite.app.pretrained import pretrained_path
-    from sin3dm_lite.pipeline import Sin3DM
-
-    got = torch.load(out / "000" / "latent.pt", weights_only=True)["triplane"]
-    model = Sin3DM.load(pretrained_path("wall_small"))
-    snapped, plain = (model.sample(1, seed=0, steps=3, snap=s, progress=False).triplane for s in (1.0, 0.0))
-    torch.testing.assert_close(got["xy"], snapped.xy[0:1], atol=1e-5, rtol=0)
-    assert not torch.allclose(got["xy"], plain.xy[0:1], atol=1e-3)
-    code, _, err = run(capsys, *args)  # the plain sampler into the same folder: other settings
-    assert code != 0 and "settings" in err
-
-
-def test_sample_takes_snap_from_a_run_fitted_with_it(capsys, tmp_path):
-    """A run whose config has ``sampling.snap`` samples snapped without --snap (recorded as such); --snap 0 wins."""
-    from sin3dm_lite.app.pretrained import pretrained_path
-    from sin3dm_lite.pipeline import Sin3DM
-
-    model = Sin3DM.load(pretrained_path("wall_small"))
-    model.config = model.config.updated(**{"sampling.snap": 1.0})
-    model.save(tmp_path / "run")
-    import torch
-
-    for flags, snap in (([], 1.0), (["--snap", "0"], 0.0)):
-        out = tmp_path / f"out{len(flags)}"
-        args = ["sample", str(tmp_path / "run"), "--out", str(out), "-n", "1", "--workers", "0", *CHEAP_SAMPLE]
-        assert run(capsys, *args, *flags)[0] == 0
-        assert json.loads((out / "sampling.json").read_text())["settings"].get("snap") == (snap or None)
-        # the latent written is that sampler's (not only the recorded setting)
-        got = torch.load(out / "000" / "latent.pt", weights_only=True)["triplane"]
-        want = model.sample(1, seed=0, steps=3, snap=snap, progress=False).triplane
-        other = model.sample(1, seed=0, steps=3, snap=1.0 - snap, progress=False).triplane
-        torch.testing.assert_close(got["xy"], want.xy[0:1], atol=1e-5, rtol=0)
-        assert not torch.allclose(got["xy"], other.xy[0:1], atol=1e-3)
 
 
 # ----------------------------------------------------------------------------- help, version, formats
@@ -353,7 +306,7 @@ def test_fit_passes_the_thin_part_switch_choice(tmp_path, monkeypatch, flag, swi
 
 @pytest.mark.parametrize("flag", [[], ["--thin-switch"], ["--no-thin-switch"]])
 def test_quick_gets_the_finer_thin_part_settings_only_when_asked(tmp_path, monkeypatch, flag):
-    """quick's own switch snaps the samples (its finer settings take 5x its fit without bf16) and tries a wider
+    """quick's own switch keeps its grid (its finer settings take 5x its fit without bf16) and tries a wider
     denoiser field on thin walls; --thin-switch adds small's thin-part settings instead of that field, leaving a
     setting the user names to the user; --no-thin-switch turns both off, --set thin_walls={} the field alone."""
     from sin3dm_lite.presets import DETAIL_CHANGES, QUICK_THIN_CHANGES, QUICK_WALLS_CHANGES, get_preset
@@ -365,7 +318,7 @@ def test_quick_gets_the_finer_thin_part_settings_only_when_asked(tmp_path, monke
     walls = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--preset", "quick", "--set", "thin_walls={}")
     assert walls.thin_walls == {} and walls.thin_parts == QUICK_THIN_CHANGES
     assert cfg.for_thin_parts().grid.resolution == (96 if flag == ["--thin-switch"] else 64)
-    assert cfg.for_thin_parts().diffusion.batch_size == (6 if flag == [] else 8)  # snapped: batches of 6
+    assert cfg.for_thin_parts().diffusion.batch_size == (6 if flag == [] else 8)  # the switch's batches of 6
     cfg = _preset_fit_gets(
         tmp_path, monkeypatch, "wall", "--preset", "quick", "--thin-switch", "--set", "diffusion.steps=900"
     )

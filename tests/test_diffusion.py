@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 import torch
 
-from sin3dm_lite.auto.snap import SNAP_LAST, SNAP_PATCH, SNAP_STRIDE, snap_hook, snap_to_patches
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model.diffusion import (
     DiffusionTrainer,
@@ -194,117 +193,22 @@ def test_sampling_shapes_range_and_determinism(trained, method):
     assert not torch.equal(a.xy[0], a.xy[1])
 
 
-def _nearest_window_distance(x: Triplane, ref: Triplane) -> float:
-    """Mean distance of x's 3×3 windows to their nearest window of ref (the same plane)."""
-    total = 0.0
-    for p, r in zip(x.planes, ref.planes):
-        ours = torch.nn.functional.unfold(p, 3).transpose(1, 2)  # [B, hw, c·9]
-        theirs = torch.nn.functional.unfold(r, 3)[0].T  # [hw', c·9]
-        total += torch.cdist(ours, theirs[None].expand(len(ours), -1, -1)).min(-1).values.mean().item()
-    return total
-
-
-def test_snap_rebuilds_each_plane_from_the_inputs_patches(h0, monkeypatch):
-    noise = Triplane.randn_like(h0.repeat(2), generator=torch.Generator().manual_seed(0))
-    whole = snap_to_patches(noise, h0)
-    monkeypatch.setattr("sin3dm_lite.auto.snap.SNAP_DISTANCES", 10)  # the search in slices of a few rows
-    assert all(torch.equal(p, q) for p, q in zip(snap_to_patches(noise, h0).planes, whole.planes))
-    one = snap_to_patches(noise, h0, patch=1)  # 1×1 windows: every texel becomes one of the input's texels
-    for p, r in zip(one.planes, h0.planes):
-        texels = r[0].flatten(1).T  # [hw, c]
-        got = p.permute(0, 2, 3, 1).reshape(-1, p.shape[1])
-        assert (got[:, None] - texels[None]).abs().sum(-1).min(-1).values.max() < 1e-6
-    # a latent made of the input's patches stays as it is; another one moves towards them
-    same = snap_to_patches(h0, h0)
-    assert all(torch.allclose(p, q, atol=1e-6) for p, q in zip(same.planes, h0.planes))
-    assert _nearest_window_distance(snap_to_patches(noise, h0), h0) < 0.75 * _nearest_window_distance(noise, h0)
-    with pytest.raises(Sin3DMInputError, match="odd"):
-        snap_to_patches(noise, h0, patch=2)
-    with pytest.raises(Sin3DMInputError, match="one reference latent"):
-        snap_to_patches(noise, h0.repeat(2))
-
-
-def test_snap_with_windows_a_stride_apart_covers_every_texel(h0):
-    """The search starts a window every SNAP_STRIDE texels (a quarter of the searches at 2); every texel of a
-    plane of any size is still rebuilt from the input's windows, and the input itself stays as it is."""
-    assert SNAP_STRIDE == 2
-    g, c = torch.Generator().manual_seed(3), h0.channels
-    odd = Triplane(*(torch.randn(2, c, a, b, generator=g) for a, b in ((7, 5), (7, 9), (5, 9))))  # x 7, y 5, z 9
-    for patch in (1, 3, 5, 7):
-        for stride in (1, 2, 4):
-            out = snap_to_patches(odd, h0, patch=patch, stride=stride)
-            assert all(p.shape == q.shape and torch.isfinite(p).all() for p, q in zip(out.planes, odd.planes))
-            same = snap_to_patches(h0, h0, patch=patch, stride=stride)
-            assert all(torch.allclose(p, q, atol=1e-6) for p, q in zip(same.planes, h0.planes))
-    # stride 1 searches for every window, the default for every second one along each axis
-    strided, every = snap_to_patches(odd, h0), snap_to_patches(odd, h0, stride=1)
-    assert not all(torch.equal(p, q) for p, q in zip(strided.planes, every.planes))
-    assert _nearest_window_distance(strided, h0) < 0.75 * _nearest_window_distance(odd, h0)
-    with pytest.raises(Sin3DMInputError, match="stride"):
-        snap_to_patches(odd, h0, stride=0)
-
-
-def test_snap_place_brings_a_rare_window_back_where_it_was():
-    """``place``: a rare neighbourhood (one bump in a flat plane) that the estimate lost comes back at its own
-    place, where without ``place`` every window of the estimate has an exact match elsewhere (flat) and the bump
-    stays lost; the window from the same place must beat flat ones at least 4 texels away (7×7 windows). A plane
-    of another size than the input's has no same place: ``place`` changes nothing there."""
-    ref = Triplane(*(torch.zeros(1, 2, 16, 16) for _ in range(3)))
-    for p in ref.planes:
-        p[0, :, 8, 8] = 0.5  # bump² = 0.25 per channel, against 16 × place for the nearest flat window
-    lost = Triplane(*(torch.zeros(3, 2, 16, 16) for _ in range(3)))
-    assert float(snap_to_patches(lost, ref).xy.abs().max()) == 0  # any place alike: flat everywhere
-    back = snap_to_patches(lost, ref, place=1.0)
-    for p in back.planes:
-        torch.testing.assert_close(p, ref.planes[0].expand(3, -1, -1, -1))  # the bump again, nothing else
-    wide = Triplane(*(torch.zeros(1, 2, a, b) for a, b in ((20, 16), (20, 16), (16, 16))))
-    snapped = snap_to_patches(wide, ref, place=1.0)
-    assert float(snapped.xy.abs().max()) == 0 and float(snapped.yz[0, :, 8, 8].min()) == 0.5  # only yz is ref's size
-    with pytest.raises(Sin3DMInputError, match="snap_place"):
-        snap_to_patches(lost, ref, place=-1.0)
-
-
-def test_snap_searches_without_the_channels_that_are_zero_all_over_the_input(h0, monkeypatch):
-    """A shape of one colour has a latent whose texture channels are zero everywhere; they add the same distance to
-    every candidate window, so the search leaves them out and finds the same windows (checked against the full
-    search, forced by a value too small to change a distance), and the snapped samples take their zeros."""
-    grey = h0.map(lambda p: torch.cat([p[:, :2], torch.zeros_like(p[:, 2:])], 1))
-    full = grey.map(lambda p: torch.cat([p[:, :2], torch.full_like(p[:, 2:], 1e-30)], 1))  # not zero: every channel
-    noise = Triplane.randn_like(h0.repeat(3), generator=torch.Generator().manual_seed(1))
-    got, want = snap_to_patches(noise, grey), snap_to_patches(noise, full)
-    for p, q in zip(got.planes, want.planes):
-        torch.testing.assert_close(p[:, :2], q[:, :2], atol=1e-6, rtol=0)
-        assert torch.equal(p[:, 2:], torch.zeros_like(p[:, 2:]))
-    searched = []  # the windows the search compares: 2 channels of K × K texels, not 4
-    real = torch.addmm
-    monkeypatch.setattr(torch, "addmm", lambda a, b, c, **k: searched.append(c.shape[0]) or real(a, b, c, **k))
-    snap_to_patches(noise, grey)
-    assert set(searched) == {2 * SNAP_PATCH**2}
-
-
-def test_sampling_with_snap(trained, h0):
-    """Snapping reaches the sampler as its ``denoised_fn`` hook (:func:`snap_hook`)."""
+def test_denoised_fn_changes_each_steps_estimate_before_the_step_uses_it(trained):
+    """``denoised_fn(x0, t)``, improved-diffusion's hook: called once a step with that step's clipped estimate and
+    time step; what it returns is what the step uses and records. The identity gives the paper's sampler, bit for bit."""
     model, sched = trained.model_for_sampling, trained.schedule
-    args = dict(n=2, steps=8, seed=5, progress=False)
-    hook = lambda snap, place=0.0: snap_hook(snap, h0, sched.timesteps, place)  # noqa: E731
-    plain = sample(model, sched, LATENT_RES, **args)
-    assert hook(0.0) is None  # 0 is the paper's sampler
-    snapped = sample(model, sched, LATENT_RES, denoised_fn=hook(1.0), **args)
-    assert _nearest_window_distance(snapped, h0) < _nearest_window_distance(plain, h0)
-    # snap_place reaches the snapper: windows from the sample's own place, so texel for texel nearer the input
-    placed = sample(model, sched, LATENT_RES, denoised_fn=hook(1.0, 5.0), **args)
-    gap = [sum(float((p - q).abs().mean()) for p, q in zip(x.planes, h0.planes)) for x in (snapped, placed)]
-    assert gap[1] < 0.5 * gap[0], gap
-    # only the last tenth of the schedule snaps: the steps before it are the paper's sampler's, bit for bit
-    _, theirs = sample(model, sched, LATENT_RES, return_intermediates=8, **args)
-    _, ours = sample(model, sched, LATENT_RES, denoised_fn=hook(1.0), return_intermediates=8, **args)
-    late = [a["t"] <= SNAP_LAST * sched.timesteps for a in ours]
-    assert late == [False] * 7 + [True]  # 8 DDIM steps of T = 200: t = 199, 171, ..., 28, 0
-    for a, b, snaps in zip(theirs, ours, late):
-        assert all(torch.equal(p, q) for p, q in zip(a["x0"].planes, b["x0"].planes)) != snaps, a["t"]
-    for bad in ((1.5, h0), (0.5, None)):
-        with pytest.raises(Sin3DMInputError, match="snap is a share"):
-            snap_hook(*bad, sched.timesteps)
+    args = dict(n=2, steps=8, seed=5, progress=False, return_intermediates=8)
+    plain, theirs = sample(model, sched, LATENT_RES, **args)
+    seen = []
+    same, _ = sample(model, sched, LATENT_RES, denoised_fn=lambda x0, t: seen.append((x0, t)) or x0, **args)
+    assert [t for _, t in seen] == sampling_timesteps(sched, "ddim", 8)
+    assert all(torch.equal(x0.xy.cpu(), d["x0"].xy) for (x0, _), d in zip(seen, theirs))
+    assert all(torch.equal(p, q) for p, q in zip(same.planes, plain.planes))
+    halved, ours = sample(model, sched, LATENT_RES, denoised_fn=lambda x0, t: x0 * 0.5, **args)
+    assert not torch.equal(halved.xy, plain.xy)
+    torch.testing.assert_close(halved.xy, ours[-1]["x0"].xy)  # DDIM's last step lands on the changed estimate
+    assert float(ours[-1]["x0"].xy.abs().max()) <= 0.5  # the clipped estimate, halved
+    assert all(torch.equal(p, q) for p, q in zip(ours[0]["x_t"].planes, theirs[0]["x_t"].planes))  # the same start
 
 
 def test_intermediates(trained):

@@ -281,51 +281,6 @@ def test_diversity_knob_runs_from_the_input_to_pure_noise(fitted):
         torch.testing.assert_close(p, q)
 
 
-def test_snap_pulls_samples_towards_the_inputs_patches_of_any_size(fitted):
-    """``sample(snap=...)``: 0 is the plain sampler; 1 rebuilds each step's clean latent from the input's patches,
-    also for a retargeted sample; a share outside [0, 1] is a clear error."""
-    model, _ = fitted
-    plain, off = (model.sample(2, seed=4, progress=False, **k) for k in ({}, {"snap": 0.0}))
-    assert all(torch.equal(p, q) for p, q in zip(plain.triplane.planes, off.triplane.planes))
-    snapped = model.sample(2, seed=4, progress=False, snap=1.0)
-    assert not torch.equal(plain.triplane.xy, snapped.triplane.xy)
-    wide = model.sample(1, seed=4, progress=False, snap=1.0, resize=(1.5, 1.0, 1.0))
-    assert wide.triplane.resolution[0] == round(1.5 * model.latent.resolution[0])
-    with pytest.raises(Sin3DMInputError, match="snap must be a number from 0 to 1, got 2.0"):
-        model.sample(1, snap=2.0, progress=False)
-
-
-def test_sampling_snap_in_the_config_is_what_sample_and_the_calibration_use(fitted, monkeypatch):
-    """A run fitted with ``sampling.snap`` samples snapped by default, the calibration's samples too (so its
-    diversity is chosen for the snapped sampler); an explicit ``snap`` wins; the setting is a share."""
-    import sin3dm_lite.auto.snap as snap
-    from sin3dm_lite.evaluate.calibrate import sample_occupancy
-
-    model, _ = fitted
-    plain, explicit = (model.sample(2, seed=4, progress=False, snap=s) for s in (0.0, 1.0))
-    monkeypatch.setattr(model, "config", model.config.updated(**{"sampling.snap": 1.0}))
-    by_config, off = (model.sample(2, seed=4, progress=False, **k) for k in ({}, {"snap": 0.0}))
-    assert all(torch.equal(p, q) for p, q in zip(explicit.triplane.planes, by_config.triplane.planes))
-    assert all(torch.equal(p, q) for p, q in zip(plain.triplane.planes, off.triplane.planes))
-    seen, real = [], snap.snap_hook  # the sampler's denoised_fn hook, made per call
-
-    def spy(amount, reference, timesteps, place=0.0):
-        seen.append((amount, place))
-        return real(amount, reference, timesteps, place)
-
-    monkeypatch.setattr(snap, "snap_hook", spy)
-    sample_occupancy(model, 0.5, 2, 0, 16)  # what the calibration draws at each setting
-    assert seen == [(1.0, 0.0)]
-    # sampling.snap_place (quick's thin-walls switch): the samples and the calibration's, not controlled ones
-    monkeypatch.setattr(model, "config", model.config.updated(**{"sampling.snap_place": 0.3}))
-    sample_occupancy(model, 0.5, 2, 0, 16)
-    model.sample(1, seed=4, progress=False)
-    model.sample(1, seed=4, progress=False, outpaint=(1.5, 1.0, 1.0))
-    assert seen[1:] == [(1.0, 0.3), (1.0, 0.3), (1.0, 0.0)]
-    with pytest.raises(Sin3DMInputError, match="sampling.snap"):
-        model.config.updated(**{"sampling.snap": 1.5})
-
-
 def test_diversity_with_resize_starts_from_the_stretched_input(fitted):
     model, _ = fitted
     s = model.sample(1, resize=(1.5, 1.0, 1.0), diversity=0.0, progress=False)
@@ -441,31 +396,6 @@ def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, caps
     assert thin_parts_switch(cfg, grid, thin=0.5).grid.resolution == 40
 
 
-@pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
-def test_a_switch_that_keeps_the_grid_snaps_the_samples_without_a_second_grid(tmp_path, capsys, monkeypatch):
-    """quick's kind of switch (sampling.snap only): the same grid, built once; the run samples snapped."""
-    from sin3dm_lite.app import fitting
-
-    built = []
-    real = fitting.grid_for
-    monkeypatch.setattr(fitting, "grid_for", lambda *a, **k: built.append(1) or real(*a, **k))
-    cfg = micro_config().updated(
-        **{
-            "name": "quick",
-            "grid.resolution": 32,
-            "autoencoder.steps": 2,
-            "diffusion.steps": 2,
-            "thin_parts": {"sampling.snap": 1.0},
-        }
-    )
-    model = Sin3DM.fit("tiles", preset=cfg, out=tmp_path / "tiles", progress=True)
-    out = capsys.readouterr().out
-    assert "snapped to the input's latent patches instead" in out and "--thin-switch" in out
-    assert built == [1] and model.config.grid == cfg.grid and model.config.name == "quick+thin"
-    assert Sin3DM.load(tmp_path / "tiles").config.sampling.snap == 1.0
-    assert model.report["thin_parts_switch"]["from"] == "quick"
-
-
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps
 @pytest.mark.parametrize("copies", [True, False])
 def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(tmp_path, capsys, monkeypatch, copies):
@@ -485,7 +415,7 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
             "name": "quick",
             "autoencoder.steps": 2,
             "diffusion.steps": 6,
-            "thin_parts": {"sampling.snap": 1.0, "diffusion.batch_size": 3},
+            "thin_parts": {"sampling.diversity": 1.0, "diffusion.batch_size": 3},
             "thin_walls": {
                 "diffusion.n_resblocks": 3,
                 "diffusion.base_channels": 8,
@@ -516,7 +446,7 @@ def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(t
         assert "it keeps its field" in out
         assert saved.name == "quick+walls" and (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (3, 8)
         assert saved.diffusion.batch_size == 2
-    assert model.config == saved and saved.sampling.snap == 1.0
+    assert model.config == saved
     losses = json.loads((run / "losses.json").read_text())["diffusion"]["loss"]
     assert len(losses) == 6  # the kept denoiser's, all its steps
     loaded = Sin3DM.load(run)
@@ -537,7 +467,7 @@ def test_a_denoiser_the_user_chose_keeps_the_thin_walls_free_planes_without_a_tr
     monkeypatch.setattr(fitting, "are_copies", lambda d: pytest.fail("no wider field to try"))
     walls = {"diffusion.n_resblocks": 3, "diffusion.base_channels": 8, "autoencoder.residual_planes": True}
     cfg = micro_config().updated(
-        **{"name": "quick", "autoencoder.steps": 2, "diffusion.steps": 4, "thin_parts": {"sampling.snap": 1.0}},
+        **{"name": "quick", "autoencoder.steps": 2, "diffusion.steps": 4, "thin_parts": {"sampling.diversity": 1.0}},
         thin_walls=walls,
     )
     cfg = cfg.updated(**{"diffusion.n_resblocks": 1})  # the user's denoiser
@@ -547,7 +477,7 @@ def test_a_denoiser_the_user_chose_keeps_the_thin_walls_free_planes_without_a_tr
     assert "free planes" in out and "a field of" not in out
     assert "wide_field" not in model.report["thin_parts_switch"]
     saved = Sin3DM.load(tmp_path / "tiles").config
-    assert saved.name == "quick+walls" and saved.autoencoder.residual_planes and saved.sampling.snap == 1.0
+    assert saved.name == "quick+walls" and saved.autoencoder.residual_planes
     assert (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (1, cfg.diffusion.base_channels)
     assert model.report["diffusion_steps"] == 4
 
@@ -558,22 +488,18 @@ def test_small_switches_to_exactly_the_detail_settings():
     switched = small.for_thin_parts()
     assert switched.updated(name="detail") == detail and switched.name == "small+thin"
     assert detail.thin_parts == {} and detail.for_thin_parts() == detail
-    # the light preset for CPUs without bf16 switches to snapped samples (and their denoiser batch of 6): the same
-    # grid and networks
+    # the light preset for CPUs without bf16 switches to a denoiser batch of 6: the same grid and networks
     quick = get_preset("quick")
-    snapped = quick.updated(
-        **{"sampling.snap": 1.0, "diffusion.batch_size": 6}, name="quick+thin", thin_parts={}, thin_walls={}
-    )
-    assert quick.for_thin_parts() == snapped
+    thin = quick.updated(**{"diffusion.batch_size": 6}, name="quick+thin", thin_parts={}, thin_walls={})
+    assert quick.for_thin_parts() == thin
     # ... and on a shape of thin walls only, a wider denoiser field too (on trial: fitting.FitStages.denoise)
-    walls = snapped.updated(
+    walls = thin.updated(
         **{
             "diffusion.n_resblocks": 4,
             "diffusion.base_channels": 16,
             "diffusion.steps": 1500,
             "diffusion.batch_size": 4,
             "autoencoder.residual_planes": True,
-            "sampling.snap_place": 0.3,
         },
         name="quick+walls",
     )
@@ -586,7 +512,6 @@ def test_small_switches_to_exactly_the_detail_settings():
     assert mine.autoencoder == replace(small.autoencoder, residual_planes=True) and mine.sampling.diversity == 0.7
     assert mine.diffusion.rollout is False and small.for_thin_parts() == switched
     assert small.updated(**{"diffusion.steps": 3000}).for_thin_parts(walls=True).grid.resolution == 96
-    assert small.updated(**{"sampling.snap_place": 1.0}).for_thin_parts(walls=True).sampling.snap_place == 1.0
     # the rollout switch: small has it, what already has the rollout (detail, paper) or a light CPU (quick) does not
     assert small.rollout_switch and not detail.rollout_switch and not get_preset("quick").rollout_switch
     rolled = small.for_rollout()
@@ -672,6 +597,35 @@ def test_every_setting_is_checked_against_its_range_where_a_config_is_made(tmp_p
     with pytest.raises(Sin3DMInputError, match="'autoencoder.steps' must be"):
         Sin3DM.fit("wall", preset=cfg, out=tmp_path / "run", progress=False)
     assert not (tmp_path / "run").exists()
+
+
+def test_an_older_config_with_retired_settings_loads_without_them(tmp_path):
+    """Settings of earlier versions (config.RETIRED: snapping's ``sampling.snap`` and ``sampling.snap_place``) in an
+    older run's config.json and model.pt, in its sampling section or in a switch, are dropped as it loads; asked for
+    by name they are unknown settings."""
+    import shutil
+
+    from sin3dm_lite.app.pretrained import pretrained_path
+    from sin3dm_lite.data.config import RETIRED
+
+    assert {"sampling.snap", "sampling.snap_place"} <= RETIRED
+    run = tmp_path / "old"
+    shutil.copytree(pretrained_path("wall_small"), run)
+    d = json.loads((run / "config.json").read_text())
+    want = Config.from_dict(d)
+    d["sampling"] |= {"snap": 1.0, "snap_place": 0.3}
+    d["thin_parts"] = {"sampling.snap": 1.0, "diffusion.batch_size": 6}
+    d["thin_walls"] = {"sampling.snap_place": 0.3}
+    old = Config.from_dict(d)
+    assert old == replace(want, thin_parts={"diffusion.batch_size": 6}) and "snap" not in old.to_json()
+    (run / "config.json").write_text(json.dumps(d))
+    bundle = torch.load(run / "model.pt", weights_only=True)
+    bundle["config"] = json.dumps(d)
+    torch.save(bundle, run / "model.pt")
+    model = Sin3DM.load(run)
+    assert model.config == old and model.sample(1, steps=2, progress=False).triplane.batch == 1
+    with pytest.raises(Sin3DMInputError, match="unknown config setting 'sampling.snap'"):
+        want.updated(**{"sampling.snap": 1.0})
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps

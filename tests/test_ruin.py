@@ -109,7 +109,7 @@ def test_bad_sizes_are_named(kw, match):
 
 def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     """The ruin is mostly thin walls at 64 voxels: small switches to its finer thin-part settings; quick (whose
-    finer settings take 5x its fit without bf16) switches to snapped samples on the same fit and names
+    finer settings take 5x its fit without bf16) switches on the same fit and names
     --thin-switch; quick without its switch gives the hint, which names both."""
     from sin3dm_lite.auto.fit_policy import thin_parts_hint, thin_parts_message, thin_parts_switch, wide_field_undo
 
@@ -124,13 +124,13 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     thin = grid.thin_share()
     assert thin > 0.5
     switched = thin_parts_switch(quick, grid, thin)
-    # almost all thin walls: snapped samples and, on trial, the wider denoiser field (4 ResBlocks of 16 channels)
-    assert switched.grid == quick.grid and switched.sampling.snap == 1.0 and switched.name == "quick+walls"
+    # almost all thin walls: on trial, the wider denoiser field (4 ResBlocks of 16 channels)
+    assert switched.grid == quick.grid and switched.name == "quick+walls"
     d = switched.diffusion
     assert (d.n_resblocks, d.base_channels, d.steps, d.batch_size) == (4, 16, 1500, 4)
     assert switched.thin_walls == {} and switched.thin_parts == {}
     said = thin_parts_message(quick, switched, grid, thin)
-    assert f"{thin:.0%}" in said and "snapped" in said and "--thin-switch" in said and "96 voxels" in said
+    assert f"{thin:.0%}" in said and "--thin-switch" in said and "96 voxels" in said
     assert "4 ResBlocks of 16 channels for 1,500 steps on batches of 4 instead of 2 of 32" in said
     assert "a field of 17 latent texels instead of 9" in said and "after 150 steps" in said
     assert "--set thin_walls={}" in said and "updated(thin_walls={})" in said
@@ -139,36 +139,33 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     # ... with free geometry planes beside the encoder's (a window in a thin wall shows in them), said so
     assert switched.autoencoder == quick.autoencoder.__class__(**{**vars(quick.autoencoder), "residual_planes": True})
     assert "plane convolutions" not in said and "free planes" in said
-    # ... and snapping that prefers the input's patch from the same place (a window comes back where it was)
-    assert switched.sampling.snap_place == 0.3 and quick.sampling.snap_place == 0 and "same place" in said
     assert "updated(thin_walls={}) (which drops the line above too; setting a denoiser setting" in said
-    # one line per change under the first: snapped samples, the wider field, the free planes, then three choices
+    # one line per change under the first: the batches, the wider field, the free planes, then three choices
     head, *items = said.split("\n")
     assert head.endswith("(the run's config is named 'quick+walls'):") and len(items) == 6
     assert all(i.startswith("    - ") for i in items) and said.count("batches of 4") == 1
     own = quick.updated(**{"autoencoder.decoder_kernel": 3})
     mine = thin_parts_switch(own, grid, thin)
     assert mine.name == "quick+walls" and mine.autoencoder.decoder_kernel == 3 and mine.diffusion.n_resblocks == 4
-    # a shape of fewer thin parts (the colonnade's 0.24) gets the snapped samples only, and so does a fit whose
+    # a shape of fewer thin parts (the colonnade's 0.24) gets the thin-part switch only, and so does a fit whose
     # denoiser the user chose (a setting thin_walls names) or without the trial
     fewer = thin_parts_switch(quick, grid, 0.3)
     assert fewer.name == "quick+thin" and fewer.diffusion == quick.updated(**{"diffusion.batch_size": 6}).diffusion
     assert fewer.autoencoder == quick.autoencoder  # the paper's 5×5 plane convolutions
     assert "ResBlocks" not in thin_parts_message(quick, fewer, grid, 0.3)
     wide = quick.updated(**{"diffusion.n_resblocks": 3})
-    # ... which drops the wider field alone: the free planes and the same-place snapping stay, said so
-    assert wide.thin_walls == {"autoencoder.residual_planes": True, "sampling.snap_place": 0.3}
+    # ... which drops the wider field alone: the free planes stay, said so
+    assert wide.thin_walls == {"autoencoder.residual_planes": True}
     chose = thin_parts_switch(wide, grid, thin)
     assert chose.name == "quick+walls" and chose.diffusion == wide.updated(**{"diffusion.batch_size": 6}).diffusion
-    assert chose.autoencoder.residual_planes and chose.sampling.snap_place == 0.3
+    assert chose.autoencoder.residual_planes
     said = thin_parts_message(wide, chose, grid, thin)
-    assert "free planes" in said and "same place" in said and "ResBlocks" not in said and "--set thin_walls={}" in said
+    assert "free planes" in said and "ResBlocks" not in said and "--set thin_walls={}" in said
     assert thin_parts_switch(quick.updated(thin_walls={}), grid, thin).name == "quick+thin"
     assert thin_parts_hint(quick, grid, thin) is None  # it switched: the message says it all
     plain = quick.updated(thin_parts={})  # --no-thin-switch
     hint = thin_parts_hint(plain, grid, thin)
     assert hint is not None and f"{thin:.0%}" in hint and "--thin-switch" in hint and "96 voxels" in hint
-    assert "--set sampling.snap=1" in hint and "updated(**{'sampling.snap': 1.0})" in hint
     assert thin_parts_switch(plain, grid, thin) is None
     small = get_preset("small")
     # small: a shape of thin walls gets quick's thin-walls switch on small's grid and autoencoder, said so; a shape of
@@ -176,7 +173,7 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     assert thin_parts_hint(small, grid, thin) is None
     own = thin_parts_switch(small, grid, thin)
     assert own.name == "small+walls" and own.grid == small.grid and own.autoencoder.steps == small.autoencoder.steps
-    assert own.sampling.snap_place == 0.3 and own.diffusion.n_resblocks == 4 and not own.diffusion.rollout
+    assert own.diffusion.n_resblocks == 4 and not own.diffusion.rollout
     said = thin_parts_message(small, own, grid, thin)
     assert "copy a shape of thin walls and close its windows: CLI --thin-switch asks for them anyway" in said
     assert "free planes" in said and "a field of 17 latent texels instead of 9" in said
@@ -195,4 +192,4 @@ def test_quick_and_small_switch_on_the_ruin_and_say_what_else_there_is():
     for walls in (False, True):  # the finer settings' own 4-ResBlock field, not the trial's narrower channels
         finer = asked.for_thin_parts(walls=walls)
         assert finer.grid.resolution == 96 and finer.diffusion.rollout and finer.autoencoder.mlp_hidden == 128
-        assert finer.sampling.snap == 1.0 and finer.diffusion.base_channels == 32 and finer.name == "quick+thin"
+        assert finer.diffusion.base_channels == 32 and finer.name == "quick+thin"

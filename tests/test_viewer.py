@@ -323,15 +323,15 @@ def test_save_html_standalone_page(tmp_path):
     text = path.read_text()
     assert "k3dCompressed" in text and "CreateK3DAndLoadBinarySnapshot" in text
     assert [p.name for p in path.parent.iterdir()] == ["quad.html"]  # no temp file left behind
-    snap = viewer.read_snapshot(path)
-    (obj,) = snap["objects"]
+    snapshot = viewer.read_snapshot(path)
+    (obj,) = snapshot["objects"]
     assert obj["type"] == "Mesh" and obj["name"] == "my_quad"
     np.testing.assert_array_equal(viewer.snapshot_array(obj, "vertices"), meshes_of(plot)[0].vertices)
     assert obj["texture_file_format"] == "png"
     # the page keeps the fitted camera (looking at the quad), the plot gets its auto-fit flag back
-    assert snap["plot"]["cameraAutoFit"] is False and len(snap["plot"]["camera"]) == 9
+    assert snapshot["plot"]["cameraAutoFit"] is False and len(snapshot["plot"]["camera"]) == 9
     assert plot.camera_auto_fit is True
-    cam = np.array(snap["plot"]["camera"])
+    cam = np.array(snapshot["plot"]["camera"])
     assert cam[1] < cam[4]  # the camera stands in front of the quad (k3d -y) looking towards +y
     assert cam[2] > meshes_of(plot)[0].vertices[:, 2].max()  # and above it
     # without WebGL the page says so instead of staying blank

@@ -206,31 +206,6 @@ def test_plot_schedule_accepts_tensors():
     np.testing.assert_allclose(ys[2], np.sqrt(1 - ac.numpy()), rtol=1e-5)
 
 
-def test_plot_snapping_shows_x0_snapped_and_the_input_on_the_inputs_basis(tp):
-    from sin3dm_lite import snap_to_patches
-    from sin3dm_lite.auto.snap import SNAP_PATCH
-
-    ref = tp[0:1]
-    x0 = Triplane.randn(1, 5, (8, 6, 10), generator=torch.Generator().manual_seed(3))
-    panels = image_axes(viz.plot_snapping(x0, ref, plane="xz"))
-    assert [ax.get_title() for ax in panels] == [
-        "predicted x0",
-        f"snapped to the input's {SNAP_PATCH}×{SNAP_PATCH} windows",
-        "the input's latent",
-    ]
-    mean, basis = pca_basis(ref.xz[0].numpy())
-    shown = [np.asarray(ax.images[0].get_array()) for ax in panels]
-    for img, plane in zip(shown, (x0.xz[0], snap_to_patches(x0, ref).xz[0], ref.xz[0])):
-        np.testing.assert_allclose(img, pca_project(plane.numpy(), mean, basis).swapaxes(0, 1), atol=1e-6)
-    # the input's own latent snaps to itself
-    same = image_axes(viz.plot_snapping(ref, ref, plane="xy"))
-    np.testing.assert_allclose(
-        np.asarray(same[1].images[0].get_array()), np.asarray(same[2].images[0].get_array()), atol=1e-6
-    )
-    with pytest.raises(ValueError):
-        viz.plot_snapping(x0, ref, plane="zz")
-
-
 def test_plot_denoising(tp):
     steps = [{"step": i, "t": t, "x_t": tp * (1 + i), "x0": tp + i} for i, t in enumerate([999, 500, 0])]
     fig = viz.plot_denoising(steps, plane="xz", channels=2)

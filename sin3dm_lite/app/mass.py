@@ -62,9 +62,7 @@ def check_request(model, req: SampleRequest) -> None:
     from .sampling import check_sample_args
 
     names = {"n": "-n", "steps": "--steps", "method": "the method", "seed": "--seed", "diversity": "--diversity"}
-    check_sample_args(
-        model, req.n, req.steps, req.method, req.seed, req.diversity, req.snap, names | {"snap": "--snap"}
-    )
+    check_sample_args(model, req.n, req.steps, req.method, req.seed, req.diversity, names)
 
 
 def check_sample_sizes(model, plan, req: SampleRequest) -> None:

@@ -75,7 +75,6 @@ def sample_settings(model, plan, req, control: dict) -> dict:
                 "method": r.method,
                 "steps": r.steps,
                 "diversity": r.diversity,
-                **({"snap": r.snap} if r.snap else {}),  # absent at 0, so older folders continue
                 "seed": req.seed,
                 "mesh_resolution": r.mesh_resolution,
                 "faces": r.faces,

@@ -286,7 +286,6 @@ class RankExport:
             seed=[req.seed + i for i in chunk],
             diversity=req.diversity,
             progress=False,
-            snap=req.snap,
         )
         for j, i in enumerate(chunk):
             tmp = make_temp_dir(self.out)

@@ -136,7 +136,7 @@ def missing_settings(d) -> list[str]:
 
 _MISSING = object()
 #: the settings every config.json and model.pt of a run holds (the grid and the networks' shapes and steps):
-#: settings added later (switches, precision, snapping) may be missing in an older run and take their defaults
+#: settings added later (switches, precision) may be missing in an older run and take their defaults
 REQUIRED = (
     "name",
     "seed",

@@ -24,7 +24,6 @@ class Resolved:
     method: str
     steps: int
     diversity: float
-    snap: float
     mesh_resolution: int
     faces: int
     texture_size: int
@@ -44,7 +43,6 @@ class SampleRequest:
     steps: int | None = None
     method: str | None = None  # "ddpm" or "ddim" (None: the model's; the CLI's --ddpm asks for "ddpm")
     diversity: float | None = None
-    snap: float | None = None  # Sin3DM.sample's snap (None: the model's sampling.snap; 0 is the paper's sampler)
     faces: int | None = None
     mesh_resolution: int | None = None
     texture_size: int | None = None
@@ -74,7 +72,6 @@ class SampleRequest:
             method=own(self.method, s.method),
             steps=own(self.steps, s.steps),
             diversity=diversity,
-            snap=own(self.snap, s.snap),
             mesh_resolution=own(self.mesh_resolution, s.mesh_resolution),
             faces=own(self.faces, s.faces),
             texture_size=own(self.texture_size, s.texture_size),

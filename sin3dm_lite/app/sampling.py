@@ -105,15 +105,13 @@ def draw(
     mask=None,
     progress: bool = True,
     diversity=None,
-    snap: float | None = None,
 ) -> Samples:
     """``model.sample`` (its docstring says what each argument does): ``n`` (≥ 1) new triplanes for ``plan``
     (:func:`plan_for`), at most as many as fit in memory at once (:func:`max_samples`)."""
-    from ..auto.snap import snap_hook
     from ..model.diffusion import sample as diffusion_sample
     from ..model.schedule import start_step
 
-    seed = check_sample_args(model, n, steps, method, seed, diversity, snap)
+    seed = check_sample_args(model, n, steps, method, seed, diversity)
     if plan.known is not None and known is not None:
         raise Sin3DMInputError(f"{plan.kind} chooses what to keep itself; do not pass known/mask with it")
     known, mask = (plan.known, plan.mask) if plan.known is not None else (known, mask)
@@ -125,7 +123,7 @@ def draw(
             "this model and size); draw them in several calls with other seeds"
         )
     # the run's settings; controlled generation regenerates from pure noise as in the paper
-    r = SampleRequest(steps=steps, method=method, diversity=diversity, snap=snap).resolve(
+    r = SampleRequest(steps=steps, method=method, diversity=diversity).resolve(
         model.config.sampling, controlled=plan.known is not None
     )
     t0 = start_step(model.schedule, r.diversity)  # checks the value
@@ -146,24 +144,18 @@ def draw(
         prediction=model.config.diffusion.prediction,
         start=plan.start if t0 < model.schedule.timesteps - 1 else None,
         diversity=r.diversity,
-        denoised_fn=snap_hook(  # the input's places mean something for a sample of its size, not a controlled one
-            r.snap,
-            model.latent if r.snap > 0 else None,
-            model.schedule.timesteps,
-            place=model.config.sampling.snap_place if plan.known is None and known is None else 0.0,
-        ),
     )
     tp, inter = out if return_intermediates is not None else (out, None)
     return Samples(tp, plan.aabb, inter, plan)
 
 
-def check_sample_args(model, n, steps, method, seed, diversity, snap, names=None):
+def check_sample_args(model, n, steps, method, seed, diversity, names=None):
     """Refuse what ``model.sample`` cannot take (the checks the CLI's flags call: :mod:`sin3dm_lite.app.values`);
     returns the seed. ``names``: what the messages call ``n``, ``steps``, ... (default: the argument names)."""
-    name = {"n": "n", "steps": "steps", "method": "method", "seed": "seed", "diversity": "diversity", "snap": "snap"}
+    name = {"n": "n", "steps": "steps", "method": "method", "seed": "seed", "diversity": "diversity"}
     name |= names or {}
     values.whole(n, name["n"])
-    for key, value in (("steps", steps), ("method", method), ("diversity", diversity), ("snap", snap)):
+    for key, value in (("steps", steps), ("method", method), ("diversity", diversity)):
         values.setting(f"sampling.{key}", value, name[key])
     r = SampleRequest(steps=steps, method=method).resolve(model.config.sampling)
     check_steps(model, r.method, r.steps, name["steps"])

@@ -91,7 +91,7 @@ def seeds(value, n: int, name: str = "seed"):
 
 
 def share(value, name: str | None = None) -> float:
-    """A share from 0 to 1 (diversity, snap)."""
+    """A share from 0 to 1 (diversity)."""
     if not is_real(value) or not 0 <= value <= 1:
         raise refuse(name, "a number from 0 to 1", value)
     return float(value)

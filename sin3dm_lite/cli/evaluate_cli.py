@@ -199,9 +199,6 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
 
     report = None if shipped else run_report(run)  # everything read and checked before the work
     model = Sin3DM.load(run)
-    if a.snap is not None:  # the sampler to calibrate for, kept in the run's config
-        model.config = model.config.updated(**{"sampling.snap": a.snap})
-    snapped = f" --snap {model.config.sampling.snap:g}" if model.config.sampling.snap else ""
     # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, or at
     # another resolution (--resolution 128 judges as the paper measures), the input mesh voxelised there
     on_grid = a.resolution in (None, model.grid_resolution) and a.input is None and (run / "grid.npz").is_file()
@@ -233,13 +230,13 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
             f"{a.run}: diversity {cal.diversity:g} "
             f"{'would keep the goals' if cal.kept_goals else 'is the fallback (no setting kept the goals)'} "
             f"({took:.0f} s); a shipped model is not "
-            f"changed: sample it with --diversity {cal.diversity:g}{snapped}"
+            f"changed: sample it with --diversity {cal.diversity:g}"
         )
         return
     also = {} if report is None else {"report.json": json.dumps({**report, "calibration": cal.to_dict()}, indent=2)}
     write_model(model, run, also)  # model.pt, config.json and report.json: all or none
     print(
-        f"{run}: diversity {before:g} → {cal.diversity:g}{' for snapped samples' if snapped else ''}, judged at "
+        f"{run}: diversity {before:g} → {cal.diversity:g}, judged at "
         f"{cal.resolution} voxels ({voxels_said(cal.supersample)}, {took:.0f} s), "
         f"saved in its config.json; `sin3dm-lite sample {shlex.quote(str(run))}` uses it, --diversity overrides it"
     )

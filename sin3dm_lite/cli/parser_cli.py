@@ -290,8 +290,6 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         help="the voxels judged, as for `evaluate`: 'paper' (the default with --resolution: any of 2x2x2 "
         "sub-voxels inside, what evaluate reports) or 'centres' (the default on the fit's grid, the training grid's)",
     )
-    snap = "calibrate for samples snapped to the input's latent patches (0-1), kept as the run's sampling.snap"
-    c.add_argument("--snap", type=unit_float, default=None, help=snap + " (no refit; default: the run's own)")
     _outside_paths_arg(c)
 
 
@@ -407,14 +405,6 @@ def _sampler_args(s: argparse.ArgumentParser) -> None:
         default=None,
         help="0 = the input, 1 = from pure noise (the paper; default: the run's setting); "
         "lower values keep more of the input's layout",
-    )
-    s.add_argument(
-        "--snap",
-        type=unit_float,
-        default=None,
-        help="pull the last steps towards the input's latent patches (0 = the paper's sampler, 1 = all the way; "
-        "default: the run's sampling.snap, 0 unless fitted with --set sampling.snap=1): thin walls and broken tops "
-        "keep their shape at a higher --diversity (docs/thin-parts.md)",
     )
     s.add_argument(
         "--steps", type=sampling_setting("sampling.steps"), default=None, help="DDIM steps (default: the preset's)"

@@ -44,7 +44,6 @@ def sample_request(a):
         "seed",
         "steps",
         "diversity",
-        "snap",
         "faces",
         "mesh_resolution",
         "texture_size",

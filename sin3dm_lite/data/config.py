@@ -101,14 +101,6 @@ class SamplingConfig:
     mesh_resolution: int = 256  # decode grid along the longest side
     faces: int = 30_000  # face budget after simplification
     texture_size: int = 2048
-    # pull the last denoising steps' clean-latent estimate towards the input's 7×7 latent patches (0: the paper's
-    # sampler; :func:`sin3dm_lite.auto.snap.patch_snapper`); the calibration samples with it too
-    snap: float = 0.0
-    # how much snapping prefers the input's window from the sample's own place: added to each candidate's distance,
-    # per texel² between the two windows' centres (0: any place alike; only for samples of the input's size, not
-    # controlled ones); a rare neighbourhood of the input (a window in a thin wall) then comes back where it was
-    # instead of the common one nearly as near (plain wall) from elsewhere (docs/thin-parts.md)
-    snap_place: float = 0.0
 
 
 @dataclass
@@ -213,8 +205,6 @@ LIMITS: dict[str, Any] = {
     "sampling.method": ["ddim", "ddpm"],
     "sampling.steps": (1, 100_000),
     "sampling.diversity": (0.0, 1.0),
-    "sampling.snap": (0.0, 1.0),
-    "sampling.snap_place": (0.0, 100.0),
     "sampling.mesh_resolution": (16, 2048),
     "sampling.faces": (4, 100_000_000),
     "sampling.texture_size": (16, 16384),
@@ -277,8 +267,11 @@ def _settings(d: dict, prefix: str = "") -> dict:
 
 
 def unknown_setting(key: str) -> Sin3DMInputError:
-    """The error for a dotted name that is not a setting: the close match, or the settings of that section."""
+    """The error for a dotted name that is not a setting: retired, the close match, or the settings of that section."""
     import difflib
+
+    if key in RETIRED:
+        return Sin3DMInputError(f"config setting '{key}' was retired in this version ({RETIRED[key]})")
 
     names = list(LIMITS)
     section, _, leaf = key.partition(".")
@@ -355,6 +348,18 @@ def parse_settings(items) -> dict:
                 value = text
         changes[key.strip()] = value
     return changes
+
+
+#: settings that earlier versions had and this one does not (git history says what each did): loading an older
+#: run's config.json leaves them out (as any key that is no field), and naming one says it was retired
+RETIRED = {
+    "sampling.snap": "snapping the last steps' estimate to the input's latent patches",
+    "sampling.snap_place": "snapping's preference for the same place",
+    "sampling.calibrate": "the fit's calibration, now Sin3DM.fit(calibrate=...) and fit --calibrate / --no-calibrate",
+    "thin_parts": "the thin-part switch, now the default preset's choice (fit without --preset)",
+    "thin_walls": "the thin-walls switch",
+    "rollout_switch": "the rollout switch (--set diffusion.rollout=true asks for the rollout)",
+}
 
 
 def _from_dict(cls, d: dict):

@@ -1,4 +1,4 @@
-"""Figures of diffusion: the denoising steps (x_t and predicted x0), snapping, training losses, the noise schedule."""
+"""Figures of diffusion: the denoising steps (x_t and predicted x0), training losses, the noise schedule."""
 
 from __future__ import annotations
 
@@ -53,39 +53,6 @@ def plot_denoising(
         panels[0, c].set_title(f"t = {int(entry['t'])}", fontsize=9)
     panels[0, 0].set_ylabel(f"x_t ({plane})")
     panels[1, 0].set_ylabel("predicted x0")
-    return fig
-
-
-def plot_snapping(
-    x0: Triplane, reference: Triplane, plane: str = "xz", batch: int = 0, patch: int | None = None
-) -> Figure:
-    """Snapping seen on one plane: a predicted ``x0``, the same rebuilt from ``reference``'s patches
-    (:func:`~sin3dm_lite.auto.snap.snap_to_patches`: each ``patch``×``patch`` window replaced by its
-    nearest window of ``reference``, overlaps averaged) and ``reference`` itself (the input's latent), all
-    projected on one PCA basis fitted on ``reference``'s plane, so a colour means the same feature in each.
-    ``patch``: default the sampler's (:data:`~sin3dm_lite.auto.snap.SNAP_PATCH`)."""
-    from ..auto.snap import SNAP_PATCH, snap_to_patches
-
-    patch = SNAP_PATCH if patch is None else patch
-    if plane not in PLANES:
-        raise ValueError(f"plane must be one of {PLANES}, got {plane!r}")
-    k = PLANES.index(plane)
-    x0 = x0[batch : batch + 1].cpu() if x0.batch > 1 else x0.cpu()
-    reference = reference.cpu()
-    panels_data = [
-        ("predicted x0", x0.planes[k][0]),
-        (f"snapped to the input's {patch}×{patch} windows", snap_to_patches(x0, reference, patch).planes[k][0]),
-        ("the input's latent", reference.planes[k][0]),
-    ]
-    mean, basis = pca_basis(as_numpy(reference.planes[k][0]))
-    a, b = reference.planes[k].shape[-2:]
-    fig = new_figure(9.0, panel_height(3.0, b / a) + 0.4)
-    for ax, (title, p) in zip(fig.subplots(1, 3, squeeze=False)[0], panels_data):
-        show_image(ax, pca_project(as_numpy(p), mean, basis))
-        ax.set_title(title, fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.axes[0].set_ylabel(plane)
     return fig
 
 

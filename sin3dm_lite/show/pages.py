@@ -131,13 +131,13 @@ def index_page(entries: Sequence[dict], path, title: str = "sin3dm-lite samples"
     for k, e in enumerate(entries):
         name = str(e.get("title", f"sample {k}"))
         viewer = e.get("html_path")
-        snap = e.get("snapshot")
-        if viewer is None and snap is not None:
+        snapshot = e.get("snapshot")
+        if viewer is None and snapshot is not None:
             viewer = root / f"{_slug(name)}.html"
-            if isinstance(snap, str):
-                atomic_write(viewer, snap)
+            if isinstance(snapshot, str):
+                atomic_write(viewer, snapshot)
             else:
-                save_html(snap, viewer)
+                save_html(snapshot, viewer)
         links = []
         if viewer is not None:
             links.append(f'<a href="{rel(viewer)}">3D viewer</a>')

@@ -30,7 +30,6 @@ from .diffusion_figures import (  # noqa: F401
     plot_denoising,
     plot_losses,
     plot_schedule,
-    plot_snapping,
 )
 from .eval_figures import (  # noqa: F401
     plot_iou_matrix,
