@@ -211,9 +211,10 @@ def test_lp_iou_stays_a_floor_where_its_crossing_varies(monkeypatch):
     assert cal.at_choice["lp_iou"] >= cal.goals["lp_iou"] and cal.at_choice["g_div"] > cal.copy_line
 
 
-def test_the_copy_line_is_the_fits_or_twice_the_near_copys_g_div(monkeypatch):
-    assert C.copy_line(0.01) == C.COPIES_G_DIV == 0.03 and C.copy_line(0.08) == pytest.approx(0.16)
-    assert C.copy_line(None) == C.copy_line(float("nan")) == 0.03
+def test_the_copy_line_is_g_div_0_1_or_twice_the_near_copys(monkeypatch):
+    """Samples that vary less than G-Div 0.10 (the diversity a run's default samples must reach) are near copies."""
+    assert C.copy_line(0.01) == C.VARIED_G_DIV == 0.1 and C.copy_line(0.08) == pytest.approx(0.16)
+    assert C.copy_line(None) == C.copy_line(float("nan")) == 0.1
     # LP-F falls through its goal (85 % of 0.8) at 0.6; samples there vary more than twice the near copy (0.08)
     table = {C.NEAR_COPY: (0.5, 0.8, 0.08)}
     monkeypatch.setattr(C, "score_setting", _scored_by(lambda d: table.get(d, (0.5 - 0.1 * d, 0.8 - 0.2 * d, 0.3 * d))))
@@ -224,7 +225,7 @@ def test_the_copy_line_is_the_fits_or_twice_the_near_copys_g_div(monkeypatch):
 @pytest.mark.parametrize("varies", [True, False], ids=["varied-samples", "copies-everywhere"])
 def test_when_no_setting_keeps_lp_f_the_least_varied_non_copy_is_chosen_and_said(monkeypatch, capsys, varies):
     """No setting keeps LP-F ≥ 85 % of the near copy's: not the lowest setting (copies) but the most faithful setting
-    whose samples vary (G-Div 0.05 ≥ 0.03 at 0.2), said in one line; where every setting's samples are copies, the
+    whose samples vary (G-Div 0.10 ≥ 0.10 at 0.4), said in one line; where every setting's samples are copies, the
     lowest drawn, and the line says the fit does not vary this shape."""
     table = {C.NEAR_COPY: (0.5, 0.8, 0.0)}
     g = 0.25 if varies else 0.0
@@ -232,9 +233,9 @@ def test_when_no_setting_keeps_lp_f_the_least_varied_non_copy_is_chosen_and_said
     cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
     assert [t["diversity"] for t in cal.tried] == [round(1.0 - 0.1 * k, 4) for k in range(10)] and not cal.kept_goals
     if varies:
-        assert cal.diversity == 0.2 and cal.note == (
-            "no setting drawn kept LP-F 0.68: chose 0.2, the least varied setting whose samples are not copies "
-            "(G-Div 0.050 ≥ 0.030); a finer preset may keep more of the input"
+        assert cal.diversity == 0.4 and cal.note == (
+            "no setting drawn kept LP-F 0.68: chose 0.4, the least varied setting whose samples are not copies "
+            "(G-Div 0.100 ≥ 0.100); a finer preset may keep more of the input"
         )
     else:
         assert cal.diversity == C.LOWEST and cal.note.endswith(
@@ -248,7 +249,7 @@ def test_the_near_copy_is_printed_with_its_goals(capsys):
     out = capsys.readouterr().out.splitlines()
     assert out[0] == (
         "[calibrate] near copy (diversity 0.05): LP-IoU 0.300, goal 0.195 (65%, at most 0.55); LP-F 0.400, goal "
-        "0.340 (85%, at most 0.70); G-Div 0.000: samples under G-Div 0.030 are copies"
+        "0.340 (85%, at most 0.70); G-Div 0.000: samples under G-Div 0.100 are copies"
     )
 
 
@@ -269,7 +270,6 @@ def test_old_records_still_load():
     """A record written before the ceiling (absolute goals, no near copy: the shipped wall's) loads, tells its story
     and keeps what the fit reads from it; a new record goes through its dict and back unchanged."""
     import sin3dm_lite
-    from sin3dm_lite.auto.fit_policy import keeps_goals_from_noise
 
     shipped = Path(sin3dm_lite.__file__).parent / "shipped" / "wall_small"
     record = json.loads((shipped / "report.json").read_text())["calibration"]
@@ -281,7 +281,7 @@ def test_old_records_still_load():
     )
     assert old.summary().splitlines()[-1] == "chosen: 1"
     config = Sin3DM.load(shipped).config
-    assert config.sampling.diversity == 1.0 and keeps_goals_from_noise(config, record) is False  # rollout already
+    assert config.sampling.diversity == 1.0
     new = C.calibrate_diversity(_ThinKnob(0.3), _reference(), n=2, refine=0, progress=False)
     again = C.Calibration.from_dict(json.loads(json.dumps(new.to_dict())))
     assert again == new and again.story() == new.story()
@@ -415,8 +415,8 @@ def test_a_sampling_function_that_gives_the_wrong_grids_is_named():
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
     run = tmp_path_factory.mktemp("cal") / "wall"
-    cfg = micro_config().updated(**{"sampling.calibrate": True, "sampling.diversity": 0.9})
-    return Sin3DM.fit("wall", preset=cfg, out=run, progress=False), run
+    cfg = micro_config().updated(**{"sampling.diversity": 0.9})
+    return Sin3DM.fit("wall", preset=cfg, out=run, progress=False, calibrate=True), run
 
 
 def test_a_fit_saves_its_calibrated_diversity(calibrated):
@@ -439,39 +439,8 @@ def test_a_fit_saves_its_calibrated_diversity(calibrated):
     assert Sin3DM.load(run).config.sampling.diversity == cal["diversity"]  # what `sample` uses by default
 
 
-def test_a_thin_fit_calibrated_on_its_grid_names_the_calibration_at_128():
-    from sin3dm_lite.auto.fit_policy import calibration_grid_hint
-
-    switch = {"from": "quick", "resolution": 64, "thin_share": 0.5}
-    hint = calibration_grid_hint(switch, {"resolution": 64}, Path("runs/ruin"))
-    assert "64-voxel training grid" in hint and hint.endswith("sin3dm-lite calibrate runs/ruin --resolution 128")
-    assert calibration_grid_hint(switch, {"resolution": 48}).endswith("model.calibrate(resolution=128)")
-    assert calibration_grid_hint(None, {"resolution": 64}) is None  # no thin-part switch
-    assert calibration_grid_hint(switch, {"resolution": 128}) is None  # judged there already
-    assert calibration_grid_hint(switch, {"resolution": 96}) is None  # a finer grid: not what was measured
-    assert calibration_grid_hint(switch, None) is None  # not calibrated
-
-
-def test_the_rollout_hint_applies_only_to_a_plain_denoiser_calibrated_to_pure_noise():
-    from sin3dm_lite.auto.fit_policy import rollout_hint
-    from sin3dm_lite.presets import get_preset
-
-    small = get_preset("small")
-    hint = rollout_hint(small, {"diversity": 1.0, "kept_goals": True})
-    assert (
-        "--set diffusion.rollout=true" in hint and "get_preset('small').updated(**{'diffusion.rollout': True})" in hint
-    )
-    assert rollout_hint(small, {"diversity": 0.73, "kept_goals": True}) is None  # the canyon: its layout varies
-    assert rollout_hint(small, {"diversity": 1.0, "kept_goals": False}) is None  # 1 only as the lowest drawn
-    assert rollout_hint(small.updated(**{"diffusion.rollout": True}), {"diversity": 1.0, "kept_goals": True}) is None
-    assert rollout_hint(small, None) is None  # no calibration
-    # 1 only because the settings that keep the LP-IoU floor too are copies: LP-F alone keeps it, no rollout
-    assert rollout_hint(small, {"diversity": 1.0, "kept_goals": True, "note": "... the LP-IoU floor gives way"}) is None
-
-
 KEEP_EVERY_SETTING = {"lp_iou": 0.0, "lp_fscore": 0.0}  # goals kept at every setting: calibrated to 1
-PLAIN = {"sampling.calibrate": True, "diffusion.rollout": False}
-SWITCH = {"diffusion.rollout": True, "diffusion.steps": 20}
+PLAIN = {"diffusion.rollout": False}
 
 
 def _fit_keeping_the_goals(folder, cfg):
@@ -483,131 +452,14 @@ def _fit_keeping_the_goals(folder, cfg):
     with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(printed), warnings.catch_warnings():
         mp.setattr(C, "GOALS", KEEP_EVERY_SETTING)
         warnings.simplefilter("ignore")  # a micro fit reconstructs poorly
-        model = Sin3DM.fit("wall", preset=cfg, out=run, progress=True)
+        model = Sin3DM.fit("wall", preset=cfg, out=run, progress=True, calibrate=True)
     return model, run, printed.getvalue()
 
 
 @pytest.fixture(scope="module")
 def plain_fit(tmp_path_factory):
-    """A plain denoiser (no rollout switch) whose calibration keeps the goals from pure noise."""
+    """A calibrated fit whose calibration keeps the goals from pure noise."""
     return _fit_keeping_the_goals(tmp_path_factory.mktemp("plain"), micro_config().updated(**PLAIN))
-
-
-@pytest.fixture(scope="module")
-def switched_fit(tmp_path_factory):
-    """The same with the rollout switch: trained again with the cross-plane rollout (20 steps)."""
-    return _fit_keeping_the_goals(
-        tmp_path_factory.mktemp("switched"), micro_config().updated(**PLAIN, rollout_switch=SWITCH)
-    )
-
-
-def test_a_plain_fit_that_keeps_the_goals_from_pure_noise_says_the_hint(plain_fit):
-    model, run, out = plain_fit
-    assert model.config.sampling.diversity == 1.0 and not model.config.diffusion.rollout
-    report = json.loads((run / "report.json").read_text())
-    assert report["rollout_hint"] in out and "--set diffusion.rollout=true" in report["rollout_hint"]
-    assert ".updated(**{'diffusion.rollout': True})" in report["rollout_hint"]
-
-
-def _has_rollout(denoiser) -> bool:
-    return any(getattr(m, "rollout", False) for m in denoiser.modules())
-
-
-def test_a_fit_that_keeps_the_goals_from_pure_noise_switches_to_the_rollout(switched_fit, plain_fit):
-    """With rollout_switch a plain fit calibrated to 1 trains its denoiser again with the rollout, says so, records
-    the first calibration and its time, and its run folder loads as what it is: a rollout denoiser (the resume:
-    the next test)."""
-    from sin3dm_lite.data.config import Config
-
-    model, run, out = switched_fit
-    assert "trained again with the cross-plane rollout" in out and "--no-rollout-switch" in out
-    assert "rollout_hint" not in model.report
-    assert model.config.diffusion.rollout and model.config.diffusion.steps == 20 and not model.config.rollout_switch
-    assert _has_rollout(model.denoiser)  # the denoiser sampling uses is the rollout one
-    report = json.loads((run / "report.json").read_text())
-    switch = report["rollout_switch"]
-    assert switch["plain_calibration"] == {"diversity": 1.0, "kept_goals": True} and switch["plain_s"] > 0
-    t = report["timings_s"]
-    assert t["rollout_switch_s"] == switch["plain_s"] and t["diffusion_s"] > 0 and t["calibrate_s"] > 0
-    assert report["calibration"]["kept_goals"]
-    saved = Config.from_dict(json.loads((run / "config.json").read_text()))
-    assert saved.diffusion.rollout and not saved.rollout_switch
-    loaded = Sin3DM.load(run)
-    assert loaded.config.diffusion.rollout and _has_rollout(loaded.denoiser)
-    losses = json.loads((run / "losses.json").read_text())
-    assert len(losses["diffusion"]["loss"]) == 20  # the rollout denoiser's, not both
-
-    # --no-rollout-switch (rollout_switch={}: the plain fit's settings) keeps the plain denoiser and only hints
-    plain = plain_fit[0]
-    assert (
-        not plain.config.diffusion.rollout and plain.report["rollout_switch"] is None and "rollout_hint" in plain.report
-    )
-
-
-@pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
-def test_a_fit_interrupted_in_its_rollout_denoiser_resumes_to_the_same_model(switched_fit, tmp_path, monkeypatch):
-    """Ctrl-C during the second training leaves a rollout config, a rollout checkpoint and the switch's record;
-    --resume ends with the uninterrupted switched fit's model, bit for bit."""
-    import os
-    import signal
-
-    import torch
-
-    from sin3dm_lite.model import diffusion
-
-    monkeypatch.setattr(C, "GOALS", KEEP_EVERY_SETTING)
-    cfg = micro_config().updated(**PLAIN, rollout_switch=SWITCH)
-    _, full, _ = switched_fit  # the uninterrupted fit
-    real_step = diffusion.DiffusionTrainer.step
-
-    def step_then_ctrl_c(self):
-        loss = real_step(self)
-        if self.cfg.rollout and self.step_count == 7:
-            os.kill(os.getpid(), signal.SIGINT)
-        return loss
-
-    monkeypatch.setattr(diffusion.DiffusionTrainer, "step", step_then_ctrl_c)
-    run = tmp_path / "cut"
-    with pytest.raises(KeyboardInterrupt):
-        Sin3DM.fit("wall", preset=cfg, out=run, progress=False)
-    assert json.loads((run / "config.json").read_text())["diffusion"]["rollout"] is True
-    assert torch.load(run / "diffusion.pt", weights_only=True)["step"] == 7
-    assert json.loads((run / "report.json").read_text())["rollout_switch"]["plain_calibration"]["kept_goals"]
-    monkeypatch.setattr(diffusion.DiffusionTrainer, "step", real_step)
-    resumed = Sin3DM.fit("wall", out=run, resume=True, progress=False)
-    a = torch.load(full / "model.pt", weights_only=True)
-    b = torch.load(run / "model.pt", weights_only=True)
-    for part in ("decoder", "denoiser", "latent"):
-        for k in a[part]:
-            assert torch.equal(a[part][k], b[part][k]), (part, k)
-    assert (
-        resumed.report["diffusion_steps"] == 20 and resumed.report["rollout_switch"]["plain_calibration"]["kept_goals"]
-    )
-
-
-@pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
-def test_a_switched_fit_whose_rollout_keeps_no_goal_warns_with_the_way_back(tmp_path, monkeypatch):
-    """The switch's only risk, said plainly: the rollout denoiser kept no setting where the plain one did."""
-
-    def fake(model, reference, progress=True, **options):  # model_sampler, below, hands it the model
-        kept = (
-            not model.config.diffusion.rollout
-        )  # the plain denoiser keeps the goals from pure noise, the rollout none
-        return C.Calibration(diversity=1.0 if kept else 0.5, goals={}, n=1, resolution=8, kept_goals=kept)
-
-    monkeypatch.setattr(C, "calibrate_diversity", fake)
-    monkeypatch.setattr(C, "model_sampler", lambda model, reference, supersample=1: model)
-    cfg = micro_config().updated(
-        **{
-            "sampling.calibrate": True,
-            "diffusion.rollout": False,
-            "diffusion.steps": 5,
-            "rollout_switch": {"diffusion.rollout": True, "diffusion.steps": 5},
-        }
-    )
-    with pytest.warns(UserWarning, match="with the cross-plane rollout no diversity setting kept.*--no-rollout-switch"):
-        model = Sin3DM.fit("wall", preset=cfg, out=tmp_path / "w", progress=False)
-    assert model.config.diffusion.rollout and model.report["rollout_switch"]["plain_calibration"]["kept_goals"]
 
 
 def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
@@ -634,17 +486,18 @@ def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
 
 
 def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
-    """The barely trained micro model keeps no patches, not even in its near copy, so its goals stay absolute and
-    the calibration lands on its lowest setting, 0.1."""
+    """The barely trained micro model keeps no patches, not even in its near copy, so its goals stay absolute, no
+    setting keeps them, and the calibration lands on the least varied setting whose samples are no copies: 0.2
+    (at 0.1 its samples vary less than G-Div 0.10)."""
     _, run = calibrated
     cfg = json.loads((run / "config.json").read_text())
     cfg["sampling"]["diversity"] = 0.9  # config.json is rewritten from the model the command loads and calibrates
     (run / "config.json").write_text(json.dumps(cfg))
     code = main(["calibrate", str(run), "-n", "2", "--lp-iou", "0.3", "--lp-f", "0.4"])
     out = capsys.readouterr().out
-    assert code == 0 and "→ 0.1, judged at 24 voxels" in out and "saved" in out and "sets no ceiling" in out
-    assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == 0.1
-    assert Sin3DM.load(run).config.sampling.diversity == 0.1
+    assert code == 0 and "→ 0.2, judged at 24 voxels" in out and "saved" in out and "sets no ceiling" in out
+    assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == 0.2
+    assert Sin3DM.load(run).config.sampling.diversity == 0.2
     report = json.loads((run / "report.json").read_text())
     assert (
         report["calibration"]["goals"] == report["calibration"]["absolute_goals"] == {"lp_iou": 0.3, "lp_fscore": 0.4}
@@ -730,7 +583,7 @@ def test_cli_calibrate_errors_in_one_line(capsys, tmp_path):
 def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower_field(plain_fit, tmp_path):
     """A calibrated fit measures how far its samples from pure noise lie from the input's latent (recorded in the
     report); below fit_policy.COPIES_DISTANCE it warns that no diversity setting varies the shape and names the
-    narrower field: the thin-part switch off where it brought the wider one, else half the ResBlocks."""
+    narrower field: half the ResBlocks."""
     from types import SimpleNamespace
 
     import torch
@@ -753,9 +606,9 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
 
     small, quick = get_preset("small"), get_preset("quick")
     assert copies_warning(small, COPIES_DISTANCE) is None and copies_warning(small, 0.2) is None
-    switched = copies_warning(small.for_thin_parts(), 0.005, {"from": "small"})
-    assert "copies of the input" in switched and "0.5% of its variance" in switched and "17-texel field" in switched
-    assert "--no-thin-switch" in switched and "updated(thin_parts={})" in switched
+    detail = copies_warning(get_preset("detail"), 0.005)
+    assert "copies of the input" in detail and "0.5% of its variance" in detail and "17-texel field" in detail
+    assert "--set diffusion.n_resblocks=2" in detail
     wide = copies_warning(quick.updated(**{"diffusion.n_resblocks": 4}), 0.0)
     assert "--set diffusion.n_resblocks=2" in wide and "9-texel" not in wide
 
@@ -766,14 +619,12 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
         mp.setattr(C, "GOALS", KEEP_EVERY_SETTING)
         mp.setattr(review, "from_noise_distance", lambda m, seed=0: 0.001)  # the fit's last look (auto.review)
         mp.setattr(review, "g_div_at_one", lambda calibration: 0.01)  # the micro fit's samples are far from copies
-        Sin3DM.fit("wall", preset=micro_config().updated(**PLAIN), out=tmp_path / "w", progress=False)
+        Sin3DM.fit("wall", preset=micro_config().updated(**PLAIN), out=tmp_path / "w", progress=False, calibrate=True)
     said = [str(w.message) for w in caught if "even from pure noise" in str(w.message)]
     assert len(said) == 1 and "0.1% of its variance" in said[0] and "diffusion.n_resblocks=1" in said[0]
     report = json.loads((tmp_path / "w" / "report.json").read_text())
     assert report["from_noise_distance"] == 0.001
-    # calibrated to 1 (every setting keeps the goals), yet no rollout hint: copies keep the input's patches from
-    # pure noise because they are the input, and the rollout would only hold the layout tighter
-    assert report["calibration"]["diversity"] == 1.0 and "rollout_hint" not in report
+    assert report["calibration"]["diversity"] == 1.0  # every setting keeps the goals
 
     # the lines: the square keep's wider field measured 0.037-0.039 with G-Div 0.012 at diversity 1 (copies); the
     # built-in tiles 0.108 (its samples reshuffle the colours); dunes.ply 0.032 and rocks.stl 0.062 with G-Div 0.084
@@ -793,5 +644,22 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
         mp.setattr(C, "GOALS", KEEP_EVERY_SETTING)
         mp.setattr(review, "from_noise_distance", lambda m, seed=0: 0.001)
         mp.setattr(review, "g_div_at_one", lambda calibration: 0.084)
-        Sin3DM.fit("wall", preset=micro_config().updated(**PLAIN), out=tmp_path / "v", progress=False)
+        Sin3DM.fit("wall", preset=micro_config().updated(**PLAIN), out=tmp_path / "v", progress=False, calibrate=True)
     assert not [w for w in caught if "even from pure noise" in str(w.message)]
+
+
+def test_the_cpu_presets_calibrate_by_default_and_the_others_do_not(tmp_path):
+    """``Sin3DM.fit(calibrate=None)``: the CPU presets choose their diversity, tiny (tests) and paper (the paper's
+    pure noise) keep their own; calibrate=False / True says otherwise."""
+    from sin3dm_lite.auto.calibration import calibrates
+    from sin3dm_lite.presets import get_preset
+
+    assert [calibrates(get_preset(n)) for n in ("small", "quick", "detail", "fine", "tiny", "paper")] == [True] * 4 + [
+        False
+    ] * 2
+    cfg = micro_config()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a micro fit reconstructs poorly
+        plain = Sin3DM.fit("wall", preset=cfg, progress=False)
+        mine = Sin3DM.fit("wall", preset=cfg.updated(name="small"), progress=False, calibrate=False)
+    assert "calibration" not in plain.report and "calibration" not in mine.report

@@ -281,7 +281,9 @@ def _preset_fit_gets(tmp_path, monkeypatch, *argv, machine: str = "small"):
     from sin3dm_lite.pipeline import Sin3DM
     from sin3dm_lite.presets import get_preset
 
-    monkeypatch.setattr(fit_default, "default_preset", lambda device=None: fit_default.DefaultPreset(machine, "pinned"))
+    monkeypatch.setattr(
+        fit_default, "default_preset", lambda device=None, mesh=None: fit_default.DefaultPreset(machine, "pinned")
+    )
     seen = {}
 
     def fake_fit(mesh, preset, **kw):
@@ -292,47 +294,6 @@ def _preset_fit_gets(tmp_path, monkeypatch, *argv, machine: str = "small"):
     with pytest.raises(_FitCalled):
         main(["fit", *argv, "--out", str(tmp_path / "run")])
     return seen["preset"] if isinstance(seen["preset"], Config) else get_preset(seen["preset"])
-
-
-@pytest.mark.parametrize("flag, switches", [([], True), (["--no-thin-switch"], False), (["--thin-switch"], True)])
-def test_fit_passes_the_thin_part_switch_choice(tmp_path, monkeypatch, flag, switches):
-    """`fit` hands small (with its thin-part settings, and its own for thin walls) to Sin3DM.fit; --no-thin-switch
-    hands small without them; --thin-switch asks for the finer settings on thin walls too."""
-    cfg = _preset_fit_gets(tmp_path, monkeypatch, "colonnade", *flag)
-    assert cfg.name == "small" and bool(cfg.thin_parts) is switches and bool(cfg.thin_walls) is (flag == [])
-    assert cfg.grid.resolution == 64
-    assert cfg.for_thin_parts(walls=True).grid.resolution == {(): 64, ("--thin-switch",): 96}.get(tuple(flag), 64)
-
-
-@pytest.mark.parametrize("flag", [[], ["--thin-switch"], ["--no-thin-switch"]])
-def test_quick_gets_the_finer_thin_part_settings_only_when_asked(tmp_path, monkeypatch, flag):
-    """quick's own switch keeps its grid (its finer settings take 5x its fit without bf16) and tries a wider
-    denoiser field on thin walls; --thin-switch adds small's thin-part settings instead of that field, leaving a
-    setting the user names to the user; --no-thin-switch turns both off, --set thin_walls={} the field alone."""
-    from sin3dm_lite.presets import DETAIL_CHANGES, QUICK_THIN_CHANGES, QUICK_WALLS_CHANGES, get_preset
-
-    cfg = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--preset", "quick", *flag)
-    expected = {(): QUICK_THIN_CHANGES, ("--thin-switch",): {**QUICK_THIN_CHANGES, **DETAIL_CHANGES}}
-    assert cfg.name == "quick" and cfg.thin_parts == expected.get(tuple(flag), {})
-    assert cfg.thin_walls == (QUICK_WALLS_CHANGES if flag == [] else {})
-    walls = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--preset", "quick", "--set", "thin_walls={}")
-    assert walls.thin_walls == {} and walls.thin_parts == QUICK_THIN_CHANGES
-    assert cfg.for_thin_parts().grid.resolution == (96 if flag == ["--thin-switch"] else 64)
-    assert cfg.for_thin_parts().diffusion.batch_size == (6 if flag == [] else 8)  # the switch's batches of 6
-    cfg = _preset_fit_gets(
-        tmp_path, monkeypatch, "wall", "--preset", "quick", "--thin-switch", "--set", "diffusion.steps=900"
-    )
-    assert cfg.for_thin_parts().diffusion.steps == 900 and cfg.for_thin_parts().diffusion.rollout is True
-    small = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--thin-switch")  # small's own switch, unchanged
-    assert small.thin_parts == get_preset("small").thin_parts
-
-
-@pytest.mark.parametrize("flag, switches", [([], True), (["--no-rollout-switch"], False)])
-def test_fit_passes_the_rollout_switch_choice(tmp_path, monkeypatch, flag, switches):
-    """`fit` hands small with its rollout switch on; --no-rollout-switch turns it off and keeps the rest."""
-    cfg = _preset_fit_gets(tmp_path, monkeypatch, "wall", *flag)
-    assert cfg.name == "small" and bool(cfg.rollout_switch) is switches and cfg.diffusion.rollout is False
-    assert cfg.thin_parts  # the other switch is untouched
 
 
 def test_fit_set_changes_the_preset_and_names_a_bad_setting(capsys, tmp_path, monkeypatch):

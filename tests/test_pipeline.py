@@ -10,7 +10,6 @@ import pytest
 import torch
 
 from sin3dm_lite.app.device import cpu_bf16_share, resolved_precision
-from sin3dm_lite.auto.fit_policy import thin_parts_switch
 from sin3dm_lite.data.config import Config
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.model import autoencoder
@@ -350,181 +349,6 @@ def test_input_mesh_is_the_example_or_the_file_the_run_was_fitted_to(fitted, tmp
         reloaded.input_mesh()
 
 
-@pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
-def test_a_fit_of_a_thin_shape_switches_to_the_thin_part_settings(tmp_path, capsys, monkeypatch):
-    """A preset with thin_parts refits the grid at the finer settings when the shape is mostly thin parts, says so,
-    and records the settings it used, so that the run folder loads and resumes as what it is."""
-    from sin3dm_lite.app import fitting
-    from sin3dm_lite.data.grid import load_grid
-
-    cfg = micro_config().updated(
-        **{
-            "name": "small",
-            "grid.resolution": 32,
-            "autoencoder.steps": 2,
-            "diffusion.steps": 2,
-            "thin_parts": {"grid.resolution": 40, "diffusion.n_resblocks": 3},
-        }
-    )
-    model = Sin3DM.fit("tiles", preset=cfg, out=tmp_path / "tiles", progress=True)
-    out = capsys.readouterr().out
-    assert "lies in parts under ~5 voxels thick at 32 voxels" in out and "fitting at 40 voxels" in out
-    assert "--no-thin-switch" in out
-    saved = Config.from_dict(json.loads((tmp_path / "tiles" / "config.json").read_text()))
-    assert saved.name == "small+thin" and saved.grid.resolution == 40 and saved.diffusion.n_resblocks == 3
-    assert saved.thin_parts == {} and model.config.grid.resolution == 40
-    assert max(load_grid(tmp_path / "tiles" / "grid.npz").shape) == 40
-    switch = json.loads((tmp_path / "tiles" / "report.json").read_text())["thin_parts_switch"]
-    assert switch["from"] == "small" and switch["resolution"] == 32 and switch["thin_share"] > 0.2
-    assert Sin3DM.load(tmp_path / "tiles").config.grid.resolution == 40
-    # a resumed run (here with nothing left to train) keeps the record of its switch
-    resumed = Sin3DM.fit("tiles", out=tmp_path / "tiles", resume=True, progress=False)
-    assert resumed.report["thin_parts_switch"] == switch and resumed.config.name == "small+thin"
-    assert json.loads((tmp_path / "tiles" / "report.json").read_text())["thin_parts_switch"] == switch
-
-    # the same settings without thin_parts, or on a shape with few thin parts, keep the preset's grid; a fit
-    # without the switch says what fit_policy.thin_parts_hint says (quick's hint; None at these 32 voxels)
-    monkeypatch.setattr(fitting, "thin_parts_hint", lambda c, g, thin: f"HINT {c.name} {thin:.2f}")
-    model = Sin3DM.fit("tiles", preset=cfg.updated(thin_parts={}), out=tmp_path / "kept", progress=True)
-    out = capsys.readouterr().out
-    assert "fitting at" not in out and f"[fit] HINT small {model.report['thin_share']:.2f}" in out
-    assert "GRIDHINT" not in out  # no switch, no hint
-    assert model.config.name == "small" and model.report["thin_parts_switch"] is None
-    assert max(load_grid(tmp_path / "kept" / "grid.npz").shape) == 32
-    grid = load_grid(tmp_path / "kept" / "grid.npz")
-    assert thin_parts_switch(cfg, grid, thin=0.1) is None
-    assert thin_parts_switch(cfg, grid, thin=0.5).grid.resolution == 40
-
-
-@pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps
-@pytest.mark.parametrize("copies", [True, False])
-def test_a_shape_of_thin_walls_tries_the_wider_field_and_drops_it_if_it_copies(tmp_path, capsys, monkeypatch, copies):
-    """quick's thin-walls switch (Config.thin_walls): the wider denoiser trains to the check step, its samples from
-    pure noise are looked at; copies send the fit back to the narrower denoiser, trained from its first step, and
-    the run folder holds that one; varied samples keep the wider one. The outcome is recorded, and a resumed fit
-    does not check again."""
-    from sin3dm_lite.app import fitting
-    from sin3dm_lite.auto import fit_policy
-
-    monkeypatch.setattr(fit_policy, "THIN_WALLS_SHARE", 0.0)  # the tiles at 24 voxels count as thin walls here
-    monkeypatch.setattr(fit_policy, "WIDE_FIELD_CHECK_STEP", 3)
-    spreads = []
-    monkeypatch.setattr(fitting, "are_copies", lambda d: spreads.append(d) or copies)
-    cfg = micro_config().updated(
-        **{
-            "name": "quick",
-            "autoencoder.steps": 2,
-            "diffusion.steps": 6,
-            "thin_parts": {"sampling.diversity": 1.0, "diffusion.batch_size": 3},
-            "thin_walls": {
-                "diffusion.n_resblocks": 3,
-                "diffusion.base_channels": 8,
-                "diffusion.batch_size": 2,
-                "autoencoder.decoder_kernel": 3,
-                "autoencoder.residual_planes": True,
-            },
-        }
-    )
-    run = tmp_path / "tiles"
-    model = Sin3DM.fit("tiles", preset=cfg, out=run, progress=True)
-    out = capsys.readouterr().out
-    assert "a field of 13 latent texels instead of 9" in out and "after 3 steps" in out
-    assert len(spreads) == 1 and spreads[0] > 0.0  # one look: the samples' distance from the input (untrained: far)
-    check = model.report["thin_parts_switch"]["wide_field"]
-    # back to the thin-part switch's narrower denoiser: the preset's blocks, the switch's batches (not the preset's)
-    # ... the denoiser's settings only: the autoencoder, 3×3 plane convolutions, is trained by then and stays
-    assert check["undo"] == {"diffusion.n_resblocks": 2, "diffusion.base_channels": 16, "diffusion.batch_size": 3}
-    assert check["check"] == {"step": 3, "distance": spreads[0], "copies": copies}
-    assert "plane convolutions are 3x3 instead of 5x5" in out
-    saved = Config.from_dict(json.loads((run / "config.json").read_text()))
-    assert saved.autoencoder.decoder_kernel == 3 and saved.autoencoder.residual_planes
-    if copies:
-        assert "are copies of the input" in out and "trained again with the narrower field" in out
-        assert saved.name == "quick+thin" and (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (2, 16)
-        assert saved.diffusion.batch_size == 3
-    else:
-        assert "it keeps its field" in out
-        assert saved.name == "quick+walls" and (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (3, 8)
-        assert saved.diffusion.batch_size == 2
-    assert model.config == saved
-    losses = json.loads((run / "losses.json").read_text())["diffusion"]["loss"]
-    assert len(losses) == 6  # the kept denoiser's, all its steps
-    loaded = Sin3DM.load(run)
-    assert loaded.config == saved and loaded.sample(1, seed=0, progress=False).triplane.planes[0].shape[0] == 1
-    monkeypatch.setattr(fitting, "are_copies", lambda d: pytest.fail("a resumed fit checked again"))
-    resumed = Sin3DM.fit("tiles", out=run, resume=True, progress=False)
-    assert resumed.config == saved and resumed.report["thin_parts_switch"]["wide_field"] == check
-
-
-@pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps
-def test_a_denoiser_the_user_chose_keeps_the_thin_walls_free_planes_without_a_trial(tmp_path, capsys, monkeypatch):
-    """A denoiser setting the user sets drops Config.thin_walls' wider field (nothing to try: the fit never looks
-    at samples from pure noise) but not what keeps a thin wall's windows: the free planes are trained and saved."""
-    from sin3dm_lite.app import fitting
-    from sin3dm_lite.auto import fit_policy
-
-    monkeypatch.setattr(fit_policy, "THIN_WALLS_SHARE", 0.0)  # the tiles at 24 voxels count as thin walls here
-    monkeypatch.setattr(fitting, "are_copies", lambda d: pytest.fail("no wider field to try"))
-    walls = {"diffusion.n_resblocks": 3, "diffusion.base_channels": 8, "autoencoder.residual_planes": True}
-    cfg = micro_config().updated(
-        **{"name": "quick", "autoencoder.steps": 2, "diffusion.steps": 4, "thin_parts": {"sampling.diversity": 1.0}},
-        thin_walls=walls,
-    )
-    cfg = cfg.updated(**{"diffusion.n_resblocks": 1})  # the user's denoiser
-    assert cfg.thin_walls == {"autoencoder.residual_planes": True}
-    model = Sin3DM.fit("tiles", preset=cfg, out=tmp_path / "tiles", progress=True)
-    out = capsys.readouterr().out
-    assert "free planes" in out and "a field of" not in out
-    assert "wide_field" not in model.report["thin_parts_switch"]
-    saved = Sin3DM.load(tmp_path / "tiles").config
-    assert saved.name == "quick+walls" and saved.autoencoder.residual_planes
-    assert (saved.diffusion.n_resblocks, saved.diffusion.base_channels) == (1, cfg.diffusion.base_channels)
-    assert model.report["diffusion_steps"] == 4
-
-
-def test_small_switches_to_exactly_the_detail_settings():
-    """The 'detail' preset is what small switches to (one source of truth), and it does not switch again."""
-    small, detail = get_preset("small"), get_preset("detail")
-    switched = small.for_thin_parts()
-    assert switched.updated(name="detail") == detail and switched.name == "small+thin"
-    assert detail.thin_parts == {} and detail.for_thin_parts() == detail
-    # the light preset for CPUs without bf16 switches to a denoiser batch of 6: the same grid and networks
-    quick = get_preset("quick")
-    thin = quick.updated(**{"diffusion.batch_size": 6}, name="quick+thin", thin_parts={}, thin_walls={})
-    assert quick.for_thin_parts() == thin
-    # ... and on a shape of thin walls only, a wider denoiser field too (on trial: fitting.FitStages.denoise)
-    walls = thin.updated(
-        **{
-            "diffusion.n_resblocks": 4,
-            "diffusion.base_channels": 16,
-            "diffusion.steps": 1500,
-            "diffusion.batch_size": 4,
-            "autoencoder.residual_planes": True,
-        },
-        name="quick+walls",
-    )
-    assert quick.for_thin_parts(walls=True) == walls
-    # small's thin walls: not detail's grid (which copies them and closes their windows) but quick's switches on its
-    # own grid and autoencoder, replacing the thin-part settings; a denoiser the user picks drops them (detail again)
-    mine = small.for_thin_parts(walls=True)
-    assert mine.name == "small+walls" and mine.grid == small.grid and mine.diffusion == walls.diffusion
-    assert mine.sampling == replace(walls.sampling, texture_size=small.sampling.texture_size)
-    assert mine.autoencoder == replace(small.autoencoder, residual_planes=True) and mine.sampling.diversity == 0.7
-    assert mine.diffusion.rollout is False and small.for_thin_parts() == switched
-    assert small.updated(**{"diffusion.steps": 3000}).for_thin_parts(walls=True).grid.resolution == 96
-    # the rollout switch: small has it, what already has the rollout (detail, paper) or a light CPU (quick) does not
-    assert small.rollout_switch and not detail.rollout_switch and not get_preset("quick").rollout_switch
-    rolled = small.for_rollout()
-    assert rolled.diffusion.rollout and rolled.diffusion.steps == 1250 and rolled.rollout_switch == {}
-    assert rolled.grid == small.grid and rolled.thin_parts == small.thin_parts and detail.for_rollout() == detail
-    assert small.updated(**{"diffusion.rollout": False}).rollout_switch == {}  # chosen by hand: kept
-    mine = small.updated(**{"diffusion.steps": 3000}).for_rollout()  # the user's steps survive the switch
-    assert mine.diffusion.rollout and mine.diffusion.steps == 3000
-    # a setting the user changes is never undone by the switch; the others still switch
-    mine = small.updated(**{"diffusion.n_resblocks": 6}).for_thin_parts()
-    assert mine.diffusion.n_resblocks == 6 and mine.grid.resolution == 96
-
-
 def test_settings_from_text_keep_their_kinds():
     """`fit --set` text becomes typed settings; a wrong name or kind is one clear error, not a crash in training."""
     from sin3dm_lite.data.config import parse_settings
@@ -569,7 +393,7 @@ def test_every_setting_is_checked_against_its_range_where_a_config_is_made(tmp_p
 
     tiny = get_preset("tiny")
     assert set(_settings(tiny.to_dict())) == set(LIMITS)  # every setting has a rule
-    for name in ("tiny", "small", "quick", "detail", "paper"):
+    for name in ("tiny", "small", "quick", "detail", "fine", "paper"):
         get_preset(name).check()  # the presets keep their own rules
     for bad, words in [
         ({"autoencoder.steps": -5}, "'autoencoder.steps' must be a whole number from 1 to"),
@@ -580,7 +404,6 @@ def test_every_setting_is_checked_against_its_range_where_a_config_is_made(tmp_p
         ({"autoencoder.decoder_kernel": 4}, "one of 1, 3, 5"),
         ({"diffusion.beta_start": 0.5}, "below diffusion.beta_end"),
         ({"sampling.steps": 5000}, "diffusion.timesteps"),
-        ({"thin_parts": {"grid.resolution": 8}}, r"thin_parts\['grid.resolution'\] must be"),
         ({"nosuch.key": 1}, "SECTION one of autoencoder, diffusion, grid, sampling"),
         ({"diffusion.stpes": 3}, "did you mean 'diffusion.steps'"),
         ({"diffusion.foo": 3}, "the diffusion settings are: base_channels"),
@@ -600,68 +423,30 @@ def test_every_setting_is_checked_against_its_range_where_a_config_is_made(tmp_p
 
 
 def test_an_older_config_with_retired_settings_loads_without_them(tmp_path):
-    """Settings of earlier versions (config.RETIRED: snapping's ``sampling.snap`` and ``sampling.snap_place``) in an
-    older run's config.json and model.pt, in its sampling section or in a switch, are dropped as it loads; asked for
-    by name they are unknown settings."""
+    """Settings of earlier versions (snapping's ``sampling.snap``, the fit's switches ``thin_parts``,
+    ``rollout_switch``, ``thin_walls``, ``sampling.calibrate``) in an older run's config.json and model.pt are dropped
+    as it loads; asked for by name they are unknown settings."""
     import shutil
 
     from sin3dm_lite.app.pretrained import pretrained_path
-    from sin3dm_lite.data.config import RETIRED
 
-    assert {"sampling.snap", "sampling.snap_place"} <= RETIRED
     run = tmp_path / "old"
     shutil.copytree(pretrained_path("wall_small"), run)
     d = json.loads((run / "config.json").read_text())
     want = Config.from_dict(d)
-    d["sampling"] |= {"snap": 1.0, "snap_place": 0.3}
-    d["thin_parts"] = {"sampling.snap": 1.0, "diffusion.batch_size": 6}
-    d["thin_walls"] = {"sampling.snap_place": 0.3}
+    d["sampling"] |= {"snap": 1.0, "snap_place": 0.3, "calibrate": True}
+    d |= {"thin_parts": {"sampling.snap": 1.0}, "thin_walls": {}, "rollout_switch": {"diffusion.rollout": True}}
     old = Config.from_dict(d)
-    assert old == replace(want, thin_parts={"diffusion.batch_size": 6}) and "snap" not in old.to_json()
+    assert old == want and "snap" not in old.to_json() and "thin" not in old.to_json()
     (run / "config.json").write_text(json.dumps(d))
     bundle = torch.load(run / "model.pt", weights_only=True)
     bundle["config"] = json.dumps(d)
     torch.save(bundle, run / "model.pt")
     model = Sin3DM.load(run)
     assert model.config == old and model.sample(1, steps=2, progress=False).triplane.batch == 1
-    with pytest.raises(Sin3DMInputError, match="unknown config setting 'sampling.snap'"):
-        want.updated(**{"sampling.snap": 1.0})
-
-
-@pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
-def test_a_slow_fit_on_a_cpu_without_bf16_suggests_the_quick_preset(tmp_path, capsys, monkeypatch):
-    """A paper-width autoencoder runs in fp32 where bf16 is not native: the fit says how long and names `quick`.
-
-    The hint follows the autoencoder's cost, not the preset's name: small, its thin-part switch and detail get it,
-    quick, tiny and a small with a short autoencoder do not, and nobody gets it where bf16 is native."""
-    from sin3dm_lite.auto import fit_policy
-
-    monkeypatch.setattr(fit_policy, "bf16_is_fast", lambda device: False)
-    for name in ("small", "detail", "paper"):
-        assert "--preset quick" in fit_policy.quick_hint(get_preset(name), "cpu"), name
-    assert "about 20 minutes" in fit_policy.quick_hint(get_preset("small"), "cpu")  # 2,000 steps of 0.61 s
-    # a shape of one colour trains half an autoencoder; quick's colour head sees 2,048 of its 4,096 points
-    assert "about 10 minutes" in fit_policy.quick_hint(get_preset("small"), "cpu", one_color=True)
-    quick = fit_policy.fp32_autoencoder_minutes(get_preset("quick"))
-    assert quick == pytest.approx(1000 * 0.165 / 60, rel=0.02)
-    assert fit_policy.fp32_autoencoder_minutes(get_preset("quick"), one_color=True) == pytest.approx(
-        quick * 0.55, rel=0.02
-    )
-    assert "--preset quick" in fit_policy.quick_hint(get_preset("small").for_thin_parts(), "cpu")
-    for cfg in (get_preset("quick"), get_preset("tiny"), get_preset("small").updated(**{"autoencoder.steps": 500})):
-        assert fit_policy.quick_hint(cfg, "cpu") is None, cfg.name
-    # the fit prints it (a micro fit priced like small's), and the two-thread opt-in where the policy chose one
-    from sin3dm_lite.app import threads
-
-    monkeypatch.setattr(fit_policy, "fp32_autoencoder_minutes", lambda cfg, one_color=False: 20.0)
-    monkeypatch.setattr(threads, "APPLIED", {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"})
-    monkeypatch.setattr(threads, "usable_cores", lambda: 2)
-    cfg = micro_config().updated(**{"name": "small", "autoencoder.steps": 2, "diffusion.steps": 2})
-    Sin3DM.fit("canyon", preset=cfg, out=tmp_path / "fp32", device="cpu", progress=True)
-    out = capsys.readouterr().out
-    assert "--preset quick" in out and "[fit] one CPU thread" in out and "SIN3DM_THREADS=2" in out
-    monkeypatch.setattr(fit_policy, "bf16_is_fast", lambda device: True)
-    assert fit_policy.quick_hint(get_preset("small"), "cpu") is None  # native bf16: small is fast enough
+    for name in ("sampling.snap", "thin_parts", "rollout_switch"):
+        with pytest.raises(Sin3DMInputError, match=f"unknown config setting '{name}'"):
+            want.updated(**{name: 1.0})
 
 
 def test_the_quick_preset_is_small_with_a_lighter_autoencoder():
@@ -714,3 +499,18 @@ def test_plot_beside_input_draws_each_shape_at_the_inputs_voxel_size_decoded_for
     widths = [ax.images[0].get_array().shape[1] for ax in fig.axes[:3]]  # front views: x across
     assert widths[1] == widths[2] == round(1.5 * widths[0])  # the longer samples look longer
     assert asked == [32, 48, 48]  # twice the picture's voxels, not the export's mesh resolution
+
+
+def test_the_finer_presets_are_their_coarse_ones_at_96_voxels_with_the_wider_field_and_the_rollout():
+    """`detail` is `small`, `fine` is `quick`, each at 96 voxels with 4 ResBlocks, the cross-plane rollout, 1,000
+    autoencoder and 1,250 denoiser steps, sampled from pure noise: the default's choice for thin parts."""
+    finer = {
+        "grid.resolution": 96,
+        "autoencoder.steps": 1000,
+        "diffusion.n_resblocks": 4,
+        "diffusion.rollout": True,
+        "diffusion.steps": 1250,
+        "sampling.diversity": 1.0,
+    }
+    for coarse, fine in (("small", "detail"), ("quick", "fine")):
+        assert get_preset(coarse).updated(name=fine, **finer) == get_preset(fine)

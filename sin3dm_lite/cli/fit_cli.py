@@ -121,15 +121,14 @@ def cmd_fit(a) -> None:
 
 
 def default_for_this_machine(a) -> str:
-    """The preset ``fit`` takes without ``--preset`` (:func:`~sin3dm_lite.auto.fit_default.default_preset`), said first:
-    which, why, and about how long. A missing input or an unwritable ``--out`` fails before the timing."""
+    """The preset ``fit`` takes without ``--preset`` (:func:`~sin3dm_lite.auto.fit_default.default_preset`: this
+    machine's and this shape's), said first: which, why, and about how long. A missing or broken input or an
+    unwritable ``--out`` fails before the timing."""
     from ..app.run_folder import check_run_folder
     from ..auto.fit_default import default_preset
-    from ..data.source import is_example, resolve_mesh
+    from ..data.source import resolve_mesh
 
     check_run_folder(Path(a.out), a.mesh, False)
-    if not is_example(a.mesh) and not Path(a.mesh).is_file():
-        resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)  # its one line: no such file, no example
     mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
     chosen = default_preset(a.device, mesh)
     print("\n".join(chosen.lines()), flush=True)

@@ -267,11 +267,8 @@ def _settings(d: dict, prefix: str = "") -> dict:
 
 
 def unknown_setting(key: str) -> Sin3DMInputError:
-    """The error for a dotted name that is not a setting: retired, the close match, or the settings of that section."""
+    """The error for a dotted name that is not a setting: the close match, or the settings of that section."""
     import difflib
-
-    if key in RETIRED:
-        return Sin3DMInputError(f"config setting '{key}' was retired in this version ({RETIRED[key]})")
 
     names = list(LIMITS)
     section, _, leaf = key.partition(".")
@@ -350,19 +347,8 @@ def parse_settings(items) -> dict:
     return changes
 
 
-#: settings that earlier versions had and this one does not (git history says what each did): loading an older
-#: run's config.json leaves them out (as any key that is no field), and naming one says it was retired
-RETIRED = {
-    "sampling.snap": "snapping the last steps' estimate to the input's latent patches",
-    "sampling.snap_place": "snapping's preference for the same place",
-    "sampling.calibrate": "the fit's calibration, now Sin3DM.fit(calibrate=...) and fit --calibrate / --no-calibrate",
-    "thin_parts": "the thin-part switch, now the default preset's choice (fit without --preset)",
-    "thin_walls": "the thin-walls switch",
-    "rollout_switch": "the rollout switch (--set diffusion.rollout=true asks for the rollout)",
-}
-
-
 def _from_dict(cls, d: dict):
+    """``cls`` from its dictionary; a key that is no field (a setting an older version had) is left out."""
     kwargs = {}
     for f in fields(cls):
         if f.name not in d:
