@@ -64,8 +64,17 @@ GOALS = {"g_div": 0.20, "lp_f": 0.70, "lp_iou": 0.55, "recon_iou": 0.95, "fit_s"
 
 
 def fit_or_load(source: str, preset: str, run: Path, settings=()) -> Sin3DM:
+    """The run in ``run``, fitted first where it is not there; ``preset`` "default": the one ``fit`` takes without
+    ``--preset`` (this machine's and this shape's), said as the fit says it."""
     if (run / "model.pt").exists():
         return Sin3DM.load(run)
+    if preset == "default":
+        from sin3dm_lite.auto.fit_default import default_preset
+        from sin3dm_lite.data.source import resolve_mesh
+
+        chosen = default_preset(mesh=resolve_mesh(source))
+        print("\n".join(chosen.lines()), flush=True)
+        preset = chosen.name
     cfg = get_preset(preset).updated(**parse_settings(settings)) if settings else preset
     return Sin3DM.fit(source, preset=cfg, out=run, progress=False)
 
@@ -224,7 +233,9 @@ def main() -> None:
         "--inputs", "--examples", nargs="+", default=["canyon", "wall", "colonnade"], help="example names or mesh files"
     )
     ap.add_argument("--runs", default="runs/bench", help="run folders (reused when they exist)")
-    ap.add_argument("--preset", default="small")
+    ap.add_argument(
+        "--preset", default="small", help="a preset's name, or 'default': the one fit takes without --preset"
+    )
     ap.add_argument("-n", type=int, default=8)
     ap.add_argument("--export", type=int, default=2, help="samples timed through texture + export")
     ap.add_argument(
@@ -343,16 +354,14 @@ def main() -> None:
         )
 
 
-STAGES = ("grid_s", "autoencoder_s", "rollout_switch_s", "diffusion_s", "calibrate_s")
+STAGES = ("grid_s", "autoencoder_s", "diffusion_s", "calibrate_s")
 
 
 def _stages(t: dict) -> str:
-    """A fit's stage times: grid + autoencoder + diffusion, and the diversity calibration where the preset has one
-    (with the rollout switch, the plain denoiser and its calibration come before the rollout's)."""
+    """A fit's stage times: grid + autoencoder + diffusion, and the diversity calibration where the fit had one."""
     names = {
         "grid_s": "grid",
         "autoencoder_s": "autoencoder",
-        "rollout_switch_s": "plain denoiser + calibration",
         "diffusion_s": "diffusion",
         "calibrate_s": "calibration",
     }
