@@ -72,7 +72,7 @@ def _fit_cli(monkeypatch, tmp_path, capsys, *argv):
     monkeypatch.setattr(
         fit_default,
         "estimate_fit",
-        lambda cfg, device=None: {"autoencoder": 120, "denoiser": 60, "other": 27, "total": 207},
+        lambda cfg, device=None, box=None: {"autoencoder": 120, "denoiser": 60, "other": 27, "total": 207},
     )
     with pytest.raises(_FitCalled):
         main(["fit", "wall", "--out", str(tmp_path / "run"), *argv])

@@ -91,6 +91,13 @@ def thin_share(mesh, cfg: Config) -> float:
     return grid.thin_share(THIN_RADIUS * g.resolution // 64)
 
 
+def proportions(mesh) -> tuple[float, float, float]:
+    """``mesh``'s box, its sides over the longest (the grid, the latent and so the denoiser's work follow it)."""
+    v = np.asarray(mesh.vertices, np.float64)
+    size = np.maximum(v.max(0) - v.min(0), 1e-9) if len(v) else np.ones(3)
+    return tuple(float(x) for x in size / size.max())
+
+
 def for_shape(name: str, mesh) -> tuple[str, str, float | None]:
     """``(preset name, why in words, thin share)`` for ``mesh`` after the machine chose ``name``: the finer preset
     (:data:`FINER`) where the shape is mostly thin parts, else ``name``; shapes on a GPU are not measured."""
@@ -114,16 +121,20 @@ def default_preset(device=None, mesh=None, timed: bool = True) -> DefaultPreset:
     time (:func:`estimate_fit`)."""
     name, why = choose_preset(device)
     name, shape, share = for_shape(name, mesh)
-    return DefaultPreset(name, why + shape, estimate_fit(get_preset(name), device) if timed else None, share)
+    box = proportions(mesh) if mesh is not None else None
+    return DefaultPreset(name, why + shape, estimate_fit(get_preset(name), device, box) if timed else None, share)
 
 
-def timing_grid(resolution: int, n_points: int = 20_000):
+def timing_grid(resolution: int, n_points: int = 20_000, box=None):
     """A synthetic shape for timing: a ball in a box of ``resolution`` × half × half voxels (about the built-ins'
-    proportions), coloured by position (a step's cost depends on the grid's size and the points, not on the shape)."""
+    proportions; ``box``: the sides over the longest of the shape to fit), coloured by position (a step's cost
+    depends on the grid's size and the points, not on the shape)."""
+    from ..data.box import grid_shape
     from ..data.grid import ShapeGrid
     from ..data.mesh import Normalization
 
-    dims = np.array([resolution, max(8, resolution // 2), max(8, resolution // 2)])
+    box = (1.0, 0.5, 0.5) if box is None else box
+    dims = np.array(grid_shape(tuple(2.0 * b for b in box), resolution, multiple=8))
     half = dims / dims.max()
     aabb = np.concatenate([-half, half]).astype(np.float32)
     thr = 6.0 / dims.max()
@@ -153,17 +164,18 @@ def _seconds_per_step(trainer) -> float:
     return min(times)
 
 
-def estimate_fit(cfg: Config, device=None) -> dict:
+def estimate_fit(cfg: Config, device=None, box=None) -> dict:
     """About how long a fit of ``cfg`` takes on ``device``: a few steps of its autoencoder and its denoiser timed on
     :func:`timing_grid` (the denoiser uncompiled: on a GPU the compiled one runs faster), times their steps, plus
-    :data:`OTHER_SHARE` for the grid and the calibration. Seconds: ``autoencoder``, ``denoiser``, ``other``,
-    ``total``. The random state is left as it was."""
+    :data:`OTHER_SHARE` for the grid and the calibration. ``box``: the shape's proportions (:func:`proportions`;
+    default 1 × ½ × ½). Seconds: ``autoencoder``, ``denoiser``, ``other``, ``total``. The random state is left as
+    it was."""
     from ..model.autoencoder import AutoencoderTrainer
     from ..model.diffusion import DiffusionTrainer
 
     dev = get_device(device)
     with torch.random.fork_rng(devices=[dev] if dev.type == "cuda" else []):
-        grid = timing_grid(cfg.grid.resolution)
+        grid = timing_grid(cfg.grid.resolution, box=box)
         ae = AutoencoderTrainer(grid, cfg.updated(**{"autoencoder.pbr": False}).autoencoder, dev, 0)
         ae_s = _seconds_per_step(ae) * cfg.autoencoder.steps
         dm = DiffusionTrainer(ae.latent(), cfg.updated(**{"diffusion.compile": False}).diffusion, dev, 0)

@@ -42,7 +42,7 @@ class AutoencoderConfig:
     use_encoder: bool = True  # False = auto-decoder: the planes themselves are optimised
     # free geometry planes added to the encoder's before the squash, zero at the start: the encoder's mean along an
     # axis mixes a thin wall's front and back, so a window in it barely shows in any plane; these let the fit put it
-    # in (TriplaneAutoencoder; docs/thin-parts.md "Where the windows go")
+    # in (TriplaneAutoencoder; docs/lab-notes.md, "Thin walls")
     residual_planes: bool = False
     steps: int = 25_000
     points_per_step: int = 65_536

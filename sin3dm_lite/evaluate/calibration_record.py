@@ -16,7 +16,7 @@ import numpy as np
 #: 2-3 voxels thick on a 32-voxel grid (reconstruction IoU 0.94) keeps LP-IoU 0.02 but LP-F 0.15
 MIN_CEILING = 0.1
 #: samples whose G-Div on the fit's grid is under this are copies: a square keep's copies fall under it, every fit
-#: whose samples vary lies above (docs/thin-parts.md). A shape whose samples reshuffle colours alone has a geometry
+#: whose samples vary lies above (docs/lab-notes.md, "Thin walls"). A shape whose samples reshuffle colours alone has a geometry
 #: G-Div near 0, so the fit's warning after a fit asks the latents too (fit_policy.copies_warning)
 COPIES_G_DIV = 0.03
 #: samples that vary less than this are near copies when the calibration chooses (:func:`copy_line`): the diversity

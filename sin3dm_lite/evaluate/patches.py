@@ -227,7 +227,7 @@ def lp_misses_by_band(
 
     The slabs split the reference's occupied extent along ``axis`` evenly (patches beyond it join the end slabs).
     A variant of a tower that changes only its broken top misses patches in the top slabs alone; samples whose
-    walls moved miss them all the way down (docs/thin-parts.md, "Where the samples lose patches").
+    walls moved miss them all the way down (docs/judging-samples.md, "Where the samples lose patches").
     Every surface patch counts (no subset drawn, unlike :func:`lp_scores`). Returns ``share`` (of all patches, per
     slab, bottom first), ``missed`` (per slab) and ``lp_iou`` (1 - the overall share missed, pooled over the grids;
     NaN when no grid has a surface patch).

@@ -268,7 +268,7 @@ def keep_planes(latent: Triplane, aabb, planes) -> Plan:
     is shared by the whole line of points across it, so the ground plan (``xz``, y up) decides what lies where
     in every horizontal slice at once: kept, the samples keep the input's layout (the canyon's river, a tower's
     walls) and vary little; the two elevations kept, they vary about as much as free samples
-    (docs/thin-parts.md, "Where the samples lose patches").
+    (docs/judging-samples.md, "Where the samples lose patches").
     """
     names = [planes] if isinstance(planes, str) else list(planes)
     unknown = [p for p in names if p not in PLANES]

@@ -286,7 +286,7 @@ class TriplaneAutoencoder(nn.Module):
     With ``residual_planes`` the encoder's geometry planes get free planes added before the squash (``residual``,
     zero at the start, trained with the rest). The encoder averages along each axis, so a window in a thin round
     wall shares its plane texels with the wall behind it and barely changes them: the ruined tower's reconstruction
-    kept none or a few of its windows, with these planes nearly all (docs/thin-parts.md "Where the windows go").
+    kept none or a few of its windows, with these planes nearly all (docs/lab-notes.md, "Thin walls").
     Directly optimised planes alone keep them too, but make a latent the denoiser copies or breaks.
     """
 
