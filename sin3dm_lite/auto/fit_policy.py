@@ -12,7 +12,7 @@ import math
 from ..data.config import Config
 from ..data.mesh import TexturedMesh
 from ..errors import Sin3DMInputError
-from ..evaluate.calibration_record import COPIES_G_DIV
+from ..evaluate.calibration_record import VARIED_G_DIV
 from ..model.diffusion import check_flips as check_flip_axes
 from ..presets import PRESETS
 
@@ -65,8 +65,8 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
 
 # --------------------------------------------------------------------------- copies from pure noise
 #: samples from pure noise whose latents lie closer to the input's than this (mean squared difference over the
-#: input latent's variance, :func:`from_noise_distance`) may be copies; the latents alone do not separate copies from
-#: samples that vary little (dunes), so the calibration's samples at diversity 1 decide too (:data:`COPIES_G_DIV`)
+#: input latent's variance, :func:`from_noise_distance`) may be copies; where the fit calibrated, the decoded
+#: samples at diversity 1 decide instead (their G-Div under :data:`VARIED_G_DIV`)
 COPIES_DISTANCE = 0.07
 
 
@@ -89,23 +89,24 @@ def g_div_at_one(calibration: dict | None) -> float | None:
 
 
 def copies_warning(cfg: Config, distance: float, g_div: float | None = None) -> str | None:
-    """What a fit warns when its samples from pure noise are copies of the input, else None: their latents near the
-    input's (:data:`COPIES_DISTANCE`) and, where the calibration drew samples at diversity 1, their G-Div under
-    :data:`COPIES_G_DIV`. The denoiser's field then holds the shape's whole layout, the paper's "too large a
-    receptive field overfits"; no diversity setting varies it. The advice: fewer ResBlocks."""
-    if distance >= COPIES_DISTANCE or (g_div is not None and g_div >= COPIES_G_DIV):
+    """What a fit warns when even its samples from pure noise are (near) copies of the input, else None: the
+    calibration's samples at diversity 1 vary less than G-Div :data:`VARIED_G_DIV` or, without them, their latents
+    lie near the input's (:data:`COPIES_DISTANCE`). The denoiser's field then holds the shape's whole layout, the
+    paper's "too large a receptive field overfits"; no diversity setting varies it. The advice: a narrower field,
+    or for the 96-voxel presets the 64-voxel one (the same field, a coarser latent: more of the layout varies)."""
+    if (g_div >= VARIED_G_DIV) if g_div is not None else (distance >= COPIES_DISTANCE):
         return None
     d = cfg.diffusion
-    if d.n_resblocks > 1:
-        fix = refit_advice(cfg, "diffusion.n_resblocks", max(1, d.n_resblocks // 2))
-    else:
-        fix = "a smaller field, or another shape"
-    among = "" if g_div is None else f"; G-Div {g_div:.3f} among the calibration's samples at diversity 1"
+    fix = refit_advice(cfg, "diffusion.n_resblocks", max(1, d.n_resblocks // 2)) if d.n_resblocks > 1 else ""
+    coarse = {"detail": "small", "fine": "quick"}.get(cfg.name)
+    if coarse:
+        fix += f"; or --preset {coarse}, the same field on a coarser latent, which keeps thin walls less well"
+    among = "" if g_div is None else f"G-Div {g_div:.3f} among the calibration's samples at diversity 1; "
     return (
-        f"even from pure noise this fit's samples are copies of the input (their latents differ from the input's by "
-        f"{distance:.1%} of its variance{among}): its denoiser's {1 + 4 * d.n_resblocks}-texel field holds the whole "
-        "layout of this shape, so no diversity setting varies it; a narrower field varies it, and may break its "
-        f"structure: fit again {fix}"
+        f"even from pure noise this fit's samples are near copies of the input ({among}their latents differ from "
+        f"the input's by {distance:.1%} of its variance): its denoiser's {1 + 4 * d.n_resblocks}-texel field holds "
+        "the layout of this shape, so no diversity setting varies it; a narrower field varies it, and may break "
+        f"its structure: {fix or 'another shape, or a finer grid'}"
     )
 
 

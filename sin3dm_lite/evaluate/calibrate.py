@@ -42,7 +42,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ..errors import Sin3DMInputError
-from .calibration_record import COPIES_G_DIV, COPY_RATIO, MIN_CEILING, SCORE_NAMES, VARIED_G_DIV, Calibration, copy_line
+from .calibration_record import COPY_RATIO, MIN_CEILING, SCORE_NAMES, VARIED_G_DIV, Calibration, copy_line
 
 #: what the samples must keep against the input at most: the paper's averages are LP-F 0.699 at G-Div 0.224, and
 #: the project's goals LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter by a few
@@ -486,7 +486,6 @@ __all__ = [
     "MIN_CEILING",
     "NEAR_COPY",
     "RELATIVE",
-    "COPIES_G_DIV",
     "VARIED_G_DIV",
     "COPY_RATIO",
     "Calibration",

@@ -15,10 +15,6 @@ import numpy as np
 #: trained one keeps no patch) and the goals stay absolute. LP-F, the lenient score: a faithful near copy of walls
 #: 2-3 voxels thick on a 32-voxel grid (reconstruction IoU 0.94) keeps LP-IoU 0.02 but LP-F 0.15
 MIN_CEILING = 0.1
-#: samples whose G-Div on the fit's grid is under this are copies: a square keep's copies fall under it, every fit
-#: whose samples vary lies above (docs/lab-notes.md, "Thin walls"). A shape whose samples reshuffle colours alone has a geometry
-#: G-Div near 0, so the fit's warning after a fit asks the latents too (fit_policy.copies_warning)
-COPIES_G_DIV = 0.03
 #: samples that vary less than this are near copies when the calibration chooses (:func:`copy_line`): the diversity
 #: the project asks of a run's default samples at the paper's 128 voxels (G-Div ≥ 0.10)
 VARIED_G_DIV = 0.10
@@ -133,4 +129,4 @@ class Calibration:
         return "\n".join(lines)
 
 
-__all__ = ["COPIES_G_DIV", "COPY_RATIO", "VARIED_G_DIV", "MIN_CEILING", "SCORE_NAMES", "Calibration", "copy_line"]
+__all__ = ["COPY_RATIO", "VARIED_G_DIV", "MIN_CEILING", "SCORE_NAMES", "Calibration", "copy_line"]
