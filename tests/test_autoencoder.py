@@ -143,28 +143,6 @@ def test_auto_decoder_planes_train_at_their_own_learning_rates(box_grid):
     torch.testing.assert_close(h.xz[:, 4:], TriplaneEncoder.squash(raw.raw_tex["xz"]))  # texture channels last
 
 
-def test_residual_planes_start_at_the_encoders_latent_and_train_into_it(box_grid):
-    """``residual_planes``: free geometry planes added to the encoder's before the squash, zero at the start (the
-    same latent as the encoder's alone), trained at the geometry's learning rate, and part of the fitted latent."""
-    plain = AutoencoderTrainer(box_grid, tiny_ae_cfg(steps=8), seed=0)
-    tr = AutoencoderTrainer(box_grid, tiny_ae_cfg(steps=8, residual_planes=True), seed=0)
-    res = tr.model.residual
-    assert {n: tuple(p.shape) for n, p in res.items()} == {
-        n: (1, 4, *p.shape[2:]) for n, p in zip(("xy", "xz", "yz"), plain.latent().planes)
-    }
-    assert all(float(p.detach().abs().max()) == 0 for p in res.values())
-    for a, b in zip(tr.latent().planes, plain.latent().planes):
-        torch.testing.assert_close(a, b)
-    geo_group = tr.optimizer.param_groups[0]
-    assert all(any(p is q for q in geo_group["params"]) for p in res.values())
-    tr.run(progress=False)
-    assert all(float(p.detach().abs().max()) > 0 for p in res.values())  # trained
-    with torch.no_grad():  # the latent is the encoder's planes with the residual added to the geometry channels
-        taps = tr.model.encoder(tr.grid_t)
-        assert not torch.allclose(tr.latent().xz[:, :4], taps.xz[:, :4])
-        torch.testing.assert_close(tr.latent().xz[:, 4:], taps.xz[:, 4:])
-
-
 @pytest.mark.parametrize("held", [False, True])  # True: a shape of one colour, its texture half held
 def test_resume_is_bit_identical(box_grid, held):
     grid, cfg = one_colour(box_grid) if held else box_grid, tiny_ae_cfg(steps=20)

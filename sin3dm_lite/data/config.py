@@ -40,10 +40,6 @@ class AutoencoderConfig:
     decoder_kernel: int = 5
     mlp_hidden: int = 256
     use_encoder: bool = True  # False = auto-decoder: the planes themselves are optimised
-    # free geometry planes added to the encoder's before the squash, zero at the start: the encoder's mean along an
-    # axis mixes a thin wall's front and back, so a window in it barely shows in any plane; these let the fit put it
-    # in (TriplaneAutoencoder; docs/lab-notes.md, "Thin walls")
-    residual_planes: bool = False
     steps: int = 25_000
     points_per_step: int = 65_536
     grid_fraction: float = 0.1  # share of grid points in a batch; the rest are near the surface
@@ -172,7 +168,6 @@ LIMITS: dict[str, Any] = {
     "autoencoder.decoder_kernel": [1, 3, 5, 7, 9, 11, 13, 15],  # odd: the convolutions keep the plane's size
     "autoencoder.mlp_hidden": (1, 8192),
     "autoencoder.use_encoder": bool,
-    "autoencoder.residual_planes": bool,
     "autoencoder.steps": (1, 10**8),
     "autoencoder.points_per_step": (1, 2**24),
     "autoencoder.grid_fraction": (0.0, 1.0),

@@ -63,9 +63,8 @@ class TriplaneEncoder(nn.Module):
         """InstanceNorm (no affine) → ×0.5 → tanh: keeps latent values well inside (-1, 1)."""
         return torch.tanh(0.5 * F.instance_norm(plane))
 
-    def forward(self, grid: torch.Tensor, residual: list[torch.Tensor] | None = None) -> Triplane:
-        """The three planes: :meth:`volume` averaged along each axis, computed without the volume; ``residual``
-        (xy, xz, yz) is added to each plane's geometry channels before the squash.
+    def forward(self, grid: torch.Tensor) -> Triplane:
+        """The three planes: :meth:`volume` averaged along each axis, computed without the volume.
 
         A plane is the mean of a convolution along one axis, and the mean of a
         convolution is a convolution of means: average the padded grid along
@@ -75,9 +74,8 @@ class TriplaneEncoder(nn.Module):
         convolution and its gradient were a seventh of an autoencoder step.
         """
         planes = []
-        for k, (axis, taps) in enumerate(zip((4, 3, 2), self.taps(grid))):  # xy: mean over z, xz: over y, yz: over x
-            geo = _tap_conv(self.geo, taps[:, :1], axis)
-            f = [geo if residual is None else geo + residual[k], _tap_conv(self.tex, taps, axis)]
+        for axis, taps in zip((4, 3, 2), self.taps(grid)):  # xy: mean over z, xz: over y, yz: over x
+            f = [_tap_conv(self.geo, taps[:, :1], axis), _tap_conv(self.tex, taps, axis)]
             planes.append(self.squash(torch.cat(f, dim=1)))
         return Triplane(*planes)
 
@@ -281,14 +279,7 @@ def grid_tensor(grid: ShapeGrid, device: torch.device | str = "cpu") -> torch.Te
 
 
 class TriplaneAutoencoder(nn.Module):
-    """Encoder (or, with ``use_encoder=False``, directly optimised planes) + decoder for one shape.
-
-    With ``residual_planes`` the encoder's geometry planes get free planes added before the squash (``residual``,
-    zero at the start, trained with the rest). The encoder averages along each axis, so a window in a thin round
-    wall shares its plane texels with the wall behind it and barely changes them: the ruined tower's reconstruction
-    kept none or a few of its windows, with these planes nearly all (docs/lab-notes.md, "Thin walls").
-    Directly optimised planes alone keep them too, but make a latent the denoiser copies or breaks.
-    """
+    """Encoder (or, with ``use_encoder=False``, directly optimised planes) + decoder for one shape."""
 
     def __init__(
         self, cfg: AutoencoderConfig, grid_shape: tuple[int, int, int], threshold: float, color_channels: int = 3
@@ -301,11 +292,6 @@ class TriplaneAutoencoder(nn.Module):
         sizes = dict(zip(("xy", "xz", "yz"), ((x, y), (x, z), (y, z))))
         if cfg.use_encoder:
             self.encoder = TriplaneEncoder(cfg, color_channels)
-            self.residual = (
-                nn.ParameterDict({n: nn.Parameter(torch.zeros(1, cfg.geo_channels, *ab)) for n, ab in sizes.items()})
-                if cfg.residual_planes
-                else None
-            )
         else:  # auto-decoder: the raw planes are parameters, squashed like the encoder's output
             # geometry and texture channels apart, so each trains at its own learning rate
             self.raw_geo, self.raw_tex = (
@@ -317,7 +303,7 @@ class TriplaneAutoencoder(nn.Module):
     def encode(self, grid_t: torch.Tensor | None = None) -> Triplane:
         """The latent triplane ``h0`` (batch 1, values in (-1, 1))."""
         if self.cfg.use_encoder:
-            return self.encoder(grid_t, None if self.residual is None else [self.residual[n] for n in PLANES])
+            return self.encoder(grid_t)
         sq = TriplaneEncoder.squash
         return Triplane(*(sq(torch.cat([self.raw_geo[n], self.raw_tex[n]], 1)) for n in ("xy", "xz", "yz")))
 
@@ -344,7 +330,6 @@ class TriplaneAutoencoder(nn.Module):
         geo, tex = self.decoder.param_groups()
         if self.cfg.use_encoder:
             geo += list(self.encoder.geo.parameters())
-            geo += list(self.residual.parameters()) if self.residual is not None else []
             tex += list(self.encoder.tex.parameters())
         else:
             geo += list(self.raw_geo.parameters())
