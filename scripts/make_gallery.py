@@ -3,6 +3,7 @@
     python scripts/make_gallery.py                    # every picture into docs/img/
     python scripts/make_gallery.py --only control pbr # some of them
     python scripts/make_gallery.py --list             # what each one shows
+    python scripts/make_gallery.py --only tower --tower RUN MESH   # a fitted run of a tower (not shipped)
 
 One function per picture, each taking the output folder and returning the
 files it wrote; ``PICTURES`` lists them in the README's order. To add a
@@ -193,10 +194,30 @@ def picture_2d(out: Path, size: int = 24) -> list[Path]:
     return [_png(lesson2d.plot_images(samples, rows=rows), out / "lesson2d.png")]
 
 
+#: the fitted run and its input mesh for :func:`picture_tower` (``--tower RUN MESH``): a tower is not shipped
+TOWER: list[str] = []
+
+
+def picture_tower(out: Path, n: int = 4) -> list[Path]:
+    """A ruined tower's run (``--tower RUN MESH``): the input and ``n`` samples at the run's default, then at 1."""
+    if not TOWER:
+        print("  tower: skipped (give --tower RUN MESH: a fit of benchmarks/make_test_meshes.py's ruins)")
+        return []
+    from sin3dm_lite.formats.load import load_mesh
+
+    model, mesh = Sin3DM.load(TOWER[0]), load_mesh(TOWER[1])
+    rows = []
+    for d in (model.config.sampling.diversity, 1.0):
+        meshes = [mesh, *model.to_mesh(model.sample(n, seed=0, diversity=d, progress=False), **MESH)]
+        rows.append(_views(meshes, ["input", *(f"sample {i} (diversity {d:g})" for i in range(n))], columns=n + 1))
+    return [_png(_stack(rows), out / "tower.png")]
+
+
 PICTURES = {
     "samples": picture_samples,
     "control": picture_control,
     "pbr": picture_pbr,
+    "tower": picture_tower,
     "2d": picture_2d,
 }
 
@@ -206,7 +227,9 @@ def main(argv=None) -> None:
     parser.add_argument("--only", nargs="+", choices=list(PICTURES), help="make only these pictures")
     parser.add_argument("--out", type=Path, default=OUT, help=f"folder for the PNGs (default: {OUT.relative_to(ROOT)})")
     parser.add_argument("--list", action="store_true", help="say what each picture shows, make none")
+    parser.add_argument("--tower", nargs=2, metavar=("RUN", "MESH"), default=[], help="the run for the tower picture")
     args = parser.parse_args(argv)
+    TOWER[:] = args.tower
     if args.list:
         for key, fn in PICTURES.items():
             print(f"{key:8s} {fn.__doc__.splitlines()[0]}")

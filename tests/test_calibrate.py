@@ -668,3 +668,18 @@ def test_the_cpu_presets_calibrate_by_default_and_the_others_do_not(tmp_path):
         plain = Sin3DM.fit("wall", preset=cfg, progress=False)
         mine = Sin3DM.fit("wall", preset=cfg.updated(name="small"), progress=False, calibrate=False)
     assert "calibration" not in plain.report and "calibration" not in mine.report
+
+
+def test_a_choice_of_near_copies_on_the_training_grid_names_the_paper_grid():
+    """Judged on the 96-voxel training grid by the voxel centres a thin-walled tower's choice gave near copies (G-Div
+    0.044 at 128); judged as the paper measures it chose 0.7-0.75 (G-Div 0.13-0.15): the fit says how, once."""
+    from sin3dm_lite.auto.review import paper_grid_hint
+
+    near = {"diversity": 0.55, "resolution": 96, "at_choice": {"g_div": 0.05}}
+    hint = paper_grid_hint(near, "runs/my tower")
+    assert "0.55 gives near copies (G-Div 0.050)" in hint and "96-voxel training grid" in hint
+    assert hint.endswith("sin3dm-lite calibrate 'runs/my tower' --resolution 128")
+    assert paper_grid_hint(near).endswith("model.calibrate(resolution=128)")
+    assert paper_grid_hint({**near, "at_choice": {"g_div": 0.2}}) is None  # varied: nothing to say
+    assert paper_grid_hint({**near, "resolution": 128}) is None  # judged as the paper measures already
+    assert paper_grid_hint(None) is None

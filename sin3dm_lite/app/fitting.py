@@ -130,7 +130,7 @@ class FitRun:
         }
         calibrate = calibrates(cfg) if calibrate is None else bool(calibrate)
         model, history = self.denoise(cfg, grid, h0, ae, metrics, base, calibrate)
-        review_fit(model, calibrate)
+        review_fit(model, calibrate, self.say, self.run)
         if self.run is not None:
             model.save(self.run)
             atomic_write(self.run / "losses.json", json.dumps({"autoencoder": ae.history, "diffusion": history}))

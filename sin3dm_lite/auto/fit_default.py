@@ -33,9 +33,9 @@ from ..app.device import bf16_is_fast, cpu_bf16_share, get_device
 from ..data.config import Config
 from ..presets import get_preset
 
-#: the grid and the calibration beside the two trainings: in the fits of docs/performance.md they took 5-20 % of
-#: the training's time
-OTHER_SHARE = 0.15
+#: the grid and the calibration beside the two trainings: 5-20 % of the training's time in the fits of
+#: docs/performance.md and docs/presets.md, the most on the finer grid
+OTHER_SHARE = 0.2
 #: training steps timed per network (after one untimed step)
 TIMED_STEPS = 3
 #: the finer preset of each CPU preset, for a shape that is mostly thin parts
