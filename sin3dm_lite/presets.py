@@ -77,7 +77,8 @@ def _detail() -> Config:
     # A part 3-6 voxels thick at 64 is 1.5-3 texels of a 32-texel latent, too few to keep; at 96 voxels it has
     # half again as many, and 4 ResBlocks keep the field's share of the latent. The cross-plane rollout makes the
     # three planes agree on where a wall or a column stands. Sampled from pure noise, as in the paper. The denoiser
-    # trains in bf16 where the CPU runs it faster ("auto"; a quarter off its step at 96 voxels), else in fp32.
+    # trains in bf16 where the CPU runs it faster ("auto"; a tenth to a quarter off its step at 96 voxels), else in
+    # fp32, for 1,000 steps (a fit of a tower within 12 minutes with its calibration at 128 voxels; docs/presets.md).
     return _small().updated(
         name="detail",
         **{
@@ -85,7 +86,7 @@ def _detail() -> Config:
             "autoencoder.steps": 1000,
             "diffusion.n_resblocks": 4,
             "diffusion.rollout": True,
-            "diffusion.steps": 1250,
+            "diffusion.steps": 1000,
             "diffusion.precision": "auto",
             "sampling.diversity": 1.0,
         },

@@ -503,14 +503,14 @@ def test_plot_beside_input_draws_each_shape_at_the_inputs_voxel_size_decoded_for
 
 def test_the_finer_presets_are_their_coarse_ones_at_96_voxels_with_the_wider_field_and_the_rollout():
     """`detail` is `small`, `fine` is `quick`, each at 96 voxels with 4 ResBlocks, the cross-plane rollout, 1,000
-    autoencoder and 1,250 denoiser steps (in bf16 where it is faster), sampled from pure noise: the default's choice
+    autoencoder and 1,000 denoiser steps (in bf16 where it is faster), sampled from pure noise: the default's choice
     for thin parts; `fine`, for CPUs without fast bf16, on denoiser batches of 4."""
     finer = {
         "grid.resolution": 96,
         "autoencoder.steps": 1000,
         "diffusion.n_resblocks": 4,
         "diffusion.rollout": True,
-        "diffusion.steps": 1250,
+        "diffusion.steps": 1000,
         "diffusion.precision": "auto",
         "sampling.diversity": 1.0,
     }

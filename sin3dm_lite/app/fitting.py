@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..auto.calibration import calibrates
+from ..auto.calibration import calibrates, judged_at
 from ..auto.fit_default import default_preset
 from ..auto.fit_policy import choose_pbr
 from ..auto.review import review_fit
@@ -113,10 +113,12 @@ class FitRun:
         self.dev = get_device(device)
         self.say = print if progress else (lambda *a, **k: None)
         self.timings: dict[str, float] = {}
+        self.mesh: TexturedMesh | None = None
 
     def stages(self, source, preset, seed, pbr, allow_outside_paths, calibrate):
         """All stages, saved into the run folder at the end; the fitted model."""
         cfg, mesh = self.settings(source, preset, seed, pbr, allow_outside_paths)
+        self.mesh = mesh  # None where a resumed run has its grid: the calibration then reads it again
         grid = self.grid(cfg, mesh)
         ae, h0, metrics = self.autoencoder(cfg, grid)
         base = {
@@ -235,7 +237,11 @@ class FitRun:
                 "run's default"
             )
             t0 = time.perf_counter()
-            model.calibrate(reference=grid.sdf < 0, progress=self.progress)
+            at = judged_at(cfg)
+            if at is None:
+                model.calibrate(reference=grid.sdf < 0, progress=self.progress)
+            else:  # against the input mesh as the paper measures (the mesh read again on a resume)
+                model.calibrate(input_mesh=self.mesh, resolution=at, supersample=1, progress=self.progress)
             self.timings["calibrate_s"] = time.perf_counter() - t0
         return model, dm.history
 

@@ -36,6 +36,9 @@ from ..presets import get_preset
 #: the grid and the calibration beside the two trainings: 5-20 % of the training's time in the fits of
 #: docs/performance.md and docs/presets.md, the most on the finer grid
 OTHER_SHARE = 0.2
+#: the same where the calibration judges at 128 voxels (``detail``, ``fine``: :func:`auto.calibration.judged_at`):
+#: on a tower 218 s beside 540 s of training
+OTHER_SHARE_AT_128 = 0.4
 #: training steps timed per network (after one untimed step)
 TIMED_STEPS = 3
 #: the finer preset of each CPU preset, for a shape that is mostly thin parts
@@ -180,7 +183,9 @@ def estimate_fit(cfg: Config, device=None, box=None) -> dict:
         ae_s = _seconds_per_step(ae) * cfg.autoencoder.steps
         dm = DiffusionTrainer(ae.latent(), cfg.updated(**{"diffusion.compile": False}).diffusion, dev, 0)
         dn_s = _seconds_per_step(dm) * cfg.diffusion.steps
-    other = OTHER_SHARE * (ae_s + dn_s)
+    from .calibration import judged_at
+
+    other = (OTHER_SHARE if judged_at(cfg) is None else OTHER_SHARE_AT_128) * (ae_s + dn_s)
     return {"autoencoder": ae_s, "denoiser": dn_s, "other": other, "total": ae_s + dn_s + other}
 
 
