@@ -154,7 +154,7 @@ def test_a_shape_whose_near_copy_misses_the_absolute_goals_gets_a_default_below_
         f"LP-F: near copy 0.40; goal 0.34 (85% of the near copy; the absolute 0.70 is out of "
         f"its reach); chosen {cal.diversity:g}"
     )
-    assert "below the diversity requirement 0.15" in story[2] and "at 24 voxels (the paper measures at 128)" in story[3]
+    assert "below the diversity requirement 0.10" in story[2] and "at 24 voxels (the paper measures at 128)" in story[3]
     assert "LP-F: near copy 0.40; goal 0.34" in cal.summary()
 
 
@@ -653,21 +653,31 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
     assert not [w for w in caught if "even from pure noise" in str(w.message)]
 
 
-def test_the_cpu_presets_calibrate_by_default_and_the_others_do_not(tmp_path):
+def test_the_cpu_presets_calibrate_by_default_and_the_others_do_not(tmp_path, monkeypatch):
     """``Sin3DM.fit(calibrate=None)``: the CPU presets choose their diversity, tiny (tests) and paper (the paper's
-    pure noise) keep their own; calibrate=False / True says otherwise."""
-    from sin3dm_lite.auto.calibration import calibrates
+    pure noise) keep their own; calibrate=False / True says otherwise. The finer presets (a training grid above 64
+    voxels) judge at 128 voxels against the input mesh by the voxel centres, the others on their training grid."""
+    from sin3dm_lite.app import fitting
+    from sin3dm_lite.auto.calibration import calibrates, judged_at
     from sin3dm_lite.presets import get_preset
 
     assert [calibrates(get_preset(n)) for n in ("small", "quick", "detail", "fine", "tiny", "paper")] == [True] * 4 + [
         False
     ] * 2
+    assert [judged_at(get_preset(n)) for n in ("small", "quick", "detail", "fine")] == [None, None, 128, 128]
     cfg = micro_config()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a micro fit reconstructs poorly
         plain = Sin3DM.fit("wall", preset=cfg, progress=False)
         mine = Sin3DM.fit("wall", preset=cfg.updated(name="small"), progress=False, calibrate=False)
+        own = Sin3DM.fit("wall", preset=cfg.updated(name="small"), progress=False)
+        monkeypatch.setattr(fitting, "judged_at", lambda c: 32)  # the finer presets' path, at a micro size
+        finer = Sin3DM.fit("wall", preset=cfg.updated(name="detail"), progress=False)
     assert "calibration" not in plain.report and "calibration" not in mine.report
+    on_grid, at_32 = own.report["calibration"], finer.report["calibration"]
+    assert on_grid["resolution"] == max(own.report["grid_shape"]) and on_grid["supersample"] == 1
+    assert at_32["resolution"] == 32 and at_32["supersample"] == 1  # against the input mesh, voxel centres
+    assert finer.config.sampling.diversity == at_32["diversity"]
 
 
 def test_a_choice_of_near_copies_on_the_training_grid_names_the_paper_grid():

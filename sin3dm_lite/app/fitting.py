@@ -246,8 +246,8 @@ class FitRun:
         return model, dm.history
 
 
-def train(trainer, ckpt: Path | None, every: int, progress: bool, say, until_step: int | None = None) -> None:
-    """Run a trainer (:class:`~sin3dm_lite.training.Trainer`) to its end (or ``until_step``), checkpointing every
+def train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:
+    """Run a trainer (:class:`~sin3dm_lite.training.Trainer`) to its end, checkpointing every
     ``every`` steps; a fresh trainer resumes from ``ckpt`` where it exists.
 
     Ctrl-C (SIGINT) is honoured only *between* steps, after a checkpoint of the
@@ -281,7 +281,7 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say, until_ste
     main = threading.current_thread() is threading.main_thread()
     old = {s: signal.signal(s, on_sigint) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
     try:
-        trainer.run(until_step, progress=progress, callback=checkpoint)
+        trainer.run(progress=progress, callback=checkpoint)
     finally:
         for s, handler in old.items():
             signal.signal(s, handler)

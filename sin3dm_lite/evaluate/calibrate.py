@@ -53,8 +53,8 @@ GOALS = {"lp_iou": 0.55, "lp_fscore": 0.70}
 RELATIVE = {"lp_iou": 0.65, "lp_fscore": 0.85}
 #: the setting whose samples stand for the near copy (the ceiling), and where its seeds start (after ``seed``)
 NEAR_COPY, NEAR_COPY_SEEDS = 0.05, 100_000
-#: the diversity requirement: the samples' G-Div at the choice (the issue's goal; recorded, not a goal of the walk)
-G_DIV_GOAL = 0.15
+#: the diversity requirement the record reports the choice against: the copy line's floor (one number for both)
+G_DIV_GOAL = VARIED_G_DIV
 #: the ladder's floor: the lowest setting drawn, and the answer when even it misses the goals
 LOWEST = 0.1
 
