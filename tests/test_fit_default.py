@@ -101,6 +101,57 @@ def test_an_explicit_preset_always_wins_and_is_not_timed(monkeypatch, tmp_path, 
     assert preset == "small" and "no preset named" not in printed
 
 
+def test_a_time_budget_trains_both_networks_for_a_share_of_their_steps(monkeypatch, tmp_path, capsys):
+    """`fit --minutes N`: the estimate (207 s: 120 + 60 of training, 27 of grid and calibration) is kept within N
+    minutes by the same share of each network's steps; one that fits changes nothing."""
+    preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, "--minutes", "2.5")  # (150 - 27) / 180 = 68 %
+    quick = get_preset("quick")
+    assert preset.autoencoder.steps == 700 and preset.diffusion.steps == 700  # 68 % of 1,000, to 50 steps
+    assert preset.grid == quick.grid and preset.sampling == quick.sampling
+    assert printed.splitlines()[2] == (
+        "[fit] to keep within 2.5 min: 700 autoencoder and 700 denoiser steps (68% of the preset's 1,000 and 1,000)"
+    )
+    preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, "--minutes", "4")
+    assert preset == "quick" and "[fit] within 4 min: the preset's steps as they are" in printed
+    preset, _ = _fit_cli(monkeypatch, tmp_path, capsys, "--minutes", "2.5", "--set", "diffusion.steps=900")
+    assert preset.autoencoder.steps == 700 and preset.diffusion.steps == 900  # what --set names wins
+    preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, "--preset", "small", "--minutes", "2.5")
+    assert preset.name == "small" and preset.autoencoder.steps == 1350  # a named preset is timed for the budget
+    assert "no preset named" not in printed
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (["--minutes", "1"], "'quick' cannot fit within 1 min here: at half of its training steps it needs about 2 min"),
+        (["--minutes", "0"], "argument --minutes: expected a number above 0, got 0.0"),
+        (["--minutes", "3", "--resume"], "--minutes is for a new fit"),
+    ],
+)
+def test_a_budget_the_fit_cannot_keep_is_refused_in_one_line_before_it_starts(
+    monkeypatch, tmp_path, capsys, argv, says
+):
+    from sin3dm_lite.pipeline import Sin3DM
+
+    monkeypatch.setattr(Sin3DM, "fit", staticmethod(lambda *a, **k: pytest.fail("fitted")))
+    monkeypatch.setattr(fit_default, "choose_preset", lambda device=None: ("quick", "this machine (test)"))
+    monkeypatch.setattr(
+        fit_default,
+        "estimate_fit",
+        lambda cfg, device=None, box=None: {"autoencoder": 120, "denoiser": 60, "other": 27, "total": 207},
+    )
+    if "--resume" in argv:
+        (tmp_path / "run").mkdir()
+    try:
+        code = main(["fit", "wall", "--out", str(tmp_path / "run"), *argv])
+    except SystemExit as e:  # argparse's own errors
+        code = e.code
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert says in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "run").exists() or "--resume" in argv
+
+
 def test_a_missing_input_fails_before_the_timing(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(fit_default, "estimate_fit", lambda *a, **k: pytest.fail("timed before checking the input"))
     assert main(["fit", str(tmp_path / "gone.obj"), "--out", str(tmp_path / "r")]) == 2

@@ -104,6 +104,13 @@ def finite(value, name: str | None = None) -> float:
     return float(value)
 
 
+def positive(value, name: str | None = None) -> float:
+    """A finite number above 0 (a time budget in minutes)."""
+    if not is_real(value) or not value > 0:
+        raise refuse(name, "a number above 0", value)
+    return float(value)
+
+
 def factors(value, what: str, low: float = 0.0, low_included: bool = False) -> tuple[float, float, float]:
     """Size factors along x, y, z (one number for all three, or three), each above ``low`` (or from ``low``,
     ``low_included``) and at most :data:`MAX_FACTOR`; ``what``: ``resize`` or ``outpaint``."""

@@ -19,6 +19,8 @@ one: docs/presets.md shows where it switches on a sweep of generated families an
 A preset named by the user always wins. The time is an estimate from a few training steps of the chosen preset
 timed here, on a synthetic shape at its grid (:func:`estimate_fit`), so it follows this machine, its threads
 and whatever else runs on it now; the grid and the calibration add a share of the training (:data:`OTHER_SHARE`).
+A time budget (``fit --minutes N``, :func:`within_minutes`) trains both networks for fewer steps when the estimate
+is longer, never below half of the preset's.
 """
 
 from __future__ import annotations
@@ -47,6 +49,9 @@ FINER = {"small": "detail", "quick": "fine"}
 THIN_RADIUS = 3
 #: more than this share of the solid in thin parts: the finer grid
 MOSTLY_THIN = 0.5
+#: the fewest training steps a time budget leaves, as a share of the preset's: the presets' quality was measured at
+#: their own steps, and half of them is as far as a budget goes (a shorter one asks for a lighter preset)
+LEAST_STEPS_SHARE = 0.5
 
 
 @dataclass
@@ -128,6 +133,31 @@ def default_preset(device=None, mesh=None, timed: bool = True) -> DefaultPreset:
     return DefaultPreset(name, why + shape, estimate_fit(get_preset(name), device, box) if timed else None, share)
 
 
+def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, str]:
+    """The settings that keep a fit of ``cfg`` (estimated ``seconds``, :func:`estimate_fit`) within ``minutes``, and
+    the line that says so: both networks train for the same share of their steps, what the budget leaves after the
+    grid and the calibration (those stay as estimated). ``{}`` where the estimate already fits; a budget that would
+    leave less than :data:`LEAST_STEPS_SHARE` of the steps is refused (one line: the least it needs)."""
+    from ..errors import Sin3DMInputError
+
+    training = seconds["autoencoder"] + seconds["denoiser"]
+    if seconds["total"] <= minutes * 60:
+        return {}, f"[fit] within {minutes:g} min: the preset's steps as they are"
+    share = (minutes * 60 - seconds["other"]) / training
+    if share < LEAST_STEPS_SHARE:
+        least = (seconds["other"] + LEAST_STEPS_SHARE * training) / 60
+        raise Sin3DMInputError(
+            f"'{cfg.name}' cannot fit within {minutes:g} min here: at half of its training steps it needs about "
+            f"{least:.0f} min; give --minutes {int(np.ceil(least))} or more, or a lighter preset (--preset quick)"
+        )
+    ae, dn = (max(50, int(round(share * n / 50)) * 50) for n in (cfg.autoencoder.steps, cfg.diffusion.steps))
+    line = (
+        f"[fit] to keep within {minutes:g} min: {ae:,} autoencoder and {dn:,} denoiser steps ({share:.0%} of the "
+        f"preset's {cfg.autoencoder.steps:,} and {cfg.diffusion.steps:,})"
+    )
+    return {"autoencoder.steps": ae, "diffusion.steps": dn}, line
+
+
 def timing_grid(resolution: int, n_points: int = 20_000, box=None):
     """A synthetic shape for timing: a ball in a box of ``resolution`` × half × half voxels (about the built-ins'
     proportions; ``box``: the sides over the longest of the shape to fit), coloured by position (a step's cost
@@ -201,4 +231,5 @@ __all__ = [
     "for_shape",
     "thin_share",
     "timing_grid",
+    "within_minutes",
 ]

@@ -92,7 +92,12 @@ def cmd_fit(a) -> None:
         raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")
     t0 = time.perf_counter()
     changes = parse_settings(a.set)
-    name = a.preset or (None if a.resume else default_for_this_machine(a))  # None: the run's own (Sin3DM.fit)
+    if a.minutes is not None and a.resume:
+        raise Sin3DMInputError("--minutes is for a new fit: a resumed fit keeps its run's steps; leave out --minutes")
+    chosen = None if a.preset or a.resume else default_for_this_machine(a)
+    name = a.preset or (chosen.name if chosen else None)  # None: the run's own (Sin3DM.fit)
+    if a.minutes is not None:
+        changes = {**time_budget(a, name, chosen, changes), **changes}  # what --set names explicitly wins
     base = get_preset(name or "small")
     preset = base.updated(**changes) if changes else name
     model = Sin3DM.fit(
@@ -120,7 +125,7 @@ def cmd_fit(a) -> None:
     )
 
 
-def default_for_this_machine(a) -> str:
+def default_for_this_machine(a):
     """The preset ``fit`` takes without ``--preset`` (:func:`~sin3dm_lite.auto.fit_default.default_preset`: this
     machine's and this shape's), said first: which, why, and about how long. A missing or broken input or an
     unwritable ``--out`` fails before the timing."""
@@ -132,4 +137,23 @@ def default_for_this_machine(a) -> str:
     mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
     chosen = default_preset(a.device, mesh)
     print("\n".join(chosen.lines()), flush=True)
-    return chosen.name
+    return chosen
+
+
+def time_budget(a, name: str, chosen, changes: dict) -> dict:
+    """``--minutes``: fewer training steps where the fit's estimate is longer
+    (:func:`~sin3dm_lite.auto.fit_default.within_minutes`), said before the fit starts."""
+    from ..app.run_folder import check_run_folder
+    from ..auto.fit_default import estimate_fit, proportions, within_minutes
+    from ..data.source import resolve_mesh
+    from ..presets import get_preset
+
+    cfg = get_preset(name).updated(**changes) if changes else get_preset(name)
+    seconds = chosen.seconds if chosen is not None and chosen.seconds and not changes else None
+    if seconds is None:
+        check_run_folder(Path(a.out), a.mesh, False)
+        mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
+        seconds = estimate_fit(cfg, a.device, proportions(mesh))
+    budget, line = within_minutes(cfg, seconds, a.minutes)
+    print(line, flush=True)
+    return budget

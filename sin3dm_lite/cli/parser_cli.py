@@ -14,6 +14,7 @@ from .values_cli import (
     finite_float,
     int_at_least,
     outpaint_factor,
+    positive_float,
     positive_int,
     resize_factor,
     sampling_setting,
@@ -160,6 +161,14 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         default=None,
         help="after training, choose the run's diversity: the most varied setting whose samples keep the input's "
         "patches (default: on for the CPU presets small, quick, detail and fine)",
+    )
+    f.add_argument(
+        "--minutes",
+        type=positive_float,
+        default=None,
+        metavar="N",
+        help="keep the fit within about N minutes: where the fit's estimate for this machine is longer, both "
+        "networks train for fewer steps (at least half of the preset's; a shorter budget is refused)",
     )
     f.add_argument(
         "--set",

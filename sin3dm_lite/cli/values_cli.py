@@ -44,6 +44,7 @@ resize_factor = checked(float, "a number", lambda v: values.factors(v, "resize")
 outpaint_factor = checked(float, "a number", lambda v: values.factors(v, "outpaint", 1.0, True)[0])
 unit_float = checked(float, "a number from 0 to 1", values.share)
 finite_float = checked(float, "a number", values.finite)
+positive_float = checked(float, "a number", values.positive)
 seed_int = checked(int, "a whole number", lambda v: values.seed(v, None))
 
 
