@@ -98,12 +98,12 @@ def _forward(x: torch.Tensor, params: list[torch.Tensor], save: Workspace | bool
         r = slice(s, e) if save is not None else slice(0, e - s)
         xc = x[s:e]
         y0, y1, z, y3, y4 = (t[r] for t in acts)
-        torch.addmm(bias[0], xc, wt[0], out=y0).relu_()
-        torch.addmm(bias[1], y0, wt[1], out=y1).relu_()
-        torch.addmm(bias[2], y1, wt[2], out=z[:, :h]).relu_()
+        torch.mm(xc, wt[0], out=y0).add_(bias[0]).relu_()  # the product, then the bias in cache (an addmm
+        torch.mm(y0, wt[1], out=y1).add_(bias[1]).relu_()  # into `out` first copies the bias there from memory)
+        torch.mm(y1, wt[2], out=z[:, :h]).add_(bias[2]).relu_()
         z[:, h:] = xc
-        torch.addmm(bias[3], z, wt[3], out=y3).relu_()
-        torch.addmm(bias[4], y3, wt[4], out=y4).relu_()
+        torch.mm(z, wt[3], out=y3).add_(bias[3]).relu_()
+        torch.mm(y3, wt[4], out=y4).add_(bias[4]).relu_()
         torch.addmm(bias[5], y4, wt[5], out=y[s:e])
     return y, acts
 
