@@ -464,7 +464,9 @@ def plain_fit(tmp_path_factory):
 
 def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
     """The SDF's sign on the training grid (calibration) and the exported mesh voxelised (the metrics) agree, and
-    the sign-only decode gives the full decode's signs voxel for voxel."""
+    the sign-only decode gives the full decode's signs voxel for voxel in the precision the decoder trained in
+    (bf16 where it trained so and this CPU runs bf16 faster), and all but a few per thousand in fp32."""
+    from sin3dm_lite.app.device import autocast
     from sin3dm_lite.model.decode import decode_grid
 
     model, run = calibrated
@@ -472,10 +474,15 @@ def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
     fast = C.sample_occupancy(model, 1.0, 2, 3, res)
     samples = model.sample(2, seed=3, diversity=1.0, progress=False)
     slow = model.occupancy(samples, res, mesh_resolution=res)
+    trained = model.report["precision"]["autoencoder"]
     for i, (a, b) in enumerate(zip(fast, slow)):
         assert a.shape == b.shape and a.any()
         assert iou(a, b) > 0.9
-        assert np.array_equal(a, decode_grid(model.decoder, samples.triplane[i : i + 1], samples.aabb, res) < 0)
+        with autocast(model.device, "auto" if trained == "bf16" else "fp32"):
+            full = decode_grid(model.decoder, samples.triplane[i : i + 1], samples.aabb, res) < 0
+        assert np.array_equal(a, full)
+        fp32 = decode_grid(model.decoder, samples.triplane[i : i + 1], samples.aabb, res) < 0
+        assert np.mean(a != fp32) < 0.005
     # the paper's voxels (calibrate --resolution N): the same samples' meshes, a voxel solid where any of 2³ points is
     centres = model.occupancy(samples, res, supersample=1)
     for paper, meshes, c in zip(
