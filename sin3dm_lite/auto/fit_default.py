@@ -31,16 +31,17 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..app.device import bf16_is_fast, cpu_bf16_share, get_device
+from ..app.device import bf16_is_fast, cpu_bf16_share, get_device, resolved_precision
 from ..data.config import Config
 from ..presets import get_preset
 
 #: the grid and the calibration beside the two trainings: 5-20 % of the training's time in the fits of
 #: docs/performance.md and docs/presets.md, the most on the finer grid
 OTHER_SHARE = 0.2
-#: the same where the calibration judges at 128 voxels (``detail``, ``fine``: :func:`auto.calibration.judged_at`):
-#: on a tower 218 s beside 540 s of training
-OTHER_SHARE_AT_128 = 0.4
+#: the same where the calibration judges at 128 voxels (``detail``, ``fine``: :func:`auto.calibration.judged_at`),
+#: its decoding in fp32 (``fine`` without fast bf16: on a tower 152 s beside 458 s of training) or in bf16 (an
+#: autoencoder that trained in bf16: 135 s beside 584 s)
+OTHER_SHARE_AT_128 = {"fp32": 0.35, "bf16": 0.25}
 #: training steps timed per network (after one untimed step)
 TIMED_STEPS = 3
 #: the finer preset of each CPU preset, for a shape that is mostly thin parts
@@ -215,7 +216,8 @@ def estimate_fit(cfg: Config, device=None, box=None) -> dict:
         dn_s = _seconds_per_step(dm) * cfg.diffusion.steps
     from .calibration import judged_at
 
-    other = (OTHER_SHARE if judged_at(cfg) is None else OTHER_SHARE_AT_128) * (ae_s + dn_s)
+    decoded = resolved_precision(dev, cfg.autoencoder.precision)
+    other = (OTHER_SHARE if judged_at(cfg) is None else OTHER_SHARE_AT_128[decoded]) * (ae_s + dn_s)
     return {"autoencoder": ae_s, "denoiser": dn_s, "other": other, "total": ae_s + dn_s + other}
 
 
