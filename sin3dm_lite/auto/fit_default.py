@@ -50,8 +50,8 @@ FINER = {"small": "detail", "quick": "fine"}
 THIN_RADIUS = 3
 #: more than this share of the solid in thin parts: the finer grid
 MOSTLY_THIN = 0.5
-#: the fewest training steps a time budget leaves, as a share of the preset's: the presets' quality was measured at
-#: their own steps, and half of them is as far as a budget goes (a shorter one asks for a lighter preset)
+#: the fewest training steps a time budget leaves, as a share of the preset's: the presets were judged at their own
+#: steps, and half of them is as far as a budget goes (a shorter one asks for a lighter preset)
 LEAST_STEPS_SHARE = 0.5
 
 

@@ -77,9 +77,8 @@ def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int
     With the voxel centres (``supersample=1``) the decoder's sign, no mesh, queried only where its bound cannot
     prove the sign (``exact_band=0``: the same occupancy voxel for voxel, in a fraction of the time); with the
     paper's voxels (``supersample=2``) each sample's mesh voxelised as ``evaluate`` does
-    (:meth:`Sin3DM.occupancy`), about twice the time (docs/calibration.md). A decoder that trained in bf16 decodes
-    in bf16 here too where this CPU runs it faster (about half the time at 128 voxels; a tenth of a percent of the
-    voxels change sign, docs/calibration.md); the samples themselves are drawn in fp32, as a user draws them.
+    (:meth:`Sin3DM.occupancy`). A decoder trained in bf16 decodes in bf16 where this CPU runs it faster (a tenth of
+    a percent of the signs change; docs/calibration.md); the samples are drawn in fp32, as a user draws them.
     """
     from ..app.device import autocast
     from ..model.decode import decode_grid
@@ -87,13 +86,10 @@ def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int
     samples = model.sample(n, seed=seed, diversity=diversity, progress=False)
     if supersample > 1:
         return model.occupancy(samples, resolution, supersample=supersample)
-    trained = (model.report.get("precision") or {}).get("autoencoder", "fp32")
-    out = []
-    for i in range(n):
-        with autocast(model.device, "auto" if trained == "bf16" else "fp32"):
-            sdf = decode_grid(model.decoder, samples.triplane[i : i + 1], samples.aabb, resolution, exact_band=0.0)
-        out.append(sdf < 0)
-    return out
+    bf16 = (model.report.get("precision") or {}).get("autoencoder") == "bf16"
+    with autocast(model.device, "auto" if bf16 else "fp32"):
+        tps = [samples.triplane[i : i + 1] for i in range(n)]
+        return [decode_grid(model.decoder, tp, samples.aabb, resolution, exact_band=0.0) < 0 for tp in tps]
 
 
 def model_sampler(model, reference: np.ndarray, supersample: int = 1) -> SampleFn:
