@@ -40,7 +40,8 @@ from ..presets import get_preset
 OTHER_SHARE = 0.2
 #: the same where the calibration judges at 128 voxels (``detail``, ``fine``: :func:`auto.calibration.judged_at`),
 #: its decoding in fp32 (``fine`` without fast bf16: on a tower 152 s beside 458 s of training) or in bf16 (an
-#: autoencoder that trained in bf16: 135 s beside 584 s)
+#: autoencoder that trained in bf16: 135 s beside 584 s); one tower each: the calibration's time follows the surface
+#: to decode, so a shape with less of it takes less
 OTHER_SHARE_AT_128 = {"fp32": 0.35, "bf16": 0.25}
 #: training steps timed per network (after one untimed step)
 TIMED_STEPS = 3
@@ -198,6 +199,17 @@ def _seconds_per_step(trainer) -> float:
     return min(times)
 
 
+def other_share(cfg: Config, device=None) -> float:
+    """The grid and the calibration as a share of the training's time: :data:`OTHER_SHARE`, or where a fit of ``cfg``
+    calibrates at 128 voxels (``detail``, ``fine``) :data:`OTHER_SHARE_AT_128` for the precision its samples are
+    decoded in there (the autoencoder's); a preset that does not calibrate (``paper``) keeps the plain share."""
+    from .calibration import calibrates, judged_at
+
+    if not (calibrates(cfg) and judged_at(cfg)):
+        return OTHER_SHARE
+    return OTHER_SHARE_AT_128[resolved_precision(get_device(device), cfg.autoencoder.precision)]
+
+
 def estimate_fit(cfg: Config, device=None, box=None) -> dict:
     """About how long a fit of ``cfg`` takes on ``device``: a few steps of its autoencoder and its denoiser timed on
     :func:`timing_grid` (the denoiser uncompiled: on a GPU the compiled one runs faster), times their steps, plus
@@ -214,10 +226,7 @@ def estimate_fit(cfg: Config, device=None, box=None) -> dict:
         ae_s = _seconds_per_step(ae) * cfg.autoencoder.steps
         dm = DiffusionTrainer(ae.latent(), cfg.updated(**{"diffusion.compile": False}).diffusion, dev, 0)
         dn_s = _seconds_per_step(dm) * cfg.diffusion.steps
-    from .calibration import judged_at
-
-    decoded = resolved_precision(dev, cfg.autoencoder.precision)
-    other = (OTHER_SHARE if judged_at(cfg) is None else OTHER_SHARE_AT_128[decoded]) * (ae_s + dn_s)
+    other = other_share(cfg, dev) * (ae_s + dn_s)
     return {"autoencoder": ae_s, "denoiser": dn_s, "other": other, "total": ae_s + dn_s + other}
 
 
@@ -231,6 +240,7 @@ __all__ = [
     "default_preset",
     "estimate_fit",
     "for_shape",
+    "other_share",
     "thin_share",
     "timing_grid",
     "within_minutes",

@@ -94,10 +94,12 @@ def cmd_fit(a) -> None:
     changes = parse_settings(a.set)
     if a.minutes is not None and a.resume:
         raise Sin3DMInputError("--minutes is for a new fit: a resumed fit keeps its run's steps; leave out --minutes")
-    chosen = None if a.preset or a.resume else default_for_this_machine(a)
+    needs_mesh = not a.resume and (a.preset is None or a.minutes is not None)  # the default or a budget: read once
+    mesh = input_mesh(a) if needs_mesh else None
+    chosen = None if a.preset or a.resume else default_for_this_machine(a, mesh)
     name = a.preset or (chosen.name if chosen else None)  # None: the run's own (Sin3DM.fit)
     if a.minutes is not None:
-        changes = {**time_budget(a, name, chosen, changes), **changes}  # what --set names explicitly wins
+        changes = {**time_budget(a, mesh, name, chosen, changes), **changes}  # what --set names explicitly wins
     base = get_preset(name or "small")
     preset = base.updated(**changes) if changes else name
     model = Sin3DM.fit(
@@ -125,34 +127,36 @@ def cmd_fit(a) -> None:
     )
 
 
-def default_for_this_machine(a):
-    """The preset ``fit`` takes without ``--preset`` (:func:`~sin3dm_lite.auto.fit_default.default_preset`: this
-    machine's and this shape's), said first: which, why, and about how long. A missing or broken input or an
-    unwritable ``--out`` fails before the timing."""
+def input_mesh(a):
+    """The input mesh, read for the default's choice and the time budget: a missing or broken input or an unwritable
+    ``--out`` fails here, before any timing."""
     from ..app.run_folder import check_run_folder
-    from ..auto.fit_default import default_preset
     from ..data.source import resolve_mesh
 
     check_run_folder(Path(a.out), a.mesh, False)
-    mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
+    return resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
+
+
+def default_for_this_machine(a, mesh):
+    """The preset ``fit`` takes without ``--preset`` (:func:`~sin3dm_lite.auto.fit_default.default_preset`: this
+    machine's and this shape's, ``mesh`` the input), said first: which, why, and about how long."""
+    from ..auto.fit_default import default_preset
+
     chosen = default_preset(a.device, mesh)
     print("\n".join(chosen.lines()), flush=True)
     return chosen
 
 
-def time_budget(a, name: str, chosen, changes: dict) -> dict:
+def time_budget(a, mesh, name: str, chosen, changes: dict) -> dict:
     """``--minutes``: fewer training steps where the fit's estimate is longer
-    (:func:`~sin3dm_lite.auto.fit_default.within_minutes`), said before the fit starts."""
-    from ..app.run_folder import check_run_folder
+    (:func:`~sin3dm_lite.auto.fit_default.within_minutes`), said before the fit starts. The default's estimate is
+    used as it is; a named preset, or settings changed by ``--set``, are timed here."""
     from ..auto.fit_default import estimate_fit, proportions, within_minutes
-    from ..data.source import resolve_mesh
     from ..presets import get_preset
 
     cfg = get_preset(name).updated(**changes) if changes else get_preset(name)
     seconds = chosen.seconds if chosen is not None and chosen.seconds and not changes else None
     if seconds is None:
-        check_run_folder(Path(a.out), a.mesh, False)
-        mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
         seconds = estimate_fit(cfg, a.device, proportions(mesh))
     budget, line = within_minutes(cfg, seconds, a.minutes)
     print(line, flush=True)
