@@ -142,7 +142,8 @@ def test_a_time_budget_trains_both_networks_for_a_share_of_their_steps(monkeypat
     [
         (
             ["--minutes", "1"],
-            "'quick' cannot fit within 1 min here: at half of its training steps it needs about 2 min",
+            "'quick' cannot fit within 1 min here: at half of its training steps it needs about 2 min; give "
+            "--minutes 2 or more",
         ),
         (["--minutes", "0"], "argument --minutes: expected a number above 0, got 0.0"),
         (["--minutes", "3", "--resume"], "--minutes is for a new fit"),

@@ -147,10 +147,11 @@ def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, st
         return {}, f"[fit] within {minutes:g} min: the preset's steps as they are"
     share = (minutes * 60 - seconds["other"]) / training
     if share < LEAST_STEPS_SHARE:
-        least = (seconds["other"] + LEAST_STEPS_SHARE * training) / 60
+        least = np.ceil((seconds["other"] + LEAST_STEPS_SHARE * training) / 6) / 10  # minutes, up to a tenth
+        lighter = "" if cfg.name in ("quick", "tiny") else ", or a lighter preset (--preset quick)"
         raise Sin3DMInputError(
             f"'{cfg.name}' cannot fit within {minutes:g} min here: at half of its training steps it needs about "
-            f"{least:.0f} min; give --minutes {int(np.ceil(least))} or more, or a lighter preset (--preset quick)"
+            f"{least:g} min; give --minutes {least:g} or more{lighter}"
         )
     ae, dn = (max(50, int(round(share * n / 50)) * 50) for n in (cfg.autoencoder.steps, cfg.diffusion.steps))
     line = (
