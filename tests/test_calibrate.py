@@ -158,12 +158,13 @@ def test_a_shape_whose_near_copy_misses_the_absolute_goals_gets_a_default_below_
     assert "LP-F: near copy 0.40; goal 0.34" in cal.summary()
 
 
-def _scored_by(table):
-    """``score_setting`` replaced by a score table: ``table(diversity) -> (LP-IoU, LP-F, G-Div)``, every sample alike."""
+def _scored_by(table, lp_f_sd: float = 0.0):
+    """``score_setting`` replaced by a score table: ``table(diversity) -> (LP-IoU, LP-F, G-Div)``, the samples'
+    LP-F spread by ``lp_f_sd`` around it."""
 
     def score(sample_fn, reference, diversity, n, seed):
         lp_iou, lp_f, g = table(diversity)
-        return {"lp_iou": lp_iou, "lp_fscore": lp_f, "g_div": g, "lp_iou_sd": 0.0, "lp_fscore_sd": 0.0}
+        return {"lp_iou": lp_iou, "lp_fscore": lp_f, "g_div": g, "lp_iou_sd": 0.0, "lp_fscore_sd": lp_f_sd}
 
     return score
 
@@ -201,6 +202,19 @@ def test_the_varied_setting_that_keeps_lp_f_wins_over_copies_that_keep_lp_iou(mo
     assert cal.note in story and "LP-IoU (a floor): near copy 0.26; goal 0.17 (65% of the near copy" in story
     assert "copies below 0.100" in story
     assert C.Calibration.from_dict(json.loads(json.dumps(cal.to_dict()))) == cal
+
+
+def test_against_copies_lp_f_is_read_without_the_caution(monkeypatch):
+    """The same tower, its samples spread (LP-F ± 0.15 a sample): lowered by 1.5 standard errors, LP-F would keep
+    its goal (0.61) only among copies (G-Div under 0.10, below 0.74). Against copies the caution does not apply:
+    pure noise, whose LP-F estimate keeps the goal (0.66), is chosen."""
+    monkeypatch.setattr(C, "score_setting", _scored_by(_tower(g_div_at_one=0.12), lp_f_sd=0.15))
+    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    assert (
+        cal.diversity == 1.0 and cal.kept_goals and "the most varied setting that keeps LP-F (its estimate)" in cal.note
+    )
+    cautious = C._choice(cal.tried, {"lp_fscore": cal.goals["lp_fscore"]}, 0.0, C.CAUTION)
+    assert cautious < 0.74 and C._g_div_at(cal.tried, cautious) < cal.copy_line  # what the caution would choose
 
 
 def test_lp_iou_stays_a_floor_where_its_crossing_varies(monkeypatch):

@@ -18,9 +18,9 @@ fit's grid, no meshes) and scores what it returns against the input with the pap
 2. a ladder from 1 (pure noise, the paper's sampling) down in steps of 0.1, a few samples per setting with seeds
    of their own, smoothed into curves that fall with the knob and refined near the answer; the choice is the
    most varied setting whose curves, lowered by 1.5 standard errors, keep both goals;
-3. **never copies when a more varied setting keeps LP-F**: where the samples at that choice are copies (their
-   G-Div under :func:`copy_line`: 0.10, or twice the near copy's G-Div), the LP-IoU floor
-   gives way and the most varied setting keeping the LP-F goal is chosen;
+3. **never copies when a more varied setting keeps LP-F**: where that choice's samples are copies (G-Div under
+   :func:`copy_line`), the most varied setting whose smoothed LP-F keeps its goal, read without the caution (it
+   guards a goal against a few samples' luck; copies miss the diversity a default needs for sure);
 4. where no setting keeps the LP-F goal, the least varied setting drawn whose samples are not copies, and the
    record says so (:attr:`Calibration.note`); where every one is a copy, the lowest drawn.
 
@@ -316,9 +316,8 @@ def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin
         raise Sin3DMInputError(f"unknown calibration goals {sorted(unknown)}; use {sorted(GOALS)}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 2 <= n <= MAX_N:
         raise Sin3DMInputError(f"calibration draws 2 to {MAX_N} samples per setting (G-Div compares them), got {n!r}")
-    for name, v in (("lowest", lowest), ("step", step), ("caution", caution), ("safety", safety), ("margin", margin)):
+    for name, v in dict(lowest=lowest, step=step, caution=caution, safety=safety, margin=margin, far=far).items():
         values.finite(v, name)
-    values.finite(far, "far")
     if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
         raise Sin3DMInputError(f"refine is a number of extra settings, 0 or more, got {refine!r}")
     if not 0.0 <= lowest < 1.0:
@@ -369,12 +368,13 @@ def _g_div_at(tried: list[dict], diversity: float) -> float:
 
 def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line: float) -> tuple[float | None, str]:
     """The choice on the smoothed curves (:func:`_choice`) and why, if not the plain reading: where the samples at the
-    crossing of every goal are copies (G-Div under ``line``) and LP-F's own crossing is more varied, that one."""
+    crossing of every goal are copies (G-Div under ``line``) and LP-F's own crossing, read without ``caution``, is
+    more varied, that one (with ``caution`` where no setting keeps every goal)."""
     chosen = _choice(tried, goals, safety, caution)
     varied = chosen is not None and not _g_div_at(tried, chosen) < line  # NaN (G-Div unknown): not copies
     if varied or "lp_fscore" not in goals:
         return chosen, ""
-    alone = _choice(tried, {"lp_fscore": goals["lp_fscore"]}, safety, caution)
+    alone = _choice(tried, {"lp_fscore": goals["lp_fscore"]}, safety, caution if chosen is None else 0.0)
     if alone is None or (chosen is not None and alone <= chosen):
         return chosen, ""
     if chosen is None:
@@ -382,7 +382,7 @@ def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line:
     return alone, (
         f"at {chosen:.2f}, where LP-IoU keeps its floor too, the samples are copies (G-Div "
         f"{_g_div_at(tried, chosen):.3f} < {line:.3f}); the LP-IoU floor gives way to {alone:.2f}, the most varied "
-        "setting that keeps LP-F"
+        "setting that keeps LP-F (its estimate)"
     )
 
 
