@@ -211,10 +211,25 @@ def test_against_copies_lp_f_is_read_without_the_caution(monkeypatch):
     monkeypatch.setattr(C, "score_setting", _scored_by(_tower(g_div_at_one=0.12), lp_f_sd=0.15))
     cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
     assert (
-        cal.diversity == 1.0 and cal.kept_goals and "the most varied setting that keeps LP-F (its estimate)" in cal.note
+        cal.diversity == 1.0
+        and cal.kept_goals
+        and "the most varied setting that keeps LP-F 0.61 (its estimate)" in cal.note
     )
     cautious = C._choice(cal.tried, {"lp_fscore": cal.goals["lp_fscore"]}, 0.0, C.CAUTION)
     assert cautious < 0.74 and C._g_div_at(cal.tried, cautious) < cal.copy_line  # what the caution would choose
+
+
+def test_against_copies_the_varied_setting_must_keep_85_percent_of_the_near_copys_lp_f(monkeypatch):
+    """A near copy that keeps almost every patch (LP-F 0.95): the LP-F goal is the absolute 0.70, which pure noise
+    keeps, but the setting that replaces copies must keep 85 % of the near copy's LP-F (0.81, crossed at 0.71)."""
+    table = {C.NEAR_COPY: (0.9, 0.95, 0.0)}
+    monkeypatch.setattr(
+        C, "score_setting", _scored_by(lambda d: table.get(d, (0.9 - 0.7 * d, 0.95 - 0.2 * d, 0.15 * d)))
+    )
+    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    assert cal.goals["lp_fscore"] == 0.7 and cal.diversity == pytest.approx(0.71, abs=0.011)
+    assert cal.note.startswith("at 0.50, where LP-IoU keeps its floor too, the samples are copies (G-Div 0.075")
+    assert cal.note.endswith("the most varied setting that keeps LP-F 0.81 (its estimate)")
 
 
 def test_lp_iou_stays_a_floor_where_its_crossing_varies(monkeypatch):

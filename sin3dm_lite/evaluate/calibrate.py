@@ -12,27 +12,23 @@ fit's grid, no meshes) and scores what it returns against the input with the pap
 
 1. the shape's own **near copy** (diversity :data:`NEAR_COPY`) is scored first: what this fit keeps of the input
    at this grid at all. The goals are relative to it (:data:`RELATIVE`), capped by the absolute :data:`GOALS`:
-   **LP-F ≥ 85 %** of the near copy's, the goal that decides, and **LP-IoU ≥ 65 %**, a softer floor. LP-F counts
-   a patch kept when it is within a small distance of the input's; the paper's LP-IoU compares patches on a
-   5-voxel lattice, so a sub-voxel move of a thin wall loses its patch and only copies keep 85 % of it;
+   **LP-F ≥ 85 %** of the near copy's, the goal that decides, and **LP-IoU ≥ 65 %**, a softer floor (its 5-voxel
+   lattice loses the patch of a wall moved by less than a voxel: only copies keep 85 % of it);
 2. a ladder from 1 (pure noise, the paper's sampling) down in steps of 0.1, a few samples per setting with seeds
    of their own, smoothed into curves that fall with the knob and refined near the answer; the choice is the
    most varied setting whose curves, lowered by 1.5 standard errors, keep both goals;
 3. **never copies when a more varied setting keeps LP-F**: where that choice's samples are copies (G-Div under
-   :func:`copy_line`), the most varied setting whose smoothed LP-F keeps its goal, read without the caution (it
-   guards a goal against a few samples' luck; copies miss the diversity a default needs for sure);
+   :func:`copy_line`), the most varied setting whose smoothed LP-F keeps 85 % of the near copy's, read without
+   the caution (it guards a goal against a few samples' luck; copies miss the diversity a default needs for sure);
 4. where no setting keeps the LP-F goal, the least varied setting drawn whose samples are not copies, and the
    record says so (:attr:`Calibration.note`); where every one is a copy, the lowest drawn.
 
 **Why so** (``benchmarks/bench_calibration.py`` replays the walk 400 times on stored samples): seeds of their
-own per setting (one set reused everywhere is lucky or unlucky everywhere); the refinement removes most of the
-error where the curve bends between two rungs; 1.5 standard errors keep the choice off the goals' edge where
-the curve is flat. A rung keeping less than half a goal skips the next (:data:`FAR`).
+own per setting; the refinement removes most of the error where the curve bends between two rungs; 1.5 standard
+errors keep the choice off the goals' edge where the curve is flat. A rung far below a goal skips the next.
 
-**Grid.** Measured on the reference's grid, for a fit its training grid (fast). ``sin3dm-lite calibrate RUN
---resolution 128`` judges as the paper measures (against the input mesh, any of 2³ sub-voxels inside) in about
-four times the time. ``Sin3DM.fit`` runs it at the end of a CPU preset's fit (:mod:`sin3dm_lite.auto.calibration`) and saves the
-choice as the run's ``sampling.diversity``.
+**Grid.** The reference's: for a fit its training grid, or the input at 128 voxels as the paper measures
+(``calibrate RUN --resolution 128``). A CPU preset's fit runs it last (:mod:`sin3dm_lite.auto.calibration`).
 """
 
 from __future__ import annotations
@@ -366,15 +362,17 @@ def _g_div_at(tried: list[dict], diversity: float) -> float:
     return float(np.interp(diversity, list(by_setting), list(by_setting.values())))
 
 
-def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line: float) -> tuple[float | None, str]:
+def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line: float, keep_f=None) -> tuple:
     """The choice on the smoothed curves (:func:`_choice`) and why, if not the plain reading: where the samples at the
-    crossing of every goal are copies (G-Div under ``line``) and LP-F's own crossing, read without ``caution``, is
-    more varied, that one (with ``caution`` where no setting keeps every goal)."""
+    crossing of every goal are copies (G-Div under ``line``), the most varied setting whose LP-F estimate (no
+    ``caution``) keeps ``keep_f`` (85 % of the near copy's) and its goal, if more varied; where no setting keeps
+    every goal, LP-F's own crossing (with ``caution``)."""
     chosen = _choice(tried, goals, safety, caution)
     varied = chosen is not None and not _g_div_at(tried, chosen) < line  # NaN (G-Div unknown): not copies
     if varied or "lp_fscore" not in goals:
         return chosen, ""
-    alone = _choice(tried, {"lp_fscore": goals["lp_fscore"]}, safety, caution if chosen is None else 0.0)
+    keep = goals["lp_fscore"] if chosen is None else max(goals["lp_fscore"], keep_f or 0.0)
+    alone = _choice(tried, {"lp_fscore": keep}, safety, caution if chosen is None else 0.0)
     if alone is None or (chosen is not None and alone <= chosen):
         return chosen, ""
     if chosen is None:
@@ -382,7 +380,7 @@ def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line:
     return alone, (
         f"at {chosen:.2f}, where LP-IoU keeps its floor too, the samples are copies (G-Div "
         f"{_g_div_at(tried, chosen):.3f} < {line:.3f}); the LP-IoU floor gives way to {alone:.2f}, the most varied "
-        "setting that keeps LP-F (its estimate)"
+        f"setting that keeps LP-F {keep:.2f} (its estimate)"
     )
 
 
@@ -456,13 +454,15 @@ def _walk(
     below = iter(levels[k + 1 :])  # the ladder's settings below the last drawn
 
     line = result.copy_line or 0.0
+    share = result.relative.get("lp_fscore", 0.0) if isinstance(result.relative, dict) else result.relative or 0.0
+    keep_f = share * (result.near_copy or {}).get("lp_fscore", 0.0)
 
     def read() -> tuple[float | None, str]:
         # the lowered curve can miss a goal where the walk stopped (few samples, wide error): walk on down
-        chosen, why = _decide(result.tried, goals, safety, caution, line)
+        chosen, why = _decide(result.tried, goals, safety, caution, line, keep_f)
         while chosen is None and (d := next(below, None)) is not None:
             add(d)
-            chosen, why = _decide(result.tried, goals, safety, caution, line)
+            chosen, why = _decide(result.tried, goals, safety, caution, line, keep_f)
         return chosen, why
 
     chosen, why = read()
