@@ -2,7 +2,7 @@
 
     python benchmarks/bench_training.py [--presets tiny small detail paper] [--steps 5] [--threads 2] [--compile]
     python benchmarks/bench_training.py --grid [--resolutions 128 256] [--faces 77000]   # the grid stage
-    python benchmarks/bench_training.py --flops [--threads 1] [--steps 3]   # FLOP/s per stage against the peak
+    python benchmarks/bench_training.py --flops [PRESET] [--threads 1] [--steps 3]   # FLOP/s per stage vs the peak
 
 Per stage of a fit: ``--grid`` times the first stage, mesh -> grid, on a bumpy textured sphere (77k faces, open);
 without it, one training step of each network:
@@ -23,8 +23,9 @@ Diffusion step (a batch of noisy copies of the latent, forward + backward + Adam
                   apart; about 96 s for `detail` on 2 cores, for 9 % per step).
 The paper preset runs at its real size (256 grid / 128 latent, 65,536 points): slow on a CPU.
 
-``--flops``: the ``paper`` preset's networks on a 64 × 32 × 24 grid (latent 32 × 16 × 12; issue 63's setting),
-per stage (autoencoder step, denoiser step at batch 32, one DDIM sampling step of one sample, the full decode of
+``--flops``: the ``paper`` preset's networks on a 64 × 32 × 24 grid (latent 32 × 16 × 12; issue 63's setting;
+``--flops detail``: another preset's networks, steps and batches on a grid of its resolution shaped like a round
+tower, 1 × 0.92 × 0.92), per stage (autoencoder step, denoiser step at the preset's batch (32 for ``paper``), one DDIM sampling step of one sample, the full decode of
 a latent to the 64 × 32 × 24 grid with colour): seconds (the least of ``--steps`` runs, process CPU time, so a
 busy machine's waits do not count), the FLOPs, the achieved GFLOP/s and its share of the CPU's peak, in fp32,
 in fp32 with the decoder's fast paths off (``model/pointops.py``: the plain modules) and under bf16 autocast.
@@ -52,6 +53,7 @@ import trimesh
 from torch.utils.flop_counter import FlopCounterMode
 
 from sin3dm_lite.app.device import bf16_is_fast
+from sin3dm_lite.auto.fit_default import timing_grid
 from sin3dm_lite.data.grid import ShapeGrid, mesh_to_grid
 from sin3dm_lite.data.mesh import Material, Normalization, TexturedMesh
 from sin3dm_lite.kernels import pointops
@@ -201,9 +203,9 @@ def forward_flops(fn) -> float:
     return float(counter.get_total_flops())
 
 
-def flops_stages(precision: str, steps: int, grid: ShapeGrid) -> list[tuple[str, float, float]]:
-    """``(stage, seconds, FLOPs)`` of each stage in ``precision`` ("fp32" or "bf16")."""
-    cfg = get_preset("paper")
+def flops_stages(precision: str, steps: int, grid: ShapeGrid, preset: str = "paper") -> list[tuple[str, float, float]]:
+    """``(stage, seconds, FLOPs)`` of each stage of ``preset``'s networks in ``precision`` ("fp32" or "bf16")."""
+    cfg = get_preset(preset)
     torch.manual_seed(0)
     ae = AutoencoderTrainer(grid, replace(cfg.autoencoder, precision=precision))
     dm = DiffusionTrainer(ae.latent(), replace(cfg.diffusion, ema_decay=0.0, precision=precision, compile=False))
@@ -230,21 +232,25 @@ def flops_stages(precision: str, steps: int, grid: ShapeGrid) -> list[tuple[str,
     ]
 
 
-def flops_report(steps: int) -> None:
+def flops_report(steps: int, preset: str = "paper") -> None:
     """The ``--flops`` table: per stage, seconds, FLOPs, GFLOP/s and % of the peak, fp32 / plain fp32 / bf16."""
     threads = torch.get_num_threads()
     peak, how = cpu_peak(threads)
     print(f"torch {torch.__version__}, {threads} thread(s); peak: {how}")
     ceiling = gemm_ceiling()
     print(f"measured ceiling: one [2048, 256] x [256, 256] fp32 product at {ceiling:.0f} GFLOP/s")
-    grid = synthetic_grid((64, 32, 24), 100_000)
-    runs = {"fp32": flops_stages("fp32", steps, grid)}
+    if preset == "paper":
+        grid = synthetic_grid((64, 32, 24), 100_000)
+    else:
+        grid = timing_grid(get_preset(preset).grid.resolution, 100_000, box=(1.0, 0.92, 0.92))
+    print(f"preset {preset}, grid {tuple(grid.shape)}")
+    runs = {"fp32": flops_stages("fp32", steps, grid, preset)}
     pointops.ENABLED = False
     try:
-        runs["fp32, plain decoder"] = flops_stages("fp32", steps, grid)
+        runs["fp32, plain decoder"] = flops_stages("fp32", steps, grid, preset)
     finally:
         pointops.ENABLED = True
-    runs["bf16 autocast"] = flops_stages("bf16", steps, grid)
+    runs["bf16 autocast"] = flops_stages("bf16", steps, grid, preset)
     print("| stage | precision | seconds | GFLOP | GFLOP/s | % of peak | % of ceiling |")
     print("|---|---|---|---|---|---|---|")
     for i, stage in enumerate(runs["fp32"]):
@@ -286,7 +292,14 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--compile", action="store_true", help="also time the denoiser step after torch.compile")
     ap.add_argument("--grid", action="store_true", help="time the grid stage (mesh -> grid) instead")
-    ap.add_argument("--flops", action="store_true", help="FLOP/s per stage against the CPU's peak (issue 63)")
+    ap.add_argument(
+        "--flops",
+        nargs="?",
+        const="paper",
+        default=None,
+        metavar="PRESET",
+        help="FLOP/s per stage against the CPU's peak (default: the paper preset's networks)",
+    )
     ap.add_argument("--resolutions", type=int, nargs="+", default=[128, 256], help="with --grid")
     ap.add_argument("--faces", type=int, default=77_000, help="with --grid: faces kept of 81,920 (81920: closed)")
     ap.add_argument("--points", type=int, default=300_000, help="with --grid: near-surface training samples")
@@ -297,7 +310,7 @@ def main() -> None:
         grid_times(a.resolutions, a.faces, a.points)
         return
     if a.flops:
-        flops_report(a.steps)
+        flops_report(a.steps, a.flops)
         return
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device cpu")
     for name in a.presets:
