@@ -209,7 +209,8 @@ def test_the_python_fit_without_a_preset_takes_the_machines_and_says_so(monkeypa
         ("colonnade", "small", "detail"),  # columns
         ("ruin", "small", "detail"),  # a ruined tower: walls 2.5 voxels thick at 64
         ("ruin", "quick", "fine"),  # the same on a CPU without fast bf16
-        ("ruin6", "small", "small"),  # the same tower with walls 6 voxels thick: 64 voxels hold them
+        ("ruin6", "small", "detail"),  # the same tower with walls 6 voxels thick: under 7 in every direction
+        ("ruin8", "small", "small"),  # walls 8 voxels thick: 64 voxels hold them
         ("ruin", "paper", "paper"),  # a GPU's 256 voxels hold any of them: not measured
     ],
 )
@@ -218,9 +219,8 @@ def test_a_shape_mostly_of_thin_parts_gets_the_finer_grid(source, machine, chose
     from sin3dm_lite.examples import build_example
     from sin3dm_lite.examples.ruin import build_ruin
 
-    mesh = {"ruin": lambda: build_ruin(0), "ruin6": lambda: build_ruin(3, wall_voxels=6)}.get(
-        source, lambda: build_example(source)
-    )()
+    towers = {"ruin": lambda: build_ruin(0), "ruin6": lambda: build_ruin(3, wall_voxels=6)}
+    mesh = {**towers, "ruin8": lambda: build_ruin(3, wall_voxels=8)}.get(source, lambda: build_example(source))()
     name, why, share = fit_default.for_shape(machine, mesh)
     assert name == chosen
     if machine == "paper":

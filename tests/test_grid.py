@@ -254,6 +254,19 @@ def test_thin_share_tells_thin_parts_from_solid_ones():
     assert thin32 > 0.9 and fat < 0.1 and thin96 < 0.2
 
 
+def test_a_ball_of_radius_3_5_tells_a_round_wall_of_6_voxels_from_one_of_8():
+    """The ball of radius 3 (whole offsets within 3) is thinner between the axes than along them: a round wall 6
+    voxels thick at 64 keeps most of itself against it. Radius 3.5 adds the (3,1,0) and (2,2,2) offsets: the wall
+    of 6 is thin, the wall of 8 still is not."""
+    from sin3dm_lite.examples.ruin import build_ruin
+
+    six, eight = (
+        mesh_to_grid(build_ruin(3, wall_voxels=w), 64, margin_voxels=3.25, n_surface_points=0, progress=False)
+        for w in (6, 8)
+    )
+    assert six.thin_share(3) < 0.5 < 0.9 < six.thin_share(3.5) and eight.thin_share(3.5) < 0.3
+
+
 def _grid_warnings(mesh) -> list[str]:
     import warnings
 

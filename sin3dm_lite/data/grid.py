@@ -113,19 +113,21 @@ class ShapeGrid:
         """Normalised coordinates → box coordinates in [-1, 1] (what triplane lookups take)."""
         return to_box(points, self.aabb, dtype=np.float32)
 
-    def thin_share(self, radius: int = 2) -> float:
-        """Share of the solid (voxels with SDF < 0) in parts thinner than about ``2·radius + 1`` voxels.
+    def thin_share(self, radius: float = 2) -> float:
+        """Share of the solid (voxels with SDF < 0) in parts thinner than the ball of ``radius`` voxels.
 
-        A morphological opening with a ball of ``radius`` voxels keeps every part the ball fits into and removes the
-        rest: columns, slats, small boxes, thin walls. The latent has half the grid's resolution, so a part 5 voxels
-        thick is drawn from about two texels. What a fit makes of it: :mod:`sin3dm_lite.auto.fit_default`.
+        A morphological opening with a ball (the voxel offsets within ``radius`` of its centre) keeps every part the
+        ball fits into and removes the rest: columns, slats, small boxes, thin walls. A whole radius leaves the ball
+        thinner between the axes than along them (radius 3 lacks the (3,1,0) and (2,2,2) offsets that 3.5 has). The
+        latent has half the grid's resolution, so a part 5 voxels thick is drawn from about two texels. What a fit
+        makes of it: :mod:`sin3dm_lite.auto.fit_default`.
         """
         from scipy import ndimage
 
         solid = self.sdf < 0
         if not solid.any():
             return 0.0
-        o = np.indices((2 * radius + 1,) * 3) - radius
+        o = np.indices((2 * int(radius) + 1,) * 3) - int(radius)
         ball = (o**2).sum(0) <= radius**2
         kept = ndimage.binary_opening(solid, ball)
         return float((solid & ~kept).sum() / solid.sum())
