@@ -24,9 +24,9 @@ Diffusion step (a batch of noisy copies of the latent, forward + backward + Adam
 The paper preset runs at its real size (256 grid / 128 latent, 65,536 points): slow on a CPU.
 
 ``--flops``: the ``paper`` preset's networks on a 64 × 32 × 24 grid (latent 32 × 16 × 12; issue 63's setting;
-``--flops detail``: another preset's networks, steps and batches on a grid of its resolution shaped like a round
-tower, 1 × 0.92 × 0.92), per stage (autoencoder step, denoiser step at the preset's batch (32 for ``paper``), one DDIM sampling step of one sample, the full decode of
-a latent to the 64 × 32 × 24 grid with colour): seconds (the least of ``--steps`` runs, process CPU time, so a
+``--flops detail``: another preset's networks, points and batch on a grid of its resolution shaped like a round
+tower, 1 × 0.92 × 0.92), per stage (autoencoder step, denoiser step at the preset's batch, one DDIM sampling step
+of one sample, the full decode of a latent to that grid with colour): seconds (the least of ``--steps`` runs, process CPU time, so a
 busy machine's waits do not count), the FLOPs, the achieved GFLOP/s and its share of the CPU's peak, in fp32,
 in fp32 with the decoder's fast paths off (``model/pointops.py``: the plain modules) and under bf16 autocast.
 FLOPs: the matrix products and convolutions of one forward pass as torch's FlopCounterMode counts them from
