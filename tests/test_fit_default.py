@@ -1,5 +1,6 @@
 """The preset a fit takes when none is named: this machine's and this shape's, said first with why and how long."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -227,3 +228,29 @@ def test_a_shape_mostly_of_thin_parts_gets_the_finer_grid(source, machine, chose
         assert why == "" and share is None
     else:
         assert (share > fit_default.MOSTLY_THIN) == (chosen != machine) and f"{share:.0%}" in why
+
+
+@pytest.mark.parametrize("walls, chosen, wrong", [(6, "detail", 0.2), (8, "small", 0.2), (8, "small", 1.0)])
+def test_a_real_meshs_faults_do_not_move_the_shape_rule(walls, chosen, wrong):
+    """A real mesh is rarely the clean, closed, textured one we generate: the rule reads the same tower as a
+    triangle soup with no texture, faces shuffled and unwelded, a fifth (or all) of them wound the wrong way and
+    the floor left open, and takes the same preset (the faces are wound as their neighbours, an open part inside
+    out is turned round, and the winding number gives the inside of the open mesh)."""
+    from sin3dm_lite.data.mesh import Material, TexturedMesh
+    from sin3dm_lite.examples.ruin import build_ruin
+
+    mesh = build_ruin(3, wall_voxels=walls)
+    rng = np.random.default_rng(0)
+    tri = mesh.vertices[mesh.faces]  # [F, 3, 3]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    floor = (tri[:, :, 1].mean(1) < mesh.vertices[:, 1].min() + 0.5) & (normal[:, 1] < 0)  # y is up
+    tri = tri[~floor][rng.permutation(int((~floor).sum()))]
+    flip = rng.random(len(tri)) < wrong
+    tri = np.where(flip[:, None, None], tri[:, ::-1], tri)
+    soup = TexturedMesh(
+        tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3), np.zeros(len(tri), np.int64), [Material()]
+    )
+    assert floor.any() and len(soup.faces) < len(mesh.faces)
+    clean, faulty = fit_default.thin_share(mesh, get_preset("small")), fit_default.thin_share(soup, get_preset("small"))
+    assert abs(faulty - clean) < 0.1
+    assert fit_default.for_shape("small", soup)[0] == chosen

@@ -134,7 +134,7 @@ def test_inside_out_parts_are_turned_round_with_a_warning():
     box.apply_translation([1.5, 0, 0])
     cup = trimesh.Trimesh(sphere.vertices - [2.5, 0, 0], sphere.faces[sphere.triangles_center[:, 2] < 0.6])  # open
     scene = trimesh.util.concatenate([sphere, trimesh.Trimesh(box.vertices, box.faces[:, ::-1]), cup])
-    with pytest.warns(UserWarning, match="1 of the 2 closed parts"):
+    with pytest.warns(UserWarning, match="1 of the 3 parts"):
         g = mesh_to_grid(textured(scene), 64, n_surface_points=0, progress=False)
     centre = g.to_box(g.normalization.to_normalized(np.array([[1.5, 0, 0], [0, 0, 0], [-2.5, 0, -0.5]])))
     idx = np.floor((centre + 1) / 2 * np.array(g.shape)).astype(int)
@@ -149,7 +149,8 @@ def test_closed_means_every_edge_used_both_ways():
     assert not Distance(textured(trimesh.Trimesh(sphere.vertices, sphere.faces[1:]))).closed  # a hole
     wrong = sphere.faces.copy()
     wrong[0] = wrong[0, ::-1]
-    assert not Distance(textured(trimesh.Trimesh(sphere.vertices, wrong, process=False))).closed  # one face flipped
+    one_wrong = Distance(textured(trimesh.Trimesh(sphere.vertices, wrong, process=False)))
+    assert one_wrong.closed and one_wrong.turned_round.faces == 1  # one face flipped: wound as its neighbours
     a, b = trimesh.creation.box(), trimesh.creation.box()
     b.apply_translation([1, 0, 0])  # two cubes sharing a face: still closed surfaces, edges used 4 times
     assert Distance(textured(trimesh.util.concatenate([a, b]))).closed
@@ -301,3 +302,51 @@ def test_an_open_mesh_or_a_triangle_soup_says_that_its_inside_is_approximate():
     notes = _grid_warnings(textured(cup))
     assert len(notes) == 1 and notes[0].startswith("'m' is not watertight (")
     assert "% of its edges border a hole): inside and outside" in notes[0]
+
+
+def test_faces_wound_against_their_neighbours_are_wound_as_they_are():
+    """A real mesh often has faces wound the wrong way; the winding number would read each as a hole. The grid
+    winds them as their neighbours (with a warning) and comes out as the clean mesh's."""
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    right = mesh_to_grid(textured(sphere), 32, n_surface_points=0, progress=False)
+    faces = sphere.faces.copy()
+    wrong = np.random.default_rng(0).random(len(faces)) < 0.2
+    faces[wrong] = faces[wrong, ::-1]
+    with pytest.warns(UserWarning, match=f"{wrong.sum()} of the {len(faces):,} faces of 'm' are wound against"):
+        mended = mesh_to_grid(textured(trimesh.Trimesh(sphere.vertices, faces)), 32, n_surface_points=0, progress=False)
+    np.testing.assert_array_equal(mended.sdf, right.sdf)
+
+
+def test_an_open_part_inside_out_is_turned_round():
+    """An open mesh wound inside out (a tower with no floor from an exporter of the other winding) has no volume
+    to go by, and the winding number would find no inside in it: the faces' own sides tell, and it is turned."""
+    from sin3dm_lite.data.distance import Distance
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    cup = trimesh.Trimesh(sphere.vertices, sphere.faces[sphere.triangles_center[:, 2] < 0.6])  # open at the top
+    right = mesh_to_grid(textured(cup), 32, n_surface_points=0, progress=False)
+    inverted = textured(trimesh.Trimesh(cup.vertices, cup.faces[:, ::-1]))
+    with pytest.warns(UserWarning, match="'m' is inside out"):
+        turned = mesh_to_grid(inverted, 32, n_surface_points=0, progress=False)
+    assert (right.sdf < 0).sum() > 1000
+    np.testing.assert_array_equal(turned.sdf, right.sdf)
+    # a flat sheet has no inside either way: it is left as it is
+    sheet = trimesh.creation.box(extents=(1, 1, 1e-3))
+    sheet = trimesh.Trimesh(sheet.vertices, sheet.faces[sheet.face_normals[:, 2] > 0.5])
+    assert Distance(textured(sheet)).turned_round.parts == 0
+    assert Distance(textured(trimesh.Trimesh(sheet.vertices, sheet.faces[:, ::-1]))).turned_round.parts == 0
+
+
+def test_the_closest_points_barycentrics_are_in_the_meshs_own_corner_order():
+    """The colour of a voxel is read at the closest point through the mesh's UVs: the barycentrics must name the
+    corners of the mesh's faces, also where the distance turned a face round."""
+    from sin3dm_lite.data.distance import Distance
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    mesh = textured(trimesh.Trimesh(sphere.vertices, sphere.faces[:, ::-1]))  # inside out: every face turned
+    dist = Distance(mesh)
+    assert dist.turned.all()
+    p = np.random.default_rng(0).normal(size=(200, 3))
+    d, fi, bc = dist.closest(p)
+    on_surface = np.einsum("nk,nkd->nd", bc, mesh.vertices[mesh.faces[fi]])
+    np.testing.assert_allclose(np.linalg.norm(p - on_surface, axis=1), d, atol=1e-9)

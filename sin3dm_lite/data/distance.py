@@ -3,18 +3,32 @@
 :class:`Distance` answers them for one mesh: exact unsigned point-to-triangle
 distances (with the closest face and its barycentrics, where the grid reads
 the surface colour) and the generalised winding number, which tells inside
-from outside even for open or multi-part meshes. Closed parts that are
-inside out are turned round first (:func:`_orient_outward`).
+from outside even for open or multi-part meshes. Real meshes are often wound
+badly, which the winding number reads as holes: the faces are first made to
+agree with their neighbours, and parts that are inside out are turned round
+(:func:`_orient_outward`).
 The metrics ask it of the input mesh at every sub-voxel of an open mesh
 (:func:`sin3dm_lite.evaluate.geometry.input_occupancy`).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import point_cloud_utils as pcu
 
 from .mesh import TexturedMesh, component_labels, unique_rows
+
+
+class Turned(NamedTuple):
+    """What :func:`_orient_outward` turned: faces wound against their neighbours, parts inside out (of all the
+    parts, and of the closed ones)."""
+
+    faces: int
+    parts: int
+    of_parts: int
+    closed_parts: int
 
 
 class Distance:
@@ -31,7 +45,8 @@ class Distance:
     def __init__(self, mesh: TexturedMesh, chunk: int = 1 << 20):
         self.v = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
         faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
-        self.f, self.closed, self.flipped, self.closed_parts = _orient_outward(self.v, faces)
+        self.f, self.closed, self.turned_round = _orient_outward(self.v, faces)
+        self.turned = (self.f != faces).any(1)  # faces wound the other way round: their corners reversed
         self.chunk = chunk
 
     def winding(self, p: np.ndarray) -> np.ndarray:
@@ -50,33 +65,35 @@ class Distance:
             d[a : a + self.chunk], fi[a : a + self.chunk], bc[a : a + self.chunk] = pcu.closest_points_on_mesh(
                 p[a : a + self.chunk], self.v, self.f
             )
+        bc[self.turned[fi]] = bc[self.turned[fi]][:, ::-1]  # barycentrics in the mesh's own corner order
         return d, fi, bc
 
 
 def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
-    """Turn closed parts that are inside out (faces wound clockwise seen from outside) the right way round.
+    """Wind every face the way its neighbours are wound, then turn the parts that are inside out.
 
-    The winding number is +1 inside a surface whose faces wind
-    counter-clockwise seen from outside (outward normals) and -1 inside one
-    wound the other way, so an inside-out file would come out with no inside
-    at all. Each connected part (vertices joined by position) that is closed
-    (every edge used as often in one direction as in the other, as in a
-    watertight, consistently wound surface) and encloses a negative volume
-    gets its faces flipped; open parts are left alone (their volume has no
-    reliable sign). On a closed mesh the winding number is a whole number
-    that changes only across the surface.
+    The winding number is +1 inside a surface whose faces wind counter-clockwise seen from outside (outward
+    normals) and -1 inside one wound the other way: a face wound against its neighbours punches a hole into the
+    inside, and an inside-out part has no inside at all. So, on the vertices joined by position (a UV seam splits
+    none):
 
-    Returns ``(faces, closed, flipped, closed_parts)``: the faces, whether the
-    whole mesh is closed, how many parts were flipped and how many are closed.
+    1. every face is wound as its neighbours across each edge that two faces share (:func:`_agreeing_winding`);
+    2. a *closed* part (every edge used as often in one direction as in the other) that encloses a negative
+       volume is turned round; so is an *open* part (a hole, an open floor) whose faces mostly have the outside
+       behind them (:func:`_inside_out`). On a closed mesh the winding number is then a whole number that
+       changes only across the surface.
+
+    Returns ``(faces, closed, turned)``: the faces, whether the whole mesh is closed, and what was turned
+    (:class:`Turned`).
     """
     _, weld = unique_rows(vertices)  # vertices split at UV seams are one point here
+    against = _agreeing_winding(weld[faces])
+    faces = np.where(against[:, None], faces[:, ::-1], faces)
     fw = weld[faces]
-    n = int(fw.max()) + 1
-    part = component_labels(n, fw)  # (F,) the part of every face
+    part = component_labels(int(fw.max()) + 1, fw)  # (F,) the part of every face
     parts = int(part.max()) + 1
-    edges = fw[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    edges, key = _edges(fw)
     # a closed, consistently wound surface uses every edge as often a → b as b → a
-    key = np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
     _, inverse = np.unique(key, return_inverse=True)
     balance = np.bincount(inverse.reshape(-1), np.where(edges[:, 0] < edges[:, 1], 1.0, -1.0))
     open_edge = balance[inverse.reshape(-1)] != 0  # (3F,)
@@ -85,6 +102,76 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
     volume = np.bincount(part, np.einsum("fi,fi->f", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])), parts)
     has_faces = np.bincount(part, minlength=parts) > 0  # (labels of vertices without faces are skipped)
     closed = has_faces & ~open_part
-    flip = closed & (volume < 0)
+    flip = (closed & (volume < 0)) | _inside_out(vertices, faces, part, has_faces & open_part)
     faces = np.where(flip[part][:, None], faces[:, ::-1], faces)
-    return np.ascontiguousarray(faces), not open_part.any(), int(flip.sum()), int(closed.sum())
+    turned = Turned(int(against.sum()), int(flip.sum()), int(has_faces.sum()), int(closed.sum()))
+    return np.ascontiguousarray(faces), not open_part.any(), turned
+
+
+def _edges(fw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The faces' directed edges ``(3F, 2)`` (face f's are rows 3f, 3f+1, 3f+2) and a key per undirected edge."""
+    edges = fw[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    return edges, np.minimum(edges[:, 0], edges[:, 1]) * (int(fw.max()) + 1) + np.maximum(edges[:, 0], edges[:, 1])
+
+
+def _agreeing_winding(fw: np.ndarray) -> np.ndarray:
+    """Which faces to turn so that two faces sharing an edge run it opposite ways, as in a surface whose faces
+    all face out (or all in): ``(F,)`` bool, for faces ``fw`` on welded vertices.
+
+    Faces are linked across each edge that exactly two of them share (an edge of three or more says nothing), by
+    "wound alike" or "wound against each other". Each linked piece is two-coloured at once with the usual
+    trick: a graph of two nodes per face (as wound, turned), "alike" joining as-wound to as-wound and turned to
+    turned, "against" as-wound to turned; its connected components are the piece's two consistent windings, and
+    the one most of the piece's faces already have is kept. A piece that admits none (a Möbius strip) is left.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    nf = len(fw)
+    edges, key = _edges(fw)
+    order = np.argsort(key, kind="stable")
+    k = key[order]
+    same = k[1:] == k[:-1]  # neighbours in sorted order with the same edge
+    pair = same & ~np.r_[False, same[:-1]] & ~np.r_[same[1:], False]  # runs of exactly two
+    a, b = order[:-1][pair], order[1:][pair]
+    fa, fb = a // 3, b // 3
+    alike = edges[a, 0] != edges[b, 0]  # opposite directions along the shared edge: wound alike
+    src = np.concatenate([fa, fa + nf])
+    dst = np.concatenate([np.where(alike, fb, fb + nf), np.where(alike, fb + nf, fb)])
+    graph = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(2 * nf, 2 * nf))
+    _, label = connected_components(graph, directed=False)
+    wound, turned = label[:nf], label[nf:]
+    piece = np.minimum(wound, turned)  # the same for both windings of a piece
+    first = wound == piece  # this face, as wound, is in the piece's first winding
+    keep_first = 2 * np.bincount(piece, first, len(label)) >= np.bincount(piece, minlength=len(label))
+    return (first != keep_first[piece]) & (wound != turned)
+
+
+#: how many faces of an open part :func:`_inside_out` asks at most, and how far off the face (a share of the part)
+ASKED_FACES, OFF_FACE = 256, 1e-4
+
+
+def _inside_out(vertices: np.ndarray, faces: np.ndarray, part: np.ndarray, asked: np.ndarray) -> np.ndarray:
+    """Which of the ``asked`` (open) parts have their outside behind their faces: ``(parts,)`` bool.
+
+    An open part has no volume to go by. Just off a face, the face itself adds ±½ to the part's winding number
+    (+ behind it, - in front); the rest of the part adds about +½ on both sides where its normals point out and
+    about -½ where they point in. So the mean of the two sides, taken at a few faces, is the rest's share: a
+    part is turned round where its median is below -¼ (a flat sheet, with no inside, gives 0 and stays).
+    """
+    out = np.zeros(len(asked), bool)
+    count = np.bincount(part, minlength=len(asked))
+    order, start = np.argsort(part, kind="stable"), np.r_[0, np.cumsum(count)]
+    for p in np.flatnonzero(asked & (count >= 8)):  # a few faces say too little (and a soup has many parts)
+        used, f = np.unique(faces[order[start[p] : start[p + 1]]], return_inverse=True)  # the part alone
+        v, f = vertices[used], f.reshape(-1, 3)
+        tri = v[f[:: max(1, len(f) // ASKED_FACES)]]
+        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(normal, axis=1)
+        if (length > 0).sum() < 8:
+            continue
+        off = OFF_FACE * float(np.ptp(v, axis=0).max()) * normal[length > 0] / length[length > 0, None]
+        centre = tri[length > 0].mean(1)
+        w = pcu.triangle_soup_fast_winding_number(v, f, np.concatenate([centre - off, centre + off]))
+        out[p] = np.median((w[: len(centre)] + w[len(centre) :]) / 2) < -0.25
+    return out

@@ -185,7 +185,7 @@ def normalisation_notes(mesh: TexturedMesh, normalised: TexturedMesh, closed: bo
             if alone == 1.0
             else f"not watertight ({alone:.1%} of its edges border a hole)"
             if alone > 0
-            else "not consistently wound (neighbouring faces that face opposite ways)"
+            else "not a closed surface (edges shared by more than two faces, or faces that cannot all be wound alike)"
         )
         notes.append(
             f"'{mesh.name}' is {what}: inside and outside come from the generalised winding number, which "
@@ -292,12 +292,17 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
 
 def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance) -> list[str]:
     """The warnings a grid comes with: inside-out parts turned round, then :func:`normalisation_notes`."""
-    notes = []
-    if dist.flipped:
+    notes, turned = [], dist.turned_round
+    if turned.faces:
+        notes.append(
+            f"{turned.faces:,} of the {len(mesh.faces):,} faces of '{mesh.name}' are wound against their "
+            "neighbours (they would punch holes into its inside); the grid winds them as their neighbours"
+        )
+    if turned.parts:
         what = (
             f"'{mesh.name}' is inside out"
-            if dist.flipped == dist.closed_parts == 1
-            else f"{dist.flipped} of the {dist.closed_parts} closed parts of '{mesh.name}' are inside out"
+            if turned.parts == turned.of_parts == 1
+            else f"{turned.parts} of the {turned.of_parts} parts of '{mesh.name}' are inside out"
         )
         notes.append(
             f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
