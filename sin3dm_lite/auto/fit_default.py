@@ -26,6 +26,7 @@ is longer, never below half of the preset's.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,13 +94,16 @@ def choose_preset(device=None) -> tuple[str, str]:
 
 
 def thin_share(mesh, cfg: Config) -> float:
-    """The share of ``mesh``'s solid in parts thinner than about 7 voxels, on ``cfg``'s grid (a few seconds)."""
+    """The share of ``mesh``'s solid in parts thinner than about 7 voxels, on ``cfg``'s grid (a few seconds; what
+    the grid warns of, the fit's own grid says again)."""
     from ..data.grid import mesh_to_grid
 
     g = cfg.grid
-    grid = mesh_to_grid(
-        mesh, g.resolution, g.threshold_voxels, 20_000, seed=0, progress=False, margin_voxels=g.margin_voxels
-    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        grid = mesh_to_grid(
+            mesh, g.resolution, g.threshold_voxels, 20_000, seed=0, progress=False, margin_voxels=g.margin_voxels
+        )
     return grid.thin_share(THIN_RADIUS * g.resolution / 64)
 
 
