@@ -345,7 +345,7 @@ def test_the_closest_points_barycentrics_are_in_the_meshs_own_corner_order():
     sphere = trimesh.creation.icosphere(subdivisions=2)
     mesh = textured(trimesh.Trimesh(sphere.vertices, sphere.faces[:, ::-1]))  # inside out: every face turned
     dist = Distance(mesh)
-    assert dist.turned.all()
+    assert dist.corners_reversed.all()
     p = np.random.default_rng(0).normal(size=(200, 3))
     d, fi, bc = dist.closest(p)
     on_surface = np.einsum("nk,nkd->nd", bc, mesh.vertices[mesh.faces[fi]])

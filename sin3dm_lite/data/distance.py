@@ -46,7 +46,7 @@ class Distance:
         self.v = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
         faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
         self.f, self.closed, self.turned_round = _orient_outward(self.v, faces)
-        self.turned = (self.f != faces).any(1)  # faces wound the other way round: their corners reversed
+        self.corners_reversed = (self.f != faces).any(1)  # faces wound the other way round
         self.chunk = chunk
 
     def winding(self, p: np.ndarray) -> np.ndarray:
@@ -65,7 +65,8 @@ class Distance:
             d[a : a + self.chunk], fi[a : a + self.chunk], bc[a : a + self.chunk] = pcu.closest_points_on_mesh(
                 p[a : a + self.chunk], self.v, self.f
             )
-        bc[self.turned[fi]] = bc[self.turned[fi]][:, ::-1]  # barycentrics in the mesh's own corner order
+        back = self.corners_reversed[fi]
+        bc[back] = bc[back][:, ::-1]  # barycentrics in the mesh's own corner order
         return d, fi, bc
 
 

@@ -291,7 +291,8 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
 
 
 def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance) -> list[str]:
-    """The warnings a grid comes with: inside-out parts turned round, then :func:`normalisation_notes`."""
+    """The warnings a grid comes with: faces wound anew and inside-out parts turned round, then
+    :func:`normalisation_notes`."""
     notes, turned = [], dist.turned_round
     if turned.faces:
         notes.append(
