@@ -232,7 +232,7 @@ def test_a_shape_mostly_of_thin_parts_gets_the_finer_grid(source, machine, chose
         assert (share > fit_default.MOSTLY_THIN) == (chosen != machine) and f"{share:.0%}" in why
 
 
-@pytest.mark.parametrize("walls, chosen, wrong", [(6, "detail", 0.2), (8, "small", 0.2), (8, "small", 1.0)])
+@pytest.mark.parametrize("walls, chosen, wrong", [(6, "detail", 1.0), (8, "small", 0.2), (8, "small", 1.0)])
 def test_a_real_meshs_faults_do_not_move_the_shape_rule(walls, chosen, wrong):
     """A real mesh is rarely the clean, closed, textured one we generate: the rule reads the same tower as a
     triangle soup with no texture, faces shuffled and unwelded, a fifth (or all) of them wound the wrong way and

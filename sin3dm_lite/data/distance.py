@@ -22,13 +22,11 @@ from .mesh import TexturedMesh, component_labels, unique_rows
 
 
 class Turned(NamedTuple):
-    """What :func:`_orient_outward` turned: faces wound against their neighbours, parts inside out (of all the
-    parts, and of the closed ones)."""
+    """What :func:`_orient_outward` turned: faces wound against their neighbours, and parts inside out (of all)."""
 
     faces: int
     parts: int
     of_parts: int
-    closed_parts: int
 
 
 class Distance:
@@ -105,7 +103,7 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
     closed = has_faces & ~open_part
     flip = (closed & (volume < 0)) | _inside_out(vertices, faces, part, has_faces & open_part)
     faces = np.where(flip[part][:, None], faces[:, ::-1], faces)
-    turned = Turned(int(against.sum()), int(flip.sum()), int(has_faces.sum()), int(closed.sum()))
+    turned = Turned(int(against.sum()), int(flip.sum()), int(has_faces.sum()))
     return np.ascontiguousarray(faces), not open_part.any(), turned
 
 

@@ -454,8 +454,7 @@ def _walk(
     below = iter(levels[k + 1 :])  # the ladder's settings below the last drawn
 
     line = result.copy_line or 0.0
-    share = result.relative.get("lp_fscore", 0.0) if isinstance(result.relative, dict) else result.relative or 0.0
-    keep_f = share * (result.near_copy or {}).get("lp_fscore", 0.0)
+    keep_f = (result.relative or {}).get("lp_fscore", 0.0) * (result.near_copy or {}).get("lp_fscore", 0.0)
 
     def read() -> tuple[float | None, str]:
         # the lowered curve can miss a goal where the walk stopped (few samples, wide error): walk on down
