@@ -201,3 +201,24 @@ def test_a_folder_whose_run_was_killed_before_its_first_sample_takes_other_setti
     assert set(read_manifest(out)) == {
         p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file() and p.name != MANIFEST
     }
+
+
+# --------------------------------------------------------------------------- a link to nothing, the current folder
+@pytest.mark.parametrize(
+    "argv, out",
+    [
+        (["fit", "canyon", "--preset", "tiny"], "dangling"),
+        (["sample", "run", "-n", "1", *CHEAP], "dangling"),
+        (["render", "canyon", "--views", "1", "--size", "16"], "dangling"),
+        (["grid", "canyon", "--resolution", "16"], "dangling.npz"),
+        (["evaluate", "run", "samples"], "dangling.json"),
+        (["examples", "--write", "wall"], "dangling"),
+    ],
+)
+def test_an_out_that_links_to_nothing_is_refused_and_the_link_stays(work, capsys, argv, out):
+    (work / out).symlink_to("nowhere" + Path(out).suffix)  # grid and evaluate replaced the link with their file
+    before = snapshot(work)
+    assert main([*argv, "--out", out]) == 2
+    line = one_error_line(capsys)
+    assert f"'{out}' is a symbolic link to 'nowhere" in line and "which does not exist" in line, line
+    assert os.readlink(work / out) == "nowhere" + Path(out).suffix and snapshot(work) == before

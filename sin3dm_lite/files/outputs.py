@@ -36,6 +36,15 @@ def check_not_overlapping(out: Path, protected: dict[str, Path], option: str = "
 def check_writable(path: Path, option: str = "--out") -> None:
     """Fail now, not after the long work, if ``path`` (a file or folder to create) cannot be written."""
     path = Path(path)
+    for p in (path, *path.parents):  # a link to nothing: a write would replace the link, or fail on it
+        if p.exists():
+            break
+        if p.is_symlink():
+            raise Sin3DMInputError(
+                f"{option} '{path}': '{p}' is a symbolic link to '{os.readlink(p)}', which does not exist, and "
+                f"sin3dm-lite neither writes through nor replaces a link; create what it points to, or choose "
+                f"another {option}"
+            )
     base = path if path.is_dir() else path.parent
     while not base.exists():  # the nearest existing ancestor must let us create what is missing
         if base.parent == base:
