@@ -222,3 +222,16 @@ def test_an_out_that_links_to_nothing_is_refused_and_the_link_stays(work, capsys
     line = one_error_line(capsys)
     assert f"'{out}' is a symbolic link to 'nowhere" in line and "which does not exist" in line, line
     assert os.readlink(work / out) == "nowhere" + Path(out).suffix and snapshot(work) == before
+
+
+def test_sample_refuses_an_out_that_holds_the_runs_input_mesh(work, capsys):
+    """A run fitted to a sample of another run: --overwrite of that folder replaced the run's own input mesh."""
+    report = json.loads((work / "run" / "report.json").read_text())
+    report["input_path"] = str(work / "samples" / "000" / "mesh.obj")
+    (work / "run" / "report.json").write_text(json.dumps(report))
+    before = snapshot(work)
+    for out in ("samples", "samples/000"):
+        assert main(["sample", "run", "--out", out, "-n", "1", *CHEAP, "--seed", "1", "--overwrite"]) == 2
+        line = one_error_line(capsys)
+        assert f"--out '{out}' contains the run's input mesh" in line and "choose an --out outside it" in line, line
+    assert snapshot(work) == before

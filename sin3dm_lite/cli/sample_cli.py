@@ -114,7 +114,8 @@ def cmd_sample(a) -> None:
 
     run = find_run(a.run)
     get_device(a.device)
-    check_sample_output(Path(a.out), a, {"run folder": run})  # every rank, before any rank writes
+    protected = {"run folder": run, **fitted_mesh(run)}
+    check_sample_output(Path(a.out), a, protected)  # every rank, before any rank writes
     ranks, device = start_ranks(a.device)
     try:
         model = Sin3DM.load(run, device=device)
@@ -128,6 +129,15 @@ def cmd_sample(a) -> None:
             f"wrote {r['pending']} new samples{where} ({rate:.1f} meshes/min on rank 0); {a.out} holds {r['total']}: "
             f"NNN/mesh.obj|.glb, samples.jsonl; open {Path(a.out) / 'index.html'} in a browser"
         )
+
+
+def fitted_mesh(run: Path) -> dict:
+    """``{"run's input mesh": path}`` of the mesh file the run was fitted to, while it is there: ``--out`` may not
+    hold it (``--overwrite`` would replace it when it is a sample of an earlier run), else ``{}``."""
+    from ..app.run_folder import read_report
+
+    path = read_report(run).get("input_path")
+    return {"run's input mesh": Path(path)} if isinstance(path, str) and Path(path).is_file() else {}
 
 
 def cmd_demo(a) -> None:
