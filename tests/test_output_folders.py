@@ -224,6 +224,20 @@ def test_an_out_that_links_to_nothing_is_refused_and_the_link_stays(work, capsys
     assert os.readlink(work / out) == "nowhere" + Path(out).suffix and snapshot(work) == before
 
 
+def test_a_fit_makes_its_run_folder_through_a_link_to_an_empty_folder(work, capsys):
+    from sin3dm_lite.app.run_folder import prepare_run
+
+    (work / "elsewhere").mkdir()
+    (work / "link").symlink_to("elsewhere")  # refused as "Not a directory"
+    prepare_run(Path("link"), "tiny", False, None)
+    files.release_lock(Path("link"))
+    assert (work / "link").is_symlink() and (work / "elsewhere" / "config.json").is_file()
+    (work / "empty").mkdir()
+    os.chdir(work / "empty")  # `fit --out .` said "Device or resource busy"
+    assert main(["fit", "canyon", "--preset", "tiny", "--out", "."]) == 2
+    assert "'.' is the current folder" in one_error_line(capsys) and not any((work / "empty").iterdir())
+
+
 def test_sample_refuses_an_out_that_holds_the_runs_input_mesh(work, capsys):
     """A run fitted to a sample of another run: --overwrite of that folder replaced the run's own input mesh."""
     report = json.loads((work / "run" / "report.json").read_text())
