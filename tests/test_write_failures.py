@@ -139,3 +139,25 @@ def test_a_real_full_disk(tmp_path):
     assert "rc=2" in r.stdout and "Traceback" not in r.stderr, r.stderr[-2000:]
     assert f"error: no space left on device while writing 'model.pt' in '{disk}/s'; free space" in r.stderr
     assert TEMP_PREFIX not in r.stdout  # the listing of s/: no temporary folder left
+
+
+def test_a_notebook_whose_write_fails_is_left_whole(tmp_path):
+    """``notebooks --clear`` (or a run) on a full disk: nbformat.write emptied the notebook first, then failed."""
+    import nbformat
+
+    nb = nbformat.v4.new_notebook()
+    cell = nbformat.v4.new_code_cell("x = 1\n" * 4000)  # cleared, still larger than the files this process may write
+    cell.outputs = [nbformat.v4.new_output("stream", text="1\n" * 100)]
+    nb.cells.append(cell)
+    nbformat.write(nb, tmp_path / "big.ipynb")
+    before = (tmp_path / "big.ipynb").read_bytes()
+    code = (
+        "import resource, signal, sys; signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096)); from sin3dm_lite.cli import main; "
+        "sys.exit(main(['notebooks', '--clear', 'big.ipynb']))"
+    )
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    assert "File too large 'big.ipynb'" in r.stderr
+    assert (tmp_path / "big.ipynb").read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["big.ipynb"]  # no temporary left

@@ -65,6 +65,20 @@ def read_notebook(path: Path):
     return nb
 
 
+def write_notebook(nb, path: Path) -> None:
+    """Write ``nb`` over ``path`` (through a link, keeping its mode) whole or not at all: a full disk or a kill
+    leaves the old notebook, never a truncated one (``nbformat.write`` empties the file first)."""
+    import nbformat
+
+    from ..files import atomic_path
+
+    text = nbformat.writes(nb)
+    real = Path(os.path.realpath(path))
+    mode = real.stat().st_mode & 0o777
+    with atomic_path(real, before_move=lambda tmp: os.chmod(tmp, mode)) as tmp:
+        tmp.write_text(text if text.endswith("\n") else text + "\n", encoding="utf-8")
+
+
 def code_digest(nb) -> str:
     """SHA-256 of the notebook's code cells' source, in order (markdown and outputs do not count)."""
     h = hashlib.sha256()
@@ -141,7 +155,6 @@ def _slice_kernel_polls() -> None:
 
 def run_notebook(path: str | Path, fast: bool = False, timeout: int = 1800, kernel: str = "python3") -> dict:
     """Execute ``path`` top to bottom in place, strip widgets and record the digest; returns the recorded metadata."""
-    import nbformat
     from nbclient import NotebookClient
 
     import sin3dm_lite
@@ -179,7 +192,7 @@ def run_notebook(path: str | Path, fast: bool = False, timeout: int = 1800, kern
         "command": f"{COMMAND} {path.parent.name}/{path.name}",
     }
     nb.metadata[META_KEY] = meta
-    nbformat.write(nb, path)
+    write_notebook(nb, path)
     return meta
 
 
@@ -187,8 +200,6 @@ def run_all(paths=(), fast: bool = False, check: bool = False, clear: bool = Fal
     """Run ``paths`` (default: every notebook) and keep their outputs; ``check`` lists stale ones, ``clear`` removes
     outputs. Returns 1 if one failed, is stale or the notebooks are too large, else 0 (``sin3dm-lite``'s parser:
     ``sin3dm-lite notebooks``)."""
-    import nbformat
-
     paths = list(paths) or sorted(NOTEBOOKS.glob("*.ipynb"))
     read = {path: read_notebook(path) for path in paths}  # every file checked before any is run or changed
     bad = 0
@@ -197,7 +208,7 @@ def run_all(paths=(), fast: bool = False, check: bool = False, clear: bool = Fal
             nb = read[path]
             if clear:
                 clear_outputs(nb)
-                nbformat.write(nb, path)
+                write_notebook(nb, path)
                 print(f"{path}: outputs cleared")
                 continue
             why = stale_reason(nb, f"notebooks/{path.name}") or (
