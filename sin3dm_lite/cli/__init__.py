@@ -19,8 +19,8 @@ with code 2 (no traceback).
 No command deletes or overwrites a file it did not write: an output folder
 that is not empty is refused unless ``--overwrite`` is given, and then only
 the files its manifest (``.sin3dm-manifest.json``, written by this tool) lists
-as written there by the same command are replaced (``render --overwrite`` into a
-folder of samples keeps the samples). Outputs are checked (writable, not overlapping the run
+as written there by the same command are replaced (a file of the same name that another
+command wrote there is refused by name). Outputs are checked (writable, not overlapping the run
 folder or the input) before the long work starts; results are written into a
 temporary folder beside the target (``.sin3dm-tmp-<pid>-*``, removed by the
 next run if the process was killed) and moved into place at the end.
