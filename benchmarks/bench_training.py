@@ -2,7 +2,7 @@
 
     python benchmarks/bench_training.py [--presets tiny small detail paper] [--steps 5] [--threads 2] [--compile]
     python benchmarks/bench_training.py --grid [--resolutions 128 256] [--faces 77000]   # the grid stage
-    python benchmarks/bench_training.py --flops [PRESET] [--threads 1] [--steps 3]   # FLOP/s per stage vs the peak
+    python benchmarks/bench_training.py --flops [PRESET] [--threads 1] [--steps 3] [--compile]   # FLOP/s per stage
 
 Per stage of a fit: ``--grid`` times the first stage, mesh -> grid, on a bumpy textured sphere (77k faces, open);
 without it, one training step of each network:
@@ -203,8 +203,11 @@ def forward_flops(fn) -> float:
     return float(counter.get_total_flops())
 
 
-def flops_stages(precision: str, steps: int, grid: ShapeGrid, preset: str = "paper") -> list[tuple[str, float, float]]:
-    """``(stage, seconds, FLOPs)`` of each stage of ``preset``'s networks in ``precision`` ("fp32" or "bf16")."""
+def flops_stages(
+    precision: str, steps: int, grid: ShapeGrid, preset: str = "paper", compiled: bool = False
+) -> list[tuple[str, float, float]]:
+    """``(stage, seconds, FLOPs)`` of each stage of ``preset``'s networks in ``precision`` ("fp32" or "bf16");
+    ``compiled``: the denoiser step through torch.compile too."""
     cfg = get_preset(preset)
     torch.manual_seed(0)
     ae = AutoencoderTrainer(grid, replace(cfg.autoencoder, precision=precision))
@@ -224,15 +227,22 @@ def flops_stages(precision: str, steps: int, grid: ShapeGrid, preset: str = "pap
             decode_grid(ae.model.decoder, h0, grid.aabb, max(grid.shape), with_color=True, coarse=None)
 
     f_sample, f_decode = forward_flops(sampling) / n_sample, forward_flops(decoding)
-    return [
+    rows = [
         ("autoencoder step", timed(ae.step, steps, cpu=True), f_ae),
         ("denoiser step", timed(dm.step, steps, cpu=True), f_dm),
         ("sampling step", timed(sampling, steps, cpu=True) / n_sample, f_sample),
         ("decode to the grid", timed(decoding, steps, cpu=True), f_decode),
     ]
+    if compiled:  # the same denoiser through torch.compile (DiffusionConfig.compile), its compile timed apart
+        dmc = DiffusionTrainer(dm.h0, replace(dm.cfg, compile=True))
+        t = time.perf_counter()
+        dmc.step()
+        print(f"[{precision}] the denoiser compiled in {time.perf_counter() - t:.0f} s (wall)")
+        rows.insert(2, ("denoiser step, compiled", timed(dmc.step, steps, cpu=True), f_dm))
+    return rows
 
 
-def flops_report(steps: int, preset: str = "paper") -> None:
+def flops_report(steps: int, preset: str = "paper", compiled: bool = False) -> None:
     """The ``--flops`` table: per stage, seconds, FLOPs, GFLOP/s and % of the peak, fp32 / plain fp32 / bf16."""
     threads = torch.get_num_threads()
     peak, how = cpu_peak(threads)
@@ -244,20 +254,20 @@ def flops_report(steps: int, preset: str = "paper") -> None:
     else:
         grid = timing_grid(get_preset(preset).grid.resolution, 100_000, box=(1.0, 0.92, 0.92))
     print(f"preset {preset}, grid {tuple(grid.shape)}")
-    runs = {"fp32": flops_stages("fp32", steps, grid, preset)}
+    runs = {"fp32": flops_stages("fp32", steps, grid, preset, compiled)}
     pointops.ENABLED = False
     try:
         runs["fp32, plain decoder"] = flops_stages("fp32", steps, grid, preset)
     finally:
         pointops.ENABLED = True
-    runs["bf16 autocast"] = flops_stages("bf16", steps, grid, preset)
+    runs["bf16 autocast"] = flops_stages("bf16", steps, grid, preset, compiled)
     print("| stage | precision | seconds | GFLOP | GFLOP/s | % of peak | % of ceiling |")
     print("|---|---|---|---|---|---|---|")
-    for i, stage in enumerate(runs["fp32"]):
+    for stage, *_ in runs["fp32"]:
         for label, rows in runs.items():
-            sec, fl = rows[i][1], rows[i][2] / 1e9
-            rate = f"{fl / sec:.0f} | {100 * fl / sec / peak:.0f} | {100 * fl / sec / ceiling:.0f}"
-            print(f"| {stage[0]} | {label} | {sec:.3f} | {fl:.1f} | {rate} |")
+            for sec, fl in [(sec, fl / 1e9) for name, sec, fl in rows if name == stage]:
+                rate = f"{fl / sec:.0f} | {100 * fl / sec / peak:.0f} | {100 * fl / sec / ceiling:.0f}"
+                print(f"| {stage} | {label} | {sec:.3f} | {fl:.1f} | {rate} |")
 
 
 def timed(fn, steps: int, warmup: int = 2, repeats: int | None = None, cpu: bool = False) -> float:
@@ -310,7 +320,7 @@ def main() -> None:
         grid_times(a.resolutions, a.faces, a.points)
         return
     if a.flops:
-        flops_report(a.steps, a.flops)
+        flops_report(a.steps, a.flops, a.compile)
         return
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device cpu")
     for name in a.presets:

@@ -104,7 +104,7 @@ def _paper() -> Config:
         name="paper",
         grid=GridConfig(resolution=256, n_surface_points=2_000_000),
         autoencoder=AutoencoderConfig(),
-        # on CUDA: bf16 autocast and a compiled training step (docs/performance.md)
+        # bf16 autocast where it measures faster, and a compiled training step (docs/performance.md)
         diffusion=DiffusionConfig(precision="auto", compile=True),
         sampling=SamplingConfig(steps=100, mesh_resolution=256, faces=50_000, texture_size=2048),
         checkpoint_every=2500,

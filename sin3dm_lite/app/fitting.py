@@ -208,8 +208,9 @@ class FitRun:
         ckpt = self.run / "diffusion.pt" if self.run else None
         dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
         if dm.train_forward is not dm.model:
+            how_long = "about a minute" if self.dev.type == "cuda" else "a few minutes on a CPU"
             self.say(
-                "[fit] diffusion: the first step compiles the denoiser for this GPU (torch.compile, about a minute)"
+                f"[fit] diffusion: the first step compiles the denoiser for this machine (torch.compile, {how_long})"
             )
         train(dm, ckpt, cfg.checkpoint_every, self.progress, self.say)
         self.timings["diffusion_s"] = time.perf_counter() - t0

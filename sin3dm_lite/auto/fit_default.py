@@ -219,7 +219,7 @@ def other_share(cfg: Config, device=None) -> float:
 
 def estimate_fit(cfg: Config, device=None, box=None) -> dict:
     """About how long a fit of ``cfg`` takes on ``device``: a few steps of its autoencoder and its denoiser timed on
-    :func:`timing_grid` (the denoiser uncompiled: on a GPU the compiled one runs faster), times their steps, plus
+    :func:`timing_grid` (the denoiser uncompiled: a compiled one runs faster once compiled), times their steps, plus
     :data:`OTHER_SHARE` for the grid and the calibration. ``box``: the shape's proportions (:func:`proportions`;
     default 1 × ½ × ½). Seconds: ``autoencoder``, ``denoiser``, ``other``, ``total``. The random state is left as
     it was."""

@@ -82,7 +82,7 @@ class DiffusionConfig:
     flips: str = ""
     crop: int = 0  # train on random crops of this many latent texels per axis (0: the whole latent, the paper)
     precision: str = "fp32"  # the training forward: "fp32", "bf16" (autocast) or "auto" (bf16 where it measures faster)
-    compile: bool = False  # torch.compile the denoiser's training forward on a CUDA GPU (a CPU trains it as it is)
+    compile: bool = False  # torch.compile the denoiser's training forward: minutes to compile, so for long fits
 
 
 @dataclass
