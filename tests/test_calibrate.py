@@ -216,7 +216,7 @@ def test_against_copies_lp_f_is_read_without_the_caution(monkeypatch):
         and "the most varied setting that keeps LP-F 0.61 (its estimate)" in cal.note
     )
     cautious = C._choice(cal.tried, {"lp_fscore": cal.goals["lp_fscore"]}, 0.0, C.CAUTION)
-    assert cautious < 0.74 and C._g_div_at(cal.tried, cautious) < cal.copy_line  # what the caution would choose
+    assert cautious < 0.74 and C.g_div_at(cal.tried, cautious) < cal.copy_line  # what the caution would choose
 
 
 def test_against_copies_the_varied_setting_must_keep_85_percent_of_the_near_copys_lp_f(monkeypatch):
@@ -271,6 +271,31 @@ def test_when_no_setting_keeps_lp_f_the_least_varied_non_copy_is_chosen_and_said
             "the lowest drawn, 0.1; this fit does not vary this shape"
         )
     assert cal.note in cal.story() and "(no setting kept the goals)" in cal.story()
+
+
+def test_where_only_copies_keep_lp_f_the_least_varied_non_copy_is_chosen(monkeypatch):
+    """A small town of 36 houses (an unseen family, the paper's hardest: its own G-Qual 0.600) as its `detail` fit
+    scored at 128 voxels: LP-F keeps 85 % of the near copy's only below 0.3, where the samples are copies (G-Div
+    0.07 < 0.10). A default of copies is no sampler: the least varied setting drawn whose samples vary (0.4,
+    G-Div 0.12) is chosen, and the record says that only copies kept the goals."""
+    ladder = [  # diversity: LP-IoU, LP-F, G-Div, as the fit's calibration drew them (8 samples each)
+        (0.05, 0.394, 0.618, 0.017), (0.2, 0.379, 0.565, 0.046), (0.3, 0.332, 0.528, 0.073),
+        (0.4, 0.289, 0.473, 0.119), (0.5, 0.258, 0.43, 0.165), (0.6, 0.242, 0.403, 0.226),
+        (0.7, 0.223, 0.37, 0.406), (0.8, 0.22, 0.369, 0.453), (0.9, 0.215, 0.368, 0.459), (1.0, 0.202, 0.352, 0.449),
+    ]  # fmt: skip
+    d, cols = [r[0] for r in ladder], list(zip(*[r[1:] for r in ladder]))
+    monkeypatch.setattr(C, "score_setting", _scored_by(lambda x: tuple(float(np.interp(x, d, c)) for c in cols)))
+    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    assert cal.goals["lp_fscore"] == pytest.approx(0.85 * 0.618)
+    assert cal.diversity == 0.4 and not cal.kept_goals and cal.only_copies_kept
+    assert cal.note.startswith(f"only copies kept LP-F {0.85 * 0.618:.2f} (at 0.30 G-Div 0.075)")
+    assert "chose 0.4, the least varied setting whose samples are not copies (G-Div 0.119 ≥ 0.100)" in cal.note
+    assert "(only copies kept the goals)" in cal.story() and cal.note in cal.story()
+    assert C.Calibration.from_dict(json.loads(json.dumps(cal.to_dict()))) == cal
+    with monkeypatch.context() as m:  # where every setting's samples are copies, the goals' choice stands
+        m.setattr(C, "copy_line", lambda near_g_div: 0.5)
+        every = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    assert every.kept_goals and not every.only_copies_kept and 0.2 < every.diversity < 0.35
 
 
 def test_the_near_copy_is_printed_with_its_goals(capsys):
@@ -605,6 +630,35 @@ def test_cli_calibrate_resolution_judges_against_the_input_mesh_on_that_grid(cal
         model.calibrate(resolution=40, supersample=0, progress=False)
     with pytest.raises(Sin3DMInputError, match="voxels centres"):
         model.calibrate(resolution=300, progress=False)  # 600 sub-voxels a side: refused before any work
+
+
+def test_cli_calibrate_judges_where_the_fit_judged(calibrated, capsys, tmp_path, monkeypatch):
+    """Without --resolution, `calibrate RUN` judges where the run's own fit did (`auto.calibration.judged_at`):
+    for `detail` and `fine` 128 voxels by their centres, against the input mesh, not their training grid, which
+    judged a tower's samples as near copies. Here a run whose fit judged at 40 voxels."""
+    import shutil
+
+    from sin3dm_lite.auto import calibration as auto_calibration
+
+    model, run = calibrated
+    copy = tmp_path / "fit-at-40"
+    shutil.copytree(run, copy)
+    refs, real_ref = [], type(model).input_occupancy
+
+    def reference(self, mesh, resolution=128, aabb=None, supersample=1):
+        refs.append((resolution, supersample))
+        return real_ref(self, mesh, resolution, aabb, supersample)
+
+    monkeypatch.setattr(type(model), "input_occupancy", reference)
+    monkeypatch.setattr(auto_calibration, "judged_at", lambda cfg: 40)
+    assert main(["calibrate", str(copy), "-n", "2"]) == 0
+    assert refs == [(40, 1)] and "judged at 40 voxels (the voxel centres" in capsys.readouterr().out
+    cal = json.loads((copy / "report.json").read_text())["calibration"]
+    assert cal["resolution"] == 40 and cal["supersample"] == 1
+    monkeypatch.setattr(auto_calibration, "judged_at", lambda cfg: None)  # `small`, `quick`: the training grid
+    refs.clear()
+    assert main(["calibrate", str(copy), "-n", "2"]) == 0
+    assert refs == [] and json.loads((copy / "report.json").read_text())["calibration"]["resolution"] == 24
 
 
 def test_cli_calibrate_errors_in_one_line(capsys, tmp_path):

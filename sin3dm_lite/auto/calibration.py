@@ -80,7 +80,7 @@ def calibrate_model(
     model.report["calibration"] = cal.to_dict()
     if progress:
         print(
-            f"[calibrate] {'chose' if cal.kept_goals else 'no setting kept the goals; chose'} diversity {cal.diversity:g}",
+            f"[calibrate] {'chose' if cal.kept_goals else cal.missed + '; chose'} diversity {cal.diversity:g}",
             flush=True,
         )
         print("\n".join(f"[calibrate] {line}" for line in cal.story().splitlines()), flush=True)

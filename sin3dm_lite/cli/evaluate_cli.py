@@ -191,6 +191,7 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     import json
 
     from ..app.checkpoints import write_model
+    from ..auto.calibration import judged_at
     from ..data.grid import load_grid
     from ..data.source import resolve_mesh
     from ..evaluate.calibrate import GOALS
@@ -199,9 +200,12 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
 
     report = None if shipped else run_report(run)  # everything read and checked before the work
     model = Sin3DM.load(run)
-    # the training grid is the input voxelised at the fit's resolution, and needs no mesh file; without it, or at
-    # another resolution (--resolution 128 judges as the paper measures), the input mesh voxelised there
-    on_grid = a.resolution in (None, model.grid_resolution) and a.input is None and (run / "grid.npz").is_file()
+    # by default where the fit judged (auto.calibration.judged_at: the training grid, or for `detail` and `fine` 128
+    # voxels by their centres); the training grid is the input voxelised at the fit's resolution, and needs no mesh
+    # file; without it, or at another resolution (--resolution 128 as the paper measures), the input mesh there
+    fit_at = None if a.resolution else judged_at(model.config)
+    resolution = a.resolution or fit_at
+    on_grid = resolution in (None, model.grid_resolution) and a.input is None and (run / "grid.npz").is_file()
     on_grid = on_grid and a.voxels != "paper"  # the training grid holds the voxel centres' signs
     reference = load_grid(run / "grid.npz").sdf < 0 if on_grid else None
     goals = {
@@ -214,11 +218,11 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     if reference is None:  # the input mesh is read here, with --allow-outside-paths if given
         allow = a.allow_outside_paths
         input_mesh = model.input_mesh(allow) if a.input is None else resolve_mesh(a.input, allow_outside_paths=allow)
-    supersample = None if a.voxels is None else _supersample(a.voxels)
+    supersample = _supersample(a.voxels) if a.voxels else 1 if fit_at else None  # the fit judged the centres
     cal = model.calibrate(
         reference,
         input_mesh=input_mesh,
-        resolution=None if on_grid else a.resolution or model.grid_resolution,
+        resolution=None if on_grid else resolution or model.grid_resolution,
         supersample=None if on_grid else supersample,
         goals=goals,
         n=a.n,
@@ -228,7 +232,7 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     if shipped:
         print(
             f"{a.run}: diversity {cal.diversity:g} "
-            f"{'would keep the goals' if cal.kept_goals else 'is the fallback (no setting kept the goals)'} "
+            f"{'would keep the goals' if cal.kept_goals else f'is the fallback ({cal.missed})'} "
             f"({took:.0f} s); a shipped model is not "
             f"changed: sample it with --diversity {cal.diversity:g}"
         )

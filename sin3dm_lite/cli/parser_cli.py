@@ -290,8 +290,9 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         "--resolution",
         type=int_at_least(16),
         default=None,
-        help="voxels along the longest side where the samples are judged (default: the fit's grid, against the "
-        "training grid: fast); 128 judges against the input mesh as the paper measures, in about 4x the time",
+        help="voxels along the longest side where the samples are judged (default: where the fit judged them: the "
+        "training grid, or for `detail` and `fine` 128 voxels by their centres); 128 judges against the input "
+        "mesh as the paper measures, in about 4x the time of a 64-voxel training grid",
     )
     c.add_argument(
         "--voxels",

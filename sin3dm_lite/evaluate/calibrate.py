@@ -20,8 +20,8 @@ fit's grid, no meshes) and scores what it returns against the input with the pap
 3. **never copies when a more varied setting keeps LP-F**: where that choice's samples are copies (G-Div under
    :func:`copy_line`), the most varied setting whose smoothed LP-F keeps 85 % of the near copy's, read without
    the caution (it guards a goal against a few samples' luck; copies miss the diversity a default needs for sure);
-4. where no setting keeps the LP-F goal, the least varied setting drawn whose samples are not copies, and the
-   record says so (:attr:`Calibration.note`); where every one is a copy, the lowest drawn.
+4. where no setting keeps the LP-F goal, or only copies do, the least varied setting drawn whose samples are not
+   copies (a default of copies is no sampler), and the record says so (:attr:`Calibration.note`).
 
 **Why so** (``benchmarks/bench_calibration.py`` replays the walk 400 times on stored samples): seeds of their
 own per setting; the refinement removes most of the error where the curve bends between two rungs; 1.5 standard
@@ -38,7 +38,16 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ..errors import Sin3DMInputError
-from .calibration_record import COPY_RATIO, MIN_CEILING, SCORE_NAMES, VARIED_G_DIV, Calibration, copy_line
+from .calibration_record import (
+    COPY_RATIO,
+    MIN_CEILING,
+    SCORE_NAMES,
+    VARIED_G_DIV,
+    Calibration,
+    copy_line,
+    g_div_at,
+    least_varied,
+)
 
 #: what the samples must keep against the input at most: the paper's averages are LP-F 0.699 at G-Div 0.224, and
 #: the project's goals LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter by a few
@@ -344,22 +353,8 @@ def _at_choice(result: Calibration) -> dict:
     for key in result.goals:
         levels, fitted, _ = _curve(result.tried, key)
         out[key] = float(np.interp(result.diversity, levels[::-1], fitted[::-1]))
-    out["g_div"] = _g_div_at(result.tried, result.diversity)
+    out["g_div"] = g_div_at(result.tried, result.diversity)
     return out
-
-
-def _g_div_by_setting(tried: list[dict]) -> dict[float, float]:
-    """Each setting drawn and its samples' G-Div (a setting drawn twice: the mean over its samples)."""
-    by_setting: dict[float, list[float]] = {}
-    for t in tried:
-        by_setting.setdefault(t["diversity"], []).extend([t.get("g_div", np.nan)] * t["n"])
-    return {d: float(np.mean(v)) for d, v in sorted(by_setting.items())}
-
-
-def _g_div_at(tried: list[dict], diversity: float) -> float:
-    """The samples' G-Div at ``diversity``: linear between the settings drawn around it."""
-    by_setting = _g_div_by_setting(tried)
-    return float(np.interp(diversity, list(by_setting), list(by_setting.values())))
 
 
 def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line: float, keep_f=None) -> tuple:
@@ -368,7 +363,7 @@ def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line:
     ``caution``) keeps ``keep_f`` (85 % of the near copy's) and its goal, if more varied; where no setting keeps
     every goal, LP-F's own crossing (with ``caution``)."""
     chosen = _choice(tried, goals, safety, caution)
-    varied = chosen is not None and not _g_div_at(tried, chosen) < line  # NaN (G-Div unknown): not copies
+    varied = chosen is not None and not g_div_at(tried, chosen) < line  # NaN (G-Div unknown): not copies
     if varied or "lp_fscore" not in goals:
         return chosen, ""
     keep = goals["lp_fscore"] if chosen is None else max(goals["lp_fscore"], keep_f or 0.0)
@@ -379,19 +374,23 @@ def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line:
         return alone, f"LP-IoU misses its floor at every setting drawn; {alone:.2f} keeps LP-F (the goal that decides)"
     return alone, (
         f"at {chosen:.2f}, where LP-IoU keeps its floor too, the samples are copies (G-Div "
-        f"{_g_div_at(tried, chosen):.3f} < {line:.3f}); the LP-IoU floor gives way to {alone:.2f}, the most varied "
+        f"{g_div_at(tried, chosen):.3f} < {line:.3f}); the LP-IoU floor gives way to {alone:.2f}, the most varied "
         f"setting that keeps LP-F {keep:.2f} (its estimate)"
     )
 
 
-def _fallback(result: Calibration) -> None:
-    """No setting keeps the LP-F goal: the least varied setting drawn whose samples are not copies (the most
-    faithful of those that vary), else the lowest drawn; :attr:`Calibration.note` says which and why."""
-    by_setting = _g_div_by_setting(result.tried)
-    varied = [d for d, g in by_setting.items() if not g < result.copy_line]
-    missed = f"no setting drawn kept LP-F {result.goals.get('lp_fscore', np.nan):.2f}"
-    if varied:
-        result.diversity = min(varied)
+def _fallback(result: Calibration, copies: float | None = None) -> None:
+    """No setting keeps the LP-F goal, or only copies (at ``copies``) do: the least varied setting drawn whose samples
+    are not copies (the most faithful that vary), else the lowest drawn; :attr:`Calibration.note` says why."""
+    least, by_setting = least_varied(result)
+    goal = f"LP-F {result.goals.get('lp_fscore', np.nan):.2f}"
+    if copies is not None:
+        missed = f"only copies kept {goal} (at {copies:.2f} G-Div {g_div_at(result.tried, copies):.3f})"
+        result.only_copies_kept = True
+    else:
+        missed = f"no setting drawn kept {goal}"
+    if least is not None:
+        result.diversity = least
         result.note = (
             f"{missed}: chose {result.diversity:g}, the least varied setting whose samples are not copies (G-Div "
             f"{by_setting[result.diversity]:.3f} ≥ {result.copy_line:.3f}); a finer preset may keep more of the input"
@@ -471,11 +470,13 @@ def _walk(
             break
         add(round(min(max(lowest + round((chosen - lowest) / half) * half, lowest), 1.0), 4), "near the answer: ")
         chosen, why = read()
-    if chosen is not None:
+    least = least_varied(result)[0]  # a default of copies is no sampler: the least varied setting that is not
+    copies = chosen is not None and g_div_at(result.tried, chosen) < line and least is not None and least > chosen
+    if chosen is not None and not copies:
         result.diversity, result.note = round(chosen, 2), why or None
         result.kept_goals = True
     else:
-        _fallback(result)
+        _fallback(result, chosen)
 
 
 __all__ = [

@@ -51,7 +51,8 @@ class Calibration:
     tried: list = field(
         default_factory=list
     )  # [{"diversity", "n", "lp_iou", "lp_fscore", "g_div", "kept", "*_sd", "*_fitted"}]
-    kept_goals: bool = False  # False when even the lowest setting drawn missed the goals (then it is the answer)
+    kept_goals: bool = False  # False when the choice misses the goals: no setting kept them, or only copies did
+    only_copies_kept: bool = False  # only settings whose samples are copies kept the goals (the choice varies)
     near_copy: dict | None = None  # {"diversity", "n", "lp_iou", "lp_fscore", "g_div", "*_sd"}: the ceiling
     absolute_goals: dict | None = None  # the caps (GOALS or the caller's); None: the goals were absolute
     relative: float | dict | None = None  # the share of the near copy's scores, one per goal (one for all: older)
@@ -72,6 +73,11 @@ class Calibration:
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in record.items() if k in known})
 
+    @property
+    def missed(self) -> str:
+        """Why a choice that misses the goals was taken, in words."""
+        return "only copies kept the goals" if self.only_copies_kept else "no setting kept the goals"
+
     def story(self) -> str:
         """Why this setting, a line per goal: the near copy's score (the ceiling), the goal, the choice."""
         if self.resolution != 128:
@@ -81,7 +87,7 @@ class Calibration:
         else:
             paper = "voxel centres; the paper's voxels pool 2x2x2 sub-voxels"
         grid = f"at {self.resolution} voxels ({paper})"
-        chosen = f"chosen {self.diversity:g}" + ("" if self.kept_goals else " (no setting kept the goals)")
+        chosen = f"chosen {self.diversity:g}" + ("" if self.kept_goals else f" ({self.missed})")
         at = self.at_choice or {}
         if self.near_copy is None:
             goals = ", ".join(f"{SCORE_NAMES.get(k, k)} {v:.2f}" for k, v in self.goals.items())
@@ -125,8 +131,39 @@ class Calibration:
             lines.extend(self.story().splitlines())
         if self.near_copy is None and self.note:  # the story above says it where a near copy was drawn
             lines.append(self.note)
-        lines.append(f"chosen: {self.diversity:g}" + ("" if self.kept_goals else " (no setting kept the goals)"))
+        lines.append(f"chosen: {self.diversity:g}" + ("" if self.kept_goals else f" ({self.missed})"))
         return "\n".join(lines)
 
 
-__all__ = ["COPY_RATIO", "VARIED_G_DIV", "MIN_CEILING", "SCORE_NAMES", "Calibration", "copy_line"]
+def g_div_by_setting(tried: list[dict]) -> dict[float, float]:
+    """Each setting drawn and its samples' G-Div (a setting drawn twice: the mean over its samples)."""
+    by_setting: dict[float, list[float]] = {}
+    for t in tried:
+        by_setting.setdefault(t["diversity"], []).extend([t.get("g_div", np.nan)] * t["n"])
+    return {d: float(np.mean(v)) for d, v in sorted(by_setting.items())}
+
+
+def g_div_at(tried: list[dict], diversity: float) -> float:
+    """The samples' G-Div at ``diversity``: linear between the settings drawn around it."""
+    by_setting = g_div_by_setting(tried)
+    return float(np.interp(diversity, list(by_setting), list(by_setting.values())))
+
+
+def least_varied(result: Calibration) -> tuple[float | None, dict[float, float]]:
+    """The least varied setting drawn whose samples are not copies (None: every one is), and each setting's G-Div."""
+    by_setting = g_div_by_setting(result.tried)
+    varied = [d for d, g in by_setting.items() if not g < (result.copy_line or 0.0)]  # None: an older record
+    return (min(varied) if varied else None), by_setting
+
+
+__all__ = [
+    "COPY_RATIO",
+    "VARIED_G_DIV",
+    "MIN_CEILING",
+    "SCORE_NAMES",
+    "Calibration",
+    "copy_line",
+    "g_div_at",
+    "g_div_by_setting",
+    "least_varied",
+]
