@@ -298,6 +298,22 @@ def test_where_only_copies_keep_lp_f_the_least_varied_non_copy_is_chosen(monkeyp
     assert every.kept_goals and not every.only_copies_kept and 0.2 < every.diversity < 0.35
 
 
+def test_where_the_least_varied_non_copy_is_torn_the_copies_stand(monkeypatch):
+    """One house (the paper's "House", its own G-Div 0.010), as its `small` fit scored on its grid: copies keep
+    LP-F up to 0.2, and the least varied setting that is not a copy (0.4, G-Div 0.14) keeps LP-F 0.26, under half
+    its goal (0.69): torn walls, not variations. The copies the goals chose stand, said as such."""
+    ladder = [  # diversity: LP-IoU, LP-F, G-Div, as the fit's calibration drew them
+        (0.05, 0.624, 0.81, 0.01), (0.1, 0.528, 0.762, 0.032), (0.2, 0.421, 0.663, 0.051),
+        (0.4, 0.153, 0.263, 0.141), (0.6, 0.063, 0.149, 0.216), (0.8, 0.016, 0.065, 0.294), (1.0, 0.035, 0.091, 0.3),
+    ]  # fmt: skip
+    d, cols = [r[0] for r in ladder], list(zip(*[r[1:] for r in ladder]))
+    monkeypatch.setattr(C, "score_setting", _scored_by(lambda x: tuple(float(np.interp(x, d, c)) for c in cols)))
+    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    assert 0.1 < cal.diversity < 0.25 and cal.kept_goals and not cal.only_copies_kept
+    assert cal.at_choice["g_div"] < cal.copy_line and C.least_varied(cal)[0] == 0.4
+    assert C.score_at(cal.tried, 0.4, "lp_fscore") < C.FAR * cal.goals["lp_fscore"]
+
+
 def test_the_near_copy_is_printed_with_its_goals(capsys):
     C.calibrate_diversity(_ThinKnob(0.3), _reference(), n=2, refine=0, progress=True)
     out = capsys.readouterr().out.splitlines()

@@ -20,8 +20,8 @@ fit's grid, no meshes) and scores what it returns against the input with the pap
 3. **never copies when a more varied setting keeps LP-F**: where that choice's samples are copies (G-Div under
    :func:`copy_line`), the most varied setting whose smoothed LP-F keeps 85 % of the near copy's, read without
    the caution (it guards a goal against a few samples' luck; copies miss the diversity a default needs for sure);
-4. where no setting keeps the LP-F goal, or only copies do, the least varied setting drawn whose samples are not
-   copies (a default of copies is no sampler), and the record says so (:attr:`Calibration.note`).
+4. where no setting keeps the LP-F goal, or only copies do and the least varied setting drawn whose samples are
+   not copies keeps :data:`FAR` of it (not torn), that setting, and the record says so (:attr:`Calibration.note`).
 
 **Why so** (``benchmarks/bench_calibration.py`` replays the walk 400 times on stored samples): seeds of their
 own per setting; the refinement removes most of the error where the curve bends between two rungs; 1.5 standard
@@ -47,6 +47,7 @@ from .calibration_record import (
     copy_line,
     g_div_at,
     least_varied,
+    score_at,
 )
 
 #: what the samples must keep against the input at most: the paper's averages are LP-F 0.699 at G-Div 0.224, and
@@ -384,11 +385,9 @@ def _fallback(result: Calibration, copies: float | None = None) -> None:
     are not copies (the most faithful that vary), else the lowest drawn; :attr:`Calibration.note` says why."""
     least, by_setting = least_varied(result)
     goal = f"LP-F {result.goals.get('lp_fscore', np.nan):.2f}"
+    result.only_copies_kept, missed = copies is not None, f"no setting drawn kept {goal}"
     if copies is not None:
         missed = f"only copies kept {goal} (at {copies:.2f} G-Div {g_div_at(result.tried, copies):.3f})"
-        result.only_copies_kept = True
-    else:
-        missed = f"no setting drawn kept {goal}"
     if least is not None:
         result.diversity = least
         result.note = (
@@ -470,8 +469,9 @@ def _walk(
             break
         add(round(min(max(lowest + round((chosen - lowest) / half) * half, lowest), 1.0), 4), "near the answer: ")
         chosen, why = read()
-    least = least_varied(result)[0]  # a default of copies is no sampler: the least varied setting that is not
-    copies = chosen is not None and g_div_at(result.tried, chosen) < line and least is not None and least > chosen
+    least = least_varied(result)[0]  # a default of copies is no sampler, nor is one far below LP-F's goal (torn)
+    torn = least is None or score_at(result.tried, least, "lp_fscore") < far * goals.get("lp_fscore", 0.0)
+    copies = chosen is not None and g_div_at(result.tried, chosen) < line and not torn and least > chosen
     if chosen is not None and not copies:
         result.diversity, result.note = round(chosen, 2), why or None
         result.kept_goals = True

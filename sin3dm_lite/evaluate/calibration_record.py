@@ -149,6 +149,12 @@ def g_div_at(tried: list[dict], diversity: float) -> float:
     return float(np.interp(diversity, list(by_setting), list(by_setting.values())))
 
 
+def score_at(tried: list[dict], diversity: float, key: str) -> float:
+    """The samples' mean ``key`` score at a setting drawn (a setting drawn twice: the mean over its samples)."""
+    rows = [t for t in tried if t["diversity"] == diversity]
+    return float(sum(t[key] * t["n"] for t in rows) / sum(t["n"] for t in rows)) if rows else float("nan")
+
+
 def least_varied(result: Calibration) -> tuple[float | None, dict[float, float]]:
     """The least varied setting drawn whose samples are not copies (None: every one is), and each setting's G-Div."""
     by_setting = g_div_by_setting(result.tried)
@@ -166,4 +172,5 @@ __all__ = [
     "g_div_at",
     "g_div_by_setting",
     "least_varied",
+    "score_at",
 ]
