@@ -273,6 +273,14 @@ def test_when_no_setting_keeps_lp_f_the_least_varied_non_copy_is_chosen_and_said
     assert cal.note in cal.story() and "(no setting kept the goals)" in cal.story()
 
 
+def _calibrated_on(ladder, monkeypatch):
+    """The calibration of 8 samples a setting on a measured ladder ``[(diversity, LP-IoU, LP-F, G-Div), ...]``,
+    linear between its rungs."""
+    d, cols = [r[0] for r in ladder], list(zip(*[r[1:] for r in ladder]))
+    monkeypatch.setattr(C, "score_setting", _scored_by(lambda x: tuple(float(np.interp(x, d, c)) for c in cols)))
+    return C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+
+
 def test_where_only_copies_keep_lp_f_the_least_varied_non_copy_is_chosen(monkeypatch):
     """A small town of 36 houses (an unseen family, the paper's hardest: its own G-Qual 0.600) as its `detail` fit
     scored at 128 voxels: LP-F keeps 85 % of the near copy's only below 0.3, where the samples are copies (G-Div
@@ -283,9 +291,7 @@ def test_where_only_copies_keep_lp_f_the_least_varied_non_copy_is_chosen(monkeyp
         (0.4, 0.289, 0.473, 0.119), (0.5, 0.258, 0.43, 0.165), (0.6, 0.242, 0.403, 0.226),
         (0.7, 0.223, 0.37, 0.406), (0.8, 0.22, 0.369, 0.453), (0.9, 0.215, 0.368, 0.459), (1.0, 0.202, 0.352, 0.449),
     ]  # fmt: skip
-    d, cols = [r[0] for r in ladder], list(zip(*[r[1:] for r in ladder]))
-    monkeypatch.setattr(C, "score_setting", _scored_by(lambda x: tuple(float(np.interp(x, d, c)) for c in cols)))
-    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    cal = _calibrated_on(ladder, monkeypatch)
     assert cal.goals["lp_fscore"] == pytest.approx(0.85 * 0.618)
     assert cal.diversity == 0.4 and not cal.kept_goals and cal.only_copies_kept
     assert cal.note.startswith(f"only copies kept LP-F {0.85 * 0.618:.2f} (at 0.30 G-Div 0.075)")
@@ -306,9 +312,7 @@ def test_where_the_least_varied_non_copy_is_torn_the_copies_stand(monkeypatch):
         (0.05, 0.624, 0.81, 0.01), (0.1, 0.528, 0.762, 0.032), (0.2, 0.421, 0.663, 0.051),
         (0.4, 0.153, 0.263, 0.141), (0.6, 0.063, 0.149, 0.216), (0.8, 0.016, 0.065, 0.294), (1.0, 0.035, 0.091, 0.3),
     ]  # fmt: skip
-    d, cols = [r[0] for r in ladder], list(zip(*[r[1:] for r in ladder]))
-    monkeypatch.setattr(C, "score_setting", _scored_by(lambda x: tuple(float(np.interp(x, d, c)) for c in cols)))
-    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
+    cal = _calibrated_on(ladder, monkeypatch)
     assert 0.1 < cal.diversity < 0.25 and cal.kept_goals and not cal.only_copies_kept
     assert cal.at_choice["g_div"] < cal.copy_line and C.least_varied(cal)[0] == 0.4
     assert C.score_at(cal.tried, 0.4, "lp_fscore") < C.FAR * cal.goals["lp_fscore"]
