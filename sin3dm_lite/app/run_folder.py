@@ -58,7 +58,7 @@ def check_run_folder(run: Path, source, resume: bool) -> None:
     if isinstance(source, (str, Path)) and Path(source).exists():
         check_not_overlapping(run, {"input mesh": Path(source)})
     if run.exists() and not run.is_dir():
-        raise Sin3DMInputError(f"run folder '{run}' is a file; choose a folder for out (CLI: --out)")
+        raise Sin3DMInputError(f"run folder '{run}' is a file; give a folder's name (CLI: --out DIR; Python: out=DIR)")
     check_writable(run)
     refuse_links(run)  # a fit writes and (when it fails) removes files in it: never through a link
     if resume:  # a damaged checkpoint fails now, before any stage writes
