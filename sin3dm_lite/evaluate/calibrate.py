@@ -47,7 +47,7 @@ from .calibration_record import (
     copy_line,
     g_div_at,
     least_varied,
-    score_at,
+    mean_by_setting,
 )
 
 #: what the samples must keep against the input at most: the paper's averages are LP-F 0.699 at G-Div 0.224, and
@@ -470,7 +470,7 @@ def _walk(
         add(round(min(max(lowest + round((chosen - lowest) / half) * half, lowest), 1.0), 4), "near the answer: ")
         chosen, why = read()
     least = least_varied(result)[0]  # a default of copies is no sampler, nor is one far below LP-F's goal (torn)
-    torn = least is None or score_at(result.tried, least, "lp_fscore") < far * goals.get("lp_fscore", 0.0)
+    torn = least is None or mean_by_setting(result.tried, "lp_fscore")[least] < far * goals.get("lp_fscore", 0.0)
     copies = chosen is not None and g_div_at(result.tried, chosen) < line and not torn and least > chosen
     if chosen is not None and not copies:
         result.diversity, result.note = round(chosen, 2), why or None

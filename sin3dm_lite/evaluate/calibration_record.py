@@ -135,29 +135,23 @@ class Calibration:
         return "\n".join(lines)
 
 
-def g_div_by_setting(tried: list[dict]) -> dict[float, float]:
-    """Each setting drawn and its samples' G-Div (a setting drawn twice: the mean over its samples)."""
+def mean_by_setting(tried: list[dict], key: str = "g_div") -> dict[float, float]:
+    """Each setting drawn and its samples' mean ``key`` score (a setting drawn twice: the mean over its samples)."""
     by_setting: dict[float, list[float]] = {}
     for t in tried:
-        by_setting.setdefault(t["diversity"], []).extend([t.get("g_div", np.nan)] * t["n"])
+        by_setting.setdefault(t["diversity"], []).extend([t.get(key, np.nan)] * t["n"])
     return {d: float(np.mean(v)) for d, v in sorted(by_setting.items())}
 
 
 def g_div_at(tried: list[dict], diversity: float) -> float:
     """The samples' G-Div at ``diversity``: linear between the settings drawn around it."""
-    by_setting = g_div_by_setting(tried)
+    by_setting = mean_by_setting(tried)
     return float(np.interp(diversity, list(by_setting), list(by_setting.values())))
-
-
-def score_at(tried: list[dict], diversity: float, key: str) -> float:
-    """The samples' mean ``key`` score at a setting drawn (a setting drawn twice: the mean over its samples)."""
-    rows = [t for t in tried if t["diversity"] == diversity]
-    return float(sum(t[key] * t["n"] for t in rows) / sum(t["n"] for t in rows)) if rows else float("nan")
 
 
 def least_varied(result: Calibration) -> tuple[float | None, dict[float, float]]:
     """The least varied setting drawn whose samples are not copies (None: every one is), and each setting's G-Div."""
-    by_setting = g_div_by_setting(result.tried)
+    by_setting = mean_by_setting(result.tried)
     varied = [d for d, g in by_setting.items() if not g < (result.copy_line or 0.0)]  # None: an older record
     return (min(varied) if varied else None), by_setting
 
@@ -170,7 +164,6 @@ __all__ = [
     "Calibration",
     "copy_line",
     "g_div_at",
-    "g_div_by_setting",
     "least_varied",
-    "score_at",
+    "mean_by_setting",
 ]
