@@ -31,7 +31,7 @@ from ..auto.fit_policy import check_flips
 from ..data.config import Config
 from ..data.grid import load_grid
 from ..errors import Sin3DMInputError
-from ..files import acquire_lock, create_locked_folder, release_lock, resolved_path
+from ..files import acquire_lock, create_locked_folder, release_lock
 from ..files.inputs import json_or_why, read_json
 from ..presets import get_preset
 from .checkpoints import MODEL_FILE, check_trainer_state, load_trainer_checkpoint
@@ -102,19 +102,8 @@ def prepare_run(
     files = {"config.json": cfg.to_json()}
     if asked is not None:
         files[INPUT_FILE] = json.dumps({**asked, "config": cfg.to_dict()}, indent=2)
-    create_locked_folder(rename_target(run), files, option="--out")
+    create_locked_folder(run, files, option="--out")
     return cfg
-
-
-def rename_target(run: Path) -> Path:
-    """Where a new run folder appears in one rename: ``run``, or the empty folder the link ``run`` points to (the
-    link stays). The current folder is refused: renamed onto, it would vanish under the process and the shell."""
-    if run.is_dir() and resolved_path(run) == resolved_path(Path.cwd()):
-        raise Sin3DMInputError(
-            f"--out '{run}' is the current folder, and a fit makes its run folder anew; give a new folder's name "
-            "(e.g. --out run), or start the fit from outside this folder"
-        )
-    return resolved_path(run) if run.is_symlink() else run
 
 
 def _resumed_config(

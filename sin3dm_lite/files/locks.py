@@ -80,8 +80,16 @@ def create_locked_folder(folder: Path, files: dict[str, str], option: str = "--o
 
     A kill leaves either the complete folder (with a stale lock the next
     writer takes over) or a temporary folder beside it that the next run removes.
+    A link to an empty folder is made through (the link stays); the current folder is
+    refused: renamed onto, it would vanish under the process and the shell.
     """
     folder = Path(folder)
+    if folder.is_dir() and resolved_path(folder) == resolved_path(Path.cwd()):
+        raise Sin3DMInputError(
+            f"{option} '{folder}' is the current folder, and this makes its folder anew; give a new folder's name, "
+            "or start from outside this folder"
+        )
+    folder = resolved_path(folder) if folder.is_symlink() else folder
     folder.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temps(folder.parent)
     tmp = make_temp_dir(folder.parent)
