@@ -146,6 +146,21 @@ def test_a_manifest_part_that_is_a_link_is_never_appended_to(tmp_path):
     assert victim.read_text() == "keep me"
 
 
+@pytest.mark.parametrize("name", [files.LOCK, files.MANIFEST_PART.format("rank0")])
+def test_a_lock_or_manifest_part_with_another_name_is_never_written(tmp_path, name):
+    # a hard link (e.g. a `cp -al` backup made after a kill) shares the content: writing in place would change it
+    out, backup = tmp_path / "out", tmp_path / "backup.txt"
+    out.mkdir()
+    backup.write_text("keep me")
+    os.link(backup, out / name)
+    with pytest.raises(Sin3DMInputError, match="hard links"):
+        if name == files.LOCK:
+            files.acquire_lock(out)
+        else:
+            files.append_manifest_part(out, "rank0", {"index": 0, "files": {}})
+    assert backup.read_text() == "keep me"
+
+
 def test_fit_refuses_a_run_folder_holding_a_link(tmp_path, capsys):
     run, victim = tmp_path / "run", tmp_path / "victim.json"
     run.mkdir()

@@ -32,6 +32,19 @@ def link_error(path: Path, option: str = "--out") -> Sin3DMInputError:
     )
 
 
+def open_own(path: Path, flags: int) -> int:
+    """``os.open(path, flags)`` for a file sin3dm-lite writes in place (a lock, a manifest part): never through a
+    symbolic link, and refused when the file has other names (hard links), whose content would change with it."""
+    fd = os.open(path, flags | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    if os.fstat(fd).st_nlink > 1:
+        os.close(fd)
+        raise Sin3DMInputError(
+            f"'{path}' has other names (hard links), and sin3dm-lite writes it in place, which would change them "
+            "too; remove this name (the others keep their content) and run again"
+        )
+    return fd
+
+
 def refuse_links(out: str | Path, option: str = "--out") -> None:
     """Refuse ``out`` if any file or folder inside it (at any depth) is a symbolic link."""
     out = Path(out)

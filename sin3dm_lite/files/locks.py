@@ -21,7 +21,7 @@ from pathlib import Path
 
 from ..errors import Sin3DMInputError
 from .atomic import make_temp_dir, pid_alive, remove_stale_temps, resolved_path
-from .confined import link_error
+from .confined import link_error, open_own
 
 LOCK = ".sin3dm-lock"
 
@@ -130,7 +130,7 @@ def acquire_lock(folder: Path, what: str = "folder", option: str | None = "--out
         if lock.is_symlink():  # the lock file is written: never through a link
             raise link_error(lock)
         try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+            fd = open_own(lock, os.O_RDWR | os.O_CREAT)
         except OSError as e:
             raise Sin3DMInputError(f"cannot lock {what} '{folder}' ({e.strerror}); check its permissions") from None
         if not _try_lock(fd):

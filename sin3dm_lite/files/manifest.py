@@ -19,6 +19,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .atomic import atomic_path, atomic_write, write_data
+from .confined import open_own
 from .locks import locked
 
 MANIFEST = ".sin3dm-manifest.json"
@@ -104,8 +105,8 @@ def append_manifest_part(folder: Path, name: str, record: dict) -> None:
     Call it *before* moving those files into place (a move keeps size and
     time): a kill then leaves no file of ours unrecorded.
     """
-    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)  # never appended through a link
-    with os.fdopen(os.open(Path(folder) / MANIFEST_PART.format(name), flags, 0o644), "a", encoding="utf-8") as f:
+    fd = open_own(Path(folder) / MANIFEST_PART.format(name), os.O_WRONLY | os.O_APPEND | os.O_CREAT)
+    with os.fdopen(fd, "a", encoding="utf-8") as f:
         f.write(json.dumps(record) + "\n")
         f.flush()
         os.fsync(f.fileno())
