@@ -104,21 +104,18 @@ def test_an_explicit_preset_always_wins_and_is_not_timed(monkeypatch, tmp_path, 
     assert preset == "small" and "no preset named" not in printed
 
 
-def test_the_estimates_share_for_grid_and_calibration_follows_where_and_how_the_fit_calibrates(monkeypatch):
-    """The 128-voxel calibration of the finer presets takes a larger share, smaller where it decodes in bf16; the
-    presets judged on their own grid, and `paper` (no calibration), keep the plain share."""
-    from sin3dm_lite.app import device
-
-    for fast, decoded in ((True, "bf16"), (False, "fp32")):
-        monkeypatch.setattr(device, "bf16_is_fast", lambda dev=None, fast=fast: fast)
-        shares = {n: fit_default.other_share(get_preset(n), "cpu") for n in ("small", "quick", "detail", "paper")}
-        assert shares == {
-            "small": fit_default.OTHER_SHARE,
-            "quick": fit_default.OTHER_SHARE,
-            "detail": fit_default.OTHER_SHARE_AT_128[decoded],
-            "paper": fit_default.OTHER_SHARE,
-        }
-    assert fit_default.OTHER_SHARE_AT_128["bf16"] < fit_default.OTHER_SHARE_AT_128["fp32"]
+def test_the_estimates_share_for_grid_and_calibration_follows_where_the_fit_calibrates():
+    """The 128-voxel calibration of the finer presets takes a larger share; the presets judged on their own grid, and
+    `paper` (no calibration), keep the plain share."""
+    shares = {n: fit_default.other_share(get_preset(n)) for n in ("small", "quick", "detail", "fine", "paper")}
+    assert shares == {
+        "small": fit_default.OTHER_SHARE,
+        "quick": fit_default.OTHER_SHARE,
+        "detail": fit_default.OTHER_SHARE_AT_128,
+        "fine": fit_default.OTHER_SHARE_AT_128,
+        "paper": fit_default.OTHER_SHARE,
+    }
+    assert fit_default.OTHER_SHARE_AT_128 > fit_default.OTHER_SHARE
 
 
 def test_a_time_budget_trains_both_networks_for_a_share_of_their_steps(monkeypatch, tmp_path, capsys):

@@ -367,3 +367,18 @@ def test_lp_misses_by_band_finds_where_a_variant_lost_its_patches():
     assert min(walls["missed"]) > 0.4 and walls["lp_iou"] < top["lp_iou"]  # measured: 0.5-1 in every slab
     assert walls["lp_iou"] == pytest.approx(M.lp_scores(ref, [moved], max_patches=10**6)["lp_iou"])
     assert np.isnan(M.lp_misses_by_band(ref, np.zeros_like(ref))["lp_iou"])  # an empty sample is not a perfect one
+
+
+@pytest.mark.parametrize("radius", [0.47, 0.23])
+def test_the_papers_voxels_read_from_an_sdf_grid_are_those_of_its_marching_cubes_mesh(radius):
+    """The calibration judges a sample by the paper's voxels without making its mesh: its SDF at the voxel centres
+    read between them as marching cubes reads it (trilinearly), closed at the box's faces as the mesh is."""
+    from sin3dm_lite.evaluate.geometry import interpolated_inside
+
+    x, y, z = centres(24)
+    for sdf in (np.sqrt((x - 0.1) ** 2 + y**2 + z**2) - radius, x + 0.135):  # a ball; a slab through the -x face
+        mesh = M.voxelize(ex.marching_cubes(sdf, BOX), BOX, 24, supersample=2)
+        paper = interpolated_inside(sdf, 2)
+        assert paper.shape == sdf.shape and np.mean(paper != mesh) < 0.002
+        assert (sdf < 0).sum() < paper.sum()  # the centres' voxels and those the surface passes through
+        np.testing.assert_array_equal(interpolated_inside(sdf, 1), sdf < 0)

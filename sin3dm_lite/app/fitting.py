@@ -242,7 +242,7 @@ class FitRun:
             if at is None:
                 model.calibrate(reference=grid.sdf < 0, progress=self.progress)
             else:  # against the input mesh as the paper measures (the mesh read again on a resume)
-                model.calibrate(input_mesh=self.mesh, resolution=at, supersample=1, progress=self.progress)
+                model.calibrate(input_mesh=self.mesh, resolution=at, progress=self.progress)
             self.timings["calibrate_s"] = time.perf_counter() - t0
         return model, dm.history
 

@@ -32,18 +32,17 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..app.device import bf16_is_fast, cpu_bf16_share, get_device, resolved_precision
+from ..app.device import bf16_is_fast, cpu_bf16_share, get_device
 from ..data.config import Config
 from ..presets import get_preset
 
 #: the grid and the calibration beside the two trainings: 5-20 % of the training's time in the fits of
 #: docs/performance.md and docs/presets.md, the most on the finer grid
 OTHER_SHARE = 0.2
-#: the same where the calibration judges at 128 voxels (``detail``, ``fine``: :func:`auto.calibration.judged_at`),
-#: its decoding in fp32 (``fine`` without fast bf16: on a tower 152 s beside 458 s of training) or in bf16 (an
-#: autoencoder that trained in bf16: 135 s beside 584 s); one tower each: the calibration's time follows the surface
-#: to decode, so a shape with less of it takes less
-OTHER_SHARE_AT_128 = {"fp32": 0.35, "bf16": 0.25}
+#: the same where the calibration judges at 128 voxels by the paper's voxels (``detail``, ``fine``:
+#: :func:`auto.calibration.judged_at`), decoding in fp32: a third to a half of the training in the fits of
+#: docs/presets.md (a tower, a town, a tree); its time follows the surface to decode, so a shape with less takes less
+OTHER_SHARE_AT_128 = 0.4
 #: training steps timed per network (after one untimed step)
 TIMED_STEPS = 3
 #: the finer preset of each CPU preset, for a shape that is mostly thin parts
@@ -206,15 +205,13 @@ def _seconds_per_step(trainer) -> float:
     return min(times)
 
 
-def other_share(cfg: Config, device=None) -> float:
+def other_share(cfg: Config) -> float:
     """The grid and the calibration as a share of the training's time: :data:`OTHER_SHARE`, or where a fit of ``cfg``
-    calibrates at 128 voxels (``detail``, ``fine``) :data:`OTHER_SHARE_AT_128` for the precision its samples are
-    decoded in there (the autoencoder's); a preset that does not calibrate (``paper``) keeps the plain share."""
+    calibrates at 128 voxels (``detail``, ``fine``) :data:`OTHER_SHARE_AT_128`; a preset that does not calibrate
+    (``paper``) keeps the plain share."""
     from .calibration import calibrates, judged_at
 
-    if not (calibrates(cfg) and judged_at(cfg)):
-        return OTHER_SHARE
-    return OTHER_SHARE_AT_128[resolved_precision(get_device(device), cfg.autoencoder.precision)]
+    return OTHER_SHARE_AT_128 if calibrates(cfg) and judged_at(cfg) else OTHER_SHARE
 
 
 def estimate_fit(cfg: Config, device=None, box=None) -> dict:
@@ -233,7 +230,7 @@ def estimate_fit(cfg: Config, device=None, box=None) -> dict:
         ae_s = _seconds_per_step(ae) * cfg.autoencoder.steps
         dm = DiffusionTrainer(ae.latent(), cfg.updated(**{"diffusion.compile": False}).diffusion, dev, 0)
         dn_s = _seconds_per_step(dm) * cfg.diffusion.steps
-    other = other_share(cfg, dev) * (ae_s + dn_s)
+    other = other_share(cfg) * (ae_s + dn_s)
     return {"autoencoder": ae_s, "denoiser": dn_s, "other": other, "total": ae_s + dn_s + other}
 
 

@@ -201,7 +201,7 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     report = None if shipped else run_report(run)  # everything read and checked before the work
     model = Sin3DM.load(run)
     # by default where the fit judged (auto.calibration.judged_at: the training grid, or for `detail` and `fine` 128
-    # voxels by their centres); the training grid is the input voxelised at the fit's resolution, and needs no mesh
+    # voxels, the paper's); the training grid is the input voxelised at the fit's resolution, and needs no mesh
     # file; without it, or at another resolution (--resolution 128 as the paper measures), the input mesh there
     fit_at = None if a.resolution else judged_at(model.config)
     resolution = a.resolution or fit_at
@@ -218,7 +218,7 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     if reference is None:  # the input mesh is read here, with --allow-outside-paths if given
         allow = a.allow_outside_paths
         input_mesh = model.input_mesh(allow) if a.input is None else resolve_mesh(a.input, allow_outside_paths=allow)
-    supersample = _supersample(a.voxels) if a.voxels else 1 if fit_at else None  # the fit judged the centres
+    supersample = _supersample(a.voxels) if a.voxels else None  # calibrate_model's: on the grid the centres
     cal = model.calibrate(
         reference,
         input_mesh=input_mesh,

@@ -291,7 +291,7 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         type=int_at_least(16),
         default=None,
         help="voxels along the longest side where the samples are judged (default: where the fit judged them: the "
-        "training grid, or for `detail` and `fine` 128 voxels by their centres); 128 judges against the input "
+        "training grid, or for `detail` and `fine` 128 voxels, the paper's); 128 judges against the input "
         "mesh as the paper measures, in about 4x the time of a 64-voxel training grid",
     )
     c.add_argument(

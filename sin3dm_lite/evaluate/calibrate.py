@@ -78,24 +78,24 @@ SampleFn = Callable[[float, int, int], Sequence[np.ndarray]]
 
 def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int, supersample: int = 1):
     """``n`` samples at ``diversity`` (seeds ``seed`` …), each as occupancy on the model's box at ``resolution``
-    voxels along its longest side.
-
-    With the voxel centres (``supersample=1``) the decoder's sign, no mesh, queried only where its bound cannot
-    prove the sign (``exact_band=0``: the same occupancy voxel for voxel, in a fraction of the time); with the
-    paper's voxels (``supersample=2``) each sample's mesh voxelised as ``evaluate`` does
-    (:meth:`Sin3DM.occupancy`). A decoder trained in bf16 decodes in bf16 where this CPU runs it faster (a tenth of
-    a percent of the signs change; docs/calibration.md); the samples are drawn in fp32, as a user draws them.
+    voxels along its longest side, from the decoder's SDF at the voxel centres, no mesh (``exact_band=0``: every
+    value marching cubes reads is decoded, the rest only where its bound cannot prove the sign): the centres' signs
+    (``supersample=1``), or the paper's voxels of the mesh they make (``2``: :func:`geometry.interpolated_inside`,
+    within a percent of the voxels of the extracted mesh). For the centres a decoder trained in bf16 decodes in bf16
+    where this CPU runs it faster (a tenth of a percent of the signs change; docs/calibration.md); the paper's
+    voxels read the values between the centres, which bf16 moves by a part of a voxel, and decode in fp32, as the
+    samples are drawn and their meshes made.
     """
     from ..app.device import autocast
     from ..model.decode import decode_grid
+    from .geometry import interpolated_inside
 
     samples = model.sample(n, seed=seed, diversity=diversity, progress=False)
-    if supersample > 1:
-        return model.occupancy(samples, resolution, supersample=supersample)
-    bf16 = (model.report.get("precision") or {}).get("autoencoder") == "bf16"
+    bf16 = supersample == 1 and (model.report.get("precision") or {}).get("autoencoder") == "bf16"
     with autocast(model.device, "auto" if bf16 else "fp32"):
         tps = [samples.triplane[i : i + 1] for i in range(n)]
-        return [decode_grid(model.decoder, tp, samples.aabb, resolution, exact_band=0.0) < 0 for tp in tps]
+        sdfs = [decode_grid(model.decoder, tp, samples.aabb, resolution, exact_band=0.0) for tp in tps]
+    return [sdf < 0 if supersample == 1 else interpolated_inside(sdf, supersample) for sdf in sdfs]
 
 
 def model_sampler(model, reference: np.ndarray, supersample: int = 1) -> SampleFn:
