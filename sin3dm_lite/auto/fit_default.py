@@ -40,9 +40,9 @@ from ..presets import get_preset
 #: docs/performance.md and docs/presets.md, the most on the finer grid
 OTHER_SHARE = 0.2
 #: the same where the calibration judges at 128 voxels by the paper's voxels (``detail``, ``fine``:
-#: :func:`auto.calibration.judged_at`), decoding in fp32: a third to a half of the training in the fits of
-#: docs/presets.md (a tower, a town, a tree); its time follows the surface to decode, so a shape with less takes less
-OTHER_SHARE_AT_128 = 0.4
+#: :func:`auto.calibration.judged_at`): a quarter to two fifths of the training in the fits of docs/calibration.md
+#: (towers, a town, a tree; in bf16 or fp32 alike); its time follows the surface to decode
+OTHER_SHARE_AT_128 = 0.35
 #: training steps timed per network (after one untimed step)
 TIMED_STEPS = 3
 #: the finer preset of each CPU preset, for a shape that is mostly thin parts
