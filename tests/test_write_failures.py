@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 from collections import namedtuple
+from concurrent.futures import ProcessPoolExecutor, wait
 from pathlib import Path
 
 import pytest
@@ -55,8 +56,21 @@ def _no_leftovers(out: Path) -> None:
     assert not [p.name for p in out.rglob("*") if p.name.startswith((TEMP_PREFIX, LOCK))]
 
 
-def test_a_killed_export_worker_is_one_line_and_the_finished_samples_are_kept(tmp_path, monkeypatch, capsys):
+class HandOverAfterTheLast(ProcessPoolExecutor):
+    """Hands a sample to the worker only once the one before is done: a worker's death is then met when the next
+    sample is handed over (`submit` raises), not while a result is awaited."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        wait(getattr(self, "given", []))
+        self.given = [*getattr(self, "given", []), super().submit(fn, *args, **kwargs)]
+        return self.given[-1]
+
+
+@pytest.mark.parametrize("met", ["awaiting a result", "handing a sample over"])
+def test_a_killed_export_worker_is_one_line_and_the_finished_samples_are_kept(tmp_path, monkeypatch, capsys, met):
     monkeypatch.setattr(mass_workers, "export_sample", export_then_die)  # submitted to the worker by reference
+    if met == "handing a sample over":
+        monkeypatch.setattr(mass_workers, "ProcessPoolExecutor", HandOverAfterTheLast)
     out = tmp_path / "s"
     assert main(["sample", RUN, "-n", "3", "--out", str(out), "--workers", "1", *CHEAP]) == 2
     msg = _error_line(capsys)

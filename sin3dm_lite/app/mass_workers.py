@@ -303,7 +303,11 @@ class RankExport:
             if self.pool is None:
                 self.land(i, tmp, started, export_sample(str(tmp), latent, samples.aabb, self.model, self.opts))
                 continue
-            self.futures[self.pool.submit(export_sample, str(tmp), latent, samples.aabb)] = (i, tmp, started)
+            try:
+                self.futures[self.pool.submit(export_sample, str(tmp), latent, samples.aabb)] = (i, tmp, started)
+            except BrokenProcessPool:  # the worker died before this sample was handed over: the same one line
+                first = min([i, *(k for k, _, _ in self.futures.values())])
+                raise Sin3DMInputError(worker_died(self.out, first)) from None
             while len(self.futures) >= 2 * self.workers:  # bounded: at most 2 meshes per worker wait
                 self.collect(block=True)
         if self.pool is not None:
