@@ -75,7 +75,12 @@ def _fit_cli(monkeypatch, tmp_path, capsys, *argv):
     monkeypatch.setattr(
         fit_default,
         "estimate_fit",
-        lambda cfg, device=None, box=None: {"autoencoder": 120, "denoiser": 60, "other": 27, "total": 207},
+        lambda cfg, device=None, box=None, one_colour=False: {
+            "autoencoder": 120,
+            "denoiser": 60,
+            "other": 27,
+            "total": 207,
+        },
     )
     with pytest.raises(_FitCalled):
         main(["fit", "wall", "--out", str(tmp_path / "run"), *argv])
@@ -159,7 +164,12 @@ def test_a_budget_the_fit_cannot_keep_is_refused_in_one_line_before_it_starts(
     monkeypatch.setattr(
         fit_default,
         "estimate_fit",
-        lambda cfg, device=None, box=None: {"autoencoder": 120, "denoiser": 60, "other": 27, "total": 207},
+        lambda cfg, device=None, box=None, one_colour=False: {
+            "autoencoder": 120,
+            "denoiser": 60,
+            "other": 27,
+            "total": 207,
+        },
     )
     if "--resume" in argv:
         (tmp_path / "run").mkdir()
@@ -256,3 +266,32 @@ def test_a_real_meshs_faults_do_not_move_the_shape_rule(walls, chosen, wrong):
     assert not caught  # the fit's own grid says what is wrong with the mesh, once
     assert abs(faulty - fit_default.thin_share(mesh, get_preset("small"))) < 0.1
     assert fit_default.for_shape("small", soup)[0] == chosen
+
+
+def test_the_estimate_times_a_shape_of_one_colour_as_its_fit_trains_it(monkeypatch):
+    """A mesh of one colour (a mesh without colour gets the default grey) trains its autoencoder on the geometry
+    alone, about half a step's work; the estimate times that case on a grey timing grid, a coloured mesh on a
+    coloured one."""
+    import trimesh
+
+    from sin3dm_lite.examples import build_example
+    from sin3dm_lite.model import autoencoder
+
+    from .conftest import textured
+
+    grey, coloured = textured(trimesh.creation.box()), build_example("wall")
+    assert fit_default.one_colour(grey) and not fit_default.one_colour(coloured) and not fit_default.one_colour(None)
+    timed = []
+
+    class Timed(Exception):
+        pass
+
+    def record(grid, *args, **kwargs):
+        timed.append(grid.single_color() is not None)
+        raise Timed
+
+    monkeypatch.setattr(autoencoder, "AutoencoderTrainer", record)
+    for mesh in (grey, coloured):
+        with pytest.raises(Timed):
+            fit_default.default_preset("cpu", mesh)
+    assert timed == [True, False]

@@ -106,6 +106,16 @@ def thin_share(mesh, cfg: Config) -> float:
     return grid.thin_share(THIN_RADIUS * g.resolution / 64)
 
 
+def one_colour(mesh, n_points: int = 4000) -> bool:
+    """Whether ``mesh``'s surface has one colour (a mesh without colour: the default grey), checked at
+    ``n_points`` surface points as the grid checks it (``ShapeGrid.single_color``): its autoencoder then learns the
+    geometry alone, about half the work a step, which the estimate times so (a PBR mesh never counts)."""
+    if mesh is None or mesh.has_pbr:
+        return False
+    _, faces, bary = mesh.surface_points(n_points, np.random.default_rng(0))
+    return float(np.ptp(mesh.colors_at(faces, bary), axis=0).max()) <= 0.5 / 255
+
+
 def proportions(mesh) -> tuple[float, float, float]:
     """``mesh``'s box, its sides over the longest (the grid, the latent and so the denoiser's work follow it)."""
     v = np.asarray(mesh.vertices, np.float64)
@@ -137,7 +147,8 @@ def default_preset(device=None, mesh=None, timed: bool = True) -> DefaultPreset:
     name, why = choose_preset(device)
     name, shape, share = for_shape(name, mesh)
     box = proportions(mesh) if mesh is not None else None
-    return DefaultPreset(name, why + shape, estimate_fit(get_preset(name), device, box) if timed else None, share)
+    seconds = estimate_fit(get_preset(name), device, box, one_colour(mesh)) if timed else None
+    return DefaultPreset(name, why + shape, seconds, share)
 
 
 def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, str]:
@@ -166,10 +177,11 @@ def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, st
     return {"autoencoder.steps": ae, "diffusion.steps": dn}, line
 
 
-def timing_grid(resolution: int, n_points: int = 20_000, box=None):
+def timing_grid(resolution: int, n_points: int = 20_000, box=None, one_colour: bool = False):
     """A synthetic shape for timing: a ball in a box of ``resolution`` × half × half voxels (about the built-ins'
-    proportions; ``box``: the sides over the longest of the shape to fit), coloured by position (a step's cost
-    depends on the grid's size and the points, not on the shape)."""
+    proportions; ``box``: the sides over the longest of the shape to fit), coloured by position, or grey all over
+    (``one_colour``: the autoencoder then trains its geometry alone); a step's cost depends on the grid's size,
+    the points and the colours, not on the shape."""
     from ..data.box import grid_shape
     from ..data.grid import ShapeGrid
     from ..data.mesh import Normalization
@@ -185,11 +197,12 @@ def timing_grid(resolution: int, n_points: int = 20_000, box=None):
     c = g.voxel_centers()
     radius = 0.5 * half.min()
     g.sdf = np.clip(np.linalg.norm(c, axis=-1) - radius, -thr, thr).astype(np.float32)
-    g.color = np.where((np.abs(g.sdf) < thr)[..., None], (c + 1) / 2, 0).astype(np.float32)
+    paint = (lambda x: np.full_like(x, 0.7)) if one_colour else (lambda x: (x + 1) / 2)
+    g.color = np.where((np.abs(g.sdf) < thr)[..., None], paint(c), 0).astype(np.float32)
     p = np.random.default_rng(0).normal(size=(n_points, 3))
     g.points = (p / np.linalg.norm(p, axis=1, keepdims=True) * radius).astype(np.float32)
     g.point_sdf = np.zeros(n_points, np.float32)
-    g.point_color = ((g.points + 1) / 2).astype(np.float32)
+    g.point_color = paint(g.points).astype(np.float32)
     return g
 
 
@@ -214,18 +227,18 @@ def other_share(cfg: Config) -> float:
     return OTHER_SHARE_AT_128 if calibrates(cfg) and judged_at(cfg) else OTHER_SHARE
 
 
-def estimate_fit(cfg: Config, device=None, box=None) -> dict:
+def estimate_fit(cfg: Config, device=None, box=None, one_colour: bool = False) -> dict:
     """About how long a fit of ``cfg`` takes on ``device``: a few steps of its autoencoder and its denoiser timed on
     :func:`timing_grid` (the denoiser uncompiled: a compiled one runs faster once compiled), times their steps, plus
     :data:`OTHER_SHARE` for the grid and the calibration. ``box``: the shape's proportions (:func:`proportions`;
-    default 1 × ½ × ½). Seconds: ``autoencoder``, ``denoiser``, ``other``, ``total``. The random state is left as
-    it was."""
+    default 1 × ½ × ½); ``one_colour``: the shape has one colour (:func:`one_colour`). Seconds: ``autoencoder``,
+    ``denoiser``, ``other``, ``total``. The random state is left as it was."""
     from ..model.autoencoder import AutoencoderTrainer
     from ..model.diffusion import DiffusionTrainer
 
     dev = get_device(device)
     with torch.random.fork_rng(devices=[dev] if dev.type == "cuda" else []):
-        grid = timing_grid(cfg.grid.resolution, box=box)
+        grid = timing_grid(cfg.grid.resolution, box=box, one_colour=one_colour)
         ae = AutoencoderTrainer(grid, cfg.updated(**{"autoencoder.pbr": False}).autoencoder, dev, 0)
         ae_s = _seconds_per_step(ae) * cfg.autoencoder.steps
         dm = DiffusionTrainer(ae.latent(), cfg.updated(**{"diffusion.compile": False}).diffusion, dev, 0)
@@ -243,6 +256,7 @@ __all__ = [
     "choose_preset",
     "default_preset",
     "estimate_fit",
+    "one_colour",
     "for_shape",
     "other_share",
     "thin_share",

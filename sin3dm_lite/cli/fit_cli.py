@@ -151,13 +151,13 @@ def time_budget(a, mesh, name: str, chosen, changes: dict) -> dict:
     """``--minutes``: fewer training steps where the fit's estimate is longer
     (:func:`~sin3dm_lite.auto.fit_default.within_minutes`), said before the fit starts. The default's estimate is
     used as it is; a named preset, or settings changed by ``--set``, are timed here."""
-    from ..auto.fit_default import estimate_fit, proportions, within_minutes
+    from ..auto.fit_default import estimate_fit, one_colour, proportions, within_minutes
     from ..presets import get_preset
 
     cfg = get_preset(name).updated(**changes) if changes else get_preset(name)
     seconds = chosen.seconds if chosen is not None and chosen.seconds and not changes else None
     if seconds is None:
-        seconds = estimate_fit(cfg, a.device, proportions(mesh))
+        seconds = estimate_fit(cfg, a.device, proportions(mesh), one_colour(mesh))
     budget, line = within_minutes(cfg, seconds, a.minutes)
     print(line, flush=True)
     return budget
