@@ -20,7 +20,7 @@ CALIBRATED = ("small", "quick", "detail", "fine")
 
 
 #: where a fit's calibration judges the finer presets' samples: the paper's evaluation grid, against the input mesh
-#: and by the paper's voxels (any of 2³ sub-voxels inside: the centres alone miss branches thinner than two voxels)
+#: and by the paper's voxels (any of 2³ sub-voxels inside: of a branch one or two voxels thick the centres hold a part)
 PAPER_RESOLUTION = 128
 
 
