@@ -567,6 +567,41 @@ def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
         assert paper.sum() > c.sum()
 
 
+def test_a_bf16_decoder_is_judged_with_its_plane_convolutions_in_fp32(calibrated, monkeypatch):
+    """Where the autoencoder trained in bf16 the calibration decodes its point MLPs in bf16 but its plane
+    convolutions in fp32: in bf16 they moved the surface by a fortieth of a voxel, which the paper's voxels (the
+    values between the centres) cannot bear."""
+    import copy
+
+    import torch
+
+    from sin3dm_lite.app import device
+    from sin3dm_lite.model import decode
+
+    model = copy.deepcopy(calibrated[0])
+    model.report["precision"] = {"autoencoder": "bf16"}
+    monkeypatch.setattr(device, "bf16_is_fast", lambda dev=None: True)
+    seen = {"prepare": [], "query": []}
+    real_prepare, real_query = decode.prepare, type(model.decoder).query_sdf
+
+    def prepare(decoder, triplane):
+        if not isinstance(triplane, decode.PreparedTriplane):  # the convolutions run here, once a sample
+            seen["prepare"].append(torch.is_autocast_enabled("cpu"))
+        return real_prepare(decoder, triplane)
+
+    def query_sdf(self, prep, points):
+        seen["query"].append(torch.is_autocast_enabled("cpu"))
+        return real_query(self, prep, points)
+
+    monkeypatch.setattr(decode, "prepare", prepare)
+    monkeypatch.setattr(type(model.decoder), "query_sdf", query_sdf)
+    res = max(model.report["grid_shape"])
+    grids = C.sample_occupancy(model, 1.0, 2, 3, res, 2)
+    assert len(grids) == 2 and all(g.any() for g in grids)
+    assert seen["prepare"] and not any(seen["prepare"])  # the convolutions: fp32
+    assert seen["query"] and all(seen["query"])  # the point MLPs: bf16
+
+
 def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
     """The barely trained micro model keeps no patches, not even in its near copy, so its goals stay absolute, no
     setting keeps them, and the calibration lands on the least varied setting whose samples are no copies: 0.2
