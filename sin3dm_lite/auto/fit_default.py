@@ -110,10 +110,12 @@ def one_colour(mesh, n_points: int = 4000) -> bool:
     """Whether ``mesh``'s surface has one colour (a mesh without colour: the default grey), checked at
     ``n_points`` surface points as the grid checks it (``ShapeGrid.single_color``): its autoencoder then learns the
     geometry alone, about half the work a step, which the estimate times so (a PBR mesh never counts)."""
+    from ..data.grid import ONE_COLOUR_TOLERANCE
+
     if mesh is None or mesh.has_pbr:
         return False
     _, faces, bary = mesh.surface_points(n_points, np.random.default_rng(0))
-    return float(np.ptp(mesh.colors_at(faces, bary), axis=0).max()) <= 0.5 / 255
+    return float(np.ptp(mesh.colors_at(faces, bary), axis=0).max()) <= ONE_COLOUR_TOLERANCE
 
 
 def proportions(mesh) -> tuple[float, float, float]:

@@ -30,6 +30,9 @@ from .distance import Distance
 from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, unique_rows
 from .tsdf import PBR_CHANNELS, point_tsdf, tsdf_grid
 
+#: colours closer than half a step of 8-bit colour count as one (:meth:`ShapeGrid.single_color`)
+ONE_COLOUR_TOLERANCE = 0.5 / 255
+
 
 @dataclass
 class ShapeGrid:
@@ -85,7 +88,7 @@ class ShapeGrid:
             return np.where(band[..., None], self.color[..., 5:8] * 2 - 1, 0.0).astype(np.float32)
         return self.color[..., PBR_CHANNELS.index(name)]
 
-    def single_color(self, tolerance: float = 0.5 / 255) -> np.ndarray | None:
+    def single_color(self, tolerance: float = ONE_COLOUR_TOLERANCE) -> np.ndarray | None:
         """The shape's colour ``(K,)`` if its whole surface has one (a mesh without colour: the default grey, or one
         plain material), else None. Checked on the voxels of the truncation band and the near-surface points."""
         band = np.abs(self.sdf) < self.threshold
