@@ -87,6 +87,29 @@ def test_bad_format_and_name_are_clear_errors(sphere_mesh, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_temporaries_of_another_machine_sharing_the_folder_are_left_alone(tmp_path, monkeypatch):
+    """A folder shared between machines (a cluster's home): a PID that runs on the other machine is not running
+    here, so only this machine's temporaries are judged by PID; old names without a machine still are."""
+    import subprocess
+    import sys
+
+    from sin3dm_lite.files import TEMP_PREFIX, atomic_path, make_temp_dir, remove_stale_temps
+    from sin3dm_lite.files.atomic import machine_tag
+
+    dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True).stdout)
+    monkeypatch.setattr("os.getpid", lambda: dead)  # what the other machine's writer (PID `dead` there) makes
+    monkeypatch.setattr("socket.gethostname", lambda: "node-17")
+    theirs = make_temp_dir(tmp_path)
+    with atomic_path(tmp_path / "model.pt") as their_file:
+        their_file.write_bytes(b"half")
+        monkeypatch.undo()
+        remove_stale_temps(tmp_path)
+        assert theirs.is_dir() and their_file.is_file()  # the other machine's writer goes on undisturbed
+    mine, old = tmp_path / f"{TEMP_PREFIX}{dead}@{machine_tag()}-x", tmp_path / f"{TEMP_PREFIX}{dead}-y"
+    mine.mkdir(), old.mkdir()
+    assert sorted(remove_stale_temps(tmp_path)) == sorted([mine, old]) and theirs.is_dir()
+
+
 def test_atomic_folder_cleans_up_after_errors_and_killed_writers(tmp_path):
     import subprocess
     import sys
@@ -101,7 +124,7 @@ def test_atomic_folder_cleans_up_after_errors_and_killed_writers(tmp_path):
     (stale / "half.obj").write_text("v 0 0")
     with pytest.raises(OSError, match="disk full"):
         with atomic_folder(out) as tmp:
-            assert tmp.parent == out and tmp.name.startswith(f"{TEMP_PREFIX}{os.getpid()}-")
+            assert tmp.parent == out and tmp.name.startswith(f"{TEMP_PREFIX}{os.getpid()}@")
             (tmp / "a.mtl").write_text("newmtl a")
             raise OSError("disk full")
     assert list(out.iterdir()) == []  # the stale folder went first, the failed one after

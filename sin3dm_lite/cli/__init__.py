@@ -22,8 +22,8 @@ the files its manifest (``.sin3dm-manifest.json``, written by this tool) lists
 as written there by the same command are replaced (a file of the same name that another
 command wrote there is refused by name). Outputs are checked (writable, not overlapping the run
 folder or the input) before the long work starts; results are written into a
-temporary folder beside the target (``.sin3dm-tmp-<pid>-*``, removed by the
-next run if the process was killed) and moved into place at the end.
+temporary folder beside the target (``.sin3dm-tmp-<pid>@<machine>-*``, removed by
+the next run on that machine if the process was killed) and moved into place at the end.
 ``sample`` and ``demo`` move each sample folder into place as it finishes and
 continue a folder of samples with the same settings (:mod:`sin3dm_lite.app.mass`).
 

@@ -17,9 +17,25 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-TEMP_PREFIX = ".sin3dm-tmp-"  # temporary folders: .sin3dm-tmp-<pid>-<random>
-_TEMP_DIR = re.compile(r"^\.sin3dm-tmp-(\d+)-")
-_TEMP_FILE = re.compile(r"^\..*\.sin3dm-(\d+)-[^.]*\.tmp")  # from atomic_path
+TEMP_PREFIX = ".sin3dm-tmp-"  # temporary folders: .sin3dm-tmp-<pid>@<machine>-<random>
+# the writer's PID and (since the machine was named, optional in older names) its machine's tag
+_TEMP_DIR = re.compile(r"^\.sin3dm-tmp-(\d+)(?:@([0-9a-f]{8}))?-")
+_TEMP_FILE = re.compile(r"^\..*\.sin3dm-(\d+)(?:@([0-9a-f]{8}))?-[^.]*\.tmp")  # from atomic_path
+
+
+def machine_tag() -> str:
+    """Eight hex digits naming this machine (from its host name) in a temporary's name: a PID means something
+    only on the machine that gave it, so a folder shared between machines (a cluster's home) keeps another
+    machine's temporaries until a run there judges them."""
+    import hashlib
+    import socket
+
+    return hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]
+
+
+def _owner() -> str:
+    """``<pid>@<machine tag>`` of this process, for a temporary's name."""
+    return f"{os.getpid()}@{machine_tag()}"
 
 
 @contextmanager
@@ -33,9 +49,7 @@ def atomic_path(path: str | Path, before_move=None):
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.stem}.sin3dm-{os.getpid()}-", suffix=f".tmp{path.suffix}", dir=path.parent
-    )
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.sin3dm-{_owner()}-", suffix=f".tmp{path.suffix}", dir=path.parent)
     os.close(fd)
     try:
         yield Path(tmp)
@@ -172,8 +186,9 @@ def pid_alive(pid: int) -> bool:
 
 
 def make_temp_dir(parent: Path) -> Path:
-    """A new folder ``parent/.sin3dm-tmp-<pid>-<random>`` (mode 755); a later run removes it if this process dies."""
-    tmp = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{os.getpid()}-", dir=parent))
+    """A new folder ``parent/.sin3dm-tmp-<pid>@<machine>-<random>`` (mode 755); a later run on this machine
+    removes it if this process dies."""
+    tmp = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{_owner()}-", dir=parent))
     tmp.chmod(0o755)  # mkdtemp makes it private; the result becomes an ordinary folder
     return tmp
 
@@ -182,7 +197,7 @@ def make_temp_dir(parent: Path) -> Path:
 def atomic_folder(folder: str | Path):
     """Yield a temporary folder to write files into; move them into ``folder`` when the block succeeds.
 
-    The temporary folder is ``.sin3dm-tmp-<pid>-<random>``: inside ``folder``
+    The temporary folder is ``.sin3dm-tmp-<pid>@<machine>-<random>``: inside ``folder``
     if it exists, else beside it (leftovers of killed writers there are removed
     first, see :func:`remove_stale_temps`). A new ``folder`` appears in one
     rename; into an existing one each file is moved with an atomic replace,
@@ -209,15 +224,16 @@ def atomic_folder(folder: str | Path):
 
 
 def remove_stale_temps(folder: Path) -> list[Path]:
-    """Remove temporary folders/files in ``folder`` left by sin3dm-lite processes that no longer run."""
-    removed = []
+    """Remove temporary folders/files in ``folder`` left by sin3dm-lite processes of this machine that no longer
+    run (another machine's are left alone: its PIDs mean nothing here)."""
+    removed, here = [], machine_tag()
     try:
         entries = list(Path(folder).iterdir())
     except OSError:
         return removed
     for e in entries:
         m = _TEMP_DIR.match(e.name) or _TEMP_FILE.match(e.name)
-        if m is None or pid_alive(int(m.group(1))):
+        if m is None or m.group(2) not in (None, here) or pid_alive(int(m.group(1))):
             continue
         try:
             if e.is_dir() and not e.is_symlink():
