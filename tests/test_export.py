@@ -93,8 +93,7 @@ def test_temporaries_of_another_machine_sharing_the_folder_are_left_alone(tmp_pa
     import subprocess
     import sys
 
-    from sin3dm_lite.files import TEMP_PREFIX, atomic_path, make_temp_dir, remove_stale_temps
-    from sin3dm_lite.files.atomic import machine_tag
+    from sin3dm_lite.files import TEMP_PREFIX, atomic_path, machine_tag, make_temp_dir, remove_stale_temps
 
     dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True).stdout)
     monkeypatch.setattr("os.getpid", lambda: dead)  # what the other machine's writer (PID `dead` there) makes

@@ -243,16 +243,20 @@ def test_multiprocessing_temporaries_of_a_killed_run_are_removed_by_the_next(tmp
     import tempfile
 
     from sin3dm_lite.app import mass_workers
+    from sin3dm_lite.files import machine_tag
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    stale, live = tmp_path / f"sin3dm-mp-{dead.pid}-x", tmp_path / f"sin3dm-mp-{os.getppid()}-y"
-    stale.mkdir()
-    live.mkdir()
+    here = machine_tag()
+    stale, live = tmp_path / f"sin3dm-mp-{dead.pid}@{here}-x", tmp_path / f"sin3dm-mp-{os.getppid()}@{here}-y"
+    old, elsewhere = tmp_path / f"sin3dm-mp-{dead.pid}-z", tmp_path / f"sin3dm-mp-{dead.pid}@0badcafe-w"
+    for folder in (stale, live, old, elsewhere):
+        folder.mkdir()
     mine = mass_workers.own_mp_temps()
-    try:
-        assert not stale.exists() and live.is_dir() and mine.parent == tmp_path
+    try:  # another machine's (a shared temporary folder) stays: its PID means nothing here
+        assert not stale.exists() and not old.exists() and live.is_dir() and elsewhere.is_dir()
+        assert mine.parent == tmp_path and mine.name.startswith(f"sin3dm-mp-{os.getpid()}@{here}-")
     finally:
         mass_workers.drop_mp_temps(mine)
     assert not mine.exists()

@@ -24,15 +24,17 @@ import torch
 
 from ..errors import Sin3DMInputError
 from ..files import (
+    OWNER,
     append_manifest_part,
     confined,
     file_record,
     is_ours,
     make_temp_dir,
-    pid_alive,
+    owner_name,
     read_manifest,
     replacing,
     save_torch,
+    writer_gone,
 )
 from .mass_folder import WRITER, finished, folder_name
 
@@ -191,7 +193,7 @@ def install_sample(tmp: Path, dst: Path, out: Path, ours: dict | None) -> None:
     shutil.rmtree(tmp, ignore_errors=True)
 
 
-MP_PREFIX = "sin3dm-mp-"  # multiprocessing's temporaries of a sample run: sin3dm-mp-<pid>-<random> in the temp folder
+MP_PREFIX = "sin3dm-mp-"  # multiprocessing's temporaries of a sample run: sin3dm-mp-<pid>@<machine>-<random>
 
 
 def own_mp_temps() -> Path:
@@ -206,10 +208,10 @@ def own_mp_temps() -> Path:
 
     base = Path(tempfile.gettempdir())
     for old in base.glob(f"{MP_PREFIX}*"):
-        m = re.match(rf"^{MP_PREFIX}(\d+)-", old.name)
-        if m and not pid_alive(int(m.group(1))) and old.is_dir() and not old.is_symlink():
+        m = re.match(f"^{MP_PREFIX}{OWNER}", old.name)
+        if m and writer_gone(m) and old.is_dir() and not old.is_symlink():
             shutil.rmtree(old, ignore_errors=True)
-    folder = Path(tempfile.mkdtemp(prefix=f"{MP_PREFIX}{os.getpid()}-"))
+    folder = Path(tempfile.mkdtemp(prefix=f"{MP_PREFIX}{owner_name()}-"))
     multiprocessing.process.current_process()._config["tempdir"] = str(folder)
     return folder
 

@@ -25,14 +25,17 @@ from __future__ import annotations
 
 from .atomic import (
     NEARLY_FULL,
+    OWNER,
     TEMP_PREFIX,
     atomic_folder,
     atomic_path,
     atomic_paths,
     atomic_write,
     is_temporary,
+    machine_tag,
     make_temp_dir,
     named,
+    owner_name,
     pid_alive,
     remove_stale_temps,
     resolved_path,
@@ -40,6 +43,7 @@ from .atomic import (
     shown_path,
     write_data,
     write_failed,
+    writer_gone,
 )
 from .confined import confined, link_error, refuse_links
 from .locks import LOCK, acquire_lock, create_locked_folder, holds_lock, locked, release_lock
@@ -74,6 +78,7 @@ from .outputs import (
 
 __all__ = [
     "NEARLY_FULL",
+    "OWNER",
     "TEMP_PREFIX",
     "atomic_folder",
     "atomic_path",
@@ -83,8 +88,10 @@ __all__ = [
     "link_error",
     "refuse_links",
     "is_temporary",
+    "machine_tag",
     "make_temp_dir",
     "named",
+    "owner_name",
     "pid_alive",
     "remove_stale_temps",
     "resolved_path",
@@ -92,6 +99,7 @@ __all__ = [
     "shown_path",
     "write_data",
     "write_failed",
+    "writer_gone",
     "LOCK",
     "acquire_lock",
     "create_locked_folder",

@@ -18,9 +18,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 TEMP_PREFIX = ".sin3dm-tmp-"  # temporary folders: .sin3dm-tmp-<pid>@<machine>-<random>
-# the writer's PID and (since the machine was named, optional in older names) its machine's tag
-_TEMP_DIR = re.compile(r"^\.sin3dm-tmp-(\d+)(?:@([0-9a-f]{8}))?-")
-_TEMP_FILE = re.compile(r"^\..*\.sin3dm-(\d+)(?:@([0-9a-f]{8}))?-[^.]*\.tmp")  # from atomic_path
+#: what follows a temporary's prefix: the writer's PID and, in names since the machine was added, its machine
+OWNER = r"(\d+)(?:@([0-9a-f]{8}))?-"
+_TEMP_DIR = re.compile(r"^\.sin3dm-tmp-" + OWNER)
+_TEMP_FILE = re.compile(r"^\..*\.sin3dm-" + OWNER + r"[^.]*\.tmp")  # from atomic_path
 
 
 def machine_tag() -> str:
@@ -33,9 +34,15 @@ def machine_tag() -> str:
     return hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]
 
 
-def _owner() -> str:
+def owner_name() -> str:
     """``<pid>@<machine tag>`` of this process, for a temporary's name."""
     return f"{os.getpid()}@{machine_tag()}"
+
+
+def writer_gone(m: re.Match) -> bool:
+    """Whether the writer named in a temporary's name (``m`` of a pattern ending in :data:`OWNER`) is gone: its
+    PID no longer runs, judged on its own machine only (an older name, without a machine, as if made here)."""
+    return m.group(2) in (None, machine_tag()) and not pid_alive(int(m.group(1)))
 
 
 @contextmanager
@@ -49,7 +56,9 @@ def atomic_path(path: str | Path, before_move=None):
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.sin3dm-{_owner()}-", suffix=f".tmp{path.suffix}", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.stem}.sin3dm-{owner_name()}-", suffix=f".tmp{path.suffix}", dir=path.parent
+    )
     os.close(fd)
     try:
         yield Path(tmp)
@@ -188,7 +197,7 @@ def pid_alive(pid: int) -> bool:
 def make_temp_dir(parent: Path) -> Path:
     """A new folder ``parent/.sin3dm-tmp-<pid>@<machine>-<random>`` (mode 755); a later run on this machine
     removes it if this process dies."""
-    tmp = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{_owner()}-", dir=parent))
+    tmp = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{owner_name()}-", dir=parent))
     tmp.chmod(0o755)  # mkdtemp makes it private; the result becomes an ordinary folder
     return tmp
 
@@ -226,14 +235,14 @@ def atomic_folder(folder: str | Path):
 def remove_stale_temps(folder: Path) -> list[Path]:
     """Remove temporary folders/files in ``folder`` left by sin3dm-lite processes of this machine that no longer
     run (another machine's are left alone: its PIDs mean nothing here)."""
-    removed, here = [], machine_tag()
+    removed = []
     try:
         entries = list(Path(folder).iterdir())
     except OSError:
         return removed
     for e in entries:
         m = _TEMP_DIR.match(e.name) or _TEMP_FILE.match(e.name)
-        if m is None or m.group(2) not in (None, here) or pid_alive(int(m.group(1))):
+        if m is None or not writer_gone(m):
             continue
         try:
             if e.is_dir() and not e.is_symlink():
