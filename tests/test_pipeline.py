@@ -206,7 +206,9 @@ def test_checkpoints_are_written_once_per_step(tmp_path, monkeypatch):
     real = checkpoints.save_torch  # every torch file: checkpoints (atomic_torch_save) and model.pt (write_model)
 
     def counted(obj, path):
-        writes.append(re.sub(r"^\.(.*)\.sin3dm-\d+-[^.]*\.tmp(.*)$", r"\1\2", Path(path).name))  # the temporary's name
+        writes.append(
+            re.sub(r"^\.(.*)\.sin3dm-\d+(?:@[0-9a-f]+)?-[^.]*\.tmp(.*)$", r"\1\2", Path(path).name)
+        )  # the temporary's name
         return real(obj, path)
 
     monkeypatch.setattr(checkpoints, "save_torch", counted)
