@@ -206,6 +206,23 @@ def test_the_contact_sheet_fills_its_grid(n, columns, rows):
         sheet_columns(0)
 
 
+def test_a_cropped_contact_sheet_cuts_the_white_around_the_renders_alike():
+    """Renders of one box leave most of their square white (the canyon's sheet was two thirds white): ``crop``
+    cuts every panel to the union of what they show, so the panels keep one scale and place."""
+    from sin3dm_lite.evaluate.render import shared_crop
+
+    a, b = np.full((100, 80, 3), 255, np.uint8), np.full((100, 80, 3), 255, np.uint8)
+    a[40:50, 10:30], b[45:60, 20:40] = 0, 90  # what each render shows
+    ca, cb = shared_crop([a, b], margin=2)
+    assert ca.shape == cb.shape == (24, 34, 3)  # rows 38-62, columns 8-42: the union and 2 pixels
+    assert (ca[2:12, 2:22] == 0).all() and (cb[7:22, 12:32] == 90).all()  # each where it was against the other
+    assert contact_sheet([a, b], crop=True, pad=0).shape == (32, 84, 3)  # its margin: 6 pixels
+    assert contact_sheet([a, b], pad=0).shape == (100, 160, 3)  # without crop the renders as they are
+    odd = [a, np.full((50, 80, 3), 255, np.uint8)]
+    assert [im.shape for im in shared_crop(odd)] == [(100, 80, 3), (50, 80, 3)]  # other sizes: as they are
+    assert shared_crop([np.full((9, 9, 3), 255, np.uint8)])[0].shape == (9, 9, 3)  # nothing drawn: as it is
+
+
 def test_render_command_writes_eight_pngs(cube, tmp_path, capsys):
     export_mesh(cube, tmp_path / "in", name="cube")
     src = next((tmp_path / "in").glob("*.obj"))
@@ -247,7 +264,10 @@ def test_sample_writes_previews_and_a_contact_sheet(micro_fit, tmp_path):
     sheet = np.asarray(Image.open(out / "contact_sheet.png").convert("RGB"))
     previews = [np.asarray(Image.open(out / f"{i:03d}" / "preview.png").convert("RGB")) for i in range(2)]
     assert all(p.shape == (384, 384, 3) and (p < 200).any(axis=-1).mean() > 0.02 for p in previews)  # not blank
-    assert sheet.shape[1] >= 3 * 384  # the input and both samples side by side
+    drawn = [np.flatnonzero((p < 250).any(-1).any(k)) for p in previews for k in (1, 0)]  # rows, columns drawn
+    width = max(d[-1] for d in drawn[1::2]) - min(d[0] for d in drawn[1::2])
+    height = max(d[-1] for d in drawn[0::2]) - min(d[0] for d in drawn[0::2])
+    assert sheet.shape[1] >= 3 * width and height <= sheet.shape[0] < 384  # side by side, the white cut away
     quiet = tmp_path / "quiet"
     assert main(["sample", str(run), "-n", "1", "--no-pictures", "--out", str(quiet)]) == 0
     assert not (quiet / "contact_sheet.png").exists() and not (quiet / "000" / "preview.png").exists()

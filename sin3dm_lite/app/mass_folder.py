@@ -294,4 +294,4 @@ def write_contact_sheet(model, req, plan, previews: list[Path], labels: list[str
         print(f"[{label}] no contact sheet: {e}")
         return
     images = [ref] + [np.asarray(Image.open(p).convert("RGB")) for p in previews]
-    path.write_bytes(png_bytes(contact_sheet(images, ["input (reconstruction)"] + labels)))
+    path.write_bytes(png_bytes(contact_sheet(images, ["input (reconstruction)"] + labels, crop=True)))

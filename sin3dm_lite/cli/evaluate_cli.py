@@ -39,7 +39,9 @@ def cmd_render(a) -> None:
     t0 = time.perf_counter()
     views = render_views(mesh, n_views=a.views, size=a.size, elevation=a.elevation)
     hero = render_hero(mesh, size=a.size)
-    sheet = contact_sheet(views + [hero], [f"azimuth {360 * k / a.views:g}" for k in range(a.views)] + ["hero"])
+    sheet = contact_sheet(
+        views + [hero], [f"azimuth {360 * k / a.views:g}" for k in range(a.views)] + ["hero"], crop=True
+    )
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temps(out.parent)
     tmp = make_temp_dir(out.parent)

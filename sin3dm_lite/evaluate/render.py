@@ -309,11 +309,35 @@ def sheet_columns(n: int) -> int:
     return min(range(square, min(n, 2 * square) + 1), key=badness)
 
 
+def shared_crop(images: Sequence[np.ndarray], margin: int = 6) -> list[np.ndarray]:
+    """Images of one size cropped alike to where any of them differs from its background (its corner's colour),
+    plus ``margin`` pixels: renders of one box keep their common scale and place, without the white around them.
+    Images of other sizes, or without content, are returned as they are."""
+    imgs = [np.asarray(im) for im in images]
+    if len({im.shape for im in imgs}) != 1:
+        return imgs
+    mask = np.zeros(imgs[0].shape[:2], bool)
+    for im in imgs:
+        pixels = im.reshape(*im.shape[:2], -1).astype(np.int16)
+        mask |= np.abs(pixels - pixels[0, 0]).max(-1) > 8
+    if not mask.any():
+        return imgs
+    (r0, r1), (c0, c1) = ((idx[0], idx[-1] + 1) for idx in (np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))))
+    rows = slice(max(0, r0 - margin), min(mask.shape[0], r1 + margin))
+    cols = slice(max(0, c0 - margin), min(mask.shape[1], c1 + margin))
+    return [im[rows, cols] for im in imgs]
+
+
 def contact_sheet(
-    images: Sequence[np.ndarray], labels: Sequence[str] | None = None, columns: int | None = None, pad: int = 4
+    images: Sequence[np.ndarray],
+    labels: Sequence[str] | None = None,
+    columns: int | None = None,
+    pad: int = 4,
+    crop: bool = False,
 ) -> np.ndarray:
     """Images in a grid of ``columns`` (default :func:`sheet_columns`: as full as the count allows), each with its
-    label underneath; ``(H, W, 3)`` uint8 on white.
+    label underneath; ``(H, W, 3)`` uint8 on white. ``crop``: the white around the renders cut away alike
+    (:func:`shared_crop`).
 
     Tiles are the size of the largest image (smaller ones are centred).
     """
@@ -326,6 +350,7 @@ def contact_sheet(
     imgs = [np.asarray(im) for im in images]
     imgs = [np.clip(np.round(im * 255.0), 0, 255).astype(np.uint8) if im.dtype != np.uint8 else im for im in imgs]
     imgs = [np.repeat(im[..., None], 3, 2) if im.ndim == 2 else im[..., :3] for im in imgs]
+    imgs = shared_crop(imgs) if crop else imgs
     th = max(im.shape[0] for im in imgs)
     tw = max(im.shape[1] for im in imgs)
     font = ImageFont.load_default()
