@@ -60,8 +60,21 @@ class _FitCalled(Exception):
     pass
 
 
-def _fit_cli(monkeypatch, tmp_path, capsys, *argv):
-    """`sin3dm-lite fit wall ...` up to Sin3DM.fit: (the preset it was handed, what was printed before)."""
+def _quick_here(monkeypatch, seconds=(120, 60, 27)):
+    """The default picks `quick` here, estimated at ``seconds`` for the autoencoder, the denoiser and the rest."""
+    monkeypatch.setattr(fit_default, "choose_preset", lambda device=None: ("quick", "this machine (test)"))
+    monkeypatch.setattr(
+        fit_default,
+        "estimate_fit",
+        lambda cfg, device=None, box=None, one_colour=False: dict(
+            zip(("autoencoder", "denoiser", "other", "total"), (*seconds, sum(seconds)))
+        ),
+    )
+
+
+def _fit_cli(monkeypatch, tmp_path, capsys, *argv, seconds=(120, 60, 27)):
+    """`sin3dm-lite fit wall ...` up to Sin3DM.fit: (the preset it was handed, what was printed before); the
+    estimate: ``seconds`` of the autoencoder, the denoiser and the rest."""
     from sin3dm_lite.pipeline import Sin3DM
 
     seen = {}
@@ -71,17 +84,7 @@ def _fit_cli(monkeypatch, tmp_path, capsys, *argv):
         raise _FitCalled
 
     monkeypatch.setattr(Sin3DM, "fit", staticmethod(fake_fit))
-    monkeypatch.setattr(fit_default, "choose_preset", lambda device=None: ("quick", "this machine (test)"))
-    monkeypatch.setattr(
-        fit_default,
-        "estimate_fit",
-        lambda cfg, device=None, box=None, one_colour=False: {
-            "autoencoder": 120,
-            "denoiser": 60,
-            "other": 27,
-            "total": 207,
-        },
-    )
+    _quick_here(monkeypatch, seconds)
     with pytest.raises(_FitCalled):
         main(["fit", "wall", "--out", str(tmp_path / "run"), *argv])
     return seen["preset"], seen["printed"]
@@ -142,6 +145,29 @@ def test_a_time_budget_trains_both_networks_for_a_share_of_their_steps(monkeypat
     assert "no preset named" not in printed
 
 
+def test_the_default_keeps_to_about_eleven_minutes_on_a_slower_cpu(monkeypatch, tmp_path, capsys):
+    """Where this machine's estimate for the default is longer than DEFAULT_MINUTES, both networks train for a
+    share of their steps, never below DEFAULT_LEAST_SHARE (and then it says how long); a named preset, a budget or
+    settings of one's own keep the preset's steps."""
+    assert fit_default.DEFAULT_MINUTES == 11 and fit_default.DEFAULT_LEAST_SHARE == 0.8
+    preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, seconds=(400, 300, 60))  # (660 - 60) / 700 = 86 %
+    assert preset.autoencoder.steps == 850 and preset.diffusion.steps == 850 and preset.grid == get_preset("quick").grid
+    assert printed.splitlines()[1:3] == [
+        "[fit] it should take about 13 min here (autoencoder 6.7 + denoiser 5.0 + grid and calibration 1.0 min, from "
+        "3 steps of each timed just now)",
+        "[fit] the default keeps to about 11 min here: 850 autoencoder and 850 denoiser steps (86% of the preset's "
+        "1,000 and 1,000); --preset quick trains all of them, --minutes N keeps to N",
+    ]
+    preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, seconds=(1000, 800, 200))  # 26 % would do: 80 %
+    assert preset.autoencoder.steps == 800 and "the default keeps to about 27 min here" in printed  # 200 + 1440 s
+    for argv in (["--preset", "quick"], ["--set", "diffusion.steps=900"], ["--minutes", "30"]):
+        preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, *argv, seconds=(400, 300, 60))
+        steps = preset.autoencoder.steps if not isinstance(preset, str) else get_preset(preset).autoencoder.steps
+        assert steps == 1000 and "the default keeps" not in printed, argv
+    paper = {"autoencoder": 9e3, "denoiser": 9e3, "other": 0, "total": 2e4}
+    assert fit_default.default_budget(get_preset("paper"), paper) == ({}, None)  # a GPU's preset: the paper's steps
+
+
 @pytest.mark.parametrize(
     "argv, says",
     [
@@ -160,17 +186,7 @@ def test_a_budget_the_fit_cannot_keep_is_refused_in_one_line_before_it_starts(
     from sin3dm_lite.pipeline import Sin3DM
 
     monkeypatch.setattr(Sin3DM, "fit", staticmethod(lambda *a, **k: pytest.fail("fitted")))
-    monkeypatch.setattr(fit_default, "choose_preset", lambda device=None: ("quick", "this machine (test)"))
-    monkeypatch.setattr(
-        fit_default,
-        "estimate_fit",
-        lambda cfg, device=None, box=None, one_colour=False: {
-            "autoencoder": 120,
-            "denoiser": 60,
-            "other": 27,
-            "total": 207,
-        },
-    )
+    _quick_here(monkeypatch)
     if "--resume" in argv:
         (tmp_path / "run").mkdir()
     try:

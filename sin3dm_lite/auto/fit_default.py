@@ -20,7 +20,8 @@ A preset named by the user always wins. The time is an estimate from a few train
 timed here, on a synthetic shape at its grid (:func:`estimate_fit`), so it follows this machine, its threads
 and whatever else runs on it now; the grid and the calibration add a share of the training (:data:`OTHER_SHARE`).
 A time budget (``fit --minutes N``, :func:`within_minutes`) trains both networks for fewer steps when the estimate
-is longer, never below half of the preset's.
+is longer, never below half of the preset's; without one, the default keeps to about :data:`DEFAULT_MINUTES` on a
+CPU (:func:`default_budget`), never below :data:`DEFAULT_LEAST_SHARE` of the steps.
 """
 
 from __future__ import annotations
@@ -56,6 +57,13 @@ MOSTLY_THIN = 0.5
 #: the fewest training steps a time budget leaves, as a share of the preset's: the presets were judged at their own
 #: steps, and half of them is as far as a budget goes (a shorter one asks for a lighter preset)
 LEAST_STEPS_SHARE = 0.5
+#: the fit without a preset or a budget keeps to about this many minutes on a CPU: where this machine's estimate is
+#: longer (a slower CPU, another job beside), both networks train for fewer steps (:func:`default_budget`)
+DEFAULT_MINUTES = 11
+#: ... but never fewer than this share of the preset's: a round tower at 79 % kept its samples' scores within the
+#: scatter of sets of samples, a geometry-only one at 60 % lost LP-F (0.776 → 0.720 at 128 voxels; docs/presets.md);
+#: where that is not enough the fit takes longer than the budget, and says how long
+DEFAULT_LEAST_SHARE = 0.8
 
 
 @dataclass
@@ -171,12 +179,35 @@ def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, st
             f"'{cfg.name}' cannot fit within {minutes:g} min here: at half of its training steps it needs about "
             f"{least:g} min; give --minutes {least:g} or more{lighter}"
         )
-    ae, dn = (max(50, int(round(share * n / 50)) * 50) for n in (cfg.autoencoder.steps, cfg.diffusion.steps))
-    line = (
-        f"[fit] to keep within {minutes:g} min: {ae:,} autoencoder and {dn:,} denoiser steps ({share:.0%} of the "
-        f"preset's {cfg.autoencoder.steps:,} and {cfg.diffusion.steps:,})"
+    changes, steps = _steps_at(cfg, share)
+    return changes, f"[fit] to keep within {minutes:g} min: {steps}"
+
+
+def default_budget(cfg: Config, seconds: dict | None) -> tuple[dict, str | None]:
+    """What the fit without a preset (``cfg``, estimated ``seconds``) changes to keep to about
+    :data:`DEFAULT_MINUTES` on a CPU, and the line that says so: like ``--minutes`` (:func:`within_minutes`), but
+    never below :data:`DEFAULT_LEAST_SHARE` of the steps and never refused. ``({}, None)`` where the estimate fits,
+    without one, and for ``paper`` (a GPU's; its steps are the paper's)."""
+    if not seconds or cfg.name == "paper" or seconds["total"] <= DEFAULT_MINUTES * 60:
+        return {}, None
+    training = seconds["autoencoder"] + seconds["denoiser"]
+    share = max(DEFAULT_LEAST_SHARE, (DEFAULT_MINUTES * 60 - seconds["other"]) / training)
+    changes, steps = _steps_at(cfg, share)
+    total = (seconds["other"] + share * training) / 60
+    return changes, (
+        f"[fit] the default keeps to about {max(DEFAULT_MINUTES, round(total))} min here: {steps}; --preset "
+        f"{cfg.name} trains all of them, --minutes N keeps to N"
     )
-    return {"autoencoder.steps": ae, "diffusion.steps": dn}, line
+
+
+def _steps_at(cfg: Config, share: float) -> tuple[dict, str]:
+    """Both networks' steps at ``share`` of the preset's (to 50 steps), and how a line says them."""
+    ae, dn = (max(50, int(round(share * n / 50)) * 50) for n in (cfg.autoencoder.steps, cfg.diffusion.steps))
+    steps = (
+        f"{ae:,} autoencoder and {dn:,} denoiser steps ({share:.0%} of the preset's {cfg.autoencoder.steps:,} and "
+        f"{cfg.diffusion.steps:,})"
+    )
+    return {"autoencoder.steps": ae, "diffusion.steps": dn}, steps
 
 
 def timing_grid(resolution: int, n_points: int = 20_000, box=None, one_colour: bool = False):
@@ -264,4 +295,5 @@ __all__ = [
     "thin_share",
     "timing_grid",
     "within_minutes",
+    "default_budget",
 ]

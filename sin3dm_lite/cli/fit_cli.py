@@ -100,6 +100,8 @@ def cmd_fit(a) -> None:
     name = a.preset or (chosen.name if chosen else None)  # None: the run's own (Sin3DM.fit)
     if a.minutes is not None:
         changes = {**time_budget(a, mesh, name, chosen, changes), **changes}  # what --set names explicitly wins
+    elif chosen is not None and not changes:  # the default on a slower CPU: about DEFAULT_MINUTES
+        changes = default_time(chosen)
     base = get_preset(name or "small")
     preset = base.updated(**changes) if changes else name
     model = Sin3DM.fit(
@@ -145,6 +147,17 @@ def default_for_this_machine(a, mesh):
     chosen = default_preset(a.device, mesh)
     print("\n".join(chosen.lines()), flush=True)
     return chosen
+
+
+def default_time(chosen) -> dict:
+    """The default's own budget (:func:`~sin3dm_lite.auto.fit_default.default_budget`), said before the fit starts."""
+    from ..auto.fit_default import default_budget
+    from ..presets import get_preset
+
+    changes, line = default_budget(get_preset(chosen.name), chosen.seconds)
+    if line:
+        print(line, flush=True)
+    return changes
 
 
 def time_budget(a, mesh, name: str, chosen, changes: dict) -> dict:
