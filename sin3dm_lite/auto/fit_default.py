@@ -194,9 +194,10 @@ def default_budget(cfg: Config, seconds: dict | None) -> tuple[dict, str | None]
     share = max(DEFAULT_LEAST_SHARE, (DEFAULT_MINUTES * 60 - seconds["other"]) / training)
     changes, steps = _steps_at(cfg, share)
     total = (seconds["other"] + share * training) / 60
+    here = f", about {total:.0f} min here (fewer would lose patches)" if total > DEFAULT_MINUTES + 0.5 else ""
     return changes, (
-        f"[fit] the default keeps to about {max(DEFAULT_MINUTES, round(total))} min here: {steps}; --preset "
-        f"{cfg.name} trains all of them, --minutes N keeps to N"
+        f"[fit] the default keeps to about {DEFAULT_MINUTES} min on a CPU: {steps}{here}; --preset {cfg.name} "
+        "trains all of them, --minutes N keeps to N"
     )
 
 
