@@ -168,8 +168,8 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         default=None,
         metavar="N",
         help="keep the fit within about N minutes: where the fit's estimate for this machine is longer, both "
-        "networks train for fewer steps (at least half of the preset's; a shorter budget is refused; default: no "
-        "budget, the preset's steps)",
+        "networks train for fewer steps (at least half of the preset's; a shorter budget is refused; default: "
+        "without --preset, about 11 minutes on a CPU, at least 80%% of the steps; with one, the preset's steps)",
     )
     f.add_argument(
         "--set",
