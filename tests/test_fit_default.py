@@ -164,6 +164,8 @@ def test_the_default_keeps_to_about_eleven_minutes_on_a_slower_cpu(monkeypatch, 
         preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, *argv, seconds=(400, 300, 60))
         steps = preset.autoencoder.steps if not isinstance(preset, str) else get_preset(preset).autoencoder.steps
         assert steps == 1000 and "the default keeps" not in printed, argv
+    preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, seconds=(400, 250, 20))  # 98 %: the same steps
+    assert preset == "quick" and "the default keeps" not in printed
     paper = {"autoencoder": 9e3, "denoiser": 9e3, "other": 0, "total": 2e4}
     assert fit_default.default_budget(get_preset("paper"), paper) == ({}, None)  # a GPU's preset: the paper's steps
 

@@ -180,6 +180,8 @@ def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, st
             f"{least:g} min; give --minutes {least:g} or more{lighter}"
         )
     changes, steps = _steps_at(cfg, share)
+    if not changes:
+        return {}, f"[fit] within {minutes:g} min: the preset's steps as they are"
     return changes, f"[fit] to keep within {minutes:g} min: {steps}"
 
 
@@ -193,6 +195,8 @@ def default_budget(cfg: Config, seconds: dict | None) -> tuple[dict, str | None]
     training = seconds["autoencoder"] + seconds["denoiser"]
     share = max(DEFAULT_LEAST_SHARE, (DEFAULT_MINUTES * 60 - seconds["other"]) / training)
     changes, steps = _steps_at(cfg, share)
+    if not changes:  # within the rounding of the steps
+        return {}, None
     total = (seconds["other"] + share * training) / 60
     here = f", about {total:.0f} min here (fewer would lose patches)" if total > DEFAULT_MINUTES + 0.5 else ""
     return changes, (
@@ -202,8 +206,11 @@ def default_budget(cfg: Config, seconds: dict | None) -> tuple[dict, str | None]
 
 
 def _steps_at(cfg: Config, share: float) -> tuple[dict, str]:
-    """Both networks' steps at ``share`` of the preset's (to 50 steps), and how a line says them."""
+    """Both networks' steps at ``share`` of the preset's (to 50 steps; ``{}`` where that changes neither), and how a
+    line says them."""
     ae, dn = (max(50, int(round(share * n / 50)) * 50) for n in (cfg.autoencoder.steps, cfg.diffusion.steps))
+    if (ae, dn) == (cfg.autoencoder.steps, cfg.diffusion.steps):
+        return {}, ""
     steps = (
         f"{ae:,} autoencoder and {dn:,} denoiser steps ({share:.0%} of the preset's {cfg.autoencoder.steps:,} and "
         f"{cfg.diffusion.steps:,})"
