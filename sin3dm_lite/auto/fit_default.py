@@ -169,9 +169,7 @@ def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, st
     from ..errors import Sin3DMInputError
 
     training = seconds["autoencoder"] + seconds["denoiser"]
-    if seconds["total"] <= minutes * 60:
-        return {}, f"[fit] within {minutes:g} min: the preset's steps as they are"
-    share = (minutes * 60 - seconds["other"]) / training
+    share = _share_within(seconds, minutes)
     if share < LEAST_STEPS_SHARE:
         least = np.ceil((seconds["other"] + LEAST_STEPS_SHARE * training) / 6) / 10  # minutes, up to a tenth
         lighter = "" if cfg.name in ("quick", "tiny") else ", or a lighter preset (--preset quick)"
@@ -190,19 +188,24 @@ def default_budget(cfg: Config, seconds: dict | None) -> tuple[dict, str | None]
     :data:`DEFAULT_MINUTES` on a CPU, and the line that says so: like ``--minutes`` (:func:`within_minutes`), but
     never below :data:`DEFAULT_LEAST_SHARE` of the steps and never refused. ``({}, None)`` where the estimate fits,
     without one, and for ``paper`` (a GPU's; its steps are the paper's)."""
-    if not seconds or cfg.name == "paper" or seconds["total"] <= DEFAULT_MINUTES * 60:
+    if not seconds or cfg.name == "paper":
         return {}, None
-    training = seconds["autoencoder"] + seconds["denoiser"]
-    share = max(DEFAULT_LEAST_SHARE, (DEFAULT_MINUTES * 60 - seconds["other"]) / training)
+    share = max(DEFAULT_LEAST_SHARE, _share_within(seconds, DEFAULT_MINUTES))
     changes, steps = _steps_at(cfg, share)
-    if not changes:  # within the rounding of the steps
+    if not changes:  # the estimate fits, or within the rounding of the steps
         return {}, None
-    total = (seconds["other"] + share * training) / 60
+    total = (seconds["other"] + share * (seconds["autoencoder"] + seconds["denoiser"])) / 60
     here = f", about {total:.0f} min here (fewer would lose patches)" if total > DEFAULT_MINUTES + 0.5 else ""
     return changes, (
         f"[fit] the default keeps to about {DEFAULT_MINUTES} min on a CPU: {steps}{here}; --preset {cfg.name} "
         "trains all of them, --minutes N keeps to N"
     )
+
+
+def _share_within(seconds: dict, minutes: float) -> float:
+    """The share of both networks' steps that keeps a fit estimated at ``seconds`` within ``minutes`` (at most 1:
+    the grid and the calibration stay as estimated)."""
+    return min(1.0, (minutes * 60 - seconds["other"]) / (seconds["autoencoder"] + seconds["denoiser"]))
 
 
 def _steps_at(cfg: Config, share: float) -> tuple[dict, str]:
