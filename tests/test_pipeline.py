@@ -201,14 +201,14 @@ def test_checkpoints_are_written_once_per_step(tmp_path, monkeypatch):
     from pathlib import Path
 
     from sin3dm_lite.app import checkpoints
+    from sin3dm_lite.files import OWNER
 
     writes = []
     real = checkpoints.save_torch  # every torch file: checkpoints (atomic_torch_save) and model.pt (write_model)
 
     def counted(obj, path):
-        writes.append(
-            re.sub(r"^\.(.*)\.sin3dm-\d+(?:@[0-9a-f]+)?-[^.]*\.tmp(.*)$", r"\1\2", Path(path).name)
-        )  # the temporary's name
+        name = re.match(rf"^\.(.*)\.sin3dm-{OWNER}[^.]*\.tmp(.*)$", Path(path).name)  # the temporary's name
+        writes.append(name[1] + name[4])
         return real(obj, path)
 
     monkeypatch.setattr(checkpoints, "save_torch", counted)

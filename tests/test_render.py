@@ -223,6 +223,18 @@ def test_a_cropped_contact_sheet_cuts_the_white_around_the_renders_alike():
     assert shared_crop([np.full((9, 9, 3), 255, np.uint8)])[0].shape == (9, 9, 3)  # nothing drawn: as it is
 
 
+def test_the_render_commands_sheet_cuts_the_white_around_a_long_shape(tmp_path):
+    """A bar 4 x 1 x 1 leaves white above and below in every view: the sheet is cut alike (uncropped, 9 panels of
+    64 px in 3 rows are 250 px high)."""
+    import trimesh
+
+    trimesh.creation.box(extents=(4, 1, 1)).export(tmp_path / "bar.obj")
+    out = tmp_path / "views"
+    assert main(["render", str(tmp_path / "bar.obj"), "--views", "8", "--size", "64", "--out", str(out)]) == 0
+    height, width = np.asarray(Image.open(out / "contact_sheet.png")).shape[:2]
+    assert height < 250 and width <= 208  # 235 x 208 here
+
+
 def test_render_command_writes_eight_pngs(cube, tmp_path, capsys):
     export_mesh(cube, tmp_path / "in", name="cube")
     src = next((tmp_path / "in").glob("*.obj"))
