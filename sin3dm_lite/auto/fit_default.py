@@ -60,9 +60,9 @@ LEAST_STEPS_SHARE = 0.5
 #: the fit without a preset or a budget keeps to about this many minutes on a CPU: where this machine's estimate is
 #: longer (a slower CPU, another job beside), both networks train for fewer steps (:func:`default_budget`)
 DEFAULT_MINUTES = 11
-#: ... but never fewer than this share of the preset's: a geometry-only tower kept its samples' patches and variety
-#: at 80 % of `detail`'s steps and lost LP-F at 60 % (0.776 and 0.761 → 0.720 at 128 voxels; docs/presets.md);
-#: where that is not enough the fit takes longer than the budget, and says how long
+#: ... but never fewer than this share of the preset's: at 80 % of `detail`'s steps a geometry-only tower kept its
+#: samples' patches and variety (at 60 % it lost LP-F: 0.776 and 0.761 → 0.720), the colonnade lost 5 % of LP-F
+#: (0.815 → 0.775; docs/presets.md); where that is not enough the fit takes longer than the budget, and says how long
 DEFAULT_LEAST_SHARE = 0.8
 
 
