@@ -29,7 +29,8 @@ def test_auto_precision_picks_bf16_only_where_it_measures_faster(monkeypatch):
     device.cpu_bf16_share.cache_clear()
     monkeypatch.setattr(device, "_cpu_has_bf16", lambda: False)
     assert device.cpu_bf16_share() is None and not device.bf16_is_fast("cpu")
-    assert fit_default.choose_preset("cpu")[0] == "quick" and "no native bf16" in fit_default.choose_preset("cpu")[1]
+    name, why = fit_default.choose_preset("cpu")
+    assert name == "quick" and "without native bf16" in why
     device.cpu_bf16_share.cache_clear()
     monkeypatch.setattr(device, "_cpu_has_bf16", lambda: True)
     torch.manual_seed(3)
@@ -47,4 +48,4 @@ def test_auto_precision_picks_bf16_only_where_it_measures_faster(monkeypatch):
             assert (torch.randn(4, 4) @ torch.randn(4, 4)).dtype == (torch.bfloat16 if fast else torch.float32)
     monkeypatch.setattr(fit_default, "cpu_bf16_share", lambda: 1.3)
     monkeypatch.setattr(fit_default, "bf16_is_fast", lambda dev: False)
-    assert "native bf16, but at 1.3x fp32's time here" in fit_default.choose_preset("cpu")[1]
+    assert "native bf16 runs in 1.3x fp32's time, no faster" in fit_default.choose_preset("cpu")[1]

@@ -16,8 +16,8 @@ from sin3dm_lite.presets import get_preset
     [
         (True, None, True, "paper", "this machine (a CUDA GPU, NVIDIA H200: the paper's settings)"),
         (False, 0.4, True, "small", "this machine (a CPU whose bf16 runs in 0.4x fp32's time: the autoencoder in"),
-        (False, 1.6, False, "quick", "this machine (a CPU without fast bf16, native bf16, but at 1.6x fp32's time"),
-        (False, None, False, "quick", "this machine (a CPU without fast bf16, no native bf16: a light autoencoder"),
+        (False, 1.6, False, "quick", "this machine (a CPU whose native bf16 runs in 1.6x fp32's time, no faster"),
+        (False, None, False, "quick", "this machine (a CPU without native bf16: a light autoencoder"),
     ],
     ids=["gpu", "cpu-fast-bf16", "cpu-slow-bf16", "cpu-avx2"],
 )

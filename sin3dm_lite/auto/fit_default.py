@@ -96,8 +96,8 @@ def choose_preset(device=None) -> tuple[str, str]:
     share = cpu_bf16_share()
     if bf16_is_fast(dev):
         return "small", f"this machine (a CPU whose bf16 runs in {share:.1f}x fp32's time: the autoencoder in bf16)"
-    why = "no native bf16" if share is None else f"native bf16, but at {share:.1f}x fp32's time here"
-    return "quick", f"this machine (a CPU without fast bf16, {why}: a light autoencoder in fp32)"
+    why = "without native bf16" if share is None else f"whose native bf16 runs in {share:.1f}x fp32's time, no faster"
+    return "quick", f"this machine (a CPU {why}: a light autoencoder in fp32)"
 
 
 def thin_share(mesh, cfg: Config) -> float:
