@@ -1,10 +1,10 @@
-"""Write five meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
+"""Write six meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
 
     python benchmarks/make_test_meshes.py OUT_DIR
     python benchmarks/make_test_meshes.py OUT_DIR --sweep   # and the sweep of families: which preset the default takes
 
 ``--sweep`` also writes ruins of every family (round and square plans, stepped and flat tops, walls 2 to 8 voxels
-thick at 64) as ``OUT_DIR/sweep/*.obj`` and prints, for them, the built-ins and the five meshes, the share of the
+thick at 64, and uneven ones) as ``OUT_DIR/sweep/*.obj`` and prints, for them, the built-ins and the six meshes, the share of the
 solid in thin parts (``auto.fit_default.thin_share``) and the preset ``fit`` takes without ``--preset`` on a CPU
 with fast bf16 and on one without.
 
@@ -18,6 +18,8 @@ with fast bf16 and on one without.
   64-voxel training grid, a stepped broken top, a door and two windows (the paper's kind of demo shape).
 * ``keep.obj``   — the same ruin with a square plan (``build_ruin(square=True)``): straight thin walls,
   the stepped top, a door and two windows (a second thin-walled shape, of another plan).
+* ``tower.stl``  — geometry only, another round ruin whose walls go from 3 to 6 voxels thick and back twice
+  around (``build_ruin(7, wall_voxels=(3, 6))``): the kind of real tower the default is judged on.
 """
 
 from __future__ import annotations
@@ -144,11 +146,14 @@ def sweep(out: Path) -> None:
     }
     for plan in ("round", "square"):
         for top in ("stepped", "flat"):
-            for wall in (2, 3, 4, 5, 6, 8):
+            for wall in (2, 3, 4, 5, 6, 8, (2, 4), (3, 6), (4, 8)):
                 mesh = build_ruin(3, wall_voxels=wall, square=plan == "square", flat=top == "flat")
-                path = out / "sweep" / f"ruin_{plan}_{top}_{wall}.obj"
+                walls = "-".join(map(str, np.ravel(wall)))
+                path = out / "sweep" / f"ruin_{plan}_{top}_{walls}.obj"
                 save_obj(mesh, path)
-                shapes[f"ruin, {plan}, {top} top, walls {wall} voxels"] = lambda p=path: load_mesh(p)
+                shapes[f"ruin, {plan}, {top} top, walls {walls.replace('-', ' to ')} voxels"] = lambda p=path: (
+                    load_mesh(p)
+                )
     print("| shape | thin share (parts under 7 voxels at 64) | fast bf16 | no fast bf16 |\n|---|---|---|---|")
     for name, make in shapes.items():
         share = thin_share(make(), get_preset("small"))
@@ -164,7 +169,9 @@ def main() -> None:
     dunes().export(out / "dunes.ply")
     save_obj(build_ruin(0), out / "ruin.obj")
     save_obj(build_ruin(0, square=True), out / "keep.obj")
-    print(f"wrote {out / 'rocks.stl'}, {tiles(out)}, {out / 'dunes.ply'}, {out / 'ruin.obj'} and {out / 'keep.obj'}")
+    tower = build_ruin(7, wall_voxels=(3, 6))
+    trimesh.Trimesh(tower.vertices, tower.faces, process=False).export(out / "tower.stl")
+    print(f"wrote {out / 'rocks.stl'}, {tiles(out)}, {out / 'dunes.ply'}, ruin.obj, keep.obj and tower.stl to {out}")
     if "--sweep" in sys.argv[1:]:
         sweep(out)
 

@@ -101,7 +101,27 @@ def test_a_square_keep_has_straight_thin_walls_a_stepped_top_and_a_door():
     assert len(np.unique(top[top > ys[0] + 3])) >= 6
 
 
-@pytest.mark.parametrize("kw, match", [({"resolution": 8}, "resolution"), ({"wall_voxels": 0.5}, "wall_voxels")])
+def test_an_uneven_wall_is_thickest_and_thinnest_where_it_says():
+    """``wall_voxels=(3, 6)``: 6 voxels at a quarter radian (and opposite), 3 a right angle away, at the grid of 64."""
+    mesh = ruin_tower(np.random.default_rng(3), 64, (3, 6))
+    height = 64 - 2 * get_preset("quick").grid.margin_voxels  # one voxel of the grid is 1 / height of the mesh
+    v = np.asarray(mesh.vertices) * height
+    angle, r = np.arctan2(v[:, 1], v[:, 0]), np.hypot(v[:, 0], v[:, 1])
+    low = (v[:, 2] > 5) & (v[:, 2] < 0.3 * height)  # above the slab, below the windows; the door faces -x
+    for at, thick in [(0.25, 6), (0.25 + np.pi / 2, 3), (0.25 - np.pi / 2, 3)]:
+        near = low & (np.abs(np.angle(np.exp(1j * (angle - at)))) < 0.03)
+        assert np.ptp(r[near]) == pytest.approx(thick, abs=0.25)
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"resolution": 8}, "resolution"),
+        ({"wall_voxels": 0.5}, "wall_voxels"),
+        ({"wall_voxels": (6, 3)}, "a pair"),
+        ({"wall_voxels": (3, 9)}, "a pair"),
+    ],
+)
 def test_bad_sizes_are_named(kw, match):
     with pytest.raises(Sin3DMInputError, match=match):
         build_ruin(**kw)

@@ -9,7 +9,8 @@ builds one, sized in **voxels of the training grid** it is meant for, so that
 its walls are ``wall_voxels`` thick there whatever the resolution:
 
 * a round tower on a square ground slab (3 voxels thick), or with ``square=True`` a square keep;
-* its wall ``wall_voxels`` thick (2.5 by default: 2-3 voxels at the grid);
+* its wall ``wall_voxels`` thick (2.5 by default: 2-3 voxels at the grid), or for a pair ``(thinnest,
+  thickest)`` uneven: thinner and thicker stretches twice around, as a real ruin's walls are;
 * a broken top that falls in steps, 3-5 voxels each, from the full height to
   about half of it on one side and rises again (12 steps around);
 * a door at the foot of the wall facing -x, and two windows higher up.
@@ -42,7 +43,11 @@ DESCRIPTION = (
 
 
 def ruin_tower(
-    rng: np.random.Generator, resolution: int = 64, wall_voxels: float = 2.5, square: bool = False, flat: bool = False
+    rng: np.random.Generator,
+    resolution: int = 64,
+    wall_voxels: float | tuple[float, float] = 2.5,
+    square: bool = False,
+    flat: bool = False,
 ) -> TexturedMesh:
     """The ruin, z-up, for a training grid of ``resolution`` voxels along its longest side (its height).
 
@@ -54,8 +59,11 @@ def ruin_tower(
     """
     if not 16 <= resolution <= 512:
         raise Sin3DMInputError(f"resolution must be from 16 to 512 voxels, got {resolution!r}")
-    if not 1.0 <= wall_voxels <= 8.0:
-        raise Sin3DMInputError(f"wall_voxels must be from 1 to 8, got {wall_voxels!r}")
+    ends = np.ravel(wall_voxels)
+    if not (len(ends) in (1, 2) and np.all((ends >= 1.0) & (ends <= 8.0)) and ends[0] <= ends[-1]):
+        raise Sin3DMInputError(
+            f"wall_voxels must be from 1 to 8, or a pair (thinnest, thickest) of such, got {wall_voxels!r}"
+        )
     plan = _plan(rng, resolution, wall_voxels, square, flat)
     vertices, faces = _surface(plan)
     colors = _colors(rng, vertices, plan)
@@ -70,7 +78,11 @@ def ruin_tower(
 
 
 def build_ruin(
-    seed: int = 0, resolution: int = 64, wall_voxels: float = 2.5, square: bool = False, flat: bool = False
+    seed: int = 0,
+    resolution: int = 64,
+    wall_voxels: float | tuple[float, float] = 2.5,
+    square: bool = False,
+    flat: bool = False,
 ) -> TexturedMesh:
     """:func:`ruin_tower` for ``seed``, turned y-up like the built-in examples (same seed, same mesh)."""
     mesh = ruin_tower(np.random.default_rng(seed), resolution, wall_voxels, square, flat)
@@ -78,7 +90,7 @@ def build_ruin(
     return mesh
 
 
-def _plan(rng: np.random.Generator, resolution: int, wall: float, square: bool = False, flat: bool = False) -> dict:
+def _plan(rng: np.random.Generator, resolution: int, wall, square: bool = False, flat: bool = False) -> dict:
     """The tower's measures, in voxels of the training grid (the height is the longest side)."""
     # the presets keep a margin of empty voxels to the box: the shape's longest side spans resolution - 2·margin
     height = resolution - 2 * get_preset("quick").grid.margin_voxels
@@ -118,6 +130,16 @@ def _across(plan: dict, x, y) -> np.ndarray:
     return np.maximum(np.abs(x), np.abs(y)) if plan.get("square") else np.hypot(x, y)
 
 
+def _wall(plan: dict, x, y):
+    """The wall's thickness where each point is: one number, or between a pair's two, thickest at an angle of
+    a quarter radian (and opposite), thinnest a right angle away."""
+    wall = plan["wall"]
+    if np.ndim(wall) == 0:
+        return wall
+    thin, thick = wall
+    return thin + (thick - thin) * (0.5 + 0.5 * np.cos(2 * np.arctan2(y, x) - 0.5))
+
+
 def _opening(x, y, z, radius: float, wall: float, o: dict) -> np.ndarray:
     """Signed distance (negative inside) of a box through the wall at angle ``o["angle"]``."""
     c, s = np.cos(o["angle"]), np.sin(o["angle"])
@@ -135,7 +157,7 @@ def _opening(x, y, z, radius: float, wall: float, o: dict) -> np.ndarray:
 
 def _sdf(plan: dict, x, y, z) -> np.ndarray:
     """The ruin's signed distance (negative inside; exact enough near its surface for marching cubes)."""
-    r, wall = _across(plan, x, y), plan["wall"]
+    r, wall = _across(plan, x, y), _wall(plan, x, y)
     sector = np.floor((np.arctan2(y, x) + np.pi) / (2 * np.pi) * STEPS).astype(int) % STEPS
     ring = np.abs(r - (plan["radius"] - wall / 2)) - wall / 2
     tower = np.maximum.reduce([ring, z - plan["tops"][sector], -z])
