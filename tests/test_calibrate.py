@@ -260,7 +260,9 @@ def test_when_no_setting_keeps_lp_f_the_least_varied_non_copy_is_chosen_and_said
     g = 0.25 if varies else 0.0
     monkeypatch.setattr(C, "score_setting", _scored_by(lambda d: table.get(d, (0.4, 0.5, g * d))))
     cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False)
-    assert [t["diversity"] for t in cal.tried] == [round(1.0 - 0.1 * k, 4) for k in range(10)] and not cal.kept_goals
+    ladder = [round(1.0 - 0.1 * k, 4) for k in range(10)]
+    # where samples vary, halfway settings are drawn between the copies (0.3) and the least varied (0.4): copies too
+    assert [t["diversity"] for t in cal.tried] == ladder + ([0.35, 0.38] if varies else []) and not cal.kept_goals
     if varies:
         assert cal.diversity == 0.4 and cal.note == (
             "no setting drawn kept LP-F 0.68: chose 0.4, the least varied setting whose samples are not copies "
@@ -284,8 +286,9 @@ def _calibrated_on(ladder, monkeypatch):
 def test_where_only_copies_keep_lp_f_the_least_varied_non_copy_is_chosen(monkeypatch):
     """A small town of 36 houses (an unseen family, the paper's hardest: its own G-Qual 0.600) as its `detail` fit
     scored at 128 voxels: LP-F keeps 85 % of the near copy's only below 0.3, where the samples are copies (G-Div
-    0.07 < 0.10). A default of copies is no sampler: the least varied setting drawn whose samples vary (0.4,
-    G-Div 0.12) is chosen, and the record says that only copies kept the goals."""
+    0.07 < 0.10). A default of copies is no sampler: the least varied setting drawn whose samples vary is chosen,
+    after two halfway settings between the copies (0.3) and the ladder's first that varies (0.4, G-Div 0.12): 0.35
+    copies, 0.38 varies (G-Div 0.11); the record says that only copies kept the goals."""
     ladder = [  # diversity: LP-IoU, LP-F, G-Div, as the fit's calibration drew them (8 samples each)
         (0.05, 0.394, 0.618, 0.017), (0.2, 0.379, 0.565, 0.046), (0.3, 0.332, 0.528, 0.073),
         (0.4, 0.289, 0.473, 0.119), (0.5, 0.258, 0.43, 0.165), (0.6, 0.242, 0.403, 0.226),
@@ -293,9 +296,10 @@ def test_where_only_copies_keep_lp_f_the_least_varied_non_copy_is_chosen(monkeyp
     ]  # fmt: skip
     cal = _calibrated_on(ladder, monkeypatch)
     assert cal.goals["lp_fscore"] == pytest.approx(0.85 * 0.618)
-    assert cal.diversity == 0.4 and not cal.kept_goals and cal.only_copies_kept
+    assert [t["diversity"] for t in cal.tried][-2:] == [0.35, 0.38]
+    assert cal.diversity == 0.38 and not cal.kept_goals and cal.only_copies_kept
     assert cal.note.startswith(f"only copies kept LP-F {0.85 * 0.618:.2f} (at 0.30 G-Div 0.075)")
-    assert "chose 0.4, the least varied setting whose samples are not copies (G-Div 0.119 ≥ 0.100)" in cal.note
+    assert "chose 0.38, the least varied setting whose samples are not copies (G-Div 0.110 ≥ 0.100)" in cal.note
     assert "(only copies kept the goals)" in cal.story() and cal.note in cal.story()
     assert C.Calibration.from_dict(json.loads(json.dumps(cal.to_dict()))) == cal
     with monkeypatch.context() as m:  # where every setting's samples are copies, the goals' choice stands
@@ -314,6 +318,7 @@ def test_where_the_least_varied_non_copy_is_torn_the_copies_stand(monkeypatch):
     ]  # fmt: skip
     cal = _calibrated_on(ladder, monkeypatch)
     assert 0.1 < cal.diversity < 0.25 and cal.kept_goals and not cal.only_copies_kept
+    assert 0.3 not in [t["diversity"] for t in cal.tried]  # no halfway setting is drawn towards a torn one
     assert cal.at_choice["g_div"] < cal.copy_line and C.least_varied(cal)[0] == 0.4
     assert C.mean_by_setting(cal.tried, "lp_fscore")[0.4] < C.FAR * cal.goals["lp_fscore"]
 

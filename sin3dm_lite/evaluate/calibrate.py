@@ -21,7 +21,8 @@ fit's grid, no meshes) and scores what it returns against the input with the pap
    :func:`copy_line`), the most varied setting whose smoothed LP-F keeps 85 % of the near copy's, read without
    the caution (it guards a goal against a few samples' luck; copies miss the diversity a default needs for sure);
 4. where no setting keeps the LP-F goal, or only copies do and the least varied setting drawn whose samples are
-   not copies keeps :data:`FAR` of it (not torn), that setting, and the record says so (:attr:`Calibration.note`).
+   not copies keeps :data:`FAR` of it (not torn), that setting, and the record says so (:attr:`Calibration.note`);
+   halfway settings between it and the copies below are drawn first (the knob can jump within a rung).
 
 **Why so** (``benchmarks/bench_calibration.py`` replays the walk 400 times on stored samples): seeds of their
 own per setting; the refinement removes most of the error where the curve bends between two rungs; 1.5 standard
@@ -78,13 +79,11 @@ SampleFn = Callable[[float, int, int], Sequence[np.ndarray]]
 
 def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int, supersample: int = 1):
     """``n`` samples at ``diversity`` (seeds ``seed`` …), each as occupancy on the model's box at ``resolution``
-    voxels along its longest side, from the decoder's SDF at the voxel centres, no mesh (``exact_band=0``: every
-    value marching cubes reads is decoded, the rest only where its bound cannot prove the sign): the centres' signs
-    (``supersample=1``), or the paper's voxels of the mesh they make (``2``: :func:`geometry.interpolated_inside`,
-    within a percent of the voxels of the extracted mesh). A decoder trained in bf16 runs its point MLPs in bf16
-    where this CPU runs them faster, its plane convolutions in fp32 (in bf16 they move the surface by a fortieth of
-    a voxel: a tree's near copy then kept LP-IoU 0.01 instead of 0.17; docs/calibration.md); the samples are drawn
-    in fp32, as a user draws them.
+    voxels along its longest side, from the decoder's SDF at the voxel centres, no mesh (``exact_band=0``): the
+    centres' signs (``supersample=1``), or the paper's voxels of the mesh they make (``2``:
+    :func:`geometry.interpolated_inside`). A decoder trained in bf16 runs its point MLPs in bf16 where this CPU runs
+    them faster, its plane convolutions in fp32 (in bf16 they move the surface by a fortieth of a voxel,
+    docs/calibration.md); the samples are drawn in fp32, as a user draws them.
     """
     from ..app.device import autocast
     from ..model.decode import decode_grid, prepare
@@ -99,10 +98,9 @@ def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int
 
 
 def model_sampler(model, reference: np.ndarray, supersample: int = 1) -> SampleFn:
-    """The sampling function :func:`calibrate_diversity` takes, for a fitted :class:`~sin3dm_lite.Sin3DM`: its
-    samples as occupancy (:func:`sample_occupancy`, ``supersample`` sub-voxels a side) on ``reference``'s grid,
-    which must lie on the model's box (the training grid's ``sdf < 0``, or the input voxelised on that box the
-    same way)."""
+    """The sampling function :func:`calibrate_diversity` takes for a fitted :class:`~sin3dm_lite.Sin3DM`: its samples
+    as occupancy (:func:`sample_occupancy`) on ``reference``'s grid, which must lie on the model's box (the training
+    grid's ``sdf < 0``, or the input voxelised on that box the same way)."""
     from ..data.box import grid_shape
 
     shape = np.shape(reference)
@@ -147,11 +145,9 @@ def score_setting(sample_fn: SampleFn, reference: np.ndarray, diversity: float, 
 def _non_increasing(values: list[float], weights: list[float], pooled: bool = False):
     """The closest non-increasing sequence to ``values`` in weighted least squares (pool adjacent violators).
 
-    Patch scores fall as the knob rises; measured on a few samples they can
-    rise by chance from one setting to the next. Pooling such neighbours
-    averages their samples instead of believing either one. With ``pooled``,
-    also returns each value's pooled weight (the samples its smoothed score rests on).
-    """
+    Patch scores fall as the knob rises; measured on a few samples they can rise by chance from one setting to the
+    next. Pooling such neighbours averages their samples instead of believing either one. With ``pooled``, also
+    returns each value's pooled weight (the samples its smoothed score rests on)."""
     blocks: list[list[float]] = []  # [mean, weight, count]
     for v, w in zip(values, weights):
         blocks.append([v, w, 1])
@@ -169,8 +165,7 @@ def _crossing(levels: list[float], fitted: list[float], goal: float) -> float | 
         if y >= goal:
             if k == 0:
                 return d
-            d_miss, y_miss = levels[k - 1], fitted[k - 1]
-            return d + (d_miss - d) * (y - goal) / (y - y_miss)
+            return d + (levels[k - 1] - d) * (y - goal) / (y - fitted[k - 1])
     return None
 
 
@@ -333,9 +328,7 @@ def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin
     if not 0.0 <= caution <= 10.0:
         raise Sin3DMInputError(f"caution is a number of standard errors from 0 to 10, got {caution!r}")
     if not 0.0 <= safety < 1.0 or not 0.0 <= margin < 1.0:
-        raise Sin3DMInputError(
-            f"margin and safety are shares of patches from 0 to below 1, got {margin!r} and {safety!r}"
-        )
+        raise Sin3DMInputError(f"margin and safety are shares of patches from 0 to below 1, got {margin!r}, {safety!r}")
     if not 0.0 <= far < 1.0:
         raise Sin3DMInputError(f"far is a share of a goal from 0 (draw every rung) to below 1, got {far!r}")
     if relative is not None and not all(0.0 < v <= 1.0 for v in relative.values()):
@@ -469,8 +462,15 @@ def _walk(
             break
         add(round(min(max(lowest + round((chosen - lowest) / half) * half, lowest), 1.0), 4), "near the answer: ")
         chosen, why = read()
+    lp_f = lambda: mean_by_setting(result.tried, "lp_fscore")  # noqa: E731
+    if chosen is None or g_div_at(result.tried, chosen) < line:  # the fallback's choice, drawn to a quarter rung
+        for _ in range(2):
+            least, by_setting = least_varied(result)
+            copied = [d for d in by_setting if least is not None and d < least]
+            if copied and least - max(copied) > step / 4 + 1e-9 and lp_f()[least] >= far * goals.get("lp_fscore", 0):
+                add(round((least + max(copied)) / 2, 2), "between copies and the least varied: ")
     least = least_varied(result)[0]  # a default of copies is no sampler, nor is one far below LP-F's goal (torn)
-    torn = least is None or mean_by_setting(result.tried, "lp_fscore")[least] < far * goals.get("lp_fscore", 0.0)
+    torn = least is None or lp_f()[least] < far * goals.get("lp_fscore", 0.0)
     copies = chosen is not None and g_div_at(result.tried, chosen) < line and not torn and least > chosen
     if chosen is not None and not copies:
         result.diversity, result.note = round(chosen, 2), why or None
