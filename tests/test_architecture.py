@@ -98,6 +98,7 @@ LAYERS = {
     "evaluate.metrics": EVALUATE,
     "evaluate.render": EVALUATE,
     "evaluate.calibration_record": EVALUATE,
+    "evaluate.curves": EVALUATE,
     "evaluate.calibrate": EVALUATE,
     "evaluate.evaluation": EVALUATE,
     # show: figures by stage, k3d viewers and pages, widget panels (the panel, the sampling stage's, all of them)

@@ -11,6 +11,7 @@ from sin3dm_lite.cli import main
 from sin3dm_lite.data.box import grid_shape
 from sin3dm_lite.errors import Sin3DMInputError
 from sin3dm_lite.evaluate import calibrate as C
+from sin3dm_lite.evaluate.curves import crossing, curve, non_increasing
 from sin3dm_lite.evaluate.metrics import iou
 from sin3dm_lite.pipeline import Sin3DM
 
@@ -375,7 +376,7 @@ def test_refinement_draws_where_the_answer_lies_and_pools_repeated_settings(knob
     assert [t["diversity"] for t in cal.tried] == [1.0, 0.9, 0.8, 0.7, 0.75, 0.7]
     assert [seed for _, _, seed in knob.drawn[1:]] == [5, 1005, 2005, 3005, 4005, 5005]
     assert cal.diversity == 0.71 and cal.kept_goals  # 0.7 + 0.05 · (1 - 0.72): the edge is at 0.7
-    assert C._curve(cal.tried, "lp_fscore")[:2] == ([1.0, 0.9, 0.8, 0.75, 0.7], [0.0, 0.0, 0.0, 0.0, 1.0])
+    assert curve(cal.tried, "lp_fscore")[:2] == ([1.0, 0.9, 0.8, 0.75, 0.7], [0.0, 0.0, 0.0, 0.0, 1.0])
     assert C.calibrate_diversity(knob, _reference(), n=3, refine=0, safety=0.02, progress=False).diversity == 0.73
     knob.edge = 1.0  # nothing to refine when pure noise keeps the goals
     assert len(C.calibrate_diversity(knob, _reference(), n=3, refine=2, progress=False).tried) == 1
@@ -411,7 +412,7 @@ def test_a_setting_drawn_twice_counts_by_its_samples():
         {"diversity": 0.7, "n": 24, "lp_iou": 0.4},
     ]
     # 0.7's 32 samples score 0.5, below 0.8's 8 samples (0.6) by chance: pooled by samples, (0.6·8 + 0.5·32) / 40
-    levels, fitted, _ = C._curve(tried, "lp_iou")
+    levels, fitted, _ = curve(tried, "lp_iou")
     assert levels == [0.8, 0.7] and fitted == pytest.approx([0.52, 0.52])
 
 
@@ -423,25 +424,25 @@ def test_the_curve_is_read_standard_errors_below_its_scores():
         {"diversity": 0.8, "n": 8, "lp_iou": 0.5, "lp_iou_sd": 0.2},
         {"diversity": 0.7, "n": 8, "lp_iou": 0.7, "lp_iou_sd": 0.2},
     ]
-    levels, fitted, se = C._curve(tried, "lp_iou")
+    levels, fitted, se = curve(tried, "lp_iou")
     assert fitted == [0.5, 0.7] and se == pytest.approx([0.2 / 8**0.5] * 2)
     assert C._choice(tried, {"lp_iou": 0.6}, safety=0.0, caution=0.0) == pytest.approx(0.75)
     assert C._choice(tried, {"lp_iou": 0.6}, safety=0.0, caution=1.0) == pytest.approx(
         0.7 + 0.1 * (0.7 - 0.2 / 8**0.5 - 0.6) / 0.2
     )
     tried.append({"diversity": 0.7, "n": 24, "lp_iou": 0.7, "lp_iou_sd": 0.2})
-    assert C._curve(tried, "lp_iou")[2] == pytest.approx([0.2 / 8**0.5, 0.2 / 32**0.5])
+    assert curve(tried, "lp_iou")[2] == pytest.approx([0.2 / 8**0.5, 0.2 / 32**0.5])
     tried[0]["lp_iou"] = 0.9  # rises above 0.7's by chance: one block of 40 samples
-    assert C._curve(tried, "lp_iou")[2] == pytest.approx([0.2 / 40**0.5] * 2)
+    assert curve(tried, "lp_iou")[2] == pytest.approx([0.2 / 40**0.5] * 2)
 
 
 def test_scores_that_rise_with_the_knob_by_chance_are_pooled():
     """A noisy curve is made to fall with the knob before its crossing is read."""
-    fitted = C._non_increasing([0.8, 0.6, 0.65, 0.5], [1.0] * 4)
+    fitted = non_increasing([0.8, 0.6, 0.65, 0.5], [1.0] * 4)
     assert fitted == pytest.approx([0.8, 0.625, 0.625, 0.5])
     levels = [1.0, 0.9, 0.8]
-    assert C._crossing(levels, [0.4, 0.5, 0.6], 0.55) == pytest.approx(0.85)
-    assert C._crossing(levels, [0.6, 0.7, 0.8], 0.55) == 1.0 and C._crossing(levels, [0.1, 0.2, 0.3], 0.55) is None
+    assert crossing(levels, [0.4, 0.5, 0.6], 0.55) == pytest.approx(0.85)
+    assert crossing(levels, [0.6, 0.7, 0.8], 0.55) == 1.0 and crossing(levels, [0.1, 0.2, 0.3], 0.55) is None
 
 
 def test_pure_noise_that_keeps_the_goals_is_taken_at_once(knob):

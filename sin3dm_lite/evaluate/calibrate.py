@@ -50,6 +50,7 @@ from .calibration_record import (
     least_varied,
     mean_by_setting,
 )
+from .curves import crossing, curve
 
 #: what the samples must keep against the input at most: the paper's averages are LP-F 0.699 at G-Div 0.224, and
 #: the project's goals LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter by a few
@@ -142,63 +143,17 @@ def score_setting(sample_fn: SampleFn, reference: np.ndarray, diversity: float, 
     return {**summarize(per_sample, g_div(occ)), "per_sample": per_sample}
 
 
-def _non_increasing(values: list[float], weights: list[float], pooled: bool = False):
-    """The closest non-increasing sequence to ``values`` in weighted least squares (pool adjacent violators).
-
-    Patch scores fall as the knob rises; measured on a few samples they can rise by chance from one setting to the
-    next. Pooling such neighbours averages their samples instead of believing either one. With ``pooled``, also
-    returns each value's pooled weight (the samples its smoothed score rests on)."""
-    blocks: list[list[float]] = []  # [mean, weight, count]
-    for v, w in zip(values, weights):
-        blocks.append([v, w, 1])
-        while len(blocks) > 1 and blocks[-2][0] < blocks[-1][0]:
-            (a, wa, ka), (b, wb, kb) = blocks[-2], blocks[-1]
-            blocks[-2:] = [[(a * wa + b * wb) / (wa + wb), wa + wb, ka + kb]]
-    fitted = [v for v, _, k in blocks for _ in range(k)]
-    return (fitted, [w for _, w, k in blocks for _ in range(k)]) if pooled else fitted
-
-
-def _crossing(levels: list[float], fitted: list[float], goal: float) -> float | None:
-    """The highest setting where the fitted scores (levels from high to low) reach ``goal``, linearly between
-    the last setting that misses it and the first that keeps it; None when none keeps it."""
-    for k, (d, y) in enumerate(zip(levels, fitted)):
-        if y >= goal:
-            if k == 0:
-                return d
-            return d + (levels[k - 1] - d) * (y - goal) / (y - fitted[k - 1])
-    return None
-
-
-def _curve(tried: list[dict], key: str) -> tuple[list[float], list[float], list[float]]:
-    """The settings drawn (from high to low, each once), ``key``'s scores there made non-increasing in the knob
-    (each setting weighted by its number of samples: a setting drawn twice pools its samples), and the standard
-    error of each smoothed score (the samples' pooled spread over the root of the samples it rests on)."""
-    by_setting: dict[float, list[float]] = {}
-    for t in tried:
-        w = by_setting.setdefault(t["diversity"], [0.0, 0.0])
-        w[0] += t[key] * t["n"]
-        w[1] += t["n"]
-    levels = sorted(by_setting, reverse=True)
-    means = [by_setting[d][0] / by_setting[d][1] for d in levels]
-    weights = [by_setting[d][1] for d in levels]
-    # drawn from high to low settings; the scores must fall as the setting rises, so fit from low to high
-    fitted, pooled = (v[::-1] for v in _non_increasing(means[::-1], weights[::-1], pooled=True))
-    dof = sum(t["n"] - 1 for t in tried)
-    spread = float(np.sqrt(sum((t["n"] - 1) * t.get(f"{key}_sd", 0.0) ** 2 for t in tried) / dof)) if dof else 0.0
-    return levels, fitted, [spread / np.sqrt(w) for w in pooled]
-
-
 def _choice(tried: list[dict], goals: dict, safety: float, caution: float) -> float | None:
     """Where the smoothed curves, less ``caution`` standard errors, cross each goal + ``safety`` (the lower
     crossing wins); None if one never does. Writes each row's smoothed scores (``*_fitted``)."""
     crossings = []
     for key, goal in goals.items():
-        levels, fitted, se = _curve(tried, key)
+        levels, fitted, se = curve(tried, key)
         at = dict(zip(levels, fitted))
         for t in tried:
             t[f"{key}_fitted"] = at[t["diversity"]]
         low = [f - caution * e for f, e in zip(fitted, se)]
-        crossings.append(_crossing(levels, low, min(goal + safety, 1.0)))
+        crossings.append(crossing(levels, low, min(goal + safety, 1.0)))
     return None if any(c is None for c in crossings) else float(min(crossings))
 
 
@@ -345,7 +300,7 @@ def _at_choice(result: Calibration) -> dict:
     drawn around it, each setting's samples pooled)."""
     out = {}
     for key in result.goals:
-        levels, fitted, _ = _curve(result.tried, key)
+        levels, fitted, _ = curve(result.tried, key)
         out[key] = float(np.interp(result.diversity, levels[::-1], fitted[::-1]))
     out["g_div"] = g_div_at(result.tried, result.diversity)
     return out
@@ -393,6 +348,27 @@ def _fallback(result: Calibration, copies: float | None = None) -> None:
             f"{missed}, and the samples at every setting drawn are copies (G-Div under {result.copy_line:.3f}): "
             f"chose the lowest drawn, {result.diversity:g}; this fit does not vary this shape"
         )
+
+
+def _torn(result: Calibration, setting: float | None, far: float) -> bool:
+    """Whether the samples at ``setting`` keep less than ``far`` of the LP-F goal (torn, not varied); None: torn."""
+    return setting is None or mean_by_setting(result.tried, "lp_fscore")[setting] < far * result.goals.get(
+        "lp_fscore", 0.0
+    )
+
+
+def _halfway(result: Calibration, add, step: float, far: float) -> bool:
+    """The fallback's choice, the least varied setting whose samples are not copies, drawn to a quarter rung: up to
+    two settings halfway between it and the copies below (the knob can jump within a rung), never towards a torn
+    one. Whether any was drawn."""
+    drawn = False
+    for _ in range(2):
+        least, by_setting = least_varied(result)
+        copied = [d for d in by_setting if least is not None and d < least]
+        if copied and least - max(copied) > step / 4 + 1e-9 and not _torn(result, least, far):
+            add(round((least + max(copied)) / 2, 2), "between copies and the least varied: ")
+            drawn = True
+    return drawn
 
 
 def _walk(
@@ -462,15 +438,10 @@ def _walk(
             break
         add(round(min(max(lowest + round((chosen - lowest) / half) * half, lowest), 1.0), 4), "near the answer: ")
         chosen, why = read()
-    lp_f = lambda: mean_by_setting(result.tried, "lp_fscore")  # noqa: E731
-    if chosen is None or g_div_at(result.tried, chosen) < line:  # the fallback's choice, drawn to a quarter rung
-        for _ in range(2):
-            least, by_setting = least_varied(result)
-            copied = [d for d in by_setting if least is not None and d < least]
-            if copied and least - max(copied) > step / 4 + 1e-9 and lp_f()[least] >= far * goals.get("lp_fscore", 0):
-                add(round((least + max(copied)) / 2, 2), "between copies and the least varied: ")
+    if (chosen is None or g_div_at(result.tried, chosen) < line) and _halfway(result, add, step, far):
+        chosen, why = read()
     least = least_varied(result)[0]  # a default of copies is no sampler, nor is one far below LP-F's goal (torn)
-    torn = least is None or lp_f()[least] < far * goals.get("lp_fscore", 0.0)
+    torn = _torn(result, least, far)
     copies = chosen is not None and g_div_at(result.tried, chosen) < line and not torn and least > chosen
     if chosen is not None and not copies:
         result.diversity, result.note = round(chosen, 2), why or None
