@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sin3dm_lite.evaluate.calibrate import FAR, GOALS, Calibration, _crossing, _non_increasing, _walk, summarize
+from sin3dm_lite.evaluate.calibrate import FAR, GOALS, Calibration, _walk, summarize
+from sin3dm_lite.evaluate.curves import crossing, non_increasing
 
 
 def settings(lowest: float) -> list[float]:
@@ -89,7 +90,7 @@ def true_curve(pool: dict, key: str) -> tuple[list[float], list[float]]:
     """The pool's means from high to low settings, made non-increasing in the knob."""
     levels = sorted((float(d) for d in pool), reverse=True)
     means = [float(np.mean(pool[str(d)][key])) for d in levels]
-    return levels, _non_increasing(means[::-1], [1.0] * len(means))[::-1]
+    return levels, non_increasing(means[::-1], [1.0] * len(means))[::-1]
 
 
 def replay(pool: dict, options: dict, rng: np.random.Generator) -> tuple[float, int]:
@@ -126,7 +127,7 @@ def report(path: str, replays: int) -> None:
     data = json.loads(Path(path).read_text())
     pool = data["pool"]
     curves = {key: true_curve(pool, key) for key in GOALS}
-    crossings = [_crossing(*curves[key], goal) for key, goal in GOALS.items()]
+    crossings = [crossing(*curves[key], goal) for key, goal in GOALS.items()]
     truth = min(c if c is not None else min(curves["lp_iou"][0]) for c in crossings)
     line = " · ".join(f"{key} " + " ".join(f"{y:.3f}" for y in curves[key][1][::-1]) for key in GOALS)
     print(f"\n{data['run']} ({data['n']} samples per setting, {min(map(float, pool)):.2f} … 1.00): {line}")
