@@ -352,9 +352,8 @@ def _fallback(result: Calibration, copies: float | None = None) -> None:
 
 def _torn(result: Calibration, setting: float | None, far: float) -> bool:
     """Whether the samples at ``setting`` keep less than ``far`` of the LP-F goal (torn, not varied); None: torn."""
-    return setting is None or mean_by_setting(result.tried, "lp_fscore")[setting] < far * result.goals.get(
-        "lp_fscore", 0.0
-    )
+    goal = far * result.goals.get("lp_fscore", 0.0)
+    return setting is None or mean_by_setting(result.tried, "lp_fscore")[setting] < goal
 
 
 def _halfway(result: Calibration, add, step: float, far: float) -> bool:

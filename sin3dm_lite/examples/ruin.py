@@ -130,17 +130,17 @@ def _across(plan: dict, x, y) -> np.ndarray:
     return np.maximum(np.abs(x), np.abs(y)) if plan.get("square") else np.hypot(x, y)
 
 
-def _wall(plan: dict, x, y):
-    """The wall's thickness where each point is: one number, or between a pair's two, thickest at an angle of
-    a quarter radian (and opposite), thinnest a right angle away."""
+def _wall(plan: dict, angle):
+    """The wall's thickness at each point's ``angle`` around the axis: one number, or between a pair's two,
+    thickest at a quarter radian (and opposite), thinnest a right angle away."""
     wall = plan["wall"]
     if np.ndim(wall) == 0:
         return wall
     thin, thick = wall
-    return thin + (thick - thin) * (0.5 + 0.5 * np.cos(2 * np.arctan2(y, x) - 0.5))
+    return thin + (thick - thin) * (0.5 + 0.5 * np.cos(2 * angle - 0.5))
 
 
-def _opening(x, y, z, radius: float, wall: float, o: dict) -> np.ndarray:
+def _opening(x, y, z, radius: float, wall, o: dict) -> np.ndarray:
     """Signed distance (negative inside) of a box through the wall at angle ``o["angle"]``."""
     c, s = np.cos(o["angle"]), np.sin(o["angle"])
     radial, tangential = x * c + y * s, -x * s + y * c
@@ -157,8 +157,9 @@ def _opening(x, y, z, radius: float, wall: float, o: dict) -> np.ndarray:
 
 def _sdf(plan: dict, x, y, z) -> np.ndarray:
     """The ruin's signed distance (negative inside; exact enough near its surface for marching cubes)."""
-    r, wall = _across(plan, x, y), _wall(plan, x, y)
-    sector = np.floor((np.arctan2(y, x) + np.pi) / (2 * np.pi) * STEPS).astype(int) % STEPS
+    angle = np.arctan2(y, x)
+    r, wall = _across(plan, x, y), _wall(plan, angle)
+    sector = np.floor((angle + np.pi) / (2 * np.pi) * STEPS).astype(int) % STEPS
     ring = np.abs(r - (plan["radius"] - wall / 2)) - wall / 2
     tower = np.maximum.reduce([ring, z - plan["tops"][sector], -z])
     h = plan["half_slab"]
