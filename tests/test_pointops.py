@@ -115,3 +115,31 @@ def test_kept_buffers_are_reused_and_a_stale_graph_fails_loudly():
         y1.sum().backward()
     m.eval()
     assert m._workspace is None
+
+
+@pytest.mark.parametrize("fused", [True, False])
+@pytest.mark.parametrize("layout", ["contiguous", "lookup", "flat"])
+@pytest.mark.parametrize("n", [1, 37, pointops.INFER_CHUNK + 100])
+def test_bf16_decode_path_is_autocasts_bit_for_bit(layout, n, fused, monkeypatch):
+    """Under bf16 autocast without gradients (a decode), the same bf16 values as the plain modules under autocast,
+    bit for bit, whatever the input's layout: contiguous, the lookup's strided ``[1, N, C]`` (``F.linear`` then
+    adds the bias after the product) or 2D, with oneDNN's fused product and ReLU or without (a CPU without
+    AVX-512 has none in bf16); and not taken where a gradient is wanted."""
+    if not fused:
+        monkeypatch.setattr(pointops, "fused_linear_ok", lambda dtype: False)
+    torch.manual_seed(5)
+    m = SkipMLP(24, 64, 3).eval()
+    x = {
+        "contiguous": torch.randn(1, n, 24),
+        "lookup": torch.randn(1, 24, n).transpose(1, 2),
+        "flat": torch.randn(n, 24),
+    }[layout]
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        with torch.no_grad():
+            assert pointops.mlp_bf16_ok(x, m)
+            fast = m(x)
+            ref = _reference_mlp(m, x)
+        assert not pointops.mlp_bf16_ok(x, m)  # parameters that want a gradient: the plain modules
+    assert fast.dtype == ref.dtype == torch.bfloat16 and fast.shape == ref.shape
+    assert torch.equal(fast, ref)
+    assert not pointops.mlp_bf16_ok(x, m)  # no autocast: the fp32 paths
