@@ -76,6 +76,7 @@ LAYERS = {
     "model.triplane": MODEL,
     "kernels": MODEL,
     "kernels.pointops": MODEL,
+    "kernels.bf16ops": MODEL,
     "kernels.planeops": MODEL,
     "model.training": MODEL,
     "model.autoencoder": MODEL,

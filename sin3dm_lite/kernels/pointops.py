@@ -13,14 +13,11 @@ gather of 12 rows (4 corners × 3 planes) from the planes laid out channel-last 
 per chunk instead of ``grid_sample``'s scatter over channel-first planes.
 
 Both are used on the CPU in fp32 only (a GPU wants big batches and ``index_add_`` there is not deterministic;
-under autocast the plain modules run): :func:`mlp_fast_ok` and :func:`lookup_fast_ok` say when. Decoding under
-bf16 autocast without gradients (sampling, calibration, export on a CPU with fast bf16) takes
-:func:`skip_mlp_bf16`: autocast's own products, bit for bit, into reused buffers (:func:`mlp_bf16_ok`).
+under bf16 autocast the point MLPs take :mod:`.bf16ops`): :func:`mlp_fast_ok` and :func:`lookup_fast_ok` say
+when.
 """
 
 from __future__ import annotations
-
-import functools
 
 import torch
 import torch.nn as nn
@@ -30,8 +27,6 @@ import torch.nn.functional as F
 ENABLED = True
 #: points per chunk: a ``[CHUNK, 256]`` fp32 activation is 1 MiB, so a layer's input and output stay in L2
 CHUNK = 1024
-#: rows per chunk of :func:`skip_mlp_bf16`: the decoder's CPU batch (``decode.CHUNK``), in one piece
-INFER_CHUNK = 8192
 
 
 def mlp_fast_ok(x: torch.Tensor, module: nn.Module) -> bool:
@@ -44,78 +39,6 @@ def mlp_fast_ok(x: torch.Tensor, module: nn.Module) -> bool:
         and not torch.is_autocast_enabled("cpu")
         and all(p.dtype == torch.float32 for p in module.parameters())
     )
-
-
-def mlp_bf16_ok(x: torch.Tensor, module: nn.Module) -> bool:
-    """Whether :func:`skip_mlp_bf16` applies: a decode on the CPU under bf16 autocast, no gradient wanted."""
-    return (
-        ENABLED
-        and x.device.type == "cpu"
-        and torch.is_autocast_enabled("cpu")
-        and torch.get_autocast_dtype("cpu") == torch.bfloat16
-        and (x.dim() == 2 or x.is_contiguous() or (x.dim() == 3 and x.shape[0] == 1))
-        and not (torch.is_grad_enabled() and (x.requires_grad or any(p.requires_grad for p in module.parameters())))
-    )
-
-
-def skip_mlp_bf16(x: torch.Tensor, a: nn.Sequential, b: nn.Sequential, out: nn.Linear) -> torch.Tensor:
-    """:class:`~sin3dm_lite.model.autoencoder.SkipMLP`'s forward under bf16 autocast without gradients, bit for bit
-    what autocast computes (each ``Linear`` an ``addmm`` of bf16 casts, but on a strided 3D input, such as the
-    lookup's features, the product and then the bias, as ``F.linear`` does; the skip input cast as the next layer
-    casts it): the weights cast once, the activations written into buffers of :data:`INFER_CHUNK` rows reused from chunk
-    to chunk, the ReLUs in place, the skip written beside its layer's output instead of concatenated. The plain
-    modules allocate a fresh tensor (several MiB, page by page) for each product, ReLU and concatenation."""
-    layers = _layers(a, b, out)
-    bf = torch.bfloat16
-    wt = [lin.weight.detach().to(bf).t() for lin in layers]
-    bias = [lin.bias.detach().to(bf) for lin in layers]
-    fused = x.dim() == 2 or x.is_contiguous()  # how F.linear computes the first layer
-    flat = x.detach().reshape(-1, x.shape[-1]).to(bf)
-    n, c_in = flat.shape
-    h = wt[0].shape[1]
-    rows = min(n, INFER_CHUNK)
-    y0, y1, z = flat.new_empty(rows, h), flat.new_empty(rows, h), flat.new_empty(rows, h + c_in)
-    y = flat.new_empty(n, wt[5].shape[1])
-    with torch.autocast("cpu", enabled=False):
-        for s in range(0, n, INFER_CHUNK):
-            e = min(n, s + INFER_CHUNK)
-            r = e - s
-            if fused:
-                torch.addmm(bias[0], flat[s:e], wt[0], out=y0[:r]).relu_()
-            else:
-                torch.mm(flat[s:e], wt[0], out=y0[:r]).add_(bias[0]).relu_()
-            a1 = linear_relu(y0[:r], wt[1], bias[1], y1[:r])
-            torch.addmm(bias[2], a1, wt[2], out=z[:r, :h]).relu_()
-            z[:r, h:] = flat[s:e]
-            a3 = linear_relu(z[:r], wt[3], bias[3], y0[:r])
-            a4 = linear_relu(a3, wt[4], bias[4], y1[:r])
-            torch.addmm(bias[5], a4, wt[5], out=y[s:e])
-    return y.reshape(*x.shape[:-1], y.shape[-1])
-
-
-def linear_relu(x: torch.Tensor, wt: torch.Tensor, bias: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
-    """``relu(x @ wt + bias)``: oneDNN's product with the bias and the ReLU fused into it where torch has it (the
-    values of ``addmm`` then ``relu_``, without a second pass over the output, which in bf16 costs half the
-    product's time), else ``addmm`` into ``out`` and ``relu_``."""
-    if fused_linear_ok(x.dtype):
-        return torch.ops.mkldnn._linear_pointwise(x, wt.t(), bias, "relu", [], "")
-    return torch.addmm(bias, x, wt, out=out).relu_()
-
-
-@functools.cache
-def fused_linear_ok(dtype: torch.dtype) -> bool:
-    """Whether this CPU runs oneDNN's fused product, bias and ReLU (a private op of torch's, which its compiler
-    uses) in ``dtype``, with the values of ``addmm`` then ``relu_``: tried once on a small product (oneDNN has no
-    bf16 product on a CPU without AVX-512; torch's own then runs)."""
-    if not (torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_linear_pointwise")):
-        return False
-    gen = torch.Generator().manual_seed(0)
-    x, w, b = (torch.randn(*shape, generator=gen).to(dtype) for shape in ((40, 24), (16, 24), (16,)))
-    try:
-        fused = torch.ops.mkldnn._linear_pointwise(x, w, b, "relu", [], "")
-    except RuntimeError:
-        return False
-    return torch.equal(fused, torch.addmm(b, x, w.t()).relu_())
 
 
 def _layers(a: nn.Sequential, b: nn.Sequential, out: nn.Linear) -> list[nn.Linear]:
@@ -233,13 +156,14 @@ class _SkipMLPFunction(torch.autograd.Function):
 
 
 def lookup_fast_ok(planes: tuple[torch.Tensor, ...], points: torch.Tensor) -> bool:
-    """Whether :func:`lookup_sum` applies: CPU, fp32 planes, no autocast, no gradient wanted for the points."""
+    """Whether :func:`lookup_sum` applies: CPU, fp32 planes (or bf16 ones under autocast, which samples in fp32),
+    no gradient wanted for the points."""
+    autocast = torch.is_autocast_enabled("cpu")
     return (
         ENABLED
         and points.device.type == "cpu"
         and not points.requires_grad
-        and all(p.dtype == torch.float32 for p in planes)
-        and not torch.is_autocast_enabled("cpu")
+        and all(p.dtype == torch.float32 or (autocast and p.dtype == torch.bfloat16) for p in planes)
     )
 
 
@@ -268,7 +192,10 @@ def corner_weights(planes, points: torch.Tensor, axes) -> tuple[torch.Tensor, to
 
 def lookup_sum(planes, points: torch.Tensor, axes) -> torch.Tensor:
     """The three planes' bilinear features at ``points [B, N, 3]``, added → ``[B, N, C]``: the values of
-    ``grid_sample`` (the fastest forward), the backward a gather's (:class:`_GatherFunction`)."""
+    ``grid_sample`` (the fastest forward), the backward a gather's (:class:`_GatherFunction`). Planes in bf16 (under
+    autocast) are sampled in fp32 at the points' fp32 coordinates, as ``grid_sample`` under autocast samples them
+    but without rounding the coordinates to bf16 (a tenth of a texel on a 48-texel plane)."""
+    planes = [p.float() for p in planes]
     if not (torch.is_grad_enabled() and any(p.requires_grad for p in planes)):
         return _sampled_sum([p.detach() for p in planes], points, axes)
     bsz, n = points.shape[:2]

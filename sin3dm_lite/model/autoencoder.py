@@ -37,7 +37,8 @@ import torch.nn.functional as F
 from ..app.device import autocast
 from ..data.config import AutoencoderConfig
 from ..data.grid import ShapeGrid
-from ..kernels.pointops import Workspace, mlp_bf16_ok, mlp_fast_ok, skip_mlp, skip_mlp_bf16
+from ..kernels.bf16ops import mlp_bf16_ok, skip_mlp_bf16
+from ..kernels.pointops import Workspace, mlp_fast_ok, skip_mlp
 from .training import Trainer
 from .triplane import PLANES, Triplane
 
@@ -173,7 +174,7 @@ class SkipMLP(nn.Module):
             if getattr(self, "_workspace", None) is None:
                 self._workspace = Workspace()
             return skip_mlp(x, self.a, self.b, self.out, self._workspace if self.training else None)
-        if mlp_bf16_ok(x, self):  # a decode under bf16 autocast: the same products into reused buffers
+        if mlp_bf16_ok(x, self):  # under bf16 autocast: the same products chunk by chunk (kernels/bf16ops.py)
             return skip_mlp_bf16(x, self.a, self.b, self.out)
         return self.out(self.b(torch.cat([self.a(x), x], dim=-1)))
 

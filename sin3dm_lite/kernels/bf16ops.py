@@ -1,0 +1,178 @@
+"""CPU fast paths of the decoder's point MLPs under bf16 autocast (a fit, its calibration and its samples' decoding
+on a CPU whose bf16 measures faster than fp32).
+
+Under autocast each ``Linear`` casts its input to bf16 and writes a fresh bf16 output, each ReLU reads and writes it
+again, the skip concatenation copies it, and the backward converts every gradient back and forth: on a
+``[65536, 256]`` activation that is memory traffic, and in bf16 torch's elementwise kernels are slow (a ReLU
+costs half the product before it). Here the points go through the six layers in chunks, the weights cast once per
+call, oneDNN's product with the bias and the ReLU fused into it (:func:`linear_relu`), the skip written beside its
+layer's output:
+
+* **without gradients** (:func:`skip_mlp_bf16` in a decode): bit for bit the values autocast computes;
+* **with gradients** (a training step): the same products in bf16 with fp32 accumulation, the weight and bias
+  gradients summed in fp32 chunk by chunk (autocast rounds each to bf16 once over all points): as close to the fp32
+  gradients as autocast's (``tests/test_pointops.py`` measures both).
+
+:func:`mlp_bf16_ok` says when (fp32 keeps :mod:`.pointops`' paths; a GPU the plain modules).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import torch
+import torch.nn as nn
+
+from . import pointops
+
+BF16 = torch.bfloat16
+#: rows per chunk of a decode: the decoder's CPU batch (``decode.CHUNK``), in one piece
+INFER_CHUNK = 8192
+#: rows per chunk of a training step: a ``[CHUNK, 256]`` bf16 activation is 512 KiB, a chunk's layers stay in L2
+TRAIN_CHUNK = 1024
+
+
+def mlp_bf16_ok(x: torch.Tensor, module: nn.Module) -> bool:
+    """Whether :func:`skip_mlp_bf16` applies to ``module`` on ``x``: the CPU under bf16 autocast, fp32 parameters;
+    without gradients an input laid out as ``F.linear`` folds it (2D, contiguous, or one batch item)."""
+    if not (
+        pointops.ENABLED
+        and x.device.type == "cpu"
+        and torch.is_autocast_enabled("cpu")
+        and torch.get_autocast_dtype("cpu") == BF16
+        and all(p.dtype == torch.float32 for p in module.parameters())
+    ):
+        return False
+    return _wants_grad(x, module) or x.dim() == 2 or x.is_contiguous() or (x.dim() == 3 and x.shape[0] == 1)
+
+
+def _wants_grad(x: torch.Tensor, module: nn.Module) -> bool:
+    return torch.is_grad_enabled() and (x.requires_grad or any(p.requires_grad for p in module.parameters()))
+
+
+def skip_mlp_bf16(x: torch.Tensor, a: nn.Sequential, b: nn.Sequential, out: nn.Linear) -> torch.Tensor:
+    """:class:`~sin3dm_lite.model.autoencoder.SkipMLP`'s forward under bf16 autocast, chunk by chunk → bf16, as
+    autocast returns it. With gradients wanted, a training step's (:class:`_SkipMLPBf16`); without, a decode's."""
+    layers = pointops._layers(a, b, out)
+    params = [t for lin in layers for t in (lin.weight, lin.bias)]
+    flat = x.reshape(-1, x.shape[-1])
+    with torch.autocast("cpu", enabled=False):
+        if _wants_grad(x, a):
+            y = _SkipMLPBf16.apply(flat, *params)
+        else:
+            y = _decode(flat, [t.detach() for t in params], fused_first=x.dim() == 2 or x.is_contiguous())
+    return y.reshape(*x.shape[:-1], y.shape[-1])
+
+
+def _decode(flat: torch.Tensor, params: list[torch.Tensor], fused_first: bool) -> torch.Tensor:
+    """The forward without gradients, bit for bit autocast's: each ``Linear`` an ``addmm`` of bf16 casts, but on a
+    strided 3D input (the lookup's features) the product and then the bias, as ``F.linear`` computes it
+    (``fused_first`` False); the skip input cast as the next layer casts it; the buffers reused from chunk to chunk."""
+    wt = [p.to(BF16).t() for p in params[0::2]]
+    bias = [p.to(BF16) for p in params[1::2]]
+    xb = flat.to(BF16)
+    n, c_in = xb.shape
+    h = wt[0].shape[1]
+    rows = min(n, INFER_CHUNK)
+    y0, y1, z = xb.new_empty(rows, h), xb.new_empty(rows, h), xb.new_empty(rows, h + c_in)
+    y = xb.new_empty(n, wt[5].shape[1])
+    for s in range(0, n, INFER_CHUNK):
+        e = min(n, s + INFER_CHUNK)
+        r = e - s
+        if fused_first:
+            torch.addmm(bias[0], xb[s:e], wt[0], out=y0[:r]).relu_()
+        else:
+            torch.mm(xb[s:e], wt[0], out=y0[:r]).add_(bias[0]).relu_()
+        a1 = linear_relu(y0[:r], wt[1], bias[1], y1[:r])
+        torch.addmm(bias[2], a1, wt[2], out=z[:r, :h]).relu_()
+        z[:r, h:] = xb[s:e]
+        a3 = linear_relu(z[:r], wt[3], bias[3], y0[:r])
+        a4 = linear_relu(a3, wt[4], bias[4], y1[:r])
+        torch.addmm(bias[5], a4, wt[5], out=y[s:e])
+    return y
+
+
+class _SkipMLPBf16(torch.autograd.Function):
+    """A training step's forward in bf16 chunks (the post-ReLU activations kept per chunk, the skip buffer
+    ``z = [y2 | x]`` whole) and its backward: per chunk and layer the bias and weight gradients (fp32 sums), the
+    input's gradient through the ReLU's mask in place."""
+
+    @staticmethod
+    def forward(ctx, x, *params):
+        w = [p.to(BF16) for p in params[0::2]]
+        bias = [p.to(BF16) for p in params[1::2]]
+        xb = x.to(BF16)
+        n, c_in = xb.shape
+        h = w[0].shape[0]
+        y = xb.new_empty(n, w[5].shape[0])
+        z = xb.new_empty(n, h + c_in)
+        z[:, h:] = xb
+        acts = []
+        for s in range(0, n, TRAIN_CHUNK):
+            e = min(n, s + TRAIN_CHUNK)
+            y0 = linear_relu(xb[s:e], w[0].t(), bias[0])
+            y1 = linear_relu(y0, w[1].t(), bias[1])
+            torch.addmm(bias[2], y1, w[2].t(), out=z[s:e, :h]).relu_()
+            y3 = linear_relu(z[s:e], w[3].t(), bias[3])
+            y4 = linear_relu(y3, w[4].t(), bias[4])
+            torch.addmm(bias[5], y4, w[5].t(), out=y[s:e])
+            acts.append((y0, y1, y3, y4))
+        ctx.save_for_backward(xb, z, *w)
+        ctx.acts = acts
+        return y
+
+    @staticmethod
+    def backward(ctx, gy):
+        xb, z, *w = ctx.saved_tensors
+        need_x, need = ctx.needs_input_grad[0], ctx.needs_input_grad[1:]
+        gw = [torch.zeros(m.shape) if need[2 * i] else None for i, m in enumerate(w)]
+        gb = [torch.zeros(m.shape[0]) if need[2 * i + 1] else None for i, m in enumerate(w)]
+        gx = torch.empty(xb.shape) if need_x else None
+        h = w[0].shape[0]
+        gy = gy.to(BF16).contiguous()
+        for k, s in enumerate(range(0, len(xb), TRAIN_CHUNK)):
+            e = min(len(xb), s + TRAIN_CHUNK)
+            y0, y1, y3, y4 = ctx.acts[k]
+            ins = (xb[s:e], y0, y1, z[s:e], y3, y4)  # each layer's input
+            g, skip = gy[s:e], None  # skip: the gradient of x's copy in the concatenation, from layer 3
+            for i in range(5, -1, -1):
+                if gb[i] is not None:
+                    gb[i] += g.sum(0)  # summed in fp32 within the chunk, rounded once
+                if gw[i] is not None:
+                    gw[i] += torch.mm(g.t(), ins[i])
+                if i == 0:
+                    if gx is not None:
+                        gx[s:e] = torch.mm(g, w[0]).add_(skip)
+                    break
+                g = torch.mm(g, w[i])
+                a = ins[i]
+                if i == 3:  # the concatenation [y2 | x]: the gradient of y2 goes on, x's waits for layer 0
+                    skip, g, a = g[:, h:], g[:, :h], a[:, :h]
+                g = torch.ops.aten.threshold_backward.grad_input(g, a, 0, grad_input=g)  # the ReLU's, in place
+        ctx.acts = None
+        return (gx, *[t for pair in zip(gw, gb) for t in pair])
+
+
+def linear_relu(x: torch.Tensor, wt: torch.Tensor, bias: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    """``relu(x @ wt + bias)``: oneDNN's product with the bias and the ReLU fused into it where torch has it (the
+    values of ``addmm`` then ``relu_``, without a second pass over the output, which in bf16 costs half the
+    product's time), else ``addmm`` (into ``out``) and ``relu_``."""
+    if fused_linear_ok(x.dtype):
+        return torch.ops.mkldnn._linear_pointwise(x, wt.t(), bias, "relu", [], "")
+    return torch.addmm(bias, x, wt, out=out).relu_() if out is not None else torch.addmm(bias, x, wt).relu_()
+
+
+@functools.cache
+def fused_linear_ok(dtype: torch.dtype) -> bool:
+    """Whether this CPU runs oneDNN's fused product, bias and ReLU (a private op of torch's, which its compiler
+    uses) in ``dtype``, with the values of ``addmm`` then ``relu_``: tried once on a small product (oneDNN has no
+    bf16 product on a CPU without AVX-512; torch's own then runs)."""
+    if not (torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_linear_pointwise")):
+        return False
+    gen = torch.Generator().manual_seed(0)
+    x, w, b = (torch.randn(*shape, generator=gen).to(dtype) for shape in ((40, 24), (16, 24), (16,)))
+    try:
+        fused = torch.ops.mkldnn._linear_pointwise(x, w, b, "relu", [], "")
+    except RuntimeError:
+        return False
+    return torch.equal(fused, torch.addmm(b, x, w.t()).relu_())
