@@ -173,6 +173,6 @@ def fused_linear_ok(dtype: torch.dtype) -> bool:
     x, w, b = (torch.randn(*shape, generator=gen).to(dtype) for shape in ((40, 24), (16, 24), (16,)))
     try:
         fused = torch.ops.mkldnn._linear_pointwise(x, w, b, "relu", [], "")
-    except RuntimeError:
+    except Exception:  # noqa: BLE001 (a private op: any failure means torch's own path)
         return False
     return torch.equal(fused, torch.addmm(b, x, w.t()).relu_())
