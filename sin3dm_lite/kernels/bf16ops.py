@@ -57,7 +57,7 @@ def skip_mlp_bf16(x: torch.Tensor, a: nn.Sequential, b: nn.Sequential, out: nn.L
     params = [t for lin in layers for t in (lin.weight, lin.bias)]
     flat = x.reshape(-1, x.shape[-1])
     with torch.autocast("cpu", enabled=False):
-        if _wants_grad(x, a):
+        if torch.is_grad_enabled() and (x.requires_grad or any(p.requires_grad for p in params)):
             y = _SkipMLPBf16.apply(flat, *params)
         else:
             y = _decode(flat, [t.detach() for t in params], fused_first=x.dim() == 2 or x.is_contiguous())
@@ -118,7 +118,7 @@ class _SkipMLPBf16(torch.autograd.Function):
             torch.addmm(bias[5], y4, w[5].t(), out=y[s:e])
             acts.append((y0, y1, y3, y4))
         ctx.save_for_backward(xb, z, *w)
-        ctx.acts = acts
+        ctx.acts, ctx.x_dtype = acts, x.dtype
         return y
 
     @staticmethod
@@ -127,7 +127,7 @@ class _SkipMLPBf16(torch.autograd.Function):
         need_x, need = ctx.needs_input_grad[0], ctx.needs_input_grad[1:]
         gw = [torch.zeros(m.shape) if need[2 * i] else None for i, m in enumerate(w)]
         gb = [torch.zeros(m.shape[0]) if need[2 * i + 1] else None for i, m in enumerate(w)]
-        gx = torch.empty(xb.shape) if need_x else None
+        gx = torch.empty(xb.shape, dtype=ctx.x_dtype) if need_x else None
         h = w[0].shape[0]
         gy = gy.to(BF16).contiguous()
         for k, s in enumerate(range(0, len(xb), TRAIN_CHUNK)):
