@@ -173,3 +173,16 @@ def test_bf16_training_path_is_as_close_to_fp32_as_autocast(frozen):
         err_fast, err_plain = (float((t - r).norm() / r.norm()) for t in (f, p))
         assert err_fast <= 1.2 * err_plain + 1e-3, (err_fast, err_plain)
         assert err_fast < 0.25
+
+
+def test_bf16_training_path_runs_backward_twice_with_a_kept_graph():
+    """``retain_graph=True`` (as a user computing two losses' gradients may): the second backward adds the same."""
+    torch.manual_seed(7)
+    m = SkipMLP(8, 16, 2)
+    x = torch.randn(1, 3000, 8, requires_grad=True)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        y = m(x)
+    y.float().sum().backward(retain_graph=True)
+    first = x.grad.clone()
+    y.float().sum().backward()
+    assert torch.allclose(x.grad, 2 * first)

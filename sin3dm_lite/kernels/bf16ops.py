@@ -149,7 +149,6 @@ class _SkipMLPBf16(torch.autograd.Function):
                 if i == 3:  # the concatenation [y2 | x]: the gradient of y2 goes on, x's waits for layer 0
                     skip, g, a = g[:, h:], g[:, :h], a[:, :h]
                 g = torch.ops.aten.threshold_backward.grad_input(g, a, 0, grad_input=g)  # the ReLU's, in place
-        ctx.acts = None
         return (gx, *[t for pair in zip(gw, gb) for t in pair])
 
 
