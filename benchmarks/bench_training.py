@@ -50,7 +50,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 import trimesh
-from torch.utils.flop_counter import FlopCounterMode
+from torch.utils.flop_counter import FlopCounterMode, register_flop_formula
 
 from sin3dm_lite.app.device import bf16_is_fast
 from sin3dm_lite.auto.fit_default import timing_grid
@@ -194,6 +194,15 @@ def gemm_ceiling(repeats: int = 50) -> float:
     attains in one matrix product, turbo clock included."""
     a, b = torch.randn(2048, 256), torch.randn(256, 256)
     return 2 * 2048 * 256 * 256 / timed(lambda: a @ b, 1, warmup=2, repeats=repeats, cpu=True) / 1e9
+
+
+def _linear_pointwise_flops(x_shape, w_shape, *args, **kwargs) -> int:
+    """oneDNN's fused product (``kernels/bf16ops.linear_relu``), which FlopCounterMode does not know: ``2·M·N·K``."""
+    return 2 * int(np.prod(x_shape[:-1])) * w_shape[0] * w_shape[1]
+
+
+if hasattr(torch.ops.mkldnn, "_linear_pointwise"):
+    register_flop_formula(torch.ops.mkldnn._linear_pointwise)(_linear_pointwise_flops)
 
 
 def forward_flops(fn) -> float:
