@@ -202,7 +202,8 @@ def _linear_pointwise_flops(x_shape, w_shape, *args, **kwargs) -> int:
 
 
 if hasattr(torch.ops.mkldnn, "_linear_pointwise"):
-    register_flop_formula(torch.ops.mkldnn._linear_pointwise)(_linear_pointwise_flops)
+    with contextlib.suppress(RuntimeError):  # registered already (this script imported twice)
+        register_flop_formula(torch.ops.mkldnn._linear_pointwise)(_linear_pointwise_flops)
 
 
 def forward_flops(fn) -> float:
