@@ -65,31 +65,38 @@ def skip_mlp_bf16(x: torch.Tensor, a: nn.Sequential, b: nn.Sequential, out: nn.L
 
 
 def _decode(flat: torch.Tensor, params: list[torch.Tensor], fused_first: bool) -> torch.Tensor:
-    """The forward without gradients, bit for bit autocast's: each ``Linear`` an ``addmm`` of bf16 casts, but on a
-    strided 3D input (the lookup's features) the product and then the bias, as ``F.linear`` computes it
-    (``fused_first`` False); the skip input cast as the next layer casts it; the buffers reused from chunk to chunk."""
-    wt = [p.to(BF16).t() for p in params[0::2]]
-    bias = [p.to(BF16) for p in params[1::2]]
+    """The forward without gradients, bit for bit autocast's (:func:`_chunk`), its buffers reused from chunk to
+    chunk."""
+    w, bias = [p.to(BF16) for p in params[0::2]], [p.to(BF16) for p in params[1::2]]
     xb = flat.to(BF16)
     n, c_in = xb.shape
-    h = wt[0].shape[1]
-    rows = min(n, INFER_CHUNK)
-    y0, y1, z = xb.new_empty(rows, h), xb.new_empty(rows, h), xb.new_empty(rows, h + c_in)
-    y = xb.new_empty(n, wt[5].shape[1])
+    h, rows = w[0].shape[0], min(n, INFER_CHUNK)
+    bufs, z = (xb.new_empty(rows, h), xb.new_empty(rows, h)), xb.new_empty(rows, h + c_in)
+    y = xb.new_empty(n, w[5].shape[0])
     for s in range(0, n, INFER_CHUNK):
         e = min(n, s + INFER_CHUNK)
-        r = e - s
-        if fused_first:
-            torch.addmm(bias[0], xb[s:e], wt[0], out=y0[:r]).relu_()
-        else:
-            torch.mm(xb[s:e], wt[0], out=y0[:r]).add_(bias[0]).relu_()
-        a1 = linear_relu(y0[:r], wt[1], bias[1], y1[:r])
-        torch.addmm(bias[2], a1, wt[2], out=z[:r, :h]).relu_()
-        z[:r, h:] = xb[s:e]
-        a3 = linear_relu(z[:r], wt[3], bias[3], y0[:r])
-        a4 = linear_relu(a3, wt[4], bias[4], y1[:r])
-        torch.addmm(bias[5], a4, wt[5], out=y[s:e])
+        _chunk(xb[s:e], w, bias, z[: e - s], y[s:e], fused_first, tuple(b[: e - s] for b in bufs))
     return y
+
+
+def _chunk(xc, w, bias, zc, out, fused_first: bool = True, bufs=(None, None)):
+    """One chunk of points ``xc`` (bf16) through the six layers, as autocast computes them: each ``Linear`` an
+    ``addmm`` of bf16 casts (fused with its ReLU, :func:`linear_relu`), but the first on a strided 3D input (the
+    lookup's features) the product and then the bias, as ``F.linear`` computes it (``fused_first`` False); the skip
+    ``[y2 | x]`` written into ``zc``, the output into ``out``. Returns the post-ReLU activations ``y0, y1, y3, y4``
+    (with ``bufs``, where torch's own path writes them: ``y3`` over ``y0``'s buffer, ``y4`` over ``y1``'s)."""
+    h = w[0].shape[0]
+    if fused_first:
+        y0 = linear_relu(xc, w[0], bias[0], bufs[0])
+    else:
+        y0 = torch.mm(xc, w[0].t(), out=bufs[0]).add_(bias[0]).relu_()
+    y1 = linear_relu(y0, w[1], bias[1], bufs[1])
+    torch.addmm(bias[2], y1, w[2].t(), out=zc[:, :h]).relu_()
+    zc[:, h:] = xc
+    y3 = linear_relu(zc, w[3], bias[3], bufs[0])
+    y4 = linear_relu(y3, w[4], bias[4], bufs[1])
+    torch.addmm(bias[5], y4, w[5].t(), out=out)
+    return y0, y1, y3, y4
 
 
 class _SkipMLPBf16(torch.autograd.Function):
@@ -104,19 +111,11 @@ class _SkipMLPBf16(torch.autograd.Function):
         xb = x.to(BF16)
         n, c_in = xb.shape
         h = w[0].shape[0]
-        y = xb.new_empty(n, w[5].shape[0])
-        z = xb.new_empty(n, h + c_in)
-        z[:, h:] = xb
-        acts = []
-        for s in range(0, n, TRAIN_CHUNK):
-            e = min(n, s + TRAIN_CHUNK)
-            y0 = linear_relu(xb[s:e], w[0].t(), bias[0])
-            y1 = linear_relu(y0, w[1].t(), bias[1])
-            torch.addmm(bias[2], y1, w[2].t(), out=z[s:e, :h]).relu_()
-            y3 = linear_relu(z[s:e], w[3].t(), bias[3])
-            y4 = linear_relu(y3, w[4].t(), bias[4])
-            torch.addmm(bias[5], y4, w[5].t(), out=y[s:e])
-            acts.append((y0, y1, y3, y4))
+        y, z = xb.new_empty(n, w[5].shape[0]), xb.new_empty(n, h + c_in)
+        acts = [
+            _chunk(xb[s : s + TRAIN_CHUNK], w, bias, z[s : s + TRAIN_CHUNK], y[s : s + TRAIN_CHUNK])
+            for s in range(0, n, TRAIN_CHUNK)
+        ]
         ctx.save_for_backward(xb, z, *w)
         ctx.acts, ctx.x_dtype = acts, x.dtype
         return y
@@ -152,13 +151,13 @@ class _SkipMLPBf16(torch.autograd.Function):
         return (gx, *[t for pair in zip(gw, gb) for t in pair])
 
 
-def linear_relu(x: torch.Tensor, wt: torch.Tensor, bias: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
-    """``relu(x @ wt + bias)``: oneDNN's product with the bias and the ReLU fused into it where torch has it (the
-    values of ``addmm`` then ``relu_``, without a second pass over the output, which in bf16 costs half the
-    product's time), else ``addmm`` (into ``out``) and ``relu_``."""
+def linear_relu(x: torch.Tensor, w: torch.Tensor, bias: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    """``relu(F.linear(x, w, bias))``: oneDNN's product with the bias and the ReLU fused into it where torch has it
+    (the values of ``addmm`` then ``relu_``, without a second pass over the output, which in bf16 costs half the
+    product's time), else ``addmm`` (into ``out``, if given) and ``relu_``."""
     if fused_linear_ok(x.dtype):
-        return torch.ops.mkldnn._linear_pointwise(x, wt.t(), bias, "relu", [], "")
-    return torch.addmm(bias, x, wt, out=out).relu_() if out is not None else torch.addmm(bias, x, wt).relu_()
+        return torch.ops.mkldnn._linear_pointwise(x, w, bias, "relu", [], "")
+    return torch.addmm(bias, x, w.t(), out=out).relu_()
 
 
 @functools.cache
