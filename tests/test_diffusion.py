@@ -410,3 +410,58 @@ def test_a_trainer_with_flips_trains_on_mirrored_copies_and_one_without_does_not
 
     assert kinds("x") == {"input", "mirrored"}
     assert kinds("") == {"input"}
+
+
+# ------------------------------------------------------------------ the latent scaled for the diffusion
+def test_unit_latent_scale_is_found_at_training_and_trains_on_the_scaled_latent(h0):
+    """``latent_scale=0`` becomes the number that gives the latent unit variance, recorded in the trainer's and the
+    denoiser's config; the loss is the one a plain trainer gets on the latent multiplied by it (same seed)."""
+    scaled = DiffusionTrainer(h0, tiny_diffusion_cfg(latent_scale=0.0), device="cpu")
+    s = scaled.cfg.latent_scale
+    values = torch.cat([p.flatten() for p in h0.planes])
+    assert s == pytest.approx(1 / float(values.std()), rel=1e-6) and scaled.model.cfg.latent_scale == s
+    assert torch.cat([p.flatten() for p in (h0 * s).planes]).std().item() == pytest.approx(1.0, rel=1e-5)
+    plain = DiffusionTrainer(h0 * s, tiny_diffusion_cfg(latent_scale=1.0), device="cpu")
+    assert scaled.losses()["loss"].item() == pytest.approx(plain.losses()["loss"].item(), rel=1e-6)
+    assert all(torch.equal(a, b) for a, b in zip(scaled.h0.planes, h0.planes))  # the checkpoint keeps the latent
+
+
+def _scaled_model(fn, scale: float):
+    """A stand-in denoiser ``fn(x_t, t)`` whose config says it walks in units of the latent times ``scale``."""
+    fn.cfg = tiny_diffusion_cfg(latent_scale=scale)
+    return fn
+
+
+def test_sampling_with_a_scaled_denoiser_takes_and_gives_the_encoders_units(h0):
+    """The walk runs in the denoiser's units: an oracle that always answers ``scale · h0`` (outside [-1, 1], which
+    the sampler must not clip there) gives back ``h0``; ``denoised_fn`` and the intermediates see ``h0`` too."""
+    scale, s = 3.0, NoiseSchedule(timesteps=200)
+    target = h0.map(lambda p: p.clamp(-0.9, 0.9))
+    oracle = _scaled_model(lambda x, t: (target * scale).repeat(x.batch), scale)
+    seen = []
+
+    def look(x0, t):
+        seen.append(max(float(p.abs().max()) for p in x0.planes))
+        return x0
+
+    out, steps = sample(
+        oracle, s, LATENT_RES, n=2, latent_channels=4, steps=5, device="cpu", denoised_fn=look,
+        return_intermediates=2, progress=False,
+    )  # fmt: skip
+    assert all(torch.allclose(p, q.expand_as(p), atol=1e-5) for p, q in zip(out.planes, target.planes))
+    assert max(seen) <= 0.9 + 1e-6 and len(seen) == 5
+    assert all(torch.allclose(p, q.expand_as(p), atol=1e-5) for p, q in zip(steps[-1]["x0"].planes, target.planes))
+
+
+def test_a_scaled_denoiser_starts_from_the_start_latent_in_its_own_units(h0):
+    """Below diversity 1 the start latent is noised in the denoiser's units: an identity denoiser barely moves
+    it, and the sample comes back as the start (not the start divided or multiplied by the scale)."""
+    scale, s = 4.0, NoiseSchedule(timesteps=200)
+    start = h0.map(lambda p: p.clamp(-0.9, 0.9))
+    identity = _scaled_model(lambda x, t: x, scale)
+    out = sample(identity, s, LATENT_RES, n=1, latent_channels=4, steps=5, device="cpu", start=start, diversity=0.01,
+                 progress=False)  # fmt: skip
+    err = max(float((p - q).abs().max()) for p, q in zip(out.planes, start.planes))
+    assert err < 0.05, err
+    with pytest.raises(Sin3DMInputError, match="latent_scale 0"):
+        sample(_scaled_model(lambda x, t: x, 0.0), s, LATENT_RES, n=1, latent_channels=4, device="cpu", progress=False)

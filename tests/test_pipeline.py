@@ -375,6 +375,8 @@ def test_settings_from_text_keep_their_kinds():
     assert parse_settings(["diffusion.rollout=false"]) == {"diffusion.rollout": False}
     cfg = get_preset("small").updated(**{**changes, "sampling.diversity": 1})  # an integer is a number too
     assert cfg.diffusion.rollout is True and cfg.diffusion.steps == 1500 and cfg.sampling.diversity == 1
+    # ... and stays a number: a rate given as 0 (``--set diffusion.latent_scale=0``) takes a fraction later
+    assert isinstance(cfg.sampling.diversity, float) and cfg.updated(**{"sampling.diversity": 0.62})
     for bad, words in [
         ({"diffusion.steps": "many"}, "whole number"),
         ({"diffusion.rollout": 1}, "true or false"),
@@ -518,3 +520,37 @@ def test_the_finer_presets_are_their_coarse_ones_at_96_voxels_with_the_wider_fie
     }
     assert get_preset("small").updated(name="detail", **finer) == get_preset("detail")
     assert get_preset("quick").updated(name="fine", **finer, **{"diffusion.batch_size": 4}) == get_preset("fine")
+
+
+def test_a_fit_with_a_unit_latent_scale_records_the_number_and_resumes_to_the_same_model(tmp_path, monkeypatch):
+    """``diffusion.latent_scale=0`` (``detail``'s): the fit records the number it found in the run's config, so a
+    loaded run samples in the same units; a fit interrupted while training the denoiser finds the same number
+    again and resumes to the same model."""
+    from sin3dm_lite.model import diffusion
+
+    cfg = micro_config().updated(**{"diffusion.latent_scale": 0})
+    full = Sin3DM.fit("wall", preset=cfg, out=tmp_path / "full", progress=False)
+    scale = full.config.diffusion.latent_scale
+    assert scale > 1.5  # the tanh latent's values spread well under 1
+    loaded = Sin3DM.load(tmp_path / "full")
+    assert loaded.config.diffusion.latent_scale == scale == loaded.denoiser.cfg.latent_scale
+    samples = loaded.sample(2, seed=0, progress=False)
+    assert max(float(p.abs().max()) for p in samples.triplane.planes) <= 1.0  # in the encoder's units
+
+    real_step = diffusion.DiffusionTrainer.step
+
+    def step_then_ctrl_c(self):
+        loss = real_step(self)
+        if self.step_count == 17:
+            os.kill(os.getpid(), signal.SIGINT)
+        return loss
+
+    monkeypatch.setattr(diffusion.DiffusionTrainer, "step", step_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        Sin3DM.fit("wall", preset=cfg, out=tmp_path / "cut", progress=False)
+    monkeypatch.setattr(diffusion.DiffusionTrainer, "step", real_step)
+    resumed = Sin3DM.fit("wall", out=tmp_path / "cut", resume=True, progress=False)
+    assert resumed.config.diffusion.latent_scale == scale
+    a = torch.load(tmp_path / "full" / "model.pt", weights_only=True)
+    b = torch.load(tmp_path / "cut" / "model.pt", weights_only=True)
+    assert all(torch.equal(a["denoiser"][k], b["denoiser"][k]) for k in a["denoiser"])

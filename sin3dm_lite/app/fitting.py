@@ -207,6 +207,7 @@ class FitRun:
         t0 = time.perf_counter()
         ckpt = self.run / "diffusion.pt" if self.run else None
         dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
+        cfg = cfg.updated(**{"diffusion.latent_scale": dm.cfg.latent_scale})  # the number, where it asked for unit
         if dm.train_forward is not dm.model:
             how_long = "about a minute" if self.dev.type == "cuda" else "a few minutes on a CPU"
             self.say(

@@ -81,6 +81,9 @@ class DiffusionConfig:
     # flipped): four times the patches to learn from; needs autoencoder.mirror, or a flipped latent decodes to garbage
     flips: str = ""
     crop: int = 0  # train on random crops of this many latent texels per axis (0: the whole latent, the paper)
+    # the latent is multiplied by this for the diffusion and divided after sampling (1: as it is, the paper; 0: to
+    # unit variance, the number found at the fit and recorded in its config: latent diffusion's scale factor)
+    latent_scale: float = 1.0
     precision: str = "fp32"  # the training forward: "fp32", "bf16" (autocast) or "auto" (bf16 where it measures faster)
     compile: bool = False  # torch.compile the denoiser's training forward: minutes to compile, so for long fits
 
@@ -145,6 +148,8 @@ class Config:
                 node = node[p]
             _check_type(key, node[leaf], value)
             check_setting(key, value)
+            if isinstance(node[leaf], float) and not isinstance(value, bool):
+                value = float(value)  # a rate stays a float when given as a whole number (``--set x=0``)
             node[leaf] = value
         return Config.from_dict(d)
 
@@ -195,6 +200,7 @@ LIMITS: dict[str, Any] = {
     "diffusion.ema_decay": (0.0, 0.999999),
     "diffusion.flips": ["", "x", "z", "xz", "zx"],
     "diffusion.crop": (0, 4096),
+    "diffusion.latent_scale": (0.0, 1000.0),
     "diffusion.precision": ["auto", "fp32", "bf16"],
     "diffusion.compile": bool,
     "sampling.method": ["ddim", "ddpm"],

@@ -12,11 +12,18 @@ and pasting a noised known latent into part of ``x_t`` at every step gives
 outpainting, patch duplication and local editing without touching the sampler.
 Each step's estimate of the clean latent can be changed before the step uses it (``denoised_fn``, as in
 improved-diffusion; not in the paper, whose sampler is the default).
+
+The latent may be scaled before the diffusion (``DiffusionConfig.latent_scale``; not in the paper, which diffuses it
+as the encoder's tanh makes it): latent diffusion's scale factor. The tanh latent's values spread about 0.2, so its
+signal drowns under the schedule's noise by t ≈ 200 of 1000; scaled to unit variance, the noise levels in between
+carry some of the shape, and the knob's settings below 1 keep more of it, while pure noise may tear what it kept
+whole (docs/lab-notes.md). The trainer and :func:`sample` scale; everything outside them sees the encoder's units.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import warnings
 from collections.abc import Callable, Sequence
 
@@ -35,6 +42,19 @@ from .unet import TriplaneUNet
 
 
 # ------------------------------------------------------------------------ training
+def unit_scale(h0: Triplane) -> float:
+    """The factor that gives the latent ``h0`` unit variance (all planes' values together)."""
+    return 1.0 / max(float(torch.cat([p.detach().flatten().float() for p in h0.planes]).std()), 1e-6)
+
+
+def latent_scale(model) -> float:
+    """The factor a denoiser's latents were scaled by for its training (``cfg.latent_scale``; 1 without one)."""
+    scale = float(getattr(getattr(model, "cfg", None), "latent_scale", 1.0))
+    if scale <= 0:
+        raise Sin3DMInputError("this denoiser's config has latent_scale 0 (unit variance) unresolved: train it first")
+    return scale
+
+
 def diffusion_loss(
     model: TriplaneUNet, schedule: NoiseSchedule, x0: Triplane, t: torch.Tensor, noise: Triplane, prediction: str = "x0"
 ) -> torch.Tensor:
@@ -120,6 +140,8 @@ class DiffusionTrainer(Trainer):
         if cfg.precision not in PRECISIONS:
             raise Sin3DMInputError(f"unknown diffusion precision '{cfg.precision}'; use one of {', '.join(PRECISIONS)}")
         check_flips(cfg.flips)
+        if cfg.latent_scale == 0:  # unit variance: the number found here is what the config records
+            cfg = dataclasses.replace(cfg, latent_scale=unit_scale(h0))
         super().__init__(cfg, device, seed)
         self.h0 = h0.detach().to(self.device, torch.float32).clone()
         self.schedule = NoiseSchedule.from_config(cfg)
@@ -142,6 +164,8 @@ class DiffusionTrainer(Trainer):
         """The denoising loss on a batch of noised copies (or crops) of ``h0``."""
         b, g = self.cfg.batch_size, self.generator
         x0 = self.h0.repeat(b) if self.cfg.crop <= 0 else random_crops(self.h0, b, self.cfg.crop, g)  # [B, C, ., .]
+        if self.cfg.latent_scale != 1:
+            x0 = x0.map(lambda p: p * self.cfg.latent_scale)
         if self.cfg.flips:
             x0 = random_flips(x0, self.cfg.flips, g)
         t = torch.randint(0, self.schedule.timesteps, (b,), generator=g, device=self.device)
@@ -218,13 +242,15 @@ def _blend(mask: Triplane, keep: Triplane, x: Triplane) -> Triplane:
 def predict_clean(
     model, schedule: NoiseSchedule, x_t: Triplane, t: torch.Tensor, prediction: str = "x0", clip: bool = True
 ) -> Triplane:
-    """The network's estimate of the clean latent x0 from ``x_t`` (converted from ε for an ε-model).
+    """The network's estimate of the clean latent x0 from ``x_t`` (converted from ε for an ε-model), both in the
+    denoiser's units (the latent times :func:`latent_scale`).
 
-    The latent is a tanh output, so ``clip`` keeps the estimate in [-1, 1] as the sampler does.
+    The latent is a tanh output, so ``clip`` keeps the estimate in [-1, 1] (times the scale) as the sampler does.
     """
     out = model(x_t, t)
     x0 = out if prediction == "x0" else schedule.predict_x0(x_t, t, out)
-    return x0.map(lambda p: p.clamp(-1.0, 1.0)) if clip else x0
+    bound = latent_scale(model)
+    return x0.map(lambda p: p.clamp(-bound, bound)) if clip else x0
 
 
 class SampleNoise:
@@ -278,21 +304,19 @@ def sample(
 ) -> Triplane | tuple[Triplane, list[dict]]:
     """Draw ``n`` latents of spatial size ``resolution = (X, Y, Z)`` from noise.
 
-    ``method="ddpm"`` walks all T steps with the posterior mean and variance;
-    ``"ddim"`` (η = 0, deterministic given the start noise) jumps through
-    ``steps`` respaced time steps. The predicted x0 is clipped to [-1, 1] (the
+    ``method="ddpm"`` walks all T steps with the posterior mean and variance; ``"ddim"`` (η = 0, deterministic
+    given the start noise) jumps through ``steps`` respaced time steps. The predicted x0 is clipped to [-1, 1] (the
     latent is a tanh output). Any ``resolution`` works (retargeting).
 
-    Masked generation: with ``known`` (a latent of the same size) and ``mask``
-    (values in [0, 1], 1 = keep ``known``; batch and channels broadcast), after
-    every step ``x_{t-1} ← m·q_sample(known, t-1) + (1-m)·x_{t-1}`` and at the
-    end ``x0 ← m·known + (1-m)·x0``. See :func:`soft_mask`.
+    Masked generation: with ``known`` (a latent of the same size) and ``mask`` (values in [0, 1], 1 = keep
+    ``known``; batch and channels broadcast), after every step ``x_{t-1} ← m·q_sample(known, t-1) + (1-m)·x_{t-1}``
+    and at the end ``x0 ← m·known + (1-m)·x0``. See :func:`soft_mask`.
 
-    The diversity ↔ fidelity knob (SDEdit-style): with ``start`` (a latent of
-    this size, usually the input's) and ``diversity < 1`` the walk begins at
-    step ``t0 = diversity · (T-1)`` (:func:`start_step`) from ``q_sample(start, t0)``, the start latent noised
-    to that step, instead of from pure noise at T-1. Low values keep the input's layout and regenerate only
-    fine detail, 1 is the paper's unconditional sampling; 0 returns ``start`` itself.
+    The diversity ↔ fidelity knob (SDEdit-style): with ``start`` (a latent of this size, usually the input's) and
+    ``diversity < 1`` the walk begins at step ``t0 = diversity · (T-1)`` (:func:`start_step`) from
+    ``q_sample(start, t0)``, the start latent noised to that step, instead of from pure noise at T-1. Low values
+    keep the input's layout and regenerate only fine detail, 1 is the paper's unconditional sampling; 0 returns
+    ``start`` itself.
 
     ``denoised_fn(x0, t)`` (improved-diffusion's hook; None: the paper's sampler) may change each step's
     estimate of the clean latent before the step uses it (and before it is recorded as an intermediate).
@@ -302,11 +326,10 @@ def sample(
     and the settings only: not on the batch it is drawn in, nor on the device (``sample(n=4, seed=0)[2]`` equals
     ``sample(n=1, seed=2)``, up to float rounding). A ``torch.Generator`` draws the whole batch from that one.
 
-    ``return_intermediates``: an int k (k evenly spaced steps, first and last
-    included) or step indices; then returns ``(latents, [{"step", "t", "x_t",
-    "x0"}, ...])`` with CPU tensors, ``x_t`` the input of that step and ``x0``
-    its (clipped) prediction. ``schedule=None`` and ``prediction=None`` take
-    the model's config; ``device=None`` the model's device.
+    ``return_intermediates``: an int k (k evenly spaced steps, first and last included) or step indices; then
+    returns ``(latents, [{"step", "t", "x_t", "x0"}, ...])`` with CPU tensors, ``x_t`` the input of that step and
+    ``x0`` its (clipped) prediction. ``schedule=None`` and ``prediction=None`` take the model's config;
+    ``device=None`` the model's device. Latents go in and out in the encoder's units (:func:`latent_scale`).
     """
     device = torch.device(device) if device is not None else next(model.parameters()).device
     schedule = schedule or NoiseSchedule.from_config(model.cfg)
@@ -320,6 +343,7 @@ def sample(
     ts = sampling_timesteps(schedule, method, steps, t0)
     record, intermediates = _steps_to_record(return_intermediates, len(ts)), []
     known, mask = _known_and_mask(known, mask, device)
+    scale, start, known, denoised_fn = _in_denoiser_units(model, start, known, denoised_fn)
     x = _first_latent(schedule, noise, n, channels, resolution, device, t0, start)
     if known is not None:
         x = _blend(mask, schedule.q_sample(known, ts[0], noise.like(x)), x)
@@ -329,13 +353,35 @@ def sample(
         if denoised_fn is not None:
             x0 = denoised_fn(x0, t)
         if i in record:
-            intermediates.append({"step": i, "t": t, "x_t": x.cpu(), "x0": x0.cpu()})
+            intermediates.append(_recorded(i, t, x, x0, scale))
         t_prev = ts[i + 1] if i + 1 < len(ts) else -1
         x = _step(schedule, method, x, x0, tt, t, t_prev, noise)
         if known is not None:
             keep = schedule.q_sample(known, t_prev, noise.like(x)) if t_prev >= 0 else known
             x = _blend(mask, keep, x)
+    x = _unscaled(x, scale)
     return (x, intermediates) if return_intermediates is not None else x
+
+
+def _recorded(step: int, t: int, x: Triplane, x0: Triplane, scale: float) -> dict:
+    """One intermediate of :func:`sample`: the step's input and its estimate of x0, on the CPU, in the encoder's units."""
+    return {"step": step, "t": t, "x_t": _unscaled(x, scale).cpu(), "x0": _unscaled(x0, scale).cpu()}
+
+
+def _unscaled(x: Triplane, scale: float) -> Triplane:
+    """A latent in the denoiser's units back in the encoder's."""
+    return x if scale == 1 else x.map(lambda p: p / scale)
+
+
+def _in_denoiser_units(model, start: Triplane | None, known: Triplane | None, denoised_fn):
+    """The scale of ``model``'s latent (:func:`latent_scale`), and the start and known latents and ``denoised_fn``
+    (which takes and gives the encoder's units) for a walk in the denoiser's units: what goes in and comes out of
+    :func:`sample` stays in the encoder's."""
+    scale = latent_scale(model)
+    if scale == 1:
+        return scale, start, known, denoised_fn
+    start, known = (None if z is None else z * scale for z in (start, known))
+    return scale, start, known, denoised_fn and (lambda x0, t: denoised_fn(_unscaled(x0, scale), t) * scale)
 
 
 def _batch_of(start: Triplane, n: int, device) -> Triplane:
