@@ -845,3 +845,36 @@ def test_a_choice_of_near_copies_on_the_training_grid_names_the_paper_grid():
     assert paper_grid_hint({**near, "at_choice": {"g_div": 0.2}}) is None  # varied: nothing to say
     assert paper_grid_hint({**near, "resolution": 128}) is None  # judged as the paper measures already
     assert paper_grid_hint(None) is None
+
+
+def test_judged_at_the_papers_grid_the_goals_are_the_near_copys_shares_alone(monkeypatch):
+    """At 128 voxels against the mesh (``detail``, ``fine``, ``calibrate --resolution 128``) a default keeps 85 % of
+    its near copy's LP-F and 65 % of its LP-IoU, however high those are; on a training grid the absolute goals cap
+    them (a 64-voxel near copy keeps almost every patch). The story says which, and what the walk was given."""
+    from types import SimpleNamespace
+
+    from sin3dm_lite.auto import calibration
+    from sin3dm_lite.presets import get_preset
+
+    asked = []
+
+    def fake_walk(sample_fn, reference, progress=True, **options):
+        asked.append(options["goals"])
+        return C.Calibration(diversity=0.5, goals=options["goals"], n=2, resolution=max(reference.shape))
+
+    monkeypatch.setattr(C, "calibrate_diversity", fake_walk)
+    monkeypatch.setattr(C, "model_sampler", lambda model, reference, supersample=1: None)
+    model = SimpleNamespace(config=get_preset("tiny"), report={})
+    calibration.calibrate_model(model, reference=np.zeros((128, 96, 96), bool), progress=False)
+    calibration.calibrate_model(model, reference=np.zeros((64, 48, 48), bool), progress=False)
+    calibration.calibrate_model(model, reference=np.zeros((128, 96, 96), bool), progress=False, goals={"lp_iou": 0.3})
+    assert asked == [calibration.UNCAPPED, C.GOALS, {"lp_iou": 0.3}]
+    assert model.config.sampling.diversity == 0.5
+
+    # the story: a goal that is the near copy's share alone says so, without an absolute it never had
+    near = {"lp_iou": 0.885, "lp_fscore": 0.929, "g_div": 0.004}
+    record = C.Calibration(diversity=0.8, goals=dict(calibration.UNCAPPED), n=4, resolution=128)
+    C._set_ceiling(record, dict(near), dict(C.RELATIVE), progress=False)
+    assert record.goals == {"lp_iou": round(0.65 * 0.885, 4), "lp_fscore": round(0.85 * 0.929, 4)}
+    story = record.story()
+    assert "goal 0.79 (85% of the near copy)" in story and "out of its reach" not in story

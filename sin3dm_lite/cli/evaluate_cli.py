@@ -193,10 +193,9 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     import json
 
     from ..app.checkpoints import write_model
-    from ..auto.calibration import judged_at
+    from ..auto.calibration import default_goals, judged_at
     from ..data.grid import load_grid
     from ..data.source import resolve_mesh
-    from ..evaluate.calibrate import GOALS
     from ..evaluate.evaluation import voxels_said
     from ..pipeline import Sin3DM
 
@@ -210,9 +209,10 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     on_grid = resolution in (None, model.grid_resolution) and a.input is None and (run / "grid.npz").is_file()
     on_grid = on_grid and a.voxels != "paper"  # the training grid holds the voxel centres' signs
     reference = load_grid(run / "grid.npz").sdf < 0 if on_grid else None
+    default = default_goals(model.grid_resolution if on_grid else resolution or model.grid_resolution)
     goals = {
-        "lp_iou": GOALS["lp_iou"] if a.lp_iou is None else a.lp_iou,
-        "lp_fscore": GOALS["lp_fscore"] if a.lp_f is None else a.lp_f,
+        "lp_iou": default["lp_iou"] if a.lp_iou is None else a.lp_iou,
+        "lp_fscore": default["lp_fscore"] if a.lp_f is None else a.lp_f,
     }
     before = model.config.sampling.diversity
     t0 = time.perf_counter()

@@ -283,7 +283,8 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
     )
     for flag, name, goal, share in (("--lp-iou", "LP-IoU", "0.55", "65"), ("--lp-f", "LP-F", "0.70", "85")):
         keep = (
-            f"{name} the samples must keep, at most (default: {goal}, lowered to {share}%% of what a near copy keeps)"
+            f"{name} the samples must keep, at most (default: {share}%% of what a near copy keeps, at most {goal} on a "
+            "training grid; at 128 voxels the share alone)"
         )
         c.add_argument(flag, type=unit_score, default=None, help=keep)
     c.add_argument(

@@ -11,7 +11,8 @@ fit's grid, no meshes) and scores what it returns against the input with the pap
 **The rule** (docs/calibration.md):
 
 1. the shape's own **near copy** (diversity :data:`NEAR_COPY`) is scored first: what this fit keeps of the input
-   at this grid at all. The goals are relative to it (:data:`RELATIVE`), capped by the absolute :data:`GOALS`:
+   at this grid at all. The goals are relative to it (:data:`RELATIVE`), capped by the absolute :data:`GOALS` (on a
+   training grid; judged at the paper's 128 voxels the fit asks for the shares alone, ``auto.calibration``):
    **LP-F ≥ 85 %** of the near copy's, the goal that decides, and **LP-IoU ≥ 65 %**, a softer floor (its 5-voxel
    lattice loses the patch of a wall moved by less than a voxel: only copies keep 85 % of it);
 2. a ladder from 1 (pure noise, the paper's sampling) down in steps of 0.1, a few samples per setting with seeds
@@ -251,7 +252,8 @@ def _set_ceiling(result: Calibration, near: dict, shares: dict, progress: bool) 
         print(
             f"[calibrate] near copy (diversity {NEAR_COPY:g}): "
             + "; ".join(
-                f"{SCORE_NAMES[k]} {near[k]:.3f}, goal {result.goals[k]:.3f} ({shares[k]:.0%}, at most {v:.2f})"
+                f"{SCORE_NAMES[k]} {near[k]:.3f}, goal {result.goals[k]:.3f} ({shares[k]:.0%}"
+                + (f", at most {v:.2f})" if v < 1 else ")")
                 for k, v in absolute.items()
             )
             + f"; G-Div {near.get('g_div', np.nan):.3f}: samples under G-Div {result.copy_line:.3f} are copies",

@@ -102,6 +102,8 @@ class Calibration:
                 why = f"the absolute goal: a near copy of LP-F below {MIN_CEILING:g} sets no ceiling"
             elif goal >= absolute:
                 why = f"the absolute goal; {share:.0%} of the near copy is above it"
+            elif absolute >= 1:  # no cap (judged at the paper's grid: auto.calibration.default_goals)
+                why = f"{share:.0%} of the near copy"
             else:
                 why = f"{share:.0%} of the near copy; the absolute {absolute:.2f} is out of its reach"
             there = f", smoothed {at[key]:.2f} there" if key in at else ""
