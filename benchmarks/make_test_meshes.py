@@ -20,6 +20,8 @@ with fast bf16 and on one without.
   the stepped top, a door and two windows (a second thin-walled shape, of another plan).
 * ``tower.stl``  — geometry only, another round ruin whose walls go from 3 to 6 voxels thick and back twice
   around (``build_ruin(7, wall_voxels=(3, 6))``): the kind of real tower the default is judged on.
+* ``plain_tower.stl`` — the same kind without windows, a door only (``build_ruin(11, wall_voxels=(3, 6),
+  windows=False)``): plainer walls, where the default lands on the edge of the goals (docs/lab-notes.md).
 """
 
 from __future__ import annotations
@@ -171,7 +173,10 @@ def main() -> None:
     save_obj(build_ruin(0, square=True), out / "keep.obj")
     tower = build_ruin(7, wall_voxels=(3, 6))
     trimesh.Trimesh(tower.vertices, tower.faces, process=False).export(out / "tower.stl")
-    print(f"wrote {out / 'rocks.stl'}, {tiles(out)}, {out / 'dunes.ply'}, ruin.obj, keep.obj and tower.stl to {out}")
+    plain = build_ruin(11, wall_voxels=(3, 6), windows=False)
+    trimesh.Trimesh(plain.vertices, plain.faces, process=False).export(out / "plain_tower.stl")
+    made = f"{out / 'rocks.stl'}, {tiles(out)}, {out / 'dunes.ply'}, ruin.obj, keep.obj, tower.stl and plain_tower.stl"
+    print(f"wrote {made} to {out}")
     if "--sweep" in sys.argv[1:]:
         sweep(out)
 

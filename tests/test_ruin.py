@@ -125,3 +125,20 @@ def test_an_uneven_wall_is_thickest_and_thinnest_where_it_says():
 def test_bad_sizes_are_named(kw, match):
     with pytest.raises(Sin3DMInputError, match=match):
         build_ruin(**kw)
+
+
+def test_without_windows_the_same_ruin_has_only_its_door():
+    """``windows=False``: the same top and door (the same draws of the seed), the wall closed where the windows
+    were: more solid, and every voxel the windowed ruin fills filled too."""
+
+    def solid(mesh):
+        g = mesh_to_grid(
+            mesh, resolution=TINY.resolution, margin_voxels=TINY.margin_voxels, n_surface_points=1000, progress=False
+        )
+        return g.sdf < 0
+
+    with_windows, plain = (build_ruin(0, resolution=TINY.resolution, windows=w) for w in (True, False))
+    a, b = solid(with_windows), solid(plain)
+    assert (b & ~a).sum() >= 4 and not (a & ~b).any()  # the windows closed, nothing else moved
+    door = solid(build_ruin(0, resolution=TINY.resolution, windows=False, flat=True))
+    assert door.sum() > b.sum()  # its top still broken (a flat one is fuller): the same plan but the windows

@@ -48,6 +48,7 @@ def ruin_tower(
     wall_voxels: float | tuple[float, float] = 2.5,
     square: bool = False,
     flat: bool = False,
+    windows: bool = True,
 ) -> TexturedMesh:
     """The ruin, z-up, for a training grid of ``resolution`` voxels along its longest side (its height).
 
@@ -55,7 +56,8 @@ def ruin_tower(
     with it the windows' places (on the high side), and the stones' colours; the door faces -x.
     ``square``: a square keep instead of a round tower (straight walls along x and y, the same broken
     top by angle, the windows on the +x and +y faces): a second thin-walled shape of another plan.
-    ``flat``: a whole tower, its top level all round (no broken steps).
+    ``flat``: a whole tower, its top level all round (no broken steps). ``windows=False``: the door only, the same
+    top (plainer walls; docs/lab-notes.md measures a fit of one).
     """
     if not 16 <= resolution <= 512:
         raise Sin3DMInputError(f"resolution must be from 16 to 512 voxels, got {resolution!r}")
@@ -65,6 +67,7 @@ def ruin_tower(
             f"wall_voxels must be from 1 to 8, or a pair (thinnest, thickest) of such, got {wall_voxels!r}"
         )
     plan = _plan(rng, resolution, wall_voxels, square, flat)
+    plan["windows"] = plan["windows"] if windows else []
     vertices, faces = _surface(plan)
     colors = _colors(rng, vertices, plan)
     return TexturedMesh(
@@ -83,9 +86,10 @@ def build_ruin(
     wall_voxels: float | tuple[float, float] = 2.5,
     square: bool = False,
     flat: bool = False,
+    windows: bool = True,
 ) -> TexturedMesh:
     """:func:`ruin_tower` for ``seed``, turned y-up like the built-in examples (same seed, same mesh)."""
-    mesh = ruin_tower(np.random.default_rng(seed), resolution, wall_voxels, square, flat)
+    mesh = ruin_tower(np.random.default_rng(seed), resolution, wall_voxels, square, flat, windows)
     mesh.vertices = np.stack([mesh.vertices[:, 0], mesh.vertices[:, 2], -mesh.vertices[:, 1]], axis=1)
     return mesh
 
