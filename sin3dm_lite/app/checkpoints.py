@@ -124,9 +124,6 @@ def check_trainer_state(path: Path, label: str, cfg, state: dict) -> None:
     stored, now = state.get("config"), asdict(cfg)
     if not isinstance(stored, dict):
         raise not_ours(path, label, "it records no settings")
-    found = stored.get("latent_scale")
-    if now.get("latent_scale") == 0 and isinstance(found, float) and found > 0:  # "unit": the number the fit found
-        now["latent_scale"] = found
     differ = [k for k in now if k in stored and k not in ("precision", "compile") and stored[k] != now[k]]
     if differ:
         shown = "; ".join(f"{label}.{k} {stored[k]!r} there, {now[k]!r} in config.json" for k in differ[:3])

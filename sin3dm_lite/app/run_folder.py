@@ -25,6 +25,7 @@ The torch files in it are read and written by :mod:`sin3dm_lite.app.checkpoints`
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 from ..auto.fit_policy import check_flips
@@ -196,6 +197,16 @@ def trained_settings(cfg: Config) -> dict:
     return {k: v for k, v in cfg.settings().items() if k.startswith(TRAINED)}
 
 
+def _as_trained(section, state: dict):
+    """A config section as its checkpoint ``state`` can be compared with before the latent exists: a diffusion
+    asked to scale its latent to unit variance (``latent_scale`` 0) records the number it found, which the trainer
+    finds again from the same latent and compares when it loads the checkpoint (``checkpoints.resume_trainer``)."""
+    found = (state.get("config") or {}).get("latent_scale") if isinstance(state.get("config"), dict) else None
+    if getattr(section, "latent_scale", None) == 0 and isinstance(found, float) and found > 0:
+        return replace(section, latent_scale=found)
+    return section
+
+
 def check_config_matches_run(run: Path, cfg: Config) -> None:
     """Refuse to resume ``run`` when its config.json ``cfg`` is not what the fit recorded (input.json), not what its trainer checkpoints were trained with, or does not match its grid.npz: the
     grid and checkpoints would be trained on with settings they were not made with."""
@@ -213,9 +224,8 @@ def check_config_matches_run(run: Path, cfg: Config) -> None:
             )
     for kind in ("autoencoder", "diffusion"):  # checked now, before the autoencoder stage trains on or writes
         if (run / f"{kind}.pt").exists():
-            check_trainer_state(
-                run / f"{kind}.pt", kind, getattr(cfg, kind), load_trainer_checkpoint(run / f"{kind}.pt", kind)
-            )
+            state = load_trainer_checkpoint(run / f"{kind}.pt", kind)
+            check_trainer_state(run / f"{kind}.pt", kind, _as_trained(getattr(cfg, kind), state), state)
     grid = run / "grid.npz"
     if grid.is_file():
         from ..data.box import grid_shape

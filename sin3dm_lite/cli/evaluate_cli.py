@@ -209,7 +209,7 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
     on_grid = resolution in (None, model.grid_resolution) and a.input is None and (run / "grid.npz").is_file()
     on_grid = on_grid and a.voxels != "paper"  # the training grid holds the voxel centres' signs
     reference = load_grid(run / "grid.npz").sdf < 0 if on_grid else None
-    default = default_goals(model.grid_resolution if on_grid else resolution or model.grid_resolution)
+    default = default_goals(resolution or model.grid_resolution)
     goals = {
         "lp_iou": default["lp_iou"] if a.lp_iou is None else a.lp_iou,
         "lp_fscore": default["lp_fscore"] if a.lp_f is None else a.lp_f,

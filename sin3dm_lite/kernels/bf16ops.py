@@ -43,11 +43,8 @@ def mlp_bf16_ok(x: torch.Tensor, module: nn.Module) -> bool:
         and all(p.dtype == torch.float32 for p in module.parameters())
     ):
         return False
-    return _wants_grad(x, module) or x.dim() == 2 or x.is_contiguous() or (x.dim() == 3 and x.shape[0] == 1)
-
-
-def _wants_grad(x: torch.Tensor, module: nn.Module) -> bool:
-    return torch.is_grad_enabled() and (x.requires_grad or any(p.requires_grad for p in module.parameters()))
+    laid_out = x.dim() == 2 or x.is_contiguous() or (x.dim() == 3 and x.shape[0] == 1)
+    return laid_out or pointops.wants_grad(x, module.parameters())
 
 
 def skip_mlp_bf16(x: torch.Tensor, a: nn.Sequential, b: nn.Sequential, out: nn.Linear) -> torch.Tensor:
@@ -57,7 +54,7 @@ def skip_mlp_bf16(x: torch.Tensor, a: nn.Sequential, b: nn.Sequential, out: nn.L
     params = [t for lin in layers for t in (lin.weight, lin.bias)]
     flat = x.reshape(-1, x.shape[-1])
     with torch.autocast("cpu", enabled=False):
-        if torch.is_grad_enabled() and (x.requires_grad or any(p.requires_grad for p in params)):
+        if pointops.wants_grad(x, params):
             y = _SkipMLPBf16.apply(flat, *params)
         else:
             y = _decode(flat, [t.detach() for t in params], fused_first=x.dim() == 2 or x.is_contiguous())

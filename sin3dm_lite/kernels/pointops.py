@@ -29,6 +29,11 @@ ENABLED = True
 CHUNK = 1024
 
 
+def wants_grad(x: torch.Tensor, params) -> bool:
+    """Whether a call on ``x`` with ``params`` builds a graph: gradients on, and the input or a parameter wants one."""
+    return torch.is_grad_enabled() and (x.requires_grad or any(p.requires_grad for p in params))
+
+
 def mlp_fast_ok(x: torch.Tensor, module: nn.Module) -> bool:
     """Whether the chunked path applies to ``module`` on ``x``: fp32 input and parameters on the CPU, no
     autocast."""
@@ -73,7 +78,7 @@ def skip_mlp(
     layers = _layers(a, b, out)
     params = [t for lin in layers for t in (lin.weight, lin.bias)]
     flat = x.reshape(-1, x.shape[-1]).contiguous()
-    if torch.is_grad_enabled() and (x.requires_grad or any(p.requires_grad for p in params)):
+    if wants_grad(x, params):
         y = _SkipMLPFunction.apply(flat, workspace, *params)
     else:
         y = _forward(flat, [t.detach() for t in params], None)[0]

@@ -143,7 +143,8 @@ class DiffusionTrainer(Trainer):
         if cfg.latent_scale == 0:  # unit variance: the number found here is what the config records
             cfg = dataclasses.replace(cfg, latent_scale=unit_scale(h0))
         super().__init__(cfg, device, seed)
-        self.h0 = h0.detach().to(self.device, torch.float32).clone()
+        self.h0 = h0.detach().to(self.device, torch.float32).clone()  # what the checkpoint keeps
+        self.target = self.h0 if cfg.latent_scale == 1 else self.h0 * cfg.latent_scale  # what the denoiser learns
         self.schedule = NoiseSchedule.from_config(cfg)
         self.model = self.init_model(lambda: TriplaneUNet(h0.channels, cfg))
         self.ema = copy.deepcopy(self.model).requires_grad_(False).eval() if cfg.ema_decay > 0 else None
@@ -163,9 +164,7 @@ class DiffusionTrainer(Trainer):
     def losses(self) -> dict[str, torch.Tensor]:
         """The denoising loss on a batch of noised copies (or crops) of ``h0``."""
         b, g = self.cfg.batch_size, self.generator
-        x0 = self.h0.repeat(b) if self.cfg.crop <= 0 else random_crops(self.h0, b, self.cfg.crop, g)  # [B, C, ., .]
-        if self.cfg.latent_scale != 1:
-            x0 = x0.map(lambda p: p * self.cfg.latent_scale)
+        x0 = self.target.repeat(b) if self.cfg.crop <= 0 else random_crops(self.target, b, self.cfg.crop, g)
         if self.cfg.flips:
             x0 = random_flips(x0, self.cfg.flips, g)
         t = torch.randint(0, self.schedule.timesteps, (b,), generator=g, device=self.device)
