@@ -33,7 +33,11 @@ def reloaded(sd: dict) -> dict:
 @pytest.mark.parametrize("kind", ["autoencoder", "diffusion"])
 def test_a_cpu_trainer_takes_the_fused_adamw_step_which_is_adamw(kind, box_grid, h0, monkeypatch):
     """On a CPU the trainers use PyTorch's fused AdamW (one pass over all parameters) where the installed PyTorch
-    has it; its step is AdamW's: the same weights after a few steps as the per-tensor loop, to rounding."""
+    has it; its step is AdamW's: the same weights after a few steps as the per-tensor loop, to rounding.
+
+    A bias just before a normalisation (the encoder's, a plane block's first convolution) has no gradient but
+    rounding's (about 1e-10): Adam divides it by its own size and moves the bias about ±lr on the noise's sign, so
+    two implementations agree there only in how far it moved (on an AVX2 CPU 1.2e-4 after 3 steps)."""
     fused = make(kind, box_grid, h0)
     assert fused.optimizer.defaults["fused"] is (True if FUSED_CPU_ADAMW else None)
     monkeypatch.setattr(training, "FUSED_CPU_ADAMW", False)
@@ -41,8 +45,12 @@ def test_a_cpu_trainer_takes_the_fused_adamw_step_which_is_adamw(kind, box_grid,
     assert plain.optimizer.defaults["fused"] is None
     for tr in (fused, plain):
         tr.run(until_step=3, progress=False)
-    for a, b in zip(fused.model.parameters(), plain.model.parameters()):  # a step moves a weight by about lr (1e-3)
-        torch.testing.assert_close(a, b, atol=1e-4, rtol=1e-3)
+    lr = max(g["initial_lr"] for g in plain.optimizer.param_groups)
+    for a, b in zip(fused.model.parameters(), plain.model.parameters()):
+        if b.grad is not None and b.grad.abs().max() < 1e-8:  # rounding's gradient: at most lr a step either way
+            assert (a - b).abs().max() <= 2 * 3 * lr
+        else:  # a step moves a weight by about lr (1e-3): the two agree far closer
+            torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-3)
 
 
 @pytest.mark.parametrize("kind", ["autoencoder", "diffusion"])
