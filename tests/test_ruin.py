@@ -140,5 +140,5 @@ def test_without_windows_the_same_ruin_has_only_its_door():
     with_windows, plain = (build_ruin(0, resolution=TINY.resolution, windows=w) for w in (True, False))
     a, b = solid(with_windows), solid(plain)
     assert (b & ~a).sum() >= 4 and not (a & ~b).any()  # the windows closed, nothing else moved
-    door = solid(build_ruin(0, resolution=TINY.resolution, windows=False, flat=True))
-    assert door.sum() > b.sum()  # its top still broken (a flat one is fuller): the same plan but the windows
+    flat = solid(build_ruin(0, resolution=TINY.resolution, windows=False, flat=True))
+    assert flat.sum() > b.sum()  # its top still broken (a flat one is fuller): the same plan but the windows

@@ -201,7 +201,8 @@ def _as_trained(section, state: dict):
     """A config section as its checkpoint ``state`` can be compared with before the latent exists: a diffusion
     asked to scale its latent to unit variance (``latent_scale`` 0) records the number it found, which the trainer
     finds again from the same latent and compares when it loads the checkpoint (``checkpoints.resume_trainer``)."""
-    found = (state.get("config") or {}).get("latent_scale") if isinstance(state.get("config"), dict) else None
+    stored = state.get("config")
+    found = stored.get("latent_scale") if isinstance(stored, dict) else None
     if getattr(section, "latent_scale", None) == 0 and isinstance(found, float) and found > 0:
         return replace(section, latent_scale=found)
     return section
