@@ -1,19 +1,14 @@
-"""Box and grid geometry, shared by every stage: one place for sizes, cell centres and coordinates.
+"""Box and grid geometry, shared by every stage: sizes, cell centres and coordinates.
 
-Three frames appear in the package:
-
-* *original* coordinates: the input mesh as loaded;
-* *normalised* coordinates (``mesh.Normalization``): the mesh centred and
-  scaled so that its longest side spans about [-1, 1];
-* *box* coordinates: an axis-aligned box ``aabb = (xmin, ymin, zmin, xmax,
-  ymax, zmax)`` in normalised coordinates mapped to [-1, 1]^3. Triplane
-  lookups take box coordinates.
+Three frames appear in the package: *original* coordinates (the input mesh as
+loaded); *normalised* coordinates (``mesh.Normalization``: centred, the longest
+side spanning about [-1, 1]); *box* coordinates, an axis-aligned box
+``aabb = (xmin, ymin, zmin, xmax, ymax, zmax)`` in normalised coordinates mapped
+to [-1, 1]^3 (what triplane lookups take).
 
 A grid over a box is **cell-centred**: voxel ``k`` of an axis with ``n``
-voxels has its centre at ``lo + (k + 0.5) / n * (hi - lo)``, i.e. at box
-coordinate ``-1 + (2k + 1) / n``. The voxel counts come from a resolution by
-one rule (:func:`grid_shape`): the longest side gets the resolution, the
-others their share of it, rounded down as the original implementation does.
+voxels sits at box coordinate ``-1 + (2k + 1) / n``. The voxel counts come
+from a resolution by one rule (:func:`grid_shape`).
 """
 
 from __future__ import annotations
@@ -38,10 +33,10 @@ def _round_up(n: float, multiple: int) -> int:
 def grid_shape(extent, resolution: int, multiple: int = 1, margin_voxels: float = 0.0) -> tuple[int, int, int]:
     """Voxels per axis for a box of side lengths ``extent`` (or an ``aabb`` of 6 numbers).
 
-    The one rule: the longest axis gets ``resolution`` voxels, every other
-    axis ``int(resolution · extent / longest extent)``, its share rounded
-    down (the original code's rule; a share within 1e-3 of a whole number
-    counts as that number). Then, for the training grid:
+    The longest axis gets ``resolution`` voxels, every other axis its share
+    ``int(resolution · extent / longest extent)``, rounded down as the original
+    code does (a share within 1e-3 of a whole number counts as that number).
+    Then, for the training grid:
 
     * ``margin_voxels`` > 0: the shorter axes are measured against the box's
       2 units instead (the shape was shrunk to leave the margin, see

@@ -51,8 +51,7 @@ class AutoencoderConfig:
     far_weight: float = 0.5  # ... and where it points away from it
     precision: str = "auto"  # "bf16" (mixed precision), "fp32", or "auto": bf16 where it measures faster
     pbr: bool = False  # PBR variant: 8 texture channels in, two more decoder heads (metallic-roughness, normal)
-    # decoder convolutions symmetric along x and z, so a latent flipped along x or z decodes to the mirrored shape
-    # exactly (what lets the denoiser learn from mirrored copies of the latent: diffusion.flips)
+    # decoder convolutions symmetric along x and z: a latent flipped along x or z decodes to the mirrored shape
     mirror: bool = False
 
     @property
@@ -78,11 +77,11 @@ class DiffusionConfig:
     lr: float = 5e-4
     ema_decay: float = 0.9999  # use ~0.999 or 0 (raw weights) for short runs
     # mirror each training copy of the latent along these axes at random ("x", "z" or "xz"; y is up and never
-    # flipped): four times the patches to learn from; needs autoencoder.mirror, or a flipped latent decodes to garbage
+    # flipped); needs autoencoder.mirror, or a flipped latent decodes to garbage
     flips: str = ""
     crop: int = 0  # train on random crops of this many latent texels per axis (0: the whole latent, the paper)
-    # the latent is multiplied by this for the diffusion and divided after sampling (1: as it is, the paper; 0: to
-    # unit variance, the number found at the fit and recorded in its config: latent diffusion's scale factor)
+    # latent diffusion's scale factor: the latent is multiplied by it for the diffusion and divided after sampling
+    # (1: as it is, the paper; 0: to unit variance, the factor found at the fit recorded in its config)
     latent_scale: float = 1.0
     precision: str = "fp32"  # the training forward: "fp32", "bf16" (autocast) or "auto" (bf16 where it measures faster)
     compile: bool = False  # torch.compile the denoiser's training forward: minutes to compile, so for long fits
@@ -94,9 +93,7 @@ class SamplingConfig:
 
     method: str = "ddim"  # "ddim" or "ddpm"
     steps: int = 50  # DDIM steps (DDPM always uses all timesteps)
-    diversity: float = (
-        1.0  # 1 = from pure noise (the paper); lower starts from the input's latent, noised (closer copies)
-    )
+    diversity: float = 1.0  # 1: from pure noise (the paper); lower: from the input's latent, noised (closer copies)
     mesh_resolution: int = 256  # decode grid along the longest side
     faces: int = 30_000  # face budget after simplification
     texture_size: int = 2048
@@ -155,8 +152,7 @@ class Config:
 
 
 # --------------------------------------------------------------------------- what each setting may be
-#: every setting's allowed values, checked in one place (:func:`check_setting`) whenever a :class:`Config` is made,
-#: changed (``updated``, ``--set``) or fitted: ``(low, high)`` for a number (both ends allowed; ``None``: no end),
+#: every setting's allowed values (:func:`check_setting`): ``(low, high)`` for a number (both ends allowed),
 #: a list for a choice, ``bool``, ``str`` or ``dict`` for the rest
 LIMITS: dict[str, Any] = {
     "name": str,
@@ -328,8 +324,8 @@ def _check_type(key: str, old: Any, value: Any) -> None:
 def parse_settings(items) -> dict:
     """``["diffusion.rollout=true", "diffusion.steps=1500"]`` → ``{"diffusion.rollout": True, "diffusion.steps": 1500}``.
 
-    What ``sin3dm-lite fit --set`` and the benchmarks take: ``true`` / ``false`` in any case, numbers, and
-    anything else as a string; :meth:`Config.updated` then checks the names and kinds.
+    ``true`` / ``false`` in any case, numbers, anything else as a string (what ``--set`` takes);
+    :meth:`Config.updated` then checks the names and kinds.
     """
     changes = {}
     for item in items:

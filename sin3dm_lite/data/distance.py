@@ -3,12 +3,9 @@
 :class:`Distance` answers them for one mesh: exact unsigned point-to-triangle
 distances (with the closest face and its barycentrics, where the grid reads
 the surface colour) and the generalised winding number, which tells inside
-from outside even for open or multi-part meshes. Real meshes are often wound
-badly, which the winding number reads as holes: the faces are first made to
-agree with their neighbours, and parts that are inside out are turned round
-(:func:`_orient_outward`).
-The metrics ask it of the input mesh at every sub-voxel of an open mesh
-(:func:`sin3dm_lite.evaluate.geometry.input_occupancy`).
+from outside even for open or multi-part meshes. Badly wound faces read as
+holes to the winding number, so they are first made to agree with their
+neighbours, and inside-out parts are turned round (:func:`_orient_outward`).
 """
 
 from __future__ import annotations
@@ -30,14 +27,10 @@ class Turned(NamedTuple):
 
 
 class Distance:
-    """Truncated signed distance to a mesh, computed only where it matters.
+    """Exact unsigned distance to a mesh and its inside / outside.
 
-    Exact point-to-triangle distances are the expensive part, and far from the
-    surface the TSDF is just ``±threshold``. The sign comes from
-    point-cloud-utils' fast winding number (inside where it exceeds ½), which
-    is robust for open or multi-part meshes, where "make it watertight" tricks
-    fail. (pcu's ``signed_distance_to_mesh`` is not used: its distances are
-    approximate, and far off on open meshes.)
+    The sign comes from point-cloud-utils' fast winding number (inside where it
+    exceeds ½), which is robust for open or multi-part meshes.
     """
 
     def __init__(self, mesh: TexturedMesh, chunk: int = 1 << 20):
@@ -71,19 +64,16 @@ class Distance:
 def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
     """Wind every face the way its neighbours are wound, then turn the parts that are inside out.
 
-    The winding number is +1 inside a surface whose faces wind counter-clockwise seen from outside (outward
-    normals) and -1 inside one wound the other way: a face wound against its neighbours punches a hole into the
-    inside, and an inside-out part has no inside at all. So, on the vertices joined by position (a UV seam splits
-    none):
+    The winding number is +1 inside a surface whose faces wind counter-clockwise seen from outside and -1 inside
+    one wound the other way: a face wound against its neighbours punches a hole into the inside, and an inside-out
+    part has no inside at all. So, on the vertices joined by position (a UV seam splits none):
 
     1. every face is wound as its neighbours across each edge that two faces share (:func:`_agreeing_winding`);
     2. a *closed* part (every edge used as often in one direction as in the other) that encloses a negative
-       volume is turned round; so is an *open* part (a hole, an open floor) whose faces mostly have the outside
-       behind them (:func:`_inside_out`). On a closed mesh the winding number is then a whole number that
-       changes only across the surface.
+       volume is turned round; so is an *open* part whose faces mostly have the outside behind them
+       (:func:`_inside_out`).
 
-    Returns ``(faces, closed, turned)``: the faces, whether the whole mesh is closed, and what was turned
-    (:class:`Turned`).
+    Returns ``(faces, closed, turned)``: the faces, whether the whole mesh is closed, and :class:`Turned`.
     """
     _, weld = unique_rows(vertices)  # vertices split at UV seams are one point here
     against = _agreeing_winding(weld[faces])

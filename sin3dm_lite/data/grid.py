@@ -120,10 +120,8 @@ class ShapeGrid:
         """Share of the solid (voxels with SDF < 0) in parts thinner than the ball of ``radius`` voxels.
 
         A morphological opening with a ball (the voxel offsets within ``radius`` of its centre) keeps every part the
-        ball fits into and removes the rest: columns, slats, small boxes, thin walls. A whole radius leaves the ball
-        thinner between the axes than along them (radius 3 lacks the (3,1,0) and (2,2,2) offsets that 3.5 has). The
-        latent has half the grid's resolution, so a part 5 voxels thick is drawn from about two texels. What a fit
-        makes of it: :mod:`sin3dm_lite.auto.fit_default`.
+        ball fits into and removes the rest: columns, slats, small boxes, thin walls. The latent has half the grid's
+        resolution, so a part 5 voxels thick is drawn from about two texels.
         """
         from scipy import ndimage
 
@@ -215,31 +213,22 @@ def mesh_to_grid(
        ``resolution`` voxels along the longest side, the other axes rounded up
        to multiples of 8, a symmetric box ``±n_axis / n_max``. With
        ``margin_voxels`` the shape keeps at least that many voxels of empty
-       space to every face of the box (it is scaled down a little along the
-       longest axis if 1.03 does not leave enough; the other axes get more
-       voxels). At 256 voxels the paper's 1.03 leaves ~4 voxels on the longest
-       axis; at 64 only one, and then the surfaces next to the box faces sit
-       in the latent's outermost texel, where the triplane lookup is clamped:
-       the autoencoder misplaces them by half a voxel (see :func:`margin_scale`).
+       space to every face of the box (scaled down a little if 1.03 does not
+       leave enough, see :func:`margin_scale`): surfaces in the latent's
+       outermost texel, where the triplane lookup is clamped, are misplaced.
     2. Signed distance at every cell-centred voxel, truncated at
-       ``threshold_voxels`` voxels. Exact distances are computed only where
-       the band may be (coarse-to-fine blocks, see :func:`~sin3dm_lite.data.tsdf.tsdf_grid`); the
-       sign is the fast winding number's, so open meshes work too.
+       ``threshold_voxels`` voxels: exact distances only where the band may be
+       (:func:`~sin3dm_lite.data.tsdf.tsdf_grid`), the sign from the fast
+       winding number, so open meshes work too.
     3. RGB at every voxel within the band from the closest point on the
        original surface (texture lookup with bilinear filtering).
     4. Training points: surface samples plus Gaussian noise (σ =
-       ``near_surface_sigma``), with their exact truncated SDF and colour
-       (most signs from the voxels around each point, see
-       :func:`~sin3dm_lite.data.tsdf.signs_from_grid`; the rest from their own winding number).
+       ``near_surface_sigma``), with their exact truncated SDF and colour.
 
     ``pbr`` (``None``: whenever the mesh has a metallic-roughness or normal
-    map) stores the 8 :data:`PBR_CHANNELS` instead of RGB: metallic and
-    roughness as glTF defines them (factor × map), and the normal in world
-    (normalised-frame) coordinates: the normal map's tangent-space vector
-    turned by the closest face's tangent frame (``mesh.tangent_frames``:
-    T, B along the UV directions, N the face normal), or the face normal
-    itself where there is no normal map. ``pbr=True`` on a mesh without maps
-    stores its constant factors and its geometric normals.
+    map) stores the 8 :data:`PBR_CHANNELS` instead of RGB (``TexturedMesh.pbr_at``:
+    glTF's metallic and roughness, the world-space normal); ``pbr=True`` on a
+    mesh without maps stores its constant factors and its geometric normals.
     """
     check_resolution(resolution)
     say = print if progress else (lambda *a, **k: None)
@@ -294,8 +283,7 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
 
 
 def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance) -> list[str]:
-    """The warnings a grid comes with: faces wound anew and inside-out parts turned round, then
-    :func:`normalisation_notes`."""
+    """The warnings a grid comes with: faces wound anew, inside-out parts turned round, :func:`normalisation_notes`."""
     notes, turned = [], dist.turned_round
     if turned.faces:
         notes.append(
@@ -319,10 +307,7 @@ def _training_points(
     dist: Distance, m: TexturedMesh, grid: ShapeGrid, sure_and_vs: tuple, n: int, sigma: float, seed: int, pbr: bool
 ):
     """``n`` points near the surface (surface samples plus Gaussian noise of ``sigma``, clipped to the box) with
-    their exact truncated SDF and colour: ``(points, sdf, colour)``.
-
-    ``sure_and_vs``: where the grid's signs are sure (:func:`~sin3dm_lite.data.tsdf.tsdf_grid`) and the voxel size it was built with.
-    """
+    their exact truncated SDF and colour: ``(points, sdf, colour)``; ``sure_and_vs`` from :func:`tsdf_grid`."""
     rng = np.random.default_rng(seed)
     sure, vs = sure_and_vs
     aabb = grid.aabb
@@ -358,9 +343,8 @@ def save_grid(grid: ShapeGrid, path: str | Path) -> Path:
 
 
 def load_grid(path: str | Path, fix: str | None = None) -> ShapeGrid:
-    """Read a grid written by :func:`save_grid`: the sizes its arrays declare checked before any is read (a crafted
-    header could ask for any amount of memory), their shapes and values after (one line naming the file and, with
-    ``fix``, what to do; by default: write it again with ``sin3dm-lite grid``)."""
+    """Read a grid written by :func:`save_grid`, its declared sizes checked before any array is read and its shapes
+    and values after (a bad file: one line naming it and ``fix``, what to do)."""
     from ..files.inputs import check_regular
 
     path = Path(path)

@@ -1,26 +1,15 @@
 """The textured mesh every stage shares, and what can be asked of its surface.
 
-Sin3DM learns from *one* textured shape. Whatever the file format (the
-readers are in :mod:`sin3dm_lite.formats`, their entry points in
-:mod:`sin3dm_lite.formats.load`), it becomes a :class:`TexturedMesh`: triangle
+Sin3DM learns from *one* textured shape. Whatever the file format
+(:mod:`sin3dm_lite.formats`), it becomes a :class:`TexturedMesh`: triangle
 geometry plus everything needed to ask "what colour is the surface at this
 point?" (per-face UVs into one or more material textures, vertex colours, or a
-plain material colour). Keeping the materials separate (instead of packing
-them into one atlas) means a multi-material OBJ or a glTF scene loses nothing.
+plain material colour), the materials kept separate so nothing is lost.
 
-The paper normalises every input the same way (docs/paper-notes.md, "Input grid"):
-centre the bounding box, scale so that the longest side times 1.03 spans
-[-1, 1]. :class:`Normalization` keeps that transform so generated shapes can
-be mapped back into the input's own coordinates.
-
-Public API::
-
-    TexturedMesh, Material, Normalization     # the mesh, its materials, the normalisation
-    mesh.colors_at(face_index, barycentric)   # surface RGB; mesh.pbr_at: metallic, roughness, normal
-    tangent_frames(vertices, faces, face_uvs) # per-face (T, B, N) for tangent-space normal maps
-    sample_texture(image, uv)                 # bilinear, wrap-around texture lookup
-    face_areas(vertices, faces), component_labels(n_verts, faces)
-    unique_rows(array)                        # distinct rows in first-occurrence order (welding)
+The paper normalises every input the same way: centre the bounding box, scale
+so that the longest side times 1.03 spans [-1, 1]. :class:`Normalization`
+keeps that transform so generated shapes can be mapped back into the input's
+own coordinates.
 """
 
 from __future__ import annotations
@@ -131,13 +120,8 @@ class TexturedMesh:
         )
 
     def _material_groups(self, face_index: np.ndarray, barycentric: np.ndarray):
-        """The surface points grouped by material, what :meth:`colors_at` and :meth:`pbr_at` share.
-
-        Yields ``(material, rows, uv)`` for every material some point lies on:
-        ``rows`` index the points, ``uv`` ``(n, 2)`` is their interpolated
-        texture coordinate, or ``None`` where the mesh has no UVs or the
-        material no map.
-        """
+        """Yields ``(material, rows, uv)`` for every material some surface point lies on: ``rows`` index the
+        points, ``uv`` ``(n, 2)`` is their interpolated texture coordinate (``None``: no UVs or no map)."""
         mat_of = self.face_material[face_index]
         for mi, mat in enumerate(self.materials):
             sel = np.nonzero(mat_of == mi)[0]
@@ -260,9 +244,8 @@ def tangent_frames(vertices: np.ndarray, faces: np.ndarray, face_uvs: np.ndarray
     ``B = ±N × T`` with the sign of the ``v`` direction, so mirrored UV
     islands keep their handedness (MikkTSpace's bitangent sign; ``v`` up, the
     OpenGL / glTF "+Y up" normal-map convention). Faces without usable UVs
-    (none, NaN or zero UV area) get any ``T`` perpendicular to ``N``. The
-    grid reads normal maps with these frames and mesh extraction writes them
-    with the same function, so a map survives the round trip.
+    (none, NaN or zero UV area) get any ``T`` perpendicular to ``N``. The grid
+    reads normal maps and mesh extraction writes them with these frames.
     """
     tri = np.asarray(vertices, np.float64)[faces]
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]

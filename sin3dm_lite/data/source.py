@@ -20,9 +20,9 @@ def is_example(source) -> bool:
 
 
 def resolve_mesh(source, allow_outside_paths: bool = False) -> TexturedMesh:
-    """A ``TexturedMesh`` from the name of a built-in example, or whatever ``mesh_io.load_any`` takes.
+    """A ``TexturedMesh`` from the name of a built-in example, or whatever ``load_any`` takes.
 
-    ``allow_outside_paths``: let a mesh file name files outside its folder (:func:`mesh_io.load_mesh`).
+    ``allow_outside_paths``: let a mesh file name files outside its folder.
     """
     if isinstance(source, str) and source in examples.list_examples():
         return examples.build_example(source)

@@ -1,12 +1,5 @@
-"""The truncated SDF and colour of a mesh, on a grid and at points: the computation behind ``grid.mesh_to_grid``.
-
-:func:`tsdf_grid` fills the cell-centred grid coarse to fine (exact distances
-only where the band may be, signs from the winding number, inherited where a
-surface-free ball allows); :func:`point_tsdf` gives the same values at the
-training points, taking most signs from the voxels around each point
-(:func:`signs_from_grid`); :func:`surface_channels` is what a voxel stores
-about its closest surface point (RGB, or the 8 :data:`PBR_CHANNELS`).
-"""
+"""The truncated SDF and colour of a mesh, on a grid (:func:`tsdf_grid`) and at points (:func:`point_tsdf`):
+the computation behind ``grid.mesh_to_grid``."""
 
 from __future__ import annotations
 
@@ -147,9 +140,8 @@ def signs_from_grid(p, d, grid_sdf, sure, lo, vs, closed: bool):
 def point_tsdf(dist: Distance, mesh: TexturedMesh, p: np.ndarray, threshold: float, grid: tuple, pbr: bool = False):
     """Exact truncated SDF and colour (0 outside the band) at arbitrary points.
 
-    ``grid = (sdf, sure, lo, voxel_size)`` from :func:`tsdf_grid`: most signs
-    come from the voxels around each point and only the rest pay for a
-    winding number.
+    ``grid = (sdf, sure, lo, voxel_size)`` from :func:`tsdf_grid`: most signs come from the voxels around each
+    point (:func:`signs_from_grid`), only the rest from their own winding number.
     """
     p = np.ascontiguousarray(p, dtype=np.float64)
     d, fi, bc = dist.closest(p)

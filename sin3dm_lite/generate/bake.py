@@ -1,11 +1,9 @@
 """Texture baking, step 6 of ``extract``: the decoder's colour (and PBR values) painted into a UV atlas.
 
 Every texel covered by a triangle in UV space gets the decoder's colour at its
-3D point (:func:`bake_texture`, with :func:`position_map` and
-:func:`rasterize_triangles` finding the point behind each texel), and the
-gutter around the UV islands is filled so seams do not show
-(:func:`pad_gutter`); a PBR decoder's metallic, roughness and normals go into
-their own maps over the same atlas (:func:`pbr_maps`).
+3D point (:func:`bake_texture`), and the gutter around the UV islands is
+filled so seams do not show (:func:`pad_gutter`); a PBR decoder's metallic,
+roughness and normals go into their own maps (:func:`pbr_maps`).
 """
 
 from __future__ import annotations
@@ -145,10 +143,9 @@ def pbr_maps(
     glTF leaves it to occlusion). The decoded normal is in world space; a
     normal map stores it in each face's tangent frame, so texel by texel it is
     written as ``(n·T, n·B, n·N)`` with the frame of the face behind the texel
-    (:func:`mesh_io.tangent_frames` of the new atlas, the convention the grid
-    read the input's map with), kept in the upper half (z ≥ 0.05, a normal
-    pointing into the surface would shade black), then encoded ``· ½ + ½``.
-    Gutters are filled with :func:`pad_gutter`.
+    (``data.mesh.tangent_frames`` of the new atlas), kept in the upper half
+    (z ≥ 0.05: a normal pointing into the surface would shade black), then
+    encoded ``· ½ + ½``. Gutters are filled with :func:`pad_gutter`.
     """
     _, _, face = position_map(verts, faces_uv, uvs, size, return_faces=True)
     mr = np.ones((size, size, 3), np.float32)

@@ -5,16 +5,12 @@ sample** — the latent's size, and a *known* latent ``y0`` with a soft *mask*
 ``m`` (1 = keep). The masked sampler (``diffusion.sample``) then pastes the
 known part, noised to the current step's level, over the sample after every
 denoising step (``x_{t-1} ← m·q(y0, t-1) + (1-m)·x_{t-1}``) and exactly at the
-end, so the free part grows around the kept part and blends into it. "To
-allow smooth transition around the boundaries, we adjust m such that the
-borders between 0 and 1 are linearly interpolated" (the paper): the ramp here
-is ``border`` texels wide and always lies inside the kept part, where ``y0``
-is the input's own latent.
+end, so the free part grows around the kept part and blends into it. As in
+the paper, the mask's borders between 0 and 1 are linear ramps, here
+``border`` texels wide and inside the kept part.
 
-Requests are made in the **input's own coordinates**: a box is a pair of
-corners given as fractions of the model's box ([0, 1]³ along x, y, z as in the
-mesh file; the model's box is the input's bounding box plus the few voxels of
-margin of the ``small`` preset). Each function returns a :class:`Plan` that
+A box is a pair of corners given as fractions of the model's box ([0, 1]³
+along x, y, z as in the mesh file). Each function returns a :class:`Plan` that
 ``Sin3DM.sample(plan=...)`` (or the keyword shortcuts ``resize=``,
 ``outpaint=``, ``regenerate=``, ``duplicate=``) carries out.
 
@@ -53,10 +49,8 @@ BORDER = 2  # texels of linear ramp between kept and generated
 class Plan:
     """What to sample: the latent size, the result's box, and optionally a known latent with its mask.
 
-    ``known`` and ``mask`` (1 = keep) have the result's size; ``start`` is the
-    latent the diversity knob noises when it is below 1 (the input's latent,
-    placed, stretched or edited like the result). ``kind`` and ``request``
-    say what was asked (shown in notebooks and reports).
+    ``known`` and ``mask`` (1 = keep) have the result's size; ``start`` is the latent the diversity knob noises
+    when it is below 1 (the input's, placed like the result). ``kind`` and ``request`` say what was asked.
     """
 
     kind: str
@@ -197,15 +191,13 @@ def outpaint(latent: Triplane, aabb, factors, anchor: str = "center", border: fl
 
     ``anchor`` says where the input sits in the larger box: ``"center"``, or
     a face it sticks to (``"x-"``: the input's low-x face stays the box's,
-    so the shape grows towards +x). The input keeps its own coordinates: the
-    result's box extends the input's box. The paper sets ``y0`` to the input's
-    latent padded by zeros; here the padding repeats the input's edge texels,
-    which only matters for ``start`` (the knob below 1), never where the mask keeps.
+    so the shape grows towards +x). The result's box extends the input's box.
+    The paper pads ``y0`` with zeros; here the padding repeats the input's
+    edge texels, which only matters for ``start``, never where the mask keeps.
 
     ``trim`` texels of the input are not kept on each side that grows: the
-    model's box holds a few voxels of empty margin around the shape (and the
-    shape's cut face); kept, they would separate the input from what grows
-    out of it by a crack. ``Sin3DM.plan`` trims the margin of the run's preset.
+    model's box holds a few voxels of empty margin around the shape; kept, they
+    would separate the input from what grows out of it by a crack.
     """
     f = _factors(factors, "outpaint", at_least=1.0)
     base = np.array(latent.resolution)
@@ -266,9 +258,7 @@ def keep_planes(latent: Triplane, aabb, planes) -> Plan:
 
     Not one of the paper's operations: a way to see which plane holds a shape's variation. A plane's texel
     is shared by the whole line of points across it, so the ground plan (``xz``, y up) decides what lies where
-    in every horizontal slice at once: kept, the samples keep the input's layout (the canyon's river, a tower's
-    walls) and vary little; the two elevations kept, they vary about as much as free samples
-    (docs/judging-samples.md, "Where the samples lose patches").
+    in every horizontal slice at once: kept, the samples keep the input's layout.
     """
     names = [planes] if isinstance(planes, str) else list(planes)
     unknown = [p for p in names if p not in PLANES]
@@ -288,8 +278,7 @@ def duplicate(latent: Triplane, aabb, box, to, border: float = BORDER, trim: int
     shadow, so inside the destination box the latent is the source's exactly.
 
     Where the box reaches a face of the model's box that the copy does not,
-    ``trim`` texels there are left out of the copy (the margin of empty
-    voxels and the shape's cut face: copied inside the shape they would open a crack).
+    ``trim`` texels there (the empty margin) are left out of the copy.
     """
     res = latent.resolution
     src = _box(box, res, "the box to copy")

@@ -10,31 +10,14 @@ a signed distance (negative inside) and a colour. To get a mesh we
 4. reduce the triangle count (:func:`simplify`),
 5. cut the surface into charts and flatten them into a texture atlas
    (:func:`uv_atlas`),
-6. bake a texture: every texel covered by a triangle in UV space gets the
-   decoder's colour at its 3D point (:func:`bake_texture`), and the gutter
-   around the UV islands is filled so seams do not show (:func:`pad_gutter`);
-   a PBR decoder's metallic, roughness and normals go into their own maps over
-   the same atlas (:func:`pbr_maps`). The baking lives in :mod:`.bake`; its
-   functions are importable from here too (``sin3dm_lite.extract`` is the
-   whole path's namespace).
+6. bake the decoder's colour into a texture (:mod:`.bake`, its functions
+   importable from here too: :func:`bake_texture`, :func:`pad_gutter`,
+   :func:`pbr_maps`).
 
 :func:`extract_mesh` runs the whole path and can hand back every intermediate
-for a notebook to show.
-
-The decoder protocol (see ``autoencoder.py``)::
-
-    prepared = decoder.prepare(triplane)          # per-plane 2D conv blocks, once per triplane
-    sdf, color = decoder.query(prepared, points)  # points [B, N, 3] in box coordinates [-1, 1]^3
-
-Two flaws of the original implementation are avoided on purpose (docs/paper-notes.md,
-"Decoding to a textured mesh"): the 2D conv blocks run once per triplane, not
-once per chunk of query points, and marching-cubes vertices are placed on the
-voxel centres (no half-voxel shift). All components are kept by default and the
-gutter is filled several texels wide.
-
-Coordinates: *normalised* coordinates are the frame the input mesh was scaled
-into (``Normalization``); *box* coordinates map the ``aabb``
-``(xmin, ymin, zmin, xmax, ymax, zmax)`` to ``[-1, 1]^3``.
+for a notebook to show. Unlike the original implementation, marching-cubes
+vertices are placed on the voxel centres (no half-voxel shift), all
+components are kept by default and the gutter is filled several texels wide.
 """
 
 from __future__ import annotations
@@ -176,14 +159,9 @@ def uv_atlas(
         padding: empty texels between charts (room for the gutter fill, so
             bilinear filtering and mipmaps do not mix neighbouring charts).
         max_chart_share: no chart grows beyond this share of the surface area
-            (0: no limit). xatlas grows charts without a limit by default, and
-            on bricky, many-faceted surfaces that takes long (charting a
-            20,000-face sample of the wall took 9-11 s without a cap). Growing
-            is most of xatlas's time, and the big charts cost the most: with
-            1/15 a 20,000-face sample takes about half as long as with 1/7 and
-            gets about as many charts, the atlas nearly as full
-            (docs/performance.md "UV charts"). A flat region stays one chart
-            whatever its size (xatlas makes planar charts first).
+            (0: no limit). Growing big charts is most of xatlas's time on
+            many-faceted surfaces; a flat region stays one chart whatever its
+            size (xatlas makes planar charts first).
 
     Returns:
         ``vmapping (V',)``: the original vertex of each atlas vertex (seams
@@ -250,10 +228,9 @@ def extract_mesh(
             decodes every voxel, same mesh, slower).
         return_steps: also return a dict of intermediates: ``sdf``, ``raw``
             (verts, faces), ``simplified`` (verts, faces), ``uv`` (uvs, faces),
-            ``vmapping``, ``baked`` (the texture before :func:`pad_gutter`), ``texture``,
-            ``covered`` (texture path only),
-            ``seconds`` (time per step), ``decode_stats`` (points decoded, see
-            :func:`decode_grid`) and ``normalization``.
+            ``vmapping``, ``baked`` (before :func:`pad_gutter`), ``texture``,
+            ``covered`` (texture path only), ``seconds`` (time per step),
+            ``decode_stats`` (see :func:`decode_grid`) and ``normalization``.
     Returns:
         ``TexturedMesh`` (or ``(TexturedMesh, steps)``).
     """
@@ -303,8 +280,7 @@ def _surface(
 ):
     """Steps 1-4: the SDF grid, marching cubes, the components kept (mode, least faces), simplified → ``(v, f)``."""
     decode_stats: dict[str, Any] = {}
-    # exact_band=0: only the voxels marching cubes reads are decoded exactly (the same mesh, about a third fewer
-    # points than the 2-voxel band, docs/performance.md "The smaller stages")
+    # exact_band=0: only the voxels marching cubes reads are decoded exactly (the same mesh, fewer points)
     sdf = decode_grid(
         decoder, prepared, box, resolution, chunk=chunk, coarse=coarse, exact_band=0.0, stats=decode_stats
     )

@@ -17,11 +17,9 @@ Shapes (grid ``X × Y × Z``, latent ``X' = X/2`` etc.)::
       each plane: InstanceNorm → ×0.5 → tanh          (latent values in (-1, 1))
 
 PBR variant (``AutoencoderConfig.pbr``, paper appendix): the grid carries 8
-texture channels (RGB, metallic, roughness, normal; ``grid.PBR_CHANNELS``), so
-the texture convolution reads 1 + 8 = 9 channels, and the decoder gets two
-more heads on the same texture features: metallic-roughness (2) and normal (3).
-The latent keeps its 12 channels: the 8 texture channels now also describe
-the material.
+texture channels (``grid.PBR_CHANNELS``), so the texture convolution reads 9
+channels, and the decoder gets two more heads on the same texture features:
+metallic-roughness (2) and normal (3). The latent keeps its 12 channels.
 """
 
 from __future__ import annotations
@@ -37,6 +35,7 @@ import torch.nn.functional as F
 from ..app.device import autocast
 from ..data.config import AutoencoderConfig
 from ..data.grid import ShapeGrid
+from ..errors import Sin3DMInputError
 from ..kernels.bf16ops import mlp_bf16_ok, skip_mlp_bf16
 from ..kernels.pointops import Workspace, mlp_fast_ok, skip_mlp
 from .training import Trainer
@@ -71,8 +70,7 @@ class TriplaneEncoder(nn.Module):
         convolution is a convolution of means: average the padded grid along
         that axis at each of the kernel's 4 offsets (every second voxel), stack
         the 4 averages as channels, and convolve in 2D with the kernel's matching
-        slices. Same planes (to rounding), a fraction of the work: the 3D
-        convolution and its gradient were a seventh of an autoencoder step.
+        slices. Same planes (to rounding), a fraction of the work.
         """
         planes = []
         for axis, taps in zip((4, 3, 2), self.taps(grid)):  # xy: mean over z, xz: over y, yz: over x
@@ -82,8 +80,8 @@ class TriplaneEncoder(nn.Module):
 
     def taps(self, grid: torch.Tensor) -> list[torch.Tensor]:
         """Per plane (xy, xz, yz), the padded grid averaged along its axis at each of the kernel's offsets,
-        ``[B, C, k, a, b]``. They depend on the grid alone, which a fit feeds unchanged at every step, so the last
-        grid's are kept (the same tensor, unchanged since: checked by identity and version counter)."""
+        ``[B, C, k, a, b]``. A fit feeds the same grid at every step, so the last grid's are kept (checked by
+        identity and version counter)."""
         cached = getattr(self, "_taps", None)
         if cached is not None and cached[0]() is grid and cached[1] == grid._version:
             return cached[2]
@@ -117,9 +115,8 @@ def _tap_conv(conv: nn.Conv3d, taps: torch.Tensor, axis: int) -> torch.Tensor:
 
 # --------------------------------------------------------------------------- decoder
 class MirrorConv2d(nn.Conv2d):
-    """A convolution whose kernel is symmetric along ``dims`` (-2: rows, -1: columns): it commutes with flipping
-    the plane along them, ``conv(x.flip(d)) == conv(x).flip(d)``. The stored weight is free; the forward uses
-    its average with its mirror image."""
+    """A convolution whose kernel is symmetric along ``dims`` (-2: rows, -1: columns), so that
+    ``conv(x.flip(d)) == conv(x).flip(d)``: the forward uses the weight's average with its mirror image."""
 
     def __init__(self, c_in: int, c_out: int, k: int, dims: tuple[int, ...]):
         super().__init__(c_in, c_out, k, padding=k // 2)
@@ -170,7 +167,7 @@ class SkipMLP(nn.Module):
         self.out = nn.Linear(hidden, c_out)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if mlp_fast_ok(x, self):  # the same layers, chunk by chunk (model/pointops.py)
+        if mlp_fast_ok(x, self):  # the same layers, chunk by chunk (kernels/pointops.py)
             if getattr(self, "_workspace", None) is None:
                 self._workspace = Workspace()
             return skip_mlp(x, self.a, self.b, self.out, self._workspace if self.training else None)
@@ -210,13 +207,11 @@ class TriplaneDecoder(nn.Module):
     between planes), a bilinear lookup at the point's three projections, the
     sum of the three features, and a :class:`SkipMLP` head. The SDF head
     predicts ``sdf / threshold`` so its targets are O(1); the colour head ends
-    in a sigmoid. With ``cfg.pbr`` two more :class:`SkipMLP` heads read the same
-    texture features, ``mr_mlp`` (metallic, roughness) and ``normal_mlp``
-    (world-space normal · ½ + ½), also through a sigmoid, and ``query_color``
-    returns all 8 channels in ``grid.PBR_CHANNELS`` order.
+    in a sigmoid. With ``cfg.pbr`` two more heads, ``mr_mlp`` (metallic,
+    roughness) and ``normal_mlp``, read the same texture features, and
+    ``query_color`` returns all 8 channels in ``grid.PBR_CHANNELS`` order.
 
-    Use it in two steps so the plane convolutions run once per triplane, not
-    once per chunk of points::
+    Use it in two steps so the plane convolutions run once per triplane::
 
         prepared = decoder.prepare(triplane)
         sdf, rgb = decoder.query(prepared, points_in_box_coords)   # [B, N], [B, N, 3]
@@ -290,8 +285,7 @@ class TriplaneAutoencoder(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.grid_shape = tuple(int(s) for s in grid_shape)
-        latent_res = tuple(s // 2 for s in self.grid_shape)
-        x, y, z = latent_res
+        x, y, z = (s // 2 for s in self.grid_shape)
         sizes = dict(zip(("xy", "xz", "yz"), ((x, y), (x, z), (y, z))))
         if cfg.use_encoder:
             self.encoder = TriplaneEncoder(cfg, color_channels)
@@ -313,10 +307,9 @@ class TriplaneAutoencoder(nn.Module):
     def hold_color(self, color: np.ndarray) -> None:
         """Make the texture half decode ``color`` everywhere and stay fixed: for a shape of one colour.
 
-        Its colour needs no learning, and the texture half (three plane convolutions and an MLP on every point in
-        the band) is about half of an autoencoder step: the fit spends its steps on the geometry alone. The
-        texture channels of the latent become zero (a zero convolution, normalised, is zero), and the colour head
-        outputs its bias, the colour's logit, whatever the features; no texture parameter needs a gradient."""
+        The fit then spends its steps on the geometry alone. The texture channels of the latent become zero (a zero
+        convolution, normalised, is zero), and the colour head outputs its bias, the colour's logit, whatever the
+        features; no texture parameter needs a gradient."""
         if self.cfg.pbr:
             raise ValueError("hold_color is for RGB shapes: a PBR shape's normals vary over its surface")
         head = self.decoder.tex_mlp.out
@@ -388,13 +381,10 @@ class PointSampler:
 
 # --------------------------------------------------------------------------- training
 class AutoencoderTrainer(Trainer):
-    """Fits a :class:`TriplaneAutoencoder` to one :class:`ShapeGrid`, resumable step by step.
+    """Fits a :class:`TriplaneAutoencoder` to one :class:`ShapeGrid`, resumable step by step (:class:`Trainer`).
 
-    AdamW with a geometry and a texture learning rate, both decayed
-    exponentially to ``lr_final_factor`` of their start over ``cfg.steps``.
-    The shared interface (``step``, ``run``, ``history`` with ``"loss"``,
-    ``"sdf"`` and ``"color"``, ``state_dict``) is :class:`~sin3dm_lite.model.training.Trainer`'s.
-    The point batches are drawn on the CPU (the same batches on every device).
+    AdamW with a geometry and a texture learning rate, both decayed exponentially to ``lr_final_factor`` of their
+    start over ``cfg.steps``. The point batches are drawn on the CPU (the same batches on every device).
     """
 
     kind = "autoencoder"
@@ -403,8 +393,6 @@ class AutoencoderTrainer(Trainer):
     def __init__(self, grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: int = 0):
         super().__init__(cfg, device, seed, generator_device="cpu")
         if cfg.pbr != grid.has_pbr:
-            from ..errors import Sin3DMInputError
-
             raise Sin3DMInputError(
                 f"the grid has {grid.color.shape[-1]} texture channels but the config says pbr={cfg.pbr}; "
                 f"use AutoencoderConfig(pbr={grid.has_pbr}) (or rebuild the grid with mesh_to_grid(..., pbr={cfg.pbr}))"
@@ -431,11 +419,10 @@ class AutoencoderTrainer(Trainer):
         PBR: binary cross-entropy on metallic-roughness (``material``; on the
         heads' logits) and L1 on the normal in its [0, 1] encoding (``normal``)
         at the same band points, each weighted 1 like the colour (the paper
-        gives no weights). Not L1 for metallic: mostly 0 with metal islands,
-        L1 drove the head's logits of every point to -400 within a few hundred
-        steps (the median), where the sigmoid passes no gradient and the metal
-        never came back (the ``tiles`` example at the small preset: metallic IoU
-        0.0); the cross-entropy's gradient, sigmoid(logit) - target, does not vanish.
+        gives no weights). Cross-entropy, not L1, for metallic (mostly 0 with
+        metal islands): L1 drives the logits deep into the sigmoid's flat end,
+        where no gradient passes; the cross-entropy's, sigmoid(logit) - target,
+        does not vanish.
         """
         cfg = self.cfg
         p, s_gt, c_gt = self.sampler(cfg.points_per_step, cfg.grid_fraction, self.generator)
@@ -475,6 +462,3 @@ def fit_autoencoder(grid: ShapeGrid, cfg: AutoencoderConfig, device=None, seed: 
     tr = AutoencoderTrainer(grid, cfg, device, seed)
     tr.run(progress=progress)
     return tr.model, tr.latent(), tr.history
-
-
-# --------------------------------------------------------------------------- evaluation

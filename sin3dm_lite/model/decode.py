@@ -2,23 +2,15 @@
 
 The autoencoder's decoder (``autoencoder.TriplaneDecoder``) answers "what is
 the signed distance and colour at this point?". Everything that asks it many
-such questions lives here, for training-time checks (:func:`reconstructed_grid`)
-and for mesh extraction (``extract``) alike:
-
-* :func:`prepare` runs the decoder's per-plane 2D conv blocks once per
-  triplane (the original implementation ran them once per chunk of points);
-* :func:`query_points` decodes any number of points in bounded-memory chunks;
-* :func:`decode_grid` decodes a cell-centred SDF (and colour) grid over a box,
-  coarse to fine: exactly near the surface, interpolated where only the sign
-  matters;
-* :func:`reconstructed_grid` is the grid the input's own latent describes.
+such questions lives here: :func:`prepare` runs the per-plane 2D conv blocks
+once per triplane (the original implementation ran them once per chunk of
+points), :func:`query_points` decodes points in bounded-memory chunks,
+:func:`decode_grid` a cell-centred SDF (and colour) grid over a box.
 
 The decoder protocol::
 
     features = decoder.prepare(triplane)          # per-plane 2D conv blocks, once per triplane
     sdf, color = decoder.query(features, points)  # points [B, N, 3] in box coordinates [-1, 1]^3
-
-Coordinates and grid sizes: see :mod:`sin3dm_lite.data.box`.
 """
 
 from __future__ import annotations
@@ -49,11 +41,8 @@ def _module_device(module) -> torch.device:
 
 @dataclass
 class PreparedTriplane:
-    """What ``decoder.prepare`` returned for one triplane, and the device to query on.
-
-    Passing this instead of a :class:`Triplane` to the functions below skips
-    the per-plane conv blocks: they run once, here.
-    """
+    """What ``decoder.prepare`` returned for one triplane, and the device to query on (pass it instead of a
+    :class:`Triplane` to the functions below: the per-plane conv blocks then ran once, here)."""
 
     features: Any
     device: torch.device
@@ -79,9 +68,7 @@ def prepare(decoder, triplane: Triplane | PreparedTriplane) -> PreparedTriplane:
 #: query batches are padded to a multiple of this many points (see :func:`query_points`)
 ROW_TILE = 64
 
-#: points per decoder batch by device type. On a CPU a batch's ``[chunk, 128]`` activations should fit the
-#: cache: the MLP's ReLUs, bias copies and concatenations are memory-bound above it (docs/performance.md
-#: "Decoder batches"); a GPU wants big batches.
+#: points per decoder batch by device type: on a CPU a batch's activations should fit the cache; a GPU wants big ones
 CHUNK = {"cpu": 2**13, "cuda": 2**16}
 
 
@@ -101,17 +88,14 @@ def query_points(
     """Decode ``(N, 3)`` box-coordinate points in chunks of ``chunk`` (default: :func:`default_chunk`) →
     ``sdf (N,)`` and ``color (N, K)``.
 
-    Pass ``sdf=False`` or ``color=False`` to get ``None`` for that output; a
-    decoder that has ``query_sdf`` / ``query_color`` then skips the head that
-    is not needed (the protocol only requires ``query``).
+    ``sdf=False`` or ``color=False`` gives ``None`` for that output; a decoder
+    that has ``query_sdf`` / ``query_color`` then skips the head not needed.
 
     Every batch is padded to a multiple of :data:`ROW_TILE` points (copies of
-    its last point, dropped again). CPU matrix kernels compute the rows of a
-    batch in small tiles and the leftover rows by another code path, which
-    rounds differently in the last bit; with the padding a point's value no
-    longer depends on how many points it was decoded with, so the
-    coarse-to-fine :func:`decode_grid` gives bit-for-bit the values of the
-    full decode.
+    its last point, dropped again): CPU matrix kernels round the leftover rows
+    of a tiled batch differently, and with the padding a point's value does not
+    depend on how many points it was decoded with, so the coarse-to-fine
+    :func:`decode_grid` gives bit for bit the values of the full decode.
     """
     points_box = np.asarray(points_box, np.float32).reshape(-1, 3)
     chunk = chunk or default_chunk(prepared.device)
@@ -156,32 +140,23 @@ def decode_grid(
     """Decode the SDF (and colour) on a cell-centred grid over ``aabb``.
 
     The grid has ``resolution`` voxels along the box's longest side (see
-    :func:`grid_shape`); voxel ``k`` of an axis with ``n`` voxels has its
-    centre at ``lo + (k + 0.5) / n * (hi - lo)``. Points are decoded in chunks
-    of ``chunk`` (default: :func:`default_chunk`) so memory stays bounded, while the decoder's conv blocks run
-    only once (:func:`prepare`).
+    :func:`grid_shape`), cell-centred. Points are decoded in chunks of
+    ``chunk`` (default: :func:`default_chunk`) so memory stays bounded.
 
     **Coarse to fine** (default ``coarse=4``): most of the grid is far from the
     surface, where marching cubes only needs the sign. The decoder is queried
-    on every ``coarse``-th voxel first, then on lattices twice as fine, and a
-    voxel is decoded only where the decoded values around it, assuming the SDF
-    is ``lipschitz``-Lipschitz, cannot prove it far from the surface; the
-    others get an interpolation. A closure then decodes every voxel marching
-    cubes can read (:func:`_decode_coarse_to_fine` says how, step by step).
-
-    So every voxel within ``exact_band`` voxels of the zero level (as far as
-    the Lipschitz assumption holds) has exactly the value of the full decode,
-    bit for bit (:func:`query_points` pads its batches so a point's value does
-    not depend on its batch), and marching cubes at level 0 gives the same
-    mesh: every value it reads is decoded, every sign right. The one thing it
-    can miss is an inside (or outside) region with no decoded voxel at all: a
-    speck or hole smaller than the coarse spacing, between coarse samples, in
-    a decoder steeper than ``lipschitz`` there; raise ``lipschitz`` or lower
-    ``coarse`` for such a decoder. ``exact_band=0`` decodes about a third
-    fewer points and still gives the same mesh (the closure adds what marching
-    cubes reads), but voxels a voxel or two from the surface may then be
-    interpolated. Colours (``with_color``) are decoded at the same voxels and
-    interpolated at the others. ``coarse=None`` or ``1`` decodes every voxel.
+    on every ``coarse``-th voxel first, then on finer lattices, and a voxel is
+    decoded only where the values around it, assuming the SDF is
+    ``lipschitz``-Lipschitz, cannot prove it far from the surface; the others
+    get an interpolation (:func:`_decode_coarse_to_fine`). Every voxel within
+    ``exact_band`` voxels of the zero level then has bit for bit the value of
+    the full decode, and marching cubes gives the same mesh. It can miss only a
+    speck or hole smaller than the coarse spacing in a decoder steeper than
+    ``lipschitz``; raise ``lipschitz`` or lower ``coarse`` for such a decoder.
+    ``exact_band=0`` decodes fewer points and still gives the same mesh, but
+    voxels a voxel or two from the surface may be interpolated. Colours
+    (``with_color``) are decoded at the same voxels and interpolated at the
+    others. ``coarse=None`` or ``1`` decodes every voxel.
 
     Args:
         coarse: step of the first lattice in voxels (4: 1/64 of the voxels).
@@ -278,23 +253,16 @@ def _decode_coarse_to_fine(
 ):
     """:func:`decode_grid`, coarse to fine, on a grid padded to a whole number of coarse cells.
 
-    Most of the grid is far from the surface, where marching cubes only needs
-    the sign. The decoder is queried on every ``coarse``-th voxel first, then
-    on lattices twice as fine (4 → 2 → 1), and a voxel of a finer lattice is
-    decoded only if the values around it cannot prove that it is far from the
-    surface. It lies in a cell of the previous lattice; if the cell's eight corners have one sign, the SDF is
-    assumed ``lipschitz``-Lipschitz (1 for an exact SDF; a learned decoder only
-    roughly, hence the default 2), which bounds it from below by
-    ``max over corners (|sdf(corner)| - lipschitz * distance)``. Where that
-    bound is at least ``exact_band`` voxels the voxel gets the trilinear
+    The lattices go from ``coarse`` down to 1 (4 → 2 → 1). A voxel of a finer
+    lattice lies in a cell of the previous one; if the cell's eight corners
+    have one sign, the SDF, assumed ``lipschitz``-Lipschitz (1 for an exact
+    SDF; a learned decoder only roughly, hence the default 2), is bounded from
+    below by ``max over corners (|sdf(corner)| - lipschitz * distance)``. Where
+    that bound is at least ``exact_band`` voxels the voxel gets the trilinear
     interpolation of the corners (right sign, magnitude not exact) instead of
     a decoder query; otherwise, and in every cell whose corners change sign,
     it is decoded. The bounds carry from level to level (a bounded voxel is a
-    corner of the next level's cells with its bound). A truncated SDF limits
-    what can be proven: no value exceeds the truncation distance, and with
-    the defaults a voxel is skipped only near corners whose ``|sdf|`` is
-    4–5.5 voxels or more, so most of the truncation band (3 voxels of the
-    training grid, 6 at twice its resolution) is decoded.
+    corner of the next level's cells with its bound).
 
     Last, a closure: every voxel that is a corner of a marching-cubes cube
     not strictly on one side of 0 (the grid padded by an outside layer, as
@@ -436,10 +404,8 @@ def reconstructed_grid(
 ) -> ShapeGrid:
     """The grid the latent ``h`` describes: decoded SDF and colour at every voxel of ``grid``.
 
-    Same box, threshold and normalisation as ``grid`` (so the two can be shown
-    and compared slice by slice, and scored by :func:`reconstruction_metrics`),
-    no training points. Decodes every voxel (:func:`decode_grid` without
-    its coarse-to-fine shortcut).
+    Same box, threshold and normalisation as ``grid`` (so the two can be compared slice by slice), no training
+    points; every voxel decoded.
     """
     sdf, color = decode_grid(decoder, h[:1], grid.aabb, max(grid.shape), with_color=True, coarse=None)
     assert sdf.shape == grid.shape, (sdf.shape, grid.shape)  # a ShapeGrid box is ±n_axis / n_max

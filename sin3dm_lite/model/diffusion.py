@@ -10,14 +10,9 @@ within each plane and summed over the three planes. Because the network is
 fully convolutional, sampling noise of another size gives a retargeted shape,
 and pasting a noised known latent into part of ``x_t`` at every step gives
 outpainting, patch duplication and local editing without touching the sampler.
-Each step's estimate of the clean latent can be changed before the step uses it (``denoised_fn``, as in
-improved-diffusion; not in the paper, whose sampler is the default).
 
-The latent may be scaled before the diffusion (``DiffusionConfig.latent_scale``; not in the paper, which diffuses it
-as the encoder's tanh makes it): latent diffusion's scale factor. The tanh latent's values spread about 0.2, so its
-signal drowns under the schedule's noise by t ≈ 200 of 1000; scaled to unit variance, the noise levels in between
-carry some of the shape, and the knob's settings below 1 keep more of it, while pure noise may tear what it kept
-whole (docs/lab-notes.md). The trainer and :func:`sample` scale; everything outside them sees the encoder's units.
+Not in the paper: the latent may be scaled before the diffusion (``DiffusionConfig.latent_scale``, latent
+diffusion's scale factor). The trainer and :func:`sample` scale; everything outside them sees the encoder's units.
 """
 
 from __future__ import annotations
@@ -73,9 +68,7 @@ def random_crops(h0: Triplane, n: int, size: int, generator: torch.Generator) ->
 
     A crop is a sub-box of the shape: the xy plane is cut at the box's x and y
     range, xz at its x and z range, yz at y and z, so the three planes still
-    describe one region. The denoiser is fully convolutional, so a model
-    trained on crops samples a latent of any size; it just never sees where
-    the whole latent's borders are from inside a crop.
+    describe one region.
     """
     res = h0.resolution
     sizes = [min(size, r) for r in res]
@@ -108,7 +101,7 @@ def random_flips(x: Triplane, axes: str, generator: torch.Generator) -> Triplane
     """Mirror each latent of the batch along each of ``axes`` ("x", "z") with probability ½.
 
     Only meaningful with a decoder that commutes with flips (``AutoencoderConfig.mirror``): then a flipped latent
-    is the latent of the mirrored shape, and the denoiser learns from up to four shapes instead of one.
+    is the latent of the mirrored shape.
     """
     for axis in axes:
         pick = (torch.rand(x.batch, generator=generator, device=generator.device) < 0.5).to(x.device)
@@ -118,16 +111,13 @@ def random_flips(x: Triplane, axes: str, generator: torch.Generator) -> Triplane
 
 
 class DiffusionTrainer(Trainer):
-    """Trains the denoiser on one latent ``h0``, resumable bit for bit.
+    """Trains the denoiser on one latent ``h0``, resumable bit for bit (:class:`Trainer`).
 
     Every step draws a batch of ``cfg.batch_size`` copies of ``h0`` (or random
-    crops of it), each with its own time step and noise, from the trainer's
-    ``generator`` on the training device. AdamW, learning rate annealed
-    linearly to 0 over ``cfg.steps``, and an EMA copy of the weights
-    (``cfg.ema_decay = 0``: none). The shared interface (``step``, ``run``,
-    ``history``, ``state_dict``) is :class:`~sin3dm_lite.model.training.Trainer`'s;
-    the checkpoint adds ``ema`` and ``h0``, so :meth:`from_state_dict` rebuilds
-    the trainer from it alone.
+    crops of it), each with its own time step and noise. AdamW, learning rate
+    annealed linearly to 0 over ``cfg.steps``, and an EMA copy of the weights
+    (``cfg.ema_decay = 0``: none). The checkpoint adds ``ema`` and ``h0``, so
+    :meth:`from_state_dict` rebuilds the trainer from it alone.
     """
 
     kind = "diffusion"
@@ -148,8 +138,7 @@ class DiffusionTrainer(Trainer):
         self.schedule = NoiseSchedule.from_config(cfg)
         self.model = self.init_model(lambda: TriplaneUNet(h0.channels, cfg))
         self.ema = copy.deepcopy(self.model).requires_grad_(False).eval() if cfg.ema_decay > 0 else None
-        # the training forward, compiled when asked (the same module and weights; sampling uses it uncompiled): the
-        # first step compiles it, about a minute on a GPU and minutes on a CPU, so it pays on long fits (`paper`)
+        # the training forward, compiled when asked (the same module and weights; sampling uses it uncompiled)
         self.train_forward = torch.compile(self.model) if cfg.compile else self.model
         self._compile_checked = False  # True once a compiled step ran (later errors are the training's own)
         self.optimizer = self.adamw(self.model.parameters(), lr=cfg.lr)
@@ -241,11 +230,8 @@ def _blend(mask: Triplane, keep: Triplane, x: Triplane) -> Triplane:
 def predict_clean(
     model, schedule: NoiseSchedule, x_t: Triplane, t: torch.Tensor, prediction: str = "x0", clip: bool = True
 ) -> Triplane:
-    """The network's estimate of the clean latent x0 from ``x_t`` (converted from ε for an ε-model), both in the
-    denoiser's units (the latent times :func:`latent_scale`).
-
-    The latent is a tanh output, so ``clip`` keeps the estimate in [-1, 1] (times the scale) as the sampler does.
-    """
+    """The network's estimate of the clean latent x0 from ``x_t`` (converted from ε for an ε-model), in the
+    denoiser's units; ``clip`` keeps it in [-1, 1] (times :func:`latent_scale`): the latent is a tanh output."""
     out = model(x_t, t)
     x0 = out if prediction == "x0" else schedule.predict_x0(x_t, t, out)
     bound = latent_scale(model)
@@ -317,13 +303,11 @@ def sample(
     keep the input's layout and regenerate only fine detail, 1 is the paper's unconditional sampling; 0 returns
     ``start`` itself.
 
-    ``denoised_fn(x0, t)`` (improved-diffusion's hook; None: the paper's sampler) may change each step's
-    estimate of the clean latent before the step uses it (and before it is recorded as an intermediate).
+    ``denoised_fn(x0, t)`` (improved-diffusion's hook, not in the paper) may change each step's estimate of the
+    clean latent before the step uses it (and before it is recorded).
 
-    Seeds: sample ``i`` draws all its noise (the start, DDPM's per-step noise, the noised known latent) from its
-    own generator seeded ``seed + i`` (or ``seed[i]`` for a list of seeds), on the CPU, so it depends on its seed
-    and the settings only: not on the batch it is drawn in, nor on the device (``sample(n=4, seed=0)[2]`` equals
-    ``sample(n=1, seed=2)``, up to float rounding). A ``torch.Generator`` draws the whole batch from that one.
+    Seeds (:class:`SampleNoise`): sample ``i`` draws all its noise from its own generator seeded ``seed + i`` (or
+    ``seed[i]``), so ``sample(n=4, seed=0)[2]`` equals ``sample(n=1, seed=2)`` on any device, up to float rounding.
 
     ``return_intermediates``: an int k (k evenly spaced steps, first and last included) or step indices; then
     returns ``(latents, [{"step", "t", "x_t", "x0"}, ...])`` with CPU tensors, ``x_t`` the input of that step and
@@ -374,8 +358,7 @@ def _unscaled(x: Triplane, scale: float) -> Triplane:
 
 def _in_denoiser_units(model, start: Triplane | None, known: Triplane | None, denoised_fn):
     """The scale of ``model``'s latent (:func:`latent_scale`), and the start and known latents and ``denoised_fn``
-    (which takes and gives the encoder's units) for a walk in the denoiser's units: what goes in and comes out of
-    :func:`sample` stays in the encoder's."""
+    (which takes and gives the encoder's units) for a walk in the denoiser's units."""
     scale = latent_scale(model)
     if scale == 1:
         return scale, start, known, denoised_fn

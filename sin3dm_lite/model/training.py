@@ -3,19 +3,16 @@
 :class:`~sin3dm_lite.model.autoencoder.AutoencoderTrainer` and
 :class:`~sin3dm_lite.model.diffusion.DiffusionTrainer` are both a :class:`Trainer`:
 
-* ``step()`` runs one optimisation step and returns its loss; ``run(until_step,
-  progress, callback)`` steps to ``until_step`` (at most ``cfg.steps``) and
-  calls ``callback(trainer)`` after every step;
-* ``history`` is a dict ``loss name -> list of floats``, one value per step;
-  ``"loss"`` (the optimised total) is always there, the autoencoder adds
-  ``"sdf"`` and ``"color"``;
-* everything random in training comes from ``generator``, a ``torch.Generator``
-  seeded with ``seed``; the initial weights come from ``torch.manual_seed(seed)``
-  inside ``torch.random.fork_rng``, so they are the same on every device and
-  the caller's global random state is left as it was;
+* ``step()`` runs one optimisation step; ``run(until_step, progress, callback)``
+  steps to ``until_step`` (at most ``cfg.steps``);
+* ``history`` is a dict ``loss name -> list of floats``, one value per step
+  (``"loss"``, the optimised total, always there);
+* everything random in training comes from ``generator``, seeded with
+  ``seed``; the initial weights come from ``torch.manual_seed(seed)`` inside
+  ``torch.random.fork_rng``, the same on every device, the caller's global
+  random state left as it was;
 * ``state_dict()`` / ``load_state_dict()`` hold everything needed to resume
-  exactly, as plain tensors and containers (``torch.load(..., weights_only=True)``
-  reads them). The top-level keys are the same for both::
+  exactly, as plain tensors and containers (``weights_only=True`` loads them)::
 
       format     TRAINER_FORMAT: checkpoints of other layouts are refused
       kind       "autoencoder" or "diffusion"
@@ -70,7 +67,7 @@ def checkpoint_problem(sd: dict, kind: str) -> str | None:
 
 
 #: PyTorch has a fused AdamW kernel for the CPU from 2.4 on: one loop over all parameters instead of a dozen small
-#: ops per tensor (the `quick` autoencoder's optimizer step several times shorter; docs/lab-notes.md)
+#: ops per tensor
 FUSED_CPU_ADAMW = torch.__version__ >= (2, 4)
 
 

@@ -175,7 +175,7 @@ class Triplane:
         """
         if points.dim() == 2:
             points = points.unsqueeze(0).expand(self.batch, -1, -1)
-        if reduce == "sum" and lookup_fast_ok(self.planes, points):  # the same sum, gathered (model/pointops.py)
+        if reduce == "sum" and lookup_fast_ok(self.planes, points):  # the same sum, gathered (kernels/pointops.py)
             return lookup_sum(self.planes, points, [PLANE_AXES[name] for name in PLANES])
         feats = [lookup_plane(p, points, PLANE_AXES[name]) for name, p in zip(PLANES, self.planes)]
         if reduce == "sum":

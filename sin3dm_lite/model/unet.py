@@ -101,11 +101,10 @@ class TriplaneConv(nn.Module):
     def forward(self, tp: Triplane) -> Triplane:
         if not self.rollout:
             return Triplane(*(conv(p) for conv, p in zip(self.convs, tp.planes)))  # [B, out, ., .]
-        # The same as conv(cross_plane_inputs(tp)), in about half the time: the convolution is linear, so
-        # it splits into the plane's own channels and the two repeated means; a mean repeated along an axis
-        # gives the same output all along that axis but at its k//2 border texels (zero padding), so its k
-        # distinct values per texel are one 1D convolution, added repeated (model/planeops.py; tests check it
-        # against the cat).
+        # conv(cross_plane_inputs(tp)) without the cat: the convolution is linear, so it splits into the plane's
+        # own channels and the two repeated means; a mean repeated along an axis gives the same output all along
+        # it but at its k//2 border texels (zero padding), so its k distinct values per texel are one 1D
+        # convolution, added repeated (kernels/planeops.py).
         parts = rollout_parts(tp, self.local_only, concat=False)
         out = []
         for name, conv in zip(PLANES, self.convs):
