@@ -141,10 +141,10 @@ def _outside_profile(n: int, a: int, b: int, border: float) -> np.ndarray:
 
 
 def _mask(profiles: list[np.ndarray]) -> Triplane:
-    planes = []
-    for a, b in PLANE_AXES.values():
-        planes.append(torch.from_numpy(np.outer(profiles[a], profiles[b])).float()[None, None])
-    return Triplane(*planes)
+    """The triplane mask whose planes are the outer products of the per-axis ``profiles``."""
+    return Triplane(
+        *(torch.from_numpy(np.outer(profiles[a], profiles[b])).float()[None, None] for a, b in PLANE_AXES.values())
+    )
 
 
 def _union(m1: Triplane, m2: Triplane) -> Triplane:

@@ -185,9 +185,7 @@ def decode_grid(
         sdf, color = _decode_coarse_to_fine(
             decoder, prepared, box, shape, chunk, with_color, int(coarse), float(exact_band), float(lipschitz), stats
         )
-    if with_color:
-        return sdf, color
-    return sdf
+    return (sdf, color) if with_color else sdf
 
 
 def _decode_full(decoder, prepared: PreparedTriplane, shape, chunk: int, with_color: bool):

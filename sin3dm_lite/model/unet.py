@@ -77,9 +77,8 @@ def cross_plane_inputs(tp: Triplane, detach_means: bool = False) -> Triplane:
 
     ``xy [X,Y]`` gets ``mean_z(xz)`` (a feature per x, repeated along y) and
     ``mean_z(yz)`` (a feature per y, repeated along x); likewise for ``xz`` and
-    ``yz``. Channels go from C to 3C; sizes do not change. ``detach_means``
-    blocks gradients through the means (to measure the purely local receptive field).
-    :func:`rollout_parts` returns the pieces.
+    ``yz``. Channels go from C to 3C; sizes do not change. :func:`rollout_parts`
+    returns the pieces (and says what ``detach_means`` does).
     """
     parts = rollout_parts(tp, detach_means)
     return Triplane(*(parts[name]["input"] for name in PLANES))  # each [B, 3C, ., .]
