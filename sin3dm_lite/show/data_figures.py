@@ -231,9 +231,8 @@ def pbr_map_images(source) -> dict[str, np.ndarray]:
     missing maps come out as constant images of the factor (or flat normals).
     """
     materials = getattr(source, "materials", None) or [source]
-    mat = next(
-        (m for m in materials if m.metallic_roughness_image is not None or m.normal_image is not None), materials[0]
-    )
+    with_maps = [m for m in materials if m.metallic_roughness_image is not None or m.normal_image is not None]
+    mat = (with_maps or materials)[0]
     base = as_float_image(mat.image) if mat.image is not None else np.ones((8, 8, 3), np.float32)
     base = base * np.asarray(mat.base_color, np.float32)[:3]
     shape = base.shape[:2]
@@ -242,11 +241,8 @@ def pbr_map_images(source) -> dict[str, np.ndarray]:
         metal, rough = mr[..., 2] * mat.metallic, mr[..., 1] * mat.roughness
     else:
         metal, rough = np.full(shape, mat.metallic, np.float32), np.full(shape, mat.roughness, np.float32)
-    normal = (
-        as_float_image(mat.normal_image)
-        if mat.normal_image is not None
-        else np.broadcast_to(np.float32([0.5, 0.5, 1.0]), (*shape, 3))
-    )
+    flat = np.broadcast_to(np.float32([0.5, 0.5, 1.0]), (*shape, 3))
+    normal = as_float_image(mat.normal_image) if mat.normal_image is not None else flat
     return {"base colour": base, "metallic": metal, "roughness": rough, "normal": normal}
 
 

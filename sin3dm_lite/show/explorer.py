@@ -83,16 +83,8 @@ class Explorer(widgets.VBox):
 
 def float_slider(value, lo, hi, step, description, readout_format=".2f", kind=widgets.FloatSlider, **kwargs):
     """A slider (``kind``: a float or float-range one) that redraws when released."""
-    return kind(
-        value=value,
-        min=lo,
-        max=hi,
-        step=step,
-        description=description,
-        continuous_update=False,
-        readout_format=readout_format,
-        **kwargs,
-    )
+    kwargs.update(description=description, continuous_update=False, readout_format=readout_format)
+    return kind(value=value, min=lo, max=hi, step=step, **kwargs)
 
 
 def plane_dropdown(value: str = "xy") -> widgets.Dropdown:

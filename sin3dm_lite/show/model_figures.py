@@ -21,10 +21,7 @@ def triplane_images(tp: Triplane, channels: str | int = "pca", batch: int = 0) -
 
 
 def plot_triplane(
-    tp: Triplane,
-    channels: str | int | Sequence[int] = "pca",
-    titles: bool = True,
-    batch: int = 0,
+    tp: Triplane, channels: str | int | Sequence[int] = "pca", titles: bool = True, batch: int = 0
 ) -> Figure:
     """The xy, xz and yz feature planes side by side, at their true relative sizes.
 
@@ -72,10 +69,9 @@ def _slice_words(axis: int, up: int) -> str:
 def plot_plane_axes(shape=None, up: str = "y", n_points: int = 4000, azim: float = 30.0) -> Figure:
     """The three triplane planes drawn on the shape's box, labelled, with the x, y, z axes and ``up`` vertical.
 
-    ``shape`` is a mesh (anything with ``vertices`` and ``faces``, drawn as ``n_points`` surface points), a
-    :class:`ShapeGrid` (its box and near-surface points), a box ``(6,)`` = ``(min xyz, max xyz)`` or None (a
-    unit cube). Each plane sits on the box face at the minimum of the axis it lacks, which the encoder averages
-    over. The text beside the box says how the 2D figures orient each plane and each grid slice.
+    ``shape``: a mesh or :class:`ShapeGrid` (drawn as ``n_points`` surface points), a box ``(6,)`` =
+    ``(min xyz, max xyz)`` or None (a unit cube). Each plane sits on the box face at the minimum of the axis it
+    lacks, which the encoder averages over; the text beside says how the 2D figures orient planes and slices.
     """
     ui = axis_index(up)
     lo, hi, points = _box_and_points(shape, n_points)

@@ -159,9 +159,7 @@ _RECONSTRUCTIONS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # mod
 
 def plot_beside_input(model, samples, resolution: int = 64, labels: Sequence[str] | None = None) -> Figure:
     """``Sin3DM.plot_beside_input``: front and top views (:func:`plot_projections`) of ``model``'s samples beside
-    the input's reconstruction, all at the voxel size the input's box has at ``resolution``.
-
-    Each shape is decoded at twice the picture's voxels; the reconstruction's grid once per model and resolution.
+    the input's reconstruction (kept per model and resolution), at the voxel size of the input's box at ``resolution``.
     """
     kept = _RECONSTRUCTIONS.setdefault(model, {})
     if resolution not in kept:
@@ -175,11 +173,9 @@ def plot_beside_input(model, samples, resolution: int = 64, labels: Sequence[str
 def plot_meshes(meshes, labels: Sequence[str] | None = None, size: int = 256, columns: int = 4) -> Figure:
     """A static picture of meshes side by side: each one's three-quarter view, its label underneath.
 
-    For a notebook read without a kernel, where a k3d viewer shows nothing. Each mesh is drawn by
-    :func:`sin3dm_lite.evaluate.render.render_hero` at ``size``² pixels, all framed by the union of their
-    bounds so sizes compare. ``meshes``: a ``TexturedMesh``, or a list of them, ``trimesh.Trimesh`` es or
-    ``(vertices, faces)`` pairs (the last two in grey). Where off-screen OpenGL cannot start, the figure is one
-    line of text saying so.
+    For a notebook read without a kernel. ``meshes``: a ``TexturedMesh``, or a list of them, ``trimesh.Trimesh``
+    es or ``(vertices, faces)`` pairs (in grey), drawn at ``size``² pixels in one frame so sizes compare. Where
+    off-screen OpenGL cannot start, the figure is a line of text saying so.
     """
 
     def textured(m) -> TexturedMesh:

@@ -1,7 +1,6 @@
 """The widget panels of the sampling stage: the denoising trajectory, sampling with its knobs, controlled generation.
 
-:func:`denoising_explorer` re-plots a recorded trajectory; the others call the model on every change, on
-coarse grids while dragging and at full quality on a button. All are importable from :mod:`.widgets`.
+The live panels call the model on every change, on coarse grids, and at full quality on a button.
 """
 
 from __future__ import annotations
@@ -45,11 +44,9 @@ def denoising_explorer(intermediates: Sequence[dict], plane: str = "xy", channel
 def control_panel(model, n_samples: int = 2, resolution: int | None = None, **sample_kwargs) -> Explorer:
     """Pick a box for local editing or patch duplication; the mask over the planes redraws live, a button samples.
 
-    Controls: the operation, the box as ranges of x, y, z (fractions of the model's box) and, for
-    ``duplicate``, where the copy's low corner goes. The figure is :func:`viz.plot_plan` of ``model.plan(...)``
-    (or the reason the sampler would refuse it). The **sample** button (``panel.run()``) draws ``n_samples``
-    with the seed shown and shows the planes and ``model.plot_beside_input`` at ``resolution`` (default: the
-    grid's) below; ``panel.last_samples`` keeps them.
+    The box is given as ranges of x, y, z (fractions of the model's box), for ``duplicate`` with where the
+    copy's low corner goes; the figure is :func:`viz.plot_plan`. The **sample** button (``panel.run()``) draws
+    ``n_samples`` and shows them beside the input at ``resolution``; ``panel.last_samples`` keeps them.
     """
     from ..errors import Sin3DMInputError
 
@@ -113,11 +110,9 @@ def sampling_panel(
 ) -> Explorer:
     """Seed, DDIM steps, diversity and resize (x, y, z) → ``model.sample`` → a cheap preview; a button decodes meshes.
 
-    Every change samples ``n_samples`` triplanes and draws :func:`viz.plot_projections` of their shapes beside
-    the input's, decoded on a coarse grid (``preview`` voxels along the input box's longest side, the same
-    voxel size for resized samples). The **full quality** button (``panel.full()``) decodes textured meshes
-    with ``model.to_mesh(**mesh)`` and shows :func:`viz.plot_meshes` (and a k3d gallery with ``k3d``).
-    ``panel.state`` holds ``"samples"`` and, after the button, ``"meshes"``.
+    The preview decodes ``preview`` voxels along the input box's longest side. The **full quality** button
+    (``panel.full()``) decodes ``model.to_mesh(**mesh)`` and shows :func:`viz.plot_meshes` (and, with ``k3d``,
+    a gallery). ``panel.state`` holds ``"samples"`` and, after the button, ``"meshes"``.
     """
     s = model.config.sampling
     steps = int(steps or min(s.steps, 10))

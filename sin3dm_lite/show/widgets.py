@@ -1,10 +1,7 @@
 """Small ipywidgets panels around the :mod:`sin3dm_lite.show.viz` figures (``from sin3dm_lite import widgets``).
 
-Each panel is an :class:`Explorer`: moving a control calls a tested library figure function with the controls'
-values and shows the figure. Explorers re-plot arrays computed earlier; live panels call the model. This module
-holds the data and model stages' panels; the sampling stage's are in :mod:`.sampling_widgets`. For tests and
-scripts: ``panel.controls`` maps parameter names to widgets, ``panel.figure()`` returns the current figure and
-``panel.refresh()`` redraws the output (and returns the figure).
+Each panel is an :class:`Explorer` that redraws a library figure when a control moves; the data and model
+stages' panels are here, the sampling stage's in :mod:`.sampling_widgets`.
 """
 
 from __future__ import annotations
@@ -23,10 +20,6 @@ from .explorer import Explorer, float_slider, plane_dropdown
 from .sampling_widgets import control_panel, denoising_explorer, denoising_slider, sampling_panel
 
 
-def _axis_dropdown(value: str = "z") -> widgets.Dropdown:
-    return widgets.Dropdown(options=list(viz.AXES), value=value, description="axis", layout={"width": "140px"})
-
-
 def _index_slider(n: int, description: str = "index") -> widgets.IntSlider:
     return widgets.IntSlider(value=n // 2, min=0, max=n - 1, description=description, continuous_update=False)
 
@@ -38,27 +31,28 @@ def _colour_controls(tp: Triplane) -> tuple[widgets.ToggleButtons, widgets.IntSl
     return mode, channel
 
 
-def _keep_index_in_range(grid: ShapeGrid, index_control: widgets.IntSlider):
-    """When the axis changes, fit the index slider to that axis and centre it."""
+def _axis_and_index(grid: ShapeGrid, axis: str):
+    """An axis dropdown, a slice slider and the ``on_change`` that fits the slider to a new axis (centred)."""
+    axis_c = widgets.Dropdown(options=list(viz.AXES), value=axis, description="axis", layout={"width": "140px"})
+    index_c = _index_slider(grid.shape[viz.AXES.index(axis)])
 
     def on_change(name, value):
         if name == "axis":
             n = grid.shape[viz.AXES.index(value)]
-            index_control.max = n - 1
-            index_control.value = n // 2
+            index_c.max = n - 1
+            index_c.value = n // 2
 
-    return on_change
+    return axis_c, index_c, on_change
 
 
 def slice_explorer(grid: ShapeGrid, axis: str = "z", up: str | None = "y") -> Explorer:
     """Axis dropdown + slice slider + SDF/colour toggle → :func:`viz.plot_slice` (``up`` drawn vertically)."""
-    axis_c = _axis_dropdown(axis)
-    index_c = _index_slider(grid.shape[viz.AXES.index(axis)])
+    axis_c, index_c, on_change = _axis_and_index(grid, axis)
     kind_c = widgets.ToggleButtons(options=["sdf", "color"], value="sdf", description="show")
     return Explorer(
         {"axis": axis_c, "index": index_c, "kind": kind_c},
         lambda axis, index, kind: viz.plot_slice(grid, axis, index, kind, up=up),
-        on_change=_keep_index_in_range(grid, index_c),
+        on_change=on_change,
         title=f"{grid.name}: slices",
     )
 
@@ -67,14 +61,13 @@ def truncation_explorer(grid: ShapeGrid, axis: str = "z") -> Explorer:
     """Threshold slider (voxels, up to the grid's own) → :func:`viz.plot_truncation` next to the grid's own."""
     own = grid.threshold / grid.voxel_size
     thr_c = float_slider(min(1.0, own), min(0.25, own), own, 0.25, "threshold")
-    axis_c = _axis_dropdown(axis)
-    index_c = _index_slider(grid.shape[viz.AXES.index(axis)])
+    axis_c, index_c, on_change = _axis_and_index(grid, axis)
     return Explorer(
         {"threshold": thr_c, "axis": axis_c, "index": index_c},
         lambda threshold, axis, index: viz.plot_truncation(
             grid, [threshold, own] if threshold < own - 1e-6 else [own], axis, index
         ),
-        on_change=_keep_index_in_range(grid, index_c),
+        on_change=on_change,
         title=f"truncation (voxels; the grid's own is {own:g})",
     )
 
@@ -111,9 +104,8 @@ def receptive_field_explorer(fn: Callable[[int], tuple], choices: Sequence[int] 
 def texel_receptive_field(model, plane: str = "xy") -> Explorer:
     """Pick an output texel (sliders along the plane's two axes): its measured receptive field in the model's denoiser.
 
-    Calls :func:`receptive_field.receptive_field` on ``model.denoiser`` at the latent's size with ``texel=(i, j)``
-    and draws :func:`viz.plot_receptive_field` centred on it: ``map="local"`` through the convolutions only,
-    ``"whole"`` the whole network. Each texel is measured once and kept in ``panel.cache``.
+    ``map="local"`` is the field through the convolutions only, ``"whole"`` through the whole network
+    (:func:`receptive_field.receptive_field`). Each texel is measured once and kept in ``panel.cache``.
     """
     res = model.latent.resolution
     u, v = PLANE_AXES[plane]
