@@ -35,9 +35,9 @@ def plot_denoising(
 
     if channels == "pca":
         mean, basis = pca_basis(get(reference if reference is not None else intermediates[-1]["x0"]))
-        to_image = lambda p: pca_project(p, mean, basis)  # noqa: E731
+        to_image = lambda p: pca_project(p, mean, basis)
     else:
-        to_image = lambda p: plane_to_image(p, channels)  # noqa: E731
+        to_image = lambda p: plane_to_image(p, channels)
     n = len(intermediates)
     a, b = get(intermediates[0]["x_t"]).shape[-2:]  # drawn with a → and b ↑
     fig = new_figure(max(2.0 * n, 3.0), 2 * panel_height(2.0, b / a) + 0.3)
