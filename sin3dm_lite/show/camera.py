@@ -1,12 +1,7 @@
 """k3d's frame and camera: data coordinates turned into k3d's z-up frame, and where the camera looks from.
 
-k3d's up axis is z; OBJ files (and our normalised meshes) are usually y-up.
-:func:`to_view` turns y-up data so that its y becomes k3d's z:
-``(x, y, z) → (x, -z, y)``, a rotation (no mirror), so a shape's front (+z)
-faces k3d's -y, where :func:`fit_camera` puts the camera: in front, to the
-right and well above (:data:`VIEW`), so that a canyon's river shows. The
-viewers of :mod:`sin3dm_lite.show.viewer` and the pages of
-:mod:`sin3dm_lite.show.pages` use both.
+OBJ files (and our normalised meshes) are y-up; :func:`to_view` turns them by ``(x, y, z) → (x, -z, y)``, a
+rotation (no mirror), so a shape's front (+z) faces k3d's -y, where :func:`fit_camera` puts the camera.
 """
 
 from __future__ import annotations
@@ -16,9 +11,8 @@ import numpy as np
 
 UP_AXES = ("y", "z")
 
-#: the default camera of a saved page: (azimuth, elevation) in degrees, in the data's y-up frame with the
-#: renderer's convention (azimuth 0 = from the front, +z; 90 = from +x). From above at an angle: at 25° the
-#: canyon's near bank hides its river, at 60° the river runs through the picture.
+#: the default camera of a saved page: (azimuth, elevation) in degrees, in the data's y-up frame (azimuth 0 =
+#: from the front, +z; 90 = from +x). From this high a canyon's near bank does not hide its river.
 VIEW = (30.0, 60.0)
 
 
@@ -43,11 +37,8 @@ def view_camera(
 ) -> list[float]:
     """k3d's camera vector ``[eye, target, up]`` (9 numbers) looking at the box ``lo``..``hi`` (k3d's frame).
 
-    ``azimuth`` and ``elevation`` (degrees) are in the data's y-up frame, as in
-    :mod:`sin3dm_lite.evaluate.render`: azimuth 0 from the front (+z of the data, k3d's
-    -y), 90 from +x; elevation 90 straight from above. The eye is far enough
-    away that the box's bounding sphere, times ``factor``, fits in a view of
-    ``fov`` degrees.
+    ``azimuth`` and ``elevation`` (degrees) are in the data's y-up frame, as in :mod:`sin3dm_lite.evaluate.render`;
+    the eye is far enough away that the box's bounding sphere, times ``factor``, fits in ``fov`` degrees.
     """
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     centre = (lo + hi) / 2
@@ -62,10 +53,7 @@ def view_camera(
 def fit_camera(
     plot: k3d.Plot, azimuth: float = VIEW[0], elevation: float = VIEW[1], factor: float = 1.1
 ) -> list[float]:
-    """Point the camera at everything in the plot, from above at an angle by default (:func:`view_camera`).
-
-    Returns the camera vector it set.
-    """
+    """Point the camera at everything in the plot (:func:`view_camera`) and return the camera vector it set."""
     b = plot.get_auto_grid()  # [xmin, xmax, ymin, ymax, zmin, zmax] of all objects
     plot.camera = view_camera(b[::2], b[1::2], azimuth, elevation, fov=plot.camera_fov, factor=factor)
     return list(plot.camera)

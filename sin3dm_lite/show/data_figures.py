@@ -28,7 +28,6 @@ from .figures import (
 )
 
 
-# --------------------------------------------------------------------------- grids
 def plot_grid_slices(
     grid: ShapeGrid,
     index: int | Sequence[int] | None = None,
@@ -39,17 +38,10 @@ def plot_grid_slices(
 ) -> Figure:
     """TSDF slices across each axis (top row) and the colour slice under each (bottom row).
 
-    The SDF uses a diverging colour map centred on 0 with limits ``±threshold``
-    (red inside, blue outside); the black line is the surface (zero level) and
-    the dashed lines, with ``threshold_lines``, the edges of the truncation band.
-    The colour grid is only defined inside the band; outside it is drawn in
-    neutral grey. ``index`` is one index for every axis, one per axis, or None
-    for the middle slices. Each panel shows the two other axes in order (→, ↑),
-    except that the ``up`` axis (``"y"`` as in OBJ/glTF and the built-in
-    examples; ``None`` to keep the order) is drawn vertically where it appears.
-
-    Axes of the figure: one per panel (``len(axes)`` or ``2 * len(axes)``) plus
-    one shared colour bar.
+    The SDF is red inside, blue outside (limits ``±threshold``); the black line is the surface and the dashed
+    lines, with ``threshold_lines``, the edges of the truncation band, outside which the colour is grey.
+    ``index`` is one index for every axis, one per axis, or None for the middle slices. Each panel shows the
+    two other axes in order (→, ↑), except that the ``up`` axis (None: keep the order) is drawn vertically.
     """
     ax_ids = [axis_index(a) for a in axes]
     if index is None or np.isscalar(index):
@@ -67,11 +59,8 @@ def plot_grid_slices(
         if show_color:
             draw_slice(panels[1, col], grid, a, i, "color", threshold_lines, up)
     fig.colorbar(im, ax=panels[0, :].tolist(), label="truncated SDF", shrink=0.9)
-    fig.suptitle(
-        f"{grid.name}: grid {grid.shape}, threshold {grid.threshold:.4f} "
-        f"({grid.threshold / grid.voxel_size:.1f} voxels)",
-        fontsize=10,
-    )
+    voxels = grid.threshold / grid.voxel_size
+    fig.suptitle(f"{grid.name}: grid {grid.shape}, threshold {grid.threshold:.4f} ({voxels:.1f} voxels)", fontsize=10)
     return fig
 
 
@@ -86,8 +75,6 @@ def plot_slice(
     """One panel: the SDF (``kind="sdf"``) or colour (``kind="color"``) slice across ``axis`` at ``index``.
 
     ``up`` is drawn vertically when it is one of the panel's axes (see :func:`plot_grid_slices`).
-
-    This is what :func:`sin3dm_lite.widgets.slice_explorer` redraws when its slider moves.
     """
     a = axis_index(axis)
     fig = new_figure(4.2, 3.6)
@@ -106,29 +93,16 @@ def plot_truncation(
 ) -> Figure:
     """What the truncation threshold does: an SDF clipped at several thresholds (in voxels).
 
-    Given a :class:`ShapeGrid`, its SDF is re-clipped at each threshold
-    (default: 1, 2 and the grid's own). That SDF is *already* truncated at
-    ``grid.threshold``, so only thresholds up to that one can be shown honestly
-    (a larger one would need the untruncated distance, which the grid no longer
-    has): larger values raise ``ValueError``. Given a plain ``(X, Y, Z)`` array
-    instead (an untruncated SDF on the ``±n_axis / n_max`` box), any threshold works.
-
-    Top: the SDF along one line through the middle of the slice (along the
-    slice's first remaining axis) for each threshold; the flat parts are where
-    the distance was clipped. Below: the slice at each threshold, on one
-    colour scale (± the largest threshold).
+    A :class:`ShapeGrid`'s SDF is re-clipped at each threshold (default: 1, 2 and the grid's own); it is
+    already truncated at its own, so larger thresholds raise ``ValueError``. A plain ``(X, Y, Z)`` array
+    (an untruncated SDF on the ``±n_axis / n_max`` box) takes any threshold. Top: the SDF along the line
+    through the middle of the slice, per threshold. Below: the slice at each threshold, on one colour scale.
     """
     if not isinstance(grid, ShapeGrid):
         field = np.asarray(as_numpy(grid), np.float32)
         half = np.array(field.shape, np.float64) / max(field.shape)
-        grid = ShapeGrid(
-            field,
-            np.zeros((1, 1, 1, 3), np.float32),
-            np.concatenate([-half, half]),
-            float(np.abs(field).max()),
-            None,
-            name="sdf",
-        )  # type: ignore[arg-type]
+        no_colour, box = np.zeros((1, 1, 1, 3), np.float32), np.concatenate([-half, half])
+        grid = ShapeGrid(field, no_colour, box, float(np.abs(field).max()), None, name="sdf")  # type: ignore[arg-type]
     a = axis_index(axis)
     own = grid.threshold / grid.voxel_size
     if thresholds is None:
@@ -160,11 +134,9 @@ def plot_truncation(
             ax.contour(coords, grid.axis_coords(v), clipped.T, levels=[0.0], colors="k", linewidths=0.8)
         ax.axhline(float(grid.axis_coords(v)[line]), color="0.2", lw=0.6, ls=":")
         ax.set_title(f"threshold {t:g} vox ({tw:.4f})", fontsize=9)
-        ax.set_xlabel(AXES[u])
-        ax.set_ylabel(AXES[v])
+        ax.set(xlabel=AXES[u], ylabel=AXES[v])
     prof.axhline(0.0, color="k", lw=0.6)
-    prof.set_xlabel(AXES[u])
-    prof.set_ylabel("SDF")
+    prof.set(xlabel=AXES[u], ylabel="SDF")
     prof.set_title(
         f"SDF along {AXES[u]} at {AXES[v]} = {grid.axis_coords(v)[line]:+.3f} (slice {AXES[a]} = {index})", fontsize=9
     )
@@ -173,17 +145,8 @@ def plot_truncation(
     return fig
 
 
-def _box_outline(ax, grid: ShapeGrid, u: int, v: int) -> None:
-    lo_u, hi_u, lo_v, hi_v = grid.aabb[u], grid.aabb[u + 3], grid.aabb[v], grid.aabb[v + 3]
-    ax.add_patch(Rectangle((lo_u, lo_v), hi_u - lo_u, hi_v - lo_v, fill=False, ec="k", lw=1.0))
-
-
 def plot_points(grid: ShapeGrid, n: int = 4000, seed: int = 0) -> Figure:
-    """The near-surface training points projected on the xy, xz and yz planes, coloured by their SDF.
-
-    A random subset of ``n`` points (fixed ``seed``) is drawn so the picture
-    stays readable; the rectangle is the grid's bounding box.
-    """
+    """A random ``n`` of the near-surface training points on the xy, xz and yz planes, coloured by their SDF."""
     pts = np.asarray(grid.points, np.float32).reshape(-1, 3)
     sdf = np.asarray(grid.point_sdf, np.float32).reshape(-1)
     if len(pts) > n:
@@ -195,13 +158,11 @@ def plot_points(grid: ShapeGrid, n: int = 4000, seed: int = 0) -> Figure:
     for ax, name in zip(panels, PLANES):
         u, v = PLANE_AXES[name]
         sc = ax.scatter(pts[:, u], pts[:, v], c=sdf, s=2, cmap=SDF_CMAP, vmin=-grid.threshold, vmax=grid.threshold)
-        _box_outline(ax, grid, u, v)
+        lo_u, hi_u, lo_v, hi_v = grid.aabb[u], grid.aabb[u + 3], grid.aabb[v], grid.aabb[v + 3]
+        ax.add_patch(Rectangle((lo_u, lo_v), hi_u - lo_u, hi_v - lo_v, fill=False, ec="k", lw=1.0))
         pad = 0.05 * float(grid.aabb[3:].max())
-        ax.set_xlim(grid.aabb[u] - pad, grid.aabb[u + 3] + pad)
-        ax.set_ylim(grid.aabb[v] - pad, grid.aabb[v + 3] + pad)
-        ax.set_aspect("equal")
-        ax.set_xlabel(AXES[u])
-        ax.set_ylabel(AXES[v])
+        ax.set(xlim=(lo_u - pad, hi_u + pad), ylim=(lo_v - pad, hi_v + pad), aspect="equal")
+        ax.set(xlabel=AXES[u], ylabel=AXES[v])
         ax.set_title(f"{name} projection", fontsize=9)
     fig.colorbar(sc, ax=panels.tolist(), label="point SDF", shrink=0.85)
     fig.suptitle(f"{len(pts)} of {len(grid.points)} near-surface training points", fontsize=10)
@@ -209,6 +170,7 @@ def plot_points(grid: ShapeGrid, n: int = 4000, seed: int = 0) -> Figure:
 
 
 def as_float_image(image: np.ndarray) -> np.ndarray:
+    """An image as floats in [0, 1] (uint8 divided by 255), RGB only."""
     img = as_numpy(image)
     if img.dtype == np.uint8:
         img = img.astype(np.float32) / 255.0
@@ -216,10 +178,7 @@ def as_float_image(image: np.ndarray) -> np.ndarray:
 
 
 def plot_texture(image: np.ndarray, covered: np.ndarray | None = None) -> Figure:
-    """A UV texture (``(h, w, 3)``, float in [0, 1] or uint8) and, optionally, its ``covered`` mask.
-
-    The axes read (u, v) directly: row 0 of the image is ``v = 1`` (OBJ convention).
-    """
+    """A UV texture (``(h, w, 3)``, float in [0, 1] or uint8) and, optionally, its ``covered`` mask, axes (u, v)."""
     img = as_float_image(image)
     fig = new_figure(8.0 if covered is not None else 4.4, 4.2)
     panels = fig.subplots(1, 2 if covered is not None else 1, squeeze=False)[0]
@@ -230,8 +189,7 @@ def plot_texture(image: np.ndarray, covered: np.ndarray | None = None) -> Figure
         panels[1].imshow(cov, extent=(0, 1, 0, 1), origin="upper", cmap="gray", vmin=0, vmax=1, interpolation="nearest")
         panels[1].set_title(f"covered texels: {cov.mean():.1%}", fontsize=9)
     for ax in panels:
-        ax.set_xlabel("u")
-        ax.set_ylabel("v")
+        ax.set(xlabel="u", ylabel="v")
     return fig
 
 
@@ -244,17 +202,13 @@ def plot_uv_layout(
 ) -> Figure:
     """UV triangles as a wireframe (one ``LineCollection``), over the texture when given.
 
-    ``uvs`` is either per vertex ``(V, 2)`` with ``faces (F, 3)``, or per face corner
-    ``(F, 3, 2)`` (``TexturedMesh.face_uvs``; ``faces`` is then ignored). Rows with
-    NaN (faces without a texture) are skipped.
+    ``uvs`` is per vertex ``(V, 2)`` with ``faces (F, 3)``, or per face corner ``(F, 3, 2)`` (``faces`` is then
+    ignored). Faces with NaN uvs (no texture) are skipped.
     """
     uv = as_numpy(uvs).astype(np.float32)
-    if uv.ndim == 2:
-        if faces is None:
-            raise ValueError("per-vertex uvs (V, 2) need faces (F, 3)")
-        tri = uv[np.asarray(faces)]
-    else:
-        tri = uv
+    if uv.ndim == 2 and faces is None:
+        raise ValueError("per-vertex uvs (V, 2) need faces (F, 3)")
+    tri = uv[np.asarray(faces)] if uv.ndim == 2 else uv
     tri = tri[np.isfinite(tri).all(axis=(1, 2))]
     closed = np.concatenate([tri, tri[:, :1]], axis=1)  # (F, 4, 2): each triangle as a closed polyline
     fig = new_figure(5.0, 5.0)
@@ -264,29 +218,21 @@ def plot_uv_layout(
     ax.add_collection(LineCollection(closed, linewidths=linewidth, colors=color))
     lo = np.minimum(closed.reshape(-1, 2).min(0) if len(closed) else 0.0, 0.0)
     hi = np.maximum(closed.reshape(-1, 2).max(0) if len(closed) else 1.0, 1.0)
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_aspect("equal")
-    ax.set_xlabel("u")
-    ax.set_ylabel("v")
+    ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), aspect="equal", xlabel="u", ylabel="v")
     ax.set_title(f"UV layout: {len(tri)} triangles", fontsize=9)
     return fig
 
 
-# --------------------------------------------------------------------------- PBR
 def pbr_map_images(source) -> dict[str, np.ndarray]:
     """The four PBR maps of a mesh (its first material with maps) or a ``Material``, as float images.
 
-    ``{"base colour": (h, w, 3), "metallic": (h, w), "roughness": (h, w), "normal": (h, w, 3)}``:
-    metallic is the metallic-roughness map's B channel times the factor,
-    roughness its G channel times the factor (glTF); the normal map is shown
-    as stored (tangent space, flat = (0.5, 0.5, 1), the familiar lilac).
-    Missing maps come out as constant images of the factor (or flat normals).
+    ``{"base colour", "metallic", "roughness", "normal"}``: metallic and roughness are the B and G channels
+    of the metallic-roughness map times their factors (glTF), the normal map as stored (tangent space);
+    missing maps come out as constant images of the factor (or flat normals).
     """
     materials = getattr(source, "materials", None) or [source]
-    mat = next(
-        (m for m in materials if m.metallic_roughness_image is not None or m.normal_image is not None), materials[0]
-    )
+    with_maps = [m for m in materials if m.metallic_roughness_image is not None or m.normal_image is not None]
+    mat = (with_maps or materials)[0]
     base = as_float_image(mat.image) if mat.image is not None else np.ones((8, 8, 3), np.float32)
     base = base * np.asarray(mat.base_color, np.float32)[:3]
     shape = base.shape[:2]
@@ -295,39 +241,24 @@ def pbr_map_images(source) -> dict[str, np.ndarray]:
         metal, rough = mr[..., 2] * mat.metallic, mr[..., 1] * mat.roughness
     else:
         metal, rough = np.full(shape, mat.metallic, np.float32), np.full(shape, mat.roughness, np.float32)
-    normal = (
-        as_float_image(mat.normal_image)
-        if mat.normal_image is not None
-        else np.broadcast_to(np.float32([0.5, 0.5, 1.0]), (*shape, 3))
-    )
+    flat = np.broadcast_to(np.float32([0.5, 0.5, 1.0]), (*shape, 3))
+    normal = as_float_image(mat.normal_image) if mat.normal_image is not None else flat
     return {"base colour": base, "metallic": metal, "roughness": rough, "normal": normal}
 
 
 def plot_pbr_maps(source, title: str | None = None) -> Figure:
     """Base colour, metallic, roughness and normal maps side by side (a mesh or a ``Material``).
 
-    k3d shades only a colour texture, so this is how a reader sees the
-    material of a PBR result; the 3D viewers show its base colour.
-    Axes read (u, v): row 0 of every map is ``v = 1``.
+    k3d shades only a colour texture, so this is how a reader sees a PBR material.
     """
-    maps = pbr_map_images(source)
     fig = new_figure(13.0, 3.6)
     panels = fig.subplots(1, 4)
-    for ax, (name, img) in zip(panels, maps.items()):
-        gray = img.ndim == 2
-        ax.imshow(
-            img,
-            extent=(0, 1, 0, 1),
-            origin="upper",
-            interpolation="nearest",
-            cmap="gray" if gray else None,
-            vmin=0 if gray else None,
-            vmax=1 if gray else None,
-        )
+    for ax, (name, img) in zip(panels, pbr_map_images(source).items()):
+        gray = dict(cmap="gray", vmin=0, vmax=1) if img.ndim == 2 else {}
+        ax.imshow(img, extent=(0, 1, 0, 1), origin="upper", interpolation="nearest", **gray)
         stats = f"mean {img.mean():.2f}, std {img.std():.2f}" if gray else f"{img.shape[1]}×{img.shape[0]}"
         ax.set_title(f"{name}\n{stats}", fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
+        ax.set(xticks=[], yticks=[])
     if title:
         fig.suptitle(title, fontsize=10)
     return fig
@@ -336,8 +267,7 @@ def plot_pbr_maps(source, title: str | None = None) -> Figure:
 def pbr_slice_images(grid: ShapeGrid, axis: int | str = "y", index: int | None = None) -> dict[str, np.ndarray]:
     """One slice of each PBR quantity of a grid, :data:`NEUTRAL` grey outside the band.
 
-    ``{"base colour", "metallic", "roughness", "normal"}``; the world-space
-    normal is shown as ``n · ½ + ½`` (x → red, y → green, z → blue).
+    The world-space normal is shown as ``n · ½ + ½`` (x → red, y → green, z → blue).
     """
     if not grid.has_pbr:
         raise ValueError(f"grid '{grid.name}' has no PBR channels")
@@ -354,10 +284,7 @@ def pbr_slice_images(grid: ShapeGrid, axis: int | str = "y", index: int | None =
 
 
 def plot_pbr_slices(grid: ShapeGrid, axis: int | str = "y", index: int | None = None, up: str | None = "y") -> Figure:
-    """The channels of a PBR grid in one slice: base colour, metallic, roughness, world-space normal.
-
-    Same orientation as :func:`plot_grid_slices` (the ``up`` axis vertical).
-    """
+    """The channels of a PBR grid in one slice (base colour, metallic, roughness, normal), ``up`` vertical."""
     a = axis_index(axis)
     imgs = pbr_slice_images(grid, a, index)
     _, index = grid_slice(grid.sdf, a, index)
@@ -370,7 +297,6 @@ def plot_pbr_slices(grid: ShapeGrid, axis: int | str = "y", index: int | None = 
     for ax, (name, img) in zip(panels, imgs.items()):
         show_image(ax, img.swapaxes(0, 1) if swap else img, extent=ext)
         ax.set_title(f"{name}", fontsize=9)
-        ax.set_xlabel(AXES[u])
-        ax.set_ylabel(AXES[v])
+        ax.set(xlabel=AXES[u], ylabel=AXES[v])
     fig.suptitle(slice_title(grid, a, index, "PBR channels"), fontsize=10)
     return fig

@@ -20,11 +20,9 @@ def plot_denoising(
 ) -> Figure:
     """The reverse process: ``x_t`` (top row) and the predicted ``x0`` (bottom row) at each recorded step.
 
-    ``intermediates`` is the sampler's list of ``{"step", "t", "x_t", "x0"}``
-    dicts (triplanes with a batch dimension; sample ``batch`` is shown). With
-    ``channels="pca"`` every panel is projected on *one* PCA basis, fitted on
-    ``reference``'s plane (default: the last entry's ``x0``, the final result),
-    so a colour means the same feature direction in every column.
+    ``intermediates`` is the sampler's list of ``{"step", "t", "x_t", "x0"}`` dicts (sample ``batch`` shown).
+    With ``channels="pca"`` every panel uses *one* PCA basis, fitted on ``reference``'s plane (default: the
+    final ``x0``), so a colour means the same feature direction in every column.
     """
     if plane not in PLANES:
         raise ValueError(f"plane must be one of {PLANES}, got {plane!r}")
@@ -37,9 +35,9 @@ def plot_denoising(
 
     if channels == "pca":
         mean, basis = pca_basis(get(reference if reference is not None else intermediates[-1]["x0"]))
-        to_image = lambda p: pca_project(p, mean, basis)  # noqa: E731
+        to_image = lambda p: pca_project(p, mean, basis)
     else:
-        to_image = lambda p: plane_to_image(p, channels)  # noqa: E731
+        to_image = lambda p: plane_to_image(p, channels)
     n = len(intermediates)
     a, b = get(intermediates[0]["x_t"]).shape[-2:]  # drawn with a → and b ↑
     fig = new_figure(max(2.0 * n, 3.0), 2 * panel_height(2.0, b / a) + 0.3)
@@ -48,15 +46,13 @@ def plot_denoising(
         for r, key in enumerate(("x_t", "x0")):
             ax = panels[r, c]
             show_image(ax, to_image(get(entry[key])))
-            ax.set_xticks([])
-            ax.set_yticks([])
+            ax.set(xticks=[], yticks=[])
         panels[0, c].set_title(f"t = {int(entry['t'])}", fontsize=9)
     panels[0, 0].set_ylabel(f"x_t ({plane})")
     panels[1, 0].set_ylabel("predicted x0")
     return fig
 
 
-# --------------------------------------------------------------------------- training curves
 def moving_average(values: Sequence[float], window: int) -> np.ndarray:
     """Mean of each run of ``window`` consecutive values (length ``len(values) - window + 1``)."""
     v = np.asarray(values, np.float64)
@@ -68,9 +64,8 @@ def moving_average(values: Sequence[float], window: int) -> np.ndarray:
 def plot_losses(history, log: bool = True, title: str | None = None, window: int | None = None) -> Figure:
     """Training curves: each series raw (thin, faint) and its moving average (thick).
 
-    ``history`` is a list of floats or a dict ``name -> list of floats``;
-    ``window`` defaults to 1/50 of the run (at least 1). The y axis is
-    logarithmic when ``log`` and every value is positive.
+    ``history`` is a list of floats or a dict ``name -> list of floats``; ``window`` defaults to 1/50 of the
+    run. The y axis is logarithmic when ``log`` and every value is positive.
     """
     series = history if isinstance(history, dict) else {"loss": history}
     fig = new_figure(6.0, 3.6)
@@ -81,16 +76,14 @@ def plot_losses(history, log: bool = True, title: str | None = None, window: int
         if len(v) == 0:
             continue
         all_positive &= bool(np.all(v > 0))
-        color = f"C{k}"
         steps = np.arange(len(v))
-        ax.plot(steps, v, color=color, lw=0.6, alpha=0.35)
+        ax.plot(steps, v, color=f"C{k}", lw=0.6, alpha=0.35)
         w = window or max(1, len(v) // 50)
         ma = moving_average(v, w)
-        ax.plot(steps[w - 1 :] if w <= len(v) else steps[-1:], ma, color=color, lw=2.0, label=f"{name} (avg {w})")
+        ax.plot(steps[w - 1 :] if w <= len(v) else steps[-1:], ma, color=f"C{k}", lw=2.0, label=f"{name} (avg {w})")
     if log and all_positive:
         ax.set_yscale("log")
-    ax.set_xlabel("step")
-    ax.set_ylabel("loss")
+    ax.set(xlabel="step", ylabel="loss")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if title:

@@ -12,7 +12,6 @@ from .data_figures import as_float_image
 from .figures import axis_index, new_figure, show_image
 
 
-# --------------------------------------------------------------------------- evaluation
 def plot_picture(image: np.ndarray, title: str | None = None, width: float = 10.0) -> Figure:
     """One picture (``(H, W, 3)``, uint8 or floats in [0, 1]: a render, a ``render.contact_sheet``), no axes."""
     img = as_float_image(image)
@@ -26,12 +25,7 @@ def plot_picture(image: np.ndarray, title: str | None = None, width: float = 10.
 
 
 def plot_iou_matrix(grids: Sequence[np.ndarray], labels: Sequence[str] | None = None) -> Figure:
-    """G-Div as a picture: the ``1 − IoU`` of every pair of occupancy grids (one box), values written in.
-
-    G-Div is the mean of the cells above the diagonal; the diagonal (a shape
-    with itself, 0) is left blank.
-    """
-
+    """G-Div as a picture: the ``1 − IoU`` of every pair of occupancy grids (one box), the diagonal blank."""
     d = 1.0 - pairwise_iou(grids)
     n = len(d)
     i, j = np.triu_indices(n, k=1)
@@ -44,16 +38,9 @@ def plot_iou_matrix(grids: Sequence[np.ndarray], labels: Sequence[str] | None = 
     im = ax.imshow(shown, cmap="viridis", vmin=0.0, vmax=max(float(off.max()) if len(off) else 0.0, 1e-3))
     for a in range(n):
         for b in range(n):
-            if a != b:
-                ax.text(
-                    b,
-                    a,
-                    f"{d[a, b]:.2f}",
-                    ha="center",
-                    va="center",
-                    fontsize=8,
-                    color="w" if d[a, b] < 0.6 * (off.max() if len(off) else 1) else "k",
-                )
+            if a != b:  # then off is not empty
+                color = "w" if d[a, b] < 0.6 * off.max() else "k"
+                ax.text(b, a, f"{d[a, b]:.2f}", ha="center", va="center", fontsize=8, color=color)
     ax.set_xticks(range(n), labels, fontsize=8, rotation=90 if n > 6 else 0)
     ax.set_yticks(range(n), labels, fontsize=8)
     fig.colorbar(im, ax=ax, shrink=0.8, label="1 − IoU")
@@ -66,10 +53,8 @@ def plot_iou_matrix(grids: Sequence[np.ndarray], labels: Sequence[str] | None = 
 def plot_layer_variation(reference: np.ndarray, grids: Sequence[np.ndarray], axis: int | str = "y") -> Figure:
     """Where the samples differ, layer by layer along ``axis`` (default y: heights, bottom to top).
 
-    Left: the input's solid voxels per layer (what there is to vary). Right:
-    each layer's share of G-Div (:func:`metrics.g_div_by_layer`; the bars sum to G-Div).
+    Left: the input's solid voxels per layer. Right: each layer's share of G-Div (:func:`metrics.g_div_by_layer`).
     """
-
     k = axis_index(axis)
     check_same_grid([reference, *grids])  # the input and the samples in one box
     parts = g_div_by_layer(grids, k)
@@ -100,10 +85,8 @@ def _patch_strip(cube: np.ndarray, slices: Sequence[int]) -> np.ndarray:
 def plot_patch_matches(matches: dict, slices: Sequence[int] | None = None) -> Figure:
     """What LP-IoU compares (``metrics.patch_matches``): generated surface patches above their best input match.
 
-    Each patch (an 11³ block of voxels) is drawn as a few z slices side by
-    side (dark = occupied); the title gives the pair's IoU and F-score. The
-    last panel is the histogram of every compared patch's best IoU: the
-    shape's LP-IoU is the share right of the dashed threshold.
+    Each patch is drawn as a few z slices side by side (dark = occupied), titled with the pair's IoU and
+    F-score. The last panel is the histogram of each patch's best IoU: LP-IoU is the share right of the dashes.
     """
     gen, ref = matches["generated"], matches["matched"]
     n, p = len(gen), gen.shape[-1]
@@ -114,11 +97,9 @@ def plot_patch_matches(matches: dict, slices: Sequence[int] | None = None) -> Fi
         for row, cube, label in ((0, gen[k], "generated"), (1, ref[k], "best input patch")):
             ax = panels[row, k]
             show_image(ax, _patch_strip(cube, slices), cmap="Greys", vmin=0, vmax=1)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            ax.set_title(
-                f"IoU {matches['iou'][k]:.2f} · F {matches['fscore'][k]:.2f}" if row == 0 else label, fontsize=8
-            )
+            ax.set(xticks=[], yticks=[])
+            scores = f"IoU {matches['iou'][k]:.2f} · F {matches['fscore'][k]:.2f}"
+            ax.set_title(scores if row == 0 else label, fontsize=8)
         if k == 0:
             panels[0, 0].set_ylabel("generated", fontsize=8)
             panels[1, 0].set_ylabel("input", fontsize=8)
@@ -144,12 +125,9 @@ def plot_render_pairs(
 ) -> Figure:
     """What the render diversity compares: the same view of two shapes, and where their colours differ.
 
-    Rows: shape a, shape b, ``|a − b|`` (mean over RGB, 0–1) on the pixels where
-    either shows the shape; each column's title is the view's
-    ``metrics.colour_distance``, the mean of that difference. ``views`` picks
-    the view indices shown (default: all; views are assumed every ``360 / len(views_a)`` degrees).
+    Rows: shape a, shape b, ``|a − b|`` (mean over RGB) where either shows the shape; each column's title is
+    the view's ``metrics.colour_distance``. ``views`` picks the views shown (assumed ``360 / len(views_a)``° apart).
     """
-
     if len(views_a) != len(views_b):
         raise ValueError(f"both shapes need the same views, got {len(views_a)} and {len(views_b)}")
     views = list(views) if views is not None else list(range(len(views_a)))
@@ -166,8 +144,7 @@ def plot_render_pairs(
             f"azimuth {360 * k / len(views_a):.0f}°: distance {colour_distance(views_a[k], views_b[k]):.3f}", fontsize=8
         )
         for ax in panels[:, c]:
-            ax.set_xticks([])
-            ax.set_yticks([])
+            ax.set(xticks=[], yticks=[])
     for r, label in enumerate([*labels, "|difference|"]):
         panels[r, 0].set_ylabel(label, fontsize=8)
     fig.colorbar(im, ax=panels[2, :].tolist(), shrink=0.8, label="colour difference")

@@ -1,11 +1,5 @@
-"""The panel every widget of :mod:`sin3dm_lite.show.widgets` is: a row of controls above an ``Output`` area.
-
-Moving a control calls ``render(**values)``, a *library* function
-(``viz.plot_slice``, ``viz.plot_triplane``, ...) given the controls' values,
-and shows the figure it returns. A failing render prints its traceback into the
-panel (widget callbacks would otherwise swallow it) and keeps it in
-``last_error``.
-"""
+"""The panel every widget of :mod:`sin3dm_lite.show.widgets` is (a row of controls above an ``Output`` area), and
+the controls several panels share."""
 
 from __future__ import annotations
 
@@ -17,12 +11,14 @@ import ipywidgets as widgets
 from IPython.display import clear_output, display
 from matplotlib.figure import Figure
 
+from ..model.triplane import PLANES
+
 
 class Explorer(widgets.VBox):
-    """Controls + output; ``render(**values) -> Figure`` is called whenever a control changes.
+    """Controls + output; ``render(**values) -> Figure`` (a library figure function) runs whenever a control changes.
 
-    ``on_change(name, value)``, when given, runs first (under :meth:`hold`), e.g. to
-    adjust another control's range, so the figure is redrawn once per user action.
+    ``on_change(name, value)``, when given, runs first (under :meth:`hold`), e.g. to adjust another control's
+    range, so the figure is redrawn once per user action.
     """
 
     def __init__(
@@ -83,6 +79,24 @@ class Explorer(widgets.VBox):
             with self.hold():
                 self._on_change(name, value)
         self.refresh()
+
+
+def float_slider(value, lo, hi, step, description, readout_format=".2f", kind=widgets.FloatSlider, **kwargs):
+    """A slider (``kind``: a float or float-range one) that redraws when released."""
+    kwargs.update(description=description, continuous_update=False, readout_format=readout_format)
+    return kind(value=value, min=lo, max=hi, step=step, **kwargs)
+
+
+def plane_dropdown(value: str = "xy") -> widgets.Dropdown:
+    return widgets.Dropdown(options=list(PLANES), value=value, description="plane", layout={"width": "140px"})
+
+
+def show_in(output: widgets.Output, *items) -> None:
+    """Replace what ``output`` shows by ``items``."""
+    with output:
+        clear_output(wait=True)
+        for item in items:
+            display(item)
 
 
 __all__ = ["Explorer"]

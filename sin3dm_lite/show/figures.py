@@ -1,10 +1,7 @@
 """What every figure shares: the axes of the volume, a figure that leaves pyplot alone, a slice drawn the same way everywhere.
 
-Orientation used by every 2D picture of the volume (slices, triplane planes,
-receptive fields): the *first* remaining axis runs to the right and the
-second one runs up (``imshow(..., origin="lower")`` of the transposed array).
-A slice across z therefore shows x → and y ↑, the same view as the xy plane of
-a triplane.
+Every 2D picture of the volume (slices, triplane planes, receptive fields) draws the *first* remaining axis
+to the right and the second one up, so a slice across z shows x → and y ↑, like the xy plane of a triplane.
 """
 
 from __future__ import annotations
@@ -20,7 +17,6 @@ SDF_CMAP = "RdBu"  # red inside (negative), blue outside
 NEUTRAL = np.array([0.82, 0.82, 0.82], np.float32)  # background where the colour grid is undefined
 
 
-# --------------------------------------------------------------------------- helpers
 def new_figure(width: float, height: float) -> Figure:
     """A new figure that pyplot does not keep open (so Jupyter shows it once, as the cell's value)."""
     fig = plt.figure(figsize=(width, height), layout="constrained")
@@ -34,13 +30,9 @@ def panel_height(width: float, aspect: float, title: float = 0.45) -> float:
 
 
 def axis_index(axis: int | str) -> int:
-    if isinstance(axis, str):
-        if axis not in AXES:
-            raise ValueError(f"axis must be one of {AXES} or 0/1/2, got {axis!r}")
-        return AXES.index(axis)
-    if axis not in (0, 1, 2):
+    if axis not in (*AXES, 0, 1, 2):
         raise ValueError(f"axis must be one of {AXES} or 0/1/2, got {axis!r}")
-    return int(axis)
+    return AXES.index(axis) if isinstance(axis, str) else int(axis)
 
 
 def as_numpy(x) -> np.ndarray:
@@ -49,11 +41,17 @@ def as_numpy(x) -> np.ndarray:
     return np.asarray(x)
 
 
+def label_axes(ax, u: int, v: int) -> None:
+    """Name a panel's axes ``u`` (→) and ``v`` (↑) in small type."""
+    ax.set_xlabel(AXES[u], fontsize=8)
+    ax.set_ylabel(AXES[v], fontsize=8)
+    ax.tick_params(labelsize=7)
+
+
 def grid_slice(volume: np.ndarray, axis: int | str, index: int | None = None) -> tuple[np.ndarray, int]:
     """``volume[..., index, ...]`` across ``axis`` (middle slice when ``index`` is None) and the index used.
 
-    Works on ``(H, W, D)`` and ``(H, W, D, K)`` arrays; the result keeps the two other
-    axes in order (e.g. ``(H, W)`` for ``axis="z"``).
+    Works on ``(H, W, D)`` and ``(H, W, D, K)`` arrays; the result keeps the two other axes in order.
     """
     a = axis_index(axis)
     n = volume.shape[a]
@@ -79,8 +77,12 @@ def plane_extent(grid: ShapeGrid, axis: int, up: int | str | None = None) -> tup
 
 def show_image(ax, image: np.ndarray, **kwargs):
     """Draw a 2D (or 2D×3 RGB) array with axis 0 to the right and axis 1 up."""
-    img = np.swapaxes(image, 0, 1)
-    return ax.imshow(img, origin="lower", interpolation="nearest", **kwargs)
+    return ax.imshow(np.swapaxes(image, 0, 1), origin="lower", interpolation="nearest", **kwargs)
+
+
+def contour_texels(ax, image: np.ndarray, level: float, **style) -> None:
+    """The ``level`` contour of a 2D array drawn by :func:`show_image` (texel coordinates)."""
+    ax.contour(np.arange(image.shape[0]), np.arange(image.shape[1]), image.T, levels=[level], **style)
 
 
 def slice_title(grid: ShapeGrid, axis: int, index: int, kind: str) -> str:
@@ -113,27 +115,17 @@ def draw_slice(
     else:
         raise ValueError(f"kind must be 'sdf' or 'color', got {kind!r}")
     draw_contours(ax, grid, (u, v), sdf, threshold_lines)
-    ax.set_xlabel(AXES[u])
-    ax.set_ylabel(AXES[v])
+    ax.set(xlabel=AXES[u], ylabel=AXES[v])
     ax.set_title(slice_title(grid, axis, index, kind), fontsize=9)
     return im
 
 
 def draw_contours(ax, grid: ShapeGrid, uv: tuple[int, int], sdf: np.ndarray, threshold_lines: bool) -> None:
     """Zero level (solid) and, optionally, the edges of the truncation band (dashed); ``sdf`` is ``(u, v)``."""
-    u, v = uv
+    coords = grid.axis_coords(uv[0]), grid.axis_coords(uv[1])
     if sdf.min() < 0 < sdf.max():
-        ax.contour(grid.axis_coords(u), grid.axis_coords(v), sdf.T, levels=[0.0], colors="k", linewidths=1.0)
-    if threshold_lines:
-        t = 0.98 * grid.threshold  # the band's edge (the sdf is flat at ±threshold beyond it)
-        levels = [lv for lv in (-t, t) if sdf.min() < lv < sdf.max()]
-        if levels:
-            ax.contour(
-                grid.axis_coords(u),
-                grid.axis_coords(v),
-                sdf.T,
-                levels=levels,
-                colors="0.3",
-                linewidths=0.6,
-                linestyles="--",
-            )
+        ax.contour(*coords, sdf.T, levels=[0.0], colors="k", linewidths=1.0)
+    t = 0.98 * grid.threshold  # just inside the band's edge: the sdf is flat at ±threshold beyond it
+    levels = [lv for lv in (-t, t) if sdf.min() < lv < sdf.max()]
+    if threshold_lines and levels:
+        ax.contour(*coords, sdf.T, levels=levels, colors="0.3", linewidths=0.6, linestyles="--")

@@ -12,28 +12,22 @@ from matplotlib.patches import Rectangle
 
 from ..data.grid import ShapeGrid
 from ..model.triplane import PLANE_AXES, PLANES, Triplane, pca_basis, pca_project, plane_to_image
-from .figures import AXES, as_numpy, axis_index, new_figure, plane_axes, show_image
+from .figures import AXES, as_numpy, axis_index, label_axes, new_figure, plane_axes, show_image
 
 
-# --------------------------------------------------------------------------- triplanes
 def triplane_images(tp: Triplane, channels: str | int = "pca", batch: int = 0) -> list[np.ndarray]:
     """The three planes of sample ``batch`` as ``(A, B, 3)`` images (see :func:`plane_to_image`)."""
     return [plane_to_image(p[batch], channels) for p in tp.planes]
 
 
 def plot_triplane(
-    tp: Triplane,
-    channels: str | int | Sequence[int] = "pca",
-    titles: bool = True,
-    batch: int = 0,
+    tp: Triplane, channels: str | int | Sequence[int] = "pca", titles: bool = True, batch: int = 0
 ) -> Figure:
     """The xy, xz and yz feature planes side by side, at their true relative sizes.
 
-    ``channels="pca"`` colours each plane by its first three principal
-    components (each plane has its own basis, so compare structure, not hue);
-    an ``int`` shows one channel in grey; a list of ints draws one row per
-    channel. The plane ``xy [X, Y]`` is drawn with x → and y ↑ (the same view
-    as a z slice of the grid), ``xz`` with x → and z ↑, ``yz`` with y → and z ↑.
+    ``channels="pca"`` colours each plane by its first three principal components (one basis per plane, so
+    compare structure, not hue); an ``int`` shows one channel in grey; a list of ints draws one row each.
+    Each plane is drawn with its first axis → and its second ↑.
     """
     rows = list(channels) if isinstance(channels, (list, tuple)) else [channels]
     x, y, z = tp.resolution
@@ -45,10 +39,7 @@ def plot_triplane(
         for c, (name, img) in enumerate(zip(PLANES, triplane_images(tp, ch, batch))):
             ax = panels[r, c]
             show_image(ax, img)
-            u, v = PLANE_AXES[name]
-            ax.set_xlabel(AXES[u], fontsize=8)
-            ax.set_ylabel(AXES[v], fontsize=8)
-            ax.tick_params(labelsize=7)
+            label_axes(ax, *PLANE_AXES[name])
             if titles:
                 label = "PCA" if ch == "pca" else f"channel {ch}"
                 ax.set_title(f"{name} {tuple(img.shape[:2])} · {label}", fontsize=9)
@@ -78,16 +69,9 @@ def _slice_words(axis: int, up: int) -> str:
 def plot_plane_axes(shape=None, up: str = "y", n_points: int = 4000, azim: float = 30.0) -> Figure:
     """The three triplane planes drawn on the shape's box, labelled, with the x, y, z axes and ``up`` vertical.
 
-    ``shape`` is a mesh (``TexturedMesh``, ``trimesh.Trimesh`` or anything with
-    ``vertices`` and ``faces``; drawn as ``n_points`` points on its surface), a
-    :class:`ShapeGrid` (its box and ``n_points`` of its near-surface points) or a box ``(6,)`` array
-    ``(min xyz, max xyz)``; None draws a unit cube. Each plane sits on the box face
-    it is named after (xy on the back wall z = min, xz on the floor y = min,
-    yz on the left wall x = min): the encoder averages the volume onto it along
-    the third axis. The text beside the box says how the package's 2D figures
-    orient each plane (first axis →, second ↑, see :func:`plot_triplane`) and each
-    grid slice (:func:`plot_grid_slices`, the ``up`` axis vertical), which the
-    three view names follow from.
+    ``shape``: a mesh or :class:`ShapeGrid` (drawn as ``n_points`` surface points), a box ``(6,)`` =
+    ``(min xyz, max xyz)`` or None (a unit cube). Each plane sits on the box face at the minimum of the axis it
+    lacks, which the encoder averages over; the text beside says how the 2D figures orient planes and slices.
     """
     ui = axis_index(up)
     lo, hi, points = _box_and_points(shape, n_points)
@@ -97,22 +81,9 @@ def plot_plane_axes(shape=None, up: str = "y", n_points: int = 4000, azim: float
     gs = fig.add_gridspec(1, 2, width_ratios=[1.5, 1.0])
     ax = fig.add_subplot(gs[0, 0], projection="3d")
     if points is not None:  # the shape, shaded by height
-        ax.scatter(
-            *points.T,
-            s=1.5,
-            c=points[:, ui],
-            cmap="Greys",
-            vmin=lo[ui] - 0.6 * ext[ui],
-            vmax=hi[ui],
-            alpha=0.7,
-            depthshade=False,
-        )
-    corners = np.array(
-        [
-            [lo[0] if i & 1 == 0 else hi[0], lo[1] if i & 2 == 0 else hi[1], lo[2] if i & 4 == 0 else hi[2]]
-            for i in range(8)
-        ]
-    )
+        shade = dict(c=points[:, ui], cmap="Greys", vmin=lo[ui] - 0.6 * ext[ui], vmax=hi[ui])
+        ax.scatter(*points.T, s=1.5, alpha=0.7, depthshade=False, **shade)
+    corners = np.array([[(lo[k], hi[k])[(i >> k) & 1] for k in range(3)] for i in range(8)])  # bit k: axis k
     for i in range(8):
         for bit in (1, 2, 4):
             if not i & bit:
@@ -120,14 +91,10 @@ def plot_plane_axes(shape=None, up: str = "y", n_points: int = 4000, azim: float
     _draw_planes(ax, lo, hi, ext, ui)
     _draw_axes_triad(ax, lo, hi, ext, ui)
     pad = 0.15 * ext.max()
-    ax.set_xlim(lo[0] - pad, hi[0] + pad)
-    ax.set_ylim(lo[1] - pad, hi[1] + pad)
-    ax.set_zlim(lo[2] - pad, hi[2] + pad)
+    ax.set(xlim=(lo[0] - pad, hi[0] + pad), ylim=(lo[1] - pad, hi[1] + pad), zlim=(lo[2] - pad, hi[2] + pad))
     ax.set_box_aspect(tuple(np.roll(ext + 2 * pad, 2 - ui)))  # with vertical_axis, matplotlib reads it rolled
     ax.view_init(elev=22, azim=azim, vertical_axis=AXES[ui])  # x → (a little back), up ↑, the third axis towards us
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-    ax.set_zlabel("z")
+    ax.set(xlabel="x", ylabel="y", zlabel="z")
     ax.tick_params(labelsize=7)
     _describe_views(fig, gs, ui)
     return fig
@@ -170,42 +137,31 @@ def _draw_planes(ax, lo, hi, ext, ui: int) -> None:
     for name in PLANES:
         u, v = PLANE_AXES[name]
         m = 3 - u - v
+        color = colors[name]
         quad = np.zeros((4, 3))
-        for k, (a, b) in enumerate(((0, 0), (1, 0), (1, 1), (0, 1))):
-            quad[k, u] = (lo[u], hi[u])[a]
-            quad[k, v] = (lo[v], hi[v])[b]
-            quad[k, m] = lo[m]
-        ax.add_collection3d(
-            Poly3DCollection([quad], facecolor=colors[name], edgecolor=colors[name], alpha=0.25, lw=1.5)
-        )
+        quad[:, u] = [lo[u], hi[u], hi[u], lo[u]]
+        quad[:, v] = [lo[v], lo[v], hi[v], hi[v]]
+        quad[:, m] = lo[m]
+        ax.add_collection3d(Poly3DCollection([quad], facecolor=color, edgecolor=color, alpha=0.25, lw=1.5))
         spot = quad.mean(0)  # the label sits just outside the box, next to its wall
         if m == ui:  # the floor: in front of its front edge
             front = [k for k in range(3) if k not in (u, v, ui)] or [v]
             spot[front[0]] = hi[front[0]] + 0.25 * ext.max()
         elif ui in (u, v):  # a wall: above its top edge
             spot[ui] = hi[ui] + 0.12 * ext.max()
-        ax.text(
-            *spot,
-            f"{name} plane\n(mean over {AXES[m]})",
-            color=colors[name],
-            fontsize=10,
-            ha="center",
-            va="center",
-            fontweight="bold",
-            zorder=10,
-        )
+        style = dict(color=color, fontsize=10, ha="center", va="center", fontweight="bold", zorder=10)
+        ax.text(*spot, f"{name} plane\n(mean over {AXES[m]})", **style)
 
 
 def _draw_axes_triad(ax, lo, hi, ext, ui: int) -> None:
     """The x, y, z arrows, standing off the box's corner."""
-    arrow = 0.3 * ext.max()
+    start = lo.copy()  # outside the box, off its corner at (min, min, max of the third)
+    third = [a for a in range(3) if a not in (0, ui)][0]
+    start[third] = hi[third] + 0.15 * ext.max()
+    start[0] -= 0.15 * ext.max()
     for k in range(3):
         d = np.zeros(3)
-        d[k] = arrow
-        start = lo.copy()  # the triad stands outside the box, off its corner at (min, min, max of the third)
-        third = [a for a in range(3) if a not in (0, ui)][0]
-        start[third] = hi[third] + 0.15 * ext.max()
-        start[0] -= 0.15 * ext.max()
+        d[k] = 0.3 * ext.max()
         ax.quiver(*start, *d, color="crimson", lw=1.5, arrow_length_ratio=0.2)
         ax.text(
             *(start + 1.18 * d), AXES[k] + (" (up)" if k == ui else ""), color="crimson", fontsize=11, fontweight="bold"
@@ -215,8 +171,7 @@ def _draw_axes_triad(ax, lo, hi, ext, ui: int) -> None:
 def _describe_views(fig, gs, ui: int) -> None:
     """The text panel: how the 2D figures orient each plane and each grid slice."""
     lines = ["How the 2D figures draw each plane", "(first axis →, second ↑):", ""]
-    for name in PLANES:
-        lines += [f"{name}: {_view_words(name, ui)}"]
+    lines += [f"{name}: {_view_words(name, ui)}" for name in PLANES]
     lines += ["", f"Grid slices ({AXES[ui]} drawn vertically):", ""]
     lines += [_slice_words(a, ui) for a in range(3)]
     text = fig.add_subplot(gs[0, 1])
@@ -228,16 +183,10 @@ def _describe_views(fig, gs, ui: int) -> None:
 def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0, channel: int | None = None) -> Figure:
     """One TriplaneConv's rollout for ``plane`` (the paper's Fig. 3b), from :func:`sin3dm_lite.model.unet.rollout_parts`.
 
-    Columns: this plane, and each of the two other planes. Top row: the three
-    planes, each in its own orientation (first axis →, second ↑). Middle: the two
-    others mean-pooled over the axis this plane lacks, a feature per texel of
-    the axis they share with it, drawn along that axis. Bottom: those features
-    expanded (repeated) to this plane's size, and on the left the concatenation
-    ``[plane, expanded, expanded]`` (3C channels) that this plane's Conv2d reads.
-    Colours: PCA, one basis per column (fitted on the top row's plane; the
-    concatenation has its own). With ``channel`` = c: that channel in grey, on
-    one scale per column (its plane's range), and the concatenation's channels
-    c, C+c, 2C+c (the plane's and the two expanded ones) as red, green, blue.
+    Columns: this plane and the two others. Top: the three planes. Middle: the others mean-pooled over the
+    axis this plane lacks. Bottom: those expanded to this plane's size, and on the left the concatenation
+    ``[plane, expanded, expanded]`` (3C channels) that this plane's Conv2d reads. Colours: PCA, one basis per
+    column; with ``channel`` = c, that channel in grey per column and the concatenation's c, C+c, 2C+c as RGB.
     """
     if plane not in PLANES:
         raise ValueError(f"plane must be one of {PLANES}, got {plane!r}")
@@ -251,35 +200,16 @@ def plot_triplane_conv(parts: dict, plane: str = "xy", batch: int = 0, channel: 
     gs = fig.add_gridspec(3, 3, height_ratios=[1.0, 0.55, 1.0])
     own = as_numpy(part["plane"][batch])
     mean, basis = pca_basis(own)
-    _conv_panel(
-        fig.add_subplot(gs[0, 0]),
-        _conv_colours(own, mean, basis, own, channel),
-        f"{plane}: this plane, C = {own.shape[0]}" + ("" if channel is None else f", channel {channel}"),
-        (u, v),
-    )
+    title = f"{plane}: this plane, C = {own.shape[0]}" + ("" if channel is None else f", channel {channel}")
+    _conv_panel(fig.add_subplot(gs[0, 0]), _conv_colours(own, mean, basis, own, channel), title, (u, v))
     note = fig.add_subplot(gs[1, 0])
     note.set_axis_off()
-    note.text(
-        0.5,
-        0.5,
-        f"{plane} is kept as it is;\nthe other two planes are\naveraged over {lacking},\nthe axis {plane} lacks",
-        ha="center",
-        va="center",
-        fontsize=9,
-        transform=note.transAxes,
-    )
+    words = f"{plane} is kept as it is;\nthe other two planes are\naveraged over {lacking},\nthe axis {plane} lacks"
+    note.text(0.5, 0.5, words, ha="center", va="center", fontsize=9, transform=note.transAxes)
     _conv_concatenation(fig.add_subplot(gs[2, 0]), as_numpy(part["input"][batch]), plane, channel, n_channels)
     for c, (other, pooled, expanded) in enumerate(zip(part["sources"], part["pooled"], part["expanded"]), start=1):
-        src = as_numpy(parts[other]["plane"][batch])
-        _conv_source_column(
-            fig,
-            [gs[r, c] for r in range(3)],
-            (plane, other, lacking),
-            src,
-            as_numpy(pooled[batch]),
-            as_numpy(expanded[batch]),
-            channel,
-        )
+        arrays = [as_numpy(x[batch]) for x in (parts[other]["plane"], pooled, expanded)]
+        _conv_source_column(fig, [gs[r, c] for r in range(3)], (plane, other, lacking), *arrays, channel)
     fig.suptitle(
         f"TriplaneConv on {plane}: Conv2d(concat[{plane}, mean_{lacking}({part['sources'][0]}), "
         f"mean_{lacking}({part['sources'][1]})])",
@@ -300,9 +230,7 @@ def _conv_panel(ax, img, title, axes_uv):
     """One plane of :func:`plot_triplane_conv`, its axes named."""
     show_image(ax, img)
     ax.set_title(title, fontsize=9)
-    ax.set_xlabel(AXES[axes_uv[0]], fontsize=8)
-    ax.set_ylabel(AXES[axes_uv[1]], fontsize=8)
-    ax.tick_params(labelsize=7)
+    label_axes(ax, *axes_uv)
 
 
 def _conv_concatenation(ax, cat: np.ndarray, plane: str, channel: int | None, n_channels: int) -> None:
@@ -314,34 +242,18 @@ def _conv_concatenation(ax, cat: np.ndarray, plane: str, channel: int | None, n_
         lo, hi = picked.min(axis=(1, 2), keepdims=True), picked.max(axis=(1, 2), keepdims=True)
         cat_img = np.moveaxis((picked - lo) / (hi - lo + 1e-8), 0, -1)
         cat_note = f"\nchannels {channel}, {n_channels + channel}, {2 * n_channels + channel} as RGB"
-    _conv_panel(
-        ax,
-        cat_img,
-        f"concatenated: {cat.shape[0]} = 3C channels\n→ the Conv2d of {plane}" + cat_note,
-        PLANE_AXES[plane],
-    )
+    title = f"concatenated: {cat.shape[0]} = 3C channels\n→ the Conv2d of {plane}" + cat_note
+    _conv_panel(ax, cat_img, title, PLANE_AXES[plane])
 
 
-def _conv_source_column(
-    fig: Figure,
-    cells,
-    names: tuple[str, str, str],
-    src: np.ndarray,
-    vec: np.ndarray,
-    expanded: np.ndarray,
-    channel: int | None,
-) -> None:
+def _conv_source_column(fig: Figure, cells, names: tuple[str, str, str], src, vec, expanded, channel) -> None:
     """One of the other planes (``names``: this plane, the other, the axis this one lacks) in the three ``cells``:
     itself, its mean over the lacking axis (``vec``: ``[C, A, 1]`` or ``[C, 1, B']``), that expanded to this plane."""
     plane, other, lacking = names
     u, v = PLANE_AXES[plane]
     m_, b_ = pca_basis(src)
-    _conv_panel(
-        fig.add_subplot(cells[0]),
-        _conv_colours(src, m_, b_, src, channel),
-        f"{other}: averaged over {lacking} ↓",
-        PLANE_AXES[other],
-    )
+    title = f"{other}: averaged over {lacking} ↓"
+    _conv_panel(fig.add_subplot(cells[0]), _conv_colours(src, m_, b_, src, channel), title, PLANE_AXES[other])
     along = u if vec.shape[2] == 1 else v
     ax = fig.add_subplot(cells[1])
     show_image(ax, _conv_colours(vec, m_, b_, src, channel), aspect="auto")
@@ -354,28 +266,18 @@ def _conv_source_column(
         ax.set_xticks([])
     ax.tick_params(labelsize=7)
     across = v if along == u else u
-    _conv_panel(
-        fig.add_subplot(cells[2]),
-        _conv_colours(expanded, m_, b_, src, channel),
-        f"expanded along {AXES[across]} to {plane}'s size",
-        (u, v),
-    )
+    title = f"expanded along {AXES[across]} to {plane}'s size"
+    _conv_panel(fig.add_subplot(cells[2]), _conv_colours(expanded, m_, b_, src, channel), title, (u, v))
 
 
-# --------------------------------------------------------------------------- receptive field
 def _rf_draw(ax, rf_map: np.ndarray, analytic_width: float | None, vmin: float, center=None):
     rf = np.asarray(rf_map, np.float64)
     a, b = rf.shape
     ca, cb = (a // 2, b // 2) if center is None else center
     cmap = plt.get_cmap("magma")
     cmap = cmap.with_extremes(bad=cmap(0.0))  # exact zeros (no influence at all) in the darkest colour
-    im = show_image(
-        ax,
-        np.where(rf > 0, rf, np.nan),
-        cmap=cmap,
-        norm=LogNorm(vmin=vmin, vmax=1.0),
-        extent=(-0.5, a - 0.5, -0.5, b - 0.5),
-    )
+    positive = np.where(rf > 0, rf, np.nan)
+    im = show_image(ax, positive, cmap=cmap, norm=LogNorm(vmin=vmin, vmax=1.0), extent=(-0.5, a - 0.5, -0.5, b - 0.5))
     ax.plot([ca], [cb], marker="+", color="cyan", ms=10, mew=1.5)
     if analytic_width:
         w = float(analytic_width)
@@ -383,19 +285,11 @@ def _rf_draw(ax, rf_map: np.ndarray, analytic_width: float | None, vmin: float, 
     return im
 
 
-RF_LEVEL = 1e-2  # where figures cut the field: above the weak global coupling of small maps
+RF_LEVEL = 1e-2  # where figures cut the field: above the plane-wide coupling (GroupNorm, cross-plane means)
 
 
 def measured_width(rf_map: np.ndarray, level: float = RF_LEVEL, center=None) -> int:
-    """Side of the smallest centred square holding every texel with ``rf >= level`` (the measured field).
-
-    The default level, 1e-2 of the peak, stays above the plane-wide coupling
-    (GroupNorm, cross-plane means) that reaches ~1e-2 on a 32-texel map, so it
-    also works on the whole-network map. ``receptive_field.receptive_field`` measures its
-    ``measured_width`` on the convolution-only map as the bounding box of the
-    texels above 1e-3; for the centred, symmetric fields it measures,
-    ``level=rf.threshold`` here gives the same width.
-    """
+    """Side of the smallest centred square holding every texel with ``rf >= level`` (the measured field)."""
     rf = np.asarray(rf_map)
     a, b = rf.shape
     ca, cb = (a // 2, b // 2) if center is None else center
@@ -414,15 +308,11 @@ def plot_receptive_field(
     center: tuple[int, int] | None = None,
     level: float = RF_LEVEL,
 ) -> Figure:
-    """The measured receptive field of one output texel on a log colour scale.
+    """The measured receptive field of one output texel on a log colour scale (into ``ax`` when given).
 
-    ``rf_map`` is ``|∂ output[centre] / ∂ input|`` over one plane ``[A, B]``,
-    normalised to a maximum of 1. The log scale (down to ``vmin``) makes the
-    weak, plane-wide coupling (around 1e-3, from the cross-plane features)
-    visible next to the strong local field. The cross marks the centre texel
-    (``(A//2, B//2)`` unless given) and the dashed square has the analytic
-    width (in texels); the title gives the measured width, the side of the
-    centred square holding every texel ``≥ level``. Draws into ``ax`` when given.
+    ``rf_map`` is ``|∂ output[centre] / ∂ input|`` over one plane ``[A, B]``, maximum 1; the log scale (down to
+    ``vmin``) shows the weak plane-wide coupling beside the local field. The cross marks the centre texel
+    (``(A//2, B//2)`` unless given), the dashed square the analytic width; the title gives the measured width.
     """
     if ax is None:
         fig = new_figure(4.4, 3.8)
@@ -440,10 +330,7 @@ def plot_receptive_field(
 def plot_receptive_fields(
     items: Sequence[tuple[str, np.ndarray, float | None]], vmin: float = 1e-5, level: float = RF_LEVEL
 ) -> Figure:
-    """Several receptive fields side by side on one log scale: ``[(label, rf_map, analytic_width), ...]``.
-
-    Each title gives the analytic width and the measured one (texels ``≥ level``).
-    """
+    """Several receptive fields side by side on one log scale: ``[(label, rf_map, analytic_width), ...]``."""
     fig = new_figure(3.6 * len(items) + 0.8, 3.8)
     panels = fig.subplots(1, len(items), squeeze=False)[0]
     im = None

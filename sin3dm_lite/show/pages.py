@@ -1,13 +1,4 @@
-"""Standalone HTML pages: a k3d plot saved as one self-contained page, read back, and an index of samples.
-
-:func:`save_html` writes a plot (from :mod:`sin3dm_lite.show.viewer`) as a
-single page with k3d's JavaScript embedded, which opens in any browser without
-a server or a network connection, pointed by :func:`~sin3dm_lite.show.camera.fit_camera`;
-a browser without WebGL shows a message instead of a blank page.
-:func:`read_snapshot` and :func:`snapshot_array` decode the scene stored in
-such a page (for tests and checks); :func:`index_page` lists samples with
-their viewer pages and mesh downloads.
-"""
+"""Standalone HTML pages: a k3d plot saved as one self-contained page, read back, and an index of samples."""
 
 from __future__ import annotations
 
@@ -59,11 +50,8 @@ def with_webgl_message(page: str) -> str:
 def save_html(plot: k3d.Plot, path, fit: bool = True, **camera) -> Path:
     """Write ``plot`` as one self-contained HTML page (k3d's JavaScript embedded; no server, no network).
 
-    With ``fit`` the camera is first pointed at the whole scene (:func:`fit_camera`,
-    keyword arguments go there) and the page keeps that view; otherwise the
-    plot's current camera is used. A browser without WebGL shows a short
-    message (:data:`NO_WEBGL`) instead of a blank page. The file is written
-    atomically (a reader never sees half a page). Returns the path.
+    With ``fit`` the page keeps the view of :func:`fit_camera` (keyword arguments go there), otherwise the
+    plot's current camera. A browser without WebGL shows :data:`NO_WEBGL`. Written atomically; returns the path.
     """
     path = Path(path)
     auto_fit = plot.camera_auto_fit
@@ -81,8 +69,7 @@ def save_html(plot: k3d.Plot, path, fit: bool = True, **camera) -> Path:
 def read_snapshot(html_or_path) -> dict:
     """Decode the scene stored in a page written by :func:`save_html` (for tests and checks).
 
-    Returns k3d's binary snapshot as a dict: ``objects`` (one dict per drawable,
-    arrays as ``{"dtype", "shape", "data"}``), ``plot`` (its parameters), ``version``.
+    Returns k3d's snapshot as a dict: ``objects`` (arrays as ``{"dtype", "shape", "data"}``), ``plot``, ``version``.
     """
     import msgpack
 
@@ -114,11 +101,9 @@ def _slug(text: str) -> str:
 def index_page(entries: Sequence[dict], path, title: str = "sin3dm-lite samples") -> Path:
     """A plain ``index.html`` listing samples: a viewer link and download links for each.
 
-    Each entry is a dict with ``title`` and any of ``html_path`` (an existing
-    viewer page), ``snapshot`` (a ``k3d.Plot`` or page text, written next to the
-    index as ``<title>.html``), ``obj_path``, ``glb_path``, ``thumbnail`` (an
-    image path). Links are relative to the index, so the folder can be moved
-    or zipped as a whole.
+    Each entry is a dict with ``title`` and any of ``html_path`` (an existing viewer page), ``snapshot`` (a
+    ``k3d.Plot`` or page text, written next to the index as ``<title>.html``), ``obj_path``, ``glb_path``,
+    ``thumbnail`` (an image path). Links are relative, so the folder can be moved as a whole.
     """
     path = Path(path)
     root = path.parent
@@ -144,13 +129,11 @@ def index_page(entries: Sequence[dict], path, title: str = "sin3dm-lite samples"
         for key, label in (("obj_path", "OBJ"), ("glb_path", "GLB")):
             if e.get(key):
                 links.append(f'<a href="{rel(e[key])}" download>{label}</a>')
-        thumb = (
-            f'<a href="{rel(viewer)}"><img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160"></a>'
-            if e.get("thumbnail") and viewer is not None
-            else f'<img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160">'
-            if e.get("thumbnail")
-            else ""
-        )
+        thumb = ""
+        if e.get("thumbnail"):
+            thumb = f'<img src="{rel(e["thumbnail"])}" alt="{html.escape(name)}" width="160">'
+            if viewer is not None:
+                thumb = f'<a href="{rel(viewer)}">{thumb}</a>'
         rows.append(f"<tr><td>{thumb}</td><td>{html.escape(name)}</td><td>{' · '.join(links)}</td></tr>")
     page = "\n".join(
         [

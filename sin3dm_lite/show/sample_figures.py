@@ -13,10 +13,21 @@ from ..data.mesh import Material, TexturedMesh
 from ..errors import Sin3DMInputError
 from ..evaluate import render
 from ..model.triplane import PLANE_AXES, PLANES, pca_basis, pca_project
-from .figures import AXES, SDF_CMAP, as_numpy, axis_index, grid_slice, new_figure, panel_height, plane_axes, show_image
+from .figures import (
+    AXES,
+    SDF_CMAP,
+    as_numpy,
+    axis_index,
+    contour_texels,
+    grid_slice,
+    label_axes,
+    new_figure,
+    panel_height,
+    plane_axes,
+    show_image,
+)
 
 
-# --------------------------------------------------------------------------- samples and textures
 def plot_samples_slices(
     sdf_grids: Sequence[np.ndarray],
     axis: int | str = "z",
@@ -27,17 +38,14 @@ def plot_samples_slices(
 ) -> Figure:
     """Middle slices (or slice ``index``) of several decoded SDF grids, with the zero contour.
 
-    A quick way to compare samples without 3D. All panels share one symmetric
-    colour scale (the largest ``|sdf|`` over the slices, at most 1); the ``up``
-    axis is drawn vertically where it is one of the slice's axes, and the
-    figure's size follows the slices' aspect.
+    All panels share one symmetric colour scale (the largest ``|sdf|``, at most 1); the ``up`` axis is drawn
+    vertically where it is one of the slice's axes.
     """
     a = axis_index(axis)
     ui, vi = plane_axes(a, up)
     slices = []
     for g in sdf_grids:
-        g = as_numpy(g)
-        s, _ = grid_slice(g, a, index if index is not None else g.shape[a] // 2)
+        s, _ = grid_slice(as_numpy(g), a, index)
         slices.append(s.T if ui > vi else s)
     n = len(slices)
     columns = columns or min(n, 4)
@@ -45,7 +53,6 @@ def plot_samples_slices(
     fig = new_figure(2.8 * columns, panel_height(2.8, slices[0].shape[1] / slices[0].shape[0]) * rows)
     panels = fig.subplots(rows, columns, squeeze=False)
     vmax = min(1.0, max(float(np.abs(s).max()) for s in slices)) or 1.0
-    u, v = AXES[ui], AXES[vi]
     for k, ax in enumerate(panels.flat):
         if k >= n:
             ax.set_axis_off()
@@ -53,20 +60,17 @@ def plot_samples_slices(
         s = slices[k]
         show_image(ax, s, cmap=SDF_CMAP, vmin=-vmax, vmax=vmax)
         if s.min() < 0 < s.max():
-            ax.contour(np.arange(s.shape[0]), np.arange(s.shape[1]), s.T, levels=[0.0], colors="k", linewidths=0.8)
+            contour_texels(ax, s, 0.0, colors="k", linewidths=0.8)
         ax.set_title(titles[k] if titles else f"sample {k}", fontsize=9)
-        ax.set_xlabel(u, fontsize=8)
-        ax.set_ylabel(v, fontsize=8)
-        ax.tick_params(labelsize=7)
+        label_axes(ax, ui, vi)
     return fig
 
 
 def plot_diversity_curve(values: Sequence[float], rows: Sequence[dict], goals: dict | None = None) -> Figure:
     """The diversity ↔ fidelity trade-off: scores of samples drawn at each value of the knob.
 
-    ``rows[i]`` holds the scores at ``values[i]``: ``g_div`` (among the samples),
-    and any of ``iou_to_input``, ``lp_iou``, ``lp_fscore`` (against the input).
-    ``goals`` (same keys) draws dashed lines at target values.
+    ``rows[i]`` holds the scores at ``values[i]``: ``g_div`` and any of ``iou_to_input``, ``lp_iou``,
+    ``lp_fscore``; ``goals`` (same keys) draws dashed lines at target values.
     """
     labels = {
         "g_div": "G-Div (diversity)",
@@ -91,12 +95,9 @@ def plot_diversity_curve(values: Sequence[float], rows: Sequence[dict], goals: d
 def plot_plan(plan, samples=None, batch: int = 0, title: str | None = None) -> Figure:
     """A controlled-generation request (``control.Plan``) on the three planes, and what the sampler made of it.
 
-    Top row: the latent the request starts from (the known latent, or for a
-    retarget the input's latent stretched), in PCA colours, with the part the
-    sampler generates tinted red (by ``1 - mask``; the ramp is the blend
-    border). Bottom row (with ``samples``): the sample ``batch``, with the
-    same tint's outline. Colours use the top row's PCA basis, so kept texels
-    look the same in both rows.
+    Top row: the latent the request starts from, in PCA colours, with the part the sampler generates tinted
+    red (by ``1 - mask``). Bottom row (with ``samples``): sample ``batch`` with the tint's outline, in the top
+    row's PCA basis, so kept texels look the same in both rows.
     """
     top = plan.known if plan.known is not None else plan.start
     rows = [("request", top)] + ([("sample", samples.triplane)] if samples is not None else [])
@@ -105,10 +106,7 @@ def plot_plan(plan, samples=None, batch: int = 0, title: str | None = None) -> F
     scale = 9.0 / sum(widths)
     fig = new_figure(9.5, (max(heights) * scale + 0.6) * len(rows) + 0.3)
     panels = fig.subplots(len(rows), 3, squeeze=False, gridspec_kw={"width_ratios": widths})
-    bases = []
-    for name in PLANES:
-        p0 = as_numpy(getattr(top, name)[0])
-        bases.append(pca_basis(p0))
+    bases = [pca_basis(as_numpy(getattr(top, name)[0])) for name in PLANES]
     for r, (label, tp) in enumerate(rows):
         for c, name in enumerate(PLANES):
             ax = panels[r, c]
@@ -121,19 +119,9 @@ def plot_plan(plan, samples=None, batch: int = 0, title: str | None = None) -> F
                     tint[..., 0], tint[..., 3] = 1.0, 0.6 * free
                     show_image(ax, tint)
                 elif 0 < free.max():
-                    ax.contour(
-                        np.arange(free.shape[0]),
-                        np.arange(free.shape[1]),
-                        free.T,
-                        levels=[0.5],
-                        colors="r",
-                        linewidths=1.0,
-                    )
-            u, v = PLANE_AXES[name]
+                    contour_texels(ax, free, 0.5, colors="r", linewidths=1.0)
             ax.set_title(f"{label}: {name}", fontsize=9)
-            ax.set_xlabel(AXES[u], fontsize=8)
-            ax.set_ylabel(AXES[v], fontsize=8)
-            ax.tick_params(labelsize=7)
+            label_axes(ax, *PLANE_AXES[name])
     fig.suptitle(title or f"{plan.kind}: red = generated, clear = kept from the input", fontsize=10)
     return fig
 
@@ -141,10 +129,8 @@ def plot_plan(plan, samples=None, batch: int = 0, title: str | None = None) -> F
 def plot_projections(grids: Sequence[np.ndarray], titles: Sequence[str] | None = None, up: str = "y") -> Figure:
     """Occupancy grids seen from the front and from above: how many voxels are filled along each ray.
 
-    A static picture of decoded shapes (e.g. from ``Sin3DM.occupancy``) that
-    needs no 3D viewer. With ``up="y"`` the front view looks along z (x →,
-    y ↑) and the top view along y (x →, z ↑: as seen from below, a mirrored
-    top view). Grids of different sizes keep their relative sizes.
+    With ``up="y"`` the front view looks along z (x →, y ↑) and the top view along y (x →, z ↑: seen from
+    below, a mirrored top view). Grids of different sizes keep their relative sizes.
     """
     grids = [as_numpy(g) for g in grids]
     ui = axis_index(up)
@@ -162,8 +148,7 @@ def plot_projections(grids: Sequence[np.ndarray], titles: Sequence[str] | None =
         show_image(panels[1, j], top, cmap="terrain")
         panels[0, j].set_title(titles[j] if titles else f"{j}", fontsize=9)
         for ax in panels[:, j]:
-            ax.set_xticks([])
-            ax.set_yticks([])
+            ax.set(xticks=[], yticks=[])
     panels[0, 0].set_ylabel(f"front ({AXES[ui]} up)", fontsize=8)
     panels[1, 0].set_ylabel(f"top ({AXES[depth]} up)", fontsize=8)
     return fig
@@ -174,9 +159,7 @@ _RECONSTRUCTIONS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # mod
 
 def plot_beside_input(model, samples, resolution: int = 64, labels: Sequence[str] | None = None) -> Figure:
     """``Sin3DM.plot_beside_input``: front and top views (:func:`plot_projections`) of ``model``'s samples beside
-    the input's reconstruction, all at the voxel size the input's box has at ``resolution``.
-
-    Each shape is decoded at twice the picture's voxels; the reconstruction's grid once per model and resolution.
+    the input's reconstruction (kept per model and resolution), at the voxel size of the input's box at ``resolution``.
     """
     kept = _RECONSTRUCTIONS.setdefault(model, {})
     if resolution not in kept:
@@ -190,15 +173,9 @@ def plot_beside_input(model, samples, resolution: int = 64, labels: Sequence[str
 def plot_meshes(meshes, labels: Sequence[str] | None = None, size: int = 256, columns: int = 4) -> Figure:
     """A static picture of meshes side by side: each one's three-quarter view, its label underneath.
 
-    The picture beside a k3d viewer for a notebook read without a kernel (GitHub,
-    nbviewer, an exported page), where the viewer shows nothing. Every mesh is
-    drawn by :func:`sin3dm_lite.evaluate.render.render_hero` at ``size``² pixels, all framed
-    by one box (the union of their bounds), so sizes compare; give them in one
-    coordinate frame. ``meshes``: a ``TexturedMesh`` or a list of them,
-    ``trimesh.Trimesh`` es or ``(vertices, faces)`` pairs (the last two in plain
-    grey). The figure is the contact sheet's pixels one to one (saved in the
-    notebook as a PNG). Where off-screen OpenGL cannot start (Linux without
-    Mesa's EGL) the figure is one line of text saying so: the notebook runs on.
+    For a notebook read without a kernel. ``meshes``: a ``TexturedMesh``, or a list of them, ``trimesh.Trimesh``
+    es or ``(vertices, faces)`` pairs (in grey), drawn at ``size``² pixels in one frame so sizes compare. Where
+    off-screen OpenGL cannot start, the figure is a line of text saying so.
     """
 
     def textured(m) -> TexturedMesh:

@@ -1,20 +1,9 @@
 """Interactive 3D viewers with k3d: textured meshes, galleries, SDF volumes, point clouds.
 
-Every plot function returns a ``k3d.Plot`` (show it by making it a cell's value,
-or ``plot.display()``) and can add to an existing plot instead (``plot=``).
-Every function here takes ``up="y"`` (default) or ``up="z"`` describing *the
-data*; y-up data is turned into k3d's z-up frame by
-:func:`~sin3dm_lite.show.camera.to_view`, and ``offset`` arguments are in
-k3d's frame (after that rotation).
-
-This module is also the ``viewer`` namespace of the notebooks: it re-exports the
-frame and camera of :mod:`sin3dm_lite.show.camera` and the standalone HTML
-pages of :mod:`sin3dm_lite.show.pages` (``viewer.save_html``, ``viewer.index_page``).
-
-k3d in practice: float32 vertices, uint32 indices, packed ``0xRRGGBB`` uint32
-colours; a textured mesh gets ``color=0xffffff`` (the texture is multiplied by
-it), ``texture=<PNG bytes>``, ``texture_file_format="png"`` and one uv per
-vertex.
+Every plot function returns a ``k3d.Plot`` or adds to the one given (``plot=``). ``up`` (``"y"`` or ``"z"``)
+describes *the data*, which :func:`~sin3dm_lite.show.camera.to_view` turns into k3d's z-up frame; ``offset``
+arguments are in k3d's frame. This module is the notebooks' ``viewer`` namespace, so it re-exports
+:mod:`.camera` and the standalone HTML pages of :mod:`.pages`.
 """
 
 from __future__ import annotations
@@ -29,17 +18,12 @@ from ..data.mesh import TexturedMesh, unique_rows
 from ..formats.export import baked_image, split_corners
 from ..formats.images import png_bytes
 from .camera import UP_AXES, VIEW, fit_camera, screen_up_vector, to_view, view_camera  # noqa: F401 (namespace)
-from .pages import (  # noqa: F401 (the viewer namespace: viewer.save_html in the notebooks)
-    NO_WEBGL,
-    index_page,
-    read_snapshot,
-    save_html,
-    snapshot_array,
-    with_webgl_message,
-)
+from .pages import NO_WEBGL, index_page, read_snapshot, save_html, snapshot_array, with_webgl_message  # noqa: F401
+
+#: how :func:`gallery` draws a label: centred under its anchor, dark, no box
+LABEL_STYLE = dict(reference_point="ct", color=0x222222, size=0.9, label_box=False, is_html=True)
 
 
-# --------------------------------------------------------------------------- small helpers
 def pack_colors(rgb: np.ndarray) -> np.ndarray:
     """``(N, 3)`` colours (float in [0, 1] or uint8) → ``(N,)`` uint32 ``0xRRGGBB``."""
     c = np.asarray(rgb)
@@ -51,19 +35,16 @@ def pack_colors(rgb: np.ndarray) -> np.ndarray:
 
 def new_plot(**kwargs) -> k3d.Plot:
     """A k3d plot with our defaults (no grid box, white background); keyword arguments go to ``k3d.plot``."""
-    opts = dict(grid_visible=False, background_color=0xFFFFFF, camera_auto_fit=True, height=480)
-    opts.update(kwargs)
-    return k3d.plot(**opts)
+    return k3d.plot(**(dict(grid_visible=False, background_color=0xFFFFFF, camera_auto_fit=True, height=480) | kwargs))
 
 
-# --------------------------------------------------------------------------- mesh → arrays
-def _texture_arrays(mesh: TexturedMesh):
-    """Per-vertex (position, uv) arrays for a mesh drawn with one texture, or None when it can't be.
+def _arrays(vertices, indices, uvs=None, image=None, colors=None) -> dict:
+    return dict(vertices=vertices, indices=indices, uvs=uvs, image=image, colors=colors)
 
-    A :class:`TexturedMesh` stores one uv per face *corner* (``face_uvs (F, 3, 2)``):
-    a vertex on a UV seam has several. We split vertices by their distinct
-    (vertex, uv) pairs, which is what a renderer needs (one uv per vertex).
-    """
+
+def _texture_arrays(mesh: TexturedMesh) -> dict | None:
+    """:func:`mesh_arrays` of a mesh drawn with one texture (None when it can't be): vertices are split by their
+    distinct (vertex, uv) pairs, since a renderer needs one uv per vertex and a seam's vertex has several."""
     if mesh.face_uvs is None or len(mesh.faces) == 0:
         return None
     used = np.unique(mesh.face_material)
@@ -73,10 +54,10 @@ def _texture_arrays(mesh: TexturedMesh):
     if mat.image is None or not np.isfinite(mesh.face_uvs).all():
         return None
     vertex_of, uvs, faces = split_corners(np.asarray(mesh.faces), np.asarray(mesh.face_uvs))
-    return np.asarray(mesh.vertices)[vertex_of], faces, uvs, baked_image(mat)[..., :3]
+    return _arrays(np.asarray(mesh.vertices)[vertex_of], faces, uvs, baked_image(mat)[..., :3])
 
 
-def _color_arrays(mesh: TexturedMesh):
+def _color_arrays(mesh: TexturedMesh) -> dict:
     """Per-vertex packed colours from ``colors_at`` at every face corner (vertices split where colours differ)."""
     n_faces = len(mesh.faces)
     fi = np.repeat(np.arange(n_faces), 3)
@@ -84,14 +65,16 @@ def _color_arrays(mesh: TexturedMesh):
     packed = pack_colors(mesh.colors_at(fi, bc))
     corner_vertex = np.asarray(mesh.faces, np.int64).reshape(-1)
     first, inverse = unique_rows(np.column_stack([corner_vertex, packed.astype(np.int64)]))
-    return np.asarray(mesh.vertices)[corner_vertex[first]], inverse.reshape(-1, 3), packed[first].astype(np.uint32)
+    vertices = np.asarray(mesh.vertices)[corner_vertex[first]]
+    return _arrays(vertices, inverse.reshape(-1, 3), colors=packed[first].astype(np.uint32))
 
 
-def _trimesh_arrays(mesh, texture: bool):
-    """(vertices, faces, uvs or None, image or None, packed colours or None) of a ``trimesh.Trimesh``."""
+def _trimesh_arrays(mesh, texture: bool) -> dict:
+    """:func:`mesh_arrays` of a ``trimesh.Trimesh``."""
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     visual = mesh.visual
-    if texture and getattr(visual, "kind", None) == "texture" and getattr(visual, "uv", None) is not None:
+    kind = getattr(visual, "kind", None)
+    if texture and kind == "texture" and getattr(visual, "uv", None) is not None:
         mat = visual.material
         img = getattr(mat, "baseColorTexture", None) or getattr(mat, "image", None)
         if img is not None and len(visual.uv) == len(vertices):
@@ -101,31 +84,21 @@ def _trimesh_arrays(mesh, texture: bool):
                 factor = np.asarray(factor)
                 scale = 255.0 if np.issubdtype(factor.dtype, np.integer) else 1.0
                 rgb = np.clip(rgb * (factor[:3].astype(np.float32) / scale), 0.0, 1.0)
-            return vertices, faces, np.asarray(visual.uv, np.float64), rgb, None
-    colors = None
-    kind = getattr(visual, "kind", None)
+            return _arrays(vertices, faces, np.asarray(visual.uv, np.float64), rgb)
     if kind == "texture":
         visual = visual.to_color()  # trimesh samples the texture at the vertices
-    if kind is not None:
-        colors = pack_colors(np.asarray(visual.vertex_colors)[:, :3])
-    return vertices, faces, None, None, colors
+    colors = None if kind is None else pack_colors(np.asarray(visual.vertex_colors)[:, :3])
+    return _arrays(vertices, faces, colors=colors)
 
 
 def mesh_arrays(mesh, texture: bool = True) -> dict:
     """What :func:`mesh_plot` hands to k3d, in *data* coordinates: ``vertices``, ``indices`` and either
     ``uvs`` + ``image`` (OBJ convention, v up) or ``colors`` (packed uint32, or None for a plain colour)."""
-    if isinstance(mesh, TexturedMesh):
-        tex = _texture_arrays(mesh) if texture else None
-        if tex is not None:
-            v, f, uv, img = tex
-            return dict(vertices=v, indices=f, uvs=uv, image=img, colors=None)
-        v, f, col = _color_arrays(mesh)
-        return dict(vertices=v, indices=f, uvs=None, image=None, colors=col)
-    v, f, uv, img, col = _trimesh_arrays(mesh, texture)
-    return dict(vertices=v, indices=f, uvs=uv, image=img, colors=col)
+    if not isinstance(mesh, TexturedMesh):
+        return _trimesh_arrays(mesh, texture)
+    return (_texture_arrays(mesh) if texture else None) or _color_arrays(mesh)
 
 
-# --------------------------------------------------------------------------- plots
 def mesh_plot(
     mesh,
     plot: k3d.Plot | None = None,
@@ -140,11 +113,9 @@ def mesh_plot(
 ) -> k3d.Plot:
     """A :class:`TexturedMesh` or ``trimesh.Trimesh`` in k3d (added to ``plot`` when given).
 
-    A mesh whose faces all use one textured material is drawn with its texture
-    (PNG, at most ``max_texture`` pixels a side); anything else (several
-    materials, vertex colours, a plain colour, or ``texture=False``) gets
-    per-vertex colours sampled at the face corners. ``color=0xRRGGBB`` draws a
-    single plain colour instead. Extra keyword arguments go to ``k3d.mesh``.
+    A mesh whose faces all use one textured material is drawn with its texture (PNG, at most ``max_texture``
+    pixels a side); anything else gets per-vertex colours sampled at the face corners, or with
+    ``color=0xRRGGBB`` one plain colour. Extra keyword arguments go to ``k3d.mesh``.
     """
     plot = plot if plot is not None else new_plot()
     arrays = mesh_arrays(mesh, texture=texture and color is None)
@@ -154,19 +125,14 @@ def mesh_plot(
         opts.update(color=int(color))
     elif arrays["uvs"] is not None:
         uv = np.asarray(arrays["uvs"], np.float64)
-        # k3d uploads the PNG with flipY = false, so its v = 0 is the image's TOP row (glTF's
-        # convention, which k3d's own glTF reader passes through unchanged), while OBJ / our
-        # TexturedMesh put v = 0 at the BOTTOM row. Hence v -> 1 - v. Checked by rendering a
-        # quad with a red-top / blue-bottom texture in headless Chromium: with the flip the
-        # red half is on top; without it the picture is upside down.
+        # k3d's v = 0 is the image's top row (glTF's convention), OBJ's and ours the bottom row: v -> 1 - v
         k3d_uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1).astype(np.float32)
         opts.update(
             color=0xFFFFFF,
             texture=png_bytes(arrays["image"], max_texture),
             texture_file_format="png",
             uvs=k3d_uv,
-            # UVs outside [0, 1] wrap around (as in sample_texture); an atlas inside [0, 1] is
-            # clamped so that filtering at its border does not bleed in the opposite edge
+            # uvs outside [0, 1] wrap (as in sample_texture); an atlas inside is clamped, so no edge bleeds in
             texture_wrap="repeat" if (uv.min() < 0.0 or uv.max() > 1.0) else "clamp",
         )
     elif arrays["colors"] is not None:
@@ -195,12 +161,9 @@ def gallery(
 ) -> k3d.Plot:
     """Several meshes side by side along x (``spacing`` apart), in rows of ``columns``, each with a label.
 
-    Each mesh keeps its own scale; rows go downwards (k3d's -z), far enough apart
-    that they do not hide each other from the default camera (:data:`VIEW`,
-    from above). Labels are ``k3d.text`` objects, which the standalone HTML
-    page shows too, placed in front of each mesh's base and hanging down from
-    there (:func:`label_position`), so that from above they fall below the
-    mesh on the screen instead of over it.
+    Rows go downwards (k3d's -z), far enough apart that they do not hide each other from the default camera
+    (:data:`VIEW`). Labels (``k3d.text``, shown by saved pages too) hang in front of each mesh's base
+    (:func:`label_position`), so that from above they fall below the mesh on the screen.
     """
     plot = plot if plot is not None else new_plot()
     n = len(meshes)
@@ -231,16 +194,7 @@ def gallery(
             mesh_plot(meshes[k], plot=plot, texture=texture, name=str(name), offset=o.astype(np.float32), up=up)
             if labels is not None:
                 at = label_position(lo, hi)
-                plot += k3d.text(
-                    html.escape(str(labels[k])),
-                    position=at,
-                    reference_point="ct",
-                    color=0x222222,
-                    size=0.9,
-                    label_box=False,
-                    is_html=True,
-                    name=f"label {k}",
-                )
+                plot += k3d.text(html.escape(str(labels[k])), position=at, name=f"label {k}", **LABEL_STYLE)
                 low = min(low, screen_up @ at - 0.15 * row_height)  # room for the text hanging below
     return plot
 
@@ -253,7 +207,7 @@ def _corners(box) -> np.ndarray:
 
 def label_position(lo, hi) -> list[float]:
     """Where :func:`gallery` anchors a mesh's label (k3d frame, box ``lo``..``hi``): the middle of its base,
-    moved towards the viewer (k3d's -y) by a fifth of the box's largest side. The text hangs down from there."""
+    moved towards the viewer (k3d's -y) by a fifth of the box's largest side."""
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     pad = 0.2 * float((hi - lo).max())
     return [float((lo[0] + hi[0]) / 2), float(lo[1] - pad), float(lo[2])]
@@ -271,10 +225,9 @@ def volume_plot(
 ) -> k3d.Plot:
     """An SDF grid ``[X, Y, Z]`` (or a ``ShapeGrid``) as a k3d volume and/or its zero isosurface.
 
-    ``aabb`` is ``(xmin, ymin, zmin, xmax, ymax, zmax)`` of the cell-centred grid
-    (a ``ShapeGrid``'s own box by default; otherwise the box ``±n_axis / n_max``).
-    The volume is drawn inside-opaque (negative values), outside clear; the
-    isosurface at ``level`` is extracted by k3d in the browser (``k3d.marching_cubes``).
+    ``aabb`` is ``(xmin, ymin, zmin, xmax, ymax, zmax)`` of the cell-centred grid (default: a ``ShapeGrid``'s
+    own box, else ``±n_axis / n_max``). The volume is opaque inside, clear outside; k3d extracts the isosurface
+    at ``level`` in the browser.
     """
     if hasattr(sdf, "sdf") and hasattr(sdf, "aabb"):
         aabb = sdf.aabb if aabb is None else aabb

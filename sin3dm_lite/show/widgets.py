@@ -1,26 +1,7 @@
-"""Small ipywidgets panels around the :mod:`sin3dm_lite.show.viz` figures (and a k3d gallery of full-quality samples).
+"""Small ipywidgets panels around the :mod:`sin3dm_lite.show.viz` figures (``from sin3dm_lite import widgets``).
 
-Two kinds: explorers re-plot arrays computed earlier (slices, triplanes, a
-recorded trajectory); live panels call the model on every change
-(:func:`sampling_panel`, :func:`denoising_slider`, :func:`texel_receptive_field`,
-:func:`control_panel`), on coarse grids while dragging and at full quality on a button.
-
-Each panel is an :class:`Explorer` (:mod:`.explorer`): a row of controls above an ``Output``
-area. Moving a control calls a *library* function (``viz.plot_slice``,
-``viz.plot_triplane``, ...) with the controls' values and shows the figure it
-returns. Those functions are tested on their own; the notebook calls each once
-directly before wrapping it here, because widget callbacks hide their errors
-(ours prints the traceback into the panel instead of swallowing it).
-
-This module holds the panels of the data and model stages (grid slices, the
-truncation, triplane features, receptive fields, a TriplaneConv taken apart)
-and is the namespace of all of them (``from sin3dm_lite import widgets``); the
-sampling stage's (the denoising trajectory, sampling, controlled generation)
-are in :mod:`.sampling_widgets`.
-
-For tests and scripts: ``panel.controls`` maps parameter names to widgets,
-``panel.figure()`` returns the figure for the current values, ``panel.refresh()``
-redraws the output (and returns the figure).
+Each panel is an :class:`Explorer` that redraws a library figure when a control moves; the data and model
+stages' panels are here, the sampling stage's in :mod:`.sampling_widgets`.
 """
 
 from __future__ import annotations
@@ -31,43 +12,47 @@ import ipywidgets as widgets
 import torch
 
 from ..data.grid import ShapeGrid
-from ..model.triplane import PLANE_AXES, PLANES, Triplane
+from ..model.triplane import PLANE_AXES, Triplane
 from ..model.unet import rollout_parts
 from ..teach.receptive_field import receptive_field
 from . import viz
-from .explorer import Explorer
+from .explorer import Explorer, float_slider, plane_dropdown
 from .sampling_widgets import control_panel, denoising_explorer, denoising_slider, sampling_panel
 
 
-def _axis_dropdown(value: str = "z") -> widgets.Dropdown:
-    return widgets.Dropdown(options=list(viz.AXES), value=value, description="axis", layout={"width": "140px"})
+def _index_slider(n: int, description: str = "index") -> widgets.IntSlider:
+    return widgets.IntSlider(value=n // 2, min=0, max=n - 1, description=description, continuous_update=False)
 
 
-def _index_slider(n: int) -> widgets.IntSlider:
-    return widgets.IntSlider(value=n // 2, min=0, max=n - 1, description="index", continuous_update=False)
+def _colour_controls(tp: Triplane) -> tuple[widgets.ToggleButtons, widgets.IntSlider]:
+    """PCA / single-channel toggle and the channel slider."""
+    mode = widgets.ToggleButtons(options=["pca", "channel"], value="pca", description="colour")
+    channel = widgets.IntSlider(value=0, min=0, max=tp.channels - 1, description="channel", continuous_update=False)
+    return mode, channel
 
 
-def _keep_index_in_range(grid: ShapeGrid, index_control: widgets.IntSlider):
-    """When the axis changes, fit the index slider to that axis and centre it."""
+def _axis_and_index(grid: ShapeGrid, axis: str):
+    """An axis dropdown, a slice slider and the ``on_change`` that fits the slider to a new axis (centred)."""
+    axis_c = widgets.Dropdown(options=list(viz.AXES), value=axis, description="axis", layout={"width": "140px"})
+    index_c = _index_slider(grid.shape[viz.AXES.index(axis)])
 
     def on_change(name, value):
         if name == "axis":
             n = grid.shape[viz.AXES.index(value)]
-            index_control.max = n - 1
-            index_control.value = n // 2
+            index_c.max = n - 1
+            index_c.value = n // 2
 
-    return on_change
+    return axis_c, index_c, on_change
 
 
 def slice_explorer(grid: ShapeGrid, axis: str = "z", up: str | None = "y") -> Explorer:
     """Axis dropdown + slice slider + SDF/colour toggle → :func:`viz.plot_slice` (``up`` drawn vertically)."""
-    axis_c = _axis_dropdown(axis)
-    index_c = _index_slider(grid.shape[viz.AXES.index(axis)])
+    axis_c, index_c, on_change = _axis_and_index(grid, axis)
     kind_c = widgets.ToggleButtons(options=["sdf", "color"], value="sdf", description="show")
     return Explorer(
         {"axis": axis_c, "index": index_c, "kind": kind_c},
         lambda axis, index, kind: viz.plot_slice(grid, axis, index, kind, up=up),
-        on_change=_keep_index_in_range(grid, index_c),
+        on_change=on_change,
         title=f"{grid.name}: slices",
     )
 
@@ -75,31 +60,21 @@ def slice_explorer(grid: ShapeGrid, axis: str = "z", up: str | None = "y") -> Ex
 def truncation_explorer(grid: ShapeGrid, axis: str = "z") -> Explorer:
     """Threshold slider (voxels, up to the grid's own) → :func:`viz.plot_truncation` next to the grid's own."""
     own = grid.threshold / grid.voxel_size
-    thr_c = widgets.FloatSlider(
-        value=min(1.0, own),
-        min=min(0.25, own),
-        max=own,
-        step=0.25,
-        description="threshold",
-        continuous_update=False,
-        readout_format=".2f",
-    )
-    axis_c = _axis_dropdown(axis)
-    index_c = _index_slider(grid.shape[viz.AXES.index(axis)])
+    thr_c = float_slider(min(1.0, own), min(0.25, own), own, 0.25, "threshold")
+    axis_c, index_c, on_change = _axis_and_index(grid, axis)
     return Explorer(
         {"threshold": thr_c, "axis": axis_c, "index": index_c},
         lambda threshold, axis, index: viz.plot_truncation(
             grid, [threshold, own] if threshold < own - 1e-6 else [own], axis, index
         ),
-        on_change=_keep_index_in_range(grid, index_c),
+        on_change=on_change,
         title=f"truncation (voxels; the grid's own is {own:g})",
     )
 
 
 def triplane_channel_explorer(tp: Triplane) -> Explorer:
     """PCA / single-channel toggle, channel slider and batch slider → :func:`viz.plot_triplane`."""
-    mode_c = widgets.ToggleButtons(options=["pca", "channel"], value="pca", description="colour")
-    channel_c = widgets.IntSlider(value=0, min=0, max=tp.channels - 1, description="channel", continuous_update=False)
+    mode_c, channel_c = _colour_controls(tp)
     batch_c = widgets.IntSlider(
         value=0, min=0, max=max(tp.batch - 1, 0), description="sample", continuous_update=False, disabled=tp.batch == 1
     )
@@ -111,10 +86,7 @@ def triplane_channel_explorer(tp: Triplane) -> Explorer:
 
 
 def receptive_field_explorer(fn: Callable[[int], tuple], choices: Sequence[int] = (2, 4, 6)) -> Explorer:
-    """Dropdown of ResBlock counts → ``fn(n) -> (rf_map, analytic_width)`` → :func:`viz.plot_receptive_field`.
-
-    ``fn`` (measuring a receptive field takes a backward pass) is called once per choice and cached.
-    """
+    """Dropdown of ResBlock counts → ``fn(n) -> (rf_map, analytic_width)`` (cached) → :func:`viz.plot_receptive_field`."""
     cache: dict[int, tuple] = {}
     blocks_c = widgets.Dropdown(
         options=list(choices), value=choices[len(choices) // 2], description="ResBlocks", layout={"width": "180px"}
@@ -132,61 +104,39 @@ def receptive_field_explorer(fn: Callable[[int], tuple], choices: Sequence[int] 
 def texel_receptive_field(model, plane: str = "xy") -> Explorer:
     """Pick an output texel (sliders along the plane's two axes): its measured receptive field in the model's denoiser.
 
-    Calls :func:`receptive_field.receptive_field` on ``model.denoiser`` at the latent's
-    size with ``texel=(i, j)`` and draws :func:`viz.plot_receptive_field`
-    centred on it: ``map="local"`` through the convolutions only,
-    ``"whole"`` the whole network (GroupNorm and cross-plane means couple every
-    texel). Each texel is measured once (two backward passes) and kept.
+    ``map="local"`` is the field through the convolutions only, ``"whole"`` through the whole network
+    (:func:`receptive_field.receptive_field`). Each texel is measured once and kept in ``panel.cache``.
     """
     res = model.latent.resolution
-
-    def size(p):
-        a, b = PLANE_AXES[p]
-        return res[a], res[b]
-
-    a, b = size(plane)
-    plane_c = widgets.Dropdown(options=list(PLANES), value=plane, description="plane", layout={"width": "140px"})
-    i_c = widgets.IntSlider(
-        value=a // 2, min=0, max=a - 1, description=viz.AXES[PLANE_AXES[plane][0]], continuous_update=False
-    )
-    j_c = widgets.IntSlider(
-        value=b // 2, min=0, max=b - 1, description=viz.AXES[PLANE_AXES[plane][1]], continuous_update=False
-    )
+    u, v = PLANE_AXES[plane]
+    plane_c = plane_dropdown(plane)
+    i_c, j_c = _index_slider(res[u], viz.AXES[u]), _index_slider(res[v], viz.AXES[v])
     map_c = widgets.ToggleButtons(options=["local", "whole"], value="local", description="map")
     cache: dict = {}
 
     def on_change(name, value):
         if name == "plane":
-            a, b = size(value)
             u, v = PLANE_AXES[value]
-            i_c.max, i_c.value, i_c.description = a - 1, a // 2, viz.AXES[u]
-            j_c.max, j_c.value, j_c.description = b - 1, b // 2, viz.AXES[v]
+            i_c.max, i_c.value, i_c.description = res[u] - 1, res[u] // 2, viz.AXES[u]
+            j_c.max, j_c.value, j_c.description = res[v] - 1, res[v] // 2, viz.AXES[v]
 
     def render(plane, i, j, map):
-        key = (plane, int(i), int(j))
-        if key not in cache:
-            cache[key] = receptive_field(
-                model.denoiser,
-                resolution=res,
-                latent_channels=model.latent.channels,
-                plane=plane,
-                texel=(int(i), int(j)),
+        i, j = int(i), int(j)
+        if (plane, i, j) not in cache:
+            cache[plane, i, j] = receptive_field(
+                model.denoiser, resolution=res, latent_channels=model.latent.channels, plane=plane, texel=(i, j)
             )
-        rf = cache[key]
+        rf = cache[plane, i, j]
         u, v = PLANE_AXES[plane]
         return viz.plot_receptive_field(
             rf.local_map if map == "local" else rf.measured_map,
             rf.analytic,
             title=f"{plane} texel ({viz.AXES[u]} {i}, {viz.AXES[v]} {j}), {map} map",
-            center=(int(i), int(j)),
+            center=(i, j),
         )
 
-    panel = Explorer(
-        {"plane": plane_c, "i": i_c, "j": j_c, "map": map_c},
-        render,
-        on_change=on_change,
-        title="receptive field of one texel",
-    )
+    controls = {"plane": plane_c, "i": i_c, "j": j_c, "map": map_c}
+    panel = Explorer(controls, render, on_change=on_change, title="receptive field of one texel")
     panel.cache = cache
     return panel
 
@@ -196,9 +146,8 @@ def triplane_conv_explorer(tp: Triplane, plane: str = "xy") -> Explorer:
     → :func:`viz.plot_triplane_conv`."""
     with torch.no_grad():
         parts = rollout_parts(tp.detach().cpu())
-    plane_c = widgets.Dropdown(options=list(PLANES), value=plane, description="plane", layout={"width": "140px"})
-    mode_c = widgets.ToggleButtons(options=["pca", "channel"], value="pca", description="colour")
-    channel_c = widgets.IntSlider(value=0, min=0, max=tp.channels - 1, description="channel", continuous_update=False)
+    plane_c = plane_dropdown(plane)
+    mode_c, channel_c = _colour_controls(tp)
 
     def render(plane, mode, channel):
         return viz.plot_triplane_conv(parts, plane, channel=None if mode == "pca" else int(channel))
