@@ -1,36 +1,18 @@
 """Choosing the diversity knob for one shape: the most varied samples that still keep the input's patches.
 
-The paper names the trade-off between diversity and fidelity as its main limitation, and the knob
-(``Sin3DM.sample(diversity=...)``: start the reverse process at step ``d · 999`` from the input's latent, noised)
-turns it. Its curve differs from shape to shape and is steep, so no fixed default suits every mesh:
-:func:`calibrate_diversity` measures it. It takes a *sampling function* ``sample_fn(diversity, n, seed) ->
-[occupancy grid, ...]`` (:func:`model_sampler` makes one for a fitted model: samples decoded to occupancy on the
-fit's grid, no meshes) and scores what it returns against the input with the paper's LP-IoU / LP-F
-(:func:`metrics.lp_scores`) and G-Div.
+The paper names the trade-off between diversity and fidelity as its main limitation; the knob
+(``Sin3DM.sample(diversity=...)``: start the reverse process at step ``d · 999`` from the noised input latent)
+turns it, and its curve differs from shape to shape. :func:`calibrate_diversity` measures it: it scores a
+*sampling function* ``sample_fn(diversity, n, seed)`` (:func:`model_sampler` makes one for a fitted model) against
+the input with LP-IoU / LP-F and G-Div. The rule (docs/calibration.md):
 
-**The rule** (docs/calibration.md):
-
-1. the shape's own **near copy** (diversity :data:`NEAR_COPY`) is scored first: what this fit keeps of the input
-   at this grid at all. The goals are relative to it (:data:`RELATIVE`), capped by the absolute :data:`GOALS` (on a
-   training grid; judged at the paper's 128 voxels the fit asks for the shares alone, ``auto.calibration``):
-   **LP-F ≥ 85 %** of the near copy's, the goal that decides, and **LP-IoU ≥ 65 %**, a softer floor (its 5-voxel
-   lattice loses the patch of a wall moved by less than a voxel: only copies keep 85 % of it);
-2. a ladder from 1 (pure noise, the paper's sampling) down in steps of 0.1, a few samples per setting with seeds
-   of their own, smoothed into curves that fall with the knob and refined near the answer; the choice is the
-   most varied setting whose curves, lowered by 1.5 standard errors, keep both goals;
-3. **never copies when a more varied setting keeps LP-F**: where that choice's samples are copies (G-Div under
-   :func:`copy_line`), the most varied setting whose smoothed LP-F keeps 85 % of the near copy's, read without
-   the caution (it guards a goal against a few samples' luck; copies miss the diversity a default needs for sure);
-4. where no setting keeps the LP-F goal, or only copies do and the least varied setting drawn whose samples are
-   not copies keeps :data:`FAR` of it (not torn), that setting, and the record says so (:attr:`Calibration.note`);
-   halfway settings between it and the copies below are drawn first (the knob can jump within a rung).
-
-**Why so** (``benchmarks/bench_calibration.py`` replays the walk 400 times on stored samples): seeds of their
-own per setting; the refinement removes most of the error where the curve bends between two rungs; 1.5 standard
-errors keep the choice off the goals' edge where the curve is flat. A rung far below a goal skips the next.
-
-**Grid.** The reference's: for a fit its training grid, or the input at 128 voxels as the paper measures
-(``calibrate RUN --resolution 128``). A CPU preset's fit runs it last (:mod:`sin3dm_lite.auto.calibration`).
+1. the shape's **near copy** (diversity :data:`NEAR_COPY`) sets the goals: shares of its scores (:data:`RELATIVE`),
+   capped by :data:`GOALS`; LP-F decides, LP-IoU is a softer floor;
+2. a ladder from 1 down in steps of 0.1, smoothed into curves that fall with the knob and refined near the answer;
+   the choice is the most varied setting whose curves, lowered by a few standard errors, keep both goals;
+3. where that choice's samples are copies (G-Div under :func:`copy_line`), the most varied setting that keeps LP-F;
+4. where no setting keeps LP-F, or only copies do, the least varied setting whose samples are not copies, and
+   the record says so (:attr:`Calibration.note`).
 """
 
 from __future__ import annotations
@@ -53,24 +35,20 @@ from .calibration_record import (
 )
 from .curves import crossing, curve
 
-#: what the samples must keep against the input at most: the paper's averages are LP-F 0.699 at G-Div 0.224, and
-#: the project's goals LP-IoU ≥ 0.55 with LP-F ≥ 0.70. The few samples calibration draws scatter by a few
-#: hundredths around the figures of many (docs/calibration.md), so the choice does too
+#: the most each patch score's goal can be (the absolute caps)
 GOALS = {"lp_iou": 0.55, "lp_fscore": 0.70}
-#: the goals relative to the ceiling: each goal is at most this share of the shape's near-copy score. LP-F decides;
-#: LP-IoU is a floor, softer because its 5-voxel lattice counts a sub-voxel move as a lost patch (docs/calibration.md)
+#: each goal is at most this share of the near copy's score; LP-IoU's is lower because its 5-voxel lattice counts
+#: a sub-voxel move as a lost patch
 RELATIVE = {"lp_iou": 0.65, "lp_fscore": 0.85}
 #: the setting whose samples stand for the near copy (the ceiling), and where its seeds start (after ``seed``)
 NEAR_COPY, NEAR_COPY_SEEDS = 0.05, 100_000
-#: the diversity requirement the record reports the choice against: the copy line's floor (one number for both)
+#: the diversity requirement the record reports the choice against
 G_DIV_GOAL = VARIED_G_DIV
-#: the ladder's floor: the lowest setting drawn, and the answer when even it misses the goals
+#: the lowest setting drawn, and the answer when even it misses the goals
 LOWEST = 0.1
-
-#: extra settings drawn near the answer once the ladder has bracketed it (:func:`calibrate_diversity`)
+#: extra settings drawn near the answer once the ladder has bracketed it
 REFINE = 4
 #: a rung whose samples keep less than this share of a goal is far from the answer: the ladder skips the next rung
-#: (on the thin-walled ruin 1.0-0.6 all keep LP-F 0.22-0.30 against a goal of 0.70; docs/calibration.md)
 FAR = 0.5
 #: how the smoothed curve is read: lowered by CAUTION standard errors, SAFETY (a share of patches) above each goal
 SAFETY, CAUTION = 0.0, 1.5
@@ -80,12 +58,10 @@ SampleFn = Callable[[float, int, int], Sequence[np.ndarray]]
 
 
 def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int, supersample: int = 1):
-    """``n`` samples at ``diversity`` (seeds ``seed`` …), each as occupancy on the model's box at ``resolution``
-    voxels along its longest side, from the decoder's SDF at the voxel centres, no mesh (``exact_band=0``): the
-    centres' signs (``supersample=1``), or the paper's voxels of the mesh they make (``2``:
-    :func:`geometry.interpolated_inside`). A decoder trained in bf16 runs its point MLPs in bf16 where this CPU runs
-    them faster, its plane convolutions in fp32 (in bf16 they move the surface by a fortieth of a voxel,
-    docs/calibration.md); the samples are drawn in fp32, as a user draws them.
+    """``n`` samples at ``diversity`` (seeds ``seed`` …) as occupancy on the model's box at ``resolution`` voxels
+    along its longest side, decoded without a mesh: the voxel centres' signs (``supersample=1``) or the paper's
+    voxels of the mesh they make (``2``: :func:`geometry.interpolated_inside`). A decoder trained in bf16 decodes
+    under ``autocast("auto")`` (its plane convolutions stay fp32); the samples are drawn in fp32, as a user draws them.
     """
     from ..app.device import autocast
     from ..model.decode import decode_grid, prepare
@@ -100,9 +76,8 @@ def sample_occupancy(model, diversity: float, n: int, seed: int, resolution: int
 
 
 def model_sampler(model, reference: np.ndarray, supersample: int = 1) -> SampleFn:
-    """The sampling function :func:`calibrate_diversity` takes for a fitted :class:`~sin3dm_lite.Sin3DM`: its samples
-    as occupancy (:func:`sample_occupancy`) on ``reference``'s grid, which must lie on the model's box (the training
-    grid's ``sdf < 0``, or the input voxelised on that box the same way)."""
+    """The sampling function :func:`calibrate_diversity` takes for a fitted model: its samples as occupancy
+    (:func:`sample_occupancy`) on ``reference``'s grid, which must lie on the model's box."""
     from ..data.box import grid_shape
 
     shape = np.shape(reference)
@@ -120,8 +95,8 @@ def model_sampler(model, reference: np.ndarray, supersample: int = 1) -> SampleF
 
 
 def summarize(per_sample: dict, g_div: float = float("nan")) -> dict:
-    """A setting's row from its samples' scores (``{"lp_iou": [...], "lp_fscore": [...]}``): each goal's mean and
-    per-sample spread (``*_sd``, for the standard errors), and the samples' G-Div."""
+    """A setting's row from its samples' scores (``{"lp_iou": [...], "lp_fscore": [...]}``): each score's mean and
+    spread (``*_sd``), and the samples' G-Div."""
     row = {"g_div": float(g_div)}
     for key, values in per_sample.items():
         row[key], row[f"{key}_sd"] = float(np.mean(values)), float(np.std(values, ddof=1))
@@ -129,8 +104,8 @@ def summarize(per_sample: dict, g_div: float = float("nan")) -> dict:
 
 
 def score_setting(sample_fn: SampleFn, reference: np.ndarray, diversity: float, n: int, seed: int) -> dict:
-    """``n`` samples of ``sample_fn`` at ``diversity`` scored against ``reference``: the row :func:`summarize`
-    makes, plus the per-sample scores (``per_sample``)."""
+    """``n`` samples of ``sample_fn`` at ``diversity`` scored against ``reference``: :func:`summarize`'s row plus
+    the per-sample scores (``per_sample``)."""
     from .metrics import g_div, lp_scores
 
     occ = [np.asarray(o, bool) for o in sample_fn(diversity, n, seed)]
@@ -177,30 +152,19 @@ def calibrate_diversity(
     """The most varied diversity in ``[lowest, 1]`` whose samples keep the goals against ``reference`` (the rule:
     the module's docstring).
 
-    First the near copy (diversity :data:`NEAR_COPY`, seeds from ``seed + NEAR_COPY_SEEDS``): each goal is the
-    smaller of ``goals[key]`` and ``relative[key]`` × its score (none below :data:`MIN_CEILING` of LP-F); its
-    G-Div sets the copy line (:func:`copy_line`). Then a ladder 1, 1 - ``step``, ... ``lowest``, ``n`` samples a
-    rung with seeds of its own (``seed + 1000·k``), stopping at the first rung keeping every goal by ``margin``
-    (a rung under ``far`` × a goal skips the next). The scores are made non-increasing in the knob; ``refine``
-    more rungs are drawn near the answer. The answer is where the curves, lowered by ``caution`` standard errors
-    and read ``safety`` above each goal, cross them (the lower crossing), unless its samples are copies and a
-    more varied setting keeps LP-F (then LP-F's crossing); where none keeps LP-F, the module's fallback.
-
     Args:
-        sample_fn: ``sample_fn(diversity, n, seed)`` returns ``n`` samples' occupancy grids (seeds ``seed`` …)
-            on ``reference``'s grid; :func:`model_sampler` makes one for a fitted model.
+        sample_fn: ``sample_fn(diversity, n, seed)`` returns ``n`` occupancy grids on ``reference``'s grid.
         reference: the input's occupancy (for a fit, the training grid's ``sdf < 0``).
         goals: the most ``lp_iou`` and ``lp_fscore`` asked for (default :data:`GOALS`).
         n: samples per setting (at least 2, for G-Div).
-        seed: the first sample seed.
-        lowest: the lowest setting drawn.
-        step: the ladder's spacing.
-        margin: how far above every goal a setting must score to end the walk early.
-        safety: how far above each goal (a share of patches) the smoothed curve is read.
+        seed: the first sample seed; the k-th setting drawn uses seeds from ``seed + 1000·k``.
+        lowest, step: the ladder 1, 1 - ``step``, … ``lowest``.
+        margin: how far above every goal a setting must score to end the ladder early.
+        safety, caution: the smoothed curves are read ``safety`` above each goal, lowered by ``caution`` standard
+            errors.
         refine: how many more settings to draw near the answer once the ladder has bracketed it.
-        caution: how many standard errors the smoothed curve is lowered before it is read.
-        relative: each goal is at most this share of the near copy's score: one share for both, or one per goal
-            (default :data:`RELATIVE`); None draws no near copy (absolute goals).
+        relative: each goal is at most this share of the near copy's score (one for both, or one per goal);
+            None draws no near copy (absolute goals).
         far: a rung keeping less than this share of a goal skips the next rung (0: every rung is drawn).
     """
     from ..app import values
@@ -222,7 +186,7 @@ def calibrate_diversity(
     result.copy_line = copy_line(None)
     if shares is not None:
         _set_ceiling(result, draw(NEAR_COPY, NEAR_COPY_SEEDS // 1000), shares, progress)
-    # a goal lowered to its ceiling lowers its margin alike: a near copy keeps only 1/RELATIVE of its goal
+    # a goal lowered to its ceiling lowers its margin alike
     margins = {k: margin * (v / absolute[k] if absolute[k] > 0 else 1.0) for k, v in result.goals.items()}
     _walk(result, draw, lowest, step, margins, safety, refine, caution, progress, far)
     result.at_choice = _at_choice(result)
@@ -261,7 +225,7 @@ def _set_ceiling(result: Calibration, near: dict, shares: dict, progress: bool) 
         )
 
 
-#: the most samples per setting a calibration draws (its work grows with it: about a dozen settings of n each)
+#: the most samples per setting a calibration draws
 MAX_N = 64
 
 
@@ -298,8 +262,7 @@ def _check_options(goals: dict, n, refine, lowest, step, caution, safety, margin
 
 
 def _at_choice(result: Calibration) -> dict:
-    """The smoothed patch scores at the chosen setting, and the samples' G-Div there (linear between the settings
-    drawn around it, each setting's samples pooled)."""
+    """The smoothed patch scores at the chosen setting, and the samples' G-Div there (:func:`g_div_at`)."""
     out = {}
     for key in result.goals:
         levels, fitted, _ = curve(result.tried, key)
@@ -309,10 +272,10 @@ def _at_choice(result: Calibration) -> dict:
 
 
 def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line: float, keep_f=None) -> tuple:
-    """The choice on the smoothed curves (:func:`_choice`) and why, if not the plain reading: where the samples at the
-    crossing of every goal are copies (G-Div under ``line``), the most varied setting whose LP-F estimate (no
-    ``caution``) keeps ``keep_f`` (85 % of the near copy's) and its goal, if more varied; where no setting keeps
-    every goal, LP-F's own crossing (with ``caution``)."""
+    """The choice on the smoothed curves (:func:`_choice`) and why, if not the plain reading. Where the samples at
+    the crossing of every goal are copies (G-Div under ``line``): the most varied setting whose LP-F estimate (no
+    ``caution``) keeps ``keep_f`` and its goal, if more varied; where no setting keeps every goal: LP-F's own
+    crossing (with ``caution``)."""
     chosen = _choice(tried, goals, safety, caution)
     varied = chosen is not None and not g_div_at(tried, chosen) < line  # NaN (G-Div unknown): not copies
     if varied or "lp_fscore" not in goals:
@@ -331,8 +294,8 @@ def _decide(tried: list[dict], goals: dict, safety: float, caution: float, line:
 
 
 def _fallback(result: Calibration, copies: float | None = None) -> None:
-    """No setting keeps the LP-F goal, or only copies (at ``copies``) do: the least varied setting drawn whose samples
-    are not copies (the most faithful that vary), else the lowest drawn; :attr:`Calibration.note` says why."""
+    """No setting keeps the LP-F goal, or only copies (at ``copies``) do: choose the least varied setting drawn whose
+    samples are not copies, else the lowest drawn; :attr:`Calibration.note` says why."""
     least, by_setting = least_varied(result)
     goal = f"LP-F {result.goals.get('lp_fscore', np.nan):.2f}"
     result.only_copies_kept, missed = copies is not None, f"no setting drawn kept {goal}"
@@ -359,9 +322,8 @@ def _torn(result: Calibration, setting: float | None, far: float) -> bool:
 
 
 def _halfway(result: Calibration, add, step: float, far: float) -> bool:
-    """The fallback's choice, the least varied setting whose samples are not copies, drawn to a quarter rung: up to
-    two settings halfway between it and the copies below (the knob can jump within a rung), never towards a torn
-    one. Whether any was drawn."""
+    """Draw up to two settings halfway between the least varied setting whose samples are not copies and the copies
+    below it (the knob can jump within a rung), never from a torn one. Whether any was drawn."""
     drawn = False
     for _ in range(2):
         least, by_setting = least_varied(result)
@@ -385,9 +347,8 @@ def _walk(
     far: float = FAR,
 ) -> None:
     """The ladder, then the refinement, with ``draw(diversity, k) -> {"lp_iou", "lp_fscore", "g_div"}`` scoring
-    ``result.n`` samples with the k-th seeds. Fills ``result`` (kept apart from the sampling so that
-    ``benchmarks/bench_calibration.py`` can replay it on stored scores). ``margin``: one for every goal, or one
-    per goal. ``far``: a rung keeping less than this share of a goal skips the next one."""
+    ``result.n`` samples with the k-th seeds; fills ``result``. Kept apart from the sampling so that stored scores
+    can replay it. ``margin``: one for every goal, or one per goal."""
     goals = result.goals
     margins = margin if isinstance(margin, dict) else dict.fromkeys(goals, margin)
 

@@ -1,8 +1,7 @@
 """Generated shapes against their input: occupancy grids at the input's voxel size, and the paper's metrics.
 
-The work behind ``Sin3DM.occupancy``, ``input_occupancy``, ``same_voxels`` and ``evaluate``. Nothing here knows the
-model class: each function takes what it needs of a fitted model, its box (``aabb``, normalised coordinates), its
-:class:`~sin3dm_lite.data.mesh.Normalization`, and a function that decodes a sample into a mesh.
+The work behind ``Sin3DM.occupancy``, ``input_occupancy``, ``same_voxels`` and ``evaluate``; each function takes
+what it needs of a fitted model (its box, its normalisation, a function that decodes a sample into a mesh).
 """
 
 from __future__ import annotations
@@ -33,12 +32,11 @@ def occupancy(to_mesh, count: int, box, resolution=128, supersample: int = 1):
     """Each of ``count`` samples over ``box`` as an occupancy grid, ``resolution`` voxels along the longest side;
     ``to_mesh(i)`` decodes sample ``i`` (normalised coordinates). With a list of resolutions, returns
     ``{resolution: [grids]}`` and decodes each sample once. A sample with no surface (``NoSurfaceError`` with a
-    ``fill``: all empty, or the box all inside) counts as an empty or a full grid. ``supersample``: as for
-    :func:`~sin3dm_lite.evaluate.geometry.voxelize` (1: the voxel centres; 2: the paper's way)."""
+    ``fill``) counts as an empty or a full grid. ``supersample``: as for :func:`geometry.voxelize`."""
     from ..generate.extract import NoSurfaceError
 
     several = not isinstance(resolution, (int, np.integer))
-    res = check_resolutions(resolution)  # 2.5 or 10**6: one line, not a numpy error or a grid beyond memory
+    res = check_resolutions(resolution)
     check_fine_grid(res, supersample)
     grids: dict[int, list[np.ndarray]] = {r: [] for r in res}
     for i in range(count):
@@ -71,24 +69,21 @@ def voxels_said(supersample: int) -> str:
     return VOXELS_SAID.get(supersample, f"{supersample}³ points a voxel")
 
 
-#: the finest grid the geometry metrics sample a mesh on, voxels a side (resolution × supersample): a 512³ grid of
-#: sub-voxels takes about 14 s and 2 GB a sample; 1024³ would take 8x that
+#: the finest grid the geometry metrics sample a mesh on, voxels a side (resolution × supersample)
 MAX_FINE_VOXELS = 512
-
-
 #: the most views of a mesh one render or evaluation takes (one a degree)
 MAX_VIEWS = 360
 
 
 def check_views(views, size, names: tuple[str, str] = ("views", "size")) -> None:
-    """Views around a mesh (1 to :data:`MAX_VIEWS`) and their size in pixels (16 to 4096), checked alike for the
-    CLI's ``--views`` / ``--size`` and :meth:`Sin3DM.evaluate`'s arguments (``names``: what the message calls them)."""
+    """Check views around a mesh (1 to :data:`MAX_VIEWS`) and their size in pixels (16 to 4096); ``names``: what
+    the message calls them."""
     values.whole(views, names[0], 1, MAX_VIEWS)
     values.whole(size, names[1], 16, 4096)
 
 
 def check_resolutions(resolution, name: str = "resolution") -> list[int]:
-    """One grid's voxels or several, each 16 to 512 (the CLI's ``--resolution`` and ``Sin3DM.evaluate``'s)."""
+    """One grid's voxels or several, each 16 to 512, as a list."""
     many = resolution if isinstance(resolution, (list, tuple, np.ndarray)) else [resolution]
     if len(many) == 0:
         raise Sin3DMInputError(f"{name} must be one grid's voxels or several, got none")
@@ -96,7 +91,7 @@ def check_resolutions(resolution, name: str = "resolution") -> list[int]:
 
 
 def check_fine_grid(resolution, supersample: int) -> None:
-    """Refuse grids whose sub-voxels (``resolution × supersample`` a side) would not fit in memory, in one clear error."""
+    """Refuse grids whose sub-voxels (``resolution × supersample`` a side) would not fit in memory."""
     supersample = check_supersample(supersample)
     for r in np.atleast_1d(resolution):
         if int(r) * supersample > MAX_FINE_VOXELS:
@@ -125,17 +120,15 @@ def evaluate(
     progress: bool = True,
     supersample: int = PAPER_SUPERSAMPLE,
 ) -> dict:
-    """``Sin3DM.evaluate``: ``to_meshes(samples)`` gives the sample meshes in the input file's coordinates,
-    ``reference`` is the input mesh, ``aabb`` the model's box (a box covering larger, retargeted samples keeps its
-    voxel size). Geometry (:func:`metrics.geometry_scores`): G-Div, LP-IoU, LP-F, the labelled variant that is not
-    the paper's (``lp_iou_any_offset``, ``lp_fscore_any_offset``: the input's patches at every voxel) and the IoU
-    to the input. Texture (:func:`metrics.texture_scores`) on ``views`` renders of ``size`` pixels at elevation
-    45°, input and samples framed by the same box: ``patch_swd`` and ``render_div`` always, ``sifid`` and
-    ``lpips`` with ``nets``; without an off-screen renderer they are None and ``skipped["texture"]`` says why.
-    Returns ``{"samples", "resolution", "views", "size", "metrics": {name: value or None}, "skipped": {name:
-    reason}, "timings_s": {...}}``; with several resolutions the first gets every metric and each other one the geometry's
-    (``geometry_at[str(resolution)]``). Input and samples are voxelised alike, ``supersample``³ points a voxel
-    (:func:`~sin3dm_lite.evaluate.geometry.voxelize`; the paper's 2 by default).
+    """``Sin3DM.evaluate``: the paper's metrics of the sample meshes ``to_meshes(samples)`` (in the input file's
+    coordinates) against the input mesh ``reference``.
+
+    Geometry (:func:`geometry.geometry_scores`) on a grid over ``aabb``, the model's box grown to hold larger
+    (retargeted) samples at the same voxel size, input and samples voxelised alike (``supersample``³ points a
+    voxel). Texture (:func:`metrics.texture_scores`) on ``views`` renders of ``size`` pixels framed by the same
+    box; without an off-screen renderer its metrics are None and ``skipped["texture"]`` says why. Returns
+    ``{"samples", "resolution", "supersample", "views", "size", "metrics", "skipped", "timings_s"}``; with several
+    resolutions the first gets every metric, each other one the geometry's (``geometry_at[str(resolution)]``).
     """
     say = print if progress else (lambda *a, **k: None)
     check_views(views, size)
@@ -147,7 +140,6 @@ def evaluate(
         raise Sin3DMInputError("evaluate needs at least one sample mesh")
     to_norm = normalization.to_normalized
     normed = [replace(m, vertices=to_norm(np.asarray(m.vertices, np.float64))) for m in meshes]
-    # one box for all: the model's, grown to hold larger (retargeted) samples at the same voxel size
     lo = np.minimum(aabb[:3], np.min([m.vertices.min(0) for m in normed], axis=0))
     hi = np.maximum(aabb[3:], np.max([m.vertices.max(0) for m in normed], axis=0))
     box = np.concatenate([lo, hi])
@@ -162,20 +154,17 @@ def evaluate(
 
     res, metrics = geometry(first)
     geometry_at = {}
-    for r in others:  # the geometry again on another grid (the paper's 128 beside the training grid)
+    for r in others:
         voxels, scores = geometry(r)
         geometry_at[str(r)] = {"voxels": voxels, "metrics": scores}
     timings = {"geometry_s": time.perf_counter() - t0}
     grids = ", ".join(map(str, [res, *(g["voxels"] for g in geometry_at.values())]))
     how = voxels_said(supersample)
     say(f"[evaluate] geometry of {len(meshes)} samples at {grids} voxels, {how}: {timings['geometry_s']:.1f} s")
-    skipped = {"ssfid": SSFID_UNAVAILABLE}
     metrics["ssfid"] = None
-    skipped.update(
-        _texture_metrics(
-            meshes, reference, normalization.to_original(np.stack([lo, hi])), views, size, nets, metrics, timings, say
-        )
-    )
+    frame = normalization.to_original(np.stack([lo, hi]))
+    texture = _texture_metrics(meshes, reference, frame, views, size, nets, metrics, timings, say)
+    skipped = {"ssfid": SSFID_UNAVAILABLE, **texture}
     if len(meshes) < 2:
         skipped["diversity"] = "G-Div and the texture diversities need at least two samples"
     return {
@@ -211,9 +200,8 @@ def _texture_metrics(meshes, reference, frame, views, size, nets, metrics, timin
         f"[evaluate] {views} views of {len(meshes) + 1} meshes at {size}²: rendered in {timings['render_s']:.1f} s, "
         f"texture metrics {timings['texture_s']:.1f} s"
     )
-    if nets is None:
-        return {
-            "sifid": "no pre-trained weights given (CLI: --weights DIR)",
-            "lpips": "no pre-trained weights given (CLI: --weights DIR)",
-        }
-    return {}
+    return (
+        {}
+        if nets is not None
+        else dict.fromkeys(["sifid", "lpips"], "no pre-trained weights given (CLI: --weights DIR)")
+    )

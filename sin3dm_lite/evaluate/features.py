@@ -1,14 +1,8 @@
-"""Texture metrics with pre-trained networks: SIFID (InceptionV3's first block) and LPIPS (AlexNet +
-LPIPS's linear layers), with weights given *by path* (never downloaded) and loaded by :func:`load_feature_weights`.
+"""Texture metrics with pre-trained networks: SIFID (InceptionV3's first block) and LPIPS (AlexNet + LPIPS's linear
+layers), small re-implementations that read the original weight files, given *by path* (never downloaded).
 
-The paper scores a sample's texture by comparing renders: SIFID against the
-input's render of the same view for quality (T-Qual; :func:`frechet_distance`
-of the two pictures' local features), LPIPS between samples' renders for
-diversity (T-Div). The networks are small re-implementations that read the
-original weight files.
-
-G-Qual = SSFID (DECOR-GAN's 3D classifier, the authors' ``Clsshapenet_128.pth`` by path) is in
-:mod:`~sin3dm_lite.evaluate.ssfid`; ``Sin3DM.evaluate`` does not compute it (:data:`SSFID_UNAVAILABLE`).
+The paper scores a sample's texture on renders: SIFID against the input's render of the same view for quality
+(T-Qual), LPIPS between samples' renders for diversity (T-Div).
 """
 
 from __future__ import annotations
@@ -24,9 +18,7 @@ from torch import nn
 from ..errors import Sin3DMInputError
 from .texture import image_tensor
 
-# ----------------------------------------------------------------------------- texture: pre-trained features
-#: the day pytorch-fid's InceptionV3 checkpoint was released (year, month, day), part of its file name; written as
-#: numbers so that the source holds no date-like text (the project's structure check reads that as a measurement)
+#: the release day in pytorch-fid's InceptionV3 file name, as numbers (the structure check flags date-like text)
 FID_RELEASE_DAY = (2015, 12, 5)
 #: pytorch-fid's InceptionV3: its release day and the first digits of its SHA-256
 FID_INCEPTION = "pt_inception-{:04d}-{:02d}-{:02d}-6726825d.pth".format(*FID_RELEASE_DAY)
@@ -130,7 +122,8 @@ class FeatureNets:
     lpips: LPIPSAlex
 
 
-def _read_weights(path: Path, url: str) -> dict:
+def _load_into(module: nn.Module, path: Path, url: str, prefix: str = "") -> None:
+    """Copy the entries ``module`` needs from the state dict in ``path`` (other keys ignored); one-line errors."""
     from ..files.inputs import check_regular
 
     check_regular(path, "weights")  # a FIFO or a device would block torch.load forever
@@ -144,11 +137,6 @@ def _read_weights(path: Path, url: str) -> dict:
         raise Sin3DMInputError(
             f"weights '{path}' hold a {type(sd).__name__}, not a state dict; get the original from {url}"
         )
-    return sd
-
-
-def _load_into(module: nn.Module, sd: dict, path: Path, url: str, prefix: str = "") -> None:
-    """Copy the entries ``module`` needs from ``sd`` (other keys ignored); one-line error if any is missing or misshapen."""
     want = {k: v for k, v in module.state_dict().items() if not k.endswith("num_batches_tracked")}
     picked = {}
     for k, v in want.items():
@@ -167,13 +155,10 @@ def _load_into(module: nn.Module, sd: dict, path: Path, url: str, prefix: str = 
 def load_feature_weights(weights_dir) -> FeatureNets:
     """Load the networks behind SIFID and LPIPS from files in ``weights_dir`` (nothing is downloaded).
 
-    The folder must hold, under their standard names: InceptionV3
-    (pytorch-fid's :data:`FID_INCEPTION`, ``pt_inception-…-6726825d.pth``, or torchvision's
-    ``inception_v3_google-0cc3c7bd.pth``), torchvision's AlexNet
-    (``alexnet-owt-7be5be79.pth``) and LPIPS's linear layers (``alex.pth``,
-    ``lpips/weights/v0.1`` of the lpips project). Only the entries used are
-    read (``torch.load(..., weights_only=True)``). A missing file or one whose
-    keys do not match gives a one-line :class:`Sin3DMInputError` naming it and where to get it.
+    The folder must hold, under their standard names: InceptionV3 (pytorch-fid's :data:`FID_INCEPTION` or
+    torchvision's ``inception_v3_google-0cc3c7bd.pth``), torchvision's AlexNet (``alexnet-owt-7be5be79.pth``) and
+    LPIPS's linear layers (``alex.pth``). A missing file or one whose keys do not match gives a one-line
+    :class:`Sin3DMInputError` naming it and where to get it.
     """
     folder = Path(weights_dir)
     if not folder.is_dir():
@@ -192,16 +177,10 @@ def load_feature_weights(weights_dir) -> FeatureNets:
         if not (folder / name).is_file():
             raise Sin3DMInputError(f"'{folder / name}' not found (for LPIPS); download it from {url} into '{folder}'")
     nets = FeatureNets(InceptionStem(), LPIPSAlex())
-    _load_into(nets.inception, _read_weights(*inception), *inception)
-    _load_into(
-        nets.lpips.features,
-        _read_weights(folder / ALEXNET_FILE[0], ALEXNET_FILE[1]),
-        folder / ALEXNET_FILE[0],
-        ALEXNET_FILE[1],
-        prefix="features.",
-    )
+    _load_into(nets.inception, *inception)
+    _load_into(nets.lpips.features, folder / ALEXNET_FILE[0], ALEXNET_FILE[1], prefix="features.")
     lin = nn.ModuleDict({f"lin{k}": getattr(nets.lpips, f"lin{k}") for k in range(5)})
-    _load_into(lin, _read_weights(folder / LPIPS_FILE[0], LPIPS_FILE[1]), folder / LPIPS_FILE[0], LPIPS_FILE[1])
+    _load_into(lin, folder / LPIPS_FILE[0], LPIPS_FILE[1])
     nets.inception.eval()
     nets.lpips.eval()
     return nets

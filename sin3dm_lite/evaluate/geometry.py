@@ -1,22 +1,10 @@
-"""Geometry metrics of the paper's evaluation (no network): occupancy grids and how alike they are.
+"""Geometry metrics of the paper's evaluation (no network) on *occupancy grids*: boolean ``(X, Y, Z)`` arrays on
+the cell-centred grid :mod:`sin3dm_lite.generate.extract` decodes on (``resolution`` voxels along the box's longest
+side; the paper uses 128).
 
-Everything works on *occupancy grids*: boolean ``(X, Y, Z)`` arrays on the
-same cell-centred grid that :mod:`sin3dm_lite.generate.extract` decodes on (``resolution``
-voxels along the longest side of a box, the paper uses 128).
-
-* :func:`voxelize` — mesh → occupancy grid; :func:`input_occupancy` — the
-  same for the input mesh (open meshes too), the reference of the LP metrics.
-  Either samples the voxel centres, or with ``supersample=2`` voxelises as the
-  paper's evaluation code does (:data:`PAPER_SUPERSAMPLE`: solid where any of a
-  voxel's 8 sub-voxels is inside), which ``Sin3DM.evaluate`` uses.
-* :func:`iou`, :func:`g_div` — whole-shape overlap and the diversity score
-  G-Div = mean pairwise ``1 − IoU`` among generated shapes. Whole-shape
-  comparisons need every grid to have the same shape, so retargeted samples
-  (another box) cannot enter G-Div with the others.
-* :func:`geometry_scores` — G-Div, IoU to the input and the local-patch scores
-  of :mod:`~sin3dm_lite.evaluate.patches` (LP-IoU / LP-F: does every small
-  piece of a generated shape look like *some* piece of the input?) at once.
-
+:func:`voxelize` and :func:`input_occupancy` make the grids; :func:`iou` and :func:`g_div` (mean pairwise
+``1 − IoU``) compare whole shapes of one grid; :func:`geometry_scores` adds the local-patch scores of
+:mod:`~sin3dm_lite.evaluate.patches` (LP-IoU / LP-F).
 """
 
 from __future__ import annotations
@@ -31,8 +19,8 @@ from ..errors import Sin3DMInputError
 from ..generate.bake import rasterize_triangles
 from .patches import ANY_OFFSET_MAX_VOXELS, lp_scores, lp_scores_any_offset
 
-#: Tiny shift (in voxels) of the mesh against the ray grid: marching-cubes vertices of the same grid lie
-#: exactly on the rays, and a ray through an edge would be counted twice.
+#: tiny shift (in voxels) of the mesh against the ray grid: marching-cubes vertices of the same grid lie exactly
+#: on the rays, and a ray through an edge would be counted twice
 _RAY_JITTER = np.array([3.1e-6, 2.3e-6])
 
 
@@ -44,22 +32,17 @@ def _verts_faces(mesh) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(verts, np.float64), np.asarray(faces, np.int64)
 
 
-# ----------------------------------------------------------------------------- the autoencoder's reconstruction
 def reconstruction_metrics(reconstruction, grid) -> dict[str, float]:
     """How well a reconstruction (``decode.reconstructed_grid``, both ``ShapeGrid``) reproduces the input grid.
 
     * ``sign_accuracy``: share of voxels where the decoded SDF has the input's sign;
     * ``occupancy_iou``: IoU of the inside voxels (SDF < 0);
-    * ``occupancy_iou_quarter_voxel``: the same IoU leaving out voxels whose centre lies
-      within a quarter voxel of the input surface. Their sign flips with any sub-voxel
-      shift of the surface, and a mesh whose flat faces run along a layer of voxel
-      centres (a block filling its box) has thousands of them;
+    * ``occupancy_iou_quarter_voxel``: the same IoU leaving out voxels whose centre lies within a quarter voxel of
+      the input surface (their sign flips with any sub-voxel shift of the surface);
     * ``color_l1`` / ``color_psnr``: colour error on voxels within the truncation band.
 
-    PBR grids (``grid.has_pbr``) add, on the same voxels: ``metallic_l1``,
-    ``roughness_l1``, ``normal_angle_deg`` (mean angle between the decoded
-    and the input normal) and ``metallic_iou`` (IoU of the ``metallic > 0.5``
-    voxels: are the metal parts in the same places?).
+    PBR grids (``grid.has_pbr``) add, on the same voxels: ``metallic_l1``, ``roughness_l1``, ``normal_angle_deg``
+    (mean angle between the decoded and the input normal) and ``metallic_iou`` (IoU of the ``metallic > 0.5`` voxels).
     """
     sdf, col = reconstruction.sdf, reconstruction.color[..., :3]
     gt_in, pr_in = grid.sdf < 0, sdf < 0
@@ -89,11 +72,8 @@ def reconstruction_metrics(reconstruction, grid) -> dict[str, float]:
     return out
 
 
-# ----------------------------------------------------------------------------- voxelisation
-#: the paper's voxelisation (the SSG / Sin3DM evaluation code): a voxel of the 128 grid is solid when *any* of its
-#: 2 × 2 × 2 sub-voxels at twice the resolution is inside (generated shapes: the decoded SDF at 256 voxels, < 0,
-#: max-pooled to 128; the input: its 256-voxel SDF grid min-pooled to 128). ``supersample=1`` samples the voxel
-#: centres alone, which is stricter on walls one or two voxels thick (docs/judging-samples.md).
+#: the paper's voxelisation (the SSG / Sin3DM evaluation code): a voxel is solid when *any* of its 2 × 2 × 2
+#: sub-voxels is inside; ``supersample=1`` samples the voxel centres alone, stricter on thin walls
 PAPER_SUPERSAMPLE = 2
 
 
@@ -105,7 +85,7 @@ def any_inside(fine: np.ndarray, factor: int) -> np.ndarray:
     x, y, z = (n // factor for n in fine.shape)
     if min(x, y, z) < 1 or fine.shape != (x * factor, y * factor, z * factor):
         raise Sin3DMInputError(f"a grid of shape {fine.shape} does not pool {factor}x (each side a multiple of it)")
-    for axis in range(3):  # one axis at a time, strided slices: about 30x faster than any() over a 6-d reshape
+    for axis in range(3):  # one axis at a time, strided slices: much faster than any() over a 6-d reshape
         head = (slice(None),) * axis
         fine = functools.reduce(np.logical_or, (fine[(*head, slice(i, None, factor))] for i in range(factor)))
     return fine
@@ -113,10 +93,9 @@ def any_inside(fine: np.ndarray, factor: int) -> np.ndarray:
 
 def interpolated_inside(sdf: np.ndarray, supersample: int = PAPER_SUPERSAMPLE) -> np.ndarray:
     """The paper's voxels of the mesh marching cubes makes of ``sdf`` (values at the voxel centres), without making
-    it: a voxel is solid when any of its ``supersample³`` sub-voxel centres is inside, the SDF interpolated between
-    the centres trilinearly, as marching cubes interpolates it, and towards an outside layer beyond the outermost
-    ones, as mesh extraction closes the box's faces. A voxel the surface passes through with its centre outside
-    is solid here, as in the mesh's voxels and the input's: on a branch one or two voxels thick, most of it."""
+    it: a voxel is solid when any of its ``supersample³`` sub-voxel centres is inside, the SDF interpolated
+    trilinearly between the centres (as marching cubes does) and towards an outside layer beyond the outermost
+    ones (as mesh extraction closes the box's faces)."""
     factor = check_supersample(supersample)
     grids = [np.pad(np.asarray(sdf, np.float32), 1, mode="edge")]
     border = np.ones(grids[0].shape, bool)
@@ -135,7 +114,7 @@ def interpolated_inside(sdf: np.ndarray, supersample: int = PAPER_SUPERSAMPLE) -
 
 
 def check_supersample(supersample) -> int:
-    """``supersample`` as an int, or one clear error when it is not a whole number ≥ 1."""
+    """``supersample`` as an int; an error when it is not a whole number ≥ 1."""
     if not isinstance(supersample, (int, np.integer)) or isinstance(supersample, bool) or supersample < 1:
         raise Sin3DMInputError(
             f"supersample must be a whole number ≥ 1 (1: voxel centres; 2: the paper's), got {supersample!r}"
@@ -144,23 +123,13 @@ def check_supersample(supersample) -> int:
 
 
 def voxelize(mesh, aabb, resolution: int = 128, supersample: int = 1) -> np.ndarray:
-    """Occupancy of the voxel centres of a grid over ``aabb`` → bool ``(X, Y, Z)``.
+    """Occupancy of the voxel centres of a grid over ``aabb`` → bool ``(X, Y, Z)``, for a closed mesh.
 
-    Ray casting along +z through every column of voxel centres: each triangle
-    the ray crosses adds +1 (leaving the shape, normal pointing up) or −1
-    (entering); a voxel is inside when the crossings above it do not cancel
-    (a winding number along the ray). This fills closed shells, handles
-    nested or overlapping closed pieces, and does not care whether the whole
-    mesh is oriented inwards or outwards; it needs a closed mesh (marching
-    cubes output is).
-
-    Args:
-        mesh: a ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)``,
-            in the same coordinates as ``aabb`` (normalised coordinates: use
-            ``extract_mesh(..., original_coords=False)``).
-        resolution: voxels along the box's longest side (the paper uses 128).
-        supersample: sample ``supersample³`` sub-voxel centres per voxel, solid when any is inside
-            (:data:`PAPER_SUPERSAMPLE` is the paper's way; 1, the default here, the voxel centres alone).
+    Ray casting along +z through every column of voxel centres: each triangle the ray crosses adds +1 (leaving the
+    shape) or −1 (entering); a voxel is inside when the crossings above it do not cancel (a winding number along the
+    ray). ``mesh``: a ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)`` in ``aabb``'s coordinates;
+    ``supersample``: ``supersample³`` sub-voxel centres per voxel, solid when any is inside (:data:`PAPER_SUPERSAMPLE`
+    is the paper's way).
     """
     factor = check_supersample(supersample)
     shape = tuple(factor * n for n in grid_shape(as_aabb(aabb), resolution))
@@ -189,22 +158,14 @@ def _voxel_centres_inside(mesh, aabb, shape, outward: bool = False) -> np.ndarra
 
 
 def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> np.ndarray:
-    """The *input* mesh as an occupancy grid: inside (winding number > ½) at every voxel centre.
+    """The *input* mesh as an occupancy grid: inside (winding number > ½) at every voxel centre; the reference the
+    LP metrics compare against.
 
-    This is the reference the paper's LP-IoU / LP-F compare against. Unlike
-    :func:`voxelize` it needs no closed mesh (a user's open scan works: its
-    generalised winding number decides). On a closed mesh (every edge shared
-    by two faces, as the built-ins and most game assets are) the winding
-    number is a whole number that only changes across the surface, so the ray
-    cast of :func:`voxelize` counts it exactly: the same grid, 100-300x faster
-    (the canyon at 256 sub-voxels a side: 0.06 s against 19 s). On an open mesh
-    with ``supersample`` > 1 only the voxels the surface passes near (or whose
-    centre's answer differs from a neighbour's) get a winding number per
-    sub-voxel; the others take their centre's (the same grids on five shapes
-    with holes cut; at 128 about twice as fast, the canyon 9 s against 20 s). The mesh (a
-    ``TexturedMesh``, ``trimesh.Trimesh`` or ``(verts, faces)``) must be in the
-    same (normalised) coordinates as ``aabb``, e.g. ``mesh.normalized()`` for
-    the box a fit used. ``supersample``: as for :func:`voxelize`.
+    Unlike :func:`voxelize` it needs no closed mesh: an open one's generalised winding number decides. A closed
+    mesh's winding number is whole, so :func:`voxelize`'s ray cast counts it exactly and much faster. On an open
+    mesh with ``supersample`` > 1 only the voxels near the surface (or across a hole) get a winding number per
+    sub-voxel; the others take their centre's. The mesh must be in the same (normalised) coordinates as ``aabb``;
+    ``supersample``: as for :func:`voxelize`.
     """
     from types import SimpleNamespace
 
@@ -255,8 +216,7 @@ def _surface_cells(verts, faces, box, shape) -> np.ndarray:
 
 
 def _dilate(grid: np.ndarray) -> np.ndarray:
-    """``grid`` grown by one voxel along each axis and diagonal (a 3 × 3 × 3 neighbourhood): a voxel centre
-    within 0.87 voxels of a point lies in that point's voxel or a neighbour."""
+    """``grid`` grown by one voxel along each axis and diagonal (a 3 × 3 × 3 neighbourhood)."""
     for axis in range(3):
         grown = grid.copy()
         lo, hi = [slice(None)] * 3, [slice(None)] * 3
@@ -279,9 +239,8 @@ def _sign_changes(side: np.ndarray) -> np.ndarray:
     return out
 
 
-# ----------------------------------------------------------------------------- whole-shape overlap
 def check_same_grid(grids: list[np.ndarray]) -> None:
-    """Refuse occupancy grids of different shapes (one clear error): they cannot be compared voxel by voxel."""
+    """Refuse occupancy grids of different shapes: they cannot be compared voxel by voxel."""
     shapes = {tuple(np.shape(g)) for g in grids}
     if len(shapes) > 1:
         raise Sin3DMInputError(
@@ -313,11 +272,8 @@ def pairwise_iou(grids) -> np.ndarray:
 
 
 def g_div(grids) -> float:
-    """G-Div: mean of ``1 − IoU`` over all pairs of generated shapes (0 = all identical, 1 = all disjoint).
-
-    The grids must share one shape (same box and resolution); retargeted
-    samples are not comparable to the others.
-    """
+    """G-Div: mean of ``1 − IoU`` over all pairs of generated shapes (0 = all identical, 1 = all disjoint); the
+    grids must share one shape (same box and resolution)."""
     grids = list(grids)
     if len(grids) < 2:
         raise Sin3DMInputError(f"g_div needs at least two shapes, got {len(grids)}")
@@ -329,12 +285,8 @@ def g_div(grids) -> float:
 def g_div_by_layer(grids, axis: int = 1) -> np.ndarray:
     """G-Div split over the layers of the grid along ``axis`` (1, y: heights): where the samples differ.
 
-    ``1 − IoU(a, b) = |a xor b| / |a ∪ b|``, and the voxels two samples
-    disagree on are a sum over layers. Entry ``k`` is the mean over pairs of
-    the disagreeing voxels in layer ``k`` divided by the pair's union, so the
-    entries sum to :func:`g_div`. A wall's samples keep its brick body and
-    differ almost only in the layers of its top; a canyon's differ at every
-    height its river and terraces reach.
+    ``1 − IoU(a, b) = |a xor b| / |a ∪ b|`` is a sum over layers: entry ``k`` is the mean over pairs of the
+    disagreeing voxels in layer ``k`` divided by the pair's union, so the entries sum to :func:`g_div`.
     """
     grids = [np.asarray(g, bool) for g in grids]
     if len(grids) < 2:
@@ -353,12 +305,8 @@ def g_div_by_layer(grids, axis: int = 1) -> np.ndarray:
 
 
 def variation_scores(reference: np.ndarray, samples) -> dict:
-    """How far samples stray from the input and from each other (occupancy grids in one box).
-
-    Returns ``iou_to_input`` (mean IoU of each sample with ``reference``: near 1
-    means copies of the input), ``per_sample_iou`` (the list) and ``g_div``
-    (:func:`g_div` of the samples; None for a single sample).
-    """
+    """How far samples stray from the input and from each other (occupancy grids in one box): ``iou_to_input``
+    (mean IoU with ``reference``; near 1: copies), ``per_sample_iou`` and ``g_div`` (None for a single sample)."""
     samples = list(samples)
     per = [iou(s, reference) for s in samples]
     return {
@@ -373,19 +321,15 @@ def reconstruction_iou(mesh_a, mesh_b, aabb, resolution: int = 128) -> float:
     return iou(voxelize(mesh_a, aabb, resolution), voxelize(mesh_b, aabb, resolution))
 
 
-# ----------------------------------------------------------------------------- geometry, all at once
 def geometry_scores(reference: np.ndarray, samples, any_offset: bool = True) -> dict:
     """The paper's weight-free geometry metrics of generated shapes against the input (occupancy grids, one box).
 
-    * ``g_div`` — G-Div: mean pairwise ``1 − IoU`` among the samples (higher = more diverse; None for one sample);
-    * ``lp_iou``, ``lp_fscore`` — LP-IoU / LP-F: share of the samples' local 11³ patches that have a near-exact
-      match (> 0.95) among the input's patches on the same stride-5 lattice (higher = locally more like the
-      input), see :func:`~sin3dm_lite.evaluate.patches.lp_scores`;
+    * ``g_div`` — G-Div (higher = more diverse; None for one sample);
+    * ``lp_iou``, ``lp_fscore`` — LP-IoU / LP-F (:func:`~sin3dm_lite.evaluate.patches.lp_scores`);
     * ``iou_to_input`` — mean IoU of each sample with the input (near 1 = copies of the input);
-    * with ``any_offset``, ``lp_iou_any_offset``, ``lp_fscore_any_offset`` — **not in the paper**: the same
-      patches matched against the input's patches at every voxel, so a piece of the input moved by a few
-      voxels counts (:func:`~sin3dm_lite.evaluate.patches.lp_scores_any_offset`; about 1 s a sample at 128;
-      None above 192 voxels a side).
+    * with ``any_offset``, ``lp_iou_any_offset``, ``lp_fscore_any_offset`` — **not in the paper**: the input's
+      patches at every voxel (:func:`~sin3dm_lite.evaluate.patches.lp_scores_any_offset`; None above
+      :data:`~sin3dm_lite.evaluate.patches.ANY_OFFSET_MAX_VOXELS` a side).
     """
     samples = list(samples)
     lp, var = lp_scores(reference, samples), variation_scores(reference, samples)
@@ -395,7 +339,7 @@ def geometry_scores(reference: np.ndarray, samples, any_offset: bool = True) -> 
         "lp_fscore": lp["lp_fscore"],
         "iou_to_input": var["iou_to_input"],
     }
-    if any_offset and max(np.shape(reference)) <= ANY_OFFSET_MAX_VOXELS:  # beyond: None, a '-' in the tables
+    if any_offset and max(np.shape(reference)) <= ANY_OFFSET_MAX_VOXELS:
         out.update({k: v for k, v in lp_scores_any_offset(reference, samples).items() if not k.startswith("per_")})
     else:
         out.update(lp_iou_any_offset=None, lp_fscore_any_offset=None)

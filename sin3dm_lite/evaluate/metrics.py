@@ -1,10 +1,7 @@
-"""The paper's evaluation in one namespace (``from sin3dm_lite import metrics``) and the table of its results.
-
-Geometry metrics on occupancy grids live in :mod:`~sin3dm_lite.evaluate.geometry` (G-Div, LP-IoU, LP-F-score),
-texture metrics on rendered views in :mod:`~sin3dm_lite.evaluate.texture` (patch SWD, render diversity: no
-weights) and :mod:`~sin3dm_lite.evaluate.features` (SIFID and LPIPS with their two pre-trained networks,
-InceptionV3's first block and AlexNet + LPIPS, whose weights are given by path). Here: :data:`METRICS` and
-:func:`results_table` (evaluations side by side), :func:`texture_scores` (every texture metric of a set of renders).
+"""The paper's evaluation in one namespace (``from sin3dm_lite import metrics``): the geometry metrics of
+:mod:`~sin3dm_lite.evaluate.geometry` and :mod:`~sin3dm_lite.evaluate.patches`, the texture metrics of
+:mod:`~sin3dm_lite.evaluate.texture` (no weights) and :mod:`~sin3dm_lite.evaluate.features` (SIFID, LPIPS), and
+here :func:`texture_scores` and :func:`results_table` (evaluations side by side).
 """
 
 from __future__ import annotations
@@ -82,8 +79,8 @@ METRICS = (
 def results_table(columns: dict, digits: int = 3) -> str:
     """Several evaluations side by side as a text table: one row per metric of :data:`METRICS`, one column each.
 
-    ``columns`` maps a column label to a ``Sin3DM.evaluate`` result (or its
-    ``"metrics"`` dict); a metric that was not computed shows as ``-``.
+    ``columns`` maps a label to a ``Sin3DM.evaluate`` result (or its ``"metrics"``); a metric not computed shows
+    as ``-``.
     """
     if not columns:
         raise Sin3DMInputError("results_table needs at least one column")

@@ -1,12 +1,9 @@
 """Local patches (no network): the paper's LP-IoU / LP-F-score, and what they compare.
 
-A generated shape is *locally* like the input when each of its small surface
-patches (11³ voxels at 128 voxels along the longest side) appears, almost
-voxel for voxel, somewhere in the input. :func:`lp_scores` is the paper's
-measure (SSG's evaluation code: patches on a stride-5 lattice in both shapes);
-:func:`patch_matches` shows the pairs it compares; :func:`lp_scores_any_offset`
-is a variant that is not in the paper (labelled so wherever it is reported):
-the input's patches at *every* voxel, so a piece moved by a voxel still counts.
+A generated shape is *locally* like the input when each of its small surface patches (11³ voxels at 128 voxels
+along the longest side) appears, almost voxel for voxel, somewhere in the input. :func:`lp_scores` is the paper's
+measure (SSG's evaluation code: patches on a stride-5 lattice in both shapes); :func:`lp_scores_any_offset` is a
+labelled variant, not in the paper, that matches the input's patches at *every* voxel.
 """
 
 from __future__ import annotations
@@ -19,10 +16,8 @@ from ..errors import Sin3DMInputError
 def extract_patches(grid: np.ndarray, patch: int = 11, stride: int = 5, center: int = 3) -> np.ndarray:
     """Surface patches of an occupancy grid → bool ``(n, patch**3)``.
 
-    The grid is zero-padded by ``patch // 2`` on every side, so patches are
-    centred on voxels ``0, stride, 2·stride, ...`` of each axis. A patch is
-    kept when its central ``center³`` block holds both occupied and empty
-    voxels, i.e. it straddles the surface.
+    The grid is zero-padded by ``patch // 2``, so patches are centred on voxels ``0, stride, 2·stride, ...`` of
+    each axis; a patch is kept when it straddles the surface (:func:`_surface`).
     """
     return _surface_rows(_windows(grid, patch)[::stride, ::stride, ::stride], patch, center)
 
@@ -66,10 +61,14 @@ def _best_matches(
     return (best_iou, best_f, best_at) if return_index else (best_iou, best_f)
 
 
+#: the error when the input's grid has no patch to compare against
+_NO_PATCHES = "the reference occupancy grid has no surface patches (is it empty or full?)"
+
+
 def _reference_patches(reference: np.ndarray, patch: int, stride: int, center: int) -> np.ndarray:
     ref = extract_patches(reference, patch, stride, center)
     if len(ref) == 0:
-        raise Sin3DMInputError("the reference occupancy grid has no surface patches (is it empty or full?)")
+        raise Sin3DMInputError(_NO_PATCHES)
     return ref
 
 
@@ -96,34 +95,21 @@ def lp_scores(
     threshold: float = 0.95,
     seed: int = 0,
 ) -> dict:
-    """LP-IoU and LP-F-score (docs/paper-notes.md "Evaluation", from the SSG / Sin3DM evaluation).
+    """LP-IoU and LP-F-score, as the SSG / Sin3DM evaluation computes them.
 
-    For each generated shape: take its surface patches (:func:`extract_patches`),
-    keep at most ``max_patches`` of them chosen at random (``seed``), and find
-    for each the best match among *all* reference patches:
-
-    * IoU of two patches ``g`` and ``r`` (sets of occupied voxels):
-      ``|g ∩ r| / |g ∪ r|``;
-    * F-score: precision ``P = |g ∩ r| / |g|`` (how much of the generated
-      patch's occupied voxels the reference has), recall ``R = |g ∩ r| / |r|``,
-      ``F = 2PR / (P + R) = 2|g ∩ r| / (|g| + |r|)``.
-
-    The shape's score is the fraction of its patches whose best match is above
-    ``threshold`` (strictly); the metric is the mean over generated shapes.
-    A generated shape without surface patches scores 0.
+    For each generated shape: take its surface patches (:func:`extract_patches`), keep at most ``max_patches`` of
+    them chosen at random (``seed``), and find for each the best match among *all* reference patches, by IoU
+    ``|g ∩ r| / |g ∪ r|`` and by F-score ``2|g ∩ r| / (|g| + |r|)``. The shape's score is the fraction of its patches
+    whose best match is above ``threshold``; the metric is the mean over shapes (a shape without patches scores 0).
 
     Returns:
-        dict with ``lp_iou``, ``lp_fscore`` (the metrics), ``lp_iou_mean_best``,
-        ``lp_fscore_mean_best`` (mean best match, a softer number) and the
-        per-shape lists ``per_shape_iou``, ``per_shape_fscore``.
+        dict with ``lp_iou``, ``lp_fscore`` (the metrics), ``lp_iou_mean_best``, ``lp_fscore_mean_best`` (mean
+        best match, a softer number) and the per-shape lists ``per_shape_iou``, ``per_shape_fscore``.
     """
     ref = _reference_patches(reference, patch, stride, center)
     per_iou, per_f, mean_iou, mean_f = [], [], [], []
     for gen in _drawn_patches(generated, patch, stride, center, max_patches, seed):
-        if len(gen) == 0:
-            best_iou = best_f = np.zeros(1)
-        else:
-            best_iou, best_f = _best_matches(gen, ref)
+        best_iou, best_f = _best_matches(gen, ref) if len(gen) else (np.zeros(1), np.zeros(1))
         per_iou.append(float(np.mean(best_iou > threshold)))
         per_f.append(float(np.mean(best_f > threshold)))
         mean_iou.append(float(best_iou.mean()))
@@ -148,10 +134,7 @@ def lp_iou(
     threshold: float = 0.95,
     seed: int = 0,
 ) -> float:
-    """LP-IoU: mean fraction of generated patches whose best reference IoU exceeds ``threshold``.
-
-    See :func:`lp_scores`, which computes LP-IoU and LP-F-score in one pass.
-    """
+    """LP-IoU: mean fraction of generated patches whose best reference IoU exceeds ``threshold`` (:func:`lp_scores`)."""
     return lp_scores(reference, generated, patch, stride, center, max_patches, threshold, seed)["lp_iou"]
 
 
@@ -181,14 +164,9 @@ def patch_matches(
 ) -> dict:
     """What LP-IoU compares, for a picture: ``n`` surface patches of one generated grid and their best input patch.
 
-    The patches are those :func:`lp_scores` takes (same ``patch``, ``stride``,
-    ``center``, ``max_patches`` and ``seed``); the ``n`` shown are spread evenly
-    over the range of best IoU, from the worst-matched patch to the best one.
-
-    Returns ``generated`` and ``matched`` (``(n, patch, patch, patch)`` bool: the
-    generated patches and, for each, the input patch with the highest IoU),
-    their ``iou`` and ``fscore`` (``(n,)``), ``best_iou`` (every compared patch's
-    best IoU: LP-IoU is the share of these above the threshold) and ``threshold``.
+    The patches are those :func:`lp_scores` takes; the ``n`` shown are spread evenly over the range of best IoU.
+    Returns ``generated`` and ``matched`` (``(n, patch, patch, patch)`` bool), their ``iou`` and ``fscore``
+    (``(n,)``), ``best_iou`` (every compared patch's best IoU) and ``threshold``.
     """
     ref = extract_patches(reference, patch, stride, center)
     gen = extract_patches(generated, patch, stride, center)
@@ -225,12 +203,9 @@ def lp_misses_by_band(
     """Where LP-IoU's misses are: the generated surface patches in ``bands`` slabs along ``axis`` (1: up), and the
     share of each slab's patches whose best IoU against the input's is not above ``threshold``.
 
-    The slabs split the reference's occupied extent along ``axis`` evenly (patches beyond it join the end slabs).
-    A variant of a tower that changes only its broken top misses patches in the top slabs alone; samples whose
-    walls moved miss them all the way down (docs/judging-samples.md, "Where the samples lose patches").
-    Every surface patch counts (no subset drawn, unlike :func:`lp_scores`). Returns ``share`` (of all patches, per
-    slab, bottom first), ``missed`` (per slab) and ``lp_iou`` (1 - the overall share missed, pooled over the grids;
-    NaN when no grid has a surface patch).
+    The slabs split the reference's occupied extent along ``axis`` evenly (patches beyond it join the end slabs);
+    every surface patch counts (no subset drawn). Returns ``share`` (of all patches, per slab, bottom first),
+    ``missed`` (per slab) and ``lp_iou`` (1 - the overall share missed; NaN when no grid has a surface patch).
     """
     ref = _reference_patches(reference, patch, stride, center)
     solid = np.flatnonzero(np.asarray(reference, bool).any(axis=tuple(a for a in range(3) if a != axis)))
@@ -246,7 +221,7 @@ def lp_misses_by_band(
         band = np.clip(((at - lo) / max(hi - lo + 1, 1) * bands).astype(int), 0, bands - 1)
         count += np.bincount(band, minlength=bands)
         missed += np.bincount(band, weights=best_iou <= threshold, minlength=bands)
-    total = count.sum()  # no surface patch in any grid: nothing to place, and no score (lp_scores gives such a grid 0)
+    total = count.sum()
     return {
         "share": (count / max(total, 1.0)).tolist(),
         "missed": (missed / np.maximum(count, 1)).tolist(),
@@ -261,19 +236,22 @@ ANY_OFFSET_MAX_VOXELS = 192
 def _distinct_patches_at_every_voxel(grid: np.ndarray, patch: int, center: int) -> np.ndarray:
     """The surface patches centred on every voxel of ``grid``, each distinct one once → bool ``(n, patch**3)``.
 
-    Taken a slab of 8 voxels at a time and kept bit-packed until the end, so memory grows with the number
-    of distinct patches, not with all of them (the ruined tower at 128 voxels: 152k patches, 33k distinct)."""
+    Taken a slab of 8 voxels at a time and kept bit-packed until the end, so memory grows with the number of
+    distinct patches, not with all of them."""
     windows = _windows(grid, patch)
     packed = []
     for x in range(0, windows.shape[0], 8):  # the same surface test as extract_patches, so stride 5 ⊂ stride 1
         rows = np.packbits(_surface_rows(windows[x : x + 8], patch, center), axis=1)
-        _, first = np.unique(rows.view(np.dtype((np.void, rows.shape[1]))).ravel(), return_index=True)
-        packed.append(rows[first])
+        packed.append(rows[_first_of_each(rows)])
     packed = np.ascontiguousarray(np.concatenate(packed))
     if len(packed) == 0:
-        raise Sin3DMInputError("the reference occupancy grid has no surface patches (is it empty or full?)")
-    _, first = np.unique(packed.view(np.dtype((np.void, packed.shape[1]))).ravel(), return_index=True)
-    return np.unpackbits(packed[np.sort(first)], axis=1, count=patch**3).astype(bool)
+        raise Sin3DMInputError(_NO_PATCHES)
+    return np.unpackbits(packed[np.sort(_first_of_each(packed))], axis=1, count=patch**3).astype(bool)
+
+
+def _first_of_each(rows: np.ndarray) -> np.ndarray:
+    """The index of each distinct row's first occurrence (rows sorted by their bytes)."""
+    return np.unique(rows.view(np.dtype((np.void, rows.shape[1]))).ravel(), return_index=True)[1]
 
 
 def lp_scores_any_offset(
@@ -288,24 +266,11 @@ def lp_scores_any_offset(
 ) -> dict:
     """LP-IoU and LP-F with the input's patches at *every* voxel: **not the paper's metric**, a labelled variant.
 
-    The paper's :func:`lp_scores` (SSG's evaluation code) takes the patches of
-    both shapes on the same stride-5 lattice, so it asks whether a generated
-    patch appears in the input *at the input's lattice phase*: the ruined tower
-    moved by one whole voxel, a perfect copy, keeps only 15-18 % of its
-    patches, and 100 % again when moved by 5 (docs/judging-samples.md "What LP-IoU
-    measures"). Here the generated patches are the same ones :func:`lp_scores`
-    draws (same ``stride``, ``max_patches`` and ``seed``), but each is matched
-    against the input's surface patches centred on every voxel (stride 1), so a
-    piece that is the input's, moved by any whole number of voxels, counts.
-
-    Only whether the best match is above ``threshold`` is needed, so the search
-    is exact but pruned: identical input patches are kept once, and a generated
-    patch of ``n`` occupied voxels is only compared with input patches whose
-    count could reach the threshold (IoU ≤ min/max of the counts, F ≤ 2·min/sum).
-
-    Returns:
-        dict with ``lp_iou_any_offset``, ``lp_fscore_any_offset`` and the per-shape lists
-        ``per_shape_iou``, ``per_shape_fscore``.
+    :func:`lp_scores` takes both shapes' patches on one stride-5 lattice, so a perfect copy moved by one voxel loses
+    most of its patches; here the patches :func:`lp_scores` draws are matched against the input's centred on every
+    voxel. The search is exact but pruned: identical input patches are kept once, and each generated patch meets
+    only input patches whose voxel count could reach the threshold. Returns ``lp_iou_any_offset``,
+    ``lp_fscore_any_offset`` and the per-shape lists ``per_shape_iou``, ``per_shape_fscore``.
     """
     if not 0.0 < threshold < 1.0:
         raise Sin3DMInputError(f"threshold must lie between 0 and 1, got {threshold!r}")

@@ -1,42 +1,18 @@
 """Headless pictures of textured meshes: the paper's 8 views, a hero view, a contact sheet.
 
-Sin3DM's figures and its evaluation look at a shape from 8 views: azimuth
-every 45°, elevation 45°, 512×512, the camera framing the input's bounding
-box. :func:`render_views` makes those pictures as arrays on a CPU with no
-display and no GPU; pass the *input's* box as ``box`` when rendering its
-samples so that all of them are framed alike. Shading is simple: the texture
-(or vertex) colour lit by a light at the camera plus some ambient light
-(a diffuse, Lambert-like material: metallic 0, roughness 1), on white. A
-material with PBR maps (``metallic_roughness_image``, ``normal_image``: the
-``tiles`` example, a PBR fit's samples) is shaded with them: metal shows its
-highlights and the normal map its bumps.
+Sin3DM's figures and evaluation look at a shape from 8 views (azimuth every 45°, elevation 45°), the camera framing
+the input's box: :func:`render_views` makes them on a CPU with no display (pass the *input's* box as ``box`` for its
+samples, so all are framed alike). Shading is a diffuse material lit from the camera on white; PBR maps
+(``metallic_roughness_image``, ``normal_image``) are used where a material has them. y is up; azimuth 0 looks at
+the front (the camera on +z), azimuth 90 from +x.
 
-Public API::
-
-    render_views(mesh, n_views=8, size=512, elevation=45, box=None) -> [(size, size, 3) uint8, ...]
-    render_hero(mesh, size=512, box=None) -> (size, size, 3) uint8        # one three-quarter view
-    save_views(mesh, folder, n_views=8, size=512, ...) -> [Path, ...]     # view_000.png ... hero.png
-    contact_sheet(images, labels=None, columns=4) -> (H, W, 3) uint8      # a labelled grid
-    view_angles(n_views=8, elevation=45) -> [(azimuth, elevation), ...]   # degrees
-    view_names(n_views=8, hero=True) -> ["view_000.png", ..., "hero.png"] # the files save_views writes
-    camera_pose(box, azimuth, elevation) -> (4, 4) pose                   # a camera that frames the box
-    renderer_problem() -> None or the one-line reason rendering cannot start here
-
-Coordinates: y is up (as the viewer's default ``up="y"``); azimuth 0 looks at
-the shape's front (the camera on +z), azimuth 90 from +x.
-
-Why pyrender: it renders headless through Mesa's software EGL (``libegl1``,
-``libgl1-mesa-dri`` on a bare Linux box, as any GL renderer needs), reuses the
-trimesh/scipy/numpy the package already has, works on any Python >= 3.10 and
-is fast enough for figures and metrics; the candidates compared and their
-timings are in ``docs/performance.md`` ("Which renderer"). On Linux without
-``$DISPLAY`` we select EGL (``PYOPENGL_PLATFORM=egl``) before OpenGL is
-imported; with a display (or on macOS / Windows) pyrender uses an invisible
-pyglet window.
+The renderer is pyrender: headless through Mesa's software EGL on Linux without ``$DISPLAY``
+(``PYOPENGL_PLATFORM=egl``, set before OpenGL is imported), an invisible pyglet window elsewhere.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import sys
@@ -71,24 +47,19 @@ def _pyrender():
     return pyrender
 
 
-_PROBLEM: list = []  # renderer_problem's answer, found once per process
-
-
+@functools.cache
 def renderer_problem() -> str | None:
     """None if off-screen rendering works here, else the one-line reason (and fix); tried once per process."""
-    if not _PROBLEM:
-        try:
-            pyrender = _pyrender()
-            pyrender.OffscreenRenderer(16, 16).delete()
-            _PROBLEM.append(None)
-        except Sin3DMInputError as e:
-            _PROBLEM.append(str(e))
-        except Exception as e:  # noqa: BLE001 - no EGL / no display
-            _PROBLEM.append(
-                f"cannot start an off-screen OpenGL context ({type(e).__name__}: {e}); on Linux install "
-                "Mesa's EGL (`apt-get install libegl1 libgl1-mesa-dri`)"
-            )
-    return _PROBLEM[0]
+    try:
+        _pyrender().OffscreenRenderer(16, 16).delete()
+    except Sin3DMInputError as e:
+        return str(e)
+    except Exception as e:  # noqa: BLE001 - no EGL / no display
+        return (
+            f"cannot start an off-screen OpenGL context ({type(e).__name__}: {e}); on Linux install "
+            "Mesa's EGL (`apt-get install libegl1 libgl1-mesa-dri`)"
+        )
+    return None
 
 
 def view_angles(n_views: int = 8, elevation: float = 45.0) -> list[tuple[float, float]]:
@@ -138,13 +109,11 @@ def _texture(image: np.ndarray, pyrender):
 
 def _primitives(mesh: TexturedMesh, pyrender) -> list:
     """One pyrender primitive per material: textured ones carry UVs and the baked texture, others corner colours.
-
-    Vertices are unwelded (three per face) so that UV seams and colour
-    changes need no special care; normals stay smooth.
-    """
+    Vertices are unwelded (three per face), so UV seams and colour changes need no care; normals stay smooth."""
     faces = np.asarray(mesh.faces, np.int64)
     pos = np.asarray(mesh.vertices, np.float32)[faces]  # (F, 3, 3)
     nrm = _corner_normals(mesh).astype(np.float32)
+    matte = dict(metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True)
     prims = []
     for mi, mat in enumerate(mesh.materials):
         sel = np.nonzero(np.asarray(mesh.face_material) == mi)[0]
@@ -159,10 +128,7 @@ def _primitives(mesh: TexturedMesh, pyrender) -> list:
         if mat.image is not None and mesh.face_uvs is not None:
             uv = np.nan_to_num(np.asarray(mesh.face_uvs)[sel]).reshape(-1, 2).astype(np.float32)
             material = pyrender.MetallicRoughnessMaterial(
-                baseColorTexture=_texture(baked_image(mat), pyrender),
-                metallicFactor=0.0,
-                roughnessFactor=1.0,
-                doubleSided=True,
+                baseColorTexture=_texture(baked_image(mat), pyrender), **matte
             )
             if mat.metallic_roughness_image is not None:  # PBR: glTF's maps and factors (metal, gloss)
                 material.metallicRoughnessTexture = _texture(mat.metallic_roughness_image, pyrender)
@@ -171,17 +137,10 @@ def _primitives(mesh: TexturedMesh, pyrender) -> list:
                 material.normalTexture = _texture(mat.normal_image, pyrender)
             prims.append(pyrender.Primitive(texcoord_0=uv, material=material, **common))
         else:
-            fi = np.repeat(sel, 3)
-            bc = np.tile(np.eye(3), (n, 1))
-            colors = mesh.colors_at(fi, bc).astype(np.float32)
-            material = pyrender.MetallicRoughnessMaterial(
-                baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True
-            )
-            prims.append(
-                pyrender.Primitive(
-                    color_0=np.column_stack([colors, np.ones(3 * n, np.float32)]), material=material, **common
-                )
-            )
+            colors = mesh.colors_at(np.repeat(sel, 3), np.tile(np.eye(3), (n, 1))).astype(np.float32)
+            rgba = np.column_stack([colors, np.ones(3 * n, np.float32)])
+            material = pyrender.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], **matte)
+            prims.append(pyrender.Primitive(color_0=rgba, material=material, **common))
     return prims
 
 
@@ -259,13 +218,16 @@ def render_views(
 ) -> list[np.ndarray]:
     """The paper's views: ``n_views`` azimuths every ``360 / n_views`` degrees at ``elevation``, ``(size, size, 3)`` uint8.
 
-    ``box`` (``(2, 3)`` low / high corners) is what the camera frames; it
-    defaults to the mesh's bounds. Give the input's box for its samples so
-    that all pictures share one scale.
+    ``box`` (``(2, 3)`` low / high corners) is what the camera frames (default: the mesh's bounds).
     """
+    return _render(mesh, _angles(n_views, elevation), size, box)
+
+
+def _angles(n_views: int, elevation: float) -> list[tuple[float, float]]:
+    """:func:`view_angles` for a checked number of views."""
     if int(n_views) < 1:
         raise Sin3DMInputError(f"n_views must be at least 1, got {n_views}")
-    return _render(mesh, view_angles(int(n_views), elevation), size, box)
+    return view_angles(int(n_views), elevation)
 
 
 def render_hero(mesh: TexturedMesh, size: int = 512, box=None) -> np.ndarray:
@@ -282,9 +244,7 @@ def save_views(
     mesh: TexturedMesh, folder, n_views: int = 8, size: int = 512, elevation: float = 45.0, box=None, hero: bool = True
 ) -> list[Path]:
     """Write ``view_000.png`` … (and ``hero.png``) into ``folder``; each file appears whole (atomic write)."""
-    if int(n_views) < 1:
-        raise Sin3DMInputError(f"n_views must be at least 1, got {n_views}")
-    angles = view_angles(int(n_views), elevation) + ([HERO] if hero else [])
+    angles = _angles(n_views, elevation) + ([HERO] if hero else [])
     images = _render(mesh, angles, size, box)  # everything rendered before the first file is written
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -293,11 +253,8 @@ def save_views(
 
 def sheet_columns(n: int) -> int:
     """How many columns a contact sheet of ``n`` panels gets: the grid with the fewest empty cells in its last row,
-    as square as that allows (ties: the wider), no narrower than square and at most twice as wide.
-
-    4 samples and the input (5 panels) fill one row of 5 rather than a row of 4 and one of 1; 8 and the input fill
-    3 × 3; 16 and the input (17, a prime) take 6 columns, one cell empty.
-    """
+    as square as that allows (ties: the wider), no narrower than square and at most twice as wide (5 panels: one
+    row of 5; 9: 3 × 3)."""
     if n < 1:
         raise Sin3DMInputError(f"a contact sheet needs at least one panel, got {n}")
     square = math.isqrt(n - 1) + 1  # the smallest c with c * c >= n

@@ -1,19 +1,10 @@
 """SSFID, the paper's G-Qual: a Fréchet distance between a 3D classifier's local features of two voxel grids.
 
-SSG (Wu & Zheng 2022) and Sin3DM score a generated shape's geometry against
-the input the way SinGAN's SIFID scores a picture: run both 128³ occupancy
-grids through a 3D CNN pre-trained on ShapeNet, take the feature vector at
-every position of an early layer (``layer=2``: 64 channels on a 32³ lattice),
-fit a Gaussian to each set and measure the Fréchet distance between the two
-(:func:`~sin3dm_lite.evaluate.features.frechet_distance`, the same one SIFID uses).
-
-The network is DECOR-GAN's shape classifier (Chen et al. 2021): five 4³
-convolutions of stride 2 (32, 64, 128, 256, 512 channels), each but the last
-followed by instance normalisation and a leaky ReLU (slope 0.01), then a global
-average and a linear layer to 24 ShapeNet classes. Its weights,
-``Clsshapenet_128.pth``, are published by the Sin3DM authors (:data:`SSFID_URL`,
-linked from their evaluation code) and not shipped: give their path to
-:func:`load_ssfid_classifier` (loaded with ``weights_only=True``; nothing is downloaded).
+SSG and Sin3DM score a generated shape's geometry the way SinGAN's SIFID scores a picture: both 128³ occupancy grids
+go through a 3D CNN pre-trained on ShapeNet (DECOR-GAN's shape classifier), a Gaussian is fitted to the feature
+vectors at every position of an early layer, and :func:`~sin3dm_lite.evaluate.features.frechet_distance` compares
+the two. The weights, ``Clsshapenet_128.pth``, are the Sin3DM authors' (:data:`SSFID_URL`), not shipped: give their
+path to :func:`load_ssfid_classifier` (nothing is downloaded).
 """
 
 from __future__ import annotations
@@ -59,11 +50,8 @@ class VoxelClassifier(nn.Module):
 
 
 def load_ssfid_classifier(path) -> VoxelClassifier:
-    """The classifier with the authors' weights from ``path`` (``Clsshapenet_128.pth``), in eval mode.
-
-    A missing or unreadable file, or one whose tensors do not fit the network, is one
-    :class:`~sin3dm_lite.errors.Sin3DMInputError` line saying where to get the file.
-    """
+    """The classifier with the authors' weights from ``path`` (``Clsshapenet_128.pth``), in eval mode; a missing,
+    unreadable or misfitting file is one :class:`~sin3dm_lite.errors.Sin3DMInputError` line saying where to get it."""
     path = Path(path)
     get = f"download {SSFID_WEIGHTS} from {SSFID_URL} (the Sin3DM authors' evaluation weights) and pass its path"
     if not path.is_file():

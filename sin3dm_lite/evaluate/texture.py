@@ -1,20 +1,14 @@
-"""Texture metrics without weights: patch SWD and render diversity on rendered views, the paper's averages.
+"""Texture metrics without weights on rendered views (:func:`~sin3dm_lite.evaluate.render.render_views`, framed by
+the input's box), and the paper's averages over views.
 
-Texture metrics compare *renders* (:func:`sin3dm_lite.evaluate.render.render_views`:
-the paper's 8 views, azimuth every 45°, elevation 45°, all framed by the
-input's box) view by view:
-
-* weight-free, always available: :func:`patch_swd` (our stand-in for the
-  paper's T-Qual = SIFID) and :func:`render_div` (our stand-in for T-Div =
-  LPIPS); :func:`t_qual` and :func:`t_div` average any image distance the
-  paper's way; :func:`colour_distance` is the pixel distance behind
-  :func:`render_div`, :func:`degraded` spoils a render in a known way (to see
-  what a metric reacts to);
-* :func:`sin3dm_lite.evaluate.metrics.texture_scores` computes them all, and SIFID and LPIPS too when given
-  the networks of :mod:`sin3dm_lite.evaluate.features`.
+:func:`patch_swd` and :func:`render_div` are weight-free stand-ins for the paper's T-Qual (SIFID) and T-Div (LPIPS);
+:func:`t_qual` and :func:`t_div` average any image distance the paper's way; :func:`degraded` spoils a render in a
+known way, to see what a metric reacts to.
 """
 
 from __future__ import annotations
+
+from itertools import combinations
 
 import numpy as np
 import torch
@@ -22,7 +16,6 @@ import torch.nn.functional as F
 
 from ..errors import Sin3DMInputError
 
-# ----------------------------------------------------------------------------- texture: weight-free
 #: renders have a white background (render.BACKGROUND); pixels of exactly this colour are not the shape
 BACKGROUND = 255
 
@@ -44,10 +37,8 @@ def foreground(img) -> np.ndarray:
 
 
 def _patch_set(x: torch.Tensor, mask: torch.Tensor, patch: int, max_patches: int, seed: int) -> torch.Tensor:
-    """Patches of ``x`` ``(1, 3, H, W)`` centred on ``mask`` pixels (all pixels if none) → ``(n, 3·patch²)``.
-
-    Outside the picture counts as background (white).
-    """
+    """Patches of ``x`` ``(1, 3, H, W)`` centred on ``mask`` pixels (all pixels if none) → ``(n, 3·patch²)``;
+    outside the picture counts as background (white)."""
     centres = mask.reshape(-1).nonzero()[:, 0]
     if len(centres) == 0:
         centres = torch.arange(mask.numel())
@@ -79,18 +70,10 @@ def patch_swd(
 ) -> float:
     """Sliced Wasserstein distance between the multi-scale patch distributions of two renders (0 = same patches).
 
-    Our weight-free stand-in for the paper's **T-Qual = SIFID** — *not* SIFID
-    (no Inception features; numbers are not comparable with the paper's).
-    Like SIFID it compares the *distribution* of local appearance, not pixel
-    positions: a sample whose texture is made of the input's pieces, moved
-    around, scores low; wrong colours, blur or noise score high.
-
-    On each of ``levels`` levels of an image pyramid (2×2 average pooling) take
-    the ``patch × patch`` RGB patches centred on shape pixels (not the white
-    background; at most ``max_patches``, a fixed random subset), project both
-    sets on ``projections`` random unit directions (fixed ``seed``), and average
-    the 1D Wasserstein-1 distances (mean absolute difference of the sorted
-    projections); the result is the mean over levels, in colour units (0–1).
+    Our weight-free stand-in for the paper's **T-Qual = SIFID** (numbers not comparable): like SIFID it compares
+    the *distribution* of local appearance. On each level of an image pyramid, the ``patch × patch`` RGB patches
+    centred on shape pixels (at most ``max_patches``) are projected on ``projections`` random directions and the
+    1D Wasserstein-1 distances of the sorted projections averaged; the result is the mean over levels (0–1).
     """
     xa, xb = image_tensor(a), image_tensor(b)
     ma = torch.from_numpy(foreground(a))[None, None].float()
@@ -101,7 +84,7 @@ def patch_swd(
     for level in range(levels):
         if level:
             xa, xb, ma, mb = (F.avg_pool2d(t, 2) for t in (xa, xb, ma, mb))
-        # (n, P) projections, sorted per direction (numpy's sort: torch's along dim 0 is ten times slower here)
+        # (n, P) projections, sorted per direction (numpy's sort: torch's along dim 0 is much slower)
         pa = torch.from_numpy(np.sort((_patch_set(xa, ma > 0.5, patch, max_patches, seed + level) @ dirs).numpy(), 0))
         pb = torch.from_numpy(np.sort((_patch_set(xb, mb > 0.5, patch, max_patches, seed + level) @ dirs).numpy(), 0))
         m = max(len(pa), len(pb))
@@ -110,11 +93,8 @@ def patch_swd(
 
 
 def colour_distance(a, b) -> float:
-    """Mean absolute colour difference (0–1) of two renders of one view, over the pixels where either shows the shape.
-
-    The pixel-aligned distance behind :func:`render_div`; 0 for identical
-    pictures, 1 between black and white.
-    """
+    """Mean absolute colour difference (0–1) of two renders of one view, over the pixels where either shows the shape
+    (the pixel-aligned distance behind :func:`render_div`)."""
     fa, fb = foreground(a), foreground(b)
     union = fa | fb
     if not union.any():
@@ -155,8 +135,7 @@ def t_qual(reference_views, sample_views, distance=patch_swd) -> float:
     """The paper's T-Qual average for any image ``distance``: mean over views ``i`` and samples ``j`` of
     ``distance(reference_views[i], sample_views[j][i])`` (lower = closer to the input).
 
-    With :func:`sifid` this is T-Qual itself; with :func:`patch_swd` (the default) our weight-free stand-in.
-    """
+    With :func:`sifid` this is T-Qual itself; with :func:`patch_swd` (the default) our weight-free stand-in."""
     sample_views = list(sample_views)
     _check_views(reference_views, sample_views)
     return float(np.mean([distance(r, s[i]) for s in sample_views for i, r in enumerate(reference_views)]))
@@ -166,30 +145,19 @@ def t_div(sample_views, distance=colour_distance) -> float:
     """The paper's T-Div average for any image ``distance``: mean over views and over all pairs of samples
     of the distance between their pictures of that view (higher = more diverse; needs two samples).
 
-    With :func:`lpips` this is T-Div itself; with :func:`colour_distance` (the default) :func:`render_div`.
-    """
+    With :func:`lpips` this is T-Div itself; with :func:`colour_distance` (the default) :func:`render_div`."""
     sample_views = list(sample_views)
     if len(sample_views) < 2:
         raise Sin3DMInputError(f"texture diversity needs at least two samples, got {len(sample_views)}")
     _check_views(None, sample_views)
-    n = len(sample_views)
-    return float(
-        np.mean(
-            [
-                distance(sample_views[j][i], sample_views[k][i])
-                for i in range(len(sample_views[0]))
-                for j in range(n)
-                for k in range(j + 1, n)
-            ]
-        )
-    )
+    pairs = [distance(a[i], b[i]) for i in range(len(sample_views[0])) for a, b in combinations(sample_views, 2)]
+    return float(np.mean(pairs))
 
 
 def render_div(sample_views) -> float:
     """Texture diversity: mean pairwise :func:`colour_distance` among the samples' renders, view by view.
 
-    Our weight-free stand-in for the paper's **T-Div = LPIPS** (mean pairwise
-    LPIPS), *not* LPIPS: 0 when all samples look the same from every view,
-    higher as their colours and silhouettes differ (0–1, in colour units).
+    Our weight-free stand-in for the paper's **T-Div = LPIPS**, *not* LPIPS: 0 when all samples look the same from
+    every view, higher as their colours and silhouettes differ.
     """
     return t_div(sample_views, colour_distance)
