@@ -29,6 +29,13 @@ def grid_solid(front: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndar
     return vertices, np.concatenate([tf, tb, strips]).astype(np.int64)
 
 
+def joint_nodes(start: float, period: float, n: int, joint: float, bevel: float, middle: list[float]) -> np.ndarray:
+    """Grid lines over ``n`` periods from ``start``: dense at every joint and its bevels, ``middle`` across the face."""
+    j = joint / 2
+    inner = [0.0, j, j + bevel / 2, j + bevel, *middle, period - j - bevel, period - j - bevel / 2, period - j]
+    return np.array([start + k * period + t for k in range(n) for t in inner] + [start + n * period])
+
+
 def box(lo, hi) -> tuple[np.ndarray, np.ndarray]:
     """An axis-aligned box (12 triangles)."""
     (x0, y0, z0), (x1, y1, z1) = lo, hi
@@ -82,3 +89,8 @@ def revolve(r: np.ndarray, z: np.ndarray, center, n_seg: int, r_ref: float):
 def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     t = vertices[faces]
     return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)
+
+
+def y_up(vertices: np.ndarray) -> np.ndarray:
+    """z-up vertices turned y-up, like OBJ and glTF: (x, y, z) → (x, z, −y), a rotation (faces keep their winding)."""
+    return np.stack([vertices[:, 0], vertices[:, 2], -vertices[:, 1]], axis=1)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..data.mesh import TexturedMesh
-from .geometry import grid_solid
+from .geometry import grid_solid, joint_nodes
 from .texture import AtlasBuilder, Noise, mix, palette, smooth
 
 PAINTS = [[0.72, 0.18, 0.14], [0.16, 0.38, 0.62], [0.85, 0.68, 0.20], [0.20, 0.48, 0.30], [0.88, 0.86, 0.80]]
@@ -49,7 +49,9 @@ class _Tiles:
         self.brush_angle = rng.uniform(0, np.pi, (nx, ny))
 
     def build(self) -> TexturedMesh:
-        X, Y = np.meshgrid(self.nodes(self.nx), self.nodes(self.ny), indexing="ij")
+        t = self.tile  # grid lines dense at every grout joint and bevel, sparse across the tile
+        nodes = lambda n: joint_nodes(0.0, t, n, self.grout, self.bevel, [t / 4, t / 2, 3 * t / 4])
+        X, Y = np.meshgrid(nodes(self.nx), nodes(self.ny), indexing="ij")
         i, j, dist = self.cell(X, Y)
         top = np.stack([X, Y, self.thick - 0.05 + self.raise_[i, j] * smooth(dist / self.bevel)], -1)
         bottom = np.stack([X, Y, np.zeros_like(X)], -1)
@@ -61,23 +63,6 @@ class _Tiles:
         return atlas.build(
             "tiles", self.paint, size=(1024, 1024), pbr=self.pbr, detail=lambda c: 1.0 if c.endswith("+z") else 0.15
         )
-
-    def nodes(self, n_tiles):
-        """Grid lines dense at every grout joint and bevel, sparse across the tile."""
-        tile, grout, bevel = self.tile, self.grout, self.bevel
-        inner = [
-            0.0,
-            grout / 2,
-            grout / 2 + bevel / 2,
-            grout / 2 + bevel,
-            tile / 4,
-            tile / 2,
-            3 * tile / 4,
-            tile - grout / 2 - bevel,
-            tile - grout / 2 - bevel / 2,
-            tile - grout / 2,
-        ]
-        return np.array([k * tile + t for k in range(n_tiles) for t in inner] + [n_tiles * tile])
 
     def cell(self, x, y):
         """Tile index and distance to the grout (negative in the grout)."""
