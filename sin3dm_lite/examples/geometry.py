@@ -1,7 +1,6 @@
 """The solids the example shapes are made of: closed point-grid sheets, boxes, solids of revolution.
 
-Every part is closed (each edge shared by exactly two triangles), so the
-grid's winding number tells inside from outside without guessing.
+Every part is closed (each edge shared by two triangles), so a winding number tells inside from outside.
 """
 
 from __future__ import annotations
@@ -12,10 +11,8 @@ import numpy as np
 def grid_solid(front: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A closed solid from two ``(n, m, 3)`` point grids joined along their borders.
 
-    The front and back sheets are triangulated cell by cell and a strip of
-    quads joins their boundary loops, so every edge is shared by exactly two
-    triangles (watertight). A heightfield block is ``front = top``,
-    ``back = bottom``; a box is the 2 × 2 case.
+    Both sheets are triangulated cell by cell and a strip of quads joins their boundary loops (watertight).
+    A heightfield block is ``front = top``, ``back = bottom``; a box is the 2 × 2 case.
     """
     n, m = front.shape[:2]
     idx = np.arange(n * m).reshape(n, m)

@@ -1,13 +1,8 @@
 """The tiles: a PBR floor of brushed and hammered steel tiles and chipped painted ones in rough grout.
 
-What each map shows, all varying with the tile pattern:
-
-* base colour: steel grey; paint from a palette, chipped where noise says so (steel shows through);
-  dark grout;
-* metallic: 1 on steel and on the chips, 0 on paint and grout;
-* roughness: low on steel (brushed tiles 0.2-0.35, hammered ones 0.35-0.5), 0.55-0.75 on paint, 0.95 grout;
-* normal (tangent space): brushing grooves or hammer dimples on steel tiles, the raised edge of
-  the paint around each chip. The tiles' bevels are geometry, not map.
+Every map follows the tile pattern: base colour (steel, chipped paint, dark grout), metallic (1 on steel and
+the chips), roughness (low on steel, higher on paint, highest in the grout) and a tangent-space normal map
+(brushing grooves, hammer dimples, the paint's edge around each chip; the bevels are geometry).
 """
 
 from __future__ import annotations
