@@ -9,7 +9,6 @@ triangles.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -58,9 +57,4 @@ def write_example(name: str, out_dir, seed: int = 0) -> Path:
     return save_obj(build_example(name, seed), out_dir / f"{name}.obj")
 
 
-_BUILDERS: dict[str, Callable[[np.random.Generator], TexturedMesh]] = {
-    "canyon": build_canyon,
-    "wall": build_wall,
-    "colonnade": build_colonnade,
-    "tiles": build_tiles,
-}
+_BUILDERS = {"canyon": build_canyon, "wall": build_wall, "colonnade": build_colonnade, "tiles": build_tiles}

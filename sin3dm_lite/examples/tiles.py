@@ -31,9 +31,8 @@ class _Tiles:
     def __init__(self, rng: np.random.Generator):
         self.noise = Noise(rng)
         nx, ny = self.nx, self.ny = int(round(self.size_x / self.tile)), int(round(self.size_y / self.tile))
-        self.kind = kind = rng.choice(
-            3, size=(nx, ny), p=[0.3, 0.2, 0.5]
-        )  # 0 brushed steel, 1 hammered steel, 2 painted
+        # 0 brushed steel, 1 hammered steel, 2 painted
+        self.kind = kind = rng.choice(3, size=(nx, ny), p=[0.3, 0.2, 0.5])
         self.raise_ = rng.uniform(0.03, 0.05, (nx, ny))
         self.paint_col = palette(rng, PAINTS, nx * ny, jitter=0.1).reshape(nx, ny, 3)
         self.roughness = np.where(

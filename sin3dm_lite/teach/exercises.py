@@ -53,10 +53,10 @@ def check_q_sample(fn, seed: int = 0, tol: float = 1e-5) -> None:
         err = (got - w).abs().amax((1, 2, 3))
         if float(err.max()) > tol_:
             a, up, down = (_per_sample(ab[k]) for k in (t, (t + 1).clamp(max=999), t - 1))  # t - 1 wraps at 0
+            swapped = (1 - a).sqrt() * p + a.sqrt() * n
             hints = {
                 "did you use √ᾱ_t and √(1-ᾱ_t)? You used ᾱ_t and 1-ᾱ_t.": a * p + (1 - a) * n,
-                "the image gets √ᾱ_t and the noise √(1-ᾱ_t), not the other way round.": (1 - a).sqrt() * p
-                + a.sqrt() * n,
+                "the image gets √ᾱ_t and the noise √(1-ᾱ_t), not the other way round.": swapped,
                 "off by one: ᾱ_t is alphas_cumprod[t], not [t+1].": up.sqrt() * p + (1 - up).sqrt() * n,
                 "off by one: ᾱ_t is alphas_cumprod[t], not [t-1] (t counts from 0; at t = 0, [t-1] is the LAST "
                 "value).": down.sqrt() * p + (1 - down).sqrt() * n,
@@ -74,12 +74,12 @@ def _posterior_wrong(sch: NoiseSchedule, t: torch.Tensor, x0: torch.Tensor, x_t:
     right_prev = at(sch.alphas_cumprod_prev)
     c0 = lambda p: beta * p.sqrt() / (1 - ab)
     ct = lambda p, a: (1 - p) * a / (1 - ab)
+    no_root = beta * right_prev / (1 - ab) * x0 + ct(right_prev, (1 - beta).sqrt()) * x_t
     return {
         "at t = 0 there is no earlier step: ᾱ_{t-1} is 1 there (alphas_cumprod[t-1] at t = 0 is alphas_cumprod[-1], "
         "the LAST value, ᾱ_{T-1})": c0(ab_prev) * x0 + ct(ab_prev, (1 - beta).sqrt()) * x_t,
         "x_t's coefficient holds √α_t = √(1-β_t), not α_t": c0(right_prev) * x0 + ct(right_prev, 1 - beta) * x_t,
-        "x0's coefficient holds √ᾱ_{t-1}, not ᾱ_{t-1}": beta * right_prev / (1 - ab) * x0
-        + ct(right_prev, (1 - beta).sqrt()) * x_t,
+        "x0's coefficient holds √ᾱ_{t-1}, not ᾱ_{t-1}": no_root,
     }
 
 
@@ -128,15 +128,14 @@ def check_ddpm_posterior(fn, seed: int = 0, tol: float = 1e-5, variance: str = "
             ok = ok | (rel(fixed_large) <= vtol)
         if not bool(ok.all()):
             err = torch.where(ok, 0.0, rel(want_var))
+            wraps = _per_sample(sch.betas[t] * (1 - sch.alphas_cumprod[t - 1]) / (1 - sch.alphas_cumprod[t]))
             hints = {
                 "that is β_t, the paper's σ_t² (the authors' code uses it too); this library's sampler uses the "
                 "posterior's own variance β̃_t. To check the paper's choice: check_ddpm_posterior(posterior, "
                 "variance='beta')": beta_t,
                 "that is β̃_t, the posterior's variance; you asked for the paper's β_t": post,
                 "at t = 0 there is no earlier step: ᾱ_{t-1} is 1 there (alphas_cumprod[-1] in Python is the LAST "
-                "value, ᾱ_{T-1})": _per_sample(
-                    sch.betas[t] * (1 - sch.alphas_cumprod[t - 1]) / (1 - sch.alphas_cumprod[t])
-                ),
+                "value, ᾱ_{T-1})": wraps,
             }
             hint = next((f"\n  hint: {h}" for h, v in hints.items() if bool((rel(v)[~ok] <= vtol).all())), "")
             raise _fail("posterior variance", err, t, name, hint)
@@ -148,16 +147,16 @@ def _ddim_wrong(ab: torch.Tensor, t: int, t_prev: int, x_t: torch.Tensor, x0: to
     """The usual mistakes in one DDIM step, each as the step it gives."""
     a, ap = float(ab[t]), float(ab[t_prev]) if t_prev >= 0 else 1.0
     eps = (x_t - a**0.5 * x0) / (1 - a) ** 0.5
+    last = float(ab[t_prev])  # at t_prev = -1: ᾱ_{T-1}
+    wrapped = last**0.5 * x0 + (1 - last) ** 0.5 * eps
+    keep_x_t = ap**0.5 * x0 + (1 - ap) ** 0.5 * x_t
+    eps_no_root = ap**0.5 * x0 + (1 - ap) ** 0.5 * (x_t - a**0.5 * x0) / (1 - a)
     return {
-        "keep the noise direction: ε̂ = (x_t - √ᾱ_t·x0) / √(1-ᾱ_t), not x_t itself.": ap**0.5 * x0
-        + (1 - ap) ** 0.5 * x_t,
+        "keep the noise direction: ε̂ = (x_t - √ᾱ_t·x0) / √(1-ᾱ_t), not x_t itself.": keep_x_t,
         "the noise term is √(1-ᾱ_prev)·ε̂: you left out the square root.": ap**0.5 * x0 + (1 - ap) * eps,
-        "ε̂ divides by √(1-ᾱ_t), not by 1-ᾱ_t: you left out the square root.": ap**0.5 * x0
-        + (1 - ap) ** 0.5 * (x_t - a**0.5 * x0) / (1 - a),
+        "ε̂ divides by √(1-ᾱ_t), not by 1-ᾱ_t: you left out the square root.": eps_no_root,
         "the clean term is √ᾱ_prev·x0: you left out the square root.": ap * x0 + (1 - ap) ** 0.5 * eps,
-        "alphas_cumprod[-1] is ᾱ_{T-1} (Python counts from the end): at t_prev = -1 use ᾱ = 1, which returns x0.": (
-            float(ab[t_prev]) ** 0.5 * x0 + (1 - float(ab[t_prev])) ** 0.5 * eps
-        ),
+        "alphas_cumprod[-1] is ᾱ_{T-1} (Python counts from the end): at t_prev = -1 use ᾱ = 1, which returns x0.": wrapped,
     }
 
 
@@ -216,15 +215,13 @@ def _lookup_hints(tp: Triplane, points: torch.Tensor, got: torch.Tensor, want: t
         for j, other in enumerate(PLANES)
         if j != k
     }
-    hints[
+    hints |= {
         f"on {plane} you read at ({axis[row]}, {axis[col]}) as (x, y) for grid_sample, which reads (x, y) = "
-        f"(column, row): pass ({axis[col]}, {axis[row]})"
-    ] = read((col, row))
-    hints["texel centres are at -1 + (2i+1)/n: use align_corners=False"] = read((row, col), corners=True)
-    hints[
+        f"(column, row): pass ({axis[col]}, {axis[row]})": read((col, row)),
+        "texel centres are at -1 + (2i+1)/n: use align_corners=False": read((row, col), corners=True),
         "only points near or outside the box's border differ: there, repeat the border texel "
-        "(padding_mode='border'), do not blend with zeros"
-    ] = read((row, col), padding="zeros")
+        "(padding_mode='border'), do not blend with zeros": read((row, col), padding="zeros"),
+    }
     return matching_hint(got[:, :, k], hints, tol, want[:, :, k])
 
 
@@ -366,19 +363,16 @@ def check_best_patch_iou(fn, seed: int = 0, patch: int = 7, stride: int = 3, thr
         wrong = np.abs(best - per_patch) > 1e-6
         if wrong.any():
             g, r = gen.astype(np.float64), ref.astype(np.float64)
-            inter = g @ r.T
-            union = g.sum(1)[:, None] + r.sum(1)[None] - inter
+            inter, sizes = g @ r.T, g.sum(1)[:, None] + r.sum(1)[None]
+            best_dice, iou = (2 * inter / sizes).max(1), inter / (sizes - inter)
+            by_ref = iou.max(0)[: len(gen)] if len(ref) >= len(gen) else per_patch + 1  # else: a value none matches
             hints = {
-                "that is the F-score (Dice), 2|g∩r| / (|g|+|r|); IoU divides |g∩r| by the union |g|+|r|-|g∩r|": (
-                    2 * inter / (g.sum(1)[:, None] + r.sum(1)[None])
-                ).max(1),
-                "take the BEST match (max over the reference patches), not the mean": (inter / union).mean(1),
+                "that is the F-score (Dice), 2|g∩r| / (|g|+|r|); IoU divides |g∩r| by the union |g|+|r|-|g∩r|": best_dice,
+                "take the BEST match (max over the reference patches), not the mean": iou.mean(1),
                 "the right values in another order: keep one value per generated patch, in the order of gen's rows "
                 "(do not sort them)": np.sort(per_patch),
                 "that is each REFERENCE patch's best match (max over gen); LP-IoU asks, for each generated patch, "
-                "for its best match among the input's": (inter / union).max(0)[: len(gen)]
-                if len(ref) >= len(gen)
-                else per_patch + 1,
+                "for its best match among the input's": by_ref,
             }
             hint = matching_hint(best, hints, 1e-6, per_patch)
             i = int(np.flatnonzero(wrong)[0])

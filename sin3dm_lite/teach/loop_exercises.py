@@ -138,10 +138,9 @@ def check_ddim_loop(fn, seed: int = 0, steps: int = 6) -> None:
     tol = tolerance(raw, 1e-5, float(w.abs().max()))
     err = float((got - w).abs().max())
     if err > tol:
-        hints = {  # the first: the input of the last step
-            "the loop ends with a step to t_prev = -1 (ᾱ = 1): return what that step gives, the clean image": (
-                inter[-1]["x_t"].xy
-            ),
+        before_last = inter[-1]["x_t"].xy  # the input of the last step
+        hints = {
+            "the loop ends with a step to t_prev = -1 (ᾱ = 1): return what that step gives, the clean image": before_last,
             "clip the predicted x̂0 to [-1, 1] at every step, as the sampler does": _unclipped(model, x_T, ts, ab),
         }
         raise ExerciseError(
@@ -184,16 +183,12 @@ def check_masked_step(fn, seed: int = 0) -> None:
             err = float((got - want).abs().max())
             if err > tol:
                 a = float(ab[t_prev])  # at t_prev = -1: the LAST ᾱ (a usual mistake)
+                inverted, unnoised = (1 - mp) * kept + mp * xp, mp * kp + (1 - mp) * xp
+                wrapped = mp * (a**0.5 * kp + (1 - a) ** 0.5 * np_) + (1 - mp) * xp
                 hints = {
-                    "1 means keep: the mask's 1s take the (noised) known latent, its 0s keep your sample": (
-                        (1 - mp) * kept + mp * xp
-                    ),
-                    "noise the known latent to t_prev before pasting it: x is noisy at t_prev, so is what you paste": (
-                        mp * kp + (1 - mp) * xp
-                    ),
-                    "at t_prev = -1 the sample is clean: paste known itself (alphas_cumprod[-1] is ᾱ_{T-1})": (
-                        mp * (a**0.5 * kp + (1 - a) ** 0.5 * np_) + (1 - mp) * xp
-                    ),
+                    "1 means keep: the mask's 1s take the (noised) known latent, its 0s keep your sample": inverted,
+                    "noise the known latent to t_prev before pasting it: x is noisy at t_prev, so is what you paste": unnoised,
+                    "at t_prev = -1 the sample is clean: paste known itself (alphas_cumprod[-1] is ᾱ_{T-1})": wrapped,
                 }
                 raise ExerciseError(
                     f"your masked_step differs at t_prev={t_prev} on the {name} plane: max error {err:.3g}"

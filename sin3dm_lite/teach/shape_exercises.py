@@ -64,16 +64,14 @@ def check_grid_box(fn, seed: int = 0) -> None:
         where = f"for extent {extent.round(4).tolist()} at resolution {res}"
         if shape != want_shape:
             share = res * extent / extent.max()
+            rounded = np.maximum(8, np.ceil(np.round(share) / 8) * 8)
+            to_nearest = np.maximum(8, np.round(np.floor(share) / 8) * 8)
             hints = {
                 "every axis gets at least 8 voxels (np.maximum(8, ...)): a flat sheet's thin side still needs a grid "
                 "around it": np.ceil(np.floor(share) / 8) * 8,
-                "int(...) rounds down: a share of 24.6 voxels is 24 before it is rounded up to a multiple of 8": np.maximum(
-                    8, np.ceil(np.round(share) / 8) * 8
-                ),
+                "int(...) rounds down: a share of 24.6 voxels is 24 before it is rounded up to a multiple of 8": rounded,
                 "round each count UP to a multiple of 8 (8, 16, 24, ...)": np.floor(share),
-                "round each count up to a multiple of 8 (np.ceil(n / 8) * 8), not to the nearest one": np.maximum(
-                    8, np.round(np.floor(share) / 8) * 8
-                ),
+                "round each count up to a multiple of 8 (np.ceil(n / 8) * 8), not to the nearest one": to_nearest,
             }
             raise ExerciseError(
                 f"{where} your shape is {shape}, the library's {want_shape}"
@@ -82,14 +80,11 @@ def check_grid_box(fn, seed: int = 0) -> None:
         got_box = _box6("grid_box (aabb)", box)
         if not np.allclose(got_box, want_box, rtol=0, atol=1e-6):
             half = extent / extent.max()
+            extent_box, unit_box = np.concatenate([-half, half]), np.array([-1.0] * 3 + [1.0] * 3)
             hints = {
                 "the box follows the voxel counts, ±n_axis / n_max, not the shape's extent: the counts were "
-                "rounded up, so the box holds a little room around the shape and every voxel stays a cube": np.concatenate(
-                    [-half, half]
-                ),
-                "only the longest axis spans [-1, 1]: the others span ±n_axis / n_max": np.array(
-                    [-1.0] * 3 + [1.0] * 3
-                ),
+                "rounded up, so the box holds a little room around the shape and every voxel stays a cube": extent_box,
+                "only the longest axis spans [-1, 1]: the others span ±n_axis / n_max": unit_box,
                 "the order is (xmin, ymin, zmin, xmax, ymax, zmax)": want_box.reshape(2, 3).T.reshape(-1),
             }
             raise ExerciseError(
@@ -144,12 +139,11 @@ def check_retarget(fn, seed: int = 0) -> None:
         if not np.allclose(got, want, rtol=1e-5, atol=1e-6):
             lo, hi = aabb[:3].astype(np.float64), aabb[3:].astype(np.float64)
             scale = np.array(plan.resolution) / np.array(res)
+            one_corner = np.concatenate([lo, lo + (hi - lo) * scale])
             hints = {
                 "scale the box by new / old texels (the rounded ratio), not by the factor asked for: then every "
                 "texel keeps its size": np.concatenate([lo * f, hi * f]),
-                "the box grows about its centre (the origin): scale both corners": np.concatenate(
-                    [lo, lo + (hi - lo) * scale]
-                ),
+                "the box grows about its centre (the origin): scale both corners": one_corner,
             }
             raise ExerciseError(
                 f"{where} (latent {new_res}) your box is {got.round(4).tolist()}, the library's "
