@@ -101,12 +101,9 @@ def check_ddpm_posterior(fn, seed: int = 0, tol: float = 1e-5, variance: str = "
     beta_t, post = _per_sample(sch.betas[t]), var.double()
     want_var = post if variance == "posterior" else beta_t
     fixed_large = torch.where(_per_sample(t) == 0, sch.posterior_variance[1], beta_t)  # guided-diffusion's β
-    worst = 0.0
+    worst, per_sample = 0.0, "the tables are indexed per sample: reshape ᾱ_t, β_t, ... to [B, 1, 1, 1]"
     for name, a, b, w in zip(PLANES, x0.planes, x_t.planes, mean.planes):
-        args = (v.clone() for v in (a, b, t, sch.betas, sch.alphas_cumprod))
-        out = call(
-            "posterior", fn, *args, hint="the tables are indexed per sample: reshape ᾱ_t, β_t, ... to [B, 1, 1, 1]"
-        )
+        out = call("posterior", fn, *(v.clone() for v in (a, b, t, sch.betas, sch.alphas_cumprod)), hint=per_sample)
         parts("posterior", out, 2, "two things: (mean, variance)")
         got, w = as64("posterior (mean)", out[0], w), w.double()
         tol_ = tolerance(out[0], tol, float(w.abs().max()))

@@ -149,7 +149,7 @@ def plot_images(images, titles=None, rows: list[str] | None = None, width: float
     grid = [list(r) for r in (images if isinstance(images, (list, tuple)) else [images])]
     cols = max(len(r) for r in grid)
     fig = _figure(width * cols, width * len(grid) + 0.3)
-    axes = np.atleast_2d(fig.subplots(len(grid), cols, squeeze=False))
+    axes = fig.subplots(len(grid), cols, squeeze=False)
     for i, row in enumerate(grid):
         for j in range(cols):
             ax = axes[i, j]
