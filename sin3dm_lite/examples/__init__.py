@@ -1,22 +1,14 @@
 """Procedurally generated textured example shapes, the package's built-in inputs.
 
-Sin3DM learns from *one* shape, so it can only produce variations of what that
-shape repeats: its denoiser sees a local window of the triplane, learns the
-statistics of those patches, and recombines them. Good inputs therefore have
-local structure that recurs with variation: rock strata and terraces along a
-canyon, bricks and merlons along a wall, columns along a colonnade. Each
-example here is built from numpy in well under a second, is deterministic for a
-seed (another seed gives another variant), and carries a real UV texture whose
-detail (thin strata, mortar lines, painted bands) is finer than its triangles.
-
-Each shape has its module (``canyon``, ``wall``, ``colonnade``, ``tiles``);
-they are built from closed solids (``geometry``) and painted through one UV
-atlas (``texture``: how every face gets its chart and its texels).
+Sin3DM recombines the local patches of *one* shape, so good inputs have local structure that recurs with
+variation: strata and terraces along a canyon, bricks and merlons along a wall, columns along a colonnade.
+Each shape (``canyon``, ``wall``, ``colonnade``, ``tiles``) is built from numpy, deterministic for a seed,
+from closed solids (``geometry``) painted through one UV atlas (``texture``) with detail finer than its
+triangles.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -25,12 +17,12 @@ from ..data.mesh import TexturedMesh
 from ..errors import Sin3DMInputError
 from .canyon import build_canyon
 from .colonnade import build_colonnade
+from .geometry import y_up
 from .tiles import build_tiles
 from .wall import build_wall
 
 #: name -> one-line description of each built-in example.
 EXAMPLES = {
-    # all examples are y-up, like OBJ and glTF files (Blender turns them z-up on import)
     "canyon": "a river canyon cut into a block: terraced cliffs banded with rock strata, steps varying along its length",
     "wall": "a crenellated brick wall: protruding bricks of varied colour in grey mortar, merlons of varied width",
     "colonnade": "four turned columns with painted rings on a stepped base, carrying a beam with a triglyph frieze",
@@ -51,10 +43,8 @@ def build_example(name: str, seed: int = 0) -> TexturedMesh:
     """Build the example ``name``; ``seed`` picks the variant (same seed, same mesh)."""
     if name not in _BUILDERS:
         raise Sin3DMInputError(f"unknown example '{name}'; choose one of: {', '.join(list_examples())}")
-    rng = np.random.default_rng(seed)
-    mesh = _BUILDERS[name](rng)  # built z-up
-    # y-up, like OBJ and glTF files: (x, y, z) → (x, z, −y), a rotation (faces keep their winding)
-    mesh.vertices = np.stack([mesh.vertices[:, 0], mesh.vertices[:, 2], -mesh.vertices[:, 1]], axis=1)
+    mesh = _BUILDERS[name](np.random.default_rng(seed))  # built z-up
+    mesh.vertices = y_up(mesh.vertices)
     return mesh
 
 
@@ -67,9 +57,4 @@ def write_example(name: str, out_dir, seed: int = 0) -> Path:
     return save_obj(build_example(name, seed), out_dir / f"{name}.obj")
 
 
-_BUILDERS: dict[str, Callable[[np.random.Generator], TexturedMesh]] = {
-    "canyon": build_canyon,
-    "wall": build_wall,
-    "colonnade": build_colonnade,
-    "tiles": build_tiles,
-}
+_BUILDERS = {"canyon": build_canyon, "wall": build_wall, "colonnade": build_colonnade, "tiles": build_tiles}

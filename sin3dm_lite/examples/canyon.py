@@ -28,9 +28,8 @@ def build_canyon(rng: np.random.Generator) -> TexturedMesh:
         wander = 0.14 * (noise.fbm(x * 1.2, 5.0 * side) - 0.5)  # the cliff lines of one bank wander together
         for k in range(n_steps):
             edge = step_at[k] + wander + 0.06 * (noise.fbm(x * 2.0, 11.0 * k + 5.0 * side + 60, octaves=3) - 0.5)
-            rise = step_rise[k] * (
-                0.55 + 0.9 * noise.fbm(x * 0.6 + 40.0 * k, 7.7 + 3.0 * side, octaves=2)
-            )  # varies along x
+            # the step's rise varies along x
+            rise = step_rise[k] * (0.55 + 0.9 * noise.fbm(x * 0.6 + 40.0 * k, 7.7 + 3.0 * side, octaves=2))
             h = h + rise * smooth((dist - edge) / 0.05 + 0.5)
         return h + 0.03 * (noise.fbm(x * 5, y * 5) - 0.5)
 

@@ -131,9 +131,8 @@ class _Colonnade:
         col[np.abs(z - beam_h * 0.45) < 0.015] = STONE * 0.5
         return col
 
-    def plinth_or_abacus(self, part, direction, p, q):
+    def plinth_or_abacus(self, spec, part, direction, p, q):
         """Dark stone, the sides with a painted band: a wave line on the plinth, gold dots on the abacus."""
-        spec = self.columns[int(part[3:].split(".")[0])]
         col = self.stone_blocks(p, q, 2.0, 2.0, base=np.float32([0.55, 0.5, 0.45]))
         if direction[1] in "xy":
             if part.endswith("plinth"):  # a wave line on a coloured band
@@ -149,10 +148,11 @@ class _Colonnade:
 
     def paint(self, chart, p, q):
         part, direction = chart.split(":") if ":" in chart else (chart, "")
-        if part.startswith("col") and part.endswith(".shaft"):
-            return self.shaft(self.columns[int(part[3:].split(".")[0])], p, q)
-        if part.startswith("col"):
-            return self.plinth_or_abacus(part, direction, p, q)
+        if part.startswith("col"):  # col<i>.shaft, .plinth or .abacus
+            spec = self.columns[int(part[3:].split(".")[0])]
+            if part.endswith(".shaft"):
+                return self.shaft(spec, p, q)
+            return self.plinth_or_abacus(spec, part, direction, p, q)
         if part == "beam" and direction in ("+y", "-y", "+x", "-x"):
             return self.frieze(p, q)
         if part == "cornice" and direction in ("+y", "-y", "+x", "-x"):

@@ -1,7 +1,6 @@
 """The solids the example shapes are made of: closed point-grid sheets, boxes, solids of revolution.
 
-Every part is closed (each edge shared by exactly two triangles), so the
-grid's winding number tells inside from outside without guessing.
+Every part is closed (each edge shared by two triangles), so a winding number tells inside from outside.
 """
 
 from __future__ import annotations
@@ -12,10 +11,8 @@ import numpy as np
 def grid_solid(front: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A closed solid from two ``(n, m, 3)`` point grids joined along their borders.
 
-    The front and back sheets are triangulated cell by cell and a strip of
-    quads joins their boundary loops, so every edge is shared by exactly two
-    triangles (watertight). A heightfield block is ``front = top``,
-    ``back = bottom``; a box is the 2 × 2 case.
+    Both sheets are triangulated cell by cell and a strip of quads joins their boundary loops (watertight).
+    A heightfield block is ``front = top``, ``back = bottom``; a box is the 2 × 2 case.
     """
     n, m = front.shape[:2]
     idx = np.arange(n * m).reshape(n, m)
@@ -27,6 +24,13 @@ def grid_solid(front: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndar
     strips = np.concatenate([np.stack([f1, f0, f0 + n * m], 1), np.stack([f1, f0 + n * m, f1 + n * m], 1)])
     vertices = np.concatenate([front.reshape(-1, 3), back.reshape(-1, 3)]).astype(np.float64)
     return vertices, np.concatenate([tf, tb, strips]).astype(np.int64)
+
+
+def joint_nodes(start: float, period: float, n: int, joint: float, bevel: float, middle: list[float]) -> np.ndarray:
+    """Grid lines over ``n`` periods from ``start``: dense at every joint and its bevels, ``middle`` across the face."""
+    j = joint / 2
+    inner = [0.0, j, j + bevel / 2, j + bevel, *middle, period - j - bevel, period - j - bevel / 2, period - j]
+    return np.array([start + k * period + t for k in range(n) for t in inner] + [start + n * period])
 
 
 def box(lo, hi) -> tuple[np.ndarray, np.ndarray]:
@@ -82,3 +86,8 @@ def revolve(r: np.ndarray, z: np.ndarray, center, n_seg: int, r_ref: float):
 def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     t = vertices[faces]
     return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)
+
+
+def y_up(vertices: np.ndarray) -> np.ndarray:
+    """z-up vertices turned y-up, like OBJ and glTF: (x, y, z) → (x, z, −y), a rotation (faces keep their winding)."""
+    return np.stack([vertices[:, 0], vertices[:, 2], -vertices[:, 1]], axis=1)

@@ -1,27 +1,10 @@
 """A ruined round tower, the paper's own kind of input: thin walls, a stepped broken top, a door and windows.
 
-The built-in examples are thick: bricks, terraces and columns several voxels
-across at the training grid. The paper's demo shape is a ruin, whose brick
-walls are a few voxels thick at 64 voxels, and such a shape is where a fit and
-its calibration meet the grid's limit (a wall two voxels thick cannot be held
-exactly by the grid, so even a near copy keeps few of its patches). This module
-builds one, sized in **voxels of the training grid** it is meant for, so that
-its walls are ``wall_voxels`` thick there whatever the resolution:
-
-* a round tower on a square ground slab (3 voxels thick), or with ``square=True`` a square keep;
-* its wall ``wall_voxels`` thick (2.5 by default: 2-3 voxels at the grid), or for a pair ``(thinnest,
-  thickest)`` uneven: thinner and thicker stretches twice around, as a real ruin's walls are;
-* a broken top that falls in steps, 3-5 voxels each, from the full height to
-  about half of it on one side and rises again (12 steps around);
-* a door at the foot of the wall facing -x, and two windows higher up.
-
-The solid is written as a signed distance (a union and differences of a ring,
-a slab and boxes), sampled twice as finely as the training grid and
-closed by marching cubes: a watertight mesh of about 160k faces at 64 voxels.
-Colours are per vertex: stone blocks of varied colour in courses, darker
-joints, an earthen slab. :func:`ruin_tower` builds it z-up from a random
-generator, like the examples' builders; :func:`build_ruin` y-up from a seed,
-like :func:`~sin3dm_lite.examples.build_example`.
+Unlike the built-in examples, whose parts are several voxels across, its walls are ``wall_voxels`` thick at
+the training grid it is sized for, a shape at the grid's limit. The solid is a signed distance (a ring, a
+slab and boxes cut through the wall) closed by marching cubes; colours are per vertex (stone blocks in
+courses, darker joints, an earthen slab). :func:`ruin_tower` builds it z-up from a random generator like the
+examples' builders; :func:`build_ruin` y-up from a seed, like :func:`~sin3dm_lite.examples.build_example`.
 """
 
 from __future__ import annotations
@@ -31,6 +14,7 @@ import numpy as np
 from ..data.mesh import Material, TexturedMesh
 from ..errors import Sin3DMInputError
 from ..presets import get_preset
+from .geometry import y_up
 
 #: samples of the signed distance per voxel of the training grid
 DETAIL = 2
@@ -52,12 +36,11 @@ def ruin_tower(
 ) -> TexturedMesh:
     """The ruin, z-up, for a training grid of ``resolution`` voxels along its longest side (its height).
 
-    ``rng`` varies the broken top (where it is lowest, each step's height) and
-    with it the windows' places (on the high side), and the stones' colours; the door faces -x.
-    ``square``: a square keep instead of a round tower (straight walls along x and y, the same broken
-    top by angle, the windows on the +x and +y faces): a second thin-walled shape of another plan.
-    ``flat``: a whole tower, its top level all round (no broken steps). ``windows=False``: the door only, the same
-    top (plainer walls; docs/lab-notes.md measures a fit of one).
+    A round tower on a square ground slab; its wall ``wall_voxels`` thick, or for a pair ``(thinnest,
+    thickest)`` thinner and thicker twice around; a top that falls in steps of 3-5 voxels to about half the
+    height on one side; a door facing -x and two windows on the high side. ``rng`` varies the top, with it
+    the windows' places, and the stones' colours. ``square``: a square keep instead (the windows on the +x
+    and +y faces); ``flat``: the top level all round; ``windows=False``: the door only.
     """
     if not 16 <= resolution <= 512:
         raise Sin3DMInputError(f"resolution must be from 16 to 512 voxels, got {resolution!r}")
@@ -66,8 +49,7 @@ def ruin_tower(
         raise Sin3DMInputError(
             f"wall_voxels must be from 1 to 8, or a pair (thinnest, thickest) of such, got {wall_voxels!r}"
         )
-    plan = _plan(rng, resolution, wall_voxels, square, flat)
-    plan["windows"] = plan["windows"] if windows else []
+    plan = _plan(rng, resolution, wall_voxels, square, flat, windows)
     vertices, faces = _surface(plan)
     colors = _colors(rng, vertices, plan)
     return TexturedMesh(
@@ -90,11 +72,11 @@ def build_ruin(
 ) -> TexturedMesh:
     """:func:`ruin_tower` for ``seed``, turned y-up like the built-in examples (same seed, same mesh)."""
     mesh = ruin_tower(np.random.default_rng(seed), resolution, wall_voxels, square, flat, windows)
-    mesh.vertices = np.stack([mesh.vertices[:, 0], mesh.vertices[:, 2], -mesh.vertices[:, 1]], axis=1)
+    mesh.vertices = y_up(mesh.vertices)
     return mesh
 
 
-def _plan(rng: np.random.Generator, resolution: int, wall, square: bool = False, flat: bool = False) -> dict:
+def _plan(rng: np.random.Generator, resolution: int, wall, square: bool, flat: bool, windows: bool) -> dict:
     """The tower's measures, in voxels of the training grid (the height is the longest side)."""
     # the presets keep a margin of empty voxels to the box: the shape's longest side spans resolution - 2·margin
     height = resolution - 2 * get_preset("quick").grid.margin_voxels
@@ -113,7 +95,7 @@ def _plan(rng: np.random.Generator, resolution: int, wall, square: bool = False,
         window_angles = np.array([0.0, np.pi / 2])
     windows = [
         {"angle": a, "width": 0.07 * height, "bottom": b * height, "top": (b + 0.12) * height}
-        for a, b in zip(window_angles, (0.42, 0.5))
+        for a, b in zip(window_angles, (0.42, 0.5) if windows else ())
     ]
     return {
         "height": height,
@@ -124,14 +106,13 @@ def _plan(rng: np.random.Generator, resolution: int, wall, square: bool = False,
         "tops": tops,
         "door": door,
         "windows": windows,
-        "resolution": resolution,
         "square": square,
     }
 
 
 def _across(plan: dict, x, y) -> np.ndarray:
     """Distance from the tower's axis: round (Euclidean) or square (the larger of |x|, |y|)."""
-    return np.maximum(np.abs(x), np.abs(y)) if plan.get("square") else np.hypot(x, y)
+    return np.maximum(np.abs(x), np.abs(y)) if plan["square"] else np.hypot(x, y)
 
 
 def _wall(plan: dict, angle):

@@ -1,12 +1,9 @@
 """Painting the example shapes: value noise, colour helpers and the UV atlas every example is baked into.
 
-Every face is assigned to a *chart*, a flat 2D coordinate system measured in
-world units (the box projection along the face's dominant normal axis, or the
-unrolled angle × height of a turned column). Each chart gets a rectangle of
-one texture atlas (:class:`AtlasBuilder`), and a paint function fills that
-rectangle by evaluating the procedural pattern at the world position of every
-texel, so the colour on the surface agrees with the geometry (a brick's colour
-sits on the brick's bump).
+Every face belongs to a *chart*, flat 2D coordinates in world units (the box projection along the face's
+dominant normal axis, or a turned column's unrolled angle × height). Each chart gets a rectangle of one
+atlas (:class:`AtlasBuilder`), painted by evaluating the pattern at every texel's world position, so the
+colour agrees with the geometry (a brick's colour sits on the brick's bump).
 """
 
 from __future__ import annotations
@@ -88,9 +85,8 @@ class AtlasBuilder:
     def add_box_projected(self, part: str, vertices, faces, axis=None):
         """Each face goes to chart ``part:+x`` … ``part:-z`` by its dominant normal; (p, q) = the other two axes.
 
-        ``axis`` (``(F,)``, -1 = automatic) forces the projection axis of some
-        faces, e.g. every face of a displaced sheet, bumps included, along the
-        sheet's normal so that the sheet maps to its chart without overlaps.
+        ``axis`` (``(F,)``, -1 = automatic) forces the projection axis of some faces, e.g. a displaced sheet's
+        along its normal, bumps included, so that the sheet maps to its chart without overlaps.
         """
         if signed_volume(vertices, faces) < 0:
             faces = faces[:, ::-1]
@@ -121,12 +117,10 @@ class AtlasBuilder:
     ) -> TexturedMesh:
         """Pack the charts into a ``size = (height, width)`` image, paint it, assign UVs.
 
-        All charts share one texel size, divided by ``detail(chart)``: give
-        hidden faces (the underside of a base) a small value, showpieces a large one.
-        ``pbr(chart, p, q) -> (metallic, roughness, normal)`` paints PBR maps over
-        the same layout: metallic and roughness ``(h, w)`` in [0, 1], the
-        tangent-space unit normal ``(h, w, 3)`` with x along ``p`` and y along
-        ``q`` (the chart's ``u`` and ``v`` directions, see ``mesh.tangent_frames``).
+        All charts share one texel size, divided by ``detail(chart)`` (small for hidden faces, large for
+        showpieces). ``pbr(chart, p, q) -> (metallic, roughness, normal)`` paints PBR maps over the same
+        layout: metallic and roughness ``(h, w)`` in [0, 1], the tangent-space unit normal ``(h, w, 3)`` with
+        x along ``p`` and y along ``q`` (the chart's ``u`` and ``v`` directions).
         """
         height, width = size
         pq = np.concatenate(self.pq)

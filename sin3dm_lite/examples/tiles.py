@@ -1,13 +1,8 @@
 """The tiles: a PBR floor of brushed and hammered steel tiles and chipped painted ones in rough grout.
 
-What each map shows, all varying with the tile pattern:
-
-* base colour: steel grey; paint from a palette, chipped where noise says so (steel shows through);
-  dark grout;
-* metallic: 1 on steel and on the chips, 0 on paint and grout;
-* roughness: low on steel (brushed tiles 0.2-0.35, hammered ones 0.35-0.5), 0.55-0.75 on paint, 0.95 grout;
-* normal (tangent space): brushing grooves or hammer dimples on steel tiles, the raised edge of
-  the paint around each chip. The tiles' bevels are geometry, not map.
+Every map follows the tile pattern: base colour (steel, chipped paint, dark grout), metallic (1 on steel and
+the chips), roughness (low on steel, higher on paint, highest in the grout) and a tangent-space normal map
+(brushing grooves, hammer dimples, the paint's edge around each chip; the bevels are geometry).
 """
 
 from __future__ import annotations
@@ -15,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..data.mesh import TexturedMesh
-from .geometry import grid_solid
+from .geometry import grid_solid, joint_nodes
 from .texture import AtlasBuilder, Noise, mix, palette, smooth
 
 PAINTS = [[0.72, 0.18, 0.14], [0.16, 0.38, 0.62], [0.85, 0.68, 0.20], [0.20, 0.48, 0.30], [0.88, 0.86, 0.80]]
@@ -36,9 +31,8 @@ class _Tiles:
     def __init__(self, rng: np.random.Generator):
         self.noise = Noise(rng)
         nx, ny = self.nx, self.ny = int(round(self.size_x / self.tile)), int(round(self.size_y / self.tile))
-        self.kind = kind = rng.choice(
-            3, size=(nx, ny), p=[0.3, 0.2, 0.5]
-        )  # 0 brushed steel, 1 hammered steel, 2 painted
+        # 0 brushed steel, 1 hammered steel, 2 painted
+        self.kind = kind = rng.choice(3, size=(nx, ny), p=[0.3, 0.2, 0.5])
         self.raise_ = rng.uniform(0.03, 0.05, (nx, ny))
         self.paint_col = palette(rng, PAINTS, nx * ny, jitter=0.1).reshape(nx, ny, 3)
         self.roughness = np.where(
@@ -49,7 +43,9 @@ class _Tiles:
         self.brush_angle = rng.uniform(0, np.pi, (nx, ny))
 
     def build(self) -> TexturedMesh:
-        X, Y = np.meshgrid(self.nodes(self.nx), self.nodes(self.ny), indexing="ij")
+        t = self.tile  # grid lines dense at every grout joint and bevel, sparse across the tile
+        nodes = lambda n: joint_nodes(0.0, t, n, self.grout, self.bevel, [t / 4, t / 2, 3 * t / 4])
+        X, Y = np.meshgrid(nodes(self.nx), nodes(self.ny), indexing="ij")
         i, j, dist = self.cell(X, Y)
         top = np.stack([X, Y, self.thick - 0.05 + self.raise_[i, j] * smooth(dist / self.bevel)], -1)
         bottom = np.stack([X, Y, np.zeros_like(X)], -1)
@@ -61,23 +57,6 @@ class _Tiles:
         return atlas.build(
             "tiles", self.paint, size=(1024, 1024), pbr=self.pbr, detail=lambda c: 1.0 if c.endswith("+z") else 0.15
         )
-
-    def nodes(self, n_tiles):
-        """Grid lines dense at every grout joint and bevel, sparse across the tile."""
-        tile, grout, bevel = self.tile, self.grout, self.bevel
-        inner = [
-            0.0,
-            grout / 2,
-            grout / 2 + bevel / 2,
-            grout / 2 + bevel,
-            tile / 4,
-            tile / 2,
-            3 * tile / 4,
-            tile - grout / 2 - bevel,
-            tile - grout / 2 - bevel / 2,
-            tile - grout / 2,
-        ]
-        return np.array([k * tile + t for k in range(n_tiles) for t in inner] + [n_tiles * tile])
 
     def cell(self, x, y):
         """Tile index and distance to the grout (negative in the grout)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..data.mesh import TexturedMesh
-from .geometry import grid_solid
+from .geometry import grid_solid, joint_nodes
 from .texture import AtlasBuilder, Noise, palette, smooth
 
 BRICKS = [
@@ -72,25 +72,12 @@ class _Wall:
         c, j, dist = self.cell(x, z, self.brick, self.shift)
         return self.protrude[side, c, j] * smooth(dist / self.bevel)
 
-    def z_nodes(self, z0, n_courses):
-        """Rows of the surface grid: dense at every mortar joint and bevel, sparse across the brick face."""
-        course, mortar, bevel = self.course, self.mortar, self.bevel
-        inner = [
-            0.0,
-            mortar / 2,
-            mortar / 2 + bevel / 2,
-            mortar / 2 + bevel,
-            course / 2,
-            course - mortar / 2 - bevel,
-            course - mortar / 2 - bevel / 2,
-            course - mortar / 2,
-        ]
-        return np.array([z0 + k * course + t for k in range(n_courses) for t in inner] + [z0 + n_courses * course])
-
     def slab(self, x0, x1, z0, n_courses):
         thick = self.thick
         x = np.linspace(x0, x1, int(np.ceil((x1 - x0) / 0.025)) + 1)
-        X, Z = np.meshgrid(x, self.z_nodes(z0, n_courses), indexing="ij")
+        # rows dense at every mortar joint and bevel, sparse across the brick face
+        z = joint_nodes(z0, self.course, n_courses, self.mortar, self.bevel, [self.course / 2])
+        X, Z = np.meshgrid(x, z, indexing="ij")
         front = np.stack([X, -thick / 2 - self.bump(X, Z, 0), Z], -1)
         back = np.stack([X, thick / 2 + self.bump(X, Z, 1), Z], -1)
         vertices, faces = grid_solid(front, back)

@@ -1,9 +1,4 @@
-"""What every exercise check shares: the error it raises, calling the student's function, comparing, reporting.
-
-The checks themselves are in :mod:`~sin3dm_lite.teach.exercises` (the diffusion model, the triplane, the
-denoiser, evaluation) and :mod:`~sin3dm_lite.teach.shape_exercises` (the grid's box, retargeting, edit
-masks, tangent frames).
-"""
+"""What every exercise check shares: the error it raises, calling the student's function, comparing, reporting."""
 
 from __future__ import annotations
 
@@ -25,10 +20,17 @@ def call(name: str, fn, *args, hint: str = ""):
         ) from e
 
 
+def parts(name: str, out, n: int, what: str):
+    """The student's answer as ``n`` parts (a tuple or list), or an ExerciseError: "should return ``what``"."""
+    if not (isinstance(out, (tuple, list)) and len(out) == n):
+        raise ExerciseError(f"your {name} should return {what}")
+    return out
+
+
 def as64(name: str, value, like: torch.Tensor) -> torch.Tensor:
     """The student's answer as a float64 tensor of ``like``'s shape, or an ExerciseError saying what it is.
 
-    A float32 answer is welcome (compare it with :func:`tolerance`); float16 and bfloat16 are too coarse to check.
+    float32 is welcome (compare it with :func:`tolerance`); float16 and bfloat16 are too coarse to check.
     """
     if not isinstance(value, (torch.Tensor, np.ndarray)):
         raise ExerciseError(
@@ -46,8 +48,8 @@ def tolerance(value, base: float, scale: float = 1.0) -> float:
     """How far an answer in ``value``'s dtype may be from the float64 reference and still be right.
 
     ``base`` for float64 (and integer) answers. A float32 answer carries float32 rounding, amplified where
-    the formula divides by a small number (``1-ᾱ_t`` near t = 0 is about 1e-4): it may differ by
-    ``2·10⁴`` float32 epsilons (2.4e-3) times ``scale`` (the size of the values compared, at least 1).
+    the formula divides by a small number (``1-ᾱ_t`` near t = 0), so it may differ by ``2·10⁴`` float32
+    epsilons times ``scale`` (the size of the values compared, at least 1).
     """
     dtype = value.dtype if isinstance(value, (torch.Tensor, np.ndarray)) else np.dtype(np.float64)
     if dtype in (torch.float32, np.float32):
@@ -70,21 +72,24 @@ def as_array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
-def matching_hint(got, candidates: dict, tol: float, want=None, rtol: float = 0.0) -> str:
-    """The hint of the first wrong answer the student's output matches (tensors or arrays of the same shape).
+def _np64(x) -> np.ndarray:
+    return np.asarray(x.detach().cpu().double() if isinstance(x, torch.Tensor) else x, np.float64)
 
-    With ``want`` (the right answer) a wrong answer matches when it agrees with the student's output on every
-    element where that output is wrong: so a mistake that shows at a few steps or texels only is still named.
-    ``rtol`` widens the match by a share of the wrong answer's size (float32 rounding of a large wrong value).
+
+def matching_hint(got, candidates: dict, tol: float, want=None, rtol: float = 0.0) -> str:
+    """The hint of the first wrong answer (``{hint: answer}``) that the student's output matches.
+
+    With ``want`` (the right answer) a wrong answer matches when it agrees with the output wherever the
+    output is wrong, so a mistake that shows at a few elements only is still named. ``rtol`` widens the
+    match by a share of the wrong answer's size.
     """
-    got = np.asarray(got.detach().cpu().double() if isinstance(got, torch.Tensor) else got, np.float64)
+    got = _np64(got)
     if want is not None:
-        want = np.asarray(want.detach().cpu().double() if isinstance(want, torch.Tensor) else want, np.float64)
-        wrong = np.abs(got - want) > tol
+        wrong = np.abs(got - _np64(want)) > tol
         if not wrong.any():
             return ""
     for text, cand in candidates.items():
-        cand = np.asarray(cand.detach().cpu().double() if isinstance(cand, torch.Tensor) else cand, np.float64)
+        cand = _np64(cand)
         if cand.shape != got.shape:
             continue
         near = np.abs(got - cand) <= tol + rtol * np.abs(cand)
@@ -98,4 +103,4 @@ def passed(name: str, cases: int, err: float) -> None:
     print(f"✓ your {name} matches the library on {cases} random cases (max error {err:.1e})")
 
 
-__all__ = ["ExerciseError", "as64", "as_array", "call", "matching_hint", "passed", "tolerance"]
+__all__ = ["ExerciseError", "as64", "as_array", "call", "matching_hint", "parts", "passed", "tolerance"]

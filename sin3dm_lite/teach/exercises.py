@@ -1,30 +1,10 @@
 """Exercises: write a piece of the method yourself, then ``check_…`` it against the library.
 
-Each check calls your function on random inputs, compares its answer with the
-package's own code (the code the trainer and the sampler run), prints one
-line when they agree and raises :class:`ExerciseError` when they do not,
-saying where (which time step, plane, point or layer chain) and by how much;
-for the usual mistakes it adds a hint ("did you use √ᾱ_t?").
-
-======================================  ===================================  ==========================
-check                                   you write                            the library's version
-======================================  ===================================  ==========================
-:func:`check_q_sample`                  ``q_sample(x0, t, noise, ab)``       ``NoiseSchedule.q_sample``
-:func:`check_ddpm_posterior`            ``posterior(x0, x_t, t, betas, ab)``  ``NoiseSchedule.posterior``
-:func:`check_ddim_step`                 ``ddim_step(x_t, x0, t, t_prev, ab)``  ``NoiseSchedule.ddim_step``
-:func:`check_triplane_lookup`           ``lookup(xy, xz, yz, points)``       ``Triplane.lookup``
-:func:`check_receptive_field`           ``receptive_field(layers)``          ``receptive_field.layers_receptive_field``
-:func:`check_rollout`                   ``rollout_xy(xy, xz, yz)``           ``unet.cross_plane_inputs``
-:func:`check_best_patch_iou`            ``best_patch_iou(gen, ref)``         ``metrics.lp_scores``
-======================================  ===================================  ==========================
-
-The shape side (the grid's box, retargeting, an edit's masks, tangent frames) is in
-:mod:`~sin3dm_lite.teach.shape_exercises`, the loops (the training step, the DDIM loop, the masked step) in
-:mod:`~sin3dm_lite.teach.loop_exercises`, what the checks share in :mod:`~sin3dm_lite.teach.checking`.
-A float32 answer is compared with float32's tolerance; a wrong one gets the hint of the usual mistake it
-matches on every element where it is wrong.
-Solutions are in ``notebooks/solutions/``; ``tests/test_exercises.py`` runs
-every check against its solution and against wrong answers.
+Each check calls your function on random inputs, compares its answer with the package's own code (what the
+trainer and the sampler run), prints one line when they agree and raises :class:`ExerciseError` when they do
+not, saying where and by how much, with a hint for the usual mistakes. The shape side is in
+:mod:`~sin3dm_lite.teach.shape_exercises`, the loops in :mod:`~sin3dm_lite.teach.loop_exercises`;
+solutions are in ``notebooks/solutions/``.
 """
 
 from __future__ import annotations
@@ -39,7 +19,7 @@ from ..evaluate.patches import patch_matches
 from ..model.schedule import NoiseSchedule
 from ..model.triplane import PLANE_AXES, PLANES, Triplane
 from ..model.unet import TriplaneUNet, cross_plane_inputs
-from .checking import ExerciseError, as64, call, matching_hint, passed, tolerance
+from .checking import ExerciseError, as64, call, matching_hint, parts, passed, tolerance
 from .receptive_field import layer_walk, layers_receptive_field
 
 
@@ -60,33 +40,23 @@ def check_q_sample(fn, seed: int = 0, tol: float = 1e-5) -> None:
     """``fn(x0, t, noise, alphas_cumprod) -> x_t``: noise ``x0 [B,C,H,W]`` to step ``t [B]`` in one go.
 
     ``x_t = √ᾱ_t · x0 + √(1-ᾱ_t) · noise``, with ``ᾱ_t = alphas_cumprod[t]`` (float64, ``t`` from 0 to T-1).
-    A float32 answer is compared with float32's tolerance (:func:`~sin3dm_lite.teach.checking.tolerance`).
     """
     sch, g = NoiseSchedule(), torch.Generator().manual_seed(seed)
     t = torch.cat([torch.tensor([0, 999, 731]), torch.randint(0, 1000, (5,), generator=g)])
     x0, noise = Triplane.randn(8, 3, (5, 6, 7), generator=g), Triplane.randn(8, 3, (5, 6, 7), generator=g)
-    want = sch.q_sample(x0, t, noise)
-    ab = sch.alphas_cumprod
-    worst = 0.0
+    want, ab, worst = sch.q_sample(x0, t, noise), sch.alphas_cumprod, 0.0
+    hint = "ᾱ_t is one number per sample: index it with t, reshape to [B, 1, 1, 1]"
     for name, p, n, w in zip(PLANES, x0.planes, noise.planes, want.planes):
-        raw = call(
-            "q_sample",
-            fn,
-            p.clone(),
-            t.clone(),
-            n.clone(),
-            ab.clone(),
-            hint="ᾱ_t is one number per sample: index it with t, reshape to [B, 1, 1, 1]",
-        )
+        raw = call("q_sample", fn, *(v.clone() for v in (p, t, n, ab)), hint=hint)
         got, w = as64("q_sample", raw, w), w.double()
         p, n, tol_ = p.double(), n.double(), tolerance(raw, tol, float(w.abs().max()))
         err = (got - w).abs().amax((1, 2, 3))
         if float(err.max()) > tol_:
             a, up, down = (_per_sample(ab[k]) for k in (t, (t + 1).clamp(max=999), t - 1))  # t - 1 wraps at 0
+            swapped = (1 - a).sqrt() * p + a.sqrt() * n
             hints = {
                 "did you use √ᾱ_t and √(1-ᾱ_t)? You used ᾱ_t and 1-ᾱ_t.": a * p + (1 - a) * n,
-                "the image gets √ᾱ_t and the noise √(1-ᾱ_t), not the other way round.": (1 - a).sqrt() * p
-                + a.sqrt() * n,
+                "the image gets √ᾱ_t and the noise √(1-ᾱ_t), not the other way round.": swapped,
                 "off by one: ᾱ_t is alphas_cumprod[t], not [t+1].": up.sqrt() * p + (1 - up).sqrt() * n,
                 "off by one: ᾱ_t is alphas_cumprod[t], not [t-1] (t counts from 0; at t = 0, [t-1] is the LAST "
                 "value).": down.sqrt() * p + (1 - down).sqrt() * n,
@@ -99,17 +69,17 @@ def check_q_sample(fn, seed: int = 0, tol: float = 1e-5) -> None:
 # ----------------------------------------------------------------------------- reverse steps
 def _posterior_wrong(sch: NoiseSchedule, t: torch.Tensor, x0: torch.Tensor, x_t: torch.Tensor) -> dict:
     """The usual mistakes in the posterior's mean, each as the mean it gives."""
-    at = lambda v: _per_sample(v[t])  # noqa: E731
+    at = lambda v: _per_sample(v[t])
     ab, ab_prev, beta = at(sch.alphas_cumprod), _per_sample(sch.alphas_cumprod[t - 1]), at(sch.betas)
     right_prev = at(sch.alphas_cumprod_prev)
-    c0 = lambda p: beta * p.sqrt() / (1 - ab)  # noqa: E731
-    ct = lambda p, a: (1 - p) * a / (1 - ab)  # noqa: E731
+    c0 = lambda p: beta * p.sqrt() / (1 - ab)
+    ct = lambda p, a: (1 - p) * a / (1 - ab)
+    no_root = beta * right_prev / (1 - ab) * x0 + ct(right_prev, (1 - beta).sqrt()) * x_t
     return {
         "at t = 0 there is no earlier step: ᾱ_{t-1} is 1 there (alphas_cumprod[t-1] at t = 0 is alphas_cumprod[-1], "
         "the LAST value, ᾱ_{T-1})": c0(ab_prev) * x0 + ct(ab_prev, (1 - beta).sqrt()) * x_t,
         "x_t's coefficient holds √α_t = √(1-β_t), not α_t": c0(right_prev) * x0 + ct(right_prev, 1 - beta) * x_t,
-        "x0's coefficient holds √ᾱ_{t-1}, not ᾱ_{t-1}": beta * right_prev / (1 - ab) * x0
-        + ct(right_prev, (1 - beta).sqrt()) * x_t,
+        "x0's coefficient holds √ᾱ_{t-1}, not ᾱ_{t-1}": no_root,
     }
 
 
@@ -118,9 +88,9 @@ def check_ddpm_posterior(fn, seed: int = 0, tol: float = 1e-5, variance: str = "
 
     ``mean = β_t √ᾱ_{t-1} / (1-ᾱ_t) · x0 + (1-ᾱ_{t-1}) √α_t / (1-ᾱ_t) · x_t``, with ``α_t = 1-β_t`` and
     ``ᾱ_{-1} = 1``. ``variance="posterior"`` (this library's sampler) checks the posterior's own
-    ``β̃_t = β_t (1-ᾱ_{t-1}) / (1-ᾱ_t)``; ``variance="beta"`` the paper's σ_t² = β_t (the authors' code too:
-    guided-diffusion's fixed large variance, which at t = 0 takes β̃_1; either is accepted there).
-    The variance may be ``[B, 1, 1, 1]`` or the mean's shape; it is compared relative to its size.
+    ``β̃_t = β_t (1-ᾱ_{t-1}) / (1-ᾱ_t)``; ``variance="beta"`` the paper's σ_t² = β_t (as guided-diffusion's
+    fixed large variance, which at t = 0 takes β̃_1: either is accepted there). The variance may be
+    ``[B, 1, 1, 1]`` or the mean's shape; it is compared relative to its size.
     """
     if variance not in ("posterior", "beta"):
         raise ExerciseError(f"variance is 'posterior' (β̃_t) or 'beta' (β_t), not {variance!r}")
@@ -131,20 +101,10 @@ def check_ddpm_posterior(fn, seed: int = 0, tol: float = 1e-5, variance: str = "
     beta_t, post = _per_sample(sch.betas[t]), var.double()
     want_var = post if variance == "posterior" else beta_t
     fixed_large = torch.where(_per_sample(t) == 0, sch.posterior_variance[1], beta_t)  # guided-diffusion's β
-    worst = 0.0
+    worst, per_sample = 0.0, "the tables are indexed per sample: reshape ᾱ_t, β_t, ... to [B, 1, 1, 1]"
     for name, a, b, w in zip(PLANES, x0.planes, x_t.planes, mean.planes):
-        out = call(
-            "posterior",
-            fn,
-            a.clone(),
-            b.clone(),
-            t.clone(),
-            sch.betas.clone(),
-            sch.alphas_cumprod.clone(),
-            hint="the tables are indexed per sample: reshape ᾱ_t, β_t, ... to [B, 1, 1, 1]",
-        )
-        if not (isinstance(out, (tuple, list)) and len(out) == 2):
-            raise ExerciseError("your posterior should return two things: (mean, variance)")
+        out = call("posterior", fn, *(v.clone() for v in (a, b, t, sch.betas, sch.alphas_cumprod)), hint=per_sample)
+        parts("posterior", out, 2, "two things: (mean, variance)")
         got, w = as64("posterior (mean)", out[0], w), w.double()
         tol_ = tolerance(out[0], tol, float(w.abs().max()))
         err = (got - w).abs().amax((1, 2, 3))
@@ -158,22 +118,21 @@ def check_ddpm_posterior(fn, seed: int = 0, tol: float = 1e-5, variance: str = "
             raise ExerciseError(
                 f"your variance has shape {tuple(got_var.shape)}: give one value per sample, [B, 1, 1, 1]"
             ) from None
-        rel = lambda ref, v=got_var: (v - ref.reshape(-1)).abs() / ref.reshape(-1).clamp(min=1e-8)  # noqa: E731
+        rel = lambda ref, v=got_var: (v - ref.reshape(-1)).abs() / ref.reshape(-1).clamp(min=1e-8)
         vtol = tolerance(out[1] if isinstance(out[1], torch.Tensor) else got_var, tol)  # relative to the variance
         ok = rel(want_var) <= vtol
         if variance == "beta":  # at t = 0 the authors' code takes β̃_1: accepted too
             ok = ok | (rel(fixed_large) <= vtol)
         if not bool(ok.all()):
             err = torch.where(ok, 0.0, rel(want_var))
+            wraps = _per_sample(sch.betas[t] * (1 - sch.alphas_cumprod[t - 1]) / (1 - sch.alphas_cumprod[t]))
             hints = {
                 "that is β_t, the paper's σ_t² (the authors' code uses it too); this library's sampler uses the "
                 "posterior's own variance β̃_t. To check the paper's choice: check_ddpm_posterior(posterior, "
                 "variance='beta')": beta_t,
                 "that is β̃_t, the posterior's variance; you asked for the paper's β_t": post,
                 "at t = 0 there is no earlier step: ᾱ_{t-1} is 1 there (alphas_cumprod[-1] in Python is the LAST "
-                "value, ᾱ_{T-1})": _per_sample(
-                    sch.betas[t] * (1 - sch.alphas_cumprod[t - 1]) / (1 - sch.alphas_cumprod[t])
-                ),
+                "value, ᾱ_{T-1})": wraps,
             }
             hint = next((f"\n  hint: {h}" for h, v in hints.items() if bool((rel(v)[~ok] <= vtol).all())), "")
             raise _fail("posterior variance", err, t, name, hint)
@@ -185,16 +144,16 @@ def _ddim_wrong(ab: torch.Tensor, t: int, t_prev: int, x_t: torch.Tensor, x0: to
     """The usual mistakes in one DDIM step, each as the step it gives."""
     a, ap = float(ab[t]), float(ab[t_prev]) if t_prev >= 0 else 1.0
     eps = (x_t - a**0.5 * x0) / (1 - a) ** 0.5
+    last = float(ab[t_prev])  # at t_prev = -1: ᾱ_{T-1}
+    wrapped = last**0.5 * x0 + (1 - last) ** 0.5 * eps
+    keep_x_t = ap**0.5 * x0 + (1 - ap) ** 0.5 * x_t
+    eps_no_root = ap**0.5 * x0 + (1 - ap) ** 0.5 * (x_t - a**0.5 * x0) / (1 - a)
     return {
-        "keep the noise direction: ε̂ = (x_t - √ᾱ_t·x0) / √(1-ᾱ_t), not x_t itself.": ap**0.5 * x0
-        + (1 - ap) ** 0.5 * x_t,
+        "keep the noise direction: ε̂ = (x_t - √ᾱ_t·x0) / √(1-ᾱ_t), not x_t itself.": keep_x_t,
         "the noise term is √(1-ᾱ_prev)·ε̂: you left out the square root.": ap**0.5 * x0 + (1 - ap) * eps,
-        "ε̂ divides by √(1-ᾱ_t), not by 1-ᾱ_t: you left out the square root.": ap**0.5 * x0
-        + (1 - ap) ** 0.5 * (x_t - a**0.5 * x0) / (1 - a),
+        "ε̂ divides by √(1-ᾱ_t), not by 1-ᾱ_t: you left out the square root.": eps_no_root,
         "the clean term is √ᾱ_prev·x0: you left out the square root.": ap * x0 + (1 - ap) ** 0.5 * eps,
-        "alphas_cumprod[-1] is ᾱ_{T-1} (Python counts from the end): at t_prev = -1 use ᾱ = 1, which returns x0.": (
-            float(ab[t_prev]) ** 0.5 * x0 + (1 - float(ab[t_prev])) ** 0.5 * eps
-        ),
+        "alphas_cumprod[-1] is ᾱ_{T-1} (Python counts from the end): at t_prev = -1 use ᾱ = 1, which returns x0.": wrapped,
     }
 
 
@@ -203,8 +162,7 @@ def check_ddim_step(fn, seed: int = 0, tol: float = 1e-5) -> None:
 
     The noise that ``x_t`` and the predicted ``x0`` imply, ``ε̂ = (x_t - √ᾱ_t·x0) / √(1-ᾱ_t)``, is kept and
     the blend moves to ``ᾱ_{t_prev}``: ``√ᾱ_prev·x0 + √(1-ᾱ_prev)·ε̂``. ``t [B]`` is a tensor, ``t_prev`` an
-    int; ``t_prev = -1`` is the last step, to the clean latent (ᾱ = 1). Every step is checked before the
-    worst one is reported, so a mistake that is small at t = 999 is caught where it is large.
+    int; ``t_prev = -1`` is the last step, to the clean latent (ᾱ = 1). The worst step is reported.
     """
     sch, g = NoiseSchedule(), torch.Generator().manual_seed(seed)
     ab, results, worst, cases = sch.alphas_cumprod, [], 0.0, 0
@@ -241,8 +199,7 @@ def check_ddim_step(fn, seed: int = 0, tol: float = 1e-5) -> None:
 # ----------------------------------------------------------------------------- the triplane
 def _lookup_hints(tp: Triplane, points: torch.Tensor, got: torch.Tensor, want: torch.Tensor, k: int, tol: float) -> str:
     """Why plane ``k`` of the student's lookup is wrong: another plane's features, (row, col) swapped, corners."""
-    plane, (row, col) = PLANES[k], PLANE_AXES[PLANES[k]]
-    axis = "xyz"
+    plane, (row, col), axis = PLANES[k], PLANE_AXES[PLANES[k]], "xyz"
 
     def read(rc, corners=False, padding="border"):
         grid = torch.stack([points[..., rc[1]], points[..., rc[0]]], -1)[:, None]
@@ -255,15 +212,13 @@ def _lookup_hints(tp: Triplane, points: torch.Tensor, got: torch.Tensor, want: t
         for j, other in enumerate(PLANES)
         if j != k
     }
-    hints[
+    hints |= {
         f"on {plane} you read at ({axis[row]}, {axis[col]}) as (x, y) for grid_sample, which reads (x, y) = "
-        f"(column, row): pass ({axis[col]}, {axis[row]})"
-    ] = read((col, row))
-    hints["texel centres are at -1 + (2i+1)/n: use align_corners=False"] = read((row, col), corners=True)
-    hints[
+        f"(column, row): pass ({axis[col]}, {axis[row]})": read((col, row)),
+        "texel centres are at -1 + (2i+1)/n: use align_corners=False": read((row, col), corners=True),
         "only points near or outside the box's border differ: there, repeat the border texel "
-        "(padding_mode='border'), do not blend with zeros"
-    ] = read((row, col), padding="zeros")
+        "(padding_mode='border'), do not blend with zeros": read((row, col), padding="zeros"),
+    }
     return matching_hint(got[:, :, k], hints, tol, want[:, :, k])
 
 
@@ -273,13 +228,11 @@ def check_triplane_lookup(fn, seed: int = 0, tol: float = 1e-5) -> None:
     Planes ``xy [B,C,X,Y]``, ``xz [B,C,X,Z]``, ``yz [B,C,Y,Z]``; points ``[B, N, 3]`` in box coordinates [-1, 1].
     A point's feature on ``xz`` is read at ``(x, z)``, row = x, column = z. Texel ``i`` of ``n`` sits at
     ``-1 + (2i+1)/n``; points outside the box read the border texel. Output order: xy, xz, yz.
-    Each plane that differs gets its own hint (another plane's features, row and column swapped, ...).
     """
     g = torch.Generator().manual_seed(seed)
     tp = Triplane.randn(2, 4, (5, 7, 6), generator=g)
     inside = torch.rand(2, 60, 3, generator=g) * 2 - 1
-    outside = torch.rand(2, 20, 3, generator=g) * 2.6 - 1.3
-    points = torch.cat([inside, outside], 1)
+    points = torch.cat([inside, torch.rand(2, 20, 3, generator=g) * 2.6 - 1.3], 1)  # and outside
     want = tp.lookup(points)  # [B, N, 3, C]
     raw = call("lookup", fn, tp.xy.clone(), tp.xz.clone(), tp.yz.clone(), points.clone())
     got, tol_ = as64("lookup", raw, want), tolerance(raw, tol, float(want.abs().max()))
@@ -305,33 +258,18 @@ def check_rollout(fn, seed: int = 0, tol: float = 1e-6) -> None:
     g = torch.Generator().manual_seed(seed)
     tp = Triplane.randn(2, 3, (5, 6, 7), generator=g)
     want = cross_plane_inputs(tp).xy
-    got = as64(
-        "rollout_xy",
-        call(
-            "rollout_xy",
-            fn,
-            tp.xy.clone(),
-            tp.xz.clone(),
-            tp.yz.clone(),
-            hint="xz is [B, C, X, Z] and yz [B, C, Y, Z]: average both over z, their last axis",
-        ),
-        want,
-    )
+    hint = "xz is [B, C, X, Z] and yz [B, C, Y, Z]: average both over z, their last axis"
+    got = as64("rollout_xy", call("rollout_xy", fn, *(p.clone() for p in tp.planes), hint=hint), want)
     c = tp.channels
+    part_of = lambda x, k: x[:, k * c : (k + 1) * c].double()  # the channels from plane k
     for k, part in enumerate(("the plane itself", "the mean of xz over z", "the mean of yz over z")):
-        err = float((got[:, k * c : (k + 1) * c] - want[:, k * c : (k + 1) * c].double()).abs().max())
+        mine = part_of(got, k)
+        err = float((mine - part_of(want, k)).abs().max())
         if err > tol:
             hint = ""
-            if (
-                k
-                and float((got[:, k * c : (k + 1) * c] - want[:, (3 - k) * c : (4 - k) * c].double()).abs().max())
-                <= tol
-            ):
+            if k and float((mine - part_of(want, 3 - k)).abs().max()) <= tol:
                 hint = "\n  hint: the order is [xy, from xz, from yz]"
-            elif (
-                k
-                and float((got[:, k * c : (k + 1) * c] - 7 * want[:, k * c : (k + 1) * c].double()).abs().max()) <= 1e-5
-            ):
+            elif k and float((mine - 7 * part_of(want, k)).abs().max()) <= 1e-5:
                 hint = "\n  hint: average over z (mean), do not sum"
             raise ExerciseError(
                 f"your rollout_xy differs in channels {k * c}..{(k + 1) * c - 1} ({part}): max error {err:.3g}" + hint
@@ -347,10 +285,10 @@ def _random_chain(rng: np.random.Generator) -> list[tuple[str, int]]:
         r = rng.random()
         if r < 0.2 and depth < 2:
             chain.append(("down", 2))
-            depth += 1  # noqa: E702
+            depth += 1
         elif r < 0.35 and depth > 0:
             chain.append(("up", 2))
-            depth -= 1  # noqa: E702
+            depth -= 1
         else:
             chain.append(("conv", int(rng.choice([1, 3, 3, 5]))))
     return chain + [("up", 2)] * depth
@@ -363,11 +301,11 @@ def check_receptive_field(fn, seed: int = 0) -> None:
     ``("up", 2)`` (bilinear ×2), as :func:`~sin3dm_lite.receptive_field.layer_walk` lists the denoiser's. Keep the
     width ``r`` and the jump ``j`` (input texels between neighbouring texels of the current layer).
     """
-    chains = []
-    for n in (1, 2, 4, 6, 8):
-        for down in (False, True):
-            model = TriplaneUNet(2, DiffusionConfig(base_channels=4, time_embed_dim=4, n_resblocks=n, downsample=down))
-            chains.append(layer_walk(model))
+    chains = [
+        layer_walk(TriplaneUNet(2, DiffusionConfig(base_channels=4, time_embed_dim=4, n_resblocks=n, downsample=down)))
+        for n in (1, 2, 4, 6, 8)
+        for down in (False, True)
+    ]
     rng = np.random.default_rng(seed)
     chains += [_random_chain(rng) for _ in range(20)]
     for layers in chains:
@@ -376,10 +314,8 @@ def check_receptive_field(fn, seed: int = 0) -> None:
         if got != want:
             no_jump = 1 + sum(k - 1 if op == "conv" else 1 if op == "down" else 0 for op, k in layers)
             hint = (
-                (
-                    "\n  hint: after a 2×2 pool, neighbouring texels are j = 2 input texels apart: a k×k conv there adds "
-                    "(k-1)·j, and the upsample adds the coarse j before halving it"
-                )
+                "\n  hint: after a 2×2 pool, neighbouring texels are j = 2 input texels apart: a k×k conv there adds "
+                "(k-1)·j, and the upsample adds the coarse j before halving it"
                 if got == no_jump
                 else ""
             )
@@ -406,15 +342,14 @@ def check_best_patch_iou(fn, seed: int = 0, patch: int = 7, stride: int = 3, thr
 
     The check turns your answer into LP-IoU (the share of patches whose best match is above the threshold)
     and the mean best IoU, and compares both with :func:`~sin3dm_lite.metrics.lp_scores` on random terrains.
-    (The threshold is one no IoU of two 7³ patches can equal: at a tie, float rounding would decide.)
+    (No IoU of two 7³ patches can equal the threshold: at a tie, float rounding would decide.)
     """
     rng = np.random.default_rng(seed)
     for case in range(3):
         ref_grid, gen_grid = _terrain(rng), _terrain(rng)
         ref, gen = extract_patches(ref_grid, patch, stride), extract_patches(gen_grid, patch, stride)
         want = lp_scores(ref_grid, gen_grid, patch, stride, max_patches=10**6, threshold=threshold)
-        best = call("best_patch_iou", fn, gen.copy(), ref.copy())
-        best = np.asarray(best, np.float64)
+        best = np.asarray(call("best_patch_iou", fn, gen.copy(), ref.copy()), np.float64)
         if best.shape != (len(gen),):
             raise ExerciseError(
                 f"your best_patch_iou returned shape {best.shape}, expected ({len(gen)},): one best "
@@ -425,19 +360,16 @@ def check_best_patch_iou(fn, seed: int = 0, patch: int = 7, stride: int = 3, thr
         wrong = np.abs(best - per_patch) > 1e-6
         if wrong.any():
             g, r = gen.astype(np.float64), ref.astype(np.float64)
-            inter = g @ r.T
-            union = g.sum(1)[:, None] + r.sum(1)[None] - inter
+            inter, sizes = g @ r.T, g.sum(1)[:, None] + r.sum(1)[None]
+            best_dice, iou = (2 * inter / sizes).max(1), inter / (sizes - inter)
+            by_ref = iou.max(0)[: len(gen)] if len(ref) >= len(gen) else per_patch + 1  # else: a value none matches
             hints = {
-                "that is the F-score (Dice), 2|g∩r| / (|g|+|r|); IoU divides |g∩r| by the union |g|+|r|-|g∩r|": (
-                    2 * inter / (g.sum(1)[:, None] + r.sum(1)[None])
-                ).max(1),
-                "take the BEST match (max over the reference patches), not the mean": (inter / union).mean(1),
+                "that is the F-score (Dice), 2|g∩r| / (|g|+|r|); IoU divides |g∩r| by the union |g|+|r|-|g∩r|": best_dice,
+                "take the BEST match (max over the reference patches), not the mean": iou.mean(1),
                 "the right values in another order: keep one value per generated patch, in the order of gen's rows "
                 "(do not sort them)": np.sort(per_patch),
                 "that is each REFERENCE patch's best match (max over gen); LP-IoU asks, for each generated patch, "
-                "for its best match among the input's": (inter / union).max(0)[: len(gen)]
-                if len(ref) >= len(gen)
-                else per_patch + 1,
+                "for its best match among the input's": by_ref,
             }
             hint = matching_hint(best, hints, 1e-6, per_patch)
             i = int(np.flatnonzero(wrong)[0])

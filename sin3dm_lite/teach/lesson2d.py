@@ -1,17 +1,11 @@
 """The method in 2D, for a first lesson: a diffusion model learned from ONE image (notebook 00b).
 
-Sin3DM's central idea fits in a picture: a denoiser trained on a single
-example learns whatever its receptive field lets it see. If one output pixel
-sees the whole image, the best answer is "the input, pixel for pixel" and
-every sample is a copy; if it sees a small window only, it learns what
-*patches* look like, not where they go, and samples recombine them.
-
-Nothing here is a second implementation. An image ``[3, H, W]`` is the ``xy``
-plane of a flat triplane (``Z = 1``; the ``xz`` and ``yz`` planes are one texel
-wide and hold zeros). With the cross-plane rollout switched off
-(``DiffusionConfig.rollout=False``) a ``TriplaneConv`` is three separate
-``Conv2d``, so on ``xy`` the package's ``TriplaneUNet`` *is* a plain 2D U-Net,
-and the package's schedule, trainer and DDIM sampler run unchanged.
+A denoiser trained on a single example learns what its receptive field lets it see: if one output pixel
+sees the whole image, every sample is a copy; if it sees a small window, it learns what *patches* look
+like, not where they go, and samples recombine them. Nothing here is a second implementation: an image
+``[3, H, W]`` is the ``xy`` plane of a flat triplane (``Z = 1``, ``xz``/``yz`` one texel of zeros), and
+without the cross-plane rollout (``DiffusionConfig.rollout=False``) the package's ``TriplaneUNet``, schedule,
+trainer and DDIM sampler run on it as a plain 2D diffusion model.
 """
 
 from __future__ import annotations
@@ -41,8 +35,7 @@ FIELDS = {
 def pebbles(size: int = 24, n: int = 10, seed: int = 0) -> np.ndarray:
     """A procedural texture ``(size, size, 3)`` in [0, 1]: round pebbles of four colours on sand.
 
-    The pebbles are placed at random without overlapping, so the image has a
-    clear local vocabulary (a pebble, its rim, sand) and a layout that a copy
+    The pebbles do not overlap: a clear local vocabulary (a pebble, its rim, sand) and a layout that a copy
     reproduces and a recombination does not.
     """
     rng = np.random.default_rng(seed)
@@ -81,8 +74,7 @@ def triplane_to_images(tp: Triplane) -> np.ndarray:
 def noised(image: np.ndarray, schedule: NoiseSchedule, ts, seed: int = 0) -> np.ndarray:
     """The image at each step of ``ts`` of the forward process, ``√ᾱ_t·x0 + √(1-ᾱ_t)·ε``: ``(len(ts), H, W, 3)``.
 
-    One noise image ``ε`` (from ``seed``) for all steps, so the pictures show
-    the blend moving from the image to the noise; ``t = -1`` is the clean image.
+    One noise image ``ε`` (from ``seed``) for all steps; ``t = -1`` is the clean image.
     """
     x0 = image_to_triplane(image)
     eps = Triplane.randn_like(x0, generator=torch.Generator().manual_seed(seed))
@@ -118,8 +110,7 @@ def fit_image(image: np.ndarray, cfg: DiffusionConfig, seed: int = 0):
 
 def sample_images(model, size: tuple[int, int], n: int = 4, steps: int = 25, seed: int = 0) -> np.ndarray:
     """``n`` new images ``(n, H, W, 3)`` from pure noise with the package's DDIM sampler (any size: retargeting)."""
-    h, w = size
-    return triplane_to_images(sample(model, None, (h, w, 1), n=n, steps=steps, seed=seed, progress=False))
+    return triplane_to_images(sample(model, None, (*size, 1), n=n, steps=steps, seed=seed, progress=False))
 
 
 # ----------------------------------------------------------------------------- copy or recombine?
@@ -133,8 +124,7 @@ def nearest_patch_distance(samples: np.ndarray, image: np.ndarray, patch: int) -
     """For each sample, the mean over its ``patch × patch`` windows of the RMS colour difference to the
     closest window anywhere in ``image``: ``(B,)``. Near 0: every window of the sample is in the input.
 
-    Small windows measure "looks like the input locally" (low for a good
-    generator); windows as large as the image measure "is a copy".
+    Small windows measure "looks like the input locally"; windows as large as the image "is a copy".
     """
     ref = _patches(np.asarray(image)[None], patch)[0]  # [L, D]
     gen = _patches(samples, patch)  # [B, L', D]
@@ -159,7 +149,7 @@ def plot_images(images, titles=None, rows: list[str] | None = None, width: float
     grid = [list(r) for r in (images if isinstance(images, (list, tuple)) else [images])]
     cols = max(len(r) for r in grid)
     fig = _figure(width * cols, width * len(grid) + 0.3)
-    axes = np.atleast_2d(fig.subplots(len(grid), cols, squeeze=False))
+    axes = fig.subplots(len(grid), cols, squeeze=False)
     for i, row in enumerate(grid):
         for j in range(cols):
             ax = axes[i, j]

@@ -1,18 +1,8 @@
-"""Exercises that write the loops: the training step and the DDIM sampling loop (notebook 00b), the masked
-replacement step of controlled generation (notebook 06).
+"""Exercises that write the loops: the training step and the DDIM loop (notebook 00b), the masked step (06).
 
-The 2D loops work on images ``[B, 3, H, W]`` in [-1, 1] and a ``denoise(x_t, t) -> x̂0`` function:
-:func:`image_denoiser` wraps the package's ``TriplaneUNet`` (an image is the ``xy`` plane of a flat
-triplane, see :mod:`~sin3dm_lite.teach.lesson2d`). Each check runs your function next to the library
-(the same model, the same random numbers) and names the first thing that differs.
-
-======================================  ==================================================  =========================
-check                                   you write                                           the library's version
-======================================  ==================================================  =========================
-:func:`check_training_step`             ``training_step(denoise, optimizer, x0, ab, g)``    q_sample + MSE + AdamW
-:func:`check_ddim_loop`                 ``ddim_sample(denoise, x_T, timesteps, ab)``        ``diffusion.sample``
-:func:`check_masked_step`               ``masked_step(x, known, mask, t_prev, ab, noise)``  ``diffusion.sample``'s
-======================================  ==================================================  =========================
+The 2D loops work on images ``[B, 3, H, W]`` in [-1, 1] and a ``denoise(x_t, t) -> x̂0`` function
+(:func:`image_denoiser`: the package's ``TriplaneUNet`` on the ``xy`` plane of a flat triplane). Each check
+runs your function next to the library, on the same model and random numbers, and names what differs.
 """
 
 from __future__ import annotations
@@ -54,7 +44,7 @@ def _tiny_model(seed: int = 0) -> TriplaneUNet:
 
 # ----------------------------------------------------------------------------- the training step (00b)
 def _reference_step(model, opt, x0, ab, g, target: str = "x0", zero_grad: bool = True) -> float:
-    """One training step from the library's pieces: t, then noise, from ``g``; q_sample; MSE to x0; AdamW."""
+    """One training step from the library's pieces: t, then noise, from ``g``; q_sample; MSE to x0; a step."""
     t = torch.randint(0, len(ab), (x0.shape[0],), generator=g)
     noise = torch.randn(x0.shape, generator=g)
     x_t = NoiseSchedule().q_sample(_flat(x0), t, _flat(noise))
@@ -76,15 +66,12 @@ def check_training_step(fn, seed: int = 0) -> None:
     Draw ``t = torch.randint(0, T, (B,), generator=generator)`` first, then ``noise = torch.randn(x0.shape,
     generator=generator)``; noise the batch to ``x_t`` (your ``q_sample``); the loss is the mean squared error
     between ``denoise(x_t, t)`` and the clean ``x0`` (x0-prediction); clear the old gradients, backpropagate,
-    step the optimizer; return the loss as a number. Checked over two steps against the same model trained
-    by the library's pieces.
+    step the optimizer; return the loss as a number. Checked over two steps against the library's pieces.
     """
-    ab, x0 = (
-        NoiseSchedule().alphas_cumprod,
-        torch.rand(4, 3, 8, 8, generator=torch.Generator().manual_seed(seed)) * 2 - 1,
-    )
+    ab = NoiseSchedule().alphas_cumprod
+    x0 = torch.rand(4, 3, 8, 8, generator=torch.Generator().manual_seed(seed)) * 2 - 1
     models = {k: _tiny_model(seed) for k in ("yours", "library", "eps", "accumulate")}
-    # plain SGD: Adam divides by the gradient's size, which turns float rounding of tiny gradients into visible steps
+    # plain SGD: Adam divides by the gradient's size, which would turn float rounding of tiny gradients into steps
     opts = {k: torch.optim.SGD(m.parameters(), lr=0.05) for k, m in models.items()}
     gens = {k: torch.Generator().manual_seed(seed + 1) for k in models}
     start = _params(models["yours"])
@@ -129,8 +116,8 @@ def check_ddim_loop(fn, seed: int = 0, steps: int = 6) -> None:
 
     For each ``t`` in ``timesteps`` (falling, e.g. ``[999, 799, ..., 0]``): predict ``x̂0 = denoise(x, t)``
     with ``t`` as a ``[B]`` tensor, clip it to [-1, 1], and take one DDIM step to the next time step in the
-    list, or to ``-1`` (ᾱ = 1, the clean image) after the last: your ``ddim_step``. Returns the final image.
-    Compared with the package's sampler, ``sample(model, ..., method="ddim")``, on the same model and noise.
+    list, or to ``-1`` (ᾱ = 1, the clean image) after the last: your ``ddim_step``. Returns the final image,
+    compared with the package's sampler on the same model and noise.
     """
     model, ab = _tiny_model(seed).eval(), NoiseSchedule().alphas_cumprod
     ts = ddim_timesteps(1000, steps)
@@ -151,11 +138,9 @@ def check_ddim_loop(fn, seed: int = 0, steps: int = 6) -> None:
     tol = tolerance(raw, 1e-5, float(w.abs().max()))
     err = float((got - w).abs().max())
     if err > tol:
-        last = inter[-1]  # the input of the last step and its prediction
+        before_last = inter[-1]["x_t"].xy  # the input of the last step
         hints = {
-            "the loop ends with a step to t_prev = -1 (ᾱ = 1): return what that step gives, the clean image": (
-                last["x_t"].xy
-            ),
+            "the loop ends with a step to t_prev = -1 (ᾱ = 1): return what that step gives, the clean image": before_last,
             "clip the predicted x̂0 to [-1, 1] at every step, as the sampler does": _unclipped(model, x_T, ts, ab),
         }
         raise ExerciseError(
@@ -198,16 +183,12 @@ def check_masked_step(fn, seed: int = 0) -> None:
             err = float((got - want).abs().max())
             if err > tol:
                 a = float(ab[t_prev])  # at t_prev = -1: the LAST ᾱ (a usual mistake)
+                inverted, unnoised = (1 - mp) * kept + mp * xp, mp * kp + (1 - mp) * xp
+                wrapped = mp * (a**0.5 * kp + (1 - a) ** 0.5 * np_) + (1 - mp) * xp
                 hints = {
-                    "1 means keep: the mask's 1s take the (noised) known latent, its 0s keep your sample": (
-                        (1 - mp) * kept + mp * xp
-                    ),
-                    "noise the known latent to t_prev before pasting it: x is noisy at t_prev, so is what you paste": (
-                        mp * kp + (1 - mp) * xp
-                    ),
-                    "at t_prev = -1 the sample is clean: paste known itself (alphas_cumprod[-1] is ᾱ_{T-1})": (
-                        mp * (a**0.5 * kp + (1 - a) ** 0.5 * np_) + (1 - mp) * xp
-                    ),
+                    "1 means keep: the mask's 1s take the (noised) known latent, its 0s keep your sample": inverted,
+                    "noise the known latent to t_prev before pasting it: x is noisy at t_prev, so is what you paste": unnoised,
+                    "at t_prev = -1 the sample is clean: paste known itself (alphas_cumprod[-1] is ᾱ_{T-1})": wrapped,
                 }
                 raise ExerciseError(
                     f"your masked_step differs at t_prev={t_prev} on the {name} plane: max error {err:.3g}"

@@ -1,10 +1,9 @@
 """The denoiser's receptive field: how many latent texels one output texel sees (notebook 04).
 
-Sin3DM's denoiser must not see the whole latent, or it memorises the shape and every sample is a
-copy; the paper sizes its U-Net so the field covers "roughly 40 % of a 128-wide map". Two ways to
-know the field, both here: from the layers alone (:func:`layer_walk`, :func:`layers_receptive_field`:
-kernel sizes and strides), and measured (:func:`receptive_field`: the gradient of one output texel
-with respect to every input texel). The analysis is for learning; the method itself needs none of it.
+Sin3DM's denoiser must not see the whole latent, or it memorises the shape and every sample is a copy.
+The field is known two ways here: from the layers' kernel sizes and strides (:func:`layer_walk`,
+:func:`layers_receptive_field`), and measured as the gradient of one output texel with respect to every
+input texel (:func:`receptive_field`). The method itself needs none of it.
 """
 
 from __future__ import annotations
@@ -32,20 +31,18 @@ def layer_walk(model: TriplaneUNet) -> list[tuple[str, int]]:
 
 
 def analytic_receptive_field(model: TriplaneUNet) -> int:
-    """Receptive-field width in input texels of the denoiser, from its :func:`layer_walk` (:func:`layers_receptive_field`)."""
+    """Receptive-field width in input texels of the denoiser, from its :func:`layer_walk`."""
     return layers_receptive_field(layer_walk(model))
 
 
 def layers_receptive_field(layers: list[tuple[str, int]]) -> int:
     """Receptive-field width in input texels of a chain of layers, from kernel sizes and strides alone.
 
-    Walk the layers keeping the width ``r`` (texels one output texel sees) and
-    the jump ``j`` (input texels between neighbouring texels of the current
-    layer): a k×k conv adds ``(k-1)·j``; a 2×2 average pool adds ``j`` and
-    doubles ``j``; a bilinear ×2 upsample mixes two neighbouring coarse texels,
-    so it adds the coarse ``j`` and then halves it. Only the local convolution
-    paths count; the cross-plane means and GroupNorm statistics (global) do not.
-    Paper network (n=4): 1 → +4 → pool +1 (j=2) → +16 → up +2 → +4 = 28.
+    Walk the layers keeping the width ``r`` (texels one output texel sees) and the jump ``j`` (input texels
+    between neighbouring texels of the current layer): a k×k conv adds ``(k-1)·j``; a 2×2 average pool adds
+    ``j`` and doubles ``j``; a bilinear ×2 upsample mixes two neighbouring coarse texels, so it adds the coarse
+    ``j`` and then halves it. Only the local convolution paths count, not the (global) cross-plane means and
+    GroupNorm statistics. Paper network (n=4): 1 → +4 → pool +1 (j=2) → +16 → up +2 → +4 = 28.
     """
     r, j = 1, 1
     for op, k in layers:
@@ -63,20 +60,16 @@ class ReceptiveField:
     """Computed and measured receptive field of the denoiser on one plane.
 
     * ``analytic``: width in texels from the layer walk (:func:`analytic_receptive_field`).
-    * ``measured_map``: ``(A, B)`` |∂ centre output texel / ∂ input plane|, summed
-      over channels, max 1 (random weights, float64): what the network really does.
-    * ``local_map``: the same with GroupNorm statistics and cross-plane means held
-      constant, i.e. through the convolutions only.
-    * ``measured_width``: side of the box holding the texels of ``local_map`` above
-      ``threshold`` of its max (the local part; ≤ ``analytic``: the faint edge drops out).
-    * ``support_width``: the same for any non-zero ``local_map`` value (= ``analytic``
-      when the plane is wider than it).
-    * ``global_fraction``: share of ``measured_map`` texels with a non-zero gradient
-      (≈ 1.0: GroupNorm and the cross-plane means reach every texel).
-    * ``coupling`` / ``coupling_max``: median / largest ``measured_map`` value outside
-      the analytic box, relative to the peak: how strong that global part is.
-    * ``fraction``: ``analytic / plane_width`` (the paper's "≈ 40 % of a 128 map"; above 1
-      when the field is wider than the plane, and then the measured widths stop at the plane).
+    * ``measured_map``: ``(A, B)`` |∂ centre output texel / ∂ input plane|, summed over channels, max 1.
+    * ``local_map``: the same through the convolutions only (GroupNorm statistics and cross-plane means
+      held constant).
+    * ``measured_width``: side of the box holding the ``local_map`` texels above ``threshold`` of its max
+      (≤ ``analytic``: the faint edge drops out); ``support_width``: the same for any non-zero value.
+    * ``global_fraction``: share of ``measured_map`` texels with a non-zero gradient (GroupNorm and the
+      cross-plane means reach every texel).
+    * ``coupling`` / ``coupling_max``: median / largest ``measured_map`` value outside the analytic box,
+      relative to the peak: how strong that global part is.
+    * ``fraction``: ``analytic / plane_width`` (above 1 when the field is wider than the plane).
     """
 
     analytic: int
@@ -108,11 +101,11 @@ def _box_width(m: np.ndarray) -> int:
 
 
 def _probe_copy(model: TriplaneUNet, seed: int) -> tuple[TriplaneUNet, torch.Generator]:
-    """A float64 CPU copy of the network to measure on, with random weights where a layer starts at zero, and the
-    generator (seeded ``seed``) that drew them, for the input to draw from next."""
+    """A float64 CPU copy of the network, with random weights where a layer starts at zero (else the gradient
+    would be 0), and the generator (seeded ``seed``) that drew them, for the input to draw from next."""
     net = copy.deepcopy(model).to("cpu", torch.float64).eval()
     gen = torch.Generator().manual_seed(seed)
-    for m in net.modules():  # random weights where the layer starts at zero
+    for m in net.modules():
         if isinstance(m, nn.Conv2d) and not m.weight.any():
             bound = 1 / math.sqrt(m.weight[0].numel())
             m.weight.data.uniform_(-bound, bound, generator=gen)
@@ -131,32 +124,12 @@ def receptive_field(
 ) -> ReceptiveField:
     """Receptive field of the denoiser at ``resolution``: the computed width and measured gradient maps.
 
-    The field is that of one output texel of ``plane``: ``texel = (i, j)``
-    (indices along the plane's first and second axis), the centre by default.
-
-    The measurement backpropagates from the centre texel of ``plane`` to the
-    input plane on a float64 copy of the network (``model_or_cfg`` may be a
-    trained model or a config, built with random weights). Zero-initialised
-    layers (all of them in a fresh network) get random weights first,
-    otherwise the gradient would be exactly 0.
-
-    Computed and measured differ in two ways. (1) The computed width is where
-    the gradient *can* be non-zero; the gradient itself falls off towards the
-    border (many paths reach the centre, few the edge), so the field one sees
-    in the map is a little smaller (``measured_width``: 25 of 28 texels for the
-    paper network at 128). The paper quotes ≈ 40 % of a 128 map for its
-    network; the gradient through its convolutions covers 28 × 28 texels
-    (≈ 22 %, docs/paper-notes.md), exactly the computed value here.
-    (2) GroupNorm statistics and the cross-plane means couple every texel to
-    every other one: formally the field is global. The coupling is weak and
-    shrinks as the map grows: GroupNorm's scales like 1 / texels per norm group
-    (paper network without rollout at 128: ≤ 1.2e-3 of the peak); the rollout's
-    is strongest in the bands of rows and columns through the local field (the
-    centre of xy sees whole rows through xz and whole columns through yz):
-    with random weights at 128, median 1.4e-3 and at most ≈ 3 % of the peak;
-    on a 32 map ten times more. So the local width is measured with both
-    switched off (``local_map``) and the global part is reported on its own
-    (``global_fraction``, ``coupling``).
+    The field is that of one output texel of ``plane``, ``texel = (i, j)`` (the centre by default),
+    measured by backpropagating to the input plane on a float64 copy of the network (``model_or_cfg``: a
+    trained model, or a config built with random weights). The gradient falls off towards the border of
+    the computed field, so the measured width is a little smaller. GroupNorm statistics and the cross-plane
+    means couple every texel to every other one, weakly: the local width is measured with both switched off
+    (``local_map``) and the global part reported on its own (``global_fraction``, ``coupling``).
     """
     if isinstance(model_or_cfg, DiffusionConfig):
         with torch.random.fork_rng(devices=[]):
@@ -169,7 +142,7 @@ def receptive_field(
     x = Triplane.randn(1, net.latent_channels, res, generator=gen).to(torch.float64)
     t_, k = torch.tensor([net.cfg.timesteps // 2 if t is None else t]), PLANES.index(plane)
     a, b = x.planes[k].shape[-2:]
-    ca, cb = (a // 2, b // 2) if texel is None else (int(texel[0]), int(texel[1]))
+    ca, cb = (a // 2, b // 2) if texel is None else map(int, texel)
     if not (0 <= ca < a and 0 <= cb < b):
         raise ValueError(f"texel {texel} is outside the {plane} plane of {a}×{b} texels")
     full = _texel_gradient(net, x, t_, k, (ca, cb))
@@ -197,10 +170,4 @@ def receptive_field(
     )
 
 
-__all__ = [
-    "ReceptiveField",
-    "analytic_receptive_field",
-    "layer_walk",
-    "layers_receptive_field",
-    "receptive_field",
-]
+__all__ = ["ReceptiveField", "analytic_receptive_field", "layer_walk", "layers_receptive_field", "receptive_field"]

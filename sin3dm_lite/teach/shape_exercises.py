@@ -1,20 +1,9 @@
-"""Exercises on the shape side: the grid's box, retargeting, an edit's masks, tangent frames.
+"""Exercises on the shape side: the grid's box (notebook 01), retargeting (00), an edit's masks (06), tangent
+frames (08).
 
-Like :mod:`~sin3dm_lite.teach.exercises`: each check calls your function on random inputs, compares its
-answer with the package's own code, prints one line when they agree and raises
-:class:`~sin3dm_lite.teach.checking.ExerciseError` when they do not, saying where and, for the usual
-mistakes, why.
-
-======================================  =========================================  ===========================
-check                                   you write                                  the library's version
-======================================  =========================================  ===========================
-:func:`check_grid_box` (notebook 01)    ``grid_box(extent, resolution)``           ``box.grid_shape``, ``box.centred_box``
-:func:`check_retarget` (notebook 00)    ``retarget(resolution, aabb, factors)``    ``control.retarget``
-:func:`check_regenerate_mask` (06)      ``regenerate_mask(resolution, box, border)``  ``control.regenerate``
-:func:`check_tangent_frames` (08)       ``tangent_frames(vertices, faces, uvs)``   ``mesh_io.tangent_frames``
-======================================  =========================================  ===========================
-
-Solutions are in ``notebooks/solutions/``.
+Like :mod:`~sin3dm_lite.teach.exercises`: each check compares your function with the package's own code on
+random inputs, prints one line when they agree and raises :class:`~sin3dm_lite.teach.checking.ExerciseError`
+when they do not, saying where and, for the usual mistakes, why. Solutions are in ``notebooks/solutions/``.
 """
 
 from __future__ import annotations
@@ -25,13 +14,7 @@ from ..data.box import centred_box, grid_shape
 from ..data.mesh import tangent_frames
 from ..generate.control import regenerate, retarget
 from ..model.triplane import PLANE_AXES, PLANES, Triplane
-from .checking import ExerciseError, as_array, call, matching_hint, passed, tolerance
-
-
-def _pair(name: str, out, what: str):
-    if not (isinstance(out, (tuple, list)) and len(out) == 2):
-        raise ExerciseError(f"your {name} should return two things: {what}")
-    return out
+from .checking import ExerciseError, as_array, call, matching_hint, parts, passed, tolerance
 
 
 def _counts(name: str, value, what: str) -> tuple[int, ...]:
@@ -49,10 +32,6 @@ def _box6(name: str, value) -> np.ndarray:
     except (TypeError, ValueError):
         raise ExerciseError(f"your {name} returned a {type(value).__name__}, expected six numbers") from None
     return as_array(name, flat, (6,))
-
-
-def _up8(n) -> np.ndarray:
-    return np.maximum(8, np.ceil(np.asarray(n) / 8) * 8)
 
 
 # ----------------------------------------------------------------------------- the grid (notebook 01)
@@ -80,21 +59,19 @@ def check_grid_box(fn, seed: int = 0) -> None:
     for extent, res in cases:
         want_shape = grid_shape(extent, res, multiple=8)
         want_box = centred_box(want_shape).astype(np.float64)
-        shape, box = _pair("grid_box", call("grid_box", fn, extent.copy(), res), "(shape, aabb)")
+        shape, box = parts("grid_box", call("grid_box", fn, extent.copy(), res), 2, "two things: (shape, aabb)")
         shape = _counts("grid_box", shape, "shape")
         where = f"for extent {extent.round(4).tolist()} at resolution {res}"
         if shape != want_shape:
             share = res * extent / extent.max()
+            rounded = np.maximum(8, np.ceil(np.round(share) / 8) * 8)
+            to_nearest = np.maximum(8, np.round(np.floor(share) / 8) * 8)
             hints = {
                 "every axis gets at least 8 voxels (np.maximum(8, ...)): a flat sheet's thin side still needs a grid "
                 "around it": np.ceil(np.floor(share) / 8) * 8,
-                "int(...) rounds down: a share of 24.6 voxels is 24 before it is rounded up to a multiple of 8": _up8(
-                    np.round(share)
-                ),
+                "int(...) rounds down: a share of 24.6 voxels is 24 before it is rounded up to a multiple of 8": rounded,
                 "round each count UP to a multiple of 8 (8, 16, 24, ...)": np.floor(share),
-                "round each count up to a multiple of 8 (np.ceil(n / 8) * 8), not to the nearest one": np.maximum(
-                    8, np.round(np.floor(share) / 8) * 8
-                ),
+                "round each count up to a multiple of 8 (np.ceil(n / 8) * 8), not to the nearest one": to_nearest,
             }
             raise ExerciseError(
                 f"{where} your shape is {shape}, the library's {want_shape}"
@@ -103,14 +80,11 @@ def check_grid_box(fn, seed: int = 0) -> None:
         got_box = _box6("grid_box (aabb)", box)
         if not np.allclose(got_box, want_box, rtol=0, atol=1e-6):
             half = extent / extent.max()
+            extent_box, unit_box = np.concatenate([-half, half]), np.array([-1.0] * 3 + [1.0] * 3)
             hints = {
                 "the box follows the voxel counts, ±n_axis / n_max, not the shape's extent: the counts were "
-                "rounded up, so the box holds a little room around the shape and every voxel stays a cube": np.concatenate(
-                    [-half, half]
-                ),
-                "only the longest axis spans [-1, 1]: the others span ±n_axis / n_max": np.array(
-                    [-1.0] * 3 + [1.0] * 3
-                ),
+                "rounded up, so the box holds a little room around the shape and every voxel stays a cube": extent_box,
+                "only the longest axis spans [-1, 1]: the others span ±n_axis / n_max": unit_box,
                 "the order is (xmin, ymin, zmin, xmax, ymax, zmax)": want_box.reshape(2, 3).T.reshape(-1),
             }
             raise ExerciseError(
@@ -147,7 +121,7 @@ def check_retarget(fn, seed: int = 0) -> None:
         aabb = centred_box(res)
         plan = retarget(Triplane.randn(1, 1, res), aabb, f)
         out = call("retarget", fn, tuple(res), aabb.copy(), tuple(float(v) for v in f))
-        new_res, new_box = _pair("retarget", out, "(new_resolution, new_aabb)")
+        new_res, new_box = parts("retarget", out, 2, "two things: (new_resolution, new_aabb)")
         new_res = _counts("retarget", new_res, "new_resolution")
         where = f"for latent {res} and factors {tuple(round(float(v), 3) for v in f)}"
         if new_res != plan.resolution:
@@ -165,12 +139,11 @@ def check_retarget(fn, seed: int = 0) -> None:
         if not np.allclose(got, want, rtol=1e-5, atol=1e-6):
             lo, hi = aabb[:3].astype(np.float64), aabb[3:].astype(np.float64)
             scale = np.array(plan.resolution) / np.array(res)
+            one_corner = np.concatenate([lo, lo + (hi - lo) * scale])
             hints = {
                 "scale the box by new / old texels (the rounded ratio), not by the factor asked for: then every "
                 "texel keeps its size": np.concatenate([lo * f, hi * f]),
-                "the box grows about its centre (the origin): scale both corners": np.concatenate(
-                    [lo, lo + (hi - lo) * scale]
-                ),
+                "the box grows about its centre (the origin): scale both corners": one_corner,
             }
             raise ExerciseError(
                 f"{where} (latent {new_res}) your box is {got.round(4).tolist()}, the library's "
@@ -233,8 +206,7 @@ def check_regenerate_mask(fn, seed: int = 0) -> None:
     for res, box, border in cases:
         plan = regenerate(Triplane.randn(1, 1, res), centred_box(res), box, border)
         out = call("regenerate_mask", fn, tuple(res), box, border)
-        if not (isinstance(out, (tuple, list)) and len(out) == 3):
-            raise ExerciseError("your regenerate_mask should return three masks: (xy, xz, yz)")
+        parts("regenerate_mask", out, 3, "three masks: (xy, xz, yz)")
         spans = [round(lo * n) == 0 and round(hi * n) == n for lo, hi, n in zip(*box, res)]
         for plane, (a, b), got, want in zip(PLANES, PLANE_AXES.values(), out, plan.mask.planes):
             want = want[0, 0].numpy().astype(np.float64)
@@ -300,8 +272,7 @@ def check_tangent_frames(fn, seed: int = 0) -> None:
     vertices, faces, uvs = _triangles(np.random.default_rng(seed))
     t, b, n = tangent_frames(vertices, faces, uvs)
     out = call("tangent_frames", fn, vertices.copy(), faces.copy(), uvs.copy())
-    if not (isinstance(out, (tuple, list)) and len(out) == 3):
-        raise ExerciseError("your tangent_frames should return three arrays: (T, B, N)")
+    parts("tangent_frames", out, 3, "three arrays: (T, B, N)")
     tri = vertices[faces]
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     d1, d2 = uvs[:, 1] - uvs[:, 0], uvs[:, 2] - uvs[:, 0]
