@@ -1,36 +1,17 @@
 """sin3dm-lite: a readable reimplementation of Sin3DM (ICLR 2024) for learning and for use.
 
-From one textured mesh: a truncated SDF + colour grid, a triplane latent, a
-small-receptive-field diffusion model on the triplane, and new textured
-meshes. One sub-package per stage, in the order data flows; a module imports
-only from its own level or a lower one (``tests/test_architecture.py`` holds the
-table of levels and checks it, imports inside functions included)::
-
-    0 base      errors · files: atomic · confined · locks · manifest · outputs · inputs · app.device · app.threads
-    1 data      presets (top level) · data: config · box · mesh (the mesh type) · distance · tsdf (truncated SDF
-                on a grid and at points) · grid (mesh → TSDF) · source (a fit's input by name) · formats: the file readers and
-                writers (load, export, obj, mtl, gltf, scene, images) · examples: the built-in shapes and the ruin
-    2 model     model: triplane · training · autoencoder · decode · unet · schedule (noise, the steps visited) ·
-                diffusion (training, sampling)
-    3 generate  generate: control (what to sample: outpaint, ...) · bake (textures) · extract (SDF → textured mesh)
-    4 evaluate  evaluate: geometry · patches · texture · features · ssfid · metrics (all of them) · render ·
-                calibration_record · calibrate · evaluation (samples against the input)
-    5 show      show: figures · data/model/diffusion/sample/eval_figures · viz · camera · viewer · pages · explorer ·
-                sampling_widgets · widgets
-    5 teach     teach: lesson2d · receptive_field · exercises, shape_exercises, loop_exercises · checking
-    6 app       pipeline (Sin3DM: fit, sample, save, load, each a call into:) · app: fitting · sampling ·
-                run_folder · checkpoints · model_file · runs · pretrained · request · mass · mass_folder ·
-                mass_workers · values · notebook_run · auto (what a fit decides, beyond the paper): fit_default ·
-                fit_policy · review · calibration · cli: parser_cli · values_cli · fit_cli · sample_cli ·
-                evaluate_cli
+From one textured mesh: a truncated SDF + colour grid, a triplane latent, a small-receptive-field diffusion model
+on the triplane, and new textured meshes. One sub-package per stage, in the order data flows (base, ``data``,
+``model``, ``generate``, ``evaluate``, ``show`` and ``teach``, then the app: ``pipeline``, ``app``, ``auto``,
+``cli``); a module imports only from its own level or a lower one (``tests/test_architecture.py`` holds the table,
+docs/architecture.md describes it).
 
 Everything a notebook or script needs is importable from here::
 
     from sin3dm_lite import Sin3DM, get_preset, build_example, mesh_to_grid, extract_mesh
 
-The names load on first use, so ``import sin3dm_lite`` stays quick (the CLI
-answers bad arguments before torch is imported). The Show modules are used as
-namespaces: ``from sin3dm_lite import viz, widgets, viewer``.
+The names load on first use, so ``import sin3dm_lite`` stays quick (the CLI answers bad arguments before torch is
+imported). The Show modules are used as namespaces: ``from sin3dm_lite import viz, widgets, viewer``.
 """
 
 from __future__ import annotations
@@ -39,7 +20,7 @@ import importlib
 
 from .app.threads import apply_policy as _apply_thread_policy
 
-_apply_thread_policy()  # before torch loads: one CPU thread, idle threads sleep (threads.py says why)
+_apply_thread_policy()  # before torch loads (app/threads.py says why)
 
 __version__ = "0.1.0"
 
@@ -147,22 +128,19 @@ _API = {
 
 #: module-valued public names (namespaces a notebook uses: ``viz.plot_slice``) → the module
 _MODULES = {
-    name: module
-    for name, module in (
-        ("viz", "show.viz"),
-        ("widgets", "show.widgets"),
-        ("viewer", "show.viewer"),
-        ("metrics", "evaluate.metrics"),
-        ("render", "evaluate.render"),
-        ("examples", "examples"),
-        ("box", "data.box"),
-        ("extract", "generate.extract"),
-        ("control", "generate.control"),
-        ("export", "formats.export"),
-        ("mesh_io", "formats.load"),
-        ("lesson2d", "teach.lesson2d"),
-        ("exercises", "teach.exercises"),
-    )
+    "viz": "show.viz",
+    "widgets": "show.widgets",
+    "viewer": "show.viewer",
+    "metrics": "evaluate.metrics",
+    "render": "evaluate.render",
+    "examples": "examples",
+    "box": "data.box",
+    "extract": "generate.extract",
+    "control": "generate.control",
+    "export": "formats.export",
+    "mesh_io": "formats.load",
+    "lesson2d": "teach.lesson2d",
+    "exercises": "teach.exercises",
 }
 
 __all__ = sorted(_API) + sorted(_MODULES)

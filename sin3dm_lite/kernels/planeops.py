@@ -1,11 +1,11 @@
 """The rollout's repeated means in a TriplaneConv, convolved in 1D and added without building full-size copies.
 
-In the cross-plane rollout (the paper's Fig. 3b) each plane's Conv2d also reads the two other planes
-mean-pooled along the axis this plane lacks, each repeated along one of its axes. The convolution is linear, so
-:class:`~sin3dm_lite.model.unet.TriplaneConv` convolves the plane's own channels and each repeated mean apart.
-A repeated mean is constant along its axis, so its convolution's output there only changes within ``k//2``
-texels of the borders (zero padding): :func:`conv_repeated` computes its ``k`` distinct values per texel of the
-other axis with one 1D convolution, and :func:`add_repeated` adds them, repeated, to the plane's own output.
+In the cross-plane rollout (the paper's Fig. 3b) each plane's Conv2d also reads the two other planes mean-pooled
+along the axis this plane lacks, each repeated along one of its axes. A repeated mean is constant along its axis,
+so its convolution's output there changes only within ``k//2`` texels of the borders: :func:`conv_repeated`
+computes its ``k`` distinct values with one 1D convolution, :func:`add_repeated` adds them, repeated, to the
+plane's own output (:class:`~sin3dm_lite.model.unet.TriplaneConv` convolves the parts apart: the convolution is
+linear).
 """
 
 from __future__ import annotations
