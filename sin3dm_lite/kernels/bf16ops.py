@@ -68,10 +68,10 @@ def _decode(flat: torch.Tensor, params: list[torch.Tensor], fused_first: bool) -
 
 def _chunk(xc, w, bias, zc, out, fused_first: bool = True, bufs=(None, None)):
     """One chunk of points ``xc`` (bf16) through the six layers, as autocast computes them: each ``Linear`` an
-    ``addmm`` of bf16 casts (fused with its ReLU, :func:`linear_relu`), but the first on a strided 3D input (the
-    lookup's features) the product and then the bias, as ``F.linear`` computes it (``fused_first`` False); the skip
-    ``[y2 | x]`` written into ``zc``, the output into ``out``. Returns the post-ReLU activations ``y0, y1, y3, y4``
-    (with ``bufs``, where torch's own path writes them: ``y3`` over ``y0``'s buffer, ``y4`` over ``y1``'s)."""
+    ``addmm`` fused with its ReLU, but the first on a strided 3D input the product and then the bias, as
+    ``F.linear`` computes it (``fused_first`` False); the skip ``[y2 | x]`` written into ``zc``, the output into
+    ``out``. Returns the post-ReLU activations ``y0, y1, y3, y4`` (with ``bufs``, where torch's own path writes
+    them: ``y3`` over ``y0``'s buffer, ``y4`` over ``y1``'s)."""
     h = w[0].shape[0]
     if fused_first:
         y0 = linear_relu(xc, w[0], bias[0], bufs[0])
