@@ -23,6 +23,7 @@ import torch
 
 from ..app.device import bf16_is_fast, cpu_bf16_share, get_device
 from ..data.config import Config
+from ..errors import Sin3DMInputError
 from ..presets import get_preset
 
 #: the grid and the calibration, as a share of the two trainings' time
@@ -142,8 +143,6 @@ def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, st
     """The settings that keep a fit of ``cfg`` (estimated ``seconds``, :func:`estimate_fit`) within ``minutes``, and
     the line that says so: both networks train for the same share of their steps. ``{}`` where the estimate already
     fits; a budget that would leave less than :data:`LEAST_STEPS_SHARE` of the steps is refused."""
-    from ..errors import Sin3DMInputError
-
     training = seconds["autoencoder"] + seconds["denoiser"]
     share = _share_within(seconds, minutes)
     if share < LEAST_STEPS_SHARE:

@@ -40,7 +40,7 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
             stacklevel=3,
         )
     if psnr is not None and psnr < MIN_PSNR:
-        doublings = min(3, math.ceil((MIN_PSNR - psnr) / 1.3))  # about 1.3 dB per doubling of the steps
+        doublings = min(3, math.ceil((MIN_PSNR - psnr) / 1.3))  # doublings that make up the missing dB, at most 3
         warnings.warn(
             f"low reconstruction quality: colour PSNR {psnr:.2f} dB < {MIN_PSNR:.0f} dB (likely cause: too "
             "few autoencoder steps for this texture's detail: each doubling gave about 1.3 dB on a "
