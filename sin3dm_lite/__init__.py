@@ -1,36 +1,17 @@
 """sin3dm-lite: a readable reimplementation of Sin3DM (ICLR 2024) for learning and for use.
 
-From one textured mesh: a truncated SDF + colour grid, a triplane latent, a
-small-receptive-field diffusion model on the triplane, and new textured
-meshes. One sub-package per stage, in the order data flows; a module imports
-only from its own level or a lower one (``tests/test_architecture.py`` holds the
-table of levels and checks it, imports inside functions included)::
-
-    0 base      errors · files: atomic · confined · locks · manifest · outputs · inputs · app.device · app.threads
-    1 data      presets (top level) · data: config · box · mesh (the mesh type) · distance · tsdf (truncated SDF
-                on a grid and at points) · grid (mesh → TSDF) · source (a fit's input by name) · formats: the file readers and
-                writers (load, export, obj, mtl, gltf, scene, images) · examples: the built-in shapes and the ruin
-    2 model     model: triplane · training · autoencoder · decode · unet · schedule (noise, the steps visited) ·
-                diffusion (training, sampling)
-    3 generate  generate: control (what to sample: outpaint, ...) · bake (textures) · extract (SDF → textured mesh)
-    4 evaluate  evaluate: geometry · patches · texture · features · ssfid · metrics (all of them) · render ·
-                calibration_record · calibrate · evaluation (samples against the input)
-    5 show      show: figures · data/model/diffusion/sample/eval_figures · viz · camera · viewer · pages · explorer ·
-                sampling_widgets · widgets
-    5 teach     teach: lesson2d · receptive_field · exercises, shape_exercises, loop_exercises · checking
-    6 app       pipeline (Sin3DM: fit, sample, save, load, each a call into:) · app: fitting · sampling ·
-                run_folder · checkpoints · model_file · runs · pretrained · request · mass · mass_folder ·
-                mass_workers · values · notebook_run · auto (what a fit decides, beyond the paper): fit_default ·
-                fit_policy · review · calibration · cli: parser_cli · values_cli · fit_cli · sample_cli ·
-                evaluate_cli
+From one textured mesh: a truncated SDF + colour grid, a triplane latent, a small-receptive-field diffusion model
+on the triplane, and new textured meshes. One sub-package per stage, in the order data flows (base, ``data``,
+``model``, ``generate``, ``evaluate``, ``show`` and ``teach``, then the app: ``pipeline``, ``app``, ``auto``,
+``cli``); a module imports only from its own level or a lower one (``tests/test_architecture.py`` holds the table,
+docs/architecture.md describes it).
 
 Everything a notebook or script needs is importable from here::
 
     from sin3dm_lite import Sin3DM, get_preset, build_example, mesh_to_grid, extract_mesh
 
-The names load on first use, so ``import sin3dm_lite`` stays quick (the CLI
-answers bad arguments before torch is imported). The Show modules are used as
-namespaces: ``from sin3dm_lite import viz, widgets, viewer``.
+The names load on first use, so ``import sin3dm_lite`` stays quick (the CLI answers bad arguments before torch is
+imported). The Show modules are used as namespaces: ``from sin3dm_lite import viz, widgets, viewer``.
 """
 
 from __future__ import annotations
@@ -39,130 +20,74 @@ import importlib
 
 from .app.threads import apply_policy as _apply_thread_policy
 
-_apply_thread_policy()  # before torch loads: one CPU thread, idle threads sleep (threads.py says why)
+_apply_thread_policy()  # before torch loads (app/threads.py says why)
 
 __version__ = "0.1.0"
 
-#: public name → module that defines it
-_API = {
+#: module → the public names it defines
+_NAMES = {
     # facade and settings
-    "Sin3DM": "pipeline",
-    "Samples": "app.sampling",
-    "resolve_mesh": "data.source",
-    "Config": "data.config",
-    "get_preset": "presets",
-    "notebook_preset": "presets",
-    "fast_mode": "presets",
-    "pretrained_path": "app.pretrained",
-    "shipped_names": "app.pretrained",
-    "shipped_examples": "app.pretrained",
-    "open_run": "pipeline",
-    "Sin3DMInputError": "errors",
-    "get_device": "app.device",
-    "count_parameters": "app.device",
+    "pipeline": "Sin3DM open_run",
+    "app.sampling": "Samples",
+    "data.source": "resolve_mesh",
+    "data.config": "Config",
+    "presets": "get_preset notebook_preset fast_mode",
+    "app.pretrained": "pretrained_path shipped_names shipped_examples",
+    "errors": "Sin3DMInputError",
+    "app.device": "get_device count_parameters",
     # data
-    "DEFAULT_EXAMPLE": "examples",
-    "build_example": "examples",
-    "list_examples": "examples",
-    "write_example": "examples",
-    "TexturedMesh": "data.mesh",
-    "Material": "data.mesh",
-    "Normalization": "data.mesh",
-    "load_mesh": "formats.load",
-    "load_any": "formats.load",
-    "tangent_frames": "data.mesh",
-    "grid_shape": "data.box",
-    "margin_scale": "data.box",
-    "ShapeGrid": "data.grid",
-    "PBR_CHANNELS": "data.grid",
-    "mesh_to_grid": "data.grid",
-    "load_grid": "data.grid",
-    "save_grid": "data.grid",
+    "examples": "DEFAULT_EXAMPLE build_example list_examples write_example",
+    "data.mesh": "TexturedMesh Material Normalization tangent_frames",
+    "formats.load": "load_mesh load_any",
+    "data.box": "grid_shape margin_scale",
+    "data.grid": "ShapeGrid PBR_CHANNELS mesh_to_grid load_grid save_grid",
     # model
-    "Triplane": "model.triplane",
-    "TriplaneEncoder": "model.autoencoder",
-    "TriplaneDecoder": "model.autoencoder",
-    "AutoencoderTrainer": "model.autoencoder",
-    "grid_tensor": "model.autoencoder",
-    "decode_grid": "model.decode",
-    "prepare": "model.decode",
-    "query_points": "model.decode",
-    "reconstructed_grid": "model.decode",
-    "TriplaneUNet": "model.unet",
-    "TriplaneConv": "model.unet",
-    "rollout_parts": "model.unet",
-    "block_layout": "model.unet",
-    "receptive_field": "teach.receptive_field",
-    "analytic_receptive_field": "teach.receptive_field",
-    "layer_walk": "teach.receptive_field",
-    "layers_receptive_field": "teach.receptive_field",
-    "NoiseSchedule": "model.schedule",
-    "ddim_timesteps": "model.schedule",
-    "DiffusionTrainer": "model.diffusion",
-    "sample": "model.diffusion",
-    "predict_clean": "model.diffusion",
-    "diffusion_loss": "model.diffusion",
-    "triplane_mse": "model.diffusion",
+    "model.triplane": "Triplane",
+    "model.autoencoder": "TriplaneEncoder TriplaneDecoder AutoencoderTrainer grid_tensor",
+    "model.decode": "decode_grid prepare query_points reconstructed_grid",
+    "model.unet": "TriplaneUNet TriplaneConv rollout_parts block_layout",
+    "teach.receptive_field": "receptive_field analytic_receptive_field layer_walk layers_receptive_field",
+    "model.schedule": "NoiseSchedule ddim_timesteps",
+    "model.diffusion": "DiffusionTrainer sample predict_clean diffusion_loss triplane_mse",
     # generate
-    "extract_mesh": "generate.extract",
-    "marching_cubes": "generate.extract",
-    "pbr_maps": "generate.bake",
-    "export_mesh": "formats.export",
+    "generate.extract": "extract_mesh marching_cubes",
+    "generate.bake": "pbr_maps",
+    "formats.export": "export_mesh",
     # eval
-    "reconstruction_metrics": "evaluate.metrics",
-    "voxelize": "evaluate.metrics",
-    "input_occupancy": "evaluate.metrics",
-    "iou": "evaluate.metrics",
-    "g_div": "evaluate.metrics",
-    "lp_scores": "evaluate.metrics",
-    "geometry_scores": "evaluate.metrics",
-    "patch_swd": "evaluate.metrics",
-    "render_div": "evaluate.metrics",
-    "texture_scores": "evaluate.metrics",
-    "load_feature_weights": "evaluate.metrics",
-    "sifid": "evaluate.metrics",
-    "lpips": "evaluate.metrics",
-    "ssfid": "evaluate.ssfid",
-    "load_ssfid_classifier": "evaluate.ssfid",
-    "calibrate_diversity": "evaluate.calibrate",
-    "Calibration": "evaluate.calibration_record",
+    "evaluate.metrics": (
+        "reconstruction_metrics voxelize input_occupancy iou g_div lp_scores geometry_scores patch_swd render_div "
+        "texture_scores load_feature_weights sifid lpips"
+    ),
+    "evaluate.ssfid": "ssfid load_ssfid_classifier",
+    "evaluate.calibrate": "calibrate_diversity",
+    "evaluate.calibration_record": "Calibration",
     # exercises: write a piece of the method, check it against the library
-    "ExerciseError": "teach.checking",
-    "check_q_sample": "teach.exercises",
-    "check_ddpm_posterior": "teach.exercises",
-    "check_ddim_step": "teach.exercises",
-    "check_triplane_lookup": "teach.exercises",
-    "check_receptive_field": "teach.exercises",
-    "check_rollout": "teach.exercises",
-    "check_best_patch_iou": "teach.exercises",
-    "check_grid_box": "teach.shape_exercises",
-    "check_retarget": "teach.shape_exercises",
-    "check_regenerate_mask": "teach.shape_exercises",
-    "check_tangent_frames": "teach.shape_exercises",
-    "check_training_step": "teach.loop_exercises",
-    "check_ddim_loop": "teach.loop_exercises",
-    "check_masked_step": "teach.loop_exercises",
-    "image_denoiser": "teach.loop_exercises",
+    "teach.checking": "ExerciseError",
+    "teach.exercises": (
+        "check_q_sample check_ddpm_posterior check_ddim_step check_triplane_lookup check_receptive_field "
+        "check_rollout check_best_patch_iou"
+    ),
+    "teach.shape_exercises": "check_grid_box check_retarget check_regenerate_mask check_tangent_frames",
+    "teach.loop_exercises": "check_training_step check_ddim_loop check_masked_step image_denoiser",
 }
+#: public name → module that defines it
+_API = {name: module for module, names in _NAMES.items() for name in names.split()}
 
 #: module-valued public names (namespaces a notebook uses: ``viz.plot_slice``) → the module
 _MODULES = {
-    name: module
-    for name, module in (
-        ("viz", "show.viz"),
-        ("widgets", "show.widgets"),
-        ("viewer", "show.viewer"),
-        ("metrics", "evaluate.metrics"),
-        ("render", "evaluate.render"),
-        ("examples", "examples"),
-        ("box", "data.box"),
-        ("extract", "generate.extract"),
-        ("control", "generate.control"),
-        ("export", "formats.export"),
-        ("mesh_io", "formats.load"),
-        ("lesson2d", "teach.lesson2d"),
-        ("exercises", "teach.exercises"),
-    )
+    "viz": "show.viz",
+    "widgets": "show.widgets",
+    "viewer": "show.viewer",
+    "metrics": "evaluate.metrics",
+    "render": "evaluate.render",
+    "examples": "examples",
+    "box": "data.box",
+    "extract": "generate.extract",
+    "control": "generate.control",
+    "export": "formats.export",
+    "mesh_io": "formats.load",
+    "lesson2d": "teach.lesson2d",
+    "exercises": "teach.exercises",
 }
 
 __all__ = sorted(_API) + sorted(_MODULES)

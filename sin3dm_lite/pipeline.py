@@ -4,18 +4,9 @@
     samples = model.sample(4, seed=0)                                  # new triplanes from noise
     meshes = model.to_mesh(samples)                                    # decoded, textured meshes
 
-Each method is a call into the stage that does the work, so a reader follows one of them to one module:
-
-    fit                       app.fitting (the stages; app.run_folder: the run folder; auto: what a fit decides)
-    sample, plan, to_mesh     app.sampling (settings left at None: app.request.SampleRequest.resolve)
-    save, load                app.checkpoints (model.pt)
-    open                      app.runs (what RUN names), then fit or load
-    calibrate                 auto.calibration (the diversity knob; not in the paper)
-    occupancy, evaluate, ...  evaluate.evaluation (samples against the input)
-    plot_beside_input         show.sample_figures
-
-A fit writes a *run folder* (its files: :mod:`sin3dm_lite.app.run_folder`); ``fit(..., resume=True)`` continues an
-interrupted run and ends exactly where an uninterrupted one would.
+Each method is a call into the module that does the work: ``fit`` app.fitting, ``sample``, ``plan`` and
+``to_mesh`` app.sampling, ``save`` and ``load`` app.checkpoints, ``open`` app.runs, ``calibrate`` auto.calibration,
+``occupancy``, ``evaluate`` and the like evaluate.evaluation, ``plot_beside_input`` show.sample_figures.
 """
 
 from __future__ import annotations
@@ -72,7 +63,6 @@ class Sin3DM:
         self.report = report or {}
         self.schedule = NoiseSchedule.from_config(config.diffusion)
 
-    # ------------------------------------------------------------------ fit
     @classmethod
     def fit(
         cls,
@@ -90,13 +80,11 @@ class Sin3DM:
         """Fit Sin3DM to one textured mesh (a path, a ``TexturedMesh`` or an example name): mesh → TSDF + colour
         grid → triplane autoencoder (the input's latent) → diffusion model on that latent (the paper's Sec. 4).
 
-        ``preset``: a preset's name or a :class:`Config` (default: the one for this machine and this shape,
-        :mod:`sin3dm_lite.auto.fit_default`). ``pbr``: learn metallic, roughness and normals too (default: when the
-        mesh has such maps). ``allow_outside_paths``: let the mesh name textures outside its folder. With ``out`` a
-        run folder is written, checkpointed and locked (:mod:`sin3dm_lite.app.run_folder`); ``resume=True``
-        continues it from its last checkpoint with its own settings, and ends where an uninterrupted fit would.
-        ``calibrate``: choose the run's diversity at the end (not in the paper; default: for the CPU presets,
-        :mod:`sin3dm_lite.auto.calibration`).
+        ``preset``: a name or a :class:`Config` (default: :mod:`sin3dm_lite.auto.fit_default`'s for this machine and
+        shape). ``pbr``: learn metallic, roughness and normals too (default: when the mesh has such maps).
+        ``allow_outside_paths``: let the mesh name textures outside its folder. With ``out`` a run folder is written
+        and checkpointed; ``resume=True`` continues it and ends where an uninterrupted fit would. ``calibrate``:
+        choose the run's diversity at the end (not in the paper; default: for the CPU presets).
         """
         from .app.fitting import fit
 
@@ -113,14 +101,12 @@ class Sin3DM:
         supersample: int | None = None,
         **options,
     ) -> Calibration:
-        """Set ``config.sampling.diversity`` to the most varied setting whose samples keep the input's patches
-        (not in the paper, which samples from pure noise; the rule and its arguments:
-        :func:`sin3dm_lite.auto.calibration.calibrate_model`). :meth:`save` keeps the choice."""
+        """Set ``config.sampling.diversity`` to the most varied setting whose samples keep the input's patches (not in
+        the paper; :func:`sin3dm_lite.auto.calibration.calibrate_model`). :meth:`save` keeps the choice."""
         from .auto.calibration import calibrate_model
 
         return calibrate_model(self, reference, input_mesh, progress, resolution, supersample, **options)
 
-    # --------------------------------------------------------------- sample
     @torch.no_grad()
     def sample(
         self,
@@ -161,8 +147,7 @@ class Sin3DM:
         return sampling.plan_for(self, resize, outpaint, anchor, regenerate, duplicate, plan)
 
     def max_samples(self, resize=(1.0, 1.0, 1.0)) -> int:
-        """How many samples one :meth:`sample` call can hold: the denoiser keeps about 16 feature maps of its
-        widest layer per sample, and half the free memory of the device may go to them (at most 10,000)."""
+        """How many samples one :meth:`sample` call can hold in half the device's free memory (at most 10,000)."""
         return sampling.max_samples(self, resize)
 
     def with_denoiser(self, denoiser: torch.nn.Module, diffusion: DiffusionConfig) -> Sin3DM:
@@ -175,7 +160,6 @@ class Sin3DM:
         """The input's own latent as a one-item :class:`Samples` (decode it to see the reconstruction)."""
         return Samples(self.latent.clone(), self.aabb.copy())
 
-    # -------------------------------------------------------------- to mesh
     def to_mesh(
         self,
         samples: Samples,
@@ -189,7 +173,6 @@ class Sin3DM:
         """Decode samples into textured meshes (all of them, or the one at ``index``)."""
         return sampling.decode(self, samples, index, resolution, faces, texture_size, vertex_colors, original_coords)
 
-    # ------------------------------------------------------- against the input
     def same_voxels(self, samples: Samples, resolution: int) -> int:
         """Voxels along the longest side of ``samples``' box with the voxel size the input's box has at
         ``resolution``: a retargeted or outpainted sample compared with the input voxel for voxel."""
@@ -204,8 +187,8 @@ class Sin3DM:
 
     def occupancy(self, samples: Samples, resolution=128, mesh_resolution: int | None = None, supersample: int = 1):
         """Each sample's mesh as an occupancy grid over its box, ``resolution`` voxels along the longest side (a
-        list: ``{resolution: [grids]}``), what the paper's geometry metrics take; a sample with no surface counts as
-        an empty or full grid; ``supersample=2`` voxelises as the paper does (:func:`evaluation.occupancy`)."""
+        list: ``{resolution: [grids]}``), what the paper's geometry metrics take; ``supersample=2`` voxelises as the
+        paper does (:func:`evaluation.occupancy`)."""
 
         def to_mesh(i: int) -> TexturedMesh:
             return self.to_mesh(samples, i, resolution=mesh_resolution, original_coords=False, vertex_colors=True)
@@ -241,10 +224,8 @@ class Sin3DM:
     ) -> dict:
         """The paper's metrics of generated shapes (a :class:`Samples`, or meshes in the input file's coordinates)
         against the input mesh (default: :meth:`input_mesh`): G-Div, LP-IoU, LP-F and the IoU on ``resolution``
-        voxels (the paper's 128; several give ``geometry_at``), and on ``views`` renders of ``size`` pixels patch
-        SWD, render diversity, SIFID and LPIPS (those two with ``weights``); SSFID is
-        :func:`sin3dm_lite.evaluate.ssfid.ssfid` (:func:`~sin3dm_lite.evaluate.evaluation.evaluate` says what
-        each returns, docs/paper-notes.md how)."""
+        voxels (several give ``geometry_at``), and on ``views`` renders of ``size`` pixels patch SWD, render
+        diversity, SIFID and LPIPS (those two with ``weights``); :func:`evaluation.evaluate` says what each returns."""
         nets = evaluation.feature_nets(weights)
         ref = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
         to_meshes = self.to_mesh if isinstance(samples, Samples) else list
@@ -252,7 +233,6 @@ class Sin3DM:
             samples, to_meshes, ref, self.normalization, self.aabb, resolution, views, size, nets, progress, supersample
         )
 
-    # ------------------------------------------------------------ save/load
     def save(self, run_dir: str | Path) -> Path:
         """Write ``model.pt`` (everything sampling needs) and ``config.json`` into ``run_dir``."""
         return write_model(self, Path(run_dir))
@@ -260,7 +240,7 @@ class Sin3DM:
     @classmethod
     def open(cls, run, preset=None, cache="runs/cache", device=None, progress: bool = True) -> Sin3DM:
         """The model ``run`` names: a shipped model, a run folder, or a mesh / example fitted once into ``cache``
-        with ``preset`` and reused after (:mod:`sin3dm_lite.app.runs`); its ``run_dir`` is the folder it came from."""
+        with ``preset`` and reused after; its ``run_dir`` is the folder it came from."""
         from .app.runs import fit_preset, resolve_run
 
         kind, folder = resolve_run(run, preset, cache)

@@ -11,11 +11,12 @@
 ``paper``  the paper's numbers (256 voxels, 25k + 25k steps) for one GPU.
 =========  ==========================================================================================================
 
-Which one a fit takes when none is named (this machine, this shape) is :mod:`sin3dm_lite.auto.fit_default`'s
-choice; a named preset is used as it is. The evidence behind each number: docs/presets.md.
+Without a named preset a fit takes :mod:`sin3dm_lite.auto.fit_default`'s choice for this machine and shape.
 """
 
 from __future__ import annotations
+
+import os
 
 from .data.config import AutoencoderConfig, Config, DiffusionConfig, GridConfig, SamplingConfig
 from .errors import Sin3DMInputError
@@ -35,9 +36,8 @@ def _tiny() -> Config:
 
 
 def _small() -> Config:
-    # grid: the paper's σ 0.005 (a wider band erodes the surface) and a margin of 3.25 voxels, off the voxel centres;
-    # autoencoder: the paper's width, 2,000 steps; denoiser: one level, no rollout (on a 32-texel latent the plane
-    # means tell every texel the global layout, and samples copy the input); diversity 0.7, calibrated per shape.
+    # The paper's σ (a wider band erodes the surface); no rollout: on a 32-texel latent the plane means tell every
+    # texel the global layout, and samples copy the input.
     return Config(
         name="small",
         grid=GridConfig(resolution=64, n_surface_points=300_000, margin_voxels=3.25),
@@ -57,8 +57,8 @@ def _small() -> Config:
     )
 
 
-#: ``quick``'s light autoencoder in place of ``small``'s: its MLPs are most of a fit, and without fast bf16 they run
-#: in fp32. Textures of 512² (its colour is blurrier anyway; a quarter of the texels to bake).
+#: ``quick``'s light autoencoder in place of ``small``'s (its MLPs are most of a fit, in fp32 without fast bf16),
+#: with 512² textures: its colour is blurrier anyway.
 LIGHT_AUTOENCODER = {
     "autoencoder.mlp_hidden": 128,
     "autoencoder.points_per_step": 4096,
@@ -69,16 +69,12 @@ LIGHT_AUTOENCODER = {
 
 
 def _quick() -> Config:
-    # 1,000 denoiser steps: once calibrated, the same figures as 1,500 within a few hundredths on five shapes.
     return _small().updated(name="quick", **{**LIGHT_AUTOENCODER, "diffusion.steps": 1000})
 
 
 def _detail() -> Config:
-    # A part 3-6 voxels thick at 64 is 1.5-3 texels of a 32-texel latent, too few to keep; at 96 voxels it has
-    # half again as many, and 4 ResBlocks keep the field's share of the latent. The cross-plane rollout makes the
-    # three planes agree on where a wall or a column stands. Sampled from pure noise, as in the paper. The denoiser
-    # trains in bf16 where the CPU runs it faster ("auto"; a tenth to a quarter off its step at 96 voxels), else in
-    # fp32, for 1,000 steps (a fit of a tower within 12 minutes with its calibration at 128 voxels; docs/presets.md).
+    # A thin part has half again as many texels at 96 voxels, and 4 ResBlocks keep the field's share of the
+    # latent; the cross-plane rollout makes the three planes agree on where a wall or a column stands.
     return _small().updated(
         name="detail",
         **{
@@ -94,8 +90,7 @@ def _detail() -> Config:
 
 
 def _fine() -> Config:
-    # Without fast bf16 the 96-voxel denoiser runs in fp32: batches of 4 instead of 8 halve its time (batches of 4
-    # scored as 6 on the thin-walled test ruins, docs/presets.md).
+    # Without fast bf16 the 96-voxel denoiser runs in fp32: batches of 4 instead of 8 halve its time.
     return _detail().updated(name="fine", **{**LIGHT_AUTOENCODER, "diffusion.batch_size": 4})
 
 
@@ -104,7 +99,6 @@ def _paper() -> Config:
         name="paper",
         grid=GridConfig(resolution=256, n_surface_points=2_000_000),
         autoencoder=AutoencoderConfig(),
-        # bf16 autocast where it measures faster, and a compiled training step (docs/performance.md)
         diffusion=DiffusionConfig(precision="auto", compile=True),
         sampling=SamplingConfig(steps=100, mesh_resolution=256, faces=50_000, texture_size=2048),
         checkpoint_every=2500,
@@ -123,8 +117,6 @@ def get_preset(name: str) -> Config:
 
 def fast_mode() -> bool:
     """True when the ``SIN3DM_FAST`` environment variable asks for tiny settings (CI, tests)."""
-    import os
-
     return os.environ.get("SIN3DM_FAST", "0") not in ("", "0", "false", "False")
 
 

@@ -1,7 +1,6 @@
-"""Calibrating a fitted model's diversity knob: the choice :func:`~sin3dm_lite.evaluate.calibrate.calibrate_diversity`
-makes, on the input's occupancy, kept in the model's config and report (``Sin3DM.calibrate``; ``fit`` runs it for
-the CPU presets, :func:`calibrates`; ``sin3dm-lite calibrate RUN`` runs it on a fitted run). Not in the paper: the
-paper samples from pure noise, the knob's value 1.
+"""Calibrating a fitted model's diversity knob: :func:`~sin3dm_lite.evaluate.calibrate.calibrate_diversity`'s
+choice on the input's occupancy, kept in the model's config and report. Not in the paper, which samples from pure
+noise (the knob's value 1).
 """
 
 from __future__ import annotations
@@ -15,19 +14,12 @@ from ..evaluate import evaluation
 from ..evaluate.calibration_record import Calibration
 
 #: the presets whose fits choose their diversity by default: the CPU ones, whose short training leaves a knob curve
-#: that differs from shape to shape (``tiny`` is for tests; ``paper`` samples from pure noise, as the paper does)
+#: that differs from shape to shape (``paper`` samples from pure noise, as the paper does)
 CALIBRATED = ("small", "quick", "detail", "fine")
-
-
-#: where a fit's calibration judges the finer presets' samples: the paper's evaluation grid, against the input mesh
-#: and by the paper's voxels (any of 2³ sub-voxels inside: of a branch one or two voxels thick the centres hold a part)
+#: where a fit's calibration judges the finer presets' samples: the paper's evaluation grid and voxels
 PAPER_RESOLUTION = 128
-
-
-#: the goals' caps where the calibration judges as the paper measures (:data:`PAPER_RESOLUTION`, against the mesh):
-#: none, so each goal is its share of the shape's own near copy (LP-F 85 %, LP-IoU 65 %), the default's measure
-#: there; on a training grid the absolute goals (``evaluate.calibrate.GOALS``) cap them (a 64-voxel near
-#: copy keeps almost every patch, and 85 % of it asks for near copies; docs/calibration.md)
+#: the goals' caps at :data:`PAPER_RESOLUTION`: none, each goal is its share of the shape's own near copy; on a
+#: training grid, whose near copy keeps almost every patch, the absolute goals (``evaluate.calibrate.GOALS``) cap them
 UNCAPPED = {"lp_iou": 1.0, "lp_fscore": 1.0}
 
 
@@ -43,9 +35,8 @@ def calibrates(cfg) -> bool:
 
 def judged_at(cfg) -> int | None:
     """The resolution a fit of ``cfg`` calibrates at: :data:`PAPER_RESOLUTION` for a training grid finer than 64
-    voxels (``detail``, ``fine``: thin walls, which the 96-voxel training grid judges far more harshly than the
-    paper's 128: a tower's choice there gave near copies, G-Div 0.044, at 128 varied ones, 0.106-0.115, with LP-F
-    83 % of its near copy; docs/presets.md), else None: the training grid itself, which is fast."""
+    voxels (``detail``, ``fine``: thin walls, which a 96-voxel training grid judges far more harshly), else None:
+    the training grid itself, which is fast."""
     return PAPER_RESOLUTION if cfg.grid.resolution > 64 else None
 
 
@@ -60,16 +51,13 @@ def calibrate_model(
 ) -> Calibration:
     """Set ``model.config.sampling.diversity`` to the most varied setting whose samples keep the input's patches.
 
-    :func:`~sin3dm_lite.evaluate.calibrate.calibrate_diversity` draws a few samples at a handful of settings and scores them with the paper's
-    LP-IoU / LP-F against ``reference``, the input's occupancy on the model's box (default: ``input_mesh``, a
-    mesh, path or example name, or else the model's input, voxelised at ``resolution`` voxels along the longest
-    side: by default the fit's grid, which is fast; 128 judges as the paper measures, in about four times the
-    time, docs/calibration.md). ``supersample``: the voxels judged, 1 the voxel centres (the default on the fit's
-    grid, whose training grid is the centres' signs), 2 the paper's (the default at another ``resolution``:
-    ``evaluate``'s voxels, so the judge sees what it reports). The choice and what was tried land in
-    ``report["calibration"]``; ``options`` go to ``calibrate_diversity`` (``goals``, by default
-    :func:`default_goals` for the grid judged on; ``n``, ``seed``, ``lowest``, ``step``, ``margin``, ``refine``,
-    ``caution``, ``safety``, ``relative``, ``far``).
+    :func:`~sin3dm_lite.evaluate.calibrate.calibrate_diversity` draws a few samples at a handful of settings and
+    scores them with the paper's LP-IoU / LP-F against ``reference``, the input's occupancy on the model's box
+    (default: ``input_mesh``, a mesh, path or example name, or else the model's input, voxelised at ``resolution``
+    voxels along the longest side, by default the fit's grid). ``supersample``: the voxels judged, 1 the voxel
+    centres (the default on the fit's grid), 2 the paper's (the default at another ``resolution``). The choice and
+    what was tried land in ``report["calibration"]``; ``options`` go to ``calibrate_diversity`` (``goals`` by
+    default :func:`default_goals` for the grid judged on).
     """
     if reference is None:
         mesh = model.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)

@@ -1,27 +1,15 @@
 """The preset a fit takes when none is named: the one this machine and this shape need, said first with why and
 how long.
 
-The machine:
+The machine: a CUDA GPU takes ``paper``; a CPU where bf16 measures faster than fp32 ``small`` (its autoencoder in
+bf16); any other CPU ``quick`` (a light autoencoder in fp32). The shape: on a CPU, a shape mostly of thin parts
+(more than :data:`MOSTLY_THIN` of its solid removed by an opening with a ball of :data:`THIN_RADIUS` voxels) takes
+the finer grid, wider field and cross-plane rollout of :data:`FINER`'s preset. A preset named by the user wins.
 
-* a CUDA GPU: ``paper`` (the paper's settings; its denoiser in bf16 and compiled);
-* a CPU where bf16 measures faster than fp32 (:func:`~sin3dm_lite.app.device.bf16_is_fast`): ``small``, whose
-  paper-width autoencoder then runs in bf16;
-* any other CPU: ``quick``, a light autoencoder in fp32 (``small``'s takes about 4x as long there).
-
-The shape (on a CPU, where the grid is coarse): **a shape that is mostly thin parts gets the finer grid**
-(:data:`FINER`: ``detail`` for ``small``, ``fine`` for ``quick``). Thin means thinner than 7 voxels at 64, which is
-3.5 texels of the 32-texel latent: a morphological opening with a ball of :data:`THIN_RADIUS` voxels removes such
-parts (:meth:`ShapeGrid.thin_share`), and "mostly" is more than half of the solid (:data:`MOSTLY_THIN`). Walls and
-columns of that size lose their shape in ``small``'s latent; at 96 voxels they have half again as many texels, and
-``detail``'s wider field and cross-plane rollout keep them whole. The rule is measured on the shape, not tuned on
-one: docs/presets.md shows where it switches on a sweep of generated families and the built-ins.
-
-A preset named by the user always wins. The time is an estimate from a few training steps of the chosen preset
-timed here, on a synthetic shape at its grid (:func:`estimate_fit`), so it follows this machine, its threads
-and whatever else runs on it now; the grid and the calibration add a share of the training (:data:`OTHER_SHARE`).
-A time budget (``fit --minutes N``, :func:`within_minutes`) trains both networks for fewer steps when the estimate
-is longer, never below half of the preset's; without one, the default keeps to about :data:`DEFAULT_MINUTES` on a
-CPU (:func:`default_budget`), never below :data:`DEFAULT_LEAST_SHARE` of the steps.
+The time is estimated from a few training steps of the chosen preset timed here on a synthetic shape
+(:func:`estimate_fit`). A budget (``fit --minutes N``, :func:`within_minutes`) trains both networks for fewer steps
+where the estimate is longer; without one, the default keeps to about :data:`DEFAULT_MINUTES` on a CPU
+(:func:`default_budget`).
 """
 
 from __future__ import annotations
@@ -35,34 +23,28 @@ import torch
 
 from ..app.device import bf16_is_fast, cpu_bf16_share, get_device
 from ..data.config import Config
+from ..errors import Sin3DMInputError
 from ..presets import get_preset
 
-#: the grid and the calibration beside the two trainings: 5-20 % of the training's time in the fits of
-#: docs/performance.md and docs/presets.md, the most on the finer grid
+#: the grid and the calibration, as a share of the two trainings' time
 OTHER_SHARE = 0.2
-#: the same where the calibration judges at 128 voxels by the paper's voxels (``detail``, ``fine``:
-#: :func:`auto.calibration.judged_at`): a quarter to two fifths of the training in the fits of docs/calibration.md
-#: (towers, a town, a tree; in bf16 or fp32 alike); its time follows the surface to decode
+#: the same where the calibration judges at 128 voxels by the paper's voxels (``detail``, ``fine``)
 OTHER_SHARE_AT_128 = 0.35
-#: training steps timed per network (after one untimed step)
+#: training steps timed per network (after untimed ones)
 TIMED_STEPS = 3
 #: the finer preset of each CPU preset, for a shape that is mostly thin parts
 FINER = {"small": "detail", "quick": "fine"}
-#: the opening's ball radius, in voxels of the 64-voxel grid: 7 voxels across along the axes, it removes parts thinner
-#: than about 7 voxels; 3.5 rather than 3, whose ball is thinner between the axes and kept most of a round wall 6
-#: voxels thick (the issue's real tower has walls of 3-6; the sweep in docs/presets.md shows both radii)
+#: the opening's ball radius, in voxels of the 64-voxel grid: it removes parts thinner than about 7 voxels (3.5
+#: rather than 3, whose ball is thinner between the axes)
 THIN_RADIUS = 3.5
 #: more than this share of the solid in thin parts: the finer grid
 MOSTLY_THIN = 0.5
-#: the fewest training steps a time budget leaves, as a share of the preset's: the presets were judged at their own
-#: steps, and half of them is as far as a budget goes (a shorter one asks for a lighter preset)
+#: the fewest training steps a time budget leaves, as a share of the preset's (a shorter budget asks for a lighter
+#: preset)
 LEAST_STEPS_SHARE = 0.5
-#: the fit without a preset or a budget keeps to about this many minutes on a CPU: where this machine's estimate is
-#: longer (a slower CPU, another job beside), both networks train for fewer steps (:func:`default_budget`)
+#: the fit without a preset or a budget keeps to about this many minutes on a CPU (:func:`default_budget`) ...
 DEFAULT_MINUTES = 11
-#: ... but never fewer than this share of the preset's: at 80 % of `detail`'s steps a geometry-only tower kept its
-#: samples' patches and variety (at 60 % it lost LP-F: 0.776 and 0.761 → 0.720), the colonnade lost 5 % of LP-F
-#: (0.815 → 0.775; docs/presets.md); where that is not enough the fit takes longer than the budget, and says how long
+#: ... but never trains fewer than this share of the preset's steps, and then says how long it takes
 DEFAULT_LEAST_SHARE = 0.8
 
 
@@ -101,8 +83,8 @@ def choose_preset(device=None) -> tuple[str, str]:
 
 
 def thin_share(mesh, cfg: Config) -> float:
-    """The share of ``mesh``'s solid in parts thinner than about 7 voxels, on ``cfg``'s grid (a few seconds; what
-    the grid warns of, the fit's own grid says again)."""
+    """The share of ``mesh``'s solid in parts thinner than about 7 voxels, on ``cfg``'s grid (its warnings silenced:
+    the fit's own grid says them again)."""
     from ..data.grid import mesh_to_grid
 
     g = cfg.grid
@@ -115,9 +97,8 @@ def thin_share(mesh, cfg: Config) -> float:
 
 
 def one_colour(mesh, n_points: int = 4000) -> bool:
-    """Whether ``mesh``'s surface has one colour (a mesh without colour: the default grey), checked at
-    ``n_points`` surface points as the grid checks it (``ShapeGrid.single_color``): its autoencoder then learns the
-    geometry alone, about half the work a step, which the estimate times so (a PBR mesh never counts)."""
+    """Whether ``mesh``'s surface has one colour, checked at ``n_points`` surface points as the grid checks it: its
+    autoencoder then learns the geometry alone, which the estimate times so (a PBR mesh never counts)."""
     from ..data.grid import ONE_COLOUR_TOLERANCE
 
     if mesh is None or mesh.has_pbr:
@@ -140,14 +121,11 @@ def for_shape(name: str, mesh) -> tuple[str, str, float | None]:
         return name, "", None
     share = thin_share(mesh, get_preset(name))
     if share > MOSTLY_THIN:
-        return (
-            FINER[name],
-            (
-                f" and this shape ({share:.0%} of it in parts under 7 voxels thick at 64 voxels: the finer grid, the "
-                "wider field and the cross-plane rollout keep them whole)"
-            ),
-            share,
+        why = (
+            f" and this shape ({share:.0%} of it in parts under 7 voxels thick at 64 voxels: the finer grid, the "
+            "wider field and the cross-plane rollout keep them whole)"
         )
+        return FINER[name], why, share
     return name, f" and this shape ({share:.0%} of it in thin parts: its 64-voxel grid holds it)", share
 
 
@@ -163,11 +141,8 @@ def default_preset(device=None, mesh=None, timed: bool = True) -> DefaultPreset:
 
 def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, str]:
     """The settings that keep a fit of ``cfg`` (estimated ``seconds``, :func:`estimate_fit`) within ``minutes``, and
-    the line that says so: both networks train for the same share of their steps, what the budget leaves after the
-    grid and the calibration (those stay as estimated). ``{}`` where the estimate already fits; a budget that would
-    leave less than :data:`LEAST_STEPS_SHARE` of the steps is refused (one line: the least it needs)."""
-    from ..errors import Sin3DMInputError
-
+    the line that says so: both networks train for the same share of their steps. ``{}`` where the estimate already
+    fits; a budget that would leave less than :data:`LEAST_STEPS_SHARE` of the steps is refused."""
     training = seconds["autoencoder"] + seconds["denoiser"]
     share = _share_within(seconds, minutes)
     if share < LEAST_STEPS_SHARE:
@@ -185,9 +160,9 @@ def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, st
 
 def default_budget(cfg: Config, seconds: dict | None) -> tuple[dict, str | None]:
     """What the fit without a preset (``cfg``, estimated ``seconds``) changes to keep to about
-    :data:`DEFAULT_MINUTES` on a CPU, and the line that says so: like ``--minutes`` (:func:`within_minutes`), but
-    never below :data:`DEFAULT_LEAST_SHARE` of the steps and never refused. ``({}, None)`` where the estimate fits,
-    without one, and for ``paper`` (a GPU's; its steps are the paper's)."""
+    :data:`DEFAULT_MINUTES`, and the line that says so: like :func:`within_minutes`, but never below
+    :data:`DEFAULT_LEAST_SHARE` of the steps and never refused. ``({}, None)`` where the estimate fits, without one,
+    and for ``paper`` (its steps are the paper's)."""
     if not seconds or cfg.name == "paper":
         return {}, None
     share = max(DEFAULT_LEAST_SHARE, _share_within(seconds, DEFAULT_MINUTES))
@@ -222,10 +197,9 @@ def _steps_at(cfg: Config, share: float) -> tuple[dict, str]:
 
 
 def timing_grid(resolution: int, n_points: int = 20_000, box=None, one_colour: bool = False):
-    """A synthetic shape for timing: a ball in a box of ``resolution`` × half × half voxels (about the built-ins'
-    proportions; ``box``: the sides over the longest of the shape to fit), coloured by position, or grey all over
-    (``one_colour``: the autoencoder then trains its geometry alone); a step's cost depends on the grid's size,
-    the points and the colours, not on the shape."""
+    """A synthetic shape for timing (a step's cost depends on the grid's size, the points and the colours, not on
+    the shape): a ball in a box of ``resolution`` × half × half voxels (``box``: the sides over the longest of the
+    shape to fit), coloured by position, or grey all over (``one_colour``)."""
     from ..data.box import grid_shape
     from ..data.grid import ShapeGrid
     from ..data.mesh import Normalization
@@ -252,8 +226,8 @@ def timing_grid(resolution: int, n_points: int = 20_000, box=None, one_colour: b
 
 def _seconds_per_step(trainer) -> float:
     """The fastest of :data:`TIMED_STEPS` steps of ``trainer`` after two untimed ones (the first ones allocate)."""
-    trainer.step()
-    trainer.step()
+    for _ in range(2):
+        trainer.step()
     times = []
     for _ in range(TIMED_STEPS):
         t0 = time.perf_counter()
@@ -263,20 +237,18 @@ def _seconds_per_step(trainer) -> float:
 
 
 def other_share(cfg: Config) -> float:
-    """The grid and the calibration as a share of the training's time: :data:`OTHER_SHARE`, or where a fit of ``cfg``
-    calibrates at 128 voxels (``detail``, ``fine``) :data:`OTHER_SHARE_AT_128`; a preset that does not calibrate
-    (``paper``) keeps the plain share."""
+    """The grid and the calibration as a share of the training's time: :data:`OTHER_SHARE_AT_128` where a fit of
+    ``cfg`` calibrates at 128 voxels, else :data:`OTHER_SHARE`."""
     from .calibration import calibrates, judged_at
 
     return OTHER_SHARE_AT_128 if calibrates(cfg) and judged_at(cfg) else OTHER_SHARE
 
 
 def estimate_fit(cfg: Config, device=None, box=None, one_colour: bool = False) -> dict:
-    """About how long a fit of ``cfg`` takes on ``device``: a few steps of its autoencoder and its denoiser timed on
-    :func:`timing_grid` (the denoiser uncompiled: a compiled one runs faster once compiled), times their steps, plus
-    :data:`OTHER_SHARE` for the grid and the calibration. ``box``: the shape's proportions (:func:`proportions`;
-    default 1 × ½ × ½); ``one_colour``: the shape has one colour (:func:`one_colour`). Seconds: ``autoencoder``,
-    ``denoiser``, ``other``, ``total``. The random state is left as it was."""
+    """About how long a fit of ``cfg`` takes on ``device``, in seconds (``autoencoder``, ``denoiser``, ``other``,
+    ``total``): a few steps of each network timed on :func:`timing_grid` (the denoiser uncompiled), times their
+    steps, plus :func:`other_share` for the grid and the calibration. ``box``: the shape's proportions
+    (:func:`proportions`); ``one_colour``: :func:`one_colour`. The random state is left as it was."""
     from ..model.autoencoder import AutoencoderTrainer
     from ..model.diffusion import DiffusionTrainer
 

@@ -1,13 +1,11 @@
-"""What a fit says about its input and settings: beyond the paper, plain functions a test or a notebook can ask.
-
-* :func:`choose_pbr`, :func:`check_flips`: which variant to fit, and settings that do not go together;
-* :func:`warn_if_poor`: a reconstruction too poor for useful samples, with the setting to fit again with;
-* :func:`from_noise_distance` / :func:`copies_warning`: a fit whose samples from pure noise are the input.
-"""
+"""What a fit says about its input and settings, beyond the paper: which variant to fit (:func:`choose_pbr`),
+settings that do not go together (:func:`check_flips`), a reconstruction too poor for useful samples
+(:func:`warn_if_poor`) and samples from pure noise that copy the input (:func:`copies_warning`)."""
 
 from __future__ import annotations
 
 import math
+import warnings
 
 from ..data.config import Config
 from ..data.mesh import TexturedMesh
@@ -17,32 +15,21 @@ from ..model.diffusion import check_flips as check_flip_axes
 from ..presets import PRESETS
 
 MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
-MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 % (the colonnade example gets 20)
-
-
-# --------------------------------------------------------------------------- advice
-def preset_expr(cfg: Config) -> str:
-    """How a user names the run's preset in Python: ``preset=get_preset('small')`` (or ``your Config``)."""
-    base = cfg.name.split("+")[0]
-    return f"preset=get_preset('{base}')" if base in PRESETS else "your Config"
+MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 %
 
 
 def refit_advice(cfg: Config, setting: str, value, also: str = "") -> str:
     """ "fit again with SETTING=VALUE (CLI: --set ...; Python: ...)" for the run's ``cfg``."""
-    python = f"{preset_expr(cfg)}.updated(**{{'{setting}': {value!r}}})"
+    base = cfg.name.split("+")[0]
+    preset = f"preset=get_preset('{base}')" if base in PRESETS else "your Config"
+    python = f"{preset}.updated(**{{'{setting}': {value!r}}})"
     cli = str(value).lower() if isinstance(value, bool) else value
     return f"fit again with {setting}={cli}{also} (CLI: --set {setting}={cli}; Python: {python})"
 
 
 def warn_if_poor(rec: dict, cfg: Config) -> None:
     """Warn when the autoencoder's reconstruction is too poor for useful samples, with the likely cause and the
-    setting of the run's ``cfg`` to fit again with.
-
-    Colour: more autoencoder steps, about 1.3 dB per doubling (docs/lab-notes.md; a finer grid is not the fix
-    there). Occupancy: more steps or a finer grid.
-    """
-    import warnings
-
+    setting of the run's ``cfg`` to fit again with (colour: more steps; occupancy: more steps or a finer grid)."""
     iou, psnr, steps = rec.get("occupancy_iou"), rec.get("color_psnr"), cfg.autoencoder.steps
     if iou is not None and iou < MIN_IOU:
         finer = f" or grid.resolution={8 * round(1.5 * cfg.grid.resolution / 8)}"
@@ -53,7 +40,7 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
             stacklevel=3,
         )
     if psnr is not None and psnr < MIN_PSNR:
-        doublings = min(3, math.ceil((MIN_PSNR - psnr) / 1.3))  # about 1.3 dB per doubling of the steps
+        doublings = min(3, math.ceil((MIN_PSNR - psnr) / 1.3))  # doublings that make up the missing dB, at most 3
         warnings.warn(
             f"low reconstruction quality: colour PSNR {psnr:.2f} dB < {MIN_PSNR:.0f} dB (likely cause: too "
             "few autoencoder steps for this texture's detail: each doubling gave about 1.3 dB on a "
@@ -63,18 +50,15 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
         )
 
 
-# --------------------------------------------------------------------------- copies from pure noise
-#: samples from pure noise whose latents lie closer to the input's than this (mean squared difference over the
-#: input latent's variance, :func:`from_noise_distance`) may be copies; where the fit calibrated, the decoded
-#: samples at diversity 1 decide instead (their G-Div under :data:`VARIED_G_DIV`)
+#: samples from pure noise whose latents lie closer to the input's than this (:func:`from_noise_distance`) may be
+#: copies; where the fit calibrated, the G-Div of its samples at diversity 1 decides instead
 COPIES_DISTANCE = 0.07
 
 
 def from_noise_distance(model, n: int = 4, seed: int = 0) -> float:
     """How far ``n`` samples from pure noise (diversity 1) lie from the input's latent: their mean squared
-    difference over the input latent's variance, all channels (0: copies; a shape whose samples move its parts
-    0.1 or more). Colour counts: a tiled slab whose samples keep its geometry but reshuffle the tiles' colours
-    is no copy (geometry channels alone 0.005, all 0.108)."""
+    difference over the input latent's variance, all channels (0: copies). Colour counts: samples that keep the
+    geometry but reshuffle the colours are no copies."""
     planes = model.sample(n, seed=seed, diversity=1.0, progress=False).triplane.planes
     ref = model.latent.planes
     diff = sum(float(((p - r.to(p)) ** 2).mean()) for p, r in zip(planes, ref))
@@ -91,9 +75,8 @@ def g_div_at_one(calibration: dict | None) -> float | None:
 def copies_warning(cfg: Config, distance: float, g_div: float | None = None) -> str | None:
     """What a fit warns when even its samples from pure noise are (near) copies of the input, else None: the
     calibration's samples at diversity 1 vary less than G-Div :data:`VARIED_G_DIV` or, without them, their latents
-    lie near the input's (:data:`COPIES_DISTANCE`). The denoiser's field then holds the shape's whole layout, the
-    paper's "too large a receptive field overfits"; no diversity setting varies it. The advice: a narrower field,
-    or for the 96-voxel presets the 64-voxel one (the same field, a coarser latent: more of the layout varies)."""
+    lie near the input's (:data:`COPIES_DISTANCE`). The denoiser's field then holds the shape's whole layout (the
+    paper's "too large a receptive field overfits"); the advice is a narrower field, or a coarser latent."""
     if (g_div >= VARIED_G_DIV) if g_div is not None else (distance >= COPIES_DISTANCE):
         return None
     d = cfg.diffusion
@@ -110,7 +93,6 @@ def copies_warning(cfg: Config, distance: float, g_div: float | None = None) -> 
     )
 
 
-# --------------------------------------------------------------------------- variants
 def choose_pbr(mesh: TexturedMesh, pbr: bool | None, preset, say) -> bool:
     """Whether to fit the PBR variant: asked for, or (``pbr=None``) whenever the mesh has PBR maps."""
     already = isinstance(preset, Config) and preset.autoencoder.pbr

@@ -11,25 +11,12 @@
     sin3dm-lite calibrate RUN_DIR [--resolution 128]    choose the run's diversity for its shape (fit does it too)
     sin3dm-lite --version                               the installed version
 
-With no arguments it prints the help; every option's help shows its default.
+Every user error prints one line naming the problem and the fix, and exits with code 2. No command overwrites a
+file it did not write (``--overwrite`` replaces only what its manifest, ``.sin3dm-manifest.json``, lists); outputs
+are checked before the long work, written into a temporary folder beside the target and moved into place.
 
-Every user error prints one line naming the problem and the fix, and exits
-with code 2 (no traceback).
-
-No command deletes or overwrites a file it did not write: an output folder
-that is not empty is refused unless ``--overwrite`` is given, and then only
-the files its manifest (``.sin3dm-manifest.json``, written by this tool) lists
-as written there by the same command are replaced (a file of the same name that another
-command wrote there is refused by name). Outputs are checked (writable, not overlapping the run
-folder or the input) before the long work starts; results are written into a
-temporary folder beside the target (``.sin3dm-tmp-<pid>@<machine>-*``, removed by
-the next run on that machine if the process was killed) and moved into place at the end.
-``sample`` and ``demo`` move each sample folder into place as it finishes and
-continue a folder of samples with the same settings (:mod:`sin3dm_lite.app.mass`).
-
-The parser is in ``parser`` (argparse stays inside this package); the commands in ``fitting``
-(examples, grid, fit), ``sampling`` (sample, demo) and ``evaluation`` (render, evaluate,
-calibrate); ``main`` here runs one and turns user errors into one line.
+The parser is in ``parser_cli``; the commands in ``fit_cli`` (examples, grid, fit), ``sample_cli`` (sample, demo)
+and ``evaluate_cli`` (render, evaluate, calibrate); ``main`` here runs one and turns user errors into one line.
 """
 
 from __future__ import annotations
@@ -48,21 +35,19 @@ from .sample_cli import cmd_demo, cmd_sample, sample_request
 
 
 def disk_error(e: OSError, out: str | None = None, has_out: bool = True) -> str:
-    """One line for a failed write or read (in this process or in an export worker): what, where and the fix.
-
-    ``out``: the command's ``--out``, named when the error names no file (a ``write`` on a full disk);
-    ``has_out``: whether the command has an ``--out`` to suggest (``notebooks`` and ``calibrate`` have none).
-    """
+    """One line for a failed write or read: what, where and the fix (``out``: the command's ``--out``, named when
+    the error names no file; ``has_out``: whether the command has an ``--out`` to suggest)."""
     import errno
 
     from ..files import shown_path
 
     where = f" {shown_path(e.filename)}" if e.filename else ""
+    other = " or choose another --out" if has_out else ""
     if e.errno in (errno.ENOSPC, errno.EDQUOT):
         what = "no space left on device" if e.errno == errno.ENOSPC else "disk quota exceeded"
         where = where or (f" into '{out}'" if out else " the output")
-        return f"{what} while writing{where}; free space{' or choose another --out' if has_out else ''}"
-    return f"{e.strerror or e}{where}; check that path (permissions, free space){' or choose another --out' * has_out}"
+        return f"{what} while writing{where}; free space{other}"
+    return f"{e.strerror or e}{where}; check that path (permissions, free space){other}"
 
 
 def cmd_notebooks(a) -> None:
@@ -75,8 +60,7 @@ def cmd_notebooks(a) -> None:
 
 @contextmanager
 def sigterm_as_interrupt():
-    """While a command runs, SIGTERM raises :class:`errors.Terminated` (a ``KeyboardInterrupt``): the command
-    stops as after Ctrl-C, keeping what finished and removing its temporaries, instead of dying where it stands."""
+    """While a command runs, SIGTERM raises :class:`errors.Terminated`: the command stops as after Ctrl-C."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -107,14 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with sigterm_as_interrupt():
             run_command(a)
-    except Sin3DMInputError as e:
-        print(f"sin3dm-lite {a.command}: error: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:  # the disk, not the code: a full disk, a folder made read-only meanwhile
-        print(
-            f"sin3dm-lite {a.command}: error: {disk_error(e, getattr(a, 'out', None), hasattr(a, 'out'))}",
-            file=sys.stderr,
-        )
+    except (Sin3DMInputError, OSError) as e:  # OSError: the disk, not the code (full, made read-only meanwhile)
+        why = e if isinstance(e, Sin3DMInputError) else disk_error(e, getattr(a, "out", None), hasattr(a, "out"))
+        print(f"sin3dm-lite {a.command}: error: {why}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:
         how = "terminated" if isinstance(e, Terminated) else "interrupted"

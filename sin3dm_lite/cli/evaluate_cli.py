@@ -27,7 +27,7 @@ def cmd_render(a) -> None:
     from ..formats.images import png_bytes
 
     out = Path(a.out)
-    check_views(a.views, a.size, ("--views", "--size"))  # what Sin3DM.evaluate's views and size are checked by
+    check_views(a.views, a.size, ("--views", "--size"))
     if not -89 <= a.elevation <= 89:
         raise Sin3DMInputError(f"--elevation must be from -89 to 89 degrees, got {a.elevation}")
     names = view_names(a.views) + ["contact_sheet.png"]
@@ -101,7 +101,7 @@ def cmd_evaluate(a) -> None:
     from ..formats.load import load_any
     from ..pipeline import Sin3DM
 
-    check_views(a.views, a.size, ("--views", "--size"))  # the checks Sin3DM.evaluate's arguments get
+    check_views(a.views, a.size, ("--views", "--size"))
     if a.resolution:
         check_resolutions(a.resolution, "--resolution")
     supersample = _supersample(a.voxels)
@@ -133,8 +133,7 @@ def cmd_evaluate(a) -> None:
         except Sin3DMInputError as e:
             raise Sin3DMInputError(f"cannot read sample mesh '{f}': {e}") from None
     t0 = time.perf_counter()
-    # the paper's 128 voxels, and the fit's own grid beside it (where the calibration judged)
-    grids = a.resolution or [128, model.grid_resolution]
+    grids = a.resolution or [128, model.grid_resolution]  # the paper's, and the fit's own grid beside it
     result = model.evaluate(
         meshes, reference, resolution=grids, views=a.views, size=a.size, weights=nets, supersample=supersample
     )
@@ -150,11 +149,10 @@ def cmd_calibrate(a) -> None:
     from ..files import acquire_lock, check_writable, refuse_links, release_lock
 
     run = find_run(a.run)
-    shipped = is_shipped(run)  # a shipped model's folder is part of the installed package: print only
-    if not shipped:
+    shipped = is_shipped(run)  # part of the installed package: print only
+    if not shipped:  # calibrate replaces files there: never through a link, never beside a fit --resume
         check_writable(run, option="run folder")
-        refuse_links(run, option="run folder")  # calibrate replaces files there: never through a link
-        # calibrate rewrites config.json, model.pt and report.json: no fit --resume meanwhile
+        refuse_links(run, option="run folder")
         acquire_lock(run, "run folder", option=None)
     try:
         _calibrate(a, run, shipped)
@@ -172,7 +170,7 @@ def _supersample(voxels: str) -> int:
 
 def run_report(run: Path) -> dict | None:
     """The run's ``report.json`` (None without one), read and checked before a command changes the run: a damaged
-    one refuses here, before the long work and before any file of the run is replaced."""
+    one refuses here, before the long work."""
     from ..files.inputs import json_or_why
 
     path = run / "report.json"
@@ -201,11 +199,9 @@ def _calibrate(a, run: Path, shipped: bool) -> None:
 
     report = None if shipped else run_report(run)  # everything read and checked before the work
     model = Sin3DM.load(run)
-    # by default where the fit judged (auto.calibration.judged_at: the training grid, or for `detail` and `fine` 128
-    # voxels, the paper's); the training grid is the input voxelised at the fit's resolution, and needs no mesh
-    # file; without it, or at another resolution (--resolution 128 as the paper measures), the input mesh there
-    fit_at = None if a.resolution else judged_at(model.config)
-    resolution = a.resolution or fit_at
+    # by default where the fit judged; on the training grid (the input voxelised by the voxel centres' signs) no mesh
+    # file is needed, elsewhere the input mesh is voxelised there
+    resolution = a.resolution or judged_at(model.config)
     on_grid = resolution in (None, model.grid_resolution) and a.input is None and (run / "grid.npz").is_file()
     on_grid = on_grid and a.voxels != "paper"  # the training grid holds the voxel centres' signs
     reference = load_grid(run / "grid.npz").sdf < 0 if on_grid else None

@@ -49,15 +49,13 @@ def cmd_examples(a) -> None:
 
 
 def cmd_grid(a) -> None:
-    from ..data.grid import mesh_to_grid, save_grid
+    from ..data.grid import check_resolution, mesh_to_grid, save_grid
     from ..data.source import resolve_mesh
     from ..files import check_not_overlapping, check_writable, clash_error, is_ours, recorded_path, remove_stale_temps
 
     out = Path(a.out)
     if out.suffix != ".npz":
         raise Sin3DMInputError(f"--out must be a .npz file, got '{out}'")
-    from ..data.grid import check_resolution
-
     check_resolution(a.resolution)
     if Path(a.mesh).exists():
         check_not_overlapping(out, {"input mesh": Path(a.mesh)})
@@ -84,6 +82,7 @@ def cmd_grid(a) -> None:
 
 
 def cmd_fit(a) -> None:
+    from ..auto.fit_default import default_budget, default_preset
     from ..data.config import parse_settings
     from ..pipeline import Sin3DM
     from ..presets import get_preset
@@ -96,12 +95,17 @@ def cmd_fit(a) -> None:
         raise Sin3DMInputError("--minutes is for a new fit: a resumed fit keeps its run's steps; leave out --minutes")
     needs_mesh = not a.resume and (a.preset is None or a.minutes is not None)  # the default or a budget: read once
     mesh = input_mesh(a) if needs_mesh else None
-    chosen = None if a.preset or a.resume else default_for_this_machine(a, mesh)
+    chosen = None
+    if not (a.preset or a.resume):  # the default for this machine and shape, said first: which, why, how long
+        chosen = default_preset(a.device, mesh)
+        print("\n".join(chosen.lines()), flush=True)
     name = a.preset or (chosen.name if chosen else None)  # None: the run's own (Sin3DM.fit)
     if a.minutes is not None:
         changes = {**time_budget(a, mesh, name, chosen, changes), **changes}  # what --set names explicitly wins
-    elif chosen is not None and not changes:  # the default on a slower CPU: about DEFAULT_MINUTES
-        changes = default_time(chosen)
+    elif chosen is not None and not changes:  # the default keeps to its own budget
+        changes, line = default_budget(get_preset(chosen.name), chosen.seconds)
+        if line:
+            print(line, flush=True)
     base = get_preset(name or "small")
     preset = base.updated(**changes) if changes else name
     model = Sin3DM.fit(
@@ -130,8 +134,8 @@ def cmd_fit(a) -> None:
 
 
 def input_mesh(a):
-    """The input mesh, read for the default's choice and the time budget: a missing or broken input or an unwritable
-    ``--out`` fails here, before any timing."""
+    """The input mesh, read for the default's choice and the time budget: a bad input or ``--out`` fails here,
+    before any timing."""
     from ..app.run_folder import check_run_folder
     from ..data.source import resolve_mesh
 
@@ -139,38 +143,15 @@ def input_mesh(a):
     return resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
 
 
-def default_for_this_machine(a, mesh):
-    """The preset ``fit`` takes without ``--preset`` (:func:`~sin3dm_lite.auto.fit_default.default_preset`: this
-    machine's and this shape's, ``mesh`` the input), said first: which, why, and about how long."""
-    from ..auto.fit_default import default_preset
-
-    chosen = default_preset(a.device, mesh)
-    print("\n".join(chosen.lines()), flush=True)
-    return chosen
-
-
-def default_time(chosen) -> dict:
-    """The default's own budget (:func:`~sin3dm_lite.auto.fit_default.default_budget`), said before the fit starts."""
-    from ..auto.fit_default import default_budget
-    from ..presets import get_preset
-
-    changes, line = default_budget(get_preset(chosen.name), chosen.seconds)
-    if line:
-        print(line, flush=True)
-    return changes
-
-
 def time_budget(a, mesh, name: str, chosen, changes: dict) -> dict:
-    """``--minutes``: fewer training steps where the fit's estimate is longer
-    (:func:`~sin3dm_lite.auto.fit_default.within_minutes`), said before the fit starts. The default's estimate is
-    used as it is; a named preset, or settings changed by ``--set``, are timed here."""
+    """``--minutes``: fewer training steps where the fit's estimate is longer (:func:`fit_default.within_minutes`),
+    said before the fit starts. The default's estimate is used as it is; a named preset or ``--set`` is timed here."""
     from ..auto.fit_default import estimate_fit, one_colour, proportions, within_minutes
     from ..presets import get_preset
 
     cfg = get_preset(name).updated(**changes) if changes else get_preset(name)
-    seconds = chosen.seconds if chosen is not None and chosen.seconds and not changes else None
-    if seconds is None:
-        seconds = estimate_fit(cfg, a.device, proportions(mesh), one_colour(mesh))
+    seconds = chosen.seconds if chosen is not None and not changes else None
+    seconds = seconds or estimate_fit(cfg, a.device, proportions(mesh), one_colour(mesh))
     budget, line = within_minutes(cfg, seconds, a.minutes)
     print(line, flush=True)
     return budget

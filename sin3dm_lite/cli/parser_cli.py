@@ -1,8 +1,7 @@
 """The ``sin3dm-lite`` argument parser: one function per command, each option's help with its default.
 
-Argument errors are one line and exit code 2 (:class:`_Parser`); the option types below refuse
-what no command could use (a negative count, a seed over 2**32 - 1, a non-finite number)
-before any work. argparse is used here and nowhere else in the package.
+Argument errors are one line and exit code 2; the option types (:mod:`.values_cli`) refuse what no command could
+use before any work.
 """
 
 from __future__ import annotations
@@ -26,13 +25,8 @@ from .values_cli import (
 
 
 class _Formatter(argparse.HelpFormatter):
-    """Every option's help ends with its default, unless it already names one or has none worth saying.
-
-    Like ``argparse.ArgumentDefaultsHelpFormatter``, but an option whose help
-    already says "default" is left alone, and flags (``store_true``), required
-    options and options whose default is None get nothing appended: their help
-    says in words what happens without them ("default: the preset's").
-    """
+    """Every option's help ends with its default, unless it already says "default" or has none worth saying (flags,
+    required options, a default of None: their help says in words what happens without them)."""
 
     def _get_help_string(self, action):
         text = action.help or ""
@@ -47,7 +41,7 @@ class _Formatter(argparse.HelpFormatter):
 
 
 class _Parser(argparse.ArgumentParser):
-    """Argument errors as one line (no usage block), exit code 2; help with defaults (:class:`_Formatter`)."""
+    """Argument errors as one line (no usage block), exit code 2; help with defaults."""
 
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("formatter_class", _Formatter)
@@ -327,7 +321,8 @@ def _outside_paths_arg(p: argparse.ArgumentParser) -> None:
 
 
 def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
-    """The flags of ``sample`` and ``demo``, in the order ``--help`` lists them."""
+    """The flags of ``sample`` and ``demo``, in the order ``--help`` lists them: how many samples (and how), the
+    controlled generation, the sampler, and the output meshes."""
     _run_args(s, n_default)
     _control_args(s)
     _sampler_args(s)
@@ -335,7 +330,6 @@ def _sample_args(s: argparse.ArgumentParser, n_default: int = 4) -> None:
 
 
 def _run_args(s: argparse.ArgumentParser, n_default: int) -> None:
-    """How many samples, from which index, in batches of how many, exported by how many workers."""
     s.add_argument(
         "-n",
         type=positive_int,
@@ -364,7 +358,6 @@ def _run_args(s: argparse.ArgumentParser, n_default: int) -> None:
 
 
 def _control_args(s: argparse.ArgumentParser) -> None:
-    """Controlled generation: one of resize, outpaint, regenerate, duplicate (and outpaint's anchor)."""
     ctl = s.add_argument_group(
         "controlled generation (one at a time, default: none, samples the input's size; "
         "boxes are fractions 0-1 of the model's box along x, y, z)"
@@ -410,7 +403,6 @@ def _control_args(s: argparse.ArgumentParser) -> None:
 
 
 def _sampler_args(s: argparse.ArgumentParser) -> None:
-    """The sampler: diversity, DDIM steps or DDPM, seed."""
     s.add_argument(
         "--diversity",
         type=unit_float,
@@ -426,7 +418,6 @@ def _sampler_args(s: argparse.ArgumentParser) -> None:
 
 
 def _output_args(s: argparse.ArgumentParser) -> None:
-    """The meshes (faces, texture, decode grid), the device, and what happens to --out."""
     s.add_argument(
         "--faces",
         type=sampling_setting("sampling.faces"),

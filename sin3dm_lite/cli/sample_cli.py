@@ -1,8 +1,5 @@
-"""``sin3dm-lite sample`` and ``sin3dm-lite demo``: many samples into a folder (:mod:`sin3dm_lite.app.mass`).
-
-Their flags become a :class:`mass.SampleRequest` here (:func:`sample_request`): the library
-takes no argparse object. :func:`find_run` names a run folder or a shipped model.
-"""
+"""``sin3dm-lite sample`` and ``sin3dm-lite demo``: many samples into a folder (:mod:`sin3dm_lite.app.mass`),
+their flags turned into a :class:`request.SampleRequest` (:func:`sample_request`)."""
 
 from __future__ import annotations
 
@@ -12,14 +9,13 @@ from pathlib import Path
 from ..errors import Sin3DMInputError
 
 DEMO_PRESET = "small"
+#: the flags a :class:`request.SampleRequest` takes as they are
+REQUEST_FLAGS = "n start seed steps diversity faces mesh_resolution texture_size no_pictures overwrite batch workers"
 
 
 def check_sample_output(out: Path, a, protected: dict) -> None:
-    """Everything about ``--out``, ``-n`` and ``--start`` that can fail, checked before any work or writing.
-
-    A folder holding a sample run of ours (``sampling.json``) passes here; its
-    settings are compared once the model is loaded (:func:`mass_folder.check_folder`).
-    """
+    """Everything about ``--out``, ``-n`` and ``--start`` that can fail, checked before any work or writing (a
+    folder of our samples passes: its settings are compared once the model is loaded)."""
     from ..app.mass_folder import MAX_RUN_SAMPLES, WRITER, read_settings, sample_output_names
     from ..files import check_not_overlapping, check_output_folder, check_writable
 
@@ -38,25 +34,10 @@ def sample_request(a):
     """The sampling flags of ``sample`` / ``demo`` as a :class:`request.SampleRequest` (the library takes no argparse)."""
     from ..app.request import SampleRequest
 
-    keys = (
-        "n",
-        "start",
-        "seed",
-        "steps",
-        "diversity",
-        "faces",
-        "mesh_resolution",
-        "texture_size",
-        "no_pictures",
-        "overwrite",
-        "batch",
-        "workers",
-    )
     defaults = SampleRequest()
     method = "ddpm" if getattr(a, "ddpm", False) else None  # --ddpm; else the model's
-    return SampleRequest(
-        **{k: getattr(a, k, getattr(defaults, k)) for k in keys}, method=method, control=control_args(a)
-    )
+    flags = {k: getattr(a, k, getattr(defaults, k)) for k in REQUEST_FLAGS.split()}
+    return SampleRequest(**flags, method=method, control=control_args(a))
 
 
 def control_args(a) -> dict:
@@ -76,8 +57,8 @@ def control_args(a) -> dict:
 
 
 def find_run(name: str) -> Path:
-    """A run folder, or the shipped model called ``name`` (the rule when both could be meant:
-    :func:`runs.shipped_or_folder`, as ``Sin3DM.open``'s); one-line error if neither."""
+    """A run folder, or the shipped model called ``name`` (:func:`runs.shipped_or_folder`); one-line error if
+    neither."""
     from ..app.pretrained import shipped_names
     from ..app.runs import shipped_or_folder
 
@@ -132,8 +113,8 @@ def cmd_sample(a) -> None:
 
 
 def fitted_mesh(run: Path) -> dict:
-    """``{"run's input mesh": path}`` of the mesh file the run was fitted to, while it is there: ``--out`` may not
-    hold it (``--overwrite`` would replace it when it is a sample of an earlier run), else ``{}``."""
+    """``{"run's input mesh": path}`` of the mesh file the run was fitted to, while it is there (``--out`` may not
+    hold it), else ``{}``."""
     from ..app.run_folder import read_report
 
     path = read_report(run).get("input_path")

@@ -1,9 +1,5 @@
-"""What each option's value may be: the argparse types of the ``sin3dm-lite`` command.
-
-Each reads one word of the command line as a number and hands it to the check the Python API calls too
-(:mod:`sin3dm_lite.app.values`: one owner, so the two cannot drift); a bad one becomes the parser's one-line error
-(``argument --diversity: expected a number from 0 to 1, got 1.5``).
-"""
+"""The argparse types of the ``sin3dm-lite`` command: each reads one word as a number and hands it to the check
+the Python API calls too (:mod:`sin3dm_lite.app.values`); a bad one becomes the parser's one-line error."""
 
 from __future__ import annotations
 
@@ -13,20 +9,16 @@ from ..app import values
 from ..errors import Sin3DMInputError
 
 
-def number(text: str, kind: type, what: str):
-    """``text`` read as ``kind`` (int or float), or the one-line error "expected ``what``, got 'text'"."""
-    try:
-        return kind(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {what}, got '{text}'") from None
-
-
 def checked(kind: type, what: str, check):
     """An argparse type: the word read as ``kind`` (``what`` names it when it is no number), then ``check``."""
 
     def parse(text: str):
         try:
-            return check(number(text, kind, what))
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got '{text}'") from None
+        try:
+            return check(value)
         except Sin3DMInputError as e:
             raise argparse.ArgumentTypeError(str(e)) from None
 
@@ -49,8 +41,8 @@ seed_int = checked(int, "a whole number", lambda v: values.seed(v, None))
 
 
 def sampling_setting(key: str, high: bool = True):
-    """An argparse type: a value of the sampling setting ``key`` (:func:`values.setting`, as ``Sin3DM.sample`` and
-    ``to_mesh`` check their arguments; ``high=False``: the top is checked against the memory later)."""
+    """An argparse type: a value of the sampling setting ``key`` (:func:`values.setting`; ``high=False``: the top is
+    checked against the memory later)."""
     return checked(int, "a whole number", lambda v: values.setting(key, v, None, high))
 
 

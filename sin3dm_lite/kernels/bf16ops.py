@@ -1,19 +1,10 @@
-"""CPU fast paths of the decoder's point MLPs under bf16 autocast (a fit, its calibration and its samples' decoding
-on a CPU whose bf16 measures faster than fp32).
+"""CPU fast paths of the decoder's point MLPs under bf16 autocast.
 
-Under autocast each ``Linear`` casts its input to bf16 and writes a fresh bf16 output, each ReLU reads and writes it
-again, the skip concatenation copies it, and the backward converts every gradient back and forth: on a
-``[65536, 256]`` activation that is memory traffic, and in bf16 torch's elementwise kernels are slow (a ReLU
-costs half the product before it). Here the points go through the six layers in chunks, the weights cast once per
-call, oneDNN's product with the bias and the ReLU fused into it (:func:`linear_relu`), the skip written beside its
-layer's output:
-
-* **without gradients** (:func:`skip_mlp_bf16` in a decode): bit for bit the values autocast computes;
-* **with gradients** (a training step): the same products in bf16 with fp32 accumulation, the weight and bias
-  gradients summed in fp32 chunk by chunk (autocast rounds each to bf16 once over all points): as close to the fp32
-  gradients as autocast's (``tests/test_pointops.py`` measures both).
-
-:func:`mlp_bf16_ok` says when (fp32 keeps :mod:`.pointops`' paths; a GPU the plain modules).
+Autocast casts each ``Linear``'s input and writes fresh bf16 outputs that each ReLU, the skip concatenation and the
+backward read and write again. Here the points go through the six layers in chunks, the weights cast once per
+call, the bias and ReLU fused into oneDNN's product (:func:`linear_relu`), the skip written beside its layer's
+output. Without gradients (a decode) the values are bit for bit autocast's; with gradients (a training step) the
+weight and bias gradients are summed in fp32 chunk by chunk. :func:`mlp_bf16_ok` says when it applies.
 """
 
 from __future__ import annotations
@@ -28,7 +19,7 @@ from . import pointops
 BF16 = torch.bfloat16
 #: rows per chunk of a decode: the decoder's CPU batch (``decode.CHUNK``), in one piece
 INFER_CHUNK = 8192
-#: rows per chunk of a training step: a ``[CHUNK, 256]`` bf16 activation is 512 KiB, a chunk's layers stay in L2
+#: rows per chunk of a training step: a chunk's ``[CHUNK, 256]`` bf16 activations stay in L2
 TRAIN_CHUNK = 1024
 
 
@@ -62,8 +53,7 @@ def skip_mlp_bf16(x: torch.Tensor, a: nn.Sequential, b: nn.Sequential, out: nn.L
 
 
 def _decode(flat: torch.Tensor, params: list[torch.Tensor], fused_first: bool) -> torch.Tensor:
-    """The forward without gradients, bit for bit autocast's (:func:`_chunk`), its buffers reused from chunk to
-    chunk."""
+    """The forward without gradients, bit for bit autocast's, its buffers reused from chunk to chunk."""
     w, bias = [p.to(BF16) for p in params[0::2]], [p.to(BF16) for p in params[1::2]]
     xb = flat.to(BF16)
     n, c_in = xb.shape
@@ -78,10 +68,10 @@ def _decode(flat: torch.Tensor, params: list[torch.Tensor], fused_first: bool) -
 
 def _chunk(xc, w, bias, zc, out, fused_first: bool = True, bufs=(None, None)):
     """One chunk of points ``xc`` (bf16) through the six layers, as autocast computes them: each ``Linear`` an
-    ``addmm`` of bf16 casts (fused with its ReLU, :func:`linear_relu`), but the first on a strided 3D input (the
-    lookup's features) the product and then the bias, as ``F.linear`` computes it (``fused_first`` False); the skip
-    ``[y2 | x]`` written into ``zc``, the output into ``out``. Returns the post-ReLU activations ``y0, y1, y3, y4``
-    (with ``bufs``, where torch's own path writes them: ``y3`` over ``y0``'s buffer, ``y4`` over ``y1``'s)."""
+    ``addmm`` fused with its ReLU, but the first on a strided 3D input the product and then the bias, as
+    ``F.linear`` computes it (``fused_first`` False); the skip ``[y2 | x]`` written into ``zc``, the output into
+    ``out``. Returns the post-ReLU activations ``y0, y1, y3, y4`` (with ``bufs``, where torch's own path writes
+    them: ``y3`` over ``y0``'s buffer, ``y4`` over ``y1``'s)."""
     h = w[0].shape[0]
     if fused_first:
         y0 = linear_relu(xc, w[0], bias[0], bufs[0])
@@ -150,8 +140,8 @@ class _SkipMLPBf16(torch.autograd.Function):
 
 def linear_relu(x: torch.Tensor, w: torch.Tensor, bias: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
     """``relu(F.linear(x, w, bias))``: oneDNN's product with the bias and the ReLU fused into it where torch has it
-    (the values of ``addmm`` then ``relu_``, without a second pass over the output, which in bf16 costs half the
-    product's time), else ``addmm`` (into ``out``, if given) and ``relu_``."""
+    (the values of ``addmm`` then ``relu_``, without a second pass over the output), else ``addmm`` (into ``out``,
+    if given) and ``relu_``."""
     if fused_linear_ok(x.dtype):
         return torch.ops.mkldnn._linear_pointwise(x, w, bias, "relu", [], "")
     return torch.addmm(bias, x, w.t(), out=out).relu_()
@@ -159,9 +149,8 @@ def linear_relu(x: torch.Tensor, w: torch.Tensor, bias: torch.Tensor, out: torch
 
 @functools.cache
 def fused_linear_ok(dtype: torch.dtype) -> bool:
-    """Whether this CPU runs oneDNN's fused product, bias and ReLU (a private op of torch's, which its compiler
-    uses) in ``dtype``, with the values of ``addmm`` then ``relu_``: tried once on a small product (oneDNN has no
-    bf16 product on a CPU without AVX-512; torch's own then runs)."""
+    """Whether this CPU runs oneDNN's fused product, bias and ReLU (a private torch op) in ``dtype`` with the values
+    of ``addmm`` then ``relu_``: tried once on a small product."""
     if not (torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_linear_pointwise")):
         return False
     gen = torch.Generator().manual_seed(0)

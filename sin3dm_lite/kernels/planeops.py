@@ -1,11 +1,11 @@
 """The rollout's repeated means in a TriplaneConv, convolved in 1D and added without building full-size copies.
 
-In the cross-plane rollout (the paper's Fig. 3b) each plane's Conv2d also reads the two other planes
-mean-pooled along the axis this plane lacks, each repeated along one of its axes. The convolution is linear, so
-:class:`~sin3dm_lite.model.unet.TriplaneConv` convolves the plane's own channels and each repeated mean apart.
-A repeated mean is constant along its axis, so its convolution's output there only changes within ``k//2``
-texels of the borders (zero padding): :func:`conv_repeated` computes its ``k`` distinct values per texel of the
-other axis with one 1D convolution, and :func:`add_repeated` adds them, repeated, to the plane's own output.
+In the cross-plane rollout (the paper's Fig. 3b) each plane's Conv2d also reads the two other planes mean-pooled
+along the axis this plane lacks, each repeated along one of its axes. A repeated mean is constant along its axis,
+so its convolution's output there changes only within ``k//2`` texels of the borders: :func:`conv_repeated`
+computes its ``k`` distinct values with one 1D convolution, :func:`add_repeated` adds them, repeated, to the
+plane's own output (:class:`~sin3dm_lite.model.unet.TriplaneConv` convolves the parts apart: the convolution is
+linear).
 """
 
 from __future__ import annotations
@@ -18,10 +18,8 @@ def conv_repeated(v: torch.Tensor, w: torch.Tensor, size) -> tuple[torch.Tensor,
     """The convolution (``padding=k//2``) of a pooled mean ``v`` ``[B,C,A,1]`` or ``[B,C,1,B']`` repeated to
     ``size``, kept short: ``(y, dim)`` with ``y`` ``k`` texels long along the repeated axis ``dim`` (its first
     ``k//2`` texels, the middle value, its last ``k//2``), or ``(full output, None)`` when ``size`` is that short.
-
-    Output texel ``j`` along the repeated axis sees the kernel rows (or columns) that fall inside the plane, and
-    the input is the same on all of them: one 1D convolution with those kernel rows summed gives it, ``length · k``
-    fewer multiply-adds than the 2D convolution of the repeated mean (the same values up to rounding).
+    Output texel ``j`` sees the kernel rows (or columns) inside the plane, all on the same input: one 1D convolution
+    with those rows summed gives it (the same values up to rounding).
     """
     k, p = w.shape[-1], w.shape[-1] // 2
     dim = 3 if v.shape[3] == 1 else 2  # the axis v is repeated along

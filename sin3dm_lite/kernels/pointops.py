@@ -1,20 +1,13 @@
 """CPU fast paths for the decoder's per-point work: the point MLPs and the triplane lookup, chunk by chunk.
 
-The autoencoder's step is dominated by its two point MLPs (256 wide, 6 layers) on 65,536 points. Run layer by
-layer over all the points at once, every activation is a ``[65536, 256]`` tensor (64 MiB): each matrix product
-streams it through memory, and each ReLU, its backward and the bias gradient read and write it again. Here the
-points go through the network in chunks of :data:`CHUNK` rows instead, whose activations stay in the core's
-cache from one layer to the next; the activations a backward needs are written once into preallocated buffers.
-The same matrix products, the same ReLUs, the same skip concatenation: the same network, computed in a
-different order (rounding in the last bits differs: ``tests/test_pointops.py`` pins it to the plain modules).
+Layer by layer over all the points, every activation of the point MLPs is a large tensor streamed through memory
+by each product, ReLU and gradient. Here the points go through the network in chunks of :data:`CHUNK` rows whose
+activations stay in cache from layer to layer, the activations a backward needs written once into preallocated
+buffers: the same network in a different order (rounding in the last bits differs).
 
-The lookup keeps ``grid_sample``'s forward, but its backward treats the three planes' bilinear samples as one
-gather of 12 rows (4 corners × 3 planes) from the planes laid out channel-last in one table: 12 ``index_add_``
-per chunk instead of ``grid_sample``'s scatter over channel-first planes.
-
-Both are used on the CPU in fp32 only (a GPU wants big batches and ``index_add_`` there is not deterministic;
-under bf16 autocast the point MLPs take :mod:`.bf16ops`): :func:`mlp_fast_ok` and :func:`lookup_fast_ok` say
-when.
+The lookup keeps ``grid_sample``'s forward; its backward treats the three planes' bilinear samples as one gather
+of 12 rows (4 corners × 3 planes) from a channel-last table: 12 ``index_add_`` per chunk. Both run on the CPU in
+fp32 (under bf16 autocast the MLPs take :mod:`.bf16ops`): :func:`mlp_fast_ok` and :func:`lookup_fast_ok` say when.
 """
 
 from __future__ import annotations
@@ -25,7 +18,7 @@ import torch.nn.functional as F
 
 #: the fast paths on or off (off: the plain modules everywhere; the tests and the benchmark compare the two)
 ENABLED = True
-#: points per chunk: a ``[CHUNK, 256]`` fp32 activation is 1 MiB, so a layer's input and output stay in L2
+#: points per chunk: a layer's ``[CHUNK, 256]`` fp32 input and output stay in L2
 CHUNK = 1024
 
 
@@ -51,9 +44,9 @@ def _layers(a: nn.Sequential, b: nn.Sequential, out: nn.Linear) -> list[nn.Linea
 
 
 class Workspace:
-    """The activation buffers of one MLP's last backward, for its next forward: a step then writes into pages it
-    already has instead of fresh ones (the kernel zeroes every new page on its first write). A buffer is handed out again only after the backward that read it; a graph that is run backward
-    twice after another forward fails loudly (the saved buffer's version changed), never silently."""
+    """The activation buffers of one MLP's last backward, for its next forward: a step writes into pages it already
+    has instead of fresh ones (which the kernel zeroes on first write). A buffer is handed out again only after the
+    backward that read it; a graph run backward twice after another forward fails loudly, never silently."""
 
     def __init__(self) -> None:
         self.free: list[torch.Tensor] = []
@@ -104,8 +97,8 @@ def _forward(x: torch.Tensor, params: list[torch.Tensor], save: Workspace | bool
         r = slice(s, e) if save is not None else slice(0, e - s)
         xc = x[s:e]
         y0, y1, z, y3, y4 = (t[r] for t in acts)
-        torch.mm(xc, wt[0], out=y0).add_(bias[0]).relu_()  # the product, then the bias in cache (an addmm
-        torch.mm(y0, wt[1], out=y1).add_(bias[1]).relu_()  # into `out` first copies the bias there from memory)
+        torch.mm(xc, wt[0], out=y0).add_(bias[0]).relu_()  # the bias added in cache: an addmm into `out` would
+        torch.mm(y0, wt[1], out=y1).add_(bias[1]).relu_()  # first copy it there from memory
         torch.mm(y1, wt[2], out=z[:, :h]).add_(bias[2]).relu_()
         z[:, h:] = xc
         torch.mm(z, wt[3], out=y3).add_(bias[3]).relu_()
@@ -197,9 +190,8 @@ def corner_weights(planes, points: torch.Tensor, axes) -> tuple[torch.Tensor, to
 
 def lookup_sum(planes, points: torch.Tensor, axes) -> torch.Tensor:
     """The three planes' bilinear features at ``points [B, N, 3]``, added → ``[B, N, C]``: the values of
-    ``grid_sample`` (the fastest forward), the backward a gather's (:class:`_GatherFunction`). Planes in bf16 (under
-    autocast) are sampled in fp32 at the points' fp32 coordinates, as ``grid_sample`` under autocast samples them
-    but without rounding the coordinates to bf16 (a tenth of a texel on a 48-texel plane)."""
+    ``grid_sample``, the backward a gather's (:class:`_GatherFunction`). Planes in bf16 (under autocast) are sampled
+    in fp32 at the points' fp32 coordinates, without rounding the coordinates to bf16 as autocast would."""
     planes = [p.float() for p in planes]
     if not (torch.is_grad_enabled() and any(p.requires_grad for p in planes)):
         return _sampled_sum([p.detach() for p in planes], points, axes)
