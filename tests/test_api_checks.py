@@ -1,6 +1,6 @@
 """The Python API is as strict as the CLI (issue 60): one table of bad values, refused by both with the same words.
 
-Also: a shipped model's name beside a local folder means the same to the CLI and to ``Sin3DM.open``; ``notebooks``
+Also: a shipped model's name beside a local folder means the same to the CLI and to ``Sin3DM.open``; ``scripts/run_notebooks.py``
 refuses what is no notebook; messages name no ``--out`` a command lacks; ``SIN3DM_THREADS`` / ``SIN3DM_WORKERS``
 that are no count are said; export workers are capped by their own memory; ``sample`` refuses ``-n`` beyond the
 disk; printed commands are shell-quoted; PIL's decompression-bomb warning names its file.
@@ -222,6 +222,16 @@ def test_calibrate_of_a_shipped_name_beside_a_run_folder_writes_neither(tmp_path
 
 
 # --------------------------------------------------------------------------- notebooks, and no --out where none is
+def _load_script(name: str):
+    """A script of scripts/ as a module (they are run from a checkout, not installed)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def _notebook(path: Path) -> None:
     import nbformat
 
@@ -250,20 +260,20 @@ def test_notebooks_refuses_what_is_no_notebook_before_touching_any(
     before = (tmp_path / "good.ipynb").read_bytes()
     if text is not None:
         (tmp_path / name).write_text(text)
-    assert cli.main(["notebooks", mode, "good.ipynb", name]) == 2
+    assert _load_script("run_notebooks").main([mode, "good.ipynb", name]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0] and "Traceback" not in err[0], err
     assert (tmp_path / "good.ipynb").read_bytes() == before  # --clear cleared nothing: every file checked first
 
 
 def test_a_disk_error_names_no_out_in_commands_without_one(monkeypatch, capsys):
-    from sin3dm_lite.app import notebook_run
+    notebook_run = _load_script("run_notebooks")
 
     def fail(*args, **kwargs):
         raise PermissionError(13, "Permission denied", "notebooks/01.ipynb")
 
     monkeypatch.setattr(notebook_run, "run_all", fail)
-    assert cli.main(["notebooks"]) == 2
+    assert notebook_run.main([]) == 2
     err = capsys.readouterr().err.strip()
     assert "Permission denied" in err and "--out" not in err
     assert "--out" in cli.disk_error(PermissionError(13, "Permission denied", "x"), None)  # a command with one

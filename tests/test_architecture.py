@@ -151,7 +151,6 @@ LAYERS = {
     "app.model_file": APP,  # every field of a model.pt checked before anything is built
     "app.sampling": APP,
     "app.request": APP,
-    "app.notebook_run": APP,  # runs the notebooks at reading settings and records their outputs
 }
 
 MAX_LINES, MAX_FUNCTION_LINES = 500, 80

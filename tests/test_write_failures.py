@@ -27,6 +27,7 @@ from .conftest import CHEAP_SAMPLE
 RUN = str(pretrained_path())
 CHEAP = CHEAP_SAMPLE
 TORCH_DISK_FULL = "[enforce fail at inline_container.cc:672] . unexpected pos 1846784 vs 1846672"
+SCRIPT = Path(__file__).parents[1] / "scripts" / "run_notebooks.py"
 
 _calls: list[str] = []
 
@@ -156,7 +157,7 @@ def test_a_real_full_disk(tmp_path):
 
 
 def test_a_notebook_whose_write_fails_is_left_whole(tmp_path):
-    """``notebooks --clear`` (or a run) on a full disk: nbformat.write emptied the notebook first, then failed."""
+    """``scripts/run_notebooks.py --clear`` (or a run) on a full disk: nbformat.write emptied the notebook first, then failed."""
     import nbformat
 
     nb = nbformat.v4.new_notebook()
@@ -167,8 +168,8 @@ def test_a_notebook_whose_write_fails_is_left_whole(tmp_path):
     before = (tmp_path / "big.ipynb").read_bytes()
     code = (
         "import resource, signal, sys; signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
-        "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096)); from sin3dm_lite.cli import main; "
-        "sys.exit(main(['notebooks', '--clear', 'big.ipynb']))"
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096)); sys.argv = ['run_notebooks.py', '--clear', "
+        f"'big.ipynb']; import runpy; runpy.run_path({str(SCRIPT)!r}, run_name='__main__')"
     )
     r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-2000:]

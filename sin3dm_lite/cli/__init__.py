@@ -50,14 +50,6 @@ def disk_error(e: OSError, out: str | None = None, has_out: bool = True) -> str:
     return f"{e.strerror or e}{where}; check that path (permissions, free space){other}"
 
 
-def cmd_notebooks(a) -> None:
-    from ..app.notebook_run import run_all
-
-    code = run_all(a.notebooks, fast=a.fast, check=a.check, clear=a.clear, timeout=a.timeout)
-    if code:
-        raise SystemExit(code)
-
-
 @contextmanager
 def sigterm_as_interrupt():
     """While a command runs, SIGTERM raises :class:`errors.Terminated`: the command stops as after Ctrl-C."""
@@ -114,7 +106,6 @@ def run_command(a) -> None:
         "render": cmd_render,
         "evaluate": cmd_evaluate,
         "calibrate": cmd_calibrate,
-        "notebooks": cmd_notebooks,
     }[a.command](a)
 
 

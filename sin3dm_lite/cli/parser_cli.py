@@ -7,7 +7,6 @@ use before any work.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from .values_cli import (
     finite_float,
@@ -73,7 +72,6 @@ COMMANDS = {
     "render": "PNG pictures of a mesh: the paper's views around it, a hero view, a contact sheet",
     "evaluate": "the paper's geometry and texture metrics of sample meshes against the input",
     "calibrate": "choose a run's diversity: the most varied setting whose samples keep the input's patches",
-    "notebooks": "run the notebooks top to bottom at reading settings and keep their outputs (for the course's authors)",
 }
 
 
@@ -97,7 +95,6 @@ def build_parser() -> argparse.ArgumentParser:
         "render": _render_args,
         "evaluate": _evaluate_args,
         "calibrate": _calibrate_args,
-        "notebooks": _notebooks_args,
     }
     for name, description in COMMANDS.items():  # in this order in `sin3dm-lite --help`
         adders[name](sub.add_parser(name, help=description, description=description))
@@ -297,18 +294,6 @@ def _calibrate_args(c: argparse.ArgumentParser) -> None:
         "sub-voxels inside, what evaluate reports) or 'centres' (the default on the fit's grid, the training grid's)",
     )
     _outside_paths_arg(c)
-
-
-def _notebooks_args(n: argparse.ArgumentParser) -> None:
-    n.add_argument("notebooks", nargs="*", type=Path, help="notebooks to run (default: every notebooks/*.ipynb)")
-    n.add_argument(
-        "--fast", action="store_true", help="run with SIN3DM_FAST=1 (to try it; the tests refuse such outputs)"
-    )
-    n.add_argument(
-        "--check", action="store_true", help="run nothing: list notebooks whose outputs are stale or missing"
-    )
-    n.add_argument("--clear", action="store_true", help="run nothing: remove every output and the recorded digest")
-    n.add_argument("--timeout", type=int, default=1800, help="seconds one cell may take (default 1800)")
 
 
 def _outside_paths_arg(p: argparse.ArgumentParser) -> None:

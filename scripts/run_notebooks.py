@@ -1,8 +1,10 @@
 """Run the notebooks top to bottom and keep their outputs, so a reader sees the pictures on GitHub.
 
-    sin3dm-lite notebooks                      # every notebooks/*.ipynb at reading settings
-    sin3dm-lite notebooks notebooks/01_mesh_to_grid.ipynb
-    sin3dm-lite notebooks --check              # only say which notebooks' outputs are stale
+    python scripts/run_notebooks.py                      # every notebooks/*.ipynb at reading settings
+    python scripts/run_notebooks.py notebooks/01_mesh_to_grid.ipynb
+    python scripts/run_notebooks.py --check              # only say which notebooks' outputs are stale
+
+A tool for the course's authors, run from a checkout (the notebooks are not part of the installed package).
 
 Each notebook runs in its own kernel from the ``notebooks/`` folder with
 ``SIN3DM_FAST`` unset (the `small` preset a reader gets; ``--fast`` sets it, for
@@ -21,16 +23,21 @@ cell changed after the outputs were made, naming this command.
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import importlib.util
 import os
+import sys
 import time
 from pathlib import Path
 
-NOTEBOOKS = Path(__file__).resolve().parents[2] / "notebooks"
+from sin3dm_lite.errors import Sin3DMInputError
+from sin3dm_lite.files import atomic_path
+
+NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
 WIDGET_MIME = "application/vnd.jupyter.widget-view+json"
 META_KEY = "sin3dm"
-COMMAND = "sin3dm-lite notebooks"
+COMMAND = "python scripts/run_notebooks.py"
 MAX_TOTAL_BYTES = 20 * 1024 * 1024  # all notebooks together, outputs included
 
 
@@ -38,8 +45,6 @@ def read_notebook(path: Path):
     """The notebook at ``path`` (nbformat 4), or one line saying why it is none: a missing file, another kind of
     file, a ``.ipynb`` that is not JSON or not a notebook's structure (``nbformat.validate``)."""
     import nbformat
-
-    from ..errors import Sin3DMInputError
 
     path = Path(path)
     if not path.is_file():
@@ -69,8 +74,6 @@ def write_notebook(nb, path: Path) -> None:
     """Write ``nb`` over ``path`` (through a link, keeping its mode) whole or not at all: a full disk or a kill
     leaves the old notebook, never a truncated one (``nbformat.write`` empties the file first)."""
     import nbformat
-
-    from ..files import atomic_path
 
     text = nbformat.writes(nb)
     real = Path(os.path.realpath(path))
@@ -198,8 +201,7 @@ def run_notebook(path: str | Path, fast: bool = False, timeout: int = 1800, kern
 
 def run_all(paths=(), fast: bool = False, check: bool = False, clear: bool = False, timeout: int = 1800) -> int:
     """Run ``paths`` (default: every notebook) and keep their outputs; ``check`` lists stale ones, ``clear`` removes
-    outputs. Returns 1 if one failed, is stale or the notebooks are too large, else 0 (``sin3dm-lite``'s parser:
-    ``sin3dm-lite notebooks``)."""
+    outputs. Returns 1 if one failed, is stale or the notebooks are too large, else 0."""
     paths = list(paths) or sorted(NOTEBOOKS.glob("*.ipynb"))
     read = {path: read_notebook(path) for path in paths}  # every file checked before any is run or changed
     bad = 0
@@ -228,3 +230,31 @@ def run_all(paths=(), fast: bool = False, check: bool = False, clear: bool = Fal
     total = sum(p.stat().st_size for p in NOTEBOOKS.glob("*.ipynb"))
     print(f"all notebooks: {total / 1e6:.1f} MB (limit {MAX_TOTAL_BYTES / 1e6:.0f} MB)")
     return 1 if bad or total > MAX_TOTAL_BYTES else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The command line: 0 when every notebook ran (or is up to date), 1 when one failed or is stale, 2 on a bad
+    file or a disk error (one line, no traceback)."""
+    from sin3dm_lite.cli import disk_error
+
+    p = argparse.ArgumentParser(prog="run_notebooks.py", description=__doc__.splitlines()[0])
+    p.add_argument("notebooks", nargs="*", type=Path, help="notebooks to run (default: every notebooks/*.ipynb)")
+    p.add_argument(
+        "--fast", action="store_true", help="run with SIN3DM_FAST=1 (to try it; the tests refuse such outputs)"
+    )
+    p.add_argument(
+        "--check", action="store_true", help="run nothing: list notebooks whose outputs are stale or missing"
+    )
+    p.add_argument("--clear", action="store_true", help="run nothing: remove every output and the recorded digest")
+    p.add_argument("--timeout", type=int, default=1800, help="seconds one cell may take (default 1800)")
+    a = p.parse_args(argv)
+    try:
+        return run_all(a.notebooks, fast=a.fast, check=a.check, clear=a.clear, timeout=a.timeout)
+    except (Sin3DMInputError, OSError) as e:
+        why = e if isinstance(e, Sin3DMInputError) else disk_error(e, None, False)
+        print(f"run_notebooks.py: error: {why}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
