@@ -1,24 +1,21 @@
-"""One file or folder written whole, and the temporaries a killed writer leaves behind.
-
-* Atomically: a reader (or a crash) sees the old file or the new one, never half of one
-  (:func:`atomic_path`, :func:`atomic_write`; :func:`atomic_folder` for several files).
-* Temporary files and folders carry the writer's PID in their name, so that a
-  later run removes the ones a killed process left behind (:func:`remove_stale_temps`).
-* A write that fails says which file, and a full disk says so (:func:`save_torch`, :func:`write_failed`).
+"""One file or folder written whole (:func:`atomic_path`, :func:`atomic_folder`), and the temporaries a killed
+writer leaves behind: their names carry the writer's PID and machine, so a later run removes them.
 """
 
 from __future__ import annotations
 
 import errno
+import hashlib
 import os
 import re
 import shutil
+import socket
 import tempfile
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 TEMP_PREFIX = ".sin3dm-tmp-"  # temporary folders: .sin3dm-tmp-<pid>@<machine>-<random>
-#: what follows a temporary's prefix: the writer's PID and, in names since the machine was added, its machine
+#: what follows a temporary's prefix: the writer's PID and (not in older names) its machine
 OWNER = r"(\d+)(?:@([0-9a-f]{8}))?-"
 _TEMP_DIR = re.compile(r"^\.sin3dm-tmp-" + OWNER)
 _TEMP_FILE = re.compile(r"^\..*\.sin3dm-" + OWNER + r"[^.]*\.tmp")  # from atomic_path
@@ -26,11 +23,7 @@ _TEMP_FILE = re.compile(r"^\..*\.sin3dm-" + OWNER + r"[^.]*\.tmp")  # from atomi
 
 def machine_tag() -> str:
     """Eight hex digits naming this machine (from its host name) in a temporary's name: a PID means something
-    only on the machine that gave it, so a folder shared between machines (a cluster's home) keeps another
-    machine's temporaries until a run there judges them."""
-    import hashlib
-    import socket
-
+    only on the machine that gave it (a folder may be shared between machines)."""
     return hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]
 
 
@@ -47,24 +40,16 @@ def writer_gone(m: re.Match) -> bool:
 
 @contextmanager
 def atomic_path(path: str | Path, before_move=None):
-    """Yield a temporary path next to ``path``; move it onto ``path`` when the block succeeds.
-
-    The temporary name keeps ``path``'s suffix (``np.savez`` and friends care).
-    On an exception the temporary file is removed and ``path`` is untouched.
-    ``before_move(tmp)``, if given, runs on the finished file just before the
-    move (:func:`recorded_path` records it there).
-    """
+    """Yield a temporary path next to ``path`` (with its suffix: ``np.savez`` cares); move it onto ``path`` when
+    the block succeeds, after ``before_move(tmp)`` if given. On an exception ``path`` is untouched."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.stem}.sin3dm-{owner_name()}-", suffix=f".tmp{path.suffix}", dir=path.parent
-    )
-    os.close(fd)
+    tmp = _temp_file(path.parent, path.name, owner_name())
     try:
-        yield Path(tmp)
+        yield tmp
         os.chmod(tmp, 0o644)  # mkstemp makes the file private; the result is an ordinary file
         if before_move is not None:
-            before_move(Path(tmp))
+            before_move(tmp)
         os.replace(tmp, path)
     except OSError as e:
         raise named(e, path) from None
@@ -76,21 +61,12 @@ def atomic_path(path: str | Path, before_move=None):
 @contextmanager
 def atomic_paths(folder: str | Path, names):
     """Yield ``{name: temporary path}`` beside each ``folder/name``; when the block succeeds, move them all onto
-    their names, one after the other, only once every one is written.
-
-    A run folder updated by one command (``calibrate``: ``model.pt``, ``config.json``, ``report.json``) is
-    then all or nothing: a failure while writing (a full disk, a damaged file met late) changes none of them.
-    On an exception the temporaries are removed.
-    """
+    their names, only once every one is written: a failure while writing changes none of them."""
     folder = Path(folder)
     tmps: dict[str, Path] = {}
     try:
         for n in names:
-            fd, t = tempfile.mkstemp(
-                prefix=f".{Path(n).stem}.sin3dm-{os.getpid()}-", suffix=f".tmp{Path(n).suffix}", dir=folder
-            )
-            os.close(fd)
-            tmps[n] = Path(t)
+            tmps[n] = _temp_file(folder, n, str(os.getpid()))
         yield dict(tmps)
         for t in tmps.values():
             os.chmod(t, 0o644)
@@ -102,6 +78,14 @@ def atomic_paths(folder: str | Path, names):
         for t in tmps.values():
             if os.path.exists(t):
                 os.remove(t)
+
+
+def _temp_file(folder: Path, name: str, owner: str) -> Path:
+    """A new empty file ``folder/.<stem>.sin3dm-<owner>-<random>.tmp<suffix>`` for the file ``name``."""
+    name = Path(name)
+    fd, tmp = tempfile.mkstemp(prefix=f".{name.stem}.sin3dm-{owner}-", suffix=f".tmp{name.suffix}", dir=folder)
+    os.close(fd)
+    return Path(tmp)
 
 
 def atomic_write(path: str | Path, data: bytes | str) -> Path:
@@ -126,13 +110,8 @@ _TORCH_WRITE_FAILED = ("inline_container", "PytorchStreamWriter", "file write fa
 
 
 def save_torch(obj, path: str | Path) -> None:
-    """``torch.save(obj, path)``; a write that fails (a full disk) is an :class:`OSError` naming ``path``.
-
-    torch's own error for a full disk is a ``RuntimeError`` such as
-    ``[enforce fail at inline_container.cc:672] unexpected pos …``, which says
-    nothing to a user; this raises ``OSError(ENOSPC)`` instead when the disk
-    holding ``path`` is (nearly) full, else an ``OSError(EIO)`` quoting torch.
-    """
+    """``torch.save(obj, path)``; a write that fails is an :class:`OSError` naming ``path`` (ENOSPC on a full disk)
+    rather than torch's ``RuntimeError`` (``... unexpected pos ...``), which says nothing to a user."""
     import torch
 
     try:
@@ -144,11 +123,8 @@ def save_torch(obj, path: str | Path) -> None:
 
 
 def shown_path(path: str | Path) -> str:
-    """``'NAME' in 'FOLDER'`` for a file being written, our temporaries (``.sin3dm-tmp-*``, ``atomic_path``'s) left out.
-
-    What a user recognises in a message: ``out/.sin3dm-tmp-12-ab/model.pt`` is ``'model.pt' in 'out'``, and
-    a temporary folder itself is ``into 'out'``.
-    """
+    """``'NAME' in 'FOLDER'`` for a file being written, our temporaries left out: ``out/.sin3dm-tmp-12-ab/model.pt``
+    is ``'model.pt' in 'out'``, and a temporary folder itself is ``into 'out'``."""
     path = Path(path)
     m = re.match(r"^\.(.*)\.sin3dm-\d+-[^.]*\.tmp(.*)$", path.name)  # atomic_path's .STEM.sin3dm-PID-X.tmpSUFFIX
     name = m.group(1) + m.group(2) if m else path.name
@@ -167,16 +143,12 @@ def named(e: OSError, path: str | Path) -> OSError:
 
 def write_failed(path: Path, detail: str) -> OSError:
     """The :class:`OSError` for a write to ``path`` that failed without one: ENOSPC if its disk is (nearly) full."""
-    try:
-        full = shutil.disk_usage(Path(path).parent).free < NEARLY_FULL
-    except OSError:
-        full = False
-    if full:
-        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    with suppress(OSError):
+        if shutil.disk_usage(Path(path).parent).free < NEARLY_FULL:
+            return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
     return OSError(errno.EIO, f"the write failed ({detail})", str(path))
 
 
-# --------------------------------------------------------------------------- temporaries
 def pid_alive(pid: int) -> bool:
     """Whether process ``pid`` runs on this machine (a zombie counts as dead)."""
     if pid <= 0:
@@ -204,16 +176,9 @@ def make_temp_dir(parent: Path) -> Path:
 
 @contextmanager
 def atomic_folder(folder: str | Path):
-    """Yield a temporary folder to write files into; move them into ``folder`` when the block succeeds.
-
-    The temporary folder is ``.sin3dm-tmp-<pid>@<machine>-<random>``: inside ``folder``
-    if it exists, else beside it (leftovers of killed writers there are removed
-    first, see :func:`remove_stale_temps`). A new ``folder`` appears in one
-    rename; into an existing one each file is moved with an atomic replace,
-    ``.obj`` files last (an OBJ only appears once the files it names are
-    there), and other files in it are left alone. On an exception ``folder`` is
-    unchanged and the temporary folder is removed.
-    """
+    """Yield a temporary folder (inside ``folder`` if it exists, else beside it) to write files into; move them into
+    ``folder`` when the block succeeds. A new ``folder`` appears in one rename; into an existing one each file is
+    moved with an atomic replace, ``.obj`` files last (an OBJ appears only once the files it names are there)."""
     folder = Path(folder)
     base = folder if folder.is_dir() else folder.parent
     base.mkdir(parents=True, exist_ok=True)
@@ -244,14 +209,12 @@ def remove_stale_temps(folder: Path) -> list[Path]:
         m = _TEMP_DIR.match(e.name) or _TEMP_FILE.match(e.name)
         if m is None or not writer_gone(m):
             continue
-        try:
+        with suppress(OSError):
             if e.is_dir() and not e.is_symlink():
                 shutil.rmtree(e)
             else:
                 e.unlink()
             removed.append(e)
-        except OSError:
-            pass
     return removed
 
 

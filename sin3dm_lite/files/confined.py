@@ -1,15 +1,9 @@
 """Nothing written through a link: every write, replace and delete in an output folder stays inside it.
 
-A user who moved a sample out of a folder of samples and linked it back (``out/000 -> ~/kept/000``)
-must never see ``--overwrite`` replace or delete what the link points to. Two checks, one rule:
-
-* before the work, :func:`refuse_links` walks the output folder (links not followed) and refuses
-  the first symbolic link in it, naming it;
-* at the moment of each write, replace or delete, :func:`confined` checks again that no part of the
-  path below the output folder is a link and that its real path lies inside the folder's real path
-  (the folder may change while a long run works).
-
-``--out`` itself may be a link (to a folder on another disk): the rule is about what lies inside it.
+A user who moved a sample out of a folder of samples and linked it back must never see ``--overwrite`` replace or
+delete what the link points to: :func:`refuse_links` refuses any link in the folder before the work, and
+:func:`confined` checks each path again at the moment it is written (the folder may change while a run works).
+``--out`` itself may be a link: the rule is about what lies inside it.
 """
 
 from __future__ import annotations
@@ -50,15 +44,11 @@ def refuse_links(out: str | Path, option: str = "--out") -> None:
     out = Path(out)
     if not out.is_dir():
         return
-    for root, dirs, files in os.walk(out, onerror=None):  # os.walk lists a link to a folder but does not enter it
+    for root, dirs, files in os.walk(out):  # os.walk lists a link to a folder but does not enter it
         for name in sorted(dirs + files):
             p = Path(root) / name
             if p.is_symlink():
                 raise link_error(p, option)
-
-
-def _inside(real: str, real_out: str) -> bool:
-    return real == real_out or real.startswith(real_out.rstrip(os.sep) + os.sep)
 
 
 def confined(out: str | Path, path: str | Path, option: str = "--out") -> Path:
@@ -66,17 +56,15 @@ def confined(out: str | Path, path: str | Path, option: str = "--out") -> Path:
     included), and its real path inside ``out``'s real path. Call it right before writing, replacing or
     deleting ``path``; it refuses in one line (:func:`link_error`) otherwise."""
     out, path = Path(out), Path(path)
-    try:
-        rel = path.relative_to(out)
-    except ValueError:
-        rel = None
-    if rel is None or ".." in rel.parts:
-        raise Sin3DMInputError(f"'{path}' lies outside the output folder '{out}'; nothing was written there")
+    outside = f"'{path}' lies outside the output folder '{out}'; nothing was written there"
+    if not path.is_relative_to(out) or ".." in path.relative_to(out).parts:
+        raise Sin3DMInputError(outside)
     cur = out
-    for part in rel.parts:
+    for part in path.relative_to(out).parts:
         cur = cur / part
         if cur.is_symlink():
             raise link_error(cur, option)
-    if not _inside(os.path.realpath(path), os.path.realpath(out)):
-        raise Sin3DMInputError(f"'{path}' lies outside the output folder '{out}'; nothing was written there")
+    real, real_out = os.path.realpath(path), os.path.realpath(out)
+    if real != real_out and not real.startswith(real_out.rstrip(os.sep) + os.sep):
+        raise Sin3DMInputError(outside)
     return path

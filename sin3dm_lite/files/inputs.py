@@ -1,10 +1,8 @@
 """Files a user hands over (a mesh, its textures, a checkpoint, a run's json): checked before they are opened.
 
-One rule for every path read from the user's side: it must be a regular file. Opening a named pipe (FIFO) blocks
-until someone writes to it, a character device such as ``/dev/zero`` never ends, and a folder or socket cannot be
-read at all; :func:`check_regular` refuses each in one line that names the path and what it is.
-:func:`what_text_is` names the text files that are often saved in a binary file's place (a Git LFS pointer, an HTML
-page of a download site), so that the message says what the file is rather than that it is "damaged".
+Every such path must be a regular file: a named pipe (FIFO) or a device such as ``/dev/zero`` would block or never
+end, and a folder cannot be read (:func:`check_regular`). :func:`what_text_is` names the text files often saved in
+a binary file's place (a Git LFS pointer, an HTML page), so that the message says what the file is.
 """
 
 from __future__ import annotations
@@ -40,7 +38,7 @@ def not_regular(path) -> str | None:
 
 def check_regular(path, what: str) -> Path:
     """``path`` as a ``Path``; a :class:`Sin3DMInputError` when it exists but is not a regular file (``what``: the
-    file expected there, e.g. "a mesh file"), before anything opens it: a FIFO or a device would block forever."""
+    file expected there, e.g. "a mesh file")."""
     path = Path(path)
     kind = not_regular(path)
     if kind is not None:

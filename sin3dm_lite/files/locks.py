@@ -1,10 +1,6 @@
-"""One writer per folder: an OS lock held on ``.sin3dm-lock`` (which names the PID) for the writer's life.
-
-A writer holds an OS lock (flock; a byte lock on Windows) on ``folder/.sin3dm-lock`` for as long as it
-writes, and keeps its PID, host and start time in the file for the messages. The OS drops the lock when
-the process ends however it ends, so a lock file nobody holds is provably stale, and a file that is
-created but not yet written (a writer just starting) is never mistaken for one: its writer holds it.
-See :func:`acquire_lock`, :func:`locked` and :func:`create_locked_folder`.
+"""One writer per folder: an OS lock (flock; a byte lock on Windows) held on ``folder/.sin3dm-lock`` for the
+writer's life, the file naming its PID, host and start time for the messages. The OS drops the lock however the
+process ends, so a lock file nobody holds is provably stale, and one just created (its writer starting) is held.
 """
 
 from __future__ import annotations
@@ -60,15 +56,11 @@ def _write_info(fd: int) -> None:
     os.fsync(fd)
 
 
-def _read_info(fd_or_path) -> dict:
+def _read_info(fd: int) -> dict:
     """The owner a lock file names ({} while its writer has not written it yet, or unreadable)."""
     try:
-        if isinstance(fd_or_path, int):
-            os.lseek(fd_or_path, 0, os.SEEK_SET)
-            text = os.read(fd_or_path, 4096).decode()
-        else:
-            text = Path(fd_or_path).read_text()
-        info = json.loads(text)
+        os.lseek(fd, 0, os.SEEK_SET)
+        info = json.loads(os.read(fd, 4096).decode())
         int(info["pid"])
         return info
     except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError):
@@ -76,12 +68,8 @@ def _read_info(fd_or_path) -> dict:
 
 
 def create_locked_folder(folder: Path, files: dict[str, str], option: str = "--out") -> None:
-    """Create ``folder`` holding ``files`` (``{name: text}``) and a lock of this process, in one rename.
-
-    A kill leaves either the complete folder (with a stale lock the next
-    writer takes over) or a temporary folder beside it that the next run removes.
-    A link to an empty folder is made through (the link stays); the current folder is
-    refused: renamed onto, it would vanish under the process and the shell.
+    """Create ``folder`` holding ``files`` (``{name: text}``) and a lock of this process, in one rename (a link to
+    an empty folder is made through). The current folder is refused: renamed onto, it would vanish under the shell.
     """
     folder = Path(folder)
     if folder.is_dir() and resolved_path(folder) == resolved_path(Path.cwd()):
@@ -113,12 +101,9 @@ def create_locked_folder(folder: Path, files: dict[str, str], option: str = "--o
 def acquire_lock(folder: Path, what: str = "folder", option: str | None = "--out") -> None:
     """Lock ``folder`` for this process (an OS lock on ``folder/.sin3dm-lock``, which names the PID).
 
-    A lock another process holds refuses, even one whose file is still empty
-    (that writer is just starting). A lock file nobody holds is stale and
-    taken over (with a warning when it names a process), unless it names a
-    process that still runs here, or one on another machine: then it refuses
-    too, since nothing proves that process gone. ``what`` names the folder in messages, ``option`` the flag that
-    chooses another (None: a command without one, e.g. ``calibrate RUN``).
+    A lock another process holds refuses. A lock file nobody holds is taken over (with a warning), unless it names a
+    process that still runs here, or one on another machine: nothing proves that process gone. ``what`` names the
+    folder in messages, ``option`` the flag that chooses another (None: a command without one).
     """
     folder = Path(folder)
     lock = folder / LOCK
@@ -196,9 +181,8 @@ def holds_lock(folder: Path) -> bool:
 def release_lock(folder: Path) -> None:
     """Remove ``folder``'s lock if this process holds it (the file first, so no one locks a removed file).
 
-    A lock file that cannot be removed (the folder made read-only meanwhile) is left for the next writer,
-    which takes a lock no process holds over: never an error of its own. Called while another error
-    unwinds (a ``finally``), it says nothing, so that error is the one the user reads; else one warning.
+    A lock file that cannot be removed is left for the next writer to take over: a warning, said only when no
+    other error unwinds (that error is the one the user reads).
     """
     fd = _held.pop(resolved_path(folder), None)
     if fd is None:

@@ -1,12 +1,8 @@
-"""The manifest: which files of an output folder this tool wrote, and with which command.
+"""The manifest: which files of an output folder this tool wrote (``.sin3dm-manifest.json``), and with which command.
 
-An output folder records what this tool wrote in ``.sin3dm-manifest.json``; only those files are
-ever replaced. A file is recorded *before* it appears, and a file of ours it replaces stays
-recorded until the move is done (:func:`recorded_path`, :func:`replacing`), so no kill makes our
-own file look foreign to the next run. A long writer (``sample`` of many shapes) records as it
-goes in manifest parts (``.sin3dm-manifest-<name>.jsonl``, one JSON object with a ``files`` entry
-per line, appended and flushed per item); they count as the manifest until the writer merges
-them into it at the end (:func:`append_manifest_part`).
+Only those files are ever replaced. A file is recorded *before* it appears, and a file of ours it replaces stays
+recorded until the move is done (:func:`recorded_path`, :func:`replacing`), so no kill makes our own file look
+foreign to the next run. A long writer appends to manifest parts as it goes (:func:`append_manifest_part`).
 """
 
 from __future__ import annotations
@@ -26,11 +22,9 @@ MANIFEST = ".sin3dm-manifest.json"
 MANIFEST_PART = ".sin3dm-manifest-{}.jsonl"  # parts of the manifest appended by a long writer (one per process)
 _PART = re.compile(r"^\.sin3dm-manifest-[\w.-]+\.jsonl$")
 
-#: A manifest entry: ``{"size": bytes, "mtime_ns": time, "sha256": content digest, "by": command}``.
-#: A file is ours when its size and time match (the fast check), or its size and content do: a copy
-#: (``cp -r``) or a move keeps the content but not always the time. ``by`` names the command that wrote
-#: it (``sample``, ``render``, ...): ``--overwrite`` of one command replaces only that command's files.
-#: Entries of older versions (``[size, mtime_ns]``) are still read, as written by any command.
+# A manifest entry: ``{"size": bytes, "mtime_ns": time, "sha256": content digest, "by": command}``. A file is ours
+# when its size and time match, or its size and content do (a copy keeps the content, not always the time); older
+# entries (``[size, mtime_ns]``) are still read, as written by any command.
 
 
 def _digest(p: Path) -> str:
@@ -52,25 +46,14 @@ def read_manifest(folder: Path) -> dict[str, dict | list]:
     """What this tool wrote in ``folder`` before: ``{relative path: entry}`` (empty without a valid manifest)."""
     try:
         data = json.loads((Path(folder) / MANIFEST).read_text(encoding="utf-8"))
-        files = data["files"] if data.get("tool") == "sin3dm-lite" else {}
-        files = dict(files)
+        files = dict(data["files"] if data.get("tool") == "sin3dm-lite" else {})
     except (OSError, ValueError, KeyError, AttributeError, TypeError):
         return {}
     for record in read_manifest_parts(folder):
         if isinstance(record.get("files"), dict):
             files.update(record["files"])
-    out = {}
-    for f, st in files.items():
-        if (
-            isinstance(f, str)
-            and f
-            and not os.path.isabs(f)
-            and ".." not in Path(f).parts
-            and f != MANIFEST
-            and _entries(st)
-        ):
-            out[Path(f).as_posix()] = st
-    return out
+    inside = lambda f: isinstance(f, str) and f and not os.path.isabs(f) and ".." not in Path(f).parts
+    return {Path(f).as_posix(): st for f, st in files.items() if inside(f) and f != MANIFEST and _entries(st)}
 
 
 def manifest_parts(folder: Path) -> list[Path]:
@@ -100,11 +83,8 @@ def read_manifest_parts(folder: Path) -> list[dict]:
 
 
 def append_manifest_part(folder: Path, name: str, record: dict) -> None:
-    """Append ``record`` (with ``files: {relative path: entry}``) as one line to the part ``name``, on disk.
-
-    Call it *before* moving those files into place (a move keeps size and
-    time): a kill then leaves no file of ours unrecorded.
-    """
+    """Append ``record`` (with ``files: {relative path: entry}``) as one line to the part ``name``, on disk; call it
+    *before* moving those files into place, so that a kill leaves no file of ours unrecorded."""
     fd = open_own(Path(folder) / MANIFEST_PART.format(name), os.O_WRONLY | os.O_APPEND | os.O_CREAT)
     with os.fdopen(fd, "a", encoding="utf-8") as f:
         f.write(json.dumps(record) + "\n")
@@ -121,9 +101,9 @@ def writer(folder: Path, rel: str, manifest: dict | None = None) -> str | None:
     """The command that wrote ``folder/rel`` if it is a file of ours nobody changed since ("" when an older
     version wrote it without saying), else None. Same size and time, or same size and content (a copy)."""
     manifest = read_manifest(folder) if manifest is None else manifest
-    p = Path(folder) / rel
     if rel not in manifest:
         return None
+    p = Path(folder) / rel
     try:
         if not p.is_file() or p.is_symlink():
             return None
@@ -173,21 +153,15 @@ def write_manifest(folder: Path, files: dict) -> None:
 
 def record_written(folder: Path, names, by: str | None = None) -> None:
     """Add the files ``names`` (relative to ``folder``, as they are now, written by the command ``by``) to its manifest."""
-    m = read_manifest(folder)
-    m.update(file_record(folder, names, by))
-    write_manifest(folder, m)
+    write_manifest(folder, {**read_manifest(folder), **file_record(folder, names, by)})
 
 
 @contextmanager
 def recorded_path(path: str | Path, by: str | None = None):
     """Yield a temporary path beside ``path``; when the block succeeds, record it as ours and move it onto ``path``.
 
-    Like :func:`atomic_path`, but the manifest of ``path``'s folder learns the
-    new file *before* it appears, and keeps the old file of ours acceptable
-    until the move is done. A kill at any moment leaves ``path`` absent, the old
-    file or the new one, always recorded: a rerun with ``--overwrite`` replaces
-    it instead of refusing it as someone else's. (Writing the file and then
-    recording it left a window in which a kill made our own file look foreign.)
+    The manifest learns the new file *before* it appears and keeps the old file acceptable until the move is done,
+    so a kill at any moment leaves ``path`` absent, old or new, always recorded.
     """
     path = Path(path)
     folder, rel = path.parent, path.name
@@ -204,13 +178,9 @@ def recorded_path(path: str | Path, by: str | None = None):
 
 
 def replacing(folder: Path, manifest: dict, new: dict[str, dict]) -> dict:
-    """The manifest entries of the files ``new`` (``{relative path: entry}``) about to be moved into
-    ``folder``: where one replaces a file of ours (by ``manifest``), its entry keeps the old stat beside the new.
-
-    Write ``{**manifest, **replacing(...)}`` *before* the moves, so a kill
-    between the manifest and the moves leaves nothing of ours looking foreign,
-    and the plain entries once the moves are done.
-    """
+    """The manifest entries of the files ``new`` (``{relative path: entry}``) about to be moved into ``folder``:
+    where one replaces a file of ours, its entry keeps the old stat beside the new. Write ``{**manifest,
+    **replacing(...)}`` *before* the moves, and the plain entries once they are done."""
     out = {}
     for f, st in new.items():
         old = _entries(manifest[f]) if is_ours(folder, f, manifest) else []

@@ -1,10 +1,5 @@
-"""Output folders: checked before the long work, filled without touching anything that is not ours.
-
-An output folder that is not empty is refused unless ``--overwrite`` is given, and then only the
-files its manifest lists as written there (by the same command) are replaced
-(:func:`check_output_folder`); a finished temporary folder is moved in with its files recorded
-first (:func:`install_output`, :func:`merge_output`); :func:`remove_files` deletes files of ours and
-the folders they leave empty.
+"""Output folders: checked before the long work (:func:`check_output_folder`), filled without touching anything
+that is not ours (:func:`install_output`, :func:`merge_output`), files of ours removed (:func:`remove_files`).
 """
 
 from __future__ import annotations
@@ -46,9 +41,7 @@ def check_writable(path: Path, option: str = "--out") -> None:
                 f"another {option}"
             )
     base = path if path.is_dir() else path.parent
-    while not base.exists():  # the nearest existing ancestor must let us create what is missing
-        if base.parent == base:
-            break
+    while not base.exists() and base.parent != base:  # the nearest existing ancestor must let us create the rest
         base = base.parent
     if not base.is_dir():
         raise Sin3DMInputError(
@@ -105,11 +98,8 @@ def present(out: Path) -> list[Path]:
 
 
 def check_output_folder(out: Path, overwrite: bool, names=(), option: str = "--out", by: str | None = None) -> None:
-    """Refuse an ``out`` that is a file, or a non-empty folder without ``overwrite``.
-
-    With ``overwrite``, refuse if any of ``names`` (what the command will write)
-    is a file this tool did not write there before (with the command ``by``, if given).
-    """
+    """Refuse an ``out`` that is a file, or a non-empty folder without ``overwrite``; with it, refuse if any of
+    ``names`` (what the command will write) is a file this tool (the command ``by``, if given) did not write there."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise Sin3DMInputError(f"{option} '{out}' is a file; give a folder to write into")
@@ -127,12 +117,8 @@ def check_output_folder(out: Path, overwrite: bool, names=(), option: str = "--o
 
 
 def merge_output(tmp: Path, out: Path, by: str | None = None) -> None:
-    """Move the files of ``tmp`` into the existing folder ``out`` beside what is there, recording them in its manifest.
-
-    Unlike :func:`install_output` nothing else of ours in ``out`` is removed
-    (``examples --write`` adds one example to a folder); the caller has checked
-    that no foreign file is in the way.
-    """
+    """Move the files of ``tmp`` into the existing folder ``out`` beside what is there, recording them in its manifest;
+    unlike :func:`install_output` nothing else of ours is removed. The caller has checked for foreign files."""
     names = sorted(p.name for p in Path(tmp).iterdir())
     new = file_record(tmp, names, by)  # os.replace keeps size and time
     with locked(out):
@@ -144,14 +130,12 @@ def merge_output(tmp: Path, out: Path, by: str | None = None) -> None:
 
 
 def install_output(tmp: Path, out: Path, by: str | None = None) -> list[str]:
-    """Move everything in the finished folder ``tmp`` into ``out`` and record it in ``out``'s manifest.
+    """Move everything in the finished folder ``tmp`` into ``out`` and record it in ``out``'s manifest; returns the
+    new files.
 
-    A new ``out`` appears in one rename. Into an existing ``out``, the files of
-    ours that the command ``by`` wrote there before (unchanged since) are
-    removed first; files other commands wrote (a ``sample`` run's meshes beside
-    a ``render``'s pictures) and files not ours are never touched, and one in the way of
-    a new file stops everything before any change. The manifest is written first with old and
-    new entries, so a kill halfway leaves no file of ours unrecorded. Returns the new files.
+    A new ``out`` appears in one rename. Into an existing ``out``, the files the command ``by`` wrote there before
+    are removed first; files of other commands, or not ours, are never touched, and one in the way of a new file
+    stops everything before any change. The manifest is written first with old and new entries.
     """
     tmp, out = Path(tmp), Path(out)
     new = file_record(tmp, _files_under(tmp), by)

@@ -1,20 +1,15 @@
 """What every mesh reader shares: the folder a mesh file may read from, errors and warnings, assembly.
 
-A reader (:mod:`.obj` for OBJ + MTL, :mod:`.scene` for the formats trimesh
-reads) returns a list of :class:`Part` and the materials they index;
-:func:`assemble` joins them into one :class:`~sin3dm_lite.data.mesh.TexturedMesh`
-and refuses what Sin3DM cannot learn from. A file the mesh names (a material
-library, a texture, a glTF buffer) is found with :func:`resolve_asset`, inside
-the mesh's own folder only unless :class:`Scope` allows anywhere.
-
-Bad input raises one :class:`~sin3dm_lite.errors.Sin3DMInputError` whose
-message names the problem and the fix (:func:`unreadable` for a file that is
-not what its extension says); a missing or unreadable texture is a
-``UserWarning`` (:func:`warn`) and the material falls back to its plain colour.
+A reader (:mod:`.obj`, :mod:`.scene`) returns a list of :class:`Part` and the materials they index; :func:`assemble`
+joins them into one :class:`~sin3dm_lite.data.mesh.TexturedMesh` and refuses what Sin3DM cannot learn from. Bad
+input raises a :class:`~sin3dm_lite.errors.Sin3DMInputError` naming the problem and the fix; a missing texture is a
+``UserWarning`` (:func:`warn`) and the material keeps its plain colour.
 """
 
 from __future__ import annotations
 
+import sys
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,9 +18,6 @@ import numpy as np
 from ..data.mesh import MAX_COORDINATE, Material, TexturedMesh, face_areas, unique_rows
 from ..errors import Sin3DMInputError
 from ..files.inputs import check_regular, not_regular
-
-#: the modules whose frames :func:`warn` skips: the readers and their entry points (``formats/load.py``)
-_READERS = (__package__,)  # formats/load.py is in the same package
 
 
 @dataclass(frozen=True)
@@ -57,27 +49,18 @@ def unreadable(path, what: str, exc: BaseException | str) -> Sin3DMInputError:
 
 
 def warn(message: str) -> None:
-    """``warnings.warn`` attributed to the first caller outside the readers (the user's line)."""
-    import sys
-    import warnings
-
+    """``warnings.warn`` attributed to the first caller outside this package (the user's line)."""
     level, frame = 2, sys._getframe(1)  # stacklevel 2 = the caller of warn
-    while frame is not None and _is_reader(frame.f_globals.get("__name__", "")):
+    while frame is not None and frame.f_globals.get("__name__", "").split(".")[:2] == __package__.split("."):
         frame, level = frame.f_back, level + 1
     warnings.warn(message, UserWarning, stacklevel=level)
-
-
-def _is_reader(module: str) -> bool:
-    return module in _READERS or module.startswith(_READERS[0] + ".")
 
 
 def resolve_asset(ref: str, base: Path, scope: Scope, what: str, cwd: bool = True) -> Path | None:
     """Find a file a mesh file names: as written (relative to ``base``, else to the working directory if ``cwd``),
     then by its base name (also ignoring case) in ``base``; None if there is none.
 
-    Files outside the mesh's folder are skipped (``scope``); if only such files exist, the reference is
-    refused (:class:`Sin3DMInputError` naming ``what``, the reference and the file). A candidate that is not a
-    regular file (a FIFO, a device) is refused too (:func:`~sin3dm_lite.files.inputs.check_regular`).
+    Files outside ``scope`` are skipped, and refused if no other is found; a FIFO or a device is refused.
     """
     name = Path(ref.strip().strip('"').replace("\\", "/"))
 
@@ -151,8 +134,7 @@ def assemble(parts: list[Part], materials: list[Material], name: str, source: st
     keep, inverse = unique_rows(vertices if colors is None else np.hstack([vertices, colors.astype(np.float64)]))
     vertices, faces, colors = vertices[keep], inverse[faces], (colors[keep] if colors is not None else None)
 
-    extent = vertices.max(0) - vertices.min(0)
-    if extent.max() <= 0:
+    if (vertices.max(0) - vertices.min(0)).max() <= 0:
         raise Sin3DMInputError(
             f"'{source}' has a zero-size bounding box (all its vertices are at the same point); "
             "Sin3DM needs faces that span some volume"
@@ -163,8 +145,7 @@ def assemble(parts: list[Part], materials: list[Material], name: str, source: st
             f"'{source}' has a vertex coordinate of {big:.3g}, too large for its bounding box (the limit is "
             f"{MAX_COORDINATE:.0e}); remove the stray vertex or scale the mesh down in a mesh editor"
         )
-    area = face_areas(vertices, faces)
-    if not area.sum() > 0:
+    if not face_areas(vertices, faces).sum() > 0:
         raise Sin3DMInputError(
             f"'{source}' has zero surface area (every triangle is degenerate: collinear or repeated "
             "vertices); Sin3DM needs a surface mesh"

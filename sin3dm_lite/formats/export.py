@@ -1,28 +1,7 @@
-"""Write meshes to disk: OBJ + MTL + PNG and binary glTF (GLB).
+"""Write meshes to disk: OBJ + MTL + PNG (:func:`save_obj`) and binary glTF (:func:`save_glb`).
 
-The shared types (:class:`~sin3dm_lite.data.mesh.TexturedMesh`, ``Material``,
-``Normalization``) live in :mod:`sin3dm_lite.data.mesh` and the readers in
-:mod:`sin3dm_lite.formats`; this module owns everything that writes them.
-
-Public API::
-
-    save_obj(mesh, path) -> Path              # .obj + .mtl + PNG textures
-    save_glb(mesh, path) -> Path              # binary glTF with PBR materials
-    to_trimesh_scene(mesh) -> trimesh.Scene   # what save_glb writes (trimesh's viewers and exporters take it)
-    export_mesh(mesh, out_dir, name, formats) -> {format: path}   # both, into one folder
-    split_corners(faces, face_uvs)            # one vertex per distinct (vertex, uv) pair
-    baked_image(material)                     # texture times the material's colour factor
-
-Every writer is atomic: a single file goes through
-:func:`~sin3dm_lite.files.atomic_write`, several files through
-:func:`~sin3dm_lite.files.atomic_folder` (a temporary folder beside or inside
-the target, moved into place when everything is complete), so a failure
-(disk full, bad texture) or a kill never leaves a half-written output behind.
-
-PBR maps of a material (``metallic_roughness_image``, ``normal_image``) go
-into the GLB's metallic-roughness material; the OBJ writes them as
-``map_Pr`` / ``map_Pm`` / ``map_Bump`` PNGs. ``load.load_mesh`` reads
-everything written here back.
+Every writer is atomic (:func:`~sin3dm_lite.files.atomic_write`, :func:`~sin3dm_lite.files.atomic_folder`): a
+failure or a kill never leaves a half-written output behind. :func:`~.load.load_mesh` reads everything written here.
 """
 
 from __future__ import annotations
@@ -41,17 +20,8 @@ FORMATS = ("obj", "glb")
 
 
 def export_mesh(mesh: TexturedMesh, out_dir, name: str = "mesh", formats=FORMATS) -> dict[str, Path]:
-    """Write ``out_dir/<name>.obj`` (with its ``.mtl`` and texture ``.png``) and/or ``out_dir/<name>.glb``.
-
-    Files are written into a temporary folder (:func:`files.atomic_folder`)
-    and moved into place only after all of them are complete. A new
-    ``out_dir`` appears in one rename; into an existing one each file is moved
-    with an atomic replace (other files there are left alone).
-
-    Returns:
-        ``{format: path}`` of the main file of each format (the OBJ's MTL and
-        PNG lie beside it).
-    """
+    """Write ``out_dir/<name>.obj`` (with its ``.mtl`` and texture ``.png``) and/or ``out_dir/<name>.glb``, all
+    moved into place only once complete (:func:`~sin3dm_lite.files.atomic_folder`); returns ``{format: path}``."""
     formats = (formats,) if isinstance(formats, str) else tuple(formats)
     unknown = [f for f in formats if f not in FORMATS]
     if unknown or not formats:
@@ -113,17 +83,9 @@ def _safe_name(name: str, used: set) -> str:
 def save_obj(mesh: TexturedMesh, path) -> Path:
     """Write ``path`` (.obj) with ``<stem>.mtl`` and the textures as PNGs beside it.
 
-    * positions as ``v`` (plus ``r g b`` when the mesh has vertex colours),
-      per-corner UVs as ``vt`` with their own indices (``f v/vt``), so no
-      vertex is split; faces keep their order (``usemtl`` at each change);
-    * one MTL material per material: ``Kd`` is its colour; a texture is
-      written as ``<stem>.png`` (one textured material) or ``<stem>_<k>.png``
-      with the colour factor multiplied in and ``Kd 1 1 1`` (viewers disagree
-      on whether ``Kd`` tints ``map_Kd``; this way they all agree);
-      ``Pm``/``Pr`` scalars, ``map_Pr``/``map_Pm`` (grey PNGs) and
-      ``map_Bump`` (normal map, as Blender writes it) for PBR materials.
-
-    ``load_mesh`` on the result gives the same geometry and colours.
+    Faces keep their order and per-corner UVs (``f v/vt``), so no vertex is split. A texture is written with the
+    colour factor multiplied in and ``Kd 1 1 1``: viewers disagree on whether ``Kd`` tints ``map_Kd``, this way
+    they all agree. PBR maps become ``map_Pr``/``map_Pm`` (grey PNGs) and ``map_Bump``.
     """
     path = _prepare_output(path, ".obj")
     used_names: set = set()
@@ -143,7 +105,6 @@ def _write_mtl(mesh: TexturedMesh, folder: Path, stem: str, names: list[str]) ->
         prefix = stem if (single_texture and mat.image is not None) else f"{stem}_{k}"
         c = np.asarray(mat.base_color, np.float64)
         kd, maps = _material_maps(mat, mesh.face_uvs is not None, folder, prefix, baked)
-        roughness, metallic = float(mat.roughness), float(mat.metallic)
         lines += [
             f"newmtl {names[k]}",
             "Ka 0.000000 0.000000 0.000000",
@@ -152,8 +113,8 @@ def _write_mtl(mesh: TexturedMesh, folder: Path, stem: str, names: list[str]) ->
             "Ns 10.000000",
             f"d {float(c[3]) if len(c) > 3 else 1.0:.6f}",
             "illum 1",
-            f"Pr {roughness:.6f}",
-            f"Pm {metallic:.6f}",
+            f"Pr {float(mat.roughness):.6f}",
+            f"Pm {float(mat.metallic):.6f}",
             *maps,
             "",
         ]
@@ -163,19 +124,21 @@ def _write_mtl(mesh: TexturedMesh, folder: Path, stem: str, names: list[str]) ->
 def _material_maps(mat: Material, has_uv: bool, folder: Path, prefix: str, baked: dict):
     """Write a material's textures as ``<prefix>…png``; returns its ``Kd`` and its MTL map lines."""
     kd, maps = tuple(np.clip(np.asarray(mat.base_color, np.float64)[:3], 0, 1)), []
-    if mat.image is not None and has_uv:
+    if not has_uv:
+        return kd, maps
+    if mat.image is not None:
         key = (id(mat.image), tuple(np.asarray(mat.base_color, np.float32)[:3]))
         if key not in baked:
             baked[key] = f"{prefix}.png"
             array_to_pil(baked_image(mat)).save(folder / baked[key])
         maps.append(f"map_Kd {baked[key]}")
         kd = (1.0, 1.0, 1.0)
-    if mat.metallic_roughness_image is not None and has_uv:
+    if mat.metallic_roughness_image is not None:
         for chan, tag, factor in ((1, "Pr", float(mat.roughness)), (2, "Pm", float(mat.metallic))):
             fname = f"{prefix}_{'roughness' if chan == 1 else 'metallic'}.png"
             array_to_pil(mat.metallic_roughness_image[:, :, chan] * factor).save(folder / fname)  # grey
             maps.append(f"map_{tag} {fname}")
-    if mat.normal_image is not None and has_uv:
+    if mat.normal_image is not None:
         array_to_pil(mat.normal_image).save(folder / f"{prefix}_normal.png")
         maps.append(f"map_Bump -bm 1.000000 {prefix}_normal.png")
     return kd, maps
@@ -222,12 +185,8 @@ def _write_rows(fh, row_format: str, array: np.ndarray, chunk: int = 65536) -> N
 
 
 def _baked_vertex_colors(mesh: TexturedMesh) -> np.ndarray | None:
-    """Vertex colours times the factor of the (untextured) material that uses each vertex.
-
-    OBJ vertex colours replace ``Kd`` when read back, so the factor goes into
-    the colours (exact unless one vertex is shared by materials with different
-    factors; the first such material wins).
-    """
+    """Vertex colours times the factor of the (untextured) material that uses each vertex (the first one wins):
+    OBJ vertex colours replace ``Kd`` when read back, so the factor goes into the colours."""
     if mesh.vertex_colors is None:
         return None
     factor = np.ones((len(mesh.vertices), 3), np.float32)
@@ -239,10 +198,7 @@ def _baked_vertex_colors(mesh: TexturedMesh) -> np.ndarray | None:
 
 
 def save_glb(mesh: TexturedMesh, path) -> Path:
-    """Write a binary glTF: the scene of :func:`to_trimesh_scene`, one primitive per material.
-
-    Readable by :func:`load_mesh`, trimesh, Blender and web viewers.
-    """
+    """Write a binary glTF: the scene of :func:`to_trimesh_scene`, one primitive per material."""
     path = _prepare_output(path, ".glb")
     atomic_write(path, to_trimesh_scene(mesh).export(file_type="glb"))
     return path
@@ -251,13 +207,8 @@ def save_glb(mesh: TexturedMesh, path) -> Path:
 def to_trimesh_scene(mesh: TexturedMesh):
     """A ``trimesh.Scene`` of the mesh, one geometry per material with a PBR metallic-roughness material.
 
-    What :func:`save_glb` writes, and what trimesh's own viewers (``scene.show()``)
-    and exporters take. A textured material becomes ``baseColorTexture``
-    (+ ``baseColorFactor``, ``metallicRoughnessTexture``, ``normalTexture``,
-    metallic and roughness factors) with vertices split where a vertex has
-    several UVs; an untextured material with vertex colours becomes vertex
-    colours (``COLOR_0`` in a GLB, factor multiplied in); otherwise a plain
-    ``baseColorFactor``.
+    Textured materials split vertices where a vertex has several UVs; an untextured material with vertex colours
+    becomes vertex colours (factor multiplied in); otherwise a plain ``baseColorFactor``.
     """
     import trimesh
     from trimesh.visual import ColorVisuals, TextureVisuals
@@ -273,7 +224,7 @@ def to_trimesh_scene(mesh: TexturedMesh):
             "metallicRoughnessTexture": mat.metallic_roughness_image,
             "normalTexture": mat.normal_image,
         }
-        maps = {k: array_to_pil(m) for k, m in maps.items() if m is not None and mesh.face_uvs is not None}
+        maps = {key: array_to_pil(m) for key, m in maps.items() if m is not None and mesh.face_uvs is not None}
         # uint8 on purpose: trimesh reads a list of ints as 0..255
         factor = trimesh.visual.color.to_rgba(np.clip(np.asarray(mat.base_color, np.float64), 0, 1))
         pbr = PBRMaterial(

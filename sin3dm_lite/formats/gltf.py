@@ -1,11 +1,5 @@
-"""glTF / GLB headers, read before trimesh reads the file: which files it names, which textures are broken.
-
-trimesh reads glTF scenes (:mod:`.scene`) but follows any ``uri`` a file
-names and drops a texture it cannot decode without a word. So the JSON
-header is read here first (:func:`gltf_json`): the external buffers and images
-must lie in the mesh's folder (:func:`check_gltf_files`), and every texture a
-material uses that is missing or undecodable becomes a warning
-(:func:`gltf_image_problems`).
+"""glTF / GLB headers, read before trimesh reads the file: trimesh follows any ``uri`` a file names and drops a
+texture it cannot decode without a word, so the files a glTF names are confined here and its broken textures said.
 """
 
 from __future__ import annotations
@@ -21,7 +15,7 @@ from .common import Scope, resolve_asset, unreadable
 
 def check_gltf_files(path, header: dict, scope: Scope) -> None:
     """Refuse a glTF whose buffers or images are files outside the mesh's folder (unless ``scope`` allows)."""
-    for kind in ("buffers", "images"):  # external files trimesh would read: in the mesh's folder only
+    for kind in ("buffers", "images"):
         for item in header.get(kind, []) if isinstance(header.get(kind), list) else []:
             uri = item.get("uri") if isinstance(item, dict) else None
             if isinstance(uri, str) and not uri.startswith("data:"):
@@ -49,11 +43,8 @@ def gltf_json(path, fmt: str) -> tuple[dict, bytes]:
 
 
 def gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
-    """A warning for each texture a glTF's materials use that is missing or undecodable (trimesh silently drops
-    them). Its external files were checked to be in its folder (:func:`check_gltf_files`).
-
-    Best effort: any other surprise → no warnings.
-    """
+    """A warning for each texture a glTF's materials use that is missing or undecodable (best effort: any other
+    surprise gives no warnings). Its external files were checked by :func:`check_gltf_files`."""
     from PIL import Image
 
     def blob(item):  # the bytes of an image or buffer: data URI, file beside the glTF, or buffer view

@@ -1,16 +1,15 @@
-"""Images in and out: a texture file or array as float RGB, and float RGB as an 8-bit image or PNG.
-
-Every reader turns its textures into ``(h, w, 3)`` float32 in [0, 1]
-(:func:`image_to_array`); every writer and viewer turns such arrays back into
-8-bit pictures with :func:`array_to_pil` (and :func:`png_bytes` for PNG bytes
-in memory), so the rounding lives in one place.
+"""Images in and out: textures as ``(h, w, 3)`` float32 RGB in [0, 1] (:func:`image_to_array`), and back to 8-bit
+pictures (:func:`array_to_pil`) or PNG bytes (:func:`png_bytes`), so the rounding lives in one place.
 """
 
 from __future__ import annotations
 
 import io
+import warnings
 
 import numpy as np
+
+from .common import warn
 
 
 class named_image_warnings:  # noqa: N801 (used as a function: ``with named_image_warnings(what):``)
@@ -19,13 +18,9 @@ class named_image_warnings:  # noqa: N801 (used as a function: ``with named_imag
     image. Other warnings raised inside pass on as they were."""
 
     def __init__(self, what: str):
-        import warnings
-
         self.what, self.catch = what, warnings.catch_warnings(record=True)
 
     def __enter__(self):
-        import warnings
-
         from PIL import Image
 
         self.caught = self.catch.__enter__()
@@ -33,11 +28,7 @@ class named_image_warnings:  # noqa: N801 (used as a function: ``with named_imag
         return self
 
     def __exit__(self, *exc):
-        import warnings
-
         from PIL import Image
-
-        from .common import warn
 
         self.catch.__exit__(*exc)
         said = set()
@@ -54,12 +45,8 @@ class named_image_warnings:  # noqa: N801 (used as a function: ``with named_imag
 
 
 def image_to_array(image, max_size: int | None = None) -> np.ndarray:
-    """A PIL image or array as ``(h, w, 3)`` float32 RGB in [0, 1].
-
-    Alpha is dropped, grey is repeated into RGB, 16-bit and float images are
-    scaled; images larger than ``max_size`` (longest side) are shrunk with a
-    box filter.
-    """
+    """A PIL image or array as ``(h, w, 3)`` float32 RGB in [0, 1]: alpha dropped, grey repeated into RGB, 16-bit
+    and float images scaled, images larger than ``max_size`` (longest side) shrunk with a box filter."""
     from PIL import Image
 
     if isinstance(image, Image.Image):
@@ -94,12 +81,8 @@ def image_to_array(image, max_size: int | None = None) -> np.ndarray:
 
 
 def array_to_pil(image: np.ndarray, max_size: int | None = None, resample: str = "box"):
-    """An image as an 8-bit PIL image, shrunk to ``max_size`` (longest side) if given.
-
-    ``image`` is ``(h, w)`` or ``(h, w, c)``: floats in [0, 1] (clipped, then
-    rounded to the nearest of 0..255 in their own precision) or ``uint8`` (as
-    it is). ``resample`` is the shrinking filter, ``"box"`` or ``"bilinear"``.
-    """
+    """An ``(h, w[, c])`` image (floats in [0, 1], rounded in their own precision, or ``uint8``) as an 8-bit PIL
+    image, shrunk to ``max_size`` (longest side) with the filter ``resample`` (``"box"`` or ``"bilinear"``)."""
     from PIL import Image
 
     arr = np.asarray(image)
@@ -109,12 +92,8 @@ def array_to_pil(image: np.ndarray, max_size: int | None = None, resample: str =
 
 
 def png_bytes(image: np.ndarray, max_size: int | None = None) -> bytes:
-    """Encode an ``(h, w, 3|4)`` image (float in [0, 1] or uint8) as PNG, shrunk to ``max_size`` if larger.
-
-    Alpha is dropped; floats are rounded in double precision and a larger
-    image is shrunk with a bilinear filter (what the viewers and renders have
-    always written).
-    """
+    """Encode an ``(h, w, 3|4)`` image (float in [0, 1] or uint8) as PNG without alpha, floats rounded in double
+    precision, shrunk to ``max_size`` with a bilinear filter."""
     img = np.asarray(image)
     if img.dtype != np.uint8:
         img = img.astype(np.float64)

@@ -1,10 +1,6 @@
-"""MTL material libraries: the ``newmtl`` blocks an OBJ uses, with their textures.
-
-``Kd`` colours, ``d``/``Tr`` opacity, ``map_Kd`` textures (with ``-s``/``-o``
-uv options), the PBR extensions ``Pm``/``Pr``/``map_Pm``/``map_Pr`` and the
-normal map ``map_Bump``/``bump``/``norm``. Textures are found beside the MTL
-file (:func:`~.common.resolve_asset`), decoded once each and shrunk to the
-loader's ``max_size``; a missing or unreadable one is a warning.
+"""MTL material libraries: the ``newmtl`` blocks an OBJ uses (``Kd``, ``d``/``Tr``, ``map_Kd`` with ``-s``/``-o``,
+the PBR extensions ``Pm``/``Pr``/``map_Pm``/``map_Pr`` and the normal map ``map_Bump``/``bump``/``norm``), with their
+textures found beside the MTL file, decoded once each; a missing or unreadable one is a warning.
 """
 
 from __future__ import annotations
@@ -53,12 +49,9 @@ def read_libraries(entries: list[str], path: Path, used: set, scope: Scope, max_
 def parse_mtl(path, used: set, texture) -> dict[str, tuple[Material, tuple | None]]:
     """The ``newmtl`` blocks of an MTL file → ``{name: (material, uv transform or None)}``, in file order.
 
-    Only the materials named in ``used`` are built, so textures that no face
-    shows are neither decoded nor warned about; ``texture`` loads an image
-    (:func:`load_texture`). A loaded ``map_Kd`` replaces ``Kd`` and a loaded
-    ``map_Pr``/``map_Pm`` replaces ``Pr``/``Pm`` (as Blender and three.js
-    read them). The uv transform is ``(scale, offset)`` from the ``map_Kd
-    -s/-o`` options.
+    Only the materials named in ``used`` are built, so textures that no face shows are neither decoded nor warned
+    about; ``texture`` loads an image (:func:`load_texture`). A loaded map replaces its scalar (``map_Kd`` → ``Kd``,
+    as Blender and three.js read them). The uv transform is ``(scale, offset)`` from ``map_Kd -s/-o``.
     """
     raw: dict[str, dict] = {}
     cur: dict = {}  # statements before the first newmtl belong to no material
@@ -97,7 +90,7 @@ def parse_mtl(path, used: set, texture) -> dict[str, tuple[Material, tuple | Non
             fname, opts = d["map_kd"]
             mat.image = texture(fname, "map_Kd", mname, path)
             if mat.image is not None:
-                mat.base_color[:3] = 1.0  # the texture replaces Kd (Blender, three.js and co. agree)
+                mat.base_color[:3] = 1.0
                 s = [float(x) for x in opts.get("-s", [])] + [1.0, 1.0]
                 o = [float(x) for x in opts.get("-o", [])] + [0.0, 0.0]
                 if s[:2] != [1.0, 1.0] or o[:2] != [0.0, 0.0]:
@@ -120,29 +113,16 @@ def parse_mtl(path, used: set, texture) -> dict[str, tuple[Material, tuple | Non
     return out
 
 
-_TEX_OPTION_ARGS = {  # MTL texture options and how many arguments each takes (at most)
-    "-blendu": 1,
-    "-blendv": 1,
-    "-bm": 1,
-    "-boost": 1,
-    "-cc": 1,
-    "-clamp": 1,
-    "-imfchan": 1,
-    "-mm": 2,
-    "-o": 3,
-    "-s": 3,
-    "-t": 3,
-    "-texres": 1,
-    "-type": 1,
-}
+#: MTL texture options and how many arguments each takes (at most)
+_TEX_OPTION_ARGS = dict.fromkeys(
+    ("-blendu", "-blendv", "-bm", "-boost", "-cc", "-clamp", "-imfchan", "-texres", "-type"), 1
+)
+_TEX_OPTION_ARGS.update({"-mm": 2, "-o": 3, "-s": 3, "-t": 3})
 
 
 def parse_tex_line(rest: str):
-    """``[options] filename`` of an MTL map line → (filename, {option: [args]}).
-
-    An option's first argument is taken as it is, further ones only while
-    they are numbers; the last token always belongs to the filename.
-    """
+    """``[options] filename`` of an MTL map line → (filename, {option: [args]}): an option's first argument is taken
+    as it is, further ones only while they are numbers; the last token always belongs to the filename."""
     tokens, opts = rest.split(), {}
     while len(tokens) > 1 and tokens[0].lower() in _TEX_OPTION_ARGS:
         opt = tokens.pop(0).lower()
@@ -161,10 +141,8 @@ def _is_number(s: str) -> bool:
 
 
 def load_texture(ref: str, what: str, mname: str, mtl: Path, *, max_size, cache: dict, scope: Scope):
-    """The image an MTL map line names, as an array; ``None`` with a warning if it is missing or unreadable.
-
-    Each file is decoded once (``cache``): several materials often share one atlas.
-    """
+    """The image an MTL map line names, as an array, each file decoded once (``cache``: materials often share an
+    atlas); ``None`` with a warning if it is missing or unreadable."""
     from PIL import Image
 
     owner = f"{what} of material '{mname}' in '{mtl.name}'"

@@ -1,11 +1,7 @@
-"""Wavefront OBJ: the reader, parsed here rather than by trimesh.
+"""Wavefront OBJ, parsed here rather than by trimesh, so face order, vertex order and UV indices stay the file's.
 
-Face order, vertex order and UV indices stay exactly the file's (trimesh
-groups faces by material and drops a ``map_Kd`` with options:
-``tests/test_formats.py::test_obj_reader_keeps_what_trimesh_loses``). Each
-keyword (``v``, ``vt``, ``f``, ``usemtl``, ``mtllib``) is found with one
-regular-expression scan of the whole text, much faster than a Python loop
-over lines; the material libraries are read by :mod:`.mtl`.
+Each keyword (``v``, ``vt``, ``f``, ``usemtl``, ``mtllib``) is found with one regular-expression scan of the whole
+text rather than a Python loop over lines; the material libraries are read by :mod:`.mtl`.
 """
 
 from __future__ import annotations
@@ -63,8 +59,8 @@ def _scan(text: str, keyword: str):
 
 
 def _faces_by_material(path, text: str, v_pos: np.ndarray, vt_pos: np.ndarray):
-    """Triangles of vertex and uv indices (see :func:`_obj_faces`), each face's material slot, and the names of
-    the slots faces use (``None``: faces before any ``usemtl``)."""
+    """Triangles of vertex and uv indices (:func:`_obj_faces`), each face's material slot, and the names of the
+    slots faces use (``None``: faces before any ``usemtl``)."""
     f_rows, f_pos = _scan(text, "f")
     use_names, use_pos = _scan(text, "usemtl")
     # the material slot in force at each face: that of the last usemtl before it (slot 0: none yet)
@@ -119,12 +115,9 @@ def _obj_face_uvs(uvs: np.ndarray, ft: np.ndarray, face_material: np.ndarray, uv
 def _obj_faces(path, rows: list[str], info: np.ndarray, line_of):
     """Face lines → triangles ``(F, 3)`` of vertex and uv indices (0-based; uv -1: none) and material slots.
 
-    ``info`` holds, for each line, its position in the text, its material slot
-    and how many vertices and uvs were defined before it. Indices are 1-based;
-    negative ones count back from the last vertex (uv) defined so far.
-    Polygons are fan-triangulated; lines with fewer than three corners are
-    skipped. Files with one index layout (the usual case) are parsed in one
-    vectorised step.
+    ``info`` holds, for each line, its position in the text, its material slot and how many vertices and uvs were
+    defined before it (negative indices count back from there). Polygons are fan-triangulated, lines with fewer
+    than three corners skipped; files with one index layout (the usual case) are parsed in one vectorised step.
     """
     counts = np.array([len(row.split()) for row in rows], np.int64)  # corners per line
     line = np.repeat(np.arange(len(rows)), np.maximum(counts - 2, 0))  # the line of each triangle

@@ -1,12 +1,5 @@
-"""glTF / GLB, PLY, STL and OFF: read by trimesh, turned into parts with our materials.
-
-Every mesh node of the file's scene becomes one :class:`~.common.Part` with
-its node transform applied; its trimesh visual decides the colour source:
-a material (base colour texture and factor; metallic-roughness texture and
-factors and the normal map go to the material's PBR fields), vertex colours
-(glTF ``COLOR_0``, PLY), face colours (PLY; one material per colour while
-there are few), or the default colour. Files a glTF or PLY names are checked
-to lie in the mesh's folder before trimesh reads them (:mod:`.gltf`).
+"""glTF / GLB, PLY, STL and OFF: read by trimesh, each mesh node turned into a :class:`~.common.Part` (its node
+transform applied) whose trimesh visual gives the colour: a material, vertex colours, face colours or the default.
 """
 
 from __future__ import annotations
@@ -182,9 +175,7 @@ def _material_from_trimesh(tm, max_size, path, geom_name) -> Material:
             metallic_roughness_image=img(getattr(tm, "metallicRoughnessTexture", None), "metallic-roughness"),
             normal_image=img(getattr(tm, "normalTexture", None), "normal"),
         )
-    if _is_trimesh_placeholder(getattr(tm, "image", None)):
-        # trimesh invents a 2x2 grey image for UVs without a texture (e.g. a PLY with
-        # texture coordinates but no TextureFile): that is "no colour", not a texture
+    if _is_trimesh_placeholder(getattr(tm, "image", None)):  # trimesh's stand-in for UVs without a texture
         return Material(name="default", base_color=default_rgba())
     image, diffuse = img(getattr(tm, "image", None), "diffuse"), getattr(tm, "diffuse", None)
     base = np.ones(4, np.float32) if image is not None or diffuse is None else _rgba(diffuse)
