@@ -132,6 +132,15 @@ def test_save_torch_turns_torch_write_failures_into_os_errors(tmp_path, monkeypa
         save_torch({}, tmp_path / "x.pt")
 
 
+def test_a_failed_write_names_the_file_not_its_temporary(tmp_path):
+    from sin3dm_lite.files import atomic_path
+
+    with pytest.raises(OSError) as e, atomic_path(tmp_path / "mesh.obj") as tmp:
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp))  # what a full disk raises mid-write
+    assert shown_path(e.value.filename) == f"'mesh.obj' in '{tmp_path}'"
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_real_full_disk(tmp_path):
     """A 2 MB tmpfs (needs root and `unshare`; skipped elsewhere): the model copy does not fit."""
     if shutil.which("unshare") is None or os.geteuid() != 0:

@@ -126,8 +126,8 @@ def shown_path(path: str | Path) -> str:
     """``'NAME' in 'FOLDER'`` for a file being written, our temporaries left out: ``out/.sin3dm-tmp-12-ab/model.pt``
     is ``'model.pt' in 'out'``, and a temporary folder itself is ``into 'out'``."""
     path = Path(path)
-    m = re.match(r"^\.(.*)\.sin3dm-\d+-[^.]*\.tmp(.*)$", path.name)  # atomic_path's .STEM.sin3dm-PID-X.tmpSUFFIX
-    name = m.group(1) + m.group(2) if m else path.name
+    m = re.match(r"^\.(.*)\.sin3dm-" + OWNER + r"[^.]*\.tmp(.*)$", path.name)  # .STEM.sin3dm-OWNER-X.tmpSUFFIX
+    name = m.group(1) + m.group(4) if m else path.name
     while _TEMP_DIR.match(path.name):
         path, name = path.parent, None
     folder = path.parent
