@@ -1,10 +1,5 @@
-"""The pretrained ``small`` models of the built-in examples, shipped inside the package.
-
-Each was produced by our own ``sin3dm-lite fit`` (the exact commands are in
-``shipped/README.md`` next to them), so the demo and the notebooks can generate
-shapes of every example immediately on a CPU (``demo --example NAME``,
-``Sin3DM.open(NAME)``).
-"""
+"""The pretrained ``small`` models of the built-in examples, shipped inside the package (made by
+``sin3dm-lite fit``; ``shipped/README.md`` has the commands), so the demo and the notebooks start at once."""
 
 from __future__ import annotations
 
