@@ -28,6 +28,7 @@ from ..evaluate.metrics import reconstruction_metrics
 from ..files import atomic_write, holds_lock, release_lock
 from ..model.autoencoder import AutoencoderTrainer
 from ..model.decode import reconstructed_grid
+from ..model.diffusion import DiffusionTrainer
 from ..presets import get_preset
 from .checkpoints import resume_trainer, save_trainer
 from .device import cpu_bf16_share, get_device, resolved_precision
@@ -176,8 +177,6 @@ class FitRun:
 
     def denoise(self, cfg, grid, h0, ae, metrics, report_base, calibrate: bool):
         """Stages 3 and 4: train the denoiser on ``h0``, then (``calibrate``) choose the knob; the model and losses."""
-        from ..model.diffusion import DiffusionTrainer
-
         t0 = time.perf_counter()
         ckpt = self.run / "diffusion.pt" if self.run else None
         dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)

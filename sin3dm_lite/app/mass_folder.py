@@ -129,8 +129,7 @@ def check_folder(out: Path, req, settings: dict, names_for) -> bool:
                 f"{settings.get(key)} now); choose another --out, or pass --overwrite to replace "
                 "them (files sin3dm-lite did not write are kept)"
             )
-        clash = foreign_files(out, names_for(out), WRITER)
-        if clash:
+        if clash := foreign_files(out, names_for(out), WRITER):
             raise clash_error(out, clash[0], WRITER)
         return True
     check_output_folder(out, req.overwrite, names_for(out), by=WRITER)

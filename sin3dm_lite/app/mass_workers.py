@@ -41,7 +41,10 @@ from ..files import (
     save_torch,
     writer_gone,
 )
+from ..formats.export import export_mesh
+from ..model.triplane import Triplane
 from .mass_folder import WRITER, finished, folder_name
+from .sampling import Samples
 
 
 # --------------------------------------------------------------------------- processes
@@ -141,10 +144,6 @@ def _worker_init(model_path: str, opts: dict) -> None:
 
 def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: dict | None = None) -> dict:
     """Decode one latent into a textured mesh in ``tmp`` (mesh.*, preview.png); returns ``{"faces", "no_pictures"}``."""
-    from ..formats.export import export_mesh
-    from ..model.triplane import Triplane
-    from .sampling import Samples
-
     model = model or _WORKER["model"]
     opts = opts or _WORKER["opts"]
     samples = Samples(Triplane.from_state_dict(latent).to(model.device), np.asarray(aabb))

@@ -20,6 +20,7 @@ from ..data.mesh import MAX_COORDINATE, Normalization
 from ..errors import Sin3DMInputError
 from ..model.autoencoder import PBR_HEADS, TriplaneDecoder
 from ..model.triplane import PLANES, Triplane
+from ..model.unet import TriplaneUNet
 
 #: the entries of a ``model.pt`` besides its format tag (:func:`~sin3dm_lite.app.checkpoints.model_bundle`)
 FIELDS = ("config", "decoder", "latent", "denoiser", "aabb", "center", "scale", "color_channels", "report")
@@ -37,10 +38,7 @@ def bad(path: Path, why: str) -> Sin3DMInputError:
 
 def model_parts(path: Path, b: dict) -> tuple:
     """``(config, decoder, latent, denoiser, aabb, normalization, report)`` from the checked fields of ``b``."""
-    from ..model.unet import TriplaneUNet
-
-    missing = [k for k in FIELDS if k not in b]
-    if missing:
+    if missing := [k for k in FIELDS if k not in b]:
         raise bad(path, f"the entry '{missing[0]}' is missing")
     cfg = stored_config(path, b["config"])
     latent = stored_latent(path, b["latent"], cfg)
@@ -98,8 +96,7 @@ def report_problem(report: dict) -> str | None:
 def stored_config(path: Path, text) -> Config:
     """The run's whole config (every section and setting present, each within LIMITS)."""
     d = json_dict(path, "config", text)
-    gaps = missing_settings(d)
-    if gaps:
+    if gaps := missing_settings(d):
         more = f" and {len(gaps) - 1} more" if len(gaps) > 1 else ""
         raise bad(path, f"its config lacks the setting '{gaps[0]}'{more}")
     try:
@@ -245,7 +242,6 @@ TRAINING_COPIES = 5
 
 def check_network_sizes(cfg: Config) -> None:
     """Refuse a config whose networks would not fit in memory in training, before anything is built or written."""
-    from ..model.unet import TriplaneUNet
     from .device import memory_available
 
     a = cfg.autoencoder

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .. import examples
 from ..errors import Sin3DMInputError
 
 DATA = Path(__file__).parent.parent / "shipped"  # sin3dm_lite/shipped
@@ -12,8 +13,6 @@ DATA = Path(__file__).parent.parent / "shipped"  # sin3dm_lite/shipped
 
 def pretrained_path(name: str = "default") -> Path:
     """Path of a shipped run folder (holding ``model.pt``)."""
-    from .. import examples
-
     folder = DATA / (examples.DEFAULT_EXAMPLE + "_small" if name == "default" else name)
     if not (folder / "model.pt").is_file():
         raise Sin3DMInputError(
@@ -29,8 +28,6 @@ def shipped_names() -> list[str]:
 
 def shipped_examples() -> list[str]:
     """Built-in examples that have a shipped model (the default one first): what ``Sin3DM.open(name)`` loads."""
-    from .. import examples
-
     names = [n for n in examples.list_examples() if shipped_model(n) is not None]
     return sorted(names, key=lambda n: n != examples.DEFAULT_EXAMPLE)
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 from ..data.config import SamplingConfig
 from ..errors import Sin3DMInputError
+from .threads import export_workers
 
 DEFAULT_BATCH = 8  # latents per denoiser call in a mass run, fewer when memory is short
 
@@ -48,8 +49,6 @@ class SampleRequest:
 
     def export_workers(self) -> int:
         """``workers``, or where it is None the machine's default."""
-        from .threads import export_workers
-
         return export_workers() if self.workers is None else self.workers
 
     def resolve(self, sampling: SamplingConfig, controlled: bool = False) -> Resolved:

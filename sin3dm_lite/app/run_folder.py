@@ -9,15 +9,24 @@ made with.
 from __future__ import annotations
 
 import json
+import re
 from contextlib import suppress
 from dataclasses import replace
 from pathlib import Path
 
 from ..auto.fit_policy import check_flips
+from ..data.box import grid_shape
 from ..data.config import Config
 from ..data.grid import load_grid
 from ..errors import Sin3DMInputError
-from ..files import acquire_lock, create_locked_folder, release_lock
+from ..files import (
+    acquire_lock,
+    check_not_overlapping,
+    check_writable,
+    create_locked_folder,
+    refuse_links,
+    release_lock,
+)
 from ..files.inputs import json_or_why, read_json
 from ..presets import get_preset
 from .checkpoints import MODEL_FILE, check_trainer_state, load_trainer_checkpoint
@@ -38,8 +47,6 @@ RUN_FILES = (
 
 def check_run_folder(run: Path, source, resume: bool) -> None:
     """Before any stage writes: refuse a run folder the fit cannot write or, for a resume, damaged checkpoints."""
-    from ..files import check_not_overlapping, check_writable, refuse_links
-
     if isinstance(source, (str, Path)) and Path(source).exists():
         check_not_overlapping(run, {"input mesh": Path(source)})
     if run.exists() and not run.is_dir():
@@ -205,8 +212,6 @@ def check_config_matches_run(run: Path, cfg: Config) -> None:
             check_trainer_state(run / f"{kind}.pt", kind, _as_trained(getattr(cfg, kind), state), state)
     grid = run / "grid.npz"
     if grid.is_file():
-        from ..data.box import grid_shape
-
         shape = load_grid(grid).shape
         want = max(grid_shape((2.0, 2.0, 2.0), cfg.grid.resolution, multiple=8))
         if max(shape) != want:
@@ -266,8 +271,6 @@ def read_report(run: Path) -> dict:
 def remove_failed_run(run: Path, existed: bool) -> None:
     """Remove what a failed fresh fit wrote into ``run`` (and the folder, if it made it); what cannot be removed
     stays, so that the user reads the fit's own error."""
-    import re
-
     names = [run / name for name in RUN_FILES]
     with suppress(OSError):  # temporaries of atomic writes
         names += [p for p in run.iterdir() if re.match(r"^\..*\.sin3dm-\d+-[^.]*\.tmp", p.name)]

@@ -15,7 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import examples
 from ..data.config import Config
+from ..data.mesh import TexturedMesh
 from ..errors import Sin3DMInputError
 from ..formats.load import load_mesh
 from ..presets import get_preset, notebook_preset
@@ -42,9 +44,6 @@ def run_key(source, preset=None) -> str:
 
 def _feed_input(h, source, mesh=None) -> str:
     """Feed what a fit of ``source`` (``mesh``: already loaded) reads to ``h``; returns the input's stem."""
-    from .. import examples
-    from ..data.mesh import TexturedMesh
-
     if isinstance(source, str) and source in examples.list_examples() and not Path(source).is_file():
         h.update(f"example:{source}:seed={EXAMPLE_SEED}".encode())
         return source
@@ -112,7 +111,6 @@ def shipped_or_folder(run, stacklevel: int = 3) -> tuple[str, Path] | None:
 
 def resolve_run(run, preset, cache) -> tuple[str, Path]:
     """What ``run`` names: ``("shipped" | "folder", the folder to load)`` or ``("fit", the cache folder to fit into)``."""
-    from .. import examples
     from .pretrained import shipped_examples
 
     if not isinstance(run, (str, Path)) or not str(run).strip():

@@ -11,7 +11,10 @@ from typing import Any
 
 import numpy as np
 
+from ..data.box import grid_shape
+from ..data.config import LIMITS, check_setting
 from ..errors import Sin3DMInputError
+from ..model.schedule import sampling_timesteps, start_step
 from ..model.triplane import Triplane
 from . import values
 from .request import SampleRequest
@@ -92,7 +95,6 @@ def draw(
 ) -> Samples:
     """``model.sample``: ``n`` new triplanes for ``plan`` (:func:`plan_for`), at most :func:`max_samples`."""
     from ..model.diffusion import sample as diffusion_sample
-    from ..model.schedule import start_step
 
     seed = check_sample_args(model, n, steps, method, seed, diversity)
     if plan.known is not None and known is not None:
@@ -144,8 +146,6 @@ def check_sample_args(model, n, steps, method, seed, diversity, names=None):
 
 def check_steps(model, method: str, steps: int, name: str = "steps") -> None:
     """DDIM takes 1 to the model's time steps (DDPM takes them all, whatever ``steps``)."""
-    from ..model.schedule import sampling_timesteps
-
     top = model.schedule.timesteps
     if method == "ddim" and not 1 <= steps <= top:
         raise Sin3DMInputError(
@@ -156,8 +156,6 @@ def check_steps(model, method: str, steps: int, name: str = "steps") -> None:
 
 def export_bytes(resolution: int, texture_size: int, box) -> float:
     """What one export over ``box`` holds at its peak: its decode grid and its texture."""
-    from ..data.box import grid_shape
-
     voxels = float(np.prod(grid_shape(np.asarray(box, np.float64), resolution)))
     return voxels * EXPORT_BYTES_PER_VOXEL + float(texture_size) ** 2 * EXPORT_BYTES_PER_TEXEL
 
@@ -171,8 +169,6 @@ def check_mesh_sizes(
 ) -> None:
     """Refuse a mesh resolution or texture size out of range or beyond memory (``parallel`` exports share half the
     free RAM) for an export over ``box``, naming the largest that fits."""
-    from ..data.box import grid_shape
-    from ..data.config import LIMITS, check_setting
     from .device import memory_available
 
     keys = ("sampling.mesh_resolution", "sampling.texture_size")

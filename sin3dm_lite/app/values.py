@@ -28,7 +28,7 @@ def refuse(name: str | None, rule: str, value) -> Sin3DMInputError:
     shown = repr(value)
     if is_whole(value):
         shown = str(int(value))
-    elif is_float(value):  # 2.0 stays 2.0 (a float where a whole number is asked)
+    elif isinstance(value, (float, np.floating)):  # 2.0 stays 2.0 (a float where a whole number is asked)
         shown = f"{float(value):g}"
         shown += "" if any(c in shown for c in ".ena") else ".0"
     return Sin3DMInputError(f"{name} must be {rule}, got {shown}" if name else f"expected {rule}, got {shown}")
@@ -37,11 +37,6 @@ def refuse(name: str | None, rule: str, value) -> Sin3DMInputError:
 def is_whole(value) -> bool:
     """An integer (Python's or numpy's), not a bool: ``2`` is, ``2.0``, ``"2"`` and ``True`` are not."""
     return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
-
-
-def is_float(value) -> bool:
-    """A float (Python's or numpy's), finite or not."""
-    return isinstance(value, (float, np.floating))
 
 
 def is_real(value) -> bool:
