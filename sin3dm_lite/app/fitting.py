@@ -178,7 +178,6 @@ class FitRun:
     def denoise(self, cfg, grid, h0, ae, metrics, report_base, calibrate: bool):
         """Stages 3 and 4: train the denoiser on ``h0``, then (``calibrate``) choose the knob; the model and losses."""
         t0 = time.perf_counter()
-        ckpt = self.run / "diffusion.pt" if self.run else None
         dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
         cfg = cfg.updated(**{"diffusion.latent_scale": dm.cfg.latent_scale})  # the number, where it asked for unit
         if dm.train_forward is not dm.model:
@@ -186,7 +185,7 @@ class FitRun:
             self.say(
                 f"[fit] diffusion: the first step compiles the denoiser for this machine (torch.compile, {how_long})"
             )
-        train(dm, ckpt, cfg.checkpoint_every, self.progress, self.say)
+        train(dm, self.run / "diffusion.pt" if self.run else None, cfg.checkpoint_every, self.progress, self.say)
         self.timings["diffusion_s"] = time.perf_counter() - t0
 
         report = {

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.distributed as dist
 from tqdm.auto import tqdm
 
 from ..errors import Sin3DMInputError
@@ -59,28 +60,22 @@ class Ranks:
 
     def barrier(self) -> None:
         if self.distributed:
-            torch.distributed.barrier()
+            dist.barrier()
 
     def from_rank0(self, value):
         """``value`` of rank 0, on every rank."""
         if not self.distributed:
             return value
         box = [value]
-        torch.distributed.broadcast_object_list(box, src=0)
+        dist.broadcast_object_list(box, src=0)
         return box[0]
-
-
-def launched_by_torchrun() -> bool:
-    return all(k in os.environ for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK"))
 
 
 def start_ranks(device: str | None) -> tuple[Ranks, str | None]:
     """Join the torchrun group if launched by it (gloo on CPU, each rank its share of the cores; nccl on CUDA with
     ``cuda:LOCAL_RANK``); returns the ranks and this rank's device."""
-    if not launched_by_torchrun():
+    if not all(k in os.environ for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK")):  # not launched by torchrun
         return Ranks(), device
-    import torch.distributed as dist
-
     local = int(os.environ["LOCAL_RANK"])
     cuda = torch.cuda.is_available() and (device is None or str(device).startswith("cuda"))
     if cuda:
@@ -96,8 +91,8 @@ def start_ranks(device: str | None) -> tuple[Ranks, str | None]:
 
 
 def stop_ranks(ranks: Ranks) -> None:
-    if ranks.distributed and torch.distributed.is_initialized():
-        torch.distributed.destroy_process_group()
+    if ranks.distributed and dist.is_initialized():
+        dist.destroy_process_group()
 
 
 # --------------------------------------------------------------------------- one sample: decode, texture, export

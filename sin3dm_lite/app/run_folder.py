@@ -19,14 +19,7 @@ from ..data.box import grid_shape
 from ..data.config import Config
 from ..data.grid import load_grid
 from ..errors import Sin3DMInputError
-from ..files import (
-    acquire_lock,
-    check_not_overlapping,
-    check_writable,
-    create_locked_folder,
-    refuse_links,
-    release_lock,
-)
+from ..files import acquire_lock, create_locked_folder, release_lock
 from ..files.inputs import json_or_why, read_json
 from ..presets import get_preset
 from .checkpoints import MODEL_FILE, check_trainer_state, load_trainer_checkpoint
@@ -47,6 +40,8 @@ RUN_FILES = (
 
 def check_run_folder(run: Path, source, resume: bool) -> None:
     """Before any stage writes: refuse a run folder the fit cannot write or, for a resume, damaged checkpoints."""
+    from ..files import check_not_overlapping, check_writable, refuse_links
+
     if isinstance(source, (str, Path)) and Path(source).exists():
         check_not_overlapping(run, {"input mesh": Path(source)})
     if run.exists() and not run.is_dir():
