@@ -1,15 +1,14 @@
 """The files torch writes in a run folder: trainer checkpoints and ``model.pt``, written atomically, read safely.
 
-``autoencoder.pt`` / ``diffusion.pt`` hold a trainer's state (:meth:`~sin3dm_lite.model.training.Trainer.state_dict`);
-``model.pt`` holds what sampling needs (:func:`model_bundle`): decoder, the input's latent, denoiser, box,
-normalisation, config and report, tagged :data:`MODEL_FORMAT`. Every file is read with ``weights_only=True``
-(tensors and plain containers, never code); one that is damaged, foreign or of another version gives a one-line
-:class:`Sin3DMInputError` that names it.
+Every file is read with ``weights_only=True`` (tensors and plain containers, never code); one that is damaged,
+foreign or of another version gives a one-line :class:`Sin3DMInputError` that names it.
 """
 
 from __future__ import annotations
 
 import json
+import pickle
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -33,25 +32,16 @@ def atomic_torch_save(obj, path: Path) -> None:
 
 def not_ours(path: Path, what: str, why: str) -> Sin3DMInputError:
     """The error for a file ``path`` (a ``what``: "model" or a trainer's kind) this version cannot read."""
-    return Sin3DMInputError(
-        f"'{path}' was not made by this version of sin3dm-lite ({why}); "
-        + (
-            "fit the model again with `sin3dm-lite fit MESH --out DIR`"
-            if what == "model"
-            else "delete it to restart that stage, or fit again into a new run folder"
-        )
+    fix = (
+        "fit the model again with `sin3dm-lite fit MESH --out DIR`"
+        if what == "model"
+        else "delete it to restart that stage, or fit again into a new run folder"
     )
+    return Sin3DMInputError(f"'{path}' was not made by this version of sin3dm-lite ({why}); {fix}")
 
 
 def load_checkpoint(path: Path, what: str = "checkpoint") -> dict:
-    """``torch.load`` with ``weights_only=True``: checkpoints hold tensors and plain containers only.
-
-    A file that is not regular (a FIFO, a device: refused before it is opened), truncated, not a checkpoint (text:
-    a Git LFS pointer or an HTML page is named as such), holds code (a pickle of arbitrary objects) or is not a
-    dictionary gives a :class:`Sin3DMInputError` naming the file; it is never unpickled with code.
-    """
-    import pickle
-
+    """The dictionary the checkpoint ``path`` holds, loaded with ``weights_only=True``; anything else: one error."""
     check_regular(path, "a checkpoint")
     try:
         with open(path, "rb") as f:
@@ -87,37 +77,29 @@ def _is_text(head: bytes) -> bool:
 
 
 def load_trainer_checkpoint(path: Path, kind: str) -> dict:
-    """:func:`load_checkpoint` of a trainer checkpoint (``autoencoder.pt`` / ``diffusion.pt``) of this layout.
-
-    One of an older version, or of the other trainer, gives the one-line "not made by this version" error.
-    """
+    """:func:`load_checkpoint` of a ``kind`` trainer's checkpoint of this version's layout."""
     b = load_checkpoint(path, kind)
-    why = checkpoint_problem(b, kind)
-    if why is not None:
+    if (why := checkpoint_problem(b, kind)) is not None:
         raise not_ours(path, kind, why)
     return b
 
 
 def resume_trainer(trainer, path: Path) -> None:
     """Load the checkpoint ``path`` into ``trainer`` (one of its kind; a mismatch names the file)."""
-    label = trainer.kind
-    state = load_trainer_checkpoint(path, label)
-    check_trainer_state(path, label, trainer.cfg, state)
+    kind = trainer.kind
+    state = load_trainer_checkpoint(path, kind)
+    check_trainer_state(path, kind, trainer.cfg, state)
     try:
         trainer.load_state_dict(state)
     except KeyError as e:
-        raise not_ours(path, label, f"the entry {e} is missing") from None
+        raise not_ours(path, kind, f"the entry {e} is missing") from None
     except (RuntimeError, ValueError, TypeError, AttributeError, IndexError) as e:
-        raise not_ours(path, label, f"its contents do not match ({type(e).__name__})") from None
+        raise not_ours(path, kind, f"its contents do not match ({type(e).__name__})") from None
 
 
 def check_trainer_state(path: Path, label: str, cfg, state: dict) -> None:
-    """Refuse a trainer checkpoint whose step is not from 0 to the config's steps, or that was trained with other
-    settings than the run's config.json now holds (the precision and compilation aside): resuming it would
-    train on with settings it was not made with."""
-    from dataclasses import asdict
-
-    steps = cfg.steps  # the config's section of the trainer ``label``
+    """Refuse a trainer checkpoint whose step is past ``cfg.steps`` or whose settings differ from ``cfg``'s."""
+    steps = cfg.steps
     step = state.get("step")
     if not isinstance(step, int) or isinstance(step, bool) or not 0 <= step <= steps:
         raise not_ours(path, label, f"its step {step!r} is not a whole number from 0 to the config's {steps:,}")
@@ -139,8 +121,7 @@ def save_trainer(trainer, path: Path) -> None:
 
 
 def write_model(model, run: Path, also: dict[str, str] | None = None) -> Path:
-    """Write ``model.pt`` (:func:`model_bundle`), ``config.json`` and the text files ``also`` (``{name: text}``)
-    into the folder ``run``, all or none (:func:`files.atomic_paths`); returns ``model.pt``."""
+    """Write ``model.pt``, ``config.json`` and the texts ``also`` (``{name: text}``) into ``run``, all or none."""
     run.mkdir(parents=True, exist_ok=True)
     texts = {"config.json": model.config.to_json(), **(also or {})}
     with atomic_paths(run, [MODEL_FILE, *texts]) as tmp:
@@ -151,8 +132,7 @@ def write_model(model, run: Path, also: dict[str, str] | None = None) -> Path:
 
 
 def model_bundle(model) -> dict:
-    """What ``model.pt`` holds for a fitted ``model`` (a :class:`~sin3dm_lite.pipeline.Sin3DM`): tensors on the CPU,
-    config and report as JSON."""
+    """What ``model.pt`` holds for a fitted ``model``: tensors on the CPU, config and report as JSON."""
     return {
         "format": MODEL_FORMAT,
         "config": model.config.to_json(),
@@ -168,9 +148,7 @@ def model_bundle(model) -> dict:
 
 
 def read_model(path: Path) -> tuple:
-    """The parts of the model ``model.pt`` at ``path`` holds, in the order ``Sin3DM(...)`` takes them:
-    ``(config, decoder, latent, denoiser, aabb, normalization, report)``; every field checked first
-    (:func:`~sin3dm_lite.app.model_file.model_parts`: nothing is built that the file's weights do not fill)."""
+    """The parts of the ``model.pt`` at ``path``, every field checked, in the order ``Sin3DM(...)`` takes them."""
     b = load_checkpoint(path, "model")
     fmt = b.get("format")
     if fmt != MODEL_FORMAT:

@@ -9,6 +9,9 @@ from functools import cache
 from pathlib import Path
 
 import torch
+from torch import nn
+
+from ..errors import Sin3DMInputError
 
 PRECISIONS = ("auto", "fp32", "bf16")
 
@@ -17,8 +20,6 @@ def get_device(device: str | torch.device | None = None) -> torch.device:
     """Return ``device`` as a ``torch.device``; ``None`` or ``"auto"`` means CUDA if available, else CPU."""
     if device is None or device == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    from ..errors import Sin3DMInputError
-
     if isinstance(device, torch.device):
         dev = device
     else:
@@ -43,13 +44,12 @@ def count_parameters(module: torch.nn.Module, trainable_only: bool = False) -> i
 
 
 #: bf16 counts as fast on a CPU when it does the autoencoder's kind of work in at most this share of fp32's time
-#: (an AMD EPYC with AVX512-BF16: about 0.4; an Intel Xeon with AVX512-BF16 but no AMX: 1.3, slower; docs/performance.md)
 BF16_FAST_SHARE = 0.8
 
 
 @cache
 def _cpu_has_bf16() -> bool:
-    try:  # Linux; elsewhere we do not know, so stay in fp32
+    try:  # Linux; elsewhere stay in fp32
         flags = Path("/proc/cpuinfo").read_text()
     except OSError:
         return False
@@ -58,22 +58,14 @@ def _cpu_has_bf16() -> bool:
 
 @cache
 def cpu_bf16_share() -> float | None:
-    """bf16's time over fp32's for a step of MLPs like the autoencoder's on this CPU (4,096 points, 256 wide,
-    forward and backward, the current threads), or None where the CPU has neither AVX512-BF16 nor AMX (there
-    bf16 is emulated, many times slower, and nothing is timed). Measured once a process, about 0.4 s:
-    the flag alone does not say it (a Xeon with AVX512-BF16 ran it 1.3x slower than fp32)."""
+    """bf16's time over fp32's for a training step of an MLP like the autoencoder's on this CPU, timed once a
+    process (the CPU flag alone does not say whether bf16 is faster); None without AVX512-BF16 or AMX (emulated)."""
     if not _cpu_has_bf16():
         return None
     with torch.random.fork_rng(devices=[]):  # a seeded fit draws the same numbers whether or when this ran
         torch.manual_seed(0)
         x = torch.randn(4096, 64)
-        mlp = torch.nn.Sequential(
-            torch.nn.Linear(64, 256),
-            torch.nn.ReLU(),
-            torch.nn.Linear(256, 256),
-            torch.nn.ReLU(),
-            torch.nn.Linear(256, 4),
-        )
+        mlp = nn.Sequential(nn.Linear(64, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(), nn.Linear(256, 4))
 
     def step(bf16: bool) -> float:
         t0 = time.perf_counter()
@@ -82,15 +74,13 @@ def cpu_bf16_share() -> float | None:
         y.backward()
         return time.perf_counter() - t0
 
-    # the two precisions take turns, so that another job starting or stopping meanwhile slows both alike; the
-    # first two rounds warm up, the fastest of the rest counts
+    # the precisions take turns, so that another job slows both alike; two rounds warm up, the fastest counts
     rounds = [(step(True), step(False)) for _ in range(7)][2:]
     return min(b for b, _ in rounds) / min(f for _, f in rounds)
 
 
 def bf16_is_fast(device: str | torch.device) -> bool:
-    """Whether bfloat16 matrix products run faster than float32 here: a CUDA GPU with bf16; a CPU with
-    AVX512-BF16 or AMX where they also measure faster (:func:`cpu_bf16_share` under :data:`BF16_FAST_SHARE`)."""
+    """Whether bfloat16 runs faster than float32 here: a CUDA GPU with bf16, or a CPU where it measures faster."""
     dev = torch.device(device)
     if dev.type == "cuda":
         return torch.cuda.is_bf16_supported()
@@ -99,13 +89,8 @@ def bf16_is_fast(device: str | torch.device) -> bool:
 
 
 def autocast(device: str | torch.device, precision: str = "auto"):
-    """A context for a training step's forward pass in the chosen precision.
-
-    ``"bf16"`` runs matrix products and convolutions in bfloat16 (torch.autocast;
-    weights, optimiser and loss stay float32), ``"fp32"`` changes nothing and
-    ``"auto"`` picks bf16 where the hardware has it and it measures faster (:func:`bf16_is_fast`):
-    the autoencoder's MLPs, most of a fit's time, then run 2-3x faster.
-    """
+    """A context for a training step's forward pass in ``precision``: bf16 autocast (weights, optimiser and loss
+    stay float32), or nothing for fp32; ``"auto"`` picks bf16 where :func:`bf16_is_fast`."""
     dev = torch.device(device)
     if resolved_precision(dev, precision) == "fp32":
         return contextlib.nullcontext()
@@ -113,11 +98,8 @@ def autocast(device: str | torch.device, precision: str = "auto"):
 
 
 def resolved_precision(device: str | torch.device, precision: str = "auto") -> str:
-    """``"bf16"`` or ``"fp32"``: what a training step under ``precision`` runs in on ``device`` (``"auto"``: bf16
-    where :func:`bf16_is_fast`). A fit's report keeps it, so that its times can be read."""
+    """``"bf16"`` or ``"fp32"``: what a training step under ``precision`` runs in on ``device``."""
     if precision not in PRECISIONS:
-        from ..errors import Sin3DMInputError
-
         raise Sin3DMInputError(f"unknown precision '{precision}'; use one of {', '.join(PRECISIONS)}")
     if precision == "auto":
         return "bf16" if bf16_is_fast(torch.device(device)) else "fp32"

@@ -1,15 +1,8 @@
-"""``Sin3DM.fit``'s stages, in order: mesh → grid → autoencoder → denoiser → the diversity knob.
+"""``Sin3DM.fit``'s stages: mesh → TSDF grid → autoencoder (the input's triplane latent) → denoiser on that one
+latent → calibration of the diversity knob (not in the paper).
 
-    1. grid         the input's TSDF + colour grid
-    2. autoencoder  the triplane latent of the input and the decoder, with reconstruction metrics
-    3. diffusion    the denoiser trained on that one latent
-    4. calibrate    the most varied diversity setting that keeps the input's patches (not in the paper; the CPU
-                    presets' default, :func:`sin3dm_lite.auto.calibration.calibrates`)
-
-With a run folder (:mod:`sin3dm_lite.app.run_folder`) every stage saves its result, the trainers checkpoint every
-``config.checkpoint_every`` steps and stop cleanly on Ctrl-C (:func:`train`), and a resumed fit continues where
-the last one stopped. What a fit decides for the user (the preset for this machine and shape, the calibration, the
-hints) lives in :mod:`sin3dm_lite.auto`.
+With a run folder every stage saves its result and the trainers checkpoint and stop cleanly on Ctrl-C, so a
+resumed fit continues where the last one stopped.
 """
 
 from __future__ import annotations
@@ -35,10 +28,12 @@ from ..evaluate.metrics import reconstruction_metrics
 from ..files import atomic_write, holds_lock, release_lock
 from ..model.autoencoder import AutoencoderTrainer
 from ..model.decode import reconstructed_grid
+from ..model.diffusion import DiffusionTrainer
 from ..presets import get_preset
 from .checkpoints import resume_trainer, save_trainer
 from .device import cpu_bf16_share, get_device, resolved_precision
 from .run_folder import check_run_folder, prepare_run, remove_failed_run
+from .runs import input_digest
 from .threads import threads_hint
 
 
@@ -55,12 +50,8 @@ def fit(
     allow_outside_paths: bool = False,
     calibrate: bool | None = None,
 ):
-    """``Sin3DM.fit`` (its docstring says what each argument does); ``build`` makes the model from its parts
-    (``build(config, decoder, latent, denoiser, aabb, normalization, report, device)``: the model class).
-
-    Every argument is checked before anything is written; a fresh fit that fails with an error removes what it
-    wrote, an interrupted one (Ctrl-C) keeps its checkpoints for ``resume=True``.
-    """
+    """``Sin3DM.fit`` (``build``: the model class); arguments are checked before anything is written, and a fresh
+    fit that fails removes what it wrote (an interrupted one keeps its checkpoints for ``resume=True``)."""
     if seed is not None and (
         isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32
     ):
@@ -91,22 +82,14 @@ def fit(
 def grid_for(mesh: TexturedMesh, cfg: Config, progress: bool) -> ShapeGrid:
     """Stage 1: ``mesh`` as the TSDF + colour grid of ``cfg.grid``."""
     g = cfg.grid
+    sdf_settings = (g.threshold_voxels, g.n_surface_points, g.near_surface_sigma, cfg.seed)
     return mesh_to_grid(
-        mesh,
-        g.resolution,
-        g.threshold_voxels,
-        g.n_surface_points,
-        g.near_surface_sigma,
-        cfg.seed,
-        progress,
-        margin_voxels=g.margin_voxels,
-        pbr=cfg.autoencoder.pbr,
+        mesh, g.resolution, *sdf_settings, progress, margin_voxels=g.margin_voxels, pbr=cfg.autoencoder.pbr
     )
 
 
 class FitRun:
-    """One fit after its checks: the model class, the run folder (or None), the device, what it says and the
-    stages' timings (one dictionary, which the report keeps)."""
+    """One fit after its checks: the model class, the run folder (or None), the device and the stages' timings."""
 
     def __init__(self, build, run: Path | None, resume: bool, device, progress: bool):
         self.build, self.run, self.resume, self.progress = build, run, resume, progress
@@ -121,13 +104,11 @@ class FitRun:
         self.mesh = mesh  # None where a resumed run has its grid: the calibration then reads it again
         grid = self.grid(cfg, mesh)
         ae, h0, metrics = self.autoencoder(cfg, grid)
+        from_file = isinstance(source, (str, Path)) and Path(source).is_file()
         base = {
             "preset": cfg.name,
             "input": grid.name,
-            # the mesh file, so the run can be compared with its input later (Sin3DM.input_mesh)
-            "input_path": str(Path(source).resolve())
-            if isinstance(source, (str, Path)) and Path(source).is_file()
-            else None,
+            "input_path": str(Path(source).resolve()) if from_file else None,  # to compare the run with it later
             "grid_shape": list(grid.shape),
         }
         calibrate = calibrates(cfg) if calibrate is None else bool(calibrate)
@@ -141,13 +122,11 @@ class FitRun:
         return model
 
     def settings(self, source, preset, seed, pbr, allow_outside_paths) -> tuple[Config, TexturedMesh | None]:
-        """The run's config (its run folder made, or checked for a resume) and the input mesh (None when a resumed
-        run has its grid already)."""
+        """The run's config (its folder made or checked) and the input mesh (None when a resumed run has its grid)."""
         run, resume = self.run, self.resume
         have_grid = run is not None and resume and (run / "grid.npz").exists()
-        mesh = (
-            None if have_grid else resolve_mesh(source, allow_outside_paths=allow_outside_paths)
-        )  # bad input fails before any folder is written
+        # bad input fails before any folder is written
+        mesh = None if have_grid else resolve_mesh(source, allow_outside_paths=allow_outside_paths)
         resuming = resume and run is not None and (run / "config.json").exists()
         if preset is None and not resuming:  # the preset for this machine and shape, said first with why and how long
             chosen = default_preset(self.dev, mesh, timed=self.progress)
@@ -161,8 +140,6 @@ class FitRun:
                 preset = base.updated(**{"autoencoder.pbr": pbr})
         asked = None
         if run is not None:  # what the run is fitted to, recorded in a new run folder and compared on resume
-            from .runs import input_digest
-
             asked = {"input": input_name(source), "name": input_stem(source), "digest": input_digest(source, mesh)}
         return prepare_run(run, preset, resume, seed, asked, pbr), mesh
 
@@ -183,7 +160,6 @@ class FitRun:
         """Stage 2: the trained autoencoder, the input's latent and its reconstruction metrics."""
         t0 = time.perf_counter()
         ae = AutoencoderTrainer(grid, cfg.autoencoder, self.dev, cfg.seed)
-        # a shape of one colour (the trainer found it) trains half an autoencoder: the time hint knows
         if self.dev.type == "cpu" and (hint := threads_hint()):
             self.say("[fit] " + hint)
         if ae.single_color is not None:
@@ -200,12 +176,8 @@ class FitRun:
         return ae, h0, metrics
 
     def denoise(self, cfg, grid, h0, ae, metrics, report_base, calibrate: bool):
-        """Stages 3 and 4: train the denoiser on the latent ``h0``, then (``calibrate``) choose the knob; the model,
-        with its report, and the denoiser's loss history."""
-        from ..model.diffusion import DiffusionTrainer
-
+        """Stages 3 and 4: train the denoiser on ``h0``, then (``calibrate``) choose the knob; the model and losses."""
         t0 = time.perf_counter()
-        ckpt = self.run / "diffusion.pt" if self.run else None
         dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
         cfg = cfg.updated(**{"diffusion.latent_scale": dm.cfg.latent_scale})  # the number, where it asked for unit
         if dm.train_forward is not dm.model:
@@ -213,7 +185,7 @@ class FitRun:
             self.say(
                 f"[fit] diffusion: the first step compiles the denoiser for this machine (torch.compile, {how_long})"
             )
-        train(dm, ckpt, cfg.checkpoint_every, self.progress, self.say)
+        train(dm, self.run / "diffusion.pt" if self.run else None, cfg.checkpoint_every, self.progress, self.say)
         self.timings["diffusion_s"] = time.perf_counter() - t0
 
         report = {
@@ -249,12 +221,9 @@ class FitRun:
 
 
 def train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:
-    """Run a trainer (:class:`~sin3dm_lite.training.Trainer`) to its end, checkpointing every
-    ``every`` steps; a fresh trainer resumes from ``ckpt`` where it exists.
+    """Run a trainer to its end, checkpointing every ``every`` steps; a fresh trainer resumes from ``ckpt``.
 
-    Ctrl-C (SIGINT) is honoured only *between* steps, after a checkpoint of the
-    last finished step has been written, so a resumed run loses no work and
-    never starts from a half-applied optimiser step.
+    Ctrl-C (or SIGTERM) stops only *between* steps, after a checkpoint of the last one, so a resume loses nothing.
     """
     label = trainer.kind
     saved = {"step": None}  # the step the checkpoint file holds
@@ -262,7 +231,7 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:
         resume_trainer(trainer, ckpt)
         saved["step"] = trainer.step_count
         say(f"[fit] {label}: resumed at step {trainer.step_count}")
-    stop = {"asked": False}
+    stop = {"signal": None}  # Ctrl-C or SIGTERM: stop after this step, with its checkpoint
 
     def save(tr) -> None:
         if ckpt is not None and saved["step"] != tr.step_count:
@@ -270,18 +239,18 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:
             saved["step"] = tr.step_count
 
     def checkpoint(tr) -> None:
-        if tr.step_count % every == 0 or stop["asked"]:
+        asked = stop["signal"] is not None
+        if tr.step_count % every == 0 or asked:
             save(tr)
-        if stop["asked"]:
+        if asked:
             say(f"\n[fit] {label}: interrupted at step {tr.step_count}; checkpoint saved, continue with --resume")
-            raise Terminated if stop.get("signal") == signal.SIGTERM else KeyboardInterrupt
+            raise Terminated if stop["signal"] == signal.SIGTERM else KeyboardInterrupt
 
-    def on_sigint(signum, frame) -> None:  # Ctrl-C or SIGTERM: stop after this step, with its checkpoint
-        stop["asked"] = True
+    def on_signal(signum, frame) -> None:
         stop["signal"] = signum
 
     main = threading.current_thread() is threading.main_thread()
-    old = {s: signal.signal(s, on_sigint) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
     try:
         trainer.run(progress=progress, callback=checkpoint)
     finally:
@@ -291,8 +260,8 @@ def train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:
 
 
 def training_precision(cfg: Config, device) -> dict:
-    """What the fit's networks trained in (``"bf16"`` / ``"fp32"``: their ``precision`` setting resolved on
-    ``device``) and, on a CPU with native bf16, bf16's measured share of fp32's time, which ``"auto"`` followed."""
+    """What the fit's networks trained in (``"bf16"`` / ``"fp32"``) and, where ``"auto"`` chose on a CPU, bf16's
+    measured share of fp32's time."""
     settings = {net: getattr(cfg, net).precision for net in ("autoencoder", "diffusion")}
     out = {net: resolved_precision(device, p) for net, p in settings.items()}
     auto_on_cpu = device.type == "cpu" and "auto" in settings.values()

@@ -1,92 +1,68 @@
-"""Many samples into one folder: written as they finish, resumable, sharded over processes with torchrun.
+"""Many samples into one folder (``sin3dm-lite sample RUN -n N --out DIR``): written as they finish, resumable,
+sharded over processes with torchrun.
 
-    sin3dm-lite sample RUN -n 1000 --out DIR                    one process; the same command again continues
-    torchrun --nproc_per_node=2 -m sin3dm_lite.cli sample RUN -n 1000 --out DIR    two processes
+This module checks the request and runs it (:func:`write_samples`); ``mass_folder`` keeps the folder and
+``mass_workers`` the ranks and the export workers. The rules:
 
-This module holds the request (:class:`SampleRequest`) and the run (:func:`write_samples`);
-``mass_folder`` the folder (prepared, continued, finished) and ``mass_workers`` the ranks and
-the export workers.
-
-The folder, as it fills::
-
-    DIR/sampling.json     the settings all samples here share (model checksum, control, steps, seed base, sizes)
-    DIR/NNN/              one folder per sample, appearing whole: mesh.obj/.mtl/.png, mesh.glb,
-                          latent.pt (the triplane: decode or edit it again), preview.png
-    DIR/.sin3dm-manifest-rank<r>.jsonl   while running: one line per finished sample of rank r (index, seed,
-                          folder, files with size, time and SHA-256, faces, seconds, time), appended and flushed
-    DIR/samples.jsonl     at the end: those lines of all ranks, sorted by index (rank 0 merges them)
-    DIR/index.html        a 3D gallery of the first samples; contact_sheet.png: the input beside them
-
-Rules:
-
-* Sample ``i`` comes from the seed ``--seed + i`` alone (see :class:`diffusion.SampleNoise`),
-  so ``--start i -n 1`` draws it again, in any batch, on any number of processes.
-* A sample's line is appended before its folder is moved into place: a sample counts as
-  finished when its line exists and all its files are there unchanged; anything else is redone.
-* Rerunning into a folder whose ``sampling.json`` holds the same settings continues it
-  (``-n`` and ``--start`` may differ: the folder grows); other settings are refused unless
-  ``--overwrite``, which first removes every file ``sample`` wrote there (other files stay,
-  those of other sin3dm-lite commands too), or unless no sample there finished yet.
-* Every flag is checked before the folder is touched; a run that fails before its first
-  sample finished removes what it wrote (:func:`mass_folder.abandon`), so the folder blocks nothing.
-* Under torchrun (``RANK``/``WORLD_SIZE``/``LOCAL_RANK`` set) rank 0 checks and prepares the
-  folder and lists the missing indices; rank ``r`` takes every ``world``-th of them; rank 0
-  merges at the end. gloo on CPU, nccl on CUDA (``cuda:LOCAL_RANK``).
-* Memory is bounded by ``--batch`` (latents per denoiser call) and ``--workers`` (processes
-  decoding, texturing and exporting meshes while the next batch is sampled), not by ``-n``.
+* sample ``i`` comes from the seed ``--seed + i`` alone: the same in any batch, on any number of processes;
+* a sample counts as finished when its manifest line exists and all its files are there unchanged;
+* the same command again continues a folder whose ``sampling.json`` holds the same settings; other settings are
+  refused unless ``--overwrite``, which removes only the files ``sample`` wrote;
+* every flag is checked before the folder is touched, and a run that fails before its first sample leaves nothing;
+* memory is bounded by ``--batch`` and ``--workers``, not by ``-n``.
 """
 
 from __future__ import annotations
 
+import os
+import shutil
+import warnings
 from pathlib import Path
 
 from ..data.config import check_setting
 from ..errors import Sin3DMInputError
-from ..files import release_lock
+from ..files import read_manifest, release_lock
+from ..model.triplane import PLANE_AXES
 from .mass_folder import (
     abandon,
     finish_folder,
     finished,
+    folder_name,
     prepare_folder,
+    read_settings,
     remove_if_empty,
     sample_output_names,
+    sample_run_files,
     sample_settings,
 )
-from .mass_workers import Ranks, sample_many
-from .request import SampleRequest  # what a run asks for, and its defaults
-from .sampling import check_mesh_sizes
+from .mass_workers import Ranks, sample_many, worker_bytes, workers_memory_holds
+from .request import SampleRequest
+from .sampling import check_mesh_sizes, check_sample_args, export_bytes
 
 
 def check_request(model, req: SampleRequest) -> None:
     """Refuse what sampling would refuse about the flags (``--steps`` out of range, ...) before the folder is touched."""
-    from .sampling import check_sample_args
-
     names = {"n": "-n", "steps": "--steps", "method": "the method", "seed": "--seed", "diversity": "--diversity"}
     check_sample_args(model, req.n, req.steps, req.method, req.seed, req.diversity, names)
 
 
 def check_sample_sizes(model, plan, req: SampleRequest) -> None:
-    """``--faces``, ``--mesh-resolution`` and ``--texture-size`` against their ranges and the memory
-    (``--workers`` exports at once), before any folder is made. Without ``--workers`` the default (one
-    per core) is lowered to as many exports as memory holds, at least one, and kept in ``req.workers``."""
-    r = req.resolve(model.config.sampling)  # --steps: mass.check_request
+    """Check ``--faces``, ``--mesh-resolution`` and ``--texture-size`` against their ranges and the memory; without
+    ``--workers`` the default is lowered to what memory holds (at least one) and kept in ``req.workers``."""
+    r = req.resolve(model.config.sampling)
     if req.faces is not None:
         check_setting("sampling.faces", req.faces, option="--faces")
 
-    def check(parallel: int) -> None:
-        check_mesh_sizes(
-            r.mesh_resolution,
-            r.texture_size,
-            plan.aabb,
-            parallel=parallel,
-            names=tuple(  # a value from the model's config is named as such (issue 60)
-                f"--{flag}" if given is not None else f"sampling.{key} of the model's config (used without --{flag})"
-                for flag, key, given in (
-                    ("mesh-resolution", "mesh_resolution", req.mesh_resolution),
-                    ("texture-size", "texture_size", req.texture_size),
-                )
-            ),
+    names = tuple(  # a value from the model's config is named as such
+        f"--{flag}" if given is not None else f"sampling.{key} of the model's config (used without --{flag})"
+        for flag, key, given in (
+            ("mesh-resolution", "mesh_resolution", req.mesh_resolution),
+            ("texture-size", "texture_size", req.texture_size),
         )
+    )
+
+    def check(parallel: int) -> None:
+        check_mesh_sizes(r.mesh_resolution, r.texture_size, plan.aabb, parallel=parallel, names=names)
 
     workers = cap_workers(model, plan, req, r)
     if req.workers is None:  # the default: not a reason to refuse, so fewer workers where memory is short
@@ -102,15 +78,7 @@ def check_sample_sizes(model, plan, req: SampleRequest) -> None:
 
 def cap_workers(model, plan, req: SampleRequest, r) -> int:
     """The export workers asked for (``--workers``, ``SIN3DM_WORKERS`` or the default), at most as many as the
-    memory holds with each worker's own process (:func:`mass_workers.workers_memory_holds`); a number the user
-    chose that is lowered is said in one line (a warning). Where not even one fits, the exports' own check
-    refuses (:func:`check_sample_sizes`)."""
-    import os
-    import warnings
-
-    from .mass_workers import worker_bytes, workers_memory_holds
-    from .sampling import export_bytes
-
+    memory holds (a warning where the user's number is lowered; where not even one fits, the exports' check refuses)."""
     workers = req.export_workers()
     one = export_bytes(r.mesh_resolution, r.texture_size, plan.aabb)
     held = workers_memory_holds(model, one)
@@ -129,16 +97,14 @@ def cap_workers(model, plan, req: SampleRequest, r) -> int:
     return held
 
 
-#: what a sample's files take on disk, estimated from its settings: per face of the budget (OBJ text and GLB
-#: buffers), per texel of each texture map (a PNG beside the OBJ and one in the GLB), and its preview picture
+#: what a sample's files take on disk: per face (OBJ and GLB), per texel of each map (two PNGs), its preview
 SAMPLE_BYTES_PER_FACE = 100
 SAMPLE_BYTES_PER_TEXEL = 0.75
 PREVIEW_BYTES = 100_000
 
 
 def sample_bytes(model, plan, req: SampleRequest) -> float:
-    """About how many bytes one sample folder takes: mesh (``faces``), textures (``texture_size``; the PBR
-    variant's three more maps, its two grey ones at a third), latent (``latent.pt``) and preview."""
+    """About how many bytes one sample folder takes: mesh, textures (PBR's grey maps at a third), latent, preview."""
     r = req.resolve(model.config.sampling)
     maps = 1 + (1 + 2 / 3) * bool(model.config.autoencoder.pbr)
     texels = 2 * maps * float(r.texture_size) ** 2
@@ -151,8 +117,6 @@ def sample_bytes(model, plan, req: SampleRequest) -> float:
 
 def plane_sizes(resolution) -> list[tuple[int, int]]:
     """The (rows, columns) of the three planes of a latent of ``resolution`` (x, y, z) texels."""
-    from ..model.triplane import PLANE_AXES
-
     return [(resolution[a], resolution[b]) for a, b in PLANE_AXES.values()]
 
 
@@ -166,9 +130,6 @@ def shown_bytes(n: float) -> str:
 
 def replaced_bytes(out: Path, req: SampleRequest) -> int:
     """What ``--overwrite`` frees before sampling: the files an earlier ``sample`` wrote into ``out``, unchanged."""
-    from ..files import read_manifest
-    from .mass_folder import sample_run_files
-
     if not (req.overwrite and out.is_dir()):
         return 0
     gone, _ = sample_run_files(out, read_manifest(out))
@@ -176,13 +137,8 @@ def replaced_bytes(out: Path, req: SampleRequest) -> int:
 
 
 def check_disk(model, out: Path, req: SampleRequest, plan, label: str = "sample") -> str:
-    """Refuse ``-n`` samples that cannot fit on the disk of ``--out`` (its nearest existing folder), naming the
-    largest ``-n`` that fits; else returns the line that says the estimate. Samples already in a folder that is
-    continued need no new space."""
-    import shutil
-
-    from .mass_folder import folder_name, read_settings
-
+    """Refuse ``-n`` samples that cannot fit on the disk of ``--out``, naming the largest ``-n`` that fits; else
+    the line that says the estimate (samples already in a continued folder need no new space)."""
     base = out
     while not base.exists() and base.parent != base:
         base = base.parent
@@ -207,14 +163,8 @@ def check_disk(model, out: Path, req: SampleRequest, plan, label: str = "sample"
 
 
 def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", ranks=None, run: str = "") -> dict:
-    """Sample ``req.n`` shapes from index ``req.start`` into ``out``, each written as it finishes.
-
-    Rank 0 checks and prepares the folder (continue, or start over with
-    ``--overwrite``) and lists the missing indices; every rank samples its
-    share in batches of ``--batch`` while ``--workers`` processes decode,
-    texture and export; rank 0 then writes ``samples.jsonl``, ``index.html``,
-    ``contact_sheet.png`` and the manifest. Returns ``{"pending", "new", "total", "seconds"}``.
-    """
+    """Sample ``req.n`` shapes from index ``req.start`` into ``out``, each written as it finishes; returns
+    ``{"pending", "new", "total", "seconds"}``."""
     ranks = ranks or Ranks()
     out = Path(out)
     plan = model.plan(**req.control)  # a bad box fails here, before anything is written
@@ -261,7 +211,7 @@ def write_samples(model, out: Path, req: SampleRequest, label: str = "sample", r
 
 
 def interrupted(out: Path) -> str:
-    """What an interrupted sample run leaves, in one line: the finished samples stay, the same command continues."""
+    """What an interrupted sample run leaves, in one line."""
     kept = len(finished(out)) if out.is_dir() else 0
     if not kept:
         return f"no sample was finished, nothing of this run is left in '{out}'"

@@ -1,10 +1,7 @@
 """The folder of a sample run (``sin3dm-lite sample``): its names, its settings, which samples are finished.
 
-Rank 0 prepares it before sampling (:func:`prepare_folder`: lock, check, continue or start
-over), and finishes it after every rank is done (:func:`finish_folder`: ``samples.jsonl``, the
-gallery, the contact sheet, the manifest); a run that fails before its first sample
-leaves nothing behind (:func:`abandon`). The folder's layout and rules: :mod:`sin3dm_lite.app.mass`.
-``req`` is the run's :class:`mass.SampleRequest` throughout.
+Rank 0 prepares it (:func:`prepare_folder`) and finishes it (:func:`finish_folder`); a run that fails before its
+first sample leaves nothing behind (:func:`abandon`). ``req`` is the run's :class:`~.request.SampleRequest`.
 """
 
 from __future__ import annotations
@@ -13,6 +10,7 @@ import hashlib
 import json
 import os
 import shutil
+from contextlib import suppress
 from pathlib import Path
 
 import numpy as np
@@ -67,22 +65,19 @@ def model_checksum(model) -> str:
 def sample_settings(model, plan, req, control: dict) -> dict:
     """Everything a sample's content depends on besides its index (what a continued run must share)."""
     r = req.resolve(model.config.sampling, controlled=plan.known is not None)
-    return json.loads(
-        json.dumps(
-            {  # JSON types: tuples become lists, as when read back
-                "model": model_checksum(model),
-                "control": control,
-                "method": r.method,
-                "steps": r.steps,
-                "diversity": r.diversity,
-                "seed": req.seed,
-                "mesh_resolution": r.mesh_resolution,
-                "faces": r.faces,
-                "texture_size": r.texture_size,
-                "pictures": not req.no_pictures,
-            }
-        )
-    )
+    settings = {
+        "model": model_checksum(model),
+        "control": control,
+        "method": r.method,
+        "steps": r.steps,
+        "diversity": r.diversity,
+        "seed": req.seed,
+        "mesh_resolution": r.mesh_resolution,
+        "faces": r.faces,
+        "texture_size": r.texture_size,
+        "pictures": not req.no_pictures,
+    }
+    return json.loads(json.dumps(settings))  # JSON types: tuples become lists, as when read back
 
 
 def read_settings(out: Path) -> dict | None:
@@ -98,10 +93,9 @@ def read_settings(out: Path) -> dict | None:
 
 def finished(out: Path) -> dict[int, dict]:
     """``{index: record}`` of the samples in ``out`` that are complete: a record and all its files, unchanged."""
-    records = []
     try:
-        for line in (out / SAMPLES).read_text(encoding="utf-8").splitlines() if is_ours(out, SAMPLES) else []:
-            records.append(json.loads(line))
+        lines = (out / SAMPLES).read_text(encoding="utf-8").splitlines() if is_ours(out, SAMPLES) else []
+        records = [json.loads(line) for line in lines]
     except (OSError, ValueError):
         records = []
     records += read_manifest_parts(out)
@@ -118,12 +112,8 @@ def finished(out: Path) -> dict[int, dict]:
 
 
 def check_folder(out: Path, req, settings: dict, names_for) -> bool:
-    """Whether ``out`` continues a sample run (True) or starts a new one; refuses what must not be touched.
-
-    Same settings in ``sampling.json``: continue. Other settings: refused unless
-    ``--overwrite``. A non-empty folder without them: refused unless ``--overwrite``.
-    ``names_for(out)`` lists the files the run will write (checked for foreign ones).
-    """
+    """Whether ``out`` continues a sample run (the same settings) or starts a new one; refuses what must not be
+    touched. ``names_for(out)`` lists the files the run will write (checked for foreign ones)."""
     if out.exists() and not out.is_dir():
         raise Sin3DMInputError(f"--out '{out}' is a file; give a folder to write into")
     refuse_links(out)  # a sample folder linked elsewhere is never written, replaced or emptied
@@ -139,8 +129,7 @@ def check_folder(out: Path, req, settings: dict, names_for) -> bool:
                 f"{settings.get(key)} now); choose another --out, or pass --overwrite to replace "
                 "them (files sin3dm-lite did not write are kept)"
             )
-        clash = foreign_files(out, names_for(out), WRITER)
-        if clash:
+        if clash := foreign_files(out, names_for(out), WRITER):
             raise clash_error(out, clash[0], WRITER)
         return True
     check_output_folder(out, req.overwrite, names_for(out), by=WRITER)
@@ -148,7 +137,7 @@ def check_folder(out: Path, req, settings: dict, names_for) -> bool:
 
 
 def sample_file(rel: str) -> bool:
-    """Whether ``rel`` is a name a sample run writes (how files of older versions, which did not say, are told apart)."""
+    """Whether ``rel`` is a name a sample run writes (for files of older versions, which did not record it)."""
     parts = Path(rel).parts
     if len(parts) == 1:
         return rel in (SETTINGS, SAMPLES, "index.html", "contact_sheet.png")
@@ -169,8 +158,7 @@ def sample_run_files(out: Path, m: dict) -> tuple[list[str], dict]:
 
 
 def remove_ours(out: Path) -> None:
-    """Remove every file of a sample run the manifest (and its parts) lists as ours and unchanged, and folders
-    left empty; files other commands wrote there (a ``render``'s pictures, an ``evaluate`` report) stay."""
+    """Remove every unchanged file of a sample run the manifest lists, and folders left empty; others' files stay."""
     gone, kept = sample_run_files(out, read_manifest(out))
     remove_files(out, gone)
     write_manifest(out, kept)
@@ -192,8 +180,7 @@ def sample_output_names(out: Path, req) -> list[str]:
 
 
 def abandon(out: Path) -> bool:
-    """After a run failed before any sample finished: remove what it wrote, so that the folder blocks no
-    corrected command (its ``sampling.json`` would refuse other settings). Returns whether it did."""
+    """Remove what a run wrote if no sample finished, so the folder blocks no corrected command; whether it did."""
     if finished(out):
         return False
     remove_ours(out)
@@ -203,11 +190,8 @@ def abandon(out: Path) -> bool:
 
 
 def prepare_folder(out: Path, req, settings: dict, run: str, names_for) -> list[int]:
-    """Rank 0: lock, check and set up ``out``; returns the indices still to sample.
-
-    The lock comes before the checks: a check made before another writer
-    filled the folder would be out of date (and remove its samples as ours).
-    """
+    """Rank 0: lock (first: a check before another writer filled it would be stale), check and set up ``out``;
+    returns the indices still to sample."""
     if out.exists() and not out.is_dir():
         raise Sin3DMInputError(f"--out '{out}' is a file; give a folder to write into")
     check_writable(out)
@@ -238,10 +222,8 @@ def prepare_folder(out: Path, req, settings: dict, run: str, names_for) -> list[
 def remove_if_empty(out: Path, created: bool) -> None:
     """Remove ``out`` if this run created it and it holds nothing (files not ours, or temporaries of a killed worker: kept)."""
     if created:
-        try:
+        with suppress(OSError):  # something is there
             out.rmdir()
-        except OSError:
-            pass  # something is there
 
 
 def finish_folder(model, out: Path, req, plan, label: str = "sample") -> dict[int, dict]:

@@ -1,26 +1,32 @@
 """Who samples what, and who exports it: the torchrun ranks and the pool of export workers.
 
-Under torchrun (``RANK``/``WORLD_SIZE``/``LOCAL_RANK`` set) each rank takes every ``world``-th of
-the missing indices (:func:`start_ranks`, :class:`Ranks`). A rank samples its share in batches of
-``--batch`` latents per denoiser call while ``--workers`` processes decode, texture and export the
-meshes (:func:`export_sample`); each finished sample is recorded, then moved into place
-(:class:`RankExport`, :func:`sample_many`). ``req`` is the run's :class:`mass.SampleRequest`.
+Each rank takes every ``world``-th of the missing indices and samples them in batches while ``--workers``
+processes decode, texture and export the meshes; each finished sample is recorded, then moved into place.
 """
 
 from __future__ import annotations
 
+import multiprocessing
+import multiprocessing.connection
+import multiprocessing.process
 import os
+import re
 import shutil
 import sys
+import tempfile
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from datetime import datetime
+from multiprocessing import resource_sharer
 from pathlib import Path
 
 import numpy as np
 import torch
+import torch.distributed as dist
+from tqdm.auto import tqdm
 
 from ..errors import Sin3DMInputError
 from ..files import (
@@ -36,7 +42,10 @@ from ..files import (
     save_torch,
     writer_gone,
 )
+from ..formats.export import export_mesh
+from ..model.triplane import Triplane
 from .mass_folder import WRITER, finished, folder_name
+from .sampling import Samples
 
 
 # --------------------------------------------------------------------------- processes
@@ -51,31 +60,22 @@ class Ranks:
 
     def barrier(self) -> None:
         if self.distributed:
-            torch.distributed.barrier()
+            dist.barrier()
 
     def from_rank0(self, value):
         """``value`` of rank 0, on every rank."""
         if not self.distributed:
             return value
         box = [value]
-        torch.distributed.broadcast_object_list(box, src=0)
+        dist.broadcast_object_list(box, src=0)
         return box[0]
 
 
-def launched_by_torchrun() -> bool:
-    return all(k in os.environ for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK"))
-
-
 def start_ranks(device: str | None) -> tuple[Ranks, str | None]:
-    """Join the torchrun group if launched by it; returns the ranks and this rank's device.
-
-    gloo on CPU, nccl on CUDA with ``cuda:LOCAL_RANK``; on CPU each rank gets its
-    share of the cores unless ``OMP_NUM_THREADS`` says otherwise.
-    """
-    if not launched_by_torchrun():
+    """Join the torchrun group if launched by it (gloo on CPU, each rank its share of the cores; nccl on CUDA with
+    ``cuda:LOCAL_RANK``); returns the ranks and this rank's device."""
+    if not all(k in os.environ for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK")):  # not launched by torchrun
         return Ranks(), device
-    import torch.distributed as dist
-
     local = int(os.environ["LOCAL_RANK"])
     cuda = torch.cuda.is_available() and (device is None or str(device).startswith("cuda"))
     if cuda:
@@ -91,41 +91,32 @@ def start_ranks(device: str | None) -> tuple[Ranks, str | None]:
 
 
 def stop_ranks(ranks: Ranks) -> None:
-    if ranks.distributed and torch.distributed.is_initialized():
-        torch.distributed.destroy_process_group()
+    if ranks.distributed and dist.is_initialized():
+        dist.destroy_process_group()
 
 
 # --------------------------------------------------------------------------- one sample: decode, texture, export
 _WORKER: dict = {}
-#: what a started export worker holds of its own beside its model copy and its export's arrays (the Python
-#: interpreter, torch, the mesh and image libraries): the resident memory of a worker after a small export, rounded up
+#: what a started export worker holds of its own beside its model copy and its export's arrays (Python, torch, ...)
 WORKER_BYTES = 384 << 20
 
 
 def worker_bytes(model) -> int:
-    """The memory one export worker takes before its export's arrays: :data:`WORKER_BYTES` and its CPU copy of
-    the model (the weights and the latent)."""
+    """The memory one export worker takes before its export's arrays: :data:`WORKER_BYTES` and its model copy."""
     tensors = [*model.decoder.state_dict().values(), *model.denoiser.state_dict().values(), *model.latent.planes]
     return WORKER_BYTES + sum(t.numel() * t.element_size() for t in tensors)
 
 
 def workers_memory_holds(model, one_export: float) -> int:
-    """How many export workers half the free RAM holds (as for the exports' check): each its own
-    :func:`worker_bytes` and one export of ``one_export`` bytes (``sampling.export_bytes``)."""
+    """How many export workers half the free RAM holds, each its :func:`worker_bytes` and one export's bytes."""
     from .device import memory_available
 
     return int(0.5 * memory_available("cpu") // (worker_bytes(model) + one_export))
 
 
 def exit_with_parent() -> None:
-    """End this worker process as soon as the process that started it ends (a thread waits on the parent's sentinel).
-
-    A worker waiting for its next job never learns otherwise that ``sample`` was killed (``kill -9``, the OOM
-    killer): it would wait forever, holding a CPU copy of the model and the terminal's output.
-    """
-    import multiprocessing.connection
-    import threading
-
+    """End this worker process as soon as the process that started it ends (a thread waits on the parent's
+    sentinel): a worker waiting for its next job never learns otherwise that ``sample`` was killed."""
     parent = multiprocessing.parent_process()
     if parent is None:  # not started by multiprocessing
         return
@@ -148,10 +139,6 @@ def _worker_init(model_path: str, opts: dict) -> None:
 
 def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: dict | None = None) -> dict:
     """Decode one latent into a textured mesh in ``tmp`` (mesh.*, preview.png); returns ``{"faces", "no_pictures"}``."""
-    from ..formats.export import export_mesh
-    from ..model.triplane import Triplane
-    from .sampling import Samples
-
     model = model or _WORKER["model"]
     opts = opts or _WORKER["opts"]
     samples = Samples(Triplane.from_state_dict(latent).to(model.device), np.asarray(aabb))
@@ -172,12 +159,7 @@ def export_sample(tmp: str, latent: dict, aabb: np.ndarray, model=None, opts: di
 
 
 def install_sample(tmp: Path, dst: Path, out: Path, ours: dict | None) -> None:
-    """Move the finished sample folder ``tmp`` to ``dst``: one rename, or file by file into an existing one.
-
-    ``ours``: ``out``'s manifest as it was before this sample's record was
-    appended (what an existing ``dst`` holds of ours, e.g. a half-written earlier try).
-    Nothing goes through a link (``dst`` linked elsewhere meanwhile is refused, :func:`files.confined`).
-    """
+    """Move the finished sample folder ``tmp`` to ``dst`` (never through a link); ``ours``: the manifest before."""
     confined(out, dst)
     if not dst.exists():
         os.rename(tmp, dst)
@@ -197,15 +179,8 @@ MP_PREFIX = "sin3dm-mp-"  # multiprocessing's temporaries of a sample run: sin3d
 
 
 def own_mp_temps() -> Path:
-    """A temporary folder for multiprocessing (the pool's sockets), named with this process's PID, made its
-    temporary folder; folders of this kind whose process died (``kill -9``) are removed first. Multiprocessing's
-    own ``pymp-*`` folder is removed only at a clean exit, so every kill left one behind.
-    (multiprocessing reads the setting from its process's private ``_config``; there is no public one. The
-    folder stays in the system's temporary folder: a Unix socket's path may not be longer than about 100 bytes.)"""
-    import multiprocessing.process
-    import re
-    import tempfile
-
+    """A temporary folder for multiprocessing's sockets, named with this process's PID so that the next run removes
+    one a killed run left (multiprocessing's own is removed only at a clean exit); set in its private ``_config``."""
     base = Path(tempfile.gettempdir())
     for old in base.glob(f"{MP_PREFIX}*"):
         m = re.match(f"^{MP_PREFIX}{OWNER}", old.name)
@@ -217,11 +192,7 @@ def own_mp_temps() -> Path:
 
 
 def drop_mp_temps(folder: Path | None) -> None:
-    """After the pool is shut down: stop the sharer whose socket lies in ``folder``, remove it, and let
-    multiprocessing make its own folder again if it needs one."""
-    import multiprocessing.process
-    from multiprocessing import resource_sharer
-
+    """After the pool is shut down: stop the sharer whose socket lies in ``folder`` and remove it."""
     if folder is None:
         return
     resource_sharer.stop()  # its socket: torch passes the latents' storage to the workers through it
@@ -242,16 +213,14 @@ def export_options(model, req, plan) -> dict:
         "texture_size": r.texture_size,
         "pictures": not req.no_pictures,
         "box": model.normalization.to_original(box_n),
-    }  # one scale for every preview
+    }
 
 
 class RankExport:
-    """This rank's samples on their way into ``out``: exported here, or by a pool of worker processes
-    (:meth:`start_pool`); each lands (recorded, then moved into place) as it finishes. :meth:`close` at the end."""
+    """This rank's samples on their way into ``out``, exported here or by a pool of worker processes; each lands
+    (recorded, then moved into place) as it finishes."""
 
     def __init__(self, model, out: Path, req, ranks: Ranks, opts: dict, total: int, label: str):
-        from tqdm.auto import tqdm
-
         self.model, self.out, self.req, self.ranks, self.opts, self.total = model, out, req, ranks, opts, total
         self.tag = f"[{label}]" if ranks.world == 1 else f"[{label} rank {ranks.rank}]"
         self.pool, self.workers, self.mp_temps = None, 0, None
@@ -263,8 +232,6 @@ class RankExport:
 
     def start_pool(self, workers: int) -> None:
         """Export in ``workers`` processes, each with its own CPU copy of the model (saved here once)."""
-        import multiprocessing
-
         model_tmp = make_temp_dir(self.out)
         self.temps.add(model_tmp)
         self.model.save(model_tmp)
@@ -293,15 +260,8 @@ class RankExport:
             tmp = make_temp_dir(self.out)
             self.temps.add(tmp)
             latent = samples.triplane[j].clone().state_dict()  # its own storage, not the whole batch's
-            save_torch(
-                {
-                    "triplane": latent,
-                    "aabb": torch.from_numpy(np.asarray(samples.aabb, np.float64)),
-                    "index": i,
-                    "seed": req.seed + i,
-                },
-                tmp / "latent.pt",
-            )
+            aabb = torch.from_numpy(np.asarray(samples.aabb, np.float64))
+            save_torch({"triplane": latent, "aabb": aabb, "index": i, "seed": req.seed + i}, tmp / "latent.pt")
             if self.pool is None:
                 self.land(i, tmp, started, export_sample(str(tmp), latent, samples.aabb, self.model, self.opts))
                 continue
@@ -317,8 +277,6 @@ class RankExport:
 
     def land(self, i: int, tmp: Path, started: float, info: dict) -> None:
         """Record sample ``i`` (its manifest part's line), then move its folder ``tmp`` into place."""
-        from tqdm.auto import tqdm
-
         out, name = self.out, folder_name(i)
         confined(out, out / name)  # before its record: a folder linked elsewhere meanwhile is refused
         ours = read_manifest(out) if (out / name).exists() else None  # before this record joins it
@@ -354,9 +312,7 @@ class RankExport:
     def collect(self, block: bool) -> None:
         """Land the exports the workers finished (waiting for one if ``block``), in index order."""
         futures = self.futures
-        done, _ = (
-            wait(list(futures), return_when=FIRST_COMPLETED) if block else ([f for f in futures if f.done()], None)
-        )
+        done = wait(list(futures), return_when=FIRST_COMPLETED).done if block else [f for f in futures if f.done()]
         for f in sorted(done, key=lambda f: futures[f][0]):
             try:
                 info = f.result()

@@ -1,11 +1,8 @@
 """Every field of a ``model.pt`` checked before it is used: a file from a stranger builds nothing unbounded.
 
-:func:`model_parts` turns the dictionary :func:`~sin3dm_lite.app.checkpoints.load_checkpoint` read into the parts
-``Sin3DM(...)`` takes. The config must be a whole configuration within :data:`~sin3dm_lite.data.config.LIMITS`;
-each network is first laid out on torch's ``meta`` device (shapes, no memory), its size compared with the memory
-there is and its shapes with the weights the file holds, and only then built; the latent, the box, the
-normalisation, the decoder's threshold and the colour channels must be of their kind and finite. Whatever is
-wrong gives one :class:`~sin3dm_lite.errors.Sin3DMInputError` naming the file and the field.
+Each network is first laid out on torch's ``meta`` device (shapes, no memory) and compared with the memory there
+is and with the file's weights, and only then built; whatever is wrong gives one
+:class:`~sin3dm_lite.errors.Sin3DMInputError` naming the file and the field.
 """
 
 from __future__ import annotations
@@ -23,6 +20,7 @@ from ..data.mesh import MAX_COORDINATE, Normalization
 from ..errors import Sin3DMInputError
 from ..model.autoencoder import PBR_HEADS, TriplaneDecoder
 from ..model.triplane import PLANES, Triplane
+from ..model.unet import TriplaneUNet
 
 #: the entries of a ``model.pt`` besides its format tag (:func:`~sin3dm_lite.app.checkpoints.model_bundle`)
 FIELDS = ("config", "decoder", "latent", "denoiser", "aabb", "center", "scale", "color_channels", "report")
@@ -40,10 +38,7 @@ def bad(path: Path, why: str) -> Sin3DMInputError:
 
 def model_parts(path: Path, b: dict) -> tuple:
     """``(config, decoder, latent, denoiser, aabb, normalization, report)`` from the checked fields of ``b``."""
-    from ..model.unet import TriplaneUNet
-
-    missing = [k for k in FIELDS if k not in b]
-    if missing:
+    if missing := [k for k in FIELDS if k not in b]:
         raise bad(path, f"the entry '{missing[0]}' is missing")
     cfg = stored_config(path, b["config"])
     latent = stored_latent(path, b["latent"], cfg)
@@ -61,13 +56,8 @@ def model_parts(path: Path, b: dict) -> tuple:
     if not (isinstance(threshold, torch.Tensor) and threshold.numel() == 1 and 0 < float(threshold) <= 8):
         raise bad(path, "the decoder's threshold is not a number above 0 and at most 8")
     decoder = built(path, "decoder", lambda: TriplaneDecoder(cfg.autoencoder, float(threshold), color), weights, cfg)
-    denoiser = built(
-        path,
-        "denoiser",
-        lambda: TriplaneUNet(latent.channels, cfg.diffusion),
-        state_dict(path, "denoiser", b["denoiser"]),
-        cfg,
-    )
+    unet_weights = state_dict(path, "denoiser", b["denoiser"])
+    denoiser = built(path, "denoiser", lambda: TriplaneUNet(latent.channels, cfg.diffusion), unet_weights, cfg)
     return cfg, decoder, latent, denoiser, aabb, norm, report
 
 
@@ -106,8 +96,7 @@ def report_problem(report: dict) -> str | None:
 def stored_config(path: Path, text) -> Config:
     """The run's whole config (every section and setting present, each within LIMITS)."""
     d = json_dict(path, "config", text)
-    gaps = missing_settings(d)
-    if gaps:
+    if gaps := missing_settings(d):
         more = f" and {len(gaps) - 1} more" if len(gaps) > 1 else ""
         raise bad(path, f"its config lacks the setting '{gaps[0]}'{more}")
     try:
@@ -119,9 +108,7 @@ def stored_config(path: Path, text) -> Config:
 
 
 def missing_settings(d) -> list[str]:
-    """The dotted settings of a whole :class:`Config` that the dictionary ``d`` (a config.json) lacks; ``["(all)"]``
-    when it is not a dictionary. Settings of later versions' configs that an older run lacks may be absent only
-    where the default is what that run had (none of the network's shape)."""
+    """The :data:`REQUIRED` settings the config.json ``d`` lacks (``["(all)"]`` if it is no dictionary)."""
     if not isinstance(d, dict):
         return ["(all)"]
     gaps = []
@@ -135,8 +122,7 @@ def missing_settings(d) -> list[str]:
 
 
 _MISSING = object()
-#: the settings every config.json and model.pt of a run holds (the grid and the networks' shapes and steps):
-#: settings added later (switches, precision) may be missing in an older run and take their defaults
+#: the settings every config.json and model.pt of a run holds; others (added later) take their defaults
 REQUIRED = (
     "name",
     "seed",
@@ -182,8 +168,7 @@ def stored_latent(path: Path, d, cfg: Config) -> Triplane:
 
 
 def stored_box(path: Path, aabb) -> np.ndarray:
-    """The input's box: six finite numbers, each side longer than zero and within the [-1, 1] cube the grid fills
-    (its longest side spans it)."""
+    """The input's box: six finite numbers, each side longer than zero and within the [-1, 1] cube."""
     a = aabb.detach().cpu().double().numpy() if isinstance(aabb, torch.Tensor) else None
     if a is None or a.shape != (6,) or not np.isfinite(a).all():
         raise bad(path, "its box (aabb) is not six finite numbers")
@@ -213,8 +198,7 @@ def state_dict(path: Path, name: str, d) -> dict:
 
 
 def built(path: Path, name: str, make, weights: dict, cfg: Config) -> torch.nn.Module:
-    """The network ``make()`` builds, with ``weights`` loaded: laid out on the meta device first, its size
-    compared with the memory there is and its shapes with ``weights`` (one line naming the first difference)."""
+    """The network ``make()`` builds, once its layout (on the meta device) fits in memory and matches ``weights``."""
     from .device import memory_available
 
     try:
@@ -257,9 +241,7 @@ TRAINING_COPIES = 5
 
 
 def check_network_sizes(cfg: Config) -> None:
-    """Refuse a config whose networks would not fit in memory in training, before anything is built or written
-    (a config edited by hand, or a run folder from a stranger, can ask for hundreds of GiB)."""
-    from ..model.unet import TriplaneUNet
+    """Refuse a config whose networks would not fit in memory in training, before anything is built or written."""
     from .device import memory_available
 
     a = cfg.autoencoder

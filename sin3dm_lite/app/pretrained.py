@@ -1,15 +1,11 @@
-"""The pretrained ``small`` models of the built-in examples, shipped inside the package.
-
-Each was produced by our own ``sin3dm-lite fit`` (the exact commands are in
-``shipped/README.md`` next to them), so the demo and the notebooks can generate
-shapes of every example immediately on a CPU (``demo --example NAME``,
-``Sin3DM.open(NAME)``).
-"""
+"""The pretrained ``small`` models of the built-in examples, shipped inside the package (made by
+``sin3dm-lite fit``; ``shipped/README.md`` has the commands), so the demo and the notebooks start at once."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from .. import examples
 from ..errors import Sin3DMInputError
 
 DATA = Path(__file__).parent.parent / "shipped"  # sin3dm_lite/shipped
@@ -17,8 +13,6 @@ DATA = Path(__file__).parent.parent / "shipped"  # sin3dm_lite/shipped
 
 def pretrained_path(name: str = "default") -> Path:
     """Path of a shipped run folder (holding ``model.pt``)."""
-    from .. import examples
-
     folder = DATA / (examples.DEFAULT_EXAMPLE + "_small" if name == "default" else name)
     if not (folder / "model.pt").is_file():
         raise Sin3DMInputError(
@@ -34,8 +28,6 @@ def shipped_names() -> list[str]:
 
 def shipped_examples() -> list[str]:
     """Built-in examples that have a shipped model (the default one first): what ``Sin3DM.open(name)`` loads."""
-    from .. import examples
-
     names = [n for n in examples.list_examples() if shipped_model(n) is not None]
     return sorted(names, key=lambda n: n != examples.DEFAULT_EXAMPLE)
 

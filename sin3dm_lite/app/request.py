@@ -1,10 +1,8 @@
 """What a sample run asks for, and the one place its defaults come from.
 
-A setting left at ``None`` takes the model's (:class:`~sin3dm_lite.data.config.SamplingConfig`, whose
-``diversity`` a fit's calibration chose): :meth:`SampleRequest.resolve` says which value each setting gets.
-``Sin3DM.sample`` / ``Sin3DM.to_mesh``, the mass sampler (:mod:`sin3dm_lite.app.mass`) and the CLI
-(``cli.sample_request`` builds one from the flags) all ask it, so a sample drawn by any of them gets the same
-settings for the same request.
+A setting left at ``None`` takes the model's (:class:`~sin3dm_lite.data.config.SamplingConfig`);
+``Sin3DM.sample``, ``Sin3DM.to_mesh``, the mass sampler and the CLI all ask :meth:`SampleRequest.resolve`, so the
+same request gets the same settings from any of them.
 """
 
 from __future__ import annotations
@@ -13,6 +11,7 @@ from dataclasses import dataclass, field
 
 from ..data.config import SamplingConfig
 from ..errors import Sin3DMInputError
+from .threads import export_workers
 
 DEFAULT_BATCH = 8  # latents per denoiser call in a mass run, fewer when memory is short
 
@@ -31,11 +30,7 @@ class Resolved:
 
 @dataclass
 class SampleRequest:
-    """What one sample run asks for: which indices and seeds, and the settings that override the model's (None: its own).
-
-    The CLI builds it from its flags (``cli.sample_request``); :func:`mass.write_samples` resolves ``batch`` once
-    (:meth:`batch_size`).
-    """
+    """What one sample run asks for: which indices and seeds, and the settings that override the model's (None: its own)."""
 
     n: int = 4
     start: int = 0
@@ -53,33 +48,28 @@ class SampleRequest:
     control: dict = field(default_factory=lambda: {"resize": (1.0, 1.0, 1.0)})  # Sin3DM.plan's arguments
 
     def export_workers(self) -> int:
-        """``workers``, or where it is None the machine's default (:func:`sin3dm_lite.app.threads.export_workers`)."""
-        from .threads import export_workers
-
+        """``workers``, or where it is None the machine's default."""
         return export_workers() if self.workers is None else self.workers
 
     def resolve(self, sampling: SamplingConfig, controlled: bool = False) -> Resolved:
         """The settings this request gets from a model with ``sampling``; ``controlled``: the plan keeps part of a
-        known latent (outpainting, editing, duplication), whose default diversity is 1 (regenerated from pure
-        noise, as in the paper) instead of the model's."""
-        s = sampling
-        diversity = self.diversity if self.diversity is not None else (1.0 if controlled else s.diversity)
+        known latent, so the default diversity is 1 (regenerated from pure noise, as in the paper)."""
 
         def own(value, default):  # None: the model's; 0 is a value (refused by the checks), not "the default"
             return default if value is None else value
 
+        s = sampling
         return Resolved(
             method=own(self.method, s.method),
             steps=own(self.steps, s.steps),
-            diversity=diversity,
+            diversity=own(self.diversity, 1.0 if controlled else s.diversity),
             mesh_resolution=own(self.mesh_resolution, s.mesh_resolution),
             faces=own(self.faces, s.faces),
             texture_size=own(self.texture_size, s.texture_size),
         )
 
     def batch_size(self, limit: int) -> int:
-        """Latents per denoiser call: ``batch``, or :data:`DEFAULT_BATCH` (at most ``n`` and ``limit``, what fits in
-        memory at once); a ``batch`` over ``limit`` is refused."""
+        """Latents per denoiser call: ``batch`` (refused over ``limit``), or at most DEFAULT_BATCH, ``n`` and ``limit``."""
         if self.batch is not None and self.batch > limit:
             raise Sin3DMInputError(
                 f"--batch {self.batch} is more samples than fit in memory at once here (at most "

@@ -1,34 +1,21 @@
 """A fit's run folder: made in one rename, checked before a resume, cleaned up after a failed fresh fit.
 
-Every stage of a fit saves its result here, and training checkpoints are
-written atomically every ``config.checkpoint_every`` steps, so
-``fit(..., resume=True)`` continues an interrupted run and ends exactly where
-an uninterrupted one would::
-
-    RUN/config.json        the full configuration
-    RUN/grid.npz           the input's TSDF + colour grid (stage 1)
-    RUN/autoencoder.pt     autoencoder trainer state (stage 2, checkpoint)
-    RUN/diffusion.pt       diffusion trainer state (stage 3, checkpoint)
-    RUN/model.pt           what sampling needs: decoder, latent, denoiser (written last)
-    RUN/losses.json        loss histories of both stages: {"autoencoder": {"loss", "sdf", "color"},
-                           "diffusion": {"loss"}}, each a list with one value per step
-    RUN/report.json        reconstruction metrics, timings, step counts (while a switched fit runs:
-                           only the records of its thin-part and rollout switches, kept for --resume)
-    RUN/input.json         what the fit was asked for: the input's name and digest (runs.input_digest) and the
-                           settings before any switch; --resume refuses another input or other settings, and
-                           a config.json emptied, damaged or edited away from it (the fit's own switches aside),
-                           from grid.npz's resolution or from what the checkpoints were trained with
-
-The torch files in it are read and written by :mod:`sin3dm_lite.app.checkpoints`.
+It holds ``config.json``, ``input.json`` (what the fit was asked for: the input's digest and settings), the
+stages' ``grid.npz``, ``autoencoder.pt`` and ``diffusion.pt`` (checkpoints), then ``model.pt``, ``losses.json`` and
+``report.json``. A resume refuses another input or settings that differ from what the grid and checkpoints were
+made with.
 """
 
 from __future__ import annotations
 
 import json
+import re
+from contextlib import suppress
 from dataclasses import replace
 from pathlib import Path
 
 from ..auto.fit_policy import check_flips
+from ..data.box import grid_shape
 from ..data.config import Config
 from ..data.grid import load_grid
 from ..errors import Sin3DMInputError
@@ -52,8 +39,7 @@ RUN_FILES = (
 
 
 def check_run_folder(run: Path, source, resume: bool) -> None:
-    """Refuse a run folder the fit cannot write (a file, the input's own folder, read-only) or, for a resume,
-    damaged checkpoints: before any stage writes."""
+    """Before any stage writes: refuse a run folder the fit cannot write or, for a resume, damaged checkpoints."""
     from ..files import check_not_overlapping, check_writable, refuse_links
 
     if isinstance(source, (str, Path)) and Path(source).exists():
@@ -62,7 +48,7 @@ def check_run_folder(run: Path, source, resume: bool) -> None:
         raise Sin3DMInputError(f"run folder '{run}' is a file; give a folder's name (CLI: --out DIR; Python: out=DIR)")
     check_writable(run)
     refuse_links(run)  # a fit writes and (when it fails) removes files in it: never through a link
-    if resume:  # a damaged checkpoint fails now, before any stage writes
+    if resume:
         for kind in ("autoencoder", "diffusion"):
             if (run / f"{kind}.pt").exists():
                 load_trainer_checkpoint(run / f"{kind}.pt", kind)
@@ -80,7 +66,6 @@ def prepare_run(
         check_flips(cfg)
         if seed is not None:
             cfg = cfg.updated(seed=seed)
-    if cfg is not None:
         check_network_sizes(cfg)  # before any folder is made
     if run is None:
         if resume:
@@ -98,8 +83,7 @@ def prepare_run(
             f"--out '{run}' is not empty and holds no fit of sin3dm-lite; choose a new or empty "
             "folder for --out (nothing in it is touched)"
         )
-    # the new run folder appears with its config and lock in one rename: a kill leaves a resumable
-    # folder or only a temporary one (removed by the next run), never a folder that blocks the next try
+    # the folder appears with its config and lock in one rename: a kill never leaves one that blocks the next try
     files = {"config.json": cfg.to_json()}
     if asked is not None:
         files[INPUT_FILE] = json.dumps({**asked, "config": cfg.to_dict()}, indent=2)
@@ -129,8 +113,7 @@ def _resumed_config(
 
 
 def read_input(run: Path) -> dict | None:
-    """The run folder's input.json (what it was fitted to), or None when it has none (an older version's run); one
-    that is there but damaged (not JSON, no digest, a config that is no whole configuration) is refused."""
+    """The run folder's input.json (what it was fitted to), None without one (an older run); a damaged one is refused."""
     path = run / INPUT_FILE
     if not path.exists() and not path.is_symlink():
         return None
@@ -162,18 +145,16 @@ def recorded_config(run: Path, cfg: Config) -> Config:
 
 
 def read_run_config(cfg_file: Path) -> Config:
-    """A run's config.json, whole: JSON, every setting that shapes the grid and the networks present (an emptied
-    file would otherwise resume with the defaults), each within LIMITS."""
+    """A run's config.json, whole (an emptied file would otherwise resume with the defaults) and within LIMITS."""
     d, why = json_or_why(cfg_file, "a run's config")
     if why is None and (gaps := missing_settings(d)):
-        what = (
+        why = (
             "it is not a JSON object"
             if gaps == ["(all)"]
             else "it is an empty JSON object"
             if d == {}
             else f"it lacks the setting '{gaps[0]}'" + (f" and {len(gaps) - 1} more" if len(gaps) > 1 else "")
         )
-        why = what
     if why is None:
         try:
             return Config.from_dict(d)
@@ -188,8 +169,7 @@ def read_run_config(cfg_file: Path) -> Config:
     )
 
 
-#: the sections of a config that the grid and the trainers' checkpoints were made with (sampling's settings and
-#: checkpoint_every may change between runs without harm)
+#: the sections of a config that the grid and the trainers' checkpoints were made with
 TRAINED = ("seed", "grid.", "autoencoder.", "diffusion.")
 
 
@@ -199,8 +179,7 @@ def trained_settings(cfg: Config) -> dict:
 
 def _as_trained(section, state: dict):
     """A config section as its checkpoint ``state`` can be compared with before the latent exists: a diffusion
-    asked to scale its latent to unit variance (``latent_scale`` 0) records the number it found, which the trainer
-    finds again from the same latent and compares when it loads the checkpoint (``checkpoints.resume_trainer``)."""
+    asked for unit variance (``latent_scale`` 0) records the number it found, compared again when it loads."""
     stored = state.get("config")
     found = stored.get("latent_scale") if isinstance(stored, dict) else None
     if getattr(section, "latent_scale", None) == 0 and isinstance(found, float) and found > 0:
@@ -209,8 +188,7 @@ def _as_trained(section, state: dict):
 
 
 def check_config_matches_run(run: Path, cfg: Config) -> None:
-    """Refuse to resume ``run`` when its config.json ``cfg`` is not what the fit recorded (input.json), not what its trainer checkpoints were trained with, or does not match its grid.npz: the
-    grid and checkpoints would be trained on with settings they were not made with."""
+    """Refuse to resume ``run`` when ``cfg`` is not what input.json, the checkpoints or grid.npz were made with."""
     rec = read_input(run)
     if rec is not None and isinstance(rec.get("config"), dict):
         have, near = trained_settings(cfg), trained_settings(recorded_config(run, cfg))
@@ -223,14 +201,12 @@ def check_config_matches_run(run: Path, cfg: Config) -> None:
                 f"({shown}{more}); its grid and checkpoints were made with those: put them back, or fit with the new "
                 "settings into a new --out"
             )
-    for kind in ("autoencoder", "diffusion"):  # checked now, before the autoencoder stage trains on or writes
+    for kind in ("autoencoder", "diffusion"):  # before the autoencoder stage trains on or writes
         if (run / f"{kind}.pt").exists():
             state = load_trainer_checkpoint(run / f"{kind}.pt", kind)
             check_trainer_state(run / f"{kind}.pt", kind, _as_trained(getattr(cfg, kind), state), state)
     grid = run / "grid.npz"
     if grid.is_file():
-        from ..data.box import grid_shape
-
         shape = load_grid(grid).shape
         want = max(grid_shape((2.0, 2.0, 2.0), cfg.grid.resolution, multiple=8))
         if max(shape) != want:
@@ -288,26 +264,15 @@ def read_report(run: Path) -> dict:
 
 
 def remove_failed_run(run: Path, existed: bool) -> None:
-    """Remove what a failed fresh fit wrote into ``run`` (and the folder, if the fit made it and it is empty).
-
-    Called while the fit's own error unwinds: a file that cannot be removed (the folder made read-only)
-    stays, and that error, not this cleanup's, is the one the user reads.
-    """
-    import re
-
+    """Remove what a failed fresh fit wrote into ``run`` (and the folder, if it made it); what cannot be removed
+    stays, so that the user reads the fit's own error."""
     names = [run / name for name in RUN_FILES]
-    try:  # temporaries of atomic writes
+    with suppress(OSError):  # temporaries of atomic writes
         names += [p for p in run.iterdir() if re.match(r"^\..*\.sin3dm-\d+-[^.]*\.tmp", p.name)]
-    except OSError:
-        pass
     for p in names:
-        try:
+        with suppress(OSError):
             p.unlink(missing_ok=True)
-        except OSError:
-            pass
     release_lock(run)
     if not existed:
-        try:
+        with suppress(OSError):  # someone put a file there meanwhile: leave it
             run.rmdir()
-        except OSError:
-            pass  # someone put a file there meanwhile: leave it

@@ -1,25 +1,9 @@
-"""One setting, ``RUN``, names the model a notebook works on; fitted runs are cached.
+"""One setting, ``RUN``, names the model a notebook works on (``Sin3DM.open(RUN)``); fitted runs are cached.
 
-    model = Sin3DM.open("canyon")              # a shipped model: loaded
-    model = Sin3DM.open("runs/my_vase")        # a run folder (holding model.pt): loaded
-    model = Sin3DM.open("my_vase.glb")         # a mesh file: fitted once into the cache, then loaded
-    model = Sin3DM.open("colonnade")           # an example without a shipped model: the same
-
-What ``RUN`` may be, checked in this order:
-
-1. the name of a shipped model (``canyon`` or ``canyon_small``, :func:`pretrained.shipped_names`), even where a
-   local folder has that name (a warning says so; ``./canyon`` names the local one: :func:`shipped_or_folder`,
-   the rule the CLI's commands follow too);
-2. an existing run folder with ``model.pt`` (or a ``model.pt`` file);
-3. a mesh file or the name of a built-in example: fitted with ``preset`` into
-   ``cache/<stem>-<hash12>``, where the hash covers the input (what is read from the file, its MTL and
-   textures included,
-   or the example's name and generator seed) and the preset's JSON. The same
-   input and settings find the same folder: a finished fit (``model.pt``) is
-   loaded, an interrupted one (``config.json`` and checkpoints) is resumed, so
-   a kernel restart reloads instead of training again.
-
-Anything else is refused with one line that says what ``RUN`` may be.
+``RUN`` is, in this order: the name of a shipped model (``canyon``; ``./canyon`` names a local folder); a run
+folder with ``model.pt`` (or that file); a mesh file or a built-in example's name, fitted once into
+``cache/<stem>-<hash12>`` (the hash covers what the fit reads and the preset), so that a kernel restart loads the
+finished fit, or resumes an interrupted one, instead of training again.
 """
 
 from __future__ import annotations
@@ -31,14 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import examples
 from ..data.config import Config
+from ..data.mesh import TexturedMesh
 from ..errors import Sin3DMInputError
 from ..formats.load import load_mesh
 from ..presets import get_preset, notebook_preset
+from .checkpoints import MODEL_FILE
 
 CACHE = Path("runs/cache")  # relative to the working directory (a notebook's: notebooks/)
 EXAMPLE_SEED = 0  # the generator seed ``Sin3DM.fit`` builds an example with
-MODEL_FILE = "model.pt"
 
 
 def fit_preset(preset) -> Config:
@@ -49,7 +35,6 @@ def fit_preset(preset) -> Config:
 
 def run_key(source, preset=None) -> str:
     """``<stem>-<hash12>``: the cache folder's name for fitting ``source`` (mesh path or example name) with ``preset``."""
-
     cfg = fit_preset(preset)
     h = hashlib.sha256()
     stem = _feed_input(h, source)
@@ -58,11 +43,7 @@ def run_key(source, preset=None) -> str:
 
 
 def _feed_input(h, source, mesh=None) -> str:
-    """Feed what a fit of ``source`` reads to ``h`` (an example's name and seed, or the mesh with its MTL and
-    textures); ``mesh``: ``source`` already loaded. Returns the input's stem (the example's name, the file's stem)."""
-    from .. import examples
-    from ..data.mesh import TexturedMesh
-
+    """Feed what a fit of ``source`` (``mesh``: already loaded) reads to ``h``; returns the input's stem."""
     if isinstance(source, str) and source in examples.list_examples() and not Path(source).is_file():
         h.update(f"example:{source}:seed={EXAMPLE_SEED}".encode())
         return source
@@ -72,16 +53,12 @@ def _feed_input(h, source, mesh=None) -> str:
     path = Path(source)
     if not path.is_file():
         raise Sin3DMInputError(f"'{source}' is neither a mesh file nor a built-in example")
-    _hash_mesh(
-        h, mesh if mesh is not None else load_mesh(path)
-    )  # what was read, so an OBJ's MTL and textures count too
+    _hash_mesh(h, mesh if mesh is not None else load_mesh(path))  # what was read: an OBJ's MTL and textures too
     return path.stem
 
 
 def input_digest(source, mesh=None) -> str:
-    """SHA-256 of what a fit of ``source`` (mesh path, ``TexturedMesh`` or example name) reads: the same input, the
-    same digest, whatever the file is called; another mesh, texture or example, another digest. ``mesh``: ``source``
-    already loaded (it is not read again)."""
+    """SHA-256 of what a fit of ``source`` (``mesh``: already loaded) reads, whatever the file is called."""
     h = hashlib.sha256()
     _feed_input(h, source, mesh)
     return h.hexdigest()
@@ -108,15 +85,8 @@ def cached_run(source, preset=None, cache: str | Path = CACHE) -> Path:
 
 
 def shipped_or_folder(run, stacklevel: int = 3) -> tuple[str, Path] | None:
-    """The one rule for a name that both a shipped model and a local path may mean (``Sin3DM.open`` and the
-    commands that take a RUN ask it): a bare name of a shipped model (``canyon``, ``canyon_small``, as a ``str``)
-    is the shipped model; a path (``./canyon``, ``runs/canyon``, a ``Path``) is the local one. Where a local
-    ``canyon`` exists beside the shipped name, a warning says which was taken and how to name the other.
-
-    Returns ``("shipped", its folder)``, ``("folder", the run folder)`` for a folder holding ``model.pt`` (or that
-    file), or None (neither: the caller says what else RUN may be). ``stacklevel``: the warning's, as
-    ``warnings.warn`` takes it (3: the caller's caller).
-    """
+    """``("shipped" | "folder", folder)`` or None: a bare ``str`` naming a shipped model is that model (a warning
+    says so where a local one exists), a path (``./canyon``, a ``Path``) the local one."""
     from .pretrained import shipped_model
 
     name = str(run)
@@ -141,7 +111,6 @@ def shipped_or_folder(run, stacklevel: int = 3) -> tuple[str, Path] | None:
 
 def resolve_run(run, preset, cache) -> tuple[str, Path]:
     """What ``run`` names: ``("shipped" | "folder", the folder to load)`` or ``("fit", the cache folder to fit into)``."""
-    from .. import examples
     from .pretrained import shipped_examples
 
     if not isinstance(run, (str, Path)) or not str(run).strip():

@@ -1,9 +1,7 @@
 """Sampling a fitted model: what to sample (a control plan), how many fit in memory, new triplanes, meshes.
 
-The work behind ``Sin3DM.plan``, ``max_samples``, ``sample``, ``check_mesh_sizes`` and ``to_mesh``; each function
-takes the fitted model (its ``latent``, ``aabb``, ``config``, ``denoiser``, ``schedule``, ``decoder``,
-``normalization`` and ``device``). Settings left at ``None`` take the model's through
-:meth:`~sin3dm_lite.app.request.SampleRequest.resolve`, as the mass sampler's do.
+The work behind ``Sin3DM.plan``, ``max_samples``, ``sample`` and ``to_mesh``; settings left at ``None`` take the
+model's (:meth:`~sin3dm_lite.app.request.SampleRequest.resolve`).
 """
 
 from __future__ import annotations
@@ -13,31 +11,29 @@ from typing import Any
 
 import numpy as np
 
+from ..data.box import grid_shape
+from ..data.config import LIMITS, check_setting
 from ..errors import Sin3DMInputError
+from ..model.schedule import sampling_timesteps, start_step
 from ..model.triplane import Triplane
 from . import values
 from .request import SampleRequest
 
 MAX_SAMPLES = 10_000  # per call, whatever the memory
-# what one mesh export holds at its peak (to_mesh: SDF grid, marching cubes, atlas, baked maps), per voxel and per
-# texel, rounded up from the shipped canyon model's (docs/performance.md, "The smaller stages")
+# what one mesh export holds at its peak (SDF grid, marching cubes, atlas, baked maps), per voxel and per texel
 EXPORT_BYTES_PER_VOXEL = 96
 EXPORT_BYTES_PER_TEXEL = 256
 
 
 @dataclass
 class Samples:
-    """Generated triplanes and the box each one lives in.
-
-    ``aabb`` is the box in normalised coordinates; a retargeted sample has a
-    box scaled by the same factors as its latent so that voxels keep their size.
-    ``intermediates`` holds the denoising steps when they were asked for.
-    """
+    """Generated triplanes and the box they live in (normalised coordinates; a retargeted sample's box is scaled
+    like its latent, so voxels keep their size), with the denoising steps when they were asked for."""
 
     triplane: Triplane
     aabb: np.ndarray
     intermediates: list | None = None
-    plan: Any = None  # the control.Plan that was sampled (size, box, known latent and mask)
+    plan: Any = None  # the control.Plan that was sampled
 
     def __len__(self) -> int:
         return self.triplane.batch
@@ -50,17 +46,8 @@ def plan_for(
     from ..generate import control
 
     resized = np.any(np.array(values.factors(resize, "resize")) != 1.0)
-    asked = [
-        k
-        for k, v in (
-            ("resize", resized or None),
-            ("outpaint", outpaint),
-            ("regenerate", regenerate),
-            ("duplicate", duplicate),
-            ("plan", plan),
-        )
-        if v is not None
-    ]
+    controls = dict(resize=resized or None, outpaint=outpaint, regenerate=regenerate, duplicate=duplicate, plan=plan)
+    asked = [k for k, v in controls.items() if v is not None]
     if len(asked) > 1:
         raise Sin3DMInputError(f"one control at a time: got {' and '.join(asked)}")
     if plan is not None:
@@ -82,8 +69,8 @@ def plan_for(
 
 
 def max_samples(model, resize=(1.0, 1.0, 1.0)) -> int:
-    """How many samples one ``model.sample`` call can hold: the denoiser keeps about 16 feature maps of its
-    widest layer per sample, and half the free memory of the device may go to them (at most :data:`MAX_SAMPLES`)."""
+    """How many samples one ``model.sample`` call can hold: about 16 feature maps of the denoiser's widest layer
+    per sample in half the device's free memory (at most :data:`MAX_SAMPLES`)."""
     from .device import memory_available
 
     factors = np.array(values.factors(resize, "resize"))
@@ -106,10 +93,8 @@ def draw(
     progress: bool = True,
     diversity=None,
 ) -> Samples:
-    """``model.sample`` (its docstring says what each argument does): ``n`` (≥ 1) new triplanes for ``plan``
-    (:func:`plan_for`), at most as many as fit in memory at once (:func:`max_samples`)."""
+    """``model.sample``: ``n`` new triplanes for ``plan`` (:func:`plan_for`), at most :func:`max_samples`."""
     from ..model.diffusion import sample as diffusion_sample
-    from ..model.schedule import start_step
 
     seed = check_sample_args(model, n, steps, method, seed, diversity)
     if plan.known is not None and known is not None:
@@ -122,7 +107,6 @@ def draw(
             f"{n} samples do not fit in memory at once here (at most {limit} with "
             "this model and size); draw them in several calls with other seeds"
         )
-    # the run's settings; controlled generation regenerates from pure noise as in the paper
     r = SampleRequest(steps=steps, method=method, diversity=diversity).resolve(
         model.config.sampling, controlled=plan.known is not None
     )
@@ -150,10 +134,8 @@ def draw(
 
 
 def check_sample_args(model, n, steps, method, seed, diversity, names=None):
-    """Refuse what ``model.sample`` cannot take (the checks the CLI's flags call: :mod:`sin3dm_lite.app.values`);
-    returns the seed. ``names``: what the messages call ``n``, ``steps``, ... (default: the argument names)."""
-    name = {"n": "n", "steps": "steps", "method": "method", "seed": "seed", "diversity": "diversity"}
-    name |= names or {}
+    """Refuse what ``model.sample`` cannot take; returns the seed (``names``: what the messages call the arguments)."""
+    name = {k: k for k in ("n", "steps", "method", "seed", "diversity")} | (names or {})
     values.whole(n, name["n"])
     for key, value in (("steps", steps), ("method", method), ("diversity", diversity)):
         values.setting(f"sampling.{key}", value, name[key])
@@ -164,8 +146,6 @@ def check_sample_args(model, n, steps, method, seed, diversity, names=None):
 
 def check_steps(model, method: str, steps: int, name: str = "steps") -> None:
     """DDIM takes 1 to the model's time steps (DDPM takes them all, whatever ``steps``)."""
-    from ..model.schedule import sampling_timesteps
-
     top = model.schedule.timesteps
     if method == "ddim" and not 1 <= steps <= top:
         raise Sin3DMInputError(
@@ -175,9 +155,7 @@ def check_steps(model, method: str, steps: int, name: str = "steps") -> None:
 
 
 def export_bytes(resolution: int, texture_size: int, box) -> float:
-    """What one export over ``box`` holds at its peak: its decode grid and its texture (the rates above)."""
-    from ..data.box import grid_shape
-
+    """What one export over ``box`` holds at its peak: its decode grid and its texture."""
     voxels = float(np.prod(grid_shape(np.asarray(box, np.float64), resolution)))
     return voxels * EXPORT_BYTES_PER_VOXEL + float(texture_size) ** 2 * EXPORT_BYTES_PER_TEXEL
 
@@ -189,13 +167,8 @@ def check_mesh_sizes(
     parallel: int = 1,
     names: tuple[str, str] = ("mesh resolution", "texture size"),
 ) -> None:
-    """Refuse a mesh resolution or texture size out of range (:data:`config.LIMITS`) or beyond memory, for an export
-    over ``box`` (normalised coordinates). One export holds about :data:`EXPORT_BYTES_PER_VOXEL` per voxel of the
-    decode grid and :data:`EXPORT_BYTES_PER_TEXEL` per texel; ``parallel`` exports at once (``--workers``) may use
-    half the free RAM between them, as :func:`max_samples` does. ``names``: what the message calls the two (CLI
-    flags); the message gives the largest value that fits."""
-    from ..data.box import grid_shape
-    from ..data.config import LIMITS, check_setting
+    """Refuse a mesh resolution or texture size out of range or beyond memory (``parallel`` exports share half the
+    free RAM) for an export over ``box``, naming the largest that fits."""
     from .device import memory_available
 
     keys = ("sampling.mesh_resolution", "sampling.texture_size")
@@ -256,7 +229,8 @@ def decode(
         ("texture_size", texture_size, "texture_size"),
     ):
         values.setting(f"sampling.{key}", value, name, high=key == "faces")  # the sizes' top: check_mesh_sizes
-    values.flag(vertex_colors, "vertex_colors"), values.flag(original_coords, "original_coords")
+    values.flag(vertex_colors, "vertex_colors")
+    values.flag(original_coords, "original_coords")
     r = SampleRequest(mesh_resolution=resolution, faces=faces, texture_size=texture_size).resolve(model.config.sampling)
     check_mesh_sizes(r.mesh_resolution, r.texture_size, samples.aabb, names=("resolution", "texture_size"))
     items = range(len(samples)) if index is None else [index]

@@ -1,13 +1,8 @@
 """What a value a user passes may be: the one owner of every check that the CLI and the Python API share.
 
-The ``sin3dm-lite`` parser's option types (:mod:`sin3dm_lite.cli.values_cli`) read a word and hand it to these
-checks; :meth:`Sin3DM.sample <sin3dm_lite.pipeline.Sin3DM.sample>`, ``to_mesh`` and ``plan`` hand them their
-arguments. So ``-n 2.5`` and ``sample(2.5)``, ``--seed -1`` and ``sample(1, seed=-1)`` are refused by the same
-line of code, with one :class:`~sin3dm_lite.errors.Sin3DMInputError` line that says what the value may be.
-
-``name`` is how the message calls the value (``n``, ``seed``); ``None`` (the parser, which names the flag itself)
-gives ``expected RANGE, got VALUE``. The sampling settings with a range in :data:`data.config.LIMITS` (``steps``,
-``faces``, ``texture_size``, ...) are checked against it (:func:`setting`), as a config file's are.
+So ``-n 2.5`` and ``sample(2.5)`` are refused by the same line, with one :class:`~sin3dm_lite.errors.Sin3DMInputError`
+that says what the value may be. ``name`` is how the message calls the value; ``None`` (the parser, which names the
+flag itself) gives ``expected RANGE, got VALUE``.
 """
 
 from __future__ import annotations
@@ -17,7 +12,7 @@ import numbers
 
 import numpy as np
 
-from ..data.config import LIMITS
+from ..data.config import LIMITS, allowed, check_setting
 from ..errors import Sin3DMInputError
 
 #: seeds: the config's ``seed`` range (a fit's seed), which ``torch.Generator.manual_seed`` takes on every platform
@@ -33,7 +28,7 @@ def refuse(name: str | None, rule: str, value) -> Sin3DMInputError:
     shown = repr(value)
     if is_whole(value):
         shown = str(int(value))
-    elif is_float(value):  # 2.0 stays 2.0 (a float where a whole number is asked), 1e+20 and nan as they are
+    elif isinstance(value, (float, np.floating)):  # 2.0 stays 2.0 (a float where a whole number is asked)
         shown = f"{float(value):g}"
         shown += "" if any(c in shown for c in ".ena") else ".0"
     return Sin3DMInputError(f"{name} must be {rule}, got {shown}" if name else f"expected {rule}, got {shown}")
@@ -42,11 +37,6 @@ def refuse(name: str | None, rule: str, value) -> Sin3DMInputError:
 def is_whole(value) -> bool:
     """An integer (Python's or numpy's), not a bool: ``2`` is, ``2.0``, ``"2"`` and ``True`` are not."""
     return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
-
-
-def is_float(value) -> bool:
-    """A float (Python's or numpy's), finite or not."""
-    return isinstance(value, (float, np.floating))
 
 
 def is_real(value) -> bool:
@@ -85,7 +75,7 @@ def seeds(value, n: int, name: str = "seed"):
     if isinstance(value, (list, tuple, np.ndarray)):
         if len(value) != n:
             raise Sin3DMInputError(f"{len(value)} seeds for {n} samples; give one seed per sample, or one seed")
-        # each sample's own seed (``seed + i`` of a run: past SEED_RANGE for a run's last samples), as torch takes it
+        # a run's ``seed + i`` may pass SEED_RANGE: each is checked as torch takes it
         return [whole(v, f"each of the seeds ({name})", 0, SAMPLE_SEED_MAX) for v in value]
     return seed(value, name)
 
@@ -132,10 +122,7 @@ def factors(value, what: str, low: float = 0.0, low_included: bool = False) -> t
 
 def setting(key: str, value, name: str | None, high: bool = True):
     """``value`` for the sampling setting ``key`` (``sampling.steps``, ...): None (the model's own), or what
-    :data:`data.config.LIMITS` allows. ``high=False`` leaves the upper bound to a later check that says what fits
-    here (``check_mesh_sizes``: the memory; the range's top is named there)."""
-    from ..data.config import LIMITS, allowed, check_setting
-
+    :data:`data.config.LIMITS` allows; ``high=False`` leaves the upper bound to a later check of the memory."""
     if value is None:
         return None
     low, top = LIMITS[key]
