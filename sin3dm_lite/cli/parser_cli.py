@@ -167,8 +167,8 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         nargs="+",
         default=[],
         metavar="SETTING=VALUE",
-        help="change settings of the preset, e.g. --set diffusion.rollout=true (crisper brick-like "
-        "textures, docs/lab-notes.md) diffusion.steps=3000; names as in the run's config.json",
+        help="change settings of the preset, e.g. --set diffusion.rollout=true diffusion.steps=3000; names as in "
+        "the run's config.json (docs/presets.md says what each does)",
     )
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     _outside_paths_arg(f)
