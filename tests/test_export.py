@@ -93,17 +93,19 @@ def test_temporaries_of_another_machine_sharing_the_folder_are_left_alone(tmp_pa
     import subprocess
     import sys
 
-    from sin3dm_lite.files import TEMP_PREFIX, atomic_path, machine_tag, make_temp_dir, remove_stale_temps
+    from sin3dm_lite.files import TEMP_PREFIX, machine_tag, make_temp_dir, remove_stale_temps
+    from sin3dm_lite.files.atomic import atomic_path, atomic_paths
 
     dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True).stdout)
     monkeypatch.setattr("os.getpid", lambda: dead)  # what the other machine's writer (PID `dead` there) makes
     monkeypatch.setattr("socket.gethostname", lambda: "node-17")
     theirs = make_temp_dir(tmp_path)
-    with atomic_path(tmp_path / "model.pt") as their_file:
-        their_file.write_bytes(b"half")
+    with atomic_path(tmp_path / "model.pt") as their_file, atomic_paths(tmp_path, ["a.json", "b.json"]) as pair:
+        their_file.write_bytes(b"half")  # atomic_paths: a run folder's files updated all or none (calibrate)
         monkeypatch.undo()
         remove_stale_temps(tmp_path)
         assert theirs.is_dir() and their_file.is_file()  # the other machine's writer goes on undisturbed
+        assert all(t.is_file() for t in pair.values())
     mine, old = tmp_path / f"{TEMP_PREFIX}{dead}@{machine_tag()}-x", tmp_path / f"{TEMP_PREFIX}{dead}-y"
     mine.mkdir(), old.mkdir()
     assert sorted(remove_stale_temps(tmp_path)) == sorted([mine, old]) and theirs.is_dir()

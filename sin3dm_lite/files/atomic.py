@@ -66,7 +66,7 @@ def atomic_paths(folder: str | Path, names):
     tmps: dict[str, Path] = {}
     try:
         for n in names:
-            tmps[n] = _temp_file(folder, n, str(os.getpid()))
+            tmps[n] = _temp_file(folder, n, owner_name())
         yield dict(tmps)
         for t in tmps.values():
             os.chmod(t, 0o644)
