@@ -254,6 +254,9 @@ def main(argv: list[str] | None = None) -> int:
         why = e if isinstance(e, Sin3DMInputError) else disk_error(e, None, False)
         print(f"run_notebooks.py: error: {why}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: the notebook being run is left as it was (written whole or not at all)
+        print("run_notebooks.py: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -19,8 +19,8 @@ from ..files import atomic_path, atomic_paths, save_torch, write_data
 from ..files.inputs import check_regular, what_text_is
 from ..model.training import checkpoint_problem
 from .model_file import model_parts
+from .pretrained import MODEL_FILE
 
-MODEL_FILE = "model.pt"
 MODEL_FORMAT = "sin3dm-lite/1"
 
 

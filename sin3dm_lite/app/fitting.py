@@ -82,9 +82,16 @@ def fit(
 def grid_for(mesh: TexturedMesh, cfg: Config, progress: bool) -> ShapeGrid:
     """Stage 1: ``mesh`` as the TSDF + colour grid of ``cfg.grid``."""
     g = cfg.grid
-    sdf_settings = (g.threshold_voxels, g.n_surface_points, g.near_surface_sigma, cfg.seed)
     return mesh_to_grid(
-        mesh, g.resolution, *sdf_settings, progress, margin_voxels=g.margin_voxels, pbr=cfg.autoencoder.pbr
+        mesh,
+        g.resolution,
+        threshold_voxels=g.threshold_voxels,
+        n_surface_points=g.n_surface_points,
+        near_surface_sigma=g.near_surface_sigma,
+        seed=cfg.seed,
+        progress=progress,
+        margin_voxels=g.margin_voxels,
+        pbr=cfg.autoencoder.pbr,
     )
 
 

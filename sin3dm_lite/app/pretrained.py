@@ -9,12 +9,13 @@ from .. import examples
 from ..errors import Sin3DMInputError
 
 DATA = Path(__file__).parent.parent / "shipped"  # sin3dm_lite/shipped
+MODEL_FILE = "model.pt"  # what sampling needs, in a run folder (written by app.checkpoints)
 
 
 def pretrained_path(name: str = "default") -> Path:
     """Path of a shipped run folder (holding ``model.pt``)."""
     folder = DATA / (examples.DEFAULT_EXAMPLE + "_small" if name == "default" else name)
-    if not (folder / "model.pt").is_file():
+    if not (folder / MODEL_FILE).is_file():
         raise Sin3DMInputError(
             f"the shipped model '{folder.name}' is missing from this install; run `sin3dm-lite demo --train` to fit one"
         )
@@ -23,7 +24,7 @@ def pretrained_path(name: str = "default") -> Path:
 
 def shipped_names() -> list[str]:
     """Names of the shipped run folders (``canyon_small``, ...)."""
-    return sorted(p.name for p in DATA.iterdir() if (p / "model.pt").is_file())
+    return sorted(p.name for p in DATA.iterdir() if (p / MODEL_FILE).is_file())
 
 
 def shipped_examples() -> list[str]:
@@ -35,7 +36,7 @@ def shipped_examples() -> list[str]:
 def shipped_model(name: str) -> Path | None:
     """The shipped run folder called ``name``, or that of the example ``name`` (``canyon`` → ``canyon_small``); None if none."""
     for candidate in (name, f"{name}_small"):
-        if "/" not in candidate and (DATA / candidate / "model.pt").is_file():
+        if "/" not in candidate and (DATA / candidate / MODEL_FILE).is_file():
             return DATA / candidate
     return None
 

@@ -21,7 +21,7 @@ from ..data.mesh import TexturedMesh
 from ..errors import Sin3DMInputError
 from ..formats.load import load_mesh
 from ..presets import get_preset, notebook_preset
-from .checkpoints import MODEL_FILE
+from .pretrained import MODEL_FILE
 
 CACHE = Path("runs/cache")  # relative to the working directory (a notebook's: notebooks/)
 EXAMPLE_SEED = 0  # the generator seed ``Sin3DM.fit`` builds an example with

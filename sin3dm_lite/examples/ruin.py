@@ -93,7 +93,7 @@ def _plan(rng: np.random.Generator, resolution: int, wall, square: bool, flat: b
     window_angles = -np.pi + (low + STEPS // 2 + np.array([-2, 2]) + 0.5) * 2 * np.pi / STEPS
     if square:  # through the middle of two faces (an opening at a corner's angle would miss the wall)
         window_angles = np.array([0.0, np.pi / 2])
-    windows = [
+    openings = [
         {"angle": a, "width": 0.07 * height, "bottom": b * height, "top": (b + 0.12) * height}
         for a, b in zip(window_angles, (0.42, 0.5) if windows else ())
     ]
@@ -105,7 +105,7 @@ def _plan(rng: np.random.Generator, resolution: int, wall, square: bool, flat: b
         "half_slab": radius + 0.06 * height,
         "tops": tops,
         "door": door,
-        "windows": windows,
+        "windows": openings,
         "square": square,
     }
 

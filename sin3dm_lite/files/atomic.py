@@ -44,7 +44,7 @@ def atomic_path(path: str | Path, before_move=None):
     the block succeeds, after ``before_move(tmp)`` if given. On an exception ``path`` is untouched."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _temp_file(path.parent, path.name, owner_name())
+    tmp = _temp_file(path.parent, path.name)
     try:
         yield tmp
         os.chmod(tmp, 0o644)  # mkstemp makes the file private; the result is an ordinary file
@@ -66,7 +66,7 @@ def atomic_paths(folder: str | Path, names):
     tmps: dict[str, Path] = {}
     try:
         for n in names:
-            tmps[n] = _temp_file(folder, n, owner_name())
+            tmps[n] = _temp_file(folder, n)
         yield dict(tmps)
         for t in tmps.values():
             os.chmod(t, 0o644)
@@ -80,10 +80,10 @@ def atomic_paths(folder: str | Path, names):
                 os.remove(t)
 
 
-def _temp_file(folder: Path, name: str, owner: str) -> Path:
+def _temp_file(folder: Path, name: str) -> Path:
     """A new empty file ``folder/.<stem>.sin3dm-<owner>-<random>.tmp<suffix>`` for the file ``name``."""
     name = Path(name)
-    fd, tmp = tempfile.mkstemp(prefix=f".{name.stem}.sin3dm-{owner}-", suffix=f".tmp{name.suffix}", dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix=f".{name.stem}.sin3dm-{owner_name()}-", suffix=f".tmp{name.suffix}", dir=folder)
     os.close(fd)
     return Path(tmp)
 

@@ -57,14 +57,14 @@ def confined(out: str | Path, path: str | Path, option: str = "--out") -> Path:
     deleting ``path``; it refuses in one line (:func:`link_error`) otherwise."""
     out, path = Path(out), Path(path)
     outside = f"'{path}' lies outside the output folder '{out}'; nothing was written there"
-    if not path.is_relative_to(out) or ".." in path.relative_to(out).parts:
+    parts = path.relative_to(out).parts if path.is_relative_to(out) else ("..",)
+    if ".." in parts:
         raise Sin3DMInputError(outside)
     cur = out
-    for part in path.relative_to(out).parts:
+    for part in parts:
         cur = cur / part
         if cur.is_symlink():
             raise link_error(cur, option)
-    real, real_out = os.path.realpath(path), os.path.realpath(out)
-    if real != real_out and not real.startswith(real_out.rstrip(os.sep) + os.sep):
+    if not Path(os.path.realpath(path)).is_relative_to(os.path.realpath(out)):
         raise Sin3DMInputError(outside)
     return path

@@ -51,8 +51,8 @@ def unreadable(path, what: str, exc: BaseException | str) -> Sin3DMInputError:
 def warn(message: str) -> None:
     """``warnings.warn`` attributed to the first caller outside this package (the user's line)."""
     level, frame = 2, sys._getframe(1)  # stacklevel 2 = the caller of warn
-    while frame is not None and frame.f_globals.get("__name__", "").split(".")[:2] == __package__.split("."):
-        frame, level = frame.f_back, level + 1
+    while frame is not None and f"{frame.f_globals.get('__name__', '')}.".startswith(f"{__package__}."):
+        frame, level = frame.f_back, level + 1  # a frame of this package: one more level up
     warnings.warn(message, UserWarning, stacklevel=level)
 
 

@@ -11,8 +11,6 @@ import ipywidgets as widgets
 from IPython.display import clear_output, display
 from matplotlib.figure import Figure
 
-from ..model.triplane import PLANES
-
 
 class Explorer(widgets.VBox):
     """Controls + output; ``render(**values) -> Figure`` (a library figure function) runs whenever a control changes.
@@ -85,10 +83,6 @@ def float_slider(value, lo, hi, step, description, readout_format=".2f", kind=wi
     """A slider (``kind``: a float or float-range one) that redraws when released."""
     kwargs.update(description=description, continuous_update=False, readout_format=readout_format)
     return kind(value=value, min=lo, max=hi, step=step, **kwargs)
-
-
-def plane_dropdown(value: str = "xy") -> widgets.Dropdown:
-    return widgets.Dropdown(options=list(PLANES), value=value, description="plane", layout={"width": "140px"})
 
 
 def show_in(output: widgets.Output, *items) -> None:

@@ -122,10 +122,10 @@ def draw_slice(
 
 def draw_contours(ax, grid: ShapeGrid, uv: tuple[int, int], sdf: np.ndarray, threshold_lines: bool) -> None:
     """Zero level (solid) and, optionally, the edges of the truncation band (dashed); ``sdf`` is ``(u, v)``."""
-    coords = grid.axis_coords(uv[0]), grid.axis_coords(uv[1])
-    if sdf.min() < 0 < sdf.max():
+    coords, lo, hi = (grid.axis_coords(uv[0]), grid.axis_coords(uv[1])), sdf.min(), sdf.max()
+    if lo < 0 < hi:
         ax.contour(*coords, sdf.T, levels=[0.0], colors="k", linewidths=1.0)
     t = 0.98 * grid.threshold  # just inside the band's edge: the sdf is flat at ±threshold beyond it
-    levels = [lv for lv in (-t, t) if sdf.min() < lv < sdf.max()]
-    if threshold_lines and levels:
+    levels = [lv for lv in (-t, t) if lo < lv < hi] if threshold_lines else []
+    if levels:
         ax.contour(*coords, sdf.T, levels=levels, colors="0.3", linewidths=0.6, linestyles="--")

@@ -12,8 +12,13 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..model.decode import decode_grid
+from ..model.triplane import PLANES
 from . import viz
-from .explorer import Explorer, float_slider, plane_dropdown, show_in
+from .explorer import Explorer, float_slider, show_in
+
+
+def plane_dropdown(value: str = "xy") -> widgets.Dropdown:
+    return widgets.Dropdown(options=list(PLANES), value=value, description="plane", layout={"width": "140px"})
 
 
 def _step_slider(intermediates: Sequence[dict]) -> widgets.SelectionSlider:

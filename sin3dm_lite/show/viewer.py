@@ -21,7 +21,7 @@ from .camera import UP_AXES, VIEW, fit_camera, screen_up_vector, to_view, view_c
 from .pages import NO_WEBGL, index_page, read_snapshot, save_html, snapshot_array, with_webgl_message  # noqa: F401
 
 #: how :func:`gallery` draws a label: centred under its anchor, dark, no box
-LABEL_STYLE = dict(reference_point="ct", color=0x222222, size=0.9, label_box=False, is_html=True)
+_LABEL_STYLE = dict(reference_point="ct", color=0x222222, size=0.9, label_box=False, is_html=True)
 
 
 def pack_colors(rgb: np.ndarray) -> np.ndarray:
@@ -194,7 +194,7 @@ def gallery(
             mesh_plot(meshes[k], plot=plot, texture=texture, name=str(name), offset=o.astype(np.float32), up=up)
             if labels is not None:
                 at = label_position(lo, hi)
-                plot += k3d.text(html.escape(str(labels[k])), position=at, name=f"label {k}", **LABEL_STYLE)
+                plot += k3d.text(html.escape(str(labels[k])), position=at, name=f"label {k}", **_LABEL_STYLE)
                 low = min(low, screen_up @ at - 0.15 * row_height)  # room for the text hanging below
     return plot
 

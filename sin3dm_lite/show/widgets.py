@@ -16,8 +16,8 @@ from ..model.triplane import PLANE_AXES, Triplane
 from ..model.unet import rollout_parts
 from ..teach.receptive_field import receptive_field
 from . import viz
-from .explorer import Explorer, float_slider, plane_dropdown
-from .sampling_widgets import control_panel, denoising_explorer, denoising_slider, sampling_panel
+from .explorer import Explorer, float_slider
+from .sampling_widgets import control_panel, denoising_explorer, denoising_slider, plane_dropdown, sampling_panel
 
 
 def _index_slider(n: int, description: str = "index") -> widgets.IntSlider:

@@ -110,7 +110,8 @@ def fit_image(image: np.ndarray, cfg: DiffusionConfig, seed: int = 0):
 
 def sample_images(model, size: tuple[int, int], n: int = 4, steps: int = 25, seed: int = 0) -> np.ndarray:
     """``n`` new images ``(n, H, W, 3)`` from pure noise with the package's DDIM sampler (any size: retargeting)."""
-    return triplane_to_images(sample(model, None, (*size, 1), n=n, steps=steps, seed=seed, progress=False))
+    h, w = size
+    return triplane_to_images(sample(model, None, (h, w, 1), n=n, steps=steps, seed=seed, progress=False))
 
 
 # ----------------------------------------------------------------------------- copy or recombine?

@@ -142,7 +142,7 @@ def receptive_field(
     x = Triplane.randn(1, net.latent_channels, res, generator=gen).to(torch.float64)
     t_, k = torch.tensor([net.cfg.timesteps // 2 if t is None else t]), PLANES.index(plane)
     a, b = x.planes[k].shape[-2:]
-    ca, cb = (a // 2, b // 2) if texel is None else map(int, texel)
+    ca, cb = (a // 2, b // 2) if texel is None else (int(texel[0]), int(texel[1]))
     if not (0 <= ca < a and 0 <= cb < b):
         raise ValueError(f"texel {texel} is outside the {plane} plane of {a}×{b} texels")
     full = _texel_gradient(net, x, t_, k, (ca, cb))
