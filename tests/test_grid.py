@@ -350,3 +350,70 @@ def test_the_closest_points_barycentrics_are_in_the_meshs_own_corner_order():
     d, fi, bc = dist.closest(p)
     on_surface = np.einsum("nk,nkd->nd", bc, mesh.vertices[mesh.faces[fi]])
     np.testing.assert_allclose(np.linalg.norm(p - on_surface, axis=1), d, atol=1e-9)
+
+
+def _ground_and_box():
+    """A closed box standing on an open ground plane of one sheet (two triangles), as real scenes often have."""
+    box = trimesh.creation.box(extents=(0.6, 0.6, 0.6))
+    box.apply_translation([0, 0.3, 0])
+    ground = trimesh.Trimesh([(-2, 0, -2), (2, 0, -2), (2, 0, 2), (-2, 0, 2)], [(0, 2, 1), (0, 3, 2)])
+    return trimesh.util.concatenate([box, ground])
+
+
+def test_an_open_sheet_becomes_a_slab_two_voxels_thick_with_a_warning():
+    """Without it the ground would vanish: the winding number has no inside on either side of a lone sheet."""
+    with pytest.warns(UserWarning, match=r"open sheets that enclose no volume .* slabs 2 voxels thick"):
+        g = mesh_to_grid(textured(_ground_and_box()), 64, n_surface_points=2000, progress=False)
+    ground_y = g.normalization.to_normalized(np.zeros((1, 3)))[0, 1]  # grid coordinates are normalised ones
+    inside = g.sdf < 0
+    column = inside[8, :, 8]  # a column through the ground, far from the box
+    ys = g.axis_coords(1)[column]
+    assert 1 <= column.sum() <= 2 and np.all(np.abs(ys - ground_y) < g.voxel_size)  # the slab, nothing else
+    # the slab's SDF is its distance: the voxel centres' |y - ground| minus one voxel
+    np.testing.assert_allclose(g.sdf[8, :, 8][column], np.abs(ys - ground_y) - g.voxel_size, atol=1e-5)
+    # the box keeps its solid inside, and the training points inside the slab are inside
+    centre = g.normalization.to_normalized(np.array([[0.0, 0.3, 0.0]]))
+    i, j, k = np.floor((centre[0] - g.aabb[:3]) / g.voxel_size).astype(int)
+    assert g.sdf[i, j, k] < 0
+    corner = g.normalization.to_normalized(np.array([[0.4, 0.0, 0.4]]))[0]  # beyond the box's footprint
+    away = (np.abs(g.points[:, 0]) > corner[0]) | (np.abs(g.points[:, 2]) > corner[2])
+    in_slab = away & (np.abs(g.points[:, 1] - ground_y) < 0.5 * g.voxel_size)
+    assert in_slab.any() and np.all(g.point_sdf[in_slab] < 0)
+
+
+def test_a_curved_sheet_is_one_slab_without_a_solid_under_its_dip():
+    """A lone height field's winding number exceeds ½ under a dip; the sheet leaves the winding number, so no
+    lens of solid grows there."""
+    n = 40
+    x, z = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n))
+    v = np.stack([x, 0.3 * np.sin(3 * x) * np.cos(2 * z), z], -1).reshape(-1, 3)
+    i = np.arange(n * n).reshape(n, n)
+    a, b, c, d = i[:-1, :-1].ravel(), i[:-1, 1:].ravel(), i[1:, :-1].ravel(), i[1:, 1:].ravel()
+    sheet = trimesh.Trimesh(v, np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)]))
+    with pytest.warns(UserWarning, match="open sheets"):
+        g = mesh_to_grid(textured(sheet), 48, n_surface_points=0, progress=False)
+    assert (g.sdf < 0).sum(axis=1).max() <= 3  # at most a slab's voxels in any vertical column
+    assert ((g.sdf < 0).sum(axis=1) > 0).mean() > 0.9  # and the slab covers the sheet
+
+
+def test_closed_meshes_have_no_sheets():
+    from sin3dm_lite.data.distance import Distance
+
+    dist = Distance(textured(trimesh.creation.icosphere(subdivisions=2)))
+    assert dist.find_sheets(0.05) == 0.0 and dist.sheet is None
+    open_cup = trimesh.creation.icosphere(subdivisions=2)
+    open_cup = trimesh.Trimesh(open_cup.vertices, open_cup.faces[open_cup.triangles_center[:, 2] < 0.6])
+    assert Distance(textured(open_cup)).find_sheets(0.05) == 0.0  # a hole, but it bounds a volume
+
+
+def test_the_metrics_reference_keeps_an_open_sheet_as_a_slab_too():
+    """The LP metrics compare samples with the input voxelised: its sheets must be there as the grid has them."""
+    from sin3dm_lite.evaluate.geometry import input_occupancy
+
+    mesh = _ground_and_box()
+    mesh.vertices = (mesh.vertices - mesh.bounds.mean(0)) / (0.515 * mesh.extents.max())  # into [-1, 1]
+    box = np.array([-1.0, -0.25, -1.0, 1.0, 0.25, 1.0])
+    occ = input_occupancy(mesh, box, 32)
+    assert occ.shape == (32, 8, 32)
+    assert 1 <= occ[2, :, 2].sum() <= 2  # the ground far from the box: a slab of one or two voxels
+    assert occ[16, :, 16].sum() > occ[2, :, 2].sum()  # the box stands on it

@@ -6,6 +6,9 @@ the surface colour) and the generalised winding number, which tells inside
 from outside even for open or multi-part meshes. Badly wound faces read as
 holes to the winding number, so they are first made to agree with their
 neighbours, and inside-out parts are turned round (:func:`_orient_outward`).
+Open sheets that enclose no volume (a ground plane, a wall of one polygon)
+have no inside to find: the grid would lose them, so they become slabs two
+voxels thick (:meth:`Distance.find_sheets`).
 """
 
 from __future__ import annotations
@@ -36,15 +39,61 @@ class Distance:
     def __init__(self, mesh: TexturedMesh, chunk: int = 1 << 20):
         self.v = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
         faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
-        self.f, self.closed, self.turned_round = _orient_outward(self.v, faces)
+        self.f, self.closed, self.turned_round, self._open = _orient_outward(self.v, faces)
         self.corners_reversed = (self.f != faces).any(1)  # faces wound the other way round
         self.chunk = chunk
+        self.sheet: np.ndarray | None = None  # (F,) faces made slabs by find_sheets, or None
+        self.thickness = 0.0  # the slabs' half thickness
+        self._sheet_area = 0.0  # their share of the surface's area
+
+    def find_sheets(self, voxel: float) -> float:
+        """Make slabs of the open sheets that enclose no volume, for a grid of ``voxel``-sized cells, and return
+        their share of the surface's area.
+
+        Across a face the winding number jumps by 1, so the mean of its two sides says what the face bounds: ½
+        where it has the inside behind it (0 in front, 1 behind), about 0 where it has none (a lone sheet: -½,
+        ½). An open part (faces joined by edges; a closed one always bounds its volume) most of whose area reads
+        below :data:`SHEET_MEAN` is a sheet: a ground plane, a wall of one polygon, a lone height field (a
+        triangle soup's pieces, which together close a volume, read ½). It has no inside for the grid to find,
+        so it leaves the winding number (:meth:`winding`) and becomes a slab :data:`SHEET_VOXELS` voxels either
+        side of it (:meth:`thicken`).
+        """
+        open_faces, part = self._open
+        if self.sheet is not None or not open_faces.any():
+            return self._sheet_area
+        tri = self.v[self.f]
+        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        area = np.linalg.norm(normal, axis=1)
+        ask = np.flatnonzero(open_faces & (area > 0))
+        off = OFF_FACE * float(np.ptp(self.v, axis=0).max()) * normal[ask] / area[ask, None]
+        centre = tri[ask].mean(1)
+        w = self.winding(np.concatenate([centre - off, centre + off]))
+        bounds_none = np.zeros(len(self.f))
+        bounds_none[ask] = (w[: len(ask)] + w[len(ask) :]) / 2 < SHEET_MEAN
+        parts = part.max() + 1
+        share = np.bincount(part, area * bounds_none, parts) / np.maximum(np.bincount(part, area, parts), 1e-300)
+        sheet = open_faces & (share[part] > 0.5)
+        if not sheet.any():
+            return 0.0
+        self.sheet, self.thickness = sheet, SHEET_VOXELS * voxel
+        self._sheet_area = float(area[sheet].sum() / max(area.sum(), 1e-300))
+        return self._sheet_area
+
+    def thicken(self, sdf: np.ndarray, d: np.ndarray, fi: np.ndarray, threshold: float) -> tuple:
+        """``sdf`` (signed by the winding number, truncated at ``threshold``) with the sheets as slabs: where the
+        closest face (``fi``, at distance ``d``) is a sheet, the union with the slab, ``min(sdf, d - thickness)``.
+        Returns the new SDF and where the closest face is a sheet."""
+        if self.sheet is None:
+            return sdf, np.zeros(len(sdf), bool)
+        on = self.sheet[fi] & np.isfinite(d)
+        return np.where(on, np.minimum(sdf, np.minimum(d - self.thickness, threshold)), sdf), on
 
     def winding(self, p: np.ndarray) -> np.ndarray:
-        """Generalised winding number: 1 inside a closed surface, 0 outside, in between near holes."""
-        if len(p) == 0:
-            return np.zeros(0, np.float64)
-        return pcu.triangle_soup_fast_winding_number(self.v, self.f, np.ascontiguousarray(p, dtype=np.float64))
+        """Generalised winding number: 1 inside a closed surface, 0 outside, in between near holes (sheets left out)."""
+        solid = self.f if self.sheet is None else self.f[~self.sheet]  # sheets have no inside (find_sheets)
+        if len(p) == 0 or len(solid) == 0:
+            return np.zeros(len(p), np.float64)
+        return pcu.triangle_soup_fast_winding_number(self.v, solid, np.ascontiguousarray(p, dtype=np.float64))
 
     def closest(self, p: np.ndarray):
         """Unsigned distance, closest face and its barycentrics for every point (chunked)."""
@@ -73,7 +122,8 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
        volume is turned round; so is an *open* part whose faces mostly have the outside behind them
        (:func:`_inside_out`).
 
-    Returns ``(faces, closed, turned)``: the faces, whether the whole mesh is closed, and :class:`Turned`.
+    Returns ``(faces, closed, turned, (open, part))``: the faces, whether the whole mesh is closed,
+    :class:`Turned`, the faces of open parts (where :meth:`Distance.find_sheets` looks) and every face's part.
     """
     _, weld = unique_rows(vertices)  # vertices split at UV seams are one point here
     against = _agreeing_winding(weld[faces])
@@ -94,7 +144,7 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
     flip = (closed & (volume < 0)) | _inside_out(vertices, faces, part, has_faces & open_part)
     faces = np.where(flip[part][:, None], faces[:, ::-1], faces)
     turned = Turned(int(against.sum()), int(flip.sum()), int(has_faces.sum()))
-    return np.ascontiguousarray(faces), not open_part.any(), turned
+    return np.ascontiguousarray(faces), not open_part.any(), turned, ((has_faces & open_part)[part], part)
 
 
 def _edges(fw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -135,6 +185,11 @@ def _agreeing_winding(fw: np.ndarray) -> np.ndarray:
     keep_first = 2 * np.bincount(piece, first, len(label)) >= np.bincount(piece, minlength=len(label))
     return (first != keep_first[piece]) & (wound != turned)
 
+
+#: below this mean of a face's two sides' winding numbers the face bounds no volume (a bounding face's is ½)
+SHEET_MEAN = 0.25
+#: a sheet becomes a slab of this half thickness, in voxels (two voxels thick in all)
+SHEET_VOXELS = 1.0
 
 #: how many faces of an open part :func:`_inside_out` asks at most, and how far off the face (a share of the part)
 ASKED_FACES, OFF_FACE = 256, 1e-4

@@ -26,7 +26,7 @@ from ..errors import Sin3DMInputError
 from ..files import atomic_path
 from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
 from .config import LIMITS
-from .distance import Distance
+from .distance import SHEET_VOXELS, Distance
 from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, unique_rows
 from .tsdf import PBR_CHANNELS, point_tsdf, tsdf_grid
 
@@ -244,7 +244,9 @@ def mesh_to_grid(
     say(f"[grid] '{mesh.name}': {len(m.faces):,} faces → grid {dims[0]}×{dims[1]}×{dims[2]}, band ±{threshold:.4f}")
 
     dist = Distance(m)
-    for message in _surprises(mesh, m, dist):
+    flat = float(np.ptp(m.vertices, axis=0).min()) < vs if len(m.vertices) else True
+    sheets = 0.0 if flat else dist.find_sheets(vs)  # a flat mesh stays an error below: no volume at all
+    for message in _surprises(mesh, m, dist) + _sheet_note(mesh.name, sheets):
         warnings.warn(message, stacklevel=2)
     sdf, color, sure = tsdf_grid(dist, m, dims, aabb, vs, threshold, say, pbr=pbr)
     if not (sdf < 0).any():
@@ -301,6 +303,17 @@ def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance) -> 
             "to tell inside from outside"
         )
     return notes + normalisation_notes(mesh, normalised, dist.closed)
+
+
+def _sheet_note(name: str, share: float) -> list[str]:
+    """The warning for a mesh with open sheets (:meth:`Distance.find_sheets`), if it has any."""
+    if not share:
+        return []
+    return [
+        f"{max(share, 0.001):.1%} of the surface of '{name}' is open sheets that enclose no volume (a ground plane, "
+        f"walls of a single polygon): the grid would lose them, so it makes them slabs {2 * SHEET_VOXELS:g} voxels "
+        "thick; give the sheets a thickness in an editor to choose it yourself"
+    ]
 
 
 def _training_points(

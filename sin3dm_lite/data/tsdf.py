@@ -83,8 +83,10 @@ def tsdf_grid(
         sure = np.abs(w - 0.5) > sure_margin
         if s == 1:
             i, j, k = blocks.T
-            sdf[i, j, k] = sign * np.minimum(d, threshold)
-            sure_grid[i, j, k] = sure
+            face = np.zeros(len(blocks), np.int64)
+            face[~far] = fi
+            sdf[i, j, k], thick = dist.thicken(sign * np.minimum(d, threshold), d, face, threshold)
+            sure_grid[i, j, k] = sure & ~thick  # a slab's sign is not the winding number's
             band = d < threshold
             color[i[band], j[band], k[band]] = surface_channels(mesh, fi[band[~far]], bc[band[~far]], pbr)
             break
@@ -147,7 +149,8 @@ def point_tsdf(dist: Distance, mesh: TexturedMesh, p: np.ndarray, threshold: flo
     d, fi, bc = dist.closest(p)
     resolved, inside = signs_from_grid(p, d, *grid, closed=dist.closed)
     inside[~resolved] = dist.winding(p[~resolved]) > 0.5
-    sdf = (np.where(inside, -1.0, 1.0) * np.minimum(d, threshold)).astype(np.float32)
+    sdf, _ = dist.thicken(np.where(inside, -1.0, 1.0) * np.minimum(d, threshold), d, fi, threshold)
+    sdf = sdf.astype(np.float32)
     col = np.zeros((len(p), len(PBR_CHANNELS) if pbr else 3), np.float32)
     band = d < threshold
     col[band] = surface_channels(mesh, fi[band], bc[band], pbr)

@@ -180,17 +180,30 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     if dist.closed:
         return any_inside(_voxel_centres_inside((dist.v, dist.f), box, shape, outward=True), factor)
     side = (dist.winding(_centres(box, coarse)) > 0.5).reshape(coarse)  # the voxel centres' answer
+    near = _dilate(_surface_cells(dist.v, dist.f, box, coarse))
+    if dist.find_sheets(2.0 / max(coarse)):  # open sheets as slabs two voxels thick, as the training grid has them
+        cells = np.argwhere(near)
+        side[tuple(cells.T)] |= _in_slab(dist, _centres(box, coarse).reshape(*coarse, 3)[tuple(cells.T)])
     if factor == 1:
         return side
     # a voxel's sub-voxels can differ from its centre only where the surface passes near it, or where the
     # winding number crosses ½ between centres (across a hole): there each sub-voxel gets its own winding number
-    todo = np.argwhere(_dilate(_surface_cells(dist.v, dist.f, box, coarse)) | _sign_changes(side))
+    todo = np.argwhere(near | _sign_changes(side))
     offsets = np.stack(np.meshgrid(*(np.arange(factor),) * 3, indexing="ij"), axis=-1).reshape(-1, 3)
     sub = (todo[:, None, :] * factor + offsets[None]).reshape(-1, 3)
     axes = [axis_centres(box, shape, a) for a in range(3)]
     fine = np.repeat(np.repeat(np.repeat(side, factor, 0), factor, 1), factor, 2)
-    fine[tuple(sub.T)] = dist.winding(np.stack([axes[a][sub[:, a]] for a in range(3)], axis=-1)) > 0.5
+    points = np.stack([axes[a][sub[:, a]] for a in range(3)], axis=-1)
+    fine[tuple(sub.T)] = (dist.winding(points) > 0.5) | _in_slab(dist, points)
     return any_inside(fine, factor)
+
+
+def _in_slab(dist, points: np.ndarray) -> np.ndarray:
+    """Which ``points`` lie inside the slabs :meth:`~sin3dm_lite.data.distance.Distance.find_sheets` made."""
+    if dist.sheet is None or len(points) == 0:
+        return np.zeros(len(points), bool)
+    d, fi, _ = dist.closest(points)
+    return dist.sheet[fi] & (d < dist.thickness)
 
 
 def _centres(box, shape) -> np.ndarray:
