@@ -23,7 +23,7 @@ def paper_grid_hint(calibration: dict | None, run=None) -> str | None:
     how = f"sin3dm-lite calibrate {quote(str(run))} --resolution 128" if run else "model.calibrate(resolution=128)"
     return (
         f"[fit] the chosen diversity {cal.get('diversity', 0):g} gives near copies (G-Div {g_div:.3f}) as judged on "
-        f"the {cal.get('resolution')}-voxel training grid, where a thin wall moved by a fraction of a voxel loses its "
+        f"the {cal.get('resolution')}-voxel training grid, where a surface moved by a fraction of a voxel loses its "
         "patches; judged as the paper measures (128 voxels), the choice is often more varied, in a few minutes more: "
         f"{how}"
     )
