@@ -1,4 +1,4 @@
-"""Write six meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
+"""Write eight meshes that are not built-in examples, to check settings on shapes nobody tuned them for.
 
     python benchmarks/make_test_meshes.py OUT_DIR
     python benchmarks/make_test_meshes.py OUT_DIR --sweep   # and the sweep of families: which preset the default takes
@@ -22,6 +22,9 @@ with fast bf16 and on one without.
   around (``build_ruin(7, wall_voxels=(3, 6))``): the kind of real tower the default is judged on.
 * ``plain_tower.stl`` — the same kind without windows, a door only (``build_ruin(11, wall_voxels=(3, 6),
   windows=False)``): plainer walls, where the default lands on the edge of the goals (docs/lab-notes.md).
+* ``courtyard.obj`` — geometry only, a walled courtyard modelled as scenes often are: the ground and the four
+  walls are open sheets of one quad each (no thickness), seven closed halls stand on the ground. The grid makes
+  the sheets slabs two voxels thick (docs/fit-your-shape.md); before, it lost them.
 """
 
 from __future__ import annotations
@@ -134,6 +137,32 @@ def dunes(seed: int = 2, nx: int = 121, nz: int = 61) -> trimesh.Trimesh:
     return mesh
 
 
+def courtyard(seed: int = 5) -> trimesh.Trimesh:
+    """A walled courtyard as scenes are often modelled: the ground and the enclosing walls are open sheets (one
+    quad each, no thickness), the halls in it closed boxes standing on the ground (geometry only)."""
+    rng = np.random.default_rng(seed)
+    quads = [[(-2, 0, -2), (-2, 0, 2), (2, 0, 2), (2, 0, -2)]]  # the ground, facing up
+    for a, b in (
+        ((-1.6, -1.6), (1.6, -1.6)),
+        ((1.6, -1.6), (1.6, 1.6)),
+        ((1.6, 1.6), (-1.6, 1.6)),
+        ((-1.6, 1.6), (-1.6, -1.6)),
+    ):
+        quads.append([(a[0], 0, a[1]), (b[0], 0, b[1]), (b[0], 0.35, b[1]), (a[0], 0.35, a[1])])  # a wall sheet
+    v = np.array([p for q in quads for p in q], float)
+    f = np.array(
+        [(4 * i, 4 * i + 1, 4 * i + 2) for i in range(len(quads))]
+        + [(4 * i, 4 * i + 2, 4 * i + 3) for i in range(len(quads))]
+    )
+    parts = [trimesh.Trimesh(v, f, process=False)]
+    for _ in range(7):
+        e = rng.uniform((0.3, 0.2, 0.3), (0.8, 0.6, 0.6))
+        hall = trimesh.creation.box(extents=e)
+        hall.apply_translation((rng.uniform(-1.2, 1.2), e[1] / 2, rng.uniform(-1.2, 1.2)))
+        parts.append(hall)
+    return trimesh.util.concatenate(parts)
+
+
 def sweep(out: Path) -> None:
     """The family sweep: each shape's thin share and the default's choice on both kinds of CPU."""
     from sin3dm_lite.auto.fit_default import FINER, MOSTLY_THIN, thin_share
@@ -175,7 +204,11 @@ def main() -> None:
     trimesh.Trimesh(tower.vertices, tower.faces, process=False).export(out / "tower.stl")
     plain = build_ruin(11, wall_voxels=(3, 6), windows=False)
     trimesh.Trimesh(plain.vertices, plain.faces, process=False).export(out / "plain_tower.stl")
-    made = f"{out / 'rocks.stl'}, {tiles(out)}, {out / 'dunes.ply'}, ruin.obj, keep.obj, tower.stl and plain_tower.stl"
+    courtyard().export(out / "courtyard.obj")
+    made = (
+        f"{out / 'rocks.stl'}, {tiles(out)}, {out / 'dunes.ply'}, ruin.obj, keep.obj, tower.stl, plain_tower.stl and "
+        "courtyard.obj"
+    )
     print(f"wrote {made} to {out}")
     if "--sweep" in sys.argv[1:]:
         sweep(out)

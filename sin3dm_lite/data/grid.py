@@ -251,8 +251,8 @@ def mesh_to_grid(
     sdf, color, sure = tsdf_grid(dist, m, dims, aabb, vs, threshold, say, pbr=pbr)
     if not (sdf < 0).any():
         raise Sin3DMInputError(
-            f"'{mesh.name}' has no inside at {resolution} voxels: it encloses no volume (a single triangle, an open "
-            "sheet, or parts thinner than a voxel); give a closed (watertight) mesh or a solid with some thickness"
+            f"'{mesh.name}' has no inside at {resolution} voxels: it is flat (thinner than a voxel: a single triangle, "
+            "a flat sheet) or encloses no volume; give a closed (watertight) mesh or a solid with some thickness"
         )
     out = ShapeGrid(sdf, color, aabb, threshold, m.normalization, name=mesh.name)
     say(f"[grid] grid done ({time.perf_counter() - t0:.1f} s)")
