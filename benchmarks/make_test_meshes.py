@@ -24,7 +24,7 @@ with fast bf16 and on one without.
   windows=False)``): plainer walls, where the default lands on the edge of the goals (docs/lab-notes.md).
 * ``courtyard.obj`` — geometry only, a walled courtyard modelled as scenes often are: the ground and the four
   walls are open sheets of one quad each (no thickness), seven closed halls stand on the ground. The grid makes
-  the sheets slabs two voxels thick (docs/fit-your-shape.md); before, it lost them.
+  the sheets slabs 1/32 of its longest side thick (docs/fit-your-shape.md); before, it lost them.
 """
 
 from __future__ import annotations

@@ -248,3 +248,31 @@ def test_the_colour_loss_takes_at_most_color_points_of_the_band(box_grid, monkey
         seen.clear()
         tr.run(until_step=3, progress=False)
         assert len(seen) == 3 and (set(seen) == {300} if cap else min(seen) > 1000), (cap, seen)
+
+
+def test_a_texture_of_pure_colours_is_learnt_not_stuck_on_one_colour():
+    """Red 1 and blue 0 everywhere (a yellow duck, an orange beak): L1 through the sigmoid pushed the colour heads'
+    outputs into the hundreds, where float32's sigmoid is flat, and the whole head stuck on (1, 1, 0)."""
+    from sin3dm_lite.model.autoencoder import LOGIT_BOUND
+
+    from .conftest import make_sphere_grid
+
+    g = make_sphere_grid(shape=(24, 24, 24), n_points=4000)
+
+    def paint(p):
+        c = np.tile(np.array([1.0, 0.84, 0.0], np.float32), (len(p), 1))
+        c[p[:, 0] > 0.2] = [1.0, 0.5, 0.0]  # an orange cap
+        return c
+
+    band, centres = np.abs(g.sdf) < g.threshold, g.voxel_centers()
+    g.color = np.where(band[..., None], paint(centres.reshape(-1, 3)).reshape(*g.shape, 3), 0).astype(np.float32)
+    g.point_color = paint(g.points)
+    tr = AutoencoderTrainer(g, tiny_ae_cfg(steps=150), seed=0)
+    tr.run(progress=False)
+    rec = reconstructed_grid(tr.model.decoder, tr.latent(), g)
+    cap, rest = band & (centres[..., 0] > 0.3), band & (centres[..., 0] < 0.1)
+    assert rec.color[cap][:, 1].mean() == pytest.approx(0.5, abs=0.08)
+    assert rec.color[rest][:, 1].mean() == pytest.approx(0.84, abs=0.08)
+    with torch.no_grad():
+        logits = tr.model.decoder.query_color(tr.model.decoder.prepare(tr.latent()), torch.tensor(g.points)[None], True)
+    assert logits.abs().max() < LOGIT_BOUND + 2  # held where the sigmoid has a slope

@@ -362,14 +362,14 @@ def _ground_and_box():
 
 def test_an_open_sheet_becomes_a_slab_two_voxels_thick_with_a_warning():
     """Without it the ground would vanish: the winding number has no inside on either side of a lone sheet."""
-    with pytest.warns(UserWarning, match=r"open sheets that enclose no volume .* slabs 2 voxels thick"):
+    with pytest.warns(UserWarning, match=r"open sheets that enclose no volume .* slabs 1/32 of the shape's longest"):
         g = mesh_to_grid(textured(_ground_and_box()), 64, n_surface_points=2000, progress=False)
     ground_y = g.normalization.to_normalized(np.zeros((1, 3)))[0, 1]  # grid coordinates are normalised ones
     inside = g.sdf < 0
     column = inside[8, :, 8]  # a column through the ground, far from the box
     ys = g.axis_coords(1)[column]
     assert 1 <= column.sum() <= 2 and np.all(np.abs(ys - ground_y) < g.voxel_size)  # the slab, nothing else
-    # the slab's SDF is its distance: the voxel centres' |y - ground| minus one voxel
+    # the slab's SDF is its distance: the voxel centres' |y - ground| minus 1/32 (one voxel at 64)
     np.testing.assert_allclose(g.sdf[8, :, 8][column], np.abs(ys - ground_y) - g.voxel_size, atol=1e-5)
     # the box keeps its solid inside, and the training points inside the slab are inside
     centre = g.normalization.to_normalized(np.array([[0.0, 0.3, 0.0]]))
@@ -400,10 +400,10 @@ def test_closed_meshes_have_no_sheets():
     from sin3dm_lite.data.distance import Distance
 
     dist = Distance(textured(trimesh.creation.icosphere(subdivisions=2)))
-    assert dist.find_sheets(0.05) == 0.0 and dist.sheet is None
+    assert dist.find_sheets() == 0.0 and dist.sheet is None
     open_cup = trimesh.creation.icosphere(subdivisions=2)
     open_cup = trimesh.Trimesh(open_cup.vertices, open_cup.faces[open_cup.triangles_center[:, 2] < 0.6])
-    assert Distance(textured(open_cup)).find_sheets(0.05) == 0.0  # a hole, but it bounds a volume
+    assert Distance(textured(open_cup)).find_sheets() == 0.0  # a hole, but it bounds a volume
 
 
 def test_the_metrics_reference_keeps_an_open_sheet_as_a_slab_too():

@@ -7,8 +7,8 @@ from outside even for open or multi-part meshes. Badly wound faces read as
 holes to the winding number, so they are first made to agree with their
 neighbours, and inside-out parts are turned round (:func:`_orient_outward`).
 Open sheets that enclose no volume (a ground plane, a wall of one polygon)
-have no inside to find: the grid would lose them, so they become slabs two
-voxels thick (:meth:`Distance.find_sheets`).
+have no inside to find: the grid would lose them, so they become slabs 1/32 of
+the shape's longest side thick (:meth:`Distance.find_sheets`).
 """
 
 from __future__ import annotations
@@ -46,17 +46,16 @@ class Distance:
         self.thickness = 0.0  # the slabs' half thickness
         self._sheet_area = 0.0  # their share of the surface's area
 
-    def find_sheets(self, voxel: float) -> float:
-        """Make slabs of the open sheets that enclose no volume, for a grid of ``voxel``-sized cells, and return
-        their share of the surface's area.
+    def find_sheets(self) -> float:
+        """Make slabs of the open sheets that enclose no volume, and return their share of the surface's area.
 
         Across a face the winding number jumps by 1, so the mean of its two sides says what the face bounds: ½
         where it has the inside behind it (0 in front, 1 behind), about 0 where it has none (a lone sheet: -½,
         ½). An open part (faces joined by edges; a closed one always bounds its volume) most of whose area reads
         below :data:`SHEET_MEAN` is a sheet: a ground plane, a wall of one polygon, a lone height field (a
         triangle soup's pieces, which together close a volume, read ½). It has no inside for the grid to find,
-        so it leaves the winding number (:meth:`winding`) and becomes a slab :data:`SHEET_VOXELS` voxels either
-        side of it (:meth:`thicken`).
+        so it leaves the winding number (:meth:`winding`) and becomes a slab :data:`SHEET_HALF` either side of
+        it (:meth:`thicken`): the same slab on every grid, the training grid's and the metrics'.
         """
         open_faces, part = self._open
         if self.sheet is not None or not open_faces.any():
@@ -80,7 +79,7 @@ class Distance:
         sheet = open_faces & (share[part] > 0.5)
         if not sheet.any():
             return 0.0
-        self.sheet, self.thickness = sheet, SHEET_VOXELS * voxel
+        self.sheet, self.thickness = sheet, SHEET_HALF
         self._sheet_area = float(area[sheet].sum() / max(area.sum(), 1e-300))
         return self._sheet_area
 
@@ -193,8 +192,9 @@ def _agreeing_winding(fw: np.ndarray) -> np.ndarray:
 
 #: below this mean of a face's two sides' winding numbers the face bounds no volume (a bounding face's is ½)
 SHEET_MEAN = 0.25
-#: a sheet becomes a slab of this half thickness, in voxels (two voxels thick in all)
-SHEET_VOXELS = 1.0
+#: a sheet becomes a slab of this half thickness, in normalised units (the longest side spans 2): a voxel of a
+#: 64-voxel grid either side, 1/32 of the shape's longest side in all
+SHEET_HALF = 1 / 32
 #: how many faces of each open part :meth:`Distance.find_sheets` asks at most
 SHEET_FACES = 4096
 

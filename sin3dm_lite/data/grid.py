@@ -26,7 +26,7 @@ from ..errors import Sin3DMInputError
 from ..files import atomic_path
 from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
 from .config import LIMITS
-from .distance import SHEET_VOXELS, Distance
+from .distance import SHEET_HALF, Distance
 from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, unique_rows
 from .tsdf import PBR_CHANNELS, point_tsdf, tsdf_grid
 
@@ -245,7 +245,7 @@ def mesh_to_grid(
 
     dist = Distance(m)
     flat = float(np.ptp(m.vertices, axis=0).min()) < vs if len(m.vertices) else True
-    sheets = 0.0 if flat else dist.find_sheets(vs)  # a flat mesh stays an error below: no volume at all
+    sheets = 0.0 if flat else dist.find_sheets()  # a flat mesh stays an error below: no volume at all
     for message in _surprises(mesh, m, dist) + _sheet_note(mesh.name, sheets):
         warnings.warn(message, stacklevel=2)
     sdf, color, sure = tsdf_grid(dist, m, dims, aabb, vs, threshold, say, pbr=pbr)
@@ -311,8 +311,8 @@ def _sheet_note(name: str, share: float) -> list[str]:
         return []
     return [
         f"{max(share, 0.001):.1%} of the surface of '{name}' is open sheets that enclose no volume (a ground plane, "
-        f"walls of a single polygon): the grid would lose them, so it makes them slabs {2 * SHEET_VOXELS:g} voxels "
-        "thick; give the sheets a thickness in an editor to choose it yourself"
+        f"walls of a single polygon): the grid would lose them, so it makes them slabs 1/{1 / SHEET_HALF:.0f} of the "
+        "shape's longest side thick (two voxels at 64); give the sheets a thickness in an editor to choose it yourself"
     ]
 
 

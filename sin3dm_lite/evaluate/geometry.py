@@ -181,7 +181,7 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
         return any_inside(_voxel_centres_inside((dist.v, dist.f), box, shape, outward=True), factor)
     side = (dist.winding(_centres(box, coarse)) > 0.5).reshape(coarse)  # the voxel centres' answer
     near = _dilate(_surface_cells(dist.v, dist.f, box, coarse))
-    if dist.find_sheets(2.0 / max(coarse)):  # open sheets as slabs two voxels thick, as the training grid has them
+    if dist.find_sheets():  # open sheets as slabs, the same as the training grid has them
         cells = np.argwhere(near)
         side[tuple(cells.T)] |= _in_slab(dist, _centres(box, coarse).reshape(*coarse, 3)[tuple(cells.T)])
     if factor == 1:

@@ -334,6 +334,18 @@ class TriplaneAutoencoder(nn.Module):
 
 
 # --------------------------------------------------------------------------- loss
+#: the sigmoid's input is kept within ± this: beyond it the colour lies within 1/3000 of 0 or 1 (less than an 8-bit
+#: step), the sigmoid is nearly flat, and in float32 soon exactly flat, so the L1 colour loss passes no gradient back
+#: and a channel pushed there stays (a texture of pure colours had its whole colour head stuck on one colour)
+LOGIT_BOUND = 8.0
+
+
+def logit_bound(logit: torch.Tensor) -> torch.Tensor:
+    """How far the colour heads' outputs lie beyond ±:data:`LOGIT_BOUND` (mean): zero wherever the paper's L1 colour
+    loss still has a slope, a pull back where it has none."""
+    return F.relu(logit.abs() - LOGIT_BOUND).mean()
+
+
 def sdf_loss(
     pred: torch.Tensor, gt: torch.Tensor, threshold: float, near_w: float = 1.5, far_w: float = 0.5
 ) -> torch.Tensor:
@@ -414,7 +426,8 @@ class AutoencoderTrainer(Trainer):
         self.scheduler = torch.optim.lr_scheduler.ExponentialLR(self.optimizer, gamma)
 
     def losses(self) -> dict[str, torch.Tensor]:
-        """SDF loss on a batch of points plus the L1 colour loss on those within the truncation band.
+        """SDF loss on a batch of points plus the L1 colour loss on those within the truncation band (and
+        :func:`logit_bound`, which keeps the colour's sigmoid where it has a slope).
 
         PBR: binary cross-entropy on metallic-roughness (``material``; on the
         heads' logits) and L1 on the normal in its [0, 1] encoding (``normal``)
@@ -438,17 +451,22 @@ class AutoencoderTrainer(Trainer):
         if cfg.color_points:  # the first of them (the points come in random order): a random subset
             band &= band.cumsum(0) <= cfg.color_points
         with autocast(self.device, cfg.precision):
-            out = self.model.decoder.query_color(prep, p[band][None], logits=cfg.pbr)[0].float()
-        if not cfg.pbr:  # out is the colour
-            l_col = (out - c_gt[band]).abs().mean() if band.any() else zero
-            return {"loss": l_sdf + l_col, "sdf": l_sdf, "color": l_col}
-        logit, c, gt = out, torch.sigmoid(out), c_gt[band]
+            logit = self.model.decoder.query_color(prep, p[band][None], logits=True)[0].float()
+        c, gt = torch.sigmoid(logit), c_gt[band]
         if not band.any():
-            l_col = l_mat = l_nrm = zero
-        else:
-            l_col, l_nrm = (c[:, :3] - gt[:, :3]).abs().mean(), (c[:, 5:8] - gt[:, 5:8]).abs().mean()
-            l_mat = F.binary_cross_entropy_with_logits(logit[:, 3:5], gt[:, 3:5])
-        return {"loss": l_sdf + l_col + l_mat + l_nrm, "sdf": l_sdf, "color": l_col, "material": l_mat, "normal": l_nrm}
+            return {
+                "loss": l_sdf,
+                "sdf": l_sdf,
+                "color": zero,
+                **({"material": zero, "normal": zero} if cfg.pbr else {}),
+            }
+        l_col = (c[:, :3] - gt[:, :3]).abs().mean()
+        if not cfg.pbr:
+            return {"loss": l_sdf + l_col + logit_bound(logit), "sdf": l_sdf, "color": l_col}
+        l_nrm = (c[:, 5:8] - gt[:, 5:8]).abs().mean()
+        l_mat = F.binary_cross_entropy_with_logits(logit[:, 3:5], gt[:, 3:5])
+        loss = l_sdf + l_col + l_mat + l_nrm + logit_bound(logit[:, [0, 1, 2, 5, 6, 7]])
+        return {"loss": loss, "sdf": l_sdf, "color": l_col, "material": l_mat, "normal": l_nrm}
 
     @torch.no_grad()
     def latent(self) -> Triplane:
