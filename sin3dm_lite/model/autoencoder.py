@@ -465,7 +465,9 @@ class AutoencoderTrainer(Trainer):
             return {"loss": l_sdf + l_col + logit_bound(logit), "sdf": l_sdf, "color": l_col}
         l_nrm = (c[:, 5:8] - gt[:, 5:8]).abs().mean()
         l_mat = F.binary_cross_entropy_with_logits(logit[:, 3:5], gt[:, 3:5])
-        loss = l_sdf + l_col + l_mat + l_nrm + logit_bound(logit[:, [0, 1, 2, 5, 6, 7]])
+        loss = (
+            l_sdf + l_col + l_mat + l_nrm + logit_bound(logit[:, :3])
+        )  # the colour's (bounding the normal's cost them)
         return {"loss": loss, "sdf": l_sdf, "color": l_col, "material": l_mat, "normal": l_nrm}
 
     @torch.no_grad()
