@@ -381,17 +381,19 @@ def test_an_open_sheet_becomes_a_slab_two_voxels_thick_with_a_warning():
     assert in_slab.any() and np.all(g.point_sdf[in_slab] < 0)
 
 
-def test_a_curved_sheet_is_one_slab_without_a_solid_under_its_dip():
-    """A lone height field's winding number exceeds ½ under a dip; the sheet leaves the winding number, so no
-    lens of solid grows there."""
-    n = 40
+def _height_field(n: int = 40) -> trimesh.Trimesh:
+    """A lone wavy sheet over [-1, 1]², its height ±0.3: its winding number exceeds ½ under each dip."""
     x, z = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n))
     v = np.stack([x, 0.3 * np.sin(3 * x) * np.cos(2 * z), z], -1).reshape(-1, 3)
     i = np.arange(n * n).reshape(n, n)
     a, b, c, d = i[:-1, :-1].ravel(), i[:-1, 1:].ravel(), i[1:, :-1].ravel(), i[1:, 1:].ravel()
-    sheet = trimesh.Trimesh(v, np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)]))
+    return trimesh.Trimesh(v, np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)]))
+
+
+def test_a_curved_sheet_is_one_slab_without_a_solid_under_its_dip():
+    """The sheet leaves the winding number, so no lens of solid grows under its dips."""
     with pytest.warns(UserWarning, match="open sheets"):
-        g = mesh_to_grid(textured(sheet), 48, n_surface_points=0, progress=False)
+        g = mesh_to_grid(textured(_height_field()), 48, n_surface_points=0, progress=False)
     assert (g.sdf < 0).sum(axis=1).max() <= 3  # at most a slab's voxels in any vertical column
     assert ((g.sdf < 0).sum(axis=1) > 0).mean() > 0.9  # and the slab covers the sheet
 
@@ -417,3 +419,7 @@ def test_the_metrics_reference_keeps_an_open_sheet_as_a_slab_too():
     assert occ.shape == (32, 8, 32)
     assert 1 <= occ[2, :, 2].sum() <= 2  # the ground far from the box: a slab of one or two voxels
     assert occ[16, :, 16].sum() > occ[2, :, 2].sum()  # the box stands on it
+    sheet = _height_field()
+    sheet.vertices /= 1.03
+    field = input_occupancy(sheet, np.array([-1.0, -0.3, -1.0, 1.0, 0.3, 1.0]), 48, supersample=2)
+    assert field.sum(axis=1).max() <= 3 and (field.sum(axis=1) > 0).mean() > 0.9  # one slab, no lens under a dip

@@ -44,7 +44,6 @@ class Distance:
         self.chunk = chunk
         self.sheet: np.ndarray | None = None  # (F,) faces made slabs by find_sheets, or None
         self.thickness = 0.0  # the slabs' half thickness
-        self._sheet_area = 0.0  # their share of the surface's area
 
     def find_sheets(self) -> float:
         """Make slabs of the open sheets that enclose no volume, and return their share of the surface's area.
@@ -55,11 +54,11 @@ class Distance:
         below :data:`SHEET_MEAN` is a sheet: a ground plane, a wall of one polygon, a lone height field (a
         triangle soup's pieces, which together close a volume, read ½). It has no inside for the grid to find,
         so it leaves the winding number (:meth:`winding`) and becomes a slab :data:`SHEET_HALF` either side of
-        it (:meth:`thicken`): the same slab on every grid, the training grid's and the metrics'.
+        it (:meth:`thicken`): the same slab on every grid, the training grid's and the metrics'. Called once.
         """
         open_faces, part = self._open
-        if self.sheet is not None or not open_faces.any():
-            return self._sheet_area
+        if not open_faces.any():
+            return 0.0
         tri = self.v[self.f]
         normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         area = np.linalg.norm(normal, axis=1)
@@ -80,8 +79,7 @@ class Distance:
         if not sheet.any():
             return 0.0
         self.sheet, self.thickness = sheet, SHEET_HALF
-        self._sheet_area = float(area[sheet].sum() / max(area.sum(), 1e-300))
-        return self._sheet_area
+        return float(area[sheet].sum() / max(area.sum(), 1e-300))
 
     def thicken(self, sdf: np.ndarray, d: np.ndarray, fi: np.ndarray, threshold: float) -> tuple:
         """``sdf`` (signed by the winding number, truncated at ``threshold``) with the sheets as slabs: where the

@@ -179,11 +179,15 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     dist = Distance(SimpleNamespace(vertices=verts, faces=faces))  # closed parts turned outwards
     if dist.closed:
         return any_inside(_voxel_centres_inside((dist.v, dist.f), box, shape, outward=True), factor)
-    side = (dist.winding(_centres(box, coarse)) > 0.5).reshape(coarse)  # the voxel centres' answer
+    sheets = dist.find_sheets() > 0  # open sheets as slabs, the same as the training grid has them
+    centres = _centres(box, coarse)
+    side = (dist.winding(centres) > 0.5).reshape(coarse)  # the voxel centres' answer
+    if factor == 1 and not sheets:
+        return side
     near = _dilate(_surface_cells(dist.v, dist.f, box, coarse))
-    if dist.find_sheets():  # open sheets as slabs, the same as the training grid has them
-        cells = np.argwhere(near)
-        side[tuple(cells.T)] |= _in_slab(dist, _centres(box, coarse).reshape(*coarse, 3)[tuple(cells.T)])
+    if sheets:
+        cells = np.flatnonzero(near)
+        side.reshape(-1)[cells] |= _in_slab(dist, centres[cells])
     if factor == 1:
         return side
     # a voxel's sub-voxels can differ from its centre only where the surface passes near it, or where the

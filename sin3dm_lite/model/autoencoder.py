@@ -452,22 +452,19 @@ class AutoencoderTrainer(Trainer):
             band &= band.cumsum(0) <= cfg.color_points
         with autocast(self.device, cfg.precision):
             logit = self.model.decoder.query_color(prep, p[band][None], logits=True)[0].float()
-        c, gt = torch.sigmoid(logit), c_gt[band]
-        if not band.any():
-            return {
-                "loss": l_sdf,
-                "sdf": l_sdf,
-                "color": zero,
-                **({"material": zero, "normal": zero} if cfg.pbr else {}),
-            }
-        l_col = (c[:, :3] - gt[:, :3]).abs().mean()
+        l_col = l_mat = l_nrm = bound = zero
+        if band.any():
+            c, gt = torch.sigmoid(logit), c_gt[band]
+            l_col, bound = (
+                (c[:, :3] - gt[:, :3]).abs().mean(),
+                logit_bound(logit[:, :3]),
+            )  # not the normal's: it cost them
+            if cfg.pbr:
+                l_nrm = (c[:, 5:8] - gt[:, 5:8]).abs().mean()
+                l_mat = F.binary_cross_entropy_with_logits(logit[:, 3:5], gt[:, 3:5])
         if not cfg.pbr:
-            return {"loss": l_sdf + l_col + logit_bound(logit), "sdf": l_sdf, "color": l_col}
-        l_nrm = (c[:, 5:8] - gt[:, 5:8]).abs().mean()
-        l_mat = F.binary_cross_entropy_with_logits(logit[:, 3:5], gt[:, 3:5])
-        loss = (
-            l_sdf + l_col + l_mat + l_nrm + logit_bound(logit[:, :3])
-        )  # the colour's (bounding the normal's cost them)
+            return {"loss": l_sdf + l_col + bound, "sdf": l_sdf, "color": l_col}
+        loss = l_sdf + l_col + l_mat + l_nrm + bound
         return {"loss": loss, "sdf": l_sdf, "color": l_col, "material": l_mat, "normal": l_nrm}
 
     @torch.no_grad()
