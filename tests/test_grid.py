@@ -378,7 +378,9 @@ def test_an_open_sheet_becomes_a_slab_two_voxels_thick_with_a_warning():
     corner = g.normalization.to_normalized(np.array([[0.4, 0.0, 0.4]]))[0]  # beyond the box's footprint
     away = (np.abs(g.points[:, 0]) > corner[0]) | (np.abs(g.points[:, 2]) > corner[2])
     in_slab = away & (np.abs(g.points[:, 1] - ground_y) < 0.5 * g.voxel_size)
-    assert in_slab.any() and np.all(g.point_sdf[in_slab] < 0)
+    edge = g.normalization.to_normalized(np.array([[2.0, 0.0, 2.0]]))[0]  # the slab ends where the ground does
+    within = (np.abs(g.points[:, 0]) < edge[0]) & (np.abs(g.points[:, 2]) < edge[2])
+    assert (in_slab & within).any() and np.all(g.point_sdf[in_slab & within] < 0)
 
 
 def _height_field(n: int = 40) -> trimesh.Trimesh:
@@ -402,10 +404,10 @@ def test_closed_meshes_have_no_sheets():
     from sin3dm_lite.data.distance import Distance
 
     dist = Distance(textured(trimesh.creation.icosphere(subdivisions=2)))
-    assert dist.find_sheets() == 0.0 and dist.sheet is None
+    assert dist.find_slabs().sheets == 0.0 and dist.sheet is None
     open_cup = trimesh.creation.icosphere(subdivisions=2)
     open_cup = trimesh.Trimesh(open_cup.vertices, open_cup.faces[open_cup.triangles_center[:, 2] < 0.6])
-    assert Distance(textured(open_cup)).find_sheets() == 0.0  # a hole, but it bounds a volume
+    assert Distance(textured(open_cup)).find_slabs().sheets == 0.0  # a hole, but it bounds a volume
 
 
 def test_the_metrics_reference_keeps_an_open_sheet_as_a_slab_too():
@@ -423,3 +425,76 @@ def test_the_metrics_reference_keeps_an_open_sheet_as_a_slab_too():
     sheet.vertices /= 1.03
     field = input_occupancy(sheet, np.array([-1.0, -0.3, -1.0, 1.0, 0.3, 1.0]), 48, supersample=2)
     assert field.sum(axis=1).max() <= 3 and (field.sum(axis=1) > 0).mean() > 0.9  # one slab, no lens under a dip
+
+
+def _board(size=(1.6, 0.004, 1.0), at=(0.0, 0.0, 0.0), hole: float = 0.0) -> trimesh.Trimesh:
+    """A closed board far thinner than a voxel (a shelf, sheet metal); ``hole``: the side of a square hole through
+    it, made as a frame of four closed boards so that the hole's rims are faces thick along the board."""
+    x, t, z = size
+    if not hole:
+        return trimesh.creation.box(extents=size).apply_translation(at)
+    side, end = (x - hole) / 2, (z - hole) / 2
+    pieces = [((side, t, z), (-(hole + side) / 2, 0, 0)), ((side, t, z), ((hole + side) / 2, 0, 0))]
+    pieces += [((hole, t, end), (0, 0, -(hole + end) / 2)), ((hole, t, end), (0, 0, (hole + end) / 2))]
+    boxes = [trimesh.creation.box(extents=e).apply_translation(np.add(c, at)) for e, c in pieces]
+    return trimesh.util.concatenate(boxes)
+
+
+def test_a_board_thinner_than_a_voxel_becomes_a_slab_with_a_warning():
+    """Its inside is real, but no voxel centre falls in it: without the slab the grid loses the shelf. The standing
+    board stands over the centroid of one of the lying board's two bottom triangles: asked with the whole mesh, that
+    triangle would read the standing board's inside behind it as its own thickness, and half the slab would go."""
+    standing = _board((0.004, 0.8, 1.0), (0.8 / 3, 0.4, 0.0))
+    shelf = trimesh.util.concatenate([_board(), standing])
+    with pytest.warns(UserWarning, match=r"parts thinner than .* voxels \(boards, sheet metal\)"):
+        g = mesh_to_grid(textured(shelf), 64, n_surface_points=2000, progress=False)
+    inside = g.sdf < 0
+    to_grid = g.normalization.to_normalized
+    board_y = to_grid(np.zeros((1, 3)))[0, 1]
+    rows = np.abs(g.axis_coords(1) - board_y) < 2 * g.voxel_size
+    x, z = g.axis_coords(0), g.axis_coords(2)
+    under = np.abs(x - to_grid(np.array([[0.8 / 3, 0, 0]]))[0, 0]) < 2 * g.voxel_size  # the standing board's columns
+    xs = (np.abs(x) < g.normalization.scale * 0.75) & ~under  # inside the lying board's 1.6 × 1.0 footprint
+    zs = np.abs(z) < g.normalization.scale * 0.45
+    count = inside[:, rows, :].sum(axis=1)[np.ix_(xs, zs)]  # the lying board's slab, column by column
+    assert count.min() == count.max() and 1 <= count.min() <= 3  # one slab of 1-3 voxels, the same everywhere
+    assert inside[under][:, ~rows].sum() > 10 * g.shape[2] // 2  # the standing board is kept too
+    on = (np.abs(g.points[:, 1] - board_y) < 0.5 * g.voxel_size) & (
+        np.abs(g.points[:, 0]) < 0.75 * g.normalization.scale
+    )
+    on &= np.abs(g.points[:, 2]) < g.normalization.scale * 0.45
+    assert on.sum() > 100 and np.all(g.point_sdf[on] < 0)  # its training points inside
+
+
+def test_a_hole_through_a_thin_board_stays_open():
+    """The slab is the board pushed out along its normal: neither the hole's rim (thick along the board) nor the
+    board's faces past their edge reach into the hole, which keeps its width to a voxel (2 voxels of slab each
+    side at 128: either would take about two voxels from each side)."""
+    post = trimesh.creation.box(extents=(0.2, 0.4, 0.2)).apply_translation((-0.7, -0.2, -0.4))  # not flat
+    mesh = textured(trimesh.util.concatenate([_board(hole=0.5), post]))
+    with pytest.warns(UserWarning, match="parts thinner than"):
+        g = mesh_to_grid(mesh, 128, n_surface_points=0, progress=False)
+    inside = (g.sdf < 0).any(axis=1)  # seen from above
+    middle = ~inside[g.shape[0] // 4 : 3 * g.shape[0] // 4, g.shape[2] // 2]  # across the middle of the hole
+    assert abs(middle.sum() - 0.5 * g.normalization.scale / g.voxel_size) <= 1
+    assert inside[:, g.shape[2] // 2].sum() > 20  # and the board around it is there
+
+
+def test_thick_parts_have_no_slabs():
+    from sin3dm_lite.data.distance import Distance, Slabs
+
+    cube = trimesh.creation.box(extents=(1.0, 0.1, 1.0))  # thin, but three voxels at 64 and more: a voxel holds it
+    wedge = trimesh.Trimesh([(0, 0, 0), (1, 0, 0), (0, 0.3, 0), (0, 0, 1), (1, 0, 1), (0, 0.3, 1)]).convex_hull
+    for mesh in (trimesh.creation.icosphere(subdivisions=2), cube, wedge):  # the wedge's sharp edge is not a part
+        dist = Distance(textured(mesh))
+        assert dist.find_slabs() == Slabs(0.0, 0.0) and dist.reach is None
+
+
+def test_the_metrics_reference_keeps_a_thin_board_as_a_slab_too():
+    from sin3dm_lite.evaluate.geometry import input_occupancy
+
+    board = _board((1.9, 0.004, 1.9))
+    occ = input_occupancy(board, np.array([-1.0, -0.25, -1.0, 1.0, 0.25, 1.0]), 32)
+    assert occ.shape == (32, 8, 32)
+    column = occ[4:28, :, 4:28].sum(axis=1)
+    assert column.min() >= 1 and column.max() <= 2  # a closed mesh, yet no voxel centre falls in the board itself

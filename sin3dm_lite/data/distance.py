@@ -7,8 +7,9 @@ from outside even for open or multi-part meshes. Badly wound faces read as
 holes to the winding number, so they are first made to agree with their
 neighbours, and inside-out parts are turned round (:func:`_orient_outward`).
 Open sheets that enclose no volume (a ground plane, a wall of one polygon)
-have no inside to find: the grid would lose them, so they become slabs 1/32 of
-the shape's longest side thick (:meth:`Distance.find_sheets`).
+have no inside to find, and parts thinner than a voxel have an inside that no
+voxel centre may hit: the grid would lose both, so they become slabs 1/32 of
+the shape's longest side thick (:meth:`Distance.find_slabs`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,13 @@ class Turned(NamedTuple):
     of_parts: int
 
 
+class Slabs(NamedTuple):
+    """What :meth:`Distance.find_slabs` made slabs of, as shares of the surface's area."""
+
+    sheets: float
+    thin: float
+
+
 class Distance:
     """Exact unsigned distance to a mesh and its inside / outside.
 
@@ -42,57 +50,153 @@ class Distance:
         self.f, self.closed, self.turned_round, self._open = _orient_outward(self.v, faces)
         self.corners_reversed = (self.f != faces).any(1)  # faces wound the other way round
         self.chunk = chunk
-        self.sheet: np.ndarray | None = None  # (F,) faces made slabs by find_sheets, or None
-        self.thickness = 0.0  # the slabs' half thickness
+        self.sheet: np.ndarray | None = None  # (F,) the open sheets (find_slabs), left out of the winding number
+        self.reach: np.ndarray | None = None  # (F,) how far each face's slab reaches (find_slabs), 0: none
+        self._unit: np.ndarray | None = None  # (F, 3) the faces' unit normals (find_slabs)
 
-    def find_sheets(self) -> float:
-        """Make slabs of the open sheets that enclose no volume, and return their share of the surface's area.
+    def find_slabs(self) -> Slabs:
+        """Make slabs of what a grid's voxel centres would lose, and return those parts' shares of the surface's area.
 
-        Across a face the winding number jumps by 1, so the mean of its two sides says what the face bounds: ½
-        where it has the inside behind it (0 in front, 1 behind), about 0 where it has none (a lone sheet: -½,
-        ½). An open part (faces joined by edges; a closed one always bounds its volume) most of whose area reads
-        below :data:`SHEET_MEAN` is a sheet: a ground plane, a wall of one polygon, a lone height field (a
-        triangle soup's pieces, which together close a volume, read ½). It has no inside for the grid to find,
-        so it leaves the winding number (:meth:`winding`) and becomes a slab :data:`SHEET_HALF` either side of
-        it (:meth:`thicken`): the same slab on every grid, the training grid's and the metrics'. Called once.
+        **Open sheets** that enclose no volume (a ground plane, a wall of one polygon, a lone height field). Across a
+        face the winding number jumps by 1, so the mean of its two sides says what the face bounds: ½ where it has
+        the inside behind it (0 in front, 1 behind), about 0 where it has none (a lone sheet: -½, ½). An open part
+        (faces joined by edges; a closed one always bounds its volume) most of whose area reads below
+        :data:`SHEET_MEAN` is a sheet (a triangle soup's pieces, which together close a volume, read ½). It has no
+        inside to find, so it leaves the winding number (:meth:`winding`) and becomes a slab :data:`SHEET_HALF`
+        either side of it.
+
+        **Thin parts**: a board or a sheet of metal modelled with a thickness under a voxel has an inside, but no
+        voxel centre may fall in it. Behind a face, at depth ``h``, the winding number reads inside while the part
+        is thicker than ``h``: a part most of whose area reads outside at :data:`THIN_DEPTHS`' deepest is thin, and
+        its thin faces become a slab as thick as an open sheet's (the union reaches ``SHEET_HALF - t/2`` beyond
+        each, ``t`` the face's thickness to the nearest of the shallower depths). Parts thicker than that, the few
+        thin faces of a thick part (its sharp edges) and the faces of a thin part thick along it (the rim of a hole
+        through a board) keep their surface.
+
+        The slabs are the same on every grid, the training grid's and the metrics' (:meth:`thicken`). Called once.
         """
-        open_faces, part = self._open
-        if not open_faces.any():
-            return 0.0
         tri = self.v[self.f]
         normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         area = np.linalg.norm(normal, axis=1)
-        # at most SHEET_FACES faces of each part say (evenly spread through it): a scan of millions of faces is one part
-        count = np.bincount(part, minlength=part.max() + 1)
-        order = np.argsort(part, kind="stable")
-        rank = np.empty(len(part), np.int64)
-        rank[order] = np.arange(len(part)) - np.r_[0, np.cumsum(count)][part[order]]
-        ask = np.flatnonzero(open_faces & (area > 0) & (rank % np.maximum(1, count // SHEET_FACES)[part] == 0))
+        open_faces, part = self._open
+        sheet = self._sheets(tri, normal, area, open_faces, part)
+        self.sheet = sheet if sheet.any() else None
+        reach = np.where(sheet, SHEET_HALF, 0.0)
+        thin_reach = self._thin_faces(tri, normal, area, part, ~sheet)
+        thin = thin_reach > 0
+        reach[thin] = thin_reach[thin]
+        self.reach = reach if reach.any() else None
+        self._unit = normal / np.maximum(area, 1e-300)[:, None]
+        total = max(float(area.sum()), 1e-300)
+        return Slabs(float(area[sheet].sum() / total), float(area[thin].sum() / total))
+
+    def _sheets(self, tri, normal, area, open_faces, part) -> np.ndarray:
+        """``(F,)`` the faces of open parts that enclose no volume (:meth:`find_slabs`)."""
+        sheet = np.zeros(len(self.f), bool)
+        if not open_faces.any():
+            return sheet
+        parts = part.max() + 1
+        ask = _spread(part, open_faces & (area > 0), np.full(parts, SHEET_FACES))
         off = OFF_FACE * float(np.ptp(self.v, axis=0).max()) * normal[ask] / area[ask, None]
         centre = tri[ask].mean(1)
         w = self.winding(np.concatenate([centre - off, centre + off]))
         none = (w[: len(ask)] + w[len(ask) :]) / 2 < SHEET_MEAN
-        parts = part.max() + 1
-        asked_area = np.maximum(np.bincount(part[ask], area[ask], parts), 1e-300)
-        share = np.bincount(part[ask], area[ask] * none, parts) / asked_area
-        sheet = open_faces & (share[part] > 0.5)
-        if not sheet.any():
-            return 0.0
-        self.sheet, self.thickness = sheet, SHEET_HALF
-        return float(area[sheet].sum() / max(area.sum(), 1e-300))
+        return open_faces & (_area_share(part, ask, area, none, parts) > 0.5)[part]
 
-    def thicken(self, sdf: np.ndarray, d: np.ndarray, fi: np.ndarray, threshold: float) -> tuple:
-        """``sdf`` (signed by the winding number, truncated at ``threshold``) with the sheets as slabs: where the
-        closest face (``fi``, at distance ``d``) is a sheet, the union with the slab, ``min(sdf, d - thickness)``.
-        Returns the new SDF and where the closest face is a sheet."""
-        if self.sheet is None:
+    def _thin_faces(self, tri, normal, area, part, asked) -> np.ndarray:
+        """``(F,)`` how far each face of a thin part reaches beyond it (:meth:`find_slabs`), 0 elsewhere. About
+        :data:`THIN_FACES` of the ``asked`` faces, spread through the parts, say which parts are thin; then every
+        face of those (up to :data:`THIN_ALL`) is asked, so that the rim of a hole through a board, thick along the
+        board, keeps the hole open."""
+        parts = part.max() + 1
+        reach = np.zeros(len(self.f))
+        count = np.bincount(part[asked], minlength=parts)
+        cap = np.maximum(THIN_LEAST, np.round(THIN_FACES * count / max(count.sum(), 1))).astype(np.int64)
+        ask = _spread(part, asked & (area > 0), cap)
+        if len(ask) == 0:
+            return reach
+        first = self._probe(tri[ask].mean(1), normal[ask] / area[ask, None], self.winding)
+        is_thin = _area_share(part, ask, area, first > 0, parts) > 0.5
+        rest = np.flatnonzero(asked & (area > 0) & is_thin[part])
+        if len(rest) == 0:
+            return reach
+        if len(rest) > THIN_ALL:  # too many to ask them all: each face of a thin part takes its part's mean
+            a = area[ask] * (first > 0)
+            mean = np.bincount(part[ask], a * first, parts) / np.maximum(np.bincount(part[ask], a, parts), 1e-300)
+            reach[rest] = mean[part[rest]]
+            return reach
+        # each thin part asked alone: behind a board's face where another board joins it, the other's inside
+        # would read as the board's own
+        rest = rest[np.argsort(part[rest], kind="stable")]
+        by_part, start = np.argsort(part, kind="stable"), np.r_[0, np.cumsum(np.bincount(part, minlength=parts))]
+        for faces in np.split(rest, np.flatnonzero(np.diff(part[rest])) + 1):
+            own = self.f[by_part[start[part[faces[0]]] : start[part[faces[0]] + 1]]]
+            reach[faces] = self._probe(
+                tri[faces].mean(1),
+                normal[faces] / area[faces, None],
+                lambda q, own=own: pcu.triangle_soup_fast_winding_number(self.v, own, q),
+            )
+        return reach
+
+    @staticmethod
+    def _probe(centre: np.ndarray, unit: np.ndarray, winding) -> np.ndarray:
+        """How far the slab of each face (``centre``, outward ``unit`` normal) reaches: 0 where ``winding`` (a
+        winding number) still reads inside at :data:`THIN_DEPTHS`' deepest behind it, else ``SHEET_HALF - t / 2``,
+        ``t`` the deepest of the shallower depths down to which it reads inside."""
+        reach = np.zeros(len(centre))
+        thin = winding(centre - THIN_DEPTHS[-1] * unit) <= 0.5
+        if thin.any():
+            c, u = centre[thin], unit[thin]
+            inside = winding(np.concatenate([c - h * u for h in THIN_DEPTHS[:-1]])).reshape(-1, len(c)) > 0.5
+            depth = np.array([0.0, *THIN_DEPTHS[:-1]])[np.cumprod(inside, axis=0).sum(0)]  # inside all the way
+            reach[thin] = SHEET_HALF - depth / 2
+        return reach
+
+    def thicken(self, sdf: np.ndarray, p: np.ndarray, d: np.ndarray, fi: np.ndarray, threshold: float) -> tuple:
+        """``sdf`` at points ``p`` (signed by the winding number, truncated at ``threshold``) with the slabs of
+        :meth:`find_slabs` (:meth:`slab_depth`): where the closest face (``fi``, at distance ``d``) has one, the
+        union ``min(sdf, depth)``. Returns the new SDF and where the closest face has a slab."""
+        if self.reach is None:
             return sdf, np.zeros(len(sdf), bool)
-        on = self.sheet[fi] & np.isfinite(d)
-        return np.where(on, np.minimum(sdf, np.minimum(d - self.thickness, threshold)), sdf), on
+        depth, on = self.slab_depth(p, d, fi)
+        return np.where(on, np.minimum(sdf, np.minimum(depth, threshold)), sdf), on
+
+    def slab_depth(self, p: np.ndarray, d: np.ndarray, fi: np.ndarray) -> tuple:
+        """The signed distance ``d - reach`` of points ``p`` to the slab of their closest face ``fi`` (at distance
+        ``d``), and where that face has one. A slab is its face pushed out along the normal, not rounded past the
+        face's edge: a point whose way to the face leans more than :data:`SLAB_LEAN` off the normal (beyond the
+        rim of a hole, past a sheet's end) is outside it, as far as it is from the face."""
+        reach = self.reach[fi]
+        on = (reach > 0) & np.isfinite(d)
+        if not on.any():
+            return d, on
+        height = np.abs(np.einsum("ij,ij->i", np.asarray(p, np.float64) - self.v[self.f[fi, 0]], self._unit[fi]))
+        return np.where(height >= np.cos(SLAB_LEAN) * d, d - reach, d), on
+
+    def slab_decides(self, p: np.ndarray, d: np.ndarray, fi: np.ndarray) -> np.ndarray:
+        """Where the slab alone gives :meth:`thicken`'s value, whatever the winding number says: closer to the face
+        than half its reach (``d - reach < -d``), so that a caller may skip the winding number there."""
+        if self.reach is None:
+            return np.zeros(len(d), bool)
+        depth, on = self.slab_depth(p, d, fi)
+        return on & (depth < -d)
+
+    @property
+    def reach_max(self) -> float:
+        """How far the farthest slab reaches beyond its face (0 without slabs)."""
+        return 0.0 if self.reach is None else float(self.reach.max())
+
+    def in_slab(self, points: np.ndarray) -> np.ndarray:
+        """Which ``points`` lie inside the slabs of :meth:`find_slabs`."""
+        if self.reach is None or len(points) == 0:
+            return np.zeros(len(points), bool)
+        d, fi, _ = self.closest(points)
+        depth, on = self.slab_depth(points, d, fi)
+        return on & (depth < 0)
 
     def winding(self, p: np.ndarray) -> np.ndarray:
         """Generalised winding number: 1 inside a closed surface, 0 outside, in between near holes (sheets left out)."""
-        solid = self.f if self.sheet is None else self.f[~self.sheet]  # sheets have no inside (find_sheets)
+        solid = self.f if self.sheet is None else self.f[~self.sheet]  # sheets have no inside (find_slabs)
         if len(p) == 0 or len(solid) == 0:
             return np.zeros(len(p), np.float64)
         return pcu.triangle_soup_fast_winding_number(self.v, solid, np.ascontiguousarray(p, dtype=np.float64))
@@ -125,7 +229,7 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray):
        (:func:`_inside_out`).
 
     Returns ``(faces, closed, turned, (open, part))``: the faces, whether the whole mesh is closed,
-    :class:`Turned`, the faces of open parts (where :meth:`Distance.find_sheets` looks) and every face's part.
+    :class:`Turned`, the faces of open parts (where :meth:`Distance.find_slabs` looks) and every face's part.
     """
     _, weld = unique_rows(vertices)  # vertices split at UV seams are one point here
     against = _agreeing_winding(weld[faces])
@@ -193,8 +297,34 @@ SHEET_MEAN = 0.25
 #: a sheet becomes a slab of this half thickness, in normalised units (the longest side spans 2): a voxel of a
 #: 64-voxel grid either side, 1/32 of the shape's longest side in all
 SHEET_HALF = 1 / 32
-#: how many faces of each open part :meth:`Distance.find_sheets` asks at most
+#: how many faces of each open part :meth:`Distance.find_slabs` asks at most
 SHEET_FACES = 4096
+#: the depths behind a face at which :meth:`Distance.find_slabs` asks whether the part is still inside: a part
+#: thinner than the deepest (3/4 of an open sheet's slab) is thin
+THIN_DEPTHS = (SHEET_HALF / 2, SHEET_HALF, 3 * SHEET_HALF / 2)
+#: about how many faces :meth:`Distance.find_slabs` asks to find the thin parts (shared by the parts as their faces
+#: are), the least of each part, and the most faces of thin parts it then asks one by one
+THIN_FACES, THIN_LEAST, THIN_ALL = 16_384, 4, 262_144
+
+
+def _spread(part: np.ndarray, mask: np.ndarray, cap: np.ndarray) -> np.ndarray:
+    """The ``mask``ed faces to ask, at most about ``cap[p]`` of each part ``p``, evenly spread through it."""
+    order = np.argsort(part, kind="stable")
+    full = np.bincount(part, minlength=len(cap))
+    rank = np.empty(len(part), np.int64)
+    rank[order] = np.arange(len(part)) - np.r_[0, np.cumsum(full)][part[order]]
+    return np.flatnonzero(mask & (rank % np.maximum(1, full // np.maximum(cap, 1))[part] == 0))
+
+
+def _area_share(part: np.ndarray, ask: np.ndarray, area: np.ndarray, yes: np.ndarray, parts: int) -> np.ndarray:
+    """``(parts,)`` the share of each part's asked area (faces ``ask``) where ``yes``."""
+    asked_area = np.maximum(np.bincount(part[ask], area[ask], parts), 1e-300)
+    return np.bincount(part[ask], area[ask] * yes, parts) / asked_area
+
+
+#: a point is in a face's slab only if its way to the face leans at most this far off the face's normal (radians):
+#: a curved sheet's faces meet at smaller angles, the rim of a hole at a right angle
+SLAB_LEAN = np.pi / 6
 
 #: how many faces of an open part :func:`_inside_out` asks at most, and how far off the face (a share of the part)
 ASKED_FACES, OFF_FACE = 256, 1e-4

@@ -26,7 +26,7 @@ from ..errors import Sin3DMInputError
 from ..files import atomic_path
 from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
 from .config import LIMITS
-from .distance import SHEET_HALF, Distance
+from .distance import SHEET_HALF, THIN_DEPTHS, Distance, Slabs
 from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, unique_rows
 from .tsdf import PBR_CHANNELS, point_tsdf, tsdf_grid
 
@@ -219,7 +219,8 @@ def mesh_to_grid(
     2. Signed distance at every cell-centred voxel, truncated at
        ``threshold_voxels`` voxels: exact distances only where the band may be
        (:func:`~sin3dm_lite.data.tsdf.tsdf_grid`), the sign from the fast
-       winding number, so open meshes work too.
+       winding number, so open meshes work too; open sheets and parts thinner
+       than a voxel become slabs (:meth:`~sin3dm_lite.data.distance.Distance.find_slabs`).
     3. RGB at every voxel within the band from the closest point on the
        original surface (texture lookup with bilinear filtering).
     4. Training points: surface samples plus Gaussian noise (σ =
@@ -245,8 +246,8 @@ def mesh_to_grid(
 
     dist = Distance(m)
     flat = float(np.ptp(m.vertices, axis=0).min()) < vs if len(m.vertices) else True
-    sheets = 0.0 if flat else dist.find_sheets()  # a flat mesh stays an error below: no volume at all
-    for message in _surprises(mesh, m, dist) + _sheet_note(mesh.name, sheets):
+    slabs = Slabs(0.0, 0.0) if flat else dist.find_slabs()  # a flat mesh stays an error below: no volume at all
+    for message in _surprises(mesh, m, dist) + _slab_notes(mesh.name, slabs, vs):
         warnings.warn(message, stacklevel=2)
     sdf, color, sure = tsdf_grid(dist, m, dims, aabb, vs, threshold, say, pbr=pbr)
     if not (sdf < 0).any():
@@ -305,15 +306,23 @@ def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance) -> 
     return notes + normalisation_notes(mesh, normalised, dist.closed)
 
 
-def _sheet_note(name: str, share: float) -> list[str]:
-    """The warning for a mesh with open sheets (:meth:`Distance.find_sheets`), if it has any."""
-    if not share:
-        return []
-    return [
-        f"{max(share, 0.001):.1%} of the surface of '{name}' is open sheets that enclose no volume (a ground plane, "
-        f"walls of a single polygon): the grid would lose them, so it makes them slabs 1/{1 / SHEET_HALF:.0f} of the "
-        "shape's longest side thick (two voxels at 64); give the sheets a thickness in an editor to choose it yourself"
-    ]
+def _slab_notes(name: str, slabs: Slabs, voxel: float) -> list[str]:
+    """The warnings for a mesh with open sheets or thin parts (:meth:`Distance.find_slabs`), if it has any."""
+    made = f"slabs 1/{1 / SHEET_HALF:.0f} of the shape's longest side thick ({2 * SHEET_HALF / voxel:.1f} voxels here)"
+    notes = []
+    if slabs.sheets:
+        notes.append(
+            f"{max(slabs.sheets, 0.001):.1%} of the surface of '{name}' is open sheets that enclose no volume (a "
+            f"ground plane, walls of a single polygon): the grid would lose them, so it makes them {made}; give the "
+            "sheets a thickness in an editor to choose it yourself"
+        )
+    if slabs.thin:
+        notes.append(
+            f"{max(slabs.thin, 0.001):.1%} of the surface of '{name}' is parts thinner than "
+            f"{THIN_DEPTHS[-1] / voxel:.1f} voxels (boards, sheet metal): the voxel centres would miss them, so the "
+            f"grid makes them {made}; thicken them in an editor to choose it yourself"
+        )
+    return notes
 
 
 def _training_points(

@@ -85,13 +85,13 @@ def tsdf_grid(
             i, j, k = blocks.T
             face = np.zeros(len(blocks), np.int64)
             face[~far] = fi
-            sdf[i, j, k], thick = dist.thicken(sign * np.minimum(d, threshold), d, face, threshold)
+            sdf[i, j, k], thick = dist.thicken(sign * np.minimum(d, threshold), centre, d, face, threshold)
             sure_grid[i, j, k] = sure & ~thick  # a slab's sign is not the winding number's
             band = d < threshold
             color[i[band], j[band], k[band]] = surface_channels(mesh, fi[band[~far]], bc[band[~far]], pbr)
             break
         h = (s - 1) * np.sqrt(3) / 2 * vs
-        far = d >= threshold + h
+        far = d >= max(threshold, dist.reach_max) + h  # a slab may reach beyond the band
         done = far & sure
         i, j, k = blocks[done].T
         _block_view(sdf, s)[i, :, j, :, k, :] = (sign[done] * threshold)[:, None, None, None]
@@ -148,8 +148,9 @@ def point_tsdf(dist: Distance, mesh: TexturedMesh, p: np.ndarray, threshold: flo
     p = np.ascontiguousarray(p, dtype=np.float64)
     d, fi, bc = dist.closest(p)
     resolved, inside = signs_from_grid(p, d, *grid, closed=dist.closed)
+    resolved |= dist.slab_decides(p, d, fi)  # deep in a slab, the sign does not change the value
     inside[~resolved] = dist.winding(p[~resolved]) > 0.5
-    sdf, _ = dist.thicken(np.where(inside, -1.0, 1.0) * np.minimum(d, threshold), d, fi, threshold)
+    sdf, _ = dist.thicken(np.where(inside, -1.0, 1.0) * np.minimum(d, threshold), p, d, fi, threshold)
     sdf = sdf.astype(np.float32)
     col = np.zeros((len(p), len(PBR_CHANNELS) if pbr else 3), np.float32)
     band = d < threshold

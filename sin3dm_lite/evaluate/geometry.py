@@ -177,17 +177,21 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     shape = tuple(factor * n for n in coarse)
     verts, faces = _verts_faces(mesh)
     dist = Distance(SimpleNamespace(vertices=verts, faces=faces))  # closed parts turned outwards
-    if dist.closed:
+    slabs = any(dist.find_slabs())  # open sheets and thin parts as slabs, the same as the training grid has them
+    if dist.closed and not slabs:
         return any_inside(_voxel_centres_inside((dist.v, dist.f), box, shape, outward=True), factor)
-    sheets = dist.find_sheets() > 0  # open sheets as slabs, the same as the training grid has them
     centres = _centres(box, coarse)
     side = (dist.winding(centres) > 0.5).reshape(coarse)  # the voxel centres' answer
-    if factor == 1 and not sheets:
+    if factor == 1 and not slabs:
         return side
     near = _dilate(_surface_cells(dist.v, dist.f, box, coarse))
-    if sheets:
-        cells = np.flatnonzero(near)
-        side.reshape(-1)[cells] |= _in_slab(dist, centres[cells])
+    if slabs:  # every voxel within a slab's reach of its face
+        slab = _surface_cells(dist.v, dist.f[dist.reach > 0], box, coarse)
+        for _ in range(1 + int(np.ceil(dist.reach_max / ((box[3:] - box[:3]) / coarse).min()))):
+            slab = _dilate(slab)
+        cells = np.flatnonzero(slab)
+        side.reshape(-1)[cells] |= dist.in_slab(centres[cells])
+        near |= slab
     if factor == 1:
         return side
     # a voxel's sub-voxels can differ from its centre only where the surface passes near it, or where the
@@ -198,16 +202,8 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     axes = [axis_centres(box, shape, a) for a in range(3)]
     fine = np.repeat(np.repeat(np.repeat(side, factor, 0), factor, 1), factor, 2)
     points = np.stack([axes[a][sub[:, a]] for a in range(3)], axis=-1)
-    fine[tuple(sub.T)] = (dist.winding(points) > 0.5) | _in_slab(dist, points)
+    fine[tuple(sub.T)] = (dist.winding(points) > 0.5) | dist.in_slab(points)
     return any_inside(fine, factor)
-
-
-def _in_slab(dist, points: np.ndarray) -> np.ndarray:
-    """Which ``points`` lie inside the slabs :meth:`~sin3dm_lite.data.distance.Distance.find_sheets` made."""
-    if dist.sheet is None or len(points) == 0:
-        return np.zeros(len(points), bool)
-    d, fi, _ = dist.closest(points)
-    return dist.sheet[fi] & (d < dist.thickness)
 
 
 def _centres(box, shape) -> np.ndarray:
