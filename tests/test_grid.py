@@ -498,3 +498,11 @@ def test_the_metrics_reference_keeps_a_thin_board_as_a_slab_too():
     assert occ.shape == (32, 8, 32)
     column = occ[4:28, :, 4:28].sum(axis=1)
     assert column.min() >= 1 and column.max() <= 2  # a closed mesh, yet no voxel centre falls in the board itself
+
+
+def test_a_flat_terrain_is_refused_with_its_sides_and_what_to_do():
+    """A height field whose relief is under a voxel has nothing to learn: the error says so and how to mend it."""
+    flat = _height_field()
+    flat.vertices[:, 1] *= 0.01  # ±0.003 over a side of 2
+    with pytest.raises(Sin3DMInputError, match=r"it is flat, 2 × 0\.00599 × 2, its thinnest side 0\.30% .* thickness"):
+        mesh_to_grid(textured(flat), 64, n_surface_points=0, progress=False)

@@ -251,10 +251,7 @@ def mesh_to_grid(
         warnings.warn(message, stacklevel=2)
     sdf, color, sure = tsdf_grid(dist, m, dims, aabb, vs, threshold, say, pbr=pbr)
     if not (sdf < 0).any():
-        raise Sin3DMInputError(
-            f"'{mesh.name}' has no inside at {resolution} voxels: it is flat (thinner than a voxel: a single triangle, "
-            "a flat sheet) or encloses no volume; give a closed (watertight) mesh or a solid with some thickness"
-        )
+        raise Sin3DMInputError(_no_inside(mesh, resolution, flat))
     out = ShapeGrid(sdf, color, aabb, threshold, m.normalization, name=mesh.name)
     say(f"[grid] grid done ({time.perf_counter() - t0:.1f} s)")
     if n_surface_points > 0:
@@ -283,6 +280,23 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
             extent = extent * shrink
         dims = np.array(grid_shape(extent, resolution, multiple=8, margin_voxels=margin_voxels))
     return m, dims
+
+
+def _no_inside(mesh: TexturedMesh, resolution: int, flat: bool) -> str:
+    """The error for a grid with no inside voxel: a flat mesh says its sides, and what to do."""
+    if not flat or not len(mesh.vertices):
+        return (
+            f"'{mesh.name}' has no inside at {resolution} voxels: it encloses no volume; give a closed (watertight) "
+            "mesh or a solid with some thickness"
+        )
+    side = np.ptp(np.asarray(mesh.vertices, np.float64), axis=0)
+    sides = " × ".join(f"{x:.3g}" for x in side)
+    return (
+        f"'{mesh.name}' has no inside at {resolution} voxels: it is flat, {sides}, its thinnest side "
+        f"{side.min() / max(side.max(), 1e-300):.2%} of its longest, under one voxel (a single triangle, a flat sheet "
+        "or terrain); give it a thickness in an editor (a terrain: extrude it down into a solid block, or raise its "
+        "heights)"
+    )
 
 
 def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance) -> list[str]:
