@@ -162,10 +162,12 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     LP metrics compare against.
 
     Unlike :func:`voxelize` it needs no closed mesh: an open one's generalised winding number decides. A closed
-    mesh's winding number is whole, so :func:`voxelize`'s ray cast counts it exactly and much faster. On an open
-    mesh with ``supersample`` > 1 only the voxels near the surface (or across a hole) get a winding number per
-    sub-voxel; the others take their centre's. The mesh must be in the same (normalised) coordinates as ``aabb``;
-    ``supersample``: as for :func:`voxelize`.
+    mesh's winding number is whole, so :func:`voxelize`'s ray cast counts it exactly and much faster. Open sheets
+    and parts thinner than a voxel are the training grid's slabs here too
+    (:meth:`~sin3dm_lite.data.distance.Distance.find_slabs`), on a closed mesh as well. Otherwise, with
+    ``supersample`` > 1 only the voxels near the surface (or across a hole) get a winding number per sub-voxel; the
+    others take their centre's. The mesh must be in the same (normalised) coordinates as ``aabb``; ``supersample``:
+    as for :func:`voxelize`.
     """
     from types import SimpleNamespace
 
