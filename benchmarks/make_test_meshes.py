@@ -2,6 +2,7 @@
 
     python benchmarks/make_test_meshes.py OUT_DIR
     python benchmarks/make_test_meshes.py OUT_DIR --sweep   # and the sweep of families: which preset the default takes
+    python benchmarks/make_test_meshes.py OUT_DIR --boards  # and shelves of boards 0.05-4 voxels thick: their grids
 
 ``--sweep`` also writes ruins of every family (round and square plans, stepped and flat tops, walls 2 to 8 voxels
 thick at 64, and uneven ones) as ``OUT_DIR/sweep/*.obj`` and prints, for them, the built-ins and the six meshes, the share of the
@@ -192,8 +193,50 @@ def sweep(out: Path) -> None:
         print(f"| {name} | {share:.2f} | `{pick['small']}` | `{pick['quick']}` |", flush=True)
 
 
+def shelf(board: float) -> trimesh.Trimesh:
+    """A shelf of closed boards ``board`` thick (the mesh's units; its longest side is 2): four shelves, three
+    uprights, each board a part of its own, as a storage shelf is modelled."""
+    boards = [
+        trimesh.creation.box(extents=(2.0, board, 1.0)).apply_translation((0, y, 0)) for y in (-0.6, -0.2, 0.2, 0.6)
+    ]
+    for x in (-1.0 + board / 2, 0.0, 1.0 - board / 2):
+        boards.append(trimesh.creation.box(extents=(board, 1.2 + board, 1.0)).apply_translation((x, 0, 0)))
+    return trimesh.util.concatenate(boards)
+
+
+def boards(out: Path) -> None:
+    """The thin-board sweep: shelves of boards 0.05 to 4 voxels thick at 64; per grid, whether the boards became
+    slabs and how many voxels a shelf holds across (one column through its middle)."""
+    import warnings
+
+    from sin3dm_lite.data.grid import mesh_to_grid
+    from sin3dm_lite.formats.load import load_mesh
+
+    (out / "boards").mkdir(exist_ok=True)
+    print("| board, voxels at 64 | " + " | ".join(f"at {r}: slab? voxels across" for r in (64, 96)) + " |")
+    print("|---|---|---|")
+    for voxels in (0.05, 0.25, 0.5, 0.75, 1.0, 1.25, 1.4, 1.6, 2.0, 2.5, 3.0, 4.0):
+        path = out / "boards" / f"shelf_{voxels:g}.stl"
+        shelf(voxels * 2.0 / 64).export(path)
+        cells = []
+        for res in (64, 96):
+            with warnings.catch_warnings(record=True) as said:
+                warnings.simplefilter("always")
+                try:
+                    g = mesh_to_grid(load_mesh(path), res, n_surface_points=0, progress=False, margin_voxels=3.25)
+                except Exception:  # noqa: BLE001 - the grid's error is the answer: nothing inside
+                    cells.append("no inside")
+                    continue
+            slab = any("thinner than" in str(w.message) for w in said)
+            at = g.normalization.to_normalized(np.array([[0.5, 0.2, 0.0]]))[0]
+            i, k = (int(np.floor((at[a] - g.aabb[a]) / g.voxel_size)) for a in (0, 2))
+            y = np.abs(g.axis_coords(1) - at[1]) < 4 * g.voxel_size
+            cells.append(f"{'slab' if slab else '-'}, {int((g.sdf[i, y, k] < 0).sum())}")
+        print(f"| {voxels:g} | " + " | ".join(cells) + " |", flush=True)
+
+
 def main() -> None:
-    args = [a for a in sys.argv[1:] if a != "--sweep"]
+    args = [a for a in sys.argv[1:] if a not in ("--sweep", "--boards")]
     out = Path(args[0] if args else "runs/meshes")
     out.mkdir(parents=True, exist_ok=True)
     rocks().export(out / "rocks.stl")
@@ -212,6 +255,8 @@ def main() -> None:
     print(f"wrote {made} to {out}")
     if "--sweep" in sys.argv[1:]:
         sweep(out)
+    if "--boards" in sys.argv[1:]:
+        boards(out)
 
 
 if __name__ == "__main__":
