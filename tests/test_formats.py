@@ -715,6 +715,24 @@ def test_missing_texture_warns_and_uses_material_color(tmp_path):
     np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), (0.8, 0.8, 0.8), atol=1e-6)
 
 
+def test_a_missing_texture_that_many_materials_name_warns_once(tmp_path):
+    """An exporter's absolute path (here a Windows one) in every material: one warning, not one per material."""
+    (tmp_path / "two.mtl").write_text(
+        "newmtl A\nKd 1 0 0\nmap_Kd D:\\work\\tex\\colors.png\nnewmtl B\nKd 0 0 1\nmap_Kd D:\\work\\tex\\colors.png\n"
+    )
+    (tmp_path / "two.obj").write_text(
+        "mtllib two.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "usemtl A\nf 1/1 2/2 3/3\nusemtl B\nf 1/1 3/3 4/4\n"
+    )
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        mesh = load_mesh(tmp_path / "two.obj")
+    missing = [str(w.message) for w in said if "colors.png" in str(w.message)]
+    assert len(missing) == 1 and "any other material that names it" in missing[0], missing
+    assert [m.image for m in mesh.materials] == [None, None]  # each keeps its own colour
+    np.testing.assert_allclose(lookup(mesh, 1, (1 / 3, 1 / 3, 1 / 3)), (0, 0, 1), atol=1e-6)
+
+
 def test_corrupt_texture_warns_and_uses_material_color(tmp_path):
     p = write_square(tmp_path, image=False)
     (tmp_path / "tex.png").write_bytes(b"\x89PNG garbage garbage garbage")

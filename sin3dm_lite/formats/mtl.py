@@ -148,10 +148,12 @@ def load_texture(ref: str, what: str, mname: str, mtl: Path, *, max_size, cache:
     owner = f"{what} of material '{mname}' in '{mtl.name}'"
     path = resolve_asset(ref, mtl.parent, scope, f"the {what} texture of material '{mname}' in '{mtl.name}'")
     if path is None:
-        warn(
-            f"texture file '{ref}' ({owner}) was not found (looked in '{mtl.parent}'); "
-            "using the material colour instead: put the image next to the .mtl file or fix the path"
-        )
+        if ("missing", ref) not in cache:  # once per file: an exporter's absolute path is often in every material
+            cache[("missing", ref)] = None
+            warn(
+                f"texture file '{ref}' ({owner}, and any other material that names it) was not found (looked in "
+                f"'{mtl.parent}'); using the material colour instead: put the image next to the .mtl file or fix the path"
+            )
         return None
     key = path.resolve()
     if key not in cache:
