@@ -506,3 +506,17 @@ def test_a_flat_terrain_is_refused_with_its_sides_and_what_to_do():
     flat.vertices[:, 1] *= 0.01  # ±0.003 over a side of 2
     with pytest.raises(Sin3DMInputError, match=r"it is flat, 2 × 0\.00599 × 2, its thinnest side 0\.30% .* thickness"):
         mesh_to_grid(textured(flat), 64, n_surface_points=0, progress=False)
+
+
+@pytest.mark.parametrize("down", [False, True])
+def test_a_stray_triangle_on_a_face_is_read_like_the_rest(down):
+    """A lone triangle lying on a box's face (an exporter's leftover, seen in robosuite's meshes) is a part of one
+    face: asked alone, point-cloud-utils answers a single point with a bare number, which broke the thin-part probe."""
+    from sin3dm_lite.data.distance import winding_number
+
+    tri = np.array([[-0.2, 0.5, -0.2], [0.2, 0.5, -0.2], [0.0, 0.5, 0.2]])
+    stray = trimesh.Trimesh(tri, [[0, 1, 2]] if down else [[0, 2, 1]], process=False)
+    mesh = trimesh.util.concatenate([trimesh.creation.box(extents=(1, 1, 1)), stray])
+    g = mesh_to_grid(textured(mesh), 32, n_surface_points=100, progress=False, margin_voxels=3.25)
+    assert g.sdf[16, 16, 16] < 0 and g.sdf[1, 1, 1] > 0  # the box, solid, in its margin
+    assert winding_number(tri, np.array([[0, 1, 2]]), np.array([[0.0, 0.0, 0.0]])).shape == (1,)

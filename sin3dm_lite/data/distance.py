@@ -134,7 +134,7 @@ class Distance:
             reach[faces] = self._probe(
                 tri[faces].mean(1),
                 normal[faces] / area[faces, None],
-                lambda q, own=own: pcu.triangle_soup_fast_winding_number(self.v, own, q),
+                lambda q, own=own: winding_number(self.v, own, q),
             )
         return reach
 
@@ -199,7 +199,7 @@ class Distance:
         solid = self.f if self.sheet is None else self.f[~self.sheet]  # sheets have no inside (find_slabs)
         if len(p) == 0 or len(solid) == 0:
             return np.zeros(len(p), np.float64)
-        return pcu.triangle_soup_fast_winding_number(self.v, solid, np.ascontiguousarray(p, dtype=np.float64))
+        return winding_number(self.v, solid, p)
 
     def closest(self, p: np.ndarray):
         """Unsigned distance, closest face and its barycentrics for every point (chunked)."""
@@ -307,6 +307,15 @@ THIN_DEPTHS = (SHEET_HALF / 2, SHEET_HALF, 3 * SHEET_HALF / 2)
 THIN_FACES, THIN_LEAST, THIN_ALL = 16_384, 4, 262_144
 
 
+def winding_number(v: np.ndarray, f: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """point-cloud-utils' fast winding number of the triangles ``f`` over ``v`` at the points ``p``, one per point
+    (it returns a bare number for a single point and refuses none)."""
+    p = np.ascontiguousarray(p, dtype=np.float64).reshape(-1, 3)
+    if len(p) == 0 or len(f) == 0:
+        return np.zeros(len(p), np.float64)
+    return np.reshape(pcu.triangle_soup_fast_winding_number(v, f, p), len(p))
+
+
 def _spread(part: np.ndarray, mask: np.ndarray, cap: np.ndarray) -> np.ndarray:
     """The ``mask``ed faces to ask, at most about ``cap[p]`` of each part ``p``, evenly spread through it."""
     order = np.argsort(part, kind="stable")
@@ -351,6 +360,6 @@ def _inside_out(vertices: np.ndarray, faces: np.ndarray, part: np.ndarray, asked
             continue
         off = OFF_FACE * float(np.ptp(v, axis=0).max()) * normal[length > 0] / length[length > 0, None]
         centre = tri[length > 0].mean(1)
-        w = pcu.triangle_soup_fast_winding_number(v, f, np.concatenate([centre - off, centre + off]))
+        w = winding_number(v, f, np.concatenate([centre - off, centre + off]))
         out[p] = np.median((w[: len(centre)] + w[len(centre) :]) / 2) < -0.25
     return out
