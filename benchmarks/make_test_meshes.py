@@ -210,6 +210,7 @@ def boards(out: Path) -> None:
     import warnings
 
     from sin3dm_lite.data.grid import mesh_to_grid
+    from sin3dm_lite.errors import Sin3DMInputError
     from sin3dm_lite.formats.load import load_mesh
 
     (out / "boards").mkdir(exist_ok=True)
@@ -224,7 +225,7 @@ def boards(out: Path) -> None:
                 warnings.simplefilter("always")
                 try:
                     g = mesh_to_grid(load_mesh(path), res, n_surface_points=0, progress=False, margin_voxels=3.25)
-                except Exception:  # noqa: BLE001 - the grid's error is the answer: nothing inside
+                except Sin3DMInputError:  # the grid's error is the answer: nothing inside
                     cells.append("no inside")
                     continue
             slab = any("thinner than" in str(w.message) for w in said)

@@ -115,22 +115,27 @@ class Distance:
         ask = _spread(part, asked & (area > 0), cap)
         if len(ask) == 0:
             return reach
-        first = self._probe(tri[ask].mean(1), normal[ask] / area[ask, None], self.winding)
-        is_thin = _area_share(part, ask, area, first > 0, parts) > 0.5
+        centre, unit = tri[ask].mean(1), normal[ask] / area[ask, None]
+        outside = self.winding(centre - THIN_DEPTHS[-1] * unit) <= 0.5  # which parts: the deepest depth says
+        is_thin = _area_share(part, ask, area, outside, parts) > 0.5
         rest = np.flatnonzero(asked & (area > 0) & is_thin[part])
         if len(rest) == 0:
             return reach
         if len(rest) > THIN_ALL:  # too many to ask them all: each face of a thin part takes its part's mean
-            a = area[ask] * (first > 0)
-            mean = np.bincount(part[ask], a * first, parts) / np.maximum(np.bincount(part[ask], a, parts), 1e-300)
+            sel = is_thin[part[ask]]
+            a = area[ask][sel] * outside[sel]
+            each = self._probe(centre[sel], unit[sel], self.winding)
+            mean = np.bincount(part[ask][sel], a * each, parts) / np.maximum(
+                np.bincount(part[ask][sel], a, parts), 1e-300
+            )
             reach[rest] = mean[part[rest]]
             return reach
         # each thin part asked alone: behind a board's face where another board joins it, the other's inside
         # would read as the board's own
         rest = rest[np.argsort(part[rest], kind="stable")]
-        by_part, start = np.argsort(part, kind="stable"), np.r_[0, np.cumsum(np.bincount(part, minlength=parts))]
+        order, start = _by_part(part, parts)
         for faces in np.split(rest, np.flatnonzero(np.diff(part[rest])) + 1):
-            own = self.f[by_part[start[part[faces[0]]] : start[part[faces[0]] + 1]]]
+            own = self.f[order[start[part[faces[0]]] : start[part[faces[0]] + 1]]]
             reach[faces] = self._probe(
                 tri[faces].mean(1),
                 normal[faces] / area[faces, None],
@@ -168,10 +173,11 @@ class Distance:
         rim of a hole, past a sheet's end) is outside it, as far as it is from the face."""
         reach = self.reach[fi]
         on = (reach > 0) & np.isfinite(d)
-        if not on.any():
-            return d, on
-        height = np.abs(np.einsum("ij,ij->i", np.asarray(p, np.float64) - self.v[self.f[fi, 0]], self._unit[fi]))
-        return np.where(height >= np.cos(SLAB_LEAN) * d, d - reach, d), on
+        depth = np.array(d, np.float64)
+        at, f = np.flatnonzero(on), fi[on]  # most points of a grid are near no slab
+        height = np.abs(np.einsum("ij,ij->i", np.asarray(p, np.float64)[at] - self.v[self.f[f, 0]], self._unit[f]))
+        depth[at] = np.where(height >= np.cos(SLAB_LEAN) * d[at], d[at] - reach[at], d[at])
+        return depth, on
 
     def slab_decides(self, p: np.ndarray, d: np.ndarray, fi: np.ndarray) -> np.ndarray:
         """Where the slab alone gives :meth:`thicken`'s value, whatever the winding number says: closer to the face
@@ -316,13 +322,18 @@ def winding_number(v: np.ndarray, f: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.reshape(pcu.triangle_soup_fast_winding_number(v, f, p), len(p))
 
 
+def _by_part(part: np.ndarray, parts: int) -> tuple[np.ndarray, np.ndarray]:
+    """The faces in order of their part (stable) and where each part starts in it (``parts + 1``): part ``p``'s
+    faces are ``order[start[p] : start[p + 1]]``."""
+    return np.argsort(part, kind="stable"), np.r_[0, np.cumsum(np.bincount(part, minlength=parts))]
+
+
 def _spread(part: np.ndarray, mask: np.ndarray, cap: np.ndarray) -> np.ndarray:
     """The ``mask``ed faces to ask, at most about ``cap[p]`` of each part ``p``, evenly spread through it."""
-    order = np.argsort(part, kind="stable")
-    full = np.bincount(part, minlength=len(cap))
+    order, start = _by_part(part, len(cap))
     rank = np.empty(len(part), np.int64)
-    rank[order] = np.arange(len(part)) - np.r_[0, np.cumsum(full)][part[order]]
-    return np.flatnonzero(mask & (rank % np.maximum(1, full // np.maximum(cap, 1))[part] == 0))
+    rank[order] = np.arange(len(part)) - start[part[order]]
+    return np.flatnonzero(mask & (rank % np.maximum(1, np.diff(start) // np.maximum(cap, 1))[part] == 0))
 
 
 def _area_share(part: np.ndarray, ask: np.ndarray, area: np.ndarray, yes: np.ndarray, parts: int) -> np.ndarray:
@@ -348,8 +359,8 @@ def _inside_out(vertices: np.ndarray, faces: np.ndarray, part: np.ndarray, asked
     part is turned round where its median is below -¼ (a flat sheet, with no inside, gives 0 and stays).
     """
     out = np.zeros(len(asked), bool)
-    count = np.bincount(part, minlength=len(asked))
-    order, start = np.argsort(part, kind="stable"), np.r_[0, np.cumsum(count)]
+    order, start = _by_part(part, len(asked))
+    count = np.diff(start)
     for p in np.flatnonzero(asked & (count >= 8)):  # a few faces say too little (and a soup has many parts)
         used, f = np.unique(faces[order[start[p] : start[p + 1]]], return_inverse=True)  # the part alone
         v, f = vertices[used], f.reshape(-1, 3)

@@ -455,10 +455,8 @@ class AutoencoderTrainer(Trainer):
         l_col = l_mat = l_nrm = bound = zero
         if band.any():
             c, gt = torch.sigmoid(logit), c_gt[band]
-            l_col, bound = (
-                (c[:, :3] - gt[:, :3]).abs().mean(),
-                logit_bound(logit[:, :3]),
-            )  # not the normal's: it cost them
+            l_col = (c[:, :3] - gt[:, :3]).abs().mean()
+            bound = logit_bound(logit[:, :3])  # the colour's only: on the normal's channels it cost them accuracy
             if cfg.pbr:
                 l_nrm = (c[:, 5:8] - gt[:, 5:8]).abs().mean()
                 l_mat = F.binary_cross_entropy_with_logits(logit[:, 3:5], gt[:, 3:5])
