@@ -94,6 +94,29 @@ def test_rungs_far_below_the_goals_are_skipped_for_the_same_choice_in_fewer_draw
         C.calibrate_diversity(knob, _reference(), n=n, far=1.0, progress=False)
 
 
+def test_stored_scores_replay_the_calibration_exactly():
+    """``calibrate_scores`` is the rule apart from the sampling (what benchmarks/bench_calibration.py replays): fed
+    the rows a live calibration scored, setting by setting and seed by seed, it keeps the same record."""
+    rows = {}
+
+    def scored(d, n, seed):  # the thin shape's knob, its rows kept by setting and seed
+        grids = _ThinKnob(0.3)(d, n, seed)
+        rows[(d, seed)] = C.score_setting(lambda *_: grids, _reference(), d, n, seed)
+        return grids
+
+    live = C.calibrate_diversity(scored, _reference(), n=2, seed=7, progress=False)
+    asked = []
+
+    def draw(d, k):
+        asked.append((d, k))
+        return rows[(d, 7 + 1000 * k)]
+
+    replayed = C.calibrate_scores(draw, max(_reference().shape), n=2, progress=False)
+    assert replayed.to_dict() == live.to_dict() and replayed.diversity == live.diversity
+    assert asked[0] == (C.NEAR_COPY, C.NEAR_COPY_SEEDS // 1000) and len(asked) == len(live.tried) + 1
+    assert len(live.tried) > 5  # a walk with skipped rungs and a refinement, not only the first rung
+
+
 def test_a_shape_whose_near_copy_keeps_the_input_is_calibrated_as_before(knob):
     """The near copy keeps every patch, so 85 % of it is above both absolute goals: the goals stay absolute and
     the ladder draws, smooths and chooses exactly what it did without a ceiling."""
@@ -850,7 +873,8 @@ def test_a_choice_of_near_copies_on_the_training_grid_names_the_paper_grid():
 def test_judged_at_the_papers_grid_the_goals_are_the_near_copys_shares_alone(monkeypatch):
     """At 128 voxels against the mesh (``detail``, ``fine``, ``calibrate --resolution 128``) a default keeps 85 % of
     its near copy's LP-F and 65 % of its LP-IoU, however high those are; on a training grid the absolute goals cap
-    them (a 64-voxel near copy keeps almost every patch). The story says which, and what the walk was given."""
+    them (a 64-voxel near copy keeps almost every patch). The story says which, and what the walk was given: at 128
+    the coarser ladder (``COARSE_WALK``)."""
     from types import SimpleNamespace
 
     from sin3dm_lite.auto import calibration
@@ -858,8 +882,11 @@ def test_judged_at_the_papers_grid_the_goals_are_the_near_copys_shares_alone(mon
 
     asked = []
 
+    walks = []
+
     def fake_walk(sample_fn, reference, progress=True, **options):
         asked.append(options["goals"])
+        walks.append({k: options.get(k) for k in ("step", "refine")})
         return C.Calibration(diversity=0.5, goals=options["goals"], n=2, resolution=max(reference.shape))
 
     monkeypatch.setattr(C, "calibrate_diversity", fake_walk)
@@ -869,6 +896,10 @@ def test_judged_at_the_papers_grid_the_goals_are_the_near_copys_shares_alone(mon
     calibration.calibrate_model(model, reference=np.zeros((64, 48, 48), bool), progress=False)
     calibration.calibrate_model(model, reference=np.zeros((128, 96, 96), bool), progress=False, goals={"lp_iou": 0.3})
     assert asked == [calibration.UNCAPPED, C.GOALS, {"lp_iou": 0.3}]
+    # at 128 voxels, where each setting's samples cost the most, the coarser walk; on a training grid the default
+    assert walks == [calibration.COARSE_WALK, {"step": None, "refine": None}, calibration.COARSE_WALK]
+    calibration.calibrate_model(model, reference=np.zeros((128, 96, 96), bool), progress=False, step=0.1)
+    assert walks[-1] == {"step": 0.1, "refine": 2}  # what is asked wins
     assert model.config.sampling.diversity == 0.5
 
     # the story: a goal that is the near copy's share alone says so, without an absolute it never had

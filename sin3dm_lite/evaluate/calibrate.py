@@ -139,15 +139,8 @@ def calibrate_diversity(
     goals: dict | None = None,
     n: int = 8,
     seed: int = 10_000,
-    lowest: float = LOWEST,
-    step: float = 0.1,
-    margin: float = 0.05,
-    safety: float = SAFETY,
-    refine: int = REFINE,
-    caution: float = CAUTION,
-    relative: float | dict | None = RELATIVE,
-    far: float = FAR,
     progress: bool = True,
+    **walk,
 ) -> Calibration:
     """The most varied diversity in ``[lowest, 1]`` whose samples keep the goals against ``reference`` (the rule:
     the module's docstring).
@@ -158,6 +151,42 @@ def calibrate_diversity(
         goals: the most ``lp_iou`` and ``lp_fscore`` asked for (default :data:`GOALS`).
         n: samples per setting (at least 2, for G-Div).
         seed: the first sample seed; the k-th setting drawn uses seeds from ``seed + 1000·k``.
+        walk: how the settings are walked (:func:`calibrate_scores`).
+    """
+    from ..app import values
+
+    seed = values.seed(seed)
+    if seed + NEAR_COPY_SEEDS + 1000 * 100 >= 2**32:  # every setting's seeds stay seeds
+        raise Sin3DMInputError(f"the calibration's seed must be below {2**32 - NEAR_COPY_SEEDS - 100_000}, got {seed}")
+    reference = np.asarray(reference, bool)
+
+    def draw(d: float, k: int) -> dict:
+        return score_setting(sample_fn, reference, d, n, seed + 1000 * k)
+
+    return calibrate_scores(draw, max(reference.shape), goals, n, progress=progress, **walk)
+
+
+def calibrate_scores(
+    draw: Callable[[float, int], dict],
+    resolution: int,
+    goals: dict | None = None,
+    n: int = 8,
+    progress: bool = True,
+    lowest: float = LOWEST,
+    step: float = 0.1,
+    margin: float = 0.05,
+    safety: float = SAFETY,
+    refine: int = REFINE,
+    caution: float = CAUTION,
+    relative: float | dict | None = RELATIVE,
+    far: float = FAR,
+) -> Calibration:
+    """:func:`calibrate_diversity`'s rule on any scorer: ``draw(diversity, k)`` gives the row of ``n`` samples drawn
+    with the k-th seeds (``lp_iou``, ``lp_fscore``, their ``*_sd``, ``g_div``: :func:`summarize`), the near copy's
+    with ``k`` = ``NEAR_COPY_SEEDS // 1000``. Apart from the sampling so that stored scores can replay it
+    (``benchmarks/bench_calibration.py``); ``resolution`` is only recorded.
+
+    Args:
         lowest, step: the ladder 1, 1 - ``step``, … ``lowest``.
         margin: how far above every goal a setting must score to end the ladder early.
         safety, caution: the smoothed curves are read ``safety`` above each goal, lowered by ``caution`` standard
@@ -167,22 +196,10 @@ def calibrate_diversity(
             None draws no near copy (absolute goals).
         far: a rung keeping less than this share of a goal skips the next rung (0: every rung is drawn).
     """
-    from ..app import values
-
     absolute = dict(GOALS if goals is None else goals)
     shares = _shares(relative, absolute)
     _check_options(absolute, n, refine, lowest, step, caution, safety, margin, shares, far)
-    seed = values.seed(seed)
-    if seed + NEAR_COPY_SEEDS + 1000 * 100 >= 2**32:  # every setting's seeds stay seeds
-        raise Sin3DMInputError(f"the calibration's seed must be below {2**32 - NEAR_COPY_SEEDS - 100_000}, got {seed}")
-    reference = np.asarray(reference, bool)
-
-    def draw(d: float, k: int) -> dict:
-        return score_setting(sample_fn, reference, d, n, seed + 1000 * k)
-
-    result = Calibration(
-        diversity=lowest, goals=absolute, n=int(n), resolution=max(reference.shape), g_div_goal=G_DIV_GOAL
-    )
+    result = Calibration(diversity=lowest, goals=absolute, n=int(n), resolution=int(resolution), g_div_goal=G_DIV_GOAL)
     result.copy_line = copy_line(None)
     if shares is not None:
         _set_ceiling(result, draw(NEAR_COPY, NEAR_COPY_SEEDS // 1000), shares, progress)
@@ -425,6 +442,7 @@ __all__ = [
     "Calibration",
     "SampleFn",
     "calibrate_diversity",
+    "calibrate_scores",
     "copy_line",
     "model_sampler",
     "sample_occupancy",
