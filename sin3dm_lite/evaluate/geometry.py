@@ -164,7 +164,8 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     Unlike :func:`voxelize` it needs no closed mesh: an open one's generalised winding number decides. A closed
     mesh's winding number is whole, so :func:`voxelize`'s ray cast counts it exactly and much faster. Open sheets
     and parts thinner than a voxel are the training grid's slabs here too
-    (:meth:`~sin3dm_lite.data.distance.Distance.find_slabs`), on a closed mesh as well. Otherwise, with
+    (:meth:`~sin3dm_lite.data.distance.Distance.find_slabs`), on a closed mesh as well; a point inside a slab is
+    inside whatever its winding number, so only the others ask it. Otherwise, with
     ``supersample`` > 1 only the voxels near the surface (or across a hole) get a winding number per sub-voxel; the
     others take their centre's. The mesh must be in the same (normalised) coordinates as ``aabb``; ``supersample``:
     as for :func:`voxelize`.
@@ -183,17 +184,17 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     if dist.closed and not slabs:
         return any_inside(_voxel_centres_inside((dist.v, dist.f), box, shape, outward=True), factor)
     centres = _centres(box, coarse)
-    side = (dist.winding(centres) > 0.5).reshape(coarse)  # the voxel centres' answer
-    if factor == 1 and not slabs:
-        return side
+    side = np.zeros(coarse, bool)  # the voxel centres' answer
     near = _dilate(_surface_cells(dist.v, dist.f, box, coarse))
     if slabs:  # every voxel within a slab's reach of its face
         slab = _surface_cells(dist.v, dist.f[dist.reach > 0], box, coarse)
         for _ in range(1 + int(np.ceil(dist.reach_max / ((box[3:] - box[:3]) / coarse).min()))):
             slab = _dilate(slab)
         cells = np.flatnonzero(slab)
-        side.reshape(-1)[cells] |= dist.in_slab(centres[cells])
+        side.reshape(-1)[cells] = dist.in_slab(centres[cells])
         near |= slab
+    rest = ~side.reshape(-1)  # where no slab decides, the winding number does
+    side.reshape(-1)[rest] = dist.winding(centres[rest]) > 0.5
     if factor == 1:
         return side
     # a voxel's sub-voxels can differ from its centre only where the surface passes near it, or where the
@@ -204,7 +205,9 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     axes = [axis_centres(box, shape, a) for a in range(3)]
     fine = np.repeat(np.repeat(np.repeat(side, factor, 0), factor, 1), factor, 2)
     points = np.stack([axes[a][sub[:, a]] for a in range(3)], axis=-1)
-    fine[tuple(sub.T)] = (dist.winding(points) > 0.5) | dist.in_slab(points)
+    inside = dist.in_slab(points)
+    inside[~inside] = dist.winding(points[~inside]) > 0.5
+    fine[tuple(sub.T)] = inside
     return any_inside(fine, factor)
 
 
