@@ -111,8 +111,9 @@ def replay(pool: dict, resolution: int, options: dict, rng: np.random.Generator)
 
 
 def truth(pool: dict, resolution: int) -> tuple[float, dict]:
-    """The rule on the whole pool, no caution (:func:`replay` with every sample at every setting, read once), and
-    the whole pool's curves (settings high to low; LP scores made non-increasing in the knob)."""
+    """The rule read on the whole pool (every sample at every setting, no walk, no caution): the most varied setting
+    that keeps every goal, unless its samples are copies, then LP-F's alone, else the least varied that is not
+    copies; and the pool's curves (settings high to low; LP scores made non-increasing in the knob)."""
     everything = {key: list(range(len(v["lp_iou"]))) for key, v in pool.items()}
     rows = {key: _row(pool[key], idx) for key, idx in everything.items()}
     levels = sorted((float(k) for k in pool if float(k) != NEAR_COPY), reverse=True)
@@ -146,7 +147,7 @@ def report(path: str, replays: int) -> None:
     answer, c = truth(pool, res)
     near = c["near"]
     print(
-        f"\n{data['run']} ({data['n']} samples a setting, at {res} voxels; the fit chose {data.get('fit_chose', data.get('chosen'))}): "
+        f"\n{data['run']} ({data['n']} samples a setting, at {res} voxels; the fit chose {data.get('fit_chose')}): "
         f"near copy LP-IoU {near['lp_iou']:.3f} LP-F {near['lp_fscore']:.3f} G-Div {near['g_div']:.3f}; "
         f"copies under G-Div {c['line']:.3f}; the truth {answer:.2f}"
     )
