@@ -203,8 +203,6 @@ class Distance:
     def winding(self, p: np.ndarray) -> np.ndarray:
         """Generalised winding number: 1 inside a closed surface, 0 outside, in between near holes (sheets left out)."""
         solid = self.f if self.sheet is None else self.f[~self.sheet]  # sheets have no inside (find_slabs)
-        if len(p) == 0 or len(solid) == 0:
-            return np.zeros(len(p), np.float64)
         return winding_number(self.v, solid, p)
 
     def closest(self, p: np.ndarray):

@@ -205,7 +205,10 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     axes = [axis_centres(box, shape, a) for a in range(3)]
     fine = np.repeat(np.repeat(np.repeat(side, factor, 0), factor, 1), factor, 2)
     points = np.stack([axes[a][sub[:, a]] for a in range(3)], axis=-1)
-    inside = dist.in_slab(points)
+    inside = np.zeros(len(points), bool)
+    if slabs:  # only a slab's own voxels can hold it (the centres' rule above)
+        at = np.repeat(slab[tuple(todo.T)], len(offsets))
+        inside[at] = dist.in_slab(points[at])
     inside[~inside] = dist.winding(points[~inside]) > 0.5
     fine[tuple(sub.T)] = inside
     return any_inside(fine, factor)
