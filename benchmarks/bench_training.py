@@ -3,6 +3,7 @@
     python benchmarks/bench_training.py [--presets tiny small detail paper] [--steps 5] [--threads 2] [--compile]
     python benchmarks/bench_training.py --grid [--resolutions 128 256] [--faces 77000]   # the grid stage
     python benchmarks/bench_training.py --flops [PRESET] [--threads 1] [--steps 3] [--compile]   # FLOP/s per stage
+    python benchmarks/bench_training.py --flops paper --device cuda [--dims 256 128 96]   # the same on a GPU
 
 Per stage of a fit: ``--grid`` times the first stage, mesh -> grid, on a bumpy textured sphere (77k faces, open);
 without it, one training step of each network:
@@ -33,7 +34,10 @@ FLOPs: the matrix products and convolutions of one forward pass as torch's FlopC
 their shapes (2 per multiply-add; elementwise work not counted); a training step counts 3 × its forward (the
 backward's two products per forward product), a sampling step and the decode their forward. The peak:
 :func:`cpu_peak` (cores used × clock × vector lanes × 2 FMA units × 2), beside a measured ceiling, the
-GFLOP/s of one [2048, 256] × [256, 256] product on this machine.
+GFLOP/s of one [2048, 256] × [256, 256] product on this machine. With ``--device cuda`` the same stages run on
+the GPU (wall time with a device sync; ``--dims`` sets the grid, e.g. the paper's 256 × 128 × 96), beside
+:func:`gpu_peak` (SMs × the highest SM clock × the architecture's FLOPs per clock per SM, for its fp32 cores and
+its TF32 and bf16 tensor cores) and the measured ceilings of one 8,192² product in fp32, TF32 and bf16.
 """
 
 from __future__ import annotations
@@ -42,8 +46,10 @@ import argparse
 import contextlib
 import os
 import re
+import subprocess
 import time
 import tracemalloc
+from collections import defaultdict
 from dataclasses import replace
 
 import numpy as np
@@ -196,6 +202,71 @@ def gemm_ceiling(repeats: int = 50) -> float:
     return 2 * 2048 * 256 * 256 / timed(lambda: a @ b, 1, warmup=2, repeats=repeats, cpu=True) / 1e9
 
 
+#: dense FLOPs per clock per SM by compute capability: fp32 cores, TF32 and bf16 tensor cores (NVIDIA's
+#: architecture whitepapers; 8.6/8.9 as on the workstation cards, whose GeForce siblings run half the tensor rate)
+SM_FLOPS_PER_CLOCK = {
+    (8, 0): (128, 1024, 2048),  # A100
+    (8, 6): (256, 512, 1024),  # A40, RTX A6000
+    (8, 9): (256, 512, 1024),  # L40, RTX 6000 Ada
+    (9, 0): (256, 2048, 4096),  # H100, H200
+}
+
+
+def gpu_peak(dev: torch.device) -> tuple[dict[str, float], str]:
+    """This GPU's peaks in GFLOP/s (``fp32``, ``tf32``, ``bf16``; dense) and how they were derived: SMs × the
+    highest SM clock ``nvidia-smi`` reports × :data:`SM_FLOPS_PER_CLOCK`. NVIDIA's datasheets quote the tensor
+    peaks at a lower clock (989 TFLOP/s bf16 dense for an H100/H200 SXM), so these are upper bounds."""
+    props = torch.cuda.get_device_properties(dev)
+    try:
+        out = subprocess.run(
+            ["nvidia-smi", "--query-gpu=clocks.max.sm", "--format=csv,noheader,nounits", "-i", str(dev.index or 0)],
+            capture_output=True,
+            text=True,
+            timeout=30,
+            check=True,
+        )
+        ghz = float(out.stdout.split()[0]) / 1000
+    except (OSError, subprocess.SubprocessError, ValueError, IndexError):
+        ghz = getattr(props, "clock_rate", float("nan")) / 1e6  # kHz where torch has it
+    rates = SM_FLOPS_PER_CLOCK.get((props.major, props.minor))
+    if rates is None:
+        return {}, f"{props.name}: compute capability {props.major}.{props.minor} not in SM_FLOPS_PER_CLOCK"
+    peaks = {k: props.multi_processor_count * ghz * r for k, r in zip(("fp32", "tf32", "bf16"), rates)}
+    how = (
+        f"{props.name}: {props.multi_processor_count} SMs x {ghz:.2f} GHz (nvidia-smi's max SM clock) x "
+        f"{rates[0]} / {rates[1]} / {rates[2]} FLOPs per clock per SM = fp32 {peaks['fp32'] / 1e3:.1f}, TF32 "
+        f"{peaks['tf32'] / 1e3:.0f}, bf16 {peaks['bf16'] / 1e3:.0f} TFLOP/s (dense)"
+    )
+    return peaks, how
+
+
+def gpu_ceilings(dev: torch.device, n: int = 8192) -> dict[str, float]:
+    """GFLOP/s of one ``n``² × ``n``² product on ``dev`` in fp32, TF32 and bf16 (the mean of 10 after 3)."""
+    a, b = torch.randn(n, n, device=dev), torch.randn(n, n, device=dev)
+    old = torch.backends.cuda.matmul.allow_tf32
+    res = {}
+    try:
+        for name, dtype, tf32 in (("fp32", torch.float32, False), ("tf32", torch.float32, True), ("bf16", None, False)):
+            torch.backends.cuda.matmul.allow_tf32 = tf32
+            x, y = (a, b) if dtype else (a.bfloat16(), b.bfloat16())
+            res[name] = 2 * n**3 / timed(synced(lambda x=x, y=y: x @ y, dev), 10, warmup=3) / 1e9
+    finally:
+        torch.backends.cuda.matmul.allow_tf32 = old
+    return res
+
+
+def synced(fn, dev: torch.device):
+    """``fn`` followed by a wait for the device, so that a wall clock times its work."""
+
+    def run():
+        out = fn()
+        if dev.type == "cuda":
+            torch.cuda.synchronize(dev)
+        return out
+
+    return run
+
+
 def _linear_pointwise_flops(x_shape, w_shape, *args, **kwargs) -> int:
     """oneDNN's fused product (``kernels/bf16ops.linear_relu``), which FlopCounterMode does not know: ``2·M·N·K``."""
     return 2 * int(np.prod(x_shape[:-1])) * w_shape[0] * w_shape[1]
@@ -214,19 +285,20 @@ def forward_flops(fn) -> float:
 
 
 def flops_stages(
-    precision: str, steps: int, grid: ShapeGrid, preset: str = "paper", compiled: bool = False
+    precision: str, steps: int, grid: ShapeGrid, preset: str = "paper", compiled: bool = False, device: str = "cpu"
 ) -> list[tuple[str, float, float]]:
-    """``(stage, seconds, FLOPs)`` of each stage of ``preset``'s networks in ``precision`` ("fp32" or "bf16");
-    ``compiled``: the denoiser step through torch.compile too."""
-    cfg = get_preset(preset)
+    """``(stage, seconds, FLOPs)`` of each stage of ``preset``'s networks in ``precision`` ("fp32" or "bf16") on
+    ``device`` (a CPU: process CPU time; a GPU: wall time after a sync); ``compiled``: the denoiser step through
+    torch.compile too."""
+    cfg, dev = get_preset(preset), torch.device(device)
     torch.manual_seed(0)
-    ae = AutoencoderTrainer(grid, replace(cfg.autoencoder, precision=precision))
-    dm = DiffusionTrainer(ae.latent(), replace(cfg.diffusion, ema_decay=0.0, precision=precision, compile=False))
+    ae = AutoencoderTrainer(grid, replace(cfg.autoencoder, precision=precision), device=dev)
+    dm = DiffusionTrainer(ae.latent(), replace(cfg.diffusion, ema_decay=0.0, precision=precision, compile=False), dev)
     h0, model = dm.h0, dm.model
     with torch.no_grad():
         f_ae, f_dm = 3 * forward_flops(ae.losses), 3 * forward_flops(dm.losses)
     n_sample = 5
-    ctx = (lambda: torch.autocast("cpu", torch.bfloat16)) if precision == "bf16" else contextlib.nullcontext
+    ctx = (lambda: torch.autocast(dev.type, torch.bfloat16)) if precision == "bf16" else contextlib.nullcontext
 
     def sampling():
         with ctx():
@@ -236,48 +308,81 @@ def flops_stages(
         with ctx():
             decode_grid(ae.model.decoder, h0, grid.aabb, max(grid.shape), with_color=True, coarse=None)
 
+    def clock(fn):
+        return timed(synced(fn, dev), steps, cpu=dev.type == "cpu", repeats=steps)
+
     f_sample, f_decode = forward_flops(sampling) / n_sample, forward_flops(decoding)
     rows = [
-        ("autoencoder step", timed(ae.step, steps, cpu=True), f_ae),
-        ("denoiser step", timed(dm.step, steps, cpu=True), f_dm),
-        ("sampling step", timed(sampling, steps, cpu=True) / n_sample, f_sample),
-        ("decode to the grid", timed(decoding, steps, cpu=True), f_decode),
+        ("autoencoder step", clock(ae.step), f_ae),
+        ("denoiser step", clock(dm.step), f_dm),
+        ("sampling step", clock(sampling) / n_sample, f_sample),
+        ("decode to the grid", clock(decoding), f_decode),
     ]
     if compiled:  # the same denoiser through torch.compile (DiffusionConfig.compile), its compile timed apart
-        dmc = DiffusionTrainer(dm.h0, replace(dm.cfg, compile=True))
+        dmc = DiffusionTrainer(dm.h0, replace(dm.cfg, compile=True), dev)
         t = time.perf_counter()
-        dmc.step()
+        synced(dmc.step, dev)()
         print(f"[{precision}] the denoiser compiled in {time.perf_counter() - t:.0f} s (wall)")
-        rows.insert(2, ("denoiser step, compiled", timed(dmc.step, steps, cpu=True), f_dm))
+        rows.insert(2, ("denoiser step, compiled", clock(dmc.step), f_dm))
     return rows
 
 
-def flops_report(steps: int, preset: str = "paper", compiled: bool = False) -> None:
-    """The ``--flops`` table: per stage, seconds, FLOPs, GFLOP/s and % of the peak, fp32 / plain fp32 / bf16."""
-    threads = torch.get_num_threads()
-    peak, how = cpu_peak(threads)
-    print(f"torch {torch.__version__}, {threads} thread(s); peak: {how}")
-    ceiling = gemm_ceiling()
-    print(f"measured ceiling: one [2048, 256] x [256, 256] fp32 product at {ceiling:.0f} GFLOP/s")
-    if preset == "paper":
+def flops_report(
+    steps: int, preset: str = "paper", compiled: bool = False, device: str = "cpu", dims: list[int] | None = None
+) -> None:
+    """The ``--flops`` table: per stage, seconds, FLOPs, GFLOP/s and % of the peak, fp32 / plain fp32 / bf16 (on
+    a GPU: fp32 / bf16, the compile only for bf16, which is what ``paper`` runs there)."""
+    dev = torch.device(device)
+    if dev.type == "cuda":
+        peaks, how = gpu_peak(dev)
+        ceilings = gpu_ceilings(dev)
+        print(f"torch {torch.__version__}, {dev}; peak: {how}")
+        print("measured ceiling, one 8192^2 product: " + ", ".join(f"{k} {v:,.0f}" for k, v in ceilings.items()))
+        peak_of, ceiling_of = defaultdict(lambda: float("nan"), peaks), ceilings
+    else:
+        threads = torch.get_num_threads()
+        peak, how = cpu_peak(threads)
+        print(f"torch {torch.__version__}, {threads} thread(s); peak: {how}")
+        ceiling = gemm_ceiling()
+        print(f"measured ceiling: one [2048, 256] x [256, 256] fp32 product at {ceiling:.0f} GFLOP/s")
+        peak_of, ceiling_of = defaultdict(lambda: peak), defaultdict(lambda: ceiling)
+    if dims:
+        grid = synthetic_grid(tuple(dims), 100_000)
+    elif preset == "paper":
         grid = synthetic_grid((64, 32, 24), 100_000)
     else:
         grid = timing_grid(get_preset(preset).grid.resolution, 100_000, box=(1.0, 0.92, 0.92))
     print(f"preset {preset}, grid {tuple(grid.shape)}")
-    runs = {"fp32": flops_stages("fp32", steps, grid, preset, compiled)}
-    pointops.ENABLED = False
-    try:
-        runs["fp32, plain decoder"] = flops_stages("fp32", steps, grid, preset)
-    finally:
-        pointops.ENABLED = True
-    runs["bf16 autocast"] = flops_stages("bf16", steps, grid, preset, compiled)
-    print("| stage | precision | seconds | GFLOP | GFLOP/s | % of peak | % of ceiling |")
-    print("|---|---|---|---|---|---|---|")
-    for stage, *_ in runs["fp32"]:
+    cuda = dev.type == "cuda"
+    runs = {"fp32": flops_stages("fp32", steps, grid, preset, compiled and not cuda, device)}
+    if not cuda:  # the decoder's fast paths are CPU kernels
+        pointops.ENABLED = False
+        try:
+            runs["fp32, plain decoder"] = flops_stages("fp32", steps, grid, preset)
+        finally:
+            pointops.ENABLED = True
+    runs["bf16 autocast"] = flops_stages("bf16", steps, grid, preset, compiled, device)
+    print("| stage | precision | seconds | GFLOP | GFLOP/s | against | % of peak | % of ceiling |")
+    print("|---|---|---|---|---|---|---|---|")
+    stages = list(dict.fromkeys(name for rows in runs.values() for name, *_ in rows))
+    for stage in stages:
         for label, rows in runs.items():
             for sec, fl in [(sec, fl / 1e9) for name, sec, fl in rows if name == stage]:
-                rate = f"{fl / sec:.0f} | {100 * fl / sec / peak:.0f} | {100 * fl / sec / ceiling:.0f}"
-                print(f"| {stage} | {label} | {sec:.3f} | {fl:.1f} | {rate} |")
+                key = against(label, stage, cuda)
+                rate = f"{fl / sec:.0f} | {key} | {100 * fl / sec / peak_of[key]:.1f} | "
+                print(f"| {stage} | {label} | {sec:.4f} | {fl:.1f} | {rate}{100 * fl / sec / ceiling_of[key]:.1f} |")
+
+
+def against(label: str, stage: str, cuda: bool) -> str:
+    """Which peak a stage's rate is held against: bf16 under autocast; on a GPU the fp32 convolutions of the
+    denoiser run on TF32 tensor cores (cuDNN's default, ``torch.backends.cudnn.allow_tf32``) while the point
+    MLPs' fp32 matrix products do not (``torch.backends.cuda.matmul.allow_tf32`` is off by default)."""
+    if not cuda:  # a CPU's peak here is its fp32 one
+        return "fp32"
+    if label.startswith("bf16"):
+        return "bf16"
+    convs = stage.startswith(("denoiser", "sampling"))
+    return "tf32" if convs and torch.backends.cudnn.allow_tf32 else "fp32"
 
 
 def timed(fn, steps: int, warmup: int = 2, repeats: int | None = None, cpu: bool = False) -> float:
@@ -320,6 +425,8 @@ def main() -> None:
         metavar="PRESET",
         help="FLOP/s per stage against the CPU's peak (default: the paper preset's networks)",
     )
+    ap.add_argument("--device", default="cpu", help="with --flops: cpu or cuda")
+    ap.add_argument("--dims", type=int, nargs=3, default=None, help="with --flops: the grid's size, e.g. 256 128 96")
     ap.add_argument("--resolutions", type=int, nargs="+", default=[128, 256], help="with --grid")
     ap.add_argument("--faces", type=int, default=77_000, help="with --grid: faces kept of 81,920 (81920: closed)")
     ap.add_argument("--points", type=int, default=300_000, help="with --grid: near-surface training samples")
@@ -330,7 +437,7 @@ def main() -> None:
         grid_times(a.resolutions, a.faces, a.points)
         return
     if a.flops:
-        flops_report(a.steps, a.flops, a.compile)
+        flops_report(a.steps, a.flops, a.compile, a.device, a.dims)
         return
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device cpu")
     for name in a.presets:

@@ -50,3 +50,20 @@ def test_the_calibration_replay_finds_a_pools_answer(monkeypatch, tmp_path, caps
     bench.report(str(path), replays=3)
     out = capsys.readouterr().out
     assert "the truth 0.55" in out and out.count("\n") >= 6 + len(bench.VARIANTS)
+
+
+def test_the_flops_table_holds_each_stage_against_the_peak_it_runs_on(monkeypatch):
+    """docs/performance.md's GPU table: bf16 rows against the bf16 tensor peak, the fp32 convolutions against TF32
+    (cuDNN's default), the point MLPs' fp32 products against the fp32 cores; a CPU's rows against its fp32 peak."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    import torch
+    from bench_training import against
+
+    monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", True)
+    assert against("bf16 autocast", "autoencoder step", cuda=True) == "bf16"
+    assert against("fp32", "denoiser step, compiled", cuda=True) == "tf32"
+    assert against("fp32", "autoencoder step", cuda=True) == "fp32"
+    assert against("fp32", "decode to the grid", cuda=True) == "fp32"
+    assert {against(p, "denoiser step", cuda=False) for p in ("fp32", "bf16 autocast")} == {"fp32"}
+    monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", False)
+    assert against("fp32", "denoiser step", cuda=True) == "fp32"
