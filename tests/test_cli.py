@@ -328,3 +328,21 @@ def test_a_mesh_without_colour_fits_its_geometry_only_and_its_samples_keep_the_g
     colors = mesh.vertex_colors if mesh.vertex_colors is not None else mesh.materials[0].image
     rgb = colors.reshape(-1, colors.shape[-1])[:, :3]
     np.testing.assert_allclose(rgb, np.broadcast_to(DEFAULT_COLOR, rgb.shape), atol=2 / 255)
+
+
+def test_warnings_are_one_line_and_a_librarys_syntax_warnings_are_not_shown(capsys, monkeypatch):
+    """A warning about the user's input reaches them as one line; a library's SyntaxWarning (its source compiled on
+    first import, e.g. without .pyc files) says nothing about their shape and is not printed."""
+    import warnings
+
+    import sin3dm_lite.cli as cli
+
+    def command(a):
+        warnings.simplefilter("always")
+        warnings.warn_explicit("invalid escape sequence '\\#'", SyntaxWarning, "/site/pcu/_geometry.py", 9)
+        warnings.warn("3 faces of 'x' are wound against their neighbours", stacklevel=2)
+
+    monkeypatch.setattr(cli, "run_command", command)
+    code, _, err = run(capsys, "examples")
+    assert code == 0
+    assert err.splitlines() == ["sin3dm-lite examples: warning: 3 faces of 'x' are wound against their neighbours"]

@@ -77,6 +77,8 @@ def main(argv: list[str] | None = None) -> int:
     show = warnings.showwarning
 
     def one_line(message, category, filename, lineno, file=None, line=None):  # warnings as one line, no source
+        if issubclass(category, SyntaxWarning):  # a library's source compiled on first import, not the user's input
+            return
         print(f"sin3dm-lite {a.command}: warning: {message}", file=sys.stderr)
 
     warnings.showwarning = one_line
