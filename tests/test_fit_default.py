@@ -45,15 +45,31 @@ def test_the_estimate_times_a_few_steps_of_each_network_and_scales_them_by_the_s
     est = fit_default.estimate_fit(tiny)
     assert torch.equal(torch.rand(4), before)
     assert est["autoencoder"] > 0 and est["denoiser"] > 0
-    assert est["other"] == pytest.approx(fit_default.OTHER_SHARE * (est["autoencoder"] + est["denoiser"]))
+    # tiny does not calibrate: the grid alone
+    assert est["other"] == pytest.approx(fit_default.OTHER_SHARE_GRID * (est["autoencoder"] + est["denoiser"]))
     assert est["total"] == pytest.approx(est["autoencoder"] + est["denoiser"] + est["other"])
     longer = fit_default.estimate_fit(tiny.updated(**{"autoencoder.steps": 100 * tiny.autoencoder.steps}))
     assert longer["autoencoder"] > 10 * est["autoencoder"]  # 100x the steps (timing noise aside)
-    line = fit_default.DefaultPreset("tiny", "why", {"autoencoder": 60, "denoiser": 120, "other": 27, "total": 207})
+    line = fit_default.DefaultPreset("quick", "why", {"autoencoder": 60, "denoiser": 120, "other": 27, "total": 207})
     assert line.lines()[1] == (
         "[fit] it should take about 3 min here (autoencoder 1.0 + denoiser 2.0 + grid and calibration 0.5 min, from "
         "3 steps of each timed just now)"
     )
+    paper = fit_default.DefaultPreset("paper", "why", {"autoencoder": 60, "denoiser": 120, "other": 2, "total": 182})
+    assert "+ grid 0.0 min, from" in paper.lines()[1]  # it does not calibrate: no calibration is promised
+
+
+def test_the_estimate_of_a_compiled_denoiser_is_its_share_of_the_eager_step_plus_the_compile(monkeypatch):
+    """`paper` compiles its denoiser (on a GPU 0.63 of the eager step after about 90 s); the estimate times the
+    eager step, so it scales it and adds the compile, or it overstates a GPU fit by a third."""
+    monkeypatch.setattr(fit_default, "_seconds_per_step", lambda trainer: 0.01)
+    tiny = get_preset("tiny")
+    eager = fit_default.estimate_fit(tiny)
+    compiled = fit_default.estimate_fit(tiny.updated(**{"diffusion.compile": True}))
+    assert eager["denoiser"] == pytest.approx(0.01 * tiny.diffusion.steps)
+    share, seconds = fit_default.COMPILED_SHARE["cpu"], fit_default.COMPILE_S["cpu"]
+    assert compiled["denoiser"] == pytest.approx(share * eager["denoiser"] + seconds)
+    assert compiled["autoencoder"] == eager["autoencoder"]
 
 
 class _FitCalled(Exception):
@@ -113,17 +129,19 @@ def test_an_explicit_preset_always_wins_and_is_not_timed(monkeypatch, tmp_path, 
 
 
 def test_the_estimates_share_for_grid_and_calibration_follows_where_the_fit_calibrates():
-    """The 128-voxel calibration of the finer presets takes a larger share; the presets judged on their own grid, and
-    `paper` (no calibration), keep the plain share."""
-    shares = {n: fit_default.other_share(get_preset(n)) for n in ("small", "quick", "detail", "fine", "paper")}
+    """The 128-voxel calibration of the finer presets takes a larger share than the presets judged on their own grid;
+    `paper` and `tiny` (no calibration) only build their grid."""
+    names = ("tiny", "small", "quick", "detail", "fine", "paper")
+    shares = {n: fit_default.other_share(get_preset(n)) for n in names}
     assert shares == {
+        "tiny": fit_default.OTHER_SHARE_GRID,
         "small": fit_default.OTHER_SHARE,
         "quick": fit_default.OTHER_SHARE,
         "detail": fit_default.OTHER_SHARE_AT_128,
         "fine": fit_default.OTHER_SHARE_AT_128,
-        "paper": fit_default.OTHER_SHARE,
+        "paper": fit_default.OTHER_SHARE_GRID,
     }
-    assert fit_default.OTHER_SHARE_AT_128 > fit_default.OTHER_SHARE
+    assert fit_default.OTHER_SHARE_AT_128 > fit_default.OTHER_SHARE > fit_default.OTHER_SHARE_GRID
 
 
 def test_a_time_budget_trains_both_networks_for_a_share_of_their_steps(monkeypatch, tmp_path, capsys):

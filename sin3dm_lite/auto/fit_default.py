@@ -30,6 +30,14 @@ from ..presets import get_preset
 OTHER_SHARE = 0.2
 #: the same where the calibration judges at 128 voxels by the paper's voxels (``detail``, ``fine``)
 OTHER_SHARE_AT_128 = 0.35
+#: the grid alone, for a fit that does not calibrate (``paper``: its 256-voxel grid in 7-9 s on a GPU, against
+#: about 20 min of training)
+OTHER_SHARE_GRID = 0.01
+#: a compiled denoiser step (``DiffusionConfig.compile``) as a share of the eager one the estimate times, and the
+#: compile's seconds, per device type: the ``paper`` denoiser on an H200 and an H100 (0.63 on both) and on two CPUs
+#: (0.8-0.93; docs/performance.md)
+COMPILED_SHARE = {"cuda": 0.63, "cpu": 0.9}
+COMPILE_S = {"cuda": 90.0, "cpu": 150.0}
 #: training steps timed per network (after untimed ones)
 TIMED_STEPS = 3
 #: the finer preset of each CPU preset, for a shape that is mostly thin parts
@@ -61,10 +69,13 @@ class DefaultPreset:
         """What ``fit`` says first: the preset and why, then how long."""
         said = [f"[fit] no preset named: '{self.name}' for {self.why}; name one to choose another (CLI --preset NAME)"]
         if self.seconds:
+            from .calibration import calibrates
+
             s = {k: v / 60 for k, v in self.seconds.items()}
+            other = "grid and calibration" if calibrates(get_preset(self.name)) else "grid"
             said.append(
                 f"[fit] it should take about {s['total']:.0f} min here (autoencoder {s['autoencoder']:.1f} + "
-                f"denoiser {s['denoiser']:.1f} + grid and calibration {s['other']:.1f} min, from "
+                f"denoiser {s['denoiser']:.1f} + {other} {s['other']:.1f} min, from "
                 f"{TIMED_STEPS} steps of each timed just now)"
             )
         return said
@@ -238,16 +249,20 @@ def _seconds_per_step(trainer) -> float:
 
 def other_share(cfg: Config) -> float:
     """The grid and the calibration as a share of the training's time: :data:`OTHER_SHARE_AT_128` where a fit of
-    ``cfg`` calibrates at 128 voxels, else :data:`OTHER_SHARE`."""
+    ``cfg`` calibrates at 128 voxels, :data:`OTHER_SHARE` where it calibrates on its training grid, and
+    :data:`OTHER_SHARE_GRID` where it does not calibrate."""
     from .calibration import calibrates, judged_at
 
-    return OTHER_SHARE_AT_128 if calibrates(cfg) and judged_at(cfg) else OTHER_SHARE
+    if not calibrates(cfg):
+        return OTHER_SHARE_GRID
+    return OTHER_SHARE_AT_128 if judged_at(cfg) else OTHER_SHARE
 
 
 def estimate_fit(cfg: Config, device=None, box=None, one_colour: bool = False) -> dict:
     """About how long a fit of ``cfg`` takes on ``device``, in seconds (``autoencoder``, ``denoiser``, ``other``,
     ``total``): a few steps of each network timed on :func:`timing_grid` (the denoiser uncompiled), times their
-    steps, plus :func:`other_share` for the grid and the calibration. ``box``: the shape's proportions
+    steps (a compiled denoiser at :data:`COMPILED_SHARE` of the eager step, plus :data:`COMPILE_S`), plus
+    :func:`other_share` for the grid and the calibration. ``box``: the shape's proportions
     (:func:`proportions`); ``one_colour``: :func:`one_colour`. The random state is left as it was."""
     from ..model.autoencoder import AutoencoderTrainer
     from ..model.diffusion import DiffusionTrainer
@@ -259,6 +274,8 @@ def estimate_fit(cfg: Config, device=None, box=None, one_colour: bool = False) -
         ae_s = _seconds_per_step(ae) * cfg.autoencoder.steps
         dm = DiffusionTrainer(ae.latent(), cfg.updated(**{"diffusion.compile": False}).diffusion, dev, 0)
         dn_s = _seconds_per_step(dm) * cfg.diffusion.steps
+    if cfg.diffusion.compile:
+        dn_s = dn_s * COMPILED_SHARE[dev.type] + COMPILE_S[dev.type]
     other = other_share(cfg) * (ae_s + dn_s)
     return {"autoencoder": ae_s, "denoiser": dn_s, "other": other, "total": ae_s + dn_s + other}
 
@@ -267,6 +284,7 @@ __all__ = [
     "FINER",
     "MOSTLY_THIN",
     "OTHER_SHARE",
+    "OTHER_SHARE_GRID",
     "THIN_RADIUS",
     "DefaultPreset",
     "choose_preset",
