@@ -466,6 +466,26 @@ def test_a_board_thinner_than_a_voxel_becomes_a_slab_with_a_warning():
     assert on.sum() > 100 and np.all(g.point_sdf[on] < 0)  # its training points inside
 
 
+def test_a_slabs_whole_band_has_the_surfaces_colour_and_its_exact_distance():
+    """A slab reaches beyond its face, so its band does too: every voxel of that band takes the closest face's colour
+    (a grey mesh stays one colour, as a real STL of thin ribs showed: its outer band was left black, and the fit
+    trained a texture it did not have) and its distance to the slab, not the band's edge value."""
+    with pytest.warns(UserWarning, match="parts thinner than"):
+        block = trimesh.creation.box(extents=(0.2, 0.4, 0.2)).apply_translation((0.6, 0.2, 0.35))  # not flat
+        g = mesh_to_grid(
+            textured(trimesh.util.concatenate([_board(), block])), 64, n_surface_points=2000, progress=False
+        )
+    band = np.abs(g.sdf) < g.threshold
+    assert np.all(g.color[band].max(axis=1) > 0.5)  # no voxel of the band left uncoloured
+    np.testing.assert_allclose(g.single_color(), [1.0, 1.0, 1.0])
+    middle, face = g.normalization.to_normalized(np.array([[0.0, 0.0, 0.0], [0.0, 0.002, 0.0]]))  # the top face
+    i, _, k = np.floor((middle - g.aabb[:3]) / g.voxel_size).astype(int)
+    column = g.sdf[i, :, k]  # through the middle of the board
+    to_face = np.abs(g.axis_coords(1) - middle[1]) - (face[1] - middle[1])
+    expected = np.minimum(to_face - g.voxel_size, g.threshold)  # its slab reaches a voxel beyond the face
+    np.testing.assert_allclose(column, expected, atol=1e-5)
+
+
 def test_a_hole_through_a_thin_board_stays_open():
     """The slab is the board pushed out along its normal: neither the hole's rim (thick along the board) nor the
     board's faces past their edge reach into the hole, which keeps its width to a voxel (2 voxels of slab each

@@ -87,11 +87,11 @@ def tsdf_grid(
             face[~far] = fi
             sdf[i, j, k], thick = dist.thicken(sign * np.minimum(d, threshold), centre, d, face, threshold)
             sure_grid[i, j, k] = sure & ~thick  # a slab's sign is not the winding number's
-            band = d < threshold
+            band = (d < threshold) | (np.isfinite(d) & (np.abs(sdf[i, j, k]) < threshold))  # and a slab's own band
             color[i[band], j[band], k[band]] = surface_channels(mesh, fi[band[~far]], bc[band[~far]], pbr)
             break
         h = (s - 1) * np.sqrt(3) / 2 * vs
-        far = d >= max(threshold, dist.reach_max) + h  # a slab may reach beyond the band
+        far = d >= threshold + dist.reach_max + h  # a slab's band reaches its reach beyond the face
         done = far & sure
         i, j, k = blocks[done].T
         _block_view(sdf, s)[i, :, j, :, k, :] = (sign[done] * threshold)[:, None, None, None]
