@@ -30,12 +30,10 @@ from ..presets import get_preset
 OTHER_SHARE = 0.2
 #: the same where the calibration judges at 128 voxels by the paper's voxels (``detail``, ``fine``)
 OTHER_SHARE_AT_128 = 0.35
-#: the grid alone, for a fit that does not calibrate (``paper``: its 256-voxel grid in 7-9 s on a GPU, against
-#: about 20 min of training)
+#: the grid alone, for a fit that does not calibrate (``paper``): seconds against its training's minutes
 OTHER_SHARE_GRID = 0.01
 #: a compiled denoiser step (``DiffusionConfig.compile``) as a share of the eager one the estimate times, and the
-#: compile's seconds, per device type: the ``paper`` denoiser on an H200 and an H100 (0.63 on both) and on two CPUs
-#: (0.8-0.93; docs/performance.md)
+#: compile's seconds, per device type (the ``paper`` denoiser on two GPUs and two CPUs: docs/performance.md)
 COMPILED_SHARE = {"cuda": 0.63, "cpu": 0.9}
 COMPILE_S = {"cuda": 90.0, "cpu": 150.0}
 #: training steps timed per network (after untimed ones)
