@@ -486,6 +486,16 @@ def test_a_slabs_whole_band_has_the_surfaces_colour_and_its_exact_distance():
     np.testing.assert_allclose(column, expected, atol=1e-5)
 
 
+def test_a_slab_thicker_than_the_band_stays_truncated():
+    """The grid's SDF is clipped to ±threshold everywhere; a slab is 1/32 of the longest side thick, more than the
+    band at 256 voxels (8 voxels against ±3), and its middle read -1.3 thresholds there."""
+    block = trimesh.creation.box(extents=(0.2, 0.4, 0.2)).apply_translation((0.6, 0.2, 0.35))
+    with pytest.warns(UserWarning, match="parts thinner than"):  # a band of half a voxel: the slab (±1) is thicker
+        g = mesh_to_grid(textured(trimesh.util.concatenate([_board(), block])), 64, 0.5, 2000, progress=False)
+    assert g.sdf.min() == pytest.approx(-g.threshold) and g.sdf.max() == pytest.approx(g.threshold)
+    assert (g.sdf < 0).sum() > 64 * 40  # the slab is still there, under the whole board
+
+
 def test_a_hole_through_a_thin_board_stays_open():
     """The slab is the board pushed out along its normal: neither the hole's rim (thick along the board) nor the
     board's faces past their edge reach into the hole, which keeps its width to a voxel (2 voxels of slab each

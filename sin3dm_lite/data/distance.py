@@ -160,11 +160,12 @@ class Distance:
     def thicken(self, sdf: np.ndarray, p: np.ndarray, d: np.ndarray, fi: np.ndarray, threshold: float) -> tuple:
         """``sdf`` at points ``p`` (signed by the winding number, truncated at ``threshold``) with the slabs of
         :meth:`find_slabs` (:meth:`slab_depth`): where the closest face (``fi``, at distance ``d``) has one, the
-        union ``min(sdf, depth)``. Returns the new SDF and where the closest face has a slab."""
+        union ``min(sdf, depth)``, truncated at ``±threshold`` like the rest (a slab may be thicker than the band:
+        at 256 voxels). Returns the new SDF and where the closest face has a slab."""
         if self.reach is None:
             return sdf, np.zeros(len(sdf), bool)
         depth, on = self.slab_depth(p, d, fi)
-        return np.where(on, np.minimum(sdf, np.minimum(depth, threshold)), sdf), on
+        return np.where(on, np.minimum(sdf, np.clip(depth, -threshold, threshold)), sdf), on
 
     def slab_depth(self, p: np.ndarray, d: np.ndarray, fi: np.ndarray) -> tuple:
         """The signed distance ``d - reach`` of points ``p`` to the slab of their closest face ``fi`` (at distance
