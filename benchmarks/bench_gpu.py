@@ -39,7 +39,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_training import timed  # noqa: E402  (a step ends in a device sync: the .tolist() of its losses)
+from bench_training import sync, timed  # noqa: E402  (a step ends in a device sync: the .tolist() of its losses)
 
 from sin3dm_lite import metrics  # noqa: E402
 from sin3dm_lite.app.device import get_device  # noqa: E402
@@ -53,11 +53,6 @@ from sin3dm_lite.pipeline import Sin3DM  # noqa: E402
 from sin3dm_lite.presets import get_preset  # noqa: E402
 
 SHORT_RUN_EMA = 0.999
-
-
-def sync(dev: torch.device) -> None:
-    if dev.type == "cuda":
-        torch.cuda.synchronize(dev)
 
 
 def reset_peak(dev: torch.device) -> None:

@@ -255,13 +255,18 @@ def gpu_ceilings(dev: torch.device, n: int = 8192) -> dict[str, float]:
     return res
 
 
+def sync(dev: torch.device) -> None:
+    """Wait for ``dev``'s queued work (nothing to wait for on a CPU)."""
+    if dev.type == "cuda":
+        torch.cuda.synchronize(dev)
+
+
 def synced(fn, dev: torch.device):
-    """``fn`` followed by a wait for the device, so that a wall clock times its work."""
+    """``fn`` followed by :func:`sync`, so that a wall clock times its work."""
 
     def run():
         out = fn()
-        if dev.type == "cuda":
-            torch.cuda.synchronize(dev)
+        sync(dev)
         return out
 
     return run
