@@ -30,7 +30,7 @@ with fast bf16 and on one without.
 
 from __future__ import annotations
 
-import sys
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -237,8 +237,12 @@ def boards(out: Path) -> None:
 
 
 def main() -> None:
-    args = [a for a in sys.argv[1:] if a not in ("--sweep", "--boards")]
-    out = Path(args[0] if args else "runs/meshes")
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("out", nargs="?", default="runs/meshes", help="the folder to write to (default runs/meshes)")
+    ap.add_argument("--sweep", action="store_true", help="also the sweep of families and the preset each takes")
+    ap.add_argument("--boards", action="store_true", help="also shelves of boards 0.05-4 voxels thick")
+    args = ap.parse_args()
+    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rocks().export(out / "rocks.stl")
     dunes().export(out / "dunes.ply")
@@ -254,9 +258,9 @@ def main() -> None:
         "courtyard.obj"
     )
     print(f"wrote {made} to {out}")
-    if "--sweep" in sys.argv[1:]:
+    if args.sweep:
         sweep(out)
-    if "--boards" in sys.argv[1:]:
+    if args.boards:
         boards(out)
 
 
