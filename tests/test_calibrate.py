@@ -290,7 +290,7 @@ def test_when_no_setting_keeps_lp_f_the_least_varied_non_copy_is_chosen_and_said
     if varies:
         assert cal.diversity == 0.4 and cal.note == (
             "no setting drawn kept LP-F 0.68: chose 0.4, the least varied setting whose samples are not copies "
-            "(G-Div 0.100 ≥ 0.100); a finer preset may keep more of the input"
+            "(G-Div 0.100 ≥ 0.100); below it the samples are copies (sample --diversity D picks another)"
         )
     else:
         assert cal.diversity == C.LOWEST and cal.note.endswith(

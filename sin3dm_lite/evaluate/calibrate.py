@@ -322,7 +322,8 @@ def _fallback(result: Calibration, copies: float | None = None) -> None:
         result.diversity = least
         result.note = (
             f"{missed}: chose {result.diversity:g}, the least varied setting whose samples are not copies (G-Div "
-            f"{by_setting[result.diversity]:.3f} ≥ {result.copy_line:.3f}); a finer preset may keep more of the input"
+            f"{by_setting[result.diversity]:.3f} ≥ {result.copy_line:.3f}); below it the samples are copies "
+            "(sample --diversity D picks another)"
         )
     else:
         result.diversity = min(by_setting) if by_setting else result.diversity
