@@ -82,7 +82,7 @@ def _quick_here(monkeypatch, seconds=(120, 60, 27)):
     monkeypatch.setattr(
         fit_default,
         "estimate_fit",
-        lambda cfg, device=None, box=None, one_colour=False: dict(
+        lambda cfg, device=None, box=None, one_colour=False, calibrated=True: dict(
             zip(("autoencoder", "denoiser", "other", "total"), (*seconds, sum(seconds)))
         ),
     )
@@ -331,3 +331,22 @@ def test_the_estimate_times_a_shape_of_one_colour_as_its_fit_trains_it(monkeypat
         with pytest.raises(Timed):
             fit_default.default_preset("cpu", mesh)
     assert timed == [True, False]
+
+
+def test_a_flat_mesh_keeps_the_machines_preset_and_is_not_calibrated():
+    """A flat mesh (a textured floor or field) is one slab: not a shape of thin parts that a finer grid keeps whole,
+    and no calibration on patch scores, which every setting's slab keeps alike; a mesh with relief is as before."""
+    from sin3dm_lite.auto.calibration import calibrates
+    from sin3dm_lite.data.mesh import Material, TexturedMesh
+
+    x, z = np.meshgrid(np.linspace(-1, 1, 12), np.linspace(-1, 1, 12))
+    i = np.arange(144).reshape(12, 12)
+    a, b, c, d = i[:-1, :-1].ravel(), i[:-1, 1:].ravel(), i[1:, :-1].ravel(), i[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
+    for height, flat in ((0.001, True), (0.3, False)):
+        v = np.stack([x, height * np.sin(3 * x), z], -1).reshape(-1, 3)
+        sheet = TexturedMesh(v, faces, np.zeros(len(faces), np.int64), [Material()], name="sheet")
+        name, why, share = fit_default.for_shape("quick", sheet)
+        assert (name == "quick" and "flat" in why and share is None) if flat else name == "fine"
+        assert calibrates(get_preset("quick"), sheet) is not flat
+    assert calibrates(get_preset("quick")) and not calibrates(get_preset("tiny"), sheet)

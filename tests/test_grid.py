@@ -1,5 +1,7 @@
 """mesh → TSDF + colour grid: signs and distances against independent computations."""
 
+import warnings
+
 import numpy as np
 import pytest
 import trimesh
@@ -530,12 +532,33 @@ def test_the_metrics_reference_keeps_a_thin_board_as_a_slab_too():
     assert column.min() >= 1 and column.max() <= 2  # a closed mesh, yet no voxel centre falls in the board itself
 
 
-def test_a_flat_terrain_is_refused_with_its_sides_and_what_to_do():
-    """A height field whose relief is under a voxel has nothing to learn: the error says so and how to mend it."""
+def test_a_flat_mesh_is_one_slab_in_a_box_that_holds_it():
+    """A mesh flatter than a voxel (a floor, a field, a decal) is an open sheet: one slab 1/32 of its longest side
+    thick, its colours kept, in a box as thick as the slab and its margin (it was refused, though its colours and
+    outline are a shape to learn); no word on holes, since the winding number decides nothing there."""
     flat = _height_field()
     flat.vertices[:, 1] *= 0.01  # ±0.003 over a side of 2
-    with pytest.raises(Sin3DMInputError, match=r"it is flat, 2 × 0\.00599 × 2, its thinnest side 0\.30% .* thickness"):
-        mesh_to_grid(textured(flat), 64, n_surface_points=0, progress=False)
+    red_left = np.where(flat.vertices[:, :1] < 0, [[1.0, 0.1, 0.1]], [[0.1, 0.1, 1.0]])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        g = mesh_to_grid(
+            textured(flat, vertex_colors=red_left), 64, n_surface_points=0, progress=False, margin_voxels=3.25
+        )
+    said = " ".join(str(w.message) for w in caught)
+    assert "100.0% of the surface of 'm' is open sheets" in said and "watertight" not in said
+    assert g.sdf.shape == (64, 16, 64)  # 2 voxels of slab and at least 3.25 of margin to each side, in 8s
+    solid = g.sdf < 0
+    assert solid.sum(axis=1)[8:56, 8:56].min() == 2 and solid.sum(axis=1).max() == 2  # one slab, 2 voxels thick
+    inside = g.color[solid]
+    assert inside[:, 0].max() > 0.9 and inside[:, 2].max() > 0.9  # red and blue halves both kept
+
+
+def test_a_mesh_without_area_has_no_inside_and_says_what_to_do():
+    """Faces of no area (every vertex on a line) make no sheet and no slab: the error names the flat sides."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], float)
+    line = TexturedMesh(v, np.array([[0, 1, 2], [1, 2, 3]]), np.zeros(2, np.int64), [Material()], name="m")
+    with pytest.raises(Sin3DMInputError, match=r"it is flat, 3 × 0 × 0, its thinnest side 0\.00% .* thickness"):
+        mesh_to_grid(line, 64, n_surface_points=0, progress=False)
 
 
 @pytest.mark.parametrize("down", [False, True])

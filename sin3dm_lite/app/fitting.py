@@ -118,7 +118,14 @@ class FitRun:
             "input_path": str(Path(source).resolve()) if from_file else None,  # to compare the run with it later
             "grid_shape": list(grid.shape),
         }
-        calibrate = calibrates(cfg) if calibrate is None else bool(calibrate)
+        if calibrate is None:
+            calibrate = calibrates(cfg, mesh)
+            if calibrates(cfg) and not calibrate:
+                self.say(
+                    f"[fit] '{grid.name}' is flat: every sample is the same slab, so the diversity is not calibrated "
+                    f"on its patches; samples default to the preset's {cfg.sampling.diversity:g}, their colours varying"
+                )
+        calibrate = bool(calibrate)
         model, history = self.denoise(cfg, grid, h0, ae, metrics, base, calibrate)
         review_fit(model, calibrate, self.say, self.run)
         if self.run is not None:

@@ -32,9 +32,14 @@ def default_goals(resolution: int | None) -> dict:
     return dict(UNCAPPED if resolution == PAPER_RESOLUTION else walk.GOALS)
 
 
-def calibrates(cfg) -> bool:
-    """Whether a fit of ``cfg`` calibrates its diversity when not told (``Sin3DM.fit(calibrate=None)``)."""
-    return cfg.name.split("+")[0] in CALIBRATED
+def calibrates(cfg, mesh=None) -> bool:
+    """Whether a fit of ``cfg`` (of ``mesh``, where known) calibrates its diversity when not told
+    (``Sin3DM.fit(calibrate=None)``). Not a flat mesh's (:func:`~sin3dm_lite.data.grid.is_flat`): every sample is
+    the same slab, so the patch scores it calibrates on cannot tell one setting from another."""
+    from ..data.grid import is_flat
+
+    flat = mesh is not None and is_flat(mesh.normalized(), cfg.grid.resolution)
+    return cfg.name.split("+")[0] in CALIBRATED and not flat
 
 
 def judged_at(cfg) -> int | None:

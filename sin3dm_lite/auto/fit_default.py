@@ -62,6 +62,7 @@ class DefaultPreset:
     why: str
     seconds: dict | None = None  # {"autoencoder", "denoiser", "other", "total"}
     thin_share: float | None = None  # the shape's share of thin parts (:func:`thin_share`) (None: not looked at)
+    calibrates: bool | None = None  # whether the fit will calibrate (None: as its preset does)
 
     def lines(self) -> list[str]:
         """What ``fit`` says first: the preset and why, then how long."""
@@ -70,7 +71,8 @@ class DefaultPreset:
             from .calibration import calibrates
 
             s = {k: v / 60 for k, v in self.seconds.items()}
-            other = "grid and calibration" if calibrates(get_preset(self.name)) else "grid"
+            will = calibrates(get_preset(self.name)) if self.calibrates is None else self.calibrates
+            other = "grid and calibration" if will else "grid"
             said.append(
                 f"[fit] it should take about {s['total']:.0f} min here (autoencoder {s['autoencoder']:.1f} + "
                 f"denoiser {s['denoiser']:.1f} + {other} {s['other']:.1f} min, from "
@@ -125,9 +127,14 @@ def proportions(mesh) -> tuple[float, float, float]:
 
 def for_shape(name: str, mesh) -> tuple[str, str, float | None]:
     """``(preset name, why in words, thin share)`` for ``mesh`` after the machine chose ``name``: the finer preset
-    (:data:`FINER`) where the shape is mostly thin parts, else ``name``; shapes on a GPU are not measured."""
+    (:data:`FINER`) where the shape is mostly thin parts, else ``name`` (a flat mesh too: its slab is not a thin part
+    of a shape); shapes on a GPU are not measured."""
     if mesh is None or name not in FINER:
         return name, "", None
+    from ..data.grid import is_flat
+
+    if is_flat(mesh.normalized(), get_preset(name).grid.resolution):
+        return name, " and this shape (flat: one slab, whose colours and outline its samples vary)", None
     share = thin_share(mesh, get_preset(name))
     if share > MOSTLY_THIN:
         why = (
@@ -141,11 +148,14 @@ def for_shape(name: str, mesh) -> tuple[str, str, float | None]:
 def default_preset(device=None, mesh=None, timed: bool = True) -> DefaultPreset:
     """The preset a fit of ``mesh`` (None: not measured) without one takes on ``device``, and (``timed``) its estimated
     time (:func:`estimate_fit`)."""
+    from .calibration import calibrates
+
     name, why = choose_preset(device)
     name, shape, share = for_shape(name, mesh)
     box = proportions(mesh) if mesh is not None else None
-    seconds = estimate_fit(get_preset(name), device, box, one_colour(mesh)) if timed else None
-    return DefaultPreset(name, why + shape, seconds, share)
+    calibrated = calibrates(get_preset(name), mesh)
+    seconds = estimate_fit(get_preset(name), device, box, one_colour(mesh), calibrated) if timed else None
+    return DefaultPreset(name, why + shape, seconds, share, calibrated)
 
 
 def within_minutes(cfg: Config, seconds: dict, minutes: float) -> tuple[dict, str]:
@@ -245,23 +255,24 @@ def _seconds_per_step(trainer) -> float:
     return min(times)
 
 
-def other_share(cfg: Config) -> float:
+def other_share(cfg: Config, calibrated: bool = True) -> float:
     """The grid and the calibration as a share of the training's time: :data:`OTHER_SHARE_AT_128` where a fit of
     ``cfg`` calibrates at 128 voxels, :data:`OTHER_SHARE` where it calibrates on its training grid, and
-    :data:`OTHER_SHARE_GRID` where it does not calibrate."""
+    :data:`OTHER_SHARE_GRID` where it does not calibrate (``calibrated=False``: not this shape, a flat one)."""
     from .calibration import calibrates, judged_at
 
-    if not calibrates(cfg):
+    if not (calibrated and calibrates(cfg)):
         return OTHER_SHARE_GRID
     return OTHER_SHARE_AT_128 if judged_at(cfg) else OTHER_SHARE
 
 
-def estimate_fit(cfg: Config, device=None, box=None, one_colour: bool = False) -> dict:
+def estimate_fit(cfg: Config, device=None, box=None, one_colour: bool = False, calibrated: bool = True) -> dict:
     """About how long a fit of ``cfg`` takes on ``device``, in seconds (``autoencoder``, ``denoiser``, ``other``,
     ``total``): a few steps of each network timed on :func:`timing_grid` (the denoiser uncompiled), times their
     steps (a compiled denoiser at :data:`COMPILED_SHARE` of the eager step, plus :data:`COMPILE_S`), plus
     :func:`other_share` for the grid and the calibration. ``box``: the shape's proportions
-    (:func:`proportions`); ``one_colour``: :func:`one_colour`. The random state is left as it was."""
+    (:func:`proportions`); ``one_colour``: :func:`one_colour`; ``calibrated``: False where the fit will not calibrate
+    this shape. The random state is left as it was."""
     from ..model.autoencoder import AutoencoderTrainer
     from ..model.diffusion import DiffusionTrainer
 
@@ -274,7 +285,7 @@ def estimate_fit(cfg: Config, device=None, box=None, one_colour: bool = False) -
         dn_s = _seconds_per_step(dm) * cfg.diffusion.steps
     if cfg.diffusion.compile:
         dn_s = dn_s * COMPILED_SHARE[dev.type] + COMPILE_S[dev.type]
-    other = other_share(cfg) * (ae_s + dn_s)
+    other = other_share(cfg, calibrated) * (ae_s + dn_s)
     return {"autoencoder": ae_s, "denoiser": dn_s, "other": other, "total": ae_s + dn_s + other}
 
 

@@ -245,9 +245,9 @@ def mesh_to_grid(
     say(f"[grid] '{mesh.name}': {len(m.faces):,} faces → grid {dims[0]}×{dims[1]}×{dims[2]}, band ±{threshold:.4f}")
 
     dist = Distance(m)
-    flat = float(np.ptp(m.vertices, axis=0).min()) < vs if len(m.vertices) else True
-    slabs = Slabs(0.0, 0.0) if flat else dist.find_slabs()  # a flat mesh stays an error below: no volume at all
-    for message in _surprises(mesh, m, dist) + _slab_notes(mesh.name, slabs, vs):
+    flat = is_flat(m, resolution)
+    slabs = dist.find_slabs() if len(m.faces) else Slabs(0.0, 0.0)  # a flat mesh: one slab (its box holds it)
+    for message in _surprises(mesh, m, dist, slabs) + _slab_notes(mesh.name, slabs, vs):
         warnings.warn(message, stacklevel=2)
     sdf, color, sure = tsdf_grid(dist, m, dims, aabb, vs, threshold, say, pbr=pbr)
     if not (sdf < 0).any():
@@ -264,10 +264,23 @@ def mesh_to_grid(
     return out
 
 
+#: a mesh whose surface is this share of open sheets or more is all slabs: the winding number decides nothing
+ALL_SHEETS = 0.999
+
+
+def is_flat(m: TexturedMesh, resolution: int) -> bool:
+    """Whether the normalised mesh ``m`` is thinner than a voxel of ``resolution`` along some axis (a floor, a
+    field, a decal): an open sheet whose slab (:meth:`Distance.find_slabs`) is all the grid holds."""
+    return float(np.ptp(m.vertices, axis=0).min()) < 2.0 / resolution if len(m.vertices) else True
+
+
 def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
-    """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space) and the grid's voxel counts."""
+    """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space) and the grid's voxel counts; a
+    flat mesh's box is as thick as its slab (:data:`SHEET_HALF` to each side)."""
     m = mesh.normalized()
     extent = m.bounds[1] - m.bounds[0]
+    if len(m.vertices) and is_flat(m, resolution):
+        extent = np.maximum(extent, 2 * SHEET_HALF)
     dims = np.array(grid_shape(extent, resolution, multiple=8))
     if margin_voxels > 0:
         shrink = margin_scale(extent, int(dims.max()), margin_voxels)
@@ -299,8 +312,9 @@ def _no_inside(mesh: TexturedMesh, resolution: int, flat: bool) -> str:
     )
 
 
-def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance) -> list[str]:
-    """The warnings a grid comes with: faces wound anew, inside-out parts turned round, :func:`normalisation_notes`."""
+def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance, slabs: Slabs) -> list[str]:
+    """The warnings a grid comes with: faces wound anew, inside-out parts turned round, :func:`normalisation_notes`
+    (but where the whole surface is open sheets, whose slabs need no winding number)."""
     notes, turned = [], dist.turned_round
     if turned.faces:
         notes.append(
@@ -317,7 +331,7 @@ def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance) -> 
             f"{what} (faces wound clockwise seen from outside); the grid turns them the right way round "
             "to tell inside from outside"
         )
-    return notes + normalisation_notes(mesh, normalised, dist.closed)
+    return notes + normalisation_notes(mesh, normalised, dist.closed or slabs.sheets >= ALL_SHEETS)
 
 
 def _slab_notes(name: str, slabs: Slabs, voxel: float) -> list[str]:
