@@ -532,25 +532,32 @@ def test_the_metrics_reference_keeps_a_thin_board_as_a_slab_too():
     assert column.min() >= 1 and column.max() <= 2  # a closed mesh, yet no voxel centre falls in the board itself
 
 
-def test_a_flat_mesh_is_one_slab_in_a_box_that_holds_it():
+@pytest.mark.parametrize("resolution, box, thick", [(64, 16, 2), (32, 8, 1)])
+def test_a_flat_mesh_is_one_slab_in_a_box_that_holds_it(resolution, box, thick):
     """A mesh flatter than a voxel (a floor, a field, a decal) is an open sheet: one slab 1/32 of its longest side
     thick, its colours kept, in a box as thick as the slab and its margin (it was refused, though its colours and
-    outline are a shape to learn); no word on holes, since the winding number decides nothing there."""
+    outline are a shape to learn); no word on holes, since the winding number decides nothing there. At 32 voxels
+    the slab is one voxel thick: the sheet lies off the plane where two rows of voxel centres meet, or it held none."""
     flat = _height_field()
     flat.vertices[:, 1] *= 0.01  # ±0.003 over a side of 2
     red_left = np.where(flat.vertices[:, :1] < 0, [[1.0, 0.1, 0.1]], [[0.1, 0.1, 1.0]])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         g = mesh_to_grid(
-            textured(flat, vertex_colors=red_left), 64, n_surface_points=0, progress=False, margin_voxels=3.25
+            textured(flat, vertex_colors=red_left), resolution, n_surface_points=0, progress=False, margin_voxels=3.25
         )
     said = " ".join(str(w.message) for w in caught)
     assert "100.0% of the surface of 'm' is open sheets" in said and "watertight" not in said
-    assert g.sdf.shape == (64, 16, 64)  # 2 voxels of slab and at least 3.25 of margin to each side, in 8s
+    assert g.sdf.shape == (resolution, box, resolution)  # the slab and at least 3.25 voxels of margin, in 8s
     solid = g.sdf < 0
-    assert solid.sum(axis=1)[8:56, 8:56].min() == 2 and solid.sum(axis=1).max() == 2  # one slab, 2 voxels thick
+    inner = slice(resolution // 8, -resolution // 8)
+    assert solid.sum(axis=1)[inner, inner].min() == thick and solid.sum(axis=1).max() == thick  # one slab
     inside = g.color[solid]
     assert inside[:, 0].max() > 0.9 and inside[:, 2].max() > 0.9  # red and blue halves both kept
+    # the sheet a quarter voxel off the mid-plane, and the slab mapped back onto the file's sheet within a voxel
+    assert abs(g.normalization.to_normalized(flat.vertices)[:, 1].mean() - 0.5 / resolution) < 1e-3
+    centres = g.normalization.to_original(g.voxel_centers()[solid])
+    assert np.abs(centres[:, 1]).max() <= 2 / resolution / g.normalization.scale
 
 
 def test_a_mesh_without_area_has_no_inside_and_says_what_to_do():

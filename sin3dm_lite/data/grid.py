@@ -276,10 +276,13 @@ def is_flat(m: TexturedMesh, resolution: int) -> bool:
 
 def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
     """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space) and the grid's voxel counts; a
-    flat mesh's box is as thick as its slab (:data:`SHEET_HALF` to each side)."""
+    flat mesh's box is as thick as its slab (:data:`SHEET_HALF` to each side), and the sheet lies a quarter voxel off
+    the box's mid-plane, where two rows of voxel centres meet: so its slab holds a row of them however few voxels
+    thick it is (one at 32)."""
     m = mesh.normalized()
     extent = m.bounds[1] - m.bounds[0]
-    if len(m.vertices) and is_flat(m, resolution):
+    flat = len(m.vertices) > 0 and is_flat(m, resolution)
+    if flat:
         extent = np.maximum(extent, 2 * SHEET_HALF)
     dims = np.array(grid_shape(extent, resolution, multiple=8))
     if margin_voxels > 0:
@@ -292,6 +295,12 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
             )
             extent = extent * shrink
         dims = np.array(grid_shape(extent, resolution, multiple=8, margin_voxels=margin_voxels))
+    if flat:
+        shift = np.where(np.ptp(m.vertices, axis=0) < 2.0 / resolution, 0.5 / dims.max(), 0.0)  # a quarter voxel
+        norm = m.normalization
+        m = replace(
+            m, vertices=m.vertices + shift, normalization=Normalization(norm.center - shift / norm.scale, norm.scale)
+        )
     return m, dims
 
 
