@@ -59,8 +59,7 @@ def template(tmp_path_factory):
     """Inputs of every kind, built once; each test works on its own copy."""
     root = tmp_path_factory.mktemp("inputs")
     trimesh.creation.box().export(root / "box.obj")
-    _obj(root / "tri.obj", [(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(1, 2, 3)])
-    _obj(root / "sheet.obj", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(1, 2, 3), (1, 3, 4)])
+    _obj(root / "sliver.obj", [(0, 0, 0), (1, 0, 0), (0, 1e-4, 0)], [(1, 2, 3)])  # flat, and narrower than a voxel
     tet = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)]
     _obj(root / "huge.obj", tet[:3] + [(0, 0, 1e300)], [(1, 3, 2), (1, 2, 4), (2, 3, 4), (1, 4, 3)])
     _obj(
@@ -236,8 +235,7 @@ CASES |= {
     # fit
     "fit-device": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--device", "gpu"], "device"),
     "fit-negative-seed": (["fit", "box.obj", "--preset", "tiny", "--out", "r", "--seed", "-3"], "seed"),
-    "fit-single-triangle": (["fit", "tri.obj", "--preset", "tiny", "--out", "r"], "no inside"),
-    "fit-open-sheet": (["fit", "sheet.obj", "--preset", "tiny", "--out", "r"], "no inside"),
+    "fit-sliver": (["fit", "sliver.obj", "--preset", "tiny", "--out", "r"], "no inside"),
     "fit-huge-vertex": (["fit", "huge.obj", "--preset", "tiny", "--out", "r"], "too large"),
     "fit-overflowing-box": (["fit", "overflow.obj", "--preset", "tiny", "--out", "r"], "too large"),
     "fit-out-contains-mesh": (["fit", "box.obj", "--preset", "tiny", "--out", "."], "input mesh"),
@@ -286,8 +284,7 @@ CASES |= {
     ),
     "fit-resume-old-diffusion-checkpoint": (["fit", "box.obj", "--out", "olddiffusion", "--resume"], "older version"),
     # grid
-    "grid-single-triangle": (["grid", "tri.obj", "--resolution", "32", "--out", "g.npz"], "no inside"),
-    "grid-open-sheet": (["grid", "sheet.obj", "--resolution", "32", "--out", "g.npz"], "no inside"),
+    "grid-sliver": (["grid", "sliver.obj", "--resolution", "32", "--out", "g.npz"], "no inside"),
     "grid-huge-vertex": (["grid", "huge.obj", "--resolution", "32", "--out", "g.npz"], "too large"),
     "grid-overflowing-box": (["grid", "overflow.obj", "--resolution", "32", "--out", "g.npz"], "too large"),
     "grid-out-exists": (["grid", "box.obj", "--resolution", "32", "--out", "grid.npz"], "--overwrite"),
@@ -429,7 +426,7 @@ def test_grid_and_examples_overwrite_only_their_own(work, capsys):
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # two training steps
 def test_failing_fresh_fit_leaves_no_run_folder(work, capsys):
-    assert main(["fit", "sheet.obj", "--preset", "tiny", "--out", "runs/r"]) == 2
+    assert main(["fit", "sliver.obj", "--preset", "tiny", "--out", "runs/r"]) == 2
     assert not (work / "runs" / "r").exists()
     assert not [p for p in (work / "runs").iterdir()]  # no temporary folder either
     two_steps = ["--set", "autoencoder.steps=2", "diffusion.steps=2"]  # a whole fit, every stage, in seconds

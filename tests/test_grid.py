@@ -564,7 +564,10 @@ def test_a_mesh_without_area_has_no_inside_and_says_what_to_do():
     """Faces of no area (every vertex on a line) make no sheet and no slab: the error names the flat sides."""
     v = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], float)
     line = TexturedMesh(v, np.array([[0, 1, 2], [1, 2, 3]]), np.zeros(2, np.int64), [Material()], name="m")
-    with pytest.raises(Sin3DMInputError, match=r"it is flat, 3 × 0 × 0, its thinnest side 0\.00% .* thickness"):
+    with pytest.raises(
+        Sin3DMInputError,
+        match=r"it is flat, 3 × 0 × 0, its thinnest side 0\.00% .* covers no voxel centre .* thickness",
+    ):
         mesh_to_grid(line, 64, n_surface_points=0, progress=False)
 
 

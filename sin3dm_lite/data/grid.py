@@ -315,9 +315,8 @@ def _no_inside(mesh: TexturedMesh, resolution: int, flat: bool) -> str:
     sides = " × ".join(f"{x:.3g}" for x in side)
     return (
         f"'{mesh.name}' has no inside at {resolution} voxels: it is flat, {sides}, its thinnest side "
-        f"{side.min() / max(side.max(), 1e-300):.2%} of its longest, under one voxel (a single triangle, a flat sheet "
-        "or terrain); give it a thickness in an editor (a terrain: extrude it down into a solid block, or raise its "
-        "heights)"
+        f"{side.min() / max(side.max(), 1e-300):.2%} of its longest, and the slab a flat mesh becomes covers no voxel "
+        "centre (a sliver, or faces narrower than a voxel); give it some width and thickness in an editor"
     )
 
 
