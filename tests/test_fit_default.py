@@ -349,4 +349,4 @@ def test_a_flat_mesh_keeps_the_machines_preset_and_is_not_calibrated():
         name, why, share = fit_default.for_shape("quick", sheet)
         assert (name == "quick" and "flat" in why and share is None) if flat else name == "fine"
         assert calibrates(get_preset("quick"), sheet) is not flat
-    assert calibrates(get_preset("quick")) and not calibrates(get_preset("tiny"), sheet)
+    assert calibrates(get_preset("quick"))  # a mesh not known (a resumed run's grid): as the preset does

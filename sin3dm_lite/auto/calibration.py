@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..data.grid import is_flat
 from ..data.source import resolve_mesh
 from ..errors import Sin3DMInputError
 from ..evaluate import calibrate as walk  # looked up at each call: a test or notebook may swap its parts
@@ -36,8 +37,6 @@ def calibrates(cfg, mesh=None) -> bool:
     """Whether a fit of ``cfg`` (of ``mesh``, where known) calibrates its diversity when not told
     (``Sin3DM.fit(calibrate=None)``). Not a flat mesh's (:func:`~sin3dm_lite.data.grid.is_flat`): every sample is
     the same slab, so the patch scores it calibrates on cannot tell one setting from another."""
-    from ..data.grid import is_flat
-
     flat = mesh is not None and is_flat(mesh.normalized(), cfg.grid.resolution)
     return cfg.name.split("+")[0] in CALIBRATED and not flat
 

@@ -23,6 +23,7 @@ import torch
 
 from ..app.device import bf16_is_fast, cpu_bf16_share, get_device
 from ..data.config import Config
+from ..data.grid import is_flat
 from ..errors import Sin3DMInputError
 from ..presets import get_preset
 
@@ -131,8 +132,6 @@ def for_shape(name: str, mesh) -> tuple[str, str, float | None]:
     of a shape); shapes on a GPU are not measured."""
     if mesh is None or name not in FINER:
         return name, "", None
-    from ..data.grid import is_flat
-
     if is_flat(mesh.normalized(), get_preset(name).grid.resolution):
         return name, " and this shape (flat: one slab, whose colours and outline its samples vary)", None
     share = thin_share(mesh, get_preset(name))

@@ -268,10 +268,15 @@ def mesh_to_grid(
 ALL_SHEETS = 0.999
 
 
+def flat_axes(m: TexturedMesh, resolution: int) -> np.ndarray:
+    """``(3,)`` bool: the axes along which the normalised mesh ``m`` is thinner than a voxel of ``resolution``."""
+    return np.ptp(m.vertices, axis=0) < 2.0 / resolution if len(m.vertices) else np.zeros(3, bool)
+
+
 def is_flat(m: TexturedMesh, resolution: int) -> bool:
     """Whether the normalised mesh ``m`` is thinner than a voxel of ``resolution`` along some axis (a floor, a
     field, a decal): an open sheet whose slab (:meth:`Distance.find_slabs`) is all the grid holds."""
-    return float(np.ptp(m.vertices, axis=0).min()) < 2.0 / resolution if len(m.vertices) else True
+    return bool(flat_axes(m, resolution).any())
 
 
 def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
@@ -281,8 +286,8 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
     thick it is (one at 32)."""
     m = mesh.normalized()
     extent = m.bounds[1] - m.bounds[0]
-    flat = len(m.vertices) > 0 and is_flat(m, resolution)
-    if flat:
+    flat = flat_axes(m, resolution)
+    if flat.any():
         extent = np.maximum(extent, 2 * SHEET_HALF)
     dims = np.array(grid_shape(extent, resolution, multiple=8))
     if margin_voxels > 0:
@@ -295,8 +300,8 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
             )
             extent = extent * shrink
         dims = np.array(grid_shape(extent, resolution, multiple=8, margin_voxels=margin_voxels))
-    if flat:
-        shift = np.where(np.ptp(m.vertices, axis=0) < 2.0 / resolution, 0.5 / dims.max(), 0.0)  # a quarter voxel
+    if flat.any():
+        shift = np.where(flat, 0.5 / dims.max(), 0.0)  # a quarter voxel
         norm = m.normalization
         m = replace(
             m, vertices=m.vertices + shift, normalization=Normalization(norm.center - shift / norm.scale, norm.scale)
