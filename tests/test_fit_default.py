@@ -350,3 +350,35 @@ def test_a_flat_mesh_keeps_the_machines_preset_and_is_not_calibrated():
         assert (name == "quick" and "flat" in why and share is None) if flat else name == "fine"
         assert calibrates(get_preset("quick"), sheet) is not flat
     assert calibrates(get_preset("quick"))  # a mesh not known (a resumed run's grid): as the preset does
+
+
+def test_the_estimate_times_a_grid_of_the_voxels_the_fit_will_train(monkeypatch):
+    """The training grid keeps a margin of empty voxels around the shape, and a flat mesh's box is as thick as its
+    slab: the estimate's timing grid has the fit's own voxel counts (the steps' cost follows them), for a box, a
+    long thin part and a flat sheet."""
+    import trimesh
+
+    from sin3dm_lite.data.grid import mesh_to_grid
+    from sin3dm_lite.model import autoencoder
+
+    from .conftest import textured
+
+    timed = []
+
+    class Timed(Exception):
+        pass
+
+    def record(grid, *args, **kwargs):
+        timed.append(grid.sdf.shape)
+        raise Timed
+
+    monkeypatch.setattr(autoencoder, "AutoencoderTrainer", record)
+    cfg = get_preset("tiny")
+    for extents in ((2.0, 1.0, 1.3), (0.2, 3.0, 0.25), (2.0, 0.001, 1.5)):
+        mesh = textured(trimesh.creation.box(extents=extents))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            grid = mesh_to_grid(mesh, cfg.grid.resolution, n_surface_points=2000, margin_voxels=cfg.grid.margin_voxels)
+        with pytest.raises(Timed):
+            fit_default.estimate_fit(cfg, "cpu", fit_default.proportions(mesh))
+        assert timed[-1] == grid.sdf.shape

@@ -214,16 +214,19 @@ def _steps_at(cfg: Config, share: float) -> tuple[dict, str]:
     return {"autoencoder.steps": ae, "diffusion.steps": dn}, steps
 
 
-def timing_grid(resolution: int, n_points: int = 20_000, box=None, one_colour: bool = False):
+def timing_grid(
+    resolution: int, n_points: int = 20_000, box=None, one_colour: bool = False, margin_voxels: float = 0.0
+):
     """A synthetic shape for timing (a step's cost depends on the grid's size, the points and the colours, not on
-    the shape): a ball in a box of ``resolution`` × half × half voxels (``box``: the sides over the longest of the
-    shape to fit), coloured by position, or grey all over (``one_colour``)."""
-    from ..data.box import grid_shape
+    the shape): a ball in the training grid (:func:`~sin3dm_lite.data.box.training_dims`, with ``margin_voxels``) of
+    a shape of sides ``box`` over the longest (default 1 × ½ × ½), coloured by position, or grey all over
+    (``one_colour``)."""
+    from ..data.box import training_dims
     from ..data.grid import ShapeGrid
     from ..data.mesh import Normalization
 
     box = (1.0, 0.5, 0.5) if box is None else box
-    dims = np.array(grid_shape(tuple(2.0 * b for b in box), resolution, multiple=8))
+    dims = training_dims(2.0 * np.asarray(box, np.float64), resolution, margin_voxels)[1]
     half = dims / dims.max()
     aabb = np.concatenate([-half, half]).astype(np.float32)
     thr = 6.0 / dims.max()
@@ -277,7 +280,7 @@ def estimate_fit(cfg: Config, device=None, box=None, one_colour: bool = False, c
 
     dev = get_device(device)
     with torch.random.fork_rng(devices=[dev] if dev.type == "cuda" else []):
-        grid = timing_grid(cfg.grid.resolution, box=box, one_colour=one_colour)
+        grid = timing_grid(cfg.grid.resolution, box=box, one_colour=one_colour, margin_voxels=cfg.grid.margin_voxels)
         ae = AutoencoderTrainer(grid, cfg.updated(**{"autoencoder.pbr": False}).autoencoder, dev, 0)
         ae_s = _seconds_per_step(ae) * cfg.autoencoder.steps
         dm = DiffusionTrainer(ae.latent(), cfg.updated(**{"diffusion.compile": False}).diffusion, dev, 0)

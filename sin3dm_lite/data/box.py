@@ -17,6 +17,10 @@ import numpy as np
 
 from ..errors import Sin3DMInputError
 
+#: a sheet becomes a slab of this half thickness, in normalised units (the longest side spans 2): a voxel of a
+#: 64-voxel grid either side, 1/32 of the shape's longest side in all
+SHEET_HALF = 1 / 32
+
 
 def as_aabb(aabb) -> np.ndarray:
     """``(6,)`` float64 box from an array-like or from anything with an ``.aabb`` (a ``ShapeGrid``)."""
@@ -111,4 +115,36 @@ def to_index(points, aabb, shape) -> np.ndarray:
     return (np.asarray(points, np.float64) - box[:3]) / (box[3:] - box[:3]) * np.asarray(shape) - 0.5
 
 
-__all__ = ["as_aabb", "axis_centres", "cell_centres", "centred_box", "grid_shape", "margin_scale", "to_box", "to_index"]
+def flat_axes(extent, resolution: int) -> np.ndarray:
+    """``(3,)`` bool: the axes along which a normalised shape of sides ``extent`` is thinner than a voxel of
+    ``resolution``."""
+    return np.asarray(extent) < 2.0 / resolution
+
+
+def training_dims(extent, resolution: int, margin_voxels: float) -> tuple[float, np.ndarray]:
+    """``(shrink, voxels per axis)`` of the training grid of a normalised shape of sides ``extent``: the factor that
+    leaves ``margin_voxels`` of empty space around it, and the counts (multiples of 8) of its grid; a flat shape's
+    box is as thick as its slab (:data:`SHEET_HALF` to each side). The fit's estimate times a grid of these too."""
+    extent = np.asarray(extent, np.float64)
+    if flat_axes(extent, resolution).any():
+        extent = np.maximum(extent, 2 * SHEET_HALF)
+    dims = np.array(grid_shape(extent, resolution, multiple=8))
+    if margin_voxels <= 0:
+        return 1.0, dims
+    shrink = margin_scale(extent, int(dims.max()), margin_voxels)
+    return shrink, np.array(grid_shape(extent * shrink, resolution, multiple=8, margin_voxels=margin_voxels))
+
+
+__all__ = [
+    "SHEET_HALF",
+    "as_aabb",
+    "axis_centres",
+    "cell_centres",
+    "centred_box",
+    "flat_axes",
+    "grid_shape",
+    "margin_scale",
+    "to_box",
+    "to_index",
+    "training_dims",
+]

@@ -19,6 +19,7 @@ from typing import NamedTuple
 import numpy as np
 import point_cloud_utils as pcu
 
+from .box import SHEET_HALF
 from .mesh import TexturedMesh, component_labels, unique_rows
 
 
@@ -299,9 +300,6 @@ def _agreeing_winding(fw: np.ndarray) -> np.ndarray:
 
 #: below this mean of a face's two sides' winding numbers the face bounds no volume (a bounding face's is ½)
 SHEET_MEAN = 0.25
-#: a sheet becomes a slab of this half thickness, in normalised units (the longest side spans 2): a voxel of a
-#: 64-voxel grid either side, 1/32 of the shape's longest side in all
-SHEET_HALF = 1 / 32
 #: how many faces of each open part :meth:`Distance.find_slabs` asks at most
 SHEET_FACES = 4096
 #: the depths behind a face at which :meth:`Distance.find_slabs` asks whether the part is still inside: a part

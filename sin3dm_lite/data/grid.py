@@ -24,9 +24,9 @@ import numpy as np
 
 from ..errors import Sin3DMInputError
 from ..files import atomic_path
-from .box import axis_centres, centred_box, grid_shape, margin_scale, to_box
+from .box import SHEET_HALF, axis_centres, centred_box, flat_axes, to_box, training_dims
 from .config import LIMITS
-from .distance import SHEET_HALF, THIN_DEPTHS, Distance, Slabs
+from .distance import THIN_DEPTHS, Distance, Slabs
 from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, unique_rows
 from .tsdf import PBR_CHANNELS, point_tsdf, tsdf_grid
 
@@ -268,38 +268,26 @@ def mesh_to_grid(
 ALL_SHEETS = 0.999
 
 
-def flat_axes(m: TexturedMesh, resolution: int) -> np.ndarray:
-    """``(3,)`` bool: the axes along which the normalised mesh ``m`` is thinner than a voxel of ``resolution``."""
-    return np.ptp(m.vertices, axis=0) < 2.0 / resolution if len(m.vertices) else np.zeros(3, bool)
-
-
 def is_flat(m: TexturedMesh, resolution: int) -> bool:
     """Whether the normalised mesh ``m`` is thinner than a voxel of ``resolution`` along some axis (a floor, a
     field, a decal): an open sheet whose slab (:meth:`Distance.find_slabs`) is all the grid holds."""
-    return bool(flat_axes(m, resolution).any())
+    return bool(len(m.vertices)) and bool(flat_axes(np.ptp(m.vertices, axis=0), resolution).any())
 
 
 def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
-    """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space) and the grid's voxel counts; a
-    flat mesh's box is as thick as its slab (:data:`SHEET_HALF` to each side), and the sheet lies a quarter voxel off
-    the box's mid-plane, where two rows of voxel centres meet: so its slab holds a row of them however few voxels
-    thick it is (one at 32)."""
+    """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space) and the grid's voxel counts
+    (:func:`training_dims`); a flat mesh's sheet lies a quarter voxel off the box's mid-plane, where two rows of voxel
+    centres meet: so its slab holds a row of them however few voxels thick it is (one at 32)."""
     m = mesh.normalized()
-    extent = m.bounds[1] - m.bounds[0]
-    flat = flat_axes(m, resolution)
-    if flat.any():
-        extent = np.maximum(extent, 2 * SHEET_HALF)
-    dims = np.array(grid_shape(extent, resolution, multiple=8))
-    if margin_voxels > 0:
-        shrink = margin_scale(extent, int(dims.max()), margin_voxels)
-        if shrink < 1:
-            m = replace(
-                m,
-                vertices=m.vertices * shrink,
-                normalization=Normalization(m.normalization.center, m.normalization.scale * shrink),
-            )
-            extent = extent * shrink
-        dims = np.array(grid_shape(extent, resolution, multiple=8, margin_voxels=margin_voxels))
+    extent = np.ptp(m.vertices, axis=0) if len(m.vertices) else np.ones(3)
+    flat = flat_axes(extent, resolution)
+    shrink, dims = training_dims(extent, resolution, margin_voxels)
+    if shrink < 1:
+        m = replace(
+            m,
+            vertices=m.vertices * shrink,
+            normalization=Normalization(m.normalization.center, m.normalization.scale * shrink),
+        )
     if flat.any():
         shift = np.where(flat, 0.5 / dims.max(), 0.0)  # a quarter voxel
         norm = m.normalization
