@@ -236,7 +236,7 @@ def mesh_to_grid(
     t0 = time.perf_counter()
     _check_coordinates(mesh)
     pbr = mesh.has_pbr if pbr is None else bool(pbr)
-    m, dims = _normalised(mesh, resolution, margin_voxels)
+    m, dims, flat = _normalised(mesh, resolution, margin_voxels)
     aabb = centred_box(dims)
     vs = 2.0 / dims.max()
     threshold = float(threshold_voxels * vs)
@@ -245,7 +245,6 @@ def mesh_to_grid(
     say(f"[grid] '{mesh.name}': {len(m.faces):,} faces → grid {dims[0]}×{dims[1]}×{dims[2]}, band ±{threshold:.4f}")
 
     dist = Distance(m)
-    flat = is_flat(m, resolution)
     slabs = dist.find_slabs() if len(m.faces) else Slabs(0.0, 0.0)  # a flat mesh: one slab (its box holds it)
     for message in _surprises(mesh, m, dist, slabs) + _slab_notes(mesh.name, slabs, vs):
         warnings.warn(message, stacklevel=2)
@@ -275,9 +274,10 @@ def is_flat(m: TexturedMesh, resolution: int) -> bool:
 
 
 def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
-    """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space) and the grid's voxel counts
-    (:func:`training_dims`); a flat mesh's sheet lies a quarter voxel off the box's mid-plane, where two rows of voxel
-    centres meet: so its slab holds a row of them however few voxels thick it is (one at 32)."""
+    """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space), the grid's voxel counts
+    (:func:`training_dims`) and whether it is flat (decided before the shrink, as :func:`is_flat` decides); a flat
+    sheet lies a quarter voxel off the box's mid-plane, where two rows of voxel centres meet: so its slab holds a row
+    of them however few voxels thick it is (one at 32)."""
     m = mesh.normalized()
     extent = np.ptp(m.vertices, axis=0) if len(m.vertices) else np.ones(3)
     flat = flat_axes(extent, resolution)
@@ -294,7 +294,7 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
         m = replace(
             m, vertices=m.vertices + shift, normalization=Normalization(norm.center - shift / norm.scale, norm.scale)
         )
-    return m, dims
+    return m, dims, bool(flat.any())
 
 
 def _no_inside(mesh: TexturedMesh, resolution: int, flat: bool) -> str:
