@@ -651,17 +651,17 @@ def test_a_bf16_decoder_is_judged_with_its_plane_convolutions_in_fp32(calibrated
 
 def test_cli_calibrate_rewrites_the_run_config(calibrated, capsys, tmp_path):
     """The barely trained micro model keeps no patches, not even in its near copy, so its goals stay absolute, no
-    setting keeps them, and the calibration lands on the least varied setting whose samples are no copies: 0.12,
-    drawn halfway between 0.2 and the copies at 0.1 (G-Div under 0.10)."""
+    setting keeps them, and the calibration lands on the least varied setting whose samples are no copies: 0.3, drawn
+    on the fit's walk (rungs 0.2 apart) halfway between the copies at 0.2 (G-Div under 0.10) and 0.6, then 0.4."""
     _, run = calibrated
     cfg = json.loads((run / "config.json").read_text())
     cfg["sampling"]["diversity"] = 0.9  # config.json is rewritten from the model the command loads and calibrates
     (run / "config.json").write_text(json.dumps(cfg))
     code = main(["calibrate", str(run), "-n", "2", "--lp-iou", "0.3", "--lp-f", "0.4"])
     out = capsys.readouterr().out
-    assert code == 0 and "→ 0.12, judged at 24 voxels" in out and "saved" in out and "sets no ceiling" in out
-    assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == 0.12
-    assert Sin3DM.load(run).config.sampling.diversity == 0.12
+    assert code == 0 and "→ 0.3, judged at 24 voxels" in out and "saved" in out and "sets no ceiling" in out
+    assert json.loads((run / "config.json").read_text())["sampling"]["diversity"] == 0.3
+    assert Sin3DM.load(run).config.sampling.diversity == 0.3
     report = json.loads((run / "report.json").read_text())
     assert (
         report["calibration"]["goals"] == report["calibration"]["absolute_goals"] == {"lp_iou": 0.3, "lp_fscore": 0.4}
@@ -892,7 +892,7 @@ def test_judged_at_the_papers_grid_the_goals_are_the_near_copys_shares_alone(mon
     """At 128 voxels against the mesh (``detail``, ``fine``, ``calibrate --resolution 128``) a default keeps 85 % of
     its near copy's LP-F and 65 % of its LP-IoU, however high those are; on a training grid the absolute goals cap
     them (a 64-voxel near copy keeps almost every patch). The story says which, and what the walk was given: at 128
-    the coarser ladder (``COARSE_WALK``)."""
+    the fit's walk (``COARSE_WALK``) on either grid."""
     from types import SimpleNamespace
 
     from sin3dm_lite.auto import calibration
@@ -914,8 +914,8 @@ def test_judged_at_the_papers_grid_the_goals_are_the_near_copys_shares_alone(mon
     calibration.calibrate_model(model, reference=np.zeros((64, 48, 48), bool), progress=False)
     calibration.calibrate_model(model, reference=np.zeros((128, 96, 96), bool), progress=False, goals={"lp_iou": 0.3})
     assert asked == [calibration.UNCAPPED, C.GOALS, {"lp_iou": 0.3}]
-    # at 128 voxels, where each setting's samples cost the most, the coarser walk; on a training grid the default
-    assert walks == [calibration.COARSE_WALK, {"step": None, "refine": None}, calibration.COARSE_WALK]
+    # the fit's walk on either grid: rungs 0.2 apart, two draws near the answer
+    assert walks == [calibration.COARSE_WALK] * 3
     calibration.calibrate_model(model, reference=np.zeros((128, 96, 96), bool), progress=False, step=0.1)
     assert walks[-1] == {"step": 0.1, "refine": 2}  # what is asked wins
     assert model.config.sampling.diversity == 0.5

@@ -22,9 +22,9 @@ PAPER_RESOLUTION = 128
 #: the goals' caps at :data:`PAPER_RESOLUTION`: none, each goal is its share of the shape's own near copy; on a
 #: training grid, whose near copy keeps almost every patch, the absolute goals (``evaluate.calibrate.GOALS``) cap them
 UNCAPPED = {"lp_iou": 1.0, "lp_fscore": 1.0}
-#: the walk at :data:`PAPER_RESOLUTION`, where each setting's samples cost the most: rungs twice as far apart and
-#: half the draws near the answer; replayed on stored samples of real fits (benchmarks/bench_calibration.py,
-#: docs/calibration.md) it draws far fewer samples for choices as close to the answer
+#: the walk a fit's calibration takes, on any grid: rungs 0.2 apart and two draws near the answer (the walk's own
+#: defaults are 0.1 and four); replayed on stored samples of real fits and the built-ins
+#: (benchmarks/bench_calibration.py, docs/calibration.md) it draws far fewer samples for choices as close
 COARSE_WALK = {"step": 0.2, "refine": 2}
 
 
@@ -65,7 +65,7 @@ def calibrate_model(
     voxels along the longest side, by default the fit's grid). ``supersample``: the voxels judged, 1 the voxel
     centres (the default on the fit's grid), 2 the paper's (the default at another ``resolution``). The choice and
     what was tried land in ``report["calibration"]``; ``options`` go to ``calibrate_diversity`` (``goals`` by
-    default :func:`default_goals` for the grid judged on; at :data:`PAPER_RESOLUTION` the walk of :data:`COARSE_WALK`).
+    default :func:`default_goals` for the grid judged on; the walk of :data:`COARSE_WALK`).
     """
     if reference is None:
         mesh = model.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
@@ -83,8 +83,7 @@ def calibrate_model(
         )
     supersample = 1 if supersample is None else supersample
     options.setdefault("goals", default_goals(max(np.shape(reference))))
-    if max(np.shape(reference)) == PAPER_RESOLUTION:
-        options = {**COARSE_WALK, **options}
+    options = {**COARSE_WALK, **options}
     sampler = walk.model_sampler(model, reference, supersample=supersample)
     cal = walk.calibrate_diversity(sampler, reference, progress=progress, **options)
     cal.supersample = supersample
