@@ -35,10 +35,10 @@ from sin3dm_lite.evaluate.curves import non_increasing
 #: the pool's settings besides the near copy
 SETTINGS = [round(0.1 + 0.05 * k, 2) for k in range(19)]
 
-#: (name, options of calibrate_scores; 8 samples a setting unless said); the package's walks first
+#: (name, options of calibrate_scores; 8 samples a setting unless said); the package's walk first
 VARIANTS = [
-    ("the package's at 128 (ladder 0.2, 2 refine)", COARSE_WALK),
-    ("the package's on a training grid (ladder 0.1, 4 refine)", dict()),
+    ("the package's, on every grid (ladder 0.2, 2 refine)", COARSE_WALK),
+    ("the walk's own defaults (ladder 0.1, 4 refine)", dict()),
     ("3 refine", dict(refine=3)),
     ("2 refine", dict(refine=2)),
     ("0 refine", dict(refine=0)),

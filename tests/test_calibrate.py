@@ -334,17 +334,38 @@ def test_where_only_copies_keep_lp_f_the_least_varied_non_copy_is_chosen(monkeyp
 
 def test_where_the_least_varied_non_copy_is_torn_the_copies_stand(monkeypatch):
     """One house (the paper's "House", its own G-Div 0.010), as its `small` fit scored on its grid: copies keep
-    LP-F up to 0.2, and the least varied setting that is not a copy (0.4, G-Div 0.14) keeps LP-F 0.26, under half
-    its goal (0.69): torn walls, not variations. The copies the goals chose stand, said as such."""
-    ladder = [  # diversity: LP-IoU, LP-F, G-Div, as the fit's calibration drew them
-        (0.05, 0.624, 0.81, 0.01), (0.1, 0.528, 0.762, 0.032), (0.2, 0.421, 0.663, 0.051),
-        (0.4, 0.153, 0.263, 0.141), (0.6, 0.063, 0.149, 0.216), (0.8, 0.016, 0.065, 0.294), (1.0, 0.035, 0.091, 0.3),
+    LP-F up to about 0.15, and the least varied setting that is not a copy (0.4, G-Div 0.14) keeps LP-F 0.2, under
+    half its goal (0.69): torn walls, not variations. The fit never drew 0.3; here it tears as well (LP-F 0.22, G-Div
+    0.13), so the settings drawn halfway towards the copies (0.3, then 0.25: copies) find nothing between, and the
+    copies the goals chose stand, said as such."""
+    ladder = [  # diversity: LP-IoU, LP-F, G-Div; 0.3 and 0.4 as described above
+        (0.05, 0.624, 0.81, 0.01), (0.1, 0.528, 0.762, 0.032), (0.2, 0.421, 0.663, 0.051), (0.3, 0.12, 0.22, 0.13),
+        (0.4, 0.1, 0.2, 0.141), (0.6, 0.063, 0.149, 0.216), (0.8, 0.016, 0.065, 0.294), (1.0, 0.035, 0.091, 0.3),
     ]  # fmt: skip
     cal = _calibrated_on(ladder, monkeypatch)
     assert 0.1 < cal.diversity < 0.25 and cal.kept_goals and not cal.only_copies_kept
-    assert 0.3 not in [t["diversity"] for t in cal.tried]  # no halfway setting is drawn towards a torn one
-    assert cal.at_choice["g_div"] < cal.copy_line and C.least_varied(cal)[0] == 0.4
-    assert C.mean_by_setting(cal.tried, "lp_fscore")[0.4] < C.FAR * cal.goals["lp_fscore"]
+    assert [t["diversity"] for t in cal.tried][-2:] == [0.3, 0.25]  # drawn towards the copies, from a torn one too
+    assert cal.at_choice["g_div"] < cal.copy_line and C.least_varied(cal)[0] == 0.3
+    assert C.mean_by_setting(cal.tried, "lp_fscore")[0.3] < C.FAR * cal.goals["lp_fscore"]
+
+
+def test_a_torn_setting_two_rungs_above_the_copies_does_not_let_them_stand(monkeypatch):
+    """A perforated plate (pybullet_data `quadruped/microtaur/plate.stl`, rows of holes a few voxels wide), its
+    `detail` fit scored at 128 voxels on the fit's walk: 1 and 0.8 keep under half the LP-F goal (0.6 skipped), 0.4
+    keeps LP-F with copies (G-Div 0.05). Judged on 0.8 alone the copies stood (0.43, G-Div 0.07); the settings
+    halfway towards them (0.6, then 0.5) vary without tearing, so the least varied of them is chosen: whole plates
+    whose holes and windows move (the contact sheet at 0.5)."""
+    ladder = [  # diversity: LP-IoU, LP-F, G-Div, as the fit's calibration and a later draw measured them
+        (0.05, 0.039, 0.335, 0.012), (0.2, 0.036, 0.320, 0.021), (0.4, 0.037, 0.297, 0.048),
+        (0.5, 0.024, 0.206, 0.182), (0.6, 0.017, 0.179, 0.250), (0.7, 0.010, 0.128, 0.280),
+        (0.8, 0.013, 0.127, 0.281), (1.0, 0.017, 0.152, 0.296),
+    ]  # fmt: skip
+    d, cols = [r[0] for r in ladder], list(zip(*[r[1:] for r in ladder]))
+    monkeypatch.setattr(C, "score_setting", _scored_by(lambda x: tuple(float(np.interp(x, d, c)) for c in cols)))
+    cal = C.calibrate_diversity(_Knob(0.7), _reference(), n=8, progress=False, step=0.2, refine=2)
+    assert [t["diversity"] for t in cal.tried][-2:] == [0.6, 0.5]
+    assert cal.diversity == 0.5 and cal.only_copies_kept and not cal.kept_goals
+    assert "chose 0.5, the least varied setting whose samples are not copies (G-Div 0.182" in cal.note
 
 
 def test_where_no_setting_keeps_lp_f_the_halfway_settings_are_drawn_from_a_torn_one_too(monkeypatch):

@@ -339,15 +339,16 @@ def _torn(result: Calibration, setting: float | None, far: float) -> bool:
     return setting is None or mean_by_setting(result.tried, "lp_fscore")[setting] < goal
 
 
-def _halfway(result: Calibration, add, step: float, far: float, from_torn: bool = False) -> bool:
+def _halfway(result: Calibration, add, step: float) -> bool:
     """Draw up to two settings halfway between the least varied setting whose samples are not copies and the copies
-    below it (the knob can jump within a rung); from a torn one only with ``from_torn`` (no setting kept the goals,
-    so the least varied is the default, torn or not). Whether any was drawn."""
+    below it (the knob can jump within a rung, and a skipped rung can hide the setting that varies without tearing),
+    whether or not that setting is torn: whether the copies stand is judged on the setting next to them. Whether any
+    was drawn."""
     drawn = False
     for _ in range(2):
         least, by_setting = least_varied(result)
         copied = [d for d in by_setting if least is not None and d < least]
-        if copied and least - max(copied) > step / 4 + 1e-9 and (from_torn or not _torn(result, least, far)):
+        if copied and least - max(copied) > step / 4 + 1e-9:
             add(round((least + max(copied)) / 2, 2), "between copies and the least varied: ")
             drawn = True
     return drawn
@@ -419,7 +420,7 @@ def _walk(
             break
         add(round(min(max(lowest + round((chosen - lowest) / half) * half, lowest), 1.0), 4), "near the answer: ")
         chosen, why = read()
-    if (chosen is None or g_div_at(result.tried, chosen) < line) and _halfway(result, add, step, far, chosen is None):
+    if (chosen is None or g_div_at(result.tried, chosen) < line) and _halfway(result, add, step):
         chosen, why = read()
     least = least_varied(result)[0]  # a default of copies is no sampler, nor is one far below LP-F's goal (torn)
     torn = _torn(result, least, far)
