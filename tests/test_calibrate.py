@@ -912,8 +912,8 @@ def test_a_choice_of_near_copies_on_the_training_grid_names_the_paper_grid():
 def test_judged_at_the_papers_grid_the_goals_are_the_near_copys_shares_alone(monkeypatch):
     """At 128 voxels against the mesh (``detail``, ``fine``, ``calibrate --resolution 128``) a default keeps 85 % of
     its near copy's LP-F and 65 % of its LP-IoU, however high those are; on a training grid the absolute goals cap
-    them (a 64-voxel near copy keeps almost every patch). The story says which, and what the walk was given: at 128
-    the fit's walk (``COARSE_WALK``) on either grid."""
+    them (a 64-voxel near copy keeps almost every patch). The story says which; the walk is given the fit's
+    (``COARSE_WALK``) on either grid, and what the caller asks wins."""
     from types import SimpleNamespace
 
     from sin3dm_lite.auto import calibration
