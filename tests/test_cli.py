@@ -297,9 +297,15 @@ def _preset_fit_gets(tmp_path, monkeypatch, *argv, machine: str = "small"):
 
 
 def test_fit_set_changes_the_preset_and_names_a_bad_setting(capsys, tmp_path, monkeypatch):
-    """`fit --set diffusion.rollout=true` fits small with the rollout; a misspelt setting is one line, no folder."""
+    """`fit --set diffusion.rollout=true` fits small with the rollout, with one `--set` or several; a misspelt
+    setting is one line, no folder."""
     cfg = _preset_fit_gets(tmp_path, monkeypatch, "wall", "--set", "diffusion.rollout=true", "diffusion.steps=1500")
     assert cfg.name == "small" and cfg.diffusion.rollout is True and cfg.diffusion.steps == 1500
+    # one --set a setting: each is kept, not only the last
+    cfg = _preset_fit_gets(
+        tmp_path, monkeypatch, "wall", "--set", "diffusion.rollout=true", "--set", "diffusion.steps=900"
+    )
+    assert cfg.diffusion.rollout is True and cfg.diffusion.steps == 900
     code, _, err = run(capsys, "fit", "wall", "--out", str(tmp_path / "bad"), "--set", "diffusion.rolout=true")
     assert code == 2 and "unknown config setting 'diffusion.rolout'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "bad").exists()

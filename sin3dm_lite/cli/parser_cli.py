@@ -165,9 +165,11 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
     f.add_argument(
         "--set",
         nargs="+",
+        action="extend",
         default=[],
         metavar="SETTING=VALUE",
-        help="change settings of the preset, e.g. --set diffusion.rollout=true diffusion.steps=3000; names as in "
+        help="change settings of the preset, e.g. --set diffusion.rollout=true diffusion.steps=3000 (or one --set "
+        "each); names as in "
         "the run's config.json (docs/presets.md says what each does)",
     )
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
