@@ -126,3 +126,17 @@ def test_checkpoints_of_another_trainer_or_layout_are_refused(box_grid, h0):
         DiffusionTrainer.from_state_dict(old_dm)
     with pytest.raises(Sin3DMInputError, match="sin3dm-lite-trainer/1"):
         dm.load_state_dict({**dm.state_dict(), "format": "sin3dm-lite-trainer/1"})
+
+
+def test_the_autoencoder_rates_decay_to_the_configs_factor_by_the_last_step(box_grid, h0):
+    """Both learning rates (geometry, texture) fall exponentially to ``lr_final_factor`` of their start at the run's
+    last step: the paper's 0.1 over its 25,000 steps; the CPU presets, a tenth as long or less, decay to √0.1."""
+    from sin3dm_lite.presets import get_preset
+
+    trainer = make("autoencoder", box_grid, h0, lr_final_factor=0.316)
+    trainer.run(until_step=6)
+    geo, tex = trainer.scheduler.get_last_lr()
+    assert geo == pytest.approx(1e-3 * 0.316) and tex == pytest.approx(5e-3 * 0.316)
+    assert get_preset("paper").autoencoder.lr_final_factor == 0.1
+    for name in ("small", "quick", "detail", "fine"):
+        assert get_preset(name).autoencoder.lr_final_factor == pytest.approx(0.1**0.5, abs=1e-3)
