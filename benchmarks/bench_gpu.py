@@ -70,7 +70,12 @@ def main() -> None:
     ap.add_argument("--input", default="canyon", help="example name or mesh file")
     ap.add_argument("--preset", default="paper")
     ap.add_argument(
-        "--set", nargs="+", default=[], metavar="SETTING", help="dotted settings, e.g. autoencoder.steps=100"
+        "--set",
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="SETTING",
+        help="dotted settings, e.g. autoencoder.steps=100",
     )
     ap.add_argument("--device", default=None, help="default: cuda when present")
     ap.add_argument("--budget-s", type=float, default=300.0, help="training seconds of the truncated fit, both stages")

@@ -257,6 +257,7 @@ def main() -> None:
     ap.add_argument(
         "--set",
         nargs="+",
+        action="extend",
         default=[],
         metavar="SETTING",
         help="dotted settings changed from the preset, e.g. grid.resolution=96 (run folders get a suffix)",

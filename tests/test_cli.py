@@ -177,6 +177,27 @@ def _subparsers():
     return sub.choices
 
 
+def test_an_option_of_several_values_given_twice_keeps_both():
+    """Every option that takes several values (`fit --set`, `evaluate --resolution`, ...) adds what a second use
+    gives to the first; argparse's default keeps only the last, silently."""
+    import argparse
+
+    from sin3dm_lite.cli import build_parser
+
+    lists = [
+        (name, a.option_strings[0])
+        for name, parser in _subparsers().items()
+        for a in parser._actions
+        if a.option_strings and a.nargs == "+"
+    ]
+    assert ("fit", "--set") in lists and ("evaluate", "--resolution") in lists
+    for name, option in lists:
+        (action,) = [a for a in _subparsers()[name]._actions if option in a.option_strings]
+        assert isinstance(action, argparse._ExtendAction), f"{name} {option}"
+    a = build_parser().parse_args(["evaluate", "RUN", "S", "--resolution", "64", "--resolution", "128"])
+    assert a.resolution == [64, 128]
+
+
 @pytest.mark.parametrize("command", ["examples", "grid", "fit", "sample", "demo", "render", "evaluate"])
 def test_every_command_has_a_description_and_every_option_its_default(capsys, command):
     import argparse

@@ -243,6 +243,7 @@ def _evaluate_args(v: argparse.ArgumentParser) -> None:
         "--resolution",
         type=positive_int,
         nargs="+",
+        action="extend",
         default=None,
         help="voxels along the longest side for the geometry metrics, 16-512, one grid or several (the first gets "
         "every metric); default: 128, the paper's, and the fit's own grid beside it",
