@@ -56,9 +56,9 @@ from sin3dm_lite.generate.extract import marching_cubes
 from sin3dm_lite.pipeline import Sin3DM
 from sin3dm_lite.presets import get_preset
 
-#: points sampled per voxel when a mesh becomes voxels: 1, the voxel centres (the figures in docs/ before
-#: 2026-11-28), or 2, the paper's evaluation code (solid where any of 2³ sub-voxels is inside); --voxels sets it
-SUPERSAMPLE = {"supersample": 1}
+#: points sampled per voxel when a mesh becomes voxels: 2, the paper's evaluation code (solid where any of 2³
+#: sub-voxels is inside), or 1, the voxel centres (older tables in docs/); --voxels sets it
+SUPERSAMPLE = {"supersample": metrics.PAPER_SUPERSAMPLE}
 
 GOALS = {"g_div": 0.20, "lp_f": 0.70, "lp_iou": 0.55, "recon_iou": 0.95, "fit_s": 300.0, "mesh_s": 15.0}
 
@@ -234,7 +234,10 @@ def main() -> None:
     )
     ap.add_argument("--runs", default="runs/bench", help="run folders (reused when they exist)")
     ap.add_argument(
-        "--preset", default="small", help="a preset's name, or 'default': the one fit takes without --preset"
+        "--preset",
+        default="default",
+        help="'default' (the one fit takes without --preset: this machine's and this shape's) or a preset's name "
+        "(docs/ tables that name no preset and are older than measured.md's first used small)",
     )
     ap.add_argument("-n", type=int, default=8)
     ap.add_argument("--export", type=int, default=2, help="samples timed through texture + export")
@@ -265,9 +268,10 @@ def main() -> None:
     ap.add_argument(
         "--voxels",
         choices=("centres", "paper"),
-        default="centres",
-        help="meshes to voxels: the voxel centres (default; the figures in docs/ before 2026-11-28) or the paper's "
-        "evaluation code's way (solid where any of 2x2x2 sub-voxels is inside)",
+        default="paper",
+        help="meshes to voxels: the paper's evaluation code's way (default, as `sin3dm-lite evaluate`: solid where "
+        "any of 2x2x2 sub-voxels is inside) or the voxel centres (docs/ tables that name no way and are older than "
+        "measured.md's first; a flat face on a layer of centres is kept or lost by rounding)",
     )
     a = ap.parse_args()
     SUPERSAMPLE["supersample"] = {"centres": 1, "paper": metrics.PAPER_SUPERSAMPLE}[a.voxels]
