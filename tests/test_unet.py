@@ -5,9 +5,11 @@ import torch
 
 from sin3dm_lite.app.device import count_parameters
 from sin3dm_lite.data.config import DiffusionConfig
+from sin3dm_lite.kernels.planeops import conv_same, resize_bilinear
 from sin3dm_lite.model.triplane import Triplane
 from sin3dm_lite.model.unet import (
     TriplaneConv,
+    TriplaneGroupNorm,
     TriplaneResBlock,
     TriplaneUNet,
     block_layout,
@@ -81,6 +83,56 @@ def test_rollout_couples_planes_along_the_shared_axis():
 
 def test_num_groups_divides_channels():
     assert [num_groups(c) for c in (64, 128, 192, 12, 16, 4, 48, 1)] == [32, 32, 32, 12, 16, 4, 24, 1]
+
+
+@pytest.mark.parametrize("k", [1, 3])
+@pytest.mark.parametrize("with_bias", [True, False])
+def test_conv_same_is_conv2d(k, with_bias):
+    # the 1×1 convolution as a batched product: F.conv2d's values and gradients
+    x = torch.randn(3, 5, 7, 4, dtype=torch.float64, requires_grad=True)
+    w = torch.randn(6, 5, k, k, dtype=torch.float64, requires_grad=True)
+    b = torch.randn(6, dtype=torch.float64, requires_grad=True) if with_bias else None
+    g = torch.randn(3, 6, 7, 4, dtype=torch.float64)
+    inputs = [x, w] + ([b] if with_bias else [])
+    ref = torch.nn.functional.conv2d(x, w, b, padding=k // 2)
+    out = conv_same(x, w, b)
+    assert torch.allclose(out, ref, atol=1e-12)
+    for u, v in zip(torch.autograd.grad((out * g).sum(), inputs), torch.autograd.grad((ref * g).sum(), inputs)):
+        assert torch.allclose(u, v, atol=1e-12)
+
+
+@pytest.mark.parametrize("size", [(14, 10), (13, 9), (7, 5), (20, 3)])
+def test_bilinear_resize_is_interpolate(size):
+    # the U-Net's upsampling as two products: F.interpolate's values and gradients, odd sizes and shrinking too
+    x = torch.randn(2, 3, 7, 5, dtype=torch.float64, requires_grad=True)
+    g = torch.randn(2, 3, *size, dtype=torch.float64)
+    ref = torch.nn.functional.interpolate(x, size=size, mode="bilinear", align_corners=False)
+    out = resize_bilinear(x, size)
+    assert out.shape == ref.shape and torch.allclose(out, ref, atol=1e-12)
+    assert torch.allclose(*(torch.autograd.grad((y * g).sum(), x)[0] for y in (out, ref)), atol=1e-12)
+
+
+@pytest.mark.parametrize("ch", [8, 12, 64])
+def test_modulated_norm_is_the_norm_then_the_time_steps_scale_and_shift(ch):
+    # the per-sample scale and shift folded into one GroupNorm: the same values and gradients as norm, then p·(1+s)+b
+    torch.manual_seed(0)
+    norm = TriplaneGroupNorm(ch).double()
+    for n in norm.norms:
+        torch.nn.init.normal_(n.weight), torch.nn.init.normal_(n.bias)
+    x = Triplane(*(p.double().requires_grad_() for p in Triplane.randn(3, ch, (9, 6, 5)).planes))
+    scale, shift = (torch.randn(3, ch, dtype=torch.float64, requires_grad=True) for _ in range(2))
+    inputs = [*x.planes, scale, shift, *norm.parameters()]
+
+    def plain():
+        return norm(x).map(lambda p: p * (1 + scale[:, :, None, None]) + shift[:, :, None, None])
+
+    for f in (plain, lambda: norm.modulated(x, scale, shift)):
+        out = f()
+        grads = torch.autograd.grad(sum((p * p.detach().sin()).sum() for p in out.planes), inputs)
+        if f is plain:
+            ref, ref_grads = out, grads
+    assert all(torch.allclose(p, q, atol=1e-12) for p, q in zip(out.planes, ref.planes))
+    assert all(torch.allclose(g, h, atol=1e-10) for g, h in zip(grads, ref_grads))
 
 
 @pytest.mark.parametrize("res", RESOLUTIONS)

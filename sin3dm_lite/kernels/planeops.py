@@ -1,4 +1,5 @@
-"""The rollout's repeated means in a TriplaneConv, convolved in 1D and added without building full-size copies.
+"""The rollout's repeated means in a TriplaneConv, convolved in 1D and added without building full-size copies;
+the U-Net's 1×1 convolutions and bilinear upsampling as products (:func:`conv_same`, :func:`resize_bilinear`).
 
 In the cross-plane rollout (the paper's Fig. 3b) each plane's Conv2d also reads the two other planes mean-pooled
 along the axis this plane lacks, each repeated along one of its axes. A repeated mean is constant along its axis,
@@ -9,6 +10,8 @@ linear).
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import torch
 import torch.nn.functional as F
@@ -28,8 +31,10 @@ def conv_repeated(v: torch.Tensor, w: torch.Tensor, size) -> tuple[torch.Tensor,
     if torch.is_autocast_enabled(v.device.type):  # bf16: the 2D convolution of a k-texel strip gives the same
         strip = [k if d == dim else size[d - 2] for d in (2, 3)]
         return F.conv2d(v.expand(-1, -1, *strip), w, padding=p), dim
-    # the summed kernel of each output class j: the taps t with p <= j + t <= 3p ([k·out, C, k])
-    kern = torch.cat([w.narrow(dim, max(0, p - j), k - abs(p - j)).sum(dim) for j in range(k)])
+    # the summed kernel of each output class j: the taps t with p <= j + t <= 3p ([k·out, C, k]), added as whole
+    # contiguous slabs (taps first): a strided sum over a 3-tap axis is several times slower, its backward too
+    taps = w.movedim(dim, 0).contiguous().unbind(0)  # k × [out, C, k] (unbind: one stack in the backward)
+    kern = torch.cat([sum(taps[max(0, p - j) + 1 : 3 * p - j + 1], taps[max(0, p - j)]) for j in range(k)])
     y = F.conv1d(v.squeeze(dim), kern, padding=p)  # [B, k·out, m]
     return y.unflatten(1, (k, w.shape[0])).movedim(1, dim), dim  # [B, out, k, m] or [B, out, m, k]
 
@@ -82,3 +87,40 @@ class _AddRepeated(torch.autograd.Function):
             ]
             grads += [torch.cat(pieces, dim), None]
         return tuple(grads)
+
+
+def resize_bilinear(p: torch.Tensor, size) -> torch.Tensor:
+    """``F.interpolate(p, size, mode="bilinear", align_corners=False)`` on the CPU as two small products,
+    ``A_rows @ p @ A_colsᵀ`` with each axis' interpolation weights as a matrix (two nonzeros a row): the same values
+    up to rounding, forward and backward several times faster than the CPU's upsampling kernel (whose backward
+    scatters). Other devices, and ``torch.compile`` (which fuses its own), take ``F.interpolate``."""
+    if p.device.type != "cpu" or torch.compiler.is_compiling():
+        return F.interpolate(p, size=tuple(size), mode="bilinear", align_corners=False)
+    rows, cols = (_bilinear_weights(n, int(m), p.dtype) for n, m in zip(p.shape[-2:], size))
+    return rows @ (p @ cols.t())  # [.., A, B] -> [.., A, m] -> [.., n, m]
+
+
+@lru_cache(maxsize=64)
+def _bilinear_weights(n_in: int, n_out: int, dtype: torch.dtype) -> torch.Tensor:
+    """``[n_out, n_in]``: bilinear interpolation along one axis as ``F.interpolate`` computes it for ``size``
+    (``align_corners=False``: source position ``(i + ½)·n_in/n_out − ½``, clamped at 0 and at the last texel)."""
+    src = ((torch.arange(n_out, dtype=torch.float64) + 0.5) * (n_in / n_out) - 0.5).clamp(min=0)
+    i0 = src.floor().long().clamp(max=n_in - 1)
+    i1, frac = (i0 + 1).clamp(max=n_in - 1), src - i0
+    w = torch.zeros(n_out, n_in, dtype=torch.float64)
+    w.index_put_((torch.arange(n_out), i0), 1 - frac, accumulate=True)
+    w.index_put_((torch.arange(n_out), i1), frac, accumulate=True)
+    return w.to(dtype)
+
+
+def conv_same(p: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    """``F.conv2d`` with 'same' padding (odd kernels); a 1×1 kernel on the CPU as one batched product
+    ``weight @ p`` over the texels, whose backward is two products (oneDNN's 1×1 backward was slower); under
+    ``torch.compile`` the plain convolution."""
+    k = weight.shape[-1]
+    if k != 1 or p.device.type != "cpu" or torch.compiler.is_compiling():
+        return F.conv2d(p, weight, bias, padding=k // 2)
+    (b, c, h, w), o = p.shape, len(weight)
+    wb, pb = weight.view(o, c).expand(b, o, c), p.reshape(b, c, h * w)
+    out = torch.bmm(wb, pb) if bias is None else torch.baddbmm(bias[None, :, None].expand(b, o, h * w), wb, pb)
+    return out.view(b, o, h, w)  # [B, out, H, W]

@@ -21,7 +21,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..data.config import DiffusionConfig
-from ..kernels.planeops import add_repeated, conv_repeated
+from ..kernels.planeops import add_repeated, conv_repeated, conv_same, resize_bilinear
 from .triplane import PLANE_AXES, PLANES, Triplane
 
 
@@ -99,7 +99,7 @@ class TriplaneConv(nn.Module):
 
     def forward(self, tp: Triplane) -> Triplane:
         if not self.rollout:
-            return Triplane(*(conv(p) for conv, p in zip(self.convs, tp.planes)))  # [B, out, ., .]
+            return Triplane(*(conv_same(p, conv.weight, conv.bias) for conv, p in zip(self.convs, tp.planes)))
         # conv(cross_plane_inputs(tp)) without the cat: the convolution is linear, so it splits into the plane's
         # own channels and the two repeated means; a mean repeated along an axis gives the same output all along
         # it but at its k//2 border texels (zero padding), so its k distinct values per texel are one 1D
@@ -111,7 +111,7 @@ class TriplaneConv(nn.Module):
             c, size = own.shape[1], own.shape[-2:]
             # [out, 3c, k, k]: the plane's channels, then the two means' (split: its backward is one cat)
             w, w1, w2 = conv.weight.split(c, dim=1)
-            o = F.conv2d(own, w, conv.bias, padding=conv.padding)
+            o = conv_same(own, w, conv.bias)  # F.conv2d, 'same' padding (kernels/planeops.py)
             out.append(add_repeated(o, [conv_repeated(v1, w1, size), conv_repeated(v2, w2, size)]))
         return Triplane(*out)  # [B, out, ., .]
 
@@ -134,6 +134,24 @@ class TriplaneGroupNorm(nn.Module):
         if self.local_only:
             return Triplane(*(_norm_fixed_stats(norm, p) for norm, p in zip(self.norms, tp.planes)))
         return Triplane(*(norm(p) for norm, p in zip(self.norms, tp.planes)))
+
+    def modulated(self, tp: Triplane, scale: torch.Tensor, shift: torch.Tensor) -> Triplane:
+        """``norm(p)·(1+scale)+shift`` per plane, ``scale``/``shift`` ``[B, C]`` (the time step's modulation).
+
+        The per-sample scale and shift fold into the norm's own affine: a GroupNorm of ``[1, B·C, ., .]`` with
+        ``B·G`` groups normalises the same groups, and its per-channel weight and bias can then differ per sample.
+        One pass over the plane instead of three (norm, multiply-add, and their backward's reductions); the same
+        values up to rounding."""
+        if self.local_only:
+            return self(tp).map(lambda p: torch.addcmul(shift[:, :, None, None], p, 1 + scale[:, :, None, None]))
+        out = []
+        for norm, p in zip(self.norms, tp.planes):
+            b, c = p.shape[:2]
+            weight = (norm.weight * (1 + scale)).reshape(b * c)  # [B·C]
+            bias = (norm.bias * (1 + scale) + shift).reshape(b * c)
+            y = F.group_norm(p.reshape(1, b * c, *p.shape[2:]), b * norm.num_groups, weight, bias, norm.eps)
+            out.append(y.reshape(p.shape))
+        return Triplane(*out)
 
 
 def _norm_fixed_stats(norm: nn.GroupNorm, p: torch.Tensor) -> torch.Tensor:
@@ -167,8 +185,8 @@ class TriplaneResBlock(nn.Module):
 
     def forward(self, x: Triplane, emb: torch.Tensor) -> Triplane:
         h = self.conv1(self.norm1(x).map(F.silu))  # [B, out, ., .]
-        scale, shift = self.emb(emb)[:, :, None, None].chunk(2, dim=1)  # [B, out, 1, 1] each
-        h = self.norm2(h).map(lambda p: F.silu(torch.addcmul(shift, p, 1 + scale)))  # p·(1+scale)+shift
+        scale, shift = self.emb(emb).chunk(2, dim=1)  # [B, out] each
+        h = self.norm2.modulated(h, scale, shift).map(F.silu)  # norm(h)·(1+scale)+shift
         return self.shortcut(x) + self.conv2(h)
 
 
@@ -206,7 +224,7 @@ def _downsample(p: torch.Tensor) -> torch.Tensor:
 
 def _upsample_and_concat(p: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
     """Bilinear upsampling to the skip's exact size (odd sizes too), then ``[upsampled, skip]`` on channels."""
-    up = F.interpolate(p, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+    up = resize_bilinear(p, skip.shape[-2:])  # F.interpolate(bilinear, align_corners=False), faster on a CPU
     return torch.cat([up, skip], 1)
 
 
