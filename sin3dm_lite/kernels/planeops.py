@@ -1,5 +1,6 @@
 """The rollout's repeated means in a TriplaneConv, convolved in 1D and added without building full-size copies;
-the U-Net's 1×1 convolutions and bilinear upsampling as products (:func:`conv_same`, :func:`resize_bilinear`).
+the U-Net's 1×1 convolutions and bilinear upsampling as products (:func:`conv_same`, :func:`resize_bilinear`), and
+its time-step modulation folded into the GroupNorm before it (:func:`group_norm_modulated`).
 
 In the cross-plane rollout (the paper's Fig. 3b) each plane's Conv2d also reads the two other planes mean-pooled
 along the axis this plane lacks, each repeated along one of its axes. A repeated mean is constant along its axis,
@@ -124,3 +125,15 @@ def conv_same(p: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) 
     wb, pb = weight.view(o, c).expand(b, o, c), p.reshape(b, c, h * w)
     out = torch.bmm(wb, pb) if bias is None else torch.baddbmm(bias[None, :, None].expand(b, o, h * w), wb, pb)
     return out.view(b, o, h, w)  # [B, out, H, W]
+
+
+def group_norm_modulated(norm: torch.nn.GroupNorm, p: torch.Tensor, scale: torch.Tensor, shift: torch.Tensor):
+    """``norm(p)·(1+scale)+shift`` with ``scale``/``shift`` ``[B, C]``, in one GroupNorm: one of ``[1, B·C, ., .]`` with
+    ``B·G`` groups normalises the same groups, and its per-channel weight and bias can then differ per sample. One pass
+    over the plane instead of three (the norm, the multiply-add, and their backward's reductions); the same values
+    up to rounding."""
+    b, c = p.shape[:2]
+    weight = (norm.weight * (1 + scale)).reshape(b * c)  # [B·C]
+    bias = (norm.bias * (1 + scale) + shift).reshape(b * c)
+    y = F.group_norm(p.reshape(1, b * c, *p.shape[2:]), b * norm.num_groups, weight, bias, norm.eps)
+    return y.reshape(p.shape)

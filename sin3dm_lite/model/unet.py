@@ -21,7 +21,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..data.config import DiffusionConfig
-from ..kernels.planeops import add_repeated, conv_repeated, conv_same, resize_bilinear
+from ..kernels.planeops import add_repeated, conv_repeated, conv_same, group_norm_modulated, resize_bilinear
 from .triplane import PLANE_AXES, PLANES, Triplane
 
 
@@ -100,17 +100,14 @@ class TriplaneConv(nn.Module):
     def forward(self, tp: Triplane) -> Triplane:
         if not self.rollout:
             return Triplane(*(conv_same(p, conv.weight, conv.bias) for conv, p in zip(self.convs, tp.planes)))
-        # conv(cross_plane_inputs(tp)) without the cat: the convolution is linear, so it splits into the plane's
-        # own channels and the two repeated means; a mean repeated along an axis gives the same output all along
-        # it but at its k//2 border texels (zero padding), so its k distinct values per texel are one 1D
-        # convolution, added repeated (kernels/planeops.py).
+        # conv(cross_plane_inputs(tp)) without the cat: the convolution is linear, so it splits into the plane's own
+        # channels and the two repeated means, whose outputs vary along their axis only within k//2 texels of the
+        # borders (zero padding): k distinct values per texel, one 1D convolution added repeated (kernels/planeops.py)
         parts = rollout_parts(tp, self.local_only, concat=False)
         out = []
         for name, conv in zip(PLANES, self.convs):
-            own, (v1, v2) = parts[name]["plane"], parts[name]["pooled"]
-            c, size = own.shape[1], own.shape[-2:]
-            # [out, 3c, k, k]: the plane's channels, then the two means' (split: its backward is one cat)
-            w, w1, w2 = conv.weight.split(c, dim=1)
+            own, (v1, v2), size = parts[name]["plane"], parts[name]["pooled"], parts[name]["plane"].shape[-2:]
+            w, w1, w2 = conv.weight.split(own.shape[1], dim=1)  # [out, 3c, k, k]: the plane's channels, the means'
             o = conv_same(own, w, conv.bias)  # F.conv2d, 'same' padding (kernels/planeops.py)
             out.append(add_repeated(o, [conv_repeated(v1, w1, size), conv_repeated(v2, w2, size)]))
         return Triplane(*out)  # [B, out, ., .]
@@ -136,22 +133,10 @@ class TriplaneGroupNorm(nn.Module):
         return Triplane(*(norm(p) for norm, p in zip(self.norms, tp.planes)))
 
     def modulated(self, tp: Triplane, scale: torch.Tensor, shift: torch.Tensor) -> Triplane:
-        """``norm(p)·(1+scale)+shift`` per plane, ``scale``/``shift`` ``[B, C]`` (the time step's modulation).
-
-        The per-sample scale and shift fold into the norm's own affine: a GroupNorm of ``[1, B·C, ., .]`` with
-        ``B·G`` groups normalises the same groups, and its per-channel weight and bias can then differ per sample.
-        One pass over the plane instead of three (norm, multiply-add, and their backward's reductions); the same
-        values up to rounding."""
+        """``norm(p)·(1+scale)+shift`` per plane, ``scale`` and ``shift`` ``[B, C]`` (the time step's modulation)."""
         if self.local_only:
             return self(tp).map(lambda p: torch.addcmul(shift[:, :, None, None], p, 1 + scale[:, :, None, None]))
-        out = []
-        for norm, p in zip(self.norms, tp.planes):
-            b, c = p.shape[:2]
-            weight = (norm.weight * (1 + scale)).reshape(b * c)  # [B·C]
-            bias = (norm.bias * (1 + scale) + shift).reshape(b * c)
-            y = F.group_norm(p.reshape(1, b * c, *p.shape[2:]), b * norm.num_groups, weight, bias, norm.eps)
-            out.append(y.reshape(p.shape))
-        return Triplane(*out)
+        return Triplane(*(group_norm_modulated(n, p, scale, shift) for n, p in zip(self.norms, tp.planes)))
 
 
 def _norm_fixed_stats(norm: nn.GroupNorm, p: torch.Tensor) -> torch.Tensor:
