@@ -278,9 +278,9 @@ def test_obj_face_lines_of_different_lengths(tmp_path):
 
 def test_obj_faces_polygons_and_triangles_read_alike(tmp_path):
     """Polygons go through the same index checks as triangles: vt 0 means no uv, the first bad line is named."""
-    (tmp_path / "vt0.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nf 1/0 2/0 3/0 4/0\nf 1/1 2/0 3/1\n")
+    (tmp_path / "vt0.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nf 1/0 2/0 3/0 4/0\nf 1/1 2/0 4/1\n")
     mesh = load_mesh(tmp_path / "vt0.obj")
-    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 2, 3], [0, 1, 2]])
+    np.testing.assert_array_equal(mesh.faces, [[0, 1, 2], [0, 2, 3], [0, 1, 3]])
     assert np.isnan(mesh.face_uvs[:2]).all() and np.isnan(mesh.face_uvs[2, 1]).all()
     np.testing.assert_array_equal(mesh.face_uvs[2, [0, 2]], 0)
     (tmp_path / "bad.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\nf 1 -9 3 4\nf 1 2 x 4\n")
@@ -618,6 +618,39 @@ def test_stl(tmp_path):
     assert len(mesh.faces) == 80 and len(mesh.vertices) == 42  # STL soup welded back
 
 
+def test_a_two_sided_export_is_read_as_one_surface_and_its_grid_has_the_inside(tmp_path):
+    """A two-sided export lists every face again wound the other way: the two cancel in the winding number, and
+    the grid would lose the shape's inside. Each triangle is kept once, at its first listing."""
+    from sin3dm_lite.data.grid import mesh_to_grid
+
+    box = trimesh.creation.box((1.0, 0.6, 0.4))
+    box.export(tmp_path / "box.stl")
+    doubled = trimesh.Trimesh(box.vertices, np.vstack([box.faces, box.faces[:, ::-1]]), process=False)
+    doubled.export(tmp_path / "two_sided.stl")
+    again = np.vstack([box.faces, np.roll(box.faces[:5], 1, axis=1)])  # five listed twice, wound alike
+    trimesh.Trimesh(box.vertices, again, process=False).export(tmp_path / "again.stl")
+    clean = load_mesh(tmp_path / "box.stl")
+    for name in ("two_sided.stl", "again.stl"):
+        mesh = load_mesh(tmp_path / name)
+        assert len(mesh.faces) == 12
+        np.testing.assert_array_equal(mesh.faces, clean.faces)  # the first listings, in the file's order
+    inside = [mesh_to_grid(load_mesh(tmp_path / n), resolution=16).sdf < 0 for n in ("box.stl", "two_sided.stl")]
+    assert inside[0].sum() > 100
+    np.testing.assert_array_equal(inside[1], inside[0])
+
+
+def test_a_repeated_face_with_its_own_colours_and_uvs_is_a_repeat_too(tmp_path):
+    p = tmp_path / "repeat.obj"
+    p.write_text(
+        "v 0 0 0 1 0 0\nv 1 0 0 1 0 0\nv 0 1 0 1 0 0\nv 0 0 1 1 0 0\n"
+        "v 0 0 0 0 0 1\nv 0 1 0 0 0 1\nv 1 0 0 0 0 1\n"
+        "f 1 2 3\nf 1 2 4\nf 5 6 7\n"  # the last: the first face again, blue and wound the other way
+    )
+    mesh = load_mesh(p)
+    assert len(mesh.faces) == 2 and len(mesh.vertices) == 4  # the repeat's own vertices are dropped with it
+    np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), RED)
+
+
 # ================================================================= bad input
 def test_missing_file(tmp_path):
     with pytest.raises(Sin3DMInputError, match="not found.*nothere.obj"):
@@ -689,6 +722,7 @@ def test_zero_area(tmp_path):
         ("word.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "line 4"),
         ("vbad.obj", b"v 0 0 zero\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "'v'"),
         ("empty.glb", b"", "empty"),
+        ("junk.stl", b"\x00\x01garbage" * 10, "corrupt file"),
     ],
 )
 def test_corrupt_files_give_one_clear_error(tmp_path, name, content, key):

@@ -95,13 +95,23 @@ class Part:
     vertex_colors: np.ndarray | None = None  # (V, 3) float32
 
 
+def first_listing(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The faces to keep, in file order: each triangle's first listing, whatever its corners' order (corners joined
+    by position alone, so a repeat with other colours or UVs is a repeat too)."""
+    _, at = unique_rows(vertices)
+    first, _ = unique_rows(np.sort(at[faces], axis=1))
+    return np.sort(first)
+
+
 def assemble(parts: list[Part], materials: list[Material], name: str, source: str) -> TexturedMesh:
-    """Concatenate parts, validate, drop unreferenced vertices, weld duplicates."""
+    """Concatenate parts, validate, keep each triangle once (:func:`first_listing`), drop unreferenced vertices,
+    weld duplicates."""
     parts = [p for p in parts if len(p.faces)]
     if not parts:
         raise Sin3DMInputError(
-            f"'{source}' contains no triangle faces (an empty file, or a point cloud / lines only); "
-            "Sin3DM needs a surface mesh: export the faces, or reconstruct a surface from the points first"
+            f"'{source}' contains no triangle faces (an empty file, a point cloud or lines only, or a corrupt file); "
+            "Sin3DM needs a surface mesh: export the faces (re-export a corrupt file), or reconstruct a surface from "
+            "the points first"
         )
     offsets = np.cumsum([0] + [len(p.vertices) for p in parts])
     vertices = np.concatenate([p.vertices for p in parts]).astype(np.float64)
@@ -117,6 +127,12 @@ def assemble(parts: list[Part], materials: list[Material], name: str, source: st
         colors = np.concatenate(
             [p.vertex_colors if p.vertex_colors is not None else np.ones((len(p.vertices), 3)) for p in parts]
         ).astype(np.float32)
+
+    # a triangle listed twice is one surface: a two-sided export lists each face again wound the other way, and
+    # the pair would cancel in the winding number that tells the grid inside from outside
+    once = first_listing(vertices, faces)
+    faces, face_material = faces[once], face_material[once]
+    face_uvs = face_uvs[once] if face_uvs is not None else None
 
     # keep only referenced vertices: stray points must not enlarge the bounding box
     used = np.zeros(len(vertices), bool)

@@ -51,10 +51,11 @@ def load_mesh(
     * ``.glb`` / ``.gltf``: every mesh node with its transform, every primitive with its PBR material;
     * ``.ply``: vertex or face colours; ``.stl`` / ``.off``: geometry only.
 
-    Identical vertices are welded, unreferenced ones dropped, polygons fan-triangulated. A missing or unreadable
-    texture is a ``UserWarning`` and the material keeps its plain colour; textures become float32 RGB in [0, 1],
-    shrunk to ``max_texture_size`` (``None``: never). A file the mesh names outside its own folder is refused
-    unless ``allow_outside_paths=True``. Any bad input raises a :class:`Sin3DMInputError`.
+    Identical vertices are welded, unreferenced ones dropped, a triangle listed twice (a two-sided export) kept
+    once, polygons fan-triangulated. A missing or unreadable texture is a ``UserWarning`` and the material keeps
+    its plain colour; textures become float32 RGB in [0, 1], shrunk to ``max_texture_size`` (``None``: never). A
+    file the mesh names outside its own folder is refused unless ``allow_outside_paths=True``. Any bad input
+    raises a :class:`Sin3DMInputError`.
     """
     path = check_input_path(path)
     load = load_obj if path.suffix.lower() == ".obj" else load_scene
