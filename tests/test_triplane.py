@@ -55,20 +55,3 @@ def test_pca_image_shows_the_strongest_pattern_first():
     _, basis = pca_basis(plane)
     _, basis_neg = pca_basis(-plane)
     np.testing.assert_allclose(basis[:, :2], basis_neg[:, :2], atol=1e-6)
-
-
-def test_flipped_mirrors_the_planes_that_hold_the_axis():
-    g = torch.Generator().manual_seed(0)
-    tp = Triplane.randn(2, 3, (4, 5, 6), generator=g)
-    fx, fz = tp.flipped("x"), tp.flipped("z")
-    torch.testing.assert_close(fx.xy, tp.xy.flip(2))
-    torch.testing.assert_close(fx.xz, tp.xz.flip(2))
-    torch.testing.assert_close(fx.yz, tp.yz)  # the yz plane does not hold x
-    torch.testing.assert_close(fz.xy, tp.xy)
-    torch.testing.assert_close(fz.xz, tp.xz.flip(3))
-    torch.testing.assert_close(fz.yz, tp.yz.flip(3))
-    # a point's feature in the flipped latent is the original's at the mirrored point
-    p = torch.rand(2, 40, 3) * 2 - 1
-    q = p * torch.tensor([-1.0, 1.0, 1.0])
-    torch.testing.assert_close(fx.lookup(p), tp.lookup(q))
-    torch.testing.assert_close(fx.flipped("x").xy, tp.xy)

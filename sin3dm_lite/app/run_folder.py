@@ -14,7 +14,6 @@ from contextlib import suppress
 from dataclasses import replace
 from pathlib import Path
 
-from ..auto.fit_policy import check_flips
 from ..data.box import grid_shape
 from ..data.config import Config
 from ..data.grid import load_grid
@@ -63,7 +62,6 @@ def prepare_run(
     cfg = None
     if preset is not None:
         cfg = preset if isinstance(preset, Config) else get_preset(preset)
-        check_flips(cfg)
         if seed is not None:
             cfg = cfg.updated(seed=seed)
         check_network_sizes(cfg)  # before any folder is made

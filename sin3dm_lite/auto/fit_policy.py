@@ -1,6 +1,6 @@
-"""What a fit says about its input and settings, beyond the paper: which variant to fit (:func:`choose_pbr`),
-settings that do not go together (:func:`check_flips`), a reconstruction too poor for useful samples
-(:func:`warn_if_poor`) and samples from pure noise that copy the input (:func:`copies_warning`)."""
+"""What a fit says about its input and settings, beyond the paper: which variant to fit (:func:`choose_pbr`), a
+reconstruction too poor for useful samples (:func:`warn_if_poor`) and samples from pure noise that copy the input
+(:func:`copies_warning`)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,7 @@ import warnings
 
 from ..data.config import Config
 from ..data.mesh import TexturedMesh
-from ..errors import Sin3DMInputError
 from ..evaluate.calibration_record import VARIED_G_DIV
-from ..model.diffusion import check_flips as check_flip_axes
 from ..presets import PRESETS
 
 MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
@@ -107,20 +105,3 @@ def choose_pbr(mesh: TexturedMesh, pbr: bool | None, preset, say) -> bool:
             f"[fit] '{mesh.name}' has no PBR maps: learning its constant metallic / roughness and its geometric normals"
         )
     return bool(pbr)
-
-
-def check_flips(cfg: Config) -> None:
-    """``diffusion.flips`` needs a decoder that commutes with flips (autoencoder.mirror), and no PBR normals."""
-    if not cfg.diffusion.flips:
-        return
-    check_flip_axes(cfg.diffusion.flips)
-    if not cfg.autoencoder.mirror:
-        raise Sin3DMInputError(
-            f"diffusion.flips='{cfg.diffusion.flips}' needs autoencoder.mirror=true: only a decoder with mirror-symmetric "
-            "kernels decodes a flipped latent to the mirrored shape (CLI: --set autoencoder.mirror=true)"
-        )
-    if cfg.autoencoder.pbr:
-        raise Sin3DMInputError(
-            "diffusion.flips does not work with the PBR variant: a mirrored shape's normals change direction, which a "
-            "flipped latent does not say; fit with pbr=False (CLI: --no-pbr) or without flips"
-        )

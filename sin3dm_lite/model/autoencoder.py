@@ -114,34 +114,13 @@ def _tap_conv(conv: nn.Conv3d, taps: torch.Tensor, axis: int) -> torch.Tensor:
 
 
 # --------------------------------------------------------------------------- decoder
-class MirrorConv2d(nn.Conv2d):
-    """A convolution whose kernel is symmetric along ``dims`` (-2: rows, -1: columns), so that
-    ``conv(x.flip(d)) == conv(x).flip(d)``: the forward uses the weight's average with its mirror image."""
-
-    def __init__(self, c_in: int, c_out: int, k: int, dims: tuple[int, ...]):
-        super().__init__(c_in, c_out, k, padding=k // 2)
-        self.dims = tuple(dims)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        w = self.weight
-        for d in self.dims:
-            w = 0.5 * (w + w.flip(d))
-        return self._conv_forward(x, w, self.bias)
-
-
-#: the kernel axes a mirror decoder keeps symmetric on each plane: x and z flips (y is up, never flipped)
-MIRROR_DIMS = {"xy": (-2,), "xz": (-2, -1), "yz": (-1,)}
-
-
 class PlaneResBlock(nn.Module):
-    """2D ResNet block applied to one plane: Conv5×5+IN+SiLU → Conv5×5 (zero-init), plus a 1×1 shortcut.
+    """2D ResNet block applied to one plane: Conv5×5+IN+SiLU → Conv5×5 (zero-init), plus a 1×1 shortcut."""
 
-    With ``mirror`` (the plane's kernel axes to keep symmetric) it commutes with flips along them."""
-
-    def __init__(self, c_in: int, c_out: int, k: int = 5, mirror: tuple[int, ...] = ()):
+    def __init__(self, c_in: int, c_out: int, k: int = 5):
         super().__init__()
-        self.conv1 = MirrorConv2d(c_in, c_out, k, mirror) if mirror else nn.Conv2d(c_in, c_out, k, padding=k // 2)
-        self.conv2 = MirrorConv2d(c_out, c_out, k, mirror) if mirror else nn.Conv2d(c_out, c_out, k, padding=k // 2)
+        self.conv1 = nn.Conv2d(c_in, c_out, k, padding=k // 2)
+        self.conv2 = nn.Conv2d(c_out, c_out, k, padding=k // 2)
         self.skip = nn.Conv2d(c_in, c_out, 1)
         nn.init.zeros_(self.conv2.weight)
         nn.init.zeros_(self.conv2.bias)
@@ -221,9 +200,8 @@ class TriplaneDecoder(nn.Module):
         super().__init__()
         self.geo_channels = cfg.geo_channels
         c, k = cfg.decoder_channels, cfg.decoder_kernel
-        dims = [MIRROR_DIMS[p] if cfg.mirror else () for p in PLANES]
-        self.geo_blocks = nn.ModuleList(PlaneResBlock(cfg.geo_channels, c, k, d) for d in dims)
-        self.tex_blocks = nn.ModuleList(PlaneResBlock(cfg.tex_channels, c, k, d) for d in dims)
+        self.geo_blocks = nn.ModuleList(PlaneResBlock(cfg.geo_channels, c, k) for _ in PLANES)
+        self.tex_blocks = nn.ModuleList(PlaneResBlock(cfg.tex_channels, c, k) for _ in PLANES)
         self.geo_mlp = SkipMLP(c, cfg.mlp_hidden, 1)
         self.color_channels = color_channels
         if cfg.pbr:

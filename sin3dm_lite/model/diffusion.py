@@ -63,58 +63,11 @@ def triplane_mse(a: Triplane, b: Triplane) -> torch.Tensor:
     return sum(F.mse_loss(p, q) for p, q in zip(a.planes, b.planes))
 
 
-def random_crops(h0: Triplane, n: int, size: int, generator: torch.Generator) -> Triplane:
-    """``n`` random crops of one latent, ``size`` texels along each axis (or the whole axis when it is shorter).
-
-    A crop is a sub-box of the shape: the xy plane is cut at the box's x and y
-    range, xz at its x and z range, yz at y and z, so the three planes still
-    describe one region.
-    """
-    res = h0.resolution
-    sizes = [min(size, r) for r in res]
-    starts = [
-        torch.randint(0, r - s + 1, (n,), generator=generator, device=generator.device).tolist()
-        for r, s in zip(res, sizes)
-    ]
-    (sx, sy, sz), planes = sizes, []
-    for i in range(n):
-        ox, oy, oz = starts[0][i], starts[1][i], starts[2][i]
-        planes.append(
-            (
-                h0.xy[:, :, ox : ox + sx, oy : oy + sy],
-                h0.xz[:, :, ox : ox + sx, oz : oz + sz],
-                h0.yz[:, :, oy : oy + sy, oz : oz + sz],
-            )
-        )
-    return Triplane(*(torch.cat(p, 0) for p in zip(*planes)))
-
-
-def check_flips(axes: str) -> None:
-    """``diffusion.flips`` names axes to mirror the latent along: "", "x", "z" or "xz" (y is up)."""
-    if not isinstance(axes, str) or set(axes) - set("xz") or len(set(axes)) != len(axes):
-        raise Sin3DMInputError(
-            f"diffusion.flips must be '', 'x', 'z' or 'xz' (y is up and never flipped), not {axes!r}"
-        )
-
-
-def random_flips(x: Triplane, axes: str, generator: torch.Generator) -> Triplane:
-    """Mirror each latent of the batch along each of ``axes`` ("x", "z") with probability ½.
-
-    Only meaningful with a decoder that commutes with flips (``AutoencoderConfig.mirror``): then a flipped latent
-    is the latent of the mirrored shape.
-    """
-    for axis in axes:
-        pick = (torch.rand(x.batch, generator=generator, device=generator.device) < 0.5).to(x.device)
-        flipped = x.flipped(axis)
-        x = x.zip_map(flipped, lambda a, f: torch.where(pick[:, None, None, None], f, a))  # noqa: B023 (used at once)
-    return x
-
-
 class DiffusionTrainer(Trainer):
     """Trains the denoiser on one latent ``h0``, resumable bit for bit (:class:`Trainer`).
 
-    Every step draws a batch of ``cfg.batch_size`` copies of ``h0`` (or random
-    crops of it), each with its own time step and noise. AdamW, learning rate
+    Every step draws a batch of ``cfg.batch_size`` copies of ``h0``, each with
+    its own time step and noise. AdamW, learning rate
     annealed linearly to 0 over ``cfg.steps``, and an EMA copy of the weights
     (``cfg.ema_decay = 0``: none). The checkpoint adds ``ema`` and ``h0``, so
     :meth:`from_state_dict` rebuilds the trainer from it alone.
@@ -129,7 +82,6 @@ class DiffusionTrainer(Trainer):
             raise Sin3DMInputError(f"unknown prediction '{cfg.prediction}'; use 'x0' (the paper) or 'eps'")
         if cfg.precision not in PRECISIONS:
             raise Sin3DMInputError(f"unknown diffusion precision '{cfg.precision}'; use one of {', '.join(PRECISIONS)}")
-        check_flips(cfg.flips)
         if cfg.latent_scale == 0:  # unit variance: the number found here is what the config records
             cfg = dataclasses.replace(cfg, latent_scale=unit_scale(h0))
         super().__init__(cfg, device, seed)
@@ -151,11 +103,9 @@ class DiffusionTrainer(Trainer):
         return (self.ema if self.ema is not None else self.model).eval()
 
     def losses(self) -> dict[str, torch.Tensor]:
-        """The denoising loss on a batch of noised copies (or crops) of ``h0``."""
+        """The denoising loss on a batch of noised copies of ``h0``."""
         b, g = self.cfg.batch_size, self.generator
-        x0 = self.target.repeat(b) if self.cfg.crop <= 0 else random_crops(self.target, b, self.cfg.crop, g)
-        if self.cfg.flips:
-            x0 = random_flips(x0, self.cfg.flips, g)
+        x0 = self.target.repeat(b)
         t = torch.randint(0, self.schedule.timesteps, (b,), generator=g, device=self.device)
         noise = Triplane.randn_like(x0, generator=g)
 
@@ -452,7 +402,6 @@ def soft_mask(
 __all__ = [
     "DiffusionTrainer",
     "diffusion_loss",
-    "random_crops",
     "fit_diffusion",
     "sample",
     "SampleNoise",

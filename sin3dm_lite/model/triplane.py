@@ -100,12 +100,6 @@ class Triplane:
     def repeat(self, n: int) -> Triplane:
         return self.map(lambda p: p.repeat(n, 1, 1, 1))
 
-    def flipped(self, axis: str) -> Triplane:
-        """The latent of the shape mirrored along ``axis`` ("x", "y" or "z"): each plane holding that axis is flipped
-        along it. A decoder that commutes with flips (``AutoencoderConfig.mirror``) decodes it to the mirrored shape."""
-        dim = {"x": {"xy": 2, "xz": 2}, "y": {"xy": 3, "yz": 2}, "z": {"xz": 3, "yz": 3}}[axis]
-        return Triplane(*(p.flip(dim[n]) if n in dim else p for n, p in zip(PLANES, self.planes)))
-
     def resized(self, resolution: tuple[int, int, int]) -> Triplane:
         """Bilinear resampling of every plane to the spatial size ``(X, Y, Z)`` (texel centres kept in place)."""
         x, y, z = resolution
