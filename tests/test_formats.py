@@ -639,6 +639,25 @@ def test_a_two_sided_export_is_read_as_one_surface_and_its_grid_has_the_inside(t
     np.testing.assert_array_equal(inside[1], inside[0])
 
 
+def test_a_two_sided_obj_of_quads_is_cut_into_the_same_triangles_both_ways_and_read_once(tmp_path):
+    """A quad listed again the other way round, fanned from its own first corner, would be cut along the other
+    diagonal: every polygon is fanned from its lowest vertex index instead."""
+    from sin3dm_lite.data.grid import mesh_to_grid
+
+    v = "".join(f"v {x} {y} {z}\n" for x in (0, 1) for y in (0, 0.6) for z in (0, 0.4))  # vertex 1 + 4x + 2y + z
+    quads = ["2 4 3 1", "7 8 6 5", "5 6 2 1", "4 8 7 3", "3 7 5 1", "6 8 4 2"]  # counter-clockwise seen from outside
+    (tmp_path / "box.obj").write_text(v + "".join(f"f {q}\n" for q in quads))
+    back = [" ".join(reversed(q.split())) for q in quads]
+    (tmp_path / "two.obj").write_text(v + "".join(f"f {q}\n" for q in quads + back))
+    box, two = load_mesh(tmp_path / "box.obj"), load_mesh(tmp_path / "two.obj")
+    assert len(box.faces) == len(two.faces) == 12
+    np.testing.assert_array_equal(two.faces, box.faces)
+    np.testing.assert_array_equal(box.faces[:2], [[0, 1, 3], [0, 3, 2]])  # "f 2 4 3 1" fanned from vertex 1
+    inside = [mesh_to_grid(m, resolution=16).sdf < 0 for m in (box, two)]
+    assert inside[0].sum() > 100
+    np.testing.assert_array_equal(inside[1], inside[0])
+
+
 def test_a_repeated_face_with_its_own_colours_and_uvs_is_a_repeat_too(tmp_path):
     p = tmp_path / "repeat.obj"
     p.write_text(

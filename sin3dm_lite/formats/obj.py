@@ -112,19 +112,31 @@ def _obj_face_uvs(uvs: np.ndarray, ft: np.ndarray, face_material: np.ndarray, uv
     return face_uvs
 
 
+def _from_lowest(row: str) -> list[str]:
+    """A face line's corners, turned round to start at its lowest vertex index: a polygon listed again the other way
+    round (a two-sided export) is then cut into the same triangles, which the loader keeps once."""
+    c = row.split()
+    try:
+        k = min(range(len(c)), key=lambda i: int(c[i].split("/")[0]))
+    except ValueError:
+        return c  # a bad index, reported by the caller
+    return c[k:] + c[:k]
+
+
 def _obj_faces(path, rows: list[str], info: np.ndarray, line_of):
     """Face lines → triangles ``(F, 3)`` of vertex and uv indices (0-based; uv -1: none) and material slots.
 
     ``info`` holds, for each line, its position in the text, its material slot and how many vertices and uvs were
-    defined before it (negative indices count back from there). Polygons are fan-triangulated, lines with fewer
-    than three corners skipped; files with one index layout (the usual case) are parsed in one vectorised step.
+    defined before it (negative indices count back from there). Polygons are fan-triangulated
+    (:func:`_from_lowest`), lines with fewer than three corners skipped; files with one index layout (the usual
+    case) are parsed in one vectorised step.
     """
     counts = np.array([len(row.split()) for row in rows], np.int64)  # corners per line
     line = np.repeat(np.arange(len(rows)), np.maximum(counts - 2, 0))  # the line of each triangle
     if (counts == 3).all():
         tri = " ".join(rows).split()
-    else:  # fan triangulation
-        tri = [t for c in map(str.split, rows) for k in range(1, len(c) - 1) for t in (c[0], c[k], c[k + 1])]
+    else:  # fan triangulation from each polygon's lowest vertex index
+        tri = [t for c in map(_from_lowest, rows) for k in range(1, len(c) - 1) for t in (c[0], c[k], c[k + 1])]
     nums = None
     if len({t.count("/") for t in tri}) == 1:  # v, v/vt, v//vn or v/vt/vn on every corner
         try:
