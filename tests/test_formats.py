@@ -658,6 +658,26 @@ def test_a_two_sided_obj_of_quads_is_cut_into_the_same_triangles_both_ways_and_r
     np.testing.assert_array_equal(inside[1], inside[0])
 
 
+def test_two_blocks_that_share_a_wall_keep_both_its_sides_and_stay_closed(tmp_path):
+    """Two closed blocks that touch list their shared wall twice, once from each side: not a two-sided export (only
+    that wall is listed twice), so both stay, the mesh stays closed and the grid is the two blocks' union."""
+    from sin3dm_lite.data.grid import mesh_to_grid
+
+    a = trimesh.creation.box((1.0, 1.0, 1.0))
+    a.apply_translation([-0.5, 0, 0])
+    b = trimesh.Trimesh(
+        a.vertices * [-1, 1, 1], a.faces[:, ::-1], process=False
+    )  # a mirrored: the shared wall reversed
+    trimesh.util.concatenate([a, b]).export(tmp_path / "blocks.stl")
+    trimesh.creation.box((2.0, 1.0, 1.0)).export(tmp_path / "whole.stl")
+    blocks = load_mesh(tmp_path / "blocks.stl")
+    assert len(blocks.faces) == 24
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "open mesh" or "inside out" warning
+        inside = mesh_to_grid(blocks, resolution=16).sdf < 0
+    np.testing.assert_array_equal(inside, mesh_to_grid(load_mesh(tmp_path / "whole.stl"), resolution=16).sdf < 0)
+
+
 def test_a_repeated_face_with_its_own_colours_and_uvs_is_a_repeat_too(tmp_path):
     p = tmp_path / "repeat.obj"
     p.write_text(
