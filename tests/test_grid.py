@@ -143,6 +143,27 @@ def test_inside_out_parts_are_turned_round_with_a_warning():
     assert all(g.sdf[i, j, k] < 0 for i, j, k in idx)  # inside the box, the sphere and the cup's bottom
 
 
+def test_a_two_sided_mesh_built_in_python_grids_and_scores_as_its_one_side():
+    """The loader keeps each triangle of a two-sided file once; a mesh built in Python never meets the loader, so
+    the grid and the metrics' input occupancy keep each triangle once themselves (the pairs would cancel in the
+    winding number: the box read as a thin shell, inside out)."""
+    from sin3dm_lite.evaluate.geometry import input_occupancy
+
+    box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
+    one = textured(box)
+    two = textured(trimesh.Trimesh(box.vertices, np.vstack([box.faces, box.faces[:, ::-1]]), process=False))
+    assert len(two.faces) == 24
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "inside out", no "thin parts"
+        grids = [mesh_to_grid(m, 16, n_surface_points=0, progress=False).sdf for m in (one, two)]
+    assert (grids[0] < 0).sum() > 500
+    np.testing.assert_array_equal(grids[1], grids[0])
+    box6 = np.array([-1.0, -1, -1, 1, 1, 1])
+    occupied = [input_occupancy(m.normalized(), box6, 32, supersample=2) for m in (one, two)]
+    assert occupied[0].sum() > 5000
+    np.testing.assert_array_equal(occupied[1], occupied[0])
+
+
 def test_closed_means_every_edge_used_both_ways():
     from sin3dm_lite.data.distance import Distance
 

@@ -277,8 +277,9 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
     """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space), the grid's voxel counts
     (:func:`training_dims`) and whether it is flat (decided before the shrink, as :func:`is_flat` decides); a flat
     sheet lies a quarter voxel off the box's mid-plane, where two rows of voxel centres meet: so its slab holds a row
-    of them however few voxels thick it is (one at 32)."""
-    m = mesh.normalized()
+    of them however few voxels thick it is (one at 32). Each triangle is kept once (:meth:`TexturedMesh.listed_once`),
+    as the loader reads a file: the two listings of a two-sided mesh would cancel in the winding number."""
+    m = mesh.normalized().listed_once()
     extent = np.ptp(m.vertices, axis=0) if len(m.vertices) else np.ones(3)
     flat = flat_axes(extent, resolution)
     shrink, dims = training_dims(extent, resolution, margin_voxels)
@@ -319,7 +320,7 @@ def _surprises(mesh: TexturedMesh, normalised: TexturedMesh, dist: Distance, sla
     notes, turned = [], dist.turned_round
     if turned.faces:
         notes.append(
-            f"{turned.faces:,} of the {len(mesh.faces):,} faces of '{mesh.name}' are wound against their "
+            f"{turned.faces:,} of the {len(normalised.faces):,} faces of '{mesh.name}' are wound against their "
             "neighbours (they would punch holes into its inside); the grid winds them as their neighbours"
         )
     if turned.parts:

@@ -215,6 +215,15 @@ class TexturedMesh:
         new = Normalization(center=self.normalization.to_original(center), scale=self.normalization.scale * scale)
         return replace(self, vertices=(self.vertices - center) * scale, normalization=new)
 
+    def listed_once(self) -> TexturedMesh:
+        """This mesh with each triangle listed once (:func:`first_listing`), as the loader reads a file: a two-sided
+        mesh built in Python, whose pairs would cancel in the winding number, gets its inside back."""
+        keep = first_listing(self.vertices, self.faces)
+        if len(keep) == len(self.faces):
+            return self
+        uvs = None if self.face_uvs is None else self.face_uvs[keep]
+        return replace(self, faces=self.faces[keep], face_material=self.face_material[keep], face_uvs=uvs)
+
 
 def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area of each triangle, ``(F,)``."""
@@ -232,6 +241,28 @@ def component_labels(n_verts: int, faces: np.ndarray) -> np.ndarray:
     graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n_verts, n_verts))
     _, labels = connected_components(graph, directed=False)
     return labels[faces[:, 0]]
+
+
+def first_listing(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The faces to keep, in file order: a triangle listed again (corners joined by position alone, so a repeat with
+    other colours or UVs is a repeat too) is kept once where it is wound alike, or where most of its part is listed
+    twice (a two-sided export, whose pairs would cancel in the winding number and leave no inside). Elsewhere a pair
+    wound against each other is two solids' shared wall and both stay: they cancel, as a wall inside a solid should."""
+    if len(faces) == 0:
+        return np.arange(0)
+    _, at = unique_rows(vertices)
+    tri = at[faces]
+    first, group = unique_rows(np.sort(tri, axis=1))
+    odd = ((tri[:, 0] > tri[:, 1]).astype(np.int64) + (tri[:, 0] > tri[:, 2]) + (tri[:, 1] > tri[:, 2])) % 2
+    keep = np.zeros(len(faces), bool)
+    keep[first] = True
+    against = ~keep & (odd != odd[first[group]])  # a later listing wound against the first
+    if against.any():
+        twinned = np.zeros(len(faces), bool)
+        twinned[against] = twinned[first[group[against]]] = True
+        part = component_labels(int(tri.max()) + 1, tri)
+        keep |= against & (np.bincount(part, twinned) <= np.bincount(part) / 2)[part]
+    return np.flatnonzero(keep)
 
 
 def tangent_frames(vertices: np.ndarray, faces: np.ndarray, face_uvs: np.ndarray | None):

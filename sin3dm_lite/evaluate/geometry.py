@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from ..data.box import as_aabb, axis_centres, grid_shape, to_index
+from ..data.mesh import first_listing
 from ..errors import Sin3DMInputError
 from ..generate.bake import rasterize_triangles
 from .patches import ANY_OFFSET_MAX_VOXELS, lp_scores, lp_scores_any_offset
@@ -179,6 +180,7 @@ def input_occupancy(mesh, aabb, resolution: int = 128, supersample: int = 1) -> 
     coarse = tuple(grid_shape(box, resolution))
     shape = tuple(factor * n for n in coarse)
     verts, faces = _verts_faces(mesh)
+    faces = faces[first_listing(verts, faces)]  # a two-sided mesh's pairs would cancel in the winding number
     dist = Distance(SimpleNamespace(vertices=verts, faces=faces))  # closed parts turned outwards
     slabs = any(dist.find_slabs())  # open sheets and thin parts as slabs, the same as the training grid has them
     if dist.closed and not slabs:

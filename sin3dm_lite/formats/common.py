@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.mesh import MAX_COORDINATE, Material, TexturedMesh, component_labels, face_areas, unique_rows
+from ..data.mesh import MAX_COORDINATE, Material, TexturedMesh, face_areas, first_listing, unique_rows
 from ..errors import Sin3DMInputError
 from ..files.inputs import check_regular, not_regular
 
@@ -93,26 +93,6 @@ class Part:
     face_material: np.ndarray  # (F,) int64, into the shared material list
     face_uvs: np.ndarray | None = None  # (F, 3, 2)
     vertex_colors: np.ndarray | None = None  # (V, 3) float32
-
-
-def first_listing(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """The faces to keep, in file order: a triangle listed again (corners joined by position alone, so a repeat with
-    other colours or UVs is a repeat too) is kept once where it is wound alike, or where most of its part is listed
-    twice (a two-sided export, whose pairs would cancel in the winding number and leave no inside). Elsewhere a pair
-    wound against each other is two solids' shared wall and both stay: they cancel, as a wall inside a solid should."""
-    _, at = unique_rows(vertices)
-    tri = at[faces]
-    first, group = unique_rows(np.sort(tri, axis=1))
-    odd = ((tri[:, 0] > tri[:, 1]).astype(np.int64) + (tri[:, 0] > tri[:, 2]) + (tri[:, 1] > tri[:, 2])) % 2
-    keep = np.zeros(len(faces), bool)
-    keep[first] = True
-    against = ~keep & (odd != odd[first[group]])  # a later listing wound against the first
-    if against.any():
-        twinned = np.zeros(len(faces), bool)
-        twinned[against] = twinned[first[group[against]]] = True
-        part = component_labels(int(tri.max()) + 1, tri)
-        keep |= against & (np.bincount(part, twinned) <= np.bincount(part) / 2)[part]
-    return np.flatnonzero(keep)
 
 
 def assemble(parts: list[Part], materials: list[Material], name: str, source: str) -> TexturedMesh:
