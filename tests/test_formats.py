@@ -658,6 +658,40 @@ def test_a_two_sided_obj_of_quads_is_cut_into_the_same_triangles_both_ways_and_r
     np.testing.assert_array_equal(inside[1], inside[0])
 
 
+@pytest.mark.parametrize("ext", ["ply", "off"])
+def test_a_two_sided_ply_or_off_of_quads_cut_along_the_other_diagonal_is_read_once(tmp_path, ext):
+    """trimesh cuts a PLY's or OFF's quads from their first corner, so a quad listed again the other way round is
+    cut along its other diagonal: the flat quad its two triangles make is matched instead (a voxel tower so
+    exported kept 0.35 of its grid before). A tetrahedron, whose opposite edges' triangles make the same four
+    corners both ways round but not flat, keeps its four faces."""
+    from sin3dm_lite.data.grid import mesh_to_grid
+    from sin3dm_lite.data.mesh import first_listing
+
+    v = [(x, y, z) for x in (0, 1) for y in (0, 0.6) for z in (0, 0.4)]  # vertex 4x + 2y + z
+    quads = [(1, 3, 2, 0), (6, 7, 5, 4), (4, 5, 1, 0), (3, 7, 6, 2), (2, 6, 4, 0), (5, 7, 3, 1)]
+
+    def write(name, qs):
+        if ext == "ply":
+            head = "ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\nproperty float z\n"
+            head += f"element face {len(qs)}\nproperty list uchar int vertex_indices\nend_header\n"
+        else:
+            head = f"OFF\n8 {len(qs)} 0\n"
+        lines = [f"{x} {y} {z}\n" for x, y, z in v] + [f"4 {a} {b} {c} {d}\n" for a, b, c, d in qs]
+        (tmp_path / f"{name}.{ext}").write_text(head + "".join(lines))
+        return load_mesh(tmp_path / f"{name}.{ext}")
+
+    box, two = write("box", quads), write("two", quads + [q[::-1] for q in quads])
+    assert len(box.faces) == len(two.faces) == 12
+    np.testing.assert_array_equal(two.faces, box.faces)
+    inside = [mesh_to_grid(m, resolution=16).sdf < 0 for m in (box, two)]
+    assert inside[0].sum() > 100
+    np.testing.assert_array_equal(inside[1], inside[0])
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    np.testing.assert_array_equal(
+        first_listing(corners, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])), range(4)
+    )
+
+
 def test_two_blocks_that_share_a_wall_keep_both_its_sides_and_stay_closed(tmp_path):
     """Two closed blocks that touch list their shared wall twice, once from each side: not a two-sided export (only
     that wall is listed twice), so both stay, the mesh stays closed and the grid is the two blocks' union."""
