@@ -53,6 +53,7 @@ LAYERS = {
     "formats.export": DATA,
     "formats": DATA,
     "formats.common": DATA,
+    "formats.repair": DATA,
     "formats.images": DATA,
     "formats.obj": DATA,
     "formats.mtl": DATA,

@@ -665,7 +665,7 @@ def test_a_two_sided_ply_or_off_of_quads_cut_along_the_other_diagonal_is_read_on
     exported kept 0.35 of its grid before). A tetrahedron, whose opposite edges' triangles make the same four
     corners both ways round but not flat, keeps its four faces."""
     from sin3dm_lite.data.grid import mesh_to_grid
-    from sin3dm_lite.data.mesh import first_listing
+    from sin3dm_lite.formats.repair import first_listing
 
     v = [(x, y, z) for x in (0, 1) for y in (0, 0.6) for z in (0, 0.4)]  # vertex 4x + 2y + z
     quads = [(1, 3, 2, 0), (6, 7, 5, 4), (4, 5, 1, 0), (3, 7, 6, 2), (2, 6, 4, 0), (5, 7, 3, 1)]

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import Sin3DMInputError
 from ..files import atomic_path
+from ..formats.repair import listed_once
 from .box import SHEET_HALF, axis_centres, centred_box, flat_axes, to_box, training_dims
 from .config import LIMITS
 from .distance import THIN_DEPTHS, Distance, Slabs
@@ -277,9 +278,9 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
     """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space), the grid's voxel counts
     (:func:`training_dims`) and whether it is flat (decided before the shrink, as :func:`is_flat` decides); a flat
     sheet lies a quarter voxel off the box's mid-plane, where two rows of voxel centres meet: so its slab holds a row
-    of them however few voxels thick it is (one at 32). Each triangle is kept once (:meth:`TexturedMesh.listed_once`),
+    of them however few voxels thick it is (one at 32). Each triangle is kept once (:func:`~sin3dm_lite.formats.repair.listed_once`),
     as the loader reads a file: the two listings of a two-sided mesh would cancel in the winding number."""
-    m = mesh.normalized().listed_once()
+    m = listed_once(mesh.normalized())
     extent = np.ptp(m.vertices, axis=0) if len(m.vertices) else np.ones(3)
     flat = flat_axes(extent, resolution)
     shrink, dims = training_dims(extent, resolution, margin_voxels)

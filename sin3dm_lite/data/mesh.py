@@ -215,15 +215,6 @@ class TexturedMesh:
         new = Normalization(center=self.normalization.to_original(center), scale=self.normalization.scale * scale)
         return replace(self, vertices=(self.vertices - center) * scale, normalization=new)
 
-    def listed_once(self) -> TexturedMesh:
-        """This mesh with each triangle listed once (:func:`first_listing`), as the loader reads a file: a two-sided
-        mesh built in Python, whose pairs would cancel in the winding number, gets its inside back."""
-        keep = first_listing(self.vertices, self.faces)
-        if len(keep) == len(self.faces):
-            return self
-        uvs = None if self.face_uvs is None else self.face_uvs[keep]
-        return replace(self, faces=self.faces[keep], face_material=self.face_material[keep], face_uvs=uvs)
-
 
 def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area of each triangle, ``(F,)``."""
@@ -241,78 +232,6 @@ def component_labels(n_verts: int, faces: np.ndarray) -> np.ndarray:
     graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n_verts, n_verts))
     _, labels = connected_components(graph, directed=False)
     return labels[faces[:, 0]]
-
-
-def first_listing(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """The faces to keep, in file order: a triangle listed again (corners joined by position alone, so a repeat with
-    other colours or UVs is a repeat too) is kept once where it is wound alike, or where most of its part is listed
-    twice (a two-sided export, whose pairs would cancel in the winding number and leave no inside). A flat quad
-    listed again the other way round and cut along its other diagonal (:func:`_reversed_quads`: a PLY or OFF file of
-    quads, which trimesh cuts from each quad's first corner) is a repeat wound against its first listing too.
-    Elsewhere a pair wound against each other is two solids' shared wall and both stay: they cancel, as a wall
-    inside a solid should."""
-    if len(faces) == 0:
-        return np.arange(0)
-    _, at = unique_rows(vertices)
-    tri = at[faces]
-    first, group = unique_rows(np.sort(tri, axis=1))
-    odd = ((tri[:, 0] > tri[:, 1]).astype(np.int64) + (tri[:, 0] > tri[:, 2]) + (tri[:, 1] > tri[:, 2])) % 2
-    keep = np.zeros(len(faces), bool)
-    keep[first] = True
-    against = ~keep & (odd != odd[first[group]])  # a later listing wound against the first
-    twinned = np.zeros(len(faces), bool)
-    twinned[against] = twinned[first[group[against]]] = True
-    later, earlier = _reversed_quads(np.asarray(vertices, np.float64), tri, _on_doubled_edges(tri, keep & ~twinned))
-    against[later] = twinned[later] = twinned[earlier] = True
-    keep[later] = False
-    if against.any():
-        part = component_labels(int(tri.max()) + 1, tri)
-        keep |= against & (np.bincount(part, twinned) <= np.bincount(part) / 2)[part]
-    return np.flatnonzero(keep)
-
-
-def _on_doubled_edges(tri: np.ndarray, among: np.ndarray) -> np.ndarray:
-    """The faces of ``among`` with an edge that another of them runs the same way: where a surface and its reverse
-    overlap (a consistently wound surface runs each edge once each way)."""
-    faces = np.flatnonzero(among)
-    t = tri[faces]
-    n = np.int64(tri.max()) + 1
-    edge = (t * n + np.roll(t, -1, axis=1)).ravel()  # u → v as one number, face-major
-    _, inverse, count = np.unique(edge, return_inverse=True, return_counts=True)
-    return faces[(count[inverse] > 1).reshape(-1, 3).any(1)]
-
-
-def _reversed_quads(vertices: np.ndarray, tri: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Among ``faces`` (rows of ``tri``, corners joined by position), the two triangles of each flat quad listed a
-    second time wound the other way, and those of its first listing: two triangles that share an edge (wound against
-    each other along it, their normals within about 10°) make a quad, the cycle of its four corners."""
-    t = tri[faces]
-    # every directed edge u → v of a face, with the face's third corner p; a partner runs v → u, its third corner q
-    u, v, p = t.T, np.roll(t, -1, axis=1).T, np.roll(t, -2, axis=1).T
-    u, v, p, owner = u.ravel(), v.ravel(), p.ravel(), np.tile(np.arange(len(t)), 3)
-    order = np.lexsort((np.maximum(u, v), np.minimum(u, v)))
-    a, b = order[:-1], order[1:]  # neighbours in the sort: edges shared by two faces (more shown by a longer run)
-    for step in (2, 3):
-        a, b = np.r_[a, order[:-step]], np.r_[b, order[step:]]
-    pair = (u[a] == v[b]) & (v[a] == u[b]) & (p[a] != p[b])
-    a, b = a[pair], b[pair]
-    e = vertices[t]
-    normal = np.cross(e[:, 1] - e[:, 0], e[:, 2] - e[:, 0])
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    flat = np.einsum("ij,ij->i", normal[owner[a]], normal[owner[b]]) > 0.985
-    a, b = a[flat], b[flat]
-    cycle = np.stack([v[a], p[a], u[a], p[b]], axis=1)  # a's corners v → p → u, then b's u → q → v
-    start = np.argmin(cycle, axis=1)
-    cycle = np.take_along_axis(cycle, (start[:, None] + np.arange(4)) % 4, axis=1)
-    forward = cycle[:, 1] < cycle[:, 3]
-    key = np.where(forward[:, None], cycle, cycle[:, [0, 3, 2, 1]])  # the same for both windings
-    quad = np.stack([owner[a], owner[b]], axis=1)
-    _, group = unique_rows(key)
-    listed = np.full((len(key), 2), len(t))  # each group's first listing (its lowest face) each way round
-    np.minimum.at(listed, (group, forward.astype(np.int64)), quad.min(1))
-    both = (listed[group] < len(t)).all(1)  # the same corners wound both ways round
-    later = both & (quad.min(1) > listed[group, (~forward).astype(np.int64)])
-    return faces[np.unique(quad[later])], faces[np.unique(quad[both & ~later])]
 
 
 def tangent_frames(vertices: np.ndarray, faces: np.ndarray, face_uvs: np.ndarray | None):

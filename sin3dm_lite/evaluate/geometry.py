@@ -15,8 +15,8 @@ import math
 import numpy as np
 
 from ..data.box import as_aabb, axis_centres, grid_shape, to_index
-from ..data.mesh import first_listing
 from ..errors import Sin3DMInputError
+from ..formats.repair import first_listing
 from ..generate.bake import rasterize_triangles
 from .patches import ANY_OFFSET_MAX_VOXELS, lp_scores, lp_scores_any_offset
 

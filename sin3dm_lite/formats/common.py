@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.mesh import MAX_COORDINATE, Material, TexturedMesh, face_areas, first_listing, unique_rows
+from ..data.mesh import MAX_COORDINATE, Material, TexturedMesh, face_areas, unique_rows
 from ..errors import Sin3DMInputError
 from ..files.inputs import check_regular, not_regular
+from .repair import first_listing
 
 
 @dataclass(frozen=True)
