@@ -724,6 +724,24 @@ def test_a_repeated_face_with_its_own_colours_and_uvs_is_a_repeat_too(tmp_path):
     np.testing.assert_allclose(lookup(mesh, 0, (1 / 3, 1 / 3, 1 / 3)), RED)
 
 
+@pytest.mark.parametrize("ext", ["ply", "stl", "glb"])
+def test_32_bit_coordinates_far_from_the_origin_say_that_the_file_lost_detail(tmp_path, ext):
+    """A scan exported in map coordinates: 32-bit floats 5e6 from the origin step by 0.5, a twentieth of a shape 10
+    units across; the file itself lost the detail, and the loader says so and how to export it. The same shape as
+    text digits (OBJ), or near the origin, loads without a word."""
+    ball = trimesh.creation.icosphere(subdivisions=2)
+    far = trimesh.Trimesh(ball.vertices * 5 + [5e6, 3.5e6, 100.0], ball.faces)
+    far.export(tmp_path / f"far.{ext}")
+    with pytest.warns(UserWarning, match=r"'far\.\w+' lies 5e\+06 from the origin.*step by 0\.5 \(5\.0% of its size"):
+        load_mesh(tmp_path / f"far.{ext}")
+    far.export(tmp_path / "far.obj")
+    trimesh.Trimesh(ball.vertices * 5, ball.faces).export(tmp_path / f"near.{ext}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_mesh(tmp_path / "far.obj")
+        load_mesh(tmp_path / f"near.{ext}")
+
+
 # ================================================================= bad input
 def test_missing_file(tmp_path):
     with pytest.raises(Sin3DMInputError, match="not found.*nothere.obj"):

@@ -96,6 +96,27 @@ class Part:
     vertex_colors: np.ndarray | None = None  # (V, 3) float32
 
 
+#: 32-bit coordinates that step by more than this share of the shape's size lose detail a fine grid would show
+COARSE_STEP = 1e-3
+
+
+def _warn_if_coarse(vertices: np.ndarray, source: str) -> None:
+    """Warn where a file stores 32-bit coordinates so far from the origin that they step coarsely across the shape
+    (a scan exported in map coordinates): the detail is lost in the file, before the loader sees it."""
+    if not np.array_equal(vertices, vertices.astype(np.float32)):
+        return  # more digits than 32 bits hold: the file kept its detail
+    size = float(np.ptp(vertices, axis=0).max())
+    far = float(np.abs(vertices).max())
+    step = float(np.spacing(np.float32(far)))
+    if step > COARSE_STEP * size:
+        warn(
+            f"'{source}' lies {far:.3g} from the origin, where its 32-bit coordinates step by {step:.3g} "
+            f"({step / size:.1%} of its size): detail finer than that was lost when the file was written; export it "
+            "again near the origin (Blender: Object > Set Origin > Origin to Geometry, then Location 0, 0, 0; a "
+            "scanning tool's local-coordinates option)"
+        )
+
+
 def assemble(parts: list[Part], materials: list[Material], name: str, source: str) -> TexturedMesh:
     """Concatenate parts, validate, keep each triangle once (:func:`first_listing`), drop unreferenced vertices,
     weld duplicates."""
@@ -154,6 +175,7 @@ def assemble(parts: list[Part], materials: list[Material], name: str, source: st
             f"'{source}' has a vertex coordinate of {big:.3g}, too large for its bounding box (the limit is "
             f"{MAX_COORDINATE:.0e}); remove the stray vertex or scale the mesh down in a mesh editor"
         )
+    _warn_if_coarse(vertices, source)
     if not face_areas(vertices, faces).sum() > 0:
         raise Sin3DMInputError(
             f"'{source}' has zero surface area (every triangle is degenerate: collinear or repeated "
