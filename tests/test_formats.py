@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import struct
+import sys
 import warnings
 from pathlib import Path
 
@@ -830,6 +831,40 @@ def test_gltf_missing_buffer_is_clear(tmp_path):
     (tmp_path / "nobin.gltf").write_bytes(files["model.gltf"])
     with pytest.raises(Sin3DMInputError, match="nobin.gltf"):
         load_mesh(tmp_path / "nobin.gltf")
+
+
+def _glb_requiring(extension: str) -> bytes:
+    """A box's GLB whose header says its geometry needs ``extension`` (a compression) to be read."""
+    data = trimesh.exchange.gltf.export_glb(trimesh.Scene(trimesh.creation.box()))
+    n = struct.unpack_from("<I", data, 12)[0]
+    head, rest = json.loads(data[20 : 20 + n]), data[20 + n :]
+    head["extensionsUsed"] = head["extensionsRequired"] = [extension]
+    if extension == "KHR_draco_mesh_compression":
+        for prim in head["meshes"][0]["primitives"]:
+            prim["extensions"] = {extension: {"bufferView": 0, "attributes": {"POSITION": 0}}}
+    text = json.dumps(head).encode()
+    text += b" " * (-len(text) % 4)
+    return b"glTF" + struct.pack("<III", 2, 20 + len(text) + len(rest), len(text)) + b"JSON" + text + rest
+
+
+@pytest.mark.parametrize(
+    "extension, words",
+    [
+        ("KHR_draco_mesh_compression", "compressed with Draco .*pip install DracoPy.*Compression off"),
+        ("EXT_meshopt_compression", "compressed with meshoptimizer .*export the mesh again without compression"),
+    ],
+)
+def test_a_compressed_glb_that_cannot_be_decoded_says_how_to_read_it(tmp_path, monkeypatch, extension, words):
+    """Web GLBs are often compressed: trimesh decodes Draco only with DracoPy (without it: "cannot reshape array")
+    and never meshoptimizer (whose bytes it would read as plain geometry). Either is one line that says what to do."""
+    monkeypatch.setitem(sys.modules, "DracoPy", None)  # as on a machine without it
+    (tmp_path / "web.glb").write_bytes(_glb_requiring(extension))
+    with pytest.raises(Sin3DMInputError, match=f"'web.glb' is {words}"):
+        load_mesh(tmp_path / "web.glb")
+    from sin3dm_lite.cli import main
+
+    assert main(["grid", str(tmp_path / "web.glb"), "--out", str(tmp_path / "g.npz")]) == 2
+    assert not (tmp_path / "g.npz").exists()
 
 
 def test_missing_texture_warns_and_uses_material_color(tmp_path):

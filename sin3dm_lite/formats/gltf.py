@@ -10,7 +10,30 @@ import json
 import struct
 from urllib.parse import unquote
 
+from ..errors import Sin3DMInputError
 from .common import Scope, resolve_asset, unreadable
+
+
+def check_compression(path, header: dict) -> None:
+    """Refuse a glTF whose geometry is compressed in a way trimesh cannot decode here: Draco without the DracoPy
+    package (trimesh's decoder for it) or meshoptimizer (which it never decodes: the bytes would read as garbage)."""
+    required = header.get("extensionsRequired")
+    required = set(required) if isinstance(required, list) and all(isinstance(e, str) for e in required) else set()
+    if "KHR_draco_mesh_compression" in required:
+        try:
+            import DracoPy  # noqa: F401
+        except ImportError:
+            raise Sin3DMInputError(
+                f"'{path.name}' is compressed with Draco (KHR_draco_mesh_compression), which needs the DracoPy "
+                "package: install it (pip install DracoPy), or export the mesh again uncompressed (Blender: File > "
+                "Import > glTF 2.0, then File > Export > glTF 2.0 with Compression off)"
+            ) from None
+    meshopt = sorted(required & {"EXT_meshopt_compression", "KHR_meshopt_compression"})
+    if meshopt:
+        raise Sin3DMInputError(
+            f"'{path.name}' is compressed with meshoptimizer ({meshopt[0]}), which this reader cannot decode; export "
+            "the mesh again without compression from the program that made it (gltfpack: without -c)"
+        )
 
 
 def check_gltf_files(path, header: dict, scope: Scope) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..data.mesh import Material, default_rgba
 from .common import Part, Scope, resolve_asset, unreadable, warn
-from .gltf import check_gltf_files, gltf_image_problems, gltf_json
+from .gltf import check_compression, check_gltf_files, gltf_image_problems, gltf_json
 from .images import image_to_array, named_image_warnings
 
 _FORMAT_NAMES = {
@@ -52,6 +52,7 @@ def _check_named_files(path: Path, fmt: str, scope: Scope) -> list[str]:
     """Refuse files outside the mesh's folder that a glTF or PLY names; the glTF's texture problems (warnings)."""
     if path.suffix.lower() in (".glb", ".gltf"):
         header, binary = gltf_json(path, fmt)
+        check_compression(path, header)
         check_gltf_files(path, header, scope)
         return gltf_image_problems(path, header, binary)
     if path.suffix.lower() == ".ply":
