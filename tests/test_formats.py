@@ -405,6 +405,58 @@ def test_glb_base_color_texture_and_factor(tmp_path):
     assert geom.visual.material.baseColorTexture.size == (16, 16)
 
 
+def _with_uvs(glb: bytes, raw_uv: np.ndarray, dtype, transform: dict | None) -> bytes:
+    """``glb`` with its texture coordinates replaced by ``raw_uv`` (glTF's, v down) stored as ``dtype`` (an integer
+    type: normalized, as KHR_mesh_quantization stores them) and its base colour texture moved by ``transform``."""
+    n = struct.unpack_from("<I", glb, 12)[0]
+    head, binary = json.loads(glb[20 : 20 + n]), glb[28 + n :]
+    data = (raw_uv * (np.iinfo(dtype).max if np.dtype(dtype).kind == "u" else 1)).round(6).astype(dtype).tobytes()
+    binary += b"\0" * (-len(binary) % 4)
+    head["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(data)})
+    kind = {np.uint16: 5123, np.float32: 5126}[dtype]
+    accessor = {"bufferView": len(head["bufferViews"]) - 1, "componentType": kind, "count": len(raw_uv), "type": "VEC2"}
+    head["accessors"].append({**accessor, "normalized": True} if kind != 5126 else accessor)
+    head["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = len(head["accessors"]) - 1
+    binary += data + b"\0" * (-len(data) % 4)
+    head["buffers"][0]["byteLength"] = len(binary)
+    head["extensionsUsed"] = head["extensionsRequired"] = ["KHR_mesh_quantization", "KHR_texture_transform"]
+    head["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["extensions"] = {
+        "KHR_texture_transform": transform
+    }
+    text = json.dumps(head).encode()
+    text += b" " * (-len(text) % 4)
+    chunks = struct.pack("<I", len(text)) + b"JSON" + text + struct.pack("<I", len(binary)) + b"BIN\0" + binary
+    return b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks
+
+
+def test_a_glb_with_quantized_and_transformed_uvs_reads_the_colours_of_its_plain_twin(tmp_path):
+    """gltfpack's default output stores texture coordinates as 16-bit integers read as [0, 1] (KHR_mesh_quantization)
+    and a KHR_texture_transform that maps them back to their range; trimesh reads neither (UVs up to 65,535). The
+    loader rewrites the file first: the same colours as the plain file's. A rotated transform too, whose matrix is
+    the specification's (offset · rotation · scale)."""
+    square = textured_square_trimesh(PBRMaterial(baseColorTexture=Image.fromarray(quadrant_image())))
+    square.visual.uv = np.array([[0.2, 0.1], [0.7, 0.1], [0.7, 0.6], [0.2, 0.6]])
+    (tmp_path / "plain.glb").write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Scene(square)))
+    plain = load_mesh(tmp_path / "plain.glb")
+    raw = np.c_[square.visual.uv[:, 0], 1 - square.visual.uv[:, 1]]  # as glTF stores them: v down
+    lo, hi = raw.min(0), raw.max(0)
+    glb = (tmp_path / "plain.glb").read_bytes()
+    (tmp_path / "packed.glb").write_bytes(
+        _with_uvs(glb, (raw - lo) / (hi - lo), np.uint16, {"offset": lo.tolist(), "scale": (hi - lo).tolist()})
+    )
+    r, offset, scale = 0.3, np.array([0.1, 0.05]), np.array([0.8, 1.2])
+    turn = np.array([[np.cos(r), np.sin(r)], [-np.sin(r), np.cos(r)]])  # the specification's rotation
+    stored = np.linalg.solve(turn, (raw - offset).T).T / scale
+    transform = {"offset": offset.tolist(), "rotation": r, "scale": scale.tolist()}
+    (tmp_path / "turned.glb").write_bytes(_with_uvs(glb, stored, np.float32, transform))
+    rng = np.random.default_rng(0)
+    fi, bc = rng.integers(0, 2, 200), random_bary(200, rng)
+    for name in ("packed.glb", "turned.glb"):
+        mesh = load_mesh(tmp_path / name)
+        np.testing.assert_allclose(mesh.colors_at(fi, bc), plain.colors_at(fi, bc), atol=2e-3)
+    assert np.ptp(plain.colors_at(fi, bc), axis=0).max() > 0.5  # the square spans more than one colour
+
+
 def test_glb_keeps_pbr_maps(tmp_path):
     mr = np.zeros((8, 8, 3), np.uint8)
     mr[..., 1], mr[..., 2] = 128, 255  # roughness .5, metallic 1

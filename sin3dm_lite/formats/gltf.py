@@ -10,6 +10,8 @@ import json
 import struct
 from urllib.parse import unquote
 
+import numpy as np
+
 from ..errors import Sin3DMInputError
 from .common import Scope, resolve_asset, unreadable
 
@@ -65,21 +67,28 @@ def gltf_json(path, fmt: str) -> tuple[dict, bytes]:
         return {}, b""
 
 
+def _bytes(path, header: dict, binary: bytes, item: dict) -> bytes:
+    """The bytes of an image or buffer: a data URI, a file beside the glTF, or a buffer view (of the GLB's binary
+    chunk where its buffer has no URI). The files were checked by :func:`check_gltf_files`."""
+    if "uri" not in item:
+        view = header["bufferViews"][item["bufferView"]]
+        buf = header["buffers"][view["buffer"]]
+        whole = binary if "uri" not in buf else _bytes(path, header, binary, buf)
+        return whole[view.get("byteOffset", 0) :][: view["byteLength"]]
+    if item["uri"].startswith("data:"):
+        return base64.b64decode(item["uri"].split(",", 1)[1])
+    if not (path.parent / unquote(item["uri"])).is_file():
+        raise FileNotFoundError("file not found")
+    return (path.parent / unquote(item["uri"])).read_bytes()
+
+
 def gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
     """A warning for each texture a glTF's materials use that is missing or undecodable (best effort: any other
     surprise gives no warnings). Its external files were checked by :func:`check_gltf_files`."""
     from PIL import Image
 
-    def blob(item):  # the bytes of an image or buffer: data URI, file beside the glTF, or buffer view
-        if "uri" not in item:
-            view = header["bufferViews"][item["bufferView"]]
-            buf = header["buffers"][view["buffer"]]
-            return (binary if "uri" not in buf else blob(buf))[view.get("byteOffset", 0) :][: view["byteLength"]]
-        if item["uri"].startswith("data:"):
-            return base64.b64decode(item["uri"].split(",", 1)[1])
-        if not (path.parent / unquote(item["uri"])).is_file():
-            raise FileNotFoundError("file not found")
-        return (path.parent / unquote(item["uri"])).read_bytes()
+    def blob(item):
+        return _bytes(path, header, binary, item)
 
     try:
         images, textures, users = header.get("images", []), header.get("textures", []), {}
@@ -116,3 +125,122 @@ def gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
         return problems
     except Exception:
         return []
+
+
+#: integer component types: numpy type and, for a ``normalized`` accessor, the value that reads as 1
+_INTEGERS = {5120: (np.int8, 127), 5121: (np.uint8, 255), 5122: (np.int16, 32767), 5123: (np.uint16, 65535)}
+_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+#: the texture slots whose KHR_texture_transform moves a material's texture coordinates, the first found wins
+_SLOTS = (
+    ("pbrMetallicRoughness", "baseColorTexture"),
+    ("pbrMetallicRoughness", "metallicRoughnessTexture"),
+    (None, "normalTexture"),
+)
+
+
+def plain_gltf(path, header: dict, binary: bytes) -> bytes | None:
+    """The glTF rewritten for trimesh, which reads two common extensions wrong without a word (None: nothing to
+    rewrite). KHR_mesh_quantization (gltfpack's default) stores positions and texture coordinates as integers, which
+    a ``normalized`` accessor maps to [0, 1] or [-1, 1]: trimesh reads the integers (UVs up to 65,535). And the
+    KHR_texture_transform of a material's texture (gltfpack's way back to the UVs' own range) is dropped. Here both
+    become float coordinates in a buffer of their own, the transform applied; the rest of the file is unchanged."""
+    used = header.get("extensionsUsed")
+    if not isinstance(used, list) or not {"KHR_mesh_quantization", "KHR_texture_transform"} & set(used):
+        return None
+    header = json.loads(json.dumps(header))
+    for key in ("buffers", "bufferViews", "accessors"):
+        header.setdefault(key, [])
+    made, cache = [], {}
+    for prim in (p for mesh in header.get("meshes", []) for p in mesh.get("primitives", [])):
+        material = header.get("materials", [])[prim["material"]] if "material" in prim else {}
+        coord, matrix = _uv_transform(material)
+        for name, index in list(prim.get("attributes", {}).items()):
+            acc = header["accessors"][index]
+            moved = matrix if name == f"TEXCOORD_{coord}" else None
+            quantized = acc.get("normalized") and acc.get("componentType") in _INTEGERS
+            if moved is None and not (quantized and (name == "POSITION" or name.startswith("TEXCOORD_"))):
+                continue
+            key = (index, None if moved is None else moved.tobytes())
+            if key not in cache:
+                values = _accessor_values(path, header, binary, acc)
+                cache[key] = _add_accessor(
+                    header, made, values if moved is None else values @ moved[:2, :2].T + moved[:2, 2]
+                )
+            prim["attributes"][name] = cache[key]
+    for material in header.get("materials", []):
+        for parent, slot in _SLOTS:
+            info = (material.get(parent, {}) if parent else material).get(slot)
+            if isinstance(info, dict):
+                info.get("extensions", {}).pop("KHR_texture_transform", None)
+    blob = b"".join(made)
+    if not blob:
+        return None
+    header["buffers"].append(
+        {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
+    )
+    for key in ("extensionsUsed", "extensionsRequired"):
+        if isinstance(header.get(key), list):
+            header[key] = [e for e in header[key] if e not in ("KHR_mesh_quantization", "KHR_texture_transform")]
+    text = json.dumps(header).encode()
+    if path.suffix.lower() == ".gltf":
+        return text
+    text += b" " * (-len(text) % 4)
+    chunks = struct.pack("<I", len(text)) + b"JSON" + text
+    if binary:
+        padded = binary + b"\0" * (-len(binary) % 4)
+        chunks += struct.pack("<I", len(padded)) + b"BIN\0" + padded
+    return b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks
+
+
+def _uv_transform(material: dict) -> tuple[int, np.ndarray | None]:
+    """A material's texture coordinate set and its KHR_texture_transform as a 3×3 matrix (glTF's: offset · rotation
+    · scale), or None."""
+    for parent, slot in _SLOTS:
+        info = (material.get(parent, {}) if parent else material).get(slot)
+        if not isinstance(info, dict):
+            continue
+        ext = (info.get("extensions") or {}).get("KHR_texture_transform")
+        if not isinstance(ext, dict):
+            return int(info.get("texCoord", 0)), None
+        (ox, oy), r, (sx, sy) = ext.get("offset", (0, 0)), float(ext.get("rotation", 0)), ext.get("scale", (1, 1))
+        c, s = np.cos(r), np.sin(r)
+        matrix = np.array([[c * sx, s * sy, ox], [-s * sx, c * sy, oy], [0, 0, 1]], np.float64)
+        return int(ext.get("texCoord", info.get("texCoord", 0))), matrix
+    return 0, None
+
+
+def _accessor_values(path, header: dict, binary: bytes, acc: dict) -> np.ndarray:
+    """An accessor's values ``(count, width)`` in float64, a ``normalized`` integer one mapped as glTF says."""
+    kind = acc["componentType"]
+    dtype = np.dtype(_INTEGERS[kind][0] if kind in _INTEGERS else {5125: np.uint32, 5126: np.float32}[kind])
+    count, width = int(acc["count"]), _WIDTH[acc["type"]]
+    view = header["bufferViews"][acc["bufferView"]]
+    data = _bytes(path, header, binary, {"bufferView": acc["bufferView"]})[acc.get("byteOffset", 0) :]
+    item = dtype.itemsize * width
+    stride = view.get("byteStride") or item
+    rows = np.frombuffer(data[: stride * (count - 1) + item].ljust(stride * count, b"\0"), np.uint8).reshape(
+        count, stride
+    )
+    values = rows[:, :item].copy().view(dtype).reshape(count, width).astype(np.float64)
+    if acc.get("normalized") and kind in _INTEGERS:
+        values = np.maximum(values / _INTEGERS[kind][1], -1.0)
+    return values
+
+
+def _add_accessor(header: dict, made: list, values: np.ndarray) -> int:
+    """A float32 accessor of ``values`` in the buffer this rewrite appends (``made``: its pieces); its index."""
+    data = np.ascontiguousarray(values, np.float32).tobytes()
+    offset = sum(len(b) for b in made)
+    made.append(data)
+    header["bufferViews"].append({"buffer": len(header["buffers"]), "byteOffset": offset, "byteLength": len(data)})
+    header["accessors"].append(
+        {
+            "bufferView": len(header["bufferViews"]) - 1,
+            "componentType": 5126,
+            "count": len(values),
+            "type": {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}[values.shape[1]],
+            "min": values.min(0).tolist(),
+            "max": values.max(0).tolist(),
+        }
+    )
+    return len(header["accessors"]) - 1

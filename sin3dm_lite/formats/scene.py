@@ -4,6 +4,7 @@ transform applied) whose trimesh visual gives the colour: a material, vertex col
 
 from __future__ import annotations
 
+import io
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,7 +12,7 @@ import numpy as np
 
 from ..data.mesh import Material, default_rgba
 from .common import Part, Scope, resolve_asset, unreadable, warn
-from .gltf import check_compression, check_gltf_files, gltf_image_problems, gltf_json
+from .gltf import check_compression, check_gltf_files, gltf_image_problems, gltf_json, plain_gltf
 from .images import image_to_array, named_image_warnings
 
 _FORMAT_NAMES = {
@@ -31,9 +32,12 @@ def load_scene(path, max_size, scope: Scope):
     if path.stat().st_size == 0:
         raise unreadable(path, fmt, "the file is empty")
     with named_image_warnings(f"a texture of '{path.name}'"):
-        image_problems = _check_named_files(path, fmt, scope)
+        image_problems, plain = _check_named_files(path, fmt, scope)
+        source = str(path) if plain is None else io.BytesIO(plain)  # a glTF rewritten for trimesh (plain_gltf)
         try:
-            scene = trimesh.load(str(path), force="scene", process=False, resolver=_resolver(path, scope))
+            scene = trimesh.load(
+                source, file_type=path.suffix[1:].lower(), force="scene", process=False, resolver=_resolver(path, scope)
+            )
         except Exception as exc:
             raise unreadable(path, fmt, exc) from None
     for problem in image_problems:
@@ -48,18 +52,23 @@ def load_scene(path, max_size, scope: Scope):
     return parts, materials.list
 
 
-def _check_named_files(path: Path, fmt: str, scope: Scope) -> list[str]:
-    """Refuse files outside the mesh's folder that a glTF or PLY names; the glTF's texture problems (warnings)."""
+def _check_named_files(path: Path, fmt: str, scope: Scope) -> tuple[list[str], bytes | None]:
+    """Refuse files outside the mesh's folder that a glTF or PLY names; the glTF's texture problems (warnings) and
+    the glTF rewritten where trimesh would misread it (:func:`~.gltf.plain_gltf`; None: read the file itself)."""
     if path.suffix.lower() in (".glb", ".gltf"):
         header, binary = gltf_json(path, fmt)
         check_compression(path, header)
         check_gltf_files(path, header, scope)
-        return gltf_image_problems(path, header, binary)
+        try:
+            plain = plain_gltf(path, header, binary)
+        except Exception:  # a malformed accessor: trimesh reads the file and says what is wrong
+            plain = None
+        return gltf_image_problems(path, header, binary), plain
     if path.suffix.lower() == ".ply":
         texture = _ply_texture_file(path)
         if texture is not None:
             resolve_asset(texture, path.parent, scope, "the texture file", cwd=False)
-    return []
+    return [], None
 
 
 class _Materials:
