@@ -683,8 +683,9 @@ def test_a_two_sided_export_is_read_as_one_surface_and_its_grid_has_the_inside(t
     again = np.vstack([box.faces, np.roll(box.faces[:5], 1, axis=1)])  # five listed twice, wound alike
     trimesh.Trimesh(box.vertices, again, process=False).export(tmp_path / "again.stl")
     clean = load_mesh(tmp_path / "box.stl")
-    for name in ("two_sided.stl", "again.stl"):
-        mesh = load_mesh(tmp_path / name)
+    for name, repeats in (("two_sided.stl", 12), ("again.stl", 5)):
+        with pytest.warns(UserWarning, match=f"{repeats} of the {12 + repeats} triangles of '{name}' repeat another"):
+            mesh = load_mesh(tmp_path / name)
         assert len(mesh.faces) == 12
         np.testing.assert_array_equal(mesh.faces, clean.faces)  # the first listings, in the file's order
     inside = [mesh_to_grid(load_mesh(tmp_path / n), resolution=16).sdf < 0 for n in ("box.stl", "two_sided.stl")]

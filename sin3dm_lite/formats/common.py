@@ -145,6 +145,11 @@ def assemble(parts: list[Part], materials: list[Material], name: str, source: st
     # a two-sided export lists each face again wound the other way: the pairs would cancel in the winding number
     # that tells the grid inside from outside
     once = first_listing(vertices, faces)
+    if len(once) < len(faces):
+        warn(
+            f"{len(faces) - len(once):,} of the {len(faces):,} triangles of '{source}' repeat another (a two-sided "
+            "export lists every face again, wound the other way, and the two would cancel): each is read once"
+        )
     faces, face_material = faces[once], face_material[once]
     face_uvs = face_uvs[once] if face_uvs is not None else None
 
