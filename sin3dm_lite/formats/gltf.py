@@ -218,6 +218,8 @@ def _accessor_values(path, header: dict, binary: bytes, acc: dict) -> np.ndarray
     data = _bytes(path, header, binary, {"bufferView": acc["bufferView"]})[acc.get("byteOffset", 0) :]
     item = dtype.itemsize * width
     stride = view.get("byteStride") or item
+    if count < 1 or stride < item or stride * (count - 1) + item > len(data):
+        raise ValueError("an accessor reaches beyond its buffer")  # a crafted count never allocates
     rows = np.frombuffer(data[: stride * (count - 1) + item].ljust(stride * count, b"\0"), np.uint8).reshape(
         count, stride
     )
