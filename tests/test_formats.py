@@ -746,6 +746,19 @@ def test_a_two_sided_ply_or_off_of_quads_cut_along_the_other_diagonal_is_read_on
     )
 
 
+def test_an_open_sheet_of_quads_listed_back_along_the_other_diagonals_keeps_its_front_even_at_the_corners():
+    """On an open two-sided sheet a corner quad's reverse runs no edge the way a neighbour does (the sign the rule
+    starts from): faces two edges from one that does are looked at too."""
+    from sin3dm_lite.formats.repair import first_listing
+
+    ids = np.arange(16).reshape(4, 4)
+    v = np.c_[np.stack(np.meshgrid(np.arange(4), np.arange(4), indexing="ij"), -1).reshape(-1, 2), np.zeros(16)]
+    a, b, c, d = ids[:-1, :-1].ravel(), ids[1:, :-1].ravel(), ids[1:, 1:].ravel(), ids[:-1, 1:].ravel()
+    front = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    back = np.r_[np.c_[d, c, b], np.c_[d, b, a]]  # each quad again, the other way round, cut along b-d
+    np.testing.assert_array_equal(first_listing(v.astype(float), np.r_[front, back]), np.arange(18))
+
+
 def test_two_blocks_that_share_a_wall_keep_both_its_sides_and_stay_closed(tmp_path):
     """Two closed blocks that touch list their shared wall twice, once from each side: not a two-sided export (only
     that wall is listed twice), so both stay, the mesh stays closed and the grid is the two blocks' union."""

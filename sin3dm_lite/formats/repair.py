@@ -54,14 +54,24 @@ def first_listing(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def _on_doubled_edges(tri: np.ndarray, among: np.ndarray) -> np.ndarray:
-    """The faces of ``among`` with an edge that another of them runs the same way: where a surface and its reverse
-    overlap (a consistently wound surface runs each edge once each way)."""
+    """The faces of ``among`` with an edge that another of them runs the same way (where a surface and its reverse
+    overlap: a consistently wound surface runs each edge once each way), and the faces two edges from them (at a
+    sheet's corner a quad's reverse shares no edge's direction with its neighbours)."""
     faces = np.flatnonzero(among)
     t = tri[faces]
     n = np.int64(tri.max()) + 1
-    edge = (t * n + np.roll(t, -1, axis=1)).ravel()  # u → v as one number, face-major
-    _, inverse, count = np.unique(edge, return_inverse=True, return_counts=True)
-    return faces[(count[inverse] > 1).reshape(-1, 3).any(1)]
+    u, v = t.ravel(), np.roll(t, -1, axis=1).ravel()
+    _, inverse, count = np.unique(u * n + v, return_inverse=True, return_counts=True)
+    near = (count[inverse] > 1).reshape(-1, 3).any(1)
+    if not near.any():
+        return faces[near]
+    _, side = np.unique(np.minimum(u, v) * n + np.maximum(u, v), return_inverse=True)  # undirected edges
+    side = side.reshape(-1, 3)
+    for _ in range(2):  # two steps across shared edges
+        touched = np.zeros(side.max() + 1, bool)
+        touched[side[near]] = True
+        near |= touched[side].any(1)
+    return faces[near]
 
 
 def _reversed_quads(vertices: np.ndarray, tri: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
