@@ -405,28 +405,42 @@ def test_glb_base_color_texture_and_factor(tmp_path):
     assert geom.visual.material.baseColorTexture.size == (16, 16)
 
 
-def _with_uvs(glb: bytes, raw_uv: np.ndarray, dtype, transform: dict | None) -> bytes:
-    """``glb`` with its texture coordinates replaced by ``raw_uv`` (glTF's, v down) stored as ``dtype`` (an integer
-    type: normalized, as KHR_mesh_quantization stores them) and its base colour texture moved by ``transform``."""
+def _glb_unpacked(glb: bytes) -> tuple[dict, bytes]:
     n = struct.unpack_from("<I", glb, 12)[0]
-    head, binary = json.loads(glb[20 : 20 + n]), glb[28 + n :]
-    data = (raw_uv * (np.iinfo(dtype).max if np.dtype(dtype).kind == "u" else 1)).round(6).astype(dtype).tobytes()
+    return json.loads(glb[20 : 20 + n]), glb[28 + n :]
+
+
+def _glb_packed(head: dict, binary: bytes) -> bytes:
     binary += b"\0" * (-len(binary) % 4)
-    head["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(data)})
-    kind = {np.uint16: 5123, np.float32: 5126}[dtype]
-    accessor = {"bufferView": len(head["bufferViews"]) - 1, "componentType": kind, "count": len(raw_uv), "type": "VEC2"}
-    head["accessors"].append({**accessor, "normalized": True} if kind != 5126 else accessor)
-    head["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = len(head["accessors"]) - 1
-    binary += data + b"\0" * (-len(data) % 4)
     head["buffers"][0]["byteLength"] = len(binary)
-    head["extensionsUsed"] = head["extensionsRequired"] = ["KHR_mesh_quantization", "KHR_texture_transform"]
-    head["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["extensions"] = {
-        "KHR_texture_transform": transform
-    }
     text = json.dumps(head).encode()
     text += b" " * (-len(text) % 4)
     chunks = struct.pack("<I", len(text)) + b"JSON" + text + struct.pack("<I", len(binary)) + b"BIN\0" + binary
     return b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks
+
+
+def _glb_view(head: dict, binary: bytes, data: bytes) -> tuple[int, bytes]:
+    """``data`` appended to the GLB's binary chunk as a new buffer view: its index and the new chunk."""
+    binary += b"\0" * (-len(binary) % 4)
+    head["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(data)})
+    return len(head["bufferViews"]) - 1, binary + data
+
+
+def _with_uvs(glb: bytes, raw_uv: np.ndarray, dtype, transform: dict | None) -> bytes:
+    """``glb`` with its texture coordinates replaced by ``raw_uv`` (glTF's, v down) stored as ``dtype`` (an integer
+    type: normalized, as KHR_mesh_quantization stores them) and its base colour texture moved by ``transform``."""
+    head, binary = _glb_unpacked(glb)
+    data = (raw_uv * (np.iinfo(dtype).max if np.dtype(dtype).kind == "u" else 1)).round(6).astype(dtype).tobytes()
+    view, binary = _glb_view(head, binary, data)
+    kind = {np.uint16: 5123, np.float32: 5126}[dtype]
+    accessor = {"bufferView": view, "componentType": kind, "count": len(raw_uv), "type": "VEC2"}
+    head["accessors"].append({**accessor, "normalized": True} if kind != 5126 else accessor)
+    head["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = len(head["accessors"]) - 1
+    head["extensionsUsed"] = head["extensionsRequired"] = ["KHR_mesh_quantization", "KHR_texture_transform"]
+    head["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["extensions"] = {
+        "KHR_texture_transform": transform
+    }
+    return _glb_packed(head, binary)
 
 
 def test_a_glb_with_quantized_and_transformed_uvs_reads_the_colours_of_its_plain_twin(tmp_path):
@@ -455,6 +469,32 @@ def test_a_glb_with_quantized_and_transformed_uvs_reads_the_colours_of_its_plain
         mesh = load_mesh(tmp_path / name)
         np.testing.assert_allclose(mesh.colors_at(fi, bc), plain.colors_at(fi, bc), atol=2e-3)
     assert np.ptp(plain.colors_at(fi, bc), axis=0).max() > 0.5  # the square spans more than one colour
+
+
+@pytest.mark.parametrize("fallback", [True, False])
+def test_a_ktx2_texture_is_read_from_its_png_fallback_or_said_once(tmp_path, fallback):
+    """A texture of KHR_texture_basisu names a KTX2 image trimesh cannot decode and, usually, a PNG it reads instead:
+    no warning then; without the PNG, one line that names the format and what to export."""
+    square = textured_square_trimesh(PBRMaterial(name="m", baseColorTexture=Image.fromarray(quadrant_image())))
+    head, binary = _glb_unpacked(trimesh.exchange.gltf.export_glb(trimesh.Scene(square)))
+    view, binary = _glb_view(head, binary, b"\xabKTX 20\xbb\r\n\x1a\n" + bytes(64))
+    head["images"].append({"bufferView": view, "mimeType": "image/ktx2"})
+    texture = head["textures"][0]
+    texture["extensions"] = {"KHR_texture_basisu": {"source": len(head["images"]) - 1}}
+    if not fallback:
+        del texture["source"]
+    head["extensionsUsed"] = ["KHR_texture_basisu"]
+    (tmp_path / "k.glb").write_bytes(_glb_packed(head, binary))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        mesh = load_mesh(tmp_path / "k.glb")
+    said = [str(w.message) for w in caught if "KTX2" in str(w.message)]
+    if fallback:
+        assert [str(w.message) for w in caught] == [] and mesh.materials[0].image is not None
+        np.testing.assert_allclose(lookup(mesh, 0, (0.8, 0.1, 0.1)), BLUE, atol=1e-6)
+    else:
+        assert len(said) == 1 and "baseColorTexture of material 'm'" in said[0] and "PNG or JPEG" in said[0]
+        assert mesh.materials[0].image is None
 
 
 def test_glb_keeps_pbr_maps(tmp_path):

@@ -82,6 +82,15 @@ def _bytes(path, header: dict, binary: bytes, item: dict) -> bytes:
     return (path.parent / unquote(item["uri"])).read_bytes()
 
 
+def _texture_source(texture: dict) -> tuple[int | None, list[str]]:
+    """The image trimesh reads for a glTF texture (EXT_texture_webp's, else the plain ``source``; a KTX2 image of
+    KHR_texture_basisu it cannot decode) and the extensions whose images it leaves unread."""
+    ext = texture.get("extensions") if isinstance(texture.get("extensions"), dict) else {}
+    webp = ext.get("EXT_texture_webp")
+    src = webp.get("source") if isinstance(webp, dict) and webp.get("source") is not None else texture.get("source")
+    return src, [k for k, e in ext.items() if k != "EXT_texture_webp" and isinstance(e, dict) and "source" in e]
+
+
 def gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
     """A warning for each texture a glTF's materials use that is missing or undecodable (best effort: any other
     surprise gives no warnings). Its external files were checked by :func:`check_gltf_files`."""
@@ -91,7 +100,7 @@ def gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
         return _bytes(path, header, binary, item)
 
     try:
-        images, textures, users = header.get("images", []), header.get("textures", []), {}
+        images, textures, users, unread = header.get("images", []), header.get("textures", []), {}, {}
         for mat in header.get("materials", []):
             pbr = mat.get("pbrMetallicRoughness", {})
             for slot, info in (
@@ -101,11 +110,17 @@ def gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
             ):
                 if info and info.get("index") is not None and info["index"] < len(textures):
                     tex = textures[info["index"]]
-                    exts = [e for e in (tex.get("extensions") or {}).values() if isinstance(e, dict) and "source" in e]
-                    src = exts[-1]["source"] if exts else tex.get("source")
+                    user = f"{slot} of material '{mat.get('name', '?')}'"
+                    src, other = _texture_source(tex)
                     if src is not None and src < len(images):
-                        users.setdefault(src, []).append(f"{slot} of material '{mat.get('name', '?')}'")
-        problems = []
+                        users.setdefault(src, []).append(user)
+                    elif other:
+                        unread.setdefault(", ".join(other), []).append(user)
+        problems = [
+            f"a texture of '{path.name}' ({', '.join(used_by)}) is only in a format this reader cannot decode "
+            f"({names}: KTX2 / Basis Universal); export the textures as PNG or JPEG; using the material colour instead"
+            for names, used_by in unread.items()
+        ]
         for src, used_by in users.items():
             im = images[src]
             label = (
