@@ -117,6 +117,19 @@ def _warn_if_coarse(vertices: np.ndarray, source: str) -> None:
         )
 
 
+def _read_once(vertices: np.ndarray, faces: np.ndarray, source: str) -> np.ndarray:
+    """The faces to keep (:func:`~.repair.first_listing`), and a warning where some repeat another: a two-sided
+    export lists each face again wound the other way, and the pairs would cancel in the winding number that tells
+    the grid inside from outside."""
+    once = first_listing(vertices, faces)
+    if len(once) < len(faces):
+        warn(
+            f"{len(faces) - len(once):,} of the {len(faces):,} triangles of '{source}' repeat another (a two-sided "
+            "export lists every face again, wound the other way, and the two would cancel): each is read once"
+        )
+    return once
+
+
 def assemble(parts: list[Part], materials: list[Material], name: str, source: str) -> TexturedMesh:
     """Concatenate parts, validate, keep each triangle once (:func:`first_listing`), drop unreferenced vertices,
     weld duplicates."""
@@ -142,14 +155,7 @@ def assemble(parts: list[Part], materials: list[Material], name: str, source: st
             [p.vertex_colors if p.vertex_colors is not None else np.ones((len(p.vertices), 3)) for p in parts]
         ).astype(np.float32)
 
-    # a two-sided export lists each face again wound the other way: the pairs would cancel in the winding number
-    # that tells the grid inside from outside
-    once = first_listing(vertices, faces)
-    if len(once) < len(faces):
-        warn(
-            f"{len(faces) - len(once):,} of the {len(faces):,} triangles of '{source}' repeat another (a two-sided "
-            "export lists every face again, wound the other way, and the two would cancel): each is read once"
-        )
+    once = _read_once(vertices, faces, source)
     faces, face_material = faces[once], face_material[once]
     face_uvs = face_uvs[once] if face_uvs is not None else None
 
