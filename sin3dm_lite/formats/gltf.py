@@ -118,7 +118,7 @@ def gltf_image_problems(path, header: dict, binary: bytes) -> list[str]:
                         unread.setdefault(", ".join(other), []).append(user)
         problems = [
             f"a texture of '{path.name}' ({', '.join(used_by)}) is only in a format this reader cannot decode "
-            f"({names}: KTX2 / Basis Universal); export the textures as PNG or JPEG; using the material colour instead"
+            f"({names}, e.g. KTX2); export the textures as PNG or JPEG; using the material colour instead"
             for names, used_by in unread.items()
         ]
         for src, used_by in users.items():
