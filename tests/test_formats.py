@@ -471,6 +471,25 @@ def test_a_glb_with_quantized_and_transformed_uvs_reads_the_colours_of_its_plain
     assert np.ptp(plain.colors_at(fi, bc), axis=0).max() > 0.5  # the square spans more than one colour
 
 
+def test_a_texture_on_the_second_coordinate_set_reads_its_colours(tmp_path):
+    """glTF lets a texture name its coordinate set (``texCoord``); trimesh reads TEXCOORD_0 only. A square whose base
+    colour uses TEXCOORD_1, TEXCOORD_0 being another mapping (here all one point), reads the plain file's colours."""
+    square = textured_square_trimesh(PBRMaterial(baseColorTexture=Image.fromarray(quadrant_image())))
+    glb = trimesh.exchange.gltf.export_glb(trimesh.Scene(square))
+    (tmp_path / "plain.glb").write_bytes(glb)
+    head, binary = _glb_unpacked(glb)
+    attributes = head["meshes"][0]["primitives"][0]["attributes"]
+    view, binary = _glb_view(head, binary, np.full((4, 2), 0.9, np.float32).tobytes())
+    head["accessors"].append({"bufferView": view, "componentType": 5126, "count": 4, "type": "VEC2"})
+    attributes["TEXCOORD_1"], attributes["TEXCOORD_0"] = attributes["TEXCOORD_0"], len(head["accessors"]) - 1
+    head["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["texCoord"] = 1
+    (tmp_path / "second.glb").write_bytes(_glb_packed(head, binary))
+    rng = np.random.default_rng(0)
+    fi, bc = rng.integers(0, 2, 100), random_bary(100, rng)
+    plain, second = load_mesh(tmp_path / "plain.glb"), load_mesh(tmp_path / "second.glb")
+    np.testing.assert_allclose(second.colors_at(fi, bc), plain.colors_at(fi, bc), atol=1e-6)
+
+
 @pytest.mark.parametrize("fallback", [True, False])
 def test_a_ktx2_texture_is_read_from_its_png_fallback_or_said_once(tmp_path, fallback):
     """A texture of KHR_texture_basisu names a KTX2 image trimesh cannot decode and, usually, a PNG it reads instead:

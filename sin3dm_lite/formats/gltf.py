@@ -158,9 +158,13 @@ def plain_gltf(path, header: dict, binary: bytes) -> bytes | None:
     rewrite). KHR_mesh_quantization (gltfpack's default) stores positions and texture coordinates as integers, which
     a ``normalized`` accessor maps to [0, 1] or [-1, 1]: trimesh reads the integers (UVs up to 65,535). And the
     KHR_texture_transform of a material's texture (gltfpack's way back to the UVs' own range) is dropped. Here both
-    become float coordinates in a buffer of their own, the transform applied; the rest of the file is unchanged."""
+    become float coordinates in a buffer of their own, the transform applied; a material textured through another
+    coordinate set than the first gets it as TEXCOORD_0 (the one trimesh reads); the rest of the file is unchanged."""
     used = header.get("extensionsUsed")
-    if not isinstance(used, list) or not {"KHR_mesh_quantization", "KHR_texture_transform"} & set(used):
+    other_set = any(_uv_transform(m)[0] for m in header.get("materials", []) if isinstance(m, dict))
+    if not other_set and (
+        not isinstance(used, list) or not {"KHR_mesh_quantization", "KHR_texture_transform"} & set(used)
+    ):
         return None
     header = json.loads(json.dumps(header))
     for key in ("buffers", "bufferViews", "accessors"):
@@ -182,17 +186,19 @@ def plain_gltf(path, header: dict, binary: bytes) -> bytes | None:
                     header, made, values if moved is None else values @ moved[:2, :2].T + moved[:2, 2]
                 )
             prim["attributes"][name] = cache[key]
+        if coord and f"TEXCOORD_{coord}" in prim.get("attributes", {}):  # trimesh reads TEXCOORD_0 only
+            prim["attributes"]["TEXCOORD_0"] = prim["attributes"][f"TEXCOORD_{coord}"]
     for material in header.get("materials", []):
         for parent, slot in _SLOTS:
             info = (material.get(parent, {}) if parent else material).get(slot)
             if isinstance(info, dict):
                 info.get("extensions", {}).pop("KHR_texture_transform", None)
     blob = b"".join(made)
-    if not blob:
+    if not blob and not other_set:
         return None
-    header["buffers"].append(
-        {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
-    )
+    if blob:
+        uri = "data:application/octet-stream;base64," + base64.b64encode(blob).decode()
+        header["buffers"].append({"byteLength": len(blob), "uri": uri})
     for key in ("extensionsUsed", "extensionsRequired"):
         if isinstance(header.get(key), list):
             header[key] = [e for e in header[key] if e not in ("KHR_mesh_quantization", "KHR_texture_transform")]
