@@ -278,8 +278,9 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
     """The mesh normalised (and shrunk to keep ``margin_voxels`` of empty space), the grid's voxel counts
     (:func:`training_dims`) and whether it is flat (decided before the shrink, as :func:`is_flat` decides); a flat
     sheet lies a quarter voxel off the box's mid-plane, where two rows of voxel centres meet: so its slab holds a row
-    of them however few voxels thick it is (one at 32). Each triangle is kept once (:func:`~sin3dm_lite.formats.repair.listed_once`),
-    as the loader reads a file: the two listings of a two-sided mesh would cancel in the winding number."""
+    of them however few voxels thick it is (one at 32). Each triangle is kept once, as the loader reads a file
+    (:func:`~sin3dm_lite.formats.repair.listed_once`): a two-sided mesh's two listings would cancel in the winding
+    number."""
     m = listed_once(mesh.normalized())
     extent = np.ptp(m.vertices, axis=0) if len(m.vertices) else np.ones(3)
     flat = flat_axes(extent, resolution)
