@@ -818,6 +818,23 @@ def test_an_open_sheet_of_quads_listed_back_along_the_other_diagonals_keeps_its_
     np.testing.assert_array_equal(first_listing(v.astype(float), np.r_[front, back]), np.arange(18))
 
 
+def test_quads_of_a_two_sided_soup_are_matched_by_position_whatever_the_vertex_order():
+    """Per-face UVs or colours give every quad its own vertices (a soup); the quads are found on the positions the
+    corners share, not on the vertex array's own order."""
+    from sin3dm_lite.formats.repair import first_listing
+
+    corners = np.array([(x, y, z) for x in (0, 1) for y in (0, 0.6) for z in (0, 0.4)], float)
+    quads = [(1, 3, 2, 0), (6, 7, 5, 4), (4, 5, 1, 0), (3, 7, 6, 2), (2, 6, 4, 0), (5, 7, 3, 1)]
+    soup = corners[[i for q in quads + [q[::-1] for q in quads] for i in q]]  # 4 vertices of its own per quad
+    faces = np.array(
+        [(b, b + 1, b + 2) for b in range(0, len(soup), 4)] + [(b, b + 2, b + 3) for b in range(0, len(soup), 4)]
+    )
+    for seed in range(3):
+        order = np.random.default_rng(seed).permutation(len(soup))
+        kept = first_listing(soup[order], np.argsort(order)[faces])
+        assert sorted(kept) == [*range(6), *range(12, 18)]  # both triangles of each first listing
+
+
 def test_two_blocks_that_share_a_wall_keep_both_its_sides_and_stay_closed(tmp_path):
     """Two closed blocks that touch list their shared wall twice, once from each side: not a two-sided export (only
     that wall is listed twice), so both stay, the mesh stays closed and the grid is the two blocks' union."""

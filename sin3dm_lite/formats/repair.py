@@ -35,7 +35,7 @@ def first_listing(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     inside a solid should."""
     if len(faces) == 0:
         return np.arange(0)
-    _, at = unique_rows(vertices)
+    where, at = unique_rows(vertices)  # corners joined by position: `tri` numbers the distinct positions
     tri = at[faces]
     first, group = unique_rows(np.sort(tri, axis=1))
     odd = ((tri[:, 0] > tri[:, 1]).astype(np.int64) + (tri[:, 0] > tri[:, 2]) + (tri[:, 1] > tri[:, 2])) % 2
@@ -44,7 +44,9 @@ def first_listing(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     against = ~keep & (odd != odd[first[group]])  # a later listing wound against the first
     twinned = np.zeros(len(faces), bool)
     twinned[against] = twinned[first[group[against]]] = True
-    later, earlier = _reversed_quads(np.asarray(vertices, np.float64), tri, _on_doubled_edges(tri, keep & ~twinned))
+    later, earlier = _reversed_quads(
+        np.asarray(vertices, np.float64)[where], tri, _on_doubled_edges(tri, keep & ~twinned)
+    )
     against[later] = twinned[later] = twinned[earlier] = True
     keep[later] = False
     if against.any():
@@ -75,7 +77,7 @@ def _on_doubled_edges(tri: np.ndarray, among: np.ndarray) -> np.ndarray:
 
 
 def _reversed_quads(vertices: np.ndarray, tri: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Among ``faces`` (rows of ``tri``, corners joined by position), the two triangles of each flat quad listed a
+    """Among ``faces`` (rows of ``tri``, which numbers the distinct positions ``vertices``), the two triangles of each flat quad listed a
     second time wound the other way, and those of its first listing: two triangles that share an edge (wound against
     each other along it, their normals within about 10°) make a quad, the cycle of its four corners."""
     t = tri[faces]
