@@ -807,7 +807,8 @@ def test_a_two_sided_ply_or_off_of_quads_cut_along_the_other_diagonal_is_read_on
 
 def test_an_open_sheet_of_quads_listed_back_along_the_other_diagonals_keeps_its_front_even_at_the_corners():
     """On an open two-sided sheet a corner quad's reverse runs no edge the way a neighbour does (the sign the rule
-    starts from): faces two edges from one that does are looked at too."""
+    starts from): faces two edges from one that does are looked at too. Flat or bent (a rough terrain's quads fold
+    along a diagonal), each quad's first listing is kept."""
     from sin3dm_lite.formats.repair import first_listing
 
     ids = np.arange(16).reshape(4, 4)
@@ -815,6 +816,8 @@ def test_an_open_sheet_of_quads_listed_back_along_the_other_diagonals_keeps_its_
     a, b, c, d = ids[:-1, :-1].ravel(), ids[1:, :-1].ravel(), ids[1:, 1:].ravel(), ids[:-1, 1:].ravel()
     front = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
     back = np.r_[np.c_[d, c, b], np.c_[d, b, a]]  # each quad again, the other way round, cut along b-d
+    np.testing.assert_array_equal(first_listing(v.astype(float), np.r_[front, back]), np.arange(18))
+    v[:, 2] = 0.15 * (np.add.outer(np.arange(4), np.arange(4)).ravel() % 2)  # every quad bent, as a rough terrain's
     np.testing.assert_array_equal(first_listing(v.astype(float), np.r_[front, back]), np.arange(18))
 
 

@@ -15,6 +15,11 @@ import numpy as np
 
 from ..data.mesh import TexturedMesh, component_labels, unique_rows
 
+#: the cosine of the largest fold between a quad's two triangles: a bent quad listed back along its other diagonal
+#: makes a thin tetrahedron with its first listing (a rough terrain's quads fold by 10-30°); a box's corner or a
+#: tetrahedron-shaped part (folds of 70° and more) is not a quad listed twice
+FOLD_COS = 0.7071  # 45°
+
 
 def listed_once(mesh: TexturedMesh) -> TexturedMesh:
     """``mesh`` with each triangle listed once (:func:`first_listing`), as the loader reads a file."""
@@ -79,7 +84,7 @@ def _on_doubled_edges(tri: np.ndarray, among: np.ndarray) -> np.ndarray:
 def _reversed_quads(vertices: np.ndarray, tri: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Among ``faces`` (rows of ``tri``, which numbers the distinct positions ``vertices``), the two triangles of each flat quad listed a
     second time wound the other way, and those of its first listing: two triangles that share an edge (wound against
-    each other along it, their normals within about 10°) make a quad, the cycle of its four corners."""
+    each other along it, folded by less than 45°: :data:`FOLD_COS`) make a quad, the cycle of its four corners."""
     t = tri[faces]
     # every directed edge u → v of a face, with the face's third corner p; a partner runs v → u, its third corner q
     u, v, p = t.T, np.roll(t, -1, axis=1).T, np.roll(t, -2, axis=1).T
@@ -93,7 +98,7 @@ def _reversed_quads(vertices: np.ndarray, tri: np.ndarray, faces: np.ndarray) ->
     e = vertices[t]
     normal = np.cross(e[:, 1] - e[:, 0], e[:, 2] - e[:, 0])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    flat = np.einsum("ij,ij->i", normal[owner[a]], normal[owner[b]]) > 0.985
+    flat = np.einsum("ij,ij->i", normal[owner[a]], normal[owner[b]]) > FOLD_COS
     a, b = a[flat], b[flat]
     cycle = np.stack([v[a], p[a], u[a], p[b]], axis=1)  # a's corners v → p → u, then b's u → q → v
     start = np.argmin(cycle, axis=1)
