@@ -76,6 +76,7 @@ class Sin3DM:
         pbr: bool | None = None,
         allow_outside_paths: bool = False,
         calibrate: bool | None = None,
+        budget=None,
     ) -> Sin3DM:
         """Fit Sin3DM to one textured mesh (a path, a ``TexturedMesh`` or an example name): mesh → TSDF + colour
         grid → triplane autoencoder (the input's latent) → diffusion model on that latent (the paper's Sec. 4).
@@ -84,11 +85,13 @@ class Sin3DM:
         shape). ``pbr``: learn metallic, roughness and normals too (default: when the mesh has such maps).
         ``allow_outside_paths``: let the mesh name textures outside its folder. With ``out`` a run folder is written
         and checkpointed; ``resume=True`` continues it and ends where an uninterrupted fit would. ``calibrate``:
-        choose the run's diversity at the end (not in the paper; default: for the CPU presets).
+        choose the run's diversity at the end (not in the paper; default: for the CPU presets). ``budget``: an
+        :class:`~sin3dm_lite.auto.fit_default.Budget` (the CLI's ``--minutes``) the denoiser's steps keep to.
         """
         from .app.fitting import fit
 
-        model = fit(cls, source, preset, out, resume, seed, device, progress, pbr, allow_outside_paths, calibrate)
+        args = (source, preset, out, resume, seed, device, progress, pbr, allow_outside_paths, calibrate, budget)
+        model = fit(cls, *args)
         warn_if_poor(model.report.get("reconstruction", {}), model.config)
         return model
 

@@ -398,3 +398,46 @@ def test_the_estimate_times_a_grid_of_the_voxels_the_fit_will_train(monkeypatch)
         with pytest.raises(Timed):
             fit_default.estimate_fit(cfg, "cpu", fit_default.proportions(mesh))
         assert timed[-1] == grid.sdf.shape
+
+
+def test_a_fit_behind_its_budget_after_the_autoencoder_trains_fewer_denoiser_steps(monkeypatch):
+    """The budget is kept once more when the autoencoder is done: the rest is taken as much slower as that stage
+    was than its estimate, and the denoiser loses steps to end in time, never below the budget's least share."""
+    now = {"t": 0.0}
+    monkeypatch.setattr(fit_default.time, "monotonic", lambda: now["t"])
+    seconds = {"autoencoder": 200.0, "denoiser": 300.0, "other": 100.0, "total": 600.0}
+    budget = fit_default.Budget(11, seconds, (1000, 1000), 0.8, start=0.0)
+    now["t"] = 210.0  # on time: 200 s as estimated (and 10 s of grid)
+    assert budget.denoiser_steps(1000, 200.0, 1000) == (1000, None)
+    now["t"] = 290.0  # 1.4x slower: 290 + 420 + 140 = 850 s; 660 - 290 - 140 = 230 s leave 230 / 0.42 = 547 steps
+    assert budget.denoiser_steps(1000, 280.0, 1000) == (
+        800,
+        "[fit] the autoencoder took 4.7 min, 1.4x its estimate: to keep within 11 min the denoiser trains 800 of "
+        "its 1,000 steps, about 13 min in all (fewer steps would lose patches)",
+    )
+    loose = fit_default.Budget(11, seconds, (1000, 1000), 0.5, start=0.0)
+    assert loose.denoiser_steps(1000, 280.0, 1000)[0] == 500  # 547, to 50 steps below
+    assert loose.denoiser_steps(1000, 280.0, 400) == (400, None)  # never more than planned
+    now["t"] = 250.0  # late by less than LATE_S: left as it is
+    assert loose.denoiser_steps(1000, 205.0, 1000) == (1000, None)
+
+
+def test_the_denoiser_steps_a_late_fit_keeps_are_recorded_for_a_resume(monkeypatch, tmp_path, capsys):
+    """A real tiny fit whose autoencoder ran far past its (faked) estimate: the denoiser trains the least share of
+    its steps, and config.json, input.json and the checkpoint all say so, so that a resume trains to the same end."""
+    import json
+
+    from sin3dm_lite.app.run_folder import check_config_matches_run, read_run_config
+
+    est = {"autoencoder": 0.05, "denoiser": 5.0, "other": 0.0, "total": 5.05}
+    monkeypatch.setattr(fit_default, "estimate_fit", lambda *a, **k: dict(est))
+    run = tmp_path / "run"
+    assert main(["fit", "wall", "--preset", "tiny", "--minutes", "0.1", "--out", str(run)]) in (0, None)
+    printed = capsys.readouterr().out
+    assert "[fit] within 0.1 min: the preset's steps as they are" in printed
+    assert "its estimate: to keep within 0.1 min the denoiser trains 100 of its 150 steps" in printed
+    cfg = read_run_config(run / "config.json")
+    assert cfg.diffusion.steps == 100 and cfg.autoencoder.steps == 150
+    assert json.loads((run / "input.json").read_text())["config"]["diffusion"]["steps"] == 100
+    assert json.loads((run / "report.json").read_text())["diffusion_steps"] == 100
+    check_config_matches_run(run, cfg)  # what a resume checks first

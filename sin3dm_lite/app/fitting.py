@@ -32,7 +32,7 @@ from ..model.diffusion import DiffusionTrainer
 from ..presets import get_preset
 from .checkpoints import resume_trainer, save_trainer
 from .device import cpu_bf16_share, get_device, resolved_precision
-from .run_folder import check_run_folder, prepare_run, remove_failed_run
+from .run_folder import check_run_folder, prepare_run, record_config, remove_failed_run
 from .runs import input_digest
 from .threads import threads_hint
 
@@ -49,9 +49,11 @@ def fit(
     pbr: bool | None = None,
     allow_outside_paths: bool = False,
     calibrate: bool | None = None,
+    budget=None,
 ):
     """``Sin3DM.fit`` (``build``: the model class); arguments are checked before anything is written, and a fresh
-    fit that fails removes what it wrote (an interrupted one keeps its checkpoints for ``resume=True``)."""
+    fit that fails removes what it wrote (an interrupted one keeps its checkpoints for ``resume=True``). ``budget``:
+    an :class:`~sin3dm_lite.auto.fit_default.Budget` the denoiser's steps keep to once the autoencoder has trained."""
     if seed is not None and (
         isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32
     ):
@@ -67,6 +69,7 @@ def fit(
     existed = run is not None and run.exists()
     try:
         fit_run = FitRun(build, run, resume, device, progress)
+        fit_run.budget = None if resume else budget  # a resumed fit keeps its run's steps
         return fit_run.stages(source, preset, seed, pbr, allow_outside_paths, calibrate)
     except KeyboardInterrupt:
         raise  # the checkpoints stay: continue with resume=True
@@ -104,6 +107,7 @@ class FitRun:
         self.say = print if progress else (lambda *a, **k: None)
         self.timings: dict[str, float] = {}
         self.mesh: TexturedMesh | None = None
+        self.budget = None  # an auto.fit_default.Budget: the denoiser's steps kept to it
 
     def stages(self, source, preset, seed, pbr, allow_outside_paths, calibrate):
         """All stages, saved into the run folder at the end; the fitted model."""
@@ -183,6 +187,7 @@ class FitRun:
                 "learns its geometry only, about half the work a step, and every sample keeps that colour"
             )
         train(ae, self.run / "autoencoder.pt" if self.run else None, cfg.checkpoint_every, self.progress, self.say)
+        self.timings["autoencoder_training_s"] = time.perf_counter() - t0
         h0 = ae.latent()
         metrics = reconstruction_metrics(reconstructed_grid(ae.model.decoder, h0, grid), grid)
         self.timings["autoencoder_s"] = time.perf_counter() - t0
@@ -192,6 +197,8 @@ class FitRun:
     def denoise(self, cfg, grid, h0, ae, metrics, report_base, calibrate: bool):
         """Stages 3 and 4: train the denoiser on ``h0``, then (``calibrate``) choose the knob; the model and losses."""
         t0 = time.perf_counter()
+        if self.budget is not None and ae.step_count == cfg.autoencoder.steps:
+            cfg = self.kept_to_budget(cfg, ae.step_count)
         dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
         cfg = cfg.updated(**{"diffusion.latent_scale": dm.cfg.latent_scale})  # the number, where it asked for unit
         if dm.train_forward is not dm.model:
@@ -232,6 +239,19 @@ class FitRun:
                 model.calibrate(input_mesh=self.mesh, resolution=at, progress=self.progress)
             self.timings["calibrate_s"] = time.perf_counter() - t0
         return model, dm.history
+
+    def kept_to_budget(self, cfg: Config, ae_steps: int) -> Config:
+        """``cfg`` with the denoiser's steps the budget leaves after the autoencoder's time; a run folder records
+        them, so that a resume trains to the same end."""
+        seconds = self.timings["autoencoder_training_s"]
+        steps, line = self.budget.denoiser_steps(ae_steps, seconds, cfg.diffusion.steps)
+        if line is None:
+            return cfg
+        self.say(line)
+        cfg = cfg.updated(**{"diffusion.steps": steps})
+        if self.run is not None:
+            record_config(self.run, cfg)
+        return cfg
 
 
 def train(trainer, ckpt: Path | None, every: int, progress: bool, say) -> None:

@@ -18,7 +18,7 @@ from ..data.box import grid_shape
 from ..data.config import Config
 from ..data.grid import load_grid
 from ..errors import Sin3DMInputError
-from ..files import acquire_lock, create_locked_folder, release_lock
+from ..files import acquire_lock, atomic_write, create_locked_folder, release_lock
 from ..files.inputs import json_or_why, read_json
 from ..presets import get_preset
 from .checkpoints import MODEL_FILE, check_trainer_state, load_trainer_checkpoint
@@ -108,6 +108,15 @@ def _resumed_config(
         check_same_request(run, asked, asked_cfg, pbr, cfg)
     acquire_lock(run)
     return cfg
+
+
+def record_config(run: Path, cfg: Config) -> None:
+    """Write ``cfg`` as the run's config.json and as the settings its input.json records (a fit that changed its own
+    steps on the way, :class:`~sin3dm_lite.auto.fit_default.Budget`): a resume then checks and trains to them."""
+    rec = read_input(run)
+    if rec is not None:
+        atomic_write(run / INPUT_FILE, json.dumps({**rec, "config": cfg.to_dict()}, indent=2))
+    atomic_write(run / "config.json", cfg.to_json())
 
 
 def read_input(run: Path) -> dict | None:

@@ -9,7 +9,8 @@ the finer grid, wider field and cross-plane rollout of :data:`FINER`'s preset. A
 The time is estimated from a few training steps of the chosen preset timed here on a synthetic shape
 (:func:`estimate_fit`). A budget (``fit --minutes N``, :func:`within_minutes`) trains both networks for fewer steps
 where the estimate is longer; without one, the default keeps to about :data:`DEFAULT_MINUTES` on a CPU
-(:func:`default_budget`).
+(:func:`default_budget`). Once the autoencoder has trained, a :class:`Budget` compares its time with the estimate
+and shortens the denoiser's training where the fit has fallen behind (a slower machine, another job started).
 """
 
 from __future__ import annotations
@@ -54,6 +55,44 @@ LEAST_STEPS_SHARE = 0.5
 DEFAULT_MINUTES = 11
 #: ... but never trains fewer than this share of the preset's steps, and then says how long it takes
 DEFAULT_LEAST_SHARE = 0.8
+#: how far past its budget a fit may look, once the autoencoder has trained, before its denoiser trains fewer steps
+#: (seconds: the grid and the estimate's own timing are not in the estimate)
+LATE_S = 30.0
+
+
+@dataclass
+class Budget:
+    """A fit's time budget, kept once more after the autoencoder: where that stage ran longer than estimated (a
+    slower machine than the timed steps said, another job started), the rest is assumed as much slower, and the
+    denoiser trains fewer steps so that the fit still ends within ``minutes`` of ``start`` (``time.monotonic()``),
+    never fewer than ``least`` of the estimated steps. ``seconds``: :func:`estimate_fit`'s for ``steps`` (the
+    autoencoder's and the denoiser's steps it was estimated for)."""
+
+    minutes: float
+    seconds: dict
+    steps: tuple[int, int]
+    least: float
+    start: float
+
+    def denoiser_steps(self, ae_steps: int, ae_seconds: float, planned: int) -> tuple[int, str | None]:
+        """The denoiser's steps (at most ``planned``) once the autoencoder trained ``ae_steps`` in ``ae_seconds``,
+        and the line that says why where they are fewer (None where ``planned`` keeps the budget)."""
+        slow = ae_seconds / max(self.seconds["autoencoder"] * ae_steps / self.steps[0], 1e-9)
+        per_step = slow * self.seconds["denoiser"] / self.steps[1]
+        spent = time.monotonic() - self.start
+        left = self.minutes * 60 - spent - slow * self.seconds["other"]  # the calibration's, as much slower
+        if planned * per_step <= left + LATE_S:
+            return planned, None
+        least = max(50, int(np.ceil(self.least * self.steps[1] / 50)) * 50)
+        steps = min(planned, max(least, int(left / per_step) // 50 * 50))
+        if steps == planned:
+            return planned, None
+        end = (spent + steps * per_step + slow * self.seconds["other"]) / 60
+        over = f", about {end:.0f} min in all (fewer steps would lose patches)" if end > self.minutes + 0.5 else ""
+        return steps, (
+            f"[fit] the autoencoder took {ae_seconds / 60:.1f} min, {slow:.1f}x its estimate: to keep within "
+            f"{self.minutes:g} min the denoiser trains {steps:,} of its {planned:,} steps{over}"
+        )
 
 
 @dataclass
@@ -296,6 +335,7 @@ __all__ = [
     "OTHER_SHARE",
     "OTHER_SHARE_GRID",
     "THIN_RADIUS",
+    "Budget",
     "DefaultPreset",
     "choose_preset",
     "default_preset",

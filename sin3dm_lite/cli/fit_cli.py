@@ -82,14 +82,14 @@ def cmd_grid(a) -> None:
 
 
 def cmd_fit(a) -> None:
-    from ..auto.fit_default import default_budget, default_preset
+    from ..auto.fit_default import DEFAULT_LEAST_SHARE, DEFAULT_MINUTES, Budget, default_budget, default_preset
     from ..data.config import parse_settings
     from ..pipeline import Sin3DM
     from ..presets import get_preset
 
     if a.resume and not Path(a.out).is_dir():
         raise Sin3DMInputError(f"cannot resume: run folder '{a.out}' not found; start a new fit without --resume")
-    t0 = time.perf_counter()
+    t0, started = time.perf_counter(), time.monotonic()
     changes = parse_settings(a.set)
     if a.minutes is not None and a.resume:
         raise Sin3DMInputError("--minutes is for a new fit: a resumed fit keeps its run's steps; leave out --minutes")
@@ -100,12 +100,18 @@ def cmd_fit(a) -> None:
         chosen = default_preset(a.device, mesh)
         print("\n".join(chosen.lines()), flush=True)
     name = a.preset or (chosen.name if chosen else None)  # None: the run's own (Sin3DM.fit)
+    budget = None  # kept again once the autoencoder has trained
     if a.minutes is not None:
-        changes = {**time_budget(a, mesh, name, chosen, changes), **changes}  # what --set names explicitly wins
+        budgeted, budget = time_budget(a, mesh, name, chosen, changes, started)
+        changes = {**budgeted, **changes}  # what --set names explicitly wins
     elif chosen is not None and not changes:  # the default keeps to its own budget
         changes, line = default_budget(get_preset(chosen.name), chosen.seconds)
         if line:
             print(line, flush=True)
+        if chosen.seconds and chosen.name != "paper":
+            cfg = get_preset(chosen.name)
+            steps = (cfg.autoencoder.steps, cfg.diffusion.steps)
+            budget = Budget(DEFAULT_MINUTES, chosen.seconds, steps, DEFAULT_LEAST_SHARE, started)
     base = get_preset(name or "small")
     preset = base.updated(**changes) if changes else name
     model = Sin3DM.fit(
@@ -118,6 +124,7 @@ def cmd_fit(a) -> None:
         pbr=a.pbr,
         allow_outside_paths=a.allow_outside_paths,
         calibrate=a.calibrate,
+        budget=budget,
     )
     r = model.report["reconstruction"]
     colour = "one colour, kept" if "single_color" in model.report else f"colour PSNR {r['color_psnr']:.1f} dB"
@@ -143,10 +150,11 @@ def input_mesh(a):
     return resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
 
 
-def time_budget(a, mesh, name: str, chosen, changes: dict) -> dict:
+def time_budget(a, mesh, name: str, chosen, changes: dict, started: float):
     """``--minutes``: fewer training steps where the fit's estimate is longer (:func:`fit_default.within_minutes`),
-    said before the fit starts. The default's estimate is used as it is; a named preset or ``--set`` is timed here."""
-    from ..auto.fit_default import estimate_fit, one_colour, proportions, within_minutes
+    said before the fit starts, and the :class:`~fit_default.Budget` that the fit keeps to again after its
+    autoencoder. The default's estimate is used as it is; a named preset or ``--set`` is timed here."""
+    from ..auto.fit_default import LEAST_STEPS_SHARE, Budget, estimate_fit, one_colour, proportions, within_minutes
     from ..presets import get_preset
 
     cfg = get_preset(name).updated(**changes) if changes else get_preset(name)
@@ -154,4 +162,5 @@ def time_budget(a, mesh, name: str, chosen, changes: dict) -> dict:
     seconds = seconds or estimate_fit(cfg, a.device, proportions(mesh), one_colour(mesh))
     budget, line = within_minutes(cfg, seconds, a.minutes)
     print(line, flush=True)
-    return budget
+    steps = (cfg.autoencoder.steps, cfg.diffusion.steps)
+    return budget, Budget(a.minutes, seconds, steps, LEAST_STEPS_SHARE, started)

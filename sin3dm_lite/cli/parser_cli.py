@@ -160,7 +160,8 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         metavar="N",
         help="keep the fit within about N minutes: where the fit's estimate for this machine is longer, both "
         "networks train for fewer steps (at least half of the preset's; a shorter budget is refused; default: "
-        "without --preset, about 11 minutes on a CPU, at least 80%% of the steps; with one, the preset's steps)",
+        "without --preset, about 11 minutes on a CPU, at least 80%% of the steps; with one, the preset's steps), "
+        "and the denoiser fewer again where the autoencoder ran late",
     )
     f.add_argument(
         "--set",
