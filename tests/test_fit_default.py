@@ -441,3 +441,28 @@ def test_the_denoiser_steps_a_late_fit_keeps_are_recorded_for_a_resume(monkeypat
     assert json.loads((run / "input.json").read_text())["config"]["diffusion"]["steps"] == 100
     assert json.loads((run / "report.json").read_text())["diffusion_steps"] == 100
     check_config_matches_run(run, cfg)  # what a resume checks first
+    fit = {}
+    monkeypatch.setattr("sin3dm_lite.pipeline.Sin3DM.fit", staticmethod(lambda *a, **k: fit.update(k) or _stop()))
+    with pytest.raises(_FitCalled):
+        main(["fit", "wall", "--preset", "tiny", "--minutes", "0.1", "--out", str(tmp_path / "b")])
+    assert fit["budget"].minutes == 0.1
+    with pytest.raises(_FitCalled):  # the denoiser's steps as --set names them: not cut again
+        main(
+            [
+                "fit",
+                "wall",
+                "--preset",
+                "tiny",
+                "--minutes",
+                "0.1",
+                "--set",
+                "diffusion.steps=120",
+                "--out",
+                str(tmp_path / "c"),
+            ]
+        )
+    assert fit["budget"] is None
+
+
+def _stop():
+    raise _FitCalled

@@ -103,6 +103,7 @@ def cmd_fit(a) -> None:
     budget = None  # kept again once the autoencoder has trained
     if a.minutes is not None:
         budgeted, budget = time_budget(a, mesh, name, chosen, changes, started)
+        budget = None if "diffusion.steps" in changes else budget  # the denoiser's steps as --set names them
         changes = {**budgeted, **changes}  # what --set names explicitly wins
     elif chosen is not None and not changes:  # the default keeps to its own budget
         changes, line = default_budget(get_preset(chosen.name), chosen.seconds)
