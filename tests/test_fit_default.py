@@ -113,6 +113,7 @@ def _fit_cli(monkeypatch, tmp_path, capsys, *argv, seconds=(120, 60, 27)):
 
     def fake_fit(mesh, preset, **kw):
         seen["preset"], seen["printed"] = preset, capsys.readouterr().out
+        _fit_cli.budget = kw.get("budget")  # what the fit keeps to again after its autoencoder
         raise _FitCalled
 
     monkeypatch.setattr(Sin3DM, "fit", staticmethod(fake_fit))
@@ -192,12 +193,16 @@ def test_the_default_keeps_to_about_eleven_minutes_on_a_slower_cpu(monkeypatch, 
         "[fit] the default keeps to about 11 min on a CPU: 850 autoencoder and 850 denoiser steps (86% of the "
         "preset's 1,000 and 1,000); --preset quick trains all of them, --minutes N keeps to N",
     ]
+    budget = _fit_cli.budget  # kept again after the autoencoder: the default's minutes and floor, the preset's steps
+    assert (budget.minutes, budget.least, budget.steps) == (11, 0.8, (1000, 1000))
+    assert budget.seconds == {"autoencoder": 400, "denoiser": 300, "other": 60, "total": 760}
     preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, seconds=(1000, 800, 200))  # 26 % would do: 80 %
     assert preset.autoencoder.steps == 800 and "(80% of the preset's 1,000 and 1,000), about 27 min here" in printed
     for argv in (["--preset", "quick"], ["--set", "diffusion.steps=900"], ["--minutes", "30"]):
         preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, *argv, seconds=(400, 300, 60))
         steps = preset.autoencoder.steps if not isinstance(preset, str) else get_preset(preset).autoencoder.steps
         assert steps == 1000 and "the default keeps" not in printed, argv
+        assert (_fit_cli.budget is None) == (argv[0] != "--minutes"), argv  # a named preset or --set: no budget
     preset, printed = _fit_cli(monkeypatch, tmp_path, capsys, seconds=(400, 250, 20))  # 98 %: the same steps
     assert preset == "quick" and "the default keeps" not in printed
     paper = {"autoencoder": 9e3, "denoiser": 9e3, "other": 0, "total": 2e4}

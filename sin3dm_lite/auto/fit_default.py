@@ -74,6 +74,19 @@ class Budget:
     least: float
     start: float
 
+    @classmethod
+    def within(cls, cfg: Config, seconds: dict, minutes: float, start: float) -> Budget:
+        """``fit --minutes``'s: ``cfg`` estimated at ``seconds``, at least :data:`LEAST_STEPS_SHARE` of its steps."""
+        return cls(minutes, seconds, (cfg.autoencoder.steps, cfg.diffusion.steps), LEAST_STEPS_SHARE, start)
+
+    @classmethod
+    def by_default(cls, cfg: Config, seconds: dict | None, start: float) -> Budget | None:
+        """The default's (:func:`default_budget`): about :data:`DEFAULT_MINUTES`, at least
+        :data:`DEFAULT_LEAST_SHARE` of the steps; None where it keeps no budget."""
+        if not _keeps_default_budget(cfg, seconds):
+            return None
+        return cls(DEFAULT_MINUTES, seconds, (cfg.autoencoder.steps, cfg.diffusion.steps), DEFAULT_LEAST_SHARE, start)
+
     def denoiser_steps(self, ae_steps: int, ae_seconds: float, planned: int) -> tuple[int, str | None]:
         """The denoiser's steps (at most ``planned``) once the autoencoder trained ``ae_steps`` in ``ae_seconds``,
         and the line that says why where they are fewer (None where ``planned`` keeps the budget)."""
@@ -221,7 +234,7 @@ def default_budget(cfg: Config, seconds: dict | None) -> tuple[dict, str | None]
     :data:`DEFAULT_MINUTES`, and the line that says so: like :func:`within_minutes`, but never below
     :data:`DEFAULT_LEAST_SHARE` of the steps and never refused. ``({}, None)`` where the estimate fits, without one,
     and for ``paper`` (its steps are the paper's)."""
-    if not seconds or cfg.name == "paper":
+    if not _keeps_default_budget(cfg, seconds):
         return {}, None
     share = max(DEFAULT_LEAST_SHARE, _share_within(seconds, DEFAULT_MINUTES))
     changes, steps = _steps_at(cfg, share)
@@ -233,6 +246,11 @@ def default_budget(cfg: Config, seconds: dict | None) -> tuple[dict, str | None]
         f"[fit] the default keeps to about {DEFAULT_MINUTES} min on a CPU: {steps}{here}; --preset {cfg.name} "
         "trains all of them, --minutes N keeps to N"
     )
+
+
+def _keeps_default_budget(cfg: Config, seconds: dict | None) -> bool:
+    """Whether the default keeps a budget: where it has an estimate, and not for ``paper`` (the paper's steps)."""
+    return bool(seconds) and cfg.name != "paper"
 
 
 def _share_within(seconds: dict, minutes: float) -> float:

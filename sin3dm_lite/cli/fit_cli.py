@@ -82,7 +82,7 @@ def cmd_grid(a) -> None:
 
 
 def cmd_fit(a) -> None:
-    from ..auto.fit_default import DEFAULT_LEAST_SHARE, DEFAULT_MINUTES, Budget, default_budget, default_preset
+    from ..auto.fit_default import Budget, default_budget, default_preset
     from ..data.config import parse_settings
     from ..pipeline import Sin3DM
     from ..presets import get_preset
@@ -109,10 +109,7 @@ def cmd_fit(a) -> None:
         changes, line = default_budget(get_preset(chosen.name), chosen.seconds)
         if line:
             print(line, flush=True)
-        if chosen.seconds and chosen.name != "paper":
-            cfg = get_preset(chosen.name)
-            steps = (cfg.autoencoder.steps, cfg.diffusion.steps)
-            budget = Budget(DEFAULT_MINUTES, chosen.seconds, steps, DEFAULT_LEAST_SHARE, started)
+        budget = Budget.by_default(get_preset(chosen.name), chosen.seconds, started)
     base = get_preset(name or "small")
     preset = base.updated(**changes) if changes else name
     model = Sin3DM.fit(
@@ -155,7 +152,7 @@ def time_budget(a, mesh, name: str, chosen, changes: dict, started: float):
     """``--minutes``: fewer training steps where the fit's estimate is longer (:func:`fit_default.within_minutes`),
     said before the fit starts, and the :class:`~fit_default.Budget` that the fit keeps to again after its
     autoencoder. The default's estimate is used as it is; a named preset or ``--set`` is timed here."""
-    from ..auto.fit_default import LEAST_STEPS_SHARE, Budget, estimate_fit, one_colour, proportions, within_minutes
+    from ..auto.fit_default import Budget, estimate_fit, one_colour, proportions, within_minutes
     from ..presets import get_preset
 
     cfg = get_preset(name).updated(**changes) if changes else get_preset(name)
@@ -163,5 +160,4 @@ def time_budget(a, mesh, name: str, chosen, changes: dict, started: float):
     seconds = seconds or estimate_fit(cfg, a.device, proportions(mesh), one_colour(mesh))
     budget, line = within_minutes(cfg, seconds, a.minutes)
     print(line, flush=True)
-    steps = (cfg.autoencoder.steps, cfg.diffusion.steps)
-    return budget, Budget(a.minutes, seconds, steps, LEAST_STEPS_SHARE, started)
+    return budget, Budget.within(cfg, seconds, a.minutes, started)

@@ -82,9 +82,10 @@ def _on_doubled_edges(tri: np.ndarray, among: np.ndarray) -> np.ndarray:
 
 
 def _reversed_quads(vertices: np.ndarray, tri: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Among ``faces`` (rows of ``tri``, which numbers the distinct positions ``vertices``), the two triangles of each flat quad listed a
-    second time wound the other way, and those of its first listing: two triangles that share an edge (wound against
-    each other along it, folded by less than 45°: :data:`FOLD_COS`) make a quad, the cycle of its four corners."""
+    """Among ``faces`` (rows of ``tri``, which numbers the distinct positions ``vertices``), the two triangles of
+    each flat quad listed a second time wound the other way, and those of its first listing: two triangles that share
+    an edge (wound against each other along it, folded by less than 45°: :data:`FOLD_COS`) make a quad, the cycle of
+    its four corners."""
     t = tri[faces]
     # every directed edge u → v of a face, with the face's third corner p; a partner runs v → u, its third corner q
     u, v, p = t.T, np.roll(t, -1, axis=1).T, np.roll(t, -2, axis=1).T
