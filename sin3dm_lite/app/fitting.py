@@ -197,7 +197,7 @@ class FitRun:
     def denoise(self, cfg, grid, h0, ae, metrics, report_base, calibrate: bool):
         """Stages 3 and 4: train the denoiser on ``h0``, then (``calibrate``) choose the knob; the model and losses."""
         t0 = time.perf_counter()
-        if self.budget is not None and ae.step_count == cfg.autoencoder.steps:
+        if self.budget is not None:  # a fresh fit (a resumed one has none): its autoencoder trained every step here
             cfg = self.kept_to_budget(cfg, ae.step_count)
         dm = DiffusionTrainer(h0, cfg.diffusion, self.dev, cfg.seed)
         cfg = cfg.updated(**{"diffusion.latent_scale": dm.cfg.latent_scale})  # the number, where it asked for unit
