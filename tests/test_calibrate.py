@@ -797,7 +797,7 @@ def test_cli_calibrate_errors_in_one_line(capsys, tmp_path):
 def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower_field(plain_fit, tmp_path):
     """A calibrated fit measures how far its samples from pure noise lie from the input's latent (recorded in the
     report); below fit_policy.COPIES_DISTANCE it warns that no diversity setting varies the shape and names the
-    shorter training (SHORTER_SHARE of the denoiser's steps) first, then the narrower field: half the ResBlocks."""
+    narrower field first (one ResBlock fewer), then shorter training (SHORTER_SHARE of the denoiser's steps)."""
     from types import SimpleNamespace
 
     import torch
@@ -822,10 +822,12 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
     assert copies_warning(small, COPIES_DISTANCE) is None and copies_warning(small, 0.2) is None
     detail = copies_warning(get_preset("detail"), 0.005)
     assert "copies of the input" in detail and "0.5% of its variance" in detail and "17-texel field" in detail
-    assert "--set diffusion.steps=750" in detail and "--set diffusion.n_resblocks=2" in detail
-    assert detail.index("diffusion.steps=750") < detail.index("n_resblocks=2")  # the shorter training first
+    assert "--set diffusion.n_resblocks=3" in detail and "--set diffusion.steps=750" in detail
+    assert detail.index("n_resblocks=3") < detail.index("diffusion.steps=750")  # one ResBlock fewer first
     wide = copies_warning(quick.updated(**{"diffusion.n_resblocks": 4}), 0.0)
-    assert "--set diffusion.n_resblocks=2" in wide and "9-texel" not in wide
+    assert "--set diffusion.n_resblocks=3" in wide and "9-texel" not in wide
+    one = copies_warning(quick.updated(**{"diffusion.n_resblocks": 1}), 0.0)  # no narrower field: fewer steps
+    assert "n_resblocks" not in one and f"--set diffusion.steps={int(0.75 * quick.diffusion.steps)}" in one
 
     # in a fit: the warning (not for the plain fit above, whose samples vary), and the report keeps the distance
     assert recorded >= COPIES_DISTANCE
@@ -838,7 +840,7 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
     said = [str(w.message) for w in caught if "even from pure noise" in str(w.message)]
     assert len(said) == 1 and "0.1% of its variance" in said[0] and "diffusion.n_resblocks=1" in said[0]
     micro_steps = micro_config().diffusion.steps
-    assert f"--set diffusion.steps={int(0.75 * micro_steps)};" in said[0]  # fewer than it trained
+    assert f"--set diffusion.steps={int(0.75 * micro_steps)}" in said[0]  # fewer than it trained
     report = json.loads((tmp_path / "w" / "report.json").read_text())
     assert report["from_noise_distance"] == 0.001
     assert report["calibration"]["diversity"] == 1.0  # every setting keeps the goals
@@ -855,7 +857,7 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
     # voxels are copies though their latents lie 0.085 away; for detail the advice names small too
     assert "G-Div 0.084" in copies_warning(small, 0.032, g_div=0.084)
     keep = copies_warning(get_preset("detail"), 0.085, g_div=0.025)
-    assert "near copies" in keep and "--set diffusion.n_resblocks=2" in keep and "--preset small" in keep
+    assert "near copies" in keep and "--set diffusion.n_resblocks=3" in keep and "--preset small" in keep
     tried = [{"diversity": 1.0, "g_div": 0.01}, {"diversity": 0.9, "g_div": 0.5}, {"diversity": 1.0, "g_div": 0.03}]
     assert g_div_at_one({"tried": tried}) == pytest.approx(0.02) and g_div_at_one({"tried": tried[1:2]}) is None
     assert g_div_at_one(None) is None

@@ -51,8 +51,9 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
 #: samples from pure noise whose latents lie closer to the input's than this (:func:`from_noise_distance`) may be
 #: copies; where the fit calibrated, the G-Div of its samples at diversity 1 decides instead
 COPIES_DISTANCE = 0.07
-#: the share of its steps that :func:`copies_warning` advises the denoiser to train for (docs/lab-notes.md: a narrow
-#: tower whose samples from pure noise were copies varied, with whole walls, at this share; at half, less whole)
+#: the share of its steps that :func:`copies_warning` advises a denoiser to train for where one ResBlock fewer is not
+#: the way (docs/lab-notes.md: of three narrow towers whose samples from pure noise were copies, one ResBlock fewer
+#: varied two and tore the third, which this share varied)
 SHORTER_SHARE = 0.75
 
 
@@ -77,15 +78,18 @@ def copies_warning(cfg: Config, distance: float, g_div: float | None = None) -> 
     """What a fit warns when even its samples from pure noise are (near) copies of the input, else None: the
     calibration's samples at diversity 1 vary less than G-Div :data:`VARIED_G_DIV` or, without them, their latents
     lie near the input's (:data:`COPIES_DISTANCE`). The denoiser's field then holds the shape's whole layout (the
-    paper's "too large a receptive field overfits"); the advice is first a denoiser trained for
-    :data:`SHORTER_SHARE` of its steps (it memorises less of the layout and keeps the field), then a narrower field,
-    or a coarser latent."""
+    paper's "too large a receptive field overfits"); the advice is one ResBlock fewer (a field 4 texels narrower),
+    else a denoiser trained for :data:`SHORTER_SHARE` of its steps (it memorises less of the layout), or a coarser
+    latent."""
     if (g_div >= VARIED_G_DIV) if g_div is not None else (distance >= COPIES_DISTANCE):
         return None
     d = cfg.diffusion
-    fix = refit_advice(cfg, "diffusion.steps", max(1, int(SHORTER_SHARE * d.steps)))
+    shorter = max(1, int(SHORTER_SHARE * d.steps))
     if d.n_resblocks > 1:
-        fix += f"; or a narrower field, --set diffusion.n_resblocks={max(1, d.n_resblocks // 2)}, which may break it"
+        fix = refit_advice(cfg, "diffusion.n_resblocks", d.n_resblocks - 1, also=", which may tear it")
+        fix += f"; or a denoiser trained for fewer steps, --set diffusion.steps={shorter}"
+    else:
+        fix = refit_advice(cfg, "diffusion.steps", shorter)
     coarse = {"detail": "small", "fine": "quick"}.get(cfg.name)
     if coarse:
         fix += f"; or --preset {coarse}, the same field on a coarser latent, which keeps thin walls less well"
@@ -93,8 +97,8 @@ def copies_warning(cfg: Config, distance: float, g_div: float | None = None) -> 
     return (
         f"even from pure noise this fit's samples are near copies of the input ({among}their latents differ from "
         f"the input's by {distance:.1%} of its variance): its denoiser's {1 + 4 * d.n_resblocks}-texel field holds "
-        "the layout of this shape, so no diversity setting varies it; a denoiser trained for fewer steps memorises "
-        f"less of it and keeps its structure: {fix}"
+        "the layout of this shape, so no diversity setting varies it; a narrower field, or a denoiser trained for "
+        f"fewer steps, holds less of it: {fix}"
     )
 
 
