@@ -872,6 +872,99 @@ def test_a_fit_whose_samples_from_pure_noise_are_the_input_warns_with_a_narrower
     assert not [w for w in caught if "even from pure noise" in str(w.message)]
 
 
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a micro fit
+def test_a_fit_whose_samples_from_pure_noise_are_copies_trains_a_narrower_field_and_keeps_it_where_it_varies(
+    tmp_path,
+):
+    """Where the calibration's samples at diversity 1 are copies and the denoiser has 3 or more ResBlocks, the fit
+    trains a second denoiser with one ResBlock fewer, calibrates it the same way and keeps it where it kept the
+    goals (its run folder, model and report say so); where it kept none, the first stays and the copies warning
+    names the shorter training only. A strict budget (``fit --minutes``) with no time left trains no second one. The
+    kept denoiser becomes the run's (a resume ends there), and a fit stopped while training it resumes to the same
+    model."""
+    import contextlib
+    import io
+    import os
+    import signal
+
+    import torch
+
+    from sin3dm_lite.app import fitting
+    from sin3dm_lite.auto import fit_policy, review
+    from sin3dm_lite.auto.fit_default import Budget
+    from sin3dm_lite.model import diffusion
+
+    three = micro_config().updated(**{**PLAIN, "diffusion.n_resblocks": 3})
+    real = fit_policy.g_div_at_one
+    calls = []
+
+    def first_copies(calibration):  # the first denoiser's samples at diversity 1 are copies, the second's real
+        calls.append(calibration)
+        return 0.01 if len(calls) == 1 else real(calibration)
+
+    def fit(folder, goals, budget=None, preset=three, **resume):
+        printed = io.StringIO()
+        calls.clear()
+        with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(printed):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                mp.setattr(C, "GOALS", goals)
+                mp.setattr(fit_policy, "g_div_at_one", first_copies)
+                mp.setattr(review, "g_div_at_one", lambda calibration: 0.01)  # the last look: copies
+                mp.setattr(review, "from_noise_distance", lambda m, seed=0: 0.001)
+                model = Sin3DM.fit(
+                    "wall", preset=preset, out=tmp_path / folder, calibrate=True, budget=budget, **resume
+                )
+        return model, printed.getvalue(), [str(w.message) for w in caught if "even from pure noise" in str(w.message)]
+
+    kept, said, _ = fit("kept", KEEP_EVERY_SETTING)
+    assert "Training a second one with 2 ResBlocks (a 9-texel field)" in said and "the narrower field is kept" in said
+    assert kept.config.diffusion.n_resblocks == 2 and kept.report["narrower_field"]["kept"] is True
+    assert kept.report["narrower_field"]["first"]["n_resblocks"] == 3
+    assert {"narrower_diffusion_s", "narrower_calibrate_s", "diffusion_s"} <= set(kept.report["timings_s"])
+    run = tmp_path / "kept"
+    assert Sin3DM.load(run).config.diffusion.n_resblocks == 2
+    assert json.loads((run / "report.json").read_text())["narrower_field"]["kept"] is True
+    # the run's denoiser from now on: its checkpoint and recorded settings, so a resume ends where the fit did
+    assert not (run / "diffusion_narrower.pt").exists()
+    assert Sin3DM.fit("wall", out=run, resume=True, progress=False).config.diffusion.n_resblocks == 2
+
+    # Ctrl-C in the second denoiser's training: its checkpoint stays, and a resume ends with the same model
+    real_step = diffusion.DiffusionTrainer.step
+
+    def step_then_ctrl_c(self):
+        loss = real_step(self)
+        if self.cfg.n_resblocks == 2 and self.step_count == 17:
+            os.kill(os.getpid(), signal.SIGINT)
+        return loss
+
+    with pytest.MonkeyPatch.context() as mp, pytest.raises(KeyboardInterrupt):
+        mp.setattr(diffusion.DiffusionTrainer, "step", step_then_ctrl_c)
+        fit("cut", KEEP_EVERY_SETTING)
+    assert torch.load(tmp_path / "cut" / "diffusion_narrower.pt", weights_only=True)["step"] == 17
+    resumed, said, _ = fit("cut", KEEP_EVERY_SETTING, preset=None, resume=True)
+    assert "resumed at step 17" in said and resumed.config.diffusion.n_resblocks == 2
+    a, b = (torch.load(tmp_path / f / "model.pt", weights_only=True)["denoiser"] for f in ("kept", "cut"))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+    first, said, warned = fit("first", {"lp_iou": 1.0, "lp_fscore": 1.0})  # no setting keeps every patch
+    assert "kept no setting: the first denoiser stays" in said and first.config.diffusion.n_resblocks == 3
+    assert first.report["narrower_field"]["kept"] is False
+    assert len(warned) == 1 and "n_resblocks" not in warned[0] and "--set diffusion.steps=" in warned[0]
+
+    spent = Budget(
+        0.01,
+        {"autoencoder": 1.0, "denoiser": 1.0, "other": 0.0},
+        (30, 30),
+        0.5,
+        fitting.time.monotonic() - 60,
+        strict=True,
+    )  # its minutes are spent
+    none, said, warned = fit("none", KEEP_EVERY_SETTING, budget=spent)
+    assert "Training a second" not in said and "narrower_field" not in none.report
+    assert none.config.diffusion.n_resblocks == 3 and "--set diffusion.n_resblocks=2" in warned[0]
+
+
 def test_the_cpu_presets_calibrate_by_default_and_the_others_do_not(tmp_path, monkeypatch):
     """``Sin3DM.fit(calibrate=None)``: the CPU presets choose their diversity, tiny (tests) and paper (the paper's
     pure noise) keep their own; calibrate=False / True says otherwise. The finer presets (a training grid above 64

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..auto.calibration import calibrates, judged_at
 from ..auto.fit_default import default_preset
-from ..auto.fit_policy import choose_pbr
+from ..auto.fit_policy import NARROWER_CALIBRATION, choose_pbr, g_div_at_one, narrower_field
 from ..auto.review import review_fit
 from ..data.config import Config
 from ..data.grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
@@ -131,6 +131,8 @@ class FitRun:
                 )
         calibrate = bool(calibrate)
         model, history = self.denoise(cfg, grid, h0, ae, metrics, base, calibrate)
+        if calibrate:  # copies even from pure noise: a second denoiser with a narrower field
+            model, history = self.narrower(cfg, model, history, (grid, h0, ae, metrics, base))
         review_fit(model, calibrate, self.say, self.run)
         if self.run is not None:
             model.save(self.run)
@@ -194,7 +196,7 @@ class FitRun:
         self.say("[fit] reconstruction: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
         return ae, h0, metrics
 
-    def denoise(self, cfg, grid, h0, ae, metrics, report_base, calibrate: bool):
+    def denoise(self, cfg, grid, h0, ae, metrics, report_base, calibrate: bool, ckpt: str = "diffusion.pt"):
         """Stages 3 and 4: train the denoiser on ``h0``, then (``calibrate``) choose the knob; the model and losses."""
         t0 = time.perf_counter()
         if self.budget is not None:  # a fresh fit (a resumed one has none): its autoencoder trained every step here
@@ -206,7 +208,7 @@ class FitRun:
             self.say(
                 f"[fit] diffusion: the first step compiles the denoiser for this machine (torch.compile, {how_long})"
             )
-        train(dm, self.run / "diffusion.pt" if self.run else None, cfg.checkpoint_every, self.progress, self.say)
+        train(dm, self.run / ckpt if self.run else None, cfg.checkpoint_every, self.progress, self.say)
         self.timings["diffusion_s"] = time.perf_counter() - t0
 
         report = {
@@ -239,6 +241,47 @@ class FitRun:
                 model.calibrate(input_mesh=self.mesh, resolution=at, progress=self.progress)
             self.timings["calibrate_s"] = time.perf_counter() - t0
         return model, dm.history
+
+    def narrower(self, cfg: Config, first, history, stage_inputs):
+        """Where even ``first``'s samples from pure noise are copies (:func:`~sin3dm_lite.auto.fit_policy.narrower_field`):
+        a second denoiser with one ResBlock fewer, calibrated the same way, kept where it kept the goals (varied samples
+        that keep the input's patches); else ``first``. The model kept and its losses; its report says what was tried."""
+        second_cfg = narrower_field(
+            first.config.updated(**{"sampling.diversity": cfg.sampling.diversity}), first.report.get("calibration")
+        )
+        fewer, calibrations = (
+            1 - 1 / cfg.diffusion.n_resblocks,
+            NARROWER_CALIBRATION * self.timings.get("calibrate_s", 0),
+        )
+        extra = self.timings["diffusion_s"] * fewer + calibrations
+        if second_cfg is None or (self.budget is not None and not self.budget.allows(extra)):
+            return first, history
+        n, g_div = second_cfg.diffusion.n_resblocks, g_div_at_one(first.report["calibration"])
+        self.say(
+            f"[fit] even from pure noise the samples are near copies (G-Div {g_div:.3f} at diversity 1): the "
+            f"denoiser's field holds this shape's layout. Training a second one with {n} ResBlocks (a "
+            f"{1 + 4 * n}-texel field), about {extra / 60:.0f} min more; it is kept if it varies and keeps the patches"
+        )
+        first_timings, self.budget = dict(self.timings), None
+        second, second_history = self.denoise(second_cfg, *stage_inputs, True, ckpt="diffusion_narrower.pt")
+        kept = bool(second.report["calibration"].get("kept_goals"))
+        extra_s = {f"narrower_{k}": self.timings[k] for k in ("diffusion_s", "calibrate_s")}
+        self.timings.clear()  # both reports hold this dict
+        self.timings.update({**first_timings, **extra_s})
+        model, history = (second, second_history) if kept else (first, history)
+        if kept and self.run is not None:  # the run's denoiser from now on: a resume trains and checks this one
+            record_config(self.run, second_cfg)
+            (self.run / "diffusion_narrower.pt").replace(self.run / "diffusion.pt")
+        model.report["narrower_field"] = {
+            "n_resblocks": n,
+            "kept": kept,
+            "first": {"n_resblocks": n + 1, "g_div_at_one": g_div, "diversity": first.config.sampling.diversity},
+        }
+        self.say(
+            f"[fit] the narrower field {'is kept' if kept else 'kept no setting: the first denoiser stays'} "
+            f"(diversity {model.config.sampling.diversity:g})"
+        )
+        return model, history
 
     def kept_to_budget(self, cfg: Config, ae_steps: int) -> Config:
         """``cfg`` with the denoiser's steps the budget leaves after the autoencoder's time; a run folder records

@@ -31,6 +31,7 @@ RUN_FILES = (
     "grid.npz",
     "autoencoder.pt",
     "diffusion.pt",
+    "diffusion_narrower.pt",
     MODEL_FILE,
     "losses.json",
     "report.json",
@@ -48,9 +49,13 @@ def check_run_folder(run: Path, source, resume: bool) -> None:
     check_writable(run)
     refuse_links(run)  # a fit writes and (when it fails) removes files in it: never through a link
     if resume:
-        for kind in ("autoencoder", "diffusion"):
-            if (run / f"{kind}.pt").exists():
-                load_trainer_checkpoint(run / f"{kind}.pt", kind)
+        for name, kind in (
+            ("autoencoder", "autoencoder"),
+            ("diffusion", "diffusion"),
+            ("diffusion_narrower", "diffusion"),
+        ):
+            if (run / f"{name}.pt").exists():
+                load_trainer_checkpoint(run / f"{name}.pt", kind)
         if (run / "grid.npz").exists() or (run / "grid.npz").is_symlink():
             load_grid(run / "grid.npz", fix="delete it: the resumed fit makes it again from the mesh")
 

@@ -73,11 +73,16 @@ class Budget:
     steps: tuple[int, int]
     least: float
     start: float
+    strict: bool = False  # the user's own (``fit --minutes``): a fit adds no stage past it
+
+    def allows(self, seconds: float) -> bool:
+        """Whether ``seconds`` more keep the fit within its budget (:data:`LATE_S` late at most), or it is not strict."""
+        return not self.strict or time.monotonic() - self.start + seconds <= self.minutes * 60 + LATE_S
 
     @classmethod
     def within(cls, cfg: Config, seconds: dict, minutes: float, start: float) -> Budget:
         """``fit --minutes``'s: ``cfg`` estimated at ``seconds``, at least :data:`LEAST_STEPS_SHARE` of its steps."""
-        return cls(minutes, seconds, (cfg.autoencoder.steps, cfg.diffusion.steps), LEAST_STEPS_SHARE, start)
+        return cls(minutes, seconds, (cfg.autoencoder.steps, cfg.diffusion.steps), LEAST_STEPS_SHARE, start, True)
 
     @classmethod
     def by_default(cls, cfg: Config, seconds: dict | None, start: float) -> Budget | None:

@@ -1,6 +1,6 @@
 """What a fit says about its input and settings, beyond the paper: which variant to fit (:func:`choose_pbr`), a
-reconstruction too poor for useful samples (:func:`warn_if_poor`) and samples from pure noise that copy the input
-(:func:`copies_warning`)."""
+reconstruction too poor for useful samples (:func:`warn_if_poor`), samples from pure noise that copy the input: a
+second denoiser with a narrower field (:func:`narrower_field`), else a warning (:func:`copies_warning`)."""
 
 from __future__ import annotations
 
@@ -55,6 +55,12 @@ COPIES_DISTANCE = 0.07
 #: the way (docs/lab-notes.md: of three narrow towers whose samples from pure noise were copies, one ResBlock fewer
 #: varied two and tore the third, which this share varied)
 SHORTER_SHARE = 0.75
+#: the fewest ResBlocks a denoiser has for :func:`narrower_field` to train one with one fewer (the finer presets' 4:
+#: of three narrow towers whose samples from pure noise were copies, 3 varied two, docs/lab-notes.md)
+NARROWER_FROM = 3
+#: the second denoiser's calibration against the first's time: the first ends at diversity 1, whose copies keep the
+#: goals; the second walks down from a torn 1 (docs/lab-notes.md)
+NARROWER_CALIBRATION = 2.5
 
 
 def from_noise_distance(model, n: int = 4, seed: int = 0) -> float:
@@ -74,18 +80,30 @@ def g_div_at_one(calibration: dict | None) -> float | None:
     return float(sum(rows) / len(rows)) if rows else None
 
 
-def copies_warning(cfg: Config, distance: float, g_div: float | None = None) -> str | None:
+def narrower_field(cfg: Config, calibration: dict | None) -> Config | None:
+    """The config of a second denoiser where a fit's calibration found copies even among its samples from pure noise
+    (G-Div at diversity 1 under the record's copy line): one ResBlock fewer, a field 4 texels narrower (the paper's
+    ablation: too large a field "overfits to the input example"). None where those samples vary, or where the
+    denoiser has fewer than :data:`NARROWER_FROM` ResBlocks."""
+    g_div, line = g_div_at_one(calibration), (calibration or {}).get("copy_line") or VARIED_G_DIV
+    if g_div is None or g_div >= line or cfg.diffusion.n_resblocks < NARROWER_FROM:
+        return None
+    return cfg.updated(**{"diffusion.n_resblocks": cfg.diffusion.n_resblocks - 1})
+
+
+def copies_warning(cfg: Config, distance: float, g_div: float | None = None, narrower_tried=False) -> str | None:
     """What a fit warns when even its samples from pure noise are (near) copies of the input, else None: the
     calibration's samples at diversity 1 vary less than G-Div :data:`VARIED_G_DIV` or, without them, their latents
     lie near the input's (:data:`COPIES_DISTANCE`). The denoiser's field then holds the shape's whole layout (the
     paper's "too large a receptive field overfits"); the advice is one ResBlock fewer (a field 4 texels narrower),
     else a denoiser trained for :data:`SHORTER_SHARE` of its steps (it memorises less of the layout), or a coarser
-    latent."""
+    latent. ``narrower_tried``: the fit trained one with a narrower field already (:func:`narrower_field`), which
+    did not keep the input's patches: the advice is the shorter training."""
     if (g_div >= VARIED_G_DIV) if g_div is not None else (distance >= COPIES_DISTANCE):
         return None
     d = cfg.diffusion
     shorter = max(1, int(SHORTER_SHARE * d.steps))
-    if d.n_resblocks > 1:
+    if d.n_resblocks > 1 and not narrower_tried:
         fix = refit_advice(cfg, "diffusion.n_resblocks", d.n_resblocks - 1, also=", which may tear it")
         fix += f"; or a denoiser trained for fewer steps, --set diffusion.steps={shorter}"
     else:

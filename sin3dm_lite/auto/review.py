@@ -37,7 +37,8 @@ def review_fit(model, calibrated: bool, say=print, run=None) -> None:
     if (hint := paper_grid_hint(model.report.get("calibration"), run)) is not None:
         say(hint)
     distance = from_noise_distance(model, seed=model.config.seed)
-    warning = copies_warning(model.config, distance, g_div_at_one(model.report.get("calibration")))
+    tried = "narrower_field" in model.report  # a narrower field was trained and not kept
+    warning = copies_warning(model.config, distance, g_div_at_one(model.report.get("calibration")), tried)
     model.report["from_noise_distance"] = distance
     if warning is not None:
         # stacklevel: this function, FitRun.stages, fitting.fit, Sin3DM.fit, and the code that called it
