@@ -951,6 +951,7 @@ def test_a_fit_whose_samples_from_pure_noise_are_copies_trains_a_narrower_field_
     assert "kept no setting: the first denoiser stays" in said and first.config.diffusion.n_resblocks == 3
     assert first.report["narrower_field"]["kept"] is False
     assert len(warned) == 1 and "n_resblocks" not in warned[0] and "--set diffusion.steps=" in warned[0]
+    assert "one ResBlock fewer, trained here, kept no varied setting" in warned[0]
 
     spent = Budget(
         0.01,

@@ -112,11 +112,16 @@ def copies_warning(cfg: Config, distance: float, g_div: float | None = None, nar
     if coarse:
         fix += f"; or --preset {coarse}, the same field on a coarser latent, which keeps thin walls less well"
     among = "" if g_div is None else f"G-Div {g_div:.3f} among the calibration's samples at diversity 1; "
+    less = (
+        "one ResBlock fewer, trained here, kept no varied setting that keeps the patches; a denoiser trained for "
+        "fewer steps holds less of it"
+        if narrower_tried
+        else "a narrower field, or a denoiser trained for fewer steps, holds less of it"
+    )
     return (
         f"even from pure noise this fit's samples are near copies of the input ({among}their latents differ from "
         f"the input's by {distance:.1%} of its variance): its denoiser's {1 + 4 * d.n_resblocks}-texel field holds "
-        "the layout of this shape, so no diversity setting varies it; a narrower field, or a denoiser trained for "
-        f"fewer steps, holds less of it: {fix}"
+        f"the layout of this shape, so no diversity setting varies it; {less}: {fix}"
     )
 
 
