@@ -426,6 +426,16 @@ def test_a_fit_behind_its_budget_after_the_autoencoder_trains_fewer_denoiser_ste
     now["t"] = 250.0  # late by less than LATE_S: left as it is
     assert loose.denoiser_steps(1000, 205.0, 1000) == (1000, None)
 
+    # a stage more (a second denoiser): the user's --minutes holds it out where it would end past them, the
+    # default's budget does not
+    cfg = get_preset("tiny")
+    strict = fit_default.Budget.within(cfg, seconds, 11, start=0.0)
+    default = fit_default.Budget.by_default(cfg.updated(name="quick"), seconds, start=0.0)
+    assert strict.strict and default is not None and not default.strict
+    now["t"] = 500.0
+    assert strict.allows(160.0 + fit_default.LATE_S) and not strict.allows(200.0 + fit_default.LATE_S)
+    assert default.allows(10_000.0)
+
 
 def test_the_denoiser_steps_a_late_fit_keeps_are_recorded_for_a_resume(monkeypatch, tmp_path, capsys):
     """A real tiny fit whose autoencoder ran far past its (faked) estimate: the denoiser trains the least share of

@@ -243,17 +243,15 @@ class FitRun:
         return model, dm.history
 
     def narrower(self, cfg: Config, first, history, stage_inputs):
-        """Where even ``first``'s samples from pure noise are copies (:func:`~sin3dm_lite.auto.fit_policy.narrower_field`):
-        a second denoiser with one ResBlock fewer, calibrated the same way, kept where it kept the goals (varied samples
-        that keep the input's patches); else ``first``. The model kept and its losses; its report says what was tried."""
+        """Where even ``first``'s samples from pure noise are copies
+        (:func:`~sin3dm_lite.auto.fit_policy.narrower_field`): a second denoiser with one ResBlock fewer, calibrated
+        the same way, kept where it kept the goals (varied samples that keep the input's patches); else ``first``.
+        The model kept and its losses; its report says what was tried."""
         second_cfg = narrower_field(
             first.config.updated(**{"sampling.diversity": cfg.sampling.diversity}), first.report.get("calibration")
         )
-        fewer, calibrations = (
-            1 - 1 / cfg.diffusion.n_resblocks,
-            NARROWER_CALIBRATION * self.timings.get("calibrate_s", 0),
-        )
-        extra = self.timings["diffusion_s"] * fewer + calibrations
+        extra = self.timings["diffusion_s"] * (1 - 1 / cfg.diffusion.n_resblocks)  # a ResBlock fewer to train
+        extra += NARROWER_CALIBRATION * self.timings.get("calibrate_s", 0)
         if second_cfg is None or (self.budget is not None and not self.budget.allows(extra)):
             return first, history
         n, g_div = second_cfg.diffusion.n_resblocks, g_div_at_one(first.report["calibration"])

@@ -55,8 +55,9 @@ COPIES_DISTANCE = 0.07
 #: the way (docs/lab-notes.md: of three narrow towers whose samples from pure noise were copies, one ResBlock fewer
 #: varied two and tore the third, which this share varied)
 SHORTER_SHARE = 0.75
-#: the fewest ResBlocks a denoiser has for :func:`narrower_field` to train one with one fewer (the finer presets' 4:
-#: of three narrow towers whose samples from pure noise were copies, 3 varied two, docs/lab-notes.md)
+#: the fewest ResBlocks a denoiser has for :func:`narrower_field` to train one with one fewer (the finer presets' 4;
+#: of six narrow towers whose samples from pure noise were copies, 3 varied the square ones and tore the round ones,
+#: docs/lab-notes.md)
 NARROWER_FROM = 3
 #: the second denoiser's calibration against the first's time: the first ends at diversity 1, whose copies keep the
 #: goals; the second walks down from a torn 1 (docs/lab-notes.md)
@@ -91,7 +92,9 @@ def narrower_field(cfg: Config, calibration: dict | None) -> Config | None:
     return cfg.updated(**{"diffusion.n_resblocks": cfg.diffusion.n_resblocks - 1})
 
 
-def copies_warning(cfg: Config, distance: float, g_div: float | None = None, narrower_tried=False) -> str | None:
+def copies_warning(
+    cfg: Config, distance: float, g_div: float | None = None, narrower_tried: bool = False
+) -> str | None:
     """What a fit warns when even its samples from pure noise are (near) copies of the input, else None: the
     calibration's samples at diversity 1 vary less than G-Div :data:`VARIED_G_DIV` or, without them, their latents
     lie near the input's (:data:`COPIES_DISTANCE`). The denoiser's field then holds the shape's whole layout (the
