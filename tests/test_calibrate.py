@@ -894,6 +894,18 @@ def test_a_fit_whose_samples_from_pure_noise_are_copies_trains_a_narrower_field_
     from sin3dm_lite.auto.fit_default import Budget
     from sin3dm_lite.model import diffusion
 
+    # the rule: copies at diversity 1 (the warning's G-Div line) and 3 or more ResBlocks; one fewer
+    from sin3dm_lite.presets import get_preset
+
+    at_one = {"tried": [{"diversity": 1.0, "g_div": 0.05}, {"diversity": 0.8, "g_div": 0.3}]}
+    assert fit_policy.narrower_field(get_preset("detail"), at_one).diffusion.n_resblocks == 3
+    assert fit_policy.narrower_field(get_preset("fine"), at_one).diffusion.n_resblocks == 3
+    assert fit_policy.narrower_field(get_preset("quick"), at_one) is None  # 2 ResBlocks: left alone
+    varied = {"tried": [{"diversity": 1.0, "g_div": 0.1}]}
+    assert fit_policy.narrower_field(get_preset("detail"), varied) is None
+    assert fit_policy.narrower_field(get_preset("detail"), {"tried": at_one["tried"][1:]}) is None  # 1 not drawn
+    assert fit_policy.narrower_field(get_preset("detail"), None) is None
+
     three = micro_config().updated(**{**PLAIN, "diffusion.n_resblocks": 3})
     real = fit_policy.g_div_at_one
     calls = []
@@ -917,7 +929,9 @@ def test_a_fit_whose_samples_from_pure_noise_are_copies_trains_a_narrower_field_
                 )
         return model, printed.getvalue(), [str(w.message) for w in caught if "even from pure noise" in str(w.message)]
 
-    kept, said, _ = fit("kept", KEEP_EVERY_SETTING)
+    kept, said, warned = fit("kept", KEEP_EVERY_SETTING)
+    # (the last look is made to see copies here too: a kept narrower field was no failed one, so one fewer again)
+    assert "trained here" not in warned[0] and "--set diffusion.n_resblocks=1" in warned[0]
     assert "Training a second one with 2 ResBlocks (a 9-texel field)" in said and "the narrower field is kept" in said
     assert kept.config.diffusion.n_resblocks == 2 and kept.report["narrower_field"]["kept"] is True
     assert kept.report["narrower_field"]["first"]["n_resblocks"] == 3

@@ -52,8 +52,8 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
 #: copies; where the fit calibrated, the G-Div of its samples at diversity 1 decides instead
 COPIES_DISTANCE = 0.07
 #: the share of its steps that :func:`copies_warning` advises a denoiser to train for where one ResBlock fewer is not
-#: the way (docs/lab-notes.md: of three narrow towers whose samples from pure noise were copies, one ResBlock fewer
-#: varied two and tore the third, which this share varied)
+#: the way (docs/lab-notes.md: on the narrow round tower that one ResBlock fewer tore, this share varied it on the
+#: Xeon; on two more round ones it did not reach every goal)
 SHORTER_SHARE = 0.75
 #: the fewest ResBlocks a denoiser has for :func:`narrower_field` to train one with one fewer (the finer presets' 4;
 #: of six narrow towers whose samples from pure noise were copies, 3 varied the square ones and tore the round ones,
@@ -83,11 +83,11 @@ def g_div_at_one(calibration: dict | None) -> float | None:
 
 def narrower_field(cfg: Config, calibration: dict | None) -> Config | None:
     """The config of a second denoiser where a fit's calibration found copies even among its samples from pure noise
-    (G-Div at diversity 1 under the record's copy line): one ResBlock fewer, a field 4 texels narrower (the paper's
+    (G-Div at diversity 1 under :data:`VARIED_G_DIV`, as :func:`copies_warning` judges): one ResBlock fewer, a field 4 texels narrower (the paper's
     ablation: too large a field "overfits to the input example"). None where those samples vary, or where the
     denoiser has fewer than :data:`NARROWER_FROM` ResBlocks."""
-    g_div, line = g_div_at_one(calibration), (calibration or {}).get("copy_line") or VARIED_G_DIV
-    if g_div is None or g_div >= line or cfg.diffusion.n_resblocks < NARROWER_FROM:
+    g_div = g_div_at_one(calibration)
+    if g_div is None or g_div >= VARIED_G_DIV or cfg.diffusion.n_resblocks < NARROWER_FROM:
         return None
     return cfg.updated(**{"diffusion.n_resblocks": cfg.diffusion.n_resblocks - 1})
 

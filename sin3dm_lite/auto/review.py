@@ -37,7 +37,7 @@ def review_fit(model, calibrated: bool, say=print, run=None) -> None:
     if (hint := paper_grid_hint(model.report.get("calibration"), run)) is not None:
         say(hint)
     distance = from_noise_distance(model, seed=model.config.seed)
-    tried = "narrower_field" in model.report  # a narrower field was trained and not kept
+    tried = model.report.get("narrower_field", {}).get("kept") is False  # a narrower field was trained, not kept
     warning = copies_warning(model.config, distance, g_div_at_one(model.report.get("calibration")), tried)
     model.report["from_noise_distance"] = distance
     if warning is not None:
