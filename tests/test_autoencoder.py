@@ -109,7 +109,8 @@ def test_tiny_fit_reduces_loss_and_reconstructs(box_grid, use_encoder):
     assert np.mean(h[-10:]) < 0.5 * np.mean(h[:10])
     rec = reconstructed_grid(tr.model.decoder, tr.latent(), box_grid)
     m = reconstruction_metrics(rec, box_grid)
-    assert set(m) == {"sign_accuracy", "occupancy_iou", "occupancy_iou_quarter_voxel", "color_l1", "color_psnr"}
+    keys = {"sign_accuracy", "occupancy_iou", "occupancy_iou_quarter_voxel", "color_l1", "color_psnr"}
+    assert set(m) == keys | {"color_psnr_surface"}
     assert m["occupancy_iou"] > 0.8 and m["sign_accuracy"] > 0.9
     assert m["color_l1"] < 0.25
     # the decoded box_grid: same box as the input, signs as the metrics counted them
@@ -174,6 +175,21 @@ def test_reconstruction_metrics_on_a_known_shift(box_grid):
     assert m["occupancy_iou"] == pytest.approx(1 - flipped / (box_grid.sdf < 0).sum())
     assert m["occupancy_iou_quarter_voxel"] == 1.0
     assert m["color_l1"] == 0 and m["color_psnr"] == pytest.approx(120)
+
+
+def test_the_surface_colour_psnr_counts_only_the_colour_a_baked_texture_shows(box_grid):
+    """color_psnr_surface judges the voxels within half a voxel of the input surface; colour wrong only further
+    off it (where the band spreads a sharp pattern's edges) lowers color_psnr, not it; colour wrong at the
+    surface lowers both."""
+    off = np.abs(box_grid.sdf) >= 0.5 * box_grid.voxel_size
+    band = np.abs(box_grid.sdf) < box_grid.threshold
+    assert (band & ~off).any() and (band & off).any()
+    away = dataclasses.replace(box_grid, color=np.where(off[..., None], 1 - box_grid.color, box_grid.color))
+    m = reconstruction_metrics(away, box_grid)
+    assert m["color_psnr_surface"] == pytest.approx(120) and m["color_psnr"] < 20
+    at = dataclasses.replace(box_grid, color=np.where(off[..., None], box_grid.color, 1 - box_grid.color))
+    m = reconstruction_metrics(at, box_grid)
+    assert m["color_psnr_surface"] < 20 and m["color_psnr"] < 30
 
 
 def one_colour(grid, rgb=(0.2, 0.5, 0.7)):

@@ -597,3 +597,7 @@ def test_poor_reconstruction_is_a_warning_with_the_likely_cause():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         warn_if_poor({"occupancy_iou": 0.96, "color_psnr": MIN_PSNR + 3}, switched)  # a good fit: silent
+        # a black-and-white ball whose colour is sharp at the surface, its edges spread only off it: silent
+        warn_if_poor({"color_psnr": MIN_PSNR - 7, "color_psnr_surface": MIN_PSNR + 0.5}, switched)
+    with pytest.warns(UserWarning, match=r"PSNR 17\.50 dB at the surface .*steps=2000"):  # the surface's figure
+        warn_if_poor({"color_psnr": MIN_PSNR - 7, "color_psnr_surface": MIN_PSNR - 0.5}, switched)

@@ -1,5 +1,7 @@
 """The sin3dm-lite command: outputs and one-line errors with exit code 2."""
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -330,6 +332,17 @@ def test_fit_set_changes_the_preset_and_names_a_bad_setting(capsys, tmp_path, mo
     code, _, err = run(capsys, "fit", "wall", "--out", str(tmp_path / "bad"), "--set", "diffusion.rolout=true")
     assert code == 2 and "unknown config setting 'diffusion.rolout'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps
+def test_a_fit_says_its_colour_psnr_over_the_band_and_at_the_surface(capsys, tmp_path):
+    """The fit's last line gives the reconstruction's colour PSNR over the truncation band and at the surface, the
+    colour a baked texture shows (the figure the low-quality warning judges)."""
+    settings = ["autoencoder.steps=20", "diffusion.steps=2", "sampling.steps=2", "sampling.mesh_resolution=24"]
+    code, out, _ = run(capsys, "fit", "wall", "--preset", "tiny", "--out", str(tmp_path / "r"), "--set", *settings)
+    rec = json.loads((tmp_path / "r" / "report.json").read_text())["reconstruction"]
+    line = f"colour PSNR {rec['color_psnr']:.1f} dB ({rec['color_psnr_surface']:.1f} at the surface)"
+    assert code == 0 and line in out
 
 
 @pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps

@@ -223,6 +223,7 @@ def test_input_without_pbr_is_unchanged(box_grid):
         "occupancy_iou_quarter_voxel",
         "color_l1",
         "color_psnr",
+        "color_psnr_surface",
     }
 
 

@@ -27,8 +27,10 @@ def refit_advice(cfg: Config, setting: str, value, also: str = "") -> str:
 
 def warn_if_poor(rec: dict, cfg: Config) -> None:
     """Warn when the autoencoder's reconstruction is too poor for useful samples, with the likely cause and the
-    setting of the run's ``cfg`` to fit again with (colour: more steps; occupancy: more steps or a finer grid)."""
-    iou, psnr, steps = rec.get("occupancy_iou"), rec.get("color_psnr"), cfg.autoencoder.steps
+    setting of the run's ``cfg`` to fit again with (colour: more steps; occupancy: more steps or a finer grid). The
+    colour is judged at the surface, where a baked texture reads it (``color_psnr_surface``, else ``color_psnr``)."""
+    iou, steps = rec.get("occupancy_iou"), cfg.autoencoder.steps
+    psnr = rec.get("color_psnr_surface", rec.get("color_psnr"))
     if iou is not None and iou < MIN_IOU:
         finer = f" or grid.resolution={8 * round(1.5 * cfg.grid.resolution / 8)}"
         warnings.warn(
@@ -40,7 +42,7 @@ def warn_if_poor(rec: dict, cfg: Config) -> None:
     if psnr is not None and psnr < MIN_PSNR:
         doublings = min(3, math.ceil((MIN_PSNR - psnr) / 1.3))  # doublings that make up the missing dB, at most 3
         warnings.warn(
-            f"low reconstruction quality: colour PSNR {psnr:.2f} dB < {MIN_PSNR:.0f} dB (likely cause: too "
+            f"low reconstruction quality: colour PSNR {psnr:.2f} dB at the surface < {MIN_PSNR:.0f} dB (likely cause: too "
             "few autoencoder steps for this texture's detail: each doubling gave about 1.3 dB on a "
             f"two-texture mesh, and doubles the autoencoder's time); "
             f"{refit_advice(cfg, 'autoencoder.steps', steps * 2**doublings)}",
