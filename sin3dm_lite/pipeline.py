@@ -86,7 +86,7 @@ class Sin3DM:
         ``allow_outside_paths``: let the mesh name textures outside its folder. With ``out`` a run folder is written
         and checkpointed; ``resume=True`` continues it and ends where an uninterrupted fit would. ``calibrate``:
         choose the run's diversity at the end (not in the paper; default: for the CPU presets), and where even pure
-        noise gives deep copies try a denoiser with one ResBlock fewer (``app.fitting.FitRun.narrower``). ``budget``: an
+        noise gives copies try a denoiser with one ResBlock fewer (``app.fitting.FitRun.narrower``). ``budget``: an
         :class:`~sin3dm_lite.auto.fit_default.Budget` (the CLI's ``--minutes``) the denoiser's steps keep to.
         """
         from .app.fitting import fit

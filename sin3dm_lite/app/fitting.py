@@ -243,7 +243,7 @@ class FitRun:
         return model, dm.history
 
     def narrower(self, cfg: Config, first, history, stage_inputs):
-        """Where even ``first``'s samples from pure noise are deep copies
+        """Where even ``first``'s samples from pure noise are copies
         (:func:`~sin3dm_lite.auto.fit_policy.narrower_field`): a second denoiser with one ResBlock fewer, calibrated
         the same way, kept where it kept the goals (varied samples that keep the input's patches); else ``first``.
         The model kept and its losses; its report says what was tried."""

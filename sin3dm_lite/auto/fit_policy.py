@@ -61,10 +61,6 @@ SHORTER_SHARE = 0.75
 #: of six narrow towers whose samples from pure noise were copies, 3 varied the square ones and tore the round ones,
 #: docs/lab-notes.md)
 NARROWER_FROM = 3
-#: samples from pure noise whose G-Div is under this share of :data:`VARIED_G_DIV` are deep copies, which one ResBlock
-#: fewer varied (five of five fits: the narrow square towers, the keep); nearer the line it tore all three round ones
-#: and cost minutes for nothing, so there the advice is :data:`SHORTER_SHARE` (docs/lab-notes.md)
-DEEP_COPIES = 2 / 3
 #: the second denoiser's calibration against the first's time: the first ends at diversity 1, whose copies keep the
 #: goals; the second walks down from a torn 1 (docs/lab-notes.md)
 NARROWER_CALIBRATION = 2.5
@@ -87,19 +83,13 @@ def g_div_at_one(calibration: dict | None) -> float | None:
     return float(sum(rows) / len(rows)) if rows else None
 
 
-def deep_copies(g_div: float | None) -> bool:
-    """Whether samples from pure noise of this G-Div are far from varying (:data:`DEEP_COPIES`), not just short of it."""
-    return g_div is not None and g_div < DEEP_COPIES * VARIED_G_DIV
-
-
 def narrower_field(cfg: Config, calibration: dict | None) -> Config | None:
-    """The config of a second denoiser where a fit's calibration found deep copies even among its samples from pure
-    noise (G-Div at diversity 1 under :data:`DEEP_COPIES` of :data:`VARIED_G_DIV`): one ResBlock fewer, a field 4
-    texels narrower (the paper's ablation: too large a field "overfits to the input example"). None where those
-    samples vary or nearly do (a field 4 texels narrower overshoots there), or where the denoiser has fewer than
-    :data:`NARROWER_FROM` ResBlocks."""
+    """The config of a second denoiser where a fit's calibration found copies even among its samples from pure noise
+    (G-Div at diversity 1 under :data:`VARIED_G_DIV`, as :func:`copies_warning` judges): one ResBlock fewer, a field 4 texels narrower (the paper's
+    ablation: too large a field "overfits to the input example"). None where those samples vary, or where the
+    denoiser has fewer than :data:`NARROWER_FROM` ResBlocks."""
     g_div = g_div_at_one(calibration)
-    if not deep_copies(g_div) or cfg.diffusion.n_resblocks < NARROWER_FROM:
+    if g_div is None or g_div >= VARIED_G_DIV or cfg.diffusion.n_resblocks < NARROWER_FROM:
         return None
     return cfg.updated(**{"diffusion.n_resblocks": cfg.diffusion.n_resblocks - 1})
 
@@ -113,14 +103,12 @@ def copies_warning(
     paper's "too large a receptive field overfits"); the advice is one ResBlock fewer (a field 4 texels narrower),
     else a denoiser trained for :data:`SHORTER_SHARE` of its steps (it memorises less of the layout), or a coarser
     latent. ``narrower_tried``: the fit trained one with a narrower field already (:func:`narrower_field`), which
-    did not keep the input's patches: the advice is the shorter training, as where the samples nearly vary
-    (:func:`deep_copies`)."""
+    did not keep the input's patches: the advice is the shorter training."""
     if (g_div >= VARIED_G_DIV) if g_div is not None else (distance >= COPIES_DISTANCE):
         return None
     d = cfg.diffusion
     shorter = max(1, int(SHORTER_SHARE * d.steps))
-    near = g_div is not None and not deep_copies(g_div)
-    if d.n_resblocks > 1 and not narrower_tried and not near:
+    if d.n_resblocks > 1 and not narrower_tried:
         fix = refit_advice(cfg, "diffusion.n_resblocks", d.n_resblocks - 1, also=", which may tear it")
         fix += f"; or a denoiser trained for fewer steps, --set diffusion.steps={shorter}"
     else:
@@ -129,14 +117,12 @@ def copies_warning(
     if coarse:
         fix += f"; or --preset {coarse}, the same field on a coarser latent, which keeps thin walls less well"
     among = "" if g_div is None else f"G-Div {g_div:.3f} among the calibration's samples at diversity 1; "
-    less = "a narrower field, or a denoiser trained for fewer steps, holds less of it"
-    if narrower_tried or near:
-        why = (
-            "one ResBlock fewer, trained here, kept no varied setting that keeps the patches"
-            if narrower_tried
-            else "they vary almost enough, and one ResBlock fewer tore shapes this close (docs/lab-notes.md)"
-        )
-        less = f"{why}; a denoiser trained for fewer steps holds less of it"
+    less = (
+        "one ResBlock fewer, trained here, kept no varied setting that keeps the patches; a denoiser trained for "
+        "fewer steps holds less of it"
+        if narrower_tried
+        else "a narrower field, or a denoiser trained for fewer steps, holds less of it"
+    )
     return (
         f"even from pure noise this fit's samples are near copies of the input ({among}their latents differ from "
         f"the input's by {distance:.1%} of its variance): its denoiser's {1 + 4 * d.n_resblocks}-texel field holds "
