@@ -47,8 +47,8 @@ def reconstruction_metrics(reconstruction, grid) -> dict[str, float]:
       the input surface (their sign flips with any sub-voxel shift of the surface);
     * ``color_l1`` / ``color_psnr``: colour error on voxels within the truncation band;
     * ``color_psnr_surface``: the same PSNR on voxels whose centre lies within half a voxel of the input surface,
-      the colour a baked texture shows: off the surface the band's colour is the nearest surface point's, which on a
-      curved surface spreads a sharp pattern's edges, which the band's figure then counts many times over.
+      the colour a baked texture shows. Off the surface each band voxel takes the nearest surface point's colour; on
+      a curved surface that spreads a sharp pattern's edges, and the band's figure counts them many times over.
 
     PBR grids (``grid.has_pbr``) add, on the same voxels: ``metallic_l1``, ``roughness_l1``, ``normal_angle_deg``
     (mean angle between the decoded and the input normal) and ``metallic_iou`` (IoU of the ``metallic > 0.5`` voxels).
