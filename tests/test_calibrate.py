@@ -905,9 +905,19 @@ def test_a_fit_whose_samples_from_pure_noise_are_copies_trains_a_narrower_field_
     assert fit_policy.narrower_field(get_preset("detail"), varied) is None
     assert fit_policy.narrower_field(get_preset("detail"), {"tried": at_one["tried"][1:]}) is None  # 1 not drawn
     assert fit_policy.narrower_field(get_preset("detail"), None) is None
+    # kept where it kept the goals with samples more varied than the first's at their choices (the round flat
+    # tower's second: 0.0999 at 0.66 against the first's 0.076 at 1); a second that copies as the first did is not
+    copies = {"kept_goals": True, "at_choice": {"g_div": 0.076}}
+    assert fit_policy.narrower_kept({"kept_goals": True, "at_choice": {"g_div": 0.0999}}, copies)
+    assert not fit_policy.narrower_kept({"kept_goals": True, "at_choice": {"g_div": 0.05}}, copies)
+    assert not fit_policy.narrower_kept({"kept_goals": False, "at_choice": {"g_div": 0.3}}, copies)
 
     three = micro_config().updated(**{**PLAIN, "diffusion.n_resblocks": 3})
-    real = fit_policy.g_div_at_one
+    real, real_kept = fit_policy.g_div_at_one, fit_policy.narrower_kept
+
+    def varied(calibration, g_div=0.3):
+        return {**calibration, "at_choice": {**(calibration.get("at_choice") or {}), "g_div": g_div}}
+
     calls = []
 
     def first_copies(calibration):  # the first denoiser's samples at diversity 1 are copies, the second's real
@@ -922,6 +932,11 @@ def test_a_fit_whose_samples_from_pure_noise_are_copies_trains_a_narrower_field_
                 warnings.simplefilter("always")
                 mp.setattr(C, "GOALS", goals)
                 mp.setattr(fit_policy, "g_div_at_one", first_copies)
+                # ... and at its choice; the micro fit's samples are empty (G-Div 0), so the second's are made to
+                # vary there: whether it kept the goals stays its own calibration's
+                mp.setattr(
+                    fitting, "narrower_kept", lambda second, first: real_kept(varied(second), varied(first, 0.01))
+                )
                 mp.setattr(review, "g_div_at_one", lambda calibration: 0.01)  # the last look: copies
                 mp.setattr(review, "from_noise_distance", lambda m, seed=0: 0.001)
                 model = Sin3DM.fit(
@@ -962,7 +977,7 @@ def test_a_fit_whose_samples_from_pure_noise_are_copies_trains_a_narrower_field_
     assert all(torch.equal(a[k], b[k]) for k in a)
 
     first, said, warned = fit("first", {"lp_iou": 1.0, "lp_fscore": 1.0})  # no setting keeps every patch
-    assert "kept no setting: the first denoiser stays" in said and first.config.diffusion.n_resblocks == 3
+    assert "kept no more varied setting: the first denoiser stays" in said and first.config.diffusion.n_resblocks == 3
     assert first.report["narrower_field"]["kept"] is False
     assert len(warned) == 1 and "n_resblocks" not in warned[0] and "--set diffusion.steps=" in warned[0]
     assert "one ResBlock fewer, trained here, kept no varied setting" in warned[0]

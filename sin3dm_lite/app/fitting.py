@@ -17,7 +17,7 @@ import numpy as np
 
 from ..auto.calibration import calibrates, judged_at
 from ..auto.fit_default import default_preset
-from ..auto.fit_policy import NARROWER_CALIBRATION, choose_pbr, g_div_at_one, narrower_field
+from ..auto.fit_policy import NARROWER_CALIBRATION, choose_pbr, g_div_at_one, narrower_field, narrower_kept
 from ..auto.review import review_fit
 from ..data.config import Config
 from ..data.grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
@@ -245,7 +245,8 @@ class FitRun:
     def narrower(self, cfg: Config, first, history, stage_inputs):
         """Where even ``first``'s samples from pure noise are copies
         (:func:`~sin3dm_lite.auto.fit_policy.narrower_field`): a second denoiser with one ResBlock fewer, calibrated
-        the same way, kept where it kept the goals (varied samples that keep the input's patches); else ``first``.
+        the same way, kept where it kept the goals with samples more varied than ``first``'s
+        (:func:`~sin3dm_lite.auto.fit_policy.narrower_kept`); else ``first``.
         The model kept and its losses; its report says what was tried."""
         second_cfg = narrower_field(
             first.config.updated(**{"sampling.diversity": cfg.sampling.diversity}), first.report.get("calibration")
@@ -258,11 +259,11 @@ class FitRun:
         self.say(
             f"[fit] even from pure noise the samples are near copies (G-Div {g_div:.3f} at diversity 1): the "
             f"denoiser's field holds this shape's layout. Training a second one with {n} ResBlocks (a "
-            f"{1 + 4 * n}-texel field), about {extra / 60:.0f} min more; it is kept if it varies and keeps the patches"
+            f"{1 + 4 * n}-texel field), about {extra / 60:.0f} min more; it is kept if it varies more and keeps the patches"
         )
         first_timings, self.budget = dict(self.timings), None
         second, second_history = self.denoise(second_cfg, *stage_inputs, True, ckpt="diffusion_narrower.pt")
-        kept = bool(second.report["calibration"].get("kept_goals"))
+        kept = narrower_kept(second.report["calibration"], first.report["calibration"])
         extra_s = {f"narrower_{k}": self.timings[k] for k in ("diffusion_s", "calibrate_s")}
         self.timings.clear()  # both reports hold this dict
         self.timings.update({**first_timings, **extra_s})
@@ -276,7 +277,7 @@ class FitRun:
             "first": {"n_resblocks": n + 1, "g_div_at_one": g_div, "diversity": first.config.sampling.diversity},
         }
         self.say(
-            f"[fit] the narrower field {'is kept' if kept else 'kept no setting: the first denoiser stays'} "
+            f"[fit] the narrower field {'is kept' if kept else 'kept no more varied setting: the first denoiser stays'} "
             f"(diversity {model.config.sampling.diversity:g})"
         )
         return model, history

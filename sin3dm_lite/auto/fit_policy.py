@@ -94,6 +94,18 @@ def narrower_field(cfg: Config, calibration: dict | None) -> Config | None:
     return cfg.updated(**{"diffusion.n_resblocks": cfg.diffusion.n_resblocks - 1})
 
 
+def narrower_kept(second: dict, first: dict) -> bool:
+    """Whether a second denoiser's calibration (:func:`narrower_field`) replaces the first's: it kept the goals and
+    its samples at its chosen setting vary more (G-Div) than the first's at theirs. A calibration that ends at
+    diversity 1 keeps the goals even where its samples are copies, so a second that copies as the first did is no
+    gain and the first stays."""
+
+    def g_div(calibration: dict) -> float:
+        return float((calibration.get("at_choice") or {}).get("g_div", 0.0))
+
+    return bool(second.get("kept_goals")) and g_div(second) > g_div(first)
+
+
 def copies_warning(
     cfg: Config, distance: float, g_div: float | None = None, narrower_tried: bool = False
 ) -> str | None:

@@ -125,10 +125,9 @@ def cmd_fit(a) -> None:
         budget=budget,
     )
     r = model.report["reconstruction"]
-    colour = f"colour PSNR {r['color_psnr']:.1f} dB"
-    if "color_psnr_surface" in r:  # a resumed old run may not have it
-        colour += f" ({r['color_psnr_surface']:.1f} at the surface)"
-    colour = "one colour, kept" if "single_color" in model.report else colour
+    at = r.get("color_psnr_surface")  # a resumed old run may not have it
+    surface = f" ({at:.1f} at the surface)" if at is not None else ""
+    colour = "one colour, kept" if "single_color" in model.report else f"colour PSNR {r['color_psnr']:.1f} dB{surface}"
     ae_precision = model.report.get("precision", {}).get("autoencoder")  # a resumed old run may not say
     samples = Path(a.out).with_name(Path(a.out).name + "-samples")
     print(
