@@ -77,6 +77,7 @@ class Sin3DM:
         allow_outside_paths: bool = False,
         calibrate: bool | None = None,
         budget=None,
+        up: str | None = None,
     ) -> Sin3DM:
         """Fit Sin3DM to one textured mesh (a path, a ``TexturedMesh`` or an example name): mesh → TSDF + colour
         grid → triplane autoencoder (the input's latent) → diffusion model on that latent (the paper's Sec. 4).
@@ -88,10 +89,11 @@ class Sin3DM:
         choose the run's diversity at the end (not in the paper; default: for the CPU presets), and where even pure
         noise gives copies try a denoiser with one ResBlock fewer (``app.fitting.FitRun.narrower``). ``budget``: an
         :class:`~sin3dm_lite.auto.fit_default.Budget` (the CLI's ``--minutes``) the denoiser's steps keep to.
+        ``up``: the mesh's up axis (``"z"`` for a Z-up model), turned to +y before the grid (``grid.up``).
         """
         from .app.fitting import fit
 
-        args = (source, preset, out, resume, seed, device, progress, pbr, allow_outside_paths, calibrate, budget)
+        args = (source, preset, out, resume, seed, device, progress, pbr, allow_outside_paths, calibrate, budget, up)
         model = fit(cls, *args)
         warn_if_poor(model.report.get("reconstruction", {}), model.config)
         return model
@@ -174,7 +176,8 @@ class Sin3DM:
         vertex_colors: bool = False,
         original_coords: bool = True,
     ) -> list[TexturedMesh] | TexturedMesh:
-        """Decode samples into textured meshes (all of them, or the one at ``index``)."""
+        """Decode samples into textured meshes (all of them, or the one at ``index``), ``original_coords`` in the input
+        file's coordinates (turned upright where the fit turned its input: ``grid.up``), else normalised."""
         return sampling.decode(self, samples, index, resolution, faces, texture_size, vertex_colors, original_coords)
 
     def same_voxels(self, samples: Samples, resolution: int) -> int:
@@ -200,10 +203,12 @@ class Sin3DM:
         return evaluation.occupancy(to_mesh, len(samples), samples.aabb, resolution, supersample)
 
     def input_occupancy(self, mesh: TexturedMesh, resolution: int = 128, aabb=None, supersample: int = 1) -> np.ndarray:
-        """The input mesh (in its file's coordinates) as an occupancy grid over this model's box (or ``aabb``,
-        normalised coordinates): the metrics' reference (``supersample``: as for :meth:`occupancy`)."""
+        """The input mesh (in its file's coordinates, turned upright here as the fit turned it: ``grid.up``) as an
+        occupancy grid over this model's box (or ``aabb``, normalised coordinates): the metrics' reference
+        (``supersample``: as for :meth:`occupancy`)."""
         box = self.aabb if aabb is None else aabb
-        return evaluation.input_occupancy(mesh, self.normalization, box, resolution, supersample)
+        upright = mesh.turned_upright(self.config.grid.up)
+        return evaluation.input_occupancy(upright, self.normalization, box, resolution, supersample)
 
     @property
     def grid_resolution(self) -> int:
@@ -226,12 +231,15 @@ class Sin3DM:
         progress: bool = True,
         supersample: int = evaluation.PAPER_SUPERSAMPLE,
     ) -> dict:
-        """The paper's metrics of generated shapes (a :class:`Samples`, or meshes in the input file's coordinates)
-        against the input mesh (default: :meth:`input_mesh`): G-Div, LP-IoU, LP-F and the IoU on ``resolution``
+        """The paper's metrics of generated shapes (a :class:`Samples`, or meshes as this model writes them: in the
+        input file's coordinates, turned upright by ``grid.up``) against the input mesh (default: :meth:`input_mesh`;
+        in its file's coordinates, turned here): G-Div, LP-IoU, LP-F and the IoU on ``resolution``
         voxels (several give ``geometry_at``), and on ``views`` renders of ``size`` pixels patch SWD, render
         diversity, SIFID and LPIPS (those two with ``weights``); :func:`evaluation.evaluate` says what each returns."""
         nets = evaluation.feature_nets(weights)
-        ref = self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)
+        ref = (self.input_mesh() if input_mesh is None else resolve_mesh(input_mesh)).turned_upright(
+            self.config.grid.up
+        )
         to_meshes = self.to_mesh if isinstance(samples, Samples) else list
         return evaluation.evaluate(
             samples, to_meshes, ref, self.normalization, self.aabb, resolution, views, size, nets, progress, supersample

@@ -41,6 +41,18 @@ def test_grid_command_writes_the_npz(capsys, tmp_path):
         assert "center" in z and "scale" in z
 
 
+def test_grid_command_turns_a_z_up_mesh_upright(capsys, tmp_path):
+    """`grid --up z`: a box long in z (a tower modelled Z-up) becomes a grid long in y, as a Y-up file would."""
+    mesh = tmp_path / "tower.stl"
+    trimesh.creation.box(extents=(0.5, 0.5, 1.0)).export(mesh)
+    for up, shape in ((None, "(16, 16, 32)"), ("z", "(16, 32, 16)")):
+        out = tmp_path / f"grid_{up}.npz"
+        code, text, _ = run(
+            capsys, "grid", str(mesh), "--resolution", "32", "--out", str(out), *(["--up", up] if up else [])
+        )
+        assert code == 0 and shape in text
+
+
 @pytest.mark.parametrize(
     "argv, words",
     [
@@ -386,3 +398,31 @@ def test_warnings_are_one_line_and_a_librarys_syntax_warnings_are_not_shown(caps
     code, _, err = run(capsys, "examples")
     assert code == 0
     assert err.splitlines() == ["sin3dm-lite examples: warning: 3 faces of 'x' are wound against their neighbours"]
+
+
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps
+def test_a_z_up_mesh_fitted_with_up_z_stands_upright_and_is_judged_against_its_file(capsys, tmp_path):
+    """`fit --up z` turns a Z-up tower so that it stands along y: the run records grid.up, the fit says so, the
+    samples it writes are long in y, and the input file (still Z-up) is turned the same way when samples are
+    compared with it. A resumed fit keeps its run's up axis."""
+    from sin3dm_lite.formats.load import load_mesh
+    from sin3dm_lite.pipeline import Sin3DM
+
+    mesh = tmp_path / "tower.stl"
+    trimesh.creation.box(extents=(0.4, 0.6, 1.0)).export(mesh)
+    settings = ["autoencoder.steps=80", "diffusion.steps=2", "sampling.steps=2", "sampling.mesh_resolution=24"]
+    run_dir = tmp_path / "r"
+    code, out, _ = run(
+        capsys, "fit", str(mesh), "--preset", "tiny", "--up", "z", "--out", str(run_dir), "--set", *settings
+    )
+    assert code == 0 and "[fit] 'tower' turned Z-up to Y-up: its samples are written Y-up" in out
+    assert json.loads((run_dir / "config.json").read_text())["grid"]["up"] == "z"
+    model = Sin3DM.load(run_dir)
+    size = np.ptp(model.to_mesh(model.input_sample(), 0).vertices, axis=0)
+    assert size[1] > 1.4 * size[2]  # its height along y, as the box's 1.0 against 0.6
+    occupied = model.input_occupancy(load_mesh(mesh), resolution=32).any(axis=(0, 2)).mean()
+    model.config.grid.up = "y"  # read as it lies: the box's 0.6 along y
+    unturned = model.input_occupancy(load_mesh(mesh), resolution=32).any(axis=(0, 2)).mean()
+    assert occupied > 0.75 and unturned < 0.7 * occupied  # the Z-up file fills the box along y: turned as in the fit
+    code, _, err = run(capsys, "fit", str(mesh), "--up", "z", "--out", str(run_dir), "--resume")
+    assert code == 2 and "up is for a new fit" in err

@@ -604,3 +604,20 @@ def test_a_stray_triangle_on_a_face_is_read_like_the_rest(down):
     g = mesh_to_grid(textured(mesh), 32, n_surface_points=100, progress=False, margin_voxels=3.25)
     assert g.sdf[16, 16, 16] < 0 and g.sdf[1, 1, 1] > 0  # the box, solid, in its margin
     assert winding_number(tri, np.array([[0, 1, 2]]), np.array([[0.0, 0.0, 0.0]])).shape == (1,)
+
+
+@pytest.mark.parametrize("up, axis", [("z", 2), ("x", 0), ("y", 1)])
+def test_a_mesh_turned_upright_stands_along_y_and_keeps_its_inside(up, axis):
+    """``turned_upright(up)`` (a fit's ``grid.up``) turns the ``up`` axis to +y, a rotation: the top stays the top
+    and the faces keep their winding, so a closed mesh keeps its (positive) volume; a bad axis is one line."""
+    extents = np.full(3, 0.4)
+    extents[axis] = 1.0
+    box = trimesh.creation.box(extents=extents)
+    box.apply_translation(np.eye(3)[axis] * 2.0)  # lifted along its up
+    turned = textured(box).turned_upright(up)
+    assert np.argmax(np.ptp(turned.vertices, axis=0)) == 1  # long along y
+    assert turned.vertices[:, 1].min() > 1.0  # and still above the ground, not hanging under it
+    volume = trimesh.Trimesh(turned.vertices, turned.faces, process=False).volume
+    assert volume == pytest.approx(box.volume) and volume > 0
+    with pytest.raises(Sin3DMInputError, match="up must be one of y, z, x"):
+        textured(box).turned_upright("w")

@@ -19,7 +19,7 @@ from ..auto.calibration import calibrates, judged_at
 from ..auto.fit_default import default_preset
 from ..auto.fit_policy import NARROWER_CALIBRATION, choose_pbr, g_div_at_one, narrower_field, narrower_kept
 from ..auto.review import review_fit
-from ..data.config import Config
+from ..data.config import Config, check_setting
 from ..data.grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
 from ..data.mesh import TexturedMesh
 from ..data.source import input_name, input_stem, resolve_mesh
@@ -50,10 +50,12 @@ def fit(
     allow_outside_paths: bool = False,
     calibrate: bool | None = None,
     budget=None,
+    up: str | None = None,
 ):
     """``Sin3DM.fit`` (``build``: the model class); arguments are checked before anything is written, and a fresh
     fit that fails removes what it wrote (an interrupted one keeps its checkpoints for ``resume=True``). ``budget``:
-    an :class:`~sin3dm_lite.auto.fit_default.Budget` the denoiser's steps keep to once the autoencoder has trained."""
+    an :class:`~sin3dm_lite.auto.fit_default.Budget` the denoiser's steps keep to once the autoencoder has trained;
+    ``up``: the mesh's up axis (``grid.up``), for a new fit only."""
     if seed is not None and (
         isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32
     ):
@@ -62,6 +64,10 @@ def fit(
         preset.check()  # a setting out of range (changed in place) fails here
     elif preset is not None:
         get_preset(preset)  # a bad name fails here
+    if up is not None:
+        if resume:
+            raise Sin3DMInputError("up is for a new fit: a resumed fit keeps its run's; leave out --up (Python: up=)")
+        check_setting("grid.up", up, "up")
     get_device(device)
     run = Path(out) if out is not None else None
     if run is not None:
@@ -70,7 +76,7 @@ def fit(
     try:
         fit_run = FitRun(build, run, resume, device, progress)
         fit_run.budget = None if resume else budget  # a resumed fit keeps its run's steps
-        return fit_run.stages(source, preset, seed, pbr, allow_outside_paths, calibrate)
+        return fit_run.stages(source, preset, seed, pbr, allow_outside_paths, calibrate, up)
     except KeyboardInterrupt:
         raise  # the checkpoints stay: continue with resume=True
     except BaseException:
@@ -83,10 +89,10 @@ def fit(
 
 
 def grid_for(mesh: TexturedMesh, cfg: Config, progress: bool) -> ShapeGrid:
-    """Stage 1: ``mesh`` as the TSDF + colour grid of ``cfg.grid``."""
+    """Stage 1: ``mesh`` (turned upright by ``cfg.grid.up``) as the TSDF + colour grid of ``cfg.grid``."""
     g = cfg.grid
     return mesh_to_grid(
-        mesh,
+        mesh.turned_upright(g.up),
         g.resolution,
         threshold_voxels=g.threshold_voxels,
         n_surface_points=g.n_surface_points,
@@ -109,9 +115,9 @@ class FitRun:
         self.mesh: TexturedMesh | None = None
         self.budget = None  # an auto.fit_default.Budget: the denoiser's steps kept to it
 
-    def stages(self, source, preset, seed, pbr, allow_outside_paths, calibrate):
+    def stages(self, source, preset, seed, pbr, allow_outside_paths, calibrate, up=None):
         """All stages, saved into the run folder at the end; the fitted model."""
-        cfg, mesh = self.settings(source, preset, seed, pbr, allow_outside_paths)
+        cfg, mesh = self.settings(source, preset, seed, pbr, allow_outside_paths, up)
         self.mesh = mesh  # None where a resumed run has its grid: the calibration then reads it again
         grid = self.grid(cfg, mesh)
         ae, h0, metrics = self.autoencoder(cfg, grid)
@@ -141,7 +147,7 @@ class FitRun:
             self.say(f"[fit] run folder: {self.run}")
         return model
 
-    def settings(self, source, preset, seed, pbr, allow_outside_paths) -> tuple[Config, TexturedMesh | None]:
+    def settings(self, source, preset, seed, pbr, allow_outside_paths, up=None) -> tuple[Config, TexturedMesh | None]:
         """The run's config (its folder made or checked) and the input mesh (None when a resumed run has its grid)."""
         run, resume = self.run, self.resume
         have_grid = run is not None and resume and (run / "grid.npz").exists()
@@ -156,8 +162,9 @@ class FitRun:
         if mesh is not None and not resuming:
             pbr = choose_pbr(mesh, pbr, preset, self.say)
             base = preset if isinstance(preset, Config) else get_preset(preset)
-            if base.autoencoder.pbr != pbr:
-                preset = base.updated(**{"autoencoder.pbr": pbr})
+            changes = {"autoencoder.pbr": pbr, **({"grid.up": up} if up is not None else {})}
+            if any(base.settings()[k] != v for k, v in changes.items()):
+                preset = base.updated(**changes)
         asked = None
         if run is not None:  # what the run is fitted to, recorded in a new run folder and compared on resume
             asked = {"input": input_name(source), "name": input_stem(source), "digest": input_digest(source, mesh)}
@@ -170,6 +177,8 @@ class FitRun:
             grid = load_grid(self.run / "grid.npz")
             self.say(f"[fit] grid loaded from {self.run / 'grid.npz'}")
         else:
+            if cfg.grid.up != "y":
+                self.say(f"[fit] '{mesh.name}' turned {cfg.grid.up.upper()}-up to Y-up: its samples are written Y-up")
             grid = grid_for(mesh, cfg, self.progress)
             if self.run is not None:
                 save_grid(grid, self.run / "grid.npz")

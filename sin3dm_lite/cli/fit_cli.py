@@ -74,7 +74,7 @@ def cmd_grid(a) -> None:
         raise clash_error(out.parent, out.name, by="grid")
     check_writable(out)
     mesh = resolve_mesh(a.mesh, allow_outside_paths=a.allow_outside_paths)
-    grid = mesh_to_grid(mesh, a.resolution)
+    grid = mesh_to_grid(mesh.turned_upright(a.up or "y"), a.resolution)
     remove_stale_temps(out.parent)
     with recorded_path(out, by="grid") as tmp:
         save_grid(grid, tmp)
@@ -123,6 +123,7 @@ def cmd_fit(a) -> None:
         allow_outside_paths=a.allow_outside_paths,
         calibrate=a.calibrate,
         budget=budget,
+        up=a.up,
     )
     r = model.report["reconstruction"]
     at = r.get("color_psnr_surface")  # a resumed old run may not have it

@@ -121,7 +121,21 @@ def _grid_args(g: argparse.ArgumentParser) -> None:
     g.add_argument("--resolution", type=int, default=128, help="voxels along the longest side, 16-512")
     g.add_argument("--out", required=True, help="output .npz file")
     g.add_argument("--overwrite", action="store_true", help="replace an existing grid file that sin3dm-lite wrote")
+    _up_arg(g)
     _outside_paths_arg(g)
+
+
+def _up_arg(p: argparse.ArgumentParser) -> None:
+    from ..data.mesh import UP_TURNS
+
+    p.add_argument(
+        "--up",
+        choices=list(UP_TURNS),
+        default=None,
+        help="the mesh's up axis, turned to Y before the grid: z for a model made Z-up (Blender, most CAD and STL "
+        "files), so that the pictures and the written samples stand upright (default: y, as OBJ and glTF; "
+        "the grid.up setting)",
+    )
 
 
 def _fit_args(f: argparse.ArgumentParser) -> None:
@@ -173,6 +187,7 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         "each); names as in "
         "the run's config.json (docs/presets.md says what each does)",
     )
+    _up_arg(f)
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     _outside_paths_arg(f)
 

@@ -28,6 +28,7 @@ class GridConfig:
     n_surface_points: int = 500_000  # surface samples for the near-surface training points
     near_surface_sigma: float = 0.005  # Gaussian offset of near-surface points (normalised units; ≈0.64 voxel)
     margin_voxels: float = 0.0  # empty voxels kept between the shape and every box face (0: the paper's 1.03 only)
+    up: str = "y"  # the input's up axis, turned to +y before the grid (data.mesh.UP_TURNS): "z" for a Z-up model
 
 
 @dataclass
@@ -167,6 +168,7 @@ LIMITS: dict[str, Any] = {
     "grid.n_surface_points": (1_000, 50_000_000),
     "grid.near_surface_sigma": (0.0, 0.5),
     "grid.margin_voxels": (0.0, 64.0),
+    "grid.up": ["y", "z", "x"],
     "autoencoder.geo_channels": (1, 256),
     "autoencoder.tex_channels": (1, 256),
     "autoencoder.decoder_channels": (1, 4096),

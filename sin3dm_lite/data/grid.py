@@ -48,7 +48,7 @@ class ShapeGrid:
         aabb: ``(6,)`` the symmetric box ``(xmin, ymin, zmin, xmax, ymax, zmax)`` in
             normalised coordinates, ``±n_axis / n_max``.
         threshold: truncation distance in normalised units (3 voxels by default).
-        normalization: maps the input file's coordinates to the normalised frame.
+        normalization: maps the input file's coordinates (turned upright: ``grid.up``) to the normalised frame.
         points / point_sdf / point_color: near-surface training samples
             (normalised coordinates) with their exact truncated SDF and colour.
         name: label of the source mesh.

@@ -30,6 +30,14 @@ BOX_MARGIN = 1.03
 # the rest of the mesh shrinks below float32 precision once normalised
 MAX_COORDINATE = 1e15
 
+#: the rotation that turns a mesh modelled with each axis up so that it stands on +y, as OBJ and glTF have it and
+#: the pictures draw it (a rotation, not a mirror: faces keep their winding); Z-up is Blender's and most CAD's
+UP_TURNS = {
+    "y": np.eye(3),
+    "z": np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], np.float64),  # (x, y, z) → (x, z, −y)
+    "x": np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]], np.float64),  # (x, y, z) → (−y, x, z)
+}
+
 
 def default_rgba() -> np.ndarray:
     """:data:`DEFAULT_COLOR` as an RGBA factor: the colour of a surface that has none."""
@@ -202,6 +210,15 @@ class TexturedMesh:
         return pts, fi, bc
 
     # -------------------------------------------------------------- transforms
+    def turned_upright(self, up: str = "y") -> TexturedMesh:
+        """The mesh turned so that its ``up`` axis (``"z"`` for a Z-up model) points along +y (:data:`UP_TURNS`): the
+        frame a fit with ``grid.up`` learns in and writes its samples in. ``"y"`` returns the mesh itself."""
+        if up not in UP_TURNS:
+            raise Sin3DMInputError(f"up must be one of {', '.join(UP_TURNS)}, not {up!r}")
+        if up == "y":
+            return self
+        return replace(self, vertices=np.asarray(self.vertices, np.float64) @ UP_TURNS[up].T)
+
     def normalized(self) -> TexturedMesh:
         """The paper's normalisation: centre the bounding box, longest side × 1.03 → [-1, 1]."""
         lo, hi = self.bounds
