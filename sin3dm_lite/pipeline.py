@@ -78,6 +78,7 @@ class Sin3DM:
         calibrate: bool | None = None,
         budget=None,
         up: str | None = None,
+        turn: float | None = None,
     ) -> Sin3DM:
         """Fit Sin3DM to one textured mesh (a path, a ``TexturedMesh`` or an example name): mesh → TSDF + colour
         grid → triplane autoencoder (the input's latent) → diffusion model on that latent (the paper's Sec. 4).
@@ -89,12 +90,12 @@ class Sin3DM:
         choose the run's diversity at the end (not in the paper; default: for the CPU presets), and where even pure
         noise gives copies try a denoiser with one ResBlock fewer (``app.fitting.FitRun.narrower``). ``budget``: an
         :class:`~sin3dm_lite.auto.fit_default.Budget` (the CLI's ``--minutes``) the denoiser's steps keep to.
-        ``up``: the mesh's up axis (``"z"`` for a Z-up model), turned to +y before the grid (``grid.up``).
-        """
+        ``up``, ``turn``: the mesh's up axis (``"z"`` for a Z-up model) and degrees about it (default:
+        :func:`~sin3dm_lite.auto.fit_policy.choose_turn`'s), turned before the grid (``grid.up``, ``grid.turn``)."""
         from .app.fitting import fit
 
-        args = (source, preset, out, resume, seed, device, progress, pbr, allow_outside_paths, calibrate, budget, up)
-        model = fit(cls, *args)
+        args = (source, preset, out, resume, seed, device, progress, pbr, allow_outside_paths, calibrate, budget)
+        model = fit(cls, *args, up=up, turn=turn)
         warn_if_poor(model.report.get("reconstruction", {}), model.config)
         return model
 

@@ -426,3 +426,37 @@ def test_a_z_up_mesh_fitted_with_up_z_stands_upright_and_is_judged_against_its_f
     assert occupied > 0.75 and unturned < 0.7 * occupied  # the Z-up file fills the box along y: turned as in the fit
     code, _, err = run(capsys, "fit", str(mesh), "--up", "z", "--out", str(run_dir), "--resume")
     assert code == 2 and "up is for a new fit" in err
+
+
+@pytest.mark.filterwarnings("ignore:low reconstruction")  # a few training steps
+def test_a_mesh_whose_walls_lie_across_the_axes_is_fitted_turned_and_its_samples_turned_back(capsys, tmp_path):
+    """A box turned 30° about y: the fit says it turns the walls along x and z, records grid.turn, keeps the turn
+    in the model (saved and loaded), and writes its samples turned back, where the input lies; `--turn 0` fits it
+    as it lies."""
+    from sin3dm_lite.data.mesh import Normalization
+    from sin3dm_lite.formats.load import load_mesh
+    from sin3dm_lite.pipeline import Sin3DM
+
+    from .conftest import textured
+
+    box = textured(trimesh.creation.box(extents=(1.0, 0.6, 0.4))).turned_about_y(30.0)
+    path = tmp_path / "slab.stl"
+    trimesh.Trimesh(box.vertices, box.faces).export(path)
+    settings = ["autoencoder.steps=150", "diffusion.steps=2", "sampling.steps=2", "sampling.mesh_resolution=32"]
+    code, out, _ = run(capsys, "fit", str(path), "--preset", "tiny", "--out", str(tmp_path / "r"), "--set", *settings)
+    assert code == 0 and "[fit] the walls of 'slab' lie 30° off the x and z axes: turned along them" in out
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["grid"]["turn"] == pytest.approx(-30.0)
+    model = Sin3DM.load(tmp_path / "r")
+    assert not np.allclose(model.normalization.rotation, np.eye(3))
+    input_box = np.ptp(load_mesh(path).vertices, axis=0)
+    sample = model.to_mesh(model.input_sample(), 0)  # the input's own latent, decoded and turned back
+    np.testing.assert_allclose(np.ptp(sample.vertices, axis=0), input_box, rtol=0.12)
+    flat = model.to_mesh(model.input_sample(), 0, original_coords=False)  # in the model's frame: along x and z
+    size = np.ptp(flat.vertices, axis=0)
+    assert size[0] / size[2] > 2.0  # 1.0 against 0.4, where the turned input's box is about 1.07 against 0.85
+    assert isinstance(model.normalization, Normalization)
+    code, out, _ = run(
+        capsys, "fit", str(path), "--preset", "tiny", "--turn", "0", "--out", str(tmp_path / "r0"), "--set", *settings
+    )
+    assert code == 0 and "off the x and z axes" not in out
+    assert json.loads((tmp_path / "r0" / "config.json").read_text())["grid"]["turn"] == 0.0

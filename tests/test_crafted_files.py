@@ -73,6 +73,8 @@ MODELS = {
     "center-inf": ({**BUNDLE, "center": BUNDLE["center"] * float("inf")}, "its centre"),
     "scale-zero": ({**BUNDLE, "scale": 0.0}, "its scale 0.0"),
     "scale-text": ({**BUNDLE, "scale": "1"}, "its scale"),
+    "rotation-mirror": ({**BUNDLE, "rotation": torch.diag(torch.tensor([1.0, 1.0, -1.0]))}, "its rotation"),
+    "rotation-text": ({**BUNDLE, "rotation": "turned"}, "its rotation is not a 3 × 3 rotation"),
     "color-channels": ({**BUNDLE, "color_channels": 7}, "color_channels is 7"),
     "threshold-nan": (
         {**BUNDLE, "decoder": {**BUNDLE["decoder"], "threshold": torch.tensor(float("nan"))}},

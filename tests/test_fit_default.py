@@ -481,3 +481,28 @@ def test_the_denoiser_steps_a_late_fit_keeps_are_recorded_for_a_resume(monkeypat
 
 def _stop():
     raise _FitCalled
+
+
+@pytest.mark.parametrize("degrees", [30.0, -44.0, 10.0])
+def test_walls_across_the_axes_are_measured_and_a_round_shape_is_not_turned(degrees):
+    """``wall_directions`` finds the turn that lines a box's walls up with x and z (the same for a box turned by a
+    right angle more) and how well they agree; a cylinder's walls agree on nothing, so ``choose_turn`` leaves it, a
+    turned box it turns (and says so), and a turn asked for wins."""
+    import trimesh
+
+    from sin3dm_lite.auto.fit_policy import WALLS_AGREE, choose_turn, wall_directions
+
+    from .conftest import textured
+
+    box = textured(trimesh.creation.box(extents=(1.0, 0.6, 0.4)))
+    said = []
+    for extra in (0.0, 90.0):
+        turned = box.turned_about_y(degrees + extra)
+        found, agree = wall_directions(turned)
+        assert found == pytest.approx(-degrees, abs=1e-6) and agree > 0.99
+        assert choose_turn(turned, None, get_preset("quick"), said.append) == pytest.approx(-degrees, abs=0.01)
+    assert len(said) == 2 and "off the x and z axes" in said[0]
+    cylinder = textured(trimesh.creation.cylinder(radius=0.4, height=1.0, sections=64)).turned_upright("z")
+    assert wall_directions(cylinder)[1] < 0.1 < WALLS_AGREE
+    assert choose_turn(cylinder, None, get_preset("quick"), said.append) == 0.0
+    assert choose_turn(box.turned_about_y(degrees), 0, get_preset("quick"), said.append) == 0.0 and len(said) == 2

@@ -621,3 +621,28 @@ def test_a_mesh_turned_upright_stands_along_y_and_keeps_its_inside(up, axis):
     assert volume == pytest.approx(box.volume) and volume > 0
     with pytest.raises(Sin3DMInputError, match="up must be one of y, z, x"):
         textured(box).turned_upright("w")
+
+
+def test_a_turn_about_y_is_kept_in_the_normalization_and_undone_by_it():
+    """``turned_about_y`` turns the vertices and keeps the turn in ``normalization``: the normalised mesh is
+    ``to_normalized`` of the file's vertices, ``to_original`` gives them back, and ``box_to_original`` holds the
+    normalised box's turned corners; a grid file keeps the turn."""
+    box = textured(trimesh.creation.box(extents=(1.0, 0.5, 0.3)))
+    n = box.turned_about_y(30.0).normalized()
+    np.testing.assert_allclose(n.normalization.to_normalized(box.vertices), n.vertices, atol=1e-12)
+    np.testing.assert_allclose(n.normalization.to_original(n.vertices), box.vertices, atol=1e-12)
+    lo, hi = n.normalization.box_to_original(np.array([n.vertices.min(0), n.vertices.max(0)]))
+    assert (box.vertices >= lo - 1e-9).all() and (box.vertices <= hi + 1e-9).all()
+    assert hi[0] - lo[0] > 1.0  # the turned box's corners reach past the unturned one along x
+    assert box.turned_about_y(0) is box
+    volume = trimesh.Trimesh(n.vertices, n.faces, process=False).volume
+    assert volume > 0  # a turn, not a mirror
+
+
+def test_a_grid_file_keeps_the_turn(tmp_path):
+    box = textured(trimesh.creation.box(extents=(1.0, 0.5, 0.3))).turned_about_y(-20.0)
+    grid = mesh_to_grid(box, 16, n_surface_points=500, progress=False)
+    save_grid(grid, tmp_path / "g.npz")
+    back = load_grid(tmp_path / "g.npz")
+    np.testing.assert_allclose(back.normalization.rotation, grid.normalization.rotation)
+    assert not np.allclose(back.normalization.rotation, np.eye(3))

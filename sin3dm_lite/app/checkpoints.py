@@ -142,6 +142,7 @@ def model_bundle(model) -> dict:
         "aabb": torch.from_numpy(model.aabb.copy()),
         "center": torch.from_numpy(np.asarray(model.normalization.center, np.float64)),
         "scale": float(model.normalization.scale),
+        "rotation": torch.from_numpy(np.asarray(model.normalization.rotation, np.float64)),
         "color_channels": int(model.decoder.color_channels),
         "report": json.dumps(model.report),
     }

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..auto.calibration import calibrates, judged_at
 from ..auto.fit_default import default_preset
-from ..auto.fit_policy import NARROWER_CALIBRATION, choose_pbr, g_div_at_one, narrower_field, narrower_kept
+from ..auto.fit_policy import NARROWER_CALIBRATION, choose_pbr, choose_turn, g_div_at_one, narrower_field, narrower_kept
 from ..auto.review import review_fit
 from ..data.config import Config, check_setting
 from ..data.grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
@@ -51,11 +51,12 @@ def fit(
     calibrate: bool | None = None,
     budget=None,
     up: str | None = None,
+    turn: float | None = None,
 ):
     """``Sin3DM.fit`` (``build``: the model class); arguments are checked before anything is written, and a fresh
     fit that fails removes what it wrote (an interrupted one keeps its checkpoints for ``resume=True``). ``budget``:
     an :class:`~sin3dm_lite.auto.fit_default.Budget` the denoiser's steps keep to once the autoencoder has trained;
-    ``up``: the mesh's up axis (``grid.up``), for a new fit only."""
+    ``up``, ``turn``: the mesh's up axis and its turn about it (``grid.up``, ``grid.turn``), for a new fit only."""
     if seed is not None and (
         isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32
     ):
@@ -64,10 +65,13 @@ def fit(
         preset.check()  # a setting out of range (changed in place) fails here
     elif preset is not None:
         get_preset(preset)  # a bad name fails here
-    if up is not None:
-        if resume:
-            raise Sin3DMInputError("up is for a new fit: a resumed fit keeps its run's; leave out --up (Python: up=)")
-        check_setting("grid.up", up, "up")
+    for name, value in (("up", up), ("turn", turn)):
+        if value is not None:
+            if resume:
+                raise Sin3DMInputError(
+                    f"{name} is for a new fit: a resumed fit keeps its run's; leave out --{name} (Python: {name}=)"
+                )
+            check_setting(f"grid.{name}", value, name)
     get_device(device)
     run = Path(out) if out is not None else None
     if run is not None:
@@ -76,7 +80,7 @@ def fit(
     try:
         fit_run = FitRun(build, run, resume, device, progress)
         fit_run.budget = None if resume else budget  # a resumed fit keeps its run's steps
-        return fit_run.stages(source, preset, seed, pbr, allow_outside_paths, calibrate, up)
+        return fit_run.stages(source, preset, seed, pbr, allow_outside_paths, calibrate, (up, turn))
     except KeyboardInterrupt:
         raise  # the checkpoints stay: continue with resume=True
     except BaseException:
@@ -89,10 +93,11 @@ def fit(
 
 
 def grid_for(mesh: TexturedMesh, cfg: Config, progress: bool) -> ShapeGrid:
-    """Stage 1: ``mesh`` (turned upright by ``cfg.grid.up``) as the TSDF + colour grid of ``cfg.grid``."""
+    """Stage 1: ``mesh`` (turned upright by ``cfg.grid.up``, then by ``grid.turn`` about y) as the TSDF + colour grid
+    of ``cfg.grid``."""
     g = cfg.grid
     return mesh_to_grid(
-        mesh.turned_upright(g.up),
+        mesh.turned_upright(g.up).turned_about_y(g.turn),
         g.resolution,
         threshold_voxels=g.threshold_voxels,
         n_surface_points=g.n_surface_points,
@@ -115,9 +120,9 @@ class FitRun:
         self.mesh: TexturedMesh | None = None
         self.budget = None  # an auto.fit_default.Budget: the denoiser's steps kept to it
 
-    def stages(self, source, preset, seed, pbr, allow_outside_paths, calibrate, up=None):
-        """All stages, saved into the run folder at the end; the fitted model."""
-        cfg, mesh = self.settings(source, preset, seed, pbr, allow_outside_paths, up)
+    def stages(self, source, preset, seed, pbr, allow_outside_paths, calibrate, frame=(None, None)):
+        """All stages, saved into the run folder at the end; the fitted model (``frame``: ``(up, turn)``)."""
+        cfg, mesh = self.settings(source, preset, seed, pbr, allow_outside_paths, frame)
         self.mesh = mesh  # None where a resumed run has its grid: the calibration then reads it again
         grid = self.grid(cfg, mesh)
         ae, h0, metrics = self.autoencoder(cfg, grid)
@@ -147,7 +152,7 @@ class FitRun:
             self.say(f"[fit] run folder: {self.run}")
         return model
 
-    def settings(self, source, preset, seed, pbr, allow_outside_paths, up=None) -> tuple[Config, TexturedMesh | None]:
+    def settings(self, source, preset, seed, pbr, allow_outside_paths, frame) -> tuple[Config, TexturedMesh | None]:
         """The run's config (its folder made or checked) and the input mesh (None when a resumed run has its grid)."""
         run, resume = self.run, self.resume
         have_grid = run is not None and resume and (run / "grid.npz").exists()
@@ -162,7 +167,9 @@ class FitRun:
         if mesh is not None and not resuming:
             pbr = choose_pbr(mesh, pbr, preset, self.say)
             base = preset if isinstance(preset, Config) else get_preset(preset)
-            changes = {"autoencoder.pbr": pbr, **({"grid.up": up} if up is not None else {})}
+            up = base.grid.up if frame[0] is None else frame[0]
+            turn = choose_turn(mesh.turned_upright(up), frame[1], base, self.say)
+            changes = {"autoencoder.pbr": pbr, "grid.up": up, "grid.turn": turn}
             if any(base.settings()[k] != v for k, v in changes.items()):
                 preset = base.updated(**changes)
         asked = None

@@ -271,7 +271,7 @@ def write_contact_sheet(model, req, plan, previews: list[Path], labels: list[str
         reference = model.to_mesh(
             model.input_sample(), 0, resolution=req.mesh_resolution, faces=req.faces, texture_size=req.texture_size
         )
-        ref = render_hero(reference, size=384, box=model.normalization.to_original(box_n))
+        ref = render_hero(reference, size=384, box=model.normalization.box_to_original(box_n))
     except Sin3DMInputError as e:
         print(f"[{label}] no contact sheet: {e}")
         return

@@ -212,7 +212,7 @@ def export_options(model, req, plan) -> dict:
         "faces": r.faces,
         "texture_size": r.texture_size,
         "pictures": not req.no_pictures,
-        "box": model.normalization.to_original(box_n),
+        "box": model.normalization.box_to_original(box_n),
     }
 
 

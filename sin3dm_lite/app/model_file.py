@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from ..data.config import Config
-from ..data.mesh import MAX_COORDINATE, Normalization
+from ..data.mesh import MAX_COORDINATE, Normalization, is_rotation
 from ..errors import Sin3DMInputError
 from ..model.autoencoder import PBR_HEADS, TriplaneDecoder
 from ..model.triplane import PLANES, Triplane
@@ -43,7 +43,7 @@ def model_parts(path: Path, b: dict) -> tuple:
     cfg = stored_config(path, b["config"])
     latent = stored_latent(path, b["latent"], cfg)
     aabb = stored_box(path, b["aabb"])
-    norm = stored_normalization(path, b["center"], b["scale"])
+    norm = stored_normalization(path, b["center"], b["scale"], b.get("rotation"))
     report = json_dict(path, "report", b["report"])
     if (why := report_problem(report)) is not None:
         raise bad(path, why)
@@ -179,15 +179,20 @@ def stored_box(path: Path, aabb) -> np.ndarray:
     return a.astype(np.float32)
 
 
-def stored_normalization(path: Path, center, scale) -> Normalization:
-    """The transform back to the input's coordinates: a finite centre within the meshes' limit, a finite scale > 0."""
+def stored_normalization(path: Path, center, scale, rotation=None) -> Normalization:
+    """The transform back to the input's coordinates: a finite centre within the meshes' limit, a finite scale > 0,
+    a rotation (none in a model written before fits turned their input: the identity)."""
+    r = rotation.detach().cpu().double().numpy() if isinstance(rotation, torch.Tensor) else rotation
+    r = np.eye(3) if rotation is None else r
+    if not isinstance(r, np.ndarray) or not is_rotation(r):
+        raise bad(path, "its rotation is not a 3 × 3 rotation")
     c = center.detach().cpu().double().numpy() if isinstance(center, torch.Tensor) else None
     if c is None or c.shape != (3,) or not np.isfinite(c).all() or np.abs(c).max() > MAX_COORDINATE:
         raise bad(path, f"its centre is not three finite numbers within ±{MAX_COORDINATE:.0e}")
     s = float(scale) if isinstance(scale, numbers.Real) and not isinstance(scale, bool) else math.nan
     if not (math.isfinite(s) and s > 0 and math.isfinite(1 / s) and 1 / s <= 2 * MAX_COORDINATE):
         raise bad(path, f"its scale {scale!r} is not a finite number above 0")
-    return Normalization(center=c, scale=s)
+    return Normalization(center=c, scale=s, rotation=r)
 
 
 def state_dict(path: Path, name: str, d) -> dict:

@@ -1,5 +1,5 @@
-"""What a fit says about its input and settings, beyond the paper: which variant to fit (:func:`choose_pbr`), a
-reconstruction too poor for useful samples (:func:`warn_if_poor`), samples from pure noise that copy the input: a
+"""What a fit says about its input and settings, beyond the paper: which variant to fit (:func:`choose_pbr`), a turn
+that lines the shape's walls up with the triplane's axes (:func:`choose_turn`), a reconstruction too poor for useful samples (:func:`warn_if_poor`), samples from pure noise that copy the input: a
 second denoiser with a narrower field (:func:`narrower_field`), else a warning (:func:`copies_warning`)."""
 
 from __future__ import annotations
@@ -7,12 +7,18 @@ from __future__ import annotations
 import math
 import warnings
 
+import numpy as np
+
 from ..data.config import Config
 from ..data.mesh import TexturedMesh
 from ..evaluate.calibration_record import VARIED_G_DIV
 from ..presets import PRESETS
 
 MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
+#: walls that agree on two directions at right angles more than this (:func:`wall_directions`: 0 round, 1 a box) ...
+WALLS_AGREE = 0.5
+#: ... and lie at least this many degrees off x and z are turned along them
+LEAST_TURN = 2.0
 MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 %
 
 
@@ -156,3 +162,31 @@ def choose_pbr(mesh: TexturedMesh, pbr: bool | None, preset, say) -> bool:
             f"[fit] '{mesh.name}' has no PBR maps: learning its constant metallic / roughness and its geometric normals"
         )
     return bool(pbr)
+
+
+def wall_directions(mesh: TexturedMesh) -> tuple[float, float]:
+    """The turn about the up (y) axis, in degrees from −45 to 45, that lines ``mesh``'s walls up with x and z, and how
+    well its walls agree on it (0: round, or no walls; 1: every wall along two directions at right angles): the
+    mean of ``4 φ`` over its faces' horizontal normals (at angles ``φ``, weighted by their area), in which a wall
+    and one at right angles to it count alike."""
+    v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])[:, [0, 2]]  # twice the area, horizontal part
+    weight = np.linalg.norm(n, axis=1)
+    mean = (weight * np.exp(4j * np.arctan2(n[:, 1], n[:, 0]))).sum() / max(weight.sum(), 1e-300)
+    return float(np.degrees(np.angle(mean) / 4)), float(abs(mean))
+
+
+def choose_turn(mesh: TexturedMesh, turn: float | None, preset, say) -> float:
+    """The fit's turn about the up axis (``grid.turn``): ``turn`` where given (or the preset's, where not 0), else
+    the one that lines the walls up with x and z where they agree (:func:`wall_directions`): the paper finds that a
+    triplane varies a shape along its three axes, and a wall across them is smeared over both planes."""
+    if turn is not None or (isinstance(preset, Config) and preset.grid.turn):
+        return float(preset.grid.turn if turn is None else turn)
+    degrees, agree = wall_directions(mesh)
+    if agree < WALLS_AGREE or abs(degrees) < LEAST_TURN:
+        return 0.0
+    say(
+        f"[fit] the walls of '{mesh.name}' lie {abs(degrees):.0f}° off the x and z axes: turned along them, for a "
+        "triplane varies a shape along its axes; its samples are turned back (turn=0 keeps it as it lies)"
+    )
+    return round(degrees, 2)

@@ -124,6 +124,7 @@ def cmd_fit(a) -> None:
         calibrate=a.calibrate,
         budget=budget,
         up=a.up,
+        turn=a.turn,
     )
     r = model.report["reconstruction"]
     at = r.get("color_psnr_surface")  # a resumed old run may not have it

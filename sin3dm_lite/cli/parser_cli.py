@@ -188,6 +188,14 @@ def _fit_args(f: argparse.ArgumentParser) -> None:
         "the run's config.json (docs/presets.md says what each does)",
     )
     _up_arg(f)
+    f.add_argument(
+        "--turn",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="turn the mesh DEG degrees about its up axis before the grid; samples are turned back (default: where "
+        "its walls agree on two directions at right angles off x and z, the turn that lines them up; 0: as it lies)",
+    )
     f.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     _outside_paths_arg(f)
 

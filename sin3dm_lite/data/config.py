@@ -29,6 +29,7 @@ class GridConfig:
     near_surface_sigma: float = 0.005  # Gaussian offset of near-surface points (normalised units; ≈0.64 voxel)
     margin_voxels: float = 0.0  # empty voxels kept between the shape and every box face (0: the paper's 1.03 only)
     up: str = "y"  # the input's up axis, turned to +y before the grid (data.mesh.UP_TURNS): "z" for a Z-up model
+    turn: float = 0.0  # degrees the input is then turned about y (its walls along x and z); samples turned back
 
 
 @dataclass
@@ -169,6 +170,7 @@ LIMITS: dict[str, Any] = {
     "grid.near_surface_sigma": (0.0, 0.5),
     "grid.margin_voxels": (0.0, 64.0),
     "grid.up": ["y", "z", "x"],
+    "grid.turn": (-180.0, 180.0),
     "autoencoder.geo_channels": (1, 256),
     "autoencoder.tex_channels": (1, 256),
     "autoencoder.decoder_channels": (1, 4096),

@@ -28,7 +28,7 @@ from ..formats.repair import listed_once
 from .box import SHEET_HALF, axis_centres, centred_box, flat_axes, to_box, training_dims
 from .config import LIMITS
 from .distance import THIN_DEPTHS, Distance, Slabs
-from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, unique_rows
+from .mesh import MAX_COORDINATE, Normalization, TexturedMesh, is_rotation, unique_rows
 from .tsdf import PBR_CHANNELS, point_tsdf, tsdf_grid
 
 #: colours closer than half a step of 8-bit colour count as one (:meth:`ShapeGrid.single_color`)
@@ -289,13 +289,13 @@ def _normalised(mesh: TexturedMesh, resolution: int, margin_voxels: float):
         m = replace(
             m,
             vertices=m.vertices * shrink,
-            normalization=Normalization(m.normalization.center, m.normalization.scale * shrink),
+            normalization=replace(m.normalization, scale=m.normalization.scale * shrink),
         )
     if flat.any():
         shift = np.where(flat, 0.5 / dims.max(), 0.0)  # a quarter voxel
         norm = m.normalization
         m = replace(
-            m, vertices=m.vertices + shift, normalization=Normalization(norm.center - shift / norm.scale, norm.scale)
+            m, vertices=m.vertices + shift, normalization=replace(norm, center=norm.center - shift / norm.scale)
         )
     return m, dims, bool(flat.any())
 
@@ -388,6 +388,7 @@ def save_grid(grid: ShapeGrid, path: str | Path) -> Path:
             threshold=np.float32(grid.threshold),
             center=np.asarray(grid.normalization.center, np.float64),
             scale=np.float64(grid.normalization.scale),
+            rotation=np.asarray(grid.normalization.rotation, np.float64),
             points=grid.points,
             point_sdf=grid.point_sdf,
             point_color=grid.point_color,
@@ -415,7 +416,9 @@ def load_grid(path: str | Path, fix: str | None = None) -> ShapeGrid:
                 color=z["color"],
                 aabb=z["aabb"],
                 threshold=float(z["threshold"]),
-                normalization=Normalization(center=z["center"], scale=float(z["scale"])),
+                normalization=Normalization(
+                    z["center"], float(z["scale"]), z["rotation"] if "rotation" in z else np.eye(3)
+                ),
                 points=z["points"],
                 point_sdf=z["point_sdf"],
                 point_color=z["point_color"],
@@ -481,6 +484,8 @@ def _grid_problem(g: ShapeGrid) -> str | None:
     c, scale = np.asarray(g.normalization.center, np.float64), g.normalization.scale
     if c.shape != (3,) or not np.isfinite(c).all() or not (np.isfinite(scale) and scale > 0):
         return "its normalisation (center, scale) is not finite"
+    if not is_rotation(g.normalization.rotation):
+        return "its normalisation's rotation is not a 3 × 3 rotation"
     arrays = (g.sdf, g.color, g.points, g.point_sdf, g.point_color)
     if not all(np.issubdtype(x.dtype, np.floating) and np.isfinite(x).all() for x in arrays):
         return "its arrays hold NaN, infinite or non-number values"

@@ -67,16 +67,25 @@ class Material:
 
 @dataclass
 class Normalization:
-    """Similarity transform ``normalized = (original - center) * scale``."""
+    """Similarity transform ``normalized = (original · rotationᵀ − center) · scale``: a turn about the up axis (the
+    identity unless a fit turned the shape's walls along x and z: :meth:`TexturedMesh.turned_about_y`), then the
+    paper's centring and scaling; :meth:`to_original` undoes all three."""
 
-    center: np.ndarray  # (3,)
+    center: np.ndarray  # (3,), in the turned frame
     scale: float
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3, 3), orthonormal with determinant +1
 
     def to_normalized(self, points: np.ndarray) -> np.ndarray:
-        return (np.asarray(points, dtype=np.float64) - self.center) * self.scale
+        return (np.asarray(points, dtype=np.float64) @ self.rotation.T - self.center) * self.scale
 
     def to_original(self, points: np.ndarray) -> np.ndarray:
-        return np.asarray(points, dtype=np.float64) / self.scale + self.center
+        return (np.asarray(points, dtype=np.float64) / self.scale + self.center) @ self.rotation
+
+    def box_to_original(self, box: np.ndarray) -> np.ndarray:
+        """The ``(2, 3)`` box (min and max corner) in original coordinates around the normalised box ``box``."""
+        lo, hi = np.asarray(box, np.float64).reshape(2, 3)
+        corners = self.to_original(np.stack(np.meshgrid(*zip(lo, hi), indexing="ij"), -1).reshape(-1, 3))
+        return np.stack([corners.min(0), corners.max(0)])
 
     @classmethod
     def identity(cls) -> Normalization:
@@ -219,6 +228,17 @@ class TexturedMesh:
             return self
         return replace(self, vertices=np.asarray(self.vertices, np.float64) @ UP_TURNS[up].T)
 
+    def turned_about_y(self, degrees: float) -> TexturedMesh:
+        """The mesh turned by ``degrees`` about the up (y) axis, the turn kept in its ``normalization`` so that
+        generated shapes are turned back into the input's frame (a fit's ``grid.turn``). ``0`` returns the mesh."""
+        if degrees == 0:
+            return self
+        c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+        r = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # x towards −z for a positive turn
+        n = self.normalization
+        turned = Normalization(center=n.center @ r.T, scale=n.scale, rotation=r @ n.rotation)
+        return replace(self, vertices=np.asarray(self.vertices, np.float64) @ r.T, normalization=turned)
+
     def normalized(self) -> TexturedMesh:
         """The paper's normalisation: centre the bounding box, longest side × 1.03 → [-1, 1]."""
         lo, hi = self.bounds
@@ -229,8 +249,19 @@ class TexturedMesh:
             )
         center = (lo + hi) / 2
         scale = 2.0 / (extent.max() * BOX_MARGIN)
-        new = Normalization(center=self.normalization.to_original(center), scale=self.normalization.scale * scale)
+        n = self.normalization
+        new = replace(n, center=n.center + center / n.scale, scale=n.scale * scale)
         return replace(self, vertices=(self.vertices - center) * scale, normalization=new)
+
+
+def is_rotation(r) -> bool:
+    """Whether ``r`` is a 3 × 3 rotation: finite, orthonormal, determinant +1 (a turn, not a mirror)."""
+    r = np.asarray(r, np.float64)
+    return (
+        r.shape == (3, 3)
+        and bool(np.isfinite(r).all() and np.allclose(r @ r.T, np.eye(3), atol=1e-6))
+        and (np.linalg.det(r) > 0)
+    )
 
 
 def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -162,7 +162,7 @@ def evaluate(
     how = voxels_said(supersample)
     say(f"[evaluate] geometry of {len(meshes)} samples at {grids} voxels, {how}: {timings['geometry_s']:.1f} s")
     metrics["ssfid"] = None
-    frame = normalization.to_original(np.stack([lo, hi]))
+    frame = normalization.box_to_original(np.stack([lo, hi]))
     texture = _texture_metrics(meshes, reference, frame, views, size, nets, metrics, timings, say)
     skipped = {"ssfid": SSFID_UNAVAILABLE, **texture}
     if len(meshes) < 2:
