@@ -317,7 +317,7 @@ def _preset_fit_gets(tmp_path, monkeypatch, *argv, machine: str = "small"):
     from sin3dm_lite.presets import get_preset
 
     monkeypatch.setattr(
-        fit_default, "default_preset", lambda device=None, mesh=None: fit_default.DefaultPreset(machine, "pinned")
+        fit_default, "default_preset", lambda device=None, mesh=None, **kw: fit_default.DefaultPreset(machine, "pinned")
     )
     seen = {}
 

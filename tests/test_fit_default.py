@@ -259,7 +259,7 @@ def test_the_python_fit_without_a_preset_takes_the_machines_and_says_so(monkeypa
         raise _FitCalled
 
     said = fit_default.DefaultPreset("quick", "this machine (test)")
-    monkeypatch.setattr(fitting, "default_preset", lambda device=None, mesh=None, timed=True: said)
+    monkeypatch.setattr(fitting, "default_preset", lambda device=None, mesh=None, timed=True, *frame: said)
     monkeypatch.setattr(fitting, "prepare_run", prepare_run)
     with pytest.raises(_FitCalled):
         Sin3DM.fit("wall", progress=True)
@@ -490,7 +490,7 @@ def test_walls_across_the_axes_are_measured_and_a_round_shape_is_not_turned(degr
     turned box it turns (and says so), and a turn asked for wins."""
     import trimesh
 
-    from sin3dm_lite.auto.fit_policy import WALLS_AGREE, choose_turn, wall_directions
+    from sin3dm_lite.auto.fit_policy import WALLS_AGREE, as_fitted, choose_turn, wall_directions
 
     from .conftest import textured
 
@@ -501,6 +501,9 @@ def test_walls_across_the_axes_are_measured_and_a_round_shape_is_not_turned(degr
         found, agree = wall_directions(turned)
         assert found == pytest.approx(-degrees, abs=1e-6) and agree > 0.99
         assert choose_turn(turned, None, get_preset("quick"), said.append) == pytest.approx(-degrees, abs=0.01)
+        # the time estimate measures the box the fit grids: the turned one's, not the box around it as it lies
+        fitted = sorted(fit_default.proportions(as_fitted(turned)))  # along x and z, or z and x
+        assert fitted == pytest.approx(sorted(fit_default.proportions(box)), abs=1e-3)
     assert len(said) == 2 and "off the x and z axes" in said[0]
     cylinder = textured(trimesh.creation.cylinder(radius=0.4, height=1.0, sections=64)).turned_upright("z")
     assert wall_directions(cylinder)[1] < 0.1 < WALLS_AGREE

@@ -160,7 +160,7 @@ class FitRun:
         mesh = None if have_grid else resolve_mesh(source, allow_outside_paths=allow_outside_paths)
         resuming = resume and run is not None and (run / "config.json").exists()
         if preset is None and not resuming:  # the preset for this machine and shape, said first with why and how long
-            chosen = default_preset(self.dev, mesh, timed=self.progress)
+            chosen = default_preset(self.dev, mesh, self.progress, *frame)
             for line in chosen.lines():
                 self.say(line)
             preset = chosen.name

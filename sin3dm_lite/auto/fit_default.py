@@ -202,10 +202,13 @@ def for_shape(name: str, mesh) -> tuple[str, str, float | None]:
     return name, f" and this shape ({share:.0%} of it in thin parts: its 64-voxel grid holds it)", share
 
 
-def default_preset(device=None, mesh=None, timed: bool = True) -> DefaultPreset:
+def default_preset(device=None, mesh=None, timed: bool = True, up=None, turn=None) -> DefaultPreset:
     """The preset a fit of ``mesh`` (None: not measured) without one takes on ``device``, and (``timed``) its estimated
-    time (:func:`estimate_fit`)."""
+    time (:func:`estimate_fit`), measured in the frame the fit will turn it to (``up``, ``turn``: :func:`as_fitted`)."""
     from .calibration import calibrates
+    from .fit_policy import as_fitted
+
+    mesh = as_fitted(mesh, up, turn) if mesh is not None else None
 
     name, why = choose_preset(device)
     name, shape, share = for_shape(name, mesh)

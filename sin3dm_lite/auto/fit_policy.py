@@ -182,11 +182,24 @@ def choose_turn(mesh: TexturedMesh, turn: float | None, preset, say) -> float:
     triplane varies a shape along its three axes, and a wall across them is smeared over both planes."""
     if turn is not None or (isinstance(preset, Config) and preset.grid.turn):
         return float(preset.grid.turn if turn is None else turn)
-    degrees, agree = wall_directions(mesh)
-    if agree < WALLS_AGREE or abs(degrees) < LEAST_TURN:
+    degrees = wall_turn(mesh)
+    if not degrees:
         return 0.0
     say(
         f"[fit] the walls of '{mesh.name}' lie {abs(degrees):.0f}° off the x and z axes: turned along them, for a "
         "triplane varies a shape along its axes; its samples are turned back (turn=0 keeps it as it lies)"
     )
-    return round(degrees, 2)
+    return degrees
+
+
+def wall_turn(mesh: TexturedMesh) -> float:
+    """The turn :func:`choose_turn` makes unasked: the walls' (:func:`wall_directions`) where they agree, else 0."""
+    degrees, agree = wall_directions(mesh)
+    return round(degrees, 2) if agree >= WALLS_AGREE and abs(degrees) >= LEAST_TURN else 0.0
+
+
+def as_fitted(mesh: TexturedMesh, up: str | None = None, turn: float | None = None) -> TexturedMesh:
+    """``mesh`` in the frame a fit with ``up`` and ``turn`` grids it in (None: the fit's own choice): what the
+    estimates made before the fit measure."""
+    upright = mesh.turned_upright(up or "y")
+    return upright.turned_about_y(wall_turn(upright) if turn is None else turn)

@@ -97,7 +97,7 @@ def cmd_fit(a) -> None:
     mesh = input_mesh(a) if needs_mesh else None
     chosen = None
     if not (a.preset or a.resume):  # the default for this machine and shape, said first: which, why, how long
-        chosen = default_preset(a.device, mesh)
+        chosen = default_preset(a.device, mesh, up=a.up, turn=a.turn)
         print("\n".join(chosen.lines()), flush=True)
     name = a.preset or (chosen.name if chosen else None)  # None: the run's own (Sin3DM.fit)
     budget = None  # kept again once the autoencoder has trained
@@ -157,11 +157,12 @@ def time_budget(a, mesh, name: str, chosen, changes: dict, started: float):
     said before the fit starts, and the :class:`~fit_default.Budget` that the fit keeps to again after its
     autoencoder. The default's estimate is used as it is; a named preset or ``--set`` is timed here."""
     from ..auto.fit_default import Budget, estimate_fit, one_colour, proportions, within_minutes
+    from ..auto.fit_policy import as_fitted
     from ..presets import get_preset
 
     cfg = get_preset(name).updated(**changes) if changes else get_preset(name)
     seconds = chosen.seconds if chosen is not None and not changes else None
-    seconds = seconds or estimate_fit(cfg, a.device, proportions(mesh), one_colour(mesh))
+    seconds = seconds or estimate_fit(cfg, a.device, proportions(as_fitted(mesh, a.up, a.turn)), one_colour(mesh))
     budget, line = within_minutes(cfg, seconds, a.minutes)
     print(line, flush=True)
     return budget, Budget.within(cfg, seconds, a.minutes, started)
