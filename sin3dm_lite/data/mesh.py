@@ -73,7 +73,7 @@ class Normalization:
 
     center: np.ndarray  # (3,), in the turned frame
     scale: float
-    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3, 3), orthonormal with determinant +1
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3), repr=False)  # (3, 3), a turn (determinant +1)
 
     def to_normalized(self, points: np.ndarray) -> np.ndarray:
         return (np.asarray(points, dtype=np.float64) @ self.rotation.T - self.center) * self.scale
