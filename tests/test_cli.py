@@ -371,6 +371,8 @@ def test_a_mesh_without_colour_fits_its_geometry_only_and_its_samples_keep_the_g
     )
     assert code == 0
     assert "[fit] 'box' has one colour (0.70, 0.70, 0.70; a mesh without colour gets this grey)" in out
+    # an STL does not say its up axis: the fit says how to turn it, once
+    assert out.count("[fit] STL files do not say which way is up") == 1 and "--up z" in out
     assert "one colour, kept" in out and "colour PSNR" not in out
     model = Sin3DM.load(tmp_path / "r")
     # the last line names what the autoencoder trained in, as the report records it
@@ -416,6 +418,7 @@ def test_a_z_up_mesh_fitted_with_up_z_stands_upright_and_is_judged_against_its_f
         capsys, "fit", str(mesh), "--preset", "tiny", "--up", "z", "--out", str(run_dir), "--set", *settings
     )
     assert code == 0 and "[fit] 'tower' turned Z-up to Y-up: its samples are written Y-up" in out
+    assert "which way is up" not in out  # told, so not asked
     assert json.loads((run_dir / "config.json").read_text())["grid"]["up"] == "z"
     model = Sin3DM.load(run_dir)
     size = np.ptp(model.to_mesh(model.input_sample(), 0).vertices, axis=0)

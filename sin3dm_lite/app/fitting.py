@@ -17,7 +17,15 @@ import numpy as np
 
 from ..auto.calibration import calibrates, judged_at
 from ..auto.fit_default import default_preset
-from ..auto.fit_policy import NARROWER_CALIBRATION, choose_pbr, choose_turn, g_div_at_one, narrower_field, narrower_kept
+from ..auto.fit_policy import (
+    NARROWER_CALIBRATION,
+    choose_pbr,
+    choose_turn,
+    g_div_at_one,
+    narrower_field,
+    narrower_kept,
+    up_hint,
+)
 from ..auto.review import review_fit
 from ..data.config import Config, check_setting
 from ..data.grid import ShapeGrid, load_grid, mesh_to_grid, save_grid
@@ -168,6 +176,8 @@ class FitRun:
             pbr = choose_pbr(mesh, pbr, preset, self.say)
             base = preset if isinstance(preset, Config) else get_preset(preset)
             up = base.grid.up if frame[0] is None else frame[0]
+            if frame[0] is None and up == "y" and (hint := up_hint(source)):
+                self.say(hint)
             turn = choose_turn(mesh.turned_upright(up), frame[1], base, self.say)
             changes = {"autoencoder.pbr": pbr, "grid.up": up, "grid.turn": turn}
             if any(base.settings()[k] != v for k, v in changes.items()):

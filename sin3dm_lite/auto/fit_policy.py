@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -187,9 +188,20 @@ def choose_turn(mesh: TexturedMesh, turn: float | None, preset, say) -> float:
         return 0.0
     say(
         f"[fit] the walls of '{mesh.name}' lie {abs(degrees):.0f}° off the x and z axes: turned along them, for a "
-        "triplane varies a shape along its axes; its samples are turned back (turn=0 keeps it as it lies)"
+        "triplane varies a shape along its axes; its samples are turned back (--turn 0, Python turn=0: as it lies)"
     )
     return degrees
+
+
+def up_hint(source) -> str | None:
+    """A line for a mesh file whose format says nothing of its up axis (STL, PLY, OFF: often Z-up, as 3D printing and
+    CAD make them), fitted without one; None for OBJ and glTF (Y-up) and meshes given in Python."""
+    if not isinstance(source, (str, Path)) or Path(source).suffix.lower() not in (".stl", ".ply", ".off"):
+        return None
+    return (
+        f"[fit] {Path(source).suffix[1:].upper()} files do not say which way is up (3D printing and CAD make them Z-up): "
+        "if the pictures show it on its side, fit again with --up z (Python up='z')"
+    )
 
 
 def wall_turn(mesh: TexturedMesh) -> float:
