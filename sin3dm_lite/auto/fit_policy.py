@@ -1,6 +1,7 @@
 """What a fit says about its input and settings, beyond the paper: which variant to fit (:func:`choose_pbr`), a turn
-that lines the shape's walls up with the triplane's axes (:func:`choose_turn`), a reconstruction too poor for useful samples (:func:`warn_if_poor`), samples from pure noise that copy the input: a
-second denoiser with a narrower field (:func:`narrower_field`), else a warning (:func:`copies_warning`)."""
+that lines the shape's walls up with the triplane's axes (:func:`choose_turn`), a reconstruction too poor for useful
+samples (:func:`warn_if_poor`), samples from pure noise that copy the input: a second denoiser with a narrower field
+(:func:`narrower_field`), else a warning (:func:`copies_warning`)."""
 
 from __future__ import annotations
 
@@ -16,11 +17,11 @@ from ..evaluate.calibration_record import VARIED_G_DIV
 from ..presets import PRESETS
 
 MIN_IOU = 0.9  # fit warns below this reconstruction occupancy IoU ...
+MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 %
 #: walls that agree on two directions at right angles more than this (:func:`wall_directions`: 0 round, 1 a box) ...
 WALLS_AGREE = 0.5
 #: ... and lie at least this many degrees off x and z are turned along them
 LEAST_TURN = 2.0
-MIN_PSNR = 18.0  # ... or this colour PSNR (dB): an RMS colour error above 12.6 %
 
 
 def refit_advice(cfg: Config, setting: str, value, also: str = "") -> str:
@@ -199,8 +200,8 @@ def up_hint(source) -> str | None:
     if not isinstance(source, (str, Path)) or Path(source).suffix.lower() not in (".stl", ".ply", ".off"):
         return None
     return (
-        f"[fit] {Path(source).suffix[1:].upper()} files do not say which way is up (3D printing and CAD make them Z-up): "
-        "if the pictures show it on its side, fit again with --up z (Python up='z')"
+        f"[fit] {Path(source).suffix[1:].upper()} files do not say which way is up (3D printing and CAD make them "
+        "Z-up): if the pictures show it on its side, fit again with --up z (Python up='z')"
     )
 
 

@@ -67,9 +67,9 @@ class Material:
 
 @dataclass
 class Normalization:
-    """Similarity transform ``normalized = (original · rotationᵀ − center) · scale``: a turn about the up axis (the
-    identity unless a fit turned the shape's walls along x and z: :meth:`TexturedMesh.turned_about_y`), then the
-    paper's centring and scaling; :meth:`to_original` undoes all three."""
+    """Similarity transform ``normalized = (original · rotationᵀ − center) · scale``: a turn about the up axis
+    (the identity unless a fit turned the shape's walls along x and z: :meth:`TexturedMesh.turned_about_y`), then
+    the paper's centring and scaling; :meth:`to_original` undoes all three."""
 
     center: np.ndarray  # (3,), in the turned frame
     scale: float
