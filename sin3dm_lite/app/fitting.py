@@ -19,6 +19,7 @@ from ..auto.calibration import calibrates, judged_at
 from ..auto.fit_default import default_preset
 from ..auto.fit_policy import (
     NARROWER_CALIBRATION,
+    as_fitted,
     choose_pbr,
     choose_turn,
     g_div_at_one,
@@ -105,7 +106,7 @@ def grid_for(mesh: TexturedMesh, cfg: Config, progress: bool) -> ShapeGrid:
     of ``cfg.grid``."""
     g = cfg.grid
     return mesh_to_grid(
-        mesh.turned_upright(g.up).turned_about_y(g.turn),
+        as_fitted(mesh, g.up, g.turn),
         g.resolution,
         threshold_voxels=g.threshold_voxels,
         n_surface_points=g.n_surface_points,
