@@ -628,12 +628,13 @@ def test_calibration_scores_the_occupancy_the_metrics_score(calibrated):
         fp32 = decode_grid(model.decoder, samples.triplane[i : i + 1], samples.aabb, res) < 0
         assert np.mean(a != fp32) < 0.005
     # the paper's voxels (calibrate --resolution N), no mesh: the voxels of the samples' meshes made at that
-    # resolution, a voxel solid where any of 2³ points is, within a percent; no fewer than the centres' alone (a
-    # micro fit's slivers a voxel thin can hold a centre between the 2³ points, so on some CPUs only as many)
+    # resolution, a voxel solid where any of 2³ points is, within a percent, and nearer them than the centres' signs
+    # (how many more or fewer voxels than the centres' depends on the shape: a micro fit's slivers a voxel thin can
+    # hold a centre between the 2³ points)
     meshes = model.occupancy(samples, res, mesh_resolution=res, supersample=2)
-    for paper, mesh, c in zip(C.sample_occupancy(model, 1.0, 2, 3, res, 2), meshes, slow):
+    for paper, mesh, centres in zip(C.sample_occupancy(model, 1.0, 2, 3, res, 2), meshes, fast):
         assert paper.shape == mesh.shape and np.mean(paper != mesh) < 0.01 and mesh.any()
-        assert paper.sum() >= c.sum() and not np.array_equal(paper, c)
+        assert np.sum(paper != mesh) < np.sum(centres != mesh)
 
 
 def test_a_bf16_decoder_is_judged_with_its_plane_convolutions_in_fp32(calibrated, monkeypatch):
